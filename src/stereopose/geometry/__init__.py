@@ -1,0 +1,1 @@
+"""Pure geometry: projection and (un)distortion, epipolar geometry, triangulation."""

@@ -1,0 +1,93 @@
+"""Projection with OpenCV lens distortion, and undistortion of keypoints.
+
+Frames: world (metres, z up) -> camera (OpenCV: x right, y down, z forward) -> normalised image
+coordinates (x/z, y/z) -> distorted normalised -> pixels.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from stereopose.types import Camera
+
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+
+
+def _check_last(a: np.ndarray, n: int, what: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 0 or a.shape[-1] != n:
+        raise ValueError(f"{what} must have shape (..., {n}), got {a.shape}")
+    return a
+
+
+def world_to_camera(points_world: np.ndarray, camera: Camera) -> np.ndarray:
+    """(..., 3) world points (m) -> (..., 3) points in the camera frame (m)."""
+    X = _check_last(points_world, 3, "points_world")
+    return X @ camera.R.T + camera.translation
+
+
+def distort(xy: np.ndarray, distortions: np.ndarray) -> np.ndarray:
+    """Apply OpenCV distortion to (..., 2) ideal normalised coordinates.
+
+    distortions: (4,) k1 k2 p1 p2 or (5,) with k3. Returns observed normalised coordinates.
+    """
+    xy = _check_last(xy, 2, "xy")
+    d = np.asarray(distortions, dtype=np.float64)
+    k1, k2, p1, p2 = d[:4]
+    k3 = d[4] if d.shape[0] > 4 else 0.0
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def normalized_to_pixels(xy: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(..., 2) normalised coordinates -> pixels with intrinsics K (3, 3)."""
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=-1)
+
+
+def project(points_world: np.ndarray, camera: Camera) -> np.ndarray:
+    """Project (..., 3) world points (m) to (..., 2) distorted pixels of `camera`.
+
+    Points at or behind the camera (z <= 1 mm) give NaN, as do NaN inputs.
+    """
+    Xc = world_to_camera(points_world, camera)
+    z = Xc[..., 2:3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xy = np.where(z > 1e-3, Xc[..., :2] / z, np.nan)
+    return normalized_to_pixels(distort(xy, camera.distortions), camera.matrix)
+
+
+def project_normalized(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Project (..., 3) world points with (..., 3, 4) [R | t] to ideal normalised (..., 2).
+
+    Broadcasts: points (G, J, 1, 3) with P (C, 3, 4) give (G, J, C, 2). Points behind the camera
+    give NaN.
+    """
+    Xc = np.einsum("...ij,...j->...i", P[..., :3], points_world) + P[..., 3]
+    z = Xc[..., 2:3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(z > 1e-3, Xc[..., :2] / z, np.nan)
+
+
+def undistort_normalized(pixels: np.ndarray, camera: Camera) -> np.ndarray:
+    """(..., 2) distorted pixels -> (..., 2) ideal normalised coordinates (NaN stays NaN)."""
+    uv = _check_last(pixels, 2, "pixels")
+    if uv.size == 0:
+        return uv.copy()
+    out = cv2.undistortPoints(
+        np.ascontiguousarray(uv.reshape(-1, 1, 2)),
+        camera.matrix,
+        camera.distortions,
+        criteria=_UNDISTORT_CRITERIA,
+    )
+    return out.reshape(uv.shape)
+
+
+def undistort_pixels(pixels: np.ndarray, camera: Camera) -> np.ndarray:
+    """(..., 2) distorted pixels -> (..., 2) pixels of the ideal (undistorted) pinhole image."""
+    return normalized_to_pixels(undistort_normalized(pixels, camera), camera.matrix)

@@ -1,0 +1,281 @@
+"""Validated, frozen data passed between stages.
+
+Array conventions: pixels of the original (distorted) image for 2D, metres in the world frame
+(z up, floor at z = 0) for 3D, a missing joint is NaN with confidence 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from stereopose.errors import CalibrationError, KeypointsError
+from stereopose.skeleton import NUM_JOINTS
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+def _as_float_array(value: object, shape: tuple[int, ...], what: str, owner: str) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{owner}: {what} must be numbers, got {value!r}") from None
+    if a.shape != shape:
+        raise CalibrationError(f"{owner}: {what} must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise CalibrationError(f"{owner}: {what} contains NaN or infinite values: {a.tolist()}")
+    return a
+
+
+def rotation_matrix(rvec: np.ndarray) -> np.ndarray:
+    """Rodrigues vector (3,) -> rotation matrix (3, 3)."""
+    return cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+
+
+def check_rotation(R: np.ndarray, owner: str, tol: float = 1e-6) -> np.ndarray:
+    """Return R (3, 3) if it is a proper rotation (orthonormal, det +1), else raise."""
+    err = float(np.abs(R @ R.T - np.eye(3)).max())
+    if err > tol or np.linalg.det(R) <= 0:
+        raise CalibrationError(
+            f"{owner}: rotation is not a rotation matrix (|R R^T - I| = {err:.2e}, "
+            f"det = {np.linalg.det(R):.4f}; expected orthonormal with det = +1)"
+        )
+    return R
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated pinhole camera with OpenCV lens distortion.
+
+    matrix: (3, 3) intrinsics K in pixels (fx, fy > 0, skew 0 expected).
+    distortions: (4,) k1 k2 p1 p2 or (5,) k1 k2 p1 p2 k3, OpenCV order.
+    rotation: (3,) Rodrigues vector, or (3, 3) matrix, world -> camera.
+    translation: (3,) metres, world -> camera: X_cam = R X_world + t.
+    size: (width, height) in pixels.
+    """
+
+    name: str
+    size: tuple[float, float]
+    matrix: np.ndarray
+    distortions: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    fisheye: bool = False
+    R: np.ndarray = field(init=False, repr=False)
+    P: np.ndarray = field(init=False, repr=False)  # (3, 4) [R | t] in normalised coordinates
+    center: np.ndarray = field(init=False, repr=False)  # (3,) camera centre in the world, metres
+
+    def __post_init__(self) -> None:
+        owner = f"camera {self.name!r}"
+        if not isinstance(self.name, str) or not self.name:
+            raise CalibrationError(f"{owner}: name must be a non-empty string")
+        size = _as_float_array(self.size, (2,), "size [width, height]", owner)
+        if np.any(size <= 0):
+            raise CalibrationError(f"{owner}: size must be positive, got {size.tolist()}")
+        K = _as_float_array(self.matrix, (3, 3), "matrix", owner)
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise CalibrationError(
+                f"{owner}: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}"
+            )
+        if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
+            raise CalibrationError(f"{owner}: matrix must be [[fx, g, cx], [0, fy, cy], [0, 0, 1]]")
+        dist = np.array(self.distortions, dtype=np.float64).ravel()
+        if dist.shape not in ((4,), (5,)):
+            raise CalibrationError(
+                f"{owner}: distortions must be [k1, k2, p1, p2] or [k1, k2, p1, p2, k3], "
+                f"got {dist.shape[0]} values"
+            )
+        dist = _as_float_array(dist, dist.shape, "distortions", owner)
+        rot = np.array(self.rotation, dtype=np.float64)
+        if rot.shape == (3, 3):
+            R = check_rotation(_as_float_array(rot, (3, 3), "rotation", owner), owner)
+            rvec = cv2.Rodrigues(R)[0].ravel()
+        else:
+            rvec = _as_float_array(rot.ravel() if rot.size == 3 else rot, (3,), "rotation", owner)
+            R = rotation_matrix(rvec)
+        t = _as_float_array(self.translation, (3,), "translation", owner)
+        object.__setattr__(self, "size", (float(size[0]), float(size[1])))
+        object.__setattr__(self, "matrix", _frozen(K))
+        object.__setattr__(self, "distortions", _frozen(dist))
+        object.__setattr__(self, "rotation", _frozen(rvec))
+        object.__setattr__(self, "translation", _frozen(t))
+        object.__setattr__(self, "fisheye", bool(self.fisheye))
+        object.__setattr__(self, "R", _frozen(R))
+        object.__setattr__(self, "P", _frozen(np.hstack([R, t[:, None]])))
+        object.__setattr__(self, "center", _frozen(-R.T @ t))
+
+    @property
+    def focal(self) -> float:
+        """Mean focal length in pixels; converts normalised distances to pixels."""
+        return float(0.5 * (self.matrix[0, 0] + self.matrix[1, 1]))
+
+    @property
+    def projection(self) -> np.ndarray:
+        """H = K [R | t], (3, 4), maps world points to undistorted pixels."""
+        return self.matrix @ self.P
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """Several cameras in one world frame; names are unique."""
+
+    cameras: tuple[Camera, ...]
+
+    def __post_init__(self) -> None:
+        cams = tuple(self.cameras)
+        if not cams:
+            raise CalibrationError("a rig needs at least one camera")
+        names = [c.name for c in cams]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise CalibrationError(f"camera names must be unique; repeated: {', '.join(dup)}")
+        object.__setattr__(self, "cameras", cams)
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self.cameras)
+
+    def __getitem__(self, key: int | str) -> Camera:
+        if isinstance(key, str):
+            for c in self.cameras:
+                if c.name == key:
+                    return c
+            raise KeyError(f"no camera named {key!r}; cameras: {', '.join(self.names)}")
+        return self.cameras[key]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.cameras)
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def subset(self, names: Sequence[str]) -> Rig:
+        return Rig(tuple(self[n] for n in names))
+
+
+@dataclass(frozen=True, eq=False)
+class People2D:
+    """One camera's detected people at one frame.
+
+    keypoints: (P, 17, 3) as (x, y, conf), pixels of the original image; a missing joint has
+    x = y = NaN and conf = 0 (non-finite values and conf <= 0 are normalised to that).
+    boxes: optional (P, 4) x1 y1 x2 y2 pixels; scores: optional (P,) detection scores.
+    """
+
+    camera: str
+    frame: int
+    keypoints: np.ndarray
+    boxes: np.ndarray | None = None
+    scores: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        kp = np.array(self.keypoints, dtype=np.float64)
+        if kp.size == 0:
+            kp = kp.reshape(0, NUM_JOINTS, 3)
+        if kp.ndim != 3 or kp.shape[1:] != (NUM_JOINTS, 3):
+            raise KeypointsError(
+                f"camera {self.camera!r} frame {self.frame}: keypoints must have shape "
+                f"(P, {NUM_JOINTS}, 3), got {kp.shape}"
+            )
+        bad = ~np.isfinite(kp).all(axis=-1) | (kp[..., 2] <= 0)
+        kp[bad] = (np.nan, np.nan, 0.0)
+        np.clip(kp[..., 2], 0.0, 1.0, out=kp[..., 2])
+        object.__setattr__(self, "keypoints", _frozen(kp))
+        object.__setattr__(self, "frame", int(self.frame))
+        P = kp.shape[0]
+        for name, shape in (("boxes", (P, 4)), ("scores", (P,))):
+            v = getattr(self, name)
+            if v is not None:
+                a = np.array(v, dtype=np.float64).reshape(-1, *shape[1:]) if P else np.zeros(shape)
+                if a.shape != shape:
+                    raise KeypointsError(
+                        f"camera {self.camera!r} frame {self.frame}: {name} must have shape "
+                        f"{shape}, got {a.shape}"
+                    )
+                object.__setattr__(self, name, _frozen(a))
+
+    def __len__(self) -> int:
+        return int(self.keypoints.shape[0])
+
+    @classmethod
+    def empty(cls, camera: str, frame: int) -> People2D:
+        return cls(camera, frame, np.zeros((0, NUM_JOINTS, 3)))
+
+
+@dataclass(frozen=True, eq=False)
+class People3D:
+    """The people reconstructed at one frame.
+
+    joints: (P, 17, 3) metres, world frame, NaN where not reconstructed.
+    conf: (P, 17) in [0, 1], 0 where not reconstructed.
+    ids: (P,) integer ids (per-frame indices until tracking assigns persistent ones).
+    reprojection_px: (P, 17) mean reprojection error over the views used, pixels (NaN if none).
+    views: (P, 17) number of camera views each joint was triangulated from.
+    detections: (P, C) index of the detection used in each rig camera, -1 for none.
+    """
+
+    frame: int
+    joints: np.ndarray
+    conf: np.ndarray
+    ids: np.ndarray
+    reprojection_px: np.ndarray
+    views: np.ndarray
+    detections: np.ndarray
+
+    def __post_init__(self) -> None:
+        J = np.asarray(self.joints, dtype=np.float64)
+        if J.size == 0:
+            J = J.reshape(0, NUM_JOINTS, 3)
+        if J.ndim != 3 or J.shape[1:] != (NUM_JOINTS, 3):
+            raise ValueError(f"joints must have shape (P, {NUM_JOINTS}, 3), got {J.shape}")
+        P = J.shape[0]
+        for name, shape in (
+            ("conf", (P, NUM_JOINTS)),
+            ("ids", (P,)),
+            ("reprojection_px", (P, NUM_JOINTS)),
+            ("views", (P, NUM_JOINTS)),
+        ):
+            a = np.asarray(getattr(self, name)).reshape(shape) if P == 0 else getattr(self, name)
+            if np.shape(a) != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {np.shape(a)}")
+        det = np.asarray(self.detections, dtype=np.int64)
+        if det.ndim != 2 or det.shape[0] != P:
+            raise ValueError(f"detections must have shape ({P}, C), got {det.shape}")
+        object.__setattr__(self, "joints", J)
+        object.__setattr__(self, "frame", int(self.frame))
+        object.__setattr__(self, "detections", det)
+        for name, dtype in (("conf", np.float64), ("ids", np.int64), ("views", np.int64)):
+            arr = np.asarray(getattr(self, name), dtype=dtype).reshape(
+                (P,) if name == "ids" else (P, NUM_JOINTS)
+            )
+            object.__setattr__(self, name, arr)
+        object.__setattr__(
+            self,
+            "reprojection_px",
+            np.asarray(self.reprojection_px, dtype=np.float64).reshape(P, NUM_JOINTS),
+        )
+
+    def __len__(self) -> int:
+        return int(self.joints.shape[0])
+
+    @classmethod
+    def empty(cls, frame: int, num_cameras: int) -> People3D:
+        z = np.zeros((0, NUM_JOINTS))
+        return cls(
+            frame,
+            np.zeros((0, NUM_JOINTS, 3)),
+            z,
+            np.zeros(0, dtype=np.int64),
+            z,
+            z.astype(np.int64),
+            np.zeros((0, num_cameras), dtype=np.int64),
+        )
