@@ -48,7 +48,16 @@ LIMBS: tuple[tuple[int, int], ...] = (
 PCP_LIMBS: tuple[tuple[int, int], ...] = LIMBS[:10]
 
 # (left, right) joint pairs; SWAP[i] is the index of the mirror joint of i.
-LR_PAIRS: tuple[tuple[int, int], ...] = ((1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14), (15, 16))
+LR_PAIRS: tuple[tuple[int, int], ...] = (
+    (1, 2),
+    (3, 4),
+    (5, 6),
+    (7, 8),
+    (9, 10),
+    (11, 12),
+    (13, 14),
+    (15, 16),
+)
 SWAP: np.ndarray = np.arange(NUM_JOINTS)
 for _l, _r in LR_PAIRS:
     SWAP[_l], SWAP[_r] = _r, _l

@@ -21,6 +21,11 @@ def _check_last(a: np.ndarray, n: int, what: str) -> np.ndarray:
     return a
 
 
+def homogeneous(x: np.ndarray) -> np.ndarray:
+    """(..., n) -> (..., n + 1) with a trailing 1."""
+    return np.concatenate([x, np.ones((*x.shape[:-1], 1))], axis=-1)
+
+
 def world_to_camera(points_world: np.ndarray, camera: Camera) -> np.ndarray:
     """(..., 3) world points (m) -> (..., 3) points in the camera frame (m)."""
     X = _check_last(points_world, 3, "points_world")

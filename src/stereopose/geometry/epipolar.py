@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stereopose.geometry.camera import homogeneous
 from stereopose.types import Camera, Rig
 
 
@@ -54,8 +55,7 @@ def symmetric_epipolar_distance(xa: np.ndarray, xb: np.ndarray, E: np.ndarray) -
     for a fundamental matrix), broadcast against each other; E: (3, 3) with xb^T E xa = 0.
     Returns (...,) the mean of the distance of xb to E xa and of xa to E^T xb.
     """
-    ha = np.concatenate([xa, np.ones(xa.shape[:-1] + (1,))], axis=-1)
-    hb = np.concatenate([xb, np.ones(xb.shape[:-1] + (1,))], axis=-1)
+    ha, hb = homogeneous(xa), homogeneous(xb)
     lb = ha @ E.T
     la = hb @ E
     return 0.5 * (point_line_distance(xb, lb) + point_line_distance(xa, la))

@@ -1,0 +1,32 @@
+# stereopose: `make demo` runs the main job, `make test` runs the checks; both set up .venv first.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install demo test lint bench clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests
+	$(BIN)/python -m stereopose.io.pose2sim_data
+	touch $(STAMP)
+
+demo: install
+	$(BIN)/stereopose demo
+
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+test: lint
+	$(BIN)/pytest
+
+bench: install
+	$(BIN)/python benchmarks/reconstruction.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -1,0 +1,165 @@
+"""The one typed configuration schema; every default lives here.
+
+A TOML file overrides any subset of it; unknown tables or keys are rejected with an error that
+names the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin, get_type_hints
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from stereopose.errors import ConfigError
+
+Mode = Literal["pair", "weighted", "robust"]
+MODES: tuple[str, ...] = get_args(Mode)
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    """Cross-camera grouping of 2D people.
+
+    Costs are epipolar distances divided by the person's size in the image (dimensionless), so
+    near and far people are treated alike.
+    """
+
+    min_conf: float = 0.3  # joints below this confidence do not vote
+    min_common_joints: int = 4  # a camera pair needs this many joints confident in both
+    max_cost: float = 0.12  # mean normalised epipolar distance accepted for a match
+    reassign_leftovers: bool = True  # give unmatched detections to a reconstructed person
+
+
+@dataclass(frozen=True)
+class TriangulationConfig:
+    """Triangulation of one person's joints from the views of its group."""
+
+    mode: Mode = "robust"
+    min_conf: float = 0.2  # joints below this confidence are not used
+    pair_a: float = 0.01  # `pair` mode: weight per pixel of mean epipolar distance
+    pair_b: float = 1.0  # `pair` mode: weight of the mean confidences of the two views
+    inlier_px: float = 10.0  # `robust`: reprojection error always accepted, pixels
+    inlier_rel: float = 0.06  # `robust`: ... or this fraction of the person's height in the view
+    fix_swaps: bool = True  # `robust`: correct left/right labels swapped by the detector
+
+
+@dataclass(frozen=True)
+class PlausibilityConfig:
+    """Rejection of reconstructed people that cannot be real."""
+
+    min_joints: int = 6  # fewer reconstructed joints: not a person
+    floor_tolerance_m: float = 0.4  # lowest joint may be this far below the floor
+    max_height_m: float = 3.0  # vertical extent of a person's joints
+    max_limb_m: float = 1.0  # a joint making a PCP limb longer than this is dropped
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
+
+
+@dataclass(frozen=True)
+class Config:
+    fps: float = 25.0  # time base when the input has none
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+
+
+def _check_value(value: Any, tp: Any, where: str) -> Any:
+    origin = get_origin(tp)
+    if origin is Literal:
+        if value not in get_args(tp):
+            raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got {value!r}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for alt in get_args(tp):
+            try:
+                return _check_value(value, alt, where)
+            except ConfigError as e:
+                errors.append(str(e))
+        raise ConfigError(errors[-1])
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    if tp is type(None):
+        if value is not None:
+            raise ConfigError(f"{where}: expected nothing, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+    """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a table, got {data!r}")
+    hints = get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}"
+        )
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        tp = hints[key]
+        sub = f"{where}.{key}" if where else key
+        if dataclasses.is_dataclass(tp):
+            kwargs[key] = from_dict(tp, value, sub)
+        else:
+            kwargs[key] = _check_value(value, tp, sub)
+    return cls(**kwargs)
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Defaults, overridden by the TOML file at `path` when given."""
+    if path is None:
+        return Config()
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read configuration: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    try:
+        return from_dict(Config, data, "")
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}".replace(": : ", ": ")) from None
+
+
+def with_overrides(config: Config, **sections: dict[str, Any]) -> Config:
+    """A copy of `config` with fields of its reconstruction sections replaced.
+
+    Example: with_overrides(cfg, triangulation={"mode": "pair"}).
+    """
+    rec = config.reconstruction
+    for name, values in sections.items():
+        current = getattr(rec, name)
+        rec = dataclasses.replace(rec, **{name: dataclasses.replace(current, **values)})
+    return dataclasses.replace(config, reconstruction=rec)

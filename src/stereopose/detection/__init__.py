@@ -1,0 +1,1 @@
+"""Person detection: detector backends and readers/writers of 2D keypoint files."""

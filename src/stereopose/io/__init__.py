@@ -1,0 +1,1 @@
+"""Input and output: video/stream readers, result writers, demo data."""

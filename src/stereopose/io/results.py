@@ -1,0 +1,118 @@
+"""3D poses as JSON lines (the contract of ARCHITECTURE.md), written frame by frame.
+
+One line per frame, frames with nobody included:
+{"frame": 42, "t": 1.68, "people": [{"id": 3, "joints": [[x, y, z] or null, ...17],
+ "conf": [...17], "position": [x, y], "views": [...17], "reprojection_px": 2.1}]}
+Coordinates in metres, world frame; `position` is the mid-hip point on the floor.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from stereopose.errors import StereoposeError
+from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP
+from stereopose.types import People3D
+
+
+def floor_position(joints: np.ndarray) -> np.ndarray:
+    """(P, 17, 3) joints -> (P, 2) floor point: mid-hip x-y, or the mean of the joints seen."""
+    hips = joints[:, [LEFT_HIP, RIGHT_HIP], :2]
+    with np.errstate(invalid="ignore"):
+        mid = hips.mean(axis=1)
+    out = np.full((joints.shape[0], 2), np.nan)
+    ok = np.isfinite(mid).all(-1)
+    out[ok] = mid[ok]
+    rest = ~ok & np.isfinite(joints[..., :2]).all(-1).any(-1)
+    if rest.any():
+        out[rest] = np.nanmean(joints[rest, :, :2], axis=1)
+    return out
+
+
+def _round(x: float, nd: int) -> float | None:
+    return None if not math.isfinite(x) else round(float(x), nd)
+
+
+def frame_record(people: People3D, fps: float) -> dict:
+    """The JSON object of one frame."""
+    pos = floor_position(people.joints)
+    out = []
+    for p in range(len(people)):
+        J = people.joints[p]
+        ok = np.isfinite(J).all(-1)
+        out.append(
+            {
+                "id": int(people.ids[p]),
+                "joints": [
+                    [round(float(v), 4) for v in J[j]] if ok[j] else None for j in range(NUM_JOINTS)
+                ],
+                "conf": [round(float(c), 3) for c in people.conf[p]],
+                "position": [_round(pos[p, 0], 4), _round(pos[p, 1], 4)]
+                if np.isfinite(pos[p]).all()
+                else None,
+                "views": [int(v) for v in people.views[p]],
+                "reprojection_px": _round(float(np.nanmean(people.reprojection_px[p]))
+                                          if np.isfinite(people.reprojection_px[p]).any()
+                                          else math.nan, 2),
+            }
+        )  # fmt: skip
+    return {"frame": people.frame, "t": round(people.frame / fps, 6), "people": out}
+
+
+class PosesWriter:
+    """Appends one JSON line per frame and flushes it, so a crash keeps every frame written."""
+
+    def __init__(self, path: str | Path, fps: float) -> None:
+        self.path = Path(path)
+        self.fps = float(fps)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._f: IO[str] = self.path.open("w", encoding="utf-8")
+        except OSError as e:
+            raise StereoposeError(f"{self.path}: cannot write 3D poses: {e.strerror}") from None
+        self.frames = 0
+
+    def write(self, people: People3D) -> None:
+        self._f.write(json.dumps(frame_record(people, self.fps), separators=(",", ":")) + "\n")
+        self._f.flush()
+        self.frames += 1
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> PosesWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_poses(path: str | Path) -> Iterator[tuple[int, float | None, list[dict]]]:
+    """Yield (frame, t, people) from a 3D poses JSONL file; people keep their JSON fields and
+    gain `joints_array` (17, 3) with NaN for null."""
+    path = Path(path)
+    try:
+        f = path.open(encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot read 3D poses: {e.strerror}") from None
+    with f:
+        for lineno, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+                frame = int(rec["frame"])
+                people = rec["people"]
+                for p in people:
+                    p["joints_array"] = np.array(
+                        [j if j is not None else [np.nan] * 3 for j in p["joints"]], dtype=float
+                    ).reshape(NUM_JOINTS, 3)
+            except (ValueError, KeyError, TypeError) as e:
+                raise StereoposeError(f"{path}:{lineno}: malformed 3D poses line: {e}") from None
+            yield frame, rec.get("t"), people

@@ -1,0 +1,178 @@
+"""One frame's 2D people of every camera -> that frame's 3D people."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from stereopose.association.affinity import Detections, epipolar_costs
+from stereopose.association.grouping import group_detections
+from stereopose.config import ReconstructionConfig
+from stereopose.geometry.camera import project_normalized
+from stereopose.geometry.epipolar import essential_matrices
+from stereopose.reconstruction.triangulate import (
+    reprojection_errors,
+    triangulate_pair,
+    triangulate_robust,
+    triangulate_weighted,
+)
+from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
+from stereopose.types import People2D, People3D, Rig
+
+_LIMB_A = np.array([a for a, _ in PCP_LIMBS])
+_LIMB_B = np.array([b for _, b in PCP_LIMBS])
+
+
+class Reconstructor:
+    """Associates and triangulates the people of one frame; one call per frame.
+
+    The rig's cameras and the options are fixed at construction; everything that depends only on
+    them (essential matrices, camera matrices) is computed once here.
+    """
+
+    def __init__(self, rig: Rig, config: ReconstructionConfig | None = None) -> None:
+        self.rig = rig
+        self.config = config or ReconstructionConfig()
+        self.P = np.stack([c.P for c in rig])
+        self.E = essential_matrices(rig)
+        self.focal = np.array([c.focal for c in rig])
+
+    def __call__(
+        self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
+    ) -> People3D:
+        """3D people of one frame.
+
+        people: per camera name (missing cameras: no frame) or a sequence in rig order.
+        """
+        if isinstance(people, Mapping):
+            people = [people.get(name) for name in self.rig.names]
+        if len(people) != len(self.rig):
+            raise ValueError(f"expected people for {len(self.rig)} cameras, got {len(people)}")
+        ac = self.config.association
+        det = Detections.from_people(self.rig, people, ac.min_conf)
+        if len(det) < 2:
+            return People3D.empty(frame, len(self.rig))
+        cost = epipolar_costs(det, self.E, ac.min_conf, ac.min_common_joints)
+        groups = group_detections(cost, det.camera, ac.max_cost)
+        if not groups:
+            return People3D.empty(frame, len(self.rig))
+        tri = self._triangulate(det, groups)
+        if ac.reassign_leftovers and self._reassign(det, groups, tri[0]):
+            tri = self._triangulate(det, groups)
+        return self._assemble(frame, det, groups, *tri)
+
+    # -- steps ---------------------------------------------------------------------------------
+
+    def _gather(self, det: Detections, groups: list[np.ndarray]):
+        G, C = len(groups), len(self.rig)
+        gi = np.concatenate([np.full(len(g), i) for i, g in enumerate(groups)])
+        di = np.concatenate(groups)
+        ci = det.camera[di]
+        xy = np.full((G, C, NUM_JOINTS, 2), np.nan)
+        conf = np.zeros((G, C, NUM_JOINTS))
+        size_px = np.full((G, C), np.nan)
+        xy[gi, ci] = det.xy[di]
+        conf[gi, ci] = det.conf[di]
+        size_px[gi, ci] = det.size_px[di]
+        # to (G, 17, C, ...) as the triangulation functions expect
+        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px
+
+    def _triangulate(self, det: Detections, groups: list[np.ndarray]):
+        tc = self.config.triangulation
+        xy, conf, size_px = self._gather(det, groups)
+        w = np.where(conf >= tc.min_conf, conf, 0.0)
+        if tc.mode == "pair":
+            X, used = triangulate_pair(
+                xy, w, conf, self.P, self.E, self.focal, tc.pair_a, tc.pair_b,
+                self.config.association.min_common_joints,
+            )  # fmt: skip
+        elif tc.mode == "weighted":
+            X, used = triangulate_weighted(xy, w, self.P)
+        else:
+            X, used, xy, w = triangulate_robust(
+                xy, w, self.P, self.focal, size_px, tc.inlier_px, tc.inlier_rel, tc.fix_swaps
+            )
+        out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
+        err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
+        return X, used, out_conf, err
+
+    def _reassign(self, det: Detections, groups: list[np.ndarray], X: np.ndarray) -> bool:
+        """Give detections left out of every group to a reconstructed person they fit."""
+        in_group = np.zeros(len(det), dtype=bool)
+        in_group[np.concatenate(groups)] = True
+        left = np.flatnonzero(~in_group)
+        if left.size == 0:
+            return False
+        ac = self.config.association
+        has = np.zeros((len(groups), len(self.rig)), dtype=bool)
+        for i, g in enumerate(groups):
+            has[i, det.camera[g]] = True
+        grown = False
+        for c in np.unique(det.camera[left]):
+            cand = left[det.camera[left] == c]
+            open_g = np.flatnonzero(~has[:, c])
+            if open_g.size == 0:
+                continue
+            proj = project_normalized(X[open_g], self.P[c])  # (g, 17, 2)
+            d = np.hypot(*np.moveaxis(det.xy[cand][:, None] - proj[None], -1, 0))  # (n, g, 17)
+            ok = (det.conf[cand] >= ac.min_conf)[:, None, :] & np.isfinite(d)
+            n_ok = ok.sum(-1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cost = np.where(ok, d, 0.0).sum(-1) / n_ok / det.size[cand][:, None]
+            cost[(n_ok < ac.min_common_joints) | ~np.isfinite(cost)] = np.inf
+            if not np.isfinite(cost).any():
+                continue
+            r, k = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
+            for ri, ki in zip(r, k, strict=True):
+                if cost[ri, ki] <= 2.0 * ac.max_cost:
+                    gi = open_g[ki]
+                    groups[gi] = np.append(groups[gi], cand[ri])
+                    has[gi, c] = True
+                    grown = True
+        return grown
+
+    def _assemble(self, frame, det, groups, X, used, conf, err) -> People3D:
+        pc = self.config.plausibility
+        G, C = len(groups), len(self.rig)
+        X = X.copy()
+        # The outer joint of an implausibly long limb is dropped.
+        limb = np.linalg.norm(X[:, _LIMB_A] - X[:, _LIMB_B], axis=-1)
+        bad = np.nan_to_num(limb) > pc.max_limb_m
+        if bad.any():
+            drop = np.zeros((G, NUM_JOINTS), dtype=bool)
+            np.logical_or.at(drop, (np.nonzero(bad)[0], _LIMB_B[np.nonzero(bad)[1]]), True)
+            X[drop] = np.nan
+        valid = np.isfinite(X).all(-1)
+        used = used & valid[..., None]
+        z = X[..., 2]
+        with np.errstate(invalid="ignore"):
+            zmin = np.nanmin(np.where(valid, z, np.inf), axis=1)
+            zmax = np.nanmax(np.where(valid, z, -np.inf), axis=1)
+        keep = (
+            (valid.sum(1) >= pc.min_joints)
+            & (zmin >= -pc.floor_tolerance_m)
+            & (zmax - zmin <= pc.max_height_m)
+        )
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            return People3D.empty(frame, C)
+        X, used, conf, valid = X[idx], used[idx], conf[idx], valid[idx]
+        err = np.where(used, err[idx], np.nan)
+        detections = np.full((idx.size, C), -1, dtype=np.int64)
+        for out_i, g in enumerate(idx):
+            detections[out_i, det.camera[groups[g]]] = det.index[groups[g]]
+        n_used = used.sum(-1)
+        with np.errstate(invalid="ignore"):
+            reproj = np.where(n_used > 0, np.nansum(err, -1) / np.maximum(n_used, 1), np.nan)
+        conf = np.where(valid, conf, 0.0)
+        return People3D(
+            frame=frame,
+            joints=X,
+            conf=conf,
+            ids=np.arange(idx.size),
+            reprojection_px=reproj,
+            views=n_used,
+            detections=detections,
+        )
