@@ -1,0 +1,119 @@
+"""Accuracy of reconstructed 3D people against a simulated scene's ground truth."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from stereopose.sim.detections import joints_in_view
+from stereopose.sim.scene import Scene
+from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
+from stereopose.types import People3D
+
+_LIMB_A = np.array([a for a, _ in PCP_LIMBS])
+_LIMB_B = np.array([b for _, b in PCP_LIMBS])
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """Scores over the evaluated frames (NaN where nothing was there to score).
+
+    mpjpe_mm: mean over matched people of their mean joint error over reconstructed joints (mm).
+    pcp: fraction of correct PCP limbs over all counted true people x 10 limbs.
+    person_recall: matched / counted true people.
+    false_people_per_frame: predictions matching no present worker, per frame.
+    joint_coverage: fraction of the joints of matched people that were reconstructed.
+    """
+
+    mpjpe_mm: float
+    pcp: float
+    person_recall: float
+    false_people_per_frame: float
+    joint_coverage: float
+    frames: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def _mean_distance(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """(P, N) mean distance over the joints present in both; inf where none are."""
+    d = np.linalg.norm(pred[:, None] - true[None], axis=-1)  # (P, N, 17)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        m = np.nanmean(d, axis=-1)
+    return np.where(np.isfinite(m), m, np.inf)
+
+
+def match_people(
+    pred_joints: np.ndarray, true_joints: np.ndarray, max_dist_m: float = 0.5
+) -> list[tuple[int, int]]:
+    """Pairs (pred index, true index), one-to-one, minimising the mean joint distance.
+
+    pred_joints: (P, 17, 3), true_joints: (N, 17, 3) metres, NaN where missing. The distance of
+    a pair is the mean over joints present in both; pairs farther than `max_dist_m` stay
+    unmatched.
+    """
+    pred = np.asarray(pred_joints, dtype=np.float64).reshape(-1, NUM_JOINTS, 3)
+    true = np.asarray(true_joints, dtype=np.float64).reshape(-1, NUM_JOINTS, 3)
+    if pred.shape[0] == 0 or true.shape[0] == 0:
+        return []
+    cost = _mean_distance(pred, true)
+    big = 1e6
+    rows, cols = linear_sum_assignment(np.minimum(cost, big))
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= max_dist_m]
+
+
+def detectable(scene: Scene, min_views: int = 2) -> np.ndarray:
+    """(T, N) bool: worker present and with >= 5 joints inside the image of >= min_views
+    cameras (from the geometry alone, whatever the detector noise)."""
+    counts = joints_in_view(scene.truth, scene.rig).sum(-1)  # (T, C, N)
+    return scene.present & ((counts >= 5).sum(1) >= min_views)
+
+
+def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) -> Metrics:
+    """Score `predictions` (one People3D per evaluated frame, `frame` indexing the scene).
+
+    Only workers that are present and detectable (see `detectable`) are counted; predictions
+    matching a present but undetectable worker are neither counted nor false.
+    """
+    counted_mask = detectable(scene, min_views)
+    errors_m: list[float] = []
+    limbs_ok = counted = matched = false = reconstructed = 0
+    for pred in predictions:
+        t = int(pred.frame)
+        if not 0 <= t < scene.num_frames:
+            raise ValueError(f"prediction frame {t} outside the scene's 0..{scene.num_frames - 1}")
+        idx = np.flatnonzero(scene.present[t])
+        true = scene.truth[t, idx]
+        pairs = match_people(pred.joints, true)
+        false += len(pred) - len(pairs)
+        is_counted = counted_mask[t, idx]
+        counted += int(is_counted.sum())
+        for p, n in pairs:
+            if not is_counted[n]:
+                continue
+            matched += 1
+            err = np.linalg.norm(pred.joints[p] - true[n], axis=-1)  # (17,)
+            have = np.isfinite(err)
+            reconstructed += int(have.sum())
+            if have.any():
+                errors_m.append(float(err[have].mean()))
+            length = np.linalg.norm(true[n, _LIMB_A] - true[n, _LIMB_B], axis=-1)
+            with np.errstate(invalid="ignore"):
+                ok = 0.5 * (err[_LIMB_A] + err[_LIMB_B]) <= 0.5 * length
+            limbs_ok += int(ok.sum())
+    nan = float("nan")
+    frames = len(predictions)
+    return Metrics(
+        mpjpe_mm=1000.0 * float(np.mean(errors_m)) if errors_m else nan,
+        pcp=limbs_ok / (counted * len(PCP_LIMBS)) if counted else nan,
+        person_recall=matched / counted if counted else nan,
+        false_people_per_frame=false / frames if frames else nan,
+        joint_coverage=reconstructed / (matched * NUM_JOINTS) if matched else nan,
+        frames=frames,
+    )
