@@ -9,6 +9,7 @@ from pathlib import Path
 
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -70,8 +71,10 @@ def _reconstruct(args: argparse.Namespace) -> int:
     )
     table.add_row("3D stage speed", f"{summary.fps_3d:.0f} frames/s")
     if summary.skipped_files:
-        table.add_row("skipped files", str(len(summary.skipped_files)))
+        table.add_row("skipped files", f"{len(summary.skipped_files)} (listed below)")
     out.print(table)
+    for path, why in summary.skipped_files:
+        out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
     return 0
 
 
@@ -184,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except StereoposeError as e:
-        console.print(f"[bold red]error:[/] {e}", highlight=False)
+        console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False)
         return 2
     except KeyboardInterrupt:
         console.print("interrupted")

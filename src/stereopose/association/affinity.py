@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.geometry.camera import homogeneous, undistort_normalized
-from stereopose.skeleton import NUM_JOINTS
+from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
 
@@ -88,7 +88,8 @@ def epipolar_costs(
 
     E: (C, C, 3, 3) essential matrices of the rig (E[a, b] maps normalised points of camera a to
     lines in camera b). Cost = mean over joints confident (>= min_conf) in both detections of the
-    symmetric epipolar distance, each side divided by that detection's size. Pairs in the same
+    symmetric epipolar distance, each side divided by that detection's size, the lower of that
+    and the same with one side's left/right labels exchanged. Pairs in the same
     camera, or with fewer than `min_common_joints` shared joints, cost inf.
     """
     N = len(det)
@@ -96,19 +97,31 @@ def epipolar_costs(
         return np.zeros((0, 0))
     Enm = E[det.camera[:, None], det.camera[None, :]]  # (N, N, 3, 3)
     h = homogeneous(np.nan_to_num(det.xy))
-    # lines in m's image of n's joints: l[n, m, j] = E[n, m] @ h[n, j]
-    lines = np.einsum("nmab,njb->nmja", Enm, h)
-    num = np.abs(np.einsum("nmja,mja->nmj", lines, h))
+    # lines in m's image of n's joints: l[n, m, j] = E[n, m] @ h[n, j]; the numerator
+    # |h_m^T E h_n| is the same seen from either image, only the line norms differ.
+    lines = np.matmul(h[:, None], Enm.swapaxes(-1, -2))  # (N, N, 17, 3)
     with np.errstate(invalid="ignore", divide="ignore"):
-        d_in_m = num / np.hypot(lines[..., 0], lines[..., 1])
-    d_in_n = d_in_m.transpose(1, 0, 2)  # symmetric roles: E[m, n] = E[n, m]^T
+        inv_m = 1.0 / np.hypot(lines[..., 0], lines[..., 1])
+    inv_n = inv_m.transpose(1, 0, 2)
     s = np.where(det.size > 0, det.size, np.nan)
+    inv_sm, inv_sn = 1.0 / s[None, :, None], 1.0 / s[:, None, None]
     ok = det.conf >= min_conf
-    both = ok[:, None, :] & ok[None, :, :]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = 0.5 * (d_in_m / s[None, :, None] + d_in_n / s[:, None, None])
-        count = both.sum(axis=-1)
-        cost = np.where(both, d, 0.0).sum(axis=-1) / count
-    cost[(count < min_common_joints) | ~np.isfinite(cost)] = np.inf
+    cost = None
+    # Joint j of n against joint j of m, and against its mirror: detectors swap left and
+    # right, and a swapped detection is still the same person.
+    for perm in (None, SWAP):
+        hm = h if perm is None else h[:, perm]
+        num = np.abs((lines * hm[None]).sum(-1))
+        both = ok[:, None, :] & (ok if perm is None else ok[:, perm])[None, :, :]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = (
+                0.5
+                * num
+                * (inv_m * inv_sm + (inv_n if perm is None else inv_n[:, :, perm]) * inv_sn)
+            )
+            count = both.sum(axis=-1)
+            c = np.where(both, d, 0.0).sum(axis=-1) / count
+        c[(count < min_common_joints) | ~np.isfinite(c)] = np.inf
+        cost = c if cost is None else np.minimum(cost, c)
     cost[det.camera[:, None] == det.camera[None, :]] = np.inf
     return cost

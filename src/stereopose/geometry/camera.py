@@ -73,7 +73,8 @@ def project_normalized(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
     Broadcasts: points (G, J, 1, 3) with P (C, 3, 4) give (G, J, C, 2). Points behind the camera
     give NaN.
     """
-    Xc = np.einsum("...ij,...j->...i", P[..., :3], points_world) + P[..., 3]
+    X = points_world
+    Xc = X[..., 0:1] * P[..., 0] + X[..., 1:2] * P[..., 1] + X[..., 2:3] * P[..., 2] + P[..., 3]
     z = Xc[..., 2:3]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(z > 1e-3, Xc[..., :2] / z, np.nan)

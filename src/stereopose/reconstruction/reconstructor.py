@@ -73,15 +73,17 @@ class Reconstructor:
         xy = np.full((G, C, NUM_JOINTS, 2), np.nan)
         conf = np.zeros((G, C, NUM_JOINTS))
         size_px = np.full((G, C), np.nan)
+        size = np.full((G, C), np.nan)
         xy[gi, ci] = det.xy[di]
         conf[gi, ci] = det.conf[di]
         size_px[gi, ci] = det.size_px[di]
+        size[gi, ci] = det.size[di]
         # to (G, 17, C, ...) as the triangulation functions expect
-        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px
+        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px, size
 
     def _triangulate(self, det: Detections, groups: list[np.ndarray]):
         tc = self.config.triangulation
-        xy, conf, size_px = self._gather(det, groups)
+        xy, conf, size_px, size = self._gather(det, groups)
         w = np.where(conf >= tc.min_conf, conf, 0.0)
         if tc.mode == "pair":
             X, used = triangulate_pair(
@@ -92,8 +94,9 @@ class Reconstructor:
             X, used = triangulate_weighted(xy, w, self.P)
         else:
             X, used, xy, w = triangulate_robust(
-                xy, w, self.P, self.focal, size_px, tc.inlier_px, tc.inlier_rel, tc.fix_swaps
-            )
+                xy, w, self.P, self.focal, size_px, tc.inlier_px, tc.inlier_rel, tc.fix_swaps,
+                E=self.E, size=size,
+            )  # fmt: skip
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
         err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
         return X, used, out_conf, err

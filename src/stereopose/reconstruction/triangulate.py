@@ -13,10 +13,16 @@ import numpy as np
 
 from stereopose.geometry.camera import homogeneous, project_normalized
 from stereopose.geometry.triangulation import triangulate_dlt
-from stereopose.skeleton import LR_PAIRS
+from stereopose.skeleton import LR_PAIRS, SWAP
 
 _LEFT = np.array([p[0] for p in LR_PAIRS])
 _RIGHT = np.array([p[1] for p in LR_PAIRS])
+# Detectors swap the whole body or the legs alone: labels are decided for these parts apart.
+_PARTS = (
+    np.array([i for i, (left, _) in enumerate(LR_PAIRS) if left < 13]),  # face, arms, hips
+    np.array([i for i, (left, _) in enumerate(LR_PAIRS) if left >= 13]),  # knees, ankles
+)
+_MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
 def camera_pairs(C: int) -> tuple[np.ndarray, np.ndarray]:
@@ -93,43 +99,148 @@ def triangulate_robust(
     inlier_px: float,
     inlier_rel: float,
     fix_swaps: bool,
-    iterations: int = 2,
+    E: np.ndarray | None = None,
+    size: np.ndarray | None = None,
 ):
     """Weighted DLT over the views that agree, with left/right swaps of the detector corrected.
 
-    Per joint, every two-view solution is scored by the confidence of the views that reproject
-    within the threshold max(inlier_px, inlier_rel * size_px); the best seeds the estimate. A
-    left/right joint pair of a view that fits only when exchanged is exchanged. The final point
-    is the weighted DLT over the inlier views, refined `iterations` times.
+    A view agrees when it reprojects within max(inlier_px, inlier_rel * size_px). Joints where
+    the weighted DLT over all views leaves a view outside are re-seeded: every two-view solution
+    is scored by the confidence of the views that agree with it, and the best wins. A left/right
+    joint pair of a view that fits only when exchanged is exchanged. The final point is the
+    weighted DLT over the agreeing views (at least two). With E (C, C, 3, 3) and size (G, C)
+    (person size in normalised units), the left/right labels of all views are first made
+    consistent with each other (see _consistent_labels).
     Returns X, used, and xy, w with swapped labels corrected.
     """
     C = xy.shape[2]
     thr = np.maximum(inlier_px, inlier_rel * np.nan_to_num(size_px))[:, None, :]  # (G, 1, C)
-    ka, kb = camera_pairs(C)
-    sel = np.stack([ka, kb], axis=1)  # (K, 2)
-    Xk = triangulate_dlt(xy[:, :, sel], P[sel], w[:, :, sel])  # (G, J, K, 3)
-    err = reprojection_errors(Xk, xy[:, :, None], P, focal)  # (G, J, K, C)
-    inl = (err < thr[:, :, None]) & (w[:, :, None] > 0)
-    score = np.where(inl, w[:, :, None], 0.0).sum(-1)
-    score -= 1e-3 * np.where(inl, err / thr[:, :, None], 0.0).sum(-1)  # tie-break: tighter fit
-    score[~np.isfinite(Xk).all(-1)] = -np.inf
-    best = np.argmax(score, axis=-1)  # (G, J)
-    X = np.take_along_axis(Xk, best[..., None, None], axis=2)[:, :, 0]
-
+    if fix_swaps and E is not None and C <= _MAX_LABEL_CAMERAS:
+        xy, w = _consistent_labels(xy, w, E, size)
+    X = triangulate_dlt(xy, P, w)
+    if fix_swaps:
+        flips = _body_orientation(X)
+        if any(f.any() for f in flips):
+            for part, flip in zip(_PARTS, flips, strict=True):
+                xy, w = _exchange(xy, w, part, np.broadcast_to(flip[:, None], (len(flip), C)))
+            X = triangulate_dlt(xy, P, w)
+    err = reprojection_errors(X, xy, P, focal)
+    with np.errstate(invalid="ignore"):
+        outlier = (w > 0) & ~(err < thr)
+    redo = outlier.any(-1) | ~np.isfinite(X).all(-1)  # (G, J)
+    if redo.any():
+        X[redo] = _best_pair_seed(xy[redo], w[redo], P, focal, np.broadcast_to(thr, w.shape)[redo])
     if fix_swaps:
         xy, w = _fix_swaps(X, xy, w, P, focal, thr)
-
-    used = np.zeros(w.shape, dtype=bool)
-    for _ in range(iterations):
-        e = reprojection_errors(X, xy, P, focal)
-        used = (e < thr) & (w > 0)
-        X_new = triangulate_dlt(xy, P, np.where(used, w, 0.0))
-        X = np.where(np.isfinite(X_new), X_new, X)
-    e = reprojection_errors(X, xy, P, focal)
-    used = (e < thr) & (w > 0)
+    err = reprojection_errors(X, xy, P, focal)
+    used = (err < thr) & (w > 0)
+    X = triangulate_dlt(xy, P, np.where(used, w, 0.0))
+    err = reprojection_errors(X, xy, P, focal)
+    used &= err < 1.5 * thr
     X = np.where((used.sum(-1) >= 2)[..., None], X, np.nan)
     used &= np.isfinite(X).all(-1, keepdims=True)
     return X, used, xy, w
+
+
+def _best_pair_seed(xy, w, P, focal, thr):
+    """For n joints (n, C, 2), (n, C), the two-view solution most views agree with: (n, 3)."""
+    C = xy.shape[1]
+    ka, kb = camera_pairs(C)
+    sel = np.stack([ka, kb], axis=1)  # (K, 2)
+    Xk = triangulate_dlt(xy[:, sel], P[sel], w[:, sel])  # (n, K, 3)
+    err = reprojection_errors(Xk, xy[:, None], P, focal)  # (n, K, C)
+    t = thr[:, None]
+    with np.errstate(invalid="ignore"):
+        inl = (err < t) & (w[:, None] > 0)
+    score = np.where(inl, w[:, None], 0.0).sum(-1)
+    score -= 1e-3 * np.where(inl, err / t, 0.0).sum(-1)  # tie-break: the tighter fit
+    score[~np.isfinite(Xk).all(-1)] = -np.inf
+    best = np.argmax(score, axis=-1)
+    return Xk[np.arange(len(best)), best]
+
+
+def _labelings(C: int) -> np.ndarray:
+    """(2^C, C) every assignment of 'swapped' (1) or 'as detected' (0) to C views."""
+    return (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
+
+
+def _consistent_labels(xy, w, E, size):
+    """Exchange left/right labels of views so that all views of a person agree.
+
+    For every pair of views (a, b) and body part, the epipolar cost of matching left to left
+    ("same") and left to right ("cross") is measured; the labeling of all views that minimises
+    the total cost wins, and of a labeling and its mirror (equal cost) the one that exchanges
+    fewer views. Epipolar costs ignore 3D, so this works before any triangulation.
+    """
+    G, _, C, _ = xy.shape
+    ka, kb = camera_pairs(C)
+    h = homogeneous(np.nan_to_num(xy))  # (G, J, C, 3)
+    lines = np.matmul(h[:, :, ka, None, :], E[ka, kb].swapaxes(-1, -2))[..., 0, :]  # (G,J,K,3)
+    hb = h[:, :, kb]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.hypot(lines[..., 0], lines[..., 1])
+        s_b = size[:, kb][:, None]  # (G, 1, K)
+        d_same = np.abs((lines * hb).sum(-1)) / norm / s_b
+        d_cross = np.abs((lines * hb[:, SWAP]).sum(-1)) / norm / s_b  # (G, J, K)
+    ok = w > 0
+    ok_same = ok[:, :, ka] & ok[:, :, kb]
+    ok_cross = ok[:, :, ka] & ok[:, SWAP][:, :, kb]
+    Z = _labelings(C)
+    rel = Z[:, ka] ^ Z[:, kb]  # (L, K): 1 where the pair's labels differ
+    out_xy, out_w = xy, w
+    for part in _PARTS:
+        joints = np.concatenate([_LEFT[part], _RIGHT[part]])
+        both = ok_same[:, joints] & ok_cross[:, joints]
+        same = np.where(both, np.nan_to_num(d_same[:, joints]), 0.0).sum(1)  # (G, K)
+        cross = np.where(both, np.nan_to_num(d_cross[:, joints]), 0.0).sum(1)
+        cost = same @ (1 - rel).T + cross @ rel.T  # (G, L)
+        present = ok[:, joints].any(1)  # (G, C)
+        cost += 1e-6 * (present.astype(float) @ Z.T)  # fewer exchanged views on ties
+        swap = Z[np.argmin(cost, axis=1)].astype(bool) & present  # (G, C)
+        if not swap.any():
+            continue
+        out_xy, out_w = _exchange(out_xy, out_w, part, swap)
+    return out_xy, out_w
+
+
+def _exchange(xy, w, part, swap):
+    """Copies of xy (G, J, C, 2), w (G, J, C) with the left/right joints of `part` (indices
+    into LR_PAIRS) exchanged where swap (G, C) is true."""
+    if not swap.any():
+        return xy, w
+    xy, w = xy.copy(), w.copy()
+    sl, sr = _LEFT[part], _RIGHT[part]
+    m = swap[:, None, :]
+    xl, xr, wl, wr = xy[:, sl], xy[:, sr], w[:, sl], w[:, sr]
+    xy[:, sl] = np.where(m[..., None], xr, xl)
+    xy[:, sr] = np.where(m[..., None], xl, xr)
+    w[:, sl] = np.where(m, wr, wl)
+    w[:, sr] = np.where(m, wl, wr)
+    return xy, w
+
+
+def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
+    """Which people's labels are mirrored as a whole, from the body's handedness in 3D.
+
+    Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
+    In 3D they can: with z up, the face lies in front of the shoulders, where front is
+    up x (right shoulder - left shoulder); and each knee is nearer its own hip. X: (G, 17, 3).
+    Returns (flip_upper (G,), flip_legs (G,)).
+    """
+    right = X[:, 6] - X[:, 5]
+    front = np.stack([-right[:, 1], right[:, 0]], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        front /= np.linalg.norm(front, axis=-1, keepdims=True)
+        seen = np.isfinite(X[:, :3, :2])
+        face = np.where(seen, X[:, :3, :2], 0.0).sum(1) / seen.sum(1)
+        ahead = ((face - 0.5 * (X[:, 5, :2] + X[:, 6, :2])) * front).sum(-1)
+    flip_upper = ahead < -face_margin_m
+    hips = np.where(flip_upper[:, None, None], X[:, [12, 11]], X[:, [11, 12]])
+    straight = np.linalg.norm(hips - X[:, [13, 14]], axis=-1).sum(-1)
+    crossed = np.linalg.norm(hips - X[:, [14, 13]], axis=-1).sum(-1)
+    with np.errstate(invalid="ignore"):
+        flip_legs = crossed < straight - thigh_margin_m
+    return flip_upper, flip_legs
 
 
 def _fix_swaps(X, xy, w, P, focal, thr):
