@@ -44,7 +44,7 @@ class TriangulationConfig:
     """Triangulation of one person's joints from the views of its group."""
 
     mode: Mode = "robust"
-    min_conf: float = 0.2  # joints below this confidence are not used
+    min_conf: float = 0.05  # joints below this confidence are not used
     pair_a: float = 0.01  # `pair` mode: weight per pixel of mean epipolar distance
     pair_b: float = 1.0  # `pair` mode: weight of the mean confidences of the two views
     inlier_px: float = 10.0  # `robust`: reprojection error always accepted, pixels

@@ -7,6 +7,7 @@ near person (large in the image) and a far one (small) are judged on the same sc
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -81,47 +82,77 @@ def _box_diagonal(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(mask.sum(axis=1) >= 2, d, np.nan)
 
 
+@dataclass(frozen=True, eq=False)
+class PairDistances:
+    """Per-joint epipolar distances of every pair of detections in different cameras.
+
+    first, second: (M,) detection indices (first < second); row: (N, N) index into the M pairs
+    (-1 for none), symmetric. same: (M, 17) symmetric epipolar distance of joint j of `first` to
+    joint j of `second`, each side divided by its detection's size; cross: (M, 17) the same
+    against the mirror joint SWAP[j] of `second`.
+    """
+
+    first: np.ndarray
+    second: np.ndarray
+    row: np.ndarray
+    same: np.ndarray
+    cross: np.ndarray
+
+
+@functools.lru_cache(maxsize=64)
+def _upper_pairs(N: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(N, k=1)
+
+
+def epipolar_distances(det: Detections, E: np.ndarray) -> PairDistances:
+    """Per-joint normalised epipolar distances of all cross-camera detection pairs.
+
+    E: (C, C, 3, 3) essential matrices of the rig (E[a, b] maps normalised points of camera a to
+    lines in camera b).
+    """
+    N = len(det)
+    n, m = _upper_pairs(N)
+    keep = det.camera[n] != det.camera[m]
+    n, m = n[keep], m[keep]
+    row = np.full((N, N), -1, dtype=np.int64)
+    row[n, m] = row[m, n] = np.arange(n.size)
+    h = homogeneous(np.nan_to_num(det.xy))  # (N, 17, 3)
+    # |h_m^T E h_n| is the same seen from either image; only the line norms differ.
+    lines_m = np.matmul(h[n], E[det.camera[n], det.camera[m]].swapaxes(-1, -2))  # in m's image
+    lines_n = np.matmul(h[m], E[det.camera[m], det.camera[n]].swapaxes(-1, -2))  # in n's image
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w_m = 0.5 / (np.hypot(lines_m[..., 0], lines_m[..., 1]) * det.size[m][:, None])
+        w_n = 0.5 / (np.hypot(lines_n[..., 0], lines_n[..., 1]) * det.size[n][:, None])
+        hm = h[m]
+        same = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm)) * (w_m + w_n)
+        cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm[:, SWAP])) * (w_m + w_n[:, SWAP])
+    return PairDistances(n, m, row, same, cross)
+
+
 def epipolar_costs(
-    det: Detections, E: np.ndarray, min_conf: float, min_common_joints: int
+    det: Detections, dist: PairDistances, min_conf: float, min_common_joints: int
 ) -> np.ndarray:
     """(N, N) symmetric matching cost between all detections of one frame.
 
-    E: (C, C, 3, 3) essential matrices of the rig (E[a, b] maps normalised points of camera a to
-    lines in camera b). Cost = mean over joints confident (>= min_conf) in both detections of the
-    symmetric epipolar distance, each side divided by that detection's size, the lower of that
-    and the same with one side's left/right labels exchanged. Pairs in the same
-    camera, or with fewer than `min_common_joints` shared joints, cost inf.
+    Cost = mean over joints confident (>= min_conf) in both detections of the normalised
+    symmetric epipolar distance (see epipolar_distances), the lower of that and the same with
+    one side's left/right labels exchanged: detectors swap left and right, and a swapped
+    detection is still the same person. Pairs in the same camera, or with fewer than
+    `min_common_joints` shared joints, cost inf.
     """
     N = len(det)
-    if N == 0:
-        return np.zeros((0, 0))
-    Enm = E[det.camera[:, None], det.camera[None, :]]  # (N, N, 3, 3)
-    h = homogeneous(np.nan_to_num(det.xy))
-    # lines in m's image of n's joints: l[n, m, j] = E[n, m] @ h[n, j]; the numerator
-    # |h_m^T E h_n| is the same seen from either image, only the line norms differ.
-    lines = np.matmul(h[:, None], Enm.swapaxes(-1, -2))  # (N, N, 17, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        inv_m = 1.0 / np.hypot(lines[..., 0], lines[..., 1])
-    inv_n = inv_m.transpose(1, 0, 2)
-    s = np.where(det.size > 0, det.size, np.nan)
-    inv_sm, inv_sn = 1.0 / s[None, :, None], 1.0 / s[:, None, None]
+    cost = np.full((N, N), np.inf)
+    if dist.first.size == 0:
+        return cost
     ok = det.conf >= min_conf
-    cost = None
-    # Joint j of n against joint j of m, and against its mirror: detectors swap left and
-    # right, and a swapped detection is still the same person.
-    for perm in (None, SWAP):
-        hm = h if perm is None else h[:, perm]
-        num = np.abs((lines * hm[None]).sum(-1))
-        both = ok[:, None, :] & (ok if perm is None else ok[:, perm])[None, :, :]
+    ok_n = ok[dist.first]
+    best = np.full(dist.first.size, np.inf)
+    for d, ok_m in ((dist.same, ok[dist.second]), (dist.cross, ok[dist.second][:, SWAP])):
+        both = ok_n & ok_m
+        k = both.sum(-1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            d = (
-                0.5
-                * num
-                * (inv_m * inv_sm + (inv_n if perm is None else inv_n[:, :, perm]) * inv_sn)
-            )
-            count = both.sum(axis=-1)
-            c = np.where(both, d, 0.0).sum(axis=-1) / count
-        c[(count < min_common_joints) | ~np.isfinite(c)] = np.inf
-        cost = c if cost is None else np.minimum(cost, c)
-    cost[det.camera[:, None] == det.camera[None, :]] = np.inf
+            c = np.where(both, d, 0.0).sum(-1) / k
+        c[(k < min_common_joints) | ~np.isfinite(c)] = np.inf
+        np.minimum(best, c, out=best)
+    cost[dist.first, dist.second] = cost[dist.second, dist.first] = best
     return cost

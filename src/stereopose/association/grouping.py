@@ -15,19 +15,22 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     Returns (M, 3) float rows (detection n, detection m, cost), only matches with
     cost <= max_cost.
     """
-    rows = []
-    cams = np.unique(camera)
-    members = [np.flatnonzero(camera == c) for c in cams]
-    for i in range(len(cams)):
-        for j in range(i + 1, len(cams)):
-            a, b = members[i], members[j]
-            sub = cost[np.ix_(a, b)]
-            if not np.isfinite(sub).any():
-                continue
-            r, c = linear_sum_assignment(np.where(np.isfinite(sub), sub, _BIG))
+    members = [np.flatnonzero(camera == c) for c in np.unique(camera)]
+    finite = np.where(np.isfinite(cost), cost, _BIG)
+    n_out, m_out = [], []
+    for i, a in enumerate(members):
+        rows = finite[a]
+        for b in members[i + 1 :]:
+            sub = rows[:, b]
+            r, c = linear_sum_assignment(sub)
             keep = sub[r, c] <= max_cost
-            rows.extend(zip(a[r[keep]], b[c[keep]], sub[r[keep], c[keep]], strict=True))
-    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+            n_out.append(a[r[keep]])
+            m_out.append(b[c[keep]])
+    if not n_out:
+        return np.zeros((0, 3))
+    n = np.concatenate(n_out)
+    m = np.concatenate(m_out)
+    return np.stack([n, m, cost[n, m]], axis=1).astype(np.float64)
 
 
 def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> list[np.ndarray]:
@@ -46,25 +49,29 @@ def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> l
     if len(edges) == 0:
         return []
     edges = edges[np.argsort(edges[:, 2], kind="stable")]
-    label = np.arange(N)
+    finite = np.isfinite(cost)
+    # Sum and count of finite costs between groups, kept up to date as groups merge.
+    total = np.where(finite, cost, 0.0)
+    count = finite.astype(np.float64)
+    label = list(range(N))
     cams_of = [1 << int(c) for c in camera]
     members: dict[int, list[int]] = {n: [n] for n in range(N)}
-    finite = np.isfinite(cost)
-    for n_f, m_f, _ in edges:
-        a, b = label[int(n_f)], label[int(m_f)]
+    for n, m in edges[:, :2].astype(int).tolist():
+        a, b = label[n], label[m]
         if a == b or cams_of[a] & cams_of[b]:
             continue
-        ga, gb = members[a], members[b]
-        sub = cost[np.ix_(ga, gb)]
-        ok = finite[np.ix_(ga, gb)]
-        if sub[ok].mean() > max_cost:
+        if total[a, b] > max_cost * count[a, b]:
             continue
-        if len(ga) < len(gb):
-            a, b, ga, gb = b, a, gb, ga
-        ga.extend(gb)
-        label[gb] = a
+        if len(members[a]) < len(members[b]):
+            a, b = b, a
+        for k in members[b]:
+            label[k] = a
+        members[a].extend(members.pop(b))
         cams_of[a] |= cams_of[b]
-        del members[b]
-    groups = [np.array(sorted(g, key=lambda n: camera[n])) for g in members.values() if len(g) > 1]
+        total[a] += total[b]
+        total[:, a] += total[:, b]
+        count[a] += count[b]
+        count[:, a] += count[:, b]
+    groups = [np.array(sorted(g, key=lambda k: camera[k])) for g in members.values() if len(g) > 1]
     groups.sort(key=lambda g: int(g[0]))
     return groups

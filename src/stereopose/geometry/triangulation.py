@@ -8,13 +8,45 @@ from __future__ import annotations
 
 import numpy as np
 
+_NEXT = np.array([1, 2, 0])
+_PREV = np.array([2, 0, 1])
 
-def triangulate_dlt(xy: np.ndarray, P: np.ndarray, weights: np.ndarray) -> np.ndarray:
+
+def dlt_blocks(P: np.ndarray) -> np.ndarray:
+    """(..., V, 3, 4) cameras -> (..., V * 4, 16) per-view blocks of A^T A.
+
+    Each view adds the rows w (x P3 - P1) and w (y P3 - P2) to the DLT matrix A, so A^T A is a
+    sum over views of w^2 [(x^2 + y^2) P3P3 - x (P1P3 + P3P1) - y (P2P3 + P3P2) + P1P1 + P2P2]:
+    per-view coefficients times these four per-camera 4 x 4 blocks. They depend on the cameras
+    only, so they can be computed once per rig.
+    """
+    P1, P2, P3 = P[..., 0, :], P[..., 1, :], P[..., 2, :]
+
+    def outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return a[..., :, None] * b[..., None, :]
+
+    p13, p23 = outer(P1, P3), outer(P2, P3)
+    blocks = np.stack(
+        [
+            outer(P3, P3),
+            -(p13 + p13.swapaxes(-1, -2)),
+            -(p23 + p23.swapaxes(-1, -2)),
+            outer(P1, P1) + outer(P2, P2),
+        ],
+        axis=-3,
+    )  # (..., V, 4, 4, 4)
+    return blocks.reshape(*blocks.shape[:-4], blocks.shape[-4] * 4, 16)
+
+
+def triangulate_dlt(
+    xy: np.ndarray, P: np.ndarray, weights: np.ndarray, blocks: np.ndarray | None = None
+) -> np.ndarray:
     """Weighted DLT triangulation.
 
     xy: (..., V, 2) normalised coordinates of one point seen in V views (NaN where unseen).
     P: (..., V, 3, 4) or (V, 3, 4) cameras [R | t], world -> camera.
     weights: (..., V) non-negative; a view with weight 0 or NaN coordinates is ignored.
+    blocks: dlt_blocks(P), when already computed.
     Returns (..., 3) world points; NaN where fewer than 2 views have positive weight.
     """
     xy = np.asarray(xy, dtype=np.float64)
@@ -23,45 +55,31 @@ def triangulate_dlt(xy: np.ndarray, P: np.ndarray, weights: np.ndarray) -> np.nd
     V = xy.shape[-2]
     if P.shape[-3:] != (V, 3, 4):
         raise ValueError(f"P must have shape (..., {V}, 3, 4), got {P.shape}")
-    w = np.where(np.isfinite(xy).all(axis=-1), np.asarray(weights, dtype=np.float64), 0.0)
-    w = np.where(w > 0, w, 0.0)
-    x = np.nan_to_num(xy)
-    # Two rows per view: x P3 - P1 and y P3 - P2, scaled by the view's weight.
-    rows_x = x[..., 0:1] * P[..., 2, :] - P[..., 0, :]
-    rows_y = x[..., 1:2] * P[..., 2, :] - P[..., 1, :]
-    rows_x = rows_x * w[..., None]
-    rows_y = rows_y * w[..., None]
-    # Least squares with X homogeneous coordinate fixed to 1: (A3^T A3) X = -A3^T a4, solved
-    # in closed form (adjugate of the symmetric 3 x 3 matrix) for every point at once.
-    A = np.concatenate([rows_x, rows_y], axis=-2)  # (..., 2V, 4)
-    N = np.matmul(A.swapaxes(-1, -2), A)  # (..., 4, 4)
-    M, rhs = N[..., :3, :3], -N[..., :3, 3]
-    X = _solve_sym3(M, rhs)
+    b = dlt_blocks(P) if blocks is None else blocks
+    seen = np.isfinite(xy)
+    w = np.where(seen[..., 0] & seen[..., 1], np.asarray(weights, dtype=np.float64), 0.0)
+    w2 = np.where(w > 0, w * w, 0.0)
+    x = np.where(seen, xy, 0.0)
+    coef = w2[..., None] * np.stack(
+        [x[..., 0] ** 2 + x[..., 1] ** 2, x[..., 0], x[..., 1], np.ones_like(w2)], axis=-1
+    )  # (..., V, 4)
+    c = coef.reshape(*coef.shape[:-2], V * 4)
+    N = c @ b if b.ndim == 2 else np.einsum("...i,...ij->...j", c, b)
+    N = N.reshape(*c.shape[:-1], 4, 4)
+    # Least squares with the homogeneous coordinate fixed to 1: (A3^T A3) X = -A3^T a4.
+    X = _solve_sym3(N[..., :3, :3], -N[..., :3, 3])
     enough = (w > 0).sum(axis=-1) >= 2
-    return np.where(enough[..., None] & np.isfinite(X).all(axis=-1, keepdims=True), X, np.nan)
+    return np.where(enough[..., None] & np.isfinite(X[..., :1]), X, np.nan)
 
 
 def _solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve (..., 3, 3) symmetric systems M x = b (..., 3); NaN where (near) singular."""
-    a, d, f = M[..., 0, 0], M[..., 1, 1], M[..., 2, 2]
-    bb, c, e = M[..., 0, 1], M[..., 0, 2], M[..., 1, 2]
-    A = d * f - e * e
-    B = c * e - bb * f
-    C = bb * e - c * d
-    D = a * f - c * c
-    E = bb * c - a * e
-    F = a * d - bb * bb
-    det = a * A + bb * B + c * C
-    scale = (a + d + f) ** 3
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ok = np.abs(det) > 1e-12 * np.abs(scale)
-        inv_det = np.where(ok, 1.0 / det, np.nan)
-    x0, x1, x2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack(
-        [
-            (A * x0 + B * x1 + C * x2) * inv_det,
-            (B * x0 + D * x1 + E * x2) * inv_det,
-            (C * x0 + E * x1 + F * x2) * inv_det,
-        ],
-        axis=-1,
-    )
+    """Solve (..., 3, 3) symmetric systems M x = b (..., 3) by the adjugate; NaN where
+    (near) singular. Row i of the cofactor matrix is row(i+1) x row(i+2) of M, and for a
+    symmetric M it is also row i of the adjugate."""
+    r1, r2 = M[..., _NEXT, :], M[..., _PREV, :]
+    cof = r1[..., _NEXT] * r2[..., _PREV] - r1[..., _PREV] * r2[..., _NEXT]
+    det = np.einsum("...i,...i->...", M[..., 0, :], cof[..., 0, :])
+    trace = M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        inv_det = np.where(np.abs(det) > 1e-12 * np.abs(trace) ** 3, 1.0 / det, np.nan)
+    return np.einsum("...ij,...j->...i", cof, b) * inv_det[..., None]

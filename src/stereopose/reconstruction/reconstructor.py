@@ -7,12 +7,20 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from stereopose.association.affinity import Detections, epipolar_costs
+from stereopose.association.affinity import (
+    Detections,
+    PairDistances,
+    epipolar_costs,
+    epipolar_distances,
+)
 from stereopose.association.grouping import group_detections
 from stereopose.config import ReconstructionConfig
 from stereopose.geometry.camera import project_normalized
 from stereopose.geometry.epipolar import essential_matrices
+from stereopose.geometry.triangulation import dlt_blocks
 from stereopose.reconstruction.triangulate import (
+    camera_pairs,
+    pair_views,
     reprojection_errors,
     triangulate_pair,
     triangulate_robust,
@@ -23,6 +31,22 @@ from stereopose.types import People2D, People3D, Rig
 
 _LIMB_A = np.array([a for a, _ in PCP_LIMBS])
 _LIMB_B = np.array([b for _, b in PCP_LIMBS])
+
+
+def _group_pair_distances(members: np.ndarray, dist: PairDistances):
+    """Per group and camera pair (a < b), the per-joint epipolar distances of its detections.
+
+    members: (G, C) detection index per camera (-1: none). Returns same, cross (G, 17, K) with
+    NaN where the group lacks either camera; cross pairs joint j in a with SWAP[j] in b.
+    """
+    C = members.shape[1]
+    ka, kb = camera_pairs(C)
+    na, nb = members[:, ka], members[:, kb]  # (G, K)
+    row = np.where((na >= 0) & (nb >= 0), dist.row[na, nb], -1)
+    pad = np.full((1, NUM_JOINTS), np.nan)  # row -1 picks this
+    same = np.concatenate([dist.same, pad])[row].transpose(0, 2, 1)
+    cross = np.concatenate([dist.cross, pad])[row].transpose(0, 2, 1)
+    return same, cross
 
 
 class Reconstructor:
@@ -38,6 +62,8 @@ class Reconstructor:
         self.P = np.stack([c.P for c in rig])
         self.E = essential_matrices(rig)
         self.focal = np.array([c.focal for c in rig])
+        self.blocks = dlt_blocks(self.P)
+        self.pair_blocks = dlt_blocks(self.P[pair_views(len(rig))])
 
     def __call__(
         self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
@@ -54,13 +80,17 @@ class Reconstructor:
         det = Detections.from_people(self.rig, people, ac.min_conf)
         if len(det) < 2:
             return People3D.empty(frame, len(self.rig))
-        cost = epipolar_costs(det, self.E, ac.min_conf, ac.min_common_joints)
+        dist = epipolar_distances(det, self.E)
+        cost = epipolar_costs(det, dist, ac.min_conf, ac.min_common_joints)
         groups = group_detections(cost, det.camera, ac.max_cost)
         if not groups:
             return People3D.empty(frame, len(self.rig))
-        tri = self._triangulate(det, groups)
-        if ac.reassign_leftovers and self._reassign(det, groups, tri[0]):
-            tri = self._triangulate(det, groups)
+        tri = self._triangulate(det, groups, dist)
+        grown = self._reassign(det, groups, tri[0]) if ac.reassign_leftovers else []
+        if grown:
+            redo = self._triangulate(det, [groups[i] for i in grown], dist)
+            for full, part in zip(tri, redo, strict=True):
+                full[grown] = part
         return self._assemble(frame, det, groups, *tri)
 
     # -- steps ---------------------------------------------------------------------------------
@@ -73,17 +103,17 @@ class Reconstructor:
         xy = np.full((G, C, NUM_JOINTS, 2), np.nan)
         conf = np.zeros((G, C, NUM_JOINTS))
         size_px = np.full((G, C), np.nan)
-        size = np.full((G, C), np.nan)
+        members = np.full((G, C), -1, dtype=np.int64)
         xy[gi, ci] = det.xy[di]
         conf[gi, ci] = det.conf[di]
         size_px[gi, ci] = det.size_px[di]
-        size[gi, ci] = det.size[di]
+        members[gi, ci] = di
         # to (G, 17, C, ...) as the triangulation functions expect
-        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px, size
+        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px, members
 
-    def _triangulate(self, det: Detections, groups: list[np.ndarray]):
+    def _triangulate(self, det: Detections, groups: list[np.ndarray], dist: PairDistances):
         tc = self.config.triangulation
-        xy, conf, size_px, size = self._gather(det, groups)
+        xy, conf, size_px, members = self._gather(det, groups)
         w = np.where(conf >= tc.min_conf, conf, 0.0)
         if tc.mode == "pair":
             X, used = triangulate_pair(
@@ -95,24 +125,28 @@ class Reconstructor:
         else:
             X, used, xy, w = triangulate_robust(
                 xy, w, self.P, self.focal, size_px, tc.inlier_px, tc.inlier_rel, tc.fix_swaps,
-                E=self.E, size=size,
+                pair_distances=_group_pair_distances(members, dist),
+                blocks=self.blocks, pair_blocks=self.pair_blocks,
             )  # fmt: skip
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
         err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
         return X, used, out_conf, err
 
-    def _reassign(self, det: Detections, groups: list[np.ndarray], X: np.ndarray) -> bool:
-        """Give detections left out of every group to a reconstructed person they fit."""
+    def _reassign(self, det: Detections, groups: list[np.ndarray], X: np.ndarray) -> list[int]:
+        """Give detections left out of every group to a reconstructed person they fit.
+
+        Grows `groups` in place; returns the indices of the groups that grew.
+        """
         in_group = np.zeros(len(det), dtype=bool)
         in_group[np.concatenate(groups)] = True
         left = np.flatnonzero(~in_group)
         if left.size == 0:
-            return False
+            return []
         ac = self.config.association
         has = np.zeros((len(groups), len(self.rig)), dtype=bool)
         for i, g in enumerate(groups):
             has[i, det.camera[g]] = True
-        grown = False
+        grown: list[int] = []
         for c in np.unique(det.camera[left]):
             cand = left[det.camera[left] == c]
             open_g = np.flatnonzero(~has[:, c])
@@ -133,8 +167,8 @@ class Reconstructor:
                     gi = open_g[ki]
                     groups[gi] = np.append(groups[gi], cand[ri])
                     has[gi, c] = True
-                    grown = True
-        return grown
+                    grown.append(int(gi))
+        return sorted(set(grown))
 
     def _assemble(self, frame, det, groups, X, used, conf, err) -> People3D:
         pc = self.config.plausibility

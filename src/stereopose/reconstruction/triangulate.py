@@ -9,10 +9,12 @@ Each returns X (G, 17, 3) metres and used (G, 17, C) bool, the views each joint 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from stereopose.geometry.camera import homogeneous, project_normalized
-from stereopose.geometry.triangulation import triangulate_dlt
+from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
 from stereopose.skeleton import LR_PAIRS, SWAP
 
 _LEFT = np.array([p[0] for p in LR_PAIRS])
@@ -25,6 +27,7 @@ _PARTS = (
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
+@functools.lru_cache(maxsize=32)
 def camera_pairs(C: int) -> tuple[np.ndarray, np.ndarray]:
     """All unordered camera pairs (a < b) as two (K,) index arrays."""
     a, b = np.triu_indices(C, k=1)
@@ -99,89 +102,91 @@ def triangulate_robust(
     inlier_px: float,
     inlier_rel: float,
     fix_swaps: bool,
-    E: np.ndarray | None = None,
-    size: np.ndarray | None = None,
+    pair_distances: tuple[np.ndarray, np.ndarray] | None = None,
+    blocks: np.ndarray | None = None,
+    pair_blocks: np.ndarray | None = None,
 ):
     """Weighted DLT over the views that agree, with left/right swaps of the detector corrected.
 
     A view agrees when it reprojects within max(inlier_px, inlier_rel * size_px). Joints where
     the weighted DLT over all views leaves a view outside are re-seeded: every two-view solution
-    is scored by the confidence of the views that agree with it, and the best wins. A left/right
-    joint pair of a view that fits only when exchanged is exchanged. The final point is the
-    weighted DLT over the agreeing views (at least two). With E (C, C, 3, 3) and size (G, C)
-    (person size in normalised units), the left/right labels of all views are first made
-    consistent with each other (see _consistent_labels).
+    is scored by the confidence of the views that agree with it, and the best wins. The final
+    point is the weighted DLT over the agreeing views (at least two). With pair_distances
+    (same, cross), each (G, 17, K) per-joint epipolar distances of the views of camera pairs
+    (a < b), the left/right labels of all views are first made consistent. blocks and
+    pair_blocks: dlt_blocks of P and of P[camera_pairs(C)] stacked, when computed already.
     Returns X, used, and xy, w with swapped labels corrected.
     """
     C = xy.shape[2]
     thr = np.maximum(inlier_px, inlier_rel * np.nan_to_num(size_px))[:, None, :]  # (G, 1, C)
-    if fix_swaps and E is not None and C <= _MAX_LABEL_CAMERAS:
-        xy, w = _consistent_labels(xy, w, E, size)
-    X = triangulate_dlt(xy, P, w)
+    if fix_swaps and pair_distances is not None and C <= _MAX_LABEL_CAMERAS:
+        xy, w = _consistent_labels(xy, w, *pair_distances)
+    if blocks is None:
+        blocks = dlt_blocks(P)
+    X_all = triangulate_dlt(xy, P, w, blocks)
     if fix_swaps:
-        flips = _body_orientation(X)
-        if any(f.any() for f in flips):
+        flips = _body_orientation(X_all)
+        if flips[0].any() or flips[1].any():
             for part, flip in zip(_PARTS, flips, strict=True):
                 xy, w = _exchange(xy, w, part, np.broadcast_to(flip[:, None], (len(flip), C)))
-            X = triangulate_dlt(xy, P, w)
-    err = reprojection_errors(X, xy, P, focal)
-    with np.errstate(invalid="ignore"):
-        outlier = (w > 0) & ~(err < thr)
-    redo = outlier.any(-1) | ~np.isfinite(X).all(-1)  # (G, J)
+            X_all = triangulate_dlt(xy, P, w, blocks)
+    err = reprojection_errors(X_all, xy, P, focal)
+    outlier = (w > 0) & ~(err < thr)
+    redo = outlier.any(-1) | ~np.isfinite(X_all[..., 0])  # (G, J)
+    X = X_all.copy()
     if redo.any():
-        X[redo] = _best_pair_seed(xy[redo], w[redo], P, focal, np.broadcast_to(thr, w.shape)[redo])
-    if fix_swaps:
-        xy, w = _fix_swaps(X, xy, w, P, focal, thr)
-    err = reprojection_errors(X, xy, P, focal)
+        t = np.broadcast_to(thr, w.shape)[redo]
+        X[redo] = _best_pair_seed(xy[redo], w[redo], P, focal, t, pair_blocks)
+        err[redo] = reprojection_errors(X[redo], xy[redo], P, focal)
     used = (err < thr) & (w > 0)
-    X = triangulate_dlt(xy, P, np.where(used, w, 0.0))
+    X = triangulate_dlt(xy, P, np.where(used, w, 0.0), blocks)
     err = reprojection_errors(X, xy, P, focal)
     used &= err < 1.5 * thr
-    X = np.where((used.sum(-1) >= 2)[..., None], X, np.nan)
-    used &= np.isfinite(X).all(-1, keepdims=True)
+    # Where fewer than two views agree, the views cannot be told apart: all of them are used
+    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
+    few = used.sum(-1) < 2
+    if few.any():
+        X[few] = X_all[few]
+        used[few] = w[few] > 0
+    used &= np.isfinite(X[..., :1])
     return X, used, xy, w
 
 
-def _best_pair_seed(xy, w, P, focal, thr):
+def pair_views(C: int) -> np.ndarray:
+    """(K, 2) camera indices of every pair (a < b)."""
+    return np.stack(camera_pairs(C), axis=1)
+
+
+def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
     """For n joints (n, C, 2), (n, C), the two-view solution most views agree with: (n, 3)."""
-    C = xy.shape[1]
-    ka, kb = camera_pairs(C)
-    sel = np.stack([ka, kb], axis=1)  # (K, 2)
-    Xk = triangulate_dlt(xy[:, sel], P[sel], w[:, sel])  # (n, K, 3)
+    sel = pair_views(xy.shape[1])  # (K, 2)
+    Xk = triangulate_dlt(xy[:, sel], P[sel], w[:, sel], pair_blocks)  # (n, K, 3)
     err = reprojection_errors(Xk, xy[:, None], P, focal)  # (n, K, C)
     t = thr[:, None]
-    with np.errstate(invalid="ignore"):
-        inl = (err < t) & (w[:, None] > 0)
+    inl = (err < t) & (w[:, None] > 0)
     score = np.where(inl, w[:, None], 0.0).sum(-1)
     score -= 1e-3 * np.where(inl, err / t, 0.0).sum(-1)  # tie-break: the tighter fit
-    score[~np.isfinite(Xk).all(-1)] = -np.inf
+    score[~np.isfinite(Xk[..., 0])] = -np.inf
     best = np.argmax(score, axis=-1)
     return Xk[np.arange(len(best)), best]
 
 
+@functools.lru_cache(maxsize=16)
 def _labelings(C: int) -> np.ndarray:
     """(2^C, C) every assignment of 'swapped' (1) or 'as detected' (0) to C views."""
     return (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
 
 
-def _consistent_labels(xy, w, E, size):
+def _consistent_labels(xy, w, d_same, d_cross):
     """Exchange left/right labels of views so that all views of a person agree.
 
-    For every pair of views (a, b) and body part, the epipolar cost of matching left to left
-    ("same") and left to right ("cross") is measured; the labeling of all views that minimises
-    the total cost wins, and of a labeling and its mirror (equal cost) the one that exchanges
-    fewer views. Epipolar costs ignore 3D, so this works before any triangulation.
+    d_same, d_cross: (G, 17, K) epipolar distances of joint j in camera a to joint j (same) or
+    to its mirror (cross) in camera b, for the camera pairs (a < b). For every body part, the
+    labeling of all views that minimises the total distance wins, and of a labeling and its
+    mirror (equal cost) the one that exchanges fewer views. This needs no 3D point.
     """
-    G, _, C, _ = xy.shape
+    C = xy.shape[2]
     ka, kb = camera_pairs(C)
-    h = homogeneous(np.nan_to_num(xy))  # (G, J, C, 3)
-    lines = np.matmul(h[:, :, ka, None, :], E[ka, kb].swapaxes(-1, -2))[..., 0, :]  # (G,J,K,3)
-    hb = h[:, :, kb]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        norm = np.hypot(lines[..., 0], lines[..., 1])
-        s_b = size[:, kb][:, None]  # (G, 1, K)
-        d_same = np.abs((lines * hb).sum(-1)) / norm / s_b
-        d_cross = np.abs((lines * hb[:, SWAP]).sum(-1)) / norm / s_b  # (G, J, K)
     ok = w > 0
     ok_same = ok[:, :, ka] & ok[:, :, kb]
     ok_cross = ok[:, :, ka] & ok[:, SWAP][:, :, kb]
@@ -191,8 +196,8 @@ def _consistent_labels(xy, w, E, size):
     for part in _PARTS:
         joints = np.concatenate([_LEFT[part], _RIGHT[part]])
         both = ok_same[:, joints] & ok_cross[:, joints]
-        same = np.where(both, np.nan_to_num(d_same[:, joints]), 0.0).sum(1)  # (G, K)
-        cross = np.where(both, np.nan_to_num(d_cross[:, joints]), 0.0).sum(1)
+        same = np.where(both, d_same[:, joints], 0.0).sum(1)  # (G, K)
+        cross = np.where(both, d_cross[:, joints], 0.0).sum(1)
         cost = same @ (1 - rel).T + cross @ rel.T  # (G, L)
         present = ok[:, joints].any(1)  # (G, C)
         cost += 1e-6 * (present.astype(float) @ Z.T)  # fewer exchanged views on ties
@@ -241,26 +246,3 @@ def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.
     with np.errstate(invalid="ignore"):
         flip_legs = crossed < straight - thigh_margin_m
     return flip_upper, flip_legs
-
-
-def _fix_swaps(X, xy, w, P, focal, thr):
-    """Exchange a view's left/right joints where only the exchanged labels fit X."""
-    e_keep_l = reprojection_errors(X[:, _LEFT], xy[:, _LEFT], P, focal)  # (G, 8, C)
-    e_keep_r = reprojection_errors(X[:, _RIGHT], xy[:, _RIGHT], P, focal)
-    e_swap_l = reprojection_errors(X[:, _RIGHT], xy[:, _LEFT], P, focal)
-    e_swap_r = reprojection_errors(X[:, _LEFT], xy[:, _RIGHT], P, focal)
-    t = thr[:, 0][:, None, :]  # (G, 1, C)
-    with np.errstate(invalid="ignore"):
-        keep_fits = (e_keep_l < t) & (e_keep_r < t)
-        swap_fits = (e_swap_l < t) & (e_swap_r < t)
-        better = (e_swap_l + e_swap_r) < 0.5 * (e_keep_l + e_keep_r)
-    swap = swap_fits & better & ~keep_fits & (w[:, _LEFT] > 0) & (w[:, _RIGHT] > 0)
-    if not swap.any():
-        return xy, w
-    xy, w = xy.copy(), w.copy()
-    s2 = swap[..., None]
-    xl, xr = xy[:, _LEFT], xy[:, _RIGHT]
-    wl, wr = w[:, _LEFT], w[:, _RIGHT]
-    xy[:, _LEFT], xy[:, _RIGHT] = np.where(s2, xr, xl), np.where(s2, xl, xr)
-    w[:, _LEFT], w[:, _RIGHT] = np.where(swap, wr, wl), np.where(swap, wl, wr)
-    return xy, w

@@ -38,13 +38,13 @@ class DetectorNoise:
     outlier_rate: float = 0.01
     outlier_frac: tuple[float, float] = (0.10, 0.30)
     outlier_conf: tuple[float, float] = (0.1, 0.35)
-    occluded_visible: float = 0.5
+    occluded_visible: float = 1.0  # pose detectors report all 17 joints, occluded ones weakly
     occluded_frac: tuple[float, float] = (0.02, 0.08)
     occluded_conf: tuple[float, float] = (0.05, 0.4)
     occluder_shrink: float = 0.1
     visible_conf: tuple[float, float] = (0.6, 0.98)
     face_away_factor: tuple[float, float] = (0.5, 0.8)
-    joint_miss: float = 0.03
+    joint_miss: float = 0.01
     person_miss: float = 0.05
     swap: float = 0.05
     back_swap_factor: float = 2.0
@@ -60,8 +60,7 @@ class DetectorNoise:
             "easy": cls(
                 sigma_frac=0.006,
                 outlier_rate=0.005,
-                occluded_visible=0.3,
-                joint_miss=0.01,
+                joint_miss=0.005,
                 person_miss=0.02,
                 swap=0.0,
                 leg_swap=0.0,
@@ -71,8 +70,7 @@ class DetectorNoise:
             "hard": cls(
                 sigma_frac=0.015,
                 outlier_rate=0.03,
-                occluded_visible=0.7,
-                joint_miss=0.05,
+                joint_miss=0.02,
                 person_miss=0.10,
                 swap=0.15,
                 leg_swap=0.05,

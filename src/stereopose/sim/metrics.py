@@ -9,7 +9,6 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from stereopose.sim.detections import joints_in_view
 from stereopose.sim.scene import Scene
 from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
 from stereopose.types import People3D
@@ -69,10 +68,13 @@ def match_people(
 
 
 def detectable(scene: Scene, min_views: int = 2) -> np.ndarray:
-    """(T, N) bool: worker present and with >= 5 joints inside the image of >= min_views
-    cameras (from the geometry alone, whatever the detector noise)."""
-    counts = joints_in_view(scene.truth, scene.rig).sum(-1)  # (T, C, N)
-    return scene.present & ((counts >= 5).sum(1) >= min_views)
+    """(T, N) bool: worker present and detected (the simulated detector reported them) in
+    >= min_views cameras: a person the 2D input holds in fewer views cannot be triangulated."""
+    views = np.zeros(scene.present.shape, dtype=np.int64)
+    for t, per_camera in enumerate(scene.detection_truth):
+        for owners in per_camera.values():
+            views[t, np.unique(owners[owners >= 0])] += 1
+    return scene.present & (views >= min_views)
 
 
 def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) -> Metrics:

@@ -100,7 +100,7 @@ def make_rig(
             ]
         )
         R = look_at(center, target)
-        fx = rng.uniform(1000.0, 1500.0)
+        fx = rng.uniform(750.0, 1100.0)  # 2.8-4 mm surveillance lenses: 82-104 deg wide
         for _ in range(100):
             k1, k2 = rng.uniform(-0.25, -0.05), rng.uniform(0.0, 0.1)
             if _distortion_ok(fx, k1, k2):
