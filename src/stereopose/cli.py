@@ -119,8 +119,9 @@ def _demo(args: argparse.Namespace) -> int:
     modes = MODES if args.all_modes else (_config(args).reconstruction.triangulation.mode,)
     cfg0 = _config(args)
     for mode in modes:
-        cfg = with_overrides(Config(fps=scene.fps, reconstruction=cfg0.reconstruction),
-                             triangulation={"mode": mode})  # fmt: skip
+        cfg = with_overrides(
+            Config(fps=scene.fps, reconstruction=cfg0.reconstruction), triangulation={"mode": mode}
+        )
         poses = out_dir / f"poses3d_{mode}.jsonl"
         summary = reconstruct_files(scene_dir / "calib.toml", scene_dir / "pose", poses, cfg)
         m = evaluate_poses_file(poses, scene)

@@ -48,7 +48,7 @@ class TriangulationConfig:
     pair_a: float = 0.01  # `pair` mode: weight per pixel of mean epipolar distance
     pair_b: float = 1.0  # `pair` mode: weight of the mean confidences of the two views
     inlier_px: float = 10.0  # `robust`: reprojection error always accepted, pixels
-    inlier_rel: float = 0.06  # `robust`: ... or this fraction of the person's height in the view
+    inlier_rel: float = 0.03  # `robust`: ... or this fraction of the person's size in the view
     fix_swaps: bool = True  # `robust`: correct left/right labels swapped by the detector
 
 
@@ -60,6 +60,8 @@ class PlausibilityConfig:
     floor_tolerance_m: float = 0.4  # lowest joint may be this far below the floor
     max_height_m: float = 3.0  # vertical extent of a person's joints
     max_limb_m: float = 1.0  # a joint making a PCP limb longer than this is dropped
+    # seen by fewer than this fraction of the cameras that should see them: a ghost
+    min_view_fraction: float = 0.4
 
 
 @dataclass(frozen=True)

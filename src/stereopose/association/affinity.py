@@ -56,9 +56,14 @@ class Detections:
         if not cams:
             z = np.zeros((0, NUM_JOINTS))
             return cls(
-                np.zeros(0, int), np.zeros(0, int), np.zeros((0, NUM_JOINTS, 2)),
-                np.zeros((0, NUM_JOINTS, 2)), z, np.zeros(0), np.zeros(0),
-            )  # fmt: skip
+                np.zeros(0, int),
+                np.zeros(0, int),
+                np.zeros((0, NUM_JOINTS, 2)),
+                np.zeros((0, NUM_JOINTS, 2)),
+                z,
+                np.zeros(0),
+                np.zeros(0),
+            )
         kp = np.concatenate(px)
         conf = kp[..., 2]
         xyn = np.concatenate(xy)

@@ -57,11 +57,14 @@ def frame_record(people: People3D, fps: float) -> dict:
                 if np.isfinite(pos[p]).all()
                 else None,
                 "views": [int(v) for v in people.views[p]],
-                "reprojection_px": _round(float(np.nanmean(people.reprojection_px[p]))
-                                          if np.isfinite(people.reprojection_px[p]).any()
-                                          else math.nan, 2),
+                "reprojection_px": _round(
+                    float(np.nanmean(people.reprojection_px[p]))
+                    if np.isfinite(people.reprojection_px[p]).any()
+                    else math.nan,
+                    2,
+                ),
             }
-        )  # fmt: skip
+        )
     return {"frame": people.frame, "t": round(people.frame / fps, 6), "people": out}
 
 

@@ -63,6 +63,11 @@ class Reconstructor:
         self.E = essential_matrices(rig)
         self.focal = np.array([c.focal for c in rig])
         self.blocks = dlt_blocks(self.P)
+        # image bounds in normalised coordinates, (C, 2) each
+        size = np.array([c.size for c in rig])
+        K = np.stack([c.matrix for c in rig])
+        centre, f = K[:, :2, 2], np.stack([K[:, 0, 0], K[:, 1, 1]], axis=-1)
+        self.bounds = (-centre / f, (size - centre) / f)
         self.pair_blocks = dlt_blocks(self.P[pair_views(len(rig))])
 
     def __call__(
@@ -91,7 +96,8 @@ class Reconstructor:
             redo = self._triangulate(det, [groups[i] for i in grown], dist)
             for full, part in zip(tri, redo, strict=True):
                 full[grown] = part
-        return self._assemble(frame, det, groups, *tri)
+        delivered = np.array([p is not None for p in people])
+        return self._assemble(frame, det, groups, delivered, *tri)
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -117,17 +123,32 @@ class Reconstructor:
         w = np.where(conf >= tc.min_conf, conf, 0.0)
         if tc.mode == "pair":
             X, used = triangulate_pair(
-                xy, w, conf, self.P, self.E, self.focal, tc.pair_a, tc.pair_b,
+                xy,
+                w,
+                conf,
+                self.P,
+                self.E,
+                self.focal,
+                tc.pair_a,
+                tc.pair_b,
                 self.config.association.min_common_joints,
-            )  # fmt: skip
+            )
         elif tc.mode == "weighted":
             X, used = triangulate_weighted(xy, w, self.P)
         else:
             X, used, xy, w = triangulate_robust(
-                xy, w, self.P, self.focal, size_px, tc.inlier_px, tc.inlier_rel, tc.fix_swaps,
+                xy,
+                w,
+                self.P,
+                self.focal,
+                size_px,
+                tc.inlier_px,
+                tc.inlier_rel,
+                tc.fix_swaps,
                 pair_distances=_group_pair_distances(members, dist),
-                blocks=self.blocks, pair_blocks=self.pair_blocks,
-            )  # fmt: skip
+                blocks=self.blocks,
+                pair_blocks=self.pair_blocks,
+            )
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
         err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
         return X, used, out_conf, err
@@ -170,7 +191,15 @@ class Reconstructor:
                     grown.append(int(gi))
         return sorted(set(grown))
 
-    def _assemble(self, frame, det, groups, X, used, conf, err) -> People3D:
+    def _in_view(self, X: np.ndarray, min_joints: int = 5) -> np.ndarray:
+        """(G, C) whether >= min_joints of each person's joints (G, 17, 3) fall inside each
+        camera's image, in front of it (distortion ignored: this is a coarse test)."""
+        xy = project_normalized(X[:, :, None, :], self.P)  # (G, 17, C, 2)
+        lo, hi = self.bounds
+        inside = ((xy >= lo) & (xy <= hi)).all(-1)  # NaN (behind, missing) compares False
+        return inside.sum(1) >= min_joints
+
+    def _assemble(self, frame, det, groups, delivered, X, used, conf, err) -> People3D:
         pc = self.config.plausibility
         G, C = len(groups), len(self.rig)
         X = X.copy()
@@ -184,13 +213,19 @@ class Reconstructor:
         valid = np.isfinite(X).all(-1)
         used = used & valid[..., None]
         z = X[..., 2]
-        with np.errstate(invalid="ignore"):
-            zmin = np.nanmin(np.where(valid, z, np.inf), axis=1)
-            zmax = np.nanmax(np.where(valid, z, -np.inf), axis=1)
+        zmin = np.where(valid, z, np.inf).min(axis=1)
+        zmax = np.where(valid, z, -np.inf).max(axis=1)
+        views = np.zeros((G, C), dtype=bool)
+        for i, g in enumerate(groups):
+            views[i, det.camera[g]] = True
+        # A person that cameras with a frame should see but (almost) none detected is a
+        # coincidence of false detections that happen to agree, not a person.
+        expected = (self._in_view(X) | views) & delivered
         keep = (
             (valid.sum(1) >= pc.min_joints)
             & (zmin >= -pc.floor_tolerance_m)
             & (zmax - zmin <= pc.max_height_m)
+            & (views.sum(1) >= pc.min_view_fraction * expected.sum(1))
         )
         idx = np.flatnonzero(keep)
         if idx.size == 0:

@@ -1,0 +1,203 @@
+"""Accuracy and speed of the 3D stage (association + triangulation) for each mode.
+
+Simulated scenes of three difficulties (ground truth from stereopose.sim) give MPJPE, PCP, person
+recall and false people; a 6-camera x 5-person scene gives frames/s on one core (file reading
+excluded); the shared real detections give the reprojection error. Results are written to
+benchmarks/results/reconstruction.{md,json}.
+
+usage: python benchmarks/reconstruction.py [--frames 300] [--seeds 2]
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # one core, before numpy loads
+
+import argparse
+import datetime
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from stereopose.calibration.formats import load_calibration
+from stereopose.config import MODES, ReconstructionConfig, TriangulationConfig
+from stereopose.detection.openpose import read_pose_dir
+from stereopose.reconstruction import Reconstructor
+from stereopose.sim import evaluate, simulate
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "data" / "pose2sim-demo-yolo11n"
+
+
+def machine() -> str:
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, one thread"
+
+
+def config(mode: str) -> ReconstructionConfig:
+    return ReconstructionConfig(triangulation=TriangulationConfig(mode=mode))
+
+
+def run_scene(scene, mode: str, repeat: int = 1) -> tuple[list, float]:
+    rec = Reconstructor(scene.rig, config(mode))
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        preds = [rec(t, dets) for t, dets in enumerate(scene.detections)]
+        best = min(best, time.perf_counter() - t0)
+    return preds, len(scene.detections) / best
+
+
+def accuracy(frames: int, seeds: int) -> list[dict]:
+    rows = []
+    for difficulty in ("easy", "mid", "hard"):
+        scenes = [simulate(num_frames=frames, seed=s, difficulty=difficulty) for s in range(seeds)]
+        for mode in MODES:
+            metrics = []
+            for scene in scenes:
+                preds, _ = run_scene(scene, mode)
+                metrics.append(evaluate(preds, scene).as_dict())
+            row = {
+                "difficulty": difficulty,
+                "mode": mode,
+                "cameras": len(scenes[0].rig),
+                "people": int(scenes[0].truth.shape[1]),
+            }
+            for key in ("mpjpe_mm", "pcp", "person_recall", "false_people_per_frame"):
+                row[key] = float(np.mean([m[key] for m in metrics]))
+            rows.append(row)
+            print(
+                f"{difficulty:5s} {mode:8s} MPJPE {row['mpjpe_mm']:6.1f} mm  "
+                f"PCP {100 * row['pcp']:5.1f}%  recall {100 * row['person_recall']:5.1f}%  "
+                f"false {row['false_people_per_frame']:.3f}/frame",
+                flush=True,
+            )
+    return rows
+
+
+def speed(frames: int) -> list[dict]:
+    scene = simulate(num_cameras=6, num_people=5, num_frames=frames, seed=7, difficulty="mid")
+    rows = []
+    for mode in MODES:
+        _, fps = run_scene(scene, mode, repeat=3)
+        rows.append({"mode": mode, "cameras": 6, "people": 5, "fps": fps})
+        print(f"speed {mode:8s} {fps:7.0f} frames/s (6 cameras x 5 people)", flush=True)
+    return rows
+
+
+def real() -> list[dict]:
+    if not SHARED.is_dir():
+        print(f"shared real detections not found at {SHARED}; skipped", file=sys.stderr)
+        return []
+    rig = load_calibration(SHARED / "calib.toml")
+    frames = list(read_pose_dir(SHARED / "pose", rig.names))
+    rows = []
+    for mode in MODES:
+        rec = Reconstructor(rig, config(mode))
+        outs = [rec(f, d) for f, d in frames]
+        used = np.concatenate([o.reprojection_px[o.conf > 0.5] for o in outs])
+        rows.append(
+            {
+                "mode": mode,
+                "frames": len(outs),
+                "frames_with_2_people": int(sum(len(o) >= 2 for o in outs)),
+                "median_reprojection_px": float(np.nanmedian(used)),
+                "mean_views": float(np.mean(np.concatenate([o.views[o.conf > 0.5] for o in outs]))),
+            }
+        )
+        r = rows[-1]
+        print(
+            f"real  {mode:8s} >=2 people in {r['frames_with_2_people']}/{r['frames']} frames, "
+            f"median reprojection {r['median_reprojection_px']:.2f} px",
+            flush=True,
+        )
+    return rows
+
+
+def write(results: dict) -> None:
+    (HERE / "results").mkdir(exist_ok=True)
+    (HERE / "results" / "reconstruction.json").write_text(json.dumps(results, indent=2) + "\n")
+    md = [
+        "# 3D stage: accuracy and speed",
+        "",
+        f"Measured {results['date']} on {results['machine']} by `benchmarks/reconstruction.py "
+        f"--frames {results['frames']} --seeds {results['seeds']}`.",
+        "",
+        "## Simulated substations (ground truth)",
+        "",
+        "MPJPE over matched people; PCP over the 10 body limbs of every true person seen by >= 2 "
+        "cameras (a missed person counts as wrong); person recall; false people per frame.",
+        "",
+        "| difficulty | cameras x people | mode | MPJPE mm | PCP % | recall % | false/frame |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
+    for r in results["accuracy"]:
+        md.append(
+            f"| {r['difficulty']} | {r['cameras']} x {r['people']} | {r['mode']} | "
+            f"{r['mpjpe_mm']:.1f} | {100 * r['pcp']:.2f} | {100 * r['person_recall']:.2f} | "
+            f"{r['false_people_per_frame']:.3f} |"
+        )
+    md += [
+        "",
+        "## Speed of the 3D stage (one core, file reading excluded)",
+        "",
+        "| mode | cameras x people | frames/s |",
+        "|---|---|---:|",
+    ]
+    for r in results["speed"]:
+        md.append(f"| {r['mode']} | {r['cameras']} x {r['people']} | {r['fps']:.0f} |")
+    if results["real"]:
+        md += [
+            "",
+            "## Shared real detections (pose2sim demo, 4 cameras, 100 frames, YOLO11n-pose)",
+            "",
+            "Reprojection error: per reconstructed joint with confidence > 0.5, the mean pixel "
+            "distance between its reprojection and the 2D joints of the views it was "
+            "triangulated from (undistorted image); median over all joints and frames.",
+            "",
+            "| mode | frames with >= 2 people | median reprojection px | views per joint |",
+            "|---|---:|---:|---:|",
+        ]
+        for r in results["real"]:
+            md.append(
+                f"| {r['mode']} | {r['frames_with_2_people']}/{r['frames']} | "
+                f"{r['median_reprojection_px']:.2f} | {r['mean_views']:.2f} |"
+            )
+    (HERE / "results" / "reconstruction.md").write_text("\n".join(md) + "\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--seeds", type=int, default=2)
+    args = ap.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    results = {
+        "date": datetime.date.today().isoformat(),
+        "machine": machine(),
+        "frames": args.frames,
+        "seeds": args.seeds,
+        "accuracy": accuracy(args.frames, args.seeds),
+        "speed": speed(args.frames),
+        "real": real(),
+    }
+    write(results)
+    print(f"written {HERE / 'results' / 'reconstruction.md'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,143 @@
+"""The command line: output contract, summary, and clear errors on bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from stereopose.cli import main
+
+
+@pytest.mark.realdata
+def test_reconstruct_real_detections(shared_data_dir: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "poses3d.jsonl"
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(shared_data_dir / "calib.toml"),
+            "--pose",
+            str(shared_data_dir / "pose"),
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "frames" in printed and "100" in printed
+    assert "median reprojection error" in printed
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["frame"] for r in lines] == list(range(100))
+    assert lines[1]["t"] == pytest.approx(1 / 25)
+    for rec in lines:
+        for person in rec["people"]:
+            assert isinstance(person["id"], int)
+            assert len(person["joints"]) == 17
+            for j in person["joints"]:
+                assert j is None or (len(j) == 3 and all(isinstance(v, float) for v in j))
+    two = sum(len(rec["people"]) >= 2 for rec in lines)
+    assert two >= 95
+
+
+BAD_CALIB = (
+    "[cam01]\nname = 'cam01'\n"
+    "matrix = [[1000.0, 0.0, 500.0], [0.0, 1000.0, 500.0], [0.0, 0.0, 1.0]]\n"
+)
+
+
+def _write_calib(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(
+    ("setup", "message"),
+    [
+        (lambda d, t: ["--calib", str(t / "missing.toml")], r"missing\.toml.*not found"),
+        (
+            lambda d, t: ["--calib", str(_write_calib(t / "bad.toml", BAD_CALIB))],
+            r"bad\.toml.*cam01.*missing",
+        ),
+        (lambda d, t: ["--pose", str(t)], r"no keypoint folder matches a camera"),
+        (lambda d, t: ["--pose", str(t / "nowhere")], r"nowhere"),
+    ],
+)
+def test_reconstruct_bad_input_is_a_clear_error(
+    shared_data_dir: Path, tmp_path: Path, capsys, setup, message
+) -> None:
+    args = {
+        "--calib": str(shared_data_dir / "calib.toml"),
+        "--pose": str(shared_data_dir / "pose"),
+        "--out": str(tmp_path / "o.jsonl"),
+    }
+    extra = setup(shared_data_dir, tmp_path)
+    args[extra[0]] = extra[1]
+    rc = main(["reconstruct", *[x for kv in args.items() for x in kv]])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "Traceback" not in err
+    import re
+
+    assert re.search(message, " ".join(err.split()), re.IGNORECASE), err
+
+
+@pytest.mark.realdata
+def test_reconstruct_with_one_camera_folder_fails_clearly(
+    shared_data_dir: Path, tmp_path: Path, capsys
+) -> None:
+    pose = tmp_path / "pose"
+    shutil.copytree(shared_data_dir / "pose" / "cam01_json", pose / "cam01_json")
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(shared_data_dir / "calib.toml"),
+            "--pose",
+            str(pose),
+            "--out",
+            str(tmp_path / "o.jsonl"),
+        ]
+    )
+    assert rc == 2
+    assert "at least 2 calibrated cameras" in " ".join(capsys.readouterr().err.split())
+
+
+@pytest.mark.realdata
+def test_malformed_keypoint_file_is_skipped_and_reported(
+    shared_data_dir: Path, tmp_path: Path, capsys
+) -> None:
+    pose = tmp_path / "pose"
+    shutil.copytree(shared_data_dir / "pose", pose)
+    broken = pose / "cam02_json" / "cam02_000000000010_keypoints.json"
+    broken.write_text("{not json")
+    out = tmp_path / "o.jsonl"
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(shared_data_dir / "calib.toml"),
+            "--pose",
+            str(pose),
+            "--out",
+            str(out),
+        ]
+    )
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert "skipped" in captured.out
+    assert "cam02_000000000010_keypoints.json" in "".join(captured.out.split())
+    frames = [json.loads(line)["frame"] for line in out.read_text().splitlines()]
+    assert frames == list(range(100))  # the frame is still written from the other cameras
+
+
+def test_bad_config_key_is_named(tmp_path: Path, capsys) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[reconstruction.triangulation]\nmodee = 'pair'\n")
+    rc = main(["reconstruct", "--calib", "x", "--pose", "y", "--out", "z", "--config", str(cfg)])
+    err = " ".join(capsys.readouterr().err.split())
+    assert rc == 2
+    assert "c.toml" in err and "modee" in err
