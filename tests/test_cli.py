@@ -141,3 +141,66 @@ def test_bad_config_key_is_named(tmp_path: Path, capsys) -> None:
     err = " ".join(capsys.readouterr().err.split())
     assert rc == 2
     assert "c.toml" in err and "modee" in err
+
+
+def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
+    scene = tmp_path / "scene"
+    assert (
+        main(
+            [
+                "simulate",
+                str(scene),
+                "--frames",
+                "12",
+                "--cameras",
+                "4",
+                "--people",
+                "2",
+                "--difficulty",
+                "easy",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
+    assert (scene / "calib.toml").is_file() and (scene / "truth.jsonl").is_file()
+    assert sorted(p.name for p in (scene / "pose").iterdir()) == [
+        "cam01_json",
+        "cam02_json",
+        "cam03_json",
+        "cam04_json",
+    ]
+    out = tmp_path / "poses.jsonl"
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(scene / "calib.toml"),
+            "--pose",
+            str(scene / "pose"),
+            "--out",
+            str(out),
+            "--mode",
+            "weighted",
+        ]
+    )
+    assert rc == 0
+    assert len(out.read_text().splitlines()) == 12
+
+
+def test_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
+    rc = main(
+        ["demo", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy", "--all-modes"]
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    for word in ("MPJPE", "PCP", "pair", "weighted", "robust"):
+        assert word in printed
+    assert (tmp_path / "poses3d_robust.jsonl").is_file()
+
+
+def test_simulate_rejects_bad_counts(tmp_path: Path, capsys) -> None:
+    rc = main(["simulate", str(tmp_path), "--cameras", "1"])
+    assert rc == 2
+    assert "between 2 and 12" in capsys.readouterr().err

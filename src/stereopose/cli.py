@@ -6,6 +6,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.logging import RichHandler
@@ -16,6 +17,9 @@ from rich.table import Table
 from stereopose import __version__
 from stereopose.config import MODES, Config, load_config, with_overrides
 from stereopose.errors import StereoposeError
+
+if TYPE_CHECKING:
+    from stereopose.sim import Scene
 
 console = Console(stderr=True)
 out = Console()
@@ -78,11 +82,23 @@ def _reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate(args: argparse.Namespace) -> int:
+def _simulated(**kwargs: object) -> Scene:
     from stereopose.sim import simulate
+
+    if kwargs["num_frames"] < 1:
+        raise StereoposeError(f"--frames must be at least 1, got {kwargs['num_frames']}")
+    if kwargs.get("fps", 25.0) <= 0:
+        raise StereoposeError(f"--fps must be positive, got {kwargs['fps']}")
+    try:
+        return simulate(**kwargs)
+    except ValueError as e:
+        raise StereoposeError(f"cannot simulate this scene: {e}") from None
+
+
+def _simulate(args: argparse.Namespace) -> int:
     from stereopose.sim.io import write_scene
 
-    scene = simulate(
+    scene = _simulated(
         num_cameras=args.cameras,
         num_people=args.people,
         num_frames=args.frames,
@@ -101,12 +117,11 @@ def _simulate(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace) -> int:
     from stereopose.pipeline import evaluate_poses_file, reconstruct_files
-    from stereopose.sim import simulate
     from stereopose.sim.io import write_scene
 
     out_dir = Path(args.out)
     scene_dir = out_dir / "scene"
-    scene = simulate(num_frames=args.frames, seed=args.seed, difficulty=args.difficulty)
+    scene = _simulated(num_frames=args.frames, seed=args.seed, difficulty=args.difficulty)
     write_scene(scene, scene_dir)
     out.print(
         f"[bold]Simulated substation[/]: {args.difficulty}, {len(scene.rig)} cameras, "

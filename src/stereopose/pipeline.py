@@ -13,7 +13,7 @@ import numpy as np
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
-from stereopose.errors import KeypointsError
+from stereopose.errors import CalibrationError, KeypointsError
 from stereopose.io.results import PosesWriter
 from stereopose.reconstruction import Reconstructor
 from stereopose.types import People3D
@@ -85,7 +85,10 @@ def reconstruct_files(
     if not seq.frames:
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
-    rec = Reconstructor(rig, config.reconstruction)
+    try:
+        rec = Reconstructor(rig, config.reconstruction)
+    except CalibrationError as e:
+        raise CalibrationError(f"{calib_path}: {e}") from None
     summary = ReconstructionSummary(config.reconstruction.triangulation.mode, rig.names)
     total = len(seq)
     with PosesWriter(out_path, config.fps) as writer:

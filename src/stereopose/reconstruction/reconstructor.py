@@ -15,6 +15,7 @@ from stereopose.association.affinity import (
 )
 from stereopose.association.grouping import group_detections
 from stereopose.config import ReconstructionConfig
+from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import project_normalized
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
@@ -57,6 +58,12 @@ class Reconstructor:
     """
 
     def __init__(self, rig: Rig, config: ReconstructionConfig | None = None) -> None:
+        fisheye = [c.name for c in rig if c.fisheye]
+        if fisheye:
+            raise CalibrationError(
+                f"camera(s) {', '.join(fisheye)}: fisheye lens models are not supported; "
+                "calibrate with the pinhole model (k1 k2 p1 p2)"
+            )
         self.rig = rig
         self.config = config or ReconstructionConfig()
         self.P = np.stack([c.P for c in rig])
