@@ -34,12 +34,13 @@ def test_truth_people3d(mid_scene) -> None:
 
 def test_ground_truth_scores_perfectly(mid_scene) -> None:
     m = evaluate(_truth(mid_scene), mid_scene)
-    assert m.mpjpe_mm == 0.0 and m.pcp == 1.0 and m.person_recall == 1.0
+    assert m.mpjpe_mm == 0.0 and m.pcp == 1.0 and m.pcp_seen == 1.0 and m.person_recall == 1.0
     assert m.false_people_per_frame == 0.0 and m.joint_coverage == 1.0
     assert m.frames == mid_scene.num_frames
     assert set(m.as_dict()) == {
         "mpjpe_mm",
         "pcp",
+        "pcp_seen",
         "person_recall",
         "false_people_per_frame",
         "joint_coverage",

@@ -26,10 +26,13 @@ class Metrics:
     person_recall: matched / counted true people.
     false_people_per_frame: predictions matching no present worker, per frame.
     joint_coverage: fraction of the joints of matched people that were reconstructed.
+    pcp_seen: PCP over the limbs whose two joints the detector reported in >= 2 cameras, the
+        limbs any triangulation can reach (an unmatched person's such limbs count as wrong).
     """
 
     mpjpe_mm: float
     pcp: float
+    pcp_seen: float
     person_recall: float
     false_people_per_frame: float
     joint_coverage: float
@@ -77,6 +80,17 @@ def detectable(scene: Scene, min_views: int = 2) -> np.ndarray:
     return scene.present & (views >= min_views)
 
 
+def joint_views(scene: Scene) -> np.ndarray:
+    """(T, N, 17) number of cameras whose detections report each joint of each worker."""
+    views = np.zeros((*scene.present.shape, NUM_JOINTS), dtype=np.int64)
+    for t, per_camera in enumerate(scene.detection_truth):
+        for name, owners in per_camera.items():
+            reported = scene.detections[t][name].keypoints[..., 2] > 0
+            for k in np.flatnonzero(owners >= 0):
+                views[t, owners[k]] += reported[k]
+    return views
+
+
 def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) -> Metrics:
     """Score `predictions` (one People3D per evaluated frame, `frame` indexing the scene).
 
@@ -84,8 +98,10 @@ def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) 
     matching a present but undetectable worker are neither counted nor false.
     """
     counted_mask = detectable(scene, min_views)
+    seen = joint_views(scene) >= min_views  # (T, N, 17)
     errors_m: list[float] = []
     limbs_ok = counted = matched = false = reconstructed = 0
+    seen_total = seen_ok = 0
     for pred in predictions:
         t = int(pred.frame)
         if not 0 <= t < scene.num_frames:
@@ -96,6 +112,8 @@ def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) 
         false += len(pred) - len(pairs)
         is_counted = counted_mask[t, idx]
         counted += int(is_counted.sum())
+        limb_seen = seen[t, idx][:, _LIMB_A] & seen[t, idx][:, _LIMB_B]  # (n, 10)
+        seen_total += int(limb_seen[is_counted].sum())
         for p, n in pairs:
             if not is_counted[n]:
                 continue
@@ -109,11 +127,13 @@ def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) 
             with np.errstate(invalid="ignore"):
                 ok = 0.5 * (err[_LIMB_A] + err[_LIMB_B]) <= 0.5 * length
             limbs_ok += int(ok.sum())
+            seen_ok += int((ok & limb_seen[n]).sum())
     nan = float("nan")
     frames = len(predictions)
     return Metrics(
         mpjpe_mm=1000.0 * float(np.mean(errors_m)) if errors_m else nan,
         pcp=limbs_ok / (counted * len(PCP_LIMBS)) if counted else nan,
+        pcp_seen=seen_ok / seen_total if seen_total else nan,
         person_recall=matched / counted if counted else nan,
         false_people_per_frame=false / frames if frames else nan,
         joint_coverage=reconstructed / (matched * NUM_JOINTS) if matched else nan,
