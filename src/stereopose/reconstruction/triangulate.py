@@ -182,8 +182,9 @@ def _consistent_labels(xy, w, d_same, d_cross):
 
     d_same, d_cross: (G, 17, K) epipolar distances of joint j in camera a to joint j (same) or
     to its mirror (cross) in camera b, for the camera pairs (a < b). For every body part, the
-    labeling of all views that minimises the total distance wins, and of a labeling and its
-    mirror (equal cost) the one that exchanges fewer views. This needs no 3D point.
+    labeling of all views that minimises the total distance wins; of a labeling and its mirror
+    (equal cost), the one exchanging the views with the fainter face (a back view, where
+    detectors swap sides). This needs no 3D point; _body_orientation settles the mirror in 3D.
     """
     C = xy.shape[2]
     ka, kb = camera_pairs(C)
@@ -192,6 +193,7 @@ def _consistent_labels(xy, w, d_same, d_cross):
     ok_cross = ok[:, :, ka] & ok[:, SWAP][:, :, kb]
     Z = _labelings(C)
     rel = Z[:, ka] ^ Z[:, kb]  # (L, K): 1 where the pair's labels differ
+    face = w[:, :3].mean(1)  # (G, C) nose and eyes
     out_xy, out_w = xy, w
     for part in _PARTS:
         joints = np.concatenate([_LEFT[part], _RIGHT[part]])
@@ -200,7 +202,9 @@ def _consistent_labels(xy, w, d_same, d_cross):
         cross = np.where(both, d_cross[:, joints], 0.0).sum(1)
         cost = same @ (1 - rel).T + cross @ rel.T  # (G, L)
         present = ok[:, joints].any(1)  # (G, C)
-        cost += 1e-6 * (present.astype(float) @ Z.T)  # fewer exchanged views on ties
+        # A labeling and its mirror cost the same: prefer exchanging the views that see the
+        # person's back (faint face), where detectors swap sides, and then fewer views.
+        cost += 1e-6 * ((present * (face + 0.01)) @ Z.T)
         swap = Z[np.argmin(cost, axis=1)].astype(bool) & present  # (G, C)
         if not swap.any():
             continue
