@@ -10,22 +10,39 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from stereopose.association.grouping import _assignment, group_detections
+from stereopose.association.grouping import group_detections, pairwise_matches
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.integers(1, 6), st.integers(1, 6), st.integers(0, 2**32 - 1), st.booleans())
-def test_assignment_is_optimal(rows, cols, seed, separated):
+@given(
+    st.lists(st.integers(0, 5), min_size=2, max_size=5), st.integers(0, 2**32 - 1), st.booleans()
+)
+def test_pairwise_matches_are_optimal_per_camera_pair(counts, seed, separated):
+    """Same total cost per camera pair as the Hungarian algorithm run pair by pair."""
     rng = np.random.default_rng(seed)
-    cost = rng.uniform(0, 1, (rows, cols))
-    if separated:  # the common case: each row has a clear best column
-        for i in range(min(rows, cols)):
-            cost[i, i] = 1e-3 * rng.uniform()
-    r, c = _assignment(cost)
-    r_ref, c_ref = linear_sum_assignment(cost)
-    assert len(r) == min(rows, cols)
-    assert len(set(r.tolist())) == len(r) and len(set(c.tolist())) == len(c)
-    assert cost[r, c].sum() == pytest.approx(cost[r_ref, c_ref].sum())
+    camera = np.repeat(np.arange(len(counts)), counts)
+    N = camera.size
+    cost = rng.uniform(0, 0.2, (N, N))
+    if separated:  # the common case: people far apart, one clear partner each
+        person = np.concatenate([rng.permutation(c) for c in counts])
+        cost = np.where(person[:, None] == person[None, :], 0.01 * cost, cost + 0.5)
+    cost = np.minimum(cost, cost.T)
+    cost[camera[:, None] == camera[None, :]] = np.inf
+    rows = pairwise_matches(cost, camera, max_cost=np.inf)
+    got: dict[tuple[int, int], float] = {}
+    for n, m, c in rows:
+        key = (int(camera[int(n)]), int(camera[int(m)]))
+        got[key] = got.get(key, 0.0) + c
+    for a, b in itertools.combinations(range(len(counts)), 2):
+        ia, ib = np.flatnonzero(camera == a), np.flatnonzero(camera == b)
+        if ia.size == 0 or ib.size == 0:
+            assert (a, b) not in got
+            continue
+        r, c = linear_sum_assignment(cost[np.ix_(ia, ib)])
+        assert got[(a, b)] == pytest.approx(cost[ia[r], ib[c]].sum())
+    for n, m, _ in rows:  # one-to-one
+        assert camera[int(n)] != camera[int(m)]
+    assert len({int(n) for n, *_ in rows} | set()) <= N
 
 
 def _groups_as_sets(groups):

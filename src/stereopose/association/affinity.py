@@ -25,7 +25,7 @@ class Detections:
     camera: (N,) rig camera index; index: (N,) index within that camera's list.
     pixels: (N, 17, 2) distorted pixels; xy: (N, 17, 2) ideal normalised coordinates.
     conf: (N, 17); size: (N,) diagonal of the confident joints' box in normalised units;
-    size_px: (N,) the same in pixels.
+    size_px: (N,) the same in pixels of the undistorted image.
     """
 
     camera: np.ndarray
@@ -67,15 +67,11 @@ class Detections:
         kp = np.concatenate(px)
         conf = kp[..., 2]
         xyn = np.concatenate(xy)
-        return cls(
-            np.concatenate(cams),
-            np.concatenate(idx),
-            kp[..., :2],
-            xyn,
-            conf,
-            _box_diagonal(xyn, conf >= min_conf),
-            _box_diagonal(kp[..., :2], conf >= min_conf),
-        )
+        camera = np.concatenate(cams)
+        size = _box_diagonal(xyn, conf >= min_conf)
+        focal = np.array([c.focal for c in rig])
+        # pixels of the undistorted image: close enough for thresholds scaled by person size
+        return cls(camera, np.concatenate(idx), kp[..., :2], xyn, conf, size, size * focal[camera])
 
 
 def _box_diagonal(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -121,16 +117,18 @@ def epipolar_distances(det: Detections, E: np.ndarray) -> PairDistances:
     n, m = n[keep], m[keep]
     row = np.full((N, N), -1, dtype=np.int64)
     row[n, m] = row[m, n] = np.arange(n.size)
-    h = homogeneous(np.nan_to_num(det.xy))  # (N, 17, 3)
-    # |h_m^T E h_n| is the same seen from either image; only the line norms differ.
-    lines_m = np.matmul(h[n], E[det.camera[n], det.camera[m]].swapaxes(-1, -2))  # in m's image
-    lines_n = np.matmul(h[m], E[det.camera[m], det.camera[n]].swapaxes(-1, -2))  # in n's image
+    h = homogeneous(np.where(np.isfinite(det.xy), det.xy, 0.0))  # (N, 17, 3)
+    # Lines of every detection's joints in every camera, (N, C, 17, 3), and their inverse
+    # norms; |h_m^T E h_n| is the same seen from either image, only the norms differ.
+    lines = np.matmul(h[:, None], E[det.camera].swapaxes(-1, -2))
     with np.errstate(invalid="ignore", divide="ignore"):
-        w_m = 0.5 / (np.hypot(lines_m[..., 0], lines_m[..., 1]) * det.size[m][:, None])
-        w_n = 0.5 / (np.hypot(lines_n[..., 0], lines_n[..., 1]) * det.size[n][:, None])
-        hm = h[m]
-        same = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm)) * (w_m + w_n)
-        cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm[:, SWAP])) * (w_m + w_n[:, SWAP])
+        inv = 0.5 / np.hypot(lines[..., 0], lines[..., 1])
+    lines_m = lines[n, det.camera[m]]  # n's joints in m's image, (M, 17, 3)
+    w_m = inv[n, det.camera[m]] / det.size[m][:, None]
+    w_n = inv[m, det.camera[n]] / det.size[n][:, None]
+    hm = h[m]
+    same = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm)) * (w_m + w_n)
+    cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm[:, SWAP])) * (w_m + w_n[:, SWAP])
     return PairDistances(n, m, row, same, cross)
 
 

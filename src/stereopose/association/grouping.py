@@ -8,55 +8,63 @@ from scipy.optimize import linear_sum_assignment
 _BIG = 1e9
 
 
-def _assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Minimum-cost one-to-one assignment of a (R, K) matrix (rows, columns).
-
-    When every row's cheapest column is a different column (the usual case: people far apart),
-    that is already optimal, as the sum of row minima bounds every assignment from below; only
-    conflicts need the Hungarian algorithm.
-    """
-    R, K = cost.shape
-    if R <= K:
-        best = cost.argmin(axis=1)
-        if np.bincount(best, minlength=K).max(initial=0) <= 1:
-            return np.arange(R), best
-    else:
-        best = cost.argmin(axis=0)
-        if np.bincount(best, minlength=R).max(initial=0) <= 1:
-            order = np.argsort(best)
-            return best[order], order
-    return linear_sum_assignment(cost)
-
-
 def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> np.ndarray:
     """Globally optimal one-to-one matches for every camera pair (Hungarian).
 
-    cost: (N, N) detection costs; camera: (N,) camera index of each detection.
-    Returns (M, 3) float rows (detection n, detection m, cost), only matches with
-    cost <= max_cost.
+    cost: (N, N) detection costs; camera: (N,) camera index of each detection, detections
+    ordered by camera. Returns (M, 3) float rows (detection n < detection m, cost), only
+    matches with cost <= max_cost.
+
+    For every camera pair the detections of the camera with fewer of them pick their cheapest
+    partner in the other camera; where no two pick the same partner, that is the optimal
+    assignment (the sum of row minima bounds every assignment from below), found for all pairs
+    at once. Only pairs with a conflict go through the Hungarian algorithm.
     """
-    members = [np.flatnonzero(camera == c) for c in np.unique(camera)]
-    finite = np.where(np.isfinite(cost), cost, _BIG)
-    n_out, m_out = [], []
-    for i, a in enumerate(members):
-        rows = finite[a]
-        for b in members[i + 1 :]:
-            sub = rows[:, b]
-            r, c = _assignment(sub)
-            keep = sub[r, c] <= max_cost
-            n_out.append(a[r[keep]])
-            m_out.append(b[c[keep]])
-    if not n_out:
+    N = cost.shape[0]
+    cams, start, counts = np.unique(camera, return_index=True, return_counts=True)
+    if cams.size < 2:
         return np.zeros((0, 3))
-    n = np.concatenate(n_out)
-    m = np.concatenate(m_out)
-    return np.stack([n, m, cost[n, m]], axis=1).astype(np.float64)
+    # (N, Q) cheapest partner of every detection in every camera that has detections
+    pad = np.full((cams.size, counts.max()), -1)
+    for q in range(cams.size):
+        pad[q, : counts[q]] = np.arange(start[q], start[q] + counts[q])
+    sub = np.where(pad[None] >= 0, cost[:, np.maximum(pad, 0)], np.inf)  # (N, Q, Pmax)
+    best = pad[np.arange(cams.size)[None], sub.argmin(-1)]  # (N, Q)
+    q_of = np.searchsorted(cams, camera)  # (N,) camera slot of each detection
+    qa, qb = np.triu_indices(cams.size, k=1)
+    small = np.where(counts[qa] <= counts[qb], qa, qb)  # side that picks
+    other = np.where(counts[qa] <= counts[qb], qb, qa)
+    # who picks: detection n of camera `small[k]` picks best[n, other[k]]
+    pick_pair = np.full((cams.size, cams.size), -1)
+    pick_pair[small, other] = np.arange(qa.size)
+    k_of = pick_pair[q_of[:, None], np.arange(cams.size)[None]]  # (N, Q) pair index or -1
+    n_idx, q_idx = np.nonzero(k_of >= 0)
+    m_idx = best[n_idx, q_idx]
+    k_idx = k_of[n_idx, q_idx]
+    picks = np.zeros((qa.size, N), dtype=np.int64)
+    np.add.at(picks, (k_idx, m_idx), 1)
+    conflict = picks.max(axis=1) > 1  # (K,)
+    ok = ~conflict[k_idx]
+    rows_n, rows_m = [n_idx[ok]], [m_idx[ok]]
+    finite = np.where(np.isfinite(cost), cost, _BIG)
+    for k in np.flatnonzero(conflict):
+        a = np.arange(start[qa[k]], start[qa[k]] + counts[qa[k]])
+        b = np.arange(start[qb[k]], start[qb[k]] + counts[qb[k]])
+        r, c = linear_sum_assignment(finite[np.ix_(a, b)])
+        rows_n.append(a[r])
+        rows_m.append(b[c])
+    first, second = np.concatenate(rows_n), np.concatenate(rows_m)
+    n, m = np.minimum(first, second), np.maximum(first, second)
+    c = cost[n, m]
+    keep = c <= max_cost
+    return np.stack([n[keep], m[keep], c[keep]], axis=1).astype(np.float64)
 
 
 def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> list[np.ndarray]:
     """Group detections of one frame into people.
 
-    cost: (N, N) symmetric costs (inf: impossible); camera: (N,) camera of each detection.
+    cost: (N, N) symmetric costs (inf: impossible); camera: (N,) camera of each detection,
+    detections ordered by camera.
     Pairwise Hungarian matches are merged cheapest first; two groups merge only when they share
     no camera and the mean cost over all their cross pairs (average linkage) stays within
     max_cost, which keeps groups consistent over more than two cameras.
@@ -92,6 +100,7 @@ def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> l
         total[:, a] += total[:, b]
         count[a] += count[b]
         count[:, a] += count[:, b]
-    groups = [np.array(sorted(g, key=lambda k: camera[k])) for g in members.values() if len(g) > 1]
+    # detections are numbered camera by camera, so sorting by index sorts by camera
+    groups = [np.array(sorted(g)) for g in members.values() if len(g) > 1]
     groups.sort(key=lambda g: int(g[0]))
     return groups

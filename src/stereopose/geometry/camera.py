@@ -80,6 +80,21 @@ def project_normalized(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
         return np.where(z > 1e-3, Xc[..., :2] / z, np.nan)
 
 
+def project_to_cameras(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Project (..., 3) world points into each of C cameras [R | t] (C, 3, 4) at once.
+
+    Returns (..., C, 2) ideal normalised coordinates; NaN behind a camera or for NaN input.
+    """
+    C = P.shape[0]
+    # one matmul for all cameras: X @ [R_0^T | R_1^T | ...] + [t_0 | t_1 | ...]
+    R_all = P[:, :, :3].transpose(2, 0, 1).reshape(3, C * 3)
+    Xc = (points_world @ R_all + P[:, :, 3].reshape(C * 3)).reshape(*points_world.shape[:-1], C, 3)
+    z = Xc[..., 2:3]
+    out = np.full((*Xc.shape[:-1], 2), np.nan)
+    np.divide(Xc[..., :2], z, out=out, where=z > 1e-3)
+    return out
+
+
 def undistort_normalized(pixels: np.ndarray, camera: Camera) -> np.ndarray:
     """(..., 2) distorted pixels -> (..., 2) ideal normalised coordinates (NaN stays NaN)."""
     uv = _check_last(pixels, 2, "pixels")

@@ -64,7 +64,14 @@ def triangulate_dlt(
         [x[..., 0] ** 2 + x[..., 1] ** 2, x[..., 0], x[..., 1], np.ones_like(w2)], axis=-1
     )  # (..., V, 4)
     c = coef.reshape(*coef.shape[:-2], V * 4)
-    N = c @ b if b.ndim == 2 else np.einsum("...i,...ij->...j", c, b)
+    if b.ndim == 2:
+        N = c @ b
+    elif b.ndim == 3 and c.shape[-2] == b.shape[0]:
+        # one block set per item of the last batch axis: a batched matmul over that axis
+        flat = c.reshape(-1, *c.shape[-2:]).swapaxes(0, 1)  # (K, n, V * 4)
+        N = np.matmul(flat, b).swapaxes(0, 1)
+    else:
+        N = np.einsum("...i,...ij->...j", c, b)
     N = N.reshape(*c.shape[:-1], 4, 4)
     # Least squares with the homogeneous coordinate fixed to 1: (A3^T A3) X = -A3^T a4.
     X = _solve_sym3(N[..., :3, :3], -N[..., :3, 3])

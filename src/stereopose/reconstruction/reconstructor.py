@@ -16,7 +16,7 @@ from stereopose.association.affinity import (
 from stereopose.association.grouping import group_detections
 from stereopose.config import ReconstructionConfig
 from stereopose.errors import CalibrationError
-from stereopose.geometry.camera import project_normalized
+from stereopose.geometry.camera import project_normalized, project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
 from stereopose.reconstruction.triangulate import (
@@ -128,6 +128,7 @@ class Reconstructor:
         tc = self.config.triangulation
         xy, conf, size_px, members = self._gather(det, groups)
         w = np.where(conf >= tc.min_conf, conf, 0.0)
+        err = None
         if tc.mode == "pair":
             X, used = triangulate_pair(
                 xy,
@@ -143,7 +144,7 @@ class Reconstructor:
         elif tc.mode == "weighted":
             X, used = triangulate_weighted(xy, w, self.P)
         else:
-            X, used, xy, w = triangulate_robust(
+            X, used, xy, w, err = triangulate_robust(
                 xy,
                 w,
                 self.P,
@@ -157,7 +158,8 @@ class Reconstructor:
                 pair_blocks=self.pair_blocks,
             )
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
-        err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
+        if err is None:
+            err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
         return X, used, out_conf, err
 
     def _reassign(self, det: Detections, groups: list[np.ndarray], X: np.ndarray) -> list[int]:
@@ -201,7 +203,7 @@ class Reconstructor:
     def _in_view(self, X: np.ndarray, min_joints: int = 5) -> np.ndarray:
         """(G, C) whether >= min_joints of each person's joints (G, 17, 3) fall inside each
         camera's image, in front of it (distortion ignored: this is a coarse test)."""
-        xy = project_normalized(X[:, :, None, :], self.P)  # (G, 17, C, 2)
+        xy = project_to_cameras(X, self.P)  # (G, 17, C, 2)
         lo, hi = self.bounds
         inside = ((xy >= lo) & (xy <= hi)).all(-1)  # NaN (behind, missing) compares False
         return inside.sum(1) >= min_joints

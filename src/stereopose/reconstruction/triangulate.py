@@ -13,7 +13,7 @@ import functools
 
 import numpy as np
 
-from stereopose.geometry.camera import homogeneous, project_normalized
+from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
 from stereopose.skeleton import LR_PAIRS, SWAP
 
@@ -37,11 +37,12 @@ def camera_pairs(C: int) -> tuple[np.ndarray, np.ndarray]:
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray):
     """Pixel distance between X reprojected and the observations.
 
-    X: (..., 3) broadcastable to xy's leading axes without the camera axis; xy: (..., C, 2).
-    Returns (..., C) errors in pixels of the ideal image (NaN where either side is missing).
+    X: (..., 3) broadcastable to xy's leading axes without the camera axis; xy: (..., C, 2);
+    P: (C, 3, 4). Returns (..., C) errors in pixels of the ideal image (NaN where either side
+    is missing).
     """
-    proj = project_normalized(X[..., None, :], P)
-    return np.hypot(*np.moveaxis(proj - xy, -1, 0)) * focal
+    d = project_to_cameras(X, P) - xy
+    return np.hypot(d[..., 0], d[..., 1]) * focal
 
 
 def triangulate_weighted(xy: np.ndarray, w: np.ndarray, P: np.ndarray):
@@ -115,7 +116,8 @@ def triangulate_robust(
     (same, cross), each (G, 17, K) per-joint epipolar distances of the views of camera pairs
     (a < b), the left/right labels of all views are first made consistent. blocks and
     pair_blocks: dlt_blocks of P and of P[camera_pairs(C)] stacked, when computed already.
-    Returns X, used, and xy, w with swapped labels corrected.
+    Returns X, used, xy and w with swapped labels corrected, and the reprojection errors
+    (G, 17, C) in pixels of the views used (NaN elsewhere).
     """
     C = xy.shape[2]
     thr = np.maximum(inlier_px, inlier_rel * np.nan_to_num(size_px))[:, None, :]  # (G, 1, C)
@@ -148,8 +150,9 @@ def triangulate_robust(
     if few.any():
         X[few] = X_all[few]
         used[few] = w[few] > 0
+        err[few] = reprojection_errors(X[few], xy[few], P, focal)
     used &= np.isfinite(X[..., :1])
-    return X, used, xy, w
+    return X, used, xy, w, np.where(used, err, np.nan)
 
 
 def pair_views(C: int) -> np.ndarray:
