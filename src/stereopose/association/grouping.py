@@ -25,9 +25,8 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     if cams.size < 2:
         return np.zeros((0, 3))
     # (N, Q) cheapest partner of every detection in every camera that has detections
-    pad = np.full((cams.size, counts.max()), -1)
-    for q in range(cams.size):
-        pad[q, : counts[q]] = np.arange(start[q], start[q] + counts[q])
+    slot = np.arange(counts.max())
+    pad = np.where(slot[None] < counts[:, None], start[:, None] + slot[None], -1)
     sub = np.where(pad[None] >= 0, cost[:, np.maximum(pad, 0)], np.inf)  # (N, Q, Pmax)
     best = pad[np.arange(cams.size)[None], sub.argmin(-1)]  # (N, Q)
     q_of = np.searchsorted(cams, camera)  # (N,) camera slot of each detection
