@@ -190,9 +190,7 @@ def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
 
 
 def test_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
-    rc = main(
-        ["demo", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy", "--all-modes"]
-    )
+    rc = main(["demo", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy"])
     assert rc == 0
     printed = capsys.readouterr().out
     for word in ("MPJPE", "PCP", "pair", "weighted", "robust"):
