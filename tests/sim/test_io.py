@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
+from stereopose.calibration import formats
+from stereopose.detection import openpose
+from stereopose.errors import StereoposeError
 from stereopose.sim import simulate
 from stereopose.sim.io import write_scene
-
-formats = pytest.importorskip("stereopose.calibration.formats")
-openpose = pytest.importorskip("stereopose.detection.openpose")
 
 
 def test_write_scene_round_trip(tmp_path) -> None:
@@ -31,3 +31,19 @@ def test_write_scene_round_trip(tmp_path) -> None:
     rec = json.loads(lines[3])
     assert rec["frame"] == 3 and rec["t"] == pytest.approx(3 / 25.0)
     assert len(rec["people"]) == int(scene.present[3].sum())
+
+
+def test_rewriting_a_scene_replaces_the_old_one(tmp_path) -> None:
+    write_scene(simulate(num_cameras=3, num_people=1, num_frames=8, seed=1), tmp_path)
+    write_scene(simulate(num_cameras=2, num_people=1, num_frames=4, seed=2), tmp_path)
+    seq = openpose.read_pose_dir(tmp_path / "pose", ["cam01", "cam02", "cam03"])
+    assert seq.cameras == ("cam01", "cam02")
+    assert seq.frames == [0, 1, 2, 3]
+
+
+def test_a_foreign_pose_folder_is_left_alone(tmp_path) -> None:
+    (tmp_path / "pose").mkdir()
+    (tmp_path / "pose" / "notes.txt").write_text("mine")
+    with pytest.raises(StereoposeError, match="not a keypoints folder"):
+        write_scene(simulate(num_cameras=2, num_people=1, num_frames=2, seed=1), tmp_path)
+    assert (tmp_path / "pose" / "notes.txt").read_text() == "mine"
