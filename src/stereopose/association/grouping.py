@@ -77,9 +77,8 @@ def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> l
         return []
     edges = edges[np.argsort(edges[:, 2], kind="stable")]
     finite = np.isfinite(cost)
-    # Sum and count of finite costs between groups, kept up to date as groups merge.
-    total = np.where(finite, cost, 0.0)
-    count = finite.astype(np.float64)
+    # Sum [0] and count [1] of finite costs between groups, kept up to date as groups merge.
+    link = np.stack([np.where(finite, cost, 0.0), finite.astype(np.float64)])
     label = list(range(N))
     cams_of = [1 << int(c) for c in camera]
     members: dict[int, list[int]] = {n: [n] for n in range(N)}
@@ -87,7 +86,8 @@ def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> l
         a, b = label[n], label[m]
         if a == b or cams_of[a] & cams_of[b]:
             continue
-        if total[a, b] > max_cost * count[a, b]:
+        total, count = link[:, a, b]
+        if total > max_cost * count:
             continue
         if len(members[a]) < len(members[b]):
             a, b = b, a
@@ -95,10 +95,8 @@ def group_detections(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> l
             label[k] = a
         members[a].extend(members.pop(b))
         cams_of[a] |= cams_of[b]
-        total[a] += total[b]
-        total[:, a] += total[:, b]
-        count[a] += count[b]
-        count[:, a] += count[:, b]
+        link[:, a] += link[:, b]
+        link[:, :, a] += link[:, :, b]
     # detections are numbered camera by camera, so sorting by index sorts by camera
     groups = [np.array(sorted(g)) for g in members.values() if len(g) > 1]
     groups.sort(key=lambda g: int(g[0]))

@@ -239,17 +239,16 @@ def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.
     up x (right shoulder - left shoulder); and each knee is nearer its own hip. X: (G, 17, 3).
     Returns (flip_upper (G,), flip_legs (G,)).
     """
-    right = X[:, 6] - X[:, 5]
-    front = np.stack([-right[:, 1], right[:, 0]], axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        front /= np.linalg.norm(front, axis=-1, keepdims=True)
-        seen = np.isfinite(X[:, :3, :2])
-        face = np.where(seen, X[:, :3, :2], 0.0).sum(1) / seen.sum(1)
-        ahead = ((face - 0.5 * (X[:, 5, :2] + X[:, 6, :2])) * front).sum(-1)
+    # front = up x right (horizontal); ahead = (face - mid-shoulder) . front / |front|
+    right = X[:, 6, :2] - X[:, 5, :2]
+    seen = np.isfinite(X[:, :3, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):  # no face or no shoulders: NaN
+        face = np.where(seen[..., None], X[:, :3, :2], 0.0).sum(1) / seen.sum(1, keepdims=True)
+        lead = face - 0.5 * (X[:, 5, :2] + X[:, 6, :2])
+        ahead = (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
     flip_upper = ahead < -face_margin_m
     hips = np.where(flip_upper[:, None, None], X[:, [12, 11]], X[:, [11, 12]])
-    straight = np.linalg.norm(hips - X[:, [13, 14]], axis=-1).sum(-1)
-    crossed = np.linalg.norm(hips - X[:, [14, 13]], axis=-1).sum(-1)
-    with np.errstate(invalid="ignore"):
-        flip_legs = crossed < straight - thigh_margin_m
+    d = hips[:, :, None] - X[:, None, [13, 14]]  # (G, hip, knee, 3)
+    dist = np.sqrt(np.einsum("ghkx,ghkx->ghk", d, d))
+    flip_legs = dist[:, 0, 1] + dist[:, 1, 0] < dist[:, 0, 0] + dist[:, 1, 1] - thigh_margin_m
     return flip_upper, flip_legs
