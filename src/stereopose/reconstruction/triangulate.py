@@ -133,24 +133,24 @@ def triangulate_robust(
                 xy, w = _exchange(xy, w, part, np.broadcast_to(flip[:, None], (len(flip), C)))
             X_all = triangulate_dlt(xy, P, w, blocks)
     err = reprojection_errors(X_all, xy, P, focal)
-    outlier = (w > 0) & ~(err < thr)
-    redo = outlier.any(-1) | ~np.isfinite(X_all[..., 0])  # (G, J)
+    used = (w > 0) & (err < thr)
+    # Joints where every view agrees are done; the others are re-seeded from the two-view
+    # solution most views agree with, then solved again from the views that agree with it.
+    redo = (used.sum(-1) < (w > 0).sum(-1)) | ~np.isfinite(X_all[..., 0])  # (G, J)
     X = X_all.copy()
     if redo.any():
-        t = np.broadcast_to(thr, w.shape)[redo]
-        X[redo] = _best_pair_seed(xy[redo], w[redo], P, focal, t, pair_blocks)
-        err[redo] = reprojection_errors(X[redo], xy[redo], P, focal)
-    used = (err < thr) & (w > 0)
-    X = triangulate_dlt(xy, P, np.where(used, w, 0.0), blocks)
-    err = reprojection_errors(X, xy, P, focal)
-    used &= err < 1.5 * thr
-    # Where fewer than two views agree, the views cannot be told apart: all of them are used
-    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
-    few = used.sum(-1) < 2
-    if few.any():
-        X[few] = X_all[few]
-        used[few] = w[few] > 0
-        err[few] = reprojection_errors(X[few], xy[few], P, focal)
+        xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
+        seed = _best_pair_seed(xr, wr, P, focal, tr, pair_blocks)
+        ur = (reprojection_errors(seed, xr, P, focal) < tr) & (wr > 0)
+        Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
+        er = reprojection_errors(Xr, xr, P, focal)
+        ur &= er < 1.5 * tr
+        # Where fewer than two views agree, the views cannot be told apart: all of them are
+        # used (an occluded joint is better placed roughly than not at all; its confidence
+        # stays low).
+        few = ur.sum(-1) < 2
+        Xr[few], ur[few], er[few] = X_all[redo][few], wr[few] > 0, err[redo][few]
+        X[redo], used[redo], err[redo] = Xr, ur, er
     used &= np.isfinite(X[..., :1])
     return X, used, xy, w, np.where(used, err, np.nan)
 
