@@ -21,11 +21,15 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _as_float_array(value: object, shape: tuple[int, ...], what: str, owner: str) -> np.ndarray:
+def _numbers(value: object, what: str, owner: str) -> np.ndarray:
     try:
-        a = np.array(value, dtype=np.float64)
+        return np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise CalibrationError(f"{owner}: {what} must be numbers, got {value!r}") from None
+
+
+def _as_float_array(value: object, shape: tuple[int, ...], what: str, owner: str) -> np.ndarray:
+    a = _numbers(value, what, owner)
     if a.shape != shape:
         raise CalibrationError(f"{owner}: {what} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a)):
@@ -85,14 +89,14 @@ class Camera:
             )
         if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
             raise CalibrationError(f"{owner}: matrix must be [[fx, g, cx], [0, fy, cy], [0, 0, 1]]")
-        dist = np.array(self.distortions, dtype=np.float64).ravel()
+        dist = _numbers(self.distortions, "distortions", owner).ravel()
         if dist.shape not in ((4,), (5,)):
             raise CalibrationError(
                 f"{owner}: distortions must be [k1, k2, p1, p2] or [k1, k2, p1, p2, k3], "
                 f"got {dist.shape[0]} values"
             )
         dist = _as_float_array(dist, dist.shape, "distortions", owner)
-        rot = np.array(self.rotation, dtype=np.float64)
+        rot = _numbers(self.rotation, "rotation", owner)
         if rot.shape == (3, 3):
             R = check_rotation(_as_float_array(rot, (3, 3), "rotation", owner), owner)
             rvec = cv2.Rodrigues(R)[0].ravel()
