@@ -44,34 +44,24 @@ class Detections:
         cls, rig: Rig, people: Sequence[People2D | None], min_conf: float
     ) -> Detections:
         """Gather one frame; people[c] belongs to rig camera c (None or empty: no detection)."""
-        cams, idx, px, xy = [], [], [], []
-        for c, p in enumerate(people):
-            if p is None or len(p) == 0:
-                continue
-            kp = p.keypoints
-            cams.append(np.full(len(p), c))
-            idx.append(np.arange(len(p)))
-            px.append(kp)
-            xy.append(undistort_normalized(kp[..., :2], rig[c]))
+        cams = [c for c, p in enumerate(people) if p is not None and p.keypoints.shape[0]]
         if not cams:
             z = np.zeros((0, NUM_JOINTS))
-            return cls(
-                np.zeros(0, int),
-                np.zeros(0, int),
-                np.zeros((0, NUM_JOINTS, 2)),
-                np.zeros((0, NUM_JOINTS, 2)),
-                z,
-                np.zeros(0),
-                np.zeros(0),
-            )
-        kp = np.concatenate(px)
+            e = np.zeros((0, NUM_JOINTS, 2))
+            return cls(np.zeros(0, int), np.zeros(0, int), e, e, z, np.zeros(0), np.zeros(0))
+        blocks = [people[c].keypoints for c in cams]
+        counts = np.array([b.shape[0] for b in blocks])
+        kp = np.concatenate(blocks)
+        camera = np.repeat(cams, counts)
+        index = np.arange(kp.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
+        xyn = np.concatenate(
+            [undistort_normalized(b[..., :2], rig[c]) for c, b in zip(cams, blocks, strict=True)]
+        )
         conf = kp[..., 2]
-        xyn = np.concatenate(xy)
-        camera = np.concatenate(cams)
         size = _box_diagonal(xyn, conf >= min_conf)
-        focal = np.array([c.focal for c in rig])
+        focal = np.array([rig[c].focal for c in cams])
         # pixels of the undistorted image: close enough for thresholds scaled by person size
-        return cls(camera, np.concatenate(idx), kp[..., :2], xyn, conf, size, size * focal[camera])
+        return cls(camera, index, kp[..., :2], xyn, conf, size, size * np.repeat(focal, counts))
 
 
 def _box_diagonal(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:

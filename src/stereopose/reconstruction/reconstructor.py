@@ -103,8 +103,9 @@ class Reconstructor:
             redo = self._triangulate(det, [groups[i] for i in grown], dist)
             for full, part in zip(tri, redo, strict=True):
                 full[grown] = part
+        X, used, conf, err, members = tri
         delivered = np.array([p is not None for p in people])
-        return self._assemble(frame, det, groups, delivered, *tri)
+        return self._assemble(frame, det, members, delivered, X, used, conf, err)
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -160,7 +161,7 @@ class Reconstructor:
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
         if err is None:
             err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
-        return X, used, out_conf, err
+        return X, used, out_conf, err, members
 
     def _reassign(self, det: Detections, groups: list[np.ndarray], X: np.ndarray) -> list[int]:
         """Give detections left out of every group to a reconstructed person they fit.
@@ -208,9 +209,10 @@ class Reconstructor:
         inside = ((xy >= lo) & (xy <= hi)).all(-1)  # NaN (behind, missing) compares False
         return inside.sum(1) >= min_joints
 
-    def _assemble(self, frame, det, groups, delivered, X, used, conf, err) -> People3D:
+    def _assemble(self, frame, det, members, delivered, X, used, conf, err) -> People3D:
+        """Plausible people only, as People3D; members: (G, C) detection per camera or -1."""
         pc = self.config.plausibility
-        G, C = len(groups), len(self.rig)
+        G, C = members.shape
         X = X.copy()
         # The outer joint of an implausibly long limb is dropped.
         limb = np.linalg.norm(X[:, _LIMB_A] - X[:, _LIMB_B], axis=-1)
@@ -224,9 +226,7 @@ class Reconstructor:
         z = X[..., 2]
         zmin = np.where(valid, z, np.inf).min(axis=1)
         zmax = np.where(valid, z, -np.inf).max(axis=1)
-        views = np.zeros((G, C), dtype=bool)
-        for i, g in enumerate(groups):
-            views[i, det.camera[g]] = True
+        views = members >= 0
         # A person that cameras with a frame should see but (almost) none detected is a
         # coincidence of false detections that happen to agree, not a person.
         expected = (self._in_view(X) | views) & delivered
@@ -241,12 +241,10 @@ class Reconstructor:
             return People3D.empty(frame, C)
         X, used, conf, valid = X[idx], used[idx], conf[idx], valid[idx]
         err = np.where(used, err[idx], np.nan)
-        detections = np.full((idx.size, C), -1, dtype=np.int64)
-        for out_i, g in enumerate(idx):
-            detections[out_i, det.camera[groups[g]]] = det.index[groups[g]]
+        detections = np.where(views[idx], det.index[members[idx]], -1)
         n_used = used.sum(-1)
-        with np.errstate(invalid="ignore"):
-            reproj = np.where(n_used > 0, np.nansum(err, -1) / np.maximum(n_used, 1), np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            reproj = np.where(used, err, 0.0).sum(-1) / n_used  # NaN where no view
         conf = np.where(valid, conf, 0.0)
         return People3D(
             frame=frame,
