@@ -7,12 +7,12 @@ near person (large in the image) and a far one (small) are judged on the same sc
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.association.grouping import upper_pairs
 from stereopose.geometry.camera import homogeneous, undistort_normalized
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
@@ -90,11 +90,6 @@ class PairDistances:
     cross: np.ndarray
 
 
-@functools.lru_cache(maxsize=64)
-def _upper_pairs(N: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.triu_indices(N, k=1)
-
-
 def epipolar_distances(det: Detections, E: np.ndarray) -> PairDistances:
     """Per-joint normalised epipolar distances of all cross-camera detection pairs.
 
@@ -102,7 +97,7 @@ def epipolar_distances(det: Detections, E: np.ndarray) -> PairDistances:
     lines in camera b).
     """
     N = len(det)
-    n, m = _upper_pairs(N)
+    n, m = upper_pairs(N)
     keep = det.camera[n] != det.camera[m]
     n, m = n[keep], m[keep]
     row = np.full((N, N), -1, dtype=np.int64)

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 _BIG = 1e9
+
+
+@functools.lru_cache(maxsize=64)
+def upper_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) of n items, as two arrays."""
+    return np.triu_indices(n, k=1)
 
 
 def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> np.ndarray:
@@ -21,16 +29,19 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     at once. Only pairs with a conflict go through the Hungarian algorithm.
     """
     N = cost.shape[0]
-    cams, start, counts = np.unique(camera, return_index=True, return_counts=True)
+    per_camera = np.bincount(camera)
+    cams = np.flatnonzero(per_camera)
     if cams.size < 2:
         return np.zeros((0, 3))
+    counts = per_camera[cams]
+    start = np.cumsum(counts) - counts
     # (N, Q) cheapest partner of every detection in every camera that has detections
     slot = np.arange(counts.max())
     pad = np.where(slot[None] < counts[:, None], start[:, None] + slot[None], -1)
     sub = np.where(pad[None] >= 0, cost[:, np.maximum(pad, 0)], np.inf)  # (N, Q, Pmax)
     best = pad[np.arange(cams.size)[None], sub.argmin(-1)]  # (N, Q)
     q_of = np.searchsorted(cams, camera)  # (N,) camera slot of each detection
-    qa, qb = np.triu_indices(cams.size, k=1)
+    qa, qb = upper_pairs(cams.size)
     small = np.where(counts[qa] <= counts[qb], qa, qb)  # side that picks
     other = np.where(counts[qa] <= counts[qb], qb, qa)
     # who picks: detection n of camera `small[k]` picks best[n, other[k]]

@@ -39,23 +39,27 @@ def dlt_blocks(P: np.ndarray) -> np.ndarray:
 
 
 def triangulate_dlt(
-    xy: np.ndarray, P: np.ndarray, weights: np.ndarray, blocks: np.ndarray | None = None
+    xy: np.ndarray, P: np.ndarray | None, weights: np.ndarray, blocks: np.ndarray | None = None
 ) -> np.ndarray:
     """Weighted DLT triangulation.
 
     xy: (..., V, 2) normalised coordinates of one point seen in V views (NaN where unseen).
     P: (..., V, 3, 4) or (V, 3, 4) cameras [R | t], world -> camera.
     weights: (..., V) non-negative; a view with weight 0 or NaN coordinates is ignored.
-    blocks: dlt_blocks(P), when already computed.
+    blocks: dlt_blocks(P), when already computed (P may then be None).
     Returns (..., 3) world points; NaN where fewer than 2 views have positive weight.
     """
     xy = np.asarray(xy, dtype=np.float64)
     if xy.ndim < 2 or xy.shape[-1] != 2:
         raise ValueError(f"xy must have shape (..., V, 2), got {xy.shape}")
     V = xy.shape[-2]
-    if P.shape[-3:] != (V, 3, 4):
-        raise ValueError(f"P must have shape (..., {V}, 3, 4), got {P.shape}")
-    b = dlt_blocks(P) if blocks is None else blocks
+    if blocks is None:
+        if P is None or P.shape[-3:] != (V, 3, 4):
+            raise ValueError(f"P must have shape (..., {V}, 3, 4), got {np.shape(P)}")
+        blocks = dlt_blocks(P)
+    elif blocks.shape[-2:] != (V * 4, 16):
+        raise ValueError(f"blocks must have shape (..., {V * 4}, 16), got {blocks.shape}")
+    b = blocks
     seen = np.isfinite(xy)
     w = np.where(seen[..., 0] & seen[..., 1], np.asarray(weights, dtype=np.float64), 0.0)
     w2 = np.where(w > 0, w * w, 0.0)

@@ -216,7 +216,7 @@ class Reconstructor:
         X = X.copy()
         # The outer joint of an implausibly long limb is dropped.
         limb = np.linalg.norm(X[:, _LIMB_A] - X[:, _LIMB_B], axis=-1)
-        bad = np.nan_to_num(limb) > pc.max_limb_m
+        bad = limb > pc.max_limb_m  # NaN compares False
         if bad.any():
             drop = np.zeros((G, NUM_JOINTS), dtype=bool)
             np.logical_or.at(drop, (np.nonzero(bad)[0], _LIMB_B[np.nonzero(bad)[1]]), True)

@@ -20,10 +20,11 @@ from stereopose.skeleton import LR_PAIRS, SWAP
 _LEFT = np.array([p[0] for p in LR_PAIRS])
 _RIGHT = np.array([p[1] for p in LR_PAIRS])
 # Detectors swap the whole body or the legs alone: labels are decided for these parts apart.
-_PARTS = (
-    np.array([i for i, (left, _) in enumerate(LR_PAIRS) if left < 13]),  # face, arms, hips
-    np.array([i for i, (left, _) in enumerate(LR_PAIRS) if left >= 13]),  # knees, ankles
-)
+# _PART_OF_PAIR[i]: part of LR_PAIRS[i] (0: face, arms, hips; 1: knees, ankles);
+# _JOINT_PARTS[j, p]: 1 where joint j is a left or right joint of part p.
+_PART_OF_PAIR = np.array([int(left >= 13) for left, _ in LR_PAIRS])
+_JOINT_PARTS = np.zeros((len(SWAP), 2))
+_JOINT_PARTS[_LEFT, _PART_OF_PAIR] = _JOINT_PARTS[_RIGHT, _PART_OF_PAIR] = 1.0
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
@@ -129,8 +130,8 @@ def triangulate_robust(
     if fix_swaps:
         flips = _body_orientation(X_all)
         if flips[0].any() or flips[1].any():
-            for part, flip in zip(_PARTS, flips, strict=True):
-                xy, w = _exchange(xy, w, part, np.broadcast_to(flip[:, None], (len(flip), C)))
+            flip = np.stack(flips, axis=1)[:, _PART_OF_PAIR, None]  # (G, 8, 1)
+            xy, w = _exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
             X_all = triangulate_dlt(xy, P, w, blocks)
     err = reprojection_errors(X_all, xy, P, focal)
     used = (w > 0) & (err < thr)
@@ -155,6 +156,7 @@ def triangulate_robust(
     return X, used, xy, w, np.where(used, err, np.nan)
 
 
+@functools.lru_cache(maxsize=32)
 def pair_views(C: int) -> np.ndarray:
     """(K, 2) camera indices of every pair (a < b)."""
     return np.stack(camera_pairs(C), axis=1)
@@ -163,7 +165,9 @@ def pair_views(C: int) -> np.ndarray:
 def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
     """For n joints (n, C, 2), (n, C), the two-view solution most views agree with: (n, 3)."""
     sel = pair_views(xy.shape[1])  # (K, 2)
-    Xk = triangulate_dlt(xy[:, sel], P[sel], w[:, sel], pair_blocks)  # (n, K, 3)
+    Xk = triangulate_dlt(
+        xy[:, sel], None if pair_blocks is not None else P[sel], w[:, sel], pair_blocks
+    )  # (n, K, 3)
     err = reprojection_errors(Xk, xy[:, None], P, focal)  # (n, K, C)
     t = thr[:, None]
     inl = (err < t) & (w[:, None] > 0)
@@ -175,9 +179,13 @@ def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
 
 
 @functools.lru_cache(maxsize=16)
-def _labelings(C: int) -> np.ndarray:
-    """(2^C, C) every assignment of 'swapped' (1) or 'as detected' (0) to C views."""
-    return (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
+def _labelings(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Z (2^C, C): every assignment of 'swapped' (1) or 'as detected' (0) to C views; and per
+    camera pair (a < b), (K, 2^C) whether a labeling keeps (same labels) or crosses the pair."""
+    Z = (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
+    ka, kb = camera_pairs(C)
+    rel = (Z[:, ka] ^ Z[:, kb]).astype(np.float64)
+    return Z, np.ascontiguousarray((1.0 - rel).T), np.ascontiguousarray(rel.T)
 
 
 def _consistent_labels(xy, w, d_same, d_cross):
@@ -191,43 +199,34 @@ def _consistent_labels(xy, w, d_same, d_cross):
     """
     C = xy.shape[2]
     ka, kb = camera_pairs(C)
+    Z, keep_T, rel_T = _labelings(C)
     ok = w > 0
-    ok_same = ok[:, :, ka] & ok[:, :, kb]
-    ok_cross = ok[:, :, ka] & ok[:, SWAP][:, :, kb]
-    Z = _labelings(C)
-    rel = Z[:, ka] ^ Z[:, kb]  # (L, K): 1 where the pair's labels differ
+    both = ok[:, :, ka] & ok[:, :, kb] & ok[:, SWAP][:, :, kb]  # (G, 17, K)
+    # per body part p: total distance of all its joints, (G, 2, K)
+    same = np.einsum("gjk,jp->gpk", np.where(both, d_same, 0.0), _JOINT_PARTS)
+    cross = np.einsum("gjk,jp->gpk", np.where(both, d_cross, 0.0), _JOINT_PARTS)
+    cost = same @ keep_T + cross @ rel_T  # (G, 2, L)
+    present = np.einsum("gjc,jp->gpc", ok.astype(np.float64), _JOINT_PARTS) > 0  # (G, 2, C)
+    # A labeling and its mirror cost the same: prefer exchanging the views that see the
+    # person's back (faint face), where detectors swap sides, and then fewer views.
     face = w[:, :3].mean(1)  # (G, C) nose and eyes
-    out_xy, out_w = xy, w
-    for part in _PARTS:
-        joints = np.concatenate([_LEFT[part], _RIGHT[part]])
-        both = ok_same[:, joints] & ok_cross[:, joints]
-        same = np.where(both, d_same[:, joints], 0.0).sum(1)  # (G, K)
-        cross = np.where(both, d_cross[:, joints], 0.0).sum(1)
-        cost = same @ (1 - rel).T + cross @ rel.T  # (G, L)
-        present = ok[:, joints].any(1)  # (G, C)
-        # A labeling and its mirror cost the same: prefer exchanging the views that see the
-        # person's back (faint face), where detectors swap sides, and then fewer views.
-        cost += 1e-6 * ((present * (face + 0.01)) @ Z.T)
-        swap = Z[np.argmin(cost, axis=1)].astype(bool) & present  # (G, C)
-        if not swap.any():
-            continue
-        out_xy, out_w = _exchange(out_xy, out_w, part, swap)
-    return out_xy, out_w
+    cost += 1e-6 * ((present * (face + 0.01)[:, None]) @ Z.T)
+    swap = Z[np.argmin(cost, axis=-1)].astype(bool) & present  # (G, 2, C)
+    return _exchange(xy, w, swap[:, _PART_OF_PAIR])
 
 
-def _exchange(xy, w, part, swap):
-    """Copies of xy (G, J, C, 2), w (G, J, C) with the left/right joints of `part` (indices
-    into LR_PAIRS) exchanged where swap (G, C) is true."""
+def _exchange(xy, w, swap):
+    """Copies of xy (G, J, C, 2), w (G, J, C) with each left/right pair of LR_PAIRS exchanged
+    in the views where swap (G, 8, C) is true."""
     if not swap.any():
         return xy, w
     xy, w = xy.copy(), w.copy()
-    sl, sr = _LEFT[part], _RIGHT[part]
-    m = swap[:, None, :]
-    xl, xr, wl, wr = xy[:, sl], xy[:, sr], w[:, sl], w[:, sr]
-    xy[:, sl] = np.where(m[..., None], xr, xl)
-    xy[:, sr] = np.where(m[..., None], xl, xr)
-    w[:, sl] = np.where(m, wr, wl)
-    w[:, sr] = np.where(m, wl, wr)
+    xl, xr, wl, wr = xy[:, _LEFT], xy[:, _RIGHT], w[:, _LEFT], w[:, _RIGHT]
+    m = swap[..., None]
+    xy[:, _LEFT] = np.where(m, xr, xl)
+    xy[:, _RIGHT] = np.where(m, xl, xr)
+    w[:, _LEFT] = np.where(swap, wr, wl)
+    w[:, _RIGHT] = np.where(swap, wl, wr)
     return xy, w
 
 
