@@ -11,7 +11,8 @@ import numpy as np
 
 from stereopose.types import Camera
 
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+# stop once the reprojected point is within 1e-8 px of the observed one
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-8)
 
 
 def _check_last(a: np.ndarray, n: int, what: str) -> np.ndarray:
