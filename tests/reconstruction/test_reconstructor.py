@@ -13,15 +13,7 @@ from stereopose.sim import DetectorNoise, evaluate, simulate
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D
 
-CLEAN = DetectorNoise(
-    sigma_frac=0.0,
-    outlier_rate=0.0,
-    joint_miss=0.0,
-    person_miss=0.0,
-    swap=0.0,
-    leg_swap=0.0,
-    ghosts=0.0,
-)
+CLEAN = DetectorNoise.exact()
 
 
 def config(mode: str = "robust", **kw) -> ReconstructionConfig:

@@ -54,6 +54,20 @@ class DetectorNoise:
     min_joints: int = 5
 
     @classmethod
+    def exact(cls) -> DetectorNoise:
+        """A detector without noise, outliers, misses, swaps or ghosts (occluded joints still
+        get their low confidence and error)."""
+        return cls(
+            sigma_frac=0.0,
+            outlier_rate=0.0,
+            joint_miss=0.0,
+            person_miss=0.0,
+            swap=0.0,
+            leg_swap=0.0,
+            ghosts=0.0,
+        )
+
+    @classmethod
     def preset(cls, difficulty: str) -> DetectorNoise:
         """The error model of `difficulty`: "easy", "mid" or "hard"."""
         presets = {
