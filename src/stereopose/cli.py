@@ -65,8 +65,10 @@ def _reconstruct(args: argparse.Namespace) -> int:
     table.add_row("cameras", ", ".join(summary.cameras))
     table.add_row("mode", summary.mode)
     table.add_row("frames", str(summary.frames))
-    hist = ", ".join(f"{k}: {v}" for k, v in sorted(summary.people_histogram.items()))
-    table.add_row("people per frame", f"{summary.mean_people:.2f} (people: frames — {hist})")
+    hist = ", ".join(
+        f"{v} frame{'s' * (v != 1)} with {k}" for k, v in sorted(summary.people_histogram.items())
+    )
+    table.add_row("people per frame", f"{summary.mean_people:.2f} on average ({hist})")
     table.add_row("joints reconstructed", str(summary.joints_reconstructed))
     table.add_row("mean reprojection error", f"{summary.mean_reprojection_px:.2f} px")
     table.add_row(
