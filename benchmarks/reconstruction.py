@@ -5,7 +5,7 @@ recall and false people; a 6-camera x 5-person scene gives frames/s on one core 
 excluded); the shared real detections give the reprojection error. Results are written to
 benchmarks/results/reconstruction.{md,json}.
 
-usage: python benchmarks/reconstruction.py [--frames 300] [--seeds 2]
+usage: python benchmarks/reconstruction.py [--frames 300] [--seeds 5]
 """
 
 from __future__ import annotations
@@ -223,7 +223,7 @@ def write(results: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--seeds", type=int, default=5)
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
