@@ -132,7 +132,10 @@ def triangulate_robust(
         if flips[0].any() or flips[1].any():
             flip = np.stack(flips, axis=1)[:, _PART_OF_PAIR, None]  # (G, 8, 1)
             xy, w = _exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
-            X_all = triangulate_dlt(xy, P, w, blocks)
+            # exchanging a part in every view exchanges its triangulated points
+            XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
+            X_all = X_all.copy()
+            X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
     err = reprojection_errors(X_all, xy, P, focal)
     used = (w > 0) & (err < thr)
     # Joints where every view agrees are done; the others are re-seeded from the two-view
