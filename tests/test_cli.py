@@ -202,3 +202,24 @@ def test_simulate_rejects_bad_counts(tmp_path: Path, capsys) -> None:
     rc = main(["simulate", str(tmp_path), "--cameras", "1"])
     assert rc == 2
     assert "between 2 and 12" in capsys.readouterr().err
+
+
+def test_all_keypoint_files_malformed_is_an_error(tmp_path: Path, capsys) -> None:
+    calib = tmp_path / "scene"
+    assert main(["simulate", str(calib), "--frames", "2", "--cameras", "2", "--people", "1"]) == 0
+    for f in (calib / "pose").rglob("*.json"):
+        f.write_text("[]")
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(calib / "calib.toml"),
+            "--pose",
+            str(calib / "pose"),
+            "--out",
+            str(tmp_path / "o.jsonl"),
+        ]
+    )
+    err = " ".join(capsys.readouterr().err.split())
+    assert rc == 2
+    assert "none of the keypoint files could be read" in err and "expected a JSON object" in err

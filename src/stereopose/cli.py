@@ -48,6 +48,10 @@ def _config(args: argparse.Namespace) -> Config:
     return cfg
 
 
+def _px(value: float) -> str:
+    return f"{value:.2f} px" if value == value else "n/a (no joint reconstructed)"
+
+
 def _reconstruct(args: argparse.Namespace) -> int:
     from stereopose.pipeline import reconstruct_files
 
@@ -70,10 +74,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
     )
     table.add_row("people per frame", f"{summary.mean_people:.2f} on average ({hist})")
     table.add_row("joints reconstructed", str(summary.joints_reconstructed))
-    table.add_row("mean reprojection error", f"{summary.mean_reprojection_px:.2f} px")
+    table.add_row("mean reprojection error", _px(summary.mean_reprojection_px))
     table.add_row(
-        "median reprojection error, conf > 0.5",
-        f"{summary.median_confident_reprojection_px:.2f} px",
+        "median reprojection error, conf > 0.5", _px(summary.median_confident_reprojection_px)
     )
     table.add_row("3D stage speed", f"{summary.fps_3d:.0f} frames/s")
     if summary.skipped_files:

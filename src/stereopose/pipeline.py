@@ -34,6 +34,7 @@ class ReconstructionSummary:
     confident_reprojection_px: list[float] = field(default_factory=list, repr=False)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)
     seconds_3d: float = 0.0
+    frames_read: int = 0  # frames with at least one readable keypoint file
 
     def add(self, people: People3D) -> None:
         self.frames += 1
@@ -94,6 +95,7 @@ def reconstruct_files(
     with PosesWriter(out_path, config.fps) as writer:
         for i, (frame, people2d) in enumerate(seq):
             t0 = time.perf_counter()
+            summary.frames_read += bool(people2d)
             people = rec(frame, people2d)
             summary.seconds_3d += time.perf_counter() - t0
             writer.write(people)
@@ -103,6 +105,12 @@ def reconstruct_files(
     summary.skipped_files = [(str(p), why) for p, why in seq.skipped]
     if summary.skipped_files:
         logger.warning("%d keypoint file(s) skipped as malformed", len(summary.skipped_files))
+    if summary.frames_read == 0:
+        first = summary.skipped_files[0] if summary.skipped_files else ("", "")
+        raise KeypointsError(
+            f"{pose_dir}: none of the keypoint files could be read "
+            f"({len(summary.skipped_files)} skipped; first: {first[0]}: {first[1]})"
+        )
     return summary
 
 
