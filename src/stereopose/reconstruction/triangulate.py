@@ -136,11 +136,15 @@ def triangulate_robust(
             XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
             X_all = X_all.copy()
             X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
-    err = reprojection_errors(X_all, xy, P, focal)
+    err_all = reprojection_errors(X_all, xy, P, focal)
+    err = err_all.copy()
     used = (w > 0) & (err < thr)
     # Joints where every view agrees are done; the others are re-seeded from the two-view
     # solution most views agree with, then solved again from the views that agree with it.
-    redo = (used.sum(-1) < (w > 0).sum(-1)) | ~np.isfinite(X_all[..., 0])  # (G, J)
+    # (with two views or fewer there is nothing to choose: the result would be X_all)
+    seen = (w > 0).sum(-1)
+    # With two views or fewer there is nothing to choose between.
+    redo = (seen > 2) & ((used.sum(-1) < seen) | ~np.isfinite(X_all[..., 0]))  # (G, J)
     X = X_all.copy()
     if redo.any():
         xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
@@ -148,13 +152,12 @@ def triangulate_robust(
         ur = (reprojection_errors(seed, xr, P, focal) < tr) & (wr > 0)
         Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
         er = reprojection_errors(Xr, xr, P, focal)
-        ur &= er < 1.5 * tr
-        # Where fewer than two views agree, the views cannot be told apart: all of them are
-        # used (an occluded joint is better placed roughly than not at all; its confidence
-        # stays low).
-        few = ur.sum(-1) < 2
-        Xr[few], ur[few], er[few] = X_all[redo][few], wr[few] > 0, err[redo][few]
-        X[redo], used[redo], err[redo] = Xr, ur, er
+        X[redo], used[redo], err[redo] = Xr, ur & (er < 1.5 * tr), er
+    # Where fewer than two views agree, the views cannot be told apart: all of them are used
+    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
+    few = used.sum(-1) < 2
+    if few.any():
+        X[few], used[few], err[few] = X_all[few], w[few] > 0, err_all[few]
     used &= np.isfinite(X[..., :1])
     return X, used, xy, w, np.where(used, err, np.nan)
 
