@@ -14,8 +14,9 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
 from stereopose.errors import CalibrationError, KeypointsError
-from stereopose.io.results import PosesWriter
+from stereopose.io.results import PosesWriter, load_people3d
 from stereopose.reconstruction import Reconstructor
+from stereopose.sim import Metrics, Scene, evaluate
 from stereopose.types import People3D
 
 logger = logging.getLogger(__name__)
@@ -114,33 +115,6 @@ def reconstruct_files(
     return summary
 
 
-def load_poses(path: str | Path, num_cameras: int = 0) -> list[People3D]:
-    """Read a 3D poses JSONL file back into People3D (per-joint views/errors not kept)."""
-    from stereopose.io.results import read_poses
-
-    frames = []
-    for frame, _t, people in read_poses(path):
-        P = len(people)
-        joints = np.array([p["joints_array"] for p in people]).reshape(P, 17, 3)
-        conf = np.array(
-            [p.get("conf") or np.isfinite(p["joints_array"]).all(-1) for p in people], float
-        ).reshape(P, 17)
-        frames.append(
-            People3D(
-                frame=frame,
-                joints=joints,
-                conf=conf,
-                ids=np.array([p["id"] for p in people], dtype=np.int64),
-                reprojection_px=np.full((P, 17), np.nan),
-                views=np.zeros((P, 17), dtype=np.int64),
-                detections=np.full((P, num_cameras), -1, dtype=np.int64),
-            )
-        )
-    return frames
-
-
-def evaluate_poses_file(path: str | Path, scene):
+def evaluate_poses_file(path: str | Path, scene: Scene) -> Metrics:
     """Accuracy of a 3D poses file against a simulated scene's ground truth."""
-    from stereopose.sim import evaluate
-
-    return evaluate(load_poses(path, len(scene.rig)), scene)
+    return evaluate(load_people3d(path, len(scene.rig)), scene)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereopose.errors import StereoposeError
-from stereopose.io.results import PosesWriter, floor_position, read_poses
+from stereopose.io.results import PosesWriter, floor_position, load_people3d, read_poses
 from stereopose.types import People3D
 
 
@@ -77,3 +77,14 @@ def test_floor_position_falls_back_to_the_joints_seen() -> None:
     J[0, 0] = [1.0, 2.0, 1.7]
     J[0, 5] = [3.0, 2.0, 1.4]
     np.testing.assert_allclose(floor_position(J), [[2.0, 2.0]])
+
+
+def test_load_people3d_round_trip(tmp_path: Path) -> None:
+    out = tmp_path / "poses.jsonl"
+    with PosesWriter(out, fps=25.0) as w:
+        w.write(people(0))
+        w.write(People3D.empty(1, 2))
+    back = load_people3d(out, num_cameras=2)
+    assert [len(p) for p in back] == [2, 0]
+    np.testing.assert_allclose(back[0].joints, people(0).joints, atol=1e-4)
+    assert back[0].ids.tolist() == [4, 7] and back[0].detections.shape == (2, 2)

@@ -119,3 +119,26 @@ def read_poses(path: str | Path) -> Iterator[tuple[int, float | None, list[dict]
             except (ValueError, KeyError, TypeError) as e:
                 raise StereoposeError(f"{path}:{lineno}: malformed 3D poses line: {e}") from None
             yield frame, rec.get("t"), people
+
+
+def load_people3d(path: str | Path, num_cameras: int = 0) -> list[People3D]:
+    """Read a 3D poses file back as People3D per frame (views and errors are not stored)."""
+    frames = []
+    for frame, _t, people in read_poses(path):
+        P = len(people)
+        joints = np.array([p["joints_array"] for p in people]).reshape(P, NUM_JOINTS, 3)
+        conf = np.array(
+            [p.get("conf") or np.isfinite(p["joints_array"]).all(-1) for p in people], float
+        ).reshape(P, NUM_JOINTS)
+        frames.append(
+            People3D(
+                frame=frame,
+                joints=joints,
+                conf=conf,
+                ids=np.array([p["id"] for p in people], dtype=np.int64),
+                reprojection_px=np.full((P, NUM_JOINTS), np.nan),
+                views=np.zeros((P, NUM_JOINTS), dtype=np.int64),
+                detections=np.full((P, num_cameras), -1, dtype=np.int64),
+            )
+        )
+    return frames
