@@ -111,3 +111,16 @@ def test_points_behind_the_camera_project_to_nan():
     cam = random_camera(np.random.default_rng(0))
     behind = cam.center + 2.0 * (cam.center / np.linalg.norm(cam.center))
     assert np.isnan(project(behind[None], cam)).all()
+
+
+def test_negative_and_nan_weights_leave_a_view_out():
+    rng = np.random.default_rng(9)
+    cams = [random_camera(rng, f"c{i}") for i in range(3)]
+    X = rng.uniform(-1, 1, (4, 3))
+    xy = np.stack([undistort_normalized(project(X, c), c) for c in cams], axis=-2)
+    xy[:, 2] += 0.05  # camera 2 is wrong everywhere
+    P = np.stack([c.P for c in cams])
+    for bad in (-1.0, np.nan, 0.0):
+        w = np.ones(xy.shape[:-1])
+        w[:, 2] = bad
+        np.testing.assert_allclose(triangulate_dlt(xy, P, w), X, atol=1e-8)

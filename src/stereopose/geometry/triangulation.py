@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-_NEXT = np.array([1, 2, 0])
-_PREV = np.array([2, 0, 1])
+# N[:3, :3] entries a b c d f g (upper triangle) and N[:3, 3], in a flattened 4 x 4
+_ENTRIES = np.array([0, 1, 2, 5, 6, 10, 3, 7, 11])
 
 
 def dlt_blocks(P: np.ndarray) -> np.ndarray:
@@ -60,13 +60,16 @@ def triangulate_dlt(
     elif blocks.shape[-2:] != (V * 4, 16):
         raise ValueError(f"blocks must have shape (..., {V * 4}, 16), got {blocks.shape}")
     b = blocks
-    seen = np.isfinite(xy)
-    w = np.where(seen[..., 0] & seen[..., 1], np.asarray(weights, dtype=np.float64), 0.0)
-    w2 = np.where(w > 0, w * w, 0.0)
-    x = np.where(seen, xy, 0.0)
-    coef = w2[..., None] * np.stack(
-        [x[..., 0] ** 2 + x[..., 1] ** 2, x[..., 0], x[..., 1], np.ones_like(w2)], axis=-1
-    )  # (..., V, 4)
+    seen = np.isfinite(xy[..., 0]) & np.isfinite(xy[..., 1])
+    w = np.asarray(weights, dtype=np.float64)
+    w2 = np.where(seen & (w > 0), w, 0.0) ** 2  # NaN or non-positive weight: view unused
+    x = np.where(seen, xy[..., 0], 0.0)
+    y = np.where(seen, xy[..., 1], 0.0)
+    coef = np.empty((*w2.shape, 4))  # (..., V, 4) per-view coefficients of the blocks
+    coef[..., 1] = w2 * x
+    coef[..., 2] = w2 * y
+    coef[..., 3] = w2
+    coef[..., 0] = coef[..., 1] * x + coef[..., 2] * y
     c = coef.reshape(*coef.shape[:-2], V * 4)
     if b.ndim == 2:
         N = c @ b
@@ -76,21 +79,23 @@ def triangulate_dlt(
         N = np.matmul(flat, b).swapaxes(0, 1)
     else:
         N = np.einsum("...i,...ij->...j", c, b)
-    N = N.reshape(*c.shape[:-1], 4, 4)
-    # Least squares with the homogeneous coordinate fixed to 1: (A3^T A3) X = -A3^T a4.
-    X = _solve_sym3(N[..., :3, :3], -N[..., :3, 3])
-    enough = (w > 0).sum(axis=-1) >= 2
-    return np.where(enough[..., None] & np.isfinite(X[..., :1]), X, np.nan)
+    # Least squares with the homogeneous coordinate fixed to 1: (A3^T A3) X = -A3^T a4; fewer
+    # than two views leave it singular, which gives NaN.
+    return _solve_normal_equations(N.reshape(*c.shape[:-1], 4, 4))
 
 
-def _solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve (..., 3, 3) symmetric systems M x = b (..., 3) by the adjugate; NaN where
-    (near) singular. Row i of the cofactor matrix is row(i+1) x row(i+2) of M, and for a
-    symmetric M it is also row i of the adjugate."""
-    r1, r2 = M[..., _NEXT, :], M[..., _PREV, :]
-    cof = r1[..., _NEXT] * r2[..., _PREV] - r1[..., _PREV] * r2[..., _NEXT]
-    det = np.einsum("...i,...i->...", M[..., 0, :], cof[..., 0, :])
-    trace = M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2]
+def _solve_normal_equations(N: np.ndarray) -> np.ndarray:
+    """X (..., 3) minimising |A [X, 1]|^2 from N = A^T A (..., 4, 4): the symmetric 3 x 3
+    system N[:3, :3] X = -N[:3, 3], solved by the adjugate; NaN where (near) singular."""
+    e = N.reshape(*N.shape[:-2], 16)[..., _ENTRIES]
+    a, b, c, d, f, g, r0, r1, r2 = np.moveaxis(e, -1, 0)  # M = [[a, b, c], [b, d, f], [c, f, g]]
+    A, B, C = d * g - f * f, c * f - b * g, b * f - c * d  # adjugate, first row
+    D, E, F = a * g - c * c, b * c - a * f, a * d - b * b
+    det = a * A + b * B + c * C
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        inv_det = np.where(np.abs(det) > 1e-12 * np.abs(trace) ** 3, 1.0 / det, np.nan)
-    return np.einsum("...ij,...j->...i", cof, b) * inv_det[..., None]
+        inv = np.where(np.abs(det) > 1e-12 * np.abs(a + d + g) ** 3, -1.0 / det, np.nan)
+    out = np.empty((*det.shape, 3))
+    out[..., 0] = (A * r0 + B * r1 + C * r2) * inv
+    out[..., 1] = (B * r0 + D * r1 + E * r2) * inv
+    out[..., 2] = (C * r0 + E * r1 + F * r2) * inv
+    return out
