@@ -177,9 +177,9 @@ def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
     err = reprojection_errors(Xk, xy[:, None], P, focal)  # (n, K, C)
     t = thr[:, None]
     inl = (err < t) & (w[:, None] > 0)
-    score = np.where(inl, w[:, None], 0.0).sum(-1)
-    score -= 1e-3 * np.where(inl, err / t, 0.0).sum(-1)  # tie-break: the tighter fit
-    score[~np.isfinite(Xk[..., 0])] = -np.inf
+    # confidence of the agreeing views; ties go to the tighter fit
+    score = np.where(inl, w[:, None] - 1e-3 * err / t, 0.0).sum(-1)
+    score[np.isnan(Xk[..., 0])] = -np.inf
     best = np.argmax(score, axis=-1)
     return Xk[np.arange(len(best)), best]
 
