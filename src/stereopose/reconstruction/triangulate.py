@@ -148,8 +148,7 @@ def triangulate_robust(
     X = X_all.copy()
     if redo.any():
         xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
-        seed = _best_pair_seed(xr, wr, P, focal, tr, pair_blocks)
-        ur = (reprojection_errors(seed, xr, P, focal) < tr) & (wr > 0)
+        ur = _best_pair_inliers(xr, wr, P, focal, tr, pair_blocks)
         Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
         er = reprojection_errors(Xr, xr, P, focal)
         X[redo], used[redo], err[redo] = Xr, ur & (er < 1.5 * tr), er
@@ -168,8 +167,9 @@ def pair_views(C: int) -> np.ndarray:
     return np.stack(camera_pairs(C), axis=1)
 
 
-def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
-    """For n joints (n, C, 2), (n, C), the two-view solution most views agree with: (n, 3)."""
+def _best_pair_inliers(xy, w, P, focal, thr, pair_blocks=None):
+    """For n joints (n, C, 2), (n, C): the views (n, C) that agree with the two-view solution
+    most views agree with (scored by their confidence)."""
     sel = pair_views(xy.shape[1])  # (K, 2)
     Xk = triangulate_dlt(
         xy[:, sel], None if pair_blocks is not None else P[sel], w[:, sel], pair_blocks
@@ -181,7 +181,7 @@ def _best_pair_seed(xy, w, P, focal, thr, pair_blocks=None):
     score = np.where(inl, w[:, None] - 1e-3 * err / t, 0.0).sum(-1)
     score[np.isnan(Xk[..., 0])] = -np.inf
     best = np.argmax(score, axis=-1)
-    return Xk[np.arange(len(best)), best]
+    return inl[np.arange(len(best)), best]
 
 
 @functools.lru_cache(maxsize=16)
