@@ -11,20 +11,16 @@ import pytest
 from stereopose.cli import main
 
 
+def reconstruct(calib: Path, pose: Path, out: Path, *extra: str) -> int:
+    return main(
+        ["reconstruct", "--calib", str(calib), "--pose", str(pose), "--out", str(out), *extra]
+    )
+
+
 @pytest.mark.realdata
 def test_reconstruct_real_detections(shared_data_dir: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "poses3d.jsonl"
-    rc = main(
-        [
-            "reconstruct",
-            "--calib",
-            str(shared_data_dir / "calib.toml"),
-            "--pose",
-            str(shared_data_dir / "pose"),
-            "--out",
-            str(out),
-        ]
-    )
+    rc = reconstruct(shared_data_dir / "calib.toml", shared_data_dir / "pose", out)
     assert rc == 0
     printed = capsys.readouterr().out
     assert "frames" in printed and "100" in printed
@@ -91,17 +87,7 @@ def test_reconstruct_with_one_camera_folder_fails_clearly(
 ) -> None:
     pose = tmp_path / "pose"
     shutil.copytree(shared_data_dir / "pose" / "cam01_json", pose / "cam01_json")
-    rc = main(
-        [
-            "reconstruct",
-            "--calib",
-            str(shared_data_dir / "calib.toml"),
-            "--pose",
-            str(pose),
-            "--out",
-            str(tmp_path / "o.jsonl"),
-        ]
-    )
+    rc = reconstruct(shared_data_dir / "calib.toml", pose, tmp_path / "o.jsonl")
     assert rc == 2
     assert "at least 2 calibrated cameras" in " ".join(capsys.readouterr().err.split())
 
@@ -115,17 +101,7 @@ def test_malformed_keypoint_file_is_skipped_and_reported(
     broken = pose / "cam02_json" / "cam02_000000000010_keypoints.json"
     broken.write_text("{not json")
     out = tmp_path / "o.jsonl"
-    rc = main(
-        [
-            "reconstruct",
-            "--calib",
-            str(shared_data_dir / "calib.toml"),
-            "--pose",
-            str(pose),
-            "--out",
-            str(out),
-        ]
-    )
+    rc = reconstruct(shared_data_dir / "calib.toml", pose, out)
     captured = capsys.readouterr()
     assert rc == 0
     assert "skipped" in captured.out
@@ -145,25 +121,8 @@ def test_bad_config_key_is_named(tmp_path: Path, capsys) -> None:
 
 def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
     scene = tmp_path / "scene"
-    assert (
-        main(
-            [
-                "simulate",
-                str(scene),
-                "--frames",
-                "12",
-                "--cameras",
-                "4",
-                "--people",
-                "2",
-                "--difficulty",
-                "easy",
-                "--seed",
-                "3",
-            ]
-        )
-        == 0
-    )
+    args = "--frames 12 --cameras 4 --people 2 --difficulty easy --seed 3".split()
+    assert main(["simulate", str(scene), *args]) == 0
     assert (scene / "calib.toml").is_file() and (scene / "truth.jsonl").is_file()
     assert sorted(p.name for p in (scene / "pose").iterdir()) == [
         "cam01_json",
@@ -172,19 +131,7 @@ def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
         "cam04_json",
     ]
     out = tmp_path / "poses.jsonl"
-    rc = main(
-        [
-            "reconstruct",
-            "--calib",
-            str(scene / "calib.toml"),
-            "--pose",
-            str(scene / "pose"),
-            "--out",
-            str(out),
-            "--mode",
-            "weighted",
-        ]
-    )
+    rc = reconstruct(scene / "calib.toml", scene / "pose", out, "--mode", "weighted")
     assert rc == 0
     assert len(out.read_text().splitlines()) == 12
 
@@ -209,17 +156,7 @@ def test_all_keypoint_files_malformed_is_an_error(tmp_path: Path, capsys) -> Non
     assert main(["simulate", str(calib), "--frames", "2", "--cameras", "2", "--people", "1"]) == 0
     for f in (calib / "pose").rglob("*.json"):
         f.write_text("[]")
-    rc = main(
-        [
-            "reconstruct",
-            "--calib",
-            str(calib / "calib.toml"),
-            "--pose",
-            str(calib / "pose"),
-            "--out",
-            str(tmp_path / "o.jsonl"),
-        ]
-    )
+    rc = reconstruct(calib / "calib.toml", calib / "pose", tmp_path / "o.jsonl")
     err = " ".join(capsys.readouterr().err.split())
     assert rc == 2
     assert "none of the keypoint files could be read" in err and "expected a JSON object" in err
