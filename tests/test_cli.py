@@ -121,7 +121,18 @@ def test_bad_config_key_is_named(tmp_path: Path, capsys) -> None:
 
 def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
     scene = tmp_path / "scene"
-    args = "--frames 12 --cameras 4 --people 2 --difficulty easy --seed 3".split()
+    args = [
+        "--frames",
+        "12",
+        "--cameras",
+        "4",
+        "--people",
+        "2",
+        "--difficulty",
+        "easy",
+        "--seed",
+        "3",
+    ]
     assert main(["simulate", str(scene), *args]) == 0
     assert (scene / "calib.toml").is_file() and (scene / "truth.jsonl").is_file()
     assert sorted(p.name for p in (scene / "pose").iterdir()) == [
