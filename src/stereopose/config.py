@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
@@ -83,14 +81,6 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
         if value not in get_args(tp):
             raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got {value!r}")
         return value
-    if origin in (typing.Union, types.UnionType):
-        errors = []
-        for alt in get_args(tp):
-            try:
-                return _check_value(value, alt, where)
-            except ConfigError as e:
-                errors.append(str(e))
-        raise ConfigError(errors[-1])
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true or false, got {value!r}")
@@ -106,10 +96,6 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
-        return value
-    if tp is type(None):
-        if value is not None:
-            raise ConfigError(f"{where}: expected nothing, got {value!r}")
         return value
     return value
 

@@ -68,19 +68,6 @@ def project(points_world: np.ndarray, camera: Camera) -> np.ndarray:
     return normalized_to_pixels(distort(xy, camera.distortions), camera.matrix)
 
 
-def project_normalized(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Project (..., 3) world points with (..., 3, 4) [R | t] to ideal normalised (..., 2).
-
-    Broadcasts: points (G, J, 1, 3) with P (C, 3, 4) give (G, J, C, 2). Points behind the camera
-    give NaN.
-    """
-    X = points_world
-    Xc = X[..., 0:1] * P[..., 0] + X[..., 1:2] * P[..., 1] + X[..., 2:3] * P[..., 2] + P[..., 3]
-    z = Xc[..., 2:3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(z > 1e-3, Xc[..., :2] / z, np.nan)
-
-
 def project_to_cameras(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Project (..., 3) world points into each of C cameras [R | t] (C, 3, 4) at once.
 

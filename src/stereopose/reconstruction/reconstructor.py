@@ -13,14 +13,13 @@ from stereopose.association.affinity import (
     epipolar_costs,
     epipolar_distances,
 )
-from stereopose.association.grouping import group_detections
+from stereopose.association.grouping import group_detections, upper_pairs
 from stereopose.config import ReconstructionConfig
 from stereopose.errors import CalibrationError
-from stereopose.geometry.camera import project_normalized, project_to_cameras
+from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
 from stereopose.reconstruction.triangulate import (
-    camera_pairs,
     pair_views,
     reprojection_errors,
     triangulate_pair,
@@ -41,7 +40,7 @@ def _group_pair_distances(members: np.ndarray, dist: PairDistances):
     NaN where the group lacks either camera; cross pairs joint j in a with SWAP[j] in b.
     """
     C = members.shape[1]
-    ka, kb = camera_pairs(C)
+    ka, kb = upper_pairs(C)
     na, nb = members[:, ka], members[:, kb]  # (G, K)
     row = np.where((na >= 0) & (nb >= 0), dist.row[na, nb], -1)
     pad = np.full((1, NUM_JOINTS), np.nan)  # row -1 picks this
@@ -183,7 +182,7 @@ class Reconstructor:
             open_g = np.flatnonzero(~has[:, c])
             if open_g.size == 0:
                 continue
-            proj = project_normalized(X[open_g], self.P[c])  # (g, 17, 2)
+            proj = project_to_cameras(X[open_g], self.P[c : c + 1])[..., 0, :]  # (g, 17, 2)
             d = np.hypot(*np.moveaxis(det.xy[cand][:, None] - proj[None], -1, 0))  # (n, g, 17)
             ok = (det.conf[cand] >= ac.min_conf)[:, None, :] & np.isfinite(d)
             n_ok = ok.sum(-1)

@@ -13,7 +13,9 @@ import functools
 
 import numpy as np
 
+from stereopose.association.grouping import upper_pairs
 from stereopose.geometry.camera import homogeneous, project_to_cameras
+from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
 from stereopose.skeleton import LR_PAIRS, SWAP
 
@@ -26,13 +28,6 @@ _PART_OF_PAIR = np.array([int(left >= 13) for left, _ in LR_PAIRS])
 _JOINT_PARTS = np.zeros((len(SWAP), 2))
 _JOINT_PARTS[_LEFT, _PART_OF_PAIR] = _JOINT_PARTS[_RIGHT, _PART_OF_PAIR] = 1.0
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
-
-
-@functools.lru_cache(maxsize=32)
-def camera_pairs(C: int) -> tuple[np.ndarray, np.ndarray]:
-    """All unordered camera pairs (a < b) as two (K,) index arrays."""
-    a, b = np.triu_indices(C, k=1)
-    return a, b
 
 
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray):
@@ -71,17 +66,17 @@ def triangulate_pair(
     distance of joint i in pixels, averaged over joints usable in both views; E: (C, C, 3, 3).
     """
     G, C = xy.shape[0], xy.shape[2]
-    ka, kb = camera_pairs(C)
+    ka, kb = upper_pairs(C)
     xa, xb = np.nan_to_num(xy[:, :, ka]), np.nan_to_num(xy[:, :, kb])  # (G, J, K, 2)
     ha, hb = homogeneous(xa), homogeneous(xb)
     Ek = E[ka, kb]  # (K, 3, 3)
     lb = np.einsum("kij,gnkj->gnki", Ek, ha)
     la = np.einsum("kji,gnkj->gnki", Ek, hb)
-    d_b = np.abs((lb * hb).sum(-1)) / np.hypot(lb[..., 0], lb[..., 1]) * focal[kb]
-    d_a = np.abs((la * ha).sum(-1)) / np.hypot(la[..., 0], la[..., 1]) * focal[ka]
     both = (w[:, :, ka] > 0) & (w[:, :, kb] > 0)
     n = both.sum(axis=1)  # (G, K)
     with np.errstate(invalid="ignore", divide="ignore"):
+        d_b = point_line_distance(xb, lb) * focal[kb]
+        d_a = point_line_distance(xa, la) * focal[ka]
         mean_d = np.where(both, 0.5 * (d_a + d_b), 0.0).sum(axis=1) / n
     mean_conf = conf.mean(axis=1)  # (G, C)
     score = a * mean_d - b * (mean_conf[:, ka] + mean_conf[:, kb])
@@ -116,7 +111,7 @@ def triangulate_robust(
     point is the weighted DLT over the agreeing views (at least two). With pair_distances
     (same, cross), each (G, 17, K) per-joint epipolar distances of the views of camera pairs
     (a < b), the left/right labels of all views are first made consistent. blocks and
-    pair_blocks: dlt_blocks of P and of P[camera_pairs(C)] stacked, when computed already.
+    pair_blocks: dlt_blocks of P and of P[upper_pairs(C)] stacked, when computed already.
     Returns X, used, xy and w with swapped labels corrected, and the reprojection errors
     (G, 17, C) in pixels of the views used (NaN elsewhere).
     """
@@ -164,7 +159,7 @@ def triangulate_robust(
 @functools.lru_cache(maxsize=32)
 def pair_views(C: int) -> np.ndarray:
     """(K, 2) camera indices of every pair (a < b)."""
-    return np.stack(camera_pairs(C), axis=1)
+    return np.stack(upper_pairs(C), axis=1)
 
 
 def _best_pair_inliers(xy, w, P, focal, thr, pair_blocks=None):
@@ -189,7 +184,7 @@ def _labelings(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Z (2^C, C): every assignment of 'swapped' (1) or 'as detected' (0) to C views; and per
     camera pair (a < b), (K, 2^C) whether a labeling keeps (same labels) or crosses the pair."""
     Z = (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
-    ka, kb = camera_pairs(C)
+    ka, kb = upper_pairs(C)
     rel = (Z[:, ka] ^ Z[:, kb]).astype(np.float64)
     return Z, np.ascontiguousarray((1.0 - rel).T), np.ascontiguousarray(rel.T)
 
@@ -204,7 +199,7 @@ def _consistent_labels(xy, w, d_same, d_cross):
     detectors swap sides). This needs no 3D point; _body_orientation settles the mirror in 3D.
     """
     C = xy.shape[2]
-    ka, kb = camera_pairs(C)
+    ka, kb = upper_pairs(C)
     Z, keep_T, rel_T = _labelings(C)
     ok = w > 0
     both = ok[:, :, ka] & ok[:, :, kb] & ok[:, SWAP][:, :, kb]  # (G, 17, K)
