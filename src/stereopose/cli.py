@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 from pathlib import Path
@@ -41,10 +42,12 @@ def _config(args: argparse.Namespace) -> Config:
     cfg = load_config(args.config)
     if getattr(args, "mode", None):
         cfg = with_overrides(cfg, triangulation={"mode": args.mode})
+    if getattr(args, "no_tracking", False):
+        cfg = with_overrides(cfg, tracking={"enabled": False})
     if getattr(args, "fps", None) is not None:
-        if args.fps <= 0:
+        if not args.fps > 0:
             raise StereoposeError(f"--fps must be positive, got {args.fps}")
-        cfg = Config(fps=args.fps, reconstruction=cfg.reconstruction)
+        cfg = dataclasses.replace(cfg, fps=args.fps)
     return cfg
 
 
@@ -64,10 +67,19 @@ def _reconstruct(args: argparse.Namespace) -> int:
             args.out,
             cfg,
             on_frame=lambda done, total: progress.update(task, completed=done, total=total),
+            trc_dir=args.trc,
+            csv_path=args.csv,
+            tracks_path=args.tracks,
         )
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
     table.add_row("mode", summary.mode)
+    table.add_row(
+        "tracking",
+        f"on: {len(summary.trajectories)} people, {summary.predicted} bridged person-frames"
+        if summary.tracking
+        else "off (ids are per frame)",
+    )
     table.add_row("frames", str(summary.frames))
     hist = ", ".join(
         f"{v} frame{'s' * (v != 1)} with {k}" for k, v in sorted(summary.people_histogram.items())
@@ -78,13 +90,33 @@ def _reconstruct(args: argparse.Namespace) -> int:
     table.add_row(
         "median reprojection error, conf > 0.5", _px(summary.median_confident_reprojection_px)
     )
-    table.add_row("3D stage speed", f"{summary.fps_3d:.0f} frames/s")
+    table.add_row("3D back end speed", f"{summary.fps_3d:.0f} frames/s")
     if summary.skipped_files:
         table.add_row("skipped files", f"{len(summary.skipped_files)} (listed below)")
     out.print(table)
+    if summary.trajectories:
+        out.print(_trajectory_table(summary.trajectories))
+    for path in summary.outputs[1:]:
+        out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     for path, why in summary.skipped_files:
         out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
     return 0
+
+
+def _trajectory_table(trajectories) -> Table:
+    table = Table(title="People tracked")
+    for col in ("id", "first frame", "last frame", "time in view s", "frames seen", "path m"):
+        table.add_column(col, justify="right")
+    for t in trajectories:
+        table.add_row(
+            str(t.id),
+            str(t.first_frame),
+            str(t.last_frame),
+            f"{t.duration_s:.1f}",
+            str(t.frames_seen),
+            f"{t.path_m:.1f}",
+        )
+    return table
 
 
 def _simulated(**kwargs: object) -> Scene:
@@ -121,7 +153,9 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from stereopose.pipeline import evaluate_poses_file, reconstruct_files
+    from stereopose.io.results import load_people3d
+    from stereopose.pipeline import reconstruct_files
+    from stereopose.sim import evaluate, evaluate_tracking
     from stereopose.sim.io import write_scene
 
     out_dir = Path(args.out)
@@ -134,34 +168,41 @@ def _demo(args: argparse.Namespace) -> int:
         f"-> {scene_dir}"
     )
     table = Table(title="Accuracy against the simulator's ground truth")
-    for col in ("mode", "MPJPE mm", "PCP %", "PCP seen %", "recall %", "false/frame", "3D fps"):
-        table.add_column(col, justify="right")
+    for col in ("method", "MPJPE mm", "PCP %", "seen %", "recall %", "false", "ids", "IDSW", "fps"):
+        table.add_column(col, justify="right", no_wrap=col == "method")
     modes = (args.mode,) if args.mode else MODES
-    cfg0 = _config(args)
-    for mode in modes:
-        cfg = with_overrides(
-            Config(fps=scene.fps, reconstruction=cfg0.reconstruction), triangulation={"mode": mode}
-        )
-        poses = out_dir / f"poses3d_{mode}.jsonl"
+    cfg0 = dataclasses.replace(_config(args), fps=scene.fps)
+    runs = [(m, m, False) for m in modes]
+    runs.append((f"{modes[-1]} + tracking", modes[-1], True))
+    for label, mode, tracked in runs:
+        cfg = with_overrides(cfg0, triangulation={"mode": mode}, tracking={"enabled": tracked})
+        poses = out_dir / f"poses3d_{mode}{'_tracked' * tracked}.jsonl"
         summary = reconstruct_files(scene_dir / "calib.toml", scene_dir / "pose", poses, cfg)
-        m = evaluate_poses_file(poses, scene)
+        predictions = load_people3d(poses, len(scene.rig))
+        m = evaluate(predictions, scene)
+        ids = evaluate_tracking(predictions, scene) if tracked else None
         table.add_row(
-            mode,
+            label,
             f"{m.mpjpe_mm:.1f}",
             f"{100 * m.pcp:.1f}",
             f"{100 * m.pcp_seen:.1f}",
             f"{100 * m.person_recall:.1f}",
             f"{m.false_people_per_frame:.3f}",
+            f"{ids.ids}/{ids.workers}" if ids else "-",
+            str(ids.id_switches) if ids else "-",
             f"{summary.fps_3d:.0f}",
         )
     out.print(table)
     out.print(
-        "pair: the reference two-camera method; weighted: every view, weighted by confidence; "
-        "robust (default): views that agree, left/right swaps corrected. PCP seen: limbs whose "
-        "joints the detector reported in two cameras or more; recall: people found; false/frame: "
-        "people reconstructed where there is nobody."
+        "Per frame: pair is the reference two-camera method; weighted uses every view, weighted "
+        "by confidence; robust (default) the views that agree, left/right swaps corrected. "
+        "+ tracking (default): persistent ids, online smoothing, short gaps bridged. "
+        "seen %: PCP of the limbs the detector reported in two cameras or more; recall: people "
+        "found; false: people per frame where there is nobody (with tracking, including people "
+        "still predicted for a moment after they left); ids: ids given / workers; IDSW: id "
+        "switches; fps: 3D back end, frames/s."
     )
-    out.print(f"3D poses: {out_dir}/poses3d_<mode>.jsonl; ground truth: {scene_dir}/truth.jsonl")
+    out.print(f"3D poses: {out_dir}/poses3d_*.jsonl; ground truth: {scene_dir}/truth.jsonl")
     return 0
 
 
@@ -181,6 +222,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--mode", choices=MODES, help="triangulation mode (default: robust)")
     r.add_argument("--config", type=Path, help="TOML file overriding the defaults")
     r.add_argument("--fps", type=float, help="frame rate giving each frame its time (default 25)")
+    r.add_argument("--trc", type=Path, metavar="DIR", help="write one TRC file per person here")
+    r.add_argument("--csv", type=Path, metavar="FILE", help="write every joint as CSV rows")
+    r.add_argument("--tracks", type=Path, metavar="FILE", help="write trajectory summaries (JSON)")
+    r.add_argument(
+        "--no-tracking",
+        action="store_true",
+        help="per-frame people: no ids over time, no smoothing",
+    )
     r.set_defaults(func=_reconstruct)
 
     s = sub.add_parser("simulate", help="write a simulated substation scene with ground truth")

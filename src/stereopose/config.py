@@ -35,6 +35,9 @@ class AssociationConfig:
     min_common_joints: int = 4  # a camera pair needs this many joints confident in both
     max_cost: float = 0.12  # mean normalised epipolar distance accepted for a match
     reassign_leftovers: bool = True  # give unmatched detections to a reconstructed person
+    # a tracked person's pose reprojected into a camera claims the detection within this mean
+    # joint distance, divided by the detection's size
+    track_max_cost: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -70,9 +73,31 @@ class ReconstructionConfig:
 
 
 @dataclass(frozen=True)
+class TrackingConfig:
+    """Identities over time, online smoothing and positioning of reconstructed people."""
+
+    enabled: bool = True  # false: per-frame people, ids 0..P-1 in each frame
+    confirm_frames: int = 3  # a person gets an id after this many consecutive frames
+    bridge_s: float = 0.2  # gaps up to this long are filled by prediction, flagged predicted
+    seed_s: float = 0.4  # an unseen person's predicted pose is looked for in images this long
+    max_lost_s: float = 3.0  # an unseen person keeps their id this long, then the track ends
+    reid_radius_m: float = 1.0  # a returning person is this close to where they were last ...
+    reid_speed_mps: float = 1.5  # ... plus walking at this speed for the time unseen
+    duplicate_radius_m: float = 0.4  # a new person this close to a tracked one is the same
+    smoothing: bool = True  # false: raw per-frame joints (the filter still predicts gaps)
+    process_noise: float = 5.0  # constant-velocity model: acceleration density, m^2/s^3
+    measurement_noise_m: float = 0.03  # joint position noise of one reconstruction
+    gate_m: float = 0.25  # a joint jumping farther than this from its prediction ...
+    gate_sigmas: float = 4.0  # ... and this many standard deviations is not believed
+    gate_reset_frames: int = 3  # ... unless it stays there this many frames in a row
+    bone_lengths: bool = True  # keep each person's limb lengths at their running estimate
+
+
+@dataclass(frozen=True)
 class Config:
     fps: float = 25.0  # time base when the input has none
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
 def _check_value(value: Any, tp: Any, where: str) -> Any:
@@ -142,10 +167,14 @@ def load_config(path: str | Path | None = None) -> Config:
 
 
 def with_overrides(config: Config, **sections: dict[str, Any]) -> Config:
-    """A copy of `config` with fields of its reconstruction sections replaced.
+    """A copy of `config` with fields of its sections replaced: `tracking`, or one of the
+    reconstruction sections.
 
-    Example: with_overrides(cfg, triangulation={"mode": "pair"}).
+    Example: with_overrides(cfg, triangulation={"mode": "pair"}, tracking={"enabled": False}).
     """
+    if "tracking" in sections:
+        tracking = dataclasses.replace(config.tracking, **sections.pop("tracking"))
+        config = dataclasses.replace(config, tracking=tracking)
     rec = config.reconstruction
     for name, values in sections.items():
         current = getattr(rec, name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -13,10 +14,12 @@ import numpy as np
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
-from stereopose.errors import CalibrationError, KeypointsError
+from stereopose.errors import CalibrationError, KeypointsError, StereoposeError
+from stereopose.io.exports import CsvExporter, TrcExporter
 from stereopose.io.results import PosesWriter, load_people3d
 from stereopose.reconstruction import Reconstructor
 from stereopose.sim import Metrics, Scene, evaluate
+from stereopose.tracking import Tracker, Trajectory
 from stereopose.types import People3D
 
 logger = logging.getLogger(__name__)
@@ -34,11 +37,16 @@ class ReconstructionSummary:
     reprojection_px: list[float] = field(default_factory=list, repr=False)
     confident_reprojection_px: list[float] = field(default_factory=list, repr=False)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)
-    seconds_3d: float = 0.0
+    seconds_3d: float = 0.0  # association, triangulation and tracking
     frames_read: int = 0  # frames with at least one readable keypoint file
+    tracking: bool = False
+    trajectories: list[Trajectory] = field(default_factory=list)
+    predicted: int = 0  # people output from prediction alone (bridged gaps)
+    outputs: list[Path] = field(default_factory=list)
 
     def add(self, people: People3D) -> None:
         self.frames += 1
+        self.predicted += int(people.predicted.sum())
         n = len(people)
         self.people_histogram[n] = self.people_histogram.get(n, 0) + 1
         ok = np.isfinite(people.reprojection_px)
@@ -72,10 +80,16 @@ def reconstruct_files(
     out_path: str | Path,
     config: Config,
     on_frame: Callable[[int, int], None] | None = None,
+    trc_dir: str | Path | None = None,
+    csv_path: str | Path | None = None,
+    tracks_path: str | Path | None = None,
 ) -> ReconstructionSummary:
-    """Calibration + 2D keypoint folders -> 3D poses JSONL.
+    """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
 
-    on_frame(done, total) is called after each frame (progress display).
+    With tracking on (config.tracking.enabled) ids persist over time and joints are smoothed
+    online. on_frame(done, total) is called after each frame (progress display). Every output
+    is closed properly when the run stops early (an error, Ctrl-C): what was written stays
+    readable.
     """
     rig = load_calibration(calib_path)
     seq = read_pose_dir(pose_dir, rig.names)
@@ -88,21 +102,52 @@ def reconstruct_files(
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
     try:
-        rec = Reconstructor(rig, config.reconstruction)
+        tracker = Tracker(rig, config) if config.tracking.enabled else None
+        if tracker is not None:
+            rec = tracker.reconstructor
+        else:
+            rec = Reconstructor(rig, config.reconstruction)
     except CalibrationError as e:
         raise CalibrationError(f"{calib_path}: {e}") from None
-    summary = ReconstructionSummary(config.reconstruction.triangulation.mode, rig.names)
+    step = tracker.update if tracker is not None else rec
+    summary = ReconstructionSummary(
+        config.reconstruction.triangulation.mode, rig.names, tracking=tracker is not None
+    )
     total = len(seq)
-    with PosesWriter(out_path, config.fps) as writer:
+    writer = PosesWriter(out_path, config.fps)
+    summary.outputs.append(Path(out_path))
+    sinks: list = [writer]
+    trc = csv_out = None
+    try:
+        if csv_path is not None:
+            csv_out = CsvExporter(csv_path, config.fps)
+            sinks.append(csv_out)
+            summary.outputs.append(Path(csv_path))
+        if trc_dir is not None:
+            trc = TrcExporter(trc_dir, config.fps)
         for i, (frame, people2d) in enumerate(seq):
             t0 = time.perf_counter()
             summary.frames_read += bool(people2d)
-            people = rec(frame, people2d)
+            people = step(frame, people2d)
             summary.seconds_3d += time.perf_counter() - t0
             writer.write(people)
+            if csv_out is not None:
+                csv_out.add(people)
+            if trc is not None:
+                trc.add(people)
             summary.add(people)
             if on_frame is not None:
                 on_frame(i + 1, total)
+    finally:
+        for sink in sinks:
+            sink.close()
+        if trc is not None:
+            summary.outputs.extend(trc.close())
+        if tracker is not None:
+            summary.trajectories = tracker.finish()
+            if tracks_path is not None:
+                write_trajectories(tracks_path, summary.trajectories)
+                summary.outputs.append(Path(tracks_path))
     summary.skipped_files = [(str(p), why) for p, why in seq.skipped]
     if summary.skipped_files:
         logger.warning("%d keypoint file(s) skipped as malformed", len(summary.skipped_files))
@@ -113,6 +158,18 @@ def reconstruct_files(
             f"({len(summary.skipped_files)} skipped; first: {first[0]}: {first[1]})"
         )
     return summary
+
+
+def write_trajectories(path: str | Path, trajectories: list[Trajectory]) -> None:
+    """Per-person trajectory summaries as a JSON list."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(
+            json.dumps([t.as_dict() for t in trajectories], indent=1) + "\n", encoding="utf-8"
+        )
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot write trajectories: {e.strerror}") from None
 
 
 def evaluate_poses_file(path: str | Path, scene: Scene) -> Metrics:

@@ -225,6 +225,9 @@ class People3D:
     reprojection_px: (P, 17) mean reprojection error over the views used, pixels (NaN if none).
     views: (P, 17) number of camera views each joint was triangulated from.
     detections: (P, C) index of the detection used in each rig camera, -1 for none.
+    predicted: (P,) true for a tracked person not seen in this frame, whose pose is predicted
+        from the previous ones (default: all false).
+    velocity: (P, 2) floor velocity in m/s, world x-y (default: NaN, unknown).
     """
 
     frame: int
@@ -234,6 +237,8 @@ class People3D:
     reprojection_px: np.ndarray
     views: np.ndarray
     detections: np.ndarray
+    predicted: np.ndarray | None = None
+    velocity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         J = np.asarray(self.joints, dtype=np.float64)
@@ -267,6 +272,16 @@ class People3D:
             "reprojection_px",
             np.asarray(self.reprojection_px, dtype=np.float64).reshape(P, NUM_JOINTS),
         )
+        predicted = np.zeros(P, dtype=bool) if self.predicted is None else self.predicted
+        velocity = np.full((P, 2), np.nan) if self.velocity is None else self.velocity
+        for name, value, shape, dtype in (
+            ("predicted", predicted, (P,), bool),
+            ("velocity", velocity, (P, 2), np.float64),
+        ):
+            arr = np.asarray(value, dtype=dtype)
+            if arr.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+            object.__setattr__(self, name, arr)
 
     def __len__(self) -> int:
         return int(self.joints.shape[0])

@@ -90,14 +90,16 @@ class PairDistances:
     cross: np.ndarray
 
 
-def epipolar_distances(det: Detections, E: np.ndarray) -> PairDistances:
+def epipolar_distances(
+    det: Detections, E: np.ndarray, pairs: tuple[np.ndarray, np.ndarray] | None = None
+) -> PairDistances:
     """Per-joint normalised epipolar distances of all cross-camera detection pairs.
 
     E: (C, C, 3, 3) essential matrices of the rig (E[a, b] maps normalised points of camera a to
-    lines in camera b).
+    lines in camera b). pairs: only these detection pairs (n < m), when not all are needed.
     """
     N = len(det)
-    n, m = upper_pairs(N)
+    n, m = upper_pairs(N) if pairs is None else pairs
     keep = det.camera[n] != det.camera[m]
     n, m = n[keep], m[keep]
     row = np.full((N, N), -1, dtype=np.int64)

@@ -2,8 +2,12 @@
 
 One line per frame, frames with nobody included:
 {"frame": 42, "t": 1.68, "people": [{"id": 3, "joints": [[x, y, z] or null, ...17],
- "conf": [...17], "position": [x, y], "views": [...17], "reprojection_px": 2.1}]}
-Coordinates in metres, world frame; `position` is the mid-hip point on the floor.
+ "conf": [...17], "position": [x, y], "velocity": [vx, vy], "speed": 0.8, "heading_deg": 91.5,
+ "predicted": false, "views": [...17], "reprojection_px": 2.1}]}
+Coordinates in metres, world frame; `position` is the mid-hip point on the floor; `velocity`
+(m/s) and `speed` come from tracking (null without it); `heading_deg` is the direction the body
+faces, counter-clockwise from world +x; `predicted` is true for a tracked person not seen in
+this frame, whose pose is predicted from the frames before.
 """
 
 from __future__ import annotations
@@ -17,31 +21,26 @@ from typing import IO
 import numpy as np
 
 from stereopose.errors import StereoposeError
-from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP
+from stereopose.skeleton import NUM_JOINTS
+from stereopose.tracking.positioning import floor_position, heading_deg
 from stereopose.types import People3D
 
-
-def floor_position(joints: np.ndarray) -> np.ndarray:
-    """(P, 17, 3) joints -> (P, 2) floor point: mid-hip x-y, or the mean of the joints seen."""
-    hips = joints[:, [LEFT_HIP, RIGHT_HIP], :2]
-    with np.errstate(invalid="ignore"):
-        mid = hips.mean(axis=1)
-    out = np.full((joints.shape[0], 2), np.nan)
-    ok = np.isfinite(mid).all(-1)
-    out[ok] = mid[ok]
-    rest = ~ok & np.isfinite(joints[..., :2]).all(-1).any(-1)
-    if rest.any():
-        out[rest] = np.nanmean(joints[rest, :, :2], axis=1)
-    return out
+__all__ = ["PosesWriter", "floor_position", "frame_record", "load_people3d", "read_poses"]
 
 
 def _round(x: float, nd: int) -> float | None:
     return None if not math.isfinite(x) else round(float(x), nd)
 
 
+def _pair(v: np.ndarray, nd: int) -> list[float] | None:
+    return [round(float(v[0]), nd), round(float(v[1]), nd)] if np.isfinite(v).all() else None
+
+
 def frame_record(people: People3D, fps: float) -> dict:
     """The JSON object of one frame."""
     pos = floor_position(people.joints)
+    heading = heading_deg(people.joints)
+    speed = np.hypot(people.velocity[:, 0], people.velocity[:, 1])
     out = []
     for p in range(len(people)):
         J = people.joints[p]
@@ -53,9 +52,11 @@ def frame_record(people: People3D, fps: float) -> dict:
                     [round(float(v), 4) for v in J[j]] if ok[j] else None for j in range(NUM_JOINTS)
                 ],
                 "conf": [round(float(c), 3) for c in people.conf[p]],
-                "position": [_round(pos[p, 0], 4), _round(pos[p, 1], 4)]
-                if np.isfinite(pos[p]).all()
-                else None,
+                "position": _pair(pos[p], 4),
+                "velocity": _pair(people.velocity[p], 3),
+                "speed": _round(speed[p], 3),
+                "heading_deg": _round(heading[p], 1),
+                "predicted": bool(people.predicted[p]),
                 "views": [int(v) for v in people.views[p]],
                 "reprojection_px": _round(
                     float(np.nanmean(people.reprojection_px[p]))
@@ -139,6 +140,10 @@ def load_people3d(path: str | Path, num_cameras: int = 0) -> list[People3D]:
                 reprojection_px=np.full((P, NUM_JOINTS), np.nan),
                 views=np.zeros((P, NUM_JOINTS), dtype=np.int64),
                 detections=np.full((P, num_cameras), -1, dtype=np.int64),
+                predicted=np.array([bool(p.get("predicted", False)) for p in people]),
+                velocity=np.array(
+                    [p.get("velocity") or [np.nan, np.nan] for p in people], dtype=float
+                ).reshape(P, 2),
             )
         )
     return frames

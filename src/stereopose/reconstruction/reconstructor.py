@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -26,7 +27,7 @@ from stereopose.reconstruction.triangulate import (
     triangulate_robust,
     triangulate_weighted,
 )
-from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
+from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS, SWAP
 from stereopose.types import People2D, People3D, Rig
 
 _LIMB_A = np.array([a for a, _ in PCP_LIMBS])
@@ -47,6 +48,83 @@ def _group_pair_distances(members: np.ndarray, dist: PairDistances):
     same = np.concatenate([dist.same, pad])[row].transpose(0, 2, 1)
     cross = np.concatenate([dist.cross, pad])[row].transpose(0, 2, 1)
     return same, cross
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """One frame's 3D people and, per person, the index of the predicted pose that seeded
+    them (-1: associated from scratch)."""
+
+    people: People3D
+    seeds: np.ndarray
+
+
+def _claimed_groups(claims: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+    """Detections claimed by the same predicted pose in two cameras or more, as groups."""
+    groups, seeds = [], []
+    for t in np.unique(claims[claims >= 0]):
+        g = np.flatnonzero(claims == t)
+        if g.size >= 2:
+            groups.append(g)
+            seeds.append(int(t))
+    return groups, seeds
+
+
+def _pairs_within(groups: list[np.ndarray], free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Detection pairs (n < m) inside each group and among the free detections."""
+    n, m = [], []
+    for g in [*groups, free]:
+        a, b = upper_pairs(g.size)
+        n.append(g[a])
+        m.append(g[b])
+    return np.concatenate(n).astype(np.int64), np.concatenate(m).astype(np.int64)
+
+
+def _check_groups(groups, seeds, cost, max_cost):
+    """Remove from each seeded group the detections that disagree with the rest.
+
+    A detection whose mean cost to the other members exceeds max_cost is dropped, worst
+    first; a group left with fewer than two detections is dissolved. Returns the groups,
+    their seeds and the dropped detections.
+    """
+    # all groups at once: (G, S) members padded with a detection of infinite cost
+    N = cost.shape[0]
+    S = max(g.size for g in groups)
+    pad = np.full((len(groups), S), N)
+    for i, g in enumerate(groups):
+        pad[i, : g.size] = g
+    full = np.full((N + 1, N + 1), np.inf)
+    full[:N, :N] = cost
+    c = full[pad[:, :, None], pad[:, None, :]]  # (G, S, S); the diagonal is inf (same camera)
+    fin = np.isfinite(c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(fin, c, 0.0).sum(-1) / fin.sum(-1)
+    bad = ~(mean <= max_cost) & (pad < N)
+    if not bad.any():
+        return groups, seeds, np.zeros(0, dtype=np.int64)
+    kept, kept_seeds, dropped = [], [], []
+    for i, (g, t) in enumerate(zip(groups, seeds, strict=True)):
+        if not bad[i].any():
+            kept.append(g)
+            kept_seeds.append(t)
+            continue
+        while g.size >= 2:
+            c = cost[np.ix_(g, g)]
+            fin = np.isfinite(c)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean = np.where(fin, c, 0.0).sum(1) / fin.sum(1)
+            mean[~np.isfinite(mean)] = np.inf
+            worst = int(np.argmax(mean))
+            if mean[worst] <= max_cost:
+                break
+            dropped.append(g[worst])
+            g = np.delete(g, worst)
+        if g.size >= 2:
+            kept.append(g)
+            kept_seeds.append(t)
+        else:
+            dropped.extend(g.tolist())
+    return kept, kept_seeds, np.array(dropped, dtype=np.int64)
 
 
 class Reconstructor:
@@ -79,23 +157,61 @@ class Reconstructor:
     def __call__(
         self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
     ) -> People3D:
-        """3D people of one frame.
+        """3D people of one frame, ids 0..P-1.
 
         people: per camera name (missing cameras: no frame) or a sequence in rig order.
+        """
+        return self.reconstruct(frame, people).people
+
+    def reconstruct(
+        self,
+        frame: int,
+        people: Mapping[str, People2D] | Sequence[People2D | None],
+        predicted: np.ndarray | None = None,
+    ) -> Reconstruction:
+        """3D people of one frame, seeded by the predicted poses of tracked people.
+
+        predicted: (T, 17, 3) poses expected at this frame (NaN where unknown). Each camera's
+        detections are first matched to these poses reprojected into it; the detections a pose
+        claims in two cameras or more, checked against each other with the epipolar
+        constraint, form that person. Only the detections left over are associated across
+        cameras from scratch. The result tells, per person, which predicted pose seeded it.
         """
         if isinstance(people, Mapping):
             people = [people.get(name) for name in self.rig.names]
         if len(people) != len(self.rig):
             raise ValueError(f"expected people for {len(self.rig)} cameras, got {len(people)}")
+        C = len(self.rig)
         ac = self.config.association
         det = Detections.from_people(self.rig, people, ac.min_conf)
         if len(det) < 2:
-            return People3D.empty(frame, len(self.rig))
-        dist = epipolar_distances(det, self.E)
+            return Reconstruction(People3D.empty(frame, C), np.zeros(0, dtype=np.int64))
+        seeded: list[np.ndarray] = []
+        seeds: list[int] = []
+        if predicted is not None and len(predicted):
+            claims = self._claim(det, predicted)
+            seeded, seeds = _claimed_groups(claims)
+        # epipolar distances only where they are needed: inside seeded groups, and between
+        # the detections no seed claimed
+        free = np.ones(len(det), dtype=bool)
+        for g in seeded:
+            free[g] = False
+        dist = epipolar_distances(det, self.E, _pairs_within(seeded, np.flatnonzero(free)))
         cost = epipolar_costs(det, dist, ac.min_conf, ac.min_common_joints)
-        groups = group_detections(cost, det.camera, ac.max_cost)
+        if seeded:
+            seeded, seeds, dropped = _check_groups(seeded, seeds, cost, ac.max_cost)
+            if dropped.size:  # back with the free detections, which need their distances
+                free[dropped] = True
+                pairs = _pairs_within(seeded, np.flatnonzero(free))
+                dist = epipolar_distances(det, self.E, pairs)
+                cost = epipolar_costs(det, dist, ac.min_conf, ac.min_common_joints)
+        left = np.flatnonzero(free)
+        found = group_detections(cost[np.ix_(left, left)], det.camera[left], ac.max_cost)
+        new = [left[g] for g in found]
+        groups = seeded + new
+        seed_of = np.array(seeds + [-1] * len(new), dtype=np.int64)
         if not groups:
-            return People3D.empty(frame, len(self.rig))
+            return Reconstruction(People3D.empty(frame, C), np.zeros(0, dtype=np.int64))
         tri = self._triangulate(det, groups, dist)
         grown = self._reassign(det, groups, tri[0]) if ac.reassign_leftovers else []
         if grown:
@@ -104,7 +220,49 @@ class Reconstructor:
                 full[grown] = part
         X, used, conf, err, members = tri
         delivered = np.array([p is not None for p in people])
-        return self._assemble(frame, det, members, delivered, X, used, conf, err)
+        out, idx = self._assemble(frame, det, members, delivered, X, used, conf, err)
+        return Reconstruction(out, seed_of[idx])
+
+    def _claim(self, det: Detections, predicted: np.ndarray) -> np.ndarray:
+        """(N,) index of the predicted pose each detection belongs to (-1: none).
+
+        In each camera, detections and predicted poses are matched one to one (Hungarian) on
+        the mean distance of confident joints to the reprojected pose, divided by the
+        detection's size; left/right exchanged poses count as the same pose.
+        """
+        ac = self.config.association
+        proj = project_to_cameras(predicted, self.P)  # (T, 17, C, 2)
+        mine = proj[:, :, det.camera].transpose(2, 0, 1, 3)  # (N, T, 17, 2)
+        ok = det.conf >= ac.min_conf  # (N, 17)
+        best = np.full(mine.shape[:2], np.inf)
+        for xy, okj in ((det.xy, ok), (det.xy[:, SWAP], ok[:, SWAP])):
+            e = xy[:, None] - mine
+            d = np.sqrt(e[..., 0] * e[..., 0] + e[..., 1] * e[..., 1])  # (N, T, 17)
+            have = okj[:, None] & (d == d)  # d == d: not NaN
+            n = have.sum(-1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                c = np.where(have, d, 0.0).sum(-1) / (n * det.size[:, None])
+            c[(n < ac.min_common_joints) | ~(c == c)] = np.inf
+            np.minimum(best, c, out=best)
+        claims = np.full(len(det), -1, dtype=np.int64)
+        pick = best.argmin(1)
+        fine = best[np.arange(len(det)), pick] <= ac.track_max_cost
+        key = det.camera * best.shape[1] + pick
+        # where no two detections of a camera pick the same pose, the row minima are optimal
+        dup = np.zeros(len(det), dtype=bool)
+        k = key[fine]
+        uniq, counts = np.unique(k, return_counts=True)
+        if (counts > 1).any():
+            dup[fine] = np.isin(k, uniq[counts > 1])
+        claims[fine & ~dup] = pick[fine & ~dup]
+        for cam in np.unique(det.camera[dup]):
+            rows = np.flatnonzero(det.camera == cam)
+            sub = best[rows]
+            r, k = linear_sum_assignment(np.where(np.isfinite(sub), sub, 1e9))
+            claims[rows] = -1
+            fine = sub[r, k] <= ac.track_max_cost
+            claims[rows[r[fine]]] = k[fine]
+        return claims
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -208,8 +366,9 @@ class Reconstructor:
         inside = ((xy >= lo) & (xy <= hi)).all(-1)  # NaN (behind, missing) compares False
         return inside.sum(1) >= min_joints
 
-    def _assemble(self, frame, det, members, delivered, X, used, conf, err) -> People3D:
-        """Plausible people only, as People3D; members: (G, C) detection per camera or -1."""
+    def _assemble(self, frame, det, members, delivered, X, used, conf, err):
+        """Plausible people only, as People3D, and the indices of their groups; members:
+        (G, C) detection per camera or -1."""
         pc = self.config.plausibility
         G, C = members.shape
         X = X.copy()
@@ -237,7 +396,7 @@ class Reconstructor:
         )
         idx = np.flatnonzero(keep)
         if idx.size == 0:
-            return People3D.empty(frame, C)
+            return People3D.empty(frame, C), idx
         X, used, conf, valid = X[idx], used[idx], conf[idx], valid[idx]
         err = np.where(used, err[idx], np.nan)
         detections = np.where(views[idx], det.index[members[idx]], -1)
@@ -245,7 +404,7 @@ class Reconstructor:
         with np.errstate(invalid="ignore", divide="ignore"):
             reproj = np.where(used, err, 0.0).sum(-1) / n_used  # NaN where no view
         conf = np.where(valid, conf, 0.0)
-        return People3D(
+        people = People3D(
             frame=frame,
             joints=X,
             conf=conf,
@@ -254,3 +413,4 @@ class Reconstructor:
             views=n_used,
             detections=detections,
         )
+        return people, idx

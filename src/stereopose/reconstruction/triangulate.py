@@ -203,6 +203,7 @@ def _consistent_labels(xy, w, d_same, d_cross):
     Z, keep_T, rel_T = _labelings(C)
     ok = w > 0
     both = ok[:, :, ka] & ok[:, :, kb] & ok[:, SWAP][:, :, kb]  # (G, 17, K)
+    both &= np.isfinite(d_same) & np.isfinite(d_cross)  # pairs not measured do not vote
     # per body part p: total distance of all its joints, (G, 2, K)
     same = np.einsum("gjk,jp->gpk", np.where(both, d_same, 0.0), _JOINT_PARTS)
     cross = np.einsum("gjk,jp->gpk", np.where(both, d_cross, 0.0), _JOINT_PARTS)

@@ -139,3 +139,87 @@ def evaluate(predictions: Sequence[People3D], scene: Scene, min_views: int = 2) 
         joint_coverage=reconstructed / (matched * NUM_JOINTS) if matched else nan,
         frames=frames,
     )
+
+
+@dataclass(frozen=True)
+class TrackingMetrics:
+    """Identity scores of tracked predictions (CLEAR MOT and IDF1 conventions).
+
+    id_switches: times a worker's matched id differs from the id matched before (gaps
+        ignored). fragmented: workers seen under more than one id.
+    idf1: 2 IDTP / (true person-frames + predicted person-frames), with one id per worker
+        chosen to maximise the frames they share (IDTP).
+    mota: 1 - (misses + false people + id switches) / true person-frames.
+    ghost_ids: ids matched to a worker in fewer than half of their frames.
+    Only detectable workers (see `detectable`) count as true person-frames; predictions on a
+    present worker who is not detectable are neither true nor false.
+    """
+
+    id_switches: int
+    fragmented: int
+    idf1: float
+    mota: float
+    ids: int
+    workers: int
+    ghost_ids: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def evaluate_tracking(
+    predictions: Sequence[People3D], scene: Scene, min_views: int = 2
+) -> TrackingMetrics:
+    counted_mask = detectable(scene, min_views)
+    last: dict[int, int] = {}
+    share: dict[tuple[int, int], int] = {}
+    frames_of: dict[int, int] = {}
+    matched_of: dict[int, int] = {}
+    ids_of: dict[int, set[int]] = {}
+    switches = misses = false = gt = pred_total = 0
+    for pred in predictions:
+        t = int(pred.frame)
+        idx = np.flatnonzero(scene.present[t])
+        pairs = match_people(pred.joints, scene.truth[t, idx])
+        counted = counted_mask[t, idx]
+        gt += int(counted.sum())
+        hit = np.zeros(idx.size, dtype=bool)
+        matched_pred = set()
+        for p, n in pairs:
+            i, w = int(pred.ids[p]), int(idx[n])
+            matched_pred.add(p)
+            matched_of[i] = matched_of.get(i, 0) + 1
+            if not counted[n]:
+                continue
+            hit[n] = True
+            share[(w, i)] = share.get((w, i), 0) + 1
+            ids_of.setdefault(w, set()).add(i)
+            if w in last and last[w] != i:
+                switches += 1
+            last[w] = i
+        misses += int((counted & ~hit).sum())
+        for p in range(len(pred)):
+            i = int(pred.ids[p])
+            frames_of[i] = frames_of.get(i, 0) + 1
+            if p not in matched_pred:
+                false += 1
+        pred_total += len(pred) - sum(1 for p, n in pairs if not counted[n])
+    workers = sorted({w for w, _ in share})
+    ids = sorted(frames_of)
+    idtp = 0
+    if share:
+        m = np.zeros((len(workers), len(ids)))
+        for (w, i), k in share.items():
+            m[workers.index(w), ids.index(i)] = k
+        r, c = linear_sum_assignment(-m)
+        idtp = int(m[r, c].sum())
+    denom = gt + pred_total
+    return TrackingMetrics(
+        id_switches=switches,
+        fragmented=sum(len(v) > 1 for v in ids_of.values()),
+        idf1=2.0 * idtp / denom if denom else float("nan"),
+        mota=1.0 - (misses + false + switches) / gt if gt else float("nan"),
+        ids=len(ids),
+        workers=int(counted_mask.any(0).sum()),
+        ghost_ids=sum(matched_of.get(i, 0) < 0.5 * frames_of[i] for i in ids),
+    )

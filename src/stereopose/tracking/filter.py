@@ -1,0 +1,136 @@
+"""Online (causal) smoothing of 3D joints: a constant-velocity Kalman filter per joint.
+
+Every joint of every tracked person is filtered at once. The model is isotropic (the same
+noise along x, y and z), so each joint's covariance is one symmetric 2x2 matrix (position,
+velocity) shared by its three axes: states are (T, 17, 3) positions and velocities, covariances
+three (T, 17) arrays p00, p01, p11.
+
+A measured joint farther from its prediction than the gate (a detector's jump, a joint given
+to the wrong person) is not believed, unless it stays there for `gate_reset_frames` frames in a
+row: then the joint restarts from the measurement. Nothing here looks at future frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereopose.skeleton import NUM_JOINTS
+
+_INITIAL_SPEED_MPS = 1.0  # prior standard deviation of a new joint's velocity
+
+
+@dataclass
+class JointFilters:
+    """Kalman states of T people x 17 joints; NaN position where a joint was never seen.
+
+    rejected: (T, 17) consecutive frames each joint's measurement was gated out.
+    """
+
+    x: np.ndarray
+    v: np.ndarray
+    p00: np.ndarray
+    p01: np.ndarray
+    p11: np.ndarray
+    rejected: np.ndarray
+
+    @classmethod
+    def empty(cls) -> JointFilters:
+        z3 = np.zeros((0, NUM_JOINTS, 3))
+        z = np.zeros((0, NUM_JOINTS))
+        return cls(z3, z3.copy(), z, z.copy(), z.copy(), z.astype(np.int64))
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+    def append(self, joints: np.ndarray, noise_m: float) -> None:
+        """Add people starting at `joints` (n, 17, 3) (NaN: not seen yet), at rest."""
+        n = joints.shape[0]
+        seen = np.isfinite(joints).all(-1)
+        self.x = np.concatenate([self.x, np.where(seen[..., None], joints, np.nan)])
+        self.v = np.concatenate([self.v, np.zeros((n, NUM_JOINTS, 3))])
+        self.p00 = np.concatenate([self.p00, np.full((n, NUM_JOINTS), noise_m**2)])
+        self.p01 = np.concatenate([self.p01, np.zeros((n, NUM_JOINTS))])
+        self.p11 = np.concatenate([self.p11, np.full((n, NUM_JOINTS), _INITIAL_SPEED_MPS**2)])
+        self.rejected = np.concatenate([self.rejected, np.zeros((n, NUM_JOINTS), np.int64)])
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Keep only the people where mask (T,) is true."""
+        for name in ("x", "v", "p00", "p01", "p11", "rejected"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    def predict(self, dt: np.ndarray | float, q: float, moving: np.ndarray | None = None) -> None:
+        """Advance every state by dt seconds (scalar or (T,)).
+
+        q: acceleration spectral density (m^2/s^3) of the white-noise acceleration model.
+        moving: (T,) false for people whose velocity is no longer trusted (unseen too long):
+        they are held where they were, with the uncertainty still growing.
+        """
+        dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), (len(self),))[:, None]
+        if moving is not None:
+            self.v[~moving] = 0.0
+        self.x = self.x + self.v * dt[..., None]
+        p00, p01, p11 = self.p00, self.p01, self.p11
+        self.p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**3 / 3.0
+        self.p01 = p01 + dt * p11 + q * dt * dt / 2.0
+        self.p11 = p11 + q * dt
+
+    def update(
+        self,
+        rows: np.ndarray,
+        z: np.ndarray,
+        noise_m: np.ndarray | float,
+        gate_m: float,
+        gate_sigmas: float,
+        reset_frames: int,
+    ) -> np.ndarray:
+        """Correct people `rows` (n,) with measured joints z (n, 17, 3) (NaN: not measured).
+
+        noise_m: measurement standard deviation, scalar or (n, 17). Returns (n, 17) whether
+        each joint's measurement was used (gated-out and missing ones were not).
+        """
+        x, v = self.x[rows], self.v[rows]
+        p00, p01, p11 = self.p00[rows], self.p01[rows], self.p11[rows]
+        r2 = np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, p00.shape)
+        measured = np.isfinite(z).all(-1)
+        new = measured & ~np.isfinite(x).all(-1)
+        y = z - x
+        dist = np.sqrt(np.einsum("njk,njk->nj", y, y))
+        s = p00 + r2
+        with np.errstate(invalid="ignore"):
+            inside = dist <= np.maximum(gate_m, gate_sigmas * np.sqrt(s))
+        accept = measured & ~new & inside
+        rejected = self.rejected[rows]
+        rejected = np.where(measured & ~accept & ~new, rejected + 1, 0)
+        restart = new | (rejected >= reset_frames)
+        k0, k1 = p00 / s, p01 / s
+        a = accept[..., None]
+        x = np.where(a, x + k0[..., None] * y, x)
+        v = np.where(a, v + k1[..., None] * y, v)
+        p00, p01, p11 = (
+            np.where(accept, (1.0 - k0) * p00, p00),
+            np.where(accept, (1.0 - k0) * p01, p01),
+            np.where(accept, p11 - k1 * p01, p11),
+        )
+        if restart.any():
+            x[restart] = z[restart]
+            v[restart] = 0.0
+            p00 = np.where(restart, r2, p00)
+            p01 = np.where(restart, 0.0, p01)
+            p11 = np.where(restart, _INITIAL_SPEED_MPS**2, p11)
+            rejected[restart] = 0
+        self.x[rows], self.v[rows] = x, v
+        self.p00[rows], self.p01[rows], self.p11[rows] = p00, p01, p11
+        self.rejected[rows] = rejected
+        return accept | restart
+
+    def reset(self, rows: np.ndarray, z: np.ndarray, noise_m: float) -> None:
+        """Restart people `rows` at the measured joints z (n, 17, 3), at rest."""
+        seen = np.isfinite(z).all(-1)
+        self.x[rows] = np.where(seen[..., None], z, np.nan)
+        self.v[rows] = 0.0
+        self.p00[rows] = noise_m**2
+        self.p01[rows] = 0.0
+        self.p11[rows] = _INITIAL_SPEED_MPS**2
+        self.rejected[rows] = 0

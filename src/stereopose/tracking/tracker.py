@@ -1,0 +1,250 @@
+"""Persistent identities over time: one `update` per frame, also when nobody is seen.
+
+Each frame:
+1. every track's pose is predicted to the frame (constant velocity);
+2. the predicted poses of the tracks seen recently seed the reconstruction: each camera's
+   detections are matched to them reprojected, and only the detections left over are
+   associated across cameras from scratch (see Reconstructor.reconstruct);
+3. a person no seed explains is matched on the floor to a track unseen for a while (someone
+   back from behind a cabinet or from a camera stall keeps their id); otherwise they start a
+   tentative track, which gets an id only after `confirm_frames` consecutive frames (a
+   ghost of a frame or two never gets one);
+4. measured joints update the per-joint Kalman filters; gaps up to `bridge_s` are bridged by
+   prediction (people flagged `predicted`), and a track unseen for `max_lost_s` ends.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from stereopose.config import Config
+from stereopose.reconstruction import Reconstructor
+from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP
+from stereopose.tracking.bones import BoneLengths
+from stereopose.tracking.filter import JointFilters
+from stereopose.tracking.positioning import Trajectory, floor_position
+from stereopose.types import People2D, People3D, Rig
+
+_PREDICTED_CONF = 0.5  # confidence of a bridged joint, relative to its last measurement
+
+
+class Tracker:
+    """Tracks the people of one camera rig; `update` once per frame, frames in order."""
+
+    def __init__(self, rig: Rig, config: Config | None = None) -> None:
+        self.config = config or Config()
+        self.tc = self.config.tracking
+        self.reconstructor = Reconstructor(rig, self.config.reconstruction)
+        self.num_cameras = len(rig)
+        self._t: float | None = None
+        self._next_id = 1
+        self.filters = JointFilters.empty()
+        self.bones = BoneLengths.empty()
+        # per track: id (0 while tentative), consecutive frames seen, time last seen, frame
+        # of birth, last measured confidences, per joint the time last measured
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.hits = np.zeros(0, dtype=np.int64)
+        self.seen_t = np.zeros(0)
+        self.born = np.zeros(0, dtype=np.int64)
+        self.conf = np.zeros((0, NUM_JOINTS))
+        self.joint_t = np.zeros((0, NUM_JOINTS))
+        self.trajectories: dict[int, Trajectory] = {}
+        self.last: People3D | None = None  # the last frame's per-frame reconstruction
+
+    def __len__(self) -> int:
+        """Number of tracks held, tentative and lost ones included."""
+        return int(self.ids.shape[0])
+
+    def update(
+        self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
+    ) -> People3D:
+        """The tracked people at `frame`, ids persistent, joints smoothed.
+
+        people: the 2D people of each camera, as for Reconstructor. Frame numbers must
+        increase; the time of a frame is frame / fps.
+        """
+        tc, fps = self.tc, self.config.fps
+        t = frame / fps
+        if self._t is not None and t <= self._t:
+            raise ValueError(f"frame {frame} does not come after frame {round(self._t * fps)}")
+        dt = 0.0 if self._t is None else t - self._t
+        self._t = t
+        unseen = t - self.seen_t  # before this frame
+        self.filters.predict(dt, tc.process_noise, moving=unseen <= tc.bridge_s + 1e-9)
+        seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
+        rec = self.reconstructor.reconstruct(
+            frame, people, self.filters.x[seed_rows] if seed_rows.size else None
+        )
+        found = rec.people
+        self.last = found
+        row_of = np.full(len(found), -1, dtype=np.int64)
+        seeded = rec.seeds >= 0
+        row_of[seeded] = seed_rows[rec.seeds[seeded]]
+        self._reidentify(found, row_of, unseen)
+        keep_person = self._drop_duplicates(found, row_of)
+        new = np.flatnonzero((row_of < 0) & keep_person)
+        if new.size:
+            row_of[new] = self._add(found.joints[new], frame)
+            unseen = np.concatenate([unseen, np.full(new.size, np.inf)])
+        measured = np.flatnonzero(row_of >= 0)
+        rows = row_of[measured]
+        self._measure(rows, found, measured, unseen[rows], t)
+        out = self._output(frame, t, rows, found, measured)
+        self._retire(t, rows)
+        return out
+
+    def finish(self) -> list[Trajectory]:
+        """Every person's trajectory (ended and still open), by id."""
+        return [self.trajectories[k] for k in sorted(self.trajectories)]
+
+    # -- steps ---------------------------------------------------------------------------------
+
+    def _reidentify(self, found: People3D, row_of: np.ndarray, unseen: np.ndarray) -> None:
+        """Match people no seed explained to tracks not matched this frame, on the floor."""
+        tc = self.tc
+        todo = np.flatnonzero(row_of < 0)
+        free = np.setdiff1d(np.arange(len(self)), row_of[row_of >= 0])
+        if todo.size == 0 or free.size == 0:
+            return
+        a = floor_position(found.joints[todo])
+        b = floor_position(self.filters.x[free])
+        d = np.linalg.norm(a[:, None] - b[None], axis=-1)
+        reach = tc.reid_radius_m + tc.reid_speed_mps * np.minimum(unseen[free], tc.max_lost_s)
+        d[~(d <= reach[None])] = np.inf  # NaN: no position
+        if not np.isfinite(d).any():
+            return
+        r, k = linear_sum_assignment(np.where(np.isfinite(d), d, 1e9))
+        ok = np.isfinite(d[r, k])
+        row_of[todo[r[ok]]] = free[k[ok]]
+
+    def _drop_duplicates(self, found: People3D, row_of: np.ndarray) -> np.ndarray:
+        """(P,) false for unexplained people standing where a matched track stands: a second
+        reconstruction of someone already tracked, not a new person."""
+        keep = np.ones(len(found), dtype=bool)
+        todo = np.flatnonzero(row_of < 0)
+        if todo.size == 0 or not (row_of >= 0).any():
+            return keep
+        a = floor_position(found.joints[todo])
+        b = floor_position(found.joints[row_of >= 0])
+        d = np.linalg.norm(a[:, None] - b[None], axis=-1)
+        keep[todo[(d <= self.tc.duplicate_radius_m).any(1)]] = False
+        return keep
+
+    def _add(self, joints: np.ndarray, frame: int) -> np.ndarray:
+        """Start tentative tracks at joints (n, 17, 3); returns their rows."""
+        n = joints.shape[0]
+        first = len(self)
+        self.filters.append(joints, self.tc.measurement_noise_m)
+        self.bones.append(n)
+        self.ids = np.concatenate([self.ids, np.zeros(n, dtype=np.int64)])
+        self.hits = np.concatenate([self.hits, np.zeros(n, dtype=np.int64)])
+        self.seen_t = np.concatenate([self.seen_t, np.full(n, -np.inf)])
+        self.born = np.concatenate([self.born, np.full(n, frame, dtype=np.int64)])
+        self.conf = np.concatenate([self.conf, np.zeros((n, NUM_JOINTS))])
+        self.joint_t = np.concatenate([self.joint_t, np.full((n, NUM_JOINTS), -np.inf)])
+        return np.arange(first, first + n)
+
+    def _measure(self, rows, found, measured, unseen, t) -> None:
+        """Feed the people measured this frame to their tracks' filters."""
+        tc = self.tc
+        z = found.joints[measured]
+        if rows.size == 0:
+            return
+        # a track back after a long gap, or new, restarts from the measurement
+        fresh = ~(unseen <= tc.bridge_s + 1e-9)
+        if fresh.any():
+            self.filters.reset(rows[fresh], z[fresh], tc.measurement_noise_m)
+        if (~fresh).any():
+            self.filters.update(
+                rows[~fresh],
+                z[~fresh],
+                tc.measurement_noise_m,
+                tc.gate_m,
+                tc.gate_sigmas,
+                tc.gate_reset_frames,
+            )
+        self.bones.observe(rows, z)
+        self.hits[rows] += 1
+        self.seen_t[rows] = t
+        ok = np.isfinite(z).all(-1)
+        self.conf[rows] = np.where(ok, found.conf[measured], self.conf[rows])
+        self.joint_t[rows] = np.where(ok, t, self.joint_t[rows])
+
+    def _output(self, frame, t, rows, found, measured) -> People3D:
+        """Confirmed tracks seen now or within bridge_s, ordered by id."""
+        tc = self.tc
+        was = self.ids == 0
+        confirm = was & (self.hits >= tc.confirm_frames)
+        if confirm.any():
+            for r in np.flatnonzero(confirm):
+                self.ids[r] = self._next_id
+                # the frames it was seen before confirmation count too (this one is added below)
+                self.trajectories[self._next_id] = Trajectory(
+                    self._next_id,
+                    int(self.born[r]),
+                    self.born[r] / self.config.fps,
+                    frame,
+                    t,
+                    frames_seen=int(self.hits[r]) - 1,
+                )
+                self._next_id += 1
+        alive = (self.ids > 0) & (t - self.seen_t <= tc.bridge_s + 1e-9)
+        out_rows = np.flatnonzero(alive)
+        out_rows = out_rows[np.argsort(self.ids[out_rows])]
+        P = out_rows.size
+        person_of = np.full(len(self), -1, dtype=np.int64)
+        person_of[rows] = measured
+        src = person_of[out_rows]  # person of `found` behind each output row, -1: predicted
+        is_meas = src >= 0
+        X = self.filters.x[out_rows].copy()
+        if not tc.smoothing:
+            X[is_meas] = found.joints[src[is_meas]]
+        recent = t - self.joint_t[out_rows] <= tc.bridge_s + 1e-9
+        X[~recent] = np.nan
+        if tc.bone_lengths and tc.smoothing:
+            X = self.bones.apply(out_rows, X)
+        now = self.joint_t[out_rows] == t
+        conf = np.where(now, 1.0, _PREDICTED_CONF) * self.conf[out_rows]
+        conf = np.where(np.isfinite(X).all(-1), conf, 0.0)
+        reproj = np.full((P, NUM_JOINTS), np.nan)
+        views = np.zeros((P, NUM_JOINTS), dtype=np.int64)
+        detections = np.full((P, self.num_cameras), -1, dtype=np.int64)
+        if is_meas.any():
+            reproj[is_meas] = found.reprojection_px[src[is_meas]]
+            views[is_meas] = found.views[src[is_meas]]
+            detections[is_meas] = found.detections[src[is_meas]]
+        v = self.filters.v[out_rows][:, [LEFT_HIP, RIGHT_HIP], :2]
+        with np.errstate(invalid="ignore"):
+            velocity = v.mean(axis=1)
+        people = People3D(
+            frame=frame,
+            joints=X,
+            conf=conf,
+            ids=self.ids[out_rows],
+            reprojection_px=reproj,
+            views=views,
+            detections=detections,
+            predicted=~is_meas,
+            velocity=velocity,
+        )
+        pos = floor_position(X)
+        for p in np.flatnonzero(is_meas):
+            self.trajectories[int(people.ids[p])].add(frame, t, pos[p])
+        return people
+
+    def _retire(self, t: float, rows: np.ndarray) -> None:
+        """Drop tentative tracks not seen this frame and confirmed ones lost too long."""
+        tc = self.tc
+        missed = np.ones(len(self), dtype=bool)
+        missed[rows] = False
+        self.hits[missed] = 0
+        drop = missed & ((self.ids == 0) | (t - self.seen_t > tc.max_lost_s + 1e-9))
+        if drop.any():
+            keep = ~drop
+            self.filters.keep(keep)
+            self.bones.keep(keep)
+            for name in ("ids", "hits", "seen_t", "born", "conf", "joint_t"):
+                setattr(self, name, getattr(self, name)[keep])
