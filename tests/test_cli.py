@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from stereopose.cli import main
@@ -171,3 +172,58 @@ def test_all_keypoint_files_malformed_is_an_error(tmp_path: Path, capsys) -> Non
     err = " ".join(capsys.readouterr().err.split())
     assert rc == 2
     assert "none of the keypoint files could be read" in err and "expected a JSON object" in err
+
+
+@pytest.mark.realdata
+def test_reconstruct_tracks_and_exports(shared_data_dir: Path, tmp_path: Path, capsys) -> None:
+    from stereopose.io.exports import read_trc
+
+    out, trc, csv_path, tracks = (
+        tmp_path / "p.jsonl",
+        tmp_path / "trc",
+        tmp_path / "j.csv",
+        tmp_path / "tracks.json",
+    )
+    rc = reconstruct(
+        shared_data_dir / "calib.toml",
+        shared_data_dir / "pose",
+        out,
+        *("--fps", "60", "--trc", str(trc), "--csv", str(csv_path), "--tracks", str(tracks)),
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "People tracked" in printed and "person_1.trc" in printed
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert lines[1]["t"] == pytest.approx(1 / 60, abs=1e-6)
+    ids = {p["id"] for rec in lines for p in rec["people"]}
+    summary = json.loads(tracks.read_text())
+    assert {t["id"] for t in summary} == ids
+    assert sorted(p.name for p in trc.iterdir()) == sorted(f"person_{i}.trc" for i in ids)
+    for rec in lines[5:]:
+        for p in rec["people"]:
+            assert len(p["position"]) == 2 and p["speed"] is not None
+            assert isinstance(p["predicted"], bool) and -180 <= p["heading_deg"] <= 180
+    # the TRC of person 1 holds the JSONL's joints, frame by frame
+    frames, _, joints, names, rate = read_trc(trc / "person_1.trc")
+    assert rate == 60 and len(names) == 17
+    by_frame = {rec["frame"]: p["joints"] for rec in lines for p in rec["people"] if p["id"] == 1}
+    for f, J in zip(frames, joints, strict=True):
+        want = np.array([j if j else [np.nan] * 3 for j in by_frame[f]], dtype=float)
+        np.testing.assert_allclose(J, want, atol=1e-4)
+    rows = csv_path.read_text().splitlines()
+    assert rows[0] == "frame,t,id,joint,x,y,z,conf"
+    joints_in_jsonl = sum(
+        j is not None for rec in lines for p in rec["people"] for j in p["joints"]
+    )
+    assert len(rows) - 1 == joints_in_jsonl
+
+
+@pytest.mark.realdata
+def test_reconstruct_without_tracking(shared_data_dir: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "p.jsonl"
+    rc = reconstruct(shared_data_dir / "calib.toml", shared_data_dir / "pose", out, "--no-tracking")
+    assert rc == 0
+    assert "off (ids are per frame)" in capsys.readouterr().out
+    first = json.loads(out.read_text().splitlines()[0])
+    assert [p["id"] for p in first["people"]] == list(range(len(first["people"])))
+    assert all(p["velocity"] is None and p["predicted"] is False for p in first["people"])

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereopose.sim import evaluate, match_people, truth_people3d
+from stereopose.sim import Scene, evaluate, evaluate_tracking, match_people, truth_people3d
 from stereopose.sim.metrics import detectable
 from stereopose.types import People3D
 
@@ -100,3 +100,43 @@ def test_match_people() -> None:
     assert match_people(pred + 1.0, true) == []
     assert match_people(np.zeros((0, 17, 3)), true) == []
     assert match_people(pred[:2], true, max_dist_m=0.5) == [(0, 2), (1, 0)]
+
+
+def test_tracking_metrics_of_the_truth_are_perfect(mid_scene: Scene) -> None:
+    truth = [truth_people3d(mid_scene, t) for t in range(mid_scene.num_frames)]
+    m = evaluate_tracking(truth, mid_scene)
+    assert m.id_switches == 0 and m.fragmented == 0 and m.ghost_ids == 0
+    assert m.ids == m.workers
+    assert m.idf1 > 0.99 and m.mota > 0.99
+
+
+def test_tracking_metrics_count_switches_and_ghosts(mid_scene: Scene) -> None:
+    ok = detectable(mid_scene)
+    w1, w2 = np.flatnonzero(ok[99] & ok[100])[:2]
+    id1, id2 = mid_scene.ids[w1], mid_scene.ids[w2]
+    preds = []
+    for t in range(mid_scene.num_frames):
+        p = truth_people3d(mid_scene, t)
+        ids = p.ids.copy()
+        if t >= 100:  # from frame 100 on, two workers exchange ids
+            a, b = ids == id1, ids == id2
+            ids[a], ids[b] = id2, id1
+        joints, extra = p.joints, np.zeros(0, dtype=np.int64)
+        if t == 50:  # a ghost somewhere nobody is
+            joints = np.concatenate([joints, np.full((1, 17, 3), 50.0)])
+            extra = np.array([99])
+        preds.append(
+            People3D(
+                t,
+                joints,
+                np.ones(joints.shape[:2]),
+                np.concatenate([ids, extra]),
+                np.zeros(joints.shape[:2]),
+                np.ones(joints.shape[:2], dtype=np.int64),
+                np.full((len(joints), len(mid_scene.rig)), -1),
+            )
+        )
+    m = evaluate_tracking(preds, mid_scene)
+    assert m.id_switches == 2
+    assert m.fragmented == 2 and m.ghost_ids == 1 and m.ids == m.workers + 1
+    assert m.idf1 < 0.95

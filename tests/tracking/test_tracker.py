@@ -1,0 +1,145 @@
+"""Identities over time on simulated scenes and on the shared real detections."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from stereopose.config import Config, with_overrides
+from stereopose.geometry.camera import project
+from stereopose.sim import evaluate, evaluate_tracking, simulate
+from stereopose.sim.scene import Scene
+from stereopose.tracking import Tracker
+from stereopose.types import People2D
+
+
+def frames_of(scene: Scene) -> list[list[People2D | None]]:
+    return [[d[name] for name in scene.rig.names] for d in scene.detections]
+
+
+def track(scene: Scene, frames=None, **tracking):
+    cfg = with_overrides(dataclasses.replace(Config(), fps=scene.fps), tracking=tracking)
+    tracker = Tracker(scene.rig, cfg)
+    frames = frames_of(scene) if frames is None else frames
+    return [tracker.update(t, f) for t, f in enumerate(frames)], tracker
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("difficulty", "seed"), [("easy", 1), ("mid", 2), ("hard", 3), ("hard", 4)]
+)
+def test_ids_persist_through_entries_exits_and_crowds(difficulty: str, seed: int) -> None:
+    scene = simulate(difficulty=difficulty, num_frames=200, seed=seed, p_enter=0.5, p_leave=0.5)
+    preds, tracker = track(scene)
+    m = evaluate_tracking(preds, scene)
+    assert m.id_switches <= 1
+    assert m.ids <= m.workers + 1 and m.ghost_ids == 0
+    assert m.idf1 > 0.95
+    # every worker who entered or left did so under one id
+    assert m.fragmented <= 1
+    assert [t.id for t in tracker.finish()] == sorted({int(i) for p in preds for i in p.ids})
+
+
+def ghost(scene: Scene, t: int, where=(1.0, 1.0)) -> list[People2D | None]:
+    """Frame t's detections plus a fake person, consistent in every camera, at `where`."""
+    n = int(np.flatnonzero(scene.present[t])[0])
+    body = scene.truth[t, n].copy()
+    body[:, :2] += np.asarray(where) - np.nanmean(body[:, :2], axis=0)
+    out = []
+    for cam in scene.rig:
+        px = project(body, cam)
+        kp = np.concatenate([px, np.full((17, 1), 0.9)], axis=-1)
+        old = scene.detections[t][cam.name]
+        out.append(People2D(cam.name, t, np.concatenate([old.keypoints, kp[None]])))
+    return out
+
+
+@pytest.mark.parametrize(("length", "gets_id"), [(1, False), (2, False), (6, True)])
+def test_a_ghost_gets_an_id_only_once_confirmed(length: int, gets_id: bool) -> None:
+    scene = simulate(difficulty="easy", num_frames=40, seed=11, p_enter=0.0, p_leave=0.0)
+    frames = frames_of(scene)
+    for t in range(20, 20 + length):
+        frames[t] = ghost(scene, t)
+    preds, _ = track(scene, frames)
+    ids = {int(i) for p in preds for i in p.ids}
+    workers = len(np.flatnonzero(scene.present.any(0)))
+    assert len(ids) == workers + gets_id
+
+
+@pytest.mark.slow
+def test_ids_survive_cameras_dropping_out() -> None:
+    """Two of six cameras deliver nothing for a second; then every camera stalls for 0.4 s."""
+    scene = simulate(difficulty="mid", num_frames=150, seed=5, p_enter=0.0, p_leave=0.0)
+    frames = frames_of(scene)
+    for t in range(30, 55):
+        frames[t][1] = frames[t][4] = None
+    stall = range(90, 100)
+    for t in stall:
+        frames[t] = [None] * len(scene.rig)
+    preds, _ = track(scene, frames)
+    m = evaluate_tracking(preds, scene)
+    assert m.id_switches == 0 and m.ids == m.workers
+    # the stall: bridged by prediction for bridge_s, then nobody until the cameras return
+    assert all(p.predicted.all() for p in preds[90:95])
+    assert all(len(p) == 0 for p in preds[96:100])
+    assert len(preds[100]) == m.workers and not preds[100].predicted.any()
+
+
+@pytest.mark.slow
+def test_online_smoothing_lowers_the_joint_error() -> None:
+    scene = simulate(difficulty="mid", num_frames=200, seed=6)
+    raw = evaluate(track(scene, smoothing=False)[0], scene).mpjpe_mm
+    smooth = evaluate(track(scene)[0], scene).mpjpe_mm
+    assert smooth < 0.9 * raw
+
+
+def test_nobody_seen_then_tracks_end_after_max_lost() -> None:
+    scene = simulate(difficulty="easy", num_frames=10, seed=2, p_enter=0.0, p_leave=0.0)
+    cfg = dataclasses.replace(Config(), fps=25.0)
+    tracker = Tracker(scene.rig, cfg)
+    for t, f in enumerate(frames_of(scene)):
+        tracker.update(t, f)
+    assert len(tracker) == 2
+    empty = [None] * len(scene.rig)
+    out = tracker.update(10, empty)
+    assert out.predicted.all() and len(out) == 2
+    out = tracker.update(20, empty)
+    assert len(out) == 0 and len(tracker) == 2  # lost, not ended
+    tracker.update(10 + int(25 * cfg.tracking.max_lost_s) + 1, empty)
+    assert len(tracker) == 0
+    assert [t.frames_seen for t in tracker.finish()] == [10, 10]
+
+
+def test_frames_must_increase() -> None:
+    scene = simulate(difficulty="easy", num_frames=3, seed=2)
+    tracker = Tracker(scene.rig)
+    tracker.update(2, frames_of(scene)[2])
+    with pytest.raises(ValueError, match="frame 2 does not come after frame 2"):
+        tracker.update(2, frames_of(scene)[2])
+
+
+@pytest.mark.realdata
+def test_real_people_keep_one_id_each(shared_data_dir) -> None:
+    from stereopose.calibration.formats import load_calibration
+    from stereopose.detection.openpose import read_pose_dir
+
+    rig = load_calibration(shared_data_dir / "calib.toml")
+    seq = read_pose_dir(shared_data_dir / "pose", rig.names)
+    tracker = Tracker(rig, dataclasses.replace(Config(), fps=60.0))
+    frames = {}
+    for frame, people in seq:
+        out = tracker.update(frame, people)
+        frames[frame] = {int(i): out.joints[k] for k, i in enumerate(out.ids)}
+    trajectories = tracker.finish()
+    # the two main people are the ones seen longest; each is one id from start to end
+    main = sorted(trajectories, key=lambda t: -t.frames_seen)[:2]
+    assert all(t.first_frame == 0 and t.last_frame == 99 for t in main)
+    for t in main:
+        seen = [f for f in frames if t.id in frames[f]]
+        assert seen == list(range(seq.frames[0] + 2, 100))  # all frames once confirmed
+    # the ids stay on the same bodies: no jump of the hips between frames
+    for t in main:
+        hips = np.array([frames[f][t.id][11:13].mean(0) for f in range(2, 100)])
+        assert np.nanmax(np.linalg.norm(np.diff(hips, axis=0), axis=-1)) < 0.1
