@@ -85,8 +85,11 @@ class TrackingConfig:
     reid_speed_mps: float = 1.5  # ... plus walking at this speed for the time unseen
     duplicate_radius_m: float = 0.4  # a new person this close to a tracked one is the same
     smoothing: bool = True  # false: raw per-frame joints (the filter still predicts gaps)
-    process_noise: float = 5.0  # constant-velocity model: acceleration density, m^2/s^3
-    measurement_noise_m: float = 0.03  # joint position noise of one reconstruction
+    process_noise: float = 3.0  # constant-velocity model: acceleration density, m^2/s^3 ...
+    limb_noise_factor: float = (
+        2.5  # ... times this for elbows and knees, squared for wrists, ankles
+    )
+    measurement_noise_m: float = 0.03  # joint noise of a reconstruction from two views
     gate_m: float = 0.25  # a joint jumping farther than this from its prediction ...
     gate_sigmas: float = 4.0  # ... and this many standard deviations is not believed
     gate_reset_frames: int = 3  # ... unless it stays there this many frames in a row

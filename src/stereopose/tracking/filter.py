@@ -63,7 +63,8 @@ class JointFilters:
     def predict(self, dt: np.ndarray | float, q: float, moving: np.ndarray | None = None) -> None:
         """Advance every state by dt seconds (scalar or (T,)).
 
-        q: acceleration spectral density (m^2/s^3) of the white-noise acceleration model.
+        q: acceleration spectral density (m^2/s^3) of the white-noise acceleration model,
+        scalar or per joint (17,).
         moving: (T,) false for people whose velocity is no longer trusted (unseen too long):
         they are held where they were, with the uncertainty still growing.
         """
@@ -99,7 +100,9 @@ class JointFilters:
         dist = np.sqrt(np.einsum("njk,njk->nj", y, y))
         s = p00 + r2
         with np.errstate(invalid="ignore"):
-            inside = dist <= np.maximum(gate_m, gate_sigmas * np.sqrt(s))
+            # the gate widens with the prediction's uncertainty, not with a noisy measurement
+            spread = np.sqrt(p00 + np.minimum(r2, gate_m * gate_m / 16.0))
+            inside = dist <= np.maximum(gate_m, gate_sigmas * spread)
         accept = measured & ~new & inside
         rejected = self.rejected[rows]
         rejected = np.where(measured & ~accept & ~new, rejected + 1, 0)

@@ -22,7 +22,7 @@ from scipy.optimize import linear_sum_assignment
 
 from stereopose.config import Config
 from stereopose.reconstruction import Reconstructor
-from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP
+from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP, joint_index
 from stereopose.tracking.bones import BoneLengths
 from stereopose.tracking.filter import JointFilters
 from stereopose.tracking.positioning import Trajectory, floor_position
@@ -39,6 +39,16 @@ class Tracker:
         self.tc = self.config.tracking
         self.reconstructor = Reconstructor(rig, self.config.reconstruction)
         self.num_cameras = len(rig)
+        # hands and feet accelerate hardest (a step, a reach): they get more process noise
+        self._q = np.full(NUM_JOINTS, self.tc.process_noise)
+        for name in ("elbow", "knee"):
+            self._q[[joint_index(f"left_{name}"), joint_index(f"right_{name}")]] *= (
+                self.tc.limb_noise_factor
+            )
+        for name in ("wrist", "ankle"):
+            self._q[[joint_index(f"left_{name}"), joint_index(f"right_{name}")]] *= (
+                self.tc.limb_noise_factor**2
+            )
         self._t: float | None = None
         self._next_id = 1
         self.filters = JointFilters.empty()
@@ -73,7 +83,7 @@ class Tracker:
         dt = 0.0 if self._t is None else t - self._t
         self._t = t
         unseen = t - self.seen_t  # before this frame
-        self.filters.predict(dt, tc.process_noise, moving=unseen <= tc.bridge_s + 1e-9)
+        self.filters.predict(dt, self._q, moving=unseen <= tc.bridge_s + 1e-9)
         seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
         rec = self.reconstructor.reconstruct(
             frame, people, self.filters.x[seed_rows] if seed_rows.size else None
@@ -106,8 +116,10 @@ class Tracker:
         """Match people no seed explained to tracks not matched this frame, on the floor."""
         tc = self.tc
         todo = np.flatnonzero(row_of < 0)
+        if todo.size == 0:
+            return
         free = np.setdiff1d(np.arange(len(self)), row_of[row_of >= 0])
-        if todo.size == 0 or free.size == 0:
+        if free.size == 0:
             return
         a = floor_position(found.joints[todo])
         b = floor_position(self.filters.x[free])
@@ -161,7 +173,7 @@ class Tracker:
             self.filters.update(
                 rows[~fresh],
                 z[~fresh],
-                tc.measurement_noise_m,
+                self._noise(found, measured[~fresh]),
                 tc.gate_m,
                 tc.gate_sigmas,
                 tc.gate_reset_frames,
@@ -172,6 +184,12 @@ class Tracker:
         ok = np.isfinite(z).all(-1)
         self.conf[rows] = np.where(ok, found.conf[measured], self.conf[rows])
         self.joint_t[rows] = np.where(ok, t, self.joint_t[rows])
+
+    def _noise(self, found: People3D, people: np.ndarray) -> np.ndarray:
+        """(n, 17) measurement noise of the joints of `people`: the configured noise for a
+        joint triangulated from two views, less for more views (their errors average out)."""
+        views = np.maximum(found.views[people], 2)
+        return self.tc.measurement_noise_m * np.sqrt(2.0 / views)
 
     def _output(self, frame, t, rows, found, measured) -> People3D:
         """Confirmed tracks seen now or within bridge_s, ordered by id."""
