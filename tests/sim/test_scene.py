@@ -48,7 +48,9 @@ def test_skeletons_are_plausible(mid_scene) -> None:
             assert length.std() < 1e-6 * h, (a, b)  # rigid bones
             assert 0.1 * h < length.mean() < 0.3 * h
         ankles = j[:, [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]], 2]
-        assert ankles.min() > 0.06 and np.isclose(ankles.min(axis=1), 0.045 * h).mean() > 0.9
+        # the stance foot is on the floor (within 1 cm while the weight passes between feet)
+        stance = ankles.min(axis=1)
+        assert ankles.min() > 0.06 and (np.abs(stance - 0.045 * h) < 0.01).mean() > 0.9
         assert j[..., 2].min() > 0.05  # nothing under the floor
         eyes = j[:, 1, 2]
         assert 0.45 * h < eyes.min() and eyes.max() < 0.96 * h  # bending lowers the head

@@ -100,7 +100,14 @@ def pose(
         thigh = -np.cos(th)[:, None] * _UP + np.sin(th)[:, None] * f
         shin = -np.cos(th - kn)[:, None] * _UP + np.sin(th - kn)[:, None] * f
         ankles_rel.append(h * (THIGH * thigh + SHIN * shin))
-    hip_z = ANKLE_Z * h1 - np.minimum(ankles_rel[0][:, 2], ankles_rel[1][:, 2])
+    # the lower ankle carries the body; a soft minimum hands the weight from one foot to the
+    # other over a few frames (the body's height has no kink at each step)
+    za, zb = ankles_rel[0][:, 2], ankles_rel[1][:, 2]
+    k = 0.01 * h1
+    d = np.abs(za - zb) / k
+    # exact where the feet are level or far apart (standing, single support)
+    soft_min = np.minimum(za, zb) - k * (np.log1p(np.exp(-d)) - np.log(2.0) * np.exp(-d * d))
+    hip_z = ANKLE_Z * h1 - soft_min
     pelvis = np.column_stack([xy, hip_z])
     half_hip = 0.5 * HIP_W * h * left
     ankles = (pelvis + half_hip + ankles_rel[0], pelvis - half_hip + ankles_rel[1])
@@ -288,7 +295,11 @@ class Worker:
         for k in ("gait", "reach_left", "reach_right"):
             sig[k] = _smooth(sig[k], ramp)
         sig["bend"] = _smooth(bend, ramp)
-        sig["heading"] = _smooth(np.unwrap(sig["heading"]), round(0.3 * fps))
+        # People turn, speed up and slow down over most of a second, not from one frame to the
+        # next: two moving averages make the heading's rate and the velocity ramp smoothly.
+        w = round(0.35 * fps)
+        sig["heading"] = _smooth(_smooth(np.unwrap(sig["heading"]), w), w)
+        xy = np.column_stack([_smooth(_smooth(xy[:, k], w), w) for k in range(2)])
         sig["phase"] = self.phase0 + np.cumsum(np.pi * self.step_hz * sig["gait"] / fps)
         W, D = self.room
         sig["present"] = (xy[:, 0] >= 0) & (xy[:, 0] <= W) & (xy[:, 1] >= 0) & (xy[:, 1] <= D)
