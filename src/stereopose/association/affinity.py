@@ -105,14 +105,14 @@ def epipolar_distances(
     row = np.full((N, N), -1, dtype=np.int64)
     row[n, m] = row[m, n] = np.arange(n.size)
     h = homogeneous(np.where(np.isfinite(det.xy), det.xy, 0.0))  # (N, 17, 3)
-    # Lines of every detection's joints in every camera, (N, C, 17, 3), and their inverse
-    # norms; |h_m^T E h_n| is the same seen from either image, only the norms differ.
-    lines = np.matmul(h[:, None], E[det.camera].swapaxes(-1, -2))
+    # Lines of n's joints in m's image and of m's joints in n's image, (M, 17, 3);
+    # |h_m^T E h_n| is the same seen from either image, only the line norms differ.
+    ca, cb = det.camera[n], det.camera[m]
+    lines_m = np.matmul(h[n], E[ca, cb].swapaxes(-1, -2))
+    lines_n = np.matmul(h[m], E[cb, ca].swapaxes(-1, -2))
     with np.errstate(invalid="ignore", divide="ignore"):
-        inv = 0.5 / np.hypot(lines[..., 0], lines[..., 1])
-    lines_m = lines[n, det.camera[m]]  # n's joints in m's image, (M, 17, 3)
-    w_m = inv[n, det.camera[m]] / det.size[m][:, None]
-    w_n = inv[m, det.camera[n]] / det.size[n][:, None]
+        w_m = 0.5 / np.hypot(lines_m[..., 0], lines_m[..., 1]) / det.size[m][:, None]
+        w_n = 0.5 / np.hypot(lines_n[..., 0], lines_n[..., 1]) / det.size[n][:, None]
     hm = h[m]
     same = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm)) * (w_m + w_n)
     cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm[:, SWAP])) * (w_m + w_n[:, SWAP])

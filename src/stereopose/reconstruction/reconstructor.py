@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -21,6 +22,7 @@ from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
 from stereopose.reconstruction.triangulate import (
+    JOINT_PARTS,
     pair_views,
     reprojection_errors,
     triangulate_pair,
@@ -57,6 +59,18 @@ class Reconstruction:
 
     people: People3D
     seeds: np.ndarray
+
+
+def _exchanged(det: Detections, swap: np.ndarray) -> Detections:
+    """det with left/right labels exchanged where swap (N, 2) is true, per body part."""
+    if not swap.any():
+        return det
+    flip = swap.astype(np.float64) @ JOINT_PARTS.T > 0  # (N, 17)
+    idx = np.where(flip, SWAP[None, :], np.arange(NUM_JOINTS)[None, :])
+    n = np.arange(len(det))[:, None]
+    return dataclasses.replace(
+        det, pixels=det.pixels[n, idx], xy=det.xy[n, idx], conf=det.conf[n, idx]
+    )
 
 
 def _claimed_groups(claims: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
@@ -189,8 +203,11 @@ class Reconstructor:
         seeded: list[np.ndarray] = []
         seeds: list[int] = []
         if predicted is not None and len(predicted):
-            claims = self._claim(det, predicted)
+            claims, swap = self._claim(det, predicted)
             seeded, seeds = _claimed_groups(claims)
+            # the labels of a claimed detection follow the predicted pose's: a detector's
+            # left/right swap is undone before anything else looks at it
+            det = _exchanged(det, swap & (claims >= 0)[:, None])
         # epipolar distances only where they are needed: inside seeded groups, and between
         # the detections no seed claimed
         free = np.ones(len(det), dtype=bool)
@@ -212,7 +229,8 @@ class Reconstructor:
         seed_of = np.array(seeds + [-1] * len(new), dtype=np.int64)
         if not groups:
             return Reconstruction(People3D.empty(frame, C), np.zeros(0, dtype=np.int64))
-        tri = self._triangulate(det, groups, dist)
+        # seeded groups alone have their labels settled; new people need them made consistent
+        tri = self._triangulate(det, groups, dist, labels_known=not new)
         grown = self._reassign(det, groups, tri[0]) if ac.reassign_leftovers else []
         if grown:
             redo = self._triangulate(det, [groups[i] for i in grown], dist)
@@ -223,8 +241,10 @@ class Reconstructor:
         out, idx = self._assemble(frame, det, members, delivered, X, used, conf, err)
         return Reconstruction(out, seed_of[idx])
 
-    def _claim(self, det: Detections, predicted: np.ndarray) -> np.ndarray:
-        """(N,) index of the predicted pose each detection belongs to (-1: none).
+    def _claim(self, det: Detections, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) index of the predicted pose each detection belongs to (-1: none), and (N, 2)
+        whether its left/right labels are exchanged against that pose, per body part (upper
+        body, legs).
 
         In each camera, detections and predicted poses are matched one to one (Hungarian) on
         the mean distance of confident joints to the reprojected pose, divided by the
@@ -235,13 +255,16 @@ class Reconstructor:
         mine = proj[:, :, det.camera].transpose(2, 0, 1, 3)  # (N, T, 17, 2)
         ok = det.conf >= ac.min_conf  # (N, 17)
         best = np.full(mine.shape[:2], np.inf)
+        part = []
         for xy, okj in ((det.xy, ok), (det.xy[:, SWAP], ok[:, SWAP])):
             e = xy[:, None] - mine
             d = np.sqrt(e[..., 0] * e[..., 0] + e[..., 1] * e[..., 1])  # (N, T, 17)
             have = okj[:, None] & (d == d)  # d == d: not NaN
             n = have.sum(-1)
+            dd = np.where(have, d, 0.0)
             with np.errstate(invalid="ignore", divide="ignore"):
-                c = np.where(have, d, 0.0).sum(-1) / (n * det.size[:, None])
+                c = dd.sum(-1) / (n * det.size[:, None])
+                part.append((dd @ JOINT_PARTS) / (have @ JOINT_PARTS))  # (N, T, 2)
             c[(n < ac.min_common_joints) | ~(c == c)] = np.inf
             np.minimum(best, c, out=best)
         claims = np.full(len(det), -1, dtype=np.int64)
@@ -262,6 +285,10 @@ class Reconstructor:
             claims[rows] = -1
             fine = sub[r, k] <= ac.track_max_cost
             claims[rows[r[fine]]] = k[fine]
+        t = np.maximum(claims, 0)
+        n = np.arange(len(det))
+        swap = part[1][n, t] < part[0][n, t]  # NaN (part not seen) compares False
+        return claims, swap
         return claims
 
     # -- steps ---------------------------------------------------------------------------------
@@ -282,7 +309,15 @@ class Reconstructor:
         # to (G, 17, C, ...) as the triangulation functions expect
         return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px, members
 
-    def _triangulate(self, det: Detections, groups: list[np.ndarray], dist: PairDistances):
+    def _triangulate(
+        self,
+        det: Detections,
+        groups: list[np.ndarray],
+        dist: PairDistances,
+        labels_known: bool = False,
+    ):
+        """Triangulate groups; labels_known: their left/right labels are consistent already
+        (robust mode then skips making them so)."""
         tc = self.config.triangulation
         xy, conf, size_px, members = self._gather(det, groups)
         w = np.where(conf >= tc.min_conf, conf, 0.0)
@@ -311,7 +346,7 @@ class Reconstructor:
                 tc.inlier_px,
                 tc.inlier_rel,
                 tc.fix_swaps,
-                pair_distances=_group_pair_distances(members, dist),
+                pair_distances=None if labels_known else _group_pair_distances(members, dist),
                 blocks=self.blocks,
                 pair_blocks=self.pair_blocks,
             )

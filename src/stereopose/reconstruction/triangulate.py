@@ -23,10 +23,11 @@ _LEFT = np.array([p[0] for p in LR_PAIRS])
 _RIGHT = np.array([p[1] for p in LR_PAIRS])
 # Detectors swap the whole body or the legs alone: labels are decided for these parts apart.
 # _PART_OF_PAIR[i]: part of LR_PAIRS[i] (0: face, arms, hips; 1: knees, ankles);
-# _JOINT_PARTS[j, p]: 1 where joint j is a left or right joint of part p.
+# JOINT_PARTS[j, p]: 1 where joint j is a left or right joint of part p.
 _PART_OF_PAIR = np.array([int(left >= 13) for left, _ in LR_PAIRS])
-_JOINT_PARTS = np.zeros((len(SWAP), 2))
-_JOINT_PARTS[_LEFT, _PART_OF_PAIR] = _JOINT_PARTS[_RIGHT, _PART_OF_PAIR] = 1.0
+JOINT_PARTS = np.zeros((len(SWAP), 2))
+JOINT_PARTS[_LEFT, _PART_OF_PAIR] = JOINT_PARTS[_RIGHT, _PART_OF_PAIR] = 1.0
+JOINT_PARTS.setflags(write=False)
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
@@ -205,10 +206,10 @@ def _consistent_labels(xy, w, d_same, d_cross):
     both = ok[:, :, ka] & ok[:, :, kb] & ok[:, SWAP][:, :, kb]  # (G, 17, K)
     both &= np.isfinite(d_same) & np.isfinite(d_cross)  # pairs not measured do not vote
     # per body part p: total distance of all its joints, (G, 2, K)
-    same = np.einsum("gjk,jp->gpk", np.where(both, d_same, 0.0), _JOINT_PARTS)
-    cross = np.einsum("gjk,jp->gpk", np.where(both, d_cross, 0.0), _JOINT_PARTS)
+    same = np.einsum("gjk,jp->gpk", np.where(both, d_same, 0.0), JOINT_PARTS)
+    cross = np.einsum("gjk,jp->gpk", np.where(both, d_cross, 0.0), JOINT_PARTS)
     cost = same @ keep_T + cross @ rel_T  # (G, 2, L)
-    present = np.einsum("gjc,jp->gpc", ok.astype(np.float64), _JOINT_PARTS) > 0  # (G, 2, C)
+    present = np.einsum("gjc,jp->gpc", ok.astype(np.float64), JOINT_PARTS) > 0  # (G, 2, C)
     # A labeling and its mirror cost the same: prefer exchanging the views that see the
     # person's back (faint face), where detectors swap sides, and then fewer views.
     face = w[:, :3].mean(1)  # (G, C) nose and eyes
