@@ -56,10 +56,22 @@ def _px(value: float) -> str:
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
+    from stereopose.fence import load_site
+    from stereopose.fence.sinks import describe
     from stereopose.pipeline import reconstruct_files
 
     cfg = _config(args)
+    site = load_site(args.site) if args.site else None
+    if site is None and (args.events or args.events_db or args.webhook):
+        raise StereoposeError("--events, --events-db and --webhook need a site file (--site)")
+    if site is not None and site.fps and args.fps is None:
+        cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
+
+        def show(events) -> None:
+            for e in events:
+                progress.console.print(describe(e), markup=False, highlight=False)
+
         task = progress.add_task("reconstructing", total=None)
         summary = reconstruct_files(
             args.calib,
@@ -70,6 +82,11 @@ def _reconstruct(args: argparse.Namespace) -> int:
             trc_dir=args.trc,
             csv_path=args.csv,
             tracks_path=args.tracks,
+            site=site,
+            events_path=args.events,
+            events_db=args.events_db,
+            webhook=args.webhook,
+            on_events=show if site is not None else None,
         )
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
@@ -91,6 +108,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
         "median reprojection error, conf > 0.5", _px(summary.median_confident_reprojection_px)
     )
     table.add_row("3D back end speed", f"{summary.fps_3d:.0f} frames/s")
+    if site is not None:
+        counts = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items())) or "none"
+        table.add_row("zone events", f"{counts} ({len(site.zones)} zones)")
     if summary.skipped_files:
         table.add_row("skipped files", f"{len(summary.skipped_files)} (listed below)")
     out.print(table)
@@ -100,6 +120,34 @@ def _reconstruct(args: argparse.Namespace) -> int:
         out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     for path, why in summary.skipped_files:
         out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
+    return 0
+
+
+def _events(args: argparse.Namespace) -> int:
+    import csv
+
+    from stereopose.fence.sinks import COLUMNS, query_events
+
+    rows = query_events(
+        args.db, person=args.person, zone=args.zone, event_type=args.type, since=args.since
+    )
+    if args.csv:
+        w = csv.writer(sys.stdout, lineterminator="\n")
+        w.writerow(COLUMNS)
+        w.writerows([r[c] for c in COLUMNS] for r in rows)
+        return 0
+    table = Table(title=f"{len(rows)} event(s) in {args.db}")
+    cols = ("run", "t", "frame", "person", "zone", "kind", "type", "joint", "distance_m", "x", "y")
+    for c in cols:
+        table.add_column(c, justify="left" if c in ("zone", "kind", "type", "joint") else "right")
+    for r in rows:
+        table.add_row(
+            *(
+                "" if r[c] is None else f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c])
+                for c in cols
+            )
+        )
+    out.print(table)
     return 0
 
 
@@ -225,12 +273,27 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--trc", type=Path, metavar="DIR", help="write one TRC file per person here")
     r.add_argument("--csv", type=Path, metavar="FILE", help="write every joint as CSV rows")
     r.add_argument("--tracks", type=Path, metavar="FILE", help="write trajectory summaries (JSON)")
+    r.add_argument("--site", type=Path, metavar="SITE.toml", help="zones: raise zone events")
+    r.add_argument("--events", type=Path, metavar="FILE", help="write zone events (JSON lines)")
+    r.add_argument(
+        "--events-db", type=Path, metavar="FILE", help="append zone events to an SQLite log"
+    )
+    r.add_argument("--webhook", metavar="URL", help="POST each zone event as JSON to this URL")
     r.add_argument(
         "--no-tracking",
         action="store_true",
         help="per-frame people: no ids over time, no smoothing",
     )
     r.set_defaults(func=_reconstruct)
+
+    e = sub.add_parser("events", help="list the events of an SQLite event log")
+    e.add_argument("db", type=Path, metavar="EVENTS.sqlite")
+    e.add_argument("--person", type=int, help="only this person id")
+    e.add_argument("--zone", help="only this zone")
+    e.add_argument("--type", help="only this event type (enter, exit, approach, dwell, ...)")
+    e.add_argument("--since", type=float, metavar="T", help="only events at t >= T seconds")
+    e.add_argument("--csv", action="store_true", help="CSV on standard output instead of a table")
+    e.set_defaults(func=_events)
 
     s = sub.add_parser("simulate", help="write a simulated substation scene with ground truth")
     s.add_argument("out_dir", type=Path, metavar="OUT_DIR")

@@ -15,12 +15,20 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
 from stereopose.errors import CalibrationError, KeypointsError, StereoposeError
+from stereopose.fence import FenceMonitor, Site
+from stereopose.fence.sinks import (
+    CallbackSink,
+    EventSink,
+    JsonlSink,
+    SqliteSink,
+    WebhookSink,
+)
 from stereopose.io.exports import CsvExporter, TrcExporter
 from stereopose.io.results import PosesWriter, load_people3d
 from stereopose.reconstruction import Reconstructor
 from stereopose.sim import Metrics, Scene, evaluate
 from stereopose.tracking import Tracker, Trajectory
-from stereopose.types import People3D
+from stereopose.types import Event, People3D
 
 logger = logging.getLogger(__name__)
 
@@ -43,6 +51,8 @@ class ReconstructionSummary:
     trajectories: list[Trajectory] = field(default_factory=list)
     predicted: int = 0  # people output from prediction alone (bridged gaps)
     outputs: list[Path] = field(default_factory=list)
+    events: dict[str, int] = field(default_factory=dict)  # event type -> count
+    seconds_fences: float = 0.0
 
     def add(self, people: People3D) -> None:
         self.frames += 1
@@ -83,13 +93,19 @@ def reconstruct_files(
     trc_dir: str | Path | None = None,
     csv_path: str | Path | None = None,
     tracks_path: str | Path | None = None,
+    site: Site | None = None,
+    events_path: str | Path | None = None,
+    events_db: str | Path | None = None,
+    webhook: str | None = None,
+    on_events: Callable[[list[Event]], None] | None = None,
 ) -> ReconstructionSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
 
     With tracking on (config.tracking.enabled) ids persist over time and joints are smoothed
-    online. on_frame(done, total) is called after each frame (progress display). Every output
-    is closed properly when the run stops early (an error, Ctrl-C): what was written stays
-    readable.
+    online. With a site, each frame's zone events go to events_path (JSON lines), events_db
+    (SQLite, appended to), the webhook URL and on_events. on_frame(done, total) is called after
+    each frame (progress display). Every output is closed properly when the run stops early
+    (an error, Ctrl-C): what was written stays readable.
     """
     rig = load_calibration(calib_path)
     seq = read_pose_dir(pose_dir, rig.names)
@@ -101,6 +117,8 @@ def reconstruct_files(
     if not seq.frames:
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
+    if site is not None and not config.tracking.enabled:
+        raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
     try:
         tracker = Tracker(rig, config) if config.tracking.enabled else None
         if tracker is not None:
@@ -117,8 +135,14 @@ def reconstruct_files(
     writer = PosesWriter(out_path, config.fps)
     summary.outputs.append(Path(out_path))
     sinks: list = [writer]
+    event_sinks: list[EventSink] = []
     trc = csv_out = None
+    fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
     try:
+        if fences is not None:
+            event_sinks = _event_sinks(site, pose_dir, events_path, events_db, webhook, on_events)
+            sinks.extend(event_sinks)
+            summary.outputs.extend(Path(p) for p in (events_path, events_db) if p is not None)
         if csv_path is not None:
             csv_out = CsvExporter(csv_path, config.fps)
             sinks.append(csv_out)
@@ -131,6 +155,14 @@ def reconstruct_files(
             people = step(frame, people2d)
             summary.seconds_3d += time.perf_counter() - t0
             writer.write(people)
+            if fences is not None:
+                t0 = time.perf_counter()
+                events = fences.update(people)
+                summary.seconds_fences += time.perf_counter() - t0
+                for sink in event_sinks:
+                    sink.write(events)
+                for e in events:
+                    summary.events[e.type] = summary.events.get(e.type, 0) + 1
             if csv_out is not None:
                 csv_out.add(people)
             if trc is not None:
@@ -158,6 +190,24 @@ def reconstruct_files(
             f"({len(summary.skipped_files)} skipped; first: {first[0]}: {first[1]})"
         )
     return summary
+
+
+def _event_sinks(site, pose_dir, events_path, events_db, webhook, on_events) -> list[EventSink]:
+    sinks: list[EventSink] = []
+    try:
+        if events_path is not None:
+            sinks.append(JsonlSink(events_path))
+        if events_db is not None:
+            sinks.append(SqliteSink(events_db, str(site.path or ""), str(pose_dir)))
+        if webhook is not None:
+            sinks.append(WebhookSink(webhook))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        raise
+    if on_events is not None:
+        sinks.append(CallbackSink(on_events))
+    return sinks
 
 
 def write_trajectories(path: str | Path, trajectories: list[Trajectory]) -> None:

@@ -1,0 +1,257 @@
+"""Zone rules over tracked people: enter, exit, approach, dwell, left_work_area.
+
+Per person and zone, the raw condition of each frame (a triggering joint inside the prism; or,
+for `approach`, within `margin_m` of an energized zone without being inside) is debounced: a
+zone is entered once the raw condition has held for `enter_s` and left once it has been false
+for `exit_s`, so a detection flickering for a frame neither opens nor closes it. Everything is
+online: an event is raised at the frame its debounce completes, and carries the time its
+condition began (onset_t). People not output in a frame (unseen) keep their state; a person
+unseen for `lost_s` while inside a zone gets an `exit` marked lost.
+
+The state is kept in (people x zones) arrays, so the cost per frame hardly grows with zones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stereopose.fence.zones import Site, ZoneGeometry
+from stereopose.skeleton import JOINTS, NUM_JOINTS
+from stereopose.tracking.positioning import floor_position
+from stereopose.types import Event, People3D
+
+_EPS = 1e-9
+
+
+class _Debounced:
+    """Debounced booleans (people x zones): on after `on_s` of raw true, off after `off_s` of
+    raw false. since: when the raw value started to differ from the state (NaN: it does not)."""
+
+    def __init__(self, on_s: np.ndarray, off_s: np.ndarray) -> None:
+        self.on_s, self.off_s = on_s, off_s
+        Z = on_s.shape[0]
+        self.state = np.zeros((0, Z), dtype=bool)
+        self.since = np.zeros((0, Z))
+        self.began = np.zeros((0, Z))  # when the current on-period's raw condition began
+
+    def add_rows(self, n: int) -> None:
+        Z = self.on_s.shape[0]
+        self.state = np.concatenate([self.state, np.zeros((n, Z), dtype=bool)])
+        self.since = np.concatenate([self.since, np.full((n, Z), np.nan)])
+        self.began = np.concatenate([self.began, np.full((n, Z), np.nan)])
+
+    def keep(self, mask: np.ndarray) -> None:
+        self.state, self.since, self.began = self.state[mask], self.since[mask], self.began[mask]
+
+    def step(self, rows: np.ndarray, raw: np.ndarray, t: float):
+        """Advance `rows` with raw (n, Z) at time t; returns (rose, fell) (n, Z) flags and the
+        onset times (n, Z) of the changes."""
+        state, since = self.state[rows], self.since[rows]
+        differs = raw != state
+        since = np.where(differs, np.where(np.isnan(since), t, since), np.nan)
+        elapsed = t - since
+        wait = np.where(state, self.off_s, self.on_s)
+        with np.errstate(invalid="ignore"):
+            flip = differs & (elapsed >= wait - _EPS)
+        rose, fell = flip & raw, flip & ~raw
+        onset = np.where(flip, since, np.nan)
+        state = state ^ flip
+        began = np.where(rose, since, self.began[rows])
+        since = np.where(flip, np.nan, since)
+        self.state[rows], self.since[rows], self.began[rows] = state, since, began
+        return rose, fell, onset
+
+
+class FenceMonitor:
+    """Turns tracked people, frame by frame, into zone events. `update` once per frame."""
+
+    def __init__(self, site: Site, fps: float, lost_s: float = 3.0) -> None:
+        self.site = site
+        self.zones = site.zones
+        self.fps = float(fps)
+        self.lost_s = float(lost_s)
+        self.geometry = ZoneGeometry(self.zones)
+        Z = len(self.zones)
+        self.mask = np.zeros((NUM_JOINTS, Z), dtype=bool)  # triggering joints per zone
+        for k, z in enumerate(self.zones):
+            self.mask[list(z.joints), k] = True
+        on = np.array([z.enter_s for z in self.zones])
+        off = np.array([z.exit_s for z in self.zones])
+        self.margin = np.array([z.margin_m if z.kind == "energized" else 0.0 for z in self.zones])
+        self.dwell = np.array([z.dwell_s if z.dwell_s else np.inf for z in self.zones])
+        self.needs_distance = bool((self.margin > 0).any())
+        self.inside = _Debounced(on, off)
+        self.near = _Debounced(on, off)
+        self.dwelt = np.zeros((0, Z), dtype=bool)
+        self.row_of: dict[int, int] = {}
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.last_seen = np.zeros(0)
+        self.last_pos = np.zeros((0, 2))
+        self.events = 0
+
+    def _rows(self, ids: np.ndarray) -> np.ndarray:
+        new = [int(i) for i in ids if int(i) not in self.row_of]
+        if new:
+            for i in new:
+                self.row_of[i] = len(self.ids)
+                self.ids = np.append(self.ids, i)
+            n = len(new)
+            self.inside.add_rows(n)
+            self.near.add_rows(n)
+            self.dwelt = np.concatenate([self.dwelt, np.zeros((n, len(self.zones)), bool)])
+            self.last_seen = np.append(self.last_seen, np.full(n, np.nan))
+            self.last_pos = np.concatenate([self.last_pos, np.full((n, 2), np.nan)])
+        return np.array([self.row_of[int(i)] for i in ids], dtype=np.int64)
+
+    def update(self, people: People3D) -> list[Event]:
+        """Events raised at this frame (usually none)."""
+        t = people.frame / self.fps
+        events: list[Event] = []
+        P, Z = len(people), len(self.zones)
+        if P:
+            rows = self._rows(people.ids)
+            pts = people.joints.reshape(-1, 3)
+            if self.needs_distance:
+                inside, dist = self.geometry.distance(pts)
+                dist = np.where(self.mask[None], dist.reshape(P, NUM_JOINTS, Z), np.inf)
+            else:
+                inside, dist = self.geometry.inside(pts), None
+            inside = inside.reshape(P, NUM_JOINTS, Z) & self.mask[None]
+            raw_in = inside.any(1)  # (P, Z)
+            pos = floor_position(people.joints)
+            self.last_seen[rows] = t
+            self.last_pos[rows] = pos
+            rose, fell, onset = self.inside.step(rows, raw_in, t)
+            began = self.inside.began[rows]
+            self.dwelt[rows] &= self.inside.state[rows]  # re-armed by leaving
+            dwell = self.inside.state[rows] & ~self.dwelt[rows] & (t - began >= self.dwell - _EPS)
+            self.dwelt[rows] |= dwell
+            near_rose = np.zeros((P, Z), dtype=bool)
+            if dist is not None:
+                d_min = dist.min(1)
+                raw_near = ~raw_in & (d_min <= self.margin) & (self.margin > 0)
+                near_rose, _, near_onset = self.near.step(rows, raw_near, t)
+            for p, k in zip(*np.nonzero(rose | fell | dwell | near_rose), strict=True):
+                events.extend(
+                    self._events(
+                        people,
+                        p,
+                        k,
+                        t,
+                        rose,
+                        fell,
+                        dwell,
+                        near_rose,
+                        onset,
+                        began,
+                        inside,
+                        dist,
+                        pos,
+                        near_onset if dist is not None else None,
+                    )
+                )
+        events.extend(self._lost(t))
+        self.events += len(events)
+        return events
+
+    def _events(
+        self,
+        people,
+        p,
+        k,
+        t,
+        rose,
+        fell,
+        dwell,
+        near_rose,
+        onset,
+        began,
+        inside,
+        dist,
+        pos,
+        near_onset,
+    ) -> list[Event]:
+        zone = self.zones[k]
+        pid = int(people.ids[p])
+        base = dict(
+            t=t,
+            frame=people.frame,
+            person=pid,
+            zone=zone.name,
+            kind=zone.kind,
+            position=(float(pos[p, 0]), float(pos[p, 1])) if np.isfinite(pos[p]).all() else None,
+            allowed=pid in zone.allowed,
+        )
+        out = []
+        if rose[p, k]:
+            j = int(np.argmax(inside[p, :, k]))
+            out.append(Event(type="enter", onset_t=float(onset[p, k]), joint=JOINTS[j], **base))
+        if fell[p, k]:
+            stay = float(onset[p, k] - began[p, k]) if np.isfinite(began[p, k]) else None
+            out.append(Event(type="exit", onset_t=float(onset[p, k]), duration_s=stay, **base))
+            if pid in zone.expected:
+                out.append(
+                    Event(
+                        type="left_work_area", onset_t=float(onset[p, k]), duration_s=stay, **base
+                    )
+                )
+        if dwell[p, k]:
+            out.append(
+                Event(
+                    type="dwell",
+                    onset_t=float(began[p, k]),
+                    duration_s=float(t - began[p, k]),
+                    **base,
+                )
+            )
+        if near_rose[p, k]:
+            j = int(np.argmin(dist[p, :, k]))
+            out.append(
+                Event(
+                    type="approach",
+                    onset_t=float(near_onset[p, k]),
+                    joint=JOINTS[j],
+                    distance_m=float(dist[p, j, k]),
+                    **base,
+                )
+            )
+        return out
+
+    def _lost(self, t: float) -> list[Event]:
+        """Exit events for people unseen for lost_s while inside; their state is dropped."""
+        gone = t - self.last_seen > self.lost_s + _EPS
+        if not gone.any():
+            return []
+        out = []
+        for r in np.flatnonzero(gone):
+            pid = int(self.ids[r])
+            for k in np.flatnonzero(self.inside.state[r]):
+                zone = self.zones[k]
+                began = self.inside.began[r, k]
+                pos = self.last_pos[r]
+                out.append(
+                    Event(
+                        t=t,
+                        frame=round(t * self.fps),
+                        person=pid,
+                        zone=zone.name,
+                        kind=zone.kind,
+                        type="exit",
+                        onset_t=float(self.last_seen[r]),
+                        duration_s=float(self.last_seen[r] - began) if np.isfinite(began) else None,
+                        position=(float(pos[0]), float(pos[1])) if np.isfinite(pos).all() else None,
+                        allowed=pid in zone.allowed,
+                        lost=True,
+                    )
+                )
+        keep = ~gone
+        self.inside.keep(keep)
+        self.near.keep(keep)
+        self.dwelt = self.dwelt[keep]
+        self.ids, self.last_seen, self.last_pos = (
+            self.ids[keep],
+            self.last_seen[keep],
+            self.last_pos[keep],
+        )
+        self.row_of = {int(i): r for r, i in enumerate(self.ids)}
+        return out
