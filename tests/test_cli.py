@@ -227,3 +227,70 @@ def test_reconstruct_without_tracking(shared_data_dir: Path, tmp_path: Path, cap
     first = json.loads(out.read_text().splitlines()[0])
     assert [p["id"] for p in first["people"]] == list(range(len(first["people"])))
     assert all(p["velocity"] is None and p["predicted"] is False for p in first["people"])
+
+
+SITE = """
+fps = 60.0
+[[zones]]
+name = "treadmill_left"
+kind = "energized"
+polygon = [[-1.0, -1.0], [0.0, -1.0], [0.0, 1.0], [-1.0, 1.0]]
+z = [0.0, 2.5]
+margin_m = 0.3
+[[zones]]
+name = "right_side"
+kind = "work_area"
+polygon = [[0.0, -1.0], [1.5, -1.0], [1.5, 1.0], [0.0, 1.0]]
+z = [0.0, 2.5]
+dwell_s = 1.0
+"""
+
+
+@pytest.mark.realdata
+def test_reconstruct_with_zones_and_list_events(
+    shared_data_dir: Path, tmp_path: Path, capsys
+) -> None:
+    site = tmp_path / "site.toml"
+    site.write_text(SITE)
+    out, events, db = tmp_path / "p.jsonl", tmp_path / "e.jsonl", tmp_path / "e.sqlite"
+    rc = reconstruct(
+        shared_data_dir / "calib.toml",
+        shared_data_dir / "pose",
+        out,
+        *("--site", str(site), "--events", str(events), "--events-db", str(db)),
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "zone events" in printed and "enter" in printed
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert lines[1]["t"] == pytest.approx(1 / 60, abs=1e-6)  # the site's fps
+    ids = {p["id"] for rec in lines for p in rec["people"]}
+    evs = [json.loads(line) for line in events.read_text().splitlines()]
+    assert {"enter", "dwell"} <= {e["type"] for e in evs}
+    assert {e["person"] for e in evs} <= ids  # every event names a tracked person
+    for e in evs:  # and that person was in the poses at that frame
+        rec = next(r for r in lines if r["frame"] == e["frame"])
+        assert e["person"] in {p["id"] for p in rec["people"]}
+    assert main(["events", str(db)]) == 0
+    assert f"{len(evs)} event(s)" in capsys.readouterr().out
+    assert main(["events", str(db), "--type", "enter", "--csv"]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[0].startswith("run,t,frame,person,zone")
+    assert len(rows) - 1 == sum(e["type"] == "enter" for e in evs)
+
+
+@pytest.mark.realdata
+def test_bad_site_and_misused_event_options(shared_data_dir: Path, tmp_path: Path, capsys) -> None:
+    site = tmp_path / "site.toml"
+    site.write_text(SITE.replace("z = [0.0, 2.5]", "z = [2.5, 0.0]", 1))
+    args = (shared_data_dir / "calib.toml", shared_data_dir / "pose", tmp_path / "p.jsonl")
+    assert reconstruct(*args, "--site", str(site)) == 2
+    err = capsys.readouterr().err
+    assert "site.toml" in err and "treadmill_left" in err and "Traceback" not in err
+    assert reconstruct(*args, "--events", str(tmp_path / "e.jsonl")) == 2
+    assert "need a site file" in capsys.readouterr().err
+    site.write_text(SITE)
+    assert reconstruct(*args, "--site", str(site), "--no-tracking") == 2
+    assert "need tracking" in capsys.readouterr().err
+    assert main(["events", str(tmp_path / "none.sqlite")]) == 2
+    assert "not found" in capsys.readouterr().err

@@ -11,7 +11,7 @@ Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
     joints = ["left_wrist", "right_wrist"]   # optional; default: every joint
     margin_m = 0.5                      # optional: approach warning distance (energized)
     dwell_s = 10.0                      # optional: a dwell event after this long inside
-    enter_s = 0.1                       # optional debounce: inside this long to enter ...
+    enter_s = 0.08                      # optional debounce: inside this long to enter ...
     exit_s = 0.3                        # ... and outside this long to exit
     allowed = [3]                       # optional: person ids whose events are marked allowed
     expected = [1]                      # optional (work_area): persons expected to stay in it
@@ -38,7 +38,7 @@ from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, joint_index
 
 KINDS = ("energized", "restricted", "work_area")
-DEFAULT_ENTER_S = 0.1
+DEFAULT_ENTER_S = 0.08
 DEFAULT_EXIT_S = 0.3
 _ZONE_KEYS = {
     "name",
@@ -83,11 +83,11 @@ class Zone:
             raise ConfigError(f"{where}: polygon has a non-finite coordinate")
         if np.allclose(poly[0], poly[-1]) and poly.shape[0] > 3:
             poly = poly[:-1]  # a closed ring repeats its first point
-        if abs(polygon_area(poly)) < 1e-6:
-            raise ConfigError(f"{where}: polygon is degenerate (zero area)")
         bad = self_intersection(poly)
         if bad is not None:
             raise ConfigError(f"{where}: polygon intersects itself (edges {bad[0]} and {bad[1]})")
+        if abs(polygon_area(poly)) < 1e-6:
+            raise ConfigError(f"{where}: polygon is degenerate (zero area)")
         z0, z1 = (float(v) for v in self.z)
         if not (math.isfinite(z0) and math.isfinite(z1)) or z0 >= z1:
             raise ConfigError(f"{where}: height band z = [{z0}, {z1}] must have bottom < top")
