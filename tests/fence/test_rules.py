@@ -76,8 +76,8 @@ def test_entry_is_reported_after_the_debounce_with_its_onset() -> None:
 def test_exit_ignores_a_one_frame_gap_and_reports_the_stay() -> None:
     xs = [0.5] * 20 + [3.0] + [0.5] * 10 + [3.0] * 20
     events = run(monitor(), xs)
-    assert flat(events) == [(2, "enter"), (31 + 8, "exit")]  # out for exit_s = 0.3 s
-    e = events[39][0]
+    assert flat(events) == [(2, "enter"), (31 + 5, "exit")]  # out for exit_s = 0.2 s
+    e = events[36][0]
     assert e.onset_t == pytest.approx(31 / FPS)
     assert e.duration_s == pytest.approx(31 / FPS)
 

@@ -101,7 +101,7 @@ def test_site_loads_with_defaults_and_options(tmp_path: Path) -> None:
     panel, bench = site.zones
     assert panel.joints == (9, 10) and panel.margin_m == 0.5 and panel.dwell_s == 5.0
     assert panel.allowed == {2} and bench.expected == {1} and len(bench.joints) == 17
-    assert bench.enter_s == 0.08 and bench.exit_s == 0.3
+    assert bench.enter_s == 0.08 and bench.exit_s == 0.2
 
 
 @pytest.mark.parametrize(

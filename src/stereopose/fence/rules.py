@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from stereopose.fence.zones import Site, ZoneGeometry
-from stereopose.skeleton import JOINTS, NUM_JOINTS
+from stereopose.skeleton import JOINTS, LEFT_HIP, NUM_JOINTS, RIGHT_HIP
 from stereopose.tracking.positioning import floor_position
 from stereopose.types import Event, People3D
 
@@ -110,15 +110,9 @@ class FenceMonitor:
         P, Z = len(people), len(self.zones)
         if P:
             rows = self._rows(people.ids)
-            pts = people.joints.reshape(-1, 3)
-            if self.needs_distance:
-                inside, dist = self.geometry.distance(pts)
-                dist = np.where(self.mask[None], dist.reshape(P, NUM_JOINTS, Z), np.inf)
-            else:
-                inside, dist = self.geometry.inside(pts), None
-            inside = inside.reshape(P, NUM_JOINTS, Z) & self.mask[None]
+            inside, dist = self._geometry(people.joints)
             raw_in = inside.any(1)  # (P, Z)
-            pos = floor_position(people.joints)
+            pos = 0.5 * (people.joints[:, LEFT_HIP, :2] + people.joints[:, RIGHT_HIP, :2])
             self.last_seen[rows] = t
             self.last_pos[rows] = pos
             rose, fell, onset = self.inside.step(rows, raw_in, t)
@@ -154,6 +148,26 @@ class FenceMonitor:
         self.events += len(events)
         return events
 
+    def _geometry(self, joints: np.ndarray):
+        """(P, 17, Z) triggering joints inside each zone, and their distances to it (None when
+        no zone has an approach margin). Only people whose box comes near a zone's box are
+        tested joint by joint."""
+        P, Z = joints.shape[0], len(self.zones)
+        inside = np.zeros((P, NUM_JOINTS, Z), dtype=bool)
+        dist = np.full((P, NUM_JOINTS, Z), np.inf) if self.needs_distance else None
+        # fmin/fmax skip NaN joints; a person with no joint gets a NaN box, near nothing
+        boxes = np.stack([np.fmin.reduce(joints, axis=1), np.fmax.reduce(joints, axis=1)], axis=1)
+        near = self.geometry.near(boxes, self.margin)  # NaN boxes compare False
+        ps, zs = np.nonzero(near)
+        if ps.size == 0:
+            return inside, dist
+        ins, d = self.geometry.test(joints[ps], zs)  # (K, 17) per near (person, zone) pair
+        mask = self.mask[:, zs].T  # (K, 17)
+        inside[ps, :, zs] = ins & mask
+        if dist is not None:
+            dist[ps, :, zs] = np.where(mask, d, np.inf)
+        return inside, dist
+
     def _events(
         self,
         people,
@@ -173,6 +187,8 @@ class FenceMonitor:
     ) -> list[Event]:
         zone = self.zones[k]
         pid = int(people.ids[p])
+        if not np.isfinite(pos[p]).all():  # no hips: the mean of the joints seen
+            pos = floor_position(people.joints[p : p + 1]).repeat(len(people), 0)
         base = dict(
             t=t,
             frame=people.frame,

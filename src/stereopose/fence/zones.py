@@ -12,7 +12,7 @@ Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
     margin_m = 0.5                      # optional: approach warning distance (energized)
     dwell_s = 10.0                      # optional: a dwell event after this long inside
     enter_s = 0.08                      # optional debounce: inside this long to enter ...
-    exit_s = 0.3                        # ... and outside this long to exit
+    exit_s = 0.2                        # ... and outside this long to exit
     allowed = [3]                       # optional: person ids whose events are marked allowed
     expected = [1]                      # optional (work_area): persons expected to stay in it
 
@@ -39,7 +39,7 @@ from stereopose.skeleton import JOINTS, joint_index
 
 KINDS = ("energized", "restricted", "work_area")
 DEFAULT_ENTER_S = 0.08
-DEFAULT_EXIT_S = 0.3
+DEFAULT_EXIT_S = 0.2
 _ZONE_KEYS = {
     "name",
     "kind",
@@ -251,74 +251,93 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
 
 
 class ZoneGeometry:
-    """All zones' edges in flat arrays, for one vectorised test of many points.
+    """All zones' edges in padded arrays, for vectorised tests of many points.
 
-    inside(points) -> (N, Z) bool: point in zone's prism (edges and faces count as inside).
-    distance(points) -> (N, Z) metres from each point to each prism (0 inside).
+    test(points, zones) -> inside, distance: for points (K, J, 3) each tested against one zone
+    zones[k]: (K, J) inside the prism (edges and faces count as inside) and distance to it in
+    metres (0 inside); NaN points are inside nothing and infinitely far.
+    inside(points) / distance(points): (N, 3) points against every zone, (N, Z).
+    near(boxes, reach): which people's boxes come near which zones' boxes.
     """
 
     def __init__(self, zones: tuple[Zone, ...]) -> None:
         self.zones = zones
-        a, b, owner = [], [], []
+        V = max(z.polygon.shape[0] for z in zones)
+        # edges (Z, V, 2) from a to b; missing edges of smaller polygons are NaN (they never
+        # straddle a point and have no distance)
+        self.a = np.full((len(zones), V, 2), np.nan)
+        self.b = np.full((len(zones), V, 2), np.nan)
         for k, zone in enumerate(zones):
             p = zone.polygon
-            a.append(p)
-            b.append(np.roll(p, -1, axis=0))
-            owner.append(np.full(p.shape[0], k))
-        self.a = np.concatenate(a)  # (E, 2) edge starts
-        self.b = np.concatenate(b)
+            self.a[k, : len(p)] = p
+            self.b[k, : len(p)] = np.roll(p, -1, axis=0)
         self.ab = self.b - self.a
         self.len2 = np.maximum((self.ab**2).sum(-1), 1e-18)
-        self.owner = np.concatenate(owner)
-        self.starts = np.cumsum([0] + [z.polygon.shape[0] for z in zones])[:-1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            slope = self.ab[..., 0] / self.ab[..., 1]  # dx/dy, inf for horizontal edges
+        # one table gathered per test: (Z, V, 8) ax, ay, by, abx, aby, 1/len2, dx/dy, real
+        self.table = np.stack(
+            [
+                self.a[..., 0],
+                self.a[..., 1],
+                self.b[..., 1],
+                self.ab[..., 0],
+                self.ab[..., 1],
+                1.0 / self.len2,
+                slope,
+                np.isfinite(self.a[..., 0]).astype(np.float64),
+            ],
+            axis=-1,
+        )
         self.zlo = np.array([z.z[0] for z in zones])
         self.zhi = np.array([z.z[1] for z in zones])
+        self.lo = np.array([z.polygon.min(0) for z in zones])  # floor boxes (Z, 2)
+        self.hi = np.array([z.polygon.max(0) for z in zones])
 
-    def _edges(self, xy: np.ndarray):
-        """(N, E) crossing flags (ray to +x) and squared distances to each edge."""
-        px, py = xy[:, 0:1], xy[:, 1:2]
-        ax, ay, bx, by = self.a[:, 0], self.a[:, 1], self.b[:, 0], self.b[:, 1]
-        straddle = (ay > py) != (by > py)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            x_at = ax + (py - ay) * (bx - ax) / (by - ay)
-        crossing = straddle & (px < x_at)
-        t = ((px - ax) * self.ab[:, 0] + (py - ay) * self.ab[:, 1]) / self.len2
-        t = np.clip(t, 0.0, 1.0)
-        dx, dy = ax + t * self.ab[:, 0] - px, ay + t * self.ab[:, 1] - py
-        return crossing, dx * dx + dy * dy
-
-    def floor_inside(self, xy: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-        """(N, Z) whether floor points (N, 2) lie in each polygon (boundary included), and
-        (N, Z) their distance to each polygon's boundary."""
-        crossing, d2 = self._edges(xy)
-        odd = np.add.reduceat(crossing.astype(np.int64), self.starts, axis=1) % 2 == 1
-        edge_d = np.sqrt(np.minimum.reduceat(d2, self.starts, axis=1))
-        return odd | (edge_d <= tol), edge_d
-
-    def inside(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) points -> (N, Z) inside each prism; NaN points are inside nothing."""
+    def test(
+        self, points: np.ndarray, zones: np.ndarray, tol: float = 1e-9
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Points (K, J, 3), each row against zone zones[k] -> inside (K, J), distance (K, J)."""
+        px, py, pz = points[..., 0:1], points[..., 1:2], points[..., 2]  # (K, J, 1)
+        ax, ay, by, abx, aby, inv_len2, slope, real = np.moveaxis(self.table[zones][:, None], -1, 0)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            dy = py - ay
+            straddle = (ay > py) != (by > py)
+            crossing = straddle & (px < ax + dy * slope) & (real > 0)
+            odd = crossing.sum(-1) % 2 == 1
+            dx = px - ax
+            t = np.clip((dx * abx + dy * aby) * inv_len2, 0.0, 1.0)
+            ex, ey = t * abx - dx, t * aby - dy
+            edge_d = np.sqrt(np.fmin.reduce(ex * ex + ey * ey, axis=-1))
+            floor = odd | (edge_d <= tol)
+            zlo, zhi = self.zlo[zones][:, None], self.zhi[zones][:, None]
+            dz = np.maximum(np.maximum(zlo - pz, pz - zhi), 0.0)
+            inside = floor & (dz == 0.0)
+            dist = np.hypot(np.where(floor, 0.0, edge_d), dz)
         ok = np.isfinite(points).all(-1)
-        out = np.zeros((points.shape[0], len(self.zones)), dtype=bool)
-        if ok.any():
-            p = points[ok]
-            floor, _ = self.floor_inside(p[:, :2])
-            z = p[:, 2:3]
-            out[ok] = floor & (z >= self.zlo) & (z <= self.zhi)
-        return out
+        return inside & ok, np.where(ok, dist, np.inf)
 
     def distance(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) points -> (N, Z) inside flags and distances (metres, 0 inside) to each prism;
-        NaN points are inside nothing and infinitely far."""
-        ok = np.isfinite(points).all(-1)
+        """(N, 3) points against every zone -> inside (N, Z), distance (N, Z)."""
         Z = len(self.zones)
-        inside = np.zeros((points.shape[0], Z), dtype=bool)
-        dist = np.full((points.shape[0], Z), np.inf)
-        if ok.any():
-            p = points[ok]
-            floor, edge_d = self.floor_inside(p[:, :2])
-            z = p[:, 2:3]
-            dz = np.maximum(np.maximum(self.zlo - z, z - self.zhi), 0.0)
-            dh = np.where(floor, 0.0, edge_d)
-            inside[ok] = floor & (dz == 0.0)
-            dist[ok] = np.hypot(dh, dz)
-        return inside, dist
+        inside, dist = self.test(np.broadcast_to(points[None], (Z, *points.shape)), np.arange(Z))
+        return inside.T, dist.T
+
+    def inside(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) points against every zone -> (N, Z) inside."""
+        return self.distance(points)[0]
+
+    def near(self, boxes: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """(P, Z) whether boxes (P, 2, 3) [min, max] come within reach (Z,) metres of each
+        zone's bounding box: only those pairs can be inside or near each other."""
+        lo, hi = boxes[:, 0], boxes[:, 1]
+        r = reach[None]
+        with np.errstate(invalid="ignore"):
+            return (
+                (lo[:, None, 0] <= self.hi[None, :, 0] + r)
+                & (hi[:, None, 0] >= self.lo[None, :, 0] - r)
+                & (lo[:, None, 1] <= self.hi[None, :, 1] + r)
+                & (hi[:, None, 1] >= self.lo[None, :, 1] - r)
+                & (lo[:, None, 2] <= self.zhi[None] + r)
+                & (hi[:, None, 2] >= self.zlo[None] - r)
+            )
