@@ -28,6 +28,7 @@ test: lint
 bench: install
 	$(BIN)/python benchmarks/reconstruction.py
 	$(BIN)/python benchmarks/tracking.py
+	$(BIN)/python benchmarks/fences.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

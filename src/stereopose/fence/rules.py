@@ -45,9 +45,14 @@ class _Debounced:
 
     def step(self, rows: np.ndarray, raw: np.ndarray, t: float):
         """Advance `rows` with raw (n, Z) at time t; returns (rose, fell) (n, Z) flags and the
-        onset times (n, Z) of the changes."""
+        onset times (n, Z) of the changes (None when nothing changed)."""
         state, since = self.state[rows], self.since[rows]
         differs = raw != state
+        if not differs.any():  # steady: whatever was pending is off, nothing changes
+            if (since == since).any():  # since == since: not NaN
+                self.since[rows] = np.nan
+            none = np.zeros_like(differs)
+            return none, none, None
         since = np.where(differs, np.where(np.isnan(since), t, since), np.nan)
         elapsed = t - since
         wait = np.where(state, self.off_s, self.on_s)
@@ -79,6 +84,7 @@ class FenceMonitor:
         off = np.array([z.exit_s for z in self.zones])
         self.margin = np.array([z.margin_m if z.kind == "energized" else 0.0 for z in self.zones])
         self.dwell = np.array([z.dwell_s if z.dwell_s else np.inf for z in self.zones])
+        self.any_dwell = bool(np.isfinite(self.dwell).any())
         self.needs_distance = bool((self.margin > 0).any())
         self.inside = _Debounced(on, off)
         self.near = _Debounced(on, off)
@@ -117,9 +123,13 @@ class FenceMonitor:
             self.last_pos[rows] = pos
             rose, fell, onset = self.inside.step(rows, raw_in, t)
             began = self.inside.began[rows]
-            self.dwelt[rows] &= self.inside.state[rows]  # re-armed by leaving
-            dwell = self.inside.state[rows] & ~self.dwelt[rows] & (t - began >= self.dwell - _EPS)
-            self.dwelt[rows] |= dwell
+            dwell = np.zeros((P, Z), dtype=bool)
+            if self.any_dwell:
+                self.dwelt[rows] &= self.inside.state[rows]  # re-armed by leaving
+                dwell = (
+                    self.inside.state[rows] & ~self.dwelt[rows] & (t - began >= self.dwell - _EPS)
+                )
+                self.dwelt[rows] |= dwell
             near_rose = np.zeros((P, Z), dtype=bool)
             if dist is not None:
                 d_min = dist.min(1)
