@@ -275,7 +275,7 @@ class ZoneGeometry:
         self.len2 = np.maximum((self.ab**2).sum(-1), 1e-18)
         with np.errstate(invalid="ignore", divide="ignore"):
             slope = self.ab[..., 0] / self.ab[..., 1]  # dx/dy, inf for horizontal edges
-        # one table gathered per test: (Z, V, 8) ax, ay, by, abx, aby, 1/len2, dx/dy, real
+        # one table gathered per test: (Z, V, 7) ax, ay, by, abx, aby, 1/len2, dx/dy
         self.table = np.stack(
             [
                 self.a[..., 0],
@@ -285,7 +285,6 @@ class ZoneGeometry:
                 self.ab[..., 1],
                 1.0 / self.len2,
                 slope,
-                np.isfinite(self.a[..., 0]).astype(np.float64),
             ],
             axis=-1,
         )
@@ -299,23 +298,25 @@ class ZoneGeometry:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Points (K, J, 3), each row against zone zones[k] -> inside (K, J), distance (K, J)."""
         px, py, pz = points[..., 0:1], points[..., 1:2], points[..., 2]  # (K, J, 1)
-        ax, ay, by, abx, aby, inv_len2, slope, real = np.moveaxis(self.table[zones][:, None], -1, 0)
+        tab = self.table[zones][:, None]  # (K, 1, V, 7)
+        ax, ay, by, abx, aby = tab[..., 0], tab[..., 1], tab[..., 2], tab[..., 3], tab[..., 4]
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            # crossing number (padding edges are NaN: they never straddle), NaN points cross
+            # nothing and lie at NaN distance, turned to inf below
             dy = py - ay
-            straddle = (ay > py) != (by > py)
-            crossing = straddle & (px < ax + dy * slope) & (real > 0)
-            odd = crossing.sum(-1) % 2 == 1
+            crossing = ((ay > py) != (by > py)) & (px < ax + dy * tab[..., 6])
+            odd = np.logical_xor.reduce(crossing, axis=-1)
             dx = px - ax
-            t = np.clip((dx * abx + dy * aby) * inv_len2, 0.0, 1.0)
+            t = np.clip((dx * abx + dy * aby) * tab[..., 5], 0.0, 1.0)
             ex, ey = t * abx - dx, t * aby - dy
             edge_d = np.sqrt(np.fmin.reduce(ex * ex + ey * ey, axis=-1))
             floor = odd | (edge_d <= tol)
-            zlo, zhi = self.zlo[zones][:, None], self.zhi[zones][:, None]
-            dz = np.maximum(np.maximum(zlo - pz, pz - zhi), 0.0)
+            dz = np.maximum(
+                np.maximum(self.zlo[zones][:, None] - pz, pz - self.zhi[zones][:, None]), 0.0
+            )
             inside = floor & (dz == 0.0)
             dist = np.hypot(np.where(floor, 0.0, edge_d), dz)
-        ok = np.isfinite(points).all(-1)
-        return inside & ok, np.where(ok, dist, np.inf)
+        return inside, np.where(dist == dist, dist, np.inf)
 
     def distance(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) points against every zone -> inside (N, Z), distance (N, Z)."""
