@@ -13,6 +13,8 @@ The state is kept in (people x zones) arrays, so the cost per frame hardly grows
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from stereopose.fence.zones import Site, ZoneGeometry
@@ -67,6 +69,19 @@ class _Debounced:
         return rose, fell, onset
 
 
+@dataclass
+class _Geometry:
+    """One frame's people against the zones: inside (P, Z) and distance (P, Z, metres) of
+    their triggering joints; pair (P, Z) row of the tested (person, zone) pairs (-1: not
+    tested, far apart) in joint_inside and joint_distance (K, 17)."""
+
+    inside: np.ndarray
+    distance: np.ndarray
+    pair: np.ndarray
+    joint_inside: np.ndarray | None = None
+    joint_distance: np.ndarray | None = None
+
+
 class FenceMonitor:
     """Turns tracked people, frame by frame, into zone events. `update` once per frame."""
 
@@ -90,12 +105,16 @@ class FenceMonitor:
         self.near = _Debounced(on, off)
         self.dwelt = np.zeros((0, Z), dtype=bool)
         self.row_of: dict[int, int] = {}
+        self._last_ids: tuple[np.ndarray, np.ndarray] | None = None
         self.ids = np.zeros(0, dtype=np.int64)
         self.last_seen = np.zeros(0)
         self.last_pos = np.zeros((0, 2))
         self.events = 0
 
     def _rows(self, ids: np.ndarray) -> np.ndarray:
+        """State rows of people `ids`, new people added."""
+        if self._last_ids is not None and np.array_equal(ids, self._last_ids[0]):
+            return self._last_ids[1]  # the same people as last frame, as usual
         new = [int(i) for i in ids if int(i) not in self.row_of]
         if new:
             for i in new:
@@ -107,94 +126,72 @@ class FenceMonitor:
             self.dwelt = np.concatenate([self.dwelt, np.zeros((n, len(self.zones)), bool)])
             self.last_seen = np.append(self.last_seen, np.full(n, np.nan))
             self.last_pos = np.concatenate([self.last_pos, np.full((n, 2), np.nan)])
-        return np.array([self.row_of[int(i)] for i in ids], dtype=np.int64)
+        rows = np.array([self.row_of[int(i)] for i in ids], dtype=np.int64)
+        self._last_ids = (ids.copy(), rows)
+        return rows
 
     def update(self, people: People3D) -> list[Event]:
         """Events raised at this frame (usually none)."""
         t = people.frame / self.fps
         events: list[Event] = []
-        P, Z = len(people), len(self.zones)
-        if P:
+        if len(people):
             rows = self._rows(people.ids)
-            inside, dist = self._geometry(people.joints)
-            raw_in = inside.any(1)  # (P, Z)
+            geo = self._geometry(people.joints)
+            raw_in = geo.inside
             pos = 0.5 * (people.joints[:, LEFT_HIP, :2] + people.joints[:, RIGHT_HIP, :2])
             self.last_seen[rows] = t
             self.last_pos[rows] = pos
             rose, fell, onset = self.inside.step(rows, raw_in, t)
             began = self.inside.began[rows]
-            dwell = np.zeros((P, Z), dtype=bool)
+            dwell = None
             if self.any_dwell:
                 self.dwelt[rows] &= self.inside.state[rows]  # re-armed by leaving
                 dwell = (
                     self.inside.state[rows] & ~self.dwelt[rows] & (t - began >= self.dwell - _EPS)
                 )
                 self.dwelt[rows] |= dwell
-            near_rose = np.zeros((P, Z), dtype=bool)
-            if dist is not None:
-                d_min = dist.min(1)
-                raw_near = ~raw_in & (d_min <= self.margin) & (self.margin > 0)
+            near_rose = near_onset = None
+            if self.needs_distance:
+                raw_near = ~raw_in & (geo.distance <= self.margin)
                 near_rose, _, near_onset = self.near.step(rows, raw_near, t)
-            for p, k in zip(*np.nonzero(rose | fell | dwell | near_rose), strict=True):
-                events.extend(
-                    self._events(
-                        people,
-                        p,
-                        k,
-                        t,
-                        rose,
-                        fell,
-                        dwell,
-                        near_rose,
-                        onset,
-                        began,
-                        inside,
-                        dist,
-                        pos,
-                        near_onset if dist is not None else None,
+            fired = rose | fell
+            for extra in (dwell, near_rose):
+                if extra is not None:
+                    fired |= extra
+            if fired.any():
+                flags = (rose, fell, dwell, near_rose)
+                for p, k in zip(*np.nonzero(fired), strict=True):
+                    events.extend(
+                        self._events(people, p, k, t, flags, onset, began, geo, pos, near_onset)
                     )
-                )
         events.extend(self._lost(t))
         self.events += len(events)
         return events
 
-    def _geometry(self, joints: np.ndarray):
-        """(P, 17, Z) triggering joints inside each zone, and their distances to it (None when
-        no zone has an approach margin). Only people whose box comes near a zone's box are
-        tested joint by joint."""
+    def _geometry(self, joints: np.ndarray) -> _Geometry:
+        """Which triggering joints are inside or near which zones. Only people whose box
+        comes near a zone's box are tested joint by joint."""
         P, Z = joints.shape[0], len(self.zones)
-        inside = np.zeros((P, NUM_JOINTS, Z), dtype=bool)
-        dist = np.full((P, NUM_JOINTS, Z), np.inf) if self.needs_distance else None
+        geo = _Geometry(
+            np.zeros((P, Z), dtype=bool), np.full((P, Z), np.inf), np.full((P, Z), -1, np.int64)
+        )
         # fmin/fmax skip NaN joints; a person with no joint gets a NaN box, near nothing
         boxes = np.stack([np.fmin.reduce(joints, axis=1), np.fmax.reduce(joints, axis=1)], axis=1)
         near = self.geometry.near(boxes, self.margin)  # NaN boxes compare False
         ps, zs = np.nonzero(near)
         if ps.size == 0:
-            return inside, dist
+            return geo
         ins, d = self.geometry.test(joints[ps], zs)  # (K, 17) per near (person, zone) pair
         mask = self.mask[:, zs].T  # (K, 17)
-        inside[ps, :, zs] = ins & mask
-        if dist is not None:
-            dist[ps, :, zs] = np.where(mask, d, np.inf)
-        return inside, dist
+        geo.joint_inside = ins & mask
+        geo.joint_distance = np.where(mask, d, np.inf)
+        geo.inside[ps, zs] = geo.joint_inside.any(1)
+        geo.distance[ps, zs] = geo.joint_distance.min(1)
+        geo.pair[ps, zs] = np.arange(ps.size)
+        return geo
 
-    def _events(
-        self,
-        people,
-        p,
-        k,
-        t,
-        rose,
-        fell,
-        dwell,
-        near_rose,
-        onset,
-        began,
-        inside,
-        dist,
-        pos,
-        near_onset,
-    ) -> list[Event]:
+    def _events(self, people, p, k, t, flags, onset, began, geo, pos, near_onset) -> list[Event]:
+        rose, fell, dwell, near_rose = flags
         zone = self.zones[k]
         pid = int(people.ids[p])
         if not np.isfinite(pos[p]).all():  # no hips: the mean of the joints seen
@@ -209,8 +206,9 @@ class FenceMonitor:
             allowed=pid in zone.allowed,
         )
         out = []
+        pair = geo.pair[p, k]
         if rose[p, k]:
-            j = int(np.argmax(inside[p, :, k]))
+            j = int(np.argmax(geo.joint_inside[pair]))
             out.append(Event(type="enter", onset_t=float(onset[p, k]), joint=JOINTS[j], **base))
         if fell[p, k]:
             stay = float(onset[p, k] - began[p, k]) if np.isfinite(began[p, k]) else None
@@ -221,7 +219,7 @@ class FenceMonitor:
                         type="left_work_area", onset_t=float(onset[p, k]), duration_s=stay, **base
                     )
                 )
-        if dwell[p, k]:
+        if dwell is not None and dwell[p, k]:
             out.append(
                 Event(
                     type="dwell",
@@ -230,14 +228,14 @@ class FenceMonitor:
                     **base,
                 )
             )
-        if near_rose[p, k]:
-            j = int(np.argmin(dist[p, :, k]))
+        if near_rose is not None and near_rose[p, k]:
+            j = int(np.argmin(geo.joint_distance[pair]))
             out.append(
                 Event(
                     type="approach",
                     onset_t=float(near_onset[p, k]),
                     joint=JOINTS[j],
-                    distance_m=float(dist[p, j, k]),
+                    distance_m=float(geo.joint_distance[pair, j]),
                     **base,
                 )
             )
@@ -280,4 +278,5 @@ class FenceMonitor:
             self.last_pos[keep],
         )
         self.row_of = {int(i): r for r, i in enumerate(self.ids)}
+        self._last_ids = None
         return out
