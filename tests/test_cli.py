@@ -152,9 +152,11 @@ def test_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
     rc = main(["demo", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy"])
     assert rc == 0
     printed = capsys.readouterr().out
-    for word in ("MPJPE", "PCP", "pair", "weighted", "robust"):
+    for word in ("MPJPE", "PCP", "pair", "weighted", "robust", "+ tracking", "Zone events"):
         assert word in printed
     assert (tmp_path / "poses3d_robust.jsonl").is_file()
+    assert (tmp_path / "poses3d_robust_tracked.jsonl").is_file()
+    assert (tmp_path / "events.jsonl").is_file() and (tmp_path / "scene" / "site.toml").is_file()
 
 
 def test_simulate_rejects_bad_counts(tmp_path: Path, capsys) -> None:

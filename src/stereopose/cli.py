@@ -201,9 +201,14 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from stereopose.fence import save_site
+    from stereopose.fence.sinks import read_events
     from stereopose.io.results import load_people3d
     from stereopose.pipeline import reconstruct_files
     from stereopose.sim import evaluate, evaluate_tracking
+    from stereopose.sim.events import evaluate_events, make_zones, track_workers, truth_events
     from stereopose.sim.io import write_scene
 
     out_dir = Path(args.out)
@@ -222,10 +227,20 @@ def _demo(args: argparse.Namespace) -> int:
     cfg0 = dataclasses.replace(_config(args), fps=scene.fps)
     runs = [(m, m, False) for m in modes]
     runs.append((f"{modes[-1]} + tracking", modes[-1], True))
+    site = make_zones(scene, np.random.default_rng([args.seed, 7]))
+    save_site(scene_dir / "site.toml", site)
+    events_path = out_dir / "events.jsonl"
     for label, mode, tracked in runs:
         cfg = with_overrides(cfg0, triangulation={"mode": mode}, tracking={"enabled": tracked})
         poses = out_dir / f"poses3d_{mode}{'_tracked' * tracked}.jsonl"
-        summary = reconstruct_files(scene_dir / "calib.toml", scene_dir / "pose", poses, cfg)
+        summary = reconstruct_files(
+            scene_dir / "calib.toml",
+            scene_dir / "pose",
+            poses,
+            cfg,
+            site=site if tracked else None,
+            events_path=events_path if tracked else None,
+        )
         predictions = load_people3d(poses, len(scene.rig))
         m = evaluate(predictions, scene)
         ids = evaluate_tracking(predictions, scene) if tracked else None
@@ -241,6 +256,17 @@ def _demo(args: argparse.Namespace) -> int:
             f"{summary.fps_3d:.0f}",
         )
     out.print(table)
+    events = read_events(events_path)
+    truth = truth_events(scene, site)
+    workers = track_workers(predictions, scene)
+    em = evaluate_events(events, truth, workers)
+    out.print(
+        f"[bold]Zone events[/] ({len(site.zones)} zones in {scene_dir / 'site.toml'}): "
+        f"{len(events)} raised -> {events_path}; enter/exit against the ground truth: precision "
+        f"{em.precision:.2f}, recall {em.recall:.2f} ({em.matched} of {em.true}), raised "
+        f"{em.latency_mean_s:.2f} s after the true onset on average (at most "
+        f"{em.latency_max_s:.2f} s)."
+    )
     out.print(
         "Per frame: pair is the reference two-camera method; weighted uses every view, weighted "
         "by confidence; robust (default) the views that agree, left/right swaps corrected. "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -16,7 +17,14 @@ from pathlib import Path
 import pytest
 
 from stereopose.errors import StereoposeError
-from stereopose.fence.sinks import JsonlSink, SqliteSink, WebhookSink, describe, query_events
+from stereopose.fence.sinks import (
+    JsonlSink,
+    SqliteSink,
+    WebhookSink,
+    describe,
+    query_events,
+    read_events,
+)
 from stereopose.types import Event
 
 
@@ -48,6 +56,12 @@ def test_jsonl_follows_the_contract(tmp_path: Path) -> None:
     assert lines[1]["distance_m"] == 0.3123 and lines[1]["type"] == "approach"
     assert "allowed" not in lines[0] and "lost" not in lines[0]
     assert "right_wrist" in describe(event(0))
+    back = read_events(tmp_path / "e.jsonl")
+    assert back[0] == dataclasses.replace(event(0), t=round(event(0).t, 6))
+    assert back[1].distance_m == 0.3123
+    (tmp_path / "bad.jsonl").write_text('{"t": 1}\n')
+    with pytest.raises(StereoposeError, match=r"bad\.jsonl:1: malformed event line"):
+        read_events(tmp_path / "bad.jsonl")
 
 
 def test_sqlite_appends_runs_and_filters(tmp_path: Path) -> None:

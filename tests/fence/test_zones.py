@@ -145,3 +145,23 @@ def test_bad_site_files(tmp_path: Path) -> None:
         load_site(write(tmp_path, "fps = 25\n"))
     with pytest.raises(ConfigError, match="used twice"):
         load_site(write(tmp_path, ZONE + ZONE))
+
+
+def test_site_round_trip(tmp_path: Path) -> None:
+    from stereopose.fence import save_site
+
+    text = ZONE + 'joints = ["nose"]\nmargin_m = 0.25\nallowed = [4, 2]\n'
+    site = load_site(write(tmp_path, "fps = 12.5\n" + text))
+    save_site(tmp_path / "again.toml", site)
+    back = load_site(tmp_path / "again.toml")
+    assert back.fps == 12.5
+    (a,), (b,) = site.zones, back.zones
+    assert (a.name, a.kind, a.z, a.joints, a.margin_m, a.allowed) == (
+        b.name,
+        b.kind,
+        b.z,
+        b.joints,
+        b.margin_m,
+        b.allowed,
+    )
+    np.testing.assert_array_equal(a.polygon, b.polygon)

@@ -106,6 +106,42 @@ class JsonlSink:
         self._f.close()
 
 
+def read_events(path: str | Path) -> list[Event]:
+    """Events back from a JSON lines file."""
+    path = Path(path)
+    out = []
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot read events: {e.strerror}") from None
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            pos = d.get("position")
+            out.append(
+                Event(
+                    t=float(d["t"]),
+                    frame=int(d["frame"]),
+                    person=int(d["person"]),
+                    zone=str(d["zone"]),
+                    kind=str(d.get("kind", "")),
+                    type=str(d["type"]),
+                    onset_t=float(d.get("onset_t", d["t"])),
+                    joint=d.get("joint"),
+                    distance_m=d.get("distance_m"),
+                    duration_s=d.get("duration_s"),
+                    position=(float(pos[0]), float(pos[1])) if pos else None,
+                    allowed=bool(d.get("allowed", False)),
+                    lost=bool(d.get("lost", False)),
+                )
+            )
+        except (ValueError, KeyError, TypeError, IndexError) as e:
+            raise StereoposeError(f"{path}:{n}: malformed event line: {e}") from None
+    return out
+
+
 class SqliteSink:
     """Events in an SQLite database (WAL), one transaction per frame with events."""
 

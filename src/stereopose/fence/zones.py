@@ -151,6 +151,46 @@ def self_intersection(poly: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
+def format_site(site: Site) -> str:
+    """The site file's TOML text (defaults left out)."""
+    lines = [f"fps = {site.fps!r}", ""] if site.fps else []
+    for z in site.zones:
+        pts = ", ".join(f"[{x!r}, {y!r}]" for x, y in z.polygon.tolist())
+        lines += [
+            "[[zones]]",
+            f'name = "{z.name}"',
+            f'kind = "{z.kind}"',
+            f"polygon = [{pts}]",
+            f"z = [{z.z[0]!r}, {z.z[1]!r}]",
+        ]
+        if len(z.joints) != len(JOINTS):
+            lines.append("joints = [" + ", ".join(f'"{JOINTS[j]}"' for j in z.joints) + "]")
+        for key, default in (
+            ("margin_m", 0.0),
+            ("dwell_s", None),
+            ("enter_s", DEFAULT_ENTER_S),
+            ("exit_s", DEFAULT_EXIT_S),
+        ):
+            v = getattr(z, key)
+            if v != default:
+                lines.append(f"{key} = {v!r}")
+        for key in ("allowed", "expected"):
+            ids = sorted(getattr(z, key))
+            if ids:
+                lines.append(f"{key} = {ids}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def save_site(path: str | Path, site: Site) -> None:
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(format_site(site), encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot write the site file: {e.strerror}") from None
+
+
 def load_site(path: str | Path) -> Site:
     """Read and check a site file; every problem is an error naming the file and the zone."""
     path = Path(path)
