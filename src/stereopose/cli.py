@@ -151,6 +151,97 @@ def _events(args: argparse.Namespace) -> int:
     return 0
 
 
+def _board(args: argparse.Namespace):
+    from stereopose.calibration.board import Board
+
+    return Board.parse(args.board, args.square)
+
+
+def _calibrate_intrinsics(args: argparse.Namespace) -> int:
+    from stereopose.pipeline import calibrate_intrinsics_dir
+
+    board = _board(args)
+    with console.status("detecting the board") as status:
+        run = calibrate_intrinsics_dir(
+            args.images,
+            board,
+            args.out,
+            k3=args.k3,
+            report_dir=args.report,
+            on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
+        )
+    table = Table(title=f"Intrinsics written to {args.out}")
+    for col in ("camera", "photos used", "not used", "fx", "fy", "cx", "cy", "RMS px", "coverage"):
+        table.add_column(col, justify="right")
+    for name, r in run.results.items():
+        K = r.camera.matrix
+        table.add_row(
+            name,
+            f"{len(r.used)}/{len(run.detections[name])}",
+            str(len(r.rejected)),
+            f"{K[0, 0]:.1f}",
+            f"{K[1, 1]:.1f}",
+            f"{K[0, 2]:.1f}",
+            f"{K[1, 2]:.1f}",
+            f"{r.rms_px:.3f}",
+            f"{100 * r.coverage:.0f}%",
+        )
+    out.print(table)
+    for name, r in run.results.items():
+        for photo, why in r.rejected.items():
+            out.print(f"{name}: {photo} not used: {why}", markup=False, highlight=False)
+        for view, e in sorted(r.view_rms_px.items()):
+            out.print(f"{name}: {view}: {e:.3f} px", markup=False, highlight=False)
+        for w in r.warnings:
+            console.print(f"[yellow]warning:[/] {escape(w)}")
+    for p in run.outputs[1:]:
+        out.print(f"wrote {p}", markup=False, highlight=False)
+    return 0
+
+
+def _calibrate_extrinsics(args: argparse.Namespace) -> int:
+    from stereopose.pipeline import calibrate_extrinsics_dir
+
+    board = _board(args)
+    with console.status("detecting the board") as status:
+        run = calibrate_extrinsics_dir(
+            args.images,
+            args.intrinsics,
+            board,
+            args.out,
+            floor=args.floor,
+            origin_m=tuple(args.origin),
+            yaw_deg=args.yaw,
+            refine_intrinsics=args.refine_intrinsics,
+            report_dir=args.report,
+            on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
+        )
+    r = run.result
+    table = Table(title=f"Rig written to {args.out}: RMS {r.rms_px:.3f} px")
+    for col in ("camera", "board positions seen", "RMS px", "x m", "y m", "z m"):
+        table.add_column(col, justify="right")
+    for cam in r.rig:
+        seen = sum(run.found[cam.name].values())
+        x, y, z = cam.center
+        table.add_row(
+            cam.name,
+            f"{seen}/{len(run.found[cam.name])}",
+            f"{r.camera_rms_px[cam.name]:.3f}",
+            f"{x:.3f}",
+            f"{y:.3f}",
+            f"{z:.3f}",
+        )
+    out.print(table)
+    for view, e in sorted(r.view_rms_px.items()):
+        out.print(f"position {view}: {e:.3f} px", markup=False, highlight=False)
+    for w in r.warnings:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
+    out.print(f"bundle adjustment and pose graph: {r.seconds:.2f} s")
+    for p in run.outputs[1:]:
+        out.print(f"wrote {p}", markup=False, highlight=False)
+    return 0
+
+
 def _trajectory_table(trajectories) -> Table:
     table = Table(title="People tracked")
     for col in ("id", "first frame", "last frame", "time in view s", "frames seen", "path m"):
@@ -311,6 +402,52 @@ def build_parser() -> argparse.ArgumentParser:
         help="per-frame people: no ids over time, no smoothing",
     )
     r.set_defaults(func=_reconstruct)
+
+    cal = sub.add_parser("calibrate", help="camera calibration from checkerboard photos")
+    csub = cal.add_subparsers(dest="step", required=True, metavar="STEP")
+    board_help = "inner corners COLSxROWS: a board of 15 x 11 squares has 14x10 inner corners"
+    ci = csub.add_parser("intrinsics", help="focal length, principal point, lens distortion")
+    ci.add_argument(
+        "--images",
+        required=True,
+        type=Path,
+        help="one camera's photos, a video, or one sub-folder per camera (int_cam01_img -> cam01)",
+    )
+    ci.add_argument("--board", required=True, help=board_help)
+    ci.add_argument("--square", required=True, type=float, help="square size in metres")
+    ci.add_argument("--out", required=True, type=Path, help="CALIB.toml, or a folder for intri.yml")
+    ci.add_argument("--k3", action="store_true", help="also estimate k3")
+    ci.add_argument("--report", type=Path, metavar="DIR", help="write report pictures here")
+    ci.set_defaults(func=_calibrate_intrinsics)
+    ce = csub.add_parser("extrinsics", help="every camera's pose in one world frame")
+    ce.add_argument(
+        "--images",
+        required=True,
+        type=Path,
+        help="one sub-folder per camera, the same file name per board position",
+    )
+    ce.add_argument("--intrinsics", required=True, type=Path, help="calibration with intrinsics")
+    ce.add_argument("--board", required=True, help=board_help)
+    ce.add_argument("--square", required=True, type=float, help="square size in metres")
+    ce.add_argument("--out", required=True, type=Path, help="CALIB.toml, or a folder for *.yml")
+    ce.add_argument(
+        "--floor",
+        metavar="POSITION",
+        help="the board position (file name without extension) where the board lay on the floor: "
+        "z = 0 there, z up (default: the first position, with a warning)",
+    )
+    ce.add_argument(
+        "--origin",
+        nargs=2,
+        type=float,
+        default=(0.0, 0.0),
+        metavar=("X", "Y"),
+        help="world origin, metres from the floor board's first corner along its rows, columns",
+    )
+    ce.add_argument("--yaw", type=float, default=0.0, help="turn the world x axis (degrees)")
+    ce.add_argument("--refine-intrinsics", action="store_true", help="refine intrinsics too")
+    ce.add_argument("--report", type=Path, metavar="DIR", help="write report pictures here")
+    ce.set_defaults(func=_calibrate_extrinsics)
 
     e = sub.add_parser("events", help="list the events of an SQLite event log")
     e.add_argument("db", type=Path, metavar="EVENTS.sqlite")

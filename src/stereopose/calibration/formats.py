@@ -46,10 +46,20 @@ def _is_qca(path: Path, head: bytes) -> bool:
 def load_calibration(path: str | Path, min_cameras: int = 2) -> Rig:
     """Read a calibration file into a Rig (cameras in file order).
 
-    Native TOML, or a Qualisys ``.qca.txt`` export (XML), recognised by its name or content.
-    Raises CalibrationError naming the file, the camera table and the problem.
+    Native TOML, a Qualisys ``.qca.txt`` export (XML), recognised by its name or content, or
+    OpenCV YAML (EasyMocap's intri.yml and extri.yml: either file, or their folder). Raises
+    CalibrationError naming the file, the camera table and the problem.
     """
     path = Path(path)
+    if path.is_dir() or path.suffix.lower() in (".yml", ".yaml"):
+        from stereopose.calibration.opencv_yaml import read_opencv_yaml
+
+        rig = read_opencv_yaml(path)
+        if len(rig) < min_cameras:
+            raise CalibrationError(
+                f"{path}: calibration needs at least {min_cameras} cameras, found {len(rig)}"
+            )
+        return rig
     try:
         raw = path.read_bytes()
     except FileNotFoundError:

@@ -1,0 +1,1 @@
+"""Pictures: calibration reports (and, later, overlays and the run report)."""
