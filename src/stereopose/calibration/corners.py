@@ -5,7 +5,8 @@ and, worse, sometimes returns a grid whose corners are not the board's. Here sev
 and image preparations are tried in turn — OpenCV's sector-based detector at full and reduced
 resolution, on the image as is, contrast-equalised and slightly blurred, then the classic
 detector — and every candidate is checked: its corners must fit a plane-to-image homography
-to within a fraction of a square, which rejects scrambled grids. The accepted corners are
+to within a fraction of a square, which rejects scrambled grids, and must not continue beyond
+its border (part of a bigger board: the board size given is wrong). The accepted corners are
 refined to sub-pixel accuracy and put in a canonical order (rows of `cols` corners, one
 handedness), so that corner k is the same physical corner in every photo up to a half turn of
 the board.
@@ -112,13 +113,53 @@ def canonical(points: np.ndarray, board: Board) -> np.ndarray:
     return np.ascontiguousarray(g.reshape(-1, 2))
 
 
+def _inside_larger_board(gray: np.ndarray, pts: np.ndarray, board: Board) -> bool:
+    """Whether the grid found continues beyond the board's own border: the squares two rows
+    outside the inner corners alternate dark and light (a bigger board, read with the wrong
+    size) instead of being the board's plain margin."""
+    grid = board.object_points()[:, :2] / board.square_m
+    H, _ = cv2.findHomography(grid, pts, 0)
+    if H is None:
+        return False
+    h, w = gray.shape
+
+    def sample(xy: np.ndarray) -> np.ndarray:
+        uv = cv2.perspectiveTransform(xy.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] < h - 1)
+        out = np.full(len(uv), np.nan)
+        out[ok] = gray[uv[ok, 1].round().astype(int), uv[ok, 0].round().astype(int)]
+        return out
+
+    # contrast of the board's own squares
+    cx, cy = np.meshgrid(np.arange(board.cols - 1) + 0.5, np.arange(board.rows - 1) + 0.5)
+    inner = sample(np.stack([cx.ravel(), cy.ravel()], -1))
+    contrast = np.nanpercentile(inner, 90) - np.nanpercentile(inner, 10)
+    if not contrast > 0:
+        return False
+    xs = np.arange(-1, board.cols) + 0.5
+    ys = np.arange(-1, board.rows) + 0.5
+    rings = [
+        np.stack([xs, np.full_like(xs, -1.5)], -1),
+        np.stack([xs, np.full_like(xs, board.rows + 0.5)], -1),
+        np.stack([np.full_like(ys, -1.5), ys], -1),
+        np.stack([np.full_like(ys, board.cols + 0.5), ys], -1),
+    ]
+    for ring in rings:
+        v = sample(ring)
+        steps = np.abs(np.diff(v))
+        steps = steps[np.isfinite(steps)]
+        if steps.size >= 3 and np.median(steps) > 0.5 * contrast:
+            return True
+    return False
+
+
 def find_corners(image: np.ndarray, board: Board) -> Corners | None:
     """The board's corners in an image (gray or BGR), or None when no candidate passes."""
     gray = to_gray(image)
     for method, pts in _candidates(gray, board):
         pts = canonical(pts, board)
         fit, square = _grid_fit(pts, board)
-        if not fit <= MAX_FIT_FRACTION * square:
+        if not fit <= MAX_FIT_FRACTION * square or _inside_larger_board(gray, pts, board):
             continue
         half = int(np.clip(0.25 * square, 2, 11))
         refined = cv2.cornerSubPix(

@@ -51,7 +51,10 @@ def load_calibration(path: str | Path, min_cameras: int = 2) -> Rig:
     CalibrationError naming the file, the camera table and the problem.
     """
     path = Path(path)
-    if path.is_dir() or path.suffix.lower() in (".yml", ".yaml"):
+    if (path.is_dir() and (path / "intri.yml").is_file()) or path.suffix.lower() in (
+        ".yml",
+        ".yaml",
+    ):
         from stereopose.calibration.opencv_yaml import read_opencv_yaml
 
         rig = read_opencv_yaml(path)

@@ -105,8 +105,10 @@ def corner_observations(
 
 
 def board_texture(board: Board, px_per_square: int = 40) -> tuple[np.ndarray, float]:
-    """The printed board with a white margin of one square, and its pixels per metre. Pixel
-    (u, v) is at board ((u / ppm) - square, (v / ppm) - square), corner 0 at one square in."""
+    """The printed board with a white margin of one square, and its pixels per metre. The
+    edge u = k (pixels k - 1 and k meet at u = k - 0.5 in pixel-centre terms) lies at board
+    x = k / ppm - 2 squares: inner corner 0 is one square inside the checkered area, which
+    starts one square inside the margin."""
     n_x, n_y = board.cols + 1, board.rows + 1  # squares
     img = np.full(((n_y + 2) * px_per_square, (n_x + 2) * px_per_square), 255, np.uint8)
     for j in range(n_y):
@@ -149,8 +151,9 @@ class Renderer:
             s = ((t - c) @ n) / denom
             P = c + s[..., None] * self.rays - t
             b = P @ R  # board coordinates
-        map_x = ((b[..., 0] + self.board.square_m) * self.ppm).astype(np.float32)
-        map_y = ((b[..., 1] + self.board.square_m) * self.ppm).astype(np.float32)
+        # texture pixel k covers [k - 0.5, k + 0.5]: square edges fall between pixels
+        map_x = ((b[..., 0] + 2 * self.board.square_m) * self.ppm - 0.5).astype(np.float32)
+        map_y = ((b[..., 1] + 2 * self.board.square_m) * self.ppm - 0.5).astype(np.float32)
         bad = ~(s > 0)
         map_x[bad] = -1
         img = cv2.remap(
