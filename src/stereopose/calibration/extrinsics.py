@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.optimize._numdiff import approx_derivative, group_columns
 from scipy.sparse import coo_matrix
 
 from stereopose.calibration.board import Board
@@ -212,21 +213,28 @@ def bundle_adjust(
         proj = _project(p, C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
         return (proj - observed).ravel()
 
+    groups = group_columns(S)
+    dense = S.shape[0] * S.shape[1] <= 4e7  # small enough for exact trust-region steps
+
+    def jac(p):
+        J = approx_derivative(residuals, p, sparsity=(S, groups))
+        return J.toarray() if dense else J
+
+    solver = {"jac": jac, "tr_solver": "exact"} if dense else {"jac_sparsity": S}
     # plain least squares converges in a few steps from the pose graph; a robust (Huber)
     # pass follows only where some corners stand out (a misdetected corner, a moved board)
-    sol = least_squares(residuals, x0, jac_sparsity=S, x_scale="jac", method="trf")
+    sol = least_squares(residuals, x0, x_scale="jac", method="trf", **solver)
     err = np.linalg.norm(sol.fun.reshape(-1, 2), axis=-1)
     if err.max() > 3.0 * max(np.median(err), 0.3):
         sol = least_squares(
             residuals,
             sol.x,
-            jac_sparsity=S,
             x_scale="jac",
             method="trf",
             loss="huber",
             f_scale=1.0,
             max_nfev=100,
-            tr_options={"atol": 1e-12, "btol": 1e-12},
+            **solver,
         )
     p = sol.x
     out_cam, out_board = {}, {}
