@@ -296,3 +296,140 @@ def test_bad_site_and_misused_event_options(shared_data_dir: Path, tmp_path: Pat
     assert "need tracking" in capsys.readouterr().err
     assert main(["events", str(tmp_path / "none.sqlite")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_calibrate_intrinsics_then_extrinsics_from_rendered_photos(tmp_path: Path, capsys) -> None:
+    """Photos rendered for three cameras of a simulated rig, through both commands."""
+    import cv2
+
+    from stereopose.calibration.board import Board
+    from stereopose.calibration.formats import load_calibration
+    from stereopose.sim.calibration import Renderer, _frame, _sees, board_scene
+    from stereopose.sim.scene import make_rig
+
+    board = Board(9, 6, 0.1)
+    rig = make_rig(3, np.random.default_rng(4))
+    rng = np.random.default_rng(1)
+    scene = board_scene(rig, board, 8, rng)
+    ext_dir, int_dir = tmp_path / "ext", tmp_path / "int"
+    for cam in rig:
+        r = Renderer(cam, board)
+        (ext_dir / cam.name).mkdir(parents=True)
+        for name, T in scene.poses.items():
+            if _sees(cam, T, board) is not None:  # photos of a camera that saw the board
+                cv2.imwrite(str(ext_dir / cam.name / f"{name}.png"), r.render(T, rng))
+        # close-ups for the intrinsics: the board 1.2-2.5 m in front of the camera
+        (int_dir / f"int_{cam.name}_img").mkdir(parents=True)
+        to_world = np.eye(4)
+        to_world[:3, :3], to_world[:3, 3] = cam.R.T, cam.center
+        for k in range(8):
+            depth = rng.uniform(1.2, 2.5)
+            x, y = rng.uniform(-0.3, 0.3, 2) * depth
+            R = _frame(np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.3, 3), rng.uniform(-0.5, 0.5))
+            T = np.eye(4)
+            half = 0.5 * board.square_m * np.array([board.cols - 1, board.rows - 1, 0.0])
+            T[:3, :3], T[:3, 3] = R, np.array([x, y, depth]) - R @ half
+            img = r.render(to_world @ T, rng)
+            cv2.imwrite(str(int_dir / f"int_{cam.name}_img" / f"{k:02d}.png"), img)
+    intr = tmp_path / "intrinsics.toml"
+    rc = main(
+        [
+            "calibrate",
+            "intrinsics",
+            "--images",
+            str(int_dir),
+            "--board",
+            "9x6",
+            "--square",
+            "0.1",
+            "--out",
+            str(intr),
+            "--report",
+            str(tmp_path / "report"),
+        ]
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "Intrinsics written" in printed and (tmp_path / "report" / "intrinsics.png").is_file()
+    got = load_calibration(intr, min_cameras=1)
+    for cam in rig:
+        assert got[cam.name].matrix[0, 0] == pytest.approx(cam.matrix[0, 0], rel=0.01)
+    out = tmp_path / "rig.toml"
+    rc = main(
+        [
+            "calibrate",
+            "extrinsics",
+            "--images",
+            str(ext_dir),
+            "--intrinsics",
+            str(intr),
+            "--board",
+            "9x6",
+            "--square",
+            "0.1",
+            "--out",
+            str(out),
+            "--floor",
+            scene.floor,
+            "--report",
+            str(tmp_path / "report"),
+        ]
+    )
+    assert rc == 0
+    assert "Rig written" in capsys.readouterr().out
+    assert (tmp_path / "report" / "extrinsics.png").is_file()
+    rig2 = load_calibration(out)
+    for cam in rig:
+        # 3 cameras, 8 positions, 8 close-ups each: a few centimetres (see the benchmark for
+        # the full-size rig)
+        assert np.linalg.norm(rig2[cam.name].center + scene.origin - cam.center) < 0.06
+    # and as OpenCV YAML
+    rc = main(
+        [
+            "calibrate",
+            "extrinsics",
+            "--images",
+            str(ext_dir),
+            "--intrinsics",
+            str(intr),
+            "--board",
+            "9x6",
+            "--square",
+            "0.1",
+            "--out",
+            str(tmp_path / "yml"),
+            "--floor",
+            scene.floor,
+        ]
+    )
+    assert rc == 0 and len(load_calibration(tmp_path / "yml")) == 3
+
+
+def test_calibrate_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.png").write_bytes(b"not an image")
+    args = ["calibrate", "intrinsics", "--images", str(tmp_path / "photos"), "--square", "0.05"]
+    assert main([*args, "--board", "15", "--out", str(tmp_path / "o.toml")]) == 2
+    assert "COLSxROWS" in capsys.readouterr().err
+    assert main([*args, "--board", "14x10", "--out", str(tmp_path / "o.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "found in 0 of 1" in err and "Traceback" not in err
+    assert (
+        main(
+            [
+                "calibrate",
+                "intrinsics",
+                "--images",
+                str(tmp_path / "none"),
+                "--board",
+                "14x10",
+                "--square",
+                "0.05",
+                "--out",
+                str(tmp_path / "o.toml"),
+            ]
+        )
+        == 2
+    )
+    assert "not a folder of photos" in " ".join(capsys.readouterr().err.split())

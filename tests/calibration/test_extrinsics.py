@@ -22,10 +22,11 @@ def synthetic():
     rng = np.random.default_rng(0)
     scene = board_scene(rig, BOARD, 20, rng)
     obs = corner_observations(rig, scene, 0.2, rng)  # detected corners: about 0.1 px
-    # the detector may hand over any view's corners in the half-turned order
+    # on this board (15 x 11 squares) the detector may hand over any view's corners in the
+    # half-turned order; the floor position's order defines the world's origin and x axis
     for cam in obs:
         for v in list(obs[cam]):
-            if rng.random() < 0.5:
+            if v != scene.floor and rng.random() < 0.5:
                 obs[cam][v] = obs[cam][v][::-1].copy()
     return rig, scene, obs
 

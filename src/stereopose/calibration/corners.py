@@ -8,8 +8,9 @@ detector — and every candidate is checked: its corners must fit a plane-to-ima
 to within a fraction of a square, which rejects scrambled grids, and must not continue beyond
 its border (part of a bigger board: the board size given is wrong). The accepted corners are
 refined to sub-pixel accuracy and put in a canonical order (rows of `cols` corners, one
-handedness), so that corner k is the same physical corner in every photo up to a half turn of
-the board.
+handedness, and on boards with an even number of squares along a side, the first corner next
+to a dark square), so that corner k is the same physical corner in every photo (up to a half
+turn of the board when both sides have an odd number of squares, as 15 x 11).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ _CLASSIC_FLAGS = (
     cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FILTER_QUADS
 )
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+CLASSIC_MAX_PX = 1100
 MAX_FIT_FRACTION = 0.2  # of the mean square size: how far a corner may be off the homography
 
 
@@ -47,7 +49,10 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 
 
 def _candidates(gray: np.ndarray, board: Board):
-    """(method, corners (N, 2) in full-resolution pixels) from each detector in turn."""
+    """(method, corners (N, 2) in full-resolution pixels) from each detector in turn.
+
+    The classic detector runs only on images of at most CLASSIC_MAX_PX pixels on their long
+    side: on large cluttered images it can take half a minute to find nothing."""
     long_side = max(gray.shape)
     scales = [1.0] + [s for s in (0.5, 0.35) if long_side * s >= 400]
     clahe = cv2.createCLAHE(2.0, (8, 8))
@@ -66,10 +71,11 @@ def _candidates(gray: np.ndarray, board: Board):
             ok, c = cv2.findChessboardCornersSB(im, board.size, flags=_SB_FLAGS)
             if ok:
                 yield f"sector-based, {prep}x{scale:g}", c.reshape(-1, 2) / scale
-        for prep, im in preps:
-            ok, c = cv2.findChessboardCorners(im, board.size, None, _CLASSIC_FLAGS)
-            if ok:
-                yield f"classic, {prep}x{scale:g}", c.reshape(-1, 2) / scale
+        if max(img.shape) <= CLASSIC_MAX_PX:
+            for prep, im in preps:
+                ok, c = cv2.findChessboardCorners(im, board.size, None, _CLASSIC_FLAGS)
+                if ok:
+                    yield f"classic, {prep}x{scale:g}", c.reshape(-1, 2) / scale
 
 
 def _grid_fit(points: np.ndarray, board: Board) -> tuple[float, float]:
@@ -153,6 +159,25 @@ def _inside_larger_board(gray: np.ndarray, pts: np.ndarray, board: Board) -> boo
     return False
 
 
+def _dark_first(gray: np.ndarray, pts: np.ndarray, board: Board) -> np.ndarray:
+    """On a board whose half turn swaps the colours at its corners (an even number of squares
+    along one side), the order in which the square diagonally outside the first corner is the
+    dark one; other boards are left as they are (their first corner is one of two)."""
+    if board.cols % 2 == 0 and board.rows % 2 == 0:
+        return pts  # odd x odd squares: the half-turned board looks the same
+    grid = board.object_points()[:, :2] / board.square_m
+    H, _ = cv2.findHomography(grid, pts, 0)
+    if H is None:
+        return pts
+    probe = np.array([[-0.5, -0.5], [board.cols - 0.5, board.rows - 0.5]])
+    uv = cv2.perspectiveTransform(probe.reshape(-1, 1, 2), H).reshape(-1, 2).round().astype(int)
+    h, w = gray.shape
+    if not ((uv >= 0).all() and (uv[:, 0] < w).all() and (uv[:, 1] < h).all()):
+        return pts
+    first, last = gray[uv[0, 1], uv[0, 0]], gray[uv[1, 1], uv[1, 0]]
+    return pts[::-1].copy() if first > last else pts
+
+
 def find_corners(image: np.ndarray, board: Board) -> Corners | None:
     """The board's corners in an image (gray or BGR), or None when no candidate passes."""
     gray = to_gray(image)
@@ -169,5 +194,5 @@ def find_corners(image: np.ndarray, board: Board) -> Corners | None:
         moved = np.linalg.norm(refined - pts, axis=-1) > 0.5 * half
         pts = np.where(moved[:, None], pts, refined.astype(np.float64))
         fit, square = _grid_fit(pts, board)
-        return Corners(pts, method, fit, square)
+        return Corners(_dark_first(gray, pts, board), method, fit, square)
     return None
