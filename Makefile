@@ -29,6 +29,7 @@ bench: install
 	$(BIN)/python benchmarks/reconstruction.py
 	$(BIN)/python benchmarks/tracking.py
 	$(BIN)/python benchmarks/fences.py
+	$(BIN)/python benchmarks/calibration.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -215,6 +215,7 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
             refine_intrinsics=args.refine_intrinsics,
             report_dir=args.report,
             on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
+            intrinsics_images=args.intrinsics_images,
         )
     r = run.result
     table = Table(title=f"Rig written to {args.out}: RMS {r.rms_px:.3f} px")
@@ -446,6 +447,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ce.add_argument("--yaw", type=float, default=0.0, help="turn the world x axis (degrees)")
     ce.add_argument("--refine-intrinsics", action="store_true", help="refine intrinsics too")
+    ce.add_argument(
+        "--intrinsics-images",
+        type=Path,
+        metavar="DIR",
+        help="the cameras' intrinsics photos, adjusted together with the rig (best with "
+        "--refine-intrinsics: fx and the camera distances then agree)",
+    )
     ce.add_argument("--report", type=Path, metavar="DIR", help="write report pictures here")
     ce.set_defaults(func=_calibrate_extrinsics)
 

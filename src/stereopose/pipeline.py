@@ -319,9 +319,14 @@ def calibrate_extrinsics_dir(
     refine_intrinsics: bool = False,
     report_dir: str | Path | None = None,
     on_camera: Callable[[str], None] | None = None,
+    intrinsics_images: str | Path | None = None,
 ) -> ExtrinsicsRun:
     """The rig from synchronised board photos: `images` holds one sub-folder per camera with
-    the same file name per board position (the position's name is the file's stem)."""
+    the same file name per board position (the position's name is the file's stem).
+
+    intrinsics_images: the cameras' own board photos (as for the intrinsics), added to the
+    adjustment as positions seen by one camera: with refine_intrinsics, focal lengths and
+    distortion are then refined from both sets at once."""
     from stereopose.calibration.extrinsics import calibrate_extrinsics
     from stereopose.calibration.intrinsics import detect_all, iter_images
 
@@ -351,6 +356,15 @@ def calibrate_extrinsics_dir(
                 )
         corners[name] = {Path(d.name).stem: d.corners.points for d in dets if d.corners}
         found[name] = {Path(d.name).stem: d.corners is not None for d in dets}
+    if intrinsics_images is not None:
+        for name, folder in _camera_folders(Path(intrinsics_images)):
+            if name not in corners:
+                continue
+            if on_camera is not None:
+                on_camera(f"{name} (intrinsics photos)")
+            for d in detect_all(iter_images(folder), board):
+                if d.corners is not None:
+                    corners[name][f"{name}:{Path(d.name).stem}"] = d.corners.points
     result = calibrate_extrinsics(cams, corners, board, floor, origin_m, yaw_deg, refine_intrinsics)
     run = ExtrinsicsRun(result, found)
     run.outputs.append(_save_rig(out, result.rig, {"rms_px": round(result.rms_px, 4)}))

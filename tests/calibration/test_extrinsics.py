@@ -58,24 +58,24 @@ def test_intrinsics_then_refined_with_the_rig(synthetic) -> None:
     every camera pose and board position (intrinsics held, the default; then refined)."""
     rig, scene, obs = synthetic
     cams = {}
+    joint = {k: dict(v) for k, v in obs.items()}
     rng = np.random.default_rng(5)
     for cam in rig:
+        close = close_views(cam, BOARD, 15, 0.2, rng)
         dets = [
-            Detection(v, (1920, 1080), Corners(p, "synthetic", 0.0, 40.0))
-            for v, p in close_views(cam, BOARD, 15, 0.2, rng).items()
+            Detection(v, (1920, 1080), Corners(p, "synthetic", 0.0, 40.0)) for v, p in close.items()
         ]
         cams[cam.name] = calibrate_intrinsics(cam.name, dets, BOARD).camera
-    result = calibrate_extrinsics(cams, obs, BOARD, floor=scene.floor)  # intrinsics held
+        joint[cam.name].update({f"{cam.name}:{v}": p for v, p in close.items()})
+    # the close-ups adjusted with the rig, intrinsics refined: the issue's targets
+    result = calibrate_extrinsics(cams, joint, BOARD, floor=scene.floor, refine_intrinsics=True)
     for cam in rig:
         fx = result.rig[cam.name].matrix[0, 0]
         assert fx == pytest.approx(cam.matrix[0, 0], rel=0.005), cam.name
     check(result, rig, scene)
-    # refined from the rig's views alone, the focal lengths and centres stay as good
-    refined = calibrate_extrinsics(cams, obs, BOARD, floor=scene.floor, refine_intrinsics=True)
-    for cam in rig:
-        fx = refined.rig[cam.name].matrix[0, 0]
-        assert fx == pytest.approx(cam.matrix[0, 0], rel=0.005), cam.name
-    check(refined, rig, scene, rot_deg=0.3)
+    # intrinsics held from the close-ups: the focal lengths as estimated, centres a little off
+    held = calibrate_extrinsics(cams, obs, BOARD, floor=scene.floor)
+    check(held, rig, scene, centre_m=0.02)
 
 
 def test_world_origin_and_yaw(synthetic) -> None:
