@@ -53,6 +53,7 @@ def test_rig_recovered_with_known_intrinsics(synthetic) -> None:
     assert np.abs(corners[:, 2]).max() < 0.005
 
 
+@pytest.mark.slow
 def test_intrinsics_then_refined_with_the_rig(synthetic) -> None:
     """Zhang per camera from 15 photos of the board held close to it, then one adjustment of
     every camera pose and board position (intrinsics held, the default; then refined)."""

@@ -52,6 +52,7 @@ def test_a_photo_with_misplaced_corners_is_rejected(rendered, board) -> None:
     assert result.camera.matrix[0, 0] == pytest.approx(900.0, rel=0.005)
 
 
+@pytest.mark.slow
 def test_no_board_anywhere_or_one_photo_is_a_clear_error(tmp_path: Path, rendered, board) -> None:
     blank = write_photos(tmp_path / "blank", [np.full((720, 1280), 128, np.uint8)] * 3)
     with pytest.raises(CalibrationError, match=r"found in 0 of 3 photo\(s\).*board size"):
