@@ -21,7 +21,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse
 import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -43,7 +42,7 @@ from stereopose.sim.scene import make_rig
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from reconstruction import machine
+from common import machine, save
 
 QUALISYS_FX = {"cam01": 1681.2, "cam02": 1673.7, "cam03": 1681.6, "cam04": 1675.2}
 BOARD = Board(14, 10, 0.05)
@@ -157,8 +156,6 @@ def timing(runs: int = 3) -> dict:
 
 
 def write(results: dict) -> None:
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "calibration.json").write_text(json.dumps(results, indent=2) + "\n")
     s, t = results["synthetic"], results["timing"]
     md = [
         "# Calibration: accuracy and time",
@@ -207,7 +204,7 @@ def write(results: dict) -> None:
         f"| {t['cameras']} x {t['positions']} | {t['views']} | {t['corners']} | "
         f"{t['seconds']:.2f} | {t['seconds_refine_intrinsics']:.2f} |",
     ]
-    (HERE / "results" / "calibration.md").write_text("\n".join(md) + "\n")
+    save("calibration", results, md)
 
 
 def main() -> None:
@@ -222,7 +219,6 @@ def main() -> None:
         "real": [] if args.no_real else real(),
     }
     write(results)
-    print(f"written {HERE / 'results' / 'calibration.md'}")
 
 
 if __name__ == "__main__":

@@ -18,10 +18,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"  # one core, before numpy loads
 
-import argparse
 import dataclasses
-import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,7 +33,7 @@ from stereopose.tracking import Tracker
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from reconstruction import machine
+from common import save, start
 
 
 def tracked(scene):
@@ -127,8 +124,6 @@ def cost(frames: int, zones: int = 20, runs: int = 9) -> dict:
 
 
 def write(results: dict) -> None:
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "fences.json").write_text(json.dumps(results, indent=2) + "\n")
     c = results["cost"]
     md = [
         "# Zone events: accuracy, latency and cost",
@@ -170,26 +165,17 @@ def write(results: dict) -> None:
         f"| {c['zones']} | {c['back_end_ms']:.3f} | {c['fences_ms']:.3f} | "
         f"{100 * c['added']:.1f}% | {100 * c['added_median']:.1f}% |",
     ]
-    (HERE / "results" / "fences.md").write_text("\n".join(md) + "\n")
+    save("fences", results, md)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--seeds", type=int, default=5)
-    args = ap.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    args, head = start(__doc__)
     results = {
-        "date": datetime.date.today().isoformat(),
-        "machine": machine(),
-        "frames": args.frames,
-        "seeds": args.seeds,
+        **head,
         "cost": cost(args.frames),
         "accuracy": accuracy(args.frames, args.seeds),
     }
     write(results)
-    print(f"written {HERE / 'results' / 'fences.md'}")
 
 
 if __name__ == "__main__":

@@ -15,10 +15,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"  # one core, before numpy loads
 
-import argparse
-import datetime
-import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,19 +29,10 @@ from stereopose.reconstruction import Reconstructor
 from stereopose.sim import evaluate, simulate
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from common import save, start
+
 SHARED = HERE.parent.parent / "shared" / "data" / "pose2sim-demo-yolo11n"
-
-
-def machine() -> str:
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, one thread"
 
 
 def config(mode: str) -> ReconstructionConfig:
@@ -154,8 +141,6 @@ def real() -> list[dict]:
 
 
 def write(results: dict) -> None:
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "reconstruction.json").write_text(json.dumps(results, indent=2) + "\n")
     md = [
         "# 3D stage: accuracy and speed",
         "",
@@ -217,21 +202,13 @@ def write(results: dict) -> None:
                 f"{r['median_reprojection_px']:.2f} | "
                 f"{r['median_reprojection_all_views_px']:.2f} | {r['mean_views']:.2f} |"
             )
-    (HERE / "results" / "reconstruction.md").write_text("\n".join(md) + "\n")
+    save("reconstruction", results, md)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--seeds", type=int, default=5)
-    args = ap.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    args, head = start(__doc__)
     results = {
-        "date": datetime.date.today().isoformat(),
-        "machine": machine(),
-        "frames": args.frames,
-        "seeds": args.seeds,
+        **head,
         # speed first, while the process holds nothing else (the garbage collector's work
         # grows with every object alive)
         "speed": speed(args.frames),
@@ -239,7 +216,6 @@ def main() -> None:
         "real": real(),
     }
     write(results)
-    print(f"written {HERE / 'results' / 'reconstruction.md'}")
 
 
 if __name__ == "__main__":

@@ -17,10 +17,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"  # one core, before numpy loads
 
-import argparse
 import dataclasses
-import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -30,16 +27,16 @@ import numpy as np
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, with_overrides
 from stereopose.detection.openpose import read_pose_dir
-from stereopose.geometry.camera import project
 from stereopose.reconstruction import Reconstructor
 from stereopose.sim import evaluate, evaluate_tracking, simulate
+from stereopose.sim.scene import ghost_frame
 from stereopose.tracking import Tracker
 from stereopose.types import People2D
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data" / "pose2sim-demo-yolo11n"
 sys.path.insert(0, str(HERE))
-from reconstruction import machine
+from common import save, start
 
 
 def frames_of(scene) -> list[list[People2D | None]]:
@@ -139,19 +136,6 @@ def accuracy(frames: int, seeds: int) -> list[dict]:
     return rows
 
 
-def _ghost_frame(scene, t: int, where: np.ndarray) -> list[People2D]:
-    """Frame t plus a fake person standing at `where`, consistent in every camera."""
-    n = int(np.flatnonzero(scene.present[t])[0])
-    body = scene.truth[t, n].copy()
-    body[:, :2] += where - np.nanmean(body[:, :2], axis=0)
-    out = []
-    for cam in scene.rig:
-        kp = np.concatenate([project(body, cam), np.full((17, 1), 0.9)], axis=-1)
-        old = scene.detections[t][cam.name]
-        out.append(People2D(cam.name, t, np.concatenate([old.keypoints, kp[None]])))
-    return out
-
-
 def ghosts(frames: int, seeds: int, per_scene: int = 10) -> dict:
     """Ghosts of 1 and 2 frames (consistent false people in every camera) at random places
     and times of hard scenes: the ids given to them."""
@@ -169,7 +153,7 @@ def ghosts(frames: int, seeds: int, per_scene: int = 10) -> dict:
                 continue
             placed.append((t0, where))
             for t in range(t0, t0 + length):
-                data[t] = _ghost_frame(scene, t, where)
+                data[t] = ghost_frame(scene, t, where)
         truth_ids = {int(i) for p in tracked(scene) for i in p.ids}
         ids = {int(i) for p in tracked(scene, data) for i in p.ids}
         given += len(ids) - len(truth_ids)
@@ -206,8 +190,6 @@ def real() -> dict | None:
 
 
 def write(results: dict) -> None:
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "tracking.json").write_text(json.dumps(results, indent=2) + "\n")
     s = results["speed"]
     md = [
         "# Tracking: identities, smoothing, and the whole 3D back end's speed",
@@ -276,28 +258,19 @@ def write(results: dict) -> None:
             "Ids are given after 3 consecutive frames (a confirmed person); the first two frames "
             "are output for nobody."
         )
-    (HERE / "results" / "tracking.md").write_text("\n".join(md) + "\n")
+    save("tracking", results, md)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--seeds", type=int, default=5)
-    args = ap.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    args, head = start(__doc__)
     results = {
-        "date": datetime.date.today().isoformat(),
-        "machine": machine(),
-        "frames": args.frames,
-        "seeds": args.seeds,
+        **head,
         "speed": speed(args.frames),
         "accuracy": accuracy(args.frames, args.seeds),
         "ghosts": ghosts(args.frames, args.seeds),
         "real": real(),
     }
     write(results)
-    print(f"written {HERE / 'results' / 'tracking.md'}")
 
 
 if __name__ == "__main__":

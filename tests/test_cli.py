@@ -305,7 +305,7 @@ def test_calibrate_intrinsics_then_extrinsics_from_rendered_photos(tmp_path: Pat
 
     from stereopose.calibration.board import Board
     from stereopose.calibration.formats import load_calibration
-    from stereopose.sim.calibration import Renderer, _frame, _sees, board_scene
+    from stereopose.sim.calibration import Renderer, _sees, board_scene, close_pose
     from stereopose.sim.scene import make_rig
 
     board = Board(9, 6, 0.1)
@@ -321,16 +321,11 @@ def test_calibrate_intrinsics_then_extrinsics_from_rendered_photos(tmp_path: Pat
                 cv2.imwrite(str(ext_dir / cam.name / f"{name}.png"), r.render(T, rng))
         # close-ups for the intrinsics: the board 1.2-2.5 m in front of the camera
         (int_dir / f"int_{cam.name}_img").mkdir(parents=True)
-        to_world = np.eye(4)
-        to_world[:3, :3], to_world[:3, 3] = cam.R.T, cam.center
         for k in range(8):
-            depth = rng.uniform(1.2, 2.5)
-            x, y = rng.uniform(-0.3, 0.3, 2) * depth
-            R = _frame(np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.3, 3), rng.uniform(-0.5, 0.5))
-            T = np.eye(4)
-            half = 0.5 * board.square_m * np.array([board.cols - 1, board.rows - 1, 0.0])
-            T[:3, :3], T[:3, 3] = R, np.array([x, y, depth]) - R @ half
-            img = r.render(to_world @ T, rng)
+            T = close_pose(
+                cam, board, rng, depth_m=(1.2, 2.5), spread=0.3 * cam.focal / cam.size[0]
+            )
+            img = r.render(T, rng)
             cv2.imwrite(str(int_dir / f"int_{cam.name}_img" / f"{k:02d}.png"), img)
     intr = tmp_path / "intrinsics.toml"
     rc = main(

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from stereopose.config import Config, with_overrides
-from stereopose.geometry.camera import project
 from stereopose.sim import evaluate, evaluate_tracking, simulate
-from stereopose.sim.scene import Scene
+from stereopose.sim.scene import Scene, ghost_frame
 from stereopose.tracking import Tracker
 from stereopose.types import People2D
 
@@ -42,26 +41,12 @@ def test_ids_persist_through_entries_exits_and_crowds(difficulty: str, seed: int
     assert [t.id for t in tracker.finish()] == sorted({int(i) for p in preds for i in p.ids})
 
 
-def ghost(scene: Scene, t: int, where=(1.0, 1.0)) -> list[People2D | None]:
-    """Frame t's detections plus a fake person, consistent in every camera, at `where`."""
-    n = int(np.flatnonzero(scene.present[t])[0])
-    body = scene.truth[t, n].copy()
-    body[:, :2] += np.asarray(where) - np.nanmean(body[:, :2], axis=0)
-    out = []
-    for cam in scene.rig:
-        px = project(body, cam)
-        kp = np.concatenate([px, np.full((17, 1), 0.9)], axis=-1)
-        old = scene.detections[t][cam.name]
-        out.append(People2D(cam.name, t, np.concatenate([old.keypoints, kp[None]])))
-    return out
-
-
 @pytest.mark.parametrize(("length", "gets_id"), [(1, False), (2, False), (6, True)])
 def test_a_ghost_gets_an_id_only_once_confirmed(length: int, gets_id: bool) -> None:
     scene = simulate(difficulty="easy", num_frames=40, seed=11, p_enter=0.0, p_leave=0.0)
     frames = frames_of(scene)
     for t in range(20, 20 + length):
-        frames[t] = ghost(scene, t)
+        frames[t] = ghost_frame(scene, t, (1.0, 1.0))
     preds, _ = track(scene, frames)
     ids = {int(i) for p in preds for i in p.ids}
     workers = len(np.flatnonzero(scene.present.any(0)))

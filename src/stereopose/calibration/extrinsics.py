@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 
 import cv2
@@ -289,8 +290,6 @@ def calibrate_extrinsics(
     floor: the board position lying on the floor (default: the first position by name, with
     a warning).
     """
-    import time
-
     t0 = time.perf_counter()
     missing = sorted(set(corners) - set(cameras))
     if missing:

@@ -109,7 +109,6 @@ class FenceMonitor:
         self.ids = np.zeros(0, dtype=np.int64)
         self.last_seen = np.zeros(0)
         self.last_pos = np.zeros((0, 2))
-        self.events = 0
 
     def _rows(self, ids: np.ndarray) -> np.ndarray:
         """State rows of people `ids`, new people added."""
@@ -165,7 +164,6 @@ class FenceMonitor:
                         self._events(people, p, k, t, flags, onset, began, geo, pos, near_onset)
                     )
         events.extend(self._lost(t))
-        self.events += len(events)
         return events
 
     def _geometry(self, joints: np.ndarray) -> _Geometry:

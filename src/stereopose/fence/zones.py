@@ -22,18 +22,13 @@ All geometry here is vectorised over every joint of every person and every zone 
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
+from stereopose.config import read_toml
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, joint_index
 
@@ -194,14 +189,7 @@ def save_site(path: str | Path, site: Site) -> None:
 def load_site(path: str | Path) -> Site:
     """Read and check a site file; every problem is an error naming the file and the zone."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: site file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{path}: cannot read site file: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    data = read_toml(path, "site file")
     try:
         return Site(_zones(data), _fps(data), path)
     except ConfigError as e:

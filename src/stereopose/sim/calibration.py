@@ -174,24 +174,35 @@ class Renderer:
         return np.clip(img, 0, 255).astype(np.uint8)
 
 
+def close_pose(
+    cam: Camera,
+    board: Board,
+    rng: np.random.Generator,
+    depth_m: tuple[float, float] = (0.9, 2.2),
+    spread: float = 0.45,
+) -> np.ndarray:
+    """Board -> world (4, 4) of a board held depth_m in front of the camera, its centre up to
+    `spread` of the image's half-width off the axis, tilted up to about 35 degrees."""
+    depth = rng.uniform(*depth_m)
+    x, y = rng.uniform(-spread, spread, 2) * depth * np.array(cam.size) / cam.focal
+    R = _frame(np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.35, 3), rng.uniform(-0.6, 0.6))
+    half = 0.5 * board.square_m * np.array([board.cols - 1, board.rows - 1, 0.0])
+    in_cam = np.eye(4)
+    in_cam[:3, :3], in_cam[:3, 3] = R, np.array([x, y, depth]) - R @ half
+    cam_to_world = np.eye(4)
+    cam_to_world[:3, :3], cam_to_world[:3, 3] = cam.R.T, cam.center
+    return cam_to_world @ in_cam
+
+
 def close_views(
     cam: Camera, board: Board, count: int, noise_px: float, rng: np.random.Generator
 ) -> dict[str, np.ndarray]:
-    """Corners of `count` board photos taken for the camera's intrinsics: the board held
-    0.9-2.2 m in front of it, anywhere in its view, tilted up to about 35 degrees."""
+    """Corners of `count` board photos taken for the camera's intrinsics (see close_pose)."""
     out: dict[str, np.ndarray] = {}
-    half = 0.5 * board.square_m * np.array([board.cols - 1, board.rows - 1, 0.0])
-    cam_to_world = np.eye(4)
-    cam_to_world[:3, :3], cam_to_world[:3, 3] = cam.R.T, cam.center
     k = 0
     while len(out) < count and k < 50 * count:
         k += 1
-        depth = rng.uniform(0.9, 2.2)
-        x, y = rng.uniform(-0.45, 0.45, 2) * depth * np.array(cam.size) / cam.focal
-        R = _frame(np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.35, 3), rng.uniform(-0.6, 0.6))
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R, np.array([x, y, depth]) - R @ half
-        px = _sees(cam, cam_to_world @ T, board)
+        px = _sees(cam, close_pose(cam, board, rng), board)
         if px is not None:
             out[f"close{len(out):02d}"] = px + rng.normal(0, noise_px, px.shape)
     return out

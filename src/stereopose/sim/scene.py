@@ -247,3 +247,19 @@ def truth_people3d(scene: Scene, t: int) -> People3D:
         views=views,
         detections=np.full((P, C), -1, dtype=np.int64),
     )
+
+
+def ghost_frame(scene: Scene, t: int, where) -> list[People2D]:
+    """Frame t's detections in rig order plus a false person standing at floor point `where`,
+    consistent in every camera (the pose of the first worker present, moved there)."""
+    from stereopose.geometry.camera import project
+
+    n = int(np.flatnonzero(scene.present[t])[0])
+    body = scene.truth[t, n].copy()
+    body[:, :2] += np.asarray(where, dtype=np.float64) - np.nanmean(body[:, :2], axis=0)
+    out = []
+    for cam in scene.rig:
+        kp = np.concatenate([project(body, cam), np.full((NUM_JOINTS, 1), 0.9)], axis=-1)
+        old = scene.detections[t][cam.name]
+        out.append(People2D(cam.name, t, np.concatenate([old.keypoints, kp[None]])))
+    return out

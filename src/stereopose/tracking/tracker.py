@@ -62,7 +62,6 @@ class Tracker:
         self.conf = np.zeros((0, NUM_JOINTS))
         self.joint_t = np.zeros((0, NUM_JOINTS))
         self.trajectories: dict[int, Trajectory] = {}
-        self.last: People3D | None = None  # the last frame's per-frame reconstruction
 
     def __len__(self) -> int:
         """Number of tracks held, tentative and lost ones included."""
@@ -89,7 +88,6 @@ class Tracker:
             frame, people, self.filters.x[seed_rows] if seed_rows.size else None
         )
         found = rec.people
-        self.last = found
         row_of = np.full(len(found), -1, dtype=np.int64)
         seeded = rec.seeds >= 0
         row_of[seeded] = seed_rows[rec.seeds[seeded]]
