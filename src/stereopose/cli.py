@@ -372,6 +372,89 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _detect(args: argparse.Namespace) -> int:
+    from stereopose.detection import make_detector
+    from stereopose.pipeline import detect_videos
+
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise StereoposeError(f"--max-frames must be positive, got {args.max_frames}")
+    detector = make_detector(
+        args.backend, args.model, args.imgsz, args.conf, args.iou, args.device, args.threads
+    )
+    progress = Progress(
+        TextColumn("detecting"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[fps]:.1f} frames/s"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+        disable=not console.is_terminal,
+    )
+    with progress:
+        task = progress.add_task("detecting", total=None, fps=0.0)
+        summary = detect_videos(
+            args.videos,
+            args.out,
+            detector,
+            names=args.names,
+            sync=args.sync,
+            fps=args.fps,
+            max_frames=args.max_frames,
+            on_step=lambda done, total, fps: progress.update(
+                task, completed=done, total=total, fps=fps
+            ),
+        )
+    table = Table(title=f"2D keypoints written to {args.out}")
+    for col in ("camera", "frames", "with people", "people/frame", "dropped", "reconnects"):
+        table.add_column(col, justify="left" if col == "camera" else "right")
+    for name in summary.cameras:
+        n = summary.frames[name]
+        st = summary.sources[name]
+        table.add_row(
+            name,
+            str(n),
+            str(summary.frames_with_people[name]),
+            f"{summary.people[name] / n:.2f}" if n else "-",
+            str(st.dropped),
+            str(st.reconnects),
+        )
+    out.print(table)
+    steps_s = summary.seconds_decode + summary.seconds_detect + summary.seconds_write
+    out.print(
+        f"{summary.steps} time steps, {summary.images} images with the {summary.backend} backend: "
+        f"{summary.ms_per_image:.1f} ms per image detecting, "
+        f"{1000 * summary.seconds_decode / max(summary.steps, 1):.1f} ms per step decoding, "
+        f"{summary.steps / steps_s if steps_s else 0:.1f} time steps/s overall",
+        highlight=False,
+    )
+    if summary.interrupted:
+        out.print("interrupted: the files above are complete up to the last time step")
+        return 130
+    return 0
+
+
+def _models(args: argparse.Namespace) -> int:
+    from stereopose.detection import models
+
+    if args.action == "fetch":
+        out.print(str(models.fetch_default_weights()), highlight=False, soft_wrap=True)
+    elif args.action == "export":
+        if args.weights is None and args.out is None and not args.force:
+            target = models.models_dir() / f"{models.DEFAULT_MODEL}.onnx"
+            path = target if target.is_file() else models.default_onnx()
+        else:
+            path = models.export_onnx(args.weights, args.out)
+        out.print(str(path), highlight=False, soft_wrap=True)
+    else:
+        found = models.list_models()
+        if not found:
+            out.print(f"no models in {models.models_dir()}; run `stereopose models export`")
+        for path in found:
+            out.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB", highlight=False)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="stereopose",
@@ -403,6 +486,42 @@ def build_parser() -> argparse.ArgumentParser:
         help="per-frame people: no ids over time, no smoothing",
     )
     r.set_defaults(func=_reconstruct)
+
+    dt = sub.add_parser("detect", help="videos, image folders or streams -> 2D keypoint files")
+    dt.add_argument(
+        "--videos",
+        required=True,
+        nargs="+",
+        metavar="SOURCE",
+        help="video files, image folders or rtsp:// / http:// stream URLs, one per camera",
+    )
+    dt.add_argument("--names", nargs="+", metavar="NAME", help="camera names (default: file stems)")
+    dt.add_argument("--out", required=True, type=Path, help="folder for the <camera>_json folders")
+    dt.add_argument("--backend", choices=("onnx", "ultralytics"), default="onnx")
+    dt.add_argument(
+        "--model", type=Path, help="local .onnx or .pt pose model (default yolo11n-pose)"
+    )
+    dt.add_argument("--imgsz", type=int, default=640, help="model input size, long side (640)")
+    dt.add_argument("--conf", type=float, default=0.25, help="person score threshold (0.25)")
+    dt.add_argument("--iou", type=float, default=0.7, help="NMS overlap threshold (0.7)")
+    dt.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (cpu)")
+    dt.add_argument("--threads", type=int, help="inference threads (default: all cores)")
+    dt.add_argument(
+        "--sync",
+        choices=("index", "time"),
+        default="index",
+        help="align recorded cameras by frame index or by time from each file's frame rate",
+    )
+    dt.add_argument("--fps", type=float, help="time-step rate (default: the first camera's)")
+    dt.add_argument("--max-frames", type=int, help="stop after this many time steps")
+    dt.set_defaults(func=_detect)
+
+    mo = sub.add_parser("models", help="list, fetch or export the pose models in the cache")
+    mo.add_argument("action", choices=("list", "fetch", "export"), nargs="?", default="list")
+    mo.add_argument("weights", type=Path, nargs="?", help="export: a YOLO pose .pt file")
+    mo.add_argument("--out", type=Path, help="export: the .onnx file to write")
+    mo.add_argument("--force", action="store_true", help="export again even if cached")
+    mo.set_defaults(func=_models)
 
     cal = sub.add_parser("calibrate", help="camera calibration from checkerboard photos")
     csub = cal.add_subparsers(dest="step", required=True, metavar="STEP")

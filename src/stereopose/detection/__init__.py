@@ -1,1 +1,59 @@
-"""Person detection: detector backends and readers/writers of 2D keypoint files."""
+"""Person detection: YOLO-Pose backends and readers/writers of 2D keypoint files.
+
+``make_detector`` builds a backend from local model files only: ``onnx`` (ONNX Runtime, the
+default) or ``ultralytics`` (PyTorch). Neither imports anything heavy until it is asked for.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from stereopose.detection.base import PoseDetector, Poses
+from stereopose.detection.models import (
+    ModelError,
+    check_weights,
+    default_onnx,
+    default_weights,
+    export_onnx,
+    models_dir,
+)
+
+BACKENDS = ("onnx", "ultralytics")
+
+__all__ = ["BACKENDS", "ModelError", "PoseDetector", "Poses", "make_detector"]
+
+
+def make_detector(
+    backend: str = "onnx",
+    model: str | Path | None = None,
+    imgsz: int = 640,
+    conf: float = 0.25,
+    iou: float = 0.7,
+    device: str = "cpu",
+    threads: int | None = None,
+) -> PoseDetector:
+    """A pose detector. model: a local .onnx or .pt file (default: yolo11n-pose from the cache).
+
+    The onnx backend given a .pt file exports it to ONNX once, into the cache.
+    """
+    if not isinstance(imgsz, int) or imgsz < 32 or imgsz % 32:
+        raise ModelError(f"imgsz must be a positive multiple of 32, got {imgsz}")
+    if not 0 <= conf <= 1 or not 0 <= iou <= 1:
+        raise ModelError(f"conf and iou must be in [0, 1], got {conf} and {iou}")
+    kwargs = {"imgsz": imgsz, "conf": conf, "iou": iou, "device": device, "threads": threads}
+    if backend == "onnx":
+        from stereopose.detection.yolo_onnx import OnnxPoseDetector
+
+        if model is None:
+            path = default_onnx()
+        else:
+            path = check_weights(Path(model))
+            if path.suffix == ".pt":
+                onnx = models_dir() / f"{path.stem}.onnx"
+                path = onnx if onnx.is_file() else export_onnx(path, onnx)
+        return OnnxPoseDetector(path, **kwargs)
+    if backend == "ultralytics":
+        from stereopose.detection.yolo_ultralytics import UltralyticsPoseDetector
+
+        return UltralyticsPoseDetector(model if model is not None else default_weights(), **kwargs)
+    raise ModelError(f"unknown detector backend {backend!r}; expected one of {', '.join(BACKENDS)}")

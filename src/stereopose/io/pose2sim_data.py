@@ -10,12 +10,11 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
-import zipfile
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
+from stereopose.cache import cache_root, download_wheel, extract_members
 from stereopose.errors import StereoposeError
 
 logger = logging.getLogger(__name__)
@@ -28,59 +27,6 @@ _MEMBERS = (
     "Pose2Sim/Demo_SinglePerson/calibration/",
 )
 _MARKER = ".complete"
-
-
-def cache_root(cache: Path | None = None) -> Path:
-    """``cache``, else $STEREOPOSE_CACHE, else ~/.cache/stereopose."""
-    if cache is not None:
-        return Path(cache)
-    env = os.environ.get("STEREOPOSE_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "stereopose"
-
-
-def _download_wheel(dest: Path) -> Path:
-    cmd = [
-        sys.executable,
-        "-m",
-        "pip",
-        "download",
-        "--no-deps",
-        f"pose2sim=={POSE2SIM_VERSION}",
-        "-d",
-        str(dest),
-    ]
-    logger.info("downloading pose2sim %s: %s", POSE2SIM_VERSION, " ".join(cmd))
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    except OSError as e:
-        raise StereoposeError(f"cannot run pip to download pose2sim: {e}") from None
-    wheels = sorted(dest.glob("pose2sim-*.whl"))
-    if proc.returncode != 0 or not wheels:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        raise StereoposeError(
-            f"downloading pose2sim=={POSE2SIM_VERSION} with pip failed (exit {proc.returncode}); "
-            "it needs network access to PyPI. pip said:\n  " + "\n  ".join(tail)
-        )
-    return wheels[0]
-
-
-def _extract(wheel: Path, dest: Path) -> int:
-    count = 0
-    with zipfile.ZipFile(wheel) as zf:
-        for info in zf.infolist():
-            if info.is_dir() or not info.filename.startswith(_MEMBERS):
-                continue
-            rel = PurePosixPath(info.filename[len(_PREFIX) :])
-            if rel.is_absolute() or ".." in rel.parts:
-                raise StereoposeError(f"{wheel}: unsafe member path {info.filename!r}")
-            target = dest.joinpath(*rel.parts)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            with zf.open(info) as src, open(target, "wb") as out:
-                shutil.copyfileobj(src, out)
-            count += 1
-    if count == 0:
-        raise StereoposeError(f"{wheel}: no demo files under {', '.join(_MEMBERS)}")
-    return count
 
 
 def pose2sim_demo_dir(cache: Path | None = None) -> Path:
@@ -96,9 +42,9 @@ def pose2sim_demo_dir(cache: Path | None = None) -> Path:
     root.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=root))
     try:
-        wheel = _download_wheel(work / "wheel")
+        wheel = download_wheel(f"pose2sim=={POSE2SIM_VERSION}", work / "wheel")
         staged = work / "files"
-        n = _extract(wheel, staged)
+        n = extract_members(wheel, _MEMBERS, _PREFIX, staged)
         wheel.unlink()
         (staged / _MARKER).write_text(f"pose2sim {POSE2SIM_VERSION}: {n} files\n")
         if target.exists():  # an earlier, interrupted extraction

@@ -1,0 +1,443 @@
+"""Camera sources: video files, image folders and live RTSP/HTTP streams, read in step.
+
+``open_source(spec, name)`` opens one camera: a URL (rtsp, rtsps, http, https, rtmp, udp, tcp) is a
+live stream read on its own thread; a folder is a sequence of images; anything else is a video
+file. ``CameraSet`` reads several cameras together and yields one ``FrameSet`` per time step:
+
+- recorded sources (files, folders) are read as fast as they are consumed, aligned by frame index
+  (``sync="index"``) or by time (``sync="time"``: each camera's frame nearest the step's time, from
+  its own frame rate), until every camera has ended;
+- live streams always give their latest frame (older, unread frames are dropped and counted); a
+  camera that drops out is reopened with exponential backoff while the other cameras go on, and
+  each loss and recovery is logged.
+
+Errors name the file or URL: a missing, unreadable or corrupt video is a ``VideoError``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereopose.errors import StereoposeError
+
+logger = logging.getLogger(__name__)
+
+# FFmpeg's and OpenCV's own messages on a bad file go to stderr; the errors raised here say it.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+class VideoError(StereoposeError):
+    """A camera source is missing, unreadable or corrupt."""
+
+
+def is_stream(spec: str) -> bool:
+    return str(spec).lower().startswith(STREAM_SCHEMES)
+
+
+def source_name(spec: str) -> str:
+    """Default camera name: the file or folder stem; for a URL, its last path part."""
+    if is_stream(spec):
+        tail = str(spec).rstrip("/").rsplit("/", 1)[-1]
+        return tail.split("?")[0].rsplit(".", 1)[0] or "stream"
+    return Path(spec).stem
+
+
+@dataclass
+class SourceStats:
+    """What happened to one camera during a run."""
+
+    frames: int = 0  # frames delivered
+    dropped: int = 0  # live frames replaced by a newer one before they were read
+    failures: int = 0  # unreadable frames skipped (recorded) or connection losses (live)
+    reconnects: int = 0
+    down_s: float = 0.0  # time a live camera spent disconnected
+
+
+class VideoFile:
+    """A recorded video file, read frame by frame; t = index / fps."""
+
+    live = False
+
+    def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
+        self.path = Path(path)
+        self.name = name or self.path.stem
+        if not self.path.is_file():
+            raise VideoError(f"{self.path}: video file not found")
+        self.cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        if not self.cap.isOpened():
+            raise VideoError(f"{self.path}: cannot open the video (unknown format or corrupt)")
+        ok, first = self.cap.read()
+        if not ok or first is None or first.size == 0:
+            self.cap.release()
+            raise VideoError(f"{self.path}: no decodable frame (corrupt or empty video)")
+        self._first: np.ndarray | None = first
+        self.shape = first.shape[:2]
+        file_fps = self.cap.get(cv2.CAP_PROP_FPS)
+        self.fps = float(fps or (file_fps if 0 < file_fps < 1000 else 25.0))
+        count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.count: int | None = count if count > 0 else None
+        self.index = 0
+        self.stats = SourceStats()
+
+    def read(self) -> tuple[int, float, np.ndarray] | None:
+        """The next frame as (index, t, image), or None at the end."""
+        if self._first is not None:
+            image, self._first = self._first, None
+        else:
+            ok, image = self.cap.read()
+            if not ok or image is None:
+                if self.count is not None and self.index < self.count:
+                    logger.warning(
+                        "%s: decoding stopped at frame %d of %d (truncated or corrupt)",
+                        self.path,
+                        self.index,
+                        self.count,
+                    )
+                    self.count = self.index
+                return None
+        item = (self.index, self.index / self.fps, image)
+        self.index += 1
+        self.stats.frames += 1
+        return item
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+class ImageFolder:
+    """A folder of images in name order (natural order of the numbers in the names)."""
+
+    live = False
+
+    def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
+        self.path = Path(path)
+        self.name = name or self.path.name
+        self.files = sorted(
+            (p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+            key=_natural,
+        )
+        if not self.files:
+            raise VideoError(f"{self.path}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+        self.fps = float(fps or 25.0)
+        self.count: int | None = len(self.files)
+        self.index = 0
+        self.shape: tuple[int, int] | None = None
+        self.stats = SourceStats()
+
+    def read(self) -> tuple[int, float, np.ndarray | None] | None:
+        if self.index >= len(self.files):
+            return None
+        path = self.files[self.index]
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            logger.warning("%s: unreadable image skipped", path)
+            self.stats.failures += 1
+        else:
+            self.stats.frames += 1
+        item = (self.index, self.index / self.fps, image)
+        self.index += 1
+        return item
+
+    def close(self) -> None:
+        pass
+
+
+def _natural(path: Path) -> list[object]:
+    import re
+
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
+
+
+class LiveStream:
+    """A live camera read on its own thread; ``latest()`` gives the newest unread frame.
+
+    When the connection fails or frames stop coming for ``timeout_s``, the stream is reopened
+    after ``backoff_s`` seconds, doubling up to ``max_backoff_s``, for as long as the run lasts.
+    """
+
+    live = True
+
+    def __init__(
+        self,
+        url: str,
+        name: str | None = None,
+        timeout_s: float = 5.0,
+        backoff_s: float = 0.5,
+        max_backoff_s: float = 10.0,
+    ) -> None:
+        self.url = str(url)
+        self.path = self.url
+        self.name = name or source_name(self.url)
+        self.timeout_s, self.backoff_s, self.max_backoff_s = timeout_s, backoff_s, max_backoff_s
+        self.fps: float | None = None
+        self.count: int | None = None
+        self.shape: tuple[int, int] | None = None
+        self.stats = SourceStats()
+        self.connected = False
+        self._lock = threading.Lock()
+        self._latest: tuple[int, float, np.ndarray] | None = None
+        self._seq = 0
+        self._read_seq = 0
+        self._stop = threading.Event()
+        self._down_since: float | None = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"camera-{self.name}", daemon=True)
+        self._thread.start()
+
+    def _open(self) -> cv2.VideoCapture | None:
+        ms = int(self.timeout_s * 1000)
+        cap = cv2.VideoCapture(
+            self.url,
+            cv2.CAP_FFMPEG,
+            [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms],
+        )
+        if cap.isOpened():
+            return cap
+        cap.release()
+        return None
+
+    def _run(self) -> None:
+        delay = self.backoff_s
+        first = True
+        while not self._stop.is_set():
+            cap = self._open()
+            if cap is None:
+                if first:
+                    logger.warning("camera %s: cannot open %s; retrying", self.name, self.url)
+                first = False
+                self._stop.wait(delay)
+                delay = min(delay * 2, self.max_backoff_s)
+                continue
+            fps = cap.get(cv2.CAP_PROP_FPS)
+            if 0 < fps < 1000:
+                self.fps = float(fps)
+            got_frame = False
+            while not self._stop.is_set():
+                ok, image = cap.read()
+                if not ok or image is None:
+                    break
+                now = time.monotonic()
+                if not got_frame:
+                    got_frame = True
+                    delay = self.backoff_s
+                    self._went_up(now, first)
+                with self._lock:
+                    if self._latest is not None and self._read_seq < self._seq:
+                        self.stats.dropped += 1
+                    self._seq += 1
+                    self._latest = (self._seq, now, image)
+                    self.shape = image.shape[:2]
+            cap.release()
+            first = False
+            if self._stop.is_set():
+                break
+            if self.connected:
+                self.connected = False
+                self._down_since = time.monotonic()
+                self.stats.failures += 1
+                logger.warning(
+                    "camera %s: stream %s lost; reconnecting (backoff %.1f s)",
+                    self.name,
+                    self.url,
+                    delay,
+                )
+            self._stop.wait(delay)
+            delay = min(delay * 2, self.max_backoff_s)
+
+    def _went_up(self, now: float, first: bool) -> None:
+        if self._down_since is not None:
+            self.stats.down_s += now - self._down_since
+            self._down_since = None
+        if not first or self.stats.failures:
+            self.stats.reconnects += 1
+            logger.warning("camera %s: stream %s back", self.name, self.url)
+        self.connected = True
+
+    def latest(self) -> tuple[int, float, np.ndarray] | None:
+        """The newest frame not read before as (sequence number, monotonic time, image)."""
+        with self._lock:
+            if self._latest is None or self._latest[0] == self._read_seq:
+                return None
+            self._read_seq = self._latest[0]
+            self.stats.frames += 1
+            return self._latest
+
+    def wait_connected(self, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.connected:
+                return True
+            time.sleep(0.02)
+        return self.connected
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=self.timeout_s + 1)
+        if self._down_since is not None:
+            self.stats.down_s += time.monotonic() - self._down_since
+            self._down_since = None
+
+
+Source = VideoFile | ImageFolder | LiveStream
+
+
+def open_source(spec: str | Path, name: str | None = None, fps: float | None = None) -> Source:
+    """A camera source from a file path, an image folder or a stream URL."""
+    text = str(spec)
+    if is_stream(text):
+        return LiveStream(text, name)
+    path = Path(text)
+    if path.is_dir():
+        return ImageFolder(path, name, fps)
+    return VideoFile(path, name, fps)
+
+
+@dataclass
+class FrameSet:
+    """One time step: each camera's image (None where it has no frame at this step)."""
+
+    index: int
+    t: float
+    images: dict[str, np.ndarray | None]
+    source_frames: dict[str, int] = field(default_factory=dict)
+
+
+class CameraSet:
+    """Several cameras read in step; iterate for FrameSets; close() ends every reader."""
+
+    def __init__(
+        self,
+        specs: Sequence[str | Path],
+        names: Sequence[str] | None = None,
+        sync: str = "index",
+        fps: float | None = None,
+        max_frames: int | None = None,
+    ) -> None:
+        if not specs:
+            raise VideoError("no camera sources given")
+        if names is not None and len(names) != len(specs):
+            raise VideoError(f"{len(names)} camera names for {len(specs)} sources")
+        names = list(names) if names is not None else [source_name(str(s)) for s in specs]
+        if len(set(names)) != len(names):
+            raise VideoError(f"camera names must be unique, got {', '.join(names)}; use --names")
+        if sync not in ("index", "time"):
+            raise VideoError(f"sync must be 'index' or 'time', got {sync!r}")
+        self.sync, self.max_frames = sync, max_frames
+        self.sources: list[Source] = []
+        try:
+            for spec, name in zip(specs, names, strict=False):
+                self.sources.append(open_source(spec, name, fps))
+        except BaseException:
+            self.close()
+            raise
+        self.live = any(s.live for s in self.sources)
+        if self.live and not all(s.live for s in self.sources):
+            self.close()
+            raise VideoError("mixing live streams with recorded files is not supported")
+        rates = [s.fps for s in self.sources if s.fps]
+        self.fps = float(fps or (rates[0] if rates else 25.0))
+        self._ended: set[str] = set()
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.sources]
+
+    @property
+    def count(self) -> int | None:
+        """Number of steps of a recorded set (longest camera), or None if unknown or live."""
+        if self.live:
+            return None
+        counts = [s.count for s in self.sources]
+        if any(c is None for c in counts):
+            return None
+        n = (
+            max(counts)
+            if self.sync == "index"
+            else max(
+                int(np.ceil(c / s.fps * self.fps))
+                for c, s in zip(counts, self.sources, strict=False)
+            )
+        )
+        return min(n, self.max_frames) if self.max_frames else n
+
+    def __iter__(self) -> Iterator[FrameSet]:
+        return self._live() if self.live else self._recorded()
+
+    def _recorded(self) -> Iterator[FrameSet]:
+        half = 0.5 / self.fps
+        nxt = {s.name: s.read() for s in self.sources} if self.sync == "time" else {}
+        step = 0
+        while self.max_frames is None or step < self.max_frames:
+            t = step / self.fps
+            images: dict[str, np.ndarray | None] = {}
+            frames: dict[str, int] = {}
+            for s in self.sources:
+                item = None
+                if s.name in self._ended:
+                    pass
+                elif self.sync == "index":
+                    item = s.read()
+                    if item is None:
+                        self._end(s)
+                else:  # the last of this camera's frames with time in [t - half, t + half)
+                    while nxt[s.name] is not None and nxt[s.name][1] < t + half:
+                        item = nxt[s.name]
+                        nxt[s.name] = s.read()
+                    if nxt[s.name] is None:
+                        self._end(s)
+                    if item is not None and item[1] < t - half:
+                        item = None
+                images[s.name] = None if item is None else item[2]
+                if item is not None and item[2] is not None:
+                    frames[s.name] = item[0]
+            if not frames and len(self._ended) == len(self.sources):
+                return
+            yield FrameSet(step, t, images, frames)
+            step += 1
+
+    def _end(self, s: Source) -> None:
+        self._ended.add(s.name)
+        logger.info("camera %s: end of %s after %d frames", s.name, s.path, s.stats.frames)
+
+    def _live(self) -> Iterator[FrameSet]:
+        start = time.monotonic()
+        step = 0
+        period = 1.0 / self.fps
+        while self.max_frames is None or step < self.max_frames:
+            images: dict[str, np.ndarray | None] = {}
+            frames: dict[str, int] = {}
+            for s in self.sources:
+                got = s.latest()
+                images[s.name] = None if got is None else got[2]
+                if got is not None:
+                    frames[s.name] = got[0]
+            if not frames:  # nothing new from any camera: wait a little
+                time.sleep(min(period, 0.01))
+                continue
+            yield FrameSet(step, time.monotonic() - start, images, frames)
+            step += 1
+
+    def stats(self) -> dict[str, SourceStats]:
+        return {s.name: s.stats for s in self.sources}
+
+    def close(self) -> None:
+        for s in self.sources:
+            s.close()
+
+    def __enter__(self) -> CameraSet:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,98 @@
+"""Detection runs: camera sources -> pose detector -> 2D keypoint files (OpenPose layout)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stereopose.detection import PoseDetector
+from stereopose.detection.openpose import write_pose_frame
+from stereopose.io.video import CameraSet, SourceStats
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class DetectionSummary:
+    """What a detection run did: per camera frames and people, and where the time went."""
+
+    backend: str
+    cameras: tuple[str, ...]
+    steps: int = 0
+    frames: dict[str, int] = field(default_factory=dict)  # camera -> frames detected
+    people: dict[str, int] = field(default_factory=dict)  # camera -> people found, all frames
+    frames_with_people: dict[str, int] = field(default_factory=dict)
+    seconds_decode: float = 0.0
+    seconds_detect: float = 0.0
+    seconds_write: float = 0.0
+    sources: dict[str, SourceStats] = field(default_factory=dict)
+    interrupted: bool = False
+
+    @property
+    def images(self) -> int:
+        return sum(self.frames.values())
+
+    @property
+    def ms_per_image(self) -> float:
+        return 1000 * self.seconds_detect / self.images if self.images else float("nan")
+
+
+def detect_videos(
+    sources: Sequence[str | Path],
+    out_dir: str | Path,
+    detector: PoseDetector,
+    names: Sequence[str] | None = None,
+    sync: str = "index",
+    fps: float | None = None,
+    max_frames: int | None = None,
+    on_step: Callable[[int, int | None, float], None] | None = None,
+) -> DetectionSummary:
+    """Detect people in every camera's frames and write ``<out_dir>/<camera>_json/`` files.
+
+    Frame numbers are the step indices shared by all cameras (aligned by index or time, see
+    ``CameraSet``); a camera with no image at a step gets no file there. ``on_step(done, total,
+    fps)`` is called after each step. Ctrl-C stops the run after the files written so far.
+    """
+    out_dir = Path(out_dir)
+    with CameraSet(sources, names, sync=sync, fps=fps, max_frames=max_frames) as cams:
+        summary = DetectionSummary(detector.name, tuple(cams.names))
+        for name in cams.names:
+            summary.frames[name] = summary.people[name] = summary.frames_with_people[name] = 0
+        total = cams.count
+        start = time.perf_counter()
+        it = iter(cams)
+        try:
+            while True:
+                t0 = time.perf_counter()
+                step = next(it, None)
+                t1 = time.perf_counter()
+                summary.seconds_decode += t1 - t0
+                if step is None:
+                    break
+                present = [(n, im) for n, im in step.images.items() if im is not None]
+                poses = detector.detect([im for _, im in present]) if present else []
+                t2 = time.perf_counter()
+                for (name, _), found in zip(present, poses, strict=True):
+                    write_pose_frame(out_dir, name, found.people(name, step.index))
+                    summary.frames[name] += 1
+                    summary.people[name] += len(found)
+                    summary.frames_with_people[name] += bool(len(found))
+                summary.seconds_detect += t2 - t1
+                summary.seconds_write += time.perf_counter() - t2
+                summary.steps += 1
+                if on_step is not None:
+                    elapsed = time.perf_counter() - start
+                    on_step(summary.steps, total, summary.steps / elapsed if elapsed else 0.0)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+            logger.warning(
+                "interrupted after %d frames; files written so far are complete", summary.steps
+            )
+        summary.sources = cams.stats()
+    for name, n in summary.frames.items():
+        if n == 0:
+            logger.warning("camera %s: no frame detected", name)
+    return summary
