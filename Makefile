@@ -36,6 +36,7 @@ bench: install
 	$(BIN)/python benchmarks/tracking.py
 	$(BIN)/python benchmarks/fences.py
 	$(BIN)/python benchmarks/calibration.py
+	$(BIN)/python benchmarks/detection.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

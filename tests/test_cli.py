@@ -428,3 +428,49 @@ def test_calibrate_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
         == 2
     )
     assert "not a folder of photos" in " ".join(capsys.readouterr().err.split())
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_detect_real_videos(pose2sim_dir: Path, tmp_path: Path, capsys) -> None:
+    videos = pose2sim_dir / "Demo_MultiPerson" / "videos"
+    out = tmp_path / "pose"
+    rc = main(
+        ["detect", "--videos", str(videos / "cam01.mp4"), str(videos / "cam03.mp4"),
+         "--out", str(out), "--max-frames", "3"]
+    )  # fmt: skip
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "cam01" in printed and "cam03" in printed and "ms per image" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["cam01_json", "cam03_json"]
+    files = sorted((out / "cam03_json").iterdir())
+    assert [f.name for f in files] == [f"cam03_{i:012d}_keypoints.json" for i in range(3)]
+    people = json.loads(files[0].read_text())["people"]
+    assert len(people) >= 2 and {"pose_keypoints_2d", "box_xyxy", "score"} <= set(people[0])
+    rc = main(
+        ["detect", "--videos", str(videos / "cam01.mp4"), "--names", "north",
+         "--out", str(out), "--max-frames", "1", "--backend", "ultralytics", "--imgsz", "320"]
+    )  # fmt: skip
+    assert rc == 0 and (out / "north_json" / "north_000000000000_keypoints.json").is_file()
+
+
+def test_detect_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    junk = tmp_path / "cam09.mp4"
+    junk.write_bytes(b"\x00" * 5000)
+    assert main(["detect", "--videos", str(junk), "--out", str(tmp_path / "o")]) == 2
+    assert "cam09.mp4" in capsys.readouterr().err
+    missing = tmp_path / "nothing.mp4"
+    assert main(["detect", "--videos", str(missing), "--out", str(tmp_path / "o")]) == 2
+    assert "nothing.mp4: video file not found" in " ".join(capsys.readouterr().err.split())
+    model = tmp_path / "model.onnx"
+    model.write_text("garbage")
+    args = ["detect", "--videos", str(junk), "--out", str(tmp_path / "o"), "--model", str(model)]
+    assert main(args) == 2
+    assert "model.onnx: not a readable ONNX model" in " ".join(capsys.readouterr().err.split())
+    assert main([*args[:-2], "--imgsz", "100"]) == 2
+    assert "multiple of 32" in capsys.readouterr().err
+
+
+def test_models_lists_the_cached_models(capsys) -> None:
+    assert main(["models"]) == 0
+    assert "yolo11n-pose.onnx" in capsys.readouterr().out
