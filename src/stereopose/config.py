@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin, get_type_hints
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -97,14 +98,72 @@ class TrackingConfig:
 
 
 @dataclass(frozen=True)
+class CameraSource:
+    """One camera of a run: its calibration name and where its frames come from."""
+
+    name: str = ""
+    source: str = ""  # a video file, a folder of images, or an rtsp:// / http:// URL
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    backend: Literal["onnx", "ultralytics"] = "onnx"
+    model: str | None = None  # a local .onnx or .pt file; default: yolo11n-pose from the cache
+    imgsz: int = 640  # model input, long side (a multiple of 32)
+    conf: float = 0.25  # person score threshold
+    iou: float = 0.7  # NMS overlap threshold
+    device: str = "cpu"  # cpu, cuda, cuda:N or auto
+    threads: int | None = None  # inference threads (default: all cores)
+
+
+@dataclass(frozen=True)
+class InputConfig:
+    sync: Literal["index", "time"] = "index"  # recorded cameras aligned by frame index or time
+    fps: float | None = None  # time steps per second (default: the first camera's frame rate)
+    max_frames: int | None = None  # stop after this many time steps
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """What a run writes into its output folder."""
+
+    poses: bool = True  # poses3d.jsonl
+    events: bool = True  # events.jsonl and events.sqlite (with a site)
+    trc: bool = True  # trc/person_<id>.trc
+    csv: bool = True  # joints.csv
+    overlays: bool = True  # overlays/<camera>.mp4: 2D skeletons, ids, reprojected 3D joints
+    overlay_scale: float = 0.5  # overlay video size relative to the camera's frames
+    report: bool = True  # report.html
+    webhook: str | None = None  # POST each zone event to this URL
+
+
+@dataclass(frozen=True)
 class Config:
     fps: float = 25.0  # time base when the input has none
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    # what `stereopose run` reads and writes; paths are relative to the config file
+    calibration: str | None = None
+    site: str | None = None
+    output: str = "out/run"
+    cameras: tuple[CameraSource, ...] = ()
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    input: InputConfig = field(default_factory=InputConfig)
+    outputs: OutputConfig = field(default_factory=OutputConfig)
 
 
 def _check_value(value: Any, tp: Any, where: str) -> Any:
     origin = get_origin(tp)
+    if origin in (Union, types.UnionType):
+        options = [a for a in get_args(tp) if a is not type(None)]
+        return _check_value(value, options[0], where) if len(options) == 1 else value
+    if origin is tuple:
+        item = get_args(tp)[0]
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        if dataclasses.is_dataclass(item):
+            return tuple(from_dict(item, v, f"{where}[{i}]") for i, v in enumerate(value))
+        return tuple(_check_value(v, item, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is Literal:
         if value not in get_args(tp):
             raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got {value!r}")

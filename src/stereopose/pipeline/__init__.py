@@ -11,14 +11,11 @@ from stereopose.pipeline.calibrate import (
     calibrate_intrinsics_dir,
 )
 from stereopose.pipeline.detect import DetectionSummary, detect_videos
-from stereopose.pipeline.reconstruct import (
-    ReconstructionSummary,
-    evaluate_poses_file,
-    reconstruct_files,
-    write_trajectories,
-)
+from stereopose.pipeline.reconstruct import evaluate_poses_file, reconstruct_files
+from stereopose.pipeline.stages import Back3D, ReconstructionSummary, write_trajectories
 
 __all__ = [
+    "Back3D",
     "DetectionSummary",
     "ExtrinsicsRun",
     "IntrinsicsRun",
