@@ -293,6 +293,22 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    if args.synthetic:
+        return _demo_synthetic(args)
+    from stereopose.pipeline.demo import write_demo_config
+
+    config = write_demo_config(args.out)
+    out.print(
+        "[bold]Real demo[/]: Pose2Sim's multi-person recording, 4 cameras (1088x1920, 60 fps), "
+        f"its Qualisys calibration and a demo site -> {config}"
+    )
+    rc = _run_config(config, "Real demo: detection, 3D reconstruction, tracking, zone events")
+    out.print(f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
+              f"{Path(args.out) / 'overlays'}", highlight=False, soft_wrap=True)  # fmt: skip
+    return rc
+
+
+def _demo_synthetic(args: argparse.Namespace) -> int:
     import numpy as np
 
     from stereopose.fence import save_site
@@ -368,7 +384,13 @@ def _demo(args: argparse.Namespace) -> int:
         "still predicted for a moment after they left); ids: ids given / workers; IDSW: id "
         "switches; fps: 3D back end, frames/s."
     )
-    out.print(f"3D poses: {out_dir}/poses3d_*.jsonl; ground truth: {scene_dir}/truth.jsonl")
+    from stereopose.pipeline.run import write_reconstruction_report
+
+    report = write_reconstruction_report(
+        out_dir, summary, scene_dir / "calib.toml", site, poses, events_path
+    )
+    out.print(f"3D poses: {out_dir}/poses3d_*.jsonl; ground truth: {scene_dir}/truth.jsonl; "
+              f"report: {report}", highlight=False, soft_wrap=True)  # fmt: skip
     return 0
 
 
@@ -455,6 +477,101 @@ def _models(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_config(config_path: Path, title: str) -> int:
+    from stereopose.fence.sinks import describe
+    from stereopose.pipeline.run import run
+
+    progress = Progress(
+        TextColumn("running"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[fps]:.1f} frames/s"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+        disable=not console.is_terminal,
+    )
+    with progress:
+        task = progress.add_task("running", total=None, fps=0.0)
+
+        def show(events) -> None:
+            for e in events:
+                progress.console.print(describe(e), markup=False, highlight=False)
+
+        summary = run(
+            config_path,
+            on_step=lambda done, total, fps: progress.update(
+                task, completed=done, total=total, fps=fps
+            ),
+            on_events=show,
+        )
+    d = summary.as_dict()
+    table = Table(title=title, show_header=False)
+    table.add_row("cameras", ", ".join(summary.cameras))
+    table.add_row("frames", f"{summary.steps} ({'live' if summary.live else 'recorded'}, "
+                  f"{summary.fps_input:g} frames/s)")  # fmt: skip
+    table.add_row("speed", f"{summary.fps:.1f} frames/s overall")
+    table.add_row(
+        "per stage, frames/s",
+        ", ".join(f"{k} {v:.0f}" for k, v in summary.stage_fps().items() if v is not None),
+    )
+    table.add_row("people", f"{len(summary.people)} tracked, {summary.people_per_frame:.2f} "
+                  "per frame")  # fmt: skip
+    events = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items()))
+    table.add_row("zone events", events or "none")
+    table.add_row(
+        "reprojection error (median)",
+        ", ".join(
+            f"{k} {_px(v['reprojection_median_px'] or float('nan'))}"
+            for k, v in d["per_camera"].items()
+        ),
+    )
+    out.print(table)
+    if summary.people:
+        people = Table(title="People tracked")
+        for col in ("id", "first frame", "last frame", "time in view s", "path m"):
+            people.add_column(col, justify="right")
+        for p in summary.people:
+            people.add_row(str(p["id"]), str(p["first_frame"]), str(p["last_frame"]),
+                           f"{p['duration_s']:.2f}", f"{p['path_m']:.2f}")  # fmt: skip
+        out.print(people)
+    out.print(f"outputs in {summary.out_dir}:", highlight=False)
+    for path in summary.outputs:
+        out.print(f"  {path}", markup=False, highlight=False, soft_wrap=True)
+    if summary.interrupted:
+        out.print("interrupted: every output above is complete up to the last frame processed")
+        return 130
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    return _run_config(args.config, f"run {args.config}")
+
+
+def _init(args: argparse.Namespace) -> int:
+    from importlib import resources
+
+    path = Path(args.path)
+    if path.exists() and not args.force:
+        raise StereoposeError(f"{path}: already exists (use --force to overwrite)")
+    text = (resources.files("stereopose") / "data" / "example_run.toml").read_text("utf-8")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot write: {e.strerror}") from None
+    out.print(f"wrote {path}: edit the calibration, cameras and outputs, then "
+              f"`stereopose run {path}`", highlight=False, soft_wrap=True)  # fmt: skip
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from stereopose.viz.report import write_report
+
+    out.print(f"wrote {write_report(args.run_dir)}", markup=False, highlight=False, soft_wrap=True)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="stereopose",
@@ -515,6 +632,19 @@ def build_parser() -> argparse.ArgumentParser:
     dt.add_argument("--fps", type=float, help="time-step rate (default: the first camera's)")
     dt.add_argument("--max-frames", type=int, help="stop after this many time steps")
     dt.set_defaults(func=_detect)
+
+    ru = sub.add_parser("run", help="cameras -> 3D people, tracks, zone events, report")
+    ru.add_argument("config", type=Path, metavar="CONFIG.toml", help="run configuration")
+    ru.set_defaults(func=_run)
+
+    it = sub.add_parser("init", help="write a commented example run configuration")
+    it.add_argument("path", nargs="?", default="stereopose.toml", help="(stereopose.toml)")
+    it.add_argument("--force", action="store_true", help="overwrite an existing file")
+    it.set_defaults(func=_init)
+
+    rp = sub.add_parser("report", help="rebuild report.html of a run folder")
+    rp.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    rp.set_defaults(func=_report)
 
     mo = sub.add_parser("models", help="list, fetch or export the pose models in the cache")
     mo.add_argument("action", choices=("list", "fetch", "export"), nargs="?", default="list")
@@ -595,8 +725,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fps", type=float, default=25.0)
     s.set_defaults(func=_simulate)
 
-    d = sub.add_parser("demo", help="simulate a substation, reconstruct it, print the accuracy")
+    d = sub.add_parser(
+        "demo", help="run the real 4-camera demo end to end (--synthetic: a simulated substation)"
+    )
     d.add_argument("--out", type=Path, default=Path("out/demo"))
+    d.add_argument(
+        "--synthetic",
+        action="store_true",
+        help="simulate a substation instead, and print the accuracy against its ground truth "
+        "(the options below apply to it)",
+    )
     d.add_argument("--difficulty", choices=("easy", "mid", "hard"), default="hard")
     d.add_argument("--frames", type=int, default=250)
     d.add_argument("--seed", type=int, default=1)

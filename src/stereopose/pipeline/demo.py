@@ -1,0 +1,37 @@
+"""The real demo: Pose2Sim's 4-camera recording, its Qualisys calibration and a demo site."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from stereopose.io.pose2sim_data import pose2sim_demo_dir
+
+CAMERAS = ("cam01", "cam02", "cam03", "cam04")
+
+
+def _toml_str(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def write_demo_config(out_dir: str | Path) -> Path:
+    """Fetch the demo files (once) and write ``<out_dir>/demo.toml`` and ``demo_site.toml``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    demo = pose2sim_demo_dir() / "Demo_MultiPerson"
+    site = resources.files("stereopose") / "data" / "demo_site.toml"
+    (out_dir / "demo_site.toml").write_text(site.read_text(encoding="utf-8"), encoding="utf-8")
+    lines = [
+        "# The real demo: Pose2Sim's multi-person recording (4 cameras, 1088x1920, 60 fps) with",
+        "# its Qualisys calibration, through YOLO11n-pose, 3D reconstruction, tracking and fences.",
+        f"calibration = {_toml_str(str(demo / 'calibration' / 'Calib.qca.txt'))}",
+        'site = "demo_site.toml"',
+        'output = "."',
+        "",
+    ]
+    for name in CAMERAS:
+        video = demo / "videos" / f"{name}.mp4"
+        lines += ["[[cameras]]", f'name = "{name}"', f"source = {_toml_str(str(video))}", ""]
+    path = out_dir / "demo.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
