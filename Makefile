@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml Makefile
 	touch $(STAMP)
 
 demo: install
-	$(BIN)/stereopose demo
+	$(BIN)/stereopose demo --out out/demo
 
 lint: install
 	$(BIN)/ruff check .

@@ -22,3 +22,13 @@ def shared_data_dir() -> Path:
 def pose2sim_dir() -> Path:
     """Pose2Sim demo files (downloaded from PyPI once, then cached)."""
     return pose2sim_demo_dir()
+
+
+@pytest.fixture(scope="session")
+def real_demo_dir(tmp_path_factory) -> Path:
+    """The real demo (`stereopose demo`, as `make demo` runs it), run once per session."""
+    from stereopose.cli import main
+
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--out", str(out)]) == 0
+    return out

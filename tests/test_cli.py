@@ -148,8 +148,10 @@ def test_simulate_then_reconstruct(tmp_path: Path, capsys) -> None:
     assert len(out.read_text().splitlines()) == 12
 
 
-def test_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
-    rc = main(["demo", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy"])
+def test_synthetic_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
+    rc = main(
+        ["demo", "--synthetic", "--out", str(tmp_path), "--frames", "15", "--difficulty", "easy"]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     for word in ("MPJPE", "PCP", "pair", "weighted", "robust", "+ tracking", "Zone events"):
@@ -157,6 +159,8 @@ def test_demo_prints_the_accuracy(tmp_path: Path, capsys) -> None:
     assert (tmp_path / "poses3d_robust.jsonl").is_file()
     assert (tmp_path / "poses3d_robust_tracked.jsonl").is_file()
     assert (tmp_path / "events.jsonl").is_file() and (tmp_path / "scene" / "site.toml").is_file()
+    report = (tmp_path / "report.html").read_text()
+    assert "Floor map" in report and "3D view" in report
 
 
 def test_simulate_rejects_bad_counts(tmp_path: Path, capsys) -> None:

@@ -754,7 +754,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except StereoposeError as e:
-        console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False)
+        console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
         return 2
     except KeyboardInterrupt:
         console.print("interrupted")

@@ -30,7 +30,7 @@ logger = logging.getLogger(__name__)
 MAX_3D_FRAMES = 150
 COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#7f7f7f", "#bcbd22", "#17becf")  # fmt: skip
-ZONE_COLOURS = {"energized": "#d62728", "restricted": "#ff7f0e", "work_area": "#2ca02c"}
+ZONE_COLOURS = {"energized": "#b30000", "restricted": "#e6ab02", "work_area": "#1b9e77"}
 EVENT_SYMBOLS = {"enter": "triangle-right", "exit": "triangle-left", "approach": "diamond",
                  "dwell": "square", "left_work_area": "x"}  # fmt: skip
 

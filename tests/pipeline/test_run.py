@@ -1,0 +1,171 @@
+"""`stereopose run` end to end on the real videos: outputs, consistency, Ctrl-C, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+
+from stereopose.cli import main
+from stereopose.fence.sinks import read_events
+from stereopose.io.pose2sim_data import pose2sim_real_demo_dir
+from stereopose.io.results import read_poses
+from stereopose.pipeline.demo import write_demo_config
+
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]
+
+
+def test_demo_writes_every_output(real_demo_dir: Path) -> None:
+    names = ("poses3d.jsonl", "events.jsonl", "events.sqlite", "report.html", "summary.json",
+             "joints.csv", "tracks.json", "calib.toml", "site.toml", "config.toml")  # fmt: skip
+    for name in names:
+        assert (real_demo_dir / name).is_file(), name
+    for cam in ("cam01", "cam02", "cam03", "cam04"):
+        video = cv2.VideoCapture(str(real_demo_dir / "overlays" / f"{cam}.mp4"))
+        assert video.isOpened() and int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 100
+        ok, frame = video.read()
+        assert ok and frame.shape == (960, 544, 3)
+    summary = json.loads((real_demo_dir / "summary.json").read_text())
+    assert summary["frames"] == 100 and not summary["interrupted"]
+    assert set(summary["fps_per_stage"]) == {"decode", "detect", "3d", "fences", "write",
+                                             "overlays"}  # fmt: skip
+    for cam, stats in summary["per_camera"].items():
+        assert stats["frames"] == 100 and stats["reprojection_median_px"] < 30, cam
+    assert summary["reprojection_median_px"] < 15
+
+
+def test_two_main_people_keep_one_id_each(real_demo_dir: Path) -> None:
+    frames = {
+        f: {p["id"]: p for p in people}
+        for f, _, people in read_poses(real_demo_dir / "poses3d.jsonl")
+    }
+    assert sorted(frames) == list(range(100))
+    # the two main people stand within 2 m of the treadmill's corner (the world origin)
+    near = {
+        pid for people in frames.values() for pid, p in people.items()
+        if p["position"] is not None and abs(p["position"][0]) < 2 and abs(p["position"][1]) < 2
+    }  # fmt: skip
+    assert len(near) == 2, f"ids near the treadmill: {sorted(near)}"
+    for pid in near:
+        seen = [f for f, people in frames.items() if pid in people]
+        assert seen[0] <= 3 and seen[-1] == 99 and len(seen) >= 97, (pid, seen[0], len(seen))
+
+
+def test_events_belong_to_people_in_the_poses(real_demo_dir: Path) -> None:
+    ids = {p["id"] for _, _, people in read_poses(real_demo_dir / "poses3d.jsonl") for p in people}
+    events = read_events(real_demo_dir / "events.jsonl")
+    assert events and {e.person for e in events} <= ids
+    kinds = {(e.zone, e.type) for e in events}
+    assert ("overhead_busbar", "enter") in kinds and ("work_area", "enter") in kinds
+    entered_work_area = {e.person for e in events if e.zone == "work_area" and e.type == "enter"}
+    assert len(entered_work_area) == 2
+    with sqlite3.connect(real_demo_dir / "events.sqlite") as db:
+        (n,) = db.execute("select count(*) from events").fetchone()
+    assert n == len(events)
+    report = (real_demo_dir / "report.html").read_text()
+    for pid in ids:
+        assert f"id {pid}" in report
+    assert "overhead_busbar" in report and "cdn" not in report.lower().split("<body>")[0][-2000:]
+
+
+def _config(tmp_path: Path, cameras=("cam01", "cam02"), extra: str = "", sources=None) -> Path:
+    """A run of the demo's cameras; ``extra`` is appended (tables)."""
+    demo = pose2sim_real_demo_dir() / "Demo_MultiPerson"
+    lines = [
+        f'calibration = "{demo / "calibration" / "Calib.qca.txt"}"',
+        f'output = "{tmp_path / "out"}"',
+        "",
+    ]
+    for cam in cameras:
+        src = (sources or {}).get(cam, demo / "videos" / f"{cam}.mp4")
+        lines += ["[[cameras]]", f'name = "{cam}"', f'source = "{src}"', ""]
+    path = tmp_path / "run.toml"
+    path.write_text("\n".join(lines) + extra)
+    return path
+
+
+def test_sigint_during_a_run_leaves_valid_outputs(tmp_path: Path) -> None:
+    cfg = _config(tmp_path, extra="\n[outputs]\noverlay_scale = 0.25\n")
+    site = tmp_path / "site.toml"
+    site.write_text((Path(write_demo_config(tmp_path / "d").parent) / "demo_site.toml").read_text())
+    cfg.write_text(f'site = "{site}"\n' + cfg.read_text())
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereopose.cli", "run", str(cfg)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
+    )  # fmt: skip
+    poses = tmp_path / "out" / "poses3d.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if poses.is_file() and len(poses.read_text().splitlines()) >= 10:
+            break
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in out + err
+    frames = [f for f, _, _ in read_poses(poses)]
+    assert 10 <= len(frames) < 100 and frames == list(range(len(frames)))
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["interrupted"] and summary["frames"] == len(frames)
+    with sqlite3.connect(tmp_path / "out" / "events.sqlite") as db:
+        db.execute("select count(*) from events").fetchone()
+    read_events(tmp_path / "out" / "events.jsonl")
+    video = cv2.VideoCapture(str(tmp_path / "out" / "overlays" / "cam01.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == len(frames)
+    assert (tmp_path / "out" / "report.html").is_file()
+
+
+def test_missing_camera_file_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    cfg = _config(tmp_path, sources={"cam02": tmp_path / "gone" / "cam02.mp4"})
+    assert main(["run", str(cfg)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "cam02.mp4: video file not found" in err
+
+
+def test_bad_run_configurations_are_clear_errors(tmp_path: Path, capsys) -> None:
+    def error(cfg: Path) -> str:
+        assert main(["run", str(cfg)]) == 2
+        return " ".join(capsys.readouterr().err.split())
+
+    assert "at least 2 [[cameras]]" in error(_config(tmp_path, cameras=("cam01",)))
+    assert "cam09 not in the calibration" in error(_config(tmp_path, cameras=("cam01", "cam09")))
+    assert "unknown key(s) colour" in error(_config(tmp_path, extra="\n[outputs]\ncolour = 1\n"))
+    assert "detector.imgsz: expected an integer" in error(
+        _config(tmp_path, extra='\n[detector]\nimgsz = "big"\n')
+    )
+    swapped = _config(tmp_path, sources={
+        "cam01": pose2sim_real_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
+    })  # fmt: skip
+    assert main(["run", str(swapped)]) == 0  # same size: fine (the names are the user's)
+    capsys.readouterr()
+
+
+def test_init_writes_a_config_that_run_reads(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "site1.toml"
+    assert main(["init", str(path)]) == 0
+    assert main(["init", str(path)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    from stereopose.config import load_config
+
+    cfg = load_config(path)
+    assert [c.name for c in cfg.cameras] == ["cam01", "cam02"] and cfg.detector.backend == "onnx"
+    assert main(["run", str(path)]) == 2  # the example's calibration does not exist here
+    assert "calib.toml" in capsys.readouterr().err
+
+
+def test_report_is_rebuilt_from_a_run_folder(real_demo_dir: Path, tmp_path: Path, capsys) -> None:
+    (real_demo_dir / "report.html").unlink()
+    assert main(["report", str(real_demo_dir)]) == 0
+    assert (real_demo_dir / "report.html").stat().st_size > 1_000_000  # plotly.js inline
+    assert main(["report", str(tmp_path)]) == 2
+    assert "not a run folder" in capsys.readouterr().err
