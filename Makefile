@@ -37,6 +37,7 @@ bench: install
 	$(BIN)/python benchmarks/fences.py
 	$(BIN)/python benchmarks/calibration.py
 	$(BIN)/python benchmarks/detection.py
+	$(BIN)/python benchmarks/end_to_end.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

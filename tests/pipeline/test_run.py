@@ -16,7 +16,7 @@ import pytest
 
 from stereopose.cli import main
 from stereopose.fence.sinks import read_events
-from stereopose.io.pose2sim_data import pose2sim_real_demo_dir
+from stereopose.io.pose2sim_data import pose2sim_demo_dir
 from stereopose.io.results import read_poses
 from stereopose.pipeline.demo import write_demo_config
 
@@ -78,7 +78,7 @@ def test_events_belong_to_people_in_the_poses(real_demo_dir: Path) -> None:
 
 def _config(tmp_path: Path, cameras=("cam01", "cam02"), extra: str = "", sources=None) -> Path:
     """A run of the demo's cameras; ``extra`` is appended (tables)."""
-    demo = pose2sim_real_demo_dir() / "Demo_MultiPerson"
+    demo = pose2sim_demo_dir() / "Demo_MultiPerson"
     lines = [
         f'calibration = "{demo / "calibration" / "Calib.qca.txt"}"',
         f'output = "{tmp_path / "out"}"',
@@ -144,7 +144,7 @@ def test_bad_run_configurations_are_clear_errors(tmp_path: Path, capsys) -> None
         _config(tmp_path, extra='\n[detector]\nimgsz = "big"\n')
     )
     swapped = _config(tmp_path, sources={
-        "cam01": pose2sim_real_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
+        "cam01": pose2sim_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
     })  # fmt: skip
     assert main(["run", str(swapped)]) == 0  # same size: fine (the names are the user's)
     capsys.readouterr()
@@ -169,3 +169,46 @@ def test_report_is_rebuilt_from_a_run_folder(real_demo_dir: Path, tmp_path: Path
     assert (real_demo_dir / "report.html").stat().st_size > 1_000_000  # plotly.js inline
     assert main(["report", str(tmp_path)]) == 2
     assert "not a run folder" in capsys.readouterr().err
+
+
+def _serve_http(video: Path, port: int, name: str) -> subprocess.Popen:
+    """ffmpeg streaming ``video`` in a loop, in real time, as MPEG-TS over HTTP."""
+    import imageio_ffmpeg
+
+    cmd = [
+        imageio_ffmpeg.get_ffmpeg_exe(), "-loglevel", "error", "-re", "-stream_loop", "-1",
+        "-i", str(video), "-an", "-c:v", "mpeg1video", "-q:v", "3", "-f", "mpegts",
+        "-listen", "1", f"http://127.0.0.1:{port}/{name}.ts",
+    ]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def test_run_on_live_streams(tmp_path: Path) -> None:
+    """Two cameras streamed over HTTP in real time: the run takes their latest frames."""
+    import socket
+
+    def _free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    videos = pose2sim_demo_dir() / "Demo_MultiPerson" / "videos"
+    ports = {"cam01": _free_port(), "cam02": _free_port()}
+    servers = [_serve_http(videos / f"{cam}.mp4", port, cam) for cam, port in ports.items()]
+    try:
+        time.sleep(0.5)
+        cfg = _config(
+            tmp_path,
+            sources={c: f"http://127.0.0.1:{p}/{c}.ts" for c, p in ports.items()},
+            extra="\n[input]\nmax_frames = 15\n[outputs]\noverlays = false\nreport = false\n",
+        )
+        assert main(["run", str(cfg)]) == 0
+    finally:
+        for s in servers:
+            s.kill()
+            s.wait()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["live"] and summary["frames"] == 15
+    assert all(summary["sources"][c]["dropped"] > 0 for c in ports)  # stale frames dropped
+    people = [len(p) for _, _, p in read_poses(tmp_path / "out" / "poses3d.jsonl")]
+    assert max(people) >= 2
