@@ -1,0 +1,7 @@
+"""`python -m stereopose.cli`."""
+
+import sys
+
+from stereopose.cli import main
+
+sys.exit(main())

@@ -1,0 +1,105 @@
+"""`calibrate intrinsics` and `calibrate extrinsics`."""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING
+
+from rich.markup import escape
+from rich.table import Table
+
+if TYPE_CHECKING:
+    pass
+from stereopose.cli.common import console, out
+
+
+def _board(args: argparse.Namespace):
+    from stereopose.calibration.board import Board
+
+    return Board.parse(args.board, args.square)
+
+
+def _calibrate_intrinsics(args: argparse.Namespace) -> int:
+    from stereopose.pipeline import calibrate_intrinsics_dir
+
+    board = _board(args)
+    with console.status("detecting the board") as status:
+        run = calibrate_intrinsics_dir(
+            args.images,
+            board,
+            args.out,
+            k3=args.k3,
+            report_dir=args.report,
+            on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
+        )
+    table = Table(title=f"Intrinsics written to {args.out}")
+    for col in ("camera", "photos used", "not used", "fx", "fy", "cx", "cy", "RMS px", "coverage"):
+        table.add_column(col, justify="right")
+    for name, r in run.results.items():
+        K = r.camera.matrix
+        table.add_row(
+            name,
+            f"{len(r.used)}/{len(run.detections[name])}",
+            str(len(r.rejected)),
+            f"{K[0, 0]:.1f}",
+            f"{K[1, 1]:.1f}",
+            f"{K[0, 2]:.1f}",
+            f"{K[1, 2]:.1f}",
+            f"{r.rms_px:.3f}",
+            f"{100 * r.coverage:.0f}%",
+        )
+    out.print(table)
+    for name, r in run.results.items():
+        for photo, why in r.rejected.items():
+            out.print(f"{name}: {photo} not used: {why}", markup=False, highlight=False)
+        for view, e in sorted(r.view_rms_px.items()):
+            out.print(f"{name}: {view}: {e:.3f} px", markup=False, highlight=False)
+        for w in r.warnings:
+            console.print(f"[yellow]warning:[/] {escape(w)}")
+    for p in run.outputs[1:]:
+        out.print(f"wrote {p}", markup=False, highlight=False)
+    return 0
+
+
+def _calibrate_extrinsics(args: argparse.Namespace) -> int:
+    from stereopose.pipeline import calibrate_extrinsics_dir
+
+    board = _board(args)
+    with console.status("detecting the board") as status:
+        run = calibrate_extrinsics_dir(
+            args.images,
+            args.intrinsics,
+            board,
+            args.out,
+            floor=args.floor,
+            origin_m=tuple(args.origin),
+            yaw_deg=args.yaw,
+            refine_intrinsics=args.refine_intrinsics,
+            report_dir=args.report,
+            on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
+            intrinsics_images=args.intrinsics_images,
+        )
+    r = run.result
+    table = Table(title=f"Rig written to {args.out}: RMS {r.rms_px:.3f} px")
+    for col in ("camera", "board positions seen", "RMS px", "x m", "y m", "z m"):
+        table.add_column(col, justify="right")
+    for cam in r.rig:
+        seen = sum(run.found[cam.name].values())
+        x, y, z = cam.center
+        table.add_row(
+            cam.name,
+            f"{seen}/{len(run.found[cam.name])}",
+            f"{r.camera_rms_px[cam.name]:.3f}",
+            f"{x:.3f}",
+            f"{y:.3f}",
+            f"{z:.3f}",
+        )
+    out.print(table)
+    for view, e in sorted(r.view_rms_px.items()):
+        out.print(f"position {view}: {e:.3f} px", markup=False, highlight=False)
+    for w in r.warnings:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
+    out.print(f"bundle adjustment and pose graph: {r.seconds:.2f} s")
+    for p in run.outputs[1:]:
+        out.print(f"wrote {p}", markup=False, highlight=False)
+    return 0

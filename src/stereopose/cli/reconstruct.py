@@ -1,0 +1,112 @@
+"""`reconstruct` and `events`."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from typing import TYPE_CHECKING
+
+from rich.table import Table
+
+from stereopose.errors import StereoposeError
+
+if TYPE_CHECKING:
+    pass
+from stereopose.cli.common import _config, _progress, _px, _trajectory_table, out
+
+
+def _reconstruct(args: argparse.Namespace) -> int:
+    from stereopose.fence import load_site
+    from stereopose.fence.sinks import describe
+    from stereopose.pipeline import reconstruct_files
+
+    cfg = _config(args)
+    site = load_site(args.site) if args.site else None
+    if site is None and (args.events or args.events_db or args.webhook):
+        raise StereoposeError("--events, --events-db and --webhook need a site file (--site)")
+    if site is not None and site.fps and args.fps is None:
+        cfg = dataclasses.replace(cfg, fps=site.fps)
+    with _progress() as progress:
+
+        def show(events) -> None:
+            for e in events:
+                progress.console.print(describe(e), markup=False, highlight=False)
+
+        task = progress.add_task("reconstructing", total=None)
+        summary = reconstruct_files(
+            args.calib,
+            args.pose,
+            args.out,
+            cfg,
+            on_frame=lambda done, total: progress.update(task, completed=done, total=total),
+            trc_dir=args.trc,
+            csv_path=args.csv,
+            tracks_path=args.tracks,
+            site=site,
+            events_path=args.events,
+            events_db=args.events_db,
+            webhook=args.webhook,
+            on_events=show if site is not None else None,
+        )
+    table = Table(title=f"3D poses written to {args.out}", show_header=False)
+    table.add_row("cameras", ", ".join(summary.cameras))
+    table.add_row("mode", summary.mode)
+    table.add_row(
+        "tracking",
+        f"on: {len(summary.trajectories)} people, {summary.predicted} bridged person-frames"
+        if summary.tracking
+        else "off (ids are per frame)",
+    )
+    table.add_row("frames", str(summary.frames))
+    hist = ", ".join(
+        f"{v} frame{'s' * (v != 1)} with {k}" for k, v in sorted(summary.people_histogram.items())
+    )
+    table.add_row("people per frame", f"{summary.mean_people:.2f} on average ({hist})")
+    table.add_row("joints reconstructed", str(summary.joints_reconstructed))
+    table.add_row("mean reprojection error", _px(summary.mean_reprojection_px))
+    table.add_row(
+        "median reprojection error, conf > 0.5", _px(summary.median_confident_reprojection_px)
+    )
+    table.add_row("3D back end speed", f"{summary.fps_3d:.0f} frames/s")
+    if site is not None:
+        counts = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items())) or "none"
+        table.add_row("zone events", f"{counts} ({len(site.zones)} zones)")
+    if summary.skipped_files:
+        table.add_row("skipped files", f"{len(summary.skipped_files)} (listed below)")
+    out.print(table)
+    if summary.trajectories:
+        out.print(_trajectory_table(summary.trajectories))
+    for path in summary.outputs[1:]:
+        out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
+    for path, why in summary.skipped_files:
+        out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
+    return 0
+
+
+def _events(args: argparse.Namespace) -> int:
+    import csv
+
+    from stereopose.fence.sinks import COLUMNS, query_events
+
+    rows = query_events(
+        args.db, person=args.person, zone=args.zone, event_type=args.type, since=args.since
+    )
+    if args.csv:
+        w = csv.writer(sys.stdout, lineterminator="\n")
+        w.writerow(COLUMNS)
+        w.writerows([r[c] for c in COLUMNS] for r in rows)
+        return 0
+    table = Table(title=f"{len(rows)} event(s) in {args.db}")
+    cols = ("run", "t", "frame", "person", "zone", "kind", "type", "joint", "distance_m", "x", "y")
+    for c in cols:
+        table.add_column(c, justify="left" if c in ("zone", "kind", "type", "joint") else "right")
+    for r in rows:
+        table.add_row(
+            *(
+                "" if r[c] is None else f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c])
+                for c in cols
+            )
+        )
+    out.print(table)
+    return 0

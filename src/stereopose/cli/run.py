@@ -1,0 +1,192 @@
+"""`detect`, `models`, `run`, `init`, `report` and the real `demo`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rich.table import Table
+
+from stereopose.errors import StereoposeError
+
+if TYPE_CHECKING:
+    pass
+from stereopose.cli.common import _px, out, rate_progress
+from stereopose.cli.sim import _demo_synthetic
+
+
+def _demo(args: argparse.Namespace) -> int:
+    if args.synthetic:
+        return _demo_synthetic(args)
+    from stereopose.pipeline.demo import write_demo_config
+
+    config = write_demo_config(args.out)
+    out.print(
+        "[bold]Real demo[/]: Pose2Sim's multi-person recording, 4 cameras (1088x1920, 60 fps), "
+        f"its Qualisys calibration and a demo site -> {config}"
+    )
+    rc = _run_config(config, "Real demo: detection, 3D reconstruction, tracking, zone events")
+    out.print(f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
+              f"{Path(args.out) / 'overlays'}", highlight=False, soft_wrap=True)  # fmt: skip
+    return rc
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from stereopose.detection import make_detector
+    from stereopose.pipeline import detect_videos
+
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise StereoposeError(f"--max-frames must be positive, got {args.max_frames}")
+    detector = make_detector(
+        args.backend, args.model, args.imgsz, args.conf, args.iou, args.device, args.threads
+    )
+    progress = rate_progress("detecting")
+    with progress:
+        task = progress.add_task("detecting", total=None, fps=0.0)
+        summary = detect_videos(
+            args.videos,
+            args.out,
+            detector,
+            names=args.names,
+            sync=args.sync,
+            fps=args.fps,
+            max_frames=args.max_frames,
+            on_step=lambda done, total, fps: progress.update(
+                task, completed=done, total=total, fps=fps
+            ),
+        )
+    table = Table(title=f"2D keypoints written to {args.out}")
+    for col in ("camera", "frames", "with people", "people/frame", "dropped", "reconnects"):
+        table.add_column(col, justify="left" if col == "camera" else "right")
+    for name in summary.cameras:
+        n = summary.frames[name]
+        st = summary.sources[name]
+        table.add_row(
+            name,
+            str(n),
+            str(summary.frames_with_people[name]),
+            f"{summary.people[name] / n:.2f}" if n else "-",
+            str(st.dropped),
+            str(st.reconnects),
+        )
+    out.print(table)
+    steps_s = summary.seconds_decode + summary.seconds_detect + summary.seconds_write
+    out.print(
+        f"{summary.steps} time steps, {summary.images} images with the {summary.backend} backend: "
+        f"{summary.ms_per_image:.1f} ms per image detecting, "
+        f"{1000 * summary.seconds_decode / max(summary.steps, 1):.1f} ms per step decoding, "
+        f"{summary.steps / steps_s if steps_s else 0:.1f} time steps/s overall",
+        highlight=False,
+    )
+    if summary.interrupted:
+        out.print("interrupted: the files above are complete up to the last time step")
+        return 130
+    return 0
+
+
+def _models(args: argparse.Namespace) -> int:
+    from stereopose.detection import models
+
+    if args.action == "fetch":
+        out.print(str(models.fetch_default_weights()), highlight=False, soft_wrap=True)
+    elif args.action == "export":
+        if args.weights is None and args.out is None and not args.force:
+            target = models.models_dir() / f"{models.DEFAULT_MODEL}.onnx"
+            path = target if target.is_file() else models.default_onnx()
+        else:
+            path = models.export_onnx(args.weights, args.out)
+        out.print(str(path), highlight=False, soft_wrap=True)
+    else:
+        found = models.list_models()
+        if not found:
+            out.print(f"no models in {models.models_dir()}; run `stereopose models export`")
+        for path in found:
+            out.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB", highlight=False)
+    return 0
+
+
+def _run_config(config_path: Path, title: str) -> int:
+    from stereopose.fence.sinks import describe
+    from stereopose.pipeline.run import run
+
+    progress = rate_progress("running")
+    with progress:
+        task = progress.add_task("running", total=None, fps=0.0)
+
+        def show(events) -> None:
+            for e in events:
+                progress.console.print(describe(e), markup=False, highlight=False)
+
+        summary = run(
+            config_path,
+            on_step=lambda done, total, fps: progress.update(
+                task, completed=done, total=total, fps=fps
+            ),
+            on_events=show,
+        )
+    d = summary.as_dict()
+    table = Table(title=title, show_header=False)
+    table.add_row("cameras", ", ".join(summary.cameras))
+    table.add_row("frames", f"{summary.steps} ({'live' if summary.live else 'recorded'}, "
+                  f"{summary.fps_input:g} frames/s)")  # fmt: skip
+    table.add_row("speed", f"{summary.fps:.1f} frames/s overall")
+    table.add_row(
+        "per stage, frames/s",
+        ", ".join(f"{k} {v:.0f}" for k, v in summary.stage_fps().items() if v is not None),
+    )
+    table.add_row("people", f"{len(summary.people)} tracked, {summary.people_per_frame:.2f} "
+                  "per frame")  # fmt: skip
+    events = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items()))
+    table.add_row("zone events", events or "none")
+    table.add_row(
+        "reprojection error (median)",
+        ", ".join(
+            f"{k} {_px(v['reprojection_median_px'] or float('nan'))}"
+            for k, v in d["per_camera"].items()
+        ),
+    )
+    out.print(table)
+    if summary.people:
+        people = Table(title="People tracked")
+        for col in ("id", "first frame", "last frame", "time in view s", "path m"):
+            people.add_column(col, justify="right")
+        for p in summary.people:
+            people.add_row(str(p["id"]), str(p["first_frame"]), str(p["last_frame"]),
+                           f"{p['duration_s']:.2f}", f"{p['path_m']:.2f}")  # fmt: skip
+        out.print(people)
+    out.print(f"outputs in {summary.out_dir}:", highlight=False)
+    for path in summary.outputs:
+        out.print(f"  {path}", markup=False, highlight=False, soft_wrap=True)
+    if summary.interrupted:
+        out.print("interrupted: every output above is complete up to the last frame processed")
+        return 130
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    return _run_config(args.config, f"run {args.config}")
+
+
+def _init(args: argparse.Namespace) -> int:
+    from importlib import resources
+
+    path = Path(args.path)
+    if path.exists() and not args.force:
+        raise StereoposeError(f"{path}: already exists (use --force to overwrite)")
+    text = (resources.files("stereopose") / "data" / "example_run.toml").read_text("utf-8")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot write: {e.strerror}") from None
+    out.print(f"wrote {path}: edit the calibration, cameras and outputs, then "
+              f"`stereopose run {path}`", highlight=False, soft_wrap=True)  # fmt: skip
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from stereopose.viz.report import write_report
+
+    out.print(f"wrote {write_report(args.run_dir)}", markup=False, highlight=False, soft_wrap=True)
+    return 0
