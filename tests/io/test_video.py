@@ -228,3 +228,17 @@ def test_live_stream_keeps_only_the_latest_frame(loop_video):
         stream.close()
         server.kill()
         server.wait()
+
+
+def test_empty_or_malformed_frames_are_left_out_with_a_warning(caplog):
+    from stereopose.io.video import FrameSet, usable_images
+
+    good = np.zeros((4, 6, 3), np.uint8)
+    step = FrameSet(
+        3, 0.1,
+        {"a": good, "b": None, "c": np.zeros((0, 6, 3), np.uint8), "d": np.zeros((4, 6), np.uint8),
+         "e": np.zeros((4, 6, 3), np.float32)},
+    )  # fmt: skip
+    with caplog.at_level(logging.WARNING):
+        assert [n for n, _ in usable_images(step)] == ["a"]
+    assert "camera c: frame 3" in caplog.text and "camera e" in caplog.text

@@ -314,6 +314,23 @@ class FrameSet:
     source_frames: dict[str, int] = field(default_factory=dict)
 
 
+def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
+    """The step's (camera, image) pairs with a usable BGR image; an empty or malformed frame is
+    logged and left out (that camera has no frame at this step)."""
+    usable = []
+    for name, image in step.images.items():
+        if image is None:
+            continue
+        if image.ndim != 3 or image.shape[2] != 3 or image.size == 0 or image.dtype != np.uint8:
+            logger.warning(
+                "camera %s: frame %d is not a BGR image (shape %s, %s); skipped",
+                name, step.index, image.shape, image.dtype,
+            )  # fmt: skip
+            continue
+        usable.append((name, image))
+    return usable
+
+
 class CameraSet:
     """Several cameras read in step; iterate for FrameSets; close() ends every reader."""
 

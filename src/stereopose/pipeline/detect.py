@@ -10,7 +10,7 @@ from pathlib import Path
 
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
-from stereopose.io.video import CameraSet, SourceStats
+from stereopose.io.video import CameraSet, SourceStats, usable_images
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def detect_videos(
                 summary.seconds_decode += t1 - t0
                 if step is None:
                     break
-                present = [(n, im) for n, im in step.images.items() if im is not None]
+                present = usable_images(step)
                 poses = detector.detect([im for _, im in present]) if present else []
                 t2 = time.perf_counter()
                 for (name, _), found in zip(present, poses, strict=True):

@@ -32,7 +32,7 @@ from stereopose.detection import make_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import Site, load_site, save_site
 from stereopose.geometry.camera import project
-from stereopose.io.video import CameraSet, is_stream
+from stereopose.io.video import CameraSet, is_stream, usable_images
 from stereopose.pipeline.stages import Back3D, ReconstructionSummary
 from stereopose.skeleton import SWAP
 from stereopose.types import Event, People2D, People3D, Rig
@@ -262,7 +262,7 @@ def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_event
             sec["decode"] += t1 - t0
             if step is None:
                 break
-            present = [(n, im) for n, im in step.images.items() if im is not None]
+            present = usable_images(step)
             for name, im in present:
                 if name not in checked:
                     checked.add(name)
