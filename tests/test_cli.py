@@ -473,6 +473,16 @@ def test_detect_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
     assert "model.onnx: not a readable ONNX model" in " ".join(capsys.readouterr().err.split())
     assert main([*args[:-2], "--imgsz", "100"]) == 2
     assert "multiple of 32" in capsys.readouterr().err
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    video = tmp_path / "v.mp4"
+    import cv2
+
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (64, 48))
+    w.write(np.zeros((48, 64, 3), np.uint8))
+    w.release()
+    assert main(["detect", "--videos", str(video), "--out", str(blocker / "pose")]) == 2
+    assert "cannot write keypoint files" in capsys.readouterr().err
 
 
 def test_models_lists_the_cached_models(capsys) -> None:

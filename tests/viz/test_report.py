@@ -61,3 +61,15 @@ def test_report_in_chromium_shows_the_3d_view(browser, real_demo_dir: Path, tmp_
     for bgr in ((14, 127, 255), (44, 160, 44)):
         close = np.abs(img.astype(int) - bgr).sum(axis=2) < 60
         assert close.sum() > 50, f"no pixels of colour {bgr} in the 3D view"
+
+
+def test_report_of_a_run_cut_mid_line(real_demo_dir: Path, tmp_path: Path, caplog) -> None:
+    from stereopose.viz.report import write_report
+
+    run = tmp_path / "run"
+    shutil.copytree(real_demo_dir, run, ignore=shutil.ignore_patterns("overlays", "trc"))
+    text = (run / "poses3d.jsonl").read_text()
+    (run / "poses3d.jsonl").write_text(text[: len(text) // 2])  # killed mid-line
+    write_report(run)
+    assert "frames before it" in caplog.text
+    assert "3D view" in (run / "report.html").read_text()

@@ -235,7 +235,6 @@ def write_pose_frame(pose_dir: str | Path, camera: str, people: People2D) -> Pat
     Returns ``<pose_dir>/<camera>_json/<camera>_<frame:012d>_keypoints.json``.
     """
     folder = Path(pose_dir) / f"{camera}_json"
-    folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{camera}_{people.frame:012d}_keypoints.json"
     records = []
     for i, kp in enumerate(people.keypoints):
@@ -250,11 +249,18 @@ def write_pose_frame(pose_dir: str | Path, camera: str, people: People2D) -> Pat
             rec["score"] = float(people.scores[i])
         records.append(rec)
     text = json.dumps({"version": 1.3, "people": records})
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as e:
+        raise KeypointsError(f"{folder}: cannot write keypoint files: {e.strerror}") from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
         os.replace(tmp, path)
+    except OSError as e:
+        Path(tmp).unlink(missing_ok=True)
+        raise KeypointsError(f"{path}: cannot write: {e.strerror}") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -40,9 +40,27 @@ def colour(person_id: int) -> str:
 
 
 def _load_poses(path: Path) -> list[tuple[int, float, list[dict]]]:
+    """The 3D poses of a run; a run killed mid-write may end with a cut line: the frames before
+    it are kept, with a warning."""
+    poses: list[tuple[int, float, list[dict]]] = []
+    if not path.is_file():
+        return poses
+    try:
+        for f, t, people in read_poses(path):
+            poses.append((f, t if t is not None else np.nan, people))
+    except StereoposeError as e:
+        logger.warning("%s; the report shows the %d frames before it", e, len(poses))
+    return poses
+
+
+def _load_events(path: Path) -> list[Event]:
     if not path.is_file():
         return []
-    return [(f, t if t is not None else np.nan, people) for f, t, people in read_poses(path)]
+    try:
+        return read_events(path)
+    except StereoposeError as e:
+        logger.warning("%s; the report shows no events", e)
+        return []
 
 
 def _zone_prism(zone, name: str) -> go.Mesh3d:
@@ -344,8 +362,7 @@ def build_report(run_dir: str | Path) -> str:
     rig = load_calibration(run_dir / "calib.toml", min_cameras=1)
     site = load_site(run_dir / "site.toml") if (run_dir / "site.toml").is_file() else None
     poses = _load_poses(run_dir / "poses3d.jsonl")
-    events_path = run_dir / "events.jsonl"
-    events = read_events(events_path) if events_path.is_file() else []
+    events = _load_events(run_dir / "events.jsonl")
     config = (run_dir / "config.toml").read_text(encoding="utf-8") if (
         run_dir / "config.toml").is_file() else "(not saved)"  # fmt: skip
     figs = []
