@@ -79,6 +79,7 @@ def test_cameras_aligned_by_time_at_different_rates(tmp_path):
         None,
     ]
     assert [s.source_frames["fast"] for s in steps] == list(range(10))
+    assert steps[4].times == pytest.approx({"fast": 0.2, "slow": 0.2})
 
 
 def test_image_folder_in_natural_order(tmp_path):

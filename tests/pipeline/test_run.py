@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from stereopose.cli import main
@@ -143,6 +144,18 @@ def test_bad_run_configurations_are_clear_errors(tmp_path: Path, capsys) -> None
     assert "detector.imgsz: expected an integer" in error(
         _config(tmp_path, extra='\n[detector]\nimgsz = "big"\n')
     )
+    small = tmp_path / "small.mp4"
+    writer = cv2.VideoWriter(str(small), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (64, 48))
+    writer.write(np.zeros((48, 64, 3), np.uint8))
+    writer.release()
+    assert "camera cam02: frames are 64x48 pixels but its calibration is for 1088x1920" in error(
+        _config(tmp_path, sources={"cam02": small})
+    )
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    cfg = _config(tmp_path)
+    cfg.write_text(cfg.read_text().replace(str(tmp_path / "out"), str(blocker / "out")))
+    assert "cannot create the output folder" in error(cfg)
     swapped = _config(tmp_path, sources={
         "cam01": pose2sim_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
     })  # fmt: skip

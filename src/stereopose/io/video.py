@@ -306,12 +306,19 @@ def open_source(spec: str | Path, name: str | None = None, fps: float | None = N
 
 @dataclass
 class FrameSet:
-    """One time step: each camera's image (None where it has no frame at this step)."""
+    """One time step: each camera's image (None where it has no frame at this step).
+
+    t: the step's time, seconds (recorded: index / fps; live: since the run started).
+    source_frames: each camera's own frame number (live: its count of frames received).
+    times: each camera's own time of its frame (recorded: in its file; live: when it arrived,
+    seconds since the run started), so that a camera lagging behind shows.
+    """
 
     index: int
     t: float
     images: dict[str, np.ndarray | None]
     source_frames: dict[str, int] = field(default_factory=dict)
+    times: dict[str, float] = field(default_factory=dict)
 
 
 def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
@@ -400,6 +407,7 @@ class CameraSet:
             t = step / self.fps
             images: dict[str, np.ndarray | None] = {}
             frames: dict[str, int] = {}
+            times: dict[str, float] = {}
             for s in self.sources:
                 item = None
                 if s.name in self._ended:
@@ -419,9 +427,10 @@ class CameraSet:
                 images[s.name] = None if item is None else item[2]
                 if item is not None and item[2] is not None:
                     frames[s.name] = item[0]
+                    times[s.name] = item[1]
             if not frames and len(self._ended) == len(self.sources):
                 return
-            yield FrameSet(step, t, images, frames)
+            yield FrameSet(step, t, images, frames, times)
             step += 1
 
     def _end(self, s: Source) -> None:
@@ -435,15 +444,17 @@ class CameraSet:
         while self.max_frames is None or step < self.max_frames:
             images: dict[str, np.ndarray | None] = {}
             frames: dict[str, int] = {}
+            times: dict[str, float] = {}
             for s in self.sources:
                 got = s.latest()
                 images[s.name] = None if got is None else got[2]
                 if got is not None:
                     frames[s.name] = got[0]
+                    times[s.name] = got[1] - start
             if not frames:  # nothing new from any camera: wait a little
                 time.sleep(min(period, 0.01))
                 continue
-            yield FrameSet(step, time.monotonic() - start, images, frames)
+            yield FrameSet(step, time.monotonic() - start, images, frames, times)
             step += 1
 
     def stats(self) -> dict[str, SourceStats]:
