@@ -11,10 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
+from stereopose.io.stream import LiveStream
 from stereopose.io.video import (
     CameraSet,
     ImageFolder,
-    LiveStream,
     VideoError,
     VideoFile,
     source_name,
