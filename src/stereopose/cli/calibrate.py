@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING
 
 from rich.markup import escape
 from rich.table import Table
 
-if TYPE_CHECKING:
-    pass
 from stereopose.cli.common import console, out
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -12,10 +11,6 @@ from rich.table import Table
 
 from stereopose.config import Config, load_config, with_overrides
 from stereopose.errors import StereoposeError
-
-if TYPE_CHECKING:
-    pass
-
 
 console = Console(stderr=True)
 out = Console()

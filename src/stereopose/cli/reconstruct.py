@@ -5,15 +5,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from typing import TYPE_CHECKING
 
 from rich.table import Table
 
-from stereopose.errors import StereoposeError
-
-if TYPE_CHECKING:
-    pass
 from stereopose.cli.common import _config, _progress, _px, _trajectory_table, out
+from stereopose.errors import StereoposeError
 
 
 def _reconstruct(args: argparse.Namespace) -> int:

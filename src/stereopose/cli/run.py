@@ -4,16 +4,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from rich.table import Table
 
-from stereopose.errors import StereoposeError
-
-if TYPE_CHECKING:
-    pass
 from stereopose.cli.common import _px, out, rate_progress
 from stereopose.cli.sim import _demo_synthetic
+from stereopose.errors import StereoposeError
 
 
 def _demo(args: argparse.Namespace) -> int:

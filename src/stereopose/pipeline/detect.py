@@ -10,7 +10,8 @@ from pathlib import Path
 
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
-from stereopose.io.video import CameraSet, SourceStats, usable_images
+from stereopose.io.video import CameraSet, FrameSet, SourceStats, usable_images
+from stereopose.types import People2D
 
 logger = logging.getLogger(__name__)
 
@@ -38,6 +39,13 @@ class DetectionSummary:
     @property
     def ms_per_image(self) -> float:
         return 1000 * self.seconds_detect / self.images if self.images else float("nan")
+
+
+def detect_step(detector: PoseDetector, step: FrameSet) -> dict[str, People2D]:
+    """The people of each camera with a usable image at this step, in one detector call."""
+    present = usable_images(step)
+    found = detector.detect([im for _, im in present]) if present else []
+    return {n: f.people(n, step.index) for (n, _), f in zip(present, found, strict=True)}
 
 
 def detect_videos(
@@ -72,14 +80,13 @@ def detect_videos(
                 summary.seconds_decode += t1 - t0
                 if step is None:
                     break
-                present = usable_images(step)
-                poses = detector.detect([im for _, im in present]) if present else []
+                people2d = detect_step(detector, step)
                 t2 = time.perf_counter()
-                for (name, _), found in zip(present, poses, strict=True):
-                    write_pose_frame(out_dir, name, found.people(name, step.index))
+                for name, people in people2d.items():
+                    write_pose_frame(out_dir, name, people)
                     summary.frames[name] += 1
-                    summary.people[name] += len(found)
-                    summary.frames_with_people[name] += bool(len(found))
+                    summary.people[name] += len(people)
+                    summary.frames_with_people[name] += bool(len(people))
                 summary.seconds_detect += t2 - t1
                 summary.seconds_write += time.perf_counter() - t2
                 summary.steps += 1

@@ -32,7 +32,8 @@ from stereopose.detection import make_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import Site, load_site, save_site
 from stereopose.geometry.camera import project
-from stereopose.io.video import CameraSet, is_stream, usable_images
+from stereopose.io.video import CameraSet, is_stream
+from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.stages import Back3D, ReconstructionSummary
 from stereopose.skeleton import SWAP
 from stereopose.types import Event, People2D, People3D, Rig
@@ -65,7 +66,7 @@ class RunSummary:
     """What a run did; written to summary.json."""
 
     out_dir: Path
-    config_path: Path
+    config_path: Path | None  # None: a reconstruction from keypoint files
     cameras: tuple[str, ...]
     live: bool = False
     fps_input: float = 0.0
@@ -90,7 +91,7 @@ class RunSummary:
 
     def as_dict(self) -> dict:
         return {
-            "config": str(self.config_path),
+            "config": str(self.config_path) if self.config_path else None,
             "cameras": list(self.cameras),
             "live": self.live,
             "fps_input": self.fps_input,
@@ -189,7 +190,7 @@ def run(
     detector = make_detector(
         det.backend, model, det.imgsz, det.conf, det.iou, det.device, det.threads
     )
-    out_dir = _resolve(base, cfg.output) if not Path(cfg.output).is_absolute() else Path(cfg.output)
+    out_dir = _resolve(base, cfg.output)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -198,23 +199,30 @@ def run(
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         summary = RunSummary(out_dir, config_path, tuple(names), cams.live, cams.fps)
         summary.camera_stats = {n: CameraStats() for n in names}
-        _save_inputs(out_dir, config_path, rig, site, summary)
+        (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
+        _save_inputs(out_dir, rig, site)
         _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_events, stop)
         summary.sources = {k: dataclasses.asdict(v) for k, v in cams.stats().items()}
-    (out_dir / "summary.json").write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
-    summary.outputs.append(out_dir / "summary.json")
-    if cfg.outputs.report:
+    return _finish(out_dir, summary, cfg.outputs.report)
+
+
+def _save_inputs(out_dir: Path, rig: Rig, site: Site | None) -> None:
+    """The calibration and site a run used, which the report is rebuilt from."""
+    save_calibration(out_dir / "calib.toml", rig)
+    if site is not None:
+        save_site(out_dir / "site.toml", site)
+
+
+def _finish(out_dir: Path, summary: RunSummary, report: bool) -> RunSummary:
+    """Write summary.json and, if asked, the report."""
+    path = out_dir / "summary.json"
+    path.write_text(json.dumps(summary.as_dict(), indent=1) + "\n", encoding="utf-8")
+    summary.outputs.append(path)
+    if report:
         from stereopose.viz.report import write_report
 
         summary.outputs.append(write_report(out_dir))
     return summary
-
-
-def _save_inputs(out_dir: Path, config_path: Path, rig: Rig, site: Site | None, summary) -> None:
-    (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
-    save_calibration(out_dir / "calib.toml", rig)
-    if site is not None:
-        save_site(out_dir / "site.toml", site)
 
 
 def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_events, stop) -> None:
@@ -252,7 +260,6 @@ def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_event
     sec = summary.seconds
     checked: set[str] = set()
     start = time.perf_counter()
-    people_total = 0
     try:
         it = iter(cams)
         while not stop.is_set():
@@ -262,34 +269,22 @@ def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_event
             sec["decode"] += t1 - t0
             if step is None:
                 break
-            present = usable_images(step)
-            for name, im in present:
-                if name not in checked:
-                    checked.add(name)
-                    _check_size(rig[name], im, name)
-            found = detector.detect([im for _, im in present]) if present else []
-            people2d = {
-                n: f.people(n, step.index) for (n, _), f in zip(present, found, strict=True)
-            }
-            t2 = time.perf_counter()
-            sec["detect"] += t2 - t1
-            b = back.summary
-            before = (b.seconds_3d, b.seconds_fences, b.seconds_write)
+            people2d = detect_step(detector, step)
+            for name in people2d.keys() - checked:
+                checked.add(name)
+                _check_size(rig[name], step.images[name], name)
+            sec["detect"] += time.perf_counter() - t1
             people3d, _ = back.step(step.index, people2d)
-            sec["3d"] += b.seconds_3d - before[0]
-            sec["fences"] += b.seconds_fences - before[1]
-            sec["write"] += b.seconds_write - before[2]
-            t3 = time.perf_counter()
             for name, p2 in people2d.items():
                 st = summary.camera_stats[name]
                 st.frames += 1
                 st.detections += len(p2)
             _reprojection(rig, people3d, people2d, summary.camera_stats)
-            people_total += len(people3d)
+            t3 = time.perf_counter()
             label = f"{step.index}  t={step.t:.2f}s"
-            for name, im in present:
+            for name, p2 in people2d.items():
                 if name in overlays:
-                    overlays[name].write(im, people2d.get(name), people3d, label)
+                    overlays[name].write(step.images[name], p2, people3d, label)
             sec["overlays"] += time.perf_counter() - t3
             summary.steps += 1
             if on_step is not None:
@@ -307,10 +302,12 @@ def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_event
             path = ov.close()
             if path is not None:
                 summary.outputs.append(path)
-        summary.outputs[:0] = back.summary.outputs
-        summary.events = dict(back.summary.events)
-        summary.people = [t.as_dict() for t in back.summary.trajectories]
-        summary.people_per_frame = people_total / summary.steps if summary.steps else 0.0
+        b = back.summary
+        sec["3d"], sec["fences"], sec["write"] = b.seconds_3d, b.seconds_fences, b.seconds_write
+        summary.outputs[:0] = b.outputs
+        summary.events = dict(b.events)
+        summary.people = [t.as_dict() for t in b.trajectories]
+        summary.people_per_frame = b.mean_people
         errors = [e for s in summary.camera_stats.values() for e in s.reprojection_px]
         summary.reprojection_median_px = float(np.median(errors)) if errors else None
     if summary.interrupted:
@@ -336,31 +333,16 @@ def write_reconstruction_report(
 ) -> Path:
     """A run folder and its report for a reconstruction from keypoint files (no cameras)."""
     out_dir = Path(out_dir)
-    if Path(poses_path).resolve() != (out_dir / "poses3d.jsonl").resolve():
-        shutil.copyfile(poses_path, out_dir / "poses3d.jsonl")
-    if (
-        events_path is not None
-        and Path(events_path).resolve() != (out_dir / "events.jsonl").resolve()
-    ):
-        shutil.copyfile(events_path, out_dir / "events.jsonl")
-    save_calibration(out_dir / "calib.toml", load_calibration(calib_path))
-    if site is not None:
-        save_site(out_dir / "site.toml", site)
-    seconds = {"3d": summary.seconds_3d, "fences": summary.seconds_fences,
-               "write": summary.seconds_write}  # fmt: skip
-    doc = {
-        "cameras": list(summary.cameras),
-        "live": False,
-        "frames": summary.frames,
-        "seconds_per_stage": seconds,
-        "fps_per_stage": {k: (summary.frames / v if v > 0 else None) for k, v in seconds.items()},
-        "people_per_frame": summary.mean_people,
-        "people": [t.as_dict() for t in summary.trajectories],
-        "events": summary.events,
-        "reprojection_median_px": summary.median_confident_reprojection_px,
-        "per_camera": {},
-    }
-    (out_dir / "summary.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    from stereopose.viz.report import write_report
-
-    return write_report(out_dir)
+    for src, name in ((poses_path, "poses3d.jsonl"), (events_path, "events.jsonl")):
+        if src is not None and Path(src).resolve() != (out_dir / name).resolve():
+            shutil.copyfile(src, out_dir / name)
+    _save_inputs(out_dir, load_calibration(calib_path), site)
+    run = RunSummary(out_dir, None, summary.cameras, steps=summary.frames)
+    run.seconds = {"3d": summary.seconds_3d, "fences": summary.seconds_fences,
+                   "write": summary.seconds_write}  # fmt: skip
+    run.events = dict(summary.events)
+    run.people = [t.as_dict() for t in summary.trajectories]
+    run.people_per_frame = summary.mean_people
+    run.reprojection_median_px = summary.median_confident_reprojection_px
+    _finish(out_dir, run, report=True)
+    return out_dir / "report.html"

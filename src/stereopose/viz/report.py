@@ -178,7 +178,7 @@ def _trajectories(poses) -> dict[int, np.ndarray]:
     return {k: np.array(v, float) for k, v in tracks.items()}
 
 
-def figure_floor(poses, rig: Rig, site: Site | None, events: list[Event]) -> go.Figure:
+def figure_floor(tracks, rig: Rig, site: Site | None, events: list[Event]) -> go.Figure:
     """Top view: zones, cameras with their viewing direction, trajectories, where events were."""
     fig = go.Figure()
     if site is not None:
@@ -198,7 +198,7 @@ def figure_floor(poses, rig: Rig, site: Site | None, events: list[Event]) -> go.
             marker={"size": [9, 0], "symbol": "square", "color": "black"}, showlegend=False,
             hovertext=f"{cam.name}: height {c[2]:.2f} m", hoverinfo="text",
         ))  # fmt: skip
-    for pid, tr in sorted(_trajectories(poses).items()):
+    for pid, tr in sorted(tracks.items()):
         fig.add_trace(go.Scatter(
             x=tr[:, 2], y=tr[:, 3], mode="lines", name=f"id {pid}",
             line={"color": colour(pid), "width": 3},
@@ -229,10 +229,10 @@ def figure_floor(poses, rig: Rig, site: Site | None, events: list[Event]) -> go.
     return fig
 
 
-def figure_timeline(poses, events: list[Event]) -> go.Figure:
+def figure_timeline(poses, tracks, events: list[Event]) -> go.Figure:
     """Each person's time in view (thin bar), time inside each zone, and every event."""
     fig = go.Figure()
-    for pid, tr in sorted(_trajectories(poses).items()):
+    for pid, tr in sorted(tracks.items()):
         fig.add_trace(go.Scatter(
             x=[tr[0, 1], tr[-1, 1]], y=[f"id {pid}"] * 2, mode="lines",
             line={"color": colour(pid), "width": 3}, showlegend=False, hoverinfo="skip",
@@ -257,7 +257,7 @@ def figure_timeline(poses, events: list[Event]) -> go.Figure:
         ))  # fmt: skip
     fig.update_layout(
         title="Event timeline (thick bars: inside a zone)", xaxis_title="t (s)",
-        height=200 + 40 * len(_trajectories(poses)), margin={"t": 40},
+        height=200 + 40 * len(tracks), margin={"t": 40},
     )  # fmt: skip
     return fig
 
@@ -368,8 +368,9 @@ def build_report(run_dir: str | Path) -> str:
     figs = []
     if poses:
         figs.append(("3D view", figure_3d(poses, rig, site), "view3d"))
-    figs.append(("Floor map", figure_floor(poses, rig, site, events), "floor"))
-    figs.append(("Events", figure_timeline(poses, events), "timeline"))
+    tracks = _trajectories(poses)
+    figs.append(("Floor map", figure_floor(tracks, rig, site, events), "floor"))
+    figs.append(("Events", figure_timeline(poses, tracks, events), "timeline"))
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>stereopose run: {html.escape(str(run_dir.name))}</title>",
