@@ -52,6 +52,9 @@ class TriangulationConfig:
     inlier_px: float = 10.0  # `robust`: reprojection error always accepted, pixels
     inlier_rel: float = 0.03  # `robust`: ... or this fraction of the person's size in the view
     fix_swaps: bool = True  # `robust`: correct left/right labels swapped by the detector
+    # `robust`: a joint seen in one view only is placed on that view's ray, at the point nearest
+    # a reconstructed neighbouring joint (within one bone length of the truth); views = 1
+    single_view: bool = True
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,7 @@ class TrackingConfig:
         2.5  # ... times this for elbows and knees, squared for wrists, ankles
     )
     measurement_noise_m: float = 0.03  # joint noise of a reconstruction from two views
+    single_view_noise_m: float = 0.15  # ... of a joint seen in one view (depth from a neighbour)
     gate_m: float = 0.25  # a joint jumping farther than this from its prediction ...
     gate_sigmas: float = 4.0  # ... and this many standard deviations is not believed
     gate_reset_frames: int = 3  # ... unless it stays there this many frames in a row

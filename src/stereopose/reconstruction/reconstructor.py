@@ -167,6 +167,8 @@ class Reconstructor:
         centre, f = K[:, :2, 2], np.stack([K[:, 0, 0], K[:, 1, 1]], axis=-1)
         self.bounds = (-centre / f, (size - centre) / f)
         self.pair_blocks = dlt_blocks(self.P[pair_views(len(rig))])
+        self.R = self.P[:, :, :3]
+        self.centers = -np.einsum("cji,cj->ci", self.R, self.P[:, :, 3])
 
     def __call__(
         self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
@@ -321,7 +323,7 @@ class Reconstructor:
         tc = self.config.triangulation
         xy, conf, size_px, members = self._gather(det, groups)
         w = np.where(conf >= tc.min_conf, conf, 0.0)
-        err = None
+        err = single = None
         if tc.mode == "pair":
             X, used = triangulate_pair(
                 xy,
@@ -337,7 +339,7 @@ class Reconstructor:
         elif tc.mode == "weighted":
             X, used = triangulate_weighted(xy, w, self.P)
         else:
-            X, used, xy, w, err = triangulate_robust(
+            X, used, xy, w, err, single = triangulate_robust(
                 xy,
                 w,
                 self.P,
@@ -349,8 +351,11 @@ class Reconstructor:
                 pair_distances=None if labels_known else _group_pair_distances(members, dist),
                 blocks=self.blocks,
                 pair_blocks=self.pair_blocks,
+                rays=(self.centers, self.R) if tc.single_view else None,
             )
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)
+        if single is not None:
+            out_conf = np.where(single, 0.5 * out_conf, out_conf)  # no depth of its own
         if err is None:
             err = np.where(used, reprojection_errors(X, xy, self.P, self.focal), np.nan)
         return X, used, out_conf, err, members
@@ -423,8 +428,9 @@ class Reconstructor:
         # A person that cameras with a frame should see but (almost) none detected is a
         # coincidence of false detections that happen to agree, not a person.
         expected = (self._in_view(X) | views) & delivered
+        # joints placed from one view do not count: they lean on the others
         keep = (
-            (valid.sum(1) >= pc.min_joints)
+            ((valid & (used.sum(-1) >= 2)).sum(1) >= pc.min_joints)
             & (zmin >= -pc.floor_tolerance_m)
             & (zmax - zmin <= pc.max_height_m)
             & (views.sum(1) >= pc.min_view_fraction * expected.sum(1))

@@ -103,6 +103,8 @@ def triangulate_robust(
     pair_distances: tuple[np.ndarray, np.ndarray] | None = None,
     blocks: np.ndarray | None = None,
     pair_blocks: np.ndarray | None = None,
+    rays: tuple[np.ndarray, np.ndarray] | None = None,
+    relabel: bool = True,
 ):
     """Weighted DLT over the views that agree, with left/right swaps of the detector corrected.
 
@@ -113,8 +115,14 @@ def triangulate_robust(
     (same, cross), each (G, 17, K) per-joint epipolar distances of the views of camera pairs
     (a < b), the left/right labels of all views are first made consistent. blocks and
     pair_blocks: dlt_blocks of P and of P[upper_pairs(C)] stacked, when computed already.
-    Returns X, used, xy and w with swapped labels corrected, and the reprojection errors
-    (G, 17, C) in pixels of the views used (NaN elsewhere).
+    rays: (centers (C, 3), R (C, 3, 3)) of the cameras, to place joints seen in one view (see
+    complete_single_views); then a joint whose two views disagree, one of them much weaker
+    (an occluded or misplaced joint is reported faintly), rests on the stronger view alone.
+    relabel: a skeleton whose left and right limbs differ in length is solved again with the
+    labels of each view and body part exchanged in turn (see _relabel_asymmetric).
+    Returns X, used, xy and w with swapped labels corrected, the reprojection errors
+    (G, 17, C) in pixels of the views used (NaN elsewhere), and (G, 17) the joints placed
+    from one view (None without rays).
     """
     C = xy.shape[2]
     thr = np.maximum(inlier_px, inlier_rel * np.nan_to_num(size_px))[:, None, :]  # (G, 1, C)
@@ -153,8 +161,230 @@ def triangulate_robust(
     few = used.sum(-1) < 2
     if few.any():
         X[few], used[few], err[few] = X_all[few], w[few] > 0, err_all[few]
+    if fix_swaps and relabel:
+        X, used, xy, w, err = _relabel_asymmetric(
+            X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel, blocks, pair_blocks
+        )
+    if fix_swaps:
+        # The joints re-seeded above may settle on labels the whole-body check could not see
+        # (a limb swapped in as many views as not); the final skeleton is checked once more.
+        swap = _mirrored_pairs(X)
+        if swap.any():
+            xy, w = _exchange(xy, w, np.broadcast_to(swap[..., None], (*swap.shape, C)))
+            X, used, err = (_exchange_joints(a, swap) for a in (X, used, err))
+    single = None
+    if rays is not None:
+        # two views that disagree, one far fainter than the other: the faint one is dropped
+        two = (used.sum(-1) == 2) & (np.where(used, err, 0.0) > thr).any(-1)
+        if two.any():
+            w_max = np.where(used, w, 0.0).max(-1)
+            w_min = np.where(used, w, np.inf).min(-1)
+            faint = two & (w_min < 0.5 * w_max)
+            if faint.any():
+                X[faint] = np.nan
+                used[faint] = False
+                w = w.copy()
+                w[faint] = np.where(w[faint] < w[faint].max(-1, keepdims=True), 0.0, w[faint])
+        X, single = complete_single_views(X, used, xy, w, *rays)
+        if single.any():
+            err[single] = reprojection_errors(X[single], xy[single], P, focal)
     used &= np.isfinite(X[..., :1])
-    return X, used, xy, w, np.where(used, err, np.nan)
+    return X, used, xy, w, np.where(used, err, np.nan), single
+
+
+# Left and right bones compared by _asymmetry: upper arms, forearms, thighs, shins, trunk sides.
+_BONES_L = np.array([[5, 7], [7, 9], [11, 13], [13, 15], [5, 11]])
+_BONES_R = SWAP[_BONES_L]
+
+
+def _asymmetry(X: np.ndarray) -> np.ndarray:
+    """(G,) sum of |left - right| bone lengths over the sum of their means (NaN where no
+    bone has both sides): 0 for a symmetric skeleton."""
+    lo = _dist(X[:, _BONES_L[:, 0]], X[:, _BONES_L[:, 1]])
+    hi = _dist(X[:, _BONES_R[:, 0]], X[:, _BONES_R[:, 1]])
+    both = np.isfinite(lo) & np.isfinite(hi)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(both, np.abs(lo - hi), 0.0).sum(-1) / np.where(
+            both, 0.5 * (lo + hi), 0.0
+        ).sum(-1)
+
+
+def _relabel_asymmetric(
+    X,
+    used,
+    xy,
+    w,
+    err,
+    P,
+    focal,
+    size_px,
+    inlier_px,
+    inlier_rel,
+    blocks,
+    pair_blocks,
+    max_asymmetry: float = 0.15,
+):
+    """Solve again the people whose left and right bones differ by more than max_asymmetry.
+
+    When a person's left/right offset runs along the epipolar lines of two views, the labels
+    of one view can be exchanged and the views still agree: the skeleton is then wrong but
+    consistent, with left and right limbs of different lengths. For such people every view
+    and body part (upper body, legs) is exchanged in turn, and the most symmetric skeleton is
+    kept if it is clearly better.
+    """
+    asym = _asymmetry(X)
+    bad = np.flatnonzero(asym > max_asymmetry)  # NaN compares False
+    if bad.size == 0:
+        return X, used, xy, w, err
+    C = xy.shape[2]
+    # candidates: (person, view, part) where the view sees that part
+    present = np.einsum("gjc,jp->gpc", (w[bad] > 0).astype(np.float64), JOINT_PARTS) > 0
+    g, part, view = np.nonzero(present)
+    if g.size == 0:
+        return X, used, xy, w, err
+    swap = np.zeros((g.size, len(LR_PAIRS), C), dtype=bool)
+    swap[np.arange(g.size)[:, None], np.flatnonzero(_PART_OF_PAIR == 0)[None], view[:, None]] = (
+        part[:, None] == 0
+    )
+    swap[np.arange(g.size)[:, None], np.flatnonzero(_PART_OF_PAIR == 1)[None], view[:, None]] = (
+        part[:, None] == 1
+    )
+    cx, cw = _exchange(xy[bad][g], w[bad][g], swap)
+    Xc, uc, xc, wc, ec, _ = triangulate_robust(
+        cx,
+        cw,
+        P,
+        focal,
+        size_px[bad][g],
+        inlier_px,
+        inlier_rel,
+        True,
+        blocks=blocks,
+        pair_blocks=pair_blocks,
+        relabel=False,
+    )
+    ac = np.where(np.isfinite(_asymmetry(Xc)), _asymmetry(Xc), np.inf)
+    X, used, xy, w, err = X.copy(), used.copy(), xy.copy(), w.copy(), err.copy()
+    for i, person in enumerate(bad):
+        mine = np.flatnonzero(g == i)
+        if mine.size == 0:
+            continue
+        k = mine[np.argmin(ac[mine])]
+        # clearly more symmetric, and in front of the cameras it rests on (a point behind
+        # one reprojects to NaN)
+        if ac[k] < 0.5 * asym[person] and not np.isnan(ec[k][uc[k]]).any():
+            X[person], used[person], xy[person], w[person] = Xc[k], uc[k], xc[k], wc[k]
+            err[person] = np.where(uc[k], ec[k], np.nan)
+    return X, used, xy, w, err
+
+
+# Limb joints and the trunk joints they hang from, as (parent left, parent right, child left,
+# child right) rows: shoulders-elbows, hips-knees, then elbows-wrists, knees-ankles.
+_CHAINS = np.array([[5, 6, 7, 8], [11, 12, 13, 14], [7, 8, 9, 10], [13, 14, 15, 16]])
+_CHAIN_PAIR = np.array([LR_PAIRS.index((int(c[2]), int(c[3]))) for c in _CHAINS])
+
+
+def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
+    """(G, 8) left/right pairs of LR_PAIRS whose 3D points are exchanged: the whole body
+    (or the legs) by its handedness (see _body_orientation), then each limb joint by which
+    parent joint it hangs from (each child is nearer its own parent than the other side's),
+    the trunk first, so a corrected elbow is what its wrist is checked against."""
+    flip_upper, flip_legs = _body_orientation(X)
+    swap = np.where(_PART_OF_PAIR == 0, flip_upper[:, None], flip_legs[:, None])
+    if swap.any():
+        X = _exchange_joints(X, swap)
+    for level in ([0, 1], [2, 3]):
+        pl, pr, cl, cr = np.moveaxis(X[:, _CHAINS[level]], 2, 0)  # (G, 2, 3) each
+        same = _dist(pl, cl) + _dist(pr, cr)
+        cross = _dist(pl, cr) + _dist(pr, cl)
+        flip = cross < same - margin_m  # (G, 2); NaN compares False
+        if flip.any():
+            pairs = np.zeros_like(swap)
+            pairs[:, _CHAIN_PAIR[level]] = flip
+            X = _exchange_joints(X, pairs)
+            swap ^= pairs
+    return swap
+
+
+def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = a - b
+    return np.sqrt(np.einsum("...x,...x->...", d, d))
+
+
+def _exchange_joints(a: np.ndarray, swap: np.ndarray) -> np.ndarray:
+    """Copy of a (G, 17, ...) with the pairs of LR_PAIRS exchanged where swap (G, 8)."""
+    a = a.copy()
+    m = swap.reshape(*swap.shape, *([1] * (a.ndim - 2)))
+    al, ar = a[:, _LEFT], a[:, _RIGHT]
+    a[:, _LEFT], a[:, _RIGHT] = np.where(m, ar, al), np.where(m, al, ar)
+    return a
+
+
+# Per joint, its neighbours in the skeleton in order of preference: a joint seen in one view
+# is placed at the depth of the first of them that is reconstructed (the parent first).
+_ANCHORS = (
+    (1, 2, 3, 4, 5, 6),  # nose
+    (0, 2, 3),
+    (0, 1, 4),  # eyes
+    (1, 0, 5),
+    (2, 0, 6),  # ears
+    (6, 11, 7),
+    (5, 12, 8),  # shoulders
+    (5, 9),
+    (6, 10),  # elbows
+    (7,),
+    (8,),  # wrists
+    (12, 5, 13),
+    (11, 6, 14),  # hips
+    (11, 15),
+    (12, 16),  # knees
+    (13,),
+    (14,),  # ankles
+)
+
+
+def complete_single_views(X, used, xy, w, centers, rays_R):
+    """Place joints seen in one view only (NaN in X) on that view's ray.
+
+    X: (G, 17, 3); used: (G, 17, C) updated in place with the view used; xy: (G, 17, C, 2)
+    ideal normalised coordinates; w: (G, 17, C) view weights; centers: (C, 3) camera centres;
+    rays_R: (C, 3, 3) camera rotations R (world -> camera). One view gives a ray but no depth:
+    the point taken is the ray's nearest to a reconstructed neighbouring joint (see _ANCHORS),
+    which lies within one bone length of the true joint whatever the true depth. The view with
+    the highest weight is taken. Joints are placed the parents first, so a wrist can hang from
+    an elbow placed this way. Returns X with the joints placed and (G, 17) which ones were.
+    """
+    todo = ~np.isfinite(X[..., 0]) & (w > 0).any(-1)
+    placed = np.zeros(todo.shape, dtype=bool)
+    if not todo.any():
+        return X, placed
+    X = X.copy()
+    for _ in range(2):  # a second pass reaches joints whose neighbour was placed in the first
+        for j in np.flatnonzero(todo.any(0)):
+            g = np.flatnonzero(todo[:, j])
+            anchor = np.full((g.size, 3), np.nan)
+            for a in _ANCHORS[j]:
+                fill = np.isnan(anchor[:, 0])
+                anchor[fill] = X[g[fill], a]
+            ok = np.isfinite(anchor[:, 0])
+            if not ok.any():
+                continue
+            g, anchor = g[ok], anchor[ok]
+            c = np.argmax(w[g, j], axis=-1)
+            d = np.einsum(
+                "nji,nj->ni", rays_R[c], np.concatenate([xy[g, j, c], np.ones((g.size, 1))], -1)
+            )
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            depth = np.einsum("ni,ni->n", anchor - centers[c], d)
+            front = depth > 0
+            g, c = g[front], c[front]
+            X[g, j] = centers[c] + depth[front, None] * d[front]
+            used[g, j, c] = True
+            todo[g, j] = False
+            placed[g, j] = True
+        if not todo.any():
+            break
+    return X, placed
 
 
 @functools.lru_cache(maxsize=32)

@@ -186,8 +186,10 @@ class Tracker:
     def _noise(self, found: People3D, people: np.ndarray) -> np.ndarray:
         """(n, 17) measurement noise of the joints of `people`: the configured noise for a
         joint triangulated from two views, less for more views (their errors average out)."""
-        views = np.maximum(found.views[people], 2)
-        return self.tc.measurement_noise_m * np.sqrt(2.0 / views)
+        views = found.views[people]
+        noise = self.tc.measurement_noise_m * np.sqrt(2.0 / np.maximum(views, 2))
+        # a joint seen in one view has its depth from a neighbour: off by up to a bone length
+        return np.where(views == 1, self.tc.single_view_noise_m, noise)
 
     def _output(self, frame, t, rows, found, measured) -> People3D:
         """Confirmed tracks seen now or within bridge_s, ordered by id."""
