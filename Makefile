@@ -33,6 +33,7 @@ test: lint
 
 bench: install
 	$(BIN)/python benchmarks/reconstruction.py
+	$(BIN)/python benchmarks/pcp_errors.py
 	$(BIN)/python benchmarks/tracking.py
 	$(BIN)/python benchmarks/fences.py
 	$(BIN)/python benchmarks/calibration.py

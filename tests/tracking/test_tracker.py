@@ -128,3 +128,30 @@ def test_real_people_keep_one_id_each(shared_data_dir) -> None:
     for t in main:
         hips = np.array([frames[f][t.id][11:13].mean(0) for f in range(2, 100)])
         assert np.nanmax(np.linalg.norm(np.diff(hips, axis=0), axis=-1)) < 0.1
+
+
+def test_a_joint_one_camera_sees_is_bridged_by_its_track() -> None:
+    """A joint tracked from two views that one camera alone then sees is predicted (its depth
+    from one view leans on a neighbour); a joint never measured takes the one-view placement."""
+    scene = simulate(num_cameras=4, num_people=1, num_frames=12, seed=3, difficulty="easy")
+    frames = frames_of(scene)
+    joint, first = 9, 8  # left wrist: from frame 8 on, only the first camera reporting it keeps it
+    for t in range(first, len(frames)):
+        kept = False
+        for c, people in enumerate(frames[t]):
+            if people is None or len(people) == 0:
+                continue
+            kp = people.keypoints.copy()
+            if kp[0, joint, 2] > 0 and not kept:
+                kept = True
+                continue
+            kp[:, joint] = (np.nan, np.nan, 0.0)
+            frames[t][c] = People2D(people.camera, t, kp, people.boxes, people.scores)
+    out, _ = track(scene, frames)
+    later = [p for p in out if p.frame >= first and len(p)]
+    assert later
+    for p in later[:3]:  # within bridge_s of its last two-view measurement
+        assert p.views[0, joint] == 0
+        assert np.isfinite(p.joints[0, joint]).all()
+        truth = scene.truth[p.frame, 0, joint]
+        assert np.linalg.norm(p.joints[0, joint] - truth) < 0.1

@@ -163,6 +163,11 @@ class Tracker:
         z = found.joints[measured]
         if rows.size == 0:
             return
+        # a joint one camera saw has its depth from a neighbour: where the track measured it
+        # lately, its prediction is the better guess (and is what bridges the gap)
+        lately = (found.views[measured] == 1) & (self.joint_t[rows] >= t - tc.bridge_s - 1e-9)
+        if lately.any():
+            z = np.where(lately[..., None], np.nan, z)
         # a track back after a long gap, or new, restarts from the measurement
         fresh = ~(unseen <= tc.bridge_s + 1e-9)
         if fresh.any():
@@ -233,6 +238,8 @@ class Tracker:
         if is_meas.any():
             reproj[is_meas] = found.reprojection_px[src[is_meas]]
             views[is_meas] = found.views[src[is_meas]]
+            if tc.smoothing:
+                views[~now] = 0  # bridged by prediction, not measured now
             detections[is_meas] = found.detections[src[is_meas]]
         v = self.filters.v[out_rows][:, [LEFT_HIP, RIGHT_HIP], :2]
         with np.errstate(invalid="ignore"):
