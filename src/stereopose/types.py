@@ -6,6 +6,7 @@ Array conventions: pixels of the original (distorted) image for 2D, metres in th
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -161,6 +162,20 @@ class Rig:
 
     def index(self, name: str) -> int:
         return self.names.index(name)
+
+    @functools.cached_property
+    def lenses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The cameras' lenses as arrays: (C, 4) fx fy cx cy, (C, 5) k1 k2 p1 p2 k3 (k3 = 0
+        where absent) and (C,) mean focal lengths, in pixels."""
+        K = np.stack([c.matrix for c in self.cameras])
+        fxy = np.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], axis=1)
+        dist = np.zeros((len(self), 5))
+        for i, c in enumerate(self.cameras):
+            dist[i, : c.distortions.shape[0]] = c.distortions
+        focal = np.array([c.focal for c in self.cameras])
+        for a in (fxy, dist, focal):
+            a.setflags(write=False)
+        return fxy, dist, focal
 
     def subset(self, names: Sequence[str]) -> Rig:
         return Rig(tuple(self[n] for n in names))

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.association.grouping import upper_pairs
-from stereopose.geometry.camera import homogeneous, undistort_normalized
+from stereopose.geometry.camera import UNDISTORT_STOP, homogeneous
+from stereopose.kernels import undistort
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
@@ -54,14 +55,14 @@ class Detections:
         kp = np.concatenate(blocks)
         camera = np.repeat(cams, counts)
         index = np.arange(kp.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
-        xyn = np.concatenate(
-            [undistort_normalized(b[..., :2], rig[c]) for c, b in zip(cams, blocks, strict=True)]
-        )
+        fxy, dist, focal = rig.lenses
+        uv = np.ascontiguousarray(kp[..., :2]).reshape(-1, 2)
+        xyn = undistort(uv, np.repeat(camera, NUM_JOINTS), fxy, dist, *UNDISTORT_STOP)
+        xyn = xyn.reshape(kp.shape[0], NUM_JOINTS, 2)
         conf = kp[..., 2]
         size = _box_diagonal(xyn, conf >= min_conf)
-        focal = np.array([rig[c].focal for c in cams])
         # pixels of the undistorted image: close enough for thresholds scaled by person size
-        return cls(camera, index, kp[..., :2], xyn, conf, size, size * np.repeat(focal, counts))
+        return cls(camera, index, kp[..., :2], xyn, conf, size, size * focal[camera])
 
 
 def _box_diagonal(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -11,7 +11,8 @@ import numpy as np
 
 from stereopose.types import Camera
 
-# stop once the reprojected point is within 1e-8 px of the observed one
+# stop once the reprojected point is within 1e-8 px of the observed one, or after 30 steps
+UNDISTORT_STOP = (1e-8, 30)
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-8)
 
 

@@ -21,6 +21,7 @@ from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
+from stereopose.kernels import claim_costs, in_view
 from stereopose.reconstruction.triangulate import (
     JOINT_PARTS,
     pair_views,
@@ -254,21 +255,10 @@ class Reconstructor:
         """
         ac = self.config.association
         proj = project_to_cameras(predicted, self.P)  # (T, 17, C, 2)
-        mine = proj[:, :, det.camera].transpose(2, 0, 1, 3)  # (N, T, 17, 2)
         ok = det.conf >= ac.min_conf  # (N, 17)
-        best = np.full(mine.shape[:2], np.inf)
-        part = []
-        for xy, okj in ((det.xy, ok), (det.xy[:, SWAP], ok[:, SWAP])):
-            e = xy[:, None] - mine
-            d = np.sqrt(e[..., 0] * e[..., 0] + e[..., 1] * e[..., 1])  # (N, T, 17)
-            have = okj[:, None] & (d == d)  # d == d: not NaN
-            n = have.sum(-1)
-            dd = np.where(have, d, 0.0)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                c = dd.sum(-1) / (n * det.size[:, None])
-                part.append((dd @ JOINT_PARTS) / (have @ JOINT_PARTS))  # (N, T, 2)
-            c[(n < ac.min_common_joints) | ~(c == c)] = np.inf
-            np.minimum(best, c, out=best)
+        best, part = claim_costs(
+            det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, ac.min_common_joints
+        )
         claims = np.full(len(det), -1, dtype=np.int64)
         pick = best.argmin(1)
         fine = best[np.arange(len(det)), pick] <= ac.track_max_cost
@@ -291,7 +281,6 @@ class Reconstructor:
         n = np.arange(len(det))
         swap = part[1][n, t] < part[0][n, t]  # NaN (part not seen) compares False
         return claims, swap
-        return claims
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -401,10 +390,7 @@ class Reconstructor:
     def _in_view(self, X: np.ndarray, min_joints: int = 5) -> np.ndarray:
         """(G, C) whether >= min_joints of each person's joints (G, 17, 3) fall inside each
         camera's image, in front of it (distortion ignored: this is a coarse test)."""
-        xy = project_to_cameras(X, self.P)  # (G, 17, C, 2)
-        lo, hi = self.bounds
-        inside = ((xy >= lo) & (xy <= hi)).all(-1)  # NaN (behind, missing) compares False
-        return inside.sum(1) >= min_joints
+        return in_view(np.ascontiguousarray(X), self.P, *self.bounds, min_joints)
 
     def _assemble(self, frame, det, members, delivered, X, used, conf, err):
         """Plausible people only, as People3D, and the indices of their groups; members:

@@ -17,6 +17,14 @@ from stereopose.association.grouping import upper_pairs
 from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
+from stereopose.kernels import (
+    asymmetry,
+    body_orientation,
+    chain_flips,
+    dlt_all,
+    place_single_views,
+    select_views,
+)
 from stereopose.skeleton import LR_PAIRS, SWAP
 
 _LEFT = np.array([p[0] for p in LR_PAIRS])
@@ -125,12 +133,10 @@ def triangulate_robust(
     from one view (None without rays).
     """
     C = xy.shape[2]
-    thr = np.maximum(inlier_px, inlier_rel * np.nan_to_num(size_px))[:, None, :]  # (G, 1, C)
+    thr = np.fmax(inlier_px, inlier_rel * size_px)[:, None, :]  # (G, 1, C); NaN size: inlier_px
     if fix_swaps and pair_distances is not None and C <= _MAX_LABEL_CAMERAS:
         xy, w = _consistent_labels(xy, w, *pair_distances)
-    if blocks is None:
-        blocks = dlt_blocks(P)
-    X_all = triangulate_dlt(xy, P, w, blocks)
+    X_all = dlt_all(xy, w, P)
     if fix_swaps:
         flips = _body_orientation(X_all)
         if flips[0].any() or flips[1].any():
@@ -140,27 +146,7 @@ def triangulate_robust(
             XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
             X_all = X_all.copy()
             X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
-    err_all = reprojection_errors(X_all, xy, P, focal)
-    err = err_all.copy()
-    used = (w > 0) & (err < thr)
-    # Joints where every view agrees are done; the others are re-seeded from the two-view
-    # solution most views agree with, then solved again from the views that agree with it.
-    # (with two views or fewer there is nothing to choose: the result would be X_all)
-    seen = (w > 0).sum(-1)
-    # With two views or fewer there is nothing to choose between.
-    redo = (seen > 2) & ((used.sum(-1) < seen) | ~np.isfinite(X_all[..., 0]))  # (G, J)
-    X = X_all.copy()
-    if redo.any():
-        xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
-        ur = _best_pair_inliers(xr, wr, P, focal, tr, pair_blocks)
-        Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
-        er = reprojection_errors(Xr, xr, P, focal)
-        X[redo], used[redo], err[redo] = Xr, ur & (er < 1.5 * tr), er
-    # Where fewer than two views agree, the views cannot be told apart: all of them are used
-    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
-    few = used.sum(-1) < 2
-    if few.any():
-        X[few], used[few], err[few] = X_all[few], w[few] > 0, err_all[few]
+    X, used, err = select_views(xy, w, P, focal, np.ascontiguousarray(thr[:, 0]), X_all)
     if fix_swaps and relabel:
         X, used, xy, w, err = _relabel_asymmetric(
             X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel, blocks, pair_blocks
@@ -200,13 +186,7 @@ _BONES_R = SWAP[_BONES_L]
 def _asymmetry(X: np.ndarray) -> np.ndarray:
     """(G,) sum of |left - right| bone lengths over the sum of their means (NaN where no
     bone has both sides): 0 for a symmetric skeleton."""
-    lo = _dist(X[:, _BONES_L[:, 0]], X[:, _BONES_L[:, 1]])
-    hi = _dist(X[:, _BONES_R[:, 0]], X[:, _BONES_R[:, 1]])
-    both = np.isfinite(lo) & np.isfinite(hi)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(both, np.abs(lo - hi), 0.0).sum(-1) / np.where(
-            both, 0.5 * (lo + hi), 0.0
-        ).sum(-1)
+    return asymmetry(np.ascontiguousarray(X), _BONES_L, _BONES_R)
 
 
 def _relabel_asymmetric(
@@ -281,7 +261,9 @@ def _relabel_asymmetric(
 # Limb joints and the trunk joints they hang from, as (parent left, parent right, child left,
 # child right) rows: shoulders-elbows, hips-knees, then elbows-wrists, knees-ankles.
 _CHAINS = np.array([[5, 6, 7, 8], [11, 12, 13, 14], [7, 8, 9, 10], [13, 14, 15, 16]])
-_CHAIN_PAIR = np.array([LR_PAIRS.index((int(c[2]), int(c[3]))) for c in _CHAINS])
+_PAIR_OF_LEFT = np.zeros(17, dtype=np.int64)  # pair index of LR_PAIRS, by its left joint
+for _i, (_l, _r) in enumerate(LR_PAIRS):
+    _PAIR_OF_LEFT[_l] = _i
 
 
 def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
@@ -293,14 +275,11 @@ def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
     swap = np.where(_PART_OF_PAIR == 0, flip_upper[:, None], flip_legs[:, None])
     if swap.any():
         X = _exchange_joints(X, swap)
-    for level in ([0, 1], [2, 3]):
-        pl, pr, cl, cr = np.moveaxis(X[:, _CHAINS[level]], 2, 0)  # (G, 2, 3) each
-        same = _dist(pl, cl) + _dist(pr, cr)
-        cross = _dist(pl, cr) + _dist(pr, cl)
-        flip = cross < same - margin_m  # (G, 2); NaN compares False
+    for level in (_CHAINS[:2], _CHAINS[2:]):
+        flip = chain_flips(X, level, margin_m)  # (G, 2)
         if flip.any():
             pairs = np.zeros_like(swap)
-            pairs[:, _CHAIN_PAIR[level]] = flip
+            pairs[:, _PAIR_OF_LEFT[level[:, 2]]] = flip
             X = _exchange_joints(X, pairs)
             swap ^= pairs
     return swap
@@ -318,6 +297,35 @@ def _exchange_joints(a: np.ndarray, swap: np.ndarray) -> np.ndarray:
     al, ar = a[:, _LEFT], a[:, _RIGHT]
     a[:, _LEFT], a[:, _RIGHT] = np.where(m, ar, al), np.where(m, al, ar)
     return a
+
+
+def select_views_numpy(xy, w, P, focal, thr, X_all, blocks=None, pair_blocks=None):
+    """The NumPy form of kernels.select_views (same arguments and results), kept as the
+    reference the compiled loops are tested against."""
+    thr = thr[:, None, :]
+    if blocks is None:
+        blocks = dlt_blocks(P)
+    err_all = reprojection_errors(X_all, xy, P, focal)
+    err = err_all.copy()
+    used = (w > 0) & (err < thr)
+    # Joints where every view agrees are done; the others are re-seeded from the two-view
+    # solution most views agree with, then solved again from the views that agree with it.
+    # (with two views or fewer there is nothing to choose: the result would be X_all)
+    seen = (w > 0).sum(-1)
+    redo = (seen > 2) & ((used.sum(-1) < seen) | ~np.isfinite(X_all[..., 0]))  # (G, J)
+    X = X_all.copy()
+    if redo.any():
+        xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
+        ur = _best_pair_inliers(xr, wr, P, focal, tr, pair_blocks)
+        Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
+        er = reprojection_errors(Xr, xr, P, focal)
+        X[redo], used[redo], err[redo] = Xr, ur & (er < 1.5 * tr), er
+    # Where fewer than two views agree, the views cannot be told apart: all of them are used
+    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
+    few = used.sum(-1) < 2
+    if few.any():
+        X[few], used[few], err[few] = X_all[few], w[few] > 0, err_all[few]
+    return X, used, err
 
 
 # Per joint, its neighbours in the skeleton in order of preference: a joint seen in one view
@@ -342,6 +350,10 @@ _ANCHORS = (
     (14,),  # ankles
 )
 
+_ANCHOR_TABLE = np.full((len(_ANCHORS), max(map(len, _ANCHORS))), -1, dtype=np.int64)
+for _j, _row in enumerate(_ANCHORS):
+    _ANCHOR_TABLE[_j, : len(_row)] = _row
+
 
 def complete_single_views(X, used, xy, w, centers, rays_R):
     """Place joints seen in one view only (NaN in X) on that view's ray.
@@ -354,36 +366,8 @@ def complete_single_views(X, used, xy, w, centers, rays_R):
     the highest weight is taken. Joints are placed the parents first, so a wrist can hang from
     an elbow placed this way. Returns X with the joints placed and (G, 17) which ones were.
     """
-    todo = ~np.isfinite(X[..., 0]) & (w > 0).any(-1)
-    placed = np.zeros(todo.shape, dtype=bool)
-    if not todo.any():
-        return X, placed
-    X = X.copy()
-    for _ in range(2):  # a second pass reaches joints whose neighbour was placed in the first
-        for j in np.flatnonzero(todo.any(0)):
-            g = np.flatnonzero(todo[:, j])
-            anchor = np.full((g.size, 3), np.nan)
-            for a in _ANCHORS[j]:
-                fill = np.isnan(anchor[:, 0])
-                anchor[fill] = X[g[fill], a]
-            ok = np.isfinite(anchor[:, 0])
-            if not ok.any():
-                continue
-            g, anchor = g[ok], anchor[ok]
-            c = np.argmax(w[g, j], axis=-1)
-            d = np.einsum(
-                "nji,nj->ni", rays_R[c], np.concatenate([xy[g, j, c], np.ones((g.size, 1))], -1)
-            )
-            d /= np.linalg.norm(d, axis=-1, keepdims=True)
-            depth = np.einsum("ni,ni->n", anchor - centers[c], d)
-            front = depth > 0
-            g, c = g[front], c[front]
-            X[g, j] = centers[c] + depth[front, None] * d[front]
-            used[g, j, c] = True
-            todo[g, j] = False
-            placed[g, j] = True
-        if not todo.any():
-            break
+    X = np.array(X, dtype=np.float64)  # a contiguous copy, placed in
+    placed = place_single_views(X, used, xy, w, centers, rays_R, _ANCHOR_TABLE)
     return X, placed
 
 
@@ -464,6 +448,11 @@ def _exchange(xy, w, swap):
 
 
 def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
+    """Which people's labels are mirrored as a whole (see body_orientation_numpy), compiled."""
+    return body_orientation(np.ascontiguousarray(X), face_margin_m, thigh_margin_m)
+
+
+def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
     """Which people's labels are mirrored as a whole, from the body's handedness in 3D.
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.

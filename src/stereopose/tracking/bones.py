@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.kernels import bones_apply, bones_observe
 from stereopose.skeleton import joint_index
 
 # parent -> child, trunk outwards: the upper limbs first, then the ones hanging from them
@@ -27,7 +28,6 @@ _LIMBS = [
 ]
 PARENT = np.array([joint_index(a) for a, _ in _LIMBS])
 CHILD = np.array([joint_index(b) for _, b in _LIMBS])
-_LEVELS = (slice(0, 4), slice(4, 8))  # children of level 0 are parents in level 1
 
 
 @dataclass
@@ -62,27 +62,28 @@ class BoneLengths:
 
     def observe(self, rows: np.ndarray, joints: np.ndarray) -> None:
         """Add the limb lengths of measured joints (n, 17, 3) of people `rows`."""
-        sample = np.linalg.norm(joints[:, CHILD] - joints[:, PARENT], axis=-1)  # (n, 8)
-        est, cnt = self.length[rows], self.count[rows]
-        with np.errstate(invalid="ignore"):
-            far = (cnt >= self.min_samples) & (np.abs(sample - est) > self.outlier * est)
-        use = np.isfinite(sample) & ~far
-        cnt = cnt + use
-        alpha = np.where(use, 1.0 / np.maximum(np.minimum(cnt, self.window), 1), 0.0)
-        est = np.where(np.isfinite(est), est + alpha * (np.nan_to_num(sample) - est), sample)
-        self.length[rows] = est
-        self.count[rows] = cnt
+        bones_observe(
+            self.length,
+            self.count,
+            np.asarray(rows, dtype=np.int64),
+            np.ascontiguousarray(joints, dtype=np.float64),
+            PARENT,
+            CHILD,
+            self.window,
+            self.min_samples,
+            self.outlier,
+        )
 
     def apply(self, rows: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Copy of joints (n, 17, 3) with each known limb set to its estimated length."""
-        X = joints.copy()
-        est = np.where(self.count[rows] >= self.min_samples, self.length[rows], np.nan)
-        for level in _LEVELS:
-            p, c = PARENT[level], CHILD[level]
-            d = X[:, c] - X[:, p]
-            n = np.linalg.norm(d, axis=-1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                scale = est[:, level] / n
-            ok = np.isfinite(scale) & (n > 1e-6)
-            X[:, c] = np.where(ok[..., None], X[:, p] + d * scale[..., None], X[:, c])
+        X = np.array(joints, dtype=np.float64)  # a contiguous copy
+        bones_apply(
+            X,
+            self.length,
+            self.count,
+            np.asarray(rows, dtype=np.int64),
+            PARENT,
+            CHILD,
+            self.min_samples,
+        )
         return X

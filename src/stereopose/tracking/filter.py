@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.kernels import kalman_update
 from stereopose.skeleton import NUM_JOINTS
 
 _INITIAL_SPEED_MPS = 1.0  # prior standard deviation of a new joint's velocity
@@ -91,42 +92,24 @@ class JointFilters:
         noise_m: measurement standard deviation, scalar or (n, 17). Returns (n, 17) whether
         each joint's measurement was used (gated-out and missing ones were not).
         """
-        x, v = self.x[rows], self.v[rows]
-        p00, p01, p11 = self.p00[rows], self.p01[rows], self.p11[rows]
-        r2 = np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, p00.shape)
-        measured = np.isfinite(z).all(-1)
-        new = measured & ~np.isfinite(x).all(-1)
-        y = z - x
-        dist = np.sqrt(np.einsum("njk,njk->nj", y, y))
-        s = p00 + r2
-        with np.errstate(invalid="ignore"):
-            # the gate widens with the prediction's uncertainty, not with a noisy measurement
-            spread = np.sqrt(p00 + np.minimum(r2, gate_m * gate_m / 16.0))
-            inside = dist <= np.maximum(gate_m, gate_sigmas * spread)
-        accept = measured & ~new & inside
-        rejected = self.rejected[rows]
-        rejected = np.where(measured & ~accept & ~new, rejected + 1, 0)
-        restart = new | (rejected >= reset_frames)
-        k0, k1 = p00 / s, p01 / s
-        a = accept[..., None]
-        x = np.where(a, x + k0[..., None] * y, x)
-        v = np.where(a, v + k1[..., None] * y, v)
-        p00, p01, p11 = (
-            np.where(accept, (1.0 - k0) * p00, p00),
-            np.where(accept, (1.0 - k0) * p01, p01),
-            np.where(accept, p11 - k1 * p01, p11),
+        r2 = np.ascontiguousarray(
+            np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, (len(rows), z.shape[1]))
         )
-        if restart.any():
-            x[restart] = z[restart]
-            v[restart] = 0.0
-            p00 = np.where(restart, r2, p00)
-            p01 = np.where(restart, 0.0, p01)
-            p11 = np.where(restart, _INITIAL_SPEED_MPS**2, p11)
-            rejected[restart] = 0
-        self.x[rows], self.v[rows] = x, v
-        self.p00[rows], self.p01[rows], self.p11[rows] = p00, p01, p11
-        self.rejected[rows] = rejected
-        return accept | restart
+        return kalman_update(
+            self.x,
+            self.v,
+            self.p00,
+            self.p01,
+            self.p11,
+            self.rejected,
+            np.asarray(rows, dtype=np.int64),
+            np.ascontiguousarray(z, dtype=np.float64),
+            r2,
+            float(gate_m),
+            float(gate_sigmas),
+            int(reset_frames),
+            _INITIAL_SPEED_MPS**2,
+        )
 
     def reset(self, rows: np.ndarray, z: np.ndarray, noise_m: float) -> None:
         """Restart people `rows` at the measured joints z (n, 17, 3), at rest."""

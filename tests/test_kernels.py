@@ -1,0 +1,106 @@
+"""The compiled loops give what the NumPy formulations give."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereopose.association.affinity import Detections
+from stereopose.geometry.camera import project_to_cameras, undistort_normalized
+from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
+from stereopose.kernels import claim_costs, dlt_all, select_views, undistort
+from stereopose.reconstruction import Reconstructor
+from stereopose.reconstruction.triangulate import (
+    JOINT_PARTS,
+    _body_orientation,
+    body_orientation_numpy,
+    pair_views,
+    select_views_numpy,
+)
+from stereopose.sim import simulate
+from stereopose.skeleton import SWAP
+
+
+@pytest.fixture(scope="module")
+def hard():
+    return simulate(num_frames=40, seed=5, difficulty="hard")
+
+
+def _groups(scene, t):
+    """Frame t's detections gathered per true worker, as the triangulation receives them."""
+    rec = Reconstructor(scene.rig)
+    people = [scene.detections[t][n] for n in scene.rig.names]
+    det = Detections.from_people(scene.rig, people, 0.3)
+    owners = np.concatenate([scene.detection_truth[t][n] for n in scene.rig.names])
+    groups = [np.flatnonzero(owners == w) for w in np.unique(owners[owners >= 0])]
+    groups = [g for g in groups if g.size >= 2]
+    xy, conf, size_px, _ = rec._gather(det, groups)
+    return rec, xy, np.where(conf >= 0.05, conf, 0.0), size_px
+
+
+def test_select_views_matches_numpy(hard):
+    checked = 0
+    for t in range(0, 40, 3):
+        rec, xy, w, size_px = _groups(hard, t)
+        if xy.shape[0] == 0:
+            continue
+        thr = np.fmax(10.0, 0.03 * size_px)
+        X_all = dlt_all(xy, w, rec.P)
+        pair_blocks = dlt_blocks(rec.P[pair_views(len(hard.rig))])
+        got = select_views(xy, w, rec.P, rec.focal, thr, X_all)
+        ref = select_views_numpy(xy, w, rec.P, rec.focal, thr, X_all, rec.blocks, pair_blocks)
+        np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(got[1], ref[1])
+        np.testing.assert_allclose(got[2], ref[2], rtol=1e-9, atol=1e-9)
+        checked += xy.shape[0]
+    assert checked > 50
+
+
+def test_dlt_matches_numpy(hard):
+    rec, xy, w, _ = _groups(hard, 7)
+    np.testing.assert_allclose(
+        dlt_all(xy, w, rec.P), triangulate_dlt(xy, rec.P, w), rtol=0, atol=1e-9
+    )
+
+
+def test_body_orientation_matches_numpy(hard):
+    rng = np.random.default_rng(0)
+    X = hard.truth[hard.present].copy()
+    X = np.concatenate([X, X[:, SWAP], X[:, [*range(13), 14, 13, 16, 15]]])
+    X[rng.random(X.shape[:2]) < 0.2] = np.nan
+    for got, ref in zip(_body_orientation(X), body_orientation_numpy(X), strict=True):
+        np.testing.assert_array_equal(got, ref)
+
+
+def test_undistort_matches_opencv(hard):
+    rng = np.random.default_rng(1)
+    fxy, dist, _ = hard.rig.lenses
+    for c, cam in enumerate(hard.rig):
+        uv = rng.uniform([0, 0], cam.size, (500, 2))
+        uv[::50] = np.nan
+        got = undistort(uv, np.full(500, c), fxy, dist, 1e-8, 30)
+        np.testing.assert_allclose(got, undistort_normalized(uv, cam), rtol=0, atol=1e-12)
+
+
+def test_claim_costs_match_numpy(hard):
+    t = 11
+    rec = Reconstructor(hard.rig)
+    det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
+    predicted = hard.truth[t, hard.present[t]] + 0.02
+    proj = project_to_cameras(predicted, rec.P)
+    ok = det.conf >= 0.3
+    best, part = claim_costs(det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, 4)
+    mine = proj[:, :, det.camera].transpose(2, 0, 1, 3)
+    ref_best = np.full(best.shape, np.inf)
+    for lab, (xy, okj) in enumerate(((det.xy, ok), (det.xy[:, SWAP], ok[:, SWAP]))):
+        d = np.linalg.norm(xy[:, None] - mine, axis=-1)
+        have = okj[:, None] & np.isfinite(d)
+        n = have.sum(-1)
+        dd = np.where(have, d, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = dd.sum(-1) / (n * det.size[:, None])
+            np.testing.assert_allclose(part[lab], (dd @ JOINT_PARTS) / (have @ JOINT_PARTS))
+        c[(n < 4) | ~np.isfinite(c)] = np.inf
+        ref_best = np.minimum(ref_best, c)
+    np.testing.assert_allclose(best, ref_best)
+    assert np.isfinite(best).sum() > 10
