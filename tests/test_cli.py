@@ -488,3 +488,34 @@ def test_detect_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
 def test_models_lists_the_cached_models(capsys) -> None:
     assert main(["models"]) == 0
     assert "yolo11n-pose.onnx" in capsys.readouterr().out
+
+
+def test_reconstruct_two_way_exports(shared_data_dir: Path, tmp_path: Path) -> None:
+    """--two-way: the TRC and CSV hold the same people, frames and joints as the online poses
+    file, smoothed (close to, not equal to, the online joints); the poses file is unchanged."""
+    from stereopose.io.exports import read_trc
+
+    online, two = tmp_path / "online", tmp_path / "two"
+    for d, extra in ((online, ()), (two, ("--two-way",))):
+        d.mkdir()
+        rc = reconstruct(
+            shared_data_dir / "calib.toml",
+            shared_data_dir / "pose",
+            d / "p.jsonl",
+            *("--fps", "60", "--trc", str(d / "trc"), "--csv", str(d / "j.csv"), *extra),
+        )
+        assert rc == 0
+    assert (online / "p.jsonl").read_text() == (two / "p.jsonl").read_text()
+    assert sorted(p.name for p in (two / "trc").iterdir()) == sorted(
+        p.name for p in (online / "trc").iterdir()
+    )
+    f1, _, a, _, _ = read_trc(online / "trc" / "person_1.trc")
+    f2, _, b, _, _ = read_trc(two / "trc" / "person_1.trc")
+    np.testing.assert_array_equal(f1, f2)
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    d = np.linalg.norm(a - b, axis=-1)
+    assert 0.001 < np.nanmedian(d) < 0.05  # smoothed, within a few centimetres
+    rows1 = (online / "j.csv").read_text().splitlines()
+    rows2 = (two / "j.csv").read_text().splitlines()
+    assert len(rows1) == len(rows2) and rows1[0] == rows2[0]
+    assert [r.split(",")[:4] for r in rows1] == [r.split(",")[:4] for r in rows2]

@@ -104,3 +104,25 @@ def test_claim_costs_match_numpy(hard):
         ref_best = np.minimum(ref_best, c)
     np.testing.assert_allclose(best, ref_best)
     assert np.isfinite(best).sum() > 10
+
+
+def test_epipolar_distances_match_numpy(hard):
+    from stereopose.association.affinity import epipolar_distances
+    from stereopose.geometry.camera import homogeneous
+
+    t = 9
+    rec = Reconstructor(hard.rig)
+    det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
+    dist = epipolar_distances(det, rec.E)
+    n, m = dist.first, dist.second
+    h = homogeneous(np.where(np.isfinite(det.xy), det.xy, 0.0))
+    ca, cb = det.camera[n], det.camera[m]
+    lines_m = np.matmul(h[n], rec.E[ca, cb].swapaxes(-1, -2))
+    lines_n = np.matmul(h[m], rec.E[cb, ca].swapaxes(-1, -2))
+    w_m = 0.5 / np.hypot(lines_m[..., 0], lines_m[..., 1]) / det.size[m][:, None]
+    w_n = 0.5 / np.hypot(lines_n[..., 0], lines_n[..., 1]) / det.size[n][:, None]
+    same = np.abs(np.einsum("mjk,mjk->mj", lines_m, h[m])) * (w_m + w_n)
+    cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, h[m][:, SWAP])) * (w_m + w_n[:, SWAP])
+    assert n.size > 100
+    np.testing.assert_allclose(dist.same, same, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(dist.cross, cross, rtol=1e-10, atol=1e-12)

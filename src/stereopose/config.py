@@ -135,6 +135,7 @@ class OutputConfig:
     events: bool = True  # events.jsonl and events.sqlite (with a site)
     trc: bool = True  # trc/person_<id>.trc
     csv: bool = True  # joints.csv
+    two_way: bool = False  # trc/ and joints.csv smoothed both ways over each track, at the end
     overlays: bool = True  # overlays/<camera>.mp4: 2D skeletons, ids, reprojected 3D joints
     overlay_scale: float = 0.5  # overlay video size relative to the camera's frames
     report: bool = True  # report.html

@@ -3,8 +3,9 @@
 The robust mode's choice of views is a small search per joint (every two-view solution scored
 by the views that agree with it); written as NumPy over all joints at once it costs many array
 operations per frame. These loops do the same arithmetic joint by joint, compiled once per
-machine (cached beside the module); `select_views` is the same computation as the NumPy
-reference in stereopose.reconstruction.triangulate.select_views_numpy.
+machine (cached beside the module). Division follows NumPy (x / 0 is inf or NaN, never an
+error), so the loops give what the array code gives; tests/test_kernels.py checks them against
+the NumPy forms kept in the package (e.g. triangulate.select_views_numpy).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _dlt(xy, w, use, P, out):
     """Weighted DLT of one point from the views where use; writes out (3,), NaN when singular
     (fewer than two views). Same normal equations and singularity test as triangulate_dlt."""
@@ -56,7 +57,7 @@ def _dlt(xy, w, use, P, out):
     out[2] = (Cc * r0 + E * r1 + F * r2) * inv
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _errors(X, xy, P, focal, out):
     """Pixel distance (C,) between X (3,) reprojected and each view (NaN where either is
     missing or X is behind the camera)."""
@@ -72,7 +73,7 @@ def _errors(X, xy, P, focal, out):
         out[c] = np.sqrt(du * du + dv * dv) * focal[c]
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def select_views(xy, w, P, focal, thr, X_all):
     """Per joint, the views that agree and the point they give.
 
@@ -158,7 +159,7 @@ def select_views(xy, w, P, focal, thr, X_all):
     return X, used, err
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
     """Cost of every detection against every predicted pose, labels as detected or exchanged.
 
@@ -211,7 +212,7 @@ def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
     return best, part
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _dist3(X, g, a, b):
     dx = X[g, a, 0] - X[g, b, 0]
     dy = X[g, a, 1] - X[g, b, 1]
@@ -219,7 +220,7 @@ def _dist3(X, g, a, b):
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def body_orientation(X, face_margin_m, thigh_margin_m):
     """Per person (G, 17, 3): whether the labels are mirrored as a whole (the face behind the
     shoulders, with z up) and whether the legs are (each knee nearer the other side's hip).
@@ -251,7 +252,7 @@ def body_orientation(X, face_margin_m, thigh_margin_m):
     return flip_upper, flip_legs
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def dlt_all(xy, w, P):
     """Weighted DLT (G, J, 3) of every joint from all its views (xy (G, J, C, 2), w (G, J, C));
     NaN with fewer than two views. The compiled form of triangulate_dlt."""
@@ -264,7 +265,7 @@ def dlt_all(xy, w, P):
     return X
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def chain_flips(X, chains, margin_m):
     """(G, K) whether the child pair of each chain row (parent left, parent right, child left,
     child right) of `chains` (K, 4) hangs from the other side: the cross distances to the
@@ -281,7 +282,7 @@ def chain_flips(X, chains, margin_m):
     return out
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def undistort(uv, camera, intrinsics, dist, eps_px, max_iter):
     """Distorted pixels (M, 2) of the cameras `camera` (M,) -> ideal normalised coordinates
     (M, 2), NaN staying NaN: OpenCV's iterative undistortPoints (the same fixed-point
@@ -322,7 +323,7 @@ def undistort(uv, camera, intrinsics, dist, eps_px, max_iter):
     return out
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def kalman_update(
     x, v, p00, p01, p11, rejected, rows, z, r2, gate_m, gate_sigmas, reset_frames, initial_var
 ):
@@ -331,10 +332,11 @@ def kalman_update(
 
     x, v: (T, 17, 3); p00, p01, p11: (T, 17) covariance terms; rejected: (T, 17) frames gated
     out in a row; rows: (n,) tracks corrected by z (n, 17, 3) with noise variance r2 (n, 17).
-    Returns (n, 17) whether each measurement was used (accepted or restarting the joint).
+    Returns (n, 17) what became of each measurement: 0 not used (missing or gated out),
+    1 accepted, 2 restarted the joint (a new joint, or one gated out reset_frames in a row).
     """
     n, J = z.shape[0], z.shape[1]
-    used = np.zeros((n, J), dtype=np.bool_)
+    used = np.zeros((n, J), dtype=np.int8)
     for i in range(n):
         r = rows[i]
         for j in range(J):
@@ -370,11 +372,11 @@ def kalman_update(
                 p11[r, j] = initial_var
                 rej = 0
             rejected[r, j] = rej
-            used[i, j] = accept or restart
+            used[i, j] = 2 if restart else (1 if accept else 0)
     return used
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def bones_observe(length, count, rows, joints, parent, child, window, min_samples, outlier):
     """Add the limb lengths of measured joints (n, 17, 3) of tracks `rows` to their running
     means length, count (T, L), in place (see tracking.bones.BoneLengths.observe)."""
@@ -399,7 +401,7 @@ def bones_observe(length, count, rows, joints, parent, child, window, min_sample
             length[r, k], count[r, k] = est, cnt
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def bones_apply(X, length, count, rows, parent, child, min_samples):
     """X (n, 17, 3) with each limb of tracks `rows` set to its running length where that is
     known from min_samples samples, the trunk outwards (parents before children), in place
@@ -422,7 +424,7 @@ def bones_apply(X, length, count, rows, parent, child, min_samples):
                 X[i, b, 2] = X[i, a, 2] + dz * scale
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def asymmetry(X, bones_left, bones_right):
     """(G,) sum of |left - right| bone lengths over the sum of their means, over the bones
     (B, 2) whose both sides are known in X (G, 17, 3); NaN where none is."""
@@ -440,7 +442,7 @@ def asymmetry(X, bones_left, bones_right):
     return out
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def place_single_views(X, used, xy, w, centers, R, anchors):
     """Joints (NaN in X (G, J, 3)) that views report (w (G, J, C) > 0) placed on the ray of
     their strongest view, at the point nearest the first reconstructed joint of their row of
@@ -492,7 +494,7 @@ def place_single_views(X, used, xy, w, centers, R, anchors):
     return placed
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def in_view(X, P, lo, hi, min_joints):
     """(G, C) whether >= min_joints joints of each person (G, J, 3) project inside each
     camera's image bounds lo, hi (C, 2) (ideal normalised coordinates), in front of it."""
@@ -513,3 +515,48 @@ def in_view(X, P, lo, hi, min_joints):
                     n += 1
             out[g, c] = n >= min_joints
     return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
+    """Per-joint normalised symmetric epipolar distances of detection pairs.
+
+    xy: (N, 17, 2) ideal coordinates (NaN: missing, taken as 0: such joints never vote);
+    size: (N,); camera: (N,); E: (C, C, 3, 3); first, second: (M,) detection pairs. Returns
+    same (M, 17), the distance of joint j of `first` to joint j of `second`, each side's
+    point-to-line distance divided by its detection's size, and cross (M, 17), the same
+    against the mirror joint swap[j] of `second` (see association.affinity.epipolar_distances).
+    """
+    M, J = first.shape[0], xy.shape[1]
+    same = np.empty((M, J))
+    cross = np.empty((M, J))
+    lm = np.empty((J, 3))  # lines of first's joints in second's image
+    wm = np.empty(J)
+    wn = np.empty(J)
+    for k in range(M):
+        n, m = first[k], second[k]
+        ca, cb = camera[n], camera[m]
+        for j in range(J):
+            xn, yn = xy[n, j, 0], xy[n, j, 1]
+            if not (np.isfinite(xn) and np.isfinite(yn)):
+                xn = yn = 0.0
+            xm, ym = xy[m, j, 0], xy[m, j, 1]
+            if not (np.isfinite(xm) and np.isfinite(ym)):
+                xm = ym = 0.0
+            for r in range(3):
+                lm[j, r] = E[ca, cb, r, 0] * xn + E[ca, cb, r, 1] * yn + E[ca, cb, r, 2]
+            a = E[cb, ca, 0, 0] * xm + E[cb, ca, 0, 1] * ym + E[cb, ca, 0, 2]
+            b = E[cb, ca, 1, 0] * xm + E[cb, ca, 1, 1] * ym + E[cb, ca, 1, 2]
+            wm[j] = 0.5 / np.sqrt(lm[j, 0] * lm[j, 0] + lm[j, 1] * lm[j, 1]) / size[m]
+            wn[j] = 0.5 / np.sqrt(a * a + b * b) / size[n]
+        for j in range(J):
+            s = swap[j]
+            xm, ym = xy[m, j, 0], xy[m, j, 1]
+            if not (np.isfinite(xm) and np.isfinite(ym)):
+                xm = ym = 0.0
+            xs, ys = xy[m, s, 0], xy[m, s, 1]
+            if not (np.isfinite(xs) and np.isfinite(ys)):
+                xs = ys = 0.0
+            same[k, j] = abs(lm[j, 0] * xm + lm[j, 1] * ym + lm[j, 2]) * (wm[j] + wn[j])
+            cross[k, j] = abs(lm[j, 0] * xs + lm[j, 1] * ys + lm[j, 2]) * (wm[j] + wn[s])
+    return same, cross

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.association.grouping import upper_pairs
-from stereopose.geometry.camera import UNDISTORT_STOP, homogeneous
-from stereopose.kernels import undistort
+from stereopose.geometry.camera import UNDISTORT_STOP
+from stereopose.kernels import epipolar_pair_distances, undistort
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
@@ -105,18 +105,9 @@ def epipolar_distances(
     n, m = n[keep], m[keep]
     row = np.full((N, N), -1, dtype=np.int64)
     row[n, m] = row[m, n] = np.arange(n.size)
-    h = homogeneous(np.where(np.isfinite(det.xy), det.xy, 0.0))  # (N, 17, 3)
-    # Lines of n's joints in m's image and of m's joints in n's image, (M, 17, 3);
-    # |h_m^T E h_n| is the same seen from either image, only the line norms differ.
-    ca, cb = det.camera[n], det.camera[m]
-    lines_m = np.matmul(h[n], E[ca, cb].swapaxes(-1, -2))
-    lines_n = np.matmul(h[m], E[cb, ca].swapaxes(-1, -2))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w_m = 0.5 / np.hypot(lines_m[..., 0], lines_m[..., 1]) / det.size[m][:, None]
-        w_n = 0.5 / np.hypot(lines_n[..., 0], lines_n[..., 1]) / det.size[n][:, None]
-    hm = h[m]
-    same = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm)) * (w_m + w_n)
-    cross = np.abs(np.einsum("mjk,mjk->mj", lines_m, hm[:, SWAP])) * (w_m + w_n[:, SWAP])
+    same, cross = epipolar_pair_distances(
+        det.xy, det.size, det.camera, E, n.astype(np.int64), m.astype(np.int64), SWAP
+    )
     return PairDistances(n, m, row, same, cross)
 
 

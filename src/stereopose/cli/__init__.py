@@ -39,6 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fps", type=float, help="frame rate giving each frame its time (default 25)")
     r.add_argument("--trc", type=Path, metavar="DIR", help="write one TRC file per person here")
     r.add_argument("--csv", type=Path, metavar="FILE", help="write every joint as CSV rows")
+    r.add_argument(
+        "--two-way",
+        action="store_true",
+        help="smooth the TRC and CSV exports both ways over each track (offline: each frame also "
+        "uses the frames after it; written at the end); the poses file stays online",
+    )
     r.add_argument("--tracks", type=Path, metavar="FILE", help="write trajectory summaries (JSON)")
     r.add_argument("--site", type=Path, metavar="SITE.toml", help="zones: raise zone events")
     r.add_argument("--events", type=Path, metavar="FILE", help="write zone events (JSON lines)")

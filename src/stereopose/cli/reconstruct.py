@@ -44,6 +44,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
             events_db=args.events_db,
             webhook=args.webhook,
             on_events=show if site is not None else None,
+            two_way=args.two_way,
         )
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))

@@ -33,14 +33,16 @@ def reconstruct_files(
     events_db: str | Path | None = None,
     webhook: str | None = None,
     on_events: Callable[[list[Event]], None] | None = None,
+    two_way: bool = False,
 ) -> ReconstructionSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
 
     With tracking on (config.tracking.enabled) ids persist over time and joints are smoothed
     online. With a site, each frame's zone events go to events_path (JSON lines), events_db
     (SQLite, appended to), the webhook URL and on_events. on_frame(done, total) is called after
-    each frame (progress display). Every output is closed properly when the run stops early
-    (an error, Ctrl-C): what was written stays readable.
+    each frame (progress display). two_way: the TRC and CSV exports are smoothed both ways
+    over each track and written at the end (see Back3D). Every output is closed properly when
+    the run stops early (an error, Ctrl-C): what was written stays readable.
     """
     rig = load_calibration(calib_path)
     seq = read_pose_dir(pose_dir, rig.names)
@@ -66,6 +68,7 @@ def reconstruct_files(
         events_db=events_db,
         webhook=webhook,
         on_events=on_events,
+        two_way=two_way,
     )
     summary = back.summary
     total = len(seq)

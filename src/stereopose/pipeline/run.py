@@ -235,6 +235,7 @@ def _process(cams, cfg, rig, site, detector, out_dir, summary, on_step, on_event
         source=", ".join(cams.names),
         trc_dir=out_dir / "trc" if o.trc else None,
         csv_path=out_dir / "joints.csv" if o.csv else None,
+        two_way=o.two_way,
         tracks_path=out_dir / "tracks.json",
         site=site,
         events_path=out_dir / "events.jsonl" if site is not None and o.events else None,

@@ -85,6 +85,8 @@ class Back3D:
 
     out_path: the 3D poses JSONL (None: not written). With a site, each frame's zone events go
     to events_path (JSON lines), events_db (SQLite, appended to), the webhook URL and on_events.
+    two_way: the TRC and CSV exports are written at the end, from joints smoothed both ways
+    over each track (tracking.offline); the poses file and the events stay online.
     """
 
     def __init__(
@@ -103,11 +105,14 @@ class Back3D:
         events_db: str | Path | None = None,
         webhook: str | None = None,
         on_events: Callable[[list[Event]], None] | None = None,
+        two_way: bool = False,
     ) -> None:
         if site is not None and not config.tracking.enabled:
             raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
         try:
-            self.tracker = Tracker(rig, config) if config.tracking.enabled else None
+            if two_way and not config.tracking.enabled:
+                raise StereoposeError("two-way smoothing needs tracking (person ids)")
+            self.tracker = Tracker(rig, config, record=two_way) if config.tracking.enabled else None
             if self.tracker is not None:
                 rec = self.tracker.reconstructor
             else:
@@ -127,6 +132,8 @@ class Back3D:
         self.writer: PosesWriter | None = None
         self.fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
         self._closed = False
+        self.two_way = two_way
+        self._frames: list[People3D] = []  # the online output, kept for two-way exports
         try:
             if out_path is not None:
                 self.writer = PosesWriter(out_path, config.fps)
@@ -174,19 +181,34 @@ class Back3D:
             self.writer.write(people)
         for sink in self.event_sinks:
             sink.write(events)
+        if self.two_way and (self.csv is not None or self.trc is not None):
+            self._frames.append(people)
+        else:
+            self._export(people)
+        s.add(people)
+        s.seconds_write += time.perf_counter() - t2
+        return people, events
+
+    def _export(self, people: People3D) -> None:
         if self.csv is not None:
             self.csv.add(people)
         if self.trc is not None:
             self.trc.add(people)
-        s.add(people)
-        s.seconds_write += time.perf_counter() - t2
-        return people, events
 
     def close(self) -> None:
         """Close every output (once): flushes files, ends tracks, writes trajectories."""
         if self._closed:
             return
         self._closed = True
+        if self._frames:
+            try:
+                frames = self.tracker.two_way(self._frames)
+            except Exception:  # never lose the exports: the online joints are written instead
+                logger.exception("two-way smoothing failed; exports hold the online joints")
+                frames = self._frames
+            for people in frames:
+                self._export(people)
+            self._frames = []
         for sink in self.sinks:
             sink.close()
         if self.trc is not None:

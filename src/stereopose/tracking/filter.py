@@ -89,8 +89,9 @@ class JointFilters:
     ) -> np.ndarray:
         """Correct people `rows` (n,) with measured joints z (n, 17, 3) (NaN: not measured).
 
-        noise_m: measurement standard deviation, scalar or (n, 17). Returns (n, 17) whether
-        each joint's measurement was used (gated-out and missing ones were not).
+        noise_m: measurement standard deviation, scalar or (n, 17). Returns (n, 17) int8, what
+        became of each joint's measurement: 0 not used (missing or gated out), 1 accepted,
+        2 restarted the joint (true where used).
         """
         r2 = np.ascontiguousarray(
             np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, (len(rows), z.shape[1]))

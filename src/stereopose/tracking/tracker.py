@@ -25,6 +25,7 @@ from stereopose.reconstruction import Reconstructor
 from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP, joint_index
 from stereopose.tracking.bones import BoneLengths
 from stereopose.tracking.filter import JointFilters
+from stereopose.tracking.offline import NOT_USED, RESTARTED, TrackLog, smooth_people
 from stereopose.tracking.positioning import Trajectory, floor_position
 from stereopose.types import People2D, People3D, Rig
 
@@ -34,8 +35,10 @@ _PREDICTED_CONF = 0.5  # confidence of a bridged joint, relative to its last mea
 class Tracker:
     """Tracks the people of one camera rig; `update` once per frame, frames in order."""
 
-    def __init__(self, rig: Rig, config: Config | None = None) -> None:
+    def __init__(self, rig: Rig, config: Config | None = None, record: bool = False) -> None:
+        """record: keep every track's measurements for `two_way` (offline smoothing)."""
         self.config = config or Config()
+        self.record = record
         self.tc = self.config.tracking
         self.reconstructor = Reconstructor(rig, self.config.reconstruction)
         self.num_cameras = len(rig)
@@ -51,6 +54,12 @@ class Tracker:
             )
         self._t: float | None = None
         self._next_id = 1
+        self._frame = 0
+        # per track a serial number that never changes; with `record`, its measurements
+        self.serial = np.zeros(0, dtype=np.int64)
+        self._next_serial = 0
+        self.logs: dict[int, TrackLog] = {}
+        self._serial_of_id: dict[int, int] = {}
         self.filters = JointFilters.empty()
         self.bones = BoneLengths.empty()
         # per track: id (0 while tentative), consecutive frames seen, time last seen, frame
@@ -81,6 +90,7 @@ class Tracker:
             raise ValueError(f"frame {frame} does not come after frame {round(self._t * fps)}")
         dt = 0.0 if self._t is None else t - self._t
         self._t = t
+        self._frame = frame
         unseen = t - self.seen_t  # before this frame
         self.filters.predict(dt, self._q, moving=unseen <= tc.bridge_s + 1e-9)
         seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
@@ -103,6 +113,15 @@ class Tracker:
         out = self._output(frame, t, rows, found, measured)
         self._retire(t, rows)
         return out
+
+    def two_way(self, people_frames: Sequence[People3D]) -> list[People3D]:
+        """The online output `people_frames` (this tracker's, every frame) with each person's
+        joints smoothed both ways over their whole track (see tracking.offline). Needs
+        `record`."""
+        if not self.record:
+            raise ValueError("two-way smoothing needs a Tracker made with record=True")
+        logs = {i: self.logs[s] for i, s in self._serial_of_id.items() if s in self.logs}
+        return smooth_people(people_frames, logs, self.config.fps, self._q)
 
     def finish(self) -> list[Trajectory]:
         """Every person's trajectory (ended and still open), by id."""
@@ -155,6 +174,9 @@ class Tracker:
         self.born = np.concatenate([self.born, np.full(n, frame, dtype=np.int64)])
         self.conf = np.concatenate([self.conf, np.zeros((n, NUM_JOINTS))])
         self.joint_t = np.concatenate([self.joint_t, np.full((n, NUM_JOINTS), -np.inf)])
+        serial = np.arange(self._next_serial, self._next_serial + n)
+        self.serial = np.concatenate([self.serial, serial])
+        self._next_serial += n
         return np.arange(first, first + n)
 
     def _measure(self, rows, found, measured, unseen, t) -> None:
@@ -170,17 +192,24 @@ class Tracker:
             z = np.where(lately[..., None], np.nan, z)
         # a track back after a long gap, or new, restarts from the measurement
         fresh = ~(unseen <= tc.bridge_s + 1e-9)
+        codes = np.where(np.isfinite(z).all(-1), RESTARTED, NOT_USED).astype(np.int8)
+        noise = np.full(codes.shape, tc.measurement_noise_m)
         if fresh.any():
             self.filters.reset(rows[fresh], z[fresh], tc.measurement_noise_m)
         if (~fresh).any():
-            self.filters.update(
+            noise[~fresh] = self._noise(found, measured[~fresh])
+            codes[~fresh] = self.filters.update(
                 rows[~fresh],
                 z[~fresh],
-                self._noise(found, measured[~fresh]),
+                noise[~fresh],
                 tc.gate_m,
                 tc.gate_sigmas,
                 tc.gate_reset_frames,
             )
+        if self.record:
+            for i, r in enumerate(rows):
+                log = self.logs.setdefault(int(self.serial[r]), TrackLog())
+                log.add(self._frame, z[i], codes[i], noise[i])
         self.bones.observe(rows, z)
         self.hits[rows] += 1
         self.seen_t[rows] = t
@@ -204,6 +233,7 @@ class Tracker:
         if confirm.any():
             for r in np.flatnonzero(confirm):
                 self.ids[r] = self._next_id
+                self._serial_of_id[self._next_id] = int(self.serial[r])
                 # the frames it was seen before confirmation count too (this one is added below)
                 self.trajectories[self._next_id] = Trajectory(
                     self._next_id,
@@ -255,6 +285,11 @@ class Tracker:
             predicted=~is_meas,
             velocity=velocity,
         )
+        if self.record:  # bridged people: a step without measurements
+            none = np.full((NUM_JOINTS, 3), np.nan)
+            for r in out_rows[~is_meas]:
+                log = self.logs.setdefault(int(self.serial[r]), TrackLog())
+                log.add(frame, none, np.zeros(NUM_JOINTS, np.int8), np.ones(NUM_JOINTS))
         pos = floor_position(X)
         for p in np.flatnonzero(is_meas):
             self.trajectories[int(people.ids[p])].add(frame, t, pos[p])
@@ -271,5 +306,5 @@ class Tracker:
             keep = ~drop
             self.filters.keep(keep)
             self.bones.keep(keep)
-            for name in ("ids", "hits", "seen_t", "born", "conf", "joint_t"):
+            for name in ("ids", "hits", "seen_t", "born", "conf", "joint_t", "serial"):
                 setattr(self, name, getattr(self, name)[keep])
