@@ -126,3 +126,31 @@ def test_epipolar_distances_match_numpy(hard):
     assert n.size > 100
     np.testing.assert_allclose(dist.same, same, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(dist.cross, cross, rtol=1e-10, atol=1e-12)
+
+
+def test_pair_costs_and_boxes_match_numpy(hard):
+    from stereopose.association.affinity import epipolar_costs, epipolar_distances
+
+    t = 13
+    rec = Reconstructor(hard.rig)
+    det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
+    dist = epipolar_distances(det, rec.E)
+    cost = epipolar_costs(det, dist, 0.3, 4)
+    ok = det.conf >= 0.3
+    ref = np.full(cost.shape, np.inf)
+    best = np.full(dist.first.size, np.inf)
+    for d, ok_m in ((dist.same, ok[dist.second]), (dist.cross, ok[dist.second][:, SWAP])):
+        both = ok[dist.first] & ok_m
+        k = both.sum(-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.where(both, d, 0.0).sum(-1) / k
+        c[(k < 4) | ~np.isfinite(c)] = np.inf
+        best = np.minimum(best, c)
+    ref[dist.first, dist.second] = ref[dist.second, dist.first] = best
+    np.testing.assert_allclose(cost, ref, rtol=1e-12)
+    assert np.isfinite(cost).sum() > 20
+    # box diagonals of the confident joints
+    lo = np.where(ok[..., None], det.xy, np.inf).min(1)
+    hi = np.where(ok[..., None], det.xy, -np.inf).max(1)
+    want = np.where(ok.sum(1) >= 2, np.hypot(*(hi - lo).T), np.nan)
+    np.testing.assert_allclose(det.size, want, rtol=1e-12)

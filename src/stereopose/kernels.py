@@ -160,6 +160,27 @@ def select_views(xy, w, P, focal, thr, X_all):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def project_all(X, P):
+    """Points (T, J, 3) projected into every camera (C, 3, 4): (T, J, C, 2) ideal
+    coordinates, NaN behind a camera (see geometry.camera.project_to_cameras)."""
+    T, J, C = X.shape[0], X.shape[1], P.shape[0]
+    out = np.full((T, J, C, 2), np.nan)
+    for t in range(T):
+        for j in range(J):
+            x0, x1, x2 = X[t, j, 0], X[t, j, 1], X[t, j, 2]
+            for c in range(C):
+                zc = P[c, 2, 0] * x0 + P[c, 2, 1] * x1 + P[c, 2, 2] * x2 + P[c, 2, 3]
+                if zc > 1e-3:
+                    out[t, j, c, 0] = (
+                        P[c, 0, 0] * x0 + P[c, 0, 1] * x1 + P[c, 0, 2] * x2 + P[c, 0, 3]
+                    ) / zc
+                    out[t, j, c, 1] = (
+                        P[c, 1, 0] * x0 + P[c, 1, 1] * x1 + P[c, 1, 2] * x2 + P[c, 1, 3]
+                    ) / zc
+    return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
     """Cost of every detection against every predicted pose, labels as detected or exchanged.
 
@@ -560,3 +581,93 @@ def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
             same[k, j] = abs(lm[j, 0] * xm + lm[j, 1] * ym + lm[j, 2]) * (wm[j] + wn[j])
             cross[k, j] = abs(lm[j, 0] * xs + lm[j, 1] * ys + lm[j, 2]) * (wm[j] + wn[s])
     return same, cross
+
+
+def warm_up() -> None:
+    """Compile every loop above (once per machine: the results are cached beside this module)
+    by running a small simulated scene through the tracker, so a first real run does not
+    wait for the compiler. `make install` calls it."""
+    import dataclasses
+
+    from stereopose.config import Config
+    from stereopose.sim import simulate
+    from stereopose.tracking import Tracker
+
+    scene = simulate(num_cameras=4, num_people=3, num_frames=30, seed=1, difficulty="hard")
+    tracker = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
+    people = [
+        tracker.update(t, [d[n] for n in scene.rig.names]) for t, d in enumerate(scene.detections)
+    ]
+    tracker.two_way(people)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def pair_costs(N, first, second, same, cross, ok, swap, min_common):
+    """(N, N) symmetric cost of detection pairs: the mean over joints confident (ok (N, 17)) in
+    both of the distances same (M, 17), or of cross with the second's labels exchanged, the
+    lower of the two; inf with fewer than min_common shared joints, and for pairs not listed
+    (see association.affinity.epipolar_costs)."""
+    cost = np.full((N, N), np.inf)
+    J = ok.shape[1]
+    for k in range(first.shape[0]):
+        n, m = first[k], second[k]
+        best = np.inf
+        for lab in range(2):
+            total = 0.0
+            count = 0
+            for j in range(J):
+                jm = swap[j] if lab == 1 else j
+                if ok[n, j] and ok[m, jm]:
+                    total += same[k, j] if lab == 0 else cross[k, j]
+                    count += 1
+            if count >= min_common and count > 0:
+                c = total / count
+                if np.isfinite(c) and c < best:
+                    best = c
+        cost[n, m] = cost[m, n] = best
+    return cost
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def box_diagonals(xy, mask):
+    """(N,) diagonal of the box around the masked joints of each detection (N, 17, 2); NaN
+    with fewer than two."""
+    N, J = mask.shape
+    out = np.full(N, np.nan)
+    for n in range(N):
+        x0 = y0 = np.inf
+        x1 = y1 = -np.inf
+        k = 0
+        for j in range(J):
+            if mask[n, j]:
+                x, y = xy[n, j, 0], xy[n, j, 1]
+                x0, x1 = min(x0, x), max(x1, x)
+                y0, y1 = min(y0, y), max(y1, y)
+                k += 1
+        if k >= 2:
+            out[n] = np.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+    return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def floor_points(X, left_hip, right_hip):
+    """(P, 2) floor point of people (P, J, 3): the mid-hip x-y, or the mean x-y of the joints
+    known (NaN when none is); see tracking.positioning.floor_position."""
+    P, J = X.shape[0], X.shape[1]
+    out = np.full((P, 2), np.nan)
+    for p in range(P):
+        mx = 0.5 * (X[p, left_hip, 0] + X[p, right_hip, 0])
+        my = 0.5 * (X[p, left_hip, 1] + X[p, right_hip, 1])
+        if np.isfinite(mx) and np.isfinite(my):
+            out[p, 0], out[p, 1] = mx, my
+            continue
+        sx = sy = 0.0
+        k = 0
+        for j in range(J):
+            if np.isfinite(X[p, j, 0]) and np.isfinite(X[p, j, 1]):
+                sx += X[p, j, 0]
+                sy += X[p, j, 1]
+                k += 1
+        if k:
+            out[p, 0], out[p, 1] = sx / k, sy / k
+    return out

@@ -14,7 +14,7 @@ import numpy as np
 
 from stereopose.association.grouping import upper_pairs
 from stereopose.geometry.camera import UNDISTORT_STOP
-from stereopose.kernels import epipolar_pair_distances, undistort
+from stereopose.kernels import box_diagonals, epipolar_pair_distances, pair_costs, undistort
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
@@ -67,11 +67,7 @@ class Detections:
 
 def _box_diagonal(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """(N, 17, 2), (N, 17) -> (N,) diagonal of the box around the masked joints (NaN if < 2)."""
-    with np.errstate(invalid="ignore"):
-        lo = np.where(mask[..., None], xy, np.inf).min(axis=1)
-        hi = np.where(mask[..., None], xy, -np.inf).max(axis=1)
-        d = np.hypot(*(hi - lo).T)
-    return np.where(mask.sum(axis=1) >= 2, d, np.nan)
+    return box_diagonals(np.ascontiguousarray(xy), np.ascontiguousarray(mask))
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,19 +118,13 @@ def epipolar_costs(
     detection is still the same person. Pairs in the same camera, or with fewer than
     `min_common_joints` shared joints, cost inf.
     """
-    N = len(det)
-    cost = np.full((N, N), np.inf)
-    if dist.first.size == 0:
-        return cost
-    ok = det.conf >= min_conf
-    ok_n = ok[dist.first]
-    best = np.full(dist.first.size, np.inf)
-    for d, ok_m in ((dist.same, ok[dist.second]), (dist.cross, ok[dist.second][:, SWAP])):
-        both = ok_n & ok_m
-        k = both.sum(-1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.where(both, d, 0.0).sum(-1) / k
-        c[(k < min_common_joints) | ~np.isfinite(c)] = np.inf
-        np.minimum(best, c, out=best)
-    cost[dist.first, dist.second] = cost[dist.second, dist.first] = best
-    return cost
+    return pair_costs(
+        len(det),
+        dist.first,
+        dist.second,
+        dist.same,
+        dist.cross,
+        det.conf >= min_conf,
+        SWAP,
+        min_common_joints,
+    )

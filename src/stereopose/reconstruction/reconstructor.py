@@ -21,7 +21,7 @@ from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.geometry.triangulation import dlt_blocks
-from stereopose.kernels import claim_costs, in_view
+from stereopose.kernels import claim_costs, in_view, project_all
 from stereopose.reconstruction.triangulate import (
     JOINT_PARTS,
     pair_views,
@@ -254,7 +254,7 @@ class Reconstructor:
         detection's size; left/right exchanged poses count as the same pose.
         """
         ac = self.config.association
-        proj = project_to_cameras(predicted, self.P)  # (T, 17, C, 2)
+        proj = project_all(np.ascontiguousarray(predicted, dtype=np.float64), self.P)
         ok = det.conf >= ac.min_conf  # (N, 17)
         best, part = claim_costs(
             det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, ac.min_common_joints
@@ -264,11 +264,8 @@ class Reconstructor:
         fine = best[np.arange(len(det)), pick] <= ac.track_max_cost
         key = det.camera * best.shape[1] + pick
         # where no two detections of a camera pick the same pose, the row minima are optimal
-        dup = np.zeros(len(det), dtype=bool)
-        k = key[fine]
-        uniq, counts = np.unique(k, return_counts=True)
-        if (counts > 1).any():
-            dup[fine] = np.isin(k, uniq[counts > 1])
+        picks = np.bincount(key[fine], minlength=len(self.rig) * best.shape[1])
+        dup = fine & (picks[key] > 1)
         claims[fine & ~dup] = pick[fine & ~dup]
         for cam in np.unique(det.camera[dup]):
             rows = np.flatnonzero(det.camera == cam)

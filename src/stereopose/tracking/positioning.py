@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from stereopose.kernels import floor_points
 from stereopose.skeleton import LEFT_HIP, RIGHT_HIP, joint_index
 
 _LEFT_SHOULDER, _RIGHT_SHOULDER = joint_index("left_shoulder"), joint_index("right_shoulder")
@@ -14,16 +15,7 @@ _LEFT_SHOULDER, _RIGHT_SHOULDER = joint_index("left_shoulder"), joint_index("rig
 
 def floor_position(joints: np.ndarray) -> np.ndarray:
     """(P, 17, 3) joints -> (P, 2) floor point: mid-hip x-y, or the mean of the joints seen."""
-    hips = joints[:, [LEFT_HIP, RIGHT_HIP], :2]
-    with np.errstate(invalid="ignore"):
-        mid = hips.mean(axis=1)
-    out = np.full((joints.shape[0], 2), np.nan)
-    ok = np.isfinite(mid).all(-1)
-    out[ok] = mid[ok]
-    rest = ~ok & np.isfinite(joints[..., :2]).all(-1).any(-1)
-    if rest.any():
-        out[rest] = np.nanmean(joints[rest, :, :2], axis=1)
-    return out
+    return floor_points(np.ascontiguousarray(joints, dtype=np.float64), LEFT_HIP, RIGHT_HIP)
 
 
 def heading_deg(joints: np.ndarray) -> np.ndarray:
