@@ -281,8 +281,9 @@ def write(results: dict) -> None:
         "machine's speed varies between runs). Frames/s by the wall clock, and by the process's "
         "CPU time (they differ when the process waits for the CPU; where they agree, the "
         "variation between runs is the machine's own speed). The per-frame 3D stage alone (no "
-        "tracking) was timed in the same runs. The first call of each compiled loop (numba) is not in these "
-        "runs: `make install` compiles them once, and later processes load them from the cache.",
+        "tracking) was timed in the same runs. The first call of each compiled loop (numba) is "
+        "not in these runs: `make install` compiles them once, and later processes load them "
+        "from the cache.",
         "",
         "| cameras x people | back end frames/s, best | median | by CPU time, best | median "
         "| per-frame stage, best | median |",
