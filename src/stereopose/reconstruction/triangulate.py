@@ -174,13 +174,6 @@ def triangulate_robust(
         X, single = complete_single_views(X, used, xy, w, *rays)
         if single.any():
             err[single] = reprojection_errors(X[single], xy[single], P, focal)
-            if fix_swaps:  # a joint placed from one view may hang from the other side
-                swap = _mirrored_pairs(X)
-                if swap.any():
-                    xy, w = _exchange(xy, w, np.broadcast_to(swap[..., None], (*swap.shape, C)))
-                    X, used, err, single = (
-                        _exchange_joints(a, swap) for a in (X, used, err, single)
-                    )
     used &= np.isfinite(X[..., :1])
     return X, used, xy, w, np.where(used, err, np.nan), single
 
