@@ -542,7 +542,7 @@ def in_view(X, P, lo, hi, min_joints):
 def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
     """Per-joint normalised symmetric epipolar distances of detection pairs.
 
-    xy: (N, 17, 2) ideal coordinates (NaN: missing, taken as 0: such joints never vote);
+    xy: (N, 17, 2) ideal coordinates, finite (missing joints as 0: they never vote);
     size: (N,); camera: (N,); E: (C, C, 3, 3); first, second: (M,) detection pairs. Returns
     same (M, 17), the distance of joint j of `first` to joint j of `second`, each side's
     point-to-line distance divided by its detection's size, and cross (M, 17), the same
@@ -559,11 +559,7 @@ def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
         ca, cb = camera[n], camera[m]
         for j in range(J):
             xn, yn = xy[n, j, 0], xy[n, j, 1]
-            if not (np.isfinite(xn) and np.isfinite(yn)):
-                xn = yn = 0.0
             xm, ym = xy[m, j, 0], xy[m, j, 1]
-            if not (np.isfinite(xm) and np.isfinite(ym)):
-                xm = ym = 0.0
             for r in range(3):
                 lm[j, r] = E[ca, cb, r, 0] * xn + E[ca, cb, r, 1] * yn + E[ca, cb, r, 2]
             a = E[cb, ca, 0, 0] * xm + E[cb, ca, 0, 1] * ym + E[cb, ca, 0, 2]
@@ -573,11 +569,7 @@ def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
         for j in range(J):
             s = swap[j]
             xm, ym = xy[m, j, 0], xy[m, j, 1]
-            if not (np.isfinite(xm) and np.isfinite(ym)):
-                xm = ym = 0.0
             xs, ys = xy[m, s, 0], xy[m, s, 1]
-            if not (np.isfinite(xs) and np.isfinite(ys)):
-                xs = ys = 0.0
             same[k, j] = abs(lm[j, 0] * xm + lm[j, 1] * ym + lm[j, 2]) * (wm[j] + wn[j])
             cross[k, j] = abs(lm[j, 0] * xs + lm[j, 1] * ys + lm[j, 2]) * (wm[j] + wn[s])
     return same, cross

@@ -101,8 +101,9 @@ def epipolar_distances(
     n, m = n[keep], m[keep]
     row = np.full((N, N), -1, dtype=np.int64)
     row[n, m] = row[m, n] = np.arange(n.size)
+    xy = np.where(np.isfinite(det.xy), det.xy, 0.0)  # missing joints never vote
     same, cross = epipolar_pair_distances(
-        det.xy, det.size, det.camera, E, n.astype(np.int64), m.astype(np.int64), SWAP
+        xy, det.size, det.camera, E, n.astype(np.int64), m.astype(np.int64), SWAP
     )
     return PairDistances(n, m, row, same, cross)
 

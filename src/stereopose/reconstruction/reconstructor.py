@@ -20,11 +20,9 @@ from stereopose.config import ReconstructionConfig
 from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
-from stereopose.geometry.triangulation import dlt_blocks
 from stereopose.kernels import claim_costs, in_view, project_all
 from stereopose.reconstruction.triangulate import (
     JOINT_PARTS,
-    pair_views,
     reprojection_errors,
     triangulate_pair,
     triangulate_robust,
@@ -161,13 +159,11 @@ class Reconstructor:
         self.P = np.stack([c.P for c in rig])
         self.E = essential_matrices(rig)
         self.focal = np.array([c.focal for c in rig])
-        self.blocks = dlt_blocks(self.P)
         # image bounds in normalised coordinates, (C, 2) each
         size = np.array([c.size for c in rig])
         K = np.stack([c.matrix for c in rig])
         centre, f = K[:, :2, 2], np.stack([K[:, 0, 0], K[:, 1, 1]], axis=-1)
         self.bounds = (-centre / f, (size - centre) / f)
-        self.pair_blocks = dlt_blocks(self.P[pair_views(len(rig))])
         self.R = self.P[:, :, :3]
         self.centers = -np.einsum("cji,cj->ci", self.R, self.P[:, :, 3])
 
@@ -335,8 +331,6 @@ class Reconstructor:
                 tc.inlier_rel,
                 tc.fix_swaps,
                 pair_distances=None if labels_known else _group_pair_distances(members, dist),
-                blocks=self.blocks,
-                pair_blocks=self.pair_blocks,
                 rays=(self.centers, self.R) if tc.single_view else None,
             )
         out_conf = np.where(used, w, 0.0).sum(-1) / np.maximum(used.sum(-1), 1)

@@ -109,8 +109,6 @@ def triangulate_robust(
     inlier_rel: float,
     fix_swaps: bool,
     pair_distances: tuple[np.ndarray, np.ndarray] | None = None,
-    blocks: np.ndarray | None = None,
-    pair_blocks: np.ndarray | None = None,
     rays: tuple[np.ndarray, np.ndarray] | None = None,
     relabel: bool = True,
 ):
@@ -121,8 +119,7 @@ def triangulate_robust(
     is scored by the confidence of the views that agree with it, and the best wins. The final
     point is the weighted DLT over the agreeing views (at least two). With pair_distances
     (same, cross), each (G, 17, K) per-joint epipolar distances of the views of camera pairs
-    (a < b), the left/right labels of all views are first made consistent. blocks and
-    pair_blocks: dlt_blocks of P and of P[upper_pairs(C)] stacked, when computed already.
+    (a < b), the left/right labels of all views are first made consistent.
     rays: (centers (C, 3), R (C, 3, 3)) of the cameras, to place joints seen in one view (see
     complete_single_views); then a joint whose two views disagree, one of them much weaker
     (an occluded or misplaced joint is reported faintly), rests on the stronger view alone.
@@ -149,7 +146,7 @@ def triangulate_robust(
     X, used, err = select_views(xy, w, P, focal, np.ascontiguousarray(thr[:, 0]), X_all)
     if fix_swaps and relabel:
         X, used, xy, w, err = _relabel_asymmetric(
-            X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel, blocks, pair_blocks
+            X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel
         )
     if fix_swaps:
         # The joints re-seeded above may settle on labels the whole-body check could not see
@@ -200,8 +197,6 @@ def _relabel_asymmetric(
     size_px,
     inlier_px,
     inlier_rel,
-    blocks,
-    pair_blocks,
     max_asymmetry: float = 0.15,
 ):
     """Solve again the people whose left and right bones differ by more than max_asymmetry.
@@ -223,12 +218,7 @@ def _relabel_asymmetric(
     if g.size == 0:
         return X, used, xy, w, err
     swap = np.zeros((g.size, len(LR_PAIRS), C), dtype=bool)
-    swap[np.arange(g.size)[:, None], np.flatnonzero(_PART_OF_PAIR == 0)[None], view[:, None]] = (
-        part[:, None] == 0
-    )
-    swap[np.arange(g.size)[:, None], np.flatnonzero(_PART_OF_PAIR == 1)[None], view[:, None]] = (
-        part[:, None] == 1
-    )
+    swap[np.arange(g.size), :, view] = _PART_OF_PAIR[None, :] == part[:, None]
     cx, cw = _exchange(xy[bad][g], w[bad][g], swap)
     Xc, uc, xc, wc, ec, _ = triangulate_robust(
         cx,
@@ -239,11 +229,10 @@ def _relabel_asymmetric(
         inlier_px,
         inlier_rel,
         True,
-        blocks=blocks,
-        pair_blocks=pair_blocks,
         relabel=False,
     )
-    ac = np.where(np.isfinite(_asymmetry(Xc)), _asymmetry(Xc), np.inf)
+    ac = _asymmetry(Xc)
+    ac[~np.isfinite(ac)] = np.inf
     X, used, xy, w, err = X.copy(), used.copy(), xy.copy(), w.copy(), err.copy()
     for i, person in enumerate(bad):
         mine = np.flatnonzero(g == i)
@@ -283,11 +272,6 @@ def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
             X = _exchange_joints(X, pairs)
             swap ^= pairs
     return swap
-
-
-def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d = a - b
-    return np.sqrt(np.einsum("...x,...x->...", d, d))
 
 
 def _exchange_joints(a: np.ndarray, swap: np.ndarray) -> np.ndarray:
