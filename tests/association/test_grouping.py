@@ -70,3 +70,16 @@ def test_unmatched_detections_form_no_group():
     np.fill_diagonal(cost, np.inf)
     assert group_detections(cost, camera, max_cost=0.12) == []
     assert group_detections(np.zeros((0, 0)), np.zeros(0, int), max_cost=0.12) == []
+
+
+def test_costs_beyond_max_cost_do_not_steer_the_assignment():
+    # Detections 0, 1 in camera 0 and 2, 3 in camera 1; only (0, 2) is within max_cost. Summed
+    # over the pair, (0, 3) + (1, 2) is cheaper than (0, 2) + (1, 3), but both of its matches
+    # lie beyond max_cost and would be dropped: the one possible match must be kept.
+    camera = np.array([0, 0, 1, 1])
+    cost = np.full((4, 4), np.inf)
+    for (n, m), c in {(0, 2): 0.05, (1, 3): 0.5, (0, 3): 0.2, (1, 2): 0.3}.items():
+        cost[n, m] = cost[m, n] = c
+    rows = pairwise_matches(cost, camera, max_cost=0.12)
+    assert [(int(n), int(m)) for n, m, _ in rows] == [(0, 2)]
+    assert [g.tolist() for g in group_detections(cost, camera, max_cost=0.12)] == [[0, 2]]

@@ -27,8 +27,13 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     partner in the other camera; where no two pick the same partner, that is the optimal
     assignment (the sum of row minima bounds every assignment from below), found for all pairs
     at once. Only pairs with a conflict go through the Hungarian algorithm.
+
+    Costs above max_cost are gated out before the assignment: otherwise the assignment could
+    give a detection a partner beyond max_cost (then dropped) to spare a cheaper match
+    elsewhere, leaving the detection's true partner unmatched too.
     """
     N = cost.shape[0]
+    cost = np.where(cost <= max_cost, cost, np.inf)
     per_camera = np.bincount(camera)
     cams = np.flatnonzero(per_camera)
     if cams.size < 2:
@@ -48,7 +53,7 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     pick_pair = np.full((cams.size, cams.size), -1)
     pick_pair[small, other] = np.arange(qa.size)
     k_of = pick_pair[q_of[:, None], np.arange(cams.size)[None]]  # (N, Q) pair index or -1
-    n_idx, q_idx = np.nonzero(k_of >= 0)
+    n_idx, q_idx = np.nonzero((k_of >= 0) & np.isfinite(sub.min(-1)))
     m_idx = best[n_idx, q_idx]
     k_idx = k_of[n_idx, q_idx]
     picks = np.zeros((qa.size, N), dtype=np.int64)
