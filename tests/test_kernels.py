@@ -68,6 +68,9 @@ def test_body_orientation_matches_numpy(hard):
     rng = np.random.default_rng(0)
     X = hard.truth[hard.present].copy()
     X = np.concatenate([X, X[:, SWAP], X[:, [*range(13), 14, 13, 16, 15]]])
+    stray = X.copy()  # noses and ears thrown off the head
+    stray[:, [0, 3]] += rng.normal(0.0, 0.3, (stray.shape[0], 2, 3))
+    X = np.concatenate([X, stray])
     X[rng.random(X.shape[:2]) < 0.2] = np.nan
     for got, ref in zip(_body_orientation(X), body_orientation_numpy(X), strict=True):
         np.testing.assert_array_equal(got, ref)

@@ -242,28 +242,54 @@ def _dist3(X, g, a, b):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def body_orientation(X, face_margin_m, thigh_margin_m):
+def _ahead(X, g, front, left, right):
+    """How far (m) joint `front` of person g lies ahead of the midpoint of joints left and
+    right, ahead being up x (right - left) with z up; NaN where any is missing."""
+    rx = X[g, right, 0] - X[g, left, 0]
+    ry = X[g, right, 1] - X[g, left, 1]
+    lx = X[g, front, 0] - 0.5 * (X[g, left, 0] + X[g, right, 0])
+    ly = X[g, front, 1] - 0.5 * (X[g, left, 1] + X[g, right, 1])
+    return (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def body_orientation(X, face_margin_m, thigh_margin_m, head_radius_m, head_width_m):
     """Per person (G, 17, 3): whether the labels are mirrored as a whole (the face behind the
-    shoulders, with z up) and whether the legs are (each knee nearer the other side's hip).
-    See triangulate._body_orientation, of which this is the compiled form."""
+    shoulders and the nose behind the ears, with z up) and whether the legs are (each knee
+    nearer the other side's hip). See triangulate.body_orientation_numpy, of which this is the
+    compiled form."""
     G = X.shape[0]
     flip_upper = np.zeros(G, dtype=np.bool_)
     flip_legs = np.zeros(G, dtype=np.bool_)
     for g in range(G):
+        # the head's sides: the ears, or the eyes without them
+        hl, hr = (3, 4) if np.isfinite(X[g, 3, 0]) and np.isfinite(X[g, 4, 0]) else (1, 2)
+        mx = 0.5 * (X[g, hl, 0] + X[g, hr, 0])
+        my = 0.5 * (X[g, hl, 1] + X[g, hr, 1])
+        mz = 0.5 * (X[g, hl, 2] + X[g, hr, 2])
+        off = np.sqrt((X[g, 0, 0] - mx) ** 2 + (X[g, 0, 1] - my) ** 2 + (X[g, 0, 2] - mz) ** 2)
+        stray = off >= head_radius_m or _dist3(X, g, hl, hr) >= head_width_m  # NaN: False
         rx = X[g, 6, 0] - X[g, 5, 0]
         ry = X[g, 6, 1] - X[g, 5, 1]
         fx = fy = 0.0
         k = 0
         for j in range(3):
-            if np.isfinite(X[g, j, 0]):
+            if np.isfinite(X[g, j, 0]) and not (j == 0 and stray):
                 fx += X[g, j, 0]
                 fy += X[g, j, 1]
                 k += 1
+        ahead = 0.0
         if k > 0:
             lx = fx / k - 0.5 * (X[g, 5, 0] + X[g, 6, 0])
             ly = fy / k - 0.5 * (X[g, 5, 1] + X[g, 6, 1])
-            ahead = (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
-            flip_upper[g] = ahead < -face_margin_m
+            shoulders = (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
+            if np.isfinite(shoulders):
+                ahead += shoulders
+        if not stray:
+            head = _ahead(X, g, 0, hl, hr)
+            if np.isfinite(head):
+                ahead += head
+        flip_upper[g] = ahead < -face_margin_m
         h0, h1 = (12, 11) if flip_upper[g] else (11, 12)
         d00 = _dist3(X, g, h0, 13)
         d01 = _dist3(X, g, h0, 14)
@@ -446,10 +472,12 @@ def bones_apply(X, length, count, rows, parent, child, min_samples):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def asymmetry(X, bones_left, bones_right):
-    """(G,) sum of |left - right| bone lengths over the sum of their means, over the bones
-    (B, 2) whose both sides are known in X (G, 17, 3); NaN where none is."""
-    G, B = X.shape[0], bones_left.shape[0]
+def implausibility(X, bones_left, bones_right, bones, max_m):
+    """(G,) how far each skeleton X (G, 17, 3) is from a possible body: the sum of
+    |left - right| bone lengths over the sum of their means, over the bones (B, 2) whose both
+    sides are known (0 where none is), plus, for each bone of `bones` (K, 2), its length's
+    excess over max_m (K,) as a fraction of max_m."""
+    G, B, K = X.shape[0], bones_left.shape[0], bones.shape[0]
     out = np.empty(G)
     for g in range(G):
         num = den = 0.0
@@ -459,7 +487,12 @@ def asymmetry(X, bones_left, bones_right):
             if np.isfinite(lo) and np.isfinite(hi):
                 num += abs(lo - hi)
                 den += 0.5 * (lo + hi)
-        out[g] = num / den if den > 0.0 else np.nan
+        score = num / den if den > 0.0 else 0.0
+        for k in range(K):
+            length = _dist3(X, g, bones[k, 0], bones[k, 1])
+            if length > max_m[k]:  # NaN compares False
+                score += length / max_m[k] - 1.0
+        out[g] = score
     return out
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereopose.reconstruction.triangulate import _asymmetry, _mirrored_pairs
+from stereopose.reconstruction.triangulate import _implausibility, _mirrored_pairs
 from stereopose.sim.motion import pose
 from stereopose.skeleton import LR_PAIRS, SWAP
 
@@ -41,10 +41,42 @@ def test_a_correct_skeleton_is_left_alone(heading):
     assert _mirrored_pairs(X[:, SWAP]).all()
 
 
-def test_asymmetry():
+def test_implausibility():
     X = _skeleton()
-    assert _asymmetry(X)[0] < 0.05
+    assert _implausibility(X)[0] < 0.05
     bad = X.copy()
     bad[0, 9] = bad[0, 10]  # a wrist taken from the other arm: forearms of different lengths
-    assert _asymmetry(bad)[0] > 0.15
-    assert np.isnan(_asymmetry(np.full((1, 17, 3), np.nan))[0])
+    assert _implausibility(bad)[0] > 0.15
+    # symmetric but 2 m across the shoulders and hips: both sides moved apart by 0.8 m
+    wide = X.copy()
+    side = X[0, 6] - X[0, 5]
+    side /= np.linalg.norm(side)
+    wide[0, [6, 8, 10, 12, 14, 16]] += 0.8 * side
+    wide[0, [5, 7, 9, 11, 13, 15]] -= 0.8 * side
+    assert _implausibility(wide)[0] > 1.0
+    assert _implausibility(np.full((1, 17, 3), np.nan))[0] == 0.0
+
+
+@pytest.mark.parametrize("heading", [0.0, 1.3, -2.5])
+def test_the_head_tells_the_front_when_the_shoulders_cannot(heading):
+    # Shoulders displaced along their own axis (depth noise of two close views seen from the
+    # side) put the face level with them; the nose ahead of the ears still shows the front.
+    X = _skeleton(heading)
+    side = X[0, 6] - X[0, 5]
+    lead = X[0, :3].mean(0) - 0.5 * (X[0, 5] + X[0, 6])
+    front = np.array([-side[1], side[0], 0.0]) / np.linalg.norm(side[:2])
+    noisy = X.copy()
+    noisy[0, [5, 6]] += lead @ front * front  # the shoulder line moved forward to the face
+    assert not _mirrored_pairs(noisy).any()
+    assert _mirrored_pairs(noisy[:, SWAP]).all()
+
+
+def test_a_nose_off_the_head_does_not_turn_the_body():
+    # a nose triangulated 0.35 m behind the face (an outlier in one of two views)
+    X = _skeleton(0.7)
+    side = X[0, 6] - X[0, 5]
+    front = np.array([-side[1], side[0], 0.0]) / np.linalg.norm(side[:2])
+    bad = X.copy()
+    bad[0, 0] -= 0.35 * front
+    assert not _mirrored_pairs(bad).any()
+    assert _mirrored_pairs(bad[:, SWAP]).all()

@@ -18,10 +18,10 @@ from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
 from stereopose.kernels import (
-    asymmetry,
     body_orientation,
     chain_flips,
     dlt_all,
+    implausibility,
     place_single_views,
     select_views,
 )
@@ -175,15 +175,22 @@ def triangulate_robust(
     return X, used, xy, w, np.where(used, err, np.nan), single
 
 
-# Left and right bones compared by _asymmetry: upper arms, forearms, thighs, shins, trunk sides.
+# Left and right bones compared by _implausibility: upper arms, forearms, thighs, shins, trunk
+# sides.
 _BONES_L = np.array([[5, 7], [7, 9], [11, 13], [13, 15], [5, 11]])
 _BONES_R = SWAP[_BONES_L]
+# Bones no adult's reach (a tall adult's length with a wide margin, m): shoulder and hip
+# widths, then the limbs and trunk sides of _BONES_L and _BONES_R. A joint triangulated from
+# views whose labels disagree lands far from the body, making some bone far too long.
+_BONES_MAX = np.concatenate([[[5, 6], [11, 12]], _BONES_L, _BONES_R])
+_MAX_M = np.array([0.7, 0.55, *([0.5, 0.42, 0.65, 0.65, 0.85] * 2)])
 
 
-def _asymmetry(X: np.ndarray) -> np.ndarray:
-    """(G,) sum of |left - right| bone lengths over the sum of their means (NaN where no
-    bone has both sides): 0 for a symmetric skeleton."""
-    return asymmetry(np.ascontiguousarray(X), _BONES_L, _BONES_R)
+def _implausibility(X: np.ndarray) -> np.ndarray:
+    """(G,) 0 for a symmetric skeleton within adult proportions; grows with the difference of
+    left and right bones (the sum of |left - right| over the sum of their means) and with each
+    bone's excess over _MAX_M (as a fraction of it)."""
+    return implausibility(np.ascontiguousarray(X), _BONES_L, _BONES_R, _BONES_MAX, _MAX_M)
 
 
 def _relabel_asymmetric(
@@ -197,18 +204,19 @@ def _relabel_asymmetric(
     size_px,
     inlier_px,
     inlier_rel,
-    max_asymmetry: float = 0.15,
+    max_implausibility: float = 0.15,
 ):
-    """Solve again the people whose left and right bones differ by more than max_asymmetry.
+    """Solve again the people whose skeleton is implausible by more than max_implausibility.
 
     When a person's left/right offset runs along the epipolar lines of two views, the labels
     of one view can be exchanged and the views still agree: the skeleton is then wrong but
-    consistent, with left and right limbs of different lengths. For such people every view
-    and body part (upper body, legs) is exchanged in turn, and the most symmetric skeleton is
-    kept if it is clearly better.
+    consistent, with left and right limbs of different lengths, or bones (shoulders, hips)
+    longer than any adult's (see _implausibility). For such people every view and body part
+    (upper body, legs) is exchanged in turn, and the most plausible skeleton is kept if it is
+    clearly better.
     """
-    asym = _asymmetry(X)
-    bad = np.flatnonzero(asym > max_asymmetry)  # NaN compares False
+    asym = _implausibility(X)
+    bad = np.flatnonzero(asym > max_implausibility)
     if bad.size == 0:
         return X, used, xy, w, err
     C = xy.shape[2]
@@ -231,7 +239,7 @@ def _relabel_asymmetric(
         True,
         relabel=False,
     )
-    ac = _asymmetry(Xc)
+    ac = _implausibility(Xc)
     ac[~np.isfinite(ac)] = np.inf
     X, used, xy, w, err = X.copy(), used.copy(), xy.copy(), w.copy(), err.copy()
     for i, person in enumerate(bad):
@@ -431,9 +439,26 @@ def _exchange(xy, w, swap):
     return xy, w
 
 
+# A nose this far from the midpoint of the ears (or eyes), or ears this far apart, is a joint
+# triangulated from a misplaced view, not a head: it is left out of the orientation test.
+_HEAD_RADIUS_M = 0.25
+_HEAD_WIDTH_M = 0.3
+
+
 def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
     """Which people's labels are mirrored as a whole (see body_orientation_numpy), compiled."""
-    return body_orientation(np.ascontiguousarray(X), face_margin_m, thigh_margin_m)
+    return body_orientation(
+        np.ascontiguousarray(X), face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M
+    )
+
+
+def _ahead_numpy(X, front, left, right):
+    """(G,) how far joint `front` lies ahead of the midpoint of joints left and right, ahead
+    being up x (right - left) horizontally, with z up; NaN where any is missing."""
+    r = X[:, right, :2] - X[:, left, :2]
+    lead = X[:, front, :2] - 0.5 * (X[:, left, :2] + X[:, right, :2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (lead[:, 1] * r[:, 0] - lead[:, 0] * r[:, 1]) / np.hypot(r[:, 0], r[:, 1])
 
 
 def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
@@ -441,16 +466,32 @@ def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
     In 3D they can: with z up, the face lies in front of the shoulders, where front is
-    up x (right shoulder - left shoulder); and each knee is nearer its own hip. X: (G, 17, 3).
-    Returns (flip_upper (G,), flip_legs (G,)).
+    up x (right shoulder - left shoulder), and the nose in front of the ears (or eyes), front
+    being up x (right ear - left ear). The two leads are added, so a head and shoulders seen
+    from two close views, whose depth is noisy, are judged together; a nose away from the head
+    (see _HEAD_RADIUS_M) takes part in neither. Each knee is nearer its own hip.
+    X: (G, 17, 3). Returns (flip_upper (G,), flip_legs (G,)).
     """
-    # front = up x right (horizontal); ahead = (face - mid-shoulder) . front / |front|
+    ears = np.isfinite(X[:, [3, 4], 0]).all(1)
+    hl, hr = np.where(ears, 3, 1), np.where(ears, 4, 2)
+    g = np.arange(X.shape[0])
+    mid = 0.5 * (X[g, hl] + X[g, hr])
+    with np.errstate(invalid="ignore"):
+        stray = (np.linalg.norm(X[:, 0] - mid, axis=-1) >= _HEAD_RADIUS_M) | (
+            np.linalg.norm(X[g, hr] - X[g, hl], axis=-1) >= _HEAD_WIDTH_M
+        )
+    # shoulders: ahead = (face - mid-shoulder) . front / |front|, front = up x right
     right = X[:, 6, :2] - X[:, 5, :2]
     seen = np.isfinite(X[:, :3, 0])
+    seen[:, 0] &= ~stray
     with np.errstate(invalid="ignore", divide="ignore"):  # no face or no shoulders: NaN
         face = np.where(seen[..., None], X[:, :3, :2], 0.0).sum(1) / seen.sum(1, keepdims=True)
         lead = face - 0.5 * (X[:, 5, :2] + X[:, 6, :2])
-        ahead = (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
+        shoulders = (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
+    head = np.where(ears, _ahead_numpy(X, 0, 3, 4), _ahead_numpy(X, 0, 1, 2))
+    head[stray] = np.nan
+    leads = np.stack([shoulders, head])
+    ahead = np.where(np.isfinite(leads), leads, 0.0).sum(0)  # a missing lead adds nothing
     flip_upper = ahead < -face_margin_m
     hips = np.where(flip_upper[:, None, None], X[:, [12, 11]], X[:, [11, 12]])
     d = hips[:, :, None] - X[:, None, [13, 14]]  # (G, hip, knee, 3)
