@@ -242,13 +242,8 @@ def _dist3(X, g, a, b):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def _ahead(X, g, front, left, right):
-    """How far (m) joint `front` of person g lies ahead of the midpoint of joints left and
-    right, ahead being up x (right - left) with z up; NaN where any is missing."""
-    rx = X[g, right, 0] - X[g, left, 0]
-    ry = X[g, right, 1] - X[g, left, 1]
-    lx = X[g, front, 0] - 0.5 * (X[g, left, 0] + X[g, right, 0])
-    ly = X[g, front, 1] - 0.5 * (X[g, left, 1] + X[g, right, 1])
+def _lead(lx, ly, rx, ry):
+    """How far the horizontal offset (lx, ly) reaches ahead, ahead being up x (rx, ry)."""
     return (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
 
 
@@ -269,8 +264,18 @@ def body_orientation(X, face_margin_m, thigh_margin_m, head_radius_m, head_width
         mz = 0.5 * (X[g, hl, 2] + X[g, hr, 2])
         off = np.sqrt((X[g, 0, 0] - mx) ** 2 + (X[g, 0, 1] - my) ** 2 + (X[g, 0, 2] - mz) ** 2)
         stray = off >= head_radius_m or _dist3(X, g, hl, hr) >= head_width_m  # NaN: False
-        rx = X[g, 6, 0] - X[g, 5, 0]
-        ry = X[g, 6, 1] - X[g, 5, 1]
+        # the body's left-to-right axis: shoulders plus hips, whichever are known
+        rx = ry = 0.0
+        axes = 0
+        for left, right in ((5, 6), (11, 12)):
+            dx = X[g, right, 0] - X[g, left, 0]
+            dy = X[g, right, 1] - X[g, left, 1]
+            if np.isfinite(dx) and np.isfinite(dy):
+                rx += dx
+                ry += dy
+                axes += 1
+        if axes == 0:
+            rx = ry = np.nan
         fx = fy = 0.0
         k = 0
         for j in range(3):
@@ -282,11 +287,14 @@ def body_orientation(X, face_margin_m, thigh_margin_m, head_radius_m, head_width
         if k > 0:
             lx = fx / k - 0.5 * (X[g, 5, 0] + X[g, 6, 0])
             ly = fy / k - 0.5 * (X[g, 5, 1] + X[g, 6, 1])
-            shoulders = (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
+            shoulders = _lead(lx, ly, rx, ry)
             if np.isfinite(shoulders):
                 ahead += shoulders
         if not stray:
-            head = _ahead(X, g, 0, hl, hr)
+            lx, ly = X[g, 0, 0] - mx, X[g, 0, 1] - my
+            head = _lead(lx, ly, rx, ry)
+            if not np.isfinite(head):  # no body axis: the head's own
+                head = _lead(lx, ly, X[g, hr, 0] - X[g, hl, 0], X[g, hr, 1] - X[g, hl, 1])
             if np.isfinite(head):
                 ahead += head
         flip_upper[g] = ahead < -face_margin_m

@@ -452,25 +452,23 @@ def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.
     )
 
 
-def _ahead_numpy(X, front, left, right):
-    """(G,) how far joint `front` lies ahead of the midpoint of joints left and right, ahead
-    being up x (right - left) horizontally, with z up; NaN where any is missing."""
-    r = X[:, right, :2] - X[:, left, :2]
-    lead = X[:, front, :2] - 0.5 * (X[:, left, :2] + X[:, right, :2])
+def _lead_numpy(lead, right):
+    """(G,) how far horizontal offsets lead (G, 2) reach ahead, ahead being up x right."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (lead[:, 1] * r[:, 0] - lead[:, 0] * r[:, 1]) / np.hypot(r[:, 0], r[:, 1])
+        return (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
 
 
 def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
     """Which people's labels are mirrored as a whole, from the body's handedness in 3D.
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
-    In 3D they can: with z up, the face lies in front of the shoulders, where front is
-    up x (right shoulder - left shoulder), and the nose in front of the ears (or eyes), front
-    being up x (right ear - left ear). The two leads are added, so a head and shoulders seen
-    from two close views, whose depth is noisy, are judged together; a nose away from the head
-    (see _HEAD_RADIUS_M) takes part in neither. Each knee is nearer its own hip.
-    X: (G, 17, 3). Returns (flip_upper (G,), flip_legs (G,)).
+    In 3D they can: with z up and front = up x right, right being the body's left-to-right
+    axis (right shoulder - left shoulder plus right hip - left hip), the face lies in front of
+    the shoulders and the nose in front of the ears (or eyes). The two leads are added, so a
+    head and shoulders seen from two close views, whose depth is noisy, are judged together;
+    a nose away from the head (see _HEAD_RADIUS_M) takes part in neither, and without
+    shoulders or hips the head's own axis (right ear - left ear) gives front. Each knee is
+    nearer its own hip. X: (G, 17, 3). Returns (flip_upper (G,), flip_legs (G,)).
     """
     ears = np.isfinite(X[:, [3, 4], 0]).all(1)
     hl, hr = np.where(ears, 3, 1), np.where(ears, 4, 2)
@@ -480,15 +478,19 @@ def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float
         stray = (np.linalg.norm(X[:, 0] - mid, axis=-1) >= _HEAD_RADIUS_M) | (
             np.linalg.norm(X[g, hr] - X[g, hl], axis=-1) >= _HEAD_WIDTH_M
         )
-    # shoulders: ahead = (face - mid-shoulder) . front / |front|, front = up x right
-    right = X[:, 6, :2] - X[:, 5, :2]
+    axes = np.stack([X[:, 6, :2] - X[:, 5, :2], X[:, 12, :2] - X[:, 11, :2]])  # (2, G, 2)
+    known = np.isfinite(axes).all(-1, keepdims=True)
+    right = np.where(known, axes, 0.0).sum(0)
+    right[~known.any(0)[:, 0]] = np.nan
     seen = np.isfinite(X[:, :3, 0])
     seen[:, 0] &= ~stray
-    with np.errstate(invalid="ignore", divide="ignore"):  # no face or no shoulders: NaN
+    with np.errstate(invalid="ignore", divide="ignore"):  # no face: NaN
         face = np.where(seen[..., None], X[:, :3, :2], 0.0).sum(1) / seen.sum(1, keepdims=True)
-        lead = face - 0.5 * (X[:, 5, :2] + X[:, 6, :2])
-        shoulders = (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
-    head = np.where(ears, _ahead_numpy(X, 0, 3, 4), _ahead_numpy(X, 0, 1, 2))
+    shoulders = _lead_numpy(face - 0.5 * (X[:, 5, :2] + X[:, 6, :2]), right)
+    nose = X[:, 0, :2] - mid[:, :2]
+    head = _lead_numpy(nose, right)
+    own = _lead_numpy(nose, X[g, hr, :2] - X[g, hl, :2])
+    head = np.where(np.isfinite(head), head, own)
     head[stray] = np.nan
     leads = np.stack([shoulders, head])
     ahead = np.where(np.isfinite(leads), leads, 0.0).sum(0)  # a missing lead adds nothing
