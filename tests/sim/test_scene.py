@@ -5,7 +5,7 @@ import pytest
 
 from stereopose.sim import make_rig, simulate
 from stereopose.sim.detections import DetectorNoise, joints_in_view
-from stereopose.sim.motion import pose
+from stereopose.sim.motion import keep_apart, pose
 from stereopose.skeleton import JOINT_INDEX, LIMBS
 
 
@@ -126,3 +126,36 @@ def test_motion_does_not_depend_on_camera_count() -> None:
     a = simulate(num_cameras=3, num_frames=40, seed=9)
     b = simulate(num_cameras=7, num_frames=40, seed=9)
     assert np.array_equal(a.truth, b.truth, equal_nan=True)
+
+
+def test_workers_give_way_instead_of_walking_through_each_other() -> None:
+    fps, T = 25.0, 200
+    t = np.arange(T) / fps
+    # two workers walking head-on along nearly the same line, one standing where they meet
+    xy = np.stack(
+        [
+            np.column_stack([1.0 + 1.3 * t, np.full(T, 4.0)]),
+            np.column_stack([11.0 - 1.3 * t, np.full(T, 4.1)]),
+            np.column_stack([np.full(T, 6.0), np.full(T, 3.95)]),
+        ]
+    )
+    present = np.ones((3, T), dtype=bool)
+    out = keep_apart(xy, present, 0.5, fps, (12.0, 8.0))
+    gap = np.linalg.norm(out[:, None] - out[None], axis=-1)[[0, 0, 1], [1, 2, 2]]
+    assert gap.min() > 0.48
+    assert np.abs(out - xy).max() < 1.0  # stepping aside, not a detour
+    speed = np.linalg.norm(np.diff(out, axis=1), axis=-1) * fps
+    assert speed.max() < 3.0  # a quick step aside, no jump from one frame to the next
+    # workers far apart keep their paths
+    apart = xy[:2] + np.array([[[0.0, 0.0]], [[0.0, 3.0]]])
+    np.testing.assert_array_equal(keep_apart(apart, present[:2], 0.5, fps, (12.0, 8.0)), apart)
+
+
+def test_simulated_bodies_do_not_overlap() -> None:
+    scene = simulate(num_frames=300, seed=2, difficulty="hard")
+    for t in range(scene.num_frames):
+        idx = np.flatnonzero(scene.present[t])
+        # hip centres; bending moves the hips back up to 0.2 m from where the body stands
+        hips = scene.truth[t, idx][:, [11, 12], :2].mean(1)
+        d = np.linalg.norm(hips[:, None] - hips[None], axis=-1)
+        assert (d[np.triu_indices(len(idx), 1)] > 0.25).all(), t

@@ -306,12 +306,18 @@ class Worker:
         sig["x"], sig["y"] = xy[:, 0], xy[:, 1]
         return sig
 
-    def track(self, num_frames: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joints (T, 17, 3) in metres, NaN where absent, and presence (T,) bool."""
+    def track(
+        self, num_frames: int, fps: float, xy: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Joints (T, 17, 3) in metres, NaN where absent, and presence (T,) bool.
+
+        xy: (T, 2) floor positions of the hip centre to use instead of the plan's (the plan's
+        moved aside by keep_apart); presence stays the plan's.
+        """
         s = self.signals(num_frames, fps)
         joints = pose(
             self.height,
-            np.column_stack([s["x"], s["y"]]),
+            np.column_stack([s["x"], s["y"]]) if xy is None else xy,
             s["heading"],
             s["gait"],
             s["phase"],
@@ -321,3 +327,49 @@ class Worker:
         )
         joints[~s["present"]] = np.nan
         return joints, s["present"]
+
+
+def keep_apart(
+    xy: np.ndarray,
+    present: np.ndarray,
+    min_m: float,
+    fps: float,
+    room: tuple[float, float],
+    iterations: int = 40,
+) -> np.ndarray:
+    """Floor positions (N, T, 2) of N workers' hip centres moved so that no two present
+    workers come closer than min_m: two bodies cannot overlap, and people passing or working
+    side by side give way.
+
+    Each pair too close is pushed apart along the line between them, each by half the
+    shortfall; the pushes are smoothed over time as the plans' own positions are (people step
+    aside over most of a second, not from one frame to the next), and repeated until every
+    pair is far enough apart. present: (N, T) bool; positions of a present worker stay on
+    the floor [0, width] x [0, depth] of `room`.
+    """
+    out = np.array(xy, dtype=np.float64)
+    N, T = present.shape
+    if N < 2 or T == 0:
+        return out
+    w = round(0.35 * fps)
+    both = present[:, None] & present[None] & ~np.eye(N, dtype=bool)[:, :, None]  # (N, N, T)
+    # a fixed direction for two workers at the very same spot: along x, by index
+    tie = np.sign(np.arange(N)[:, None] - np.arange(N)[None])[..., None]  # (N, N, 1)
+    lo, hi = np.array([0.05, 0.05]), np.array(room, dtype=np.float64) - 0.05
+    for _ in range(iterations):
+        d = out[:, None] - out[None]  # (N, N, T, 2), from m to n
+        dist = np.hypot(d[..., 0], d[..., 1])
+        short = both & (dist < min_m)
+        if not short.any():
+            break
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = np.where(dist[..., None] > 1e-9, d / dist[..., None], 0.0)
+        unit[..., 0] = np.where(dist > 1e-9, unit[..., 0], tie)
+        # a little more than half the shortfall each, so the smoothing does not leave a gap
+        step = np.where(short, 0.6 * (min_m - dist), 0.0)[..., None] * unit
+        push = step.sum(axis=1)  # (N, T, 2)
+        for k in range(2):
+            push[..., k] = np.stack([_smooth(_smooth(p, w), w) for p in push[..., k]])
+        out += push
+        out = np.where(present[..., None], np.clip(out, lo, hi), out)
+    return out

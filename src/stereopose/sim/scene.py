@@ -11,11 +11,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.sim.detections import DetectorNoise, detect, joints_in_view, max_ideal_radius
-from stereopose.sim.motion import Door, Worker
+from stereopose.sim.motion import Door, Worker, keep_apart
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import Camera, People2D, People3D, Rig
 
 IMAGE_SIZE = (1920.0, 1080.0)
+# Closest two workers' hip centres come: two bodies (0.45 m across the shoulders) cannot
+# overlap, and people passing each other leave about this much between them.
+MIN_APART_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -209,12 +212,19 @@ def simulate(
     workers = []
     truth = np.full((num_frames, N, NUM_JOINTS, 3), np.nan)
     present = np.zeros((num_frames, N), dtype=bool)
+    xy = np.zeros((N, num_frames, 2))
     for n in range(N):
         wrng = np.random.default_rng([seed, 1, n])
         enters, leaves = wrng.random() < p_enter, wrng.random() < p_leave
         w = Worker.random(wrng, floor, duration, enters=enters, leaves=leaves, doors=doors)
         workers.append(w)
-        truth[:, n], present[:, n] = w.track(num_frames, fps)
+        s = w.signals(num_frames, fps)
+        xy[n] = np.column_stack([s["x"], s["y"]])
+        present[:, n] = s["present"]
+    # plans are drawn one worker at a time; bodies cannot overlap, so the workers give way
+    xy = keep_apart(xy, present.T, MIN_APART_M, fps, floor)
+    for n, w in enumerate(workers):
+        truth[:, n], _ = w.track(num_frames, fps, xy[n])
     detections, labels = detect(truth, rig, noise, np.random.default_rng([seed, 2]), floor)
     return Scene(
         rig=rig,
