@@ -33,7 +33,7 @@ class AssociationConfig:
     """
 
     min_conf: float = 0.3  # joints below this confidence do not vote
-    min_common_joints: int = 4  # a camera pair needs this many joints confident in both
+    min_common_joints: int = 3  # a camera pair needs this many joints confident in both
     max_cost: float = 0.12  # mean normalised epipolar distance accepted for a match
     reassign_leftovers: bool = True  # give unmatched detections to a reconstructed person
     # a tracked person's pose reprojected into a camera claims the detection within this mean
@@ -61,7 +61,7 @@ class TriangulationConfig:
 class PlausibilityConfig:
     """Rejection of reconstructed people that cannot be real."""
 
-    min_joints: int = 6  # fewer reconstructed joints: not a person
+    min_joints: int = 5  # fewer joints reconstructed from two views or more: not a person
     floor_tolerance_m: float = 0.4  # lowest joint may be this far below the floor
     max_height_m: float = 3.0  # vertical extent of a person's joints
     max_limb_m: float = 1.0  # a joint making a PCP limb longer than this is dropped
