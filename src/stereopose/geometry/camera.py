@@ -13,7 +13,11 @@ from stereopose.types import Camera
 
 # stop once the reprojected point is within 1e-8 px of the observed one, or after 30 steps
 UNDISTORT_STOP = (1e-8, 30)
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-8)
+_UNDISTORT_CRITERIA = (
+    cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+    UNDISTORT_STOP[1],
+    UNDISTORT_STOP[0],
+)
 
 
 def _check_last(a: np.ndarray, n: int, what: str) -> np.ndarray:

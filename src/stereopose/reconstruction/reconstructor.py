@@ -165,7 +165,7 @@ class Reconstructor:
         centre, f = K[:, :2, 2], np.stack([K[:, 0, 0], K[:, 1, 1]], axis=-1)
         self.bounds = (-centre / f, (size - centre) / f)
         self.R = self.P[:, :, :3]
-        self.centers = -np.einsum("cji,cj->ci", self.R, self.P[:, :, 3])
+        self.centers = np.stack([c.center for c in rig])
 
     def __call__(
         self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]

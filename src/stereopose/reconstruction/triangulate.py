@@ -124,7 +124,7 @@ def triangulate_robust(
     complete_single_views); then a joint whose two views disagree, one of them much weaker
     (an occluded or misplaced joint is reported faintly), rests on the stronger view alone.
     relabel: a skeleton whose left and right limbs differ in length is solved again with the
-    labels of each view and body part exchanged in turn (see _relabel_asymmetric).
+    labels of each view and body part exchanged in turn (see _relabel_implausible).
     Returns X, used, xy and w with swapped labels corrected, the reprojection errors
     (G, 17, C) in pixels of the views used (NaN elsewhere), and (G, 17) the joints placed
     from one view (None without rays).
@@ -145,7 +145,7 @@ def triangulate_robust(
             X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
     X, used, err = select_views(xy, w, P, focal, np.ascontiguousarray(thr[:, 0]), X_all)
     if fix_swaps and relabel:
-        X, used, xy, w, err = _relabel_asymmetric(
+        X, used, xy, w, err = _relabel_implausible(
             X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel
         )
     if fix_swaps:
@@ -193,7 +193,7 @@ def _implausibility(X: np.ndarray) -> np.ndarray:
     return implausibility(np.ascontiguousarray(X), _BONES_L, _BONES_R, _BONES_MAX, _MAX_M)
 
 
-def _relabel_asymmetric(
+def _relabel_implausible(
     X,
     used,
     xy,
