@@ -39,6 +39,11 @@ class AssociationConfig:
     # a tracked person's pose reprojected into a camera claims the detection within this mean
     # joint distance, divided by the detection's size
     track_max_cost: float = 0.25
+    # robust mode, frame-by-frame calls: the people of the previous frame (and of the few
+    # frames before, for people missed since) seed the next frame as a tracked person's
+    # predicted pose does, so their association and left/right labels carry over; 0: each
+    # frame on its own
+    continuity_frames: int = 3
 
 
 @dataclass(frozen=True)

@@ -212,3 +212,71 @@ def test_a_joint_seen_in_one_view_does_not_make_a_person(clean_scene):
             t, clean_scene.detections[t]
         )
         assert len(on) == len(off)
+
+
+def _mirrored_faceless(scene, t):
+    """Frame t's detections with left and right exchanged in every camera and the face
+    (nose, eyes, ears) unseen: a mirror no single frame can tell from the truth."""
+    dets = {}
+    for name, p in scene.detections[t].items():
+        kp = p.keypoints[:, SWAP].copy()
+        kp[:, :5] = (np.nan, np.nan, 0.0)
+        dets[name] = People2D(name, t, kp)
+    return dets
+
+
+def _mirror_error(out, scene, t):
+    """Per person of out, metres from the nearest true worker, and from that worker mirrored."""
+    truth = scene.truth[t, scene.present[t]]
+    d = np.nanmean(np.linalg.norm(out.joints[:, None] - truth[None], axis=-1), axis=-1)
+    dm = np.nanmean(np.linalg.norm(out.joints[:, None] - truth[None][:, :, SWAP], axis=-1), -1)
+    return d.min(1), dm.min(1)
+
+
+def _continuity(frames: int, mode: str = "robust") -> ReconstructionConfig:
+    cfg = config(mode)
+    return dataclasses.replace(
+        cfg, association=dataclasses.replace(cfg.association, continuity_frames=frames)
+    )
+
+
+def test_consecutive_frames_carry_labels_over(clean_scene):
+    t = 6
+    alone = Reconstructor(clean_scene.rig, config())(t, _mirrored_faceless(clean_scene, t))
+    right, mirrored = _mirror_error(alone, clean_scene, t)
+    assert len(alone) == clean_scene.present[t].sum()
+    assert (mirrored < 0.01).all() and (right > 0.05).all()  # on its own: the mirror
+    rec = Reconstructor(clean_scene.rig, config())
+    for s in range(t):
+        rec(s, clean_scene.detections[s])
+    out = rec(t, _mirrored_faceless(clean_scene, t))
+    right, mirrored = _mirror_error(out, clean_scene, t)
+    assert len(out) == len(alone)
+    assert (right < 0.01).all() and (mirrored > 0.05).all()  # labels from the frames before
+
+
+def test_people_missed_for_a_frame_still_carry_over(clean_scene):
+    t, names = 6, clean_scene.rig.names
+    results = {}
+    for frames in (1, 3):
+        rec = Reconstructor(clean_scene.rig, _continuity(frames))
+        for s in range(t - 1):
+            rec(s, clean_scene.detections[s])
+        assert len(rec(t - 1, {n: People2D.empty(n, t - 1) for n in names})) == 0
+        results[frames] = _mirror_error(rec(t, _mirrored_faceless(clean_scene, t)), clean_scene, t)
+    assert (results[1][1] < 0.01).all()  # remembered one frame: the mirror
+    assert (results[3][0] < 0.01).all()  # remembered three: the truth
+
+
+@pytest.mark.parametrize("cfg", [_continuity(0), _continuity(3, "pair"), None])
+def test_frames_out_of_order_or_without_continuity_stand_alone(clean_scene, cfg):
+    """Without continuity (or in pair mode) every frame stands alone; with it, a frame that
+    does not follow the last one starts afresh."""
+    rec = Reconstructor(clean_scene.rig, cfg or config())
+    for s in range(6):
+        rec(s, clean_scene.detections[s])
+    t = 6 if cfg is not None else 2
+    dets = _mirrored_faceless(clean_scene, t)
+    out = rec(t, dets)
+    ref = Reconstructor(clean_scene.rig, cfg or config())(t, dets)
+    np.testing.assert_array_equal(out.joints, ref.joints)

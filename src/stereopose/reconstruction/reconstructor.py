@@ -166,6 +166,15 @@ class Reconstructor:
         self.bounds = (-centre / f, (size - centre) / f)
         self.R = self.P[:, :, :3]
         self.centers = np.stack([c.center for c in rig])
+        # continuity between frame-by-frame calls: recent people's joints (M, 17, 3), the
+        # frame each was last seen, and the frame of the last call
+        self._continuity = (
+            self.config.triangulation.mode == "robust"
+            and self.config.association.continuity_frames > 0
+        )
+        self._recent = np.zeros((0, NUM_JOINTS, 3))
+        self._recent_frame = np.zeros(0, dtype=np.int64)
+        self._last_frame: int | None = None
 
     def __call__(
         self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
@@ -173,8 +182,30 @@ class Reconstructor:
         """3D people of one frame, ids 0..P-1.
 
         people: per camera name (missing cameras: no frame) or a sequence in rig order.
+        In robust mode, calls for increasing frames carry the people over: those seen in the
+        last `continuity_frames` frames seed this one (see reconstruct), so a person keeps
+        their grouping and left/right labels from frame to frame unless the views disagree.
+        A frame that does not come after the last call's starts afresh.
         """
-        return self.reconstruct(frame, people).people
+        predicted = None
+        if self._continuity:
+            if self._last_frame is None or frame <= self._last_frame:
+                self._recent = self._recent[:0]
+                self._recent_frame = self._recent_frame[:0]
+            recent = frame - self._recent_frame <= self.config.association.continuity_frames
+            self._recent, self._recent_frame = self._recent[recent], self._recent_frame[recent]
+            predicted = self._recent if len(self._recent) else None
+            self._last_frame = frame
+        rec = self.reconstruct(frame, people, predicted)
+        if self._continuity:
+            # people seen now, then the recent ones no one here continues
+            missed = np.ones(len(self._recent), dtype=bool)
+            missed[rec.seeds[rec.seeds >= 0]] = False
+            self._recent = np.concatenate([rec.people.joints, self._recent[missed]])
+            self._recent_frame = np.concatenate(
+                [np.full(len(rec.people), frame, dtype=np.int64), self._recent_frame[missed]]
+            )
+        return rec.people
 
     def reconstruct(
         self,
