@@ -268,15 +268,17 @@ def test_people_missed_for_a_frame_still_carry_over(clean_scene):
     assert (results[3][0] < 0.01).all()  # remembered three: the truth
 
 
-@pytest.mark.parametrize("cfg", [_continuity(0), _continuity(3, "pair"), None])
-def test_frames_out_of_order_or_without_continuity_stand_alone(clean_scene, cfg):
+@pytest.mark.parametrize(
+    ("frames", "mode", "t"), [(0, "robust", 6), (3, "pair", 6), (3, "robust", 2)]
+)
+def test_frames_out_of_order_or_without_continuity_stand_alone(clean_scene, frames, mode, t):
     """Without continuity (or in pair mode) every frame stands alone; with it, a frame that
-    does not follow the last one starts afresh."""
-    rec = Reconstructor(clean_scene.rig, cfg or config())
+    does not follow the last one (t = 2 after frame 5) starts afresh."""
+    cfg = _continuity(frames, mode)
+    rec = Reconstructor(clean_scene.rig, cfg)
     for s in range(6):
         rec(s, clean_scene.detections[s])
-    t = 6 if cfg is not None else 2
     dets = _mirrored_faceless(clean_scene, t)
     out = rec(t, dets)
-    ref = Reconstructor(clean_scene.rig, cfg or config())(t, dets)
+    ref = Reconstructor(clean_scene.rig, cfg)(t, dets)
     np.testing.assert_array_equal(out.joints, ref.joints)

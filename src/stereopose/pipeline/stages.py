@@ -109,17 +109,17 @@ class Back3D:
     ) -> None:
         if site is not None and not config.tracking.enabled:
             raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
+        if two_way and not config.tracking.enabled:
+            raise StereoposeError("two-way smoothing needs tracking (person ids)")
+        self.tracker: Tracker | None = None
         try:
-            if two_way and not config.tracking.enabled:
-                raise StereoposeError("two-way smoothing needs tracking (person ids)")
-            self.tracker = Tracker(rig, config, record=two_way) if config.tracking.enabled else None
-            if self.tracker is not None:
-                rec = self.tracker.reconstructor
-            else:
-                rec = Reconstructor(rig, config.reconstruction)
+            if config.tracking.enabled:
+                self.tracker = Tracker(rig, config, record=two_way)
+                self._step = self.tracker.update
+            else:  # per-frame people; in robust mode each frame seeded by the ones before
+                self._step = Reconstructor(rig, config.reconstruction)
         except CalibrationError as e:
             raise CalibrationError(f"{calib_path}: {e}") from None
-        self._step = self.tracker.update if self.tracker is not None else rec
         self.rig = rig
         self.tracks_path = tracks_path
         self.summary = ReconstructionSummary(
