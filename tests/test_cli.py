@@ -298,6 +298,9 @@ def test_bad_site_and_misused_event_options(shared_data_dir: Path, tmp_path: Pat
     site.write_text(SITE)
     assert reconstruct(*args, "--site", str(site), "--no-tracking") == 2
     assert "need tracking" in capsys.readouterr().err
+    assert reconstruct(*args, "--two-way", "--no-tracking") == 2
+    err = capsys.readouterr().err
+    assert "two-way smoothing needs tracking" in err and "Traceback" not in err
     assert main(["events", str(tmp_path / "none.sqlite")]) == 2
     assert "not found" in capsys.readouterr().err
 
