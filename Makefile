@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml Makefile
 	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests
 	$(BIN)/python -m stereopose.io.pose2sim_data
 	# compile the 3D stage's loops once (numba, cached beside the package)
-	$(BIN)/python -c "from stereopose.kernels import warm_up; warm_up()"
+	$(BIN)/python -c "from stereopose.pipeline.warm import load_compiled; load_compiled()"
 	touch $(STAMP)
 
 demo: install

@@ -85,7 +85,11 @@ class ReconstructionConfig:
 class TrackingConfig:
     """Identities over time, online smoothing and positioning of reconstructed people."""
 
-    enabled: bool = True  # false: per-frame people, ids 0..P-1 in each frame
+    enabled: bool = True  # false: per-frame people, ids 0..P-1 in each frame (memory "recent")
+    # what the 3D stage remembers between frames (tracking.memory): "tracker" (Kalman tracks,
+    # persistent ids), "recent" (the last continuity_frames frames seed the next, ids per
+    # frame) or "none" (every frame on its own)
+    memory: Literal["tracker", "recent", "none"] = "tracker"
     confirm_frames: int = 3  # a person gets an id after this many consecutive frames
     bridge_s: float = 0.2  # gaps up to this long are filled by prediction, flagged predicted
     seed_s: float = 0.4  # an unseen person's predicted pose is looked for in images this long

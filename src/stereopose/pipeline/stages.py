@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.config import Config
-from stereopose.errors import CalibrationError, StereoposeError
+from stereopose.errors import StereoposeError
 from stereopose.fence import FenceMonitor, Site
 from stereopose.fence.sinks import CallbackSink, EventSink, JsonlSink, SqliteSink, WebhookSink
 from stereopose.io.exports import CsvExporter, TrcExporter
 from stereopose.io.results import PosesWriter
-from stereopose.reconstruction import Reconstructor
-from stereopose.tracking import Tracker, Trajectory
+from stereopose.pipeline.stage3d import Stage3D
+from stereopose.tracking import Trajectory
 from stereopose.types import Event, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
@@ -111,15 +111,8 @@ class Back3D:
             raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
         if two_way and not config.tracking.enabled:
             raise StereoposeError("two-way smoothing needs tracking (person ids)")
-        self.tracker: Tracker | None = None
-        try:
-            if config.tracking.enabled:
-                self.tracker = Tracker(rig, config, record=two_way)
-                self._step = self.tracker.update
-            else:  # per-frame people; in robust mode each frame seeded by the ones before
-                self._step = Reconstructor(rig, config.reconstruction)
-        except CalibrationError as e:
-            raise CalibrationError(f"{calib_path}: {e}") from None
+        self.stage = Stage3D(rig, config, record=two_way, calib_path=str(calib_path))
+        self.tracker = self.stage if self.stage.tracking else None
         self.rig = rig
         self.tracks_path = tracks_path
         self.summary = ReconstructionSummary(
@@ -167,7 +160,7 @@ class Back3D:
         """One frame: the 3D people (ids, smoothed joints, positions) and its zone events."""
         s = self.summary
         t0 = time.perf_counter()
-        people = self._step(frame, people2d)
+        people = self.stage.step(frame, people2d)
         t1 = time.perf_counter()
         s.seconds_3d += t1 - t0
         events: list[Event] = []
@@ -214,7 +207,7 @@ class Back3D:
         if self.trc is not None:
             self.summary.outputs.extend(self.trc.close())
         if self.tracker is not None:
-            self.summary.trajectories = self.tracker.finish()
+            self.summary.trajectories = self.stage.trajectories()
             if self.tracks_path is not None:
                 write_trajectories(self.tracks_path, self.summary.trajectories)
                 self.summary.outputs.append(Path(self.tracks_path))

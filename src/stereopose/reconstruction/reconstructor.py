@@ -141,7 +141,7 @@ def _check_groups(groups, seeds, cost, max_cost):
 
 
 class Reconstructor:
-    """Associates and triangulates the people of one frame; one call per frame.
+    """Associates and triangulates the people of one frame; holds nothing between frames.
 
     The rig's cameras and the options are fixed at construction; everything that depends only on
     them (essential matrices, camera matrices) is computed once here.
@@ -166,56 +166,28 @@ class Reconstructor:
         self.bounds = (-centre / f, (size - centre) / f)
         self.R = self.P[:, :, :3]
         self.centers = np.stack([c.center for c in rig])
-        # continuity between frame-by-frame calls: recent people's joints (M, 17, 3), the
-        # frame each was last seen, and the frame of the last call
-        self._continuity = (
-            self.config.triangulation.mode == "robust"
-            and self.config.association.continuity_frames > 0
-        )
-        self._recent = np.zeros((0, NUM_JOINTS, 3))
-        self._recent_frame = np.zeros(0, dtype=np.int64)
-        self._last_frame: int | None = None
 
     def __call__(
-        self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
+        self,
+        frame: int,
+        people: Mapping[str, People2D] | Sequence[People2D | None],
+        prior: np.ndarray | None = None,
     ) -> People3D:
-        """3D people of one frame, ids 0..P-1.
-
-        people: per camera name (missing cameras: no frame) or a sequence in rig order.
-        In robust mode, calls for increasing frames carry the people over: those seen in the
-        last `continuity_frames` frames seed this one (see reconstruct), so a person keeps
-        their grouping and left/right labels from frame to frame unless the views disagree.
-        A frame that does not come after the last call's starts afresh.
-        """
-        predicted = None
-        if self._continuity:
-            if self._last_frame is None or frame <= self._last_frame:
-                self._recent = self._recent[:0]
-                self._recent_frame = self._recent_frame[:0]
-            recent = frame - self._recent_frame <= self.config.association.continuity_frames
-            self._recent, self._recent_frame = self._recent[recent], self._recent_frame[recent]
-            predicted = self._recent if len(self._recent) else None
-            self._last_frame = frame
-        rec = self.reconstruct(frame, people, predicted)
-        if self._continuity:
-            # people seen now, then the recent ones no one here continues
-            missed = np.ones(len(self._recent), dtype=bool)
-            missed[rec.seeds[rec.seeds >= 0]] = False
-            self._recent = np.concatenate([rec.people.joints, self._recent[missed]])
-            self._recent_frame = np.concatenate(
-                [np.full(len(rec.people), frame, dtype=np.int64), self._recent_frame[missed]]
-            )
-        return rec.people
+        """3D people of one frame, ids 0..P-1 (see reconstruct)."""
+        return self.reconstruct(frame, people, prior).people
 
     def reconstruct(
         self,
         frame: int,
         people: Mapping[str, People2D] | Sequence[People2D | None],
-        predicted: np.ndarray | None = None,
+        prior: np.ndarray | None = None,
     ) -> Reconstruction:
-        """3D people of one frame, seeded by the predicted poses of tracked people.
+        """3D people of one frame, seeded by the poses expected in it. Stateless: the same
+        frame and prior give the same people.
 
-        predicted: (T, 17, 3) poses expected at this frame (NaN where unknown). Each camera's
+        people: per camera name (missing cameras: no frame) or a sequence in rig order.
+        prior: (T, 17, 3) poses expected at this frame (NaN where unknown), from the memory of
+        past frames (tracking.memory). Each camera's
         detections are first matched to these poses reprojected into it; the detections a pose
         claims in two cameras or more, checked against each other with the epipolar
         constraint, form that person. Only the detections left over are associated across
@@ -232,8 +204,8 @@ class Reconstructor:
             return Reconstruction(People3D.empty(frame, C), np.zeros(0, dtype=np.int64))
         seeded: list[np.ndarray] = []
         seeds: list[int] = []
-        if predicted is not None and len(predicted):
-            claims, swap = self._claim(det, predicted)
+        if prior is not None and len(prior):
+            claims, swap = self._claim(det, prior)
             seeded, seeds = _claimed_groups(claims)
             # the labels of a claimed detection follow the predicted pose's: a detector's
             # left/right swap is undone before anything else looks at it

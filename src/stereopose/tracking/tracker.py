@@ -15,32 +15,34 @@ Each frame:
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stereopose.config import Config
-from stereopose.reconstruction import Reconstructor
+from stereopose.reconstruction import Reconstruction
 from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP, joint_index
 from stereopose.tracking.bones import BoneLengths
 from stereopose.tracking.filter import JointFilters
 from stereopose.tracking.offline import NOT_USED, RESTARTED, TrackLog, smooth_people
 from stereopose.tracking.positioning import Trajectory, floor_position
-from stereopose.types import People2D, People3D, Rig
+from stereopose.types import People3D, Rig
 
 _PREDICTED_CONF = 0.5  # confidence of a bridged joint, relative to its last measurement
 
 
 class Tracker:
-    """Tracks the people of one camera rig; `update` once per frame, frames in order."""
+    """Tracks the people of one camera rig: per frame, in order, `prior` then `update` (the
+    memory interface of tracking.memory)."""
+
+    tracking = True
 
     def __init__(self, rig: Rig, config: Config | None = None, record: bool = False) -> None:
         """record: keep every track's measurements for `two_way` (offline smoothing)."""
         self.config = config or Config()
         self.record = record
         self.tc = self.config.tracking
-        self.reconstructor = Reconstructor(rig, self.config.reconstruction)
         self.num_cameras = len(rig)
         # hands and feet accelerate hardest (a step, a reach): they get more process noise
         self._q = np.full(NUM_JOINTS, self.tc.process_noise)
@@ -53,6 +55,8 @@ class Tracker:
                 self.tc.limb_noise_factor**2
             )
         self._t: float | None = None
+        self._unseen: np.ndarray | None = None  # set by prior, used by update
+        self._seed_rows = np.zeros(0, dtype=np.int64)
         self._next_id = 1
         self._frame = 0
         # per track a serial number that never changes; with `record`, its measurements
@@ -76,14 +80,10 @@ class Tracker:
         """Number of tracks held, tentative and lost ones included."""
         return int(self.ids.shape[0])
 
-    def update(
-        self, frame: int, people: Mapping[str, People2D] | Sequence[People2D | None]
-    ) -> People3D:
-        """The tracked people at `frame`, ids persistent, joints smoothed.
-
-        people: the 2D people of each camera, as for Reconstructor. Frame numbers must
-        increase; the time of a frame is frame / fps.
-        """
+    def prior(self, frame: int) -> np.ndarray | None:
+        """Every track's pose predicted to `frame`: the poses (T, 17, 3) of the tracks seen
+        within seed_s, which seed the frame's reconstruction (None when there are none).
+        Frame numbers must increase; the time of a frame is frame / fps."""
         tc, fps = self.tc, self.config.fps
         t = frame / fps
         if self._t is not None and t <= self._t:
@@ -93,10 +93,17 @@ class Tracker:
         self._frame = frame
         unseen = t - self.seen_t  # before this frame
         self.filters.predict(dt, self._q, moving=unseen <= tc.bridge_s + 1e-9)
-        seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
-        rec = self.reconstructor.reconstruct(
-            frame, people, self.filters.x[seed_rows] if seed_rows.size else None
-        )
+        self._seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
+        self._unseen = unseen
+        return self.filters.x[self._seed_rows] if self._seed_rows.size else None
+
+    def update(self, frame: int, rec: Reconstruction) -> People3D:
+        """The tracked people at `frame` (ids persistent, joints smoothed) from its
+        reconstruction, seeded by what `prior(frame)` returned."""
+        if frame != self._frame or self._unseen is None:
+            raise ValueError(f"frame {frame}: call prior({frame}) before update")
+        t, unseen, seed_rows = self._t, self._unseen, self._seed_rows
+        self._unseen = None
         found = rec.people
         row_of = np.full(len(found), -1, dtype=np.int64)
         seeded = rec.seeds >= 0

@@ -1,0 +1,63 @@
+"""The 3D stage of the frame loop: prior -> reconstruct -> update, one frame at a time.
+
+The reconstruction of a frame is stateless (given the prior); the memory of past frames (the
+Kalman tracker, or the lighter "recent people" of the per-frame mode) gives the prior and turns
+the frame's reconstructed people into the output people.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+
+from stereopose.config import Config
+from stereopose.errors import CalibrationError
+from stereopose.reconstruction import Reconstructor
+from stereopose.tracking import Trajectory
+from stereopose.tracking.memory import make_memory
+from stereopose.types import People2D, People3D, Rig
+
+
+class Stage3D:
+    """Association, triangulation and the memory of past frames, for one rig.
+
+    record: keep every track's measurements, for `two_way` (the tracker's memory only).
+    """
+
+    def __init__(
+        self, rig: Rig, config: Config, *, record: bool = False, calib_path: str = ""
+    ) -> None:
+        try:
+            self.reconstructor = Reconstructor(rig, config.reconstruction)
+        except CalibrationError as e:
+            raise CalibrationError(f"{calib_path}: {e}" if calib_path else str(e)) from None
+        self.memory = make_memory(rig, config, record=record)
+        self.tracking = self.memory.tracking
+        self.load_s: float | None = None  # time the compiled loops took to load, once
+
+    def load(self) -> float:
+        """Load (or compile) the compiled loops once, before the first frame; returns the
+        seconds it took, which the stage's frames/s leave out."""
+        if self.load_s is None:
+            from stereopose.pipeline.warm import load_compiled
+
+            t0 = time.perf_counter()
+            load_compiled()
+            self.load_s = time.perf_counter() - t0
+        return self.load_s
+
+    def step(
+        self, frame: int, people2d: Mapping[str, People2D] | Sequence[People2D | None]
+    ) -> People3D:
+        """One frame's output people: ids, joints (smoothed when tracking), positions."""
+        prior = self.memory.prior(frame)
+        rec = self.reconstructor.reconstruct(frame, people2d, prior)
+        return self.memory.update(frame, rec)
+
+    def trajectories(self) -> list[Trajectory]:
+        """Every tracked person's trajectory so far, by id (none without tracking)."""
+        return self.memory.finish()
+
+    def two_way(self, frames: Sequence[People3D]) -> list[People3D]:
+        """The online output `frames` smoothed both ways over each track (needs record)."""
+        return self.memory.two_way(frames)
