@@ -148,7 +148,23 @@ BAD_FILES = [
         json.dumps({"people": [{"pose_keypoints_2d": ["a", *person(0)[1:]]}]}),
         "must hold numbers or null, found 'a'",
     ),
+    (
+        "keypoint a boolean",
+        json.dumps({"people": [{"pose_keypoints_2d": [*person(0)[:50], True]}]}),
+        "must hold numbers or null, found True",
+    ),
+    (
+        "keypoint a list",
+        json.dumps({"people": [{"pose_keypoints_2d": [[1.0], *person(0)[1:]]}]}),
+        "must hold numbers or null, found [1.0]",
+    ),
+    (
+        "keypoint too large",
+        json.dumps({"people": [{"pose_keypoints_2d": [10**400, *person(0)[1:]]}]}),
+        "too large for a float",
+    ),
     ("empty file", "", "not valid JSON"),
+    ("byte order mark", "\ufeff" + json.dumps({"people": []}), "not valid JSON"),
 ]
 
 
@@ -171,6 +187,17 @@ def test_malformed_file_is_skipped_and_logged(
     assert len(seq.skipped) == 1
     assert seq.skipped[0][0] == bad and problem in seq.skipped[0][1]
     assert set(seq.frame(1)) == {"b"} and len(seq.skipped) == 1  # logged once
+
+
+def test_nan_and_infinity_literals_read_as_missing(tmp_path: Path) -> None:
+    # not JSON, but Python's json writes them; such files are read as before
+    values = ["NaN", "NaN", "0", "Infinity", *map(str, person(0)[4:])]
+    path = kp_file(tmp_path, "a", 0)
+    path.parent.mkdir(parents=True)
+    path.write_text('{"people": [{"pose_keypoints_2d": [' + ", ".join(values) + "]}]}")
+    people = read_pose_dir(tmp_path, ["a"]).frame(0)["a"]
+    assert np.isnan(people.keypoints[0, :2, :2]).all() and (people.keypoints[0, :2, 2] == 0).all()
+    np.testing.assert_allclose(people.keypoints.ravel()[6:], person(0)[6:])
 
 
 def test_two_files_for_one_frame(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:

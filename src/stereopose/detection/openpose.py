@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import re
 import tempfile
@@ -18,6 +17,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
+import orjson
 
 from stereopose.errors import KeypointsError
 from stereopose.skeleton import NUM_JOINTS
@@ -69,26 +69,45 @@ def find_camera_dirs(pose_dir: str | Path, camera_names: Sequence[str]) -> dict[
     return dirs
 
 
+# What JSON parsing yields for a number or null (bool is rejected: it is not a number here).
+_VALUE_TYPES = frozenset({int, float, type(None)})
+
+
 def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _number_or_nan(v: object) -> float:
-    if v is None:
-        return math.nan
-    if not _is_number(v):
-        raise TypeError
-    return float(v)
+def _values(value: object, n: int) -> bool:
+    """Whether value is a list of n numbers or nulls (checked in one pass over their types)."""
+    return isinstance(value, list) and len(value) == n and _VALUE_TYPES.issuperset(map(type, value))
 
 
-def _vector(value: object, n: int) -> np.ndarray | None:
-    """A list of n numbers (null -> NaN) as a float array, else None."""
-    if not isinstance(value, list) or len(value) != n:
-        return None
+def _array(rows: list[list], shape: tuple[int, ...]) -> np.ndarray | None:
+    """Rows of numbers or nulls (null -> NaN) as one float array, None if a number overflows."""
     try:
-        return np.array([_number_or_nan(v) for v in value], dtype=np.float64)
-    except TypeError:
+        return np.array(rows, dtype=np.float64).reshape(shape)
+    except OverflowError:
         return None
+
+
+def _load(path: Path) -> object:
+    """Parsed JSON of a file; errors name the file and the problem."""
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise KeypointsError(f"{path}: cannot read: {e}") from None
+    try:
+        return orjson.loads(raw)
+    except orjson.JSONDecodeError:
+        pass
+    # The standard parser decides what orjson refused (NaN, Infinity, a byte order mark, bad
+    # UTF-8), so such files are read, or rejected, with the same messages as ever.
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise KeypointsError(f"{path}: cannot read: {e}") from None
+    except json.JSONDecodeError as e:
+        raise KeypointsError(f"{path}: not valid JSON: {e}") from None
 
 
 def read_pose_file(path: str | Path, camera: str, frame: int) -> People2D:
@@ -97,13 +116,8 @@ def read_pose_file(path: str | Path, camera: str, frame: int) -> People2D:
     A person whose ``pose_keypoints_2d`` has a length other than 51 is skipped with a warning;
     ``null`` values count as missing.
     """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise KeypointsError(f"{path}: cannot read: {e}") from None
-    except json.JSONDecodeError as e:
-        raise KeypointsError(f"{path}: not valid JSON: {e}") from None
+    path = path if isinstance(path, Path) else Path(path)
+    doc = _load(path)
     if not isinstance(doc, dict):
         raise KeypointsError(f"{path}: expected a JSON object, got {type(doc).__name__}")
     if "people" not in doc:
@@ -111,8 +125,8 @@ def read_pose_file(path: str | Path, camera: str, frame: int) -> People2D:
     people = doc["people"]
     if not isinstance(people, list):
         raise KeypointsError(f"{path}: 'people' must be a list, got {type(people).__name__}")
-    kps: list[np.ndarray] = []
-    boxes: list[np.ndarray | None] = []
+    kps: list[list] = []
+    boxes: list[list | None] = []
     scores: list[float | None] = []
     for i, person in enumerate(people):
         if not isinstance(person, dict):
@@ -135,24 +149,29 @@ def read_pose_file(path: str | Path, camera: str, frame: int) -> People2D:
                 len(value),
             )
             continue
-        kp = _vector(value, _NUM_VALUES)
-        if kp is None:
+        if not _VALUE_TYPES.issuperset(map(type, value)):
             bad = next(v for v in value if v is not None and not _is_number(v))
             raise KeypointsError(
                 f"{path}: person {i}: pose_keypoints_2d must hold numbers or null, found {bad!r}"
             )
-        kps.append(kp.reshape(NUM_JOINTS, 3))
-        boxes.append(_vector(person.get("box_xyxy"), 4))
+        kps.append(value)
+        box = person.get("box_xyxy")
+        boxes.append(box if _values(box, 4) else None)
         score = person.get("score")
         scores.append(float(score) if _is_number(score) else None)
-    keypoints = np.stack(kps) if kps else np.zeros((0, NUM_JOINTS, 3))
-    has_boxes = bool(kps) and all(b is not None for b in boxes)
-    has_scores = bool(kps) and all(s is not None for s in scores)
+    if not kps:
+        return People2D(camera, frame, np.zeros((0, NUM_JOINTS, 3)))
+    # every person's values checked above: one conversion for the whole file
+    keypoints = _array(kps, (-1, NUM_JOINTS, 3))
+    if keypoints is None:
+        raise KeypointsError(f"{path}: pose_keypoints_2d holds a number too large for a float")
+    has_boxes = all(b is not None for b in boxes)
+    has_scores = all(s is not None for s in scores)
     return People2D(
         camera,
         frame,
         keypoints,
-        boxes=np.stack(boxes) if has_boxes else None,  # type: ignore[arg-type]
+        boxes=_array(boxes, (-1, 4)) if has_boxes else None,  # type: ignore[arg-type]
         scores=np.array(scores, dtype=np.float64) if has_scores else None,
     )
 
