@@ -27,9 +27,9 @@ import numpy as np
 
 from stereopose.config import Config
 from stereopose.fence import FenceMonitor
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim import simulate
 from stereopose.sim.events import evaluate_events, make_zones, track_workers, truth_events
-from stereopose.tracking import Tracker
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -37,9 +37,9 @@ from common import save, start
 
 
 def tracked(scene):
-    tracker = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
+    tracker = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
     return [
-        tracker.update(t, [d[name] for name in scene.rig.names])
+        tracker.step(t, [d[name] for name in scene.rig.names])
         for t, d in enumerate(scene.detections)
     ]
 
@@ -92,10 +92,10 @@ def cost(frames: int, zones: int = 20, runs: int = 9) -> dict:
     site = make_zones(scene, np.random.default_rng(11), count=zones)
     back, fence, events = [], [], 0
     for _ in range(runs):
-        tracker = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
+        tracker = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
         data = [[d[name] for name in scene.rig.names] for d in scene.detections]
         t0 = time.perf_counter()
-        preds = [tracker.update(t, f) for t, f in enumerate(data)]
+        preds = [tracker.step(t, f) for t, f in enumerate(data)]
         back.append((time.perf_counter() - t0) / frames)
         mon = FenceMonitor(site, scene.fps)
         t0 = time.perf_counter()

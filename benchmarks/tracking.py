@@ -27,11 +27,11 @@ import numpy as np
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, with_overrides
 from stereopose.detection.openpose import read_pose_dir
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.reconstruction import Reconstructor
 from stereopose.sim import evaluate, evaluate_tracking, simulate
 from stereopose.sim.metrics import detectable
 from stereopose.sim.scene import ghost_frame
-from stereopose.tracking import Tracker
 from stereopose.types import People2D
 
 HERE = Path(__file__).resolve().parent
@@ -46,9 +46,9 @@ def frames_of(scene) -> list[list[People2D | None]]:
 
 def tracked(scene, frames=None, **tracking):
     cfg = with_overrides(dataclasses.replace(Config(), fps=scene.fps), tracking=tracking)
-    tracker = Tracker(scene.rig, cfg)
+    tracker = Stage3D(scene.rig, cfg)
     frames = frames_of(scene) if frames is None else frames
-    return [tracker.update(t, f) for t, f in enumerate(frames)]
+    return [tracker.step(t, f) for t, f in enumerate(frames)]
 
 
 def speed(frames: int, runs: int = 9) -> dict:
@@ -61,10 +61,10 @@ def speed(frames: int, runs: int = 9) -> dict:
         for t, f in enumerate(data):
             rec(t, f)
         per_frame.append(frames / (time.perf_counter() - t0))
-        tracker = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
+        tracker = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps))
         t0, c0 = time.perf_counter(), time.process_time()
         for t, f in enumerate(data):
-            tracker.update(t, f)
+            tracker.step(t, f)
         whole.append(frames / (time.perf_counter() - t0))
         whole_cpu.append(frames / (time.process_time() - c0))
     row = {
@@ -117,7 +117,7 @@ def accuracy(frames: int, seeds: int) -> list[dict]:
             rec = Reconstructor(scene.rig)
             base = evaluate([rec(t, f) for t, f in enumerate(frames_of(scene))], scene)
             raw = tracked(scene, smoothing=False)
-            recorder = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
+            recorder = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
             smooth = [recorder.update(t, f) for t, f in enumerate(frames_of(scene))]
             ids = evaluate_tracking(smooth, scene)
             m_raw, m_smooth = evaluate(raw, scene), evaluate(smooth, scene)
@@ -197,9 +197,9 @@ def real() -> dict | None:
         print(f"shared real detections not found at {SHARED}; skipped", file=sys.stderr)
         return None
     rig = load_calibration(SHARED / "calib.toml")
-    tracker = Tracker(rig, dataclasses.replace(Config(), fps=60.0))
-    outs = [tracker.update(f, d) for f, d in read_pose_dir(SHARED / "pose", rig.names)]
-    trajectories = tracker.finish()
+    tracker = Stage3D(rig, dataclasses.replace(Config(), fps=60.0))
+    outs = [tracker.step(f, d) for f, d in read_pose_dir(SHARED / "pose", rig.names)]
+    trajectories = tracker.trajectories()
     main = sorted(trajectories, key=lambda t: -t.frames_seen)[:2]
     row = {
         "frames": len(outs),

@@ -7,7 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from stereopose.config import MODES, ReconstructionConfig, TriangulationConfig
+from stereopose.config import (
+    MODES,
+    Config,
+    ReconstructionConfig,
+    TrackingConfig,
+    TriangulationConfig,
+)
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.reconstruction import Reconstructor
 from stereopose.sim import DetectorNoise, evaluate, simulate
 from stereopose.skeleton import NUM_JOINTS, SWAP
@@ -233,6 +240,11 @@ def _mirror_error(out, scene, t):
     return d.min(1), dm.min(1)
 
 
+def _per_frame(rig, cfg: ReconstructionConfig):
+    """Frame-by-frame 3D people with the memory of the per-frame mode (recent people)."""
+    return Stage3D(rig, Config(reconstruction=cfg, tracking=TrackingConfig(memory="recent"))).step
+
+
 def _continuity(frames: int, mode: str = "robust") -> ReconstructionConfig:
     cfg = config(mode)
     return dataclasses.replace(
@@ -246,10 +258,15 @@ def test_consecutive_frames_carry_labels_over(clean_scene):
     right, mirrored = _mirror_error(alone, clean_scene, t)
     assert len(alone) == clean_scene.present[t].sum()
     assert (mirrored < 0.01).all() and (right > 0.05).all()  # on its own: the mirror
-    rec = Reconstructor(clean_scene.rig, config())
+    rec = _per_frame(clean_scene.rig, config())
     for s in range(t):
         rec(s, clean_scene.detections[s])
     out = rec(t, _mirrored_faceless(clean_scene, t))
+    # the reconstruction itself holds nothing between frames: the same call, the same people
+    again = Reconstructor(clean_scene.rig, config())
+    for s in range(t):
+        again(s, clean_scene.detections[s])
+    np.testing.assert_array_equal(again(t, _mirrored_faceless(clean_scene, t)).joints, alone.joints)
     right, mirrored = _mirror_error(out, clean_scene, t)
     assert len(out) == len(alone)
     assert (right < 0.01).all() and (mirrored > 0.05).all()  # labels from the frames before
@@ -259,7 +276,7 @@ def test_people_missed_for_a_frame_still_carry_over(clean_scene):
     t, names = 6, clean_scene.rig.names
     results = {}
     for frames in (1, 3):
-        rec = Reconstructor(clean_scene.rig, _continuity(frames))
+        rec = _per_frame(clean_scene.rig, _continuity(frames))
         for s in range(t - 1):
             rec(s, clean_scene.detections[s])
         assert len(rec(t - 1, {n: People2D.empty(n, t - 1) for n in names})) == 0
@@ -275,7 +292,7 @@ def test_frames_out_of_order_or_without_continuity_stand_alone(clean_scene, fram
     """Without continuity (or in pair mode) every frame stands alone; with it, a frame that
     does not follow the last one (t = 2 after frame 5) starts afresh."""
     cfg = _continuity(frames, mode)
-    rec = Reconstructor(clean_scene.rig, cfg)
+    rec = _per_frame(clean_scene.rig, cfg)
     for s in range(6):
         rec(s, clean_scene.detections[s])
     dets = _mirrored_faceless(clean_scene, t)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from stereopose.config import Config
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim import evaluate, simulate
 from stereopose.skeleton import NUM_JOINTS
-from stereopose.tracking import Tracker
 from stereopose.tracking.filter import JointFilters
 from stereopose.tracking.offline import ACCEPTED, NOT_USED, RESTARTED, TrackLog, smooth_track
 
@@ -103,8 +103,8 @@ def test_joints_before_their_first_and_after_their_last_measurement_are_not_inve
 def test_tracker_two_way_lowers_the_error_and_keeps_people_and_frames():
     scene = simulate(num_frames=150, seed=2, difficulty="mid")
     frames = [[d[n] for n in scene.rig.names] for d in scene.detections]
-    tracker = Tracker(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
-    online = [tracker.update(t, f) for t, f in enumerate(frames)]
+    tracker = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
+    online = [tracker.step(t, f) for t, f in enumerate(frames)]
     two = tracker.two_way(online)
     assert [p.frame for p in two] == [p.frame for p in online]
     for a, b in zip(online, two, strict=True):
@@ -112,4 +112,4 @@ def test_tracker_two_way_lowers_the_error_and_keeps_people_and_frames():
         np.testing.assert_array_equal(np.isnan(a.joints), np.isnan(b.joints))
     assert evaluate(two, scene).mpjpe_mm < 0.85 * evaluate(online, scene).mpjpe_mm
     with pytest.raises(ValueError, match="record=True"):
-        Tracker(scene.rig).two_way(online)
+        Stage3D(scene.rig).two_way(online)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from stereopose.config import Config, with_overrides
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim import evaluate, evaluate_tracking, simulate
 from stereopose.sim.scene import Scene, ghost_frame
-from stereopose.tracking import Tracker
 from stereopose.types import People2D
 
 
@@ -20,9 +20,9 @@ def frames_of(scene: Scene) -> list[list[People2D | None]]:
 
 def track(scene: Scene, frames=None, **tracking):
     cfg = with_overrides(dataclasses.replace(Config(), fps=scene.fps), tracking=tracking)
-    tracker = Tracker(scene.rig, cfg)
+    tracker = Stage3D(scene.rig, cfg)
     frames = frames_of(scene) if frames is None else frames
-    return [tracker.update(t, f) for t, f in enumerate(frames)], tracker
+    return [tracker.step(t, f) for t, f in enumerate(frames)], tracker
 
 
 @pytest.mark.slow
@@ -38,7 +38,7 @@ def test_ids_persist_through_entries_exits_and_crowds(difficulty: str, seed: int
     assert m.idf1 > 0.95
     # every worker who entered or left did so under one id
     assert m.fragmented <= 1
-    assert [t.id for t in tracker.finish()] == sorted({int(i) for p in preds for i in p.ids})
+    assert [t.id for t in tracker.trajectories()] == sorted({int(i) for p in preds for i in p.ids})
 
 
 @pytest.mark.parametrize(("length", "gets_id"), [(1, False), (2, False), (6, True)])
@@ -83,26 +83,26 @@ def test_online_smoothing_lowers_the_joint_error() -> None:
 def test_nobody_seen_then_tracks_end_after_max_lost() -> None:
     scene = simulate(difficulty="easy", num_frames=10, seed=2, p_enter=0.0, p_leave=0.0)
     cfg = dataclasses.replace(Config(), fps=25.0)
-    tracker = Tracker(scene.rig, cfg)
+    tracker = Stage3D(scene.rig, cfg)
     for t, f in enumerate(frames_of(scene)):
-        tracker.update(t, f)
-    assert len(tracker) == 2
+        tracker.step(t, f)
+    assert len(tracker.memory) == 2
     empty = [None] * len(scene.rig)
-    out = tracker.update(10, empty)
+    out = tracker.step(10, empty)
     assert out.predicted.all() and len(out) == 2
-    out = tracker.update(20, empty)
-    assert len(out) == 0 and len(tracker) == 2  # lost, not ended
-    tracker.update(10 + int(25 * cfg.tracking.max_lost_s) + 1, empty)
-    assert len(tracker) == 0
-    assert [t.frames_seen for t in tracker.finish()] == [10, 10]
+    out = tracker.step(20, empty)
+    assert len(out) == 0 and len(tracker.memory) == 2  # lost, not ended
+    tracker.step(10 + int(25 * cfg.tracking.max_lost_s) + 1, empty)
+    assert len(tracker.memory) == 0
+    assert [t.frames_seen for t in tracker.trajectories()] == [10, 10]
 
 
 def test_frames_must_increase() -> None:
     scene = simulate(difficulty="easy", num_frames=3, seed=2)
-    tracker = Tracker(scene.rig)
-    tracker.update(2, frames_of(scene)[2])
+    tracker = Stage3D(scene.rig)
+    tracker.step(2, frames_of(scene)[2])
     with pytest.raises(ValueError, match="frame 2 does not come after frame 2"):
-        tracker.update(2, frames_of(scene)[2])
+        tracker.step(2, frames_of(scene)[2])
 
 
 @pytest.mark.realdata
@@ -112,12 +112,12 @@ def test_real_people_keep_one_id_each(shared_data_dir) -> None:
 
     rig = load_calibration(shared_data_dir / "calib.toml")
     seq = read_pose_dir(shared_data_dir / "pose", rig.names)
-    tracker = Tracker(rig, dataclasses.replace(Config(), fps=60.0))
+    tracker = Stage3D(rig, dataclasses.replace(Config(), fps=60.0))
     frames = {}
     for frame, people in seq:
-        out = tracker.update(frame, people)
+        out = tracker.step(frame, people)
         frames[frame] = {int(i): out.joints[k] for k, i in enumerate(out.ids)}
-    trajectories = tracker.finish()
+    trajectories = tracker.trajectories()
     # the two main people are the ones seen longest; each is one id from start to end
     main = sorted(trajectories, key=lambda t: -t.frames_seen)[:2]
     assert all(t.first_frame == 0 and t.last_frame == 99 for t in main)

@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.association._kernels import box_diagonals, epipolar_pair_distances, pair_costs
 from stereopose.association.grouping import upper_pairs
+from stereopose.geometry._kernels import undistort
 from stereopose.geometry.camera import UNDISTORT_STOP
-from stereopose.kernels import box_diagonals, epipolar_pair_distances, pair_costs, undistort
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 

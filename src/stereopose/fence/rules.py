@@ -18,8 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.fence.zones import Site, ZoneGeometry
-from stereopose.skeleton import JOINTS, LEFT_HIP, NUM_JOINTS, RIGHT_HIP
-from stereopose.tracking.positioning import floor_position
+from stereopose.skeleton import JOINTS, NUM_JOINTS, floor_position
 from stereopose.types import Event, People3D
 
 _EPS = 1e-9
@@ -137,7 +136,7 @@ class FenceMonitor:
             rows = self._rows(people.ids)
             geo = self._geometry(people.joints)
             raw_in = geo.inside
-            pos = 0.5 * (people.joints[:, LEFT_HIP, :2] + people.joints[:, RIGHT_HIP, :2])
+            pos = floor_position(people.joints)
             self.last_seen[rows] = t
             self.last_pos[rows] = pos
             rose, fell, onset = self.inside.step(rows, raw_in, t)
@@ -192,8 +191,6 @@ class FenceMonitor:
         rose, fell, dwell, near_rose = flags
         zone = self.zones[k]
         pid = int(people.ids[p])
-        if not np.isfinite(pos[p]).all():  # no hips: the mean of the joints seen
-            pos = floor_position(people.joints[p : p + 1]).repeat(len(people), 0)
         base = dict(
             t=t,
             frame=people.frame,

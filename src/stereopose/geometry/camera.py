@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from stereopose.geometry._kernels import project_all
 from stereopose.types import Camera
 
 # stop once the reprojected point is within 1e-8 px of the observed one, or after 30 steps
@@ -66,10 +67,7 @@ def project(points_world: np.ndarray, camera: Camera) -> np.ndarray:
 
     Points at or behind the camera (z <= 1 mm) give NaN, as do NaN inputs.
     """
-    Xc = world_to_camera(points_world, camera)
-    z = Xc[..., 2:3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        xy = np.where(z > 1e-3, Xc[..., :2] / z, np.nan)
+    xy = project_to_cameras(points_world, camera.P[None])[..., 0, :]
     return normalized_to_pixels(distort(xy, camera.distortions), camera.matrix)
 
 
@@ -78,14 +76,12 @@ def project_to_cameras(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
 
     Returns (..., C, 2) ideal normalised coordinates; NaN behind a camera or for NaN input.
     """
-    C = P.shape[0]
-    # one matmul for all cameras: X @ [R_0^T | R_1^T | ...] + [t_0 | t_1 | ...]
-    R_all = P[:, :, :3].transpose(2, 0, 1).reshape(3, C * 3)
-    Xc = (points_world @ R_all + P[:, :, 3].reshape(C * 3)).reshape(*points_world.shape[:-1], C, 3)
-    z = Xc[..., 2:3]
-    out = np.full((*Xc.shape[:-1], 2), np.nan)
-    np.divide(Xc[..., :2], z, out=out, where=z > 1e-3)
-    return out
+    X = _check_last(points_world, 3, "points_world")
+    P = np.asarray(P, dtype=np.float64)
+    if P.ndim != 3 or P.shape[1:] != (3, 4):
+        raise ValueError(f"P must have shape (C, 3, 4), got {P.shape}")
+    out = project_all(np.ascontiguousarray(X.reshape(-1, 1, 3)), np.ascontiguousarray(P))
+    return out.reshape(*X.shape[:-1], P.shape[0], 2)
 
 
 def undistort_normalized(pixels: np.ndarray, camera: Camera) -> np.ndarray:

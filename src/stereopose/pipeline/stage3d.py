@@ -25,8 +25,14 @@ class Stage3D:
     """
 
     def __init__(
-        self, rig: Rig, config: Config, *, record: bool = False, calib_path: str = ""
+        self,
+        rig: Rig,
+        config: Config | None = None,
+        *,
+        record: bool = False,
+        calib_path: str = "",
     ) -> None:
+        config = config or Config()
         try:
             self.reconstructor = Reconstructor(rig, config.reconstruction)
         except CalibrationError as e:

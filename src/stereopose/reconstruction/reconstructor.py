@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -15,20 +14,26 @@ from stereopose.association.affinity import (
     epipolar_costs,
     epipolar_distances,
 )
+from stereopose.association.claims import (
+    check_groups,
+    claim,
+    claimed_groups,
+    exchanged,
+    pairs_within,
+)
 from stereopose.association.grouping import group_detections, upper_pairs
 from stereopose.config import ReconstructionConfig
 from stereopose.errors import CalibrationError
+from stereopose.geometry._kernels import in_view
 from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
-from stereopose.kernels import claim_costs, in_view, project_all
 from stereopose.reconstruction.triangulate import (
-    JOINT_PARTS,
     reprojection_errors,
     triangulate_pair,
     triangulate_robust,
     triangulate_weighted,
 )
-from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS, SWAP
+from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
 from stereopose.types import People2D, People3D, Rig
 
 _LIMB_A = np.array([a for a, _ in PCP_LIMBS])
@@ -58,86 +63,6 @@ class Reconstruction:
 
     people: People3D
     seeds: np.ndarray
-
-
-def _exchanged(det: Detections, swap: np.ndarray) -> Detections:
-    """det with left/right labels exchanged where swap (N, 2) is true, per body part."""
-    if not swap.any():
-        return det
-    flip = swap.astype(np.float64) @ JOINT_PARTS.T > 0  # (N, 17)
-    idx = np.where(flip, SWAP[None, :], np.arange(NUM_JOINTS)[None, :])
-    n = np.arange(len(det))[:, None]
-    return dataclasses.replace(
-        det, pixels=det.pixels[n, idx], xy=det.xy[n, idx], conf=det.conf[n, idx]
-    )
-
-
-def _claimed_groups(claims: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
-    """Detections claimed by the same predicted pose in two cameras or more, as groups."""
-    groups, seeds = [], []
-    for t in np.unique(claims[claims >= 0]):
-        g = np.flatnonzero(claims == t)
-        if g.size >= 2:
-            groups.append(g)
-            seeds.append(int(t))
-    return groups, seeds
-
-
-def _pairs_within(groups: list[np.ndarray], free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Detection pairs (n < m) inside each group and among the free detections."""
-    n, m = [], []
-    for g in [*groups, free]:
-        a, b = upper_pairs(g.size)
-        n.append(g[a])
-        m.append(g[b])
-    return np.concatenate(n).astype(np.int64), np.concatenate(m).astype(np.int64)
-
-
-def _check_groups(groups, seeds, cost, max_cost):
-    """Remove from each seeded group the detections that disagree with the rest.
-
-    A detection whose mean cost to the other members exceeds max_cost is dropped, worst
-    first; a group left with fewer than two detections is dissolved. Returns the groups,
-    their seeds and the dropped detections.
-    """
-    # all groups at once: (G, S) members padded with a detection of infinite cost
-    N = cost.shape[0]
-    S = max(g.size for g in groups)
-    pad = np.full((len(groups), S), N)
-    for i, g in enumerate(groups):
-        pad[i, : g.size] = g
-    full = np.full((N + 1, N + 1), np.inf)
-    full[:N, :N] = cost
-    c = full[pad[:, :, None], pad[:, None, :]]  # (G, S, S); the diagonal is inf (same camera)
-    fin = np.isfinite(c)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(fin, c, 0.0).sum(-1) / fin.sum(-1)
-    bad = ~(mean <= max_cost) & (pad < N)
-    if not bad.any():
-        return groups, seeds, np.zeros(0, dtype=np.int64)
-    kept, kept_seeds, dropped = [], [], []
-    for i, (g, t) in enumerate(zip(groups, seeds, strict=True)):
-        if not bad[i].any():
-            kept.append(g)
-            kept_seeds.append(t)
-            continue
-        while g.size >= 2:
-            c = cost[np.ix_(g, g)]
-            fin = np.isfinite(c)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean = np.where(fin, c, 0.0).sum(1) / fin.sum(1)
-            mean[~np.isfinite(mean)] = np.inf
-            worst = int(np.argmax(mean))
-            if mean[worst] <= max_cost:
-                break
-            dropped.append(g[worst])
-            g = np.delete(g, worst)
-        if g.size >= 2:
-            kept.append(g)
-            kept_seeds.append(t)
-        else:
-            dropped.extend(g.tolist())
-    return kept, kept_seeds, np.array(dropped, dtype=np.int64)
 
 
 class Reconstructor:
@@ -205,23 +130,25 @@ class Reconstructor:
         seeded: list[np.ndarray] = []
         seeds: list[int] = []
         if prior is not None and len(prior):
-            claims, swap = self._claim(det, prior)
-            seeded, seeds = _claimed_groups(claims)
+            claims, swap = claim(
+                det, prior, self.P, ac.min_conf, ac.min_common_joints, ac.track_max_cost
+            )
+            seeded, seeds = claimed_groups(claims)
             # the labels of a claimed detection follow the predicted pose's: a detector's
             # left/right swap is undone before anything else looks at it
-            det = _exchanged(det, swap & (claims >= 0)[:, None])
+            det = exchanged(det, swap & (claims >= 0)[:, None])
         # epipolar distances only where they are needed: inside seeded groups, and between
         # the detections no seed claimed
         free = np.ones(len(det), dtype=bool)
         for g in seeded:
             free[g] = False
-        dist = epipolar_distances(det, self.E, _pairs_within(seeded, np.flatnonzero(free)))
+        dist = epipolar_distances(det, self.E, pairs_within(seeded, np.flatnonzero(free)))
         cost = epipolar_costs(det, dist, ac.min_conf, ac.min_common_joints)
         if seeded:
-            seeded, seeds, dropped = _check_groups(seeded, seeds, cost, ac.max_cost)
+            seeded, seeds, dropped = check_groups(seeded, seeds, cost, ac.max_cost)
             if dropped.size:  # back with the free detections, which need their distances
                 free[dropped] = True
-                pairs = _pairs_within(seeded, np.flatnonzero(free))
+                pairs = pairs_within(seeded, np.flatnonzero(free))
                 dist = epipolar_distances(det, self.E, pairs)
                 cost = epipolar_costs(det, dist, ac.min_conf, ac.min_common_joints)
         left = np.flatnonzero(free)
@@ -242,41 +169,6 @@ class Reconstructor:
         delivered = np.array([p is not None for p in people])
         out, idx = self._assemble(frame, det, members, delivered, X, used, conf, err)
         return Reconstruction(out, seed_of[idx])
-
-    def _claim(self, det: Detections, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N,) index of the predicted pose each detection belongs to (-1: none), and (N, 2)
-        whether its left/right labels are exchanged against that pose, per body part (upper
-        body, legs).
-
-        In each camera, detections and predicted poses are matched one to one (Hungarian) on
-        the mean distance of confident joints to the reprojected pose, divided by the
-        detection's size; left/right exchanged poses count as the same pose.
-        """
-        ac = self.config.association
-        proj = project_all(np.ascontiguousarray(predicted, dtype=np.float64), self.P)
-        ok = det.conf >= ac.min_conf  # (N, 17)
-        best, part = claim_costs(
-            det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, ac.min_common_joints
-        )
-        claims = np.full(len(det), -1, dtype=np.int64)
-        pick = best.argmin(1)
-        fine = best[np.arange(len(det)), pick] <= ac.track_max_cost
-        key = det.camera * best.shape[1] + pick
-        # where no two detections of a camera pick the same pose, the row minima are optimal
-        picks = np.bincount(key[fine], minlength=len(self.rig) * best.shape[1])
-        dup = fine & (picks[key] > 1)
-        claims[fine & ~dup] = pick[fine & ~dup]
-        for cam in np.unique(det.camera[dup]):
-            rows = np.flatnonzero(det.camera == cam)
-            sub = best[rows]
-            r, k = linear_sum_assignment(np.where(np.isfinite(sub), sub, 1e9))
-            claims[rows] = -1
-            fine = sub[r, k] <= ac.track_max_cost
-            claims[rows[r[fine]]] = k[fine]
-        t = np.maximum(claims, 0)
-        n = np.arange(len(det))
-        swap = part[1][n, t] < part[0][n, t]  # NaN (part not seen) compares False
-        return claims, swap
 
     # -- steps ---------------------------------------------------------------------------------
 

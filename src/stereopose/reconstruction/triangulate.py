@@ -14,28 +14,22 @@ import functools
 import numpy as np
 
 from stereopose.association.grouping import upper_pairs
+from stereopose.geometry._kernels import dlt_all
 from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
-from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
-from stereopose.kernels import (
+from stereopose.geometry.triangulation import triangulate_dlt
+from stereopose.reconstruction._kernels import (
     body_orientation,
     chain_flips,
-    dlt_all,
     implausibility,
     place_single_views,
     select_views,
 )
-from stereopose.skeleton import LR_PAIRS, SWAP
+from stereopose.skeleton import JOINT_INDEX, JOINT_PARTS, LR_PAIRS, PART_OF_PAIR, SWAP
+from stereopose.skeleton import LEFT as _LEFT
+from stereopose.skeleton import RIGHT as _RIGHT
 
-_LEFT = np.array([p[0] for p in LR_PAIRS])
-_RIGHT = np.array([p[1] for p in LR_PAIRS])
-# Detectors swap the whole body or the legs alone: labels are decided for these parts apart.
-# _PART_OF_PAIR[i]: part of LR_PAIRS[i] (0: face, arms, hips; 1: knees, ankles);
-# JOINT_PARTS[j, p]: 1 where joint j is a left or right joint of part p.
-_PART_OF_PAIR = np.array([int(left >= 13) for left, _ in LR_PAIRS])
-JOINT_PARTS = np.zeros((len(SWAP), 2))
-JOINT_PARTS[_LEFT, _PART_OF_PAIR] = JOINT_PARTS[_RIGHT, _PART_OF_PAIR] = 1.0
-JOINT_PARTS.setflags(write=False)
+_PART_OF_PAIR = PART_OF_PAIR
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
@@ -177,12 +171,28 @@ def triangulate_robust(
 
 # Left and right bones compared by _implausibility: upper arms, forearms, thighs, shins, trunk
 # sides.
-_BONES_L = np.array([[5, 7], [7, 9], [11, 13], [13, 15], [5, 11]])
+def _joint_table(*rows: tuple[str, ...]) -> np.ndarray:
+    return np.array([[JOINT_INDEX[name] for name in row] for row in rows], dtype=np.int64)
+
+
+_BONES_L = _joint_table(
+    ("left_shoulder", "left_elbow"),
+    ("left_elbow", "left_wrist"),
+    ("left_hip", "left_knee"),
+    ("left_knee", "left_ankle"),
+    ("left_shoulder", "left_hip"),
+)
 _BONES_R = SWAP[_BONES_L]
 # Bones no adult's reach (a tall adult's length with a wide margin, m): shoulder and hip
 # widths, then the limbs and trunk sides of _BONES_L and _BONES_R. A joint triangulated from
 # views whose labels disagree lands far from the body, making some bone far too long.
-_BONES_MAX = np.concatenate([[[5, 6], [11, 12]], _BONES_L, _BONES_R])
+_BONES_MAX = np.concatenate(
+    [
+        _joint_table(("left_shoulder", "right_shoulder"), ("left_hip", "right_hip")),
+        _BONES_L,
+        _BONES_R,
+    ]
+)
 _MAX_M = np.array([0.7, 0.55, *([0.5, 0.42, 0.65, 0.65, 0.85] * 2)])
 
 
@@ -257,10 +267,14 @@ def _relabel_implausible(
 
 # Limb joints and the trunk joints they hang from, as (parent left, parent right, child left,
 # child right) rows: shoulders-elbows, hips-knees, then elbows-wrists, knees-ankles.
-_CHAINS = np.array([[5, 6, 7, 8], [11, 12, 13, 14], [7, 8, 9, 10], [13, 14, 15, 16]])
-_PAIR_OF_LEFT = np.zeros(17, dtype=np.int64)  # pair index of LR_PAIRS, by its left joint
-for _i, (_l, _r) in enumerate(LR_PAIRS):
-    _PAIR_OF_LEFT[_l] = _i
+_CHAINS = _joint_table(
+    ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow"),
+    ("left_hip", "right_hip", "left_knee", "right_knee"),
+    ("left_elbow", "right_elbow", "left_wrist", "right_wrist"),
+    ("left_knee", "right_knee", "left_ankle", "right_ankle"),
+)
+_PAIR_OF_LEFT = np.zeros(len(SWAP), dtype=np.int64)  # pair index of LR_PAIRS, by its left joint
+_PAIR_OF_LEFT[_LEFT] = np.arange(len(LR_PAIRS))
 
 
 def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
@@ -291,60 +305,30 @@ def _exchange_joints(a: np.ndarray, swap: np.ndarray) -> np.ndarray:
     return a
 
 
-def select_views_numpy(xy, w, P, focal, thr, X_all, blocks=None, pair_blocks=None):
-    """The NumPy form of kernels.select_views (same arguments and results), kept as the
-    reference the compiled loops are tested against."""
-    thr = thr[:, None, :]
-    if blocks is None:
-        blocks = dlt_blocks(P)
-    err_all = reprojection_errors(X_all, xy, P, focal)
-    err = err_all.copy()
-    used = (w > 0) & (err < thr)
-    # Joints where every view agrees are done; the others are re-seeded from the two-view
-    # solution most views agree with, then solved again from the views that agree with it.
-    # (with two views or fewer there is nothing to choose: the result would be X_all)
-    seen = (w > 0).sum(-1)
-    redo = (seen > 2) & ((used.sum(-1) < seen) | ~np.isfinite(X_all[..., 0]))  # (G, J)
-    X = X_all.copy()
-    if redo.any():
-        xr, wr, tr = xy[redo], w[redo], np.broadcast_to(thr, w.shape)[redo]
-        ur = _best_pair_inliers(xr, wr, P, focal, tr, pair_blocks)
-        Xr = triangulate_dlt(xr, P, np.where(ur, wr, 0.0), blocks)
-        er = reprojection_errors(Xr, xr, P, focal)
-        X[redo], used[redo], err[redo] = Xr, ur & (er < 1.5 * tr), er
-    # Where fewer than two views agree, the views cannot be told apart: all of them are used
-    # (an occluded joint is better placed roughly than not at all; its confidence stays low).
-    few = used.sum(-1) < 2
-    if few.any():
-        X[few], used[few], err[few] = X_all[few], w[few] > 0, err_all[few]
-    return X, used, err
-
-
 # Per joint, its neighbours in the skeleton in order of preference: a joint seen in one view
 # is placed at the depth of the first of them that is reconstructed (the parent first).
-_ANCHORS = (
-    (1, 2, 3, 4, 5, 6),  # nose
-    (0, 2, 3),
-    (0, 1, 4),  # eyes
-    (1, 0, 5),
-    (2, 0, 6),  # ears
-    (6, 11, 7),
-    (5, 12, 8),  # shoulders
-    (5, 9),
-    (6, 10),  # elbows
-    (7,),
-    (8,),  # wrists
-    (12, 5, 13),
-    (11, 6, 14),  # hips
-    (11, 15),
-    (12, 16),  # knees
-    (13,),
-    (14,),  # ankles
-)
-
-_ANCHOR_TABLE = np.full((len(_ANCHORS), max(map(len, _ANCHORS))), -1, dtype=np.int64)
-for _j, _row in enumerate(_ANCHORS):
-    _ANCHOR_TABLE[_j, : len(_row)] = _row
+_ANCHORS: dict[str, tuple[str, ...]] = {
+    "nose": ("left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder"),
+    "left_eye": ("nose", "right_eye", "left_ear"),
+    "right_eye": ("nose", "left_eye", "right_ear"),
+    "left_ear": ("left_eye", "nose", "left_shoulder"),
+    "right_ear": ("right_eye", "nose", "right_shoulder"),
+    "left_shoulder": ("right_shoulder", "left_hip", "left_elbow"),
+    "right_shoulder": ("left_shoulder", "right_hip", "right_elbow"),
+    "left_elbow": ("left_shoulder", "left_wrist"),
+    "right_elbow": ("right_shoulder", "right_wrist"),
+    "left_wrist": ("left_elbow",),
+    "right_wrist": ("right_elbow",),
+    "left_hip": ("right_hip", "left_shoulder", "left_knee"),
+    "right_hip": ("left_hip", "right_shoulder", "right_knee"),
+    "left_knee": ("left_hip", "left_ankle"),
+    "right_knee": ("right_hip", "right_ankle"),
+    "left_ankle": ("left_knee",),
+    "right_ankle": ("right_knee",),
+}
+_ANCHOR_TABLE = np.full((len(SWAP), max(map(len, _ANCHORS.values()))), -1, dtype=np.int64)
+for _name, _row in _ANCHORS.items():
+    _ANCHOR_TABLE[JOINT_INDEX[_name], : len(_row)] = [JOINT_INDEX[a] for a in _row]
 
 
 def complete_single_views(X, used, xy, w, centers, rays_R):
@@ -361,29 +345,6 @@ def complete_single_views(X, used, xy, w, centers, rays_R):
     X = np.array(X, dtype=np.float64)  # a contiguous copy, placed in
     placed = place_single_views(X, used, xy, w, centers, rays_R, _ANCHOR_TABLE)
     return X, placed
-
-
-@functools.lru_cache(maxsize=32)
-def pair_views(C: int) -> np.ndarray:
-    """(K, 2) camera indices of every pair (a < b)."""
-    return np.stack(upper_pairs(C), axis=1)
-
-
-def _best_pair_inliers(xy, w, P, focal, thr, pair_blocks=None):
-    """For n joints (n, C, 2), (n, C): the views (n, C) that agree with the two-view solution
-    most views agree with (scored by their confidence)."""
-    sel = pair_views(xy.shape[1])  # (K, 2)
-    Xk = triangulate_dlt(
-        xy[:, sel], None if pair_blocks is not None else P[sel], w[:, sel], pair_blocks
-    )  # (n, K, 3)
-    err = reprojection_errors(Xk, xy[:, None], P, focal)  # (n, K, C)
-    t = thr[:, None]
-    inl = (err < t) & (w[:, None] > 0)
-    # confidence of the agreeing views; ties go to the tighter fit
-    score = np.where(inl, w[:, None] - 1e-3 * err / t, 0.0).sum(-1)
-    score[np.isnan(Xk[..., 0])] = -np.inf
-    best = np.argmax(score, axis=-1)
-    return inl[np.arange(len(best)), best]
 
 
 @functools.lru_cache(maxsize=16)
@@ -446,20 +407,7 @@ _HEAD_WIDTH_M = 0.3
 
 
 def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
-    """Which people's labels are mirrored as a whole (see body_orientation_numpy), compiled."""
-    return body_orientation(
-        np.ascontiguousarray(X), face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M
-    )
-
-
-def _lead_numpy(lead, right):
-    """(G,) how far horizontal offsets lead (G, 2) reach ahead, ahead being up x right."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return (lead[:, 1] * right[:, 0] - lead[:, 0] * right[:, 1]) / np.hypot(*right.T)
-
-
-def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
-    """Which people's labels are mirrored as a whole, from the body's handedness in 3D.
+    """Which people's labels are mirrored as a whole (G,) each: flip_upper, flip_legs.
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
     In 3D they can: with z up and front = up x right, right being the body's left-to-right
@@ -468,35 +416,8 @@ def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float
     head and shoulders seen from two close views, whose depth is noisy, are judged together;
     a nose away from the head (see _HEAD_RADIUS_M) takes part in neither, and without
     shoulders or hips the head's own axis (right ear - left ear) gives front. Each knee is
-    nearer its own hip. X: (G, 17, 3). Returns (flip_upper (G,), flip_legs (G,)).
+    nearer its own hip. X: (G, 17, 3).
     """
-    ears = np.isfinite(X[:, [3, 4], 0]).all(1)
-    hl, hr = np.where(ears, 3, 1), np.where(ears, 4, 2)
-    g = np.arange(X.shape[0])
-    mid = 0.5 * (X[g, hl] + X[g, hr])
-    with np.errstate(invalid="ignore"):
-        stray = (np.linalg.norm(X[:, 0] - mid, axis=-1) >= _HEAD_RADIUS_M) | (
-            np.linalg.norm(X[g, hr] - X[g, hl], axis=-1) >= _HEAD_WIDTH_M
-        )
-    axes = np.stack([X[:, 6, :2] - X[:, 5, :2], X[:, 12, :2] - X[:, 11, :2]])  # (2, G, 2)
-    known = np.isfinite(axes).all(-1, keepdims=True)
-    right = np.where(known, axes, 0.0).sum(0)
-    right[~known.any(0)[:, 0]] = np.nan
-    seen = np.isfinite(X[:, :3, 0])
-    seen[:, 0] &= ~stray
-    with np.errstate(invalid="ignore", divide="ignore"):  # no face: NaN
-        face = np.where(seen[..., None], X[:, :3, :2], 0.0).sum(1) / seen.sum(1, keepdims=True)
-    shoulders = _lead_numpy(face - 0.5 * (X[:, 5, :2] + X[:, 6, :2]), right)
-    nose = X[:, 0, :2] - mid[:, :2]
-    head = _lead_numpy(nose, right)
-    own = _lead_numpy(nose, X[g, hr, :2] - X[g, hl, :2])
-    head = np.where(np.isfinite(head), head, own)
-    head[stray] = np.nan
-    leads = np.stack([shoulders, head])
-    ahead = np.where(np.isfinite(leads), leads, 0.0).sum(0)  # a missing lead adds nothing
-    flip_upper = ahead < -face_margin_m
-    hips = np.where(flip_upper[:, None, None], X[:, [12, 11]], X[:, [11, 12]])
-    d = hips[:, :, None] - X[:, None, [13, 14]]  # (G, hip, knee, 3)
-    dist = np.sqrt(np.einsum("ghkx,ghkx->ghk", d, d))
-    flip_legs = dist[:, 0, 1] + dist[:, 1, 0] < dist[:, 0, 0] + dist[:, 1, 1] - thigh_margin_m
-    return flip_upper, flip_legs
+    return body_orientation(
+        np.ascontiguousarray(X), face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M
+    )

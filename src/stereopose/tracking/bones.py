@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereopose.kernels import bones_apply, bones_observe
 from stereopose.skeleton import joint_index
+from stereopose.tracking._kernels import bones_apply, bones_observe
 
 # parent -> child, trunk outwards: the upper limbs first, then the ones hanging from them
 _LIMBS = [

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereopose.kernels import kalman_update
 from stereopose.skeleton import NUM_JOINTS
+from stereopose.tracking._kernels import kalman_update
 
 _INITIAL_SPEED_MPS = 1.0  # prior standard deviation of a new joint's velocity
 

@@ -1,4 +1,5 @@
-"""Where people stand on the floor, which way they face, and their trajectories."""
+"""People's trajectories on the floor (where they stand and face: skeleton.floor_position,
+skeleton.heading_deg)."""
 
 from __future__ import annotations
 
@@ -7,27 +8,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from stereopose.kernels import floor_points
-from stereopose.skeleton import LEFT_HIP, RIGHT_HIP, joint_index
+from stereopose.skeleton import floor_position, heading_deg
 
-_LEFT_SHOULDER, _RIGHT_SHOULDER = joint_index("left_shoulder"), joint_index("right_shoulder")
-
-
-def floor_position(joints: np.ndarray) -> np.ndarray:
-    """(P, 17, 3) joints -> (P, 2) floor point: mid-hip x-y, or the mean of the joints seen."""
-    return floor_points(np.ascontiguousarray(joints, dtype=np.float64), LEFT_HIP, RIGHT_HIP)
-
-
-def heading_deg(joints: np.ndarray) -> np.ndarray:
-    """(P, 17, 3) joints -> (P,) direction the body faces on the floor, degrees
-    counter-clockwise from world +x (NaN when neither shoulders nor hips are known).
-
-    The front is up x (right - left) of the shoulders, or of the hips without shoulders.
-    """
-    right = joints[:, _RIGHT_SHOULDER, :2] - joints[:, _LEFT_SHOULDER, :2]
-    hips = joints[:, RIGHT_HIP, :2] - joints[:, LEFT_HIP, :2]
-    right = np.where(np.isfinite(right).all(-1, keepdims=True), right, hips)
-    return np.degrees(np.arctan2(right[:, 0], -right[:, 1]))
+__all__ = ["Trajectory", "floor_position", "heading_deg"]
 
 
 @dataclass

@@ -1,0 +1,114 @@
+"""Compiled loops of the tracking (numba): the Kalman step of joints, running limb lengths;
+called through tracking.filter, tracking.bones and tracking.offline.
+
+Division follows NumPy (x / 0 is inf or NaN, never an error). Compiled once per machine,
+cached beside this module.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+
+
+@njit(**_JIT)
+def kalman_update(
+    x, v, p00, p01, p11, rejected, rows, z, r2, gate_m, gate_sigmas, reset_frames, initial_var
+):
+    """Gated constant-velocity Kalman correction of joints, in place (see
+    tracking.filter.JointFilters.update, whose arithmetic this is, joint by joint).
+
+    x, v: (T, 17, 3); p00, p01, p11: (T, 17) covariance terms; rejected: (T, 17) frames gated
+    out in a row; rows: (n,) tracks corrected by z (n, 17, 3) with noise variance r2 (n, 17).
+    Returns (n, 17) what became of each measurement: 0 not used (missing or gated out),
+    1 accepted, 2 restarted the joint (a new joint, or one gated out reset_frames in a row).
+    """
+    n, J = z.shape[0], z.shape[1]
+    used = np.zeros((n, J), dtype=np.int8)
+    for i in range(n):
+        r = rows[i]
+        for j in range(J):
+            zx, zy, zz = z[i, j, 0], z[i, j, 1], z[i, j, 2]
+            measured = np.isfinite(zx) and np.isfinite(zy) and np.isfinite(zz)
+            known = np.isfinite(x[r, j, 0]) and np.isfinite(x[r, j, 1]) and np.isfinite(x[r, j, 2])
+            new = measured and not known
+            yx, yy, yz = zx - x[r, j, 0], zy - x[r, j, 1], zz - x[r, j, 2]
+            dist = np.sqrt(yx * yx + yy * yy + yz * yz)
+            a00, a01, a11, q = p00[r, j], p01[r, j], p11[r, j], r2[i, j]
+            s = a00 + q
+            spread = np.sqrt(a00 + min(q, gate_m * gate_m / 16.0))
+            inside = dist <= max(gate_m, gate_sigmas * spread)
+            accept = measured and not new and inside
+            rej = rejected[r, j] + 1 if (measured and not accept and not new) else 0
+            restart = new or rej >= reset_frames
+            if accept:
+                k0, k1 = a00 / s, a01 / s
+                x[r, j, 0] += k0 * yx
+                x[r, j, 1] += k0 * yy
+                x[r, j, 2] += k0 * yz
+                v[r, j, 0] += k1 * yx
+                v[r, j, 1] += k1 * yy
+                v[r, j, 2] += k1 * yz
+                p00[r, j] = (1.0 - k0) * a00
+                p01[r, j] = (1.0 - k0) * a01
+                p11[r, j] = a11 - k1 * a01
+            if restart:
+                x[r, j, 0], x[r, j, 1], x[r, j, 2] = zx, zy, zz
+                v[r, j, 0] = v[r, j, 1] = v[r, j, 2] = 0.0
+                p00[r, j] = q
+                p01[r, j] = 0.0
+                p11[r, j] = initial_var
+                rej = 0
+            rejected[r, j] = rej
+            used[i, j] = 2 if restart else (1 if accept else 0)
+    return used
+
+
+@njit(**_JIT)
+def bones_observe(length, count, rows, joints, parent, child, window, min_samples, outlier):
+    """Add the limb lengths of measured joints (n, 17, 3) of tracks `rows` to their running
+    means length, count (T, L), in place (see tracking.bones.BoneLengths.observe)."""
+    n, L = rows.shape[0], parent.shape[0]
+    for i in range(n):
+        r = rows[i]
+        for k in range(L):
+            a, b = parent[k], child[k]
+            dx = joints[i, b, 0] - joints[i, a, 0]
+            dy = joints[i, b, 1] - joints[i, a, 1]
+            dz = joints[i, b, 2] - joints[i, a, 2]
+            sample = np.sqrt(dx * dx + dy * dy + dz * dz)
+            est, cnt = length[r, k], count[r, k]
+            far = cnt >= min_samples and abs(sample - est) > outlier * est
+            use = np.isfinite(sample) and not far
+            if use:
+                cnt += 1
+                alpha = 1.0 / max(min(cnt, window), 1)
+                est = est + alpha * (sample - est) if np.isfinite(est) else sample
+            elif not np.isfinite(est):
+                est = sample
+            length[r, k], count[r, k] = est, cnt
+
+
+@njit(**_JIT)
+def bones_apply(X, length, count, rows, parent, child, min_samples):
+    """X (n, 17, 3) with each limb of tracks `rows` set to its running length where that is
+    known from min_samples samples, the trunk outwards (parents before children), in place
+    (see tracking.bones.BoneLengths.apply)."""
+    n, L = rows.shape[0], parent.shape[0]
+    for i in range(n):
+        r = rows[i]
+        for k in range(L):
+            if count[r, k] < min_samples:
+                continue
+            a, b = parent[k], child[k]
+            dx = X[i, b, 0] - X[i, a, 0]
+            dy = X[i, b, 1] - X[i, a, 1]
+            dz = X[i, b, 2] - X[i, a, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            scale = length[r, k] / d
+            if np.isfinite(scale) and d > 1e-6:
+                X[i, b, 0] = X[i, a, 0] + dx * scale
+                X[i, b, 1] = X[i, a, 1] + dy * scale
+                X[i, b, 2] = X[i, a, 2] + dz * scale
