@@ -1,36 +1,68 @@
-"""Command line: parse, load configuration, call the pipeline, report."""
+"""Command line: parse, load configuration, call the pipeline, report.
+
+Only the standard library is imported here. A command's module, and with it rich, NumPy and the
+pipeline, is imported when that command runs, so `--help` and usage errors come at once.
+"""
 
 from __future__ import annotations
 
 import argparse
-import logging
+import importlib
 from pathlib import Path
 
-from rich.logging import RichHandler
-from rich.markup import escape
-
 from stereopose import __version__
-from stereopose.cli.calibrate import _calibrate_extrinsics, _calibrate_intrinsics
-from stereopose.cli.common import console
-from stereopose.cli.reconstruct import _events, _reconstruct
-from stereopose.cli.run import _demo, _detect, _init, _models, _report, _run
-from stereopose.cli.sim import _simulate
-from stereopose.config import MODES
 from stereopose.errors import StereoposeError
 
-__all__ = ["build_parser", "main"]
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+# command -> (help, the handler's "module:function"), in the order `stereopose --help` lists them;
+# calibrate's handlers belong to its steps
+COMMANDS: dict[str, tuple[str, str | None]] = {
+    "reconstruct": (
+        "2D keypoints of calibrated cameras -> 3D poses JSONL",
+        "stereopose.cli.reconstruct:_reconstruct",
+    ),
+    "detect": (
+        "videos, image folders or streams -> 2D keypoint files",
+        "stereopose.cli.run:_detect",
+    ),
+    "run": ("cameras -> 3D people, tracks, zone events, report", "stereopose.cli.run:_run"),
+    "init": ("write a commented example run configuration", "stereopose.cli.run:_init"),
+    "report": ("rebuild report.html of a run folder", "stereopose.cli.run:_report"),
+    "models": (
+        "list, fetch or export the pose models in the cache",
+        "stereopose.cli.run:_models",
+    ),
+    "calibrate": ("camera calibration from checkerboard photos", None),
+    "events": ("list the events of an SQLite event log", "stereopose.cli.reconstruct:_events"),
+    "simulate": (
+        "write a simulated substation scene with ground truth",
+        "stereopose.cli.sim:_simulate",
+    ),
+    "demo": (
+        "run the real 4-camera demo end to end (--synthetic: a simulated substation)",
+        "stereopose.cli.run:_demo",
+    ),
+}
+CALIBRATE_STEPS: dict[str, tuple[str, str]] = {
+    "intrinsics": (
+        "focal length, principal point, lens distortion",
+        "stereopose.cli.calibrate:_calibrate_intrinsics",
+    ),
+    "extrinsics": (
+        "every camera's pose in one world frame",
+        "stereopose.cli.calibrate:_calibrate_extrinsics",
+    ),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="stereopose",
-        description="3D positions and body joints of workers from several fixed cameras.",
-    )
-    p.add_argument("--version", action="version", version=f"stereopose {__version__}")
-    p.add_argument("-v", "--verbose", action="store_true", help="log debugging detail")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+# config.MODES written out: importing the configuration schema would double the time `--help`
+# takes. A mode missing here is not offered; one config no longer has is refused by _config.
+MODES: tuple[str, ...] = ("pair", "weighted", "robust")
 
-    r = sub.add_parser("reconstruct", help="2D keypoints of calibrated cameras -> 3D poses JSONL")
+
+def _add_reconstruct(r: argparse.ArgumentParser, e: argparse.ArgumentParser) -> None:
+    """`reconstruct` and `events`."""
     r.add_argument("--calib", required=True, type=Path, help="calibration (.toml or .qca.txt)")
     r.add_argument("--pose", required=True, type=Path, help="folder of <camera>_json folders")
     r.add_argument("--out", required=True, type=Path, help="3D poses JSON lines to write")
@@ -57,9 +89,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="per-frame people: no ids over time, no smoothing",
     )
-    r.set_defaults(func=_reconstruct)
 
-    dt = sub.add_parser("detect", help="videos, image folders or streams -> 2D keypoint files")
+    e.add_argument("db", type=Path, metavar="EVENTS.sqlite")
+    e.add_argument("--person", type=int, help="only this person id")
+    e.add_argument("--zone", help="only this zone")
+    e.add_argument("--type", help="only this event type (enter, exit, approach, dwell, ...)")
+    e.add_argument("--since", type=float, metavar="T", help="only events at t >= T seconds")
+    e.add_argument("--csv", action="store_true", help="CSV on standard output instead of a table")
+
+
+def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
+    """`detect`, `run`, `init`, `report`, `models` and `demo`."""
+    dt = parsers["detect"]
     dt.add_argument(
         "--videos",
         required=True,
@@ -86,32 +127,45 @@ def build_parser() -> argparse.ArgumentParser:
     )
     dt.add_argument("--fps", type=float, help="time-step rate (default: the first camera's)")
     dt.add_argument("--max-frames", type=int, help="stop after this many time steps")
-    dt.set_defaults(func=_detect)
 
-    ru = sub.add_parser("run", help="cameras -> 3D people, tracks, zone events, report")
-    ru.add_argument("config", type=Path, metavar="CONFIG.toml", help="run configuration")
-    ru.set_defaults(func=_run)
-
-    it = sub.add_parser("init", help="write a commented example run configuration")
+    parsers["run"].add_argument(
+        "config", type=Path, metavar="CONFIG.toml", help="run configuration"
+    )
+    it = parsers["init"]
     it.add_argument("path", nargs="?", default="stereopose.toml", help="(stereopose.toml)")
     it.add_argument("--force", action="store_true", help="overwrite an existing file")
-    it.set_defaults(func=_init)
+    parsers["report"].add_argument("run_dir", type=Path, metavar="RUN_DIR")
 
-    rp = sub.add_parser("report", help="rebuild report.html of a run folder")
-    rp.add_argument("run_dir", type=Path, metavar="RUN_DIR")
-    rp.set_defaults(func=_report)
-
-    mo = sub.add_parser("models", help="list, fetch or export the pose models in the cache")
+    mo = parsers["models"]
     mo.add_argument("action", choices=("list", "fetch", "export"), nargs="?", default="list")
     mo.add_argument("weights", type=Path, nargs="?", help="export: a YOLO pose .pt file")
     mo.add_argument("--out", type=Path, help="export: the .onnx file to write")
     mo.add_argument("--force", action="store_true", help="export again even if cached")
-    mo.set_defaults(func=_models)
 
-    cal = sub.add_parser("calibrate", help="camera calibration from checkerboard photos")
+    d = parsers["demo"]
+    d.add_argument("--out", type=Path, default=Path("out/demo"))
+    d.add_argument(
+        "--synthetic",
+        action="store_true",
+        help="simulate a substation instead, and print the accuracy against its ground truth "
+        "(the options below apply to it)",
+    )
+    d.add_argument("--difficulty", choices=("easy", "mid", "hard"), default="hard")
+    d.add_argument("--frames", type=int, default=250)
+    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--mode", choices=MODES, help="only this triangulation mode (default: all)")
+    d.add_argument("--config", type=Path, help="TOML file overriding the defaults")
+
+
+def _add_calibrate(cal: argparse.ArgumentParser) -> None:
+    """`calibrate intrinsics` and `calibrate extrinsics`."""
     csub = cal.add_subparsers(dest="step", required=True, metavar="STEP")
+    steps = {}
+    for name, (help_text, handler) in CALIBRATE_STEPS.items():
+        steps[name] = csub.add_parser(name, help=help_text)
+        steps[name].set_defaults(handler=handler)
     board_help = "inner corners COLSxROWS: a board of 15 x 11 squares has 14x10 inner corners"
-    ci = csub.add_parser("intrinsics", help="focal length, principal point, lens distortion")
+    ci = steps["intrinsics"]
     ci.add_argument(
         "--images",
         required=True,
@@ -123,8 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     ci.add_argument("--out", required=True, type=Path, help="CALIB.toml, or a folder for intri.yml")
     ci.add_argument("--k3", action="store_true", help="also estimate k3")
     ci.add_argument("--report", type=Path, metavar="DIR", help="write report pictures here")
-    ci.set_defaults(func=_calibrate_intrinsics)
-    ce = csub.add_parser("extrinsics", help="every camera's pose in one world frame")
+
+    ce = steps["extrinsics"]
     ce.add_argument(
         "--images",
         required=True,
@@ -159,18 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--refine-intrinsics: fx and the camera distances then agree)",
     )
     ce.add_argument("--report", type=Path, metavar="DIR", help="write report pictures here")
-    ce.set_defaults(func=_calibrate_extrinsics)
 
-    e = sub.add_parser("events", help="list the events of an SQLite event log")
-    e.add_argument("db", type=Path, metavar="EVENTS.sqlite")
-    e.add_argument("--person", type=int, help="only this person id")
-    e.add_argument("--zone", help="only this zone")
-    e.add_argument("--type", help="only this event type (enter, exit, approach, dwell, ...)")
-    e.add_argument("--since", type=float, metavar="T", help="only events at t >= T seconds")
-    e.add_argument("--csv", action="store_true", help="CSV on standard output instead of a table")
-    e.set_defaults(func=_events)
 
-    s = sub.add_parser("simulate", help="write a simulated substation scene with ground truth")
+def _add_simulate(s: argparse.ArgumentParser) -> None:
+    """`simulate`."""
     s.add_argument("out_dir", type=Path, metavar="OUT_DIR")
     s.add_argument("--cameras", type=int, help="2-12 (default: by difficulty)")
     s.add_argument("--people", type=int, help="0-12 (default: by difficulty)")
@@ -178,36 +224,52 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--difficulty", choices=("easy", "mid", "hard"), default="mid")
     s.add_argument("--fps", type=float, default=25.0)
-    s.set_defaults(func=_simulate)
 
-    d = sub.add_parser(
-        "demo", help="run the real 4-camera demo end to end (--synthetic: a simulated substation)"
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of every command; each parsed command carries its handler's "module:function"
+    as `handler` (see COMMANDS)."""
+    p = argparse.ArgumentParser(
+        prog="stereopose",
+        description="3D positions and body joints of workers from several fixed cameras.",
     )
-    d.add_argument("--out", type=Path, default=Path("out/demo"))
-    d.add_argument(
-        "--synthetic",
-        action="store_true",
-        help="simulate a substation instead, and print the accuracy against its ground truth "
-        "(the options below apply to it)",
-    )
-    d.add_argument("--difficulty", choices=("easy", "mid", "hard"), default="hard")
-    d.add_argument("--frames", type=int, default=250)
-    d.add_argument("--seed", type=int, default=1)
-    d.add_argument("--mode", choices=MODES, help="only this triangulation mode (default: all)")
-    d.add_argument("--config", type=Path, help="TOML file overriding the defaults")
-    d.set_defaults(func=_demo)
+    p.add_argument("--version", action="version", version=f"stereopose {__version__}")
+    p.add_argument("-v", "--verbose", action="store_true", help="log debugging detail")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parsers = {}
+    for name, (help_text, handler) in COMMANDS.items():
+        parsers[name] = sub.add_parser(name, help=help_text)
+        if handler is not None:
+            parsers[name].set_defaults(handler=handler)
+    _add_reconstruct(parsers["reconstruct"], parsers["events"])
+    _add_cameras(parsers)
+    _add_calibrate(parsers["calibrate"])
+    _add_simulate(parsers["simulate"])
     return p
+
+
+def _handler(spec: str):
+    """The function named by "module:function", imported now."""
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    import logging
+
+    from rich.logging import RichHandler
+    from rich.markup import escape
+
+    from stereopose.cli.common import console
+
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,
         format="%(message)s",
         handlers=[RichHandler(console=console, show_time=False, show_path=False)],
     )
     try:
-        return args.func(args)
+        return _handler(args.handler)(args)
     except StereoposeError as e:
         console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
         return 2
