@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import subprocess
 import time
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -164,6 +165,48 @@ def _serve(video: Path, port: int) -> subprocess.Popen:
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+def _wait_until(condition, what: str, timeout_s: float = 20.0) -> None:
+    """Poll ``condition()`` until it is true; fail the test if ``timeout_s`` passes first."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f"still waiting for {what} after {timeout_s} s")
+        time.sleep(0.01)
+
+
+def _listening(port: int) -> bool:
+    """Whether a socket listens on TCP ``port``, seen without connecting: ffmpeg ``-listen 1``
+    takes the first client that connects as its only one, so a probe would use it up."""
+    tables = [Path("/proc/net/tcp"), Path("/proc/net/tcp6")]
+    if not tables[0].exists():
+        pytest.skip("needs /proc/net/tcp to see that ffmpeg listens")
+    for table in tables:
+        rows = table.read_text().splitlines()[1:] if table.exists() else []
+        for row in rows:
+            local, state = row.split()[1], row.split()[3]
+            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
+                return True
+    return False
+
+
+def _wait_serving(servers: list[subprocess.Popen], ports: list[int]) -> None:
+    """Wait until each ffmpeg listens on its port, so that a camera connects at its first try;
+    if one does not, stop them all and fail."""
+    try:
+        for server, port in zip(servers, ports, strict=True):
+            _wait_until(partial(_up, server, port), f"ffmpeg on port {port}")
+            assert server.poll() is None, f"ffmpeg exited with {server.returncode} before serving"
+    except BaseException:
+        for server in servers:
+            server.kill()
+            server.wait()
+        raise
+
+
+def _up(server: subprocess.Popen, port: int) -> bool:
+    return _listening(port) or server.poll() is not None
+
+
 @pytest.fixture
 def loop_video(tmp_path) -> Path:
     return write_video(tmp_path / "loop.mp4", 50, 25.0, size=(160, 120))
@@ -173,7 +216,7 @@ def loop_video(tmp_path) -> Path:
 def test_live_stream_drops_out_and_comes_back_while_another_goes_on(loop_video, caplog):
     port_a, port_b = _free_port(), _free_port()
     servers = [_serve(loop_video, port_a), _serve(loop_video, port_b)]
-    time.sleep(0.3)
+    _wait_serving(servers, [port_a, port_b])
     cams = CameraSet(
         [f"http://127.0.0.1:{port_a}/live.ts", f"http://127.0.0.1:{port_b}/live.ts"],
         names=["north", "south"],
@@ -217,11 +260,12 @@ def test_live_stream_drops_out_and_comes_back_while_another_goes_on(loop_video, 
 def test_live_stream_keeps_only_the_latest_frame(loop_video):
     port = _free_port()
     server = _serve(loop_video, port)
-    time.sleep(0.3)
+    _wait_serving([server], [port])
     stream = LiveStream(f"http://127.0.0.1:{port}/live.ts", "cam")
     try:
         assert stream.wait_connected(10)
-        time.sleep(1.0)  # a slow consumer: about 25 frames arrive meanwhile
+        # a slow consumer: it reads nothing while frames keep arriving
+        _wait_until(lambda: stream.stats.dropped >= 10, "10 frames dropped unread")
         got = stream.latest()
         assert got is not None and stream.latest() is None  # nothing newer yet
         assert stream.stats.dropped >= 10

@@ -32,10 +32,10 @@ def test_reprojected_joints_drawn_in_the_person_colour():
         px = project(people.joints[p], cam) * 0.5
         inside = np.isfinite(px).all(1) & (px[:, 0] > 0) & (px[:, 0] < w / 2 - 1)
         inside &= (px[:, 1] > 0) & (px[:, 1] < h / 2 - 1)
-        if not inside.any():
-            continue
+        # the case is built with both people in view: a person out of it would check nothing
+        assert inside.sum() >= 5, f"id {pid}: {inside.sum()} joints in the image"
         hits = sum((out[round(y), round(x)] == colour(pid)).all() for x, y in px[inside])
-        assert hits >= inside.sum() // 2, pid
+        assert hits >= (inside.sum() + 1) // 2, pid
 
 
 def test_overlay_video_written_and_readable(tmp_path):
