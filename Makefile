@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml Makefile
 	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests
 	$(BIN)/python -m stereopose.io.pose2sim_data
 	# compile the 3D stage's loops once (numba, cached beside the package)
-	$(BIN)/python -c "from stereopose.pipeline.warm import load_compiled; load_compiled()"
+	$(BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
 	touch $(STAMP)
 
 demo: install

@@ -12,11 +12,31 @@ import dataclasses
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from stereopose.arrays import checked
 from stereopose.association._kernels import claim_costs
 from stereopose.association.affinity import Detections
 from stereopose.association.grouping import upper_pairs
 from stereopose.geometry._kernels import project_all
 from stereopose.skeleton import JOINT_PARTS, NUM_JOINTS, SWAP
+
+
+def pose_costs(
+    det: Detections, prior: np.ndarray, P: np.ndarray, min_conf: float, min_common_joints: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cost of every detection against every expected pose, labels as detected or exchanged.
+
+    prior: (T, 17, 3) poses (NaN where unknown); P: (C, 3, 4). Returns best (N, T), the mean
+    distance of the detection's confident joints (conf >= min_conf) to the pose reprojected
+    into its camera, divided by the detection's size, the lower of the two labelings (inf
+    with fewer than min_common_joints joints), and per labeling (2, N, T, 2) the mean distance
+    per body part (NaN where the part shares no joint).
+    """
+    prior = checked(prior, "prior", (None, NUM_JOINTS, 3))
+    proj = project_all(prior, checked(P, "P", (None, 3, 4)))
+    ok = det.conf >= min_conf  # (N, 17)
+    return claim_costs(
+        det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, int(min_common_joints)
+    )
 
 
 def claim(
@@ -39,14 +59,7 @@ def claim(
     reprojected pose, divided by the detection's size, up to max_cost; left/right exchanged
     poses count as the same pose.
     """
-    prior = np.asarray(prior, dtype=np.float64)
-    if prior.ndim != 3 or prior.shape[1:] != (NUM_JOINTS, 3):
-        raise ValueError(f"prior must have shape (T, {NUM_JOINTS}, 3), got {prior.shape}")
-    proj = project_all(np.ascontiguousarray(prior), P)
-    ok = det.conf >= min_conf  # (N, 17)
-    best, part = claim_costs(
-        det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, min_common_joints
-    )
+    best, part = pose_costs(det, prior, P, min_conf, min_common_joints)
     claims = np.full(len(det), -1, dtype=np.int64)
     pick = best.argmin(1)
     fine = best[np.arange(len(det)), pick] <= max_cost

@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from stereopose.arrays import checked
 from stereopose.geometry._kernels import project_all
 from stereopose.types import Camera
 
@@ -77,10 +78,8 @@ def project_to_cameras(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:
     Returns (..., C, 2) ideal normalised coordinates; NaN behind a camera or for NaN input.
     """
     X = _check_last(points_world, 3, "points_world")
-    P = np.asarray(P, dtype=np.float64)
-    if P.ndim != 3 or P.shape[1:] != (3, 4):
-        raise ValueError(f"P must have shape (C, 3, 4), got {P.shape}")
-    out = project_all(np.ascontiguousarray(X.reshape(-1, 1, 3)), np.ascontiguousarray(P))
+    P = checked(P, "P", ("C", 3, 4))
+    out = project_all(np.ascontiguousarray(X.reshape(-1, 1, 3)), P)
     return out.reshape(*X.shape[:-1], P.shape[0], 2)
 
 

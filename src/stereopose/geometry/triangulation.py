@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stereopose.arrays import checked
 from stereopose.geometry._kernels import dlt_all
 
 
@@ -24,16 +25,10 @@ def triangulate_dlt(xy: np.ndarray, P: np.ndarray, weights: np.ndarray) -> np.nd
     if xy.ndim < 2 or xy.shape[-1] != 2:
         raise ValueError(f"xy must have shape (..., V, 2), got {xy.shape}")
     V = xy.shape[-2]
-    P = np.asarray(P, dtype=np.float64)
-    if P.shape != (V, 3, 4):
-        raise ValueError(f"P must have shape (..., {V}, 3, 4), got {P.shape}")
-    w = np.asarray(weights, dtype=np.float64)
-    if w.shape != xy.shape[:-1]:
-        raise ValueError(f"weights must have shape {xy.shape[:-1]}, got {w.shape}")
+    P = checked(P, "P", (V, 3, 4))
+    w = checked(weights, "weights", xy.shape[:-1])
     lead = xy.shape[:-2]
     X = dlt_all(
-        np.ascontiguousarray(xy.reshape(1, -1, V, 2)),
-        np.ascontiguousarray(w.reshape(1, -1, V)),
-        np.ascontiguousarray(P),
+        np.ascontiguousarray(xy.reshape(1, -1, V, 2)), np.ascontiguousarray(w.reshape(1, -1, V)), P
     )
     return X.reshape(*lead, 3)

@@ -3,10 +3,17 @@
 The reconstruction of a frame is stateless (given the prior); the memory of past frames (the
 Kalman tracker, or the lighter "recent people" of the per-frame mode) gives the prior and turns
 the frame's reconstructed people into the output people.
+
+Each domain compiles its loops with numba, cached beside its module: the first process on a
+machine compiles them (`make install` does, with load_compiled), later ones load them from the
+cache. Either costs time once per process, which a run spends before its first frame
+(Stage3D.load) and reports apart from the stage's frames/s.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import time
 from collections.abc import Mapping, Sequence
 
@@ -45,8 +52,6 @@ class Stage3D:
         """Load (or compile) the compiled loops once, before the first frame; returns the
         seconds it took, which the stage's frames/s leave out."""
         if self.load_s is None:
-            from stereopose.pipeline.warm import load_compiled
-
             t0 = time.perf_counter()
             load_compiled()
             self.load_s = time.perf_counter() - t0
@@ -67,3 +72,24 @@ class Stage3D:
     def two_way(self, frames: Sequence[People3D]) -> list[People3D]:
         """The online output `frames` smoothed both ways over each track (needs record)."""
         return self.memory.two_way(frames)
+
+
+@functools.cache
+def load_compiled() -> None:
+    """Run a small simulated scene through the 3D stage (tracker, per-frame robust mode and
+    two-way smoothing), which loads every compiled loop with the argument types a run uses,
+    compiling the ones not cached yet. Once per process."""
+    from stereopose.sim import simulate
+
+    scene = simulate(num_cameras=3, num_people=2, num_frames=6, seed=1, difficulty="hard")
+    config = dataclasses.replace(Config(), fps=scene.fps)
+    per_frame = dataclasses.replace(
+        config, tracking=dataclasses.replace(config.tracking, enabled=False)
+    )
+    for cfg, record in ((config, True), (per_frame, False)):
+        stage = Stage3D(scene.rig, cfg, record=record)
+        people = [
+            stage.step(t, [d[n] for n in scene.rig.names]) for t, d in enumerate(scene.detections)
+        ]
+        if record:
+            stage.two_way(people)

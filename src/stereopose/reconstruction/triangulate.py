@@ -13,13 +13,16 @@ import functools
 
 import numpy as np
 
+from stereopose.arrays import checked
 from stereopose.association.grouping import upper_pairs
 from stereopose.geometry._kernels import dlt_all
 from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.reconstruction._kernels import (
-    body_orientation,
+    body_orientation as _body_orientation_loop,
+)
+from stereopose.reconstruction._kernels import (
     chain_flips,
     implausibility,
     place_single_views,
@@ -129,7 +132,7 @@ def triangulate_robust(
         xy, w = _consistent_labels(xy, w, *pair_distances)
     X_all = dlt_all(xy, w, P)
     if fix_swaps:
-        flips = _body_orientation(X_all)
+        flips = body_orientation(X_all)
         if flips[0].any() or flips[1].any():
             flip = np.stack(flips, axis=1)[:, _PART_OF_PAIR, None]  # (G, 8, 1)
             xy, w = _exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
@@ -137,7 +140,7 @@ def triangulate_robust(
             XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
             X_all = X_all.copy()
             X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
-    X, used, err = select_views(xy, w, P, focal, np.ascontiguousarray(thr[:, 0]), X_all)
+    X, used, err = choose_views(xy, w, P, focal, thr[:, 0], X_all)
     if fix_swaps and relabel:
         X, used, xy, w, err = _relabel_implausible(
             X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel
@@ -282,7 +285,7 @@ def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
     (or the legs) by its handedness (see _body_orientation), then each limb joint by which
     parent joint it hangs from (each child is nearer its own parent than the other side's),
     the trunk first, so a corrected elbow is what its wrist is checked against."""
-    flip_upper, flip_legs = _body_orientation(X)
+    flip_upper, flip_legs = body_orientation(X)
     swap = np.where(_PART_OF_PAIR == 0, flip_upper[:, None], flip_legs[:, None])
     if swap.any():
         X = _exchange_joints(X, swap)
@@ -406,7 +409,30 @@ _HEAD_RADIUS_M = 0.25
 _HEAD_WIDTH_M = 0.3
 
 
-def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
+def choose_views(xy, w, P, focal, thr, X_all):
+    """Per joint, the views that agree and the point they give.
+
+    xy: (G, J, C, 2) ideal normalised coordinates; w: (G, J, C) weights (0: unused); P:
+    (C, 3, 4); focal: (C,) pixels; thr: (G, C) agreement threshold in pixels; X_all: (G, J, 3)
+    the weighted DLT over all views. Where every view of a joint agrees with X_all (or it has
+    two views or fewer), X_all stands. Otherwise every two-view solution is scored by the
+    confidence of the views agreeing with it (ties to the tighter fit), and the point is the
+    weighted DLT over the best one's agreeing views, kept where within 1.5 thr of it; with
+    fewer than two kept, all views and X_all. Returns X (G, J, 3), used (G, J, C) and the
+    errors of every view (G, J, C) in pixels.
+    """
+    n: dict[str, int] = {}
+    return select_views(
+        checked(xy, "xy", ("G", "J", "C", 2), sizes=n),
+        checked(w, "w", ("G", "J", "C"), sizes=n),
+        checked(P, "P", ("C", 3, 4), sizes=n),
+        checked(focal, "focal", ("C",), sizes=n),
+        checked(thr, "thr", ("G", "C"), sizes=n),
+        checked(X_all, "X_all", ("G", "J", 3), sizes=n),
+    )
+
+
+def body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
     """Which people's labels are mirrored as a whole (G,) each: flip_upper, flip_legs.
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
@@ -418,6 +444,5 @@ def _body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.
     shoulders or hips the head's own axis (right ear - left ear) gives front. Each knee is
     nearer its own hip. X: (G, 17, 3).
     """
-    return body_orientation(
-        np.ascontiguousarray(X), face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M
-    )
+    X = checked(X, "X", (None, len(SWAP), 3))
+    return _body_orientation_loop(X, face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M)

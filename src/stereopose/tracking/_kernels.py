@@ -14,6 +14,48 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
+def predict_cov(p00, p01, p11, dt, q):
+    """One constant-velocity prediction of a joint's covariance (position, velocity) over dt
+    seconds, white-noise acceleration of spectral density q (m^2/s^3)."""
+    return (
+        p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**3 / 3.0,
+        p01 + dt * p11 + q * dt * dt / 2.0,
+        p11 + q * dt,
+    )
+
+
+@njit(**_JIT)
+def correct(x, v, yx, yy, yz, a00, a01, a11, r2):
+    """One Kalman correction of a joint by the innovation (yx, yy, yz) with measurement
+    variance r2: x (3,) and v (3,) in place; returns the new covariance terms."""
+    s = a00 + r2
+    k0, k1 = a00 / s, a01 / s
+    x[0] += k0 * yx
+    x[1] += k0 * yy
+    x[2] += k0 * yz
+    v[0] += k1 * yx
+    v[1] += k1 * yy
+    v[2] += k1 * yz
+    return (1.0 - k0) * a00, (1.0 - k0) * a01, a11 - k1 * a01
+
+
+@njit(**_JIT)
+def kalman_predict(x, v, p00, p01, p11, dt, q, moving):
+    """Every joint advanced by dt (T,) seconds, in place: x, v (T, 17, 3), p00, p01, p11
+    (T, 17); q (17,) per joint; moving (T,) false: velocity zeroed first (held in place)."""
+    T, J = p00.shape
+    for r in range(T):
+        for j in range(J):
+            for d in range(3):
+                if not moving[r]:
+                    v[r, j, d] = 0.0
+                x[r, j, d] = x[r, j, d] + v[r, j, d] * dt[r]
+            p00[r, j], p01[r, j], p11[r, j] = predict_cov(
+                p00[r, j], p01[r, j], p11[r, j], dt[r], q[j]
+            )
+
+
+@njit(**_JIT)
 def kalman_update(
     x, v, p00, p01, p11, rejected, rows, z, r2, gate_m, gate_sigmas, reset_frames, initial_var
 ):
@@ -37,23 +79,15 @@ def kalman_update(
             yx, yy, yz = zx - x[r, j, 0], zy - x[r, j, 1], zz - x[r, j, 2]
             dist = np.sqrt(yx * yx + yy * yy + yz * yz)
             a00, a01, a11, q = p00[r, j], p01[r, j], p11[r, j], r2[i, j]
-            s = a00 + q
             spread = np.sqrt(a00 + min(q, gate_m * gate_m / 16.0))
             inside = dist <= max(gate_m, gate_sigmas * spread)
             accept = measured and not new and inside
             rej = rejected[r, j] + 1 if (measured and not accept and not new) else 0
             restart = new or rej >= reset_frames
             if accept:
-                k0, k1 = a00 / s, a01 / s
-                x[r, j, 0] += k0 * yx
-                x[r, j, 1] += k0 * yy
-                x[r, j, 2] += k0 * yz
-                v[r, j, 0] += k1 * yx
-                v[r, j, 1] += k1 * yy
-                v[r, j, 2] += k1 * yz
-                p00[r, j] = (1.0 - k0) * a00
-                p01[r, j] = (1.0 - k0) * a01
-                p11[r, j] = a11 - k1 * a01
+                p00[r, j], p01[r, j], p11[r, j] = correct(
+                    x[r, j], v[r, j], yx, yy, yz, a00, a01, a11, q
+                )
             if restart:
                 x[r, j, 0], x[r, j, 1], x[r, j, 2] = zx, zy, zz
                 v[r, j, 0] = v[r, j, 1] = v[r, j, 2] = 0.0
@@ -64,6 +98,46 @@ def kalman_update(
             rejected[r, j] = rej
             used[i, j] = 2 if restart else (1 if accept else 0)
     return used
+
+
+@njit(**_JIT)
+def kalman_replay(z, code, r2, t, q, initial_var):
+    """The online filter run again over one track's measurements as it took them: z (K, 17, 3)
+    at times t (K,), code (K, 17) 0 not used, 1 accepted, 2 restarted; r2 (K, 17) their
+    variances; q (17,). Returns per step the filtered x, v (K, 17, 3) and covariance
+    P (K, 3, 17), the predicted xp, vp, Pp, and where a joint restarted (K, 17)."""
+    K, J = code.shape
+    x = np.full((K, J, 3), np.nan)
+    v = np.zeros((K, J, 3))
+    P = np.zeros((K, 3, J))
+    xp = np.full((K, J, 3), np.nan)
+    vp = np.zeros((K, J, 3))
+    Pp = np.zeros((K, 3, J))
+    start = np.zeros((K, J), dtype=np.bool_)
+    cx = np.full((J, 3), np.nan)
+    cv = np.zeros((J, 3))
+    c = np.zeros((3, J))
+    c[2] = initial_var
+    for k in range(K):
+        dt = t[k] - t[k - 1] if k else 0.0
+        for j in range(J):
+            for d in range(3):
+                cx[j, d] = cx[j, d] + cv[j, d] * dt
+            c[0, j], c[1, j], c[2, j] = predict_cov(c[0, j], c[1, j], c[2, j], dt, q[j])
+            xp[k, j], vp[k, j], Pp[k, :, j] = cx[j], cv[j], c[:, j]
+            known = np.isfinite(cx[j, 0])
+            if code[k, j] == 1 and known:
+                y0, y1, y2 = z[k, j, 0] - cx[j, 0], z[k, j, 1] - cx[j, 1], z[k, j, 2] - cx[j, 2]
+                c[0, j], c[1, j], c[2, j] = correct(
+                    cx[j], cv[j], y0, y1, y2, c[0, j], c[1, j], c[2, j], r2[k, j]
+                )
+            elif code[k, j] == 2 or code[k, j] == 1:  # restarted, or accepted while unknown
+                cx[j] = z[k, j]
+                cv[j] = 0.0
+                c[0, j], c[1, j], c[2, j] = r2[k, j], 0.0, initial_var
+                start[k, j] = True
+            x[k, j], v[k, j], P[k, :, j] = cx[j], cv[j], c[:, j]
+    return x, v, P, xp, vp, Pp, start
 
 
 @njit(**_JIT)

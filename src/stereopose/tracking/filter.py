@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.skeleton import NUM_JOINTS
-from stereopose.tracking._kernels import kalman_update
+from stereopose.tracking._kernels import kalman_predict, kalman_update
 
 _INITIAL_SPEED_MPS = 1.0  # prior standard deviation of a new joint's velocity
 
@@ -69,14 +69,11 @@ class JointFilters:
         moving: (T,) false for people whose velocity is no longer trusted (unseen too long):
         they are held where they were, with the uncertainty still growing.
         """
-        dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), (len(self),))[:, None]
-        if moving is not None:
-            self.v[~moving] = 0.0
-        self.x = self.x + self.v * dt[..., None]
-        p00, p01, p11 = self.p00, self.p01, self.p11
-        self.p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**3 / 3.0
-        self.p01 = p01 + dt * p11 + q * dt * dt / 2.0
-        self.p11 = p11 + q * dt
+        T = len(self)
+        dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=np.float64), (T,)))
+        q = np.ascontiguousarray(np.broadcast_to(np.asarray(q, dtype=np.float64), (NUM_JOINTS,)))
+        moving = np.ones(T, dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
+        kalman_predict(self.x, self.v, self.p00, self.p01, self.p11, dt, q, moving)
 
     def update(
         self,

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereopose.skeleton import NUM_JOINTS
+from stereopose.tracking._kernels import kalman_replay
 
 # what the online filter did with a joint's measurement
 NOT_USED, ACCEPTED, RESTARTED = 0, 1, 2
@@ -60,48 +61,11 @@ def smooth_track(
     r2 = np.stack(log.noise) ** 2
     q = np.broadcast_to(np.asarray(q, dtype=np.float64), (NUM_JOINTS,))
     v0 = initial_speed_mps**2
-    # forward pass: filtered (x, v, P) and predicted (xp, vp, Pp) per step; P as p00 p01 p11
-    x = np.full((K, NUM_JOINTS, 3), np.nan)
-    v = np.zeros((K, NUM_JOINTS, 3))
-    P = np.zeros((K, 3, NUM_JOINTS))
-    xp = np.full((K, NUM_JOINTS, 3), np.nan)
-    vp = np.zeros((K, NUM_JOINTS, 3))
-    Pp = np.zeros((K, 3, NUM_JOINTS))
-    start = np.zeros((K, NUM_JOINTS), dtype=bool)  # a segment starts here: no smoothing across
-    cx, cv = np.full((NUM_JOINTS, 3), np.nan), np.zeros((NUM_JOINTS, 3))
-    c00, c01, c11 = np.zeros(NUM_JOINTS), np.zeros(NUM_JOINTS), np.full(NUM_JOINTS, v0)
-    for k in range(K):
-        dt = t[k] - t[k - 1] if k else 0.0
-        # predict
-        cx = cx + cv * dt
-        c00, c01, c11 = (
-            c00 + 2.0 * dt * c01 + dt * dt * c11 + q * dt**3 / 3.0,
-            c01 + dt * c11 + q * dt * dt / 2.0,
-            c11 + q * dt,
-        )
-        xp[k], vp[k], Pp[k] = cx, cv, (c00, c01, c11)
-        # correct
-        known = np.isfinite(cx[:, 0])
-        accept = (code[k] == ACCEPTED) & known
-        restart = (code[k] == RESTARTED) | ((code[k] == ACCEPTED) & ~known)
-        s = c00 + r2[k]
-        k0, k1 = c00 / s, c01 / s
-        y = z[k] - cx
-        a = accept[:, None]
-        cx = np.where(a, cx + k0[:, None] * y, cx)
-        cv = np.where(a, cv + k1[:, None] * y, cv)
-        c00, c01, c11 = (
-            np.where(accept, (1.0 - k0) * c00, c00),
-            np.where(accept, (1.0 - k0) * c01, c01),
-            np.where(accept, c11 - k1 * c01, c11),
-        )
-        cx = np.where(restart[:, None], z[k], cx)
-        cv = np.where(restart[:, None], 0.0, cv)
-        c00 = np.where(restart, r2[k], c00)
-        c01 = np.where(restart, 0.0, c01)
-        c11 = np.where(restart, v0, c11)
-        start[k] = restart
-        x[k], v[k], P[k] = cx, cv, (c00, c01, c11)
+    # forward pass: the online filter's steps again, filtered and predicted states kept
+    x, v, P, xp, vp, Pp, start = kalman_replay(
+        np.ascontiguousarray(z), np.ascontiguousarray(code), np.ascontiguousarray(r2), t,
+        np.ascontiguousarray(q), v0,
+    )  # fmt: skip
     # the last measurement of each joint: beyond it there is nothing to smooth towards
     measured = code > NOT_USED
     last = np.where(measured.any(0), K - 1 - np.argmax(measured[::-1], axis=0), -1)

@@ -1,24 +1,17 @@
-"""The compiled loops give what the NumPy formulations give."""
+"""The compiled loops of the association (epipolar distances and costs, detection sizes,
+costs against expected poses) give what their NumPy forms give, through the public wrappers."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stereopose.association.affinity import Detections
-from stereopose.geometry.camera import project_to_cameras, undistort_normalized
-from stereopose.geometry.triangulation import dlt_blocks, triangulate_dlt
-from stereopose.kernels import claim_costs, dlt_all, select_views, undistort
+from stereopose.association.affinity import Detections, epipolar_costs, epipolar_distances
+from stereopose.association.claims import pose_costs
+from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.reconstruction import Reconstructor
-from stereopose.reconstruction.triangulate import (
-    JOINT_PARTS,
-    _body_orientation,
-    body_orientation_numpy,
-    pair_views,
-    select_views_numpy,
-)
 from stereopose.sim import simulate
-from stereopose.skeleton import SWAP
+from stereopose.skeleton import JOINT_PARTS, SWAP
 
 
 @pytest.fixture(scope="module")
@@ -26,74 +19,14 @@ def hard():
     return simulate(num_frames=40, seed=5, difficulty="hard")
 
 
-def _groups(scene, t):
-    """Frame t's detections gathered per true worker, as the triangulation receives them."""
-    rec = Reconstructor(scene.rig)
-    people = [scene.detections[t][n] for n in scene.rig.names]
-    det = Detections.from_people(scene.rig, people, 0.3)
-    owners = np.concatenate([scene.detection_truth[t][n] for n in scene.rig.names])
-    groups = [np.flatnonzero(owners == w) for w in np.unique(owners[owners >= 0])]
-    groups = [g for g in groups if g.size >= 2]
-    xy, conf, size_px, _ = rec._gather(det, groups)
-    return rec, xy, np.where(conf >= 0.05, conf, 0.0), size_px
-
-
-def test_select_views_matches_numpy(hard):
-    checked = 0
-    for t in range(0, 40, 3):
-        rec, xy, w, size_px = _groups(hard, t)
-        if xy.shape[0] == 0:
-            continue
-        thr = np.fmax(10.0, 0.03 * size_px)
-        X_all = dlt_all(xy, w, rec.P)
-        pair_blocks = dlt_blocks(rec.P[pair_views(len(hard.rig))])
-        got = select_views(xy, w, rec.P, rec.focal, thr, X_all)
-        blocks = dlt_blocks(rec.P)
-        ref = select_views_numpy(xy, w, rec.P, rec.focal, thr, X_all, blocks, pair_blocks)
-        np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-9)
-        np.testing.assert_array_equal(got[1], ref[1])
-        np.testing.assert_allclose(got[2], ref[2], rtol=1e-9, atol=1e-9)
-        checked += xy.shape[0]
-    assert checked > 50
-
-
-def test_dlt_matches_numpy(hard):
-    rec, xy, w, _ = _groups(hard, 7)
-    np.testing.assert_allclose(
-        dlt_all(xy, w, rec.P), triangulate_dlt(xy, rec.P, w), rtol=0, atol=1e-9
-    )
-
-
-def test_body_orientation_matches_numpy(hard):
-    rng = np.random.default_rng(0)
-    X = hard.truth[hard.present].copy()
-    X = np.concatenate([X, X[:, SWAP], X[:, [*range(13), 14, 13, 16, 15]]])
-    stray = X.copy()  # noses and ears thrown off the head
-    stray[:, [0, 3]] += rng.normal(0.0, 0.3, (stray.shape[0], 2, 3))
-    X = np.concatenate([X, stray])
-    X[rng.random(X.shape[:2]) < 0.2] = np.nan
-    for got, ref in zip(_body_orientation(X), body_orientation_numpy(X), strict=True):
-        np.testing.assert_array_equal(got, ref)
-
-
-def test_undistort_matches_opencv(hard):
-    rng = np.random.default_rng(1)
-    fxy, dist, _ = hard.rig.lenses
-    for c, cam in enumerate(hard.rig):
-        uv = rng.uniform([0, 0], cam.size, (500, 2))
-        uv[::50] = np.nan
-        got = undistort(uv, np.full(500, c), fxy, dist, 1e-8, 30)
-        np.testing.assert_allclose(got, undistort_normalized(uv, cam), rtol=0, atol=1e-12)
-
-
-def test_claim_costs_match_numpy(hard):
+def test_pose_costs_match_numpy(hard):
     t = 11
     rec = Reconstructor(hard.rig)
     det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
     predicted = hard.truth[t, hard.present[t]] + 0.02
     proj = project_to_cameras(predicted, rec.P)
     ok = det.conf >= 0.3
-    best, part = claim_costs(det.xy, ok, det.size, det.camera, proj, SWAP, JOINT_PARTS, 4)
+    best, part = pose_costs(det, predicted, rec.P, 0.3, 4)
     mine = proj[:, :, det.camera].transpose(2, 0, 1, 3)
     ref_best = np.full(best.shape, np.inf)
     for lab, (xy, okj) in enumerate(((det.xy, ok), (det.xy[:, SWAP], ok[:, SWAP]))):
@@ -111,9 +44,6 @@ def test_claim_costs_match_numpy(hard):
 
 
 def test_epipolar_distances_match_numpy(hard):
-    from stereopose.association.affinity import epipolar_distances
-    from stereopose.geometry.camera import homogeneous
-
     t = 9
     rec = Reconstructor(hard.rig)
     det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
@@ -133,8 +63,6 @@ def test_epipolar_distances_match_numpy(hard):
 
 
 def test_pair_costs_and_boxes_match_numpy(hard):
-    from stereopose.association.affinity import epipolar_costs, epipolar_distances
-
     t = 13
     rec = Reconstructor(hard.rig)
     det = Detections.from_people(hard.rig, [hard.detections[t][n] for n in hard.rig.names], 0.3)
