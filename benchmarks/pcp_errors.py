@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.reconstruction import Reconstructor
+from stereopose.config import Config, with_overrides
+from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim import simulate
 from stereopose.sim.metrics import detectable, joint_views, match_people
 from stereopose.skeleton import PCP_LIMBS, SWAP
@@ -74,7 +75,7 @@ def main() -> None:
     counter: collections.Counter = collections.Counter()
     for seed in range(args.seeds):
         scene = simulate(num_frames=args.frames, seed=seed, difficulty="hard")
-        rec = Reconstructor(scene.rig)
+        rec = Stage3D(scene.rig, with_overrides(Config(), tracking={"memory": "recent"})).step
         names = scene.rig.names
         preds = [rec(t, [d[c] for c in names]) for t, d in enumerate(scene.detections)]
         classify(scene, preds, counter)

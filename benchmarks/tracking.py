@@ -28,7 +28,6 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, with_overrides
 from stereopose.detection.openpose import read_pose_dir
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.reconstruction import Reconstructor
 from stereopose.sim import evaluate, evaluate_tracking, simulate
 from stereopose.sim.metrics import detectable
 from stereopose.sim.scene import ghost_frame
@@ -56,7 +55,7 @@ def speed(frames: int, runs: int = 9) -> dict:
     data = frames_of(scene)
     per_frame, whole, whole_cpu = [], [], []
     for _ in range(runs):
-        rec = Reconstructor(scene.rig)
+        rec = Stage3D(scene.rig, with_overrides(Config(), tracking={"memory": "recent"})).step
         t0 = time.perf_counter()
         for t, f in enumerate(data):
             rec(t, f)
@@ -114,11 +113,11 @@ def accuracy(frames: int, seeds: int) -> list[dict]:
         per_scene = []
         for seed in range(seeds):
             scene = simulate(num_frames=frames, seed=seed, difficulty=difficulty)
-            rec = Reconstructor(scene.rig)
+            rec = Stage3D(scene.rig, with_overrides(Config(), tracking={"memory": "recent"})).step
             base = evaluate([rec(t, f) for t, f in enumerate(frames_of(scene))], scene)
             raw = tracked(scene, smoothing=False)
             recorder = Stage3D(scene.rig, dataclasses.replace(Config(), fps=scene.fps), record=True)
-            smooth = [recorder.update(t, f) for t, f in enumerate(frames_of(scene))]
+            smooth = [recorder.step(t, f) for t, f in enumerate(frames_of(scene))]
             ids = evaluate_tracking(smooth, scene)
             m_raw, m_smooth = evaluate(raw, scene), evaluate(smooth, scene)
             m_two = evaluate(recorder.two_way(smooth), scene)

@@ -99,7 +99,9 @@ _LEGS = {LEFT_KNEE, RIGHT_KNEE, LEFT_ANKLE, RIGHT_ANKLE}
 PART_OF_PAIR = np.array([int(a in _LEGS) for a, _ in LR_PAIRS])  # (8,) part of each pair
 JOINT_PARTS = np.zeros((NUM_JOINTS, len(PARTS)))  # (17, 2) 1 where j is a side joint of p
 JOINT_PARTS[LEFT, PART_OF_PAIR] = JOINT_PARTS[RIGHT, PART_OF_PAIR] = 1.0
-for _a in (PART_OF_PAIR, JOINT_PARTS):
+PART_OF_JOINT = np.full(NUM_JOINTS, len(PARTS))  # (17,) part of each side joint; len(PARTS): none
+PART_OF_JOINT[LEFT] = PART_OF_JOINT[RIGHT] = PART_OF_PAIR
+for _a in (PART_OF_PAIR, JOINT_PARTS, PART_OF_JOINT):
     _a.setflags(write=False)
 
 

@@ -7,8 +7,6 @@ constraint, form that person, and take that pose's left/right labels.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -17,7 +15,9 @@ from stereopose.association._kernels import claim_costs
 from stereopose.association.affinity import Detections
 from stereopose.association.grouping import upper_pairs
 from stereopose.geometry._kernels import project_all
-from stereopose.skeleton import JOINT_PARTS, NUM_JOINTS, SWAP
+from stereopose.skeleton import JOINT_PARTS, NUM_JOINTS, PART_OF_JOINT, SWAP
+
+_JOINTS = np.arange(NUM_JOINTS)
 
 
 def pose_costs(
@@ -68,7 +68,7 @@ def claim(
     picks = np.bincount(key[fine], minlength=P.shape[0] * best.shape[1])
     dup = fine & (picks[key] > 1)
     claims[fine & ~dup] = pick[fine & ~dup]
-    for cam in np.unique(det.camera[dup]):
+    for cam in np.unique(det.camera[dup]) if dup.any() else ():
         rows = np.flatnonzero(det.camera == cam)
         sub = best[rows]
         r, k = linear_sum_assignment(np.where(np.isfinite(sub), sub, 1e9))
@@ -85,22 +85,25 @@ def exchanged(det: Detections, swap: np.ndarray) -> Detections:
     """det with left/right labels exchanged where swap (N, 2) is true, per body part."""
     if not swap.any():
         return det
-    flip = swap.astype(np.float64) @ JOINT_PARTS.T > 0  # (N, 17)
-    idx = np.where(flip, SWAP[None, :], np.arange(NUM_JOINTS)[None, :])
+    # per joint, the part whose swap moves it (the nose: a column that is never set)
+    flip = np.concatenate([swap, np.zeros((len(swap), 1), dtype=bool)], 1)[:, PART_OF_JOINT]
+    idx = np.where(flip, SWAP[None, :], _JOINTS[None, :])
     n = np.arange(len(det))[:, None]
-    return dataclasses.replace(
-        det, pixels=det.pixels[n, idx], xy=det.xy[n, idx], conf=det.conf[n, idx]
-    )
+    pixels, xy, conf = det.pixels[n, idx], det.xy[n, idx], det.conf[n, idx]
+    return Detections(det.camera, det.index, pixels, xy, conf, det.size, det.size_px)
 
 
 def claimed_groups(claims: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
     """Detections claimed by the same predicted pose in two cameras or more, as groups."""
+    idx = np.flatnonzero(claims >= 0)
+    order = idx[np.argsort(claims[idx], kind="stable")]  # by pose, detections in order
+    pose = claims[order]
+    starts = np.flatnonzero(np.diff(pose, prepend=-1))
     groups, seeds = [], []
-    for t in np.unique(claims[claims >= 0]):
-        g = np.flatnonzero(claims == t)
-        if g.size >= 2:
-            groups.append(g)
-            seeds.append(int(t))
+    for a, b in zip(starts.tolist(), [*starts[1:].tolist(), pose.size], strict=True):
+        if b - a >= 2:
+            groups.append(order[a:b])
+            seeds.append(int(pose[a]))
     return groups, seeds
 
 
@@ -131,8 +134,8 @@ def check_groups(groups, seeds, cost, max_cost):
     full[:N, :N] = cost
     c = full[pad[:, :, None], pad[:, None, :]]  # (G, S, S); the diagonal is inf (same camera)
     fin = np.isfinite(c)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(fin, c, 0.0).sum(-1) / fin.sum(-1)
+    n = fin.sum(-1)
+    mean = np.divide(np.where(fin, c, 0.0).sum(-1), n, out=np.full(n.shape, np.nan), where=n > 0)
     bad = ~(mean <= max_cost) & (pad < N)
     if not bad.any():
         return groups, seeds, np.zeros(0, dtype=np.int64)

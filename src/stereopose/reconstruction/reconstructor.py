@@ -173,20 +173,22 @@ class Reconstructor:
     # -- steps ---------------------------------------------------------------------------------
 
     def _gather(self, det: Detections, groups: list[np.ndarray]):
+        """The groups' detections as the triangulation takes them (C-contiguous):
+        xy (G, 17, C, 2), conf (G, 17, C), size_px (G, C) and members (G, C)."""
         G, C = len(groups), len(self.rig)
-        gi = np.concatenate([np.full(len(g), i) for i, g in enumerate(groups)])
+        sizes = [len(g) for g in groups]
+        gi = np.repeat(np.arange(G), sizes)
         di = np.concatenate(groups)
         ci = det.camera[di]
-        xy = np.full((G, C, NUM_JOINTS, 2), np.nan)
-        conf = np.zeros((G, C, NUM_JOINTS))
+        xy = np.full((G, NUM_JOINTS, C, 2), np.nan)
+        conf = np.zeros((G, NUM_JOINTS, C))
         size_px = np.full((G, C), np.nan)
         members = np.full((G, C), -1, dtype=np.int64)
-        xy[gi, ci] = det.xy[di]
-        conf[gi, ci] = det.conf[di]
+        xy[gi, :, ci] = det.xy[di]
+        conf[gi, :, ci] = det.conf[di]
         size_px[gi, ci] = det.size_px[di]
         members[gi, ci] = di
-        # to (G, 17, C, ...) as the triangulation functions expect
-        return xy.transpose(0, 2, 1, 3), conf.transpose(0, 2, 1), size_px, members
+        return xy, conf, size_px, members
 
     def _triangulate(
         self,
@@ -285,7 +287,8 @@ class Reconstructor:
         G, C = members.shape
         X = X.copy()
         # The outer joint of an implausibly long limb is dropped.
-        limb = np.linalg.norm(X[:, _LIMB_A] - X[:, _LIMB_B], axis=-1)
+        d = X[:, _LIMB_A] - X[:, _LIMB_B]
+        limb = np.sqrt((d * d).sum(-1))
         bad = limb > pc.max_limb_m  # NaN compares False
         if bad.any():
             drop = np.zeros((G, NUM_JOINTS), dtype=bool)
@@ -314,8 +317,9 @@ class Reconstructor:
         err = np.where(used, err[idx], np.nan)
         detections = np.where(views[idx], det.index[members[idx]], -1)
         n_used = used.sum(-1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            reproj = np.where(used, err, 0.0).sum(-1) / n_used  # NaN where no view
+        # NaN where no view
+        total = np.where(used, err, 0.0).sum(-1)
+        reproj = np.divide(total, n_used, out=np.full(total.shape, np.nan), where=n_used > 0)
         conf = np.where(valid, conf, 0.0)
         people = People3D(
             frame=frame,

@@ -6,8 +6,6 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-import numpy as np
-
 from stereopose.skeleton import floor_position, heading_deg
 
 __all__ = ["Trajectory", "floor_position", "heading_deg"]
@@ -34,13 +32,15 @@ class Trajectory:
     def duration_s(self) -> float:
         return self.last_t - self.first_t
 
-    def add(self, frame: int, t: float, position: np.ndarray) -> None:
+    def add(self, frame: int, t: float, position) -> None:
+        """A measured frame; position: floor x, y (NaN: unknown)."""
         self.last_frame, self.last_t = frame, t
         self.frames_seen += 1
-        if np.isfinite(position).all():
+        x, y = float(position[0]), float(position[1])
+        if math.isfinite(x) and math.isfinite(y):
             if self.last_position is not None:
-                self.path_m += math.dist(self.last_position, position)
-            self.last_position = (float(position[0]), float(position[1]))
+                self.path_m += math.dist(self.last_position, (x, y))
+            self.last_position = (x, y)
 
     def as_dict(self) -> dict:
         d = asdict(self)

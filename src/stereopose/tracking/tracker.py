@@ -278,9 +278,8 @@ class Tracker:
             if tc.smoothing:
                 views[~now] = 0  # bridged by prediction, not measured now
             detections[is_meas] = found.detections[src[is_meas]]
-        v = self.filters.v[out_rows][:, [LEFT_HIP, RIGHT_HIP], :2]
-        with np.errstate(invalid="ignore"):
-            velocity = v.mean(axis=1)
+        v = self.filters.v[out_rows]
+        velocity = 0.5 * (v[:, LEFT_HIP, :2] + v[:, RIGHT_HIP, :2])
         people = People3D(
             frame=frame,
             joints=X,
@@ -297,9 +296,10 @@ class Tracker:
             for r in out_rows[~is_meas]:
                 log = self.logs.setdefault(int(self.serial[r]), TrackLog())
                 log.add(frame, none, np.zeros(NUM_JOINTS, np.int8), np.ones(NUM_JOINTS))
-        pos = floor_position(X)
-        for p in np.flatnonzero(is_meas):
-            self.trajectories[int(people.ids[p])].add(frame, t, pos[p])
+        pos = floor_position(X).tolist()
+        ids = people.ids.tolist()
+        for p in np.flatnonzero(is_meas).tolist():
+            self.trajectories[ids[p]].add(frame, t, pos[p])
         return people
 
     def _retire(self, t: float, rows: np.ndarray) -> None:
