@@ -10,7 +10,7 @@ import time
 import cv2
 import numpy as np
 
-from stereopose.io.video import SourceStats, source_name
+from stereopose.io.source import SourceStats, source_name
 
 logger = logging.getLogger(__name__)
 

@@ -27,46 +27,38 @@ from typing import TYPE_CHECKING, Union
 import cv2
 import numpy as np
 
-from stereopose.errors import StereoposeError
+from stereopose.io.source import (
+    IMAGE_SUFFIXES,
+    STREAM_SCHEMES,
+    SourceStats,
+    VideoError,
+    is_stream,
+    source_name,
+)
 
 if TYPE_CHECKING:
     from stereopose.io.stream import LiveStream
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "STREAM_SCHEMES",
+    "CameraSet",
+    "FrameSet",
+    "ImageFolder",
+    "SourceStats",
+    "VideoError",
+    "VideoFile",
+    "is_stream",
+    "open_source",
+    "source_name",
+    "usable_images",
+]
 
 logger = logging.getLogger(__name__)
 
 # FFmpeg's and OpenCV's own messages on a bad file go to stderr; the errors raised here say it.
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-
-STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
-
-
-class VideoError(StereoposeError):
-    """A camera source is missing, unreadable or corrupt."""
-
-
-def is_stream(spec: str) -> bool:
-    return str(spec).lower().startswith(STREAM_SCHEMES)
-
-
-def source_name(spec: str) -> str:
-    """Default camera name: the file or folder stem; for a URL, its last path part."""
-    if is_stream(spec):
-        tail = str(spec).rstrip("/").rsplit("/", 1)[-1]
-        return tail.split("?")[0].rsplit(".", 1)[0] or "stream"
-    return Path(spec).stem
-
-
-@dataclass
-class SourceStats:
-    """What happened to one camera during a run."""
-
-    frames: int = 0  # frames delivered
-    dropped: int = 0  # live frames replaced by a newer one before they were read
-    failures: int = 0  # unreadable frames skipped (recorded) or connection losses (live)
-    reconnects: int = 0
-    down_s: float = 0.0  # time a live camera spent disconnected
 
 
 class VideoFile:
