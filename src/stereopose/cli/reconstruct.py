@@ -14,8 +14,8 @@ from stereopose.errors import StereoposeError
 
 def _reconstruct(args: argparse.Namespace) -> int:
     from stereopose.fence import load_site
-    from stereopose.fence.sinks import describe
-    from stereopose.pipeline import reconstruct_files
+    from stereopose.io.sinks import describe
+    from stereopose.pipeline import Outputs, reconstruct_files
 
     cfg = _config(args)
     site = load_site(args.site) if args.site else None
@@ -30,21 +30,25 @@ def _reconstruct(args: argparse.Namespace) -> int:
                 progress.console.print(describe(e), markup=False, highlight=False)
 
         task = progress.add_task("reconstructing", total=None)
-        summary = reconstruct_files(
-            args.calib,
-            args.pose,
+        outputs = Outputs.from_keywords(
             args.out,
-            cfg,
-            on_frame=lambda done, total: progress.update(task, completed=done, total=total),
             trc_dir=args.trc,
             csv_path=args.csv,
             tracks_path=args.tracks,
-            site=site,
             events_path=args.events,
             events_db=args.events_db,
             webhook=args.webhook,
-            on_events=show if site is not None else None,
             two_way=args.two_way,
+        )
+        summary = reconstruct_files(
+            args.calib,
+            args.pose,
+            None,
+            cfg,
+            on_frame=lambda done, total: progress.update(task, completed=done, total=total),
+            outputs=outputs,
+            site=site,
+            on_events=show if site is not None else None,
         )
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
@@ -66,6 +70,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
         "median reprojection error, conf > 0.5", _px(summary.median_confident_reprojection_px)
     )
     table.add_row("3D back end speed", f"{summary.fps_3d:.0f} frames/s")
+    table.add_row("compiled loops loaded", f"in {summary.load_s_3d:.2f} s (before the first frame)")
     if site is not None:
         counts = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items())) or "none"
         table.add_row("zone events", f"{counts} ({len(site.zones)} zones)")
@@ -74,7 +79,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
     out.print(table)
     if summary.trajectories:
         out.print(_trajectory_table(summary.trajectories))
-    for path in summary.outputs[1:]:
+    for path in summary.outputs:
+        if path == outputs.poses:
+            continue
         out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     for path, why in summary.skipped_files:
         out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
@@ -84,7 +91,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
 def _events(args: argparse.Namespace) -> int:
     import csv
 
-    from stereopose.fence.sinks import COLUMNS, query_events
+    from stereopose.io.sinks.events import COLUMNS, query_events
 
     rows = query_events(
         args.db, person=args.person, zone=args.zone, event_type=args.type, since=args.since

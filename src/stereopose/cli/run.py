@@ -103,7 +103,7 @@ def _models(args: argparse.Namespace) -> int:
 
 
 def _run_config(config_path: Path, title: str) -> int:
-    from stereopose.fence.sinks import describe
+    from stereopose.io.sinks import describe
     from stereopose.pipeline.run import run
 
     progress = rate_progress("running")
@@ -131,6 +131,7 @@ def _run_config(config_path: Path, title: str) -> int:
         "per stage, frames/s",
         ", ".join(f"{k} {v:.0f}" for k, v in summary.stage_fps().items() if v is not None),
     )
+    table.add_row("compiled loops loaded", f"in {summary.load_s_3d:.2f} s (before the first frame)")
     table.add_row("people", f"{len(summary.people)} tracked, {summary.people_per_frame:.2f} "
                   "per frame")  # fmt: skip
     events = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items()))

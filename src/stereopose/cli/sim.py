@@ -54,8 +54,8 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
     import numpy as np
 
     from stereopose.fence import save_site
-    from stereopose.fence.sinks import read_events
     from stereopose.io.results import load_people3d
+    from stereopose.io.sinks import read_events
     from stereopose.pipeline import reconstruct_files
     from stereopose.sim import evaluate, evaluate_tracking
     from stereopose.sim.events import evaluate_events, make_zones, track_workers, truth_events
@@ -126,7 +126,7 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
         "still predicted for a moment after they left); ids: ids given / workers; IDSW: id "
         "switches; fps: 3D back end, frames/s."
     )
-    from stereopose.pipeline.run import write_reconstruction_report
+    from stereopose.pipeline.reconstruct import write_reconstruction_report
 
     report = write_reconstruction_report(
         out_dir, summary, scene_dir / "calib.toml", site, poses, events_path

@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import shutil
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from stereopose.calibration.formats import load_calibration
+from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
 from stereopose.errors import KeypointsError
-from stereopose.fence import Site
+from stereopose.fence import Site, save_site
 from stereopose.io.results import load_people3d
-from stereopose.pipeline.stages import Back3D, ReconstructionSummary
+from stereopose.io.summary import RunSummary, write_summary
+from stereopose.pipeline.loop import run_frames
+from stereopose.pipeline.outputs import Outputs, check_outputs
+from stereopose.pipeline.sources import KeypointFiles
 from stereopose.sim import Metrics, Scene, evaluate
-from stereopose.types import Event
+from stereopose.types import Event, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -22,28 +28,33 @@ logger = logging.getLogger(__name__)
 def reconstruct_files(
     calib_path: str | Path,
     pose_dir: str | Path,
-    out_path: str | Path,
+    out_path: str | Path | None,
     config: Config,
     on_frame: Callable[[int, int], None] | None = None,
-    trc_dir: str | Path | None = None,
-    csv_path: str | Path | None = None,
-    tracks_path: str | Path | None = None,
+    *,
+    outputs: Outputs | None = None,
     site: Site | None = None,
-    events_path: str | Path | None = None,
-    events_db: str | Path | None = None,
-    webhook: str | None = None,
     on_events: Callable[[list[Event]], None] | None = None,
-    two_way: bool = False,
-) -> ReconstructionSummary:
+    stop: threading.Event | None = None,
+    **files: object,
+) -> RunSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
 
-    With tracking on (config.tracking.enabled) ids persist over time and joints are smoothed
-    online. With a site, each frame's zone events go to events_path (JSON lines), events_db
-    (SQLite, appended to), the webhook URL and on_events. on_frame(done, total) is called after
-    each frame (progress display). two_way: the TRC and CSV exports are smoothed both ways
-    over each track and written at the end (see Back3D). Every output is closed properly when
-    the run stops early (an error, Ctrl-C): what was written stays readable.
+    out_path: the 3D poses file (None: not written). outputs: every other output (see
+    pipeline.outputs.Outputs), or, as before, `files` by keyword: trc_dir, csv_path,
+    tracks_path, events_path, events_db, webhook, two_way. With tracking on
+    (config.tracking.enabled) ids persist over time and joints are smoothed online. With a
+    site, each frame's zone events go to the event outputs and on_events. on_frame(done,
+    total) after each frame (progress display); `stop` ends the run after the current frame.
+    Every output is closed properly when the run stops early (an error, Ctrl-C): what was
+    written stays readable.
     """
+    if outputs is None:
+        outputs = Outputs.from_keywords(out_path, **files)
+    elif files:
+        raise TypeError("give the outputs either as `outputs` or by keyword, not both")
+    elif out_path is not None:
+        outputs = dataclasses.replace(outputs, poses=Path(out_path))
     rig = load_calibration(calib_path)
     seq = read_pose_dir(pose_dir, rig.names)
     if len(seq.cameras) < 2:
@@ -54,35 +65,13 @@ def reconstruct_files(
     if not seq.frames:
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
-    back = Back3D(
-        rig,
-        config,
-        out_path,
-        calib_path=calib_path,
-        source=str(pose_dir),
-        trc_dir=trc_dir,
-        csv_path=csv_path,
-        tracks_path=tracks_path,
-        site=site,
-        events_path=events_path,
-        events_db=events_db,
-        webhook=webhook,
-        on_events=on_events,
-        two_way=two_way,
-    )
-    summary = back.summary
-    total = len(seq)
-    try:
-        for i, (frame, people2d) in enumerate(seq):
-            summary.frames_read += bool(people2d)
-            back.step(frame, people2d)
-            if on_frame is not None:
-                on_frame(i + 1, total)
-    finally:
-        back.close()
-    summary.skipped_files = [(str(p), why) for p, why in seq.skipped]
-    if summary.skipped_files:
-        logger.warning("%d keypoint file(s) skipped as malformed", len(summary.skipped_files))
+    check_outputs(config, site, outputs)
+    source = KeypointFiles(seq, config.fps)
+    on_step = None if on_frame is None else (lambda done, total, fps: on_frame(done, total))
+    summary = run_frames(
+        rig, config, source, outputs, site, calib_path=str(calib_path), label=str(pose_dir),
+        on_events=on_events, stop=stop, on_step=on_step,
+    )  # fmt: skip
     if summary.frames_read == 0:
         first = summary.skipped_files[0] if summary.skipped_files else ("", "")
         raise KeypointsError(
@@ -92,9 +81,33 @@ def reconstruct_files(
     return summary
 
 
+def save_inputs(out_dir: Path, rig: Rig, site: Site | None) -> None:
+    """The calibration and site a run used, which the report is rebuilt from."""
+    save_calibration(out_dir / "calib.toml", rig)
+    if site is not None:
+        save_site(out_dir / "site.toml", site)
+
+
+def write_reconstruction_report(
+    out_dir: Path,
+    summary: RunSummary,
+    calib_path: Path,
+    site: Site | None,
+    poses_path: Path,
+    events_path: Path | None = None,
+) -> Path:
+    """A run folder and its report for a reconstruction from keypoint files (no cameras)."""
+    from stereopose.viz.report import write_report
+
+    out_dir = Path(out_dir)
+    for src, name in ((poses_path, "poses3d.jsonl"), (events_path, "events.jsonl")):
+        if src is not None and Path(src).resolve() != (out_dir / name).resolve():
+            shutil.copyfile(src, out_dir / name)
+    save_inputs(out_dir, load_calibration(calib_path), site)
+    write_summary(out_dir / "summary.json", summary)
+    return write_report(out_dir)
+
+
 def evaluate_poses_file(path: str | Path, scene: Scene) -> Metrics:
     """Accuracy of a 3D poses file against a simulated scene's ground truth."""
     return evaluate(load_people3d(path, len(scene.rig)), scene)
-
-
-# -- calibration ---------------------------------------------------------------------------

@@ -1,0 +1,189 @@
+"""People3D and Event to and from their JSON records: the one place the file contracts are
+written and read (poses and events JSON lines, SQLite rows, the webhook body, the report).
+
+3D poses, one record per frame (ARCHITECTURE.md), frames with nobody included:
+{"frame": 42, "t": 1.68, "people": [{"id": 3, "joints": [[x, y, z] or null, ...17],
+ "conf": [...17], "position": [x, y], "velocity": [vx, vy], "speed": 0.8, "heading_deg": 91.5,
+ "predicted": false, "views": [...17], "reprojection_px": 2.1}]}
+Metres, world frame; joints to 0.1 mm, conf to 1e-3, velocity and speed (m/s) to 1 mm/s,
+heading (degrees counter-clockwise from world +x) to 0.1 degree, the person's mean
+reprojection error (pixels) to 0.01 px. Only `frame`, `people[].id` and `people[].joints` are
+required when reading.
+
+Events: {"t": 2.12, "frame": 53, "person": 3, "zone": "work_area_1", "kind": "work_area",
+"type": "enter", "onset_t": 2.04, "joint": "right_wrist", "position": [x, y]}, with
+`distance_m`, `duration_s`, `allowed` and `lost` when they apply.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from stereopose.skeleton import NUM_JOINTS
+from stereopose.tracking.positioning import floor_position, heading_deg
+from stereopose.types import Event, People3D
+
+__all__ = [
+    "EVENT_COLUMNS",
+    "event_from_record",
+    "event_record",
+    "event_row",
+    "frame_record",
+    "parse_frame_record",
+    "people3d_from_record",
+]
+
+# the SQLite event log's columns, in order (see io.sinks.events)
+EVENT_COLUMNS = ("run", "t", "frame", "person", "zone", "kind", "type", "onset_t", "joint",
+                 "distance_m", "duration_s", "x", "y", "allowed", "lost")  # fmt: skip
+
+
+def _round(x: float, nd: int) -> float | None:
+    return None if not math.isfinite(x) else round(float(x), nd)
+
+
+def _pair(v: np.ndarray, nd: int) -> list[float] | None:
+    return [round(float(v[0]), nd), round(float(v[1]), nd)] if np.isfinite(v).all() else None
+
+
+def _person_record(people: People3D, p: int, position: np.ndarray, heading: float) -> dict:
+    J = people.joints[p]
+    ok = np.isfinite(J).all(-1)
+    err = people.reprojection_px[p]
+    speed = math.hypot(people.velocity[p, 0], people.velocity[p, 1])
+    return {
+        "id": int(people.ids[p]),
+        "joints": [
+            [round(float(v), 4) for v in J[j]] if ok[j] else None for j in range(NUM_JOINTS)
+        ],
+        "conf": [round(float(c), 3) for c in people.conf[p]],
+        "position": _pair(position, 4),
+        "velocity": _pair(people.velocity[p], 3),
+        "speed": _round(speed, 3),
+        "heading_deg": _round(heading, 1),
+        "predicted": bool(people.predicted[p]),
+        "views": [int(v) for v in people.views[p]],
+        "reprojection_px": _round(
+            float(np.nanmean(err)) if np.isfinite(err).any() else math.nan, 2
+        ),
+    }
+
+
+def frame_record(people: People3D, fps: float) -> dict:
+    """The JSON object of one frame of 3D people; t = frame / fps seconds."""
+    pos = floor_position(people.joints)
+    heading = heading_deg(people.joints)
+    out = [_person_record(people, p, pos[p], heading[p]) for p in range(len(people))]
+    return {"frame": people.frame, "t": round(people.frame / fps, 6), "people": out}
+
+
+def _joints_array(joints: Sequence[Sequence[float] | None]) -> np.ndarray:
+    """(17, 3) from a record's joints, NaN for null."""
+    return np.array([j if j is not None else [np.nan] * 3 for j in joints], dtype=float).reshape(
+        NUM_JOINTS, 3
+    )
+
+
+def parse_frame_record(rec: Mapping[str, Any]) -> tuple[int, float | None, list[dict]]:
+    """(frame, t, people) of one frame record; each person keeps its JSON fields and gains
+    `joints_array` (17, 3) with NaN for null. Raises KeyError, TypeError or ValueError on a
+    malformed record (the reader names the file and line)."""
+    frame = int(rec["frame"])
+    people = rec["people"]
+    for p in people:
+        p["joints_array"] = _joints_array(p["joints"])
+        int(p["id"])
+    t = rec.get("t")
+    return frame, None if t is None else float(t), people
+
+
+def people3d_from_record(
+    frame: int, people: Sequence[Mapping[str, Any]], num_cameras: int = 0
+) -> People3D:
+    """People3D from the people of a parsed frame record (see `parse_frame_record`).
+
+    Restored: joints, conf (default: 1 where a joint is given), ids, views (default 0),
+    predicted, velocity. Not stored, so not restored: the per-joint reprojection errors (NaN)
+    and which detection each camera gave (-1 for each of `num_cameras`)."""
+    P = len(people)
+    joints = np.array(
+        [p["joints_array"] if "joints_array" in p else _joints_array(p["joints"]) for p in people]
+    ).reshape(P, NUM_JOINTS, 3)
+    conf = np.array(
+        [p.get("conf") or np.isfinite(joints[i]).all(-1) for i, p in enumerate(people)], float
+    ).reshape(P, NUM_JOINTS)
+    views = np.array([p.get("views") or [0] * NUM_JOINTS for p in people], dtype=np.int64)
+    return People3D(
+        frame=frame,
+        joints=joints,
+        conf=conf,
+        ids=np.array([p["id"] for p in people], dtype=np.int64),
+        reprojection_px=np.full((P, NUM_JOINTS), np.nan),
+        views=views.reshape(P, NUM_JOINTS),
+        detections=np.full((P, num_cameras), -1, dtype=np.int64),
+        predicted=np.array([bool(p.get("predicted", False)) for p in people], dtype=bool),
+        velocity=np.array(
+            [p.get("velocity") or [np.nan, np.nan] for p in people], dtype=float
+        ).reshape(P, 2),
+    )
+
+
+def event_record(e: Event) -> dict:
+    """The JSON object of the events contract (optional fields only when they apply); times
+    to 1 us, distances and durations to 0.1 mm / 0.1 ms, the position to 0.1 mm."""
+    d: dict = {
+        "t": round(e.t, 6),
+        "frame": e.frame,
+        "person": e.person,
+        "zone": e.zone,
+        "kind": e.kind,
+        "type": e.type,
+        "onset_t": round(e.onset_t, 6),
+    }
+    if e.joint is not None:
+        d["joint"] = e.joint
+    if e.distance_m is not None:
+        d["distance_m"] = round(e.distance_m, 4)
+    if e.duration_s is not None:
+        d["duration_s"] = round(e.duration_s, 4)
+    d["position"] = [round(e.position[0], 4), round(e.position[1], 4)] if e.position else None
+    if e.allowed:
+        d["allowed"] = True
+    if e.lost:
+        d["lost"] = True
+    return d
+
+
+def event_from_record(d: Mapping[str, Any]) -> Event:
+    """An Event from its JSON object (or an SQLite row as a dict: `x`, `y` for the position).
+    Raises KeyError, TypeError, ValueError or IndexError when a required field is missing or
+    malformed."""
+    pos = d.get("position")
+    if pos is None and d.get("x") is not None and d.get("y") is not None:
+        pos = (d["x"], d["y"])
+    return Event(
+        t=float(d["t"]),
+        frame=int(d["frame"]),
+        person=int(d["person"]),
+        zone=str(d["zone"]),
+        kind=str(d.get("kind", "")),
+        type=str(d["type"]),
+        onset_t=float(d["t"] if d.get("onset_t") is None else d["onset_t"]),
+        joint=d.get("joint"),
+        distance_m=None if d.get("distance_m") is None else float(d["distance_m"]),
+        duration_s=None if d.get("duration_s") is None else float(d["duration_s"]),
+        position=(float(pos[0]), float(pos[1])) if pos else None,
+        allowed=bool(d.get("allowed", False)),
+        lost=bool(d.get("lost", False)),
+    )
+
+
+def event_row(e: Event, run: int) -> tuple:
+    """The SQLite row of an event (EVENT_COLUMNS order), full precision."""
+    x, y = e.position if e.position else (None, None)
+    return (run, e.t, e.frame, e.person, e.zone, e.kind, e.type, e.onset_t, e.joint,
+            e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost))  # fmt: skip

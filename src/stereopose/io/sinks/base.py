@@ -1,0 +1,63 @@
+"""The one interface of every output: ``write(frame)`` once per frame, ``close()`` once."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from stereopose.types import Event, People2D, People3D
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """One frame through the loop, as every sink gets it.
+
+    t: seconds on the source's clock (frame / fps for recorded input; since the start for live
+    cameras). people2d: camera name -> that camera's 2D people (the cameras with an image or a
+    keypoint file at this frame). events: the zone events raised at this frame. images: camera
+    name -> its frame (H, W, 3) BGR at the calibration's size, or None; None for keypoint input.
+    """
+
+    frame: int
+    t: float
+    people2d: Mapping[str, People2D]
+    people3d: People3D
+    events: Sequence[Event] = ()
+    images: Mapping[str, np.ndarray | None] | None = None
+
+
+class Sink(Protocol):
+    """An output of the frame loop.
+
+    stage: the summary's stage its time counts in ("write", or "overlays" for the videos).
+    write: called once per frame, in frame order, also for frames with nobody.
+    close: flushes and closes, once (later calls do nothing and return []); returns the files
+    written. The loop closes every sink also after an error or Ctrl-C, so what a sink has
+    written must stay readable at any moment.
+    """
+
+    stage: str
+
+    def write(self, frame: FrameResult) -> None: ...
+
+    def close(self) -> list[Path]: ...
+
+
+def close_all(sinks: Iterable[Sink]) -> tuple[list[Path], BaseException | None]:
+    """Close every sink in order, even when one fails; (files written, the first error)."""
+    paths: list[Path] = []
+    first: BaseException | None = None
+    for sink in sinks:
+        try:
+            paths.extend(sink.close())
+        except BaseException as e:  # close the others all the same
+            logger.exception("closing %s failed", type(sink).__name__)
+            first = first or e
+    return paths, first

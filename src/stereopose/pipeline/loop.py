@@ -1,0 +1,245 @@
+"""The frame loop, shared by every run: source -> detection -> 3D stage -> fences -> sinks.
+
+``reconstruct`` (keypoint files), ``run`` and ``demo`` (cameras) and the service build a
+source, a 3D stage and their sinks, and hand them to `FrameLoop`. Per frame it times each
+stage apart (the source's reading, detection, 3D, fences, and each sink under its own stage),
+calls `on_step(done, total, fps)`, and stops after the current frame when `stop` is set or on
+SIGINT (a second Ctrl-C stops at once). Whatever ends the loop (the source's end, `stop`,
+Ctrl-C, an error), every sink is closed, so what was written stays readable.
+
+Nothing in the loop keeps anything per frame: the summary holds running aggregates.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from stereopose.config import Config
+from stereopose.fence import FenceMonitor, Site
+from stereopose.io.sinks import FrameResult, Sink
+from stereopose.io.summary import RunSummary
+from stereopose.pipeline.outputs import Outputs, open_outputs
+from stereopose.pipeline.stage3d import Stage3D
+from stereopose.types import Event, People2D, Rig
+
+logger = logging.getLogger(__name__)
+
+OnStep = Callable[[int, "int | None", float], None]
+
+
+@dataclass(frozen=True, eq=False)
+class SourceStep:
+    """What a source gives per step: the frame number, its time t (seconds), each camera's 2D
+    people (None: the source's `detect` finds them in `images`), and each camera's image
+    (cameras only; None where a camera has no frame at this step)."""
+
+    frame: int
+    t: float
+    people2d: Mapping[str, People2D] | None
+    images: Mapping[str, np.ndarray | None] | None = None
+
+
+class Source(Protocol):
+    """Where frames come from: keypoint files or cameras (pipeline.sources).
+
+    stages: the summary's stages for a run of this source; the first one is the time spent
+    getting the next step. total: number of steps, None when unknown (live).
+    """
+
+    cameras: tuple[str, ...]
+    stages: tuple[str, ...]
+    fps: float
+    live: bool
+
+    @property
+    def total(self) -> int | None: ...
+
+    def __iter__(self) -> Iterator[SourceStep]: ...
+
+    def detect(self, step: SourceStep) -> Mapping[str, People2D]: ...
+
+    def finish(self, summary: RunSummary) -> None:
+        """What the source knows of the run, into the summary (camera statistics, files
+        skipped)."""
+
+
+class Stage(Protocol):
+    """The 3D stage (pipeline.stage3d.Stage3D)."""
+
+    tracking: bool
+
+    def load(self) -> float: ...
+
+    def step(self, frame: int, people2d: Mapping[str, People2D]): ...
+
+    def trajectories(self) -> list: ...
+
+
+@contextlib.contextmanager
+def _sigint(stop: threading.Event) -> Iterator[None]:
+    """Ctrl-C sets `stop` (the loop ends after the current frame); a second one raises
+    KeyboardInterrupt. Only in the main thread, where signal handlers can be set."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame) -> None:
+        if stop.is_set():  # a second Ctrl-C: stop now
+            raise KeyboardInterrupt
+        logger.warning("interrupted: finishing the current frame and closing the outputs")
+        stop.set()
+
+    previous = signal.signal(signal.SIGINT, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class FrameLoop:
+    """One run's frame loop. `run()` once: it returns the summary, every sink closed.
+
+    sinks: closed in their order at the end (pipeline.outputs.open_outputs puts the summary
+    and the report last). fences: zone events per frame (None: no site).
+    """
+
+    def __init__(
+        self,
+        source: Source,
+        stage: Stage,
+        sinks: Sequence[Sink],
+        summary: RunSummary,
+        *,
+        fences: FenceMonitor | None = None,
+        on_step: OnStep | None = None,
+        stop: threading.Event | None = None,
+    ) -> None:
+        self.source, self.stage, self.sinks = source, stage, list(sinks)
+        self.summary, self.fences = summary, fences
+        self.on_step = on_step
+        self.stop = stop or threading.Event()
+        for sink in self.sinks:
+            self.summary.seconds.setdefault(sink.stage, 0.0)
+
+    def run(self) -> RunSummary:
+        s = self.summary
+        error: BaseException | None = None
+        start = time.perf_counter()
+        with _sigint(self.stop):
+            try:
+                s.load_s_3d = self.stage.load()
+                start = time.perf_counter()
+                self._frames(start)
+                s.interrupted = self.stop.is_set()
+            except KeyboardInterrupt:
+                s.interrupted = True
+            except BaseException as e:
+                s.error = f"{type(e).__name__}: {e}"
+                error = e
+            finally:
+                s.wall_s = time.perf_counter() - start
+                failed = self._close()
+        if error is not None:
+            raise error
+        if failed is not None:
+            raise failed
+        if s.interrupted:
+            logger.warning("run interrupted after %d frames; outputs closed", s.frames)
+        return s
+
+    def _frames(self, start: float) -> None:
+        sec = self.summary.seconds
+        first = self.source.stages[0]
+        total = self.source.total
+        it = iter(self.source)
+        done = 0
+        while not self.stop.is_set():
+            t0 = time.perf_counter()
+            step = next(it, None)
+            t1 = time.perf_counter()
+            sec[first] += t1 - t0
+            if step is None:
+                break
+            people2d = step.people2d
+            if people2d is None:
+                people2d = self.source.detect(step)
+                t0, t1 = t1, time.perf_counter()
+                sec["detect"] += t1 - t0
+            people3d = self.stage.step(step.frame, people2d)
+            t2 = time.perf_counter()
+            sec["3d"] += t2 - t1
+            events = self.fences.update(people3d) if self.fences is not None else []
+            t3 = time.perf_counter()
+            sec["fences"] += t3 - t2
+            result = FrameResult(step.frame, step.t, people2d, people3d, events, step.images)
+            for sink in self.sinks:
+                sink.write(result)
+                t4 = time.perf_counter()
+                sec[sink.stage] += t4 - t3
+                t3 = t4
+            done += 1
+            if self.on_step is not None:
+                elapsed = time.perf_counter() - start
+                self.on_step(done, total, done / elapsed if elapsed > 0 else 0.0)
+
+    def _close(self) -> BaseException | None:
+        """Close every sink in order, the run's figures filled in first; the first error."""
+        s = self.summary
+        failed: BaseException | None = None
+        try:
+            self.source.finish(s)
+            if self.stage.tracking:
+                s.trajectories = self.stage.trajectories()
+        except Exception as e:  # the outputs are closed all the same
+            logger.exception("finishing the run's figures failed")
+            failed = e
+        s.two_way_frames = sum(getattr(sink, "frames_kept", 0) for sink in self.sinks)
+        for sink in self.sinks:
+            try:
+                s.outputs.extend(sink.close())
+            except BaseException as e:  # close the others all the same
+                logger.exception("closing %s failed", type(sink).__name__)
+                failed = failed or e
+        return failed
+
+
+def run_frames(
+    rig: Rig,
+    config: Config,
+    source,
+    outputs: Outputs,
+    site: Site | None,
+    *,
+    calib_path: str = "",
+    label: str = "",
+    on_events: Callable[[list[Event]], None] | None = None,
+    stop: threading.Event | None = None,
+    on_step: Callable[[int, int | None, float], None] | None = None,
+    **summary_fields: object,
+) -> RunSummary:
+    """A whole run: the 3D stage (its compiled loops loaded first), the fences of `site` and
+    the sinks of `outputs` around `source`, through the frame loop; the run's summary.
+
+    label: what the run reads (the event log's `runs.source`); summary_fields: more of the
+    RunSummary's fields (out_dir, config_path). The outputs' needs (pipeline.outputs.
+    check_outputs) are checked by the caller, before anything is written.
+    """
+    stage = Stage3D(rig, config, record=outputs.two_way, calib_path=calib_path)
+    summary = RunSummary(
+        rig.names, source.stages, config.reconstruction.triangulation.mode, stage.tracking,
+        live=source.live, fps_input=source.fps, **summary_fields,
+    )  # fmt: skip
+    fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
+    sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
+                         site=site, source=label, on_events=on_events)  # fmt: skip
+    loop = FrameLoop(source, stage, sinks, summary, fences=fences, on_step=on_step, stop=stop)
+    return loop.run()

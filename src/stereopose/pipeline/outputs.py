@@ -1,0 +1,192 @@
+"""Which outputs a run writes, and the one function that opens them as sinks.
+
+`Outputs` says where each output goes (None: not written); `Outputs.run_folder` derives it from
+a run folder and the configuration's [outputs]; `reconstruct` builds it from its options.
+`open_outputs` opens every sink it names, in the order the frame loop closes them: the files
+and event outputs, the overlay videos, the statistics, then the summary and the report, which
+read what the others wrote.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from stereopose.config import Config, OutputConfig
+from stereopose.errors import StereoposeError
+from stereopose.fence import Site
+from stereopose.io.sinks import (
+    CallbackSink,
+    CameraStatsSink,
+    CsvSink,
+    JsonlSink,
+    PosesSink,
+    Sink,
+    SqliteSink,
+    SummarySink,
+    TracksSink,
+    TrcSink,
+    TwoWaySink,
+    WebhookSink,
+    close_all,
+)
+from stereopose.io.sinks.base import FrameResult
+from stereopose.io.summary import RunSummary
+from stereopose.types import Event, Rig
+
+# reconstruct_files' keyword names for the fields of Outputs
+KEYWORDS = {"trc_dir": "trc_dir", "csv_path": "csv", "tracks_path": "tracks",
+            "events_path": "events", "events_db": "events_db", "webhook": "webhook",
+            "two_way": "two_way"}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """Where a run's outputs go; None: not written.
+
+    events, events_db, webhook: zone events (only with a site). two_way: the CSV and TRC
+    exports are smoothed both ways over each track and written at the end (the one output
+    that holds the whole run in memory). overlays_dir: one video per camera (cameras only).
+    summary: summary.json. report_dir: report.html, built from that folder (which must hold
+    summary.json, calib.toml and the poses as a run folder does).
+    """
+
+    poses: Path | None = None
+    events: Path | None = None
+    events_db: Path | None = None
+    webhook: str | None = None
+    trc_dir: Path | None = None
+    csv: Path | None = None
+    tracks: Path | None = None
+    two_way: bool = False
+    overlays_dir: Path | None = None
+    overlay_scale: float = 0.5
+    summary: Path | None = None
+    report_dir: Path | None = None
+
+    @classmethod
+    def run_folder(cls, out_dir: str | Path, o: OutputConfig, site: Site | None) -> Outputs:
+        """The outputs of `stereopose run` in its folder, as [outputs] asks."""
+        out = Path(out_dir)
+        events = site is not None and o.events
+        return cls(
+            poses=out / "poses3d.jsonl" if o.poses else None,
+            events=out / "events.jsonl" if events else None,
+            events_db=out / "events.sqlite" if events else None,
+            webhook=o.webhook,
+            trc_dir=out / "trc" if o.trc else None,
+            csv=out / "joints.csv" if o.csv else None,
+            tracks=out / "tracks.json",
+            two_way=o.two_way,
+            overlays_dir=out / "overlays" if o.overlays else None,
+            overlay_scale=o.overlay_scale,
+            summary=out / "summary.json",
+            report_dir=out if o.report else None,
+        )
+
+    @classmethod
+    def from_keywords(cls, poses: str | Path | None, **kw: object) -> Outputs:
+        """From reconstruct_files' keywords (trc_dir, csv_path, tracks_path, events_path,
+        events_db, webhook, two_way); None values are left out."""
+        unknown = sorted(set(kw) - set(KEYWORDS))
+        if unknown:
+            raise TypeError(f"unknown output keyword(s): {', '.join(unknown)}")
+        values: dict = {KEYWORDS[k]: v for k, v in kw.items() if v is not None}
+        for name in ("trc_dir", "csv", "tracks", "events", "events_db"):
+            if name in values:
+                values[name] = Path(values[name])
+        return cls(poses=Path(poses) if poses is not None else None, **values)
+
+
+def check_outputs(config: Config, site: Site | None, outputs: Outputs) -> None:
+    """What the outputs need of the 3D stage, checked before anything is opened."""
+    if site is not None and not config.tracking.enabled:
+        raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
+    if outputs.two_way and not config.tracking.enabled:
+        raise StereoposeError("two-way smoothing needs tracking (person ids)")
+
+
+class ReportSink:
+    """report.html, built at close from the run folder (after summary.json); none after an
+    error."""
+
+    stage = "write"
+
+    def __init__(self, run_dir: Path, summary: RunSummary) -> None:
+        self.run_dir, self.summary = Path(run_dir), summary
+        self._closed = False
+
+    def write(self, frame: FrameResult) -> None:
+        pass
+
+    def close(self) -> list[Path]:
+        if self._closed or self.summary.error is not None:
+            return []
+        self._closed = True
+        from stereopose.viz.report import write_report
+
+        return [write_report(self.run_dir)]
+
+
+def _event_sinks(
+    o: Outputs, site: Site, source: str, on_events: Callable[[list[Event]], None] | None
+) -> list[Sink]:
+    sinks: list[Sink] = []
+    if o.events is not None:
+        sinks.append(JsonlSink(o.events))
+    if o.events_db is not None:
+        sinks.append(SqliteSink(o.events_db, str(site.path or ""), source))
+    if o.webhook is not None:
+        sinks.append(WebhookSink(o.webhook))
+    if on_events is not None:
+        sinks.append(CallbackSink(on_events))
+    return sinks
+
+
+def open_outputs(
+    outputs: Outputs,
+    *,
+    rig: Rig,
+    config: Config,
+    summary: RunSummary,
+    stage,
+    site: Site | None = None,
+    source: str = "",
+    on_events: Callable[[list[Event]], None] | None = None,
+) -> list[Sink]:
+    """Every sink `outputs` names, in closing order (see the module); `stage` is the 3D stage
+    (its trajectories and two-way smoother). Event outputs only with a site. If one cannot be
+    opened, those already open are closed and the error is raised."""
+    o, fps = outputs, config.fps
+    sinks: list[Sink] = []
+    try:
+        if o.poses is not None:
+            sinks.append(PosesSink(o.poses, fps))
+        if site is not None:
+            sinks += _event_sinks(o, site, source, on_events)
+        exports: list[Sink] = []
+        if o.csv is not None:
+            exports.append(CsvSink(o.csv, fps))
+        if o.trc_dir is not None:  # a track unseen this long has ended: its file is closed
+            idle = math.ceil(config.tracking.max_lost_s * fps) + 2
+            exports.append(TrcSink(o.trc_dir, fps, idle_frames=idle))
+        if o.two_way and exports:
+            sinks.append(TwoWaySink(exports, stage.two_way))
+        else:
+            sinks += exports
+        if o.overlays_dir is not None:
+            from stereopose.pipeline.overlays import OverlaySink
+
+            sinks.append(OverlaySink(rig, o.overlays_dir, fps, o.overlay_scale))
+        sinks.append(CameraStatsSink(rig, summary.per_camera))
+        if o.tracks is not None and stage.tracking:
+            sinks.append(TracksSink(o.tracks, stage.trajectories))
+        sinks.append(SummarySink(summary, o.summary))
+        if o.report_dir is not None:
+            sinks.append(ReportSink(o.report_dir, summary))
+    except BaseException:
+        close_all(sinks)
+        raise
+    return sinks

@@ -1,0 +1,107 @@
+"""The frame loop's sources: 2D keypoint files, and cameras with a pose detector."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from stereopose.detection import PoseDetector
+from stereopose.detection.openpose import PoseSequence
+from stereopose.errors import StereoposeError
+from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
+from stereopose.io.video import CameraSet, FrameSet
+from stereopose.pipeline.detect import detect_step
+from stereopose.pipeline.loop import SourceStep
+from stereopose.types import Camera, People2D, Rig
+
+logger = logging.getLogger(__name__)
+
+
+class KeypointFiles:
+    """2D keypoint folders (one per camera) read frame by frame; t = frame / fps.
+
+    A malformed file is skipped (listed in the summary's skipped_files) and its frame still
+    goes on with the other cameras.
+    """
+
+    stages = FILE_STAGES
+    live = False
+
+    def __init__(self, seq: PoseSequence, fps: float) -> None:
+        self.seq = seq
+        self.cameras = tuple(seq.cameras)
+        self.fps = float(fps)
+        self.frames_read = 0  # frames with at least one readable file
+
+    @property
+    def total(self) -> int:
+        return len(self.seq)
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        for frame, people2d in self.seq:
+            self.frames_read += bool(people2d)
+            yield SourceStep(frame, frame / self.fps, people2d)
+
+    def detect(self, step: SourceStep) -> Mapping[str, People2D]:
+        raise TypeError("keypoint files carry their 2D people")
+
+    def finish(self, summary: RunSummary) -> None:
+        summary.frames_read = self.frames_read
+        summary.skipped_files = [(str(p), why) for p, why in self.seq.skipped]
+        if summary.skipped_files:
+            logger.warning("%d keypoint file(s) skipped as malformed", len(summary.skipped_files))
+
+
+def check_size(camera: Camera, image: np.ndarray) -> None:
+    """A camera's frames must have its calibration's size."""
+    w, h = camera.size
+    if (image.shape[1], image.shape[0]) != (round(w), round(h)):
+        raise StereoposeError(
+            f"camera {camera.name}: frames are {image.shape[1]}x{image.shape[0]} pixels but its "
+            f"calibration is for {round(w)}x{round(h)}"
+        )
+
+
+class Cameras:
+    """Cameras read in step (io.video.CameraSet), their people found by a pose detector.
+
+    Each camera's first frame is checked against its calibration's size. `finish` puts each
+    camera's reader statistics (frames, dropped, reconnects) into the summary.
+    """
+
+    stages = CAMERA_STAGES
+
+    def __init__(self, cams: CameraSet, rig: Rig, detector: PoseDetector) -> None:
+        self.cams, self.rig, self.detector = cams, rig, detector
+        self.cameras = tuple(cams.names)
+        self.fps = float(cams.fps)
+        self.live = bool(cams.live)
+        self._checked: set[str] = set()
+
+    @property
+    def total(self) -> int | None:
+        return self.cams.count
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        for step in self.cams:
+            yield SourceStep(step.index, step.t, None, step.images)
+
+    def detect(self, step: SourceStep) -> Mapping[str, People2D]:
+        frames = FrameSet(step.frame, step.t, dict(step.images or {}))
+        people2d = detect_step(self.detector, frames)
+        for name in people2d.keys() - self._checked:
+            self._checked.add(name)
+            check_size(self.rig[name], frames.images[name])
+        return people2d
+
+    def finish(self, summary: RunSummary) -> None:
+        summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}
+
+
+def source_label(value: str | Path | Mapping[str, str]) -> str:
+    """What a run read, for the event log's `runs.source`."""
+    return ", ".join(value) if isinstance(value, Mapping) else str(value)
