@@ -11,7 +11,7 @@ import functools
 import numpy as np
 
 from stereopose.association.grouping import upper_pairs
-from stereopose.reconstruction.triangulate import _HEAD_RADIUS_M, _HEAD_WIDTH_M
+from stereopose.reconstruction.labels import _HEAD_RADIUS_M, _HEAD_WIDTH_M
 
 
 def project_to_cameras_numpy(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:

@@ -42,6 +42,11 @@ def _pairs(*names: tuple[str, str]) -> tuple[tuple[int, int], ...]:
     return tuple((JOINT_INDEX[a], JOINT_INDEX[b]) for a, b in names)
 
 
+def joint_table(*rows: tuple[str, ...]) -> np.ndarray:
+    """(R, K) int64 table of joint indices from rows of K joint names."""
+    return np.array([[JOINT_INDEX[name] for name in row] for row in rows], dtype=np.int64)
+
+
 NOSE = JOINT_INDEX["nose"]
 LEFT_EYE, RIGHT_EYE = JOINT_INDEX["left_eye"], JOINT_INDEX["right_eye"]
 LEFT_EAR, RIGHT_EAR = JOINT_INDEX["left_ear"], JOINT_INDEX["right_ear"]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereopose.reconstruction.triangulate import _implausibility, _mirrored_pairs
+from stereopose.reconstruction.labels import mirrored_pairs
+from stereopose.reconstruction.triangulate import _implausibility
 from stereopose.sim.motion import pose
 from stereopose.skeleton import LR_PAIRS, SWAP
 
@@ -26,7 +27,7 @@ def test_exchanged_limbs_are_found(pairs, heading):
     bad = X.copy()
     for left, right in pairs:
         bad[:, [left, right]] = bad[:, [right, left]]
-    swap = _mirrored_pairs(bad)
+    swap = mirrored_pairs(bad)
     expect = np.zeros((1, len(LR_PAIRS)), dtype=bool)
     for pair in pairs:
         expect[0, LR_PAIRS.index(pair)] = True
@@ -36,9 +37,9 @@ def test_exchanged_limbs_are_found(pairs, heading):
 @pytest.mark.parametrize("heading", [0.0, 1.3, -2.5])
 def test_a_correct_skeleton_is_left_alone(heading):
     X = _skeleton(heading)
-    assert not _mirrored_pairs(X).any()
+    assert not mirrored_pairs(X).any()
     # a whole mirrored body is a body seen in a mirror: its face is behind its shoulders
-    assert _mirrored_pairs(X[:, SWAP]).all()
+    assert mirrored_pairs(X[:, SWAP]).all()
 
 
 def test_implausibility():
@@ -67,8 +68,8 @@ def test_the_head_tells_the_front_when_the_shoulders_cannot(heading):
     front = np.array([-side[1], side[0], 0.0]) / np.linalg.norm(side[:2])
     noisy = X.copy()
     noisy[0, [5, 6]] += lead @ front * front  # the shoulder line moved forward to the face
-    assert not _mirrored_pairs(noisy).any()
-    assert _mirrored_pairs(noisy[:, SWAP]).all()
+    assert not mirrored_pairs(noisy).any()
+    assert mirrored_pairs(noisy[:, SWAP]).all()
 
 
 def test_a_nose_off_the_head_does_not_turn_the_body():
@@ -78,5 +79,5 @@ def test_a_nose_off_the_head_does_not_turn_the_body():
     front = np.array([-side[1], side[0], 0.0]) / np.linalg.norm(side[:2])
     bad = X.copy()
     bad[0, 0] -= 0.35 * front
-    assert not _mirrored_pairs(bad).any()
-    assert _mirrored_pairs(bad[:, SWAP]).all()
+    assert not mirrored_pairs(bad).any()
+    assert mirrored_pairs(bad[:, SWAP]).all()

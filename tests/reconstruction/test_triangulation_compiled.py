@@ -10,7 +10,8 @@ from oracles import body_orientation_numpy, select_views_numpy
 from stereopose.association.affinity import Detections
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.reconstruction import Reconstructor
-from stereopose.reconstruction.triangulate import body_orientation, choose_views
+from stereopose.reconstruction.labels import body_orientation
+from stereopose.reconstruction.triangulate import choose_views
 from stereopose.sim import simulate
 from stereopose.skeleton import LEFT_ANKLE, LEFT_EAR, LEFT_KNEE, NOSE, SWAP
 

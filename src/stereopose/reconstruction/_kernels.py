@@ -30,6 +30,40 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
+def _best_pair(xy, w, has, P, focal, thr, inl, best_inl, Xk, e):
+    """Of every two-view solution of one joint (xy (C, 2), w (C,) among the views `has`), the
+    views agreeing (error < thr (C,)) with the one scored best by their confidence (ties to
+    the tighter fit), into best_inl (C,); false when no pair gives a point. inl, Xk, e:
+    scratch arrays (C,), (3,), (C,)."""
+    C = xy.shape[0]
+    best = -np.inf
+    found = False
+    for a in range(C):
+        if not has[a]:
+            continue
+        for b in range(a + 1, C):
+            if not has[b]:
+                continue
+            for c in range(C):
+                inl[c] = (c - a) * (c - b) == 0  # the pair itself
+            dlt_point(xy, w, inl, P, Xk)
+            if not np.isfinite(Xk[0]):
+                continue
+            view_errors(Xk, xy, P, focal, e)
+            score = 0.0
+            for c in range(C):
+                inl[c] = has[c] and e[c] < thr[c]
+                if inl[c]:
+                    score += w[c] - 1e-3 * e[c] / thr[c]
+            if not found or score > best:
+                best = score
+                found = True
+                for c in range(C):
+                    best_inl[c] = inl[c]
+    return found
+
+
+@njit(**_JIT)
 def select_views(xy, w, P, focal, thr, X_all):
     """Per joint, the views that agree and the point they give.
 
@@ -68,30 +102,7 @@ def select_views(xy, w, P, focal, thr, X_all):
                 err[g, j, c] = e_all[c]
             finite = np.isfinite(X_all[g, j, 0])
             if seen > 2 and (n_used < seen or not finite):
-                best = -np.inf
-                found = False
-                for a in range(C):
-                    if not has[a]:
-                        continue
-                    for b in range(a + 1, C):
-                        if not has[b]:
-                            continue
-                        for c in range(C):
-                            inl[c] = (c - a) * (c - b) == 0  # the pair itself
-                        dlt_point(xy[g, j], w[g, j], inl, P, Xk)
-                        if not np.isfinite(Xk[0]):
-                            continue
-                        view_errors(Xk, xy[g, j], P, focal, e)
-                        score = 0.0
-                        for c in range(C):
-                            inl[c] = has[c] and e[c] < thr[g, c]
-                            if inl[c]:
-                                score += w[g, j, c] - 1e-3 * e[c] / thr[g, c]
-                        if not found or score > best:
-                            best = score
-                            found = True
-                            for c in range(C):
-                                best_inl[c] = inl[c]
+                found = _best_pair(xy[g, j], w[g, j], has, P, focal, thr[g], inl, best_inl, Xk, e)
                 if found:
                     dlt_point(xy[g, j], w[g, j], best_inl, P, Xr)
                     view_errors(Xr, xy[g, j], P, focal, e)

@@ -9,8 +9,6 @@ Each returns X (G, 17, 3) metres and used (G, 17, C) bool, the views each joint 
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from stereopose.arrays import checked
@@ -20,15 +18,18 @@ from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.reconstruction._kernels import (
-    body_orientation as _body_orientation_loop,
-)
-from stereopose.reconstruction._kernels import (
-    chain_flips,
     implausibility,
     place_single_views,
     select_views,
 )
-from stereopose.skeleton import JOINT_INDEX, JOINT_PARTS, LR_PAIRS, PART_OF_PAIR, SWAP
+from stereopose.reconstruction.labels import (
+    body_orientation,
+    consistent_labels,
+    exchange,
+    exchange_joints,
+    mirrored_pairs,
+)
+from stereopose.skeleton import JOINT_INDEX, JOINT_PARTS, LR_PAIRS, PART_OF_PAIR, SWAP, joint_table
 from stereopose.skeleton import LEFT as _LEFT
 from stereopose.skeleton import RIGHT as _RIGHT
 
@@ -129,13 +130,13 @@ def triangulate_robust(
     C = xy.shape[2]
     thr = np.fmax(inlier_px, inlier_rel * size_px)[:, None, :]  # (G, 1, C); NaN size: inlier_px
     if fix_swaps and pair_distances is not None and C <= _MAX_LABEL_CAMERAS:
-        xy, w = _consistent_labels(xy, w, *pair_distances)
+        xy, w = consistent_labels(xy, w, *pair_distances)
     X_all = dlt_all(xy, w, P)
     if fix_swaps:
         flips = body_orientation(X_all)
         if flips[0].any() or flips[1].any():
             flip = np.stack(flips, axis=1)[:, _PART_OF_PAIR, None]  # (G, 8, 1)
-            xy, w = _exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
+            xy, w = exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
             # exchanging a part in every view exchanges its triangulated points
             XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
             X_all = X_all.copy()
@@ -148,10 +149,10 @@ def triangulate_robust(
     if fix_swaps:
         # The joints re-seeded above may settle on labels the whole-body check could not see
         # (a limb swapped in as many views as not); the final skeleton is checked once more.
-        swap = _mirrored_pairs(X)
+        swap = mirrored_pairs(X)
         if swap.any():
-            xy, w = _exchange(xy, w, np.broadcast_to(swap[..., None], (*swap.shape, C)))
-            X, used, err = (_exchange_joints(a, swap) for a in (X, used, err))
+            xy, w = exchange(xy, w, np.broadcast_to(swap[..., None], (*swap.shape, C)))
+            X, used, err = (exchange_joints(a, swap) for a in (X, used, err))
     single = None
     if rays is not None:
         # two views that disagree, one far fainter than the other: the faint one is dropped
@@ -174,11 +175,7 @@ def triangulate_robust(
 
 # Left and right bones compared by _implausibility: upper arms, forearms, thighs, shins, trunk
 # sides.
-def _joint_table(*rows: tuple[str, ...]) -> np.ndarray:
-    return np.array([[JOINT_INDEX[name] for name in row] for row in rows], dtype=np.int64)
-
-
-_BONES_L = _joint_table(
+_BONES_L = joint_table(
     ("left_shoulder", "left_elbow"),
     ("left_elbow", "left_wrist"),
     ("left_hip", "left_knee"),
@@ -191,7 +188,7 @@ _BONES_R = SWAP[_BONES_L]
 # views whose labels disagree lands far from the body, making some bone far too long.
 _BONES_MAX = np.concatenate(
     [
-        _joint_table(("left_shoulder", "right_shoulder"), ("left_hip", "right_hip")),
+        joint_table(("left_shoulder", "right_shoulder"), ("left_hip", "right_hip")),
         _BONES_L,
         _BONES_R,
     ]
@@ -240,7 +237,7 @@ def _relabel_implausible(
         return X, used, xy, w, err
     swap = np.zeros((g.size, len(LR_PAIRS), C), dtype=bool)
     swap[np.arange(g.size), :, view] = _PART_OF_PAIR[None, :] == part[:, None]
-    cx, cw = _exchange(xy[bad][g], w[bad][g], swap)
+    cx, cw = exchange(xy[bad][g], w[bad][g], swap)
     Xc, uc, xc, wc, ec, _ = triangulate_robust(
         cx,
         cw,
@@ -266,46 +263,6 @@ def _relabel_implausible(
             X[person], used[person], xy[person], w[person] = Xc[k], uc[k], xc[k], wc[k]
             err[person] = np.where(uc[k], ec[k], np.nan)
     return X, used, xy, w, err
-
-
-# Limb joints and the trunk joints they hang from, as (parent left, parent right, child left,
-# child right) rows: shoulders-elbows, hips-knees, then elbows-wrists, knees-ankles.
-_CHAINS = _joint_table(
-    ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow"),
-    ("left_hip", "right_hip", "left_knee", "right_knee"),
-    ("left_elbow", "right_elbow", "left_wrist", "right_wrist"),
-    ("left_knee", "right_knee", "left_ankle", "right_ankle"),
-)
-_PAIR_OF_LEFT = np.zeros(len(SWAP), dtype=np.int64)  # pair index of LR_PAIRS, by its left joint
-_PAIR_OF_LEFT[_LEFT] = np.arange(len(LR_PAIRS))
-
-
-def _mirrored_pairs(X: np.ndarray, margin_m: float = 0.05) -> np.ndarray:
-    """(G, 8) left/right pairs of LR_PAIRS whose 3D points are exchanged: the whole body
-    (or the legs) by its handedness (see _body_orientation), then each limb joint by which
-    parent joint it hangs from (each child is nearer its own parent than the other side's),
-    the trunk first, so a corrected elbow is what its wrist is checked against."""
-    flip_upper, flip_legs = body_orientation(X)
-    swap = np.where(_PART_OF_PAIR == 0, flip_upper[:, None], flip_legs[:, None])
-    if swap.any():
-        X = _exchange_joints(X, swap)
-    for level in (_CHAINS[:2], _CHAINS[2:]):
-        flip = chain_flips(X, level, margin_m)  # (G, 2)
-        if flip.any():
-            pairs = np.zeros_like(swap)
-            pairs[:, _PAIR_OF_LEFT[level[:, 2]]] = flip
-            X = _exchange_joints(X, pairs)
-            swap ^= pairs
-    return swap
-
-
-def _exchange_joints(a: np.ndarray, swap: np.ndarray) -> np.ndarray:
-    """Copy of a (G, 17, ...) with the pairs of LR_PAIRS exchanged where swap (G, 8)."""
-    a = a.copy()
-    m = swap.reshape(*swap.shape, *([1] * (a.ndim - 2)))
-    al, ar = a[:, _LEFT], a[:, _RIGHT]
-    a[:, _LEFT], a[:, _RIGHT] = np.where(m, ar, al), np.where(m, al, ar)
-    return a
 
 
 # Per joint, its neighbours in the skeleton in order of preference: a joint seen in one view
@@ -350,65 +307,6 @@ def complete_single_views(X, used, xy, w, centers, rays_R):
     return X, placed
 
 
-@functools.lru_cache(maxsize=16)
-def _labelings(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Z (2^C, C): every assignment of 'swapped' (1) or 'as detected' (0) to C views; and per
-    camera pair (a < b), (K, 2^C) whether a labeling keeps (same labels) or crosses the pair."""
-    Z = (np.arange(2**C)[:, None] >> np.arange(C)[None, :]) & 1
-    ka, kb = upper_pairs(C)
-    rel = (Z[:, ka] ^ Z[:, kb]).astype(np.float64)
-    return Z, np.ascontiguousarray((1.0 - rel).T), np.ascontiguousarray(rel.T)
-
-
-def _consistent_labels(xy, w, d_same, d_cross):
-    """Exchange left/right labels of views so that all views of a person agree.
-
-    d_same, d_cross: (G, 17, K) epipolar distances of joint j in camera a to joint j (same) or
-    to its mirror (cross) in camera b, for the camera pairs (a < b). For every body part, the
-    labeling of all views that minimises the total distance wins; of a labeling and its mirror
-    (equal cost), the one exchanging the views with the fainter face (a back view, where
-    detectors swap sides). This needs no 3D point; _body_orientation settles the mirror in 3D.
-    """
-    C = xy.shape[2]
-    ka, kb = upper_pairs(C)
-    Z, keep_T, rel_T = _labelings(C)
-    ok = w > 0
-    both = ok[:, :, ka] & ok[:, :, kb] & ok[:, SWAP][:, :, kb]  # (G, 17, K)
-    both &= np.isfinite(d_same) & np.isfinite(d_cross)  # pairs not measured do not vote
-    # per body part p: total distance of all its joints, (G, 2, K)
-    same = np.einsum("gjk,jp->gpk", np.where(both, d_same, 0.0), JOINT_PARTS)
-    cross = np.einsum("gjk,jp->gpk", np.where(both, d_cross, 0.0), JOINT_PARTS)
-    cost = same @ keep_T + cross @ rel_T  # (G, 2, L)
-    present = np.einsum("gjc,jp->gpc", ok.astype(np.float64), JOINT_PARTS) > 0  # (G, 2, C)
-    # A labeling and its mirror cost the same: prefer exchanging the views that see the
-    # person's back (faint face), where detectors swap sides, and then fewer views.
-    face = w[:, :3].mean(1)  # (G, C) nose and eyes
-    cost += 1e-6 * ((present * (face + 0.01)[:, None]) @ Z.T)
-    swap = Z[np.argmin(cost, axis=-1)].astype(bool) & present  # (G, 2, C)
-    return _exchange(xy, w, swap[:, _PART_OF_PAIR])
-
-
-def _exchange(xy, w, swap):
-    """Copies of xy (G, J, C, 2), w (G, J, C) with each left/right pair of LR_PAIRS exchanged
-    in the views where swap (G, 8, C) is true."""
-    if not swap.any():
-        return xy, w
-    xy, w = xy.copy(), w.copy()
-    xl, xr, wl, wr = xy[:, _LEFT], xy[:, _RIGHT], w[:, _LEFT], w[:, _RIGHT]
-    m = swap[..., None]
-    xy[:, _LEFT] = np.where(m, xr, xl)
-    xy[:, _RIGHT] = np.where(m, xl, xr)
-    w[:, _LEFT] = np.where(swap, wr, wl)
-    w[:, _RIGHT] = np.where(swap, wl, wr)
-    return xy, w
-
-
-# A nose this far from the midpoint of the ears (or eyes), or ears this far apart, is a joint
-# triangulated from a misplaced view, not a head: it is left out of the orientation test.
-_HEAD_RADIUS_M = 0.25
-_HEAD_WIDTH_M = 0.3
-
-
 def choose_views(xy, w, P, focal, thr, X_all):
     """Per joint, the views that agree and the point they give.
 
@@ -430,19 +328,3 @@ def choose_views(xy, w, P, focal, thr, X_all):
         checked(thr, "thr", ("G", "C"), sizes=n),
         checked(X_all, "X_all", ("G", "J", 3), sizes=n),
     )
-
-
-def body_orientation(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
-    """Which people's labels are mirrored as a whole (G,) each: flip_upper, flip_legs.
-
-    Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
-    In 3D they can: with z up and front = up x right, right being the body's left-to-right
-    axis (right shoulder - left shoulder plus right hip - left hip), the face lies in front of
-    the shoulders and the nose in front of the ears (or eyes). The two leads are added, so a
-    head and shoulders seen from two close views, whose depth is noisy, are judged together;
-    a nose away from the head (see _HEAD_RADIUS_M) takes part in neither, and without
-    shoulders or hips the head's own axis (right ear - left ear) gives front. Each knee is
-    nearer its own hip. X: (G, 17, 3).
-    """
-    X = checked(X, "X", (None, len(SWAP), 3))
-    return _body_orientation_loop(X, face_margin_m, thigh_margin_m, _HEAD_RADIUS_M, _HEAD_WIDTH_M)
