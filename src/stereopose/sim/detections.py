@@ -15,7 +15,7 @@ import numpy as np
 
 from stereopose.geometry.camera import distort, normalized_to_pixels, world_to_camera
 from stereopose.sim.motion import pose
-from stereopose.skeleton import NUM_JOINTS, SWAP
+from stereopose.skeleton import LEFT_SHOULDER, NUM_JOINTS, RIGHT_SHOULDER, SWAP
 from stereopose.types import Camera, People2D, Rig
 
 FACE = np.arange(5)
@@ -236,19 +236,11 @@ def _ghosts(
     return out
 
 
-def detect(
-    truth: np.ndarray,
-    rig: Rig,
-    noise: DetectorNoise,
-    rng: np.random.Generator,
-    room: tuple[float, float] = (12.0, 8.0),
-) -> tuple[list[dict[str, People2D]], list[dict[str, np.ndarray]]]:
-    """Simulated detector output for every frame and camera.
-
-    truth: (T, N, 17, 3) true joints in metres, NaN where the worker is absent. Returns, per
-    frame, camera name -> People2D (pixels of the distorted image) and camera name -> (P,) index
-    of the true worker behind each detection (-1 for a false detection).
-    """
+def _visibility(truth: np.ndarray, rig: Rig, noise: DetectorNoise):
+    """What each camera sees of the true joints (T, N, 17, 3): pixels uv (T, C, N, 17, 2),
+    joints in the image ok (T, C, N, 17), whether the camera sees the person's back
+    (T, C, N), joints occluded by a nearer person occ (T, C, N, 17), and each person's scale in
+    the image (T, C, N, 1) pixels (the box height)."""
     T, N = truth.shape[:2]
     C = len(rig)
     uv = np.empty((T, C, N, NUM_JOINTS, 2))
@@ -256,9 +248,9 @@ def detect(
     depth = np.empty((T, C, N))
     back = np.empty((T, C, N), dtype=bool)
     # the direction a person faces, from the shoulder line (left shoulder is on its left)
-    lr = truth[:, :, 5] - truth[:, :, 6]
+    lr = truth[:, :, LEFT_SHOULDER] - truth[:, :, RIGHT_SHOULDER]
     facing = np.stack([lr[..., 1], -lr[..., 0], np.zeros_like(lr[..., 0])], axis=-1)
-    mid = 0.5 * (truth[:, :, 5] + truth[:, :, 6])
+    mid = 0.5 * (truth[:, :, LEFT_SHOULDER] + truth[:, :, RIGHT_SHOULDER])
     for c, cam in enumerate(rig):
         uv[:, c], ok[:, c] = project_visible(truth, cam)
         with np.errstate(invalid="ignore"):
@@ -289,6 +281,54 @@ def detect(
                 )
             occ[..., j, :] |= nearer[..., None] & inside & ok[..., j, :]
 
+    return uv, ok, back, occ, scale
+
+
+def _frames(kp, detected, ghosts, rig: Rig, rng: np.random.Generator):
+    """Per frame and camera the detected people (kp (T, C, N, 17, 3) where detected
+    (T, C, N)) with the ghosts added, in a random order, clipped to the image; and the true
+    worker behind each (-1: a ghost)."""
+    T = kp.shape[0]
+    detections: list[dict[str, People2D]] = []
+    labels: list[dict[str, np.ndarray]] = []
+    for t in range(T):
+        frame_d: dict[str, People2D] = {}
+        frame_l: dict[str, np.ndarray] = {}
+        for c, cam in enumerate(rig):
+            idx = np.flatnonzero(detected[t, c])
+            people, who = kp[t, c, idx], idx
+            g = ghosts.get((t, c))
+            if g is not None:
+                people = np.concatenate([people, g])
+                who = np.concatenate([idx, np.full(g.shape[0], -1)])
+            order = rng.permutation(people.shape[0])
+            people, who = people[order], who[order].astype(np.int64)
+            w, h = cam.size
+            people[..., 0] = np.clip(people[..., 0], 0.0, w - 1.0)
+            people[..., 1] = np.clip(people[..., 1], 0.0, h - 1.0)
+            boxes, scores = _boxes(people, cam.size)
+            frame_d[cam.name] = People2D(cam.name, t, people, boxes, scores)
+            frame_l[cam.name] = who
+        detections.append(frame_d)
+        labels.append(frame_l)
+    return detections, labels
+
+
+def detect(
+    truth: np.ndarray,
+    rig: Rig,
+    noise: DetectorNoise,
+    rng: np.random.Generator,
+    room: tuple[float, float] = (12.0, 8.0),
+) -> tuple[list[dict[str, People2D]], list[dict[str, np.ndarray]]]:
+    """Simulated detector output for every frame and camera.
+
+    truth: (T, N, 17, 3) true joints in metres, NaN where the worker is absent. Returns, per
+    frame, camera name -> People2D (pixels of the distorted image) and camera name -> (P,) index
+    of the true worker behind each detection (-1 for a false detection).
+    """
+    T, N, C = truth.shape[0], truth.shape[1], len(rig)
+    uv, ok, back, occ, scale = _visibility(truth, rig, noise)
     shape = ok.shape
     xy = uv + rng.normal(size=(*shape, 2)) * (noise.sigma_frac * scale)[..., None]
     conf = rng.uniform(*noise.visible_conf, shape)
@@ -319,26 +359,4 @@ def detect(
     detected = (valid.sum(-1) >= noise.min_joints) & ~(rng.random((T, C, N)) < noise.person_miss)
 
     ghosts = _ghosts(rng, rig, noise, T, room)
-    detections: list[dict[str, People2D]] = []
-    labels: list[dict[str, np.ndarray]] = []
-    for t in range(T):
-        frame_d: dict[str, People2D] = {}
-        frame_l: dict[str, np.ndarray] = {}
-        for c, cam in enumerate(rig):
-            idx = np.flatnonzero(detected[t, c])
-            people, who = kp[t, c, idx], idx
-            g = ghosts.get((t, c))
-            if g is not None:
-                people = np.concatenate([people, g])
-                who = np.concatenate([idx, np.full(g.shape[0], -1)])
-            order = rng.permutation(people.shape[0])
-            people, who = people[order], who[order].astype(np.int64)
-            w, h = cam.size
-            people[..., 0] = np.clip(people[..., 0], 0.0, w - 1.0)
-            people[..., 1] = np.clip(people[..., 1], 0.0, h - 1.0)
-            boxes, scores = _boxes(people, cam.size)
-            frame_d[cam.name] = People2D(cam.name, t, people, boxes, scores)
-            frame_l[cam.name] = who
-        detections.append(frame_d)
-        labels.append(frame_l)
-    return detections, labels
+    return _frames(kp, detected, ghosts, rig, rng)

@@ -12,7 +12,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereopose.skeleton import NUM_JOINTS
+from stereopose.skeleton import (
+    LEFT_ANKLE,
+    LEFT_EAR,
+    LEFT_ELBOW,
+    LEFT_EYE,
+    LEFT_HIP,
+    LEFT_KNEE,
+    LEFT_SHOULDER,
+    LEFT_WRIST,
+    NOSE,
+    NUM_JOINTS,
+    RIGHT_ANKLE,
+    RIGHT_EAR,
+    RIGHT_ELBOW,
+    RIGHT_EYE,
+    RIGHT_HIP,
+    RIGHT_KNEE,
+    RIGHT_SHOULDER,
+    RIGHT_WRIST,
+)
+
+# (left, right) joints of each side-to-side pair the body is built from
+_HIPS, _KNEES, _ANKLES = (LEFT_HIP, RIGHT_HIP), (LEFT_KNEE, RIGHT_KNEE), (LEFT_ANKLE, RIGHT_ANKLE)
+_SHOULDERS, _ELBOWS = (LEFT_SHOULDER, RIGHT_SHOULDER), (LEFT_ELBOW, RIGHT_ELBOW)
+_WRISTS = (LEFT_WRIST, RIGHT_WRIST)
 
 # Lengths as fractions of body height (adult anthropometry, Drillis & Contini).
 ANKLE_Z = 0.045
@@ -91,7 +115,16 @@ def pose(
     f = np.column_stack([np.cos(heading), np.sin(heading), zero])
     left = np.column_stack([-np.sin(heading), np.cos(heading), zero])
     out = np.empty((T, NUM_JOINTS, 3))
+    shoulder_c, spine = _legs_and_trunk(out, xy, h, f, left, g, ph, beta)
+    _head(out, shoulder_c, spine, h, f, left, beta)
+    _arms(out, h, f, left, g, ph, wl, wr, beta)
+    return out
 
+
+def _legs_and_trunk(out, xy, h, f, left, g, ph, beta):
+    """Hips, knees, ankles and shoulders into out (T, 17, 3); returns the shoulder centre and
+    the spine direction (T, 3) each."""
+    h1 = h[:, 0]
     # Legs by forward kinematics from the hip joints, then the stance foot is put on the floor.
     ankles_rel = []
     for phase_leg in (ph, ph + np.pi):
@@ -115,28 +148,35 @@ def pose(
     # Bending moves the hips back and down; the knees follow by two-link inverse kinematics.
     sb = np.sin(beta)[:, None]
     pelvis = pelvis - BEND_HIP_BACK * h * sb * f - BEND_HIP_DOWN * h * sb * _UP
-    for k, sign in enumerate((1.0, -1.0)):
+    for side, sign in enumerate((1.0, -1.0)):
         hip = pelvis + sign * half_hip
-        knee, ankle = _two_link_knee(hip, ankles[k], THIGH * h1, SHIN * h1, f)
-        out[:, 11 + k], out[:, 13 + k], out[:, 15 + k] = hip, knee, ankle
+        knee, ankle = _two_link_knee(hip, ankles[side], THIGH * h1, SHIN * h1, f)
+        out[:, _HIPS[side]], out[:, _KNEES[side]], out[:, _ANKLES[side]] = hip, knee, ankle
 
     spine = np.cos(beta)[:, None] * _UP + sb * f
     shoulder_c = pelvis + TORSO * h * spine
     half_sh = 0.5 * SHOULDER_W * h * left
-    out[:, 5], out[:, 6] = shoulder_c + half_sh, shoulder_c - half_sh
+    out[:, LEFT_SHOULDER], out[:, RIGHT_SHOULDER] = shoulder_c + half_sh, shoulder_c - half_sh
+    return shoulder_c, spine
 
-    # The head tilts less than the torso, to keep looking ahead.
+
+def _head(out, shoulder_c, spine, h, f, left, beta) -> None:
+    """Nose, eyes and ears into out (T, 17, 3). The head tilts less than the torso, to keep
+    looking ahead."""
     bh = 0.6 * beta
     head_up = np.cos(bh)[:, None] * _UP + np.sin(bh)[:, None] * f
     head_fw = np.cos(bh)[:, None] * f - np.sin(bh)[:, None] * _UP
     hc = shoulder_c + NECK * h * spine + HEAD * h * head_up
-    out[:, 0] = hc + h * (0.05 * head_fw - 0.01 * head_up)
+    out[:, NOSE] = hc + h * (0.05 * head_fw - 0.01 * head_up)
     eye = hc + h * (0.042 * head_fw + 0.012 * head_up)
     ear = hc + h * (-0.005 * head_fw + 0.005 * head_up)
-    out[:, 1], out[:, 2] = eye + 0.017 * h * left, eye - 0.017 * h * left
-    out[:, 3], out[:, 4] = ear + 0.042 * h * left, ear - 0.042 * h * left
+    out[:, LEFT_EYE], out[:, RIGHT_EYE] = eye + 0.017 * h * left, eye - 0.017 * h * left
+    out[:, LEFT_EAR], out[:, RIGHT_EAR] = ear + 0.042 * h * left, ear - 0.042 * h * left
 
-    # Arms swing against the legs; reaching raises the arm forward and up above the head.
+
+def _arms(out, h, f, left, g, ph, wl, wr, beta) -> None:
+    """Elbows and wrists into out (T, 17, 3), from the shoulders there. Arms swing against the
+    legs; reaching raises the arm forward and up above the head."""
     for k, (side, phase_arm, w) in enumerate(((1.0, ph + np.pi, wl), (-1.0, ph, wr))):
         swing = ARM_SWING * g * np.sin(phase_arm)
         phi = (1.0 - w) * (swing + 0.3 * beta) + w * ARM_UP
@@ -145,9 +185,8 @@ def pose(
         upper = _unit(-np.cos(phi)[:, None] * _UP + np.sin(phi)[:, None] * f + abd)
         phi2 = phi + elbow_flex
         fore = _unit(-np.cos(phi2)[:, None] * _UP + np.sin(phi2)[:, None] * f + abd)
-        out[:, 7 + k] = out[:, 5 + k] + UPPER_ARM * h * upper
-        out[:, 9 + k] = out[:, 7 + k] + FOREARM * h * fore
-    return out
+        out[:, _ELBOWS[k]] = out[:, _SHOULDERS[k]] + UPPER_ARM * h * upper
+        out[:, _WRISTS[k]] = out[:, _ELBOWS[k]] + FOREARM * h * fore
 
 
 @dataclass(frozen=True)
