@@ -152,6 +152,46 @@ def _project(params, n_cams, n_views, cam_idx, view_idx, obj_idx, obj, fixed, in
     return np.stack([fx * xd + cx, fy * yd + cy], axis=1)
 
 
+def _jacobian_sparsity(M, C, V, cam_idx, view_idx, fixed, refine_intrinsics):
+    """Which parameters each of the 2 M residuals depends on: its camera's pose (none for the
+    fixed reference camera), its board pose and, when refined, its camera's intrinsics."""
+    free_col = np.cumsum([c != fixed for c in range(C)]) - 1  # column block of each camera
+    has = cam_idx != fixed
+    r_list, c_list = [], []
+    for d in range(2):
+        r = 2 * np.arange(M) + d
+        for j in range(6):
+            r_list += [r[has], r]
+            c_list += [6 * free_col[cam_idx[has]] + j, 6 * (C - 1) + 6 * view_idx + j]
+        if refine_intrinsics:
+            for j in range(8):
+                r_list.append(r)
+                c_list.append(6 * (C - 1) + 6 * V + 8 * cam_idx + j)
+    rr, cc = np.concatenate(r_list), np.concatenate(c_list)
+    n = 6 * (C - 1) + 6 * V + (8 * C if refine_intrinsics else 0)
+    return coo_matrix((np.ones(rr.size, dtype=np.int8), (rr, cc)), shape=(2 * M, n))
+
+
+def _unpack(p, names, view_names, ref, intr, refine_intrinsics):
+    """The solution vector back as camera poses, board poses and intrinsics (C, 8)."""
+    C, V = len(names), len(view_names)
+    out_cam, out_board = {}, {}
+    k = 0
+    for c in names:
+        if c == ref:
+            out_cam[c] = np.eye(4)
+            continue
+        out_cam[c] = _transform(cv2.Rodrigues(p[6 * k : 6 * k + 3])[0], p[6 * k + 3 : 6 * k + 6])
+        k += 1
+    off = 6 * (C - 1)
+    for j, v in enumerate(view_names):
+        q = p[off + 6 * j : off + 6 * j + 6]
+        out_board[v] = _transform(cv2.Rodrigues(q[:3])[0], q[3:])
+    if refine_intrinsics:
+        intr = p[off + 6 * V :].reshape(-1, 8)
+    return out_cam, out_board, intr
+
+
 def bundle_adjust(
     cameras: dict[str, Camera],
     observations: dict[tuple[str, str], np.ndarray],
@@ -193,22 +233,8 @@ def bundle_adjust(
     if refine_intrinsics:
         x0.append(intr.ravel())
     x0 = np.concatenate(x0)
-    M = observed.shape[0]
-    # sparsity: each residual pair depends on its camera, its board, its intrinsics
-    free_col = np.cumsum([c != fixed for c in range(C)]) - 1  # column block of each camera
-    has = cam_idx != fixed
-    r_list, c_list = [], []
-    for d in range(2):
-        r = 2 * np.arange(M) + d
-        for j in range(6):
-            r_list += [r[has], r]
-            c_list += [6 * free_col[cam_idx[has]] + j, 6 * (C - 1) + 6 * view_idx + j]
-        if refine_intrinsics:
-            for j in range(8):
-                r_list.append(r)
-                c_list.append(6 * (C - 1) + 6 * V + 8 * cam_idx + j)
-    rr, cc = np.concatenate(r_list), np.concatenate(c_list)
-    S = coo_matrix((np.ones(rr.size, dtype=np.int8), (rr, cc)), shape=(2 * M, x0.size)).tocsr()
+    S = _jacobian_sparsity(observed.shape[0], C, V, cam_idx, view_idx, fixed, refine_intrinsics)
+    S = S.tocsr()
 
     def residuals(p):
         proj = _project(p, C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
@@ -238,20 +264,7 @@ def bundle_adjust(
             **solver,
         )
     p = sol.x
-    out_cam, out_board = {}, {}
-    k = 0
-    for c in names:
-        if c == ref:
-            out_cam[c] = np.eye(4)
-            continue
-        out_cam[c] = _transform(cv2.Rodrigues(p[6 * k : 6 * k + 3])[0], p[6 * k + 3 : 6 * k + 6])
-        k += 1
-    off = 6 * (C - 1)
-    for j, v in enumerate(view_names):
-        q = p[off + 6 * j : off + 6 * j + 6]
-        out_board[v] = _transform(cv2.Rodrigues(q[:3])[0], q[3:])
-    if refine_intrinsics:
-        intr = p[off + 6 * V :].reshape(-1, 8)
+    out_cam, out_board, intr = _unpack(p, names, view_names, ref, intr, refine_intrinsics)
     res = residuals(p).reshape(-1, 2)
     return out_cam, out_board, intr, res, cam_idx, view_idx, names, view_names
 
