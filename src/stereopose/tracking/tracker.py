@@ -39,7 +39,10 @@ class Tracker:
     tracking = True
 
     def __init__(self, rig: Rig, config: Config | None = None, record: bool = False) -> None:
-        """record: keep every track's measurements for `two_way` (offline smoothing)."""
+        """record: keep every track's measurements for `two_way` (offline smoothing): the one
+        state that grows with the length of a run, by design (the smoother needs each whole
+        track). Without it the tracker holds its live tracks and one trajectory summary per
+        person."""
         self.config = config or Config()
         self.record = record
         self.tc = self.config.tracking
@@ -240,7 +243,8 @@ class Tracker:
         if confirm.any():
             for r in np.flatnonzero(confirm):
                 self.ids[r] = self._next_id
-                self._serial_of_id[self._next_id] = int(self.serial[r])
+                if self.record:  # what two_way needs; nothing kept per person otherwise
+                    self._serial_of_id[self._next_id] = int(self.serial[r])
                 # the frames it was seen before confirmation count too (this one is added below)
                 self.trajectories[self._next_id] = Trajectory(
                     self._next_id,
