@@ -36,3 +36,12 @@ def checked(
             expected += ","
         raise ValueError(f"{name} must have shape ({expected}), got {arr.shape}")
     return arr
+
+
+def checked_rows(rows: object, n: int, name: str = "rows") -> np.ndarray:
+    """`rows` as C-contiguous int64 indices, checked to lie in [0, n): the compiled loops do
+    not check their indices."""
+    arr = checked(rows, name, (None,), dtype=np.int64)
+    if arr.size and not (arr.min() >= 0 and arr.max() < n):
+        raise IndexError(f"{name} must lie in [0, {n}), got {arr.min()}..{arr.max()}")
+    return arr

@@ -93,3 +93,12 @@ def test_people_are_kept_and_dropped_by_mask() -> None:
     f.keep(np.array([True, False, True]))
     assert len(f) == 2
     np.testing.assert_allclose(f.x[:, 0, 0], [0.0, 2.0])
+
+
+def test_bad_rows_and_shapes_are_clear_errors() -> None:
+    f = JointFilters.empty()
+    f.append(np.zeros((2, 17, 3)), 0.03)
+    with pytest.raises(IndexError, match=r"rows must lie in \[0, 2\), got 0\.\.2"):
+        f.update(np.array([0, 2]), np.zeros((2, 17, 3)), 0.03, 0.25, 4.0, 3)
+    with pytest.raises(ValueError, match=r"z must have shape \(1, 17, 3\), got \(1, 16, 3\)"):
+        f.update(np.array([1]), np.zeros((1, 16, 3)), 0.03, 0.25, 4.0, 3)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereopose.skeleton import joint_index
+from stereopose.arrays import checked, checked_rows
+from stereopose.skeleton import NUM_JOINTS, joint_index
 from stereopose.tracking._kernels import bones_apply, bones_observe
 
 # parent -> child, trunk outwards: the upper limbs first, then the ones hanging from them
@@ -62,11 +63,12 @@ class BoneLengths:
 
     def observe(self, rows: np.ndarray, joints: np.ndarray) -> None:
         """Add the limb lengths of measured joints (n, 17, 3) of people `rows`."""
+        rows = checked_rows(rows, len(self.length))
         bones_observe(
             self.length,
             self.count,
-            np.asarray(rows, dtype=np.int64),
-            np.ascontiguousarray(joints, dtype=np.float64),
+            rows,
+            checked(joints, "joints", (rows.size, NUM_JOINTS, 3)),
             PARENT,
             CHILD,
             self.window,
@@ -76,12 +78,13 @@ class BoneLengths:
 
     def apply(self, rows: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Copy of joints (n, 17, 3) with each known limb set to its estimated length."""
-        X = np.array(joints, dtype=np.float64)  # a contiguous copy
+        rows = checked_rows(rows, len(self.length))
+        X = checked(joints, "joints", (rows.size, NUM_JOINTS, 3)).copy()
         bones_apply(
             X,
             self.length,
             self.count,
-            np.asarray(rows, dtype=np.int64),
+            rows,
             PARENT,
             CHILD,
             self.min_samples,

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.arrays import checked, checked_rows
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.tracking._kernels import kalman_predict, kalman_update
 
@@ -90,8 +91,10 @@ class JointFilters:
         became of each joint's measurement: 0 not used (missing or gated out), 1 accepted,
         2 restarted the joint (true where used).
         """
+        rows = checked_rows(rows, len(self))
+        z = checked(z, "z", (rows.size, NUM_JOINTS, 3))
         r2 = np.ascontiguousarray(
-            np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, (len(rows), z.shape[1]))
+            np.broadcast_to(np.asarray(noise_m, dtype=np.float64) ** 2, (rows.size, NUM_JOINTS))
         )
         return kalman_update(
             self.x,
@@ -100,8 +103,8 @@ class JointFilters:
             self.p01,
             self.p11,
             self.rejected,
-            np.asarray(rows, dtype=np.int64),
-            np.ascontiguousarray(z, dtype=np.float64),
+            rows,
+            z,
             r2,
             float(gate_m),
             float(gate_sigmas),
