@@ -83,3 +83,98 @@ def test_unwritable_csv_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("")
     with pytest.raises(StereoposeError, match="cannot write CSV"):
         CsvExporter(tmp_path / "file" / "j.csv", 25.0)
+
+
+def _scene(rng: np.random.Generator, frames: int = 40) -> list[People3D]:
+    """People 1-3 coming and going (gaps of a few frames), some frames with nobody."""
+    out = []
+    for f in range(frames):
+        ids = [i for i in (1, 2, 3) if rng.random() < (0.9, 0.5, 0.3)[i - 1] and f >= 2 * i]
+        out.append(people(f, ids, rng))
+    return out
+
+
+def _old_trc(tmp: Path, frames: list[People3D], fps: float) -> dict[int, Path]:
+    """The all-at-end writer: each person's joints collected, then write_trc."""
+    got: dict[int, dict[int, np.ndarray]] = {}
+    for p in frames:
+        for k, i in enumerate(p.ids):
+            got.setdefault(int(i), {})[p.frame] = p.joints[k]
+    paths = {}
+    for i, rows in got.items():
+        fr = np.arange(min(rows), max(rows) + 1)
+        J = np.full((fr.size, 17, 3), np.nan)
+        for f, joints in rows.items():
+            J[f - fr[0]] = joints
+        paths[i] = tmp / f"person_{i}.trc"
+        write_trc(paths[i], fr, J, fps)
+    return paths
+
+
+def _same_trc(streamed: Path, old: Path) -> None:
+    a, b = streamed.read_text().splitlines(), old.read_text().splitlines()
+    assert a[:2] == b[:2] and a[3:] == b[3:]  # the rows byte for byte, gaps included
+    ha, hb = a[2].split("\t"), b[2].split("\t")
+    assert [int(float(x)) if x != "m" else x for x in ha] == [
+        int(float(x)) if x != "m" else x for x in hb
+    ]  # the header's numbers; NumFrames and the last frame zero-padded
+    for x, y in zip(read_trc(streamed), read_trc(old), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("idle", [None, 3])
+def test_trc_streaming_matches_the_all_at_end_writer(tmp_path: Path, idle) -> None:
+    frames = _scene(np.random.default_rng(7))
+    old = _old_trc(tmp_path / "old", frames, 30.0)
+    exp = TrcExporter(tmp_path / "new", 30.0, idle_frames=idle)
+    for p in frames:
+        exp.add(p)
+        assert len(exp._open) <= 3
+    paths = exp.close()
+    assert [p.name for p in paths] == [f"person_{i}.trc" for i in sorted(old)]
+    for p in paths:
+        _same_trc(p, old[int(p.stem.split("_")[1])])
+    assert exp.close() == paths and not exp._open
+
+
+def test_trc_is_readable_while_it_is_written(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    exp = TrcExporter(tmp_path, 25.0)
+    for f in (5, 6, 9):
+        exp.add(people(f, [4], rng))
+        frames, _, J, _, _ = read_trc(tmp_path / "person_4.trc")
+        assert frames[0] == 5 and frames[-1] == f and len(J) == f - 4
+        header = (tmp_path / "person_4.trc").read_text().splitlines()[2].split("\t")
+        assert int(header[2]) == f - 4 and int(header[7]) == f  # NumFrames kept up to date
+    exp.close()
+
+
+def test_trc_exporter_holds_nothing_per_frame(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    exp = TrcExporter(tmp_path, 25.0, idle_frames=10)
+    one = people(0, [1, 2], rng)
+    for f in range(2000):  # person 1 always there; person 2 leaves at 100; 3 comes at 1500
+        ids = [1] + ([2] if f < 100 else []) + ([3] if f >= 1500 else [])
+        exp.add(People3D(f, one.joints[: len(ids)], one.conf[: len(ids)], np.array(ids),
+                         one.reprojection_px[: len(ids)], one.views[: len(ids)],
+                         one.detections[: len(ids)]))  # fmt: skip
+        if f == 200:
+            assert sorted(exp._open) == [1]  # person 2's file closed once idle
+    assert sorted(exp._open) == [1, 3]
+    exp.close()
+    assert read_trc(tmp_path / "person_2.trc")[0].tolist() == list(range(100))
+    assert read_trc(tmp_path / "person_1.trc")[0].size == 2000
+
+
+def test_trc_file_closed_when_idle_is_reopened_on_return(tmp_path: Path) -> None:
+    rng = np.random.default_rng(8)
+    frames = [people(f, [1] if f in (0, 1, 10) else [], rng) for f in range(12)]
+    exp = TrcExporter(tmp_path / "new", 25.0, idle_frames=2)
+    for p in frames[:5]:
+        exp.add(p)
+    assert not exp._open  # closed after 2 frames unseen
+    for p in frames[5:]:
+        exp.add(p)
+    assert list(exp._open) == [1]  # reopened at frame 10
+    exp.close()
+    _same_trc(tmp_path / "new" / "person_1.trc", _old_trc(tmp_path, frames, 25.0)[1])

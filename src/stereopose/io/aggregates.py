@@ -47,7 +47,11 @@ class RunningStats:
         idx = np.floor(np.maximum(v, 0.0) / self.bin_width).astype(np.int64)
         over = idx >= len(self.counts)
         self.overflow += int(over.sum())
-        self.counts += np.bincount(idx[~over], minlength=len(self.counts))
+        idx = idx[~over]
+        if idx.size < 256:  # a few values: no histogram-sized temporary
+            np.add.at(self.counts, idx, 1)
+        else:
+            self.counts += np.bincount(idx, minlength=len(self.counts))
 
     def merge(self, other: RunningStats) -> None:
         """Add another's values (the same bins)."""

@@ -20,8 +20,8 @@ from plotly.offline import get_plotlyjs
 from stereopose.calibration.formats import load_calibration
 from stereopose.errors import StereoposeError
 from stereopose.fence import Site, load_site
-from stereopose.fence.sinks import read_events
 from stereopose.io.results import read_poses
+from stereopose.io.sinks.events import read_events
 from stereopose.skeleton import LIMBS
 from stereopose.types import Event, Rig
 
@@ -306,6 +306,7 @@ def _summary_html(s: dict) -> str:
         ["input", f"{source}, {_fmt(s.get('fps_input'))} frames/s"],
         ["speed", f"{_fmt(s.get('fps'))} frames/s overall"],
         ["per stage", ", ".join(f"{k} {_fmt(v, ' f/s', 0)}" for k, v in stages.items())],
+        ["3D stage loading", f"{_fmt(s.get('load_s_3d'), ' s', 2)} before the first frame"],
         ["people", f"{people} per frame"],
         ["events", events or "none"],
         ["median reprojection error", _fmt(s.get("reprojection_median_px"), " px")],

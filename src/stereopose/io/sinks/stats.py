@@ -11,7 +11,7 @@ from stereopose.geometry.camera import project
 from stereopose.io.sinks.base import FrameResult
 from stereopose.io.summary import CameraStats, RunSummary, write_summary
 from stereopose.skeleton import SWAP
-from stereopose.types import People2D, People3D, Rig
+from stereopose.types import People2D, Rig
 
 
 class SummarySink:
@@ -37,20 +37,33 @@ class SummarySink:
         return [write_summary(self.path, self.summary)]
 
 
-def reprojection_errors(camera, people3d: People3D, p: int, detection: np.ndarray) -> np.ndarray:
-    """Pixel distances between person `p`'s 3D joints projected into `camera` and the
-    detection (17, 3) they were reconstructed from, over the joints with conf > 0.5 in both. A
+def _medians(d: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(S,) median of each row of d (S, J) over its `ok` entries; inf for a row with none."""
+    n = ok.sum(axis=1)
+    s = np.sort(np.where(ok, d, np.inf), axis=1)
+    rows = np.arange(len(d))
+    return 0.5 * (s[rows, np.maximum(n - 1, 0) // 2] + s[rows, n // 2])
+
+
+def reprojection_errors(camera, joints: np.ndarray, conf: np.ndarray, detections: np.ndarray):
+    """Pixel distances between people's 3D joints projected into `camera` and the detections
+    they were reconstructed from, over the joints with conf > 0.5 in both.
+
+    joints: (S, 17, 3) metres; conf: (S, 17); detections: (S, 17, 3) x, y, conf in pixels. A
     detection whose left/right labels the reconstruction found swapped is compared swapped
-    back: of the two orders, the one with the lower median distance."""
-    px = project(people3d.joints[p], camera)
-    best: np.ndarray | None = None
+    back: per person, of the two orders the one with the lower median distance. Returns the
+    chosen distances of every person, flat.
+    """
+    px = project(joints, camera)
+    orders = []
     for order in (slice(None), SWAP):
-        kp = detection[order]
-        ok = (kp[:, 2] > 0.5) & (people3d.conf[p] > 0.5) & np.isfinite(px[:, 0])
-        d = np.linalg.norm(px[ok] - kp[ok, :2], axis=1)
-        if len(d) and (best is None or np.median(d) < np.median(best)):
-            best = d
-    return best if best is not None else np.zeros(0)
+        kp = detections[:, order]
+        ok = (kp[..., 2] > 0.5) & (conf > 0.5) & np.isfinite(px[..., 0])
+        d = np.linalg.norm(px - kp[..., :2], axis=-1)
+        orders.append((d, ok, _medians(d, ok)))
+    (d, ok, m), (ds, oks, ms) = orders
+    swapped = (ms < m)[:, None]
+    return np.where(swapped, ds, d)[np.where(swapped, oks, ok)]
 
 
 class CameraStatsSink:
@@ -74,9 +87,11 @@ class CameraStatsSink:
             st = self.stats[cam.name]
             st.frames += 1
             st.detections += len(p2)
-            for p in np.flatnonzero(people3d.detections[:, ci] >= 0):
-                det = p2.keypoints[people3d.detections[p, ci]]
-                st.reprojection.add(reprojection_errors(cam, people3d, p, det))
+            sel = np.flatnonzero(people3d.detections[:, ci] >= 0)
+            if sel.size:
+                det = p2.keypoints[people3d.detections[sel, ci]]
+                errors = reprojection_errors(cam, people3d.joints[sel], people3d.conf[sel], det)
+                st.reprojection.add(errors)
 
     def close(self) -> list[Path]:
         return []
