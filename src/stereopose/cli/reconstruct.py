@@ -85,6 +85,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
         out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     for path, why in summary.skipped_files:
         out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
+    if summary.interrupted:
+        out.print("interrupted: every output above is complete up to the last frame processed")
+        return 130
     return 0
 
 

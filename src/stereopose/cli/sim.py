@@ -50,15 +50,47 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _accuracy_row(label: str, m, ids, fps_3d: float) -> list[str]:
+    """One row of the accuracy table: metrics (sim.Metrics), ids (sim.TrackingMetrics or
+    None without tracking) and the 3D stage's frames/s."""
+    return [
+        label,
+        f"{m.mpjpe_mm:.1f}",
+        f"{100 * m.pcp:.1f}",
+        f"{100 * m.pcp_seen:.1f}",
+        f"{100 * m.person_recall:.1f}",
+        f"{m.false_people_per_frame:.3f}",
+        f"{ids.ids}/{ids.workers}" if ids else "-",
+        str(ids.id_switches) if ids else "-",
+        f"{fps_3d:.0f}",
+    ]
+
+
+def _print_events(scene, site, events_path: Path, predictions, scene_dir: Path) -> None:
+    """The tracked run's zone events against those the ground truth raises."""
+    from stereopose.io.sinks import read_events
+    from stereopose.sim.events import evaluate_events, track_workers, truth_events
+
+    events = read_events(events_path)
+    truth = truth_events(scene, site)
+    em = evaluate_events(events, truth, track_workers(predictions, scene))
+    out.print(
+        f"[bold]Zone events[/] ({len(site.zones)} zones in {scene_dir / 'site.toml'}): "
+        f"{len(events)} raised -> {events_path}; enter/exit against the ground truth: precision "
+        f"{em.precision:.2f}, recall {em.recall:.2f} ({em.matched} of {em.true}), raised "
+        f"{em.latency_mean_s:.2f} s after the true onset on average (at most "
+        f"{em.latency_max_s:.2f} s)."
+    )
+
+
 def _demo_synthetic(args: argparse.Namespace) -> int:
     import numpy as np
 
     from stereopose.fence import save_site
     from stereopose.io.results import load_people3d
-    from stereopose.io.sinks import read_events
     from stereopose.pipeline import reconstruct_files
     from stereopose.sim import evaluate, evaluate_tracking
-    from stereopose.sim.events import evaluate_events, make_zones, track_workers, truth_events
+    from stereopose.sim.events import make_zones
     from stereopose.sim.io import write_scene
 
     out_dir = Path(args.out)
@@ -94,29 +126,9 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
         predictions = load_people3d(poses, len(scene.rig))
         m = evaluate(predictions, scene)
         ids = evaluate_tracking(predictions, scene) if tracked else None
-        table.add_row(
-            label,
-            f"{m.mpjpe_mm:.1f}",
-            f"{100 * m.pcp:.1f}",
-            f"{100 * m.pcp_seen:.1f}",
-            f"{100 * m.person_recall:.1f}",
-            f"{m.false_people_per_frame:.3f}",
-            f"{ids.ids}/{ids.workers}" if ids else "-",
-            str(ids.id_switches) if ids else "-",
-            f"{summary.fps_3d:.0f}",
-        )
+        table.add_row(*_accuracy_row(label, m, ids, summary.fps_3d))
     out.print(table)
-    events = read_events(events_path)
-    truth = truth_events(scene, site)
-    workers = track_workers(predictions, scene)
-    em = evaluate_events(events, truth, workers)
-    out.print(
-        f"[bold]Zone events[/] ({len(site.zones)} zones in {scene_dir / 'site.toml'}): "
-        f"{len(events)} raised -> {events_path}; enter/exit against the ground truth: precision "
-        f"{em.precision:.2f}, recall {em.recall:.2f} ({em.matched} of {em.true}), raised "
-        f"{em.latency_mean_s:.2f} s after the true onset on average (at most "
-        f"{em.latency_max_s:.2f} s)."
-    )
+    _print_events(scene, site, events_path, predictions, scene_dir)
     out.print(
         "Per frame: pair is the reference two-camera method; weighted uses every view, weighted "
         "by confidence; robust (default) the views that agree, left/right swaps corrected. "
