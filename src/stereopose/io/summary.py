@@ -68,7 +68,7 @@ class RunSummary:
     live: bool = False
     fps_input: float = 0.0
     frames: int = 0
-    frames_read: int = 0  # frames with at least one readable keypoint file (keypoint input)
+    frames_read: int | None = None  # keypoint input: frames with a readable keypoint file
     seconds: dict[str, float] = field(default_factory=dict)
     load_s_3d: float = 0.0
     wall_s: float = 0.0

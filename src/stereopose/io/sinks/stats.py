@@ -33,7 +33,6 @@ class SummarySink:
         if self._closed or self.path is None:
             return []
         self._closed = True
-        self.summary.outputs.append(self.path)
         return [write_summary(self.path, self.summary)]
 
 
