@@ -324,7 +324,8 @@ class Event:
     approach, dwell or left_work_area. joint: the triggering joint (enter, approach);
     distance_m: to the zone (approach); duration_s: time inside (exit, dwell, left_work_area);
     position: the person's floor point (x, y); allowed: the person is on the zone's allowed
-    list; lost: an exit closed because the person's track ended while inside.
+    list; lost: an exit closed because the person's track ended while inside. Its JSON record
+    (the events contract) is io.records.event_record.
     """
 
     t: float
@@ -340,29 +341,3 @@ class Event:
     position: tuple[float, float] | None = None
     allowed: bool = False
     lost: bool = False
-
-    def as_dict(self) -> dict:
-        """The JSON object of the events contract (optional fields only when they apply)."""
-        d: dict = {
-            "t": round(self.t, 6),
-            "frame": self.frame,
-            "person": self.person,
-            "zone": self.zone,
-            "kind": self.kind,
-            "type": self.type,
-            "onset_t": round(self.onset_t, 6),
-        }
-        if self.joint is not None:
-            d["joint"] = self.joint
-        if self.distance_m is not None:
-            d["distance_m"] = round(self.distance_m, 4)
-        if self.duration_s is not None:
-            d["duration_s"] = round(self.duration_s, 4)
-        d["position"] = (
-            [round(self.position[0], 4), round(self.position[1], 4)] if self.position else None
-        )
-        if self.allowed:
-            d["allowed"] = True
-        if self.lost:
-            d["lost"] = True
-        return d

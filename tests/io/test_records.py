@@ -119,5 +119,4 @@ def test_event_record_is_the_contract() -> None:
                    "joint": "right_wrist", "position": [1.2346, -0.5]}  # fmt: skip
     assert event_record(EVENTS[2])["allowed"] is True and "joint" not in event_record(EVENTS[2])
     assert event_record(EVENTS[2])["position"] is None
-    for e in EVENTS:  # Event.as_dict gives the same object
-        assert event_record(e) == e.as_dict()
+    assert not hasattr(EVENTS[0], "as_dict")  # io.records is the one serialisation

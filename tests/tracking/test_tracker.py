@@ -155,3 +155,19 @@ def test_a_joint_one_camera_sees_is_bridged_by_its_track() -> None:
         assert np.isfinite(p.joints[0, joint]).all()
         truth = scene.truth[p.frame, 0, joint]
         assert np.linalg.norm(p.joints[0, joint] - truth) < 0.1
+
+
+def test_ended_trajectories_are_bounded(monkeypatch) -> None:
+    """A service runs for weeks: of the ended tracks, only the latest trajectories are kept."""
+    from stereopose.tracking import tracker as tracker_module
+
+    monkeypatch.setattr(tracker_module, "MAX_ENDED_TRAJECTORIES", 1)
+    scene = simulate(difficulty="easy", num_frames=10, seed=2, p_enter=0.0, p_leave=0.0)
+    cfg = dataclasses.replace(Config(), fps=25.0)
+    tracker = Stage3D(scene.rig, cfg)
+    for t, f in enumerate(frames_of(scene)):
+        tracker.step(t, f)
+    tracker.step(10 + int(25 * cfg.tracking.max_lost_s) + 1, [None] * len(scene.rig))
+    kept = tracker.trajectories()
+    assert len(kept) == 1 and tracker.memory.trajectories_dropped == 1
+    assert kept[0].id == 2 and kept[0].frames_seen == 10  # the later of the two ended

@@ -15,6 +15,7 @@ Each frame:
 
 from __future__ import annotations
 
+import collections
 from collections.abc import Sequence
 
 import numpy as np
@@ -29,6 +30,9 @@ from stereopose.tracking.offline import NOT_USED, RESTARTED, TrackLog, smooth_pe
 from stereopose.tracking.positioning import Trajectory, floor_position
 from stereopose.types import People3D, Rig
 
+# Trajectories of ended tracks kept (the oldest are forgotten beyond this): the tracker's
+# memory stays bounded however long it runs.
+MAX_ENDED_TRAJECTORIES = 10_000
 _PREDICTED_CONF = 0.5  # confidence of a bridged joint, relative to its last measurement
 
 
@@ -78,6 +82,10 @@ class Tracker:
         self.conf = np.zeros((0, NUM_JOINTS))
         self.joint_t = np.zeros((0, NUM_JOINTS))
         self.trajectories: dict[int, Trajectory] = {}
+        self._ended: collections.deque[int] = (
+            collections.deque()
+        )  # ids of ended tracks, oldest first
+        self.trajectories_dropped = 0  # ended trajectories forgotten (MAX_ENDED_TRAJECTORIES)
 
     def __len__(self) -> int:
         """Number of tracks held, tentative and lost ones included."""
@@ -134,7 +142,8 @@ class Tracker:
         return smooth_people(people_frames, logs, self.config.fps, self._q)
 
     def finish(self) -> list[Trajectory]:
-        """Every person's trajectory (ended and still open), by id."""
+        """Every person's trajectory (ended and still open), by id; of the ended ones, the
+        last MAX_ENDED_TRAJECTORIES (trajectories_dropped counts the ones forgotten)."""
         return [self.trajectories[k] for k in sorted(self.trajectories)]
 
     # -- steps ---------------------------------------------------------------------------------
@@ -314,6 +323,11 @@ class Tracker:
         self.hits[missed] = 0
         drop = missed & ((self.ids == 0) | (t - self.seen_t > tc.max_lost_s + 1e-9))
         if drop.any():
+            ended = self.ids[drop & (self.ids > 0)].tolist()
+            self._ended.extend(ended)
+            while len(self._ended) > MAX_ENDED_TRAJECTORIES:  # a service runs for weeks
+                del self.trajectories[self._ended.popleft()]
+                self.trajectories_dropped += 1
             keep = ~drop
             self.filters.keep(keep)
             self.bones.keep(keep)
