@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -522,3 +524,27 @@ def test_reconstruct_two_way_exports(shared_data_dir: Path, tmp_path: Path) -> N
     rows2 = (two / "j.csv").read_text().splitlines()
     assert len(rows1) == len(rows2) and rows1[0] == rows2[0]
     assert [r.split(",")[:4] for r in rows1] == [r.split(",")[:4] for r in rows2]
+
+
+@pytest.mark.parametrize(
+    ("which", "message"),
+    [("calib", "calibration file not found"), ("pose", "keypoints folder not found")],
+)
+def test_missing_input_is_named_before_the_3d_stage_loads(tmp_path: Path, capsys, which, message):
+    calib = tmp_path / "calib.toml"
+    calib.write_text("")
+    pose = tmp_path / "pose"
+    pose.mkdir()
+    paths = {"calib": calib, "pose": pose, which: tmp_path / f"missing_{which}"}
+    argv = ["reconstruct", "--calib", str(paths["calib"]), "--pose", str(paths["pose"])]
+    argv += ["--out", str(tmp_path / "p.jsonl")]
+    rc = main(argv)
+    err = " ".join(capsys.readouterr().err.split())
+    assert rc == 2 and f"missing_{which}: {message}" in err
+    # in a fresh process: the error comes before the 3D stage (numba, SciPy) is imported
+    code = (
+        "import sys; from stereopose.cli import main; rc = main(sys.argv[1:]); "
+        "print(rc, [m for m in ('numba', 'scipy', 'stereopose.pipeline') if m in sys.modules])"
+    )
+    done = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
+    assert done.stdout.split() == ["2", "[]"], done.stdout + done.stderr

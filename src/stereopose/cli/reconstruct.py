@@ -5,19 +5,32 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from pathlib import Path
 
 from rich.table import Table
 
 from stereopose.cli.common import _config, _progress, _px, _trajectory_table, out
-from stereopose.errors import StereoposeError
+from stereopose.errors import CalibrationError, ConfigError, KeypointsError, StereoposeError
+
+
+def _check_inputs(args: argparse.Namespace) -> None:
+    """The input files, checked before the 3D stage is imported: a missing one is an error at
+    once (the readers check their content later)."""
+    if not Path(args.calib).exists():
+        raise CalibrationError(f"{args.calib}: calibration file not found")
+    if not Path(args.pose).is_dir():
+        raise KeypointsError(f"{args.pose}: keypoints folder not found")
+    if args.site and not Path(args.site).exists():
+        raise ConfigError(f"{args.site}: site file not found")
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    _check_inputs(args)
     from stereopose.fence import load_site
     from stereopose.io.sinks import describe
     from stereopose.pipeline import Outputs, reconstruct_files
 
-    cfg = _config(args)
     site = load_site(args.site) if args.site else None
     if site is None and (args.events or args.events_db or args.webhook):
         raise StereoposeError("--events, --events-db and --webhook need a site file (--site)")

@@ -9,7 +9,7 @@ from rich.table import Table
 
 from stereopose.cli.common import _px, out, rate_progress
 from stereopose.cli.sim import _demo_synthetic
-from stereopose.errors import StereoposeError
+from stereopose.errors import ConfigError, StereoposeError
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -103,6 +103,8 @@ def _models(args: argparse.Namespace) -> int:
 
 
 def _run_config(config_path: Path, title: str) -> int:
+    if not Path(config_path).exists():  # at once, before the pipeline is imported
+        raise ConfigError(f"{config_path}: configuration file not found")
     from stereopose.io.sinks import describe
     from stereopose.pipeline.run import run
 
