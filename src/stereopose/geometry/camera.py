@@ -11,7 +11,7 @@ import numpy as np
 
 from stereopose.arrays import checked
 from stereopose.geometry._kernels import project_all
-from stereopose.types import Camera
+from stereopose.types import Camera, Rig
 
 # stop once the reprojected point is within 1e-8 px of the observed one, or after 30 steps
 UNDISTORT_STOP = (1e-8, 30)
@@ -43,12 +43,13 @@ def world_to_camera(points_world: np.ndarray, camera: Camera) -> np.ndarray:
 def distort(xy: np.ndarray, distortions: np.ndarray) -> np.ndarray:
     """Apply OpenCV distortion to (..., 2) ideal normalised coordinates.
 
-    distortions: (4,) k1 k2 p1 p2 or (5,) with k3. Returns observed normalised coordinates.
+    distortions: (4,) k1 k2 p1 p2 or (5,) with k3, or one row per camera (C, 4 or 5) for
+    points (..., C, 2) of C cameras. Returns observed normalised coordinates.
     """
     xy = _check_last(xy, 2, "xy")
     d = np.asarray(distortions, dtype=np.float64)
-    k1, k2, p1, p2 = d[:4]
-    k3 = d[4] if d.shape[0] > 4 else 0.0
+    k1, k2, p1, p2 = d[..., 0], d[..., 1], d[..., 2], d[..., 3]
+    k3 = d[..., 4] if d.shape[-1] > 4 else 0.0
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -58,9 +59,11 @@ def distort(xy: np.ndarray, distortions: np.ndarray) -> np.ndarray:
 
 
 def normalized_to_pixels(xy: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(..., 2) normalised coordinates -> pixels with intrinsics K (3, 3)."""
+    """(..., 2) normalised coordinates -> pixels with intrinsics K (3, 3), or one per camera
+    (C, 3, 3) for points (..., C, 2) of C cameras."""
     x, y = xy[..., 0], xy[..., 1]
-    return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=-1)
+    fx, g, cx, fy, cy = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2], K[..., 1, 1], K[..., 1, 2]
+    return np.stack([fx * x + g * y + cx, fy * y + cy], axis=-1)
 
 
 def project(points_world: np.ndarray, camera: Camera) -> np.ndarray:
@@ -70,6 +73,15 @@ def project(points_world: np.ndarray, camera: Camera) -> np.ndarray:
     """
     xy = project_to_cameras(points_world, camera.P[None])[..., 0, :]
     return normalized_to_pixels(distort(xy, camera.distortions), camera.matrix)
+
+
+def project_to_rig(points_world: np.ndarray, rig: Rig) -> np.ndarray:
+    """Project (..., 3) world points (m) into every camera of `rig` at once: (..., C, 2)
+    distorted pixels, as `project` gives camera by camera (NaN behind a camera)."""
+    P = np.stack([c.P for c in rig])
+    K = np.stack([c.matrix for c in rig])
+    dist = rig.lenses[1]
+    return normalized_to_pixels(distort(project_to_cameras(points_world, P), dist), K)
 
 
 def project_to_cameras(points_world: np.ndarray, P: np.ndarray) -> np.ndarray:

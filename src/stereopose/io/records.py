@@ -46,38 +46,52 @@ def _round(x: float, nd: int) -> float | None:
     return None if not math.isfinite(x) else round(float(x), nd)
 
 
-def _pair(v: np.ndarray, nd: int) -> list[float] | None:
-    return [round(float(v[0]), nd), round(float(v[1]), nd)] if np.isfinite(v).all() else None
+def _pair(v: list[float], nd: int) -> list[float] | None:
+    a, b = v
+    return [round(a, nd), round(b, nd)] if math.isfinite(a) and math.isfinite(b) else None
 
 
-def _person_record(people: People3D, p: int, position: np.ndarray, heading: float) -> dict:
-    J = people.joints[p]
-    ok = np.isfinite(J).all(-1)
-    err = people.reprojection_px[p]
-    speed = math.hypot(people.velocity[p, 0], people.velocity[p, 1])
+def _person_record(
+    pid: int, joints: list, conf: list, position: list, heading: float, velocity: list,
+    predicted: bool, views: list, reprojection_px: float,
+) -> dict:  # fmt: skip
+    """One person's record from plain Python values (NaN: unknown)."""
+    vx, vy = velocity
     return {
-        "id": int(people.ids[p]),
+        "id": pid,
         "joints": [
-            [round(float(v), 4) for v in J[j]] if ok[j] else None for j in range(NUM_JOINTS)
+            [round(x, 4), round(y, 4), round(z, 4)] if x == x and y == y and z == z else None
+            for x, y, z in joints
         ],
-        "conf": [round(float(c), 3) for c in people.conf[p]],
+        "conf": [round(c, 3) for c in conf],
         "position": _pair(position, 4),
-        "velocity": _pair(people.velocity[p], 3),
-        "speed": _round(speed, 3),
+        "velocity": _pair(velocity, 3),
+        "speed": _round(math.hypot(vx, vy), 3),
         "heading_deg": _round(heading, 1),
-        "predicted": bool(people.predicted[p]),
-        "views": [int(v) for v in people.views[p]],
-        "reprojection_px": _round(
-            float(np.nanmean(err)) if np.isfinite(err).any() else math.nan, 2
-        ),
+        "predicted": predicted,
+        "views": views,
+        "reprojection_px": _round(reprojection_px, 2),
     }
 
 
 def frame_record(people: People3D, fps: float) -> dict:
     """The JSON object of one frame of 3D people; t = frame / fps seconds."""
-    pos = floor_position(people.joints)
-    heading = heading_deg(people.joints)
-    out = [_person_record(people, p, pos[p], heading[p]) for p in range(len(people))]
+    P = len(people)
+    out = []
+    if P:
+        err = people.reprojection_px
+        seen = ~np.isnan(err)
+        n = seen.sum(-1)
+        total = np.where(seen, err, 0.0).sum(-1)
+        mean_err = np.divide(total, n, out=np.full(P, np.nan), where=n > 0)  # NaN: no view
+        J = np.where(np.isfinite(people.joints).all(-1, keepdims=True), people.joints, np.nan)
+        columns = (
+            people.ids.tolist(), J.tolist(), people.conf.tolist(),
+            floor_position(people.joints).tolist(), heading_deg(people.joints).tolist(),
+            people.velocity.tolist(), people.predicted.tolist(), people.views.tolist(),
+            mean_err.tolist(),
+        )  # fmt: skip
+        out = [_person_record(*row) for row in zip(*columns, strict=True)]
     return {"frame": people.frame, "t": round(people.frame / fps, 6), "people": out}
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereopose.geometry.camera import project
+from stereopose.geometry.camera import project, project_to_rig
 from stereopose.io.sinks import CameraStatsSink, FrameResult, SummarySink
 from stereopose.io.sinks.stats import reprojection_errors
 from stereopose.io.summary import FILE_STAGES, RunSummary
@@ -43,9 +43,21 @@ def test_reprojection_errors_match_the_per_person_form(seed: int) -> None:
     det[~np.isfinite(uv).all(-1)] = (np.nan, np.nan, 0.0)  # as People2D keeps a missing joint
     det[1] = det[1][SWAP]  # a detection with its left and right exchanged
     det[2, :, 2] = 0.0  # one with no confident joint
-    got = reprojection_errors(cam, joints, conf, det)
+    d, ok = reprojection_errors(project(joints, cam), conf, det)
+    got = d[ok]
     want = np.concatenate([per_person(cam, joints[p], conf[p], det[p]) for p in range(S)])
     np.testing.assert_allclose(np.sort(got), np.sort(want))
+
+
+def test_projection_into_the_rig_is_each_cameras_projection() -> None:
+    rig = simulate(num_cameras=4, num_people=1, num_frames=1, seed=3).rig
+    X = np.random.default_rng(0).uniform([-2, -2, -0.5], [10, 8, 2.5], (5, 17, 3))
+    X[0, :4] = np.nan
+    got = project_to_rig(X, rig)
+    assert got.shape == (5, 17, 4, 2)
+    for c, cam in enumerate(rig):
+        np.testing.assert_allclose(got[..., c, :], project(X, cam), rtol=1e-12, atol=1e-9)
+    assert np.isnan(got[0, :4]).all() and np.isfinite(got).sum() > 200
 
 
 def test_camera_and_summary_sinks(tmp_path: Path) -> None:

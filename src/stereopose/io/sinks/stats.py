@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.geometry.camera import project
+from stereopose.geometry.camera import project_to_rig
 from stereopose.io.sinks.base import FrameResult
 from stereopose.io.summary import CameraStats, RunSummary, write_summary
-from stereopose.skeleton import SWAP
+from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
 
@@ -44,25 +44,25 @@ def _medians(d: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return 0.5 * (s[rows, np.maximum(n - 1, 0) // 2] + s[rows, n // 2])
 
 
-def reprojection_errors(camera, joints: np.ndarray, conf: np.ndarray, detections: np.ndarray):
-    """Pixel distances between people's 3D joints projected into `camera` and the detections
-    they were reconstructed from, over the joints with conf > 0.5 in both.
+def reprojection_errors(px: np.ndarray, conf: np.ndarray, detections: np.ndarray):
+    """Pixel distances between people's 3D joints projected into the cameras and the
+    detections they were reconstructed from, over the joints with conf > 0.5 in both.
 
-    joints: (S, 17, 3) metres; conf: (S, 17); detections: (S, 17, 3) x, y, conf in pixels. A
-    detection whose left/right labels the reconstruction found swapped is compared swapped
-    back: per person, of the two orders the one with the lower median distance. Returns the
-    chosen distances of every person, flat.
+    px: (S, 17, 2) the joints in pixels (NaN: not projected); conf: (S, 17) their confidence;
+    detections: (S, 17, 3) x, y, conf in pixels (NaN: no detection). A detection whose
+    left/right labels the reconstruction found swapped is compared swapped back: per row, of
+    the two orders the one with the lower median distance. Returns the chosen distances (S, 17)
+    and where they count (S, 17).
     """
-    px = project(joints, camera)
     orders = []
     for order in (slice(None), SWAP):
         kp = detections[:, order]
         ok = (kp[..., 2] > 0.5) & (conf > 0.5) & np.isfinite(px[..., 0])
-        d = np.linalg.norm(px - kp[..., :2], axis=-1)
+        d = np.hypot(px[..., 0] - kp[..., 0], px[..., 1] - kp[..., 1])
         orders.append((d, ok, _medians(d, ok)))
     (d, ok, m), (ds, oks, ms) = orders
     swapped = (ms < m)[:, None]
-    return np.where(swapped, ds, d)[np.where(swapped, oks, ok)]
+    return np.where(swapped, ds, d), np.where(swapped, oks, ok)
 
 
 class CameraStatsSink:
@@ -78,19 +78,30 @@ class CameraStatsSink:
             stats.setdefault(name, CameraStats())
 
     def write(self, frame: FrameResult) -> None:
-        people3d = frame.people3d
-        for ci, cam in enumerate(self.rig):
-            p2: People2D | None = frame.people2d.get(cam.name)
+        p3 = frame.people3d
+        P, C = len(p3), len(self.rig)
+        kp = np.full((P, C, NUM_JOINTS, 3), np.nan)
+        seen = np.zeros(C, dtype=bool)
+        for ci, name in enumerate(self.rig.names):
+            p2: People2D | None = frame.people2d.get(name)
             if p2 is None:
                 continue
-            st = self.stats[cam.name]
+            seen[ci] = True
+            st = self.stats[name]
             st.frames += 1
             st.detections += len(p2)
-            sel = np.flatnonzero(people3d.detections[:, ci] >= 0)
+            sel = np.flatnonzero(p3.detections[:, ci] >= 0)
             if sel.size:
-                det = p2.keypoints[people3d.detections[sel, ci]]
-                errors = reprojection_errors(cam, people3d.joints[sel], people3d.conf[sel], det)
-                st.reprojection.add(errors)
+                kp[sel, ci] = p2.keypoints[p3.detections[sel, ci]]
+        members = (p3.detections >= 0) & seen  # (P, C)
+        if not members.any():
+            return
+        px = project_to_rig(p3.joints, self.rig).transpose(0, 2, 1, 3)  # (P, C, 17, 2)
+        p, c = np.nonzero(members)
+        d, ok = reprojection_errors(px[p, c], p3.conf[p], kp[p, c])
+        for ci in np.unique(c).tolist():
+            rows = c == ci
+            self.stats[self.rig.names[ci]].reprojection.add(d[rows][ok[rows]])
 
     def close(self) -> list[Path]:
         return []
