@@ -41,6 +41,7 @@ bench: install
 	$(BIN)/python benchmarks/calibration.py
 	$(BIN)/python benchmarks/detection.py
 	$(BIN)/python benchmarks/end_to_end.py
+	$(BIN)/python benchmarks/reconstruct_process.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

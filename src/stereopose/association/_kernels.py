@@ -150,3 +150,80 @@ def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
                     if cost == cost and cost < best[n, t]:
                         best[n, t] = cost
     return best, part
+
+
+@njit(**_JIT)
+def _augmenting_path(cost, u, v, path, row4col, spc, i, SR, SC, remaining):
+    """One shortest augmenting path from row i (Crouse's algorithm, as SciPy's
+    linear_sum_assignment); returns (sink column or -1 when infeasible, its path cost)."""
+    nc = cost.shape[1]
+    min_val = 0.0
+    num_remaining = nc
+    for it in range(nc):
+        # filled in reverse order, so that a constant cost matrix gives the identity
+        remaining[it] = nc - it - 1
+    SR[:] = False
+    SC[:] = False
+    spc[:] = np.inf
+    sink = -1
+    while sink == -1:
+        index = -1
+        lowest = np.inf
+        SR[i] = True
+        for it in range(num_remaining):
+            j = remaining[it]
+            r = min_val + cost[i, j] - u[i] - v[j]
+            if r < spc[j]:
+                path[j] = i
+                spc[j] = r
+            if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
+                lowest = spc[j]
+                index = it
+        min_val = lowest
+        if min_val == np.inf:
+            return -1, min_val
+        j = remaining[index]
+        if row4col[j] == -1:
+            sink = j
+        else:
+            i = row4col[j]
+        SC[j] = True
+        num_remaining -= 1
+        remaining[index] = remaining[num_remaining]
+    return sink, min_val
+
+
+@njit(**_JIT)
+def assignment(cost):
+    """Minimum-cost assignment of the rows of cost (nr, nc) to its columns, nr <= nc, each
+    row to a distinct column; costs finite or inf (forbidden). Returns col4row (nr,), or an
+    empty array when no complete assignment avoids the forbidden pairs."""
+    nr, nc = cost.shape
+    u = np.zeros(nr)
+    v = np.zeros(nc)
+    spc = np.empty(nc)
+    path = np.full(nc, -1, dtype=np.int64)
+    col4row = np.full(nr, -1, dtype=np.int64)
+    row4col = np.full(nc, -1, dtype=np.int64)
+    SR = np.zeros(nr, dtype=np.bool_)
+    SC = np.zeros(nc, dtype=np.bool_)
+    remaining = np.empty(nc, dtype=np.int64)
+    for cur in range(nr):
+        sink, min_val = _augmenting_path(cost, u, v, path, row4col, spc, cur, SR, SC, remaining)
+        if sink < 0:
+            return np.zeros(0, dtype=np.int64)
+        u[cur] += min_val
+        for i in range(nr):
+            if SR[i] and i != cur:
+                u[i] += min_val - spc[col4row[i]]
+        for j in range(nc):
+            if SC[j]:
+                v[j] -= min_val - spc[j]
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            j, col4row[i] = col4row[i], j
+            if i == cur:
+                break
+    return col4row

@@ -8,11 +8,11 @@ constraint, form that person, and take that pose's left/right labels.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from stereopose.arrays import checked
 from stereopose.association._kernels import claim_costs
 from stereopose.association.affinity import Detections
+from stereopose.association.assignment import linear_sum_assignment
 from stereopose.association.grouping import upper_pairs
 from stereopose.geometry._kernels import project_all
 from stereopose.skeleton import JOINT_PARTS, NUM_JOINTS, PART_OF_JOINT, SWAP

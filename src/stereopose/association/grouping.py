@@ -5,7 +5,8 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+
+from stereopose.association.assignment import linear_sum_assignment
 
 _BIG = 1e9
 

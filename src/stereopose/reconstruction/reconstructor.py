@@ -6,7 +6,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from stereopose.association.affinity import (
     Detections,
@@ -14,6 +13,7 @@ from stereopose.association.affinity import (
     epipolar_costs,
     epipolar_distances,
 )
+from stereopose.association.assignment import linear_sum_assignment
 from stereopose.association.claims import (
     check_groups,
     claim,

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from stereopose.association.assignment import linear_sum_assignment
 from stereopose.sim.scene import Scene
 from stereopose.skeleton import NUM_JOINTS, PCP_LIMBS
 from stereopose.types import People3D

@@ -19,8 +19,8 @@ import collections
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from stereopose.association.assignment import linear_sum_assignment
 from stereopose.config import Config
 from stereopose.reconstruction import Reconstruction
 from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP, joint_index
