@@ -126,7 +126,7 @@ def epipolar_costs(
         dist.second,
         dist.same,
         dist.cross,
-        det.conf >= min_conf,
+        np.ascontiguousarray(det.conf >= min_conf),
         SWAP,
         min_common_joints,
     )

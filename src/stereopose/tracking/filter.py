@@ -71,7 +71,7 @@ class JointFilters:
         they are held where they were, with the uncertainty still growing.
         """
         T = len(self)
-        dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=np.float64), (T,)))
+        dt = np.array(np.broadcast_to(np.asarray(dt, dtype=np.float64), (T,)))  # writable
         q = np.ascontiguousarray(np.broadcast_to(np.asarray(q, dtype=np.float64), (NUM_JOINTS,)))
         moving = np.ones(T, dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
         kalman_predict(self.x, self.v, self.p00, self.p01, self.p11, dt, q, moving)
