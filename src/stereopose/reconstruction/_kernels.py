@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from stereopose.geometry._kernels import dist3, dlt_point, view_errors
+from stereopose.geometry._kernels import dist3, dlt_point, in_view, view_errors
 from stereopose.skeleton import (
     FACE,
     LEFT_EAR,
@@ -286,3 +286,52 @@ def place_single_views(X, used, xy, w, centers, R, anchors):
                 used[g, j, c] = True
                 placed[g, j] = True
     return placed
+
+
+@njit(**_JIT)
+def plausible(
+    X, used, members, delivered, P, lo, hi, limb_a, limb_b, max_limb_m, min_joints,
+    floor_tolerance_m, max_height_m, min_view_fraction, in_view_joints,
+):  # fmt: skip
+    """(G,) which reconstructed people X (G, J, 3) are plausible; in place, the outer joint of
+    each limb (limb_a -> limb_b, (L,)) longer than max_limb_m is dropped (NaN) and used
+    (G, J, C) cleared for the joints not reconstructed. A person needs min_joints joints seen
+    in two views or more, no joint below -floor_tolerance_m, at most max_height_m from the
+    lowest joint to the highest, and detections (members (G, C) >= 0) in at least
+    min_view_fraction of the cameras with a frame (delivered (C,)) that should see them (their
+    detections' or >= in_view_joints joints inside the image bounds lo, hi (C, 2))."""
+    G, J, C = used.shape
+    L = limb_a.shape[0]
+    keep = np.zeros(G, dtype=np.bool_)
+    bad = np.zeros(L, dtype=np.bool_)
+    for g in range(G):
+        for k in range(L):  # every limb judged before any joint is dropped
+            bad[k] = dist3(X, g, limb_a[k], limb_b[k]) > max_limb_m  # NaN: False
+        for k in range(L):
+            if bad[k]:
+                X[g, limb_b[k], 0] = X[g, limb_b[k], 1] = X[g, limb_b[k], 2] = np.nan
+    seen = in_view(X, P, lo, hi, in_view_joints)
+    for g in range(G):
+        strong = 0
+        zmin, zmax = np.inf, -np.inf
+        for j in range(J):
+            valid = np.isfinite(X[g, j, 0]) and np.isfinite(X[g, j, 1]) and np.isfinite(X[g, j, 2])
+            n = 0
+            for c in range(C):
+                used[g, j, c] = used[g, j, c] and valid
+                n += used[g, j, c]
+            if valid:
+                strong += n >= 2
+                zmin = min(zmin, X[g, j, 2])
+                zmax = max(zmax, X[g, j, 2])
+        views = expected = 0
+        for c in range(C):
+            views += members[g, c] >= 0
+            expected += (seen[g, c] or members[g, c] >= 0) and delivered[c]
+        keep[g] = (
+            strong >= min_joints
+            and zmin >= -floor_tolerance_m
+            and zmax - zmin <= max_height_m
+            and views >= min_view_fraction * expected
+        )
+    return keep

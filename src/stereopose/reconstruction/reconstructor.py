@@ -24,9 +24,9 @@ from stereopose.association.claims import (
 from stereopose.association.grouping import group_detections, upper_pairs
 from stereopose.config import ReconstructionConfig
 from stereopose.errors import CalibrationError
-from stereopose.geometry._kernels import in_view
 from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
+from stereopose.reconstruction._kernels import plausible
 from stereopose.reconstruction.triangulate import (
     reprojection_errors,
     triangulate_pair,
@@ -275,41 +275,22 @@ class Reconstructor:
                     grown.append(int(gi))
         return sorted(set(grown))
 
-    def _in_view(self, X: np.ndarray, min_joints: int = 5) -> np.ndarray:
-        """(G, C) whether >= min_joints of each person's joints (G, 17, 3) fall inside each
-        camera's image, in front of it (distortion ignored: this is a coarse test)."""
-        return in_view(np.ascontiguousarray(X), self.P, *self.bounds, min_joints)
-
     def _assemble(self, frame, det, members, delivered, X, used, conf, err):
         """Plausible people only, as People3D, and the indices of their groups; members:
         (G, C) detection per camera or -1."""
         pc = self.config.plausibility
-        G, C = members.shape
-        X = X.copy()
-        # The outer joint of an implausibly long limb is dropped.
-        d = X[:, _LIMB_A] - X[:, _LIMB_B]
-        limb = np.sqrt((d * d).sum(-1))
-        bad = limb > pc.max_limb_m  # NaN compares False
-        if bad.any():
-            drop = np.zeros((G, NUM_JOINTS), dtype=bool)
-            np.logical_or.at(drop, (np.nonzero(bad)[0], _LIMB_B[np.nonzero(bad)[1]]), True)
-            X[drop] = np.nan
+        C = members.shape[1]
+        X, used = np.array(X, dtype=np.float64), np.array(used, dtype=bool)  # contiguous copies
+        # a person that cameras with a frame should see but (almost) none detected is a
+        # coincidence of false detections that happen to agree, not a person; joints placed
+        # from one view do not count: they lean on the others
+        keep = plausible(
+            X, used, np.ascontiguousarray(members), np.ascontiguousarray(delivered), self.P,
+            *self.bounds, _LIMB_A, _LIMB_B, pc.max_limb_m, pc.min_joints,
+            pc.floor_tolerance_m, pc.max_height_m, pc.min_view_fraction, 5,
+        )  # fmt: skip
         valid = np.isfinite(X).all(-1)
-        used = used & valid[..., None]
-        z = X[..., 2]
-        zmin = np.where(valid, z, np.inf).min(axis=1)
-        zmax = np.where(valid, z, -np.inf).max(axis=1)
         views = members >= 0
-        # A person that cameras with a frame should see but (almost) none detected is a
-        # coincidence of false detections that happen to agree, not a person.
-        expected = (self._in_view(X) | views) & delivered
-        # joints placed from one view do not count: they lean on the others
-        keep = (
-            ((valid & (used.sum(-1) >= 2)).sum(1) >= pc.min_joints)
-            & (zmin >= -pc.floor_tolerance_m)
-            & (zmax - zmin <= pc.max_height_m)
-            & (views.sum(1) >= pc.min_view_fraction * expected.sum(1))
-        )
         idx = np.flatnonzero(keep)
         if idx.size == 0:
             return People3D.empty(frame, C), idx

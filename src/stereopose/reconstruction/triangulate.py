@@ -13,7 +13,6 @@ import numpy as np
 
 from stereopose.arrays import checked
 from stereopose.association.grouping import upper_pairs
-from stereopose.geometry._kernels import dlt_all
 from stereopose.geometry.camera import homogeneous, project_to_cameras
 from stereopose.geometry.epipolar import point_line_distance
 from stereopose.geometry.triangulation import triangulate_dlt
@@ -30,10 +29,7 @@ from stereopose.reconstruction.labels import (
     mirrored_pairs,
 )
 from stereopose.skeleton import JOINT_INDEX, JOINT_PARTS, LR_PAIRS, PART_OF_PAIR, SWAP, joint_table
-from stereopose.skeleton import LEFT as _LEFT
-from stereopose.skeleton import RIGHT as _RIGHT
 
-_PART_OF_PAIR = PART_OF_PAIR
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
@@ -131,16 +127,14 @@ def triangulate_robust(
     thr = np.fmax(inlier_px, inlier_rel * size_px)[:, None, :]  # (G, 1, C); NaN size: inlier_px
     if fix_swaps and pair_distances is not None and C <= _MAX_LABEL_CAMERAS:
         xy, w = consistent_labels(xy, w, *pair_distances)
-    X_all = dlt_all(xy, w, P)
+    X_all = triangulate_dlt(xy, P, w)
     if fix_swaps:
         flips = body_orientation(X_all)
         if flips[0].any() or flips[1].any():
-            flip = np.stack(flips, axis=1)[:, _PART_OF_PAIR, None]  # (G, 8, 1)
-            xy, w = exchange(xy, w, np.broadcast_to(flip, (flip.shape[0], len(LR_PAIRS), C)))
+            flip = np.stack(flips, axis=1)[:, PART_OF_PAIR]  # (G, 8)
+            xy, w = exchange(xy, w, np.broadcast_to(flip[..., None], (*flip.shape, C)))
             # exchanging a part in every view exchanges its triangulated points
-            XL, XR = X_all[:, _LEFT], X_all[:, _RIGHT]
-            X_all = X_all.copy()
-            X_all[:, _LEFT], X_all[:, _RIGHT] = np.where(flip, XR, XL), np.where(flip, XL, XR)
+            X_all = exchange_joints(X_all, flip)
     X, used, err = choose_views(xy, w, P, focal, thr[:, 0], X_all)
     if fix_swaps and relabel:
         X, used, xy, w, err = _relabel_implausible(
@@ -236,7 +230,7 @@ def _relabel_implausible(
     if g.size == 0:
         return X, used, xy, w, err
     swap = np.zeros((g.size, len(LR_PAIRS), C), dtype=bool)
-    swap[np.arange(g.size), :, view] = _PART_OF_PAIR[None, :] == part[:, None]
+    swap[np.arange(g.size), :, view] = PART_OF_PAIR[None, :] == part[:, None]
     cx, cw = exchange(xy[bad][g], w[bad][g], swap)
     Xc, uc, xc, wc, ec, _ = triangulate_robust(
         cx,
