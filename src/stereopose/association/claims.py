@@ -7,8 +7,6 @@ constraint, form that person, and take that pose's left/right labels.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from stereopose.arrays import checked
@@ -120,21 +118,6 @@ def pairs_within(groups: list[np.ndarray], free: np.ndarray) -> tuple[np.ndarray
     return np.concatenate(n).astype(np.int64), np.concatenate(m).astype(np.int64)
 
 
-def _mean_costs(sub: list[list[float]], alive: list[int]) -> list[float]:
-    """Per member of `alive` (indices into sub), its mean finite cost to the other members
-    (inf with none; the diagonal is inf: one camera)."""
-    out = []
-    for a in alive:
-        row = sub[a]
-        total, n = 0.0, 0
-        for b in alive:
-            if math.isfinite(row[b]):
-                total += row[b]
-                n += 1
-        out.append(total / n if n else math.inf)
-    return out
-
-
 def check_groups(groups, seeds, cost, max_cost):
     """Remove from each seeded group the detections that disagree with the rest.
 
@@ -142,22 +125,41 @@ def check_groups(groups, seeds, cost, max_cost):
     first; a group left with fewer than two detections is dissolved. Returns the groups,
     their seeds and the dropped detections.
     """
+    # all groups at once: (G, S) members padded with a detection of infinite cost
+    N = cost.shape[0]
+    S = max(g.size for g in groups)
+    pad = np.full((len(groups), S), N)
+    for i, g in enumerate(groups):
+        pad[i, : g.size] = g
+    full = np.full((N + 1, N + 1), np.inf)
+    full[:N, :N] = cost
+    c = full[pad[:, :, None], pad[:, None, :]]  # (G, S, S); the diagonal is inf (same camera)
+    fin = np.isfinite(c)
+    n = fin.sum(-1)
+    mean = np.divide(np.where(fin, c, 0.0).sum(-1), n, out=np.full(n.shape, np.nan), where=n > 0)
+    bad = ~(mean <= max_cost) & (pad < N)
+    if not bad.any():
+        return groups, seeds, np.zeros(0, dtype=np.int64)
     kept, kept_seeds, dropped = [], [], []
-    for g, t in zip(groups, seeds, strict=True):
-        sub = cost[np.ix_(g, g)].tolist()
-        alive = list(range(g.size))
-        while len(alive) >= 2:
-            mean = _mean_costs(sub, alive)
-            worst = max(range(len(mean)), key=mean.__getitem__)  # the first of the worst
-            if mean[worst] <= max_cost:
-                break
-            dropped.append(int(g[alive.pop(worst)]))
-        if len(alive) == g.size:
+    for i, (g, t) in enumerate(zip(groups, seeds, strict=True)):
+        if not bad[i].any():
             kept.append(g)
             kept_seeds.append(t)
-        elif len(alive) >= 2:
-            kept.append(g[alive])
+            continue
+        while g.size >= 2:
+            c = cost[np.ix_(g, g)]
+            fin = np.isfinite(c)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean = np.where(fin, c, 0.0).sum(1) / fin.sum(1)
+            mean[~np.isfinite(mean)] = np.inf
+            worst = int(np.argmax(mean))
+            if mean[worst] <= max_cost:
+                break
+            dropped.append(g[worst])
+            g = np.delete(g, worst)
+        if g.size >= 2:
+            kept.append(g)
             kept_seeds.append(t)
         else:
-            dropped.extend(int(g[i]) for i in alive)
+            dropped.extend(g.tolist())
     return kept, kept_seeds, np.array(dropped, dtype=np.int64)
