@@ -52,10 +52,11 @@ class Detections:
             e = np.zeros((0, NUM_JOINTS, 2))
             return cls(np.zeros(0, int), np.zeros(0, int), e, e, z, np.zeros(0), np.zeros(0))
         blocks = [people[c].keypoints for c in cams]
-        counts = np.array([b.shape[0] for b in blocks])
+        counts = [b.shape[0] for b in blocks]
         kp = np.concatenate(blocks)
-        camera = np.repeat(cams, counts)
-        index = np.arange(kp.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
+        # a frame's few detections: their camera and index within it, in plain Python
+        camera = np.array([c for c, n in zip(cams, counts, strict=True) for _ in range(n)])
+        index = np.array([i for n in counts for i in range(n)])
         fxy, dist, focal = rig.lenses
         uv = np.ascontiguousarray(kp[..., :2]).reshape(-1, 2)
         xyn = undistort(uv, np.repeat(camera, NUM_JOINTS), fxy, dist, *UNDISTORT_STOP)
