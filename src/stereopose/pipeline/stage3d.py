@@ -17,7 +17,7 @@ import functools
 import time
 from collections.abc import Mapping, Sequence
 
-from stereopose.config import Config
+from stereopose.config import Config, ReconstructionConfig, TrackingConfig
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.tracking import Trajectory
@@ -46,6 +46,7 @@ class Stage3D:
             raise CalibrationError(f"{calib_path}: {e}" if calib_path else str(e)) from None
         self.memory = make_memory(rig, config, record=record)
         self.tracking = self.memory.tracking
+        self._warm = (config.reconstruction, config.tracking, record)
         self.load_s: float | None = None  # time the compiled loops took to load, once
 
     def load(self) -> float:
@@ -53,7 +54,7 @@ class Stage3D:
         seconds it took, which the stage's frames/s leave out."""
         if self.load_s is None:
             t0 = time.perf_counter()
-            load_compiled()
+            _load(*self._warm)  # the loops this stage's configuration runs
             self.load_s = time.perf_counter() - t0
         return self.load_s
 
@@ -74,22 +75,27 @@ class Stage3D:
         return self.memory.two_way(frames)
 
 
-@functools.cache
 def load_compiled() -> None:
-    """Run a small simulated scene through the 3D stage (tracker, per-frame robust mode and
-    two-way smoothing), which loads every compiled loop with the argument types a run uses,
-    compiling the ones not cached yet. Once per process."""
+    """Load (compiling the ones not cached yet) every compiled loop of the 3D stage, with the
+    argument types a run uses: the tracker with two-way smoothing, and the per-frame robust
+    mode. `make install` runs it once, so later processes find them all in the cache."""
+    tracking = TrackingConfig()
+    _load(ReconstructionConfig(), tracking, True)
+    _load(ReconstructionConfig(), dataclasses.replace(tracking, enabled=False), False)
+
+
+@functools.cache
+def _load(reconstruction: ReconstructionConfig, tracking: TrackingConfig, record: bool) -> None:
+    """Run a small simulated scene through a 3D stage of this configuration (and its two-way
+    smoothing with record), which loads the compiled loops it calls. Once per process and
+    configuration."""
     from stereopose.sim import simulate
 
     scene = simulate(num_cameras=3, num_people=2, num_frames=6, seed=1, difficulty="hard")
-    config = dataclasses.replace(Config(), fps=scene.fps)
-    per_frame = dataclasses.replace(
-        config, tracking=dataclasses.replace(config.tracking, enabled=False)
-    )
-    for cfg, record in ((config, True), (per_frame, False)):
-        stage = Stage3D(scene.rig, cfg, record=record)
-        people = [
-            stage.step(t, [d[n] for n in scene.rig.names]) for t, d in enumerate(scene.detections)
-        ]
-        if record:
-            stage.two_way(people)
+    config = Config(fps=scene.fps, reconstruction=reconstruction, tracking=tracking)
+    stage = Stage3D(scene.rig, config, record=record)
+    people = [
+        stage.step(t, [d[n] for n in scene.rig.names]) for t, d in enumerate(scene.detections)
+    ]
+    if record:
+        stage.two_way(people)
