@@ -186,17 +186,8 @@ def _lead_numpy(lead, right):
 
 
 def body_orientation_numpy(X, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
-    """Which people's labels are mirrored as a whole, from the body's handedness in 3D.
-
-    Views alone cannot tell a labeling from its mirror when as many views are swapped as not.
-    In 3D they can: with z up and front = up x right, right being the body's left-to-right
-    axis (right shoulder - left shoulder plus right hip - left hip), the face lies in front of
-    the shoulders and the nose in front of the ears (or eyes). The two leads are added, so a
-    head and shoulders seen from two close views, whose depth is noisy, are judged together;
-    a nose away from the head (see _HEAD_RADIUS_M) takes part in neither, and without
-    shoulders or hips the head's own axis (right ear - left ear) gives front. Each knee is
-    nearer its own hip. X: (G, 17, 3). Returns (flip_upper (G,), flip_legs (G,)).
-    """
+    """The NumPy form of reconstruction.labels.body_orientation: (flip_upper (G,),
+    flip_legs (G,)) of X (G, 17, 3)."""
     ears = np.isfinite(X[:, [3, 4], 0]).all(1)
     hl, hr = np.where(ears, 3, 1), np.where(ears, 4, 2)
     g = np.arange(X.shape[0])

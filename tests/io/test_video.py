@@ -20,6 +20,7 @@ from stereopose.io.video import (
     VideoFile,
     source_name,
 )
+from waiting import listening, wait_until
 
 
 def _level(image: np.ndarray) -> int:
@@ -165,36 +166,12 @@ def _serve(video: Path, port: int) -> subprocess.Popen:
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def _wait_until(condition, what: str, timeout_s: float = 20.0) -> None:
-    """Poll ``condition()`` until it is true; fail the test if ``timeout_s`` passes first."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f"still waiting for {what} after {timeout_s} s")
-        time.sleep(0.01)
-
-
-def _listening(port: int) -> bool:
-    """Whether a socket listens on TCP ``port``, seen without connecting: ffmpeg ``-listen 1``
-    takes the first client that connects as its only one, so a probe would use it up."""
-    tables = [Path("/proc/net/tcp"), Path("/proc/net/tcp6")]
-    if not tables[0].exists():
-        pytest.skip("needs /proc/net/tcp to see that ffmpeg listens")
-    for table in tables:
-        rows = table.read_text().splitlines()[1:] if table.exists() else []
-        for row in rows:
-            local, state = row.split()[1], row.split()[3]
-            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
-                return True
-    return False
-
-
 def _wait_serving(servers: list[subprocess.Popen], ports: list[int]) -> None:
     """Wait until each ffmpeg listens on its port, so that a camera connects at its first try;
     if one does not, stop them all and fail."""
     try:
         for server, port in zip(servers, ports, strict=True):
-            _wait_until(partial(_up, server, port), f"ffmpeg on port {port}")
+            wait_until(partial(_up, server, port), f"ffmpeg on port {port}")
             assert server.poll() is None, f"ffmpeg exited with {server.returncode} before serving"
     except BaseException:
         for server in servers:
@@ -204,7 +181,7 @@ def _wait_serving(servers: list[subprocess.Popen], ports: list[int]) -> None:
 
 
 def _up(server: subprocess.Popen, port: int) -> bool:
-    return _listening(port) or server.poll() is not None
+    return listening(port) or server.poll() is not None
 
 
 @pytest.fixture
@@ -265,7 +242,7 @@ def test_live_stream_keeps_only_the_latest_frame(loop_video):
     try:
         assert stream.wait_connected(10)
         # a slow consumer: it reads nothing while frames keep arriving
-        _wait_until(lambda: stream.stats.dropped >= 10, "10 frames dropped unread")
+        wait_until(lambda: stream.stats.dropped >= 10, "10 frames dropped unread")
         got = stream.latest()
         assert got is not None and stream.latest() is None  # nothing newer yet
         assert stream.stats.dropped >= 10

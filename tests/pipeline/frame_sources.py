@@ -2,39 +2,11 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
-
-import pytest
+from collections.abc import Iterator
 
 from stereopose.io.summary import FILE_STAGES, RunSummary
 from stereopose.pipeline.loop import SourceStep
 from stereopose.sim import Scene
-
-
-def wait_until(condition: Callable[[], bool], what: str, timeout_s: float = 20.0) -> None:
-    """Poll ``condition()`` until it is true; fail if ``timeout_s`` passes first."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f"still waiting for {what} after {timeout_s} s")
-        time.sleep(0.01)
-
-
-def listening(port: int) -> bool:
-    """Whether a socket listens on TCP ``port``, seen without connecting: ffmpeg ``-listen 1``
-    takes the first client that connects as its only one, so a probe would use it up."""
-    tables = [Path("/proc/net/tcp"), Path("/proc/net/tcp6")]
-    if not tables[0].exists():
-        pytest.skip("needs /proc/net/tcp to see that ffmpeg listens")
-    for table in tables:
-        rows = table.read_text().splitlines()[1:] if table.exists() else []
-        for row in rows:
-            local, state = row.split()[1], row.split()[3]
-            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
-                return True
-    return False
 
 
 class SceneSource:

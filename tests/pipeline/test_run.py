@@ -13,13 +13,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from frame_sources import listening, wait_until
 
 from stereopose.cli import main
-from stereopose.fence.sinks import read_events
 from stereopose.io.pose2sim_data import pose2sim_demo_dir
 from stereopose.io.results import read_poses
+from stereopose.io.sinks.events import read_events
 from stereopose.pipeline.demo import write_demo_config
+from waiting import listening, wait_until
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 

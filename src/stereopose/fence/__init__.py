@@ -1,4 +1,5 @@
-"""Electronic fences: zones on the site plan, rules that raise events, and event sinks."""
+"""Electronic fences: zones on the site plan and the rules that raise events (the events go to
+the sinks of io.sinks.events)."""
 
 from stereopose.fence.rules import FenceMonitor
 from stereopose.fence.zones import KINDS, Site, Zone, ZoneGeometry, load_site, save_site

@@ -32,7 +32,7 @@ from stereopose.io.sinks import (
     WebhookSink,
     close_all,
 )
-from stereopose.io.sinks.base import FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.summary import RunSummary
 from stereopose.types import Event, Rig
 
@@ -108,7 +108,7 @@ def check_outputs(config: Config, site: Site | None, outputs: Outputs) -> None:
         raise StereoposeError("two-way smoothing needs tracking (person ids)")
 
 
-class ReportSink:
+class ReportSink(ClosesOnce):
     """report.html, built at close from the run folder (after summary.json); none after an
     error."""
 
@@ -116,15 +116,13 @@ class ReportSink:
 
     def __init__(self, run_dir: Path, summary: RunSummary) -> None:
         self.run_dir, self.summary = Path(run_dir), summary
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         pass
 
-    def close(self) -> list[Path]:
-        if self._closed or self.summary.error is not None:
+    def _close(self) -> list[Path]:
+        if self.summary.error is not None:
             return []
-        self._closed = True
         from stereopose.viz.report import write_report
 
         return [write_report(self.run_dir)]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stereopose.io.sinks import FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.types import Rig
 from stereopose.viz.overlay import OverlayVideo
 
 
-class OverlaySink:
+class OverlaySink(ClosesOnce):
     """One MP4 per camera, `<out_dir>/<camera>.mp4`: its frames with the detections and the
     3D people reprojected; a frame is drawn for each camera with 2D people at that step. Its
     time counts in the summary's "overlays" stage. Keypoint input has no images: nothing is
@@ -20,7 +20,6 @@ class OverlaySink:
     def __init__(self, rig: Rig, out_dir: str | Path, fps: float, scale: float = 0.5) -> None:
         out_dir = Path(out_dir)
         self.videos = {c.name: OverlayVideo(out_dir / f"{c.name}.mp4", c, fps, scale) for c in rig}
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         if frame.images is None:
@@ -32,9 +31,6 @@ class OverlaySink:
             if video is not None and image is not None:
                 video.write(image, p2, frame.people3d, label)
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         paths = [v.close() for v in self.videos.values()]
         return [p for p in paths if p is not None]

@@ -10,7 +10,6 @@ import sqlite3
 import subprocess
 import sys
 import threading
-import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
@@ -29,15 +28,7 @@ from stereopose.io.sinks.events import (
     read_events,
 )
 from stereopose.types import Event, People3D
-
-
-def wait_until(condition, what: str, timeout_s: float = 20.0) -> None:
-    """Poll ``condition()`` until it is true; fail if ``timeout_s`` passes first."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f"still waiting for {what} after {timeout_s} s")
-        time.sleep(0.005)
+from waiting import wait_until
 
 
 def returns(call, *args, timeout_s: float = 20.0) -> None:

@@ -50,6 +50,22 @@ class Sink(Protocol):
     def close(self) -> list[Path]: ...
 
 
+class ClosesOnce:
+    """A sink's `close` as the interface wants it: the first call closes (`_close`, which
+    returns the files written), later calls do nothing and return []."""
+
+    _closed = False
+
+    def close(self) -> list[Path]:
+        if self._closed:
+            return []
+        self._closed = True
+        return self._close()
+
+    def _close(self) -> list[Path]:
+        raise NotImplementedError
+
+
 def close_all(sinks: Iterable[Sink]) -> tuple[list[Path], BaseException | None]:
     """Close every sink in order, even when one fails; (files written, the first error)."""
     paths: list[Path] = []

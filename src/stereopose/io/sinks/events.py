@@ -30,7 +30,7 @@ from typing import IO
 
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
-from stereopose.io.sinks.base import FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.types import Event
 
 logger = logging.getLogger(__name__)
@@ -68,23 +68,16 @@ CREATE INDEX IF NOT EXISTS events_t ON events(t);
 """
 
 
-class _EventSink:
+class _EventSink(ClosesOnce):
     """The sink side shared by the event outputs: a frame's events to `write_events`."""
 
     stage = "write"
-    _closed = False
 
     def write(self, frame: FrameResult) -> None:
         self.write_events(frame.events)
 
     def write_events(self, events: Sequence[Event]) -> None:
         raise NotImplementedError
-
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
-        return self._close()
 
     def _close(self) -> list[Path]:
         return []

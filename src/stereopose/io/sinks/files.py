@@ -11,73 +11,61 @@ from pathlib import Path
 from stereopose.errors import StereoposeError
 from stereopose.io.exports import CsvExporter, TrcExporter
 from stereopose.io.results import PosesWriter
-from stereopose.io.sinks.base import FrameResult, Sink, close_all
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink, close_all
 from stereopose.tracking.positioning import Trajectory
 from stereopose.types import People3D
 
 logger = logging.getLogger(__name__)
 
 
-class PosesSink:
+class PosesSink(ClosesOnce):
     """The 3D poses JSON lines, one flushed line per frame (io.results.PosesWriter)."""
 
     stage = "write"
 
     def __init__(self, path: str | Path, fps: float) -> None:
         self.writer = PosesWriter(path, fps)
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         self.writer.write(frame.people3d)
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         self.writer.close()
         return [self.writer.path]
 
 
-class CsvSink:
+class CsvSink(ClosesOnce):
     """Every reconstructed joint as a CSV row, flushed every frame (io.exports.CsvExporter)."""
 
     stage = "write"
 
     def __init__(self, path: str | Path, fps: float) -> None:
         self.exporter = CsvExporter(path, fps)
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         self.exporter.add(frame.people3d)
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         self.exporter.close()
         return [self.exporter.path]
 
 
-class TrcSink:
+class TrcSink(ClosesOnce):
     """One TRC file per person, streamed (io.exports.TrcExporter)."""
 
     stage = "write"
 
     def __init__(self, out_dir: str | Path, fps: float, idle_frames: int | None = None) -> None:
         self.exporter = TrcExporter(out_dir, fps, idle_frames)
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         self.exporter.add(frame.people3d)
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         return self.exporter.close()
 
 
-class TracksSink:
+class TracksSink(ClosesOnce):
     """The per-person trajectory summaries (tracks.json), written at close from
     ``trajectories()`` (the 3D stage's: one small record per person, none per frame)."""
 
@@ -86,20 +74,16 @@ class TracksSink:
     def __init__(self, path: str | Path, trajectories: Callable[[], list[Trajectory]]) -> None:
         self.path = Path(path)
         self.trajectories = trajectories
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         pass
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         write_trajectories(self.path, self.trajectories())
         return [self.path]
 
 
-class TwoWaySink:
+class TwoWaySink(ClosesOnce):
     """Holds every frame's 3D people and, at close, hands them smoothed both ways over each
     track (``smooth``: the 3D stage's two_way) to ``sinks`` (the CSV and TRC exports).
 
@@ -115,7 +99,6 @@ class TwoWaySink:
         self.sinks = list(sinks)
         self.smooth = smooth
         self._frames: list[FrameResult] = []
-        self._closed = False
 
     @property
     def frames_kept(self) -> int:
@@ -124,10 +107,7 @@ class TwoWaySink:
     def write(self, frame: FrameResult) -> None:
         self._frames.append(FrameResult(frame.frame, frame.t, {}, frame.people3d))
 
-    def close(self) -> list[Path]:
-        if self._closed:
-            return []
-        self._closed = True
+    def _close(self) -> list[Path]:
         frames, self._frames = self._frames, []
         try:
             people = self.smooth([f.people3d for f in frames]) if frames else []

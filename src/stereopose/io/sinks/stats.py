@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.geometry.camera import project_to_rig
-from stereopose.io.sinks.base import FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.summary import CameraStats, RunSummary, write_summary
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
 
-class SummarySink:
+class SummarySink(ClosesOnce):
     """Adds each frame's people and events to `summary`; at close, writes it to `path`
     (summary.json; None: kept in memory only). The frame loop fills in the timings, the
     trajectories and the outputs before closing it, last but for the report."""
@@ -24,16 +24,12 @@ class SummarySink:
     def __init__(self, summary: RunSummary, path: str | Path | None = None) -> None:
         self.summary = summary
         self.path = Path(path) if path is not None else None
-        self._closed = False
 
     def write(self, frame: FrameResult) -> None:
         self.summary.add(frame.people3d, frame.events)
 
-    def close(self) -> list[Path]:
-        if self._closed or self.path is None:
-            return []
-        self._closed = True
-        return [write_summary(self.path, self.summary)]
+    def _close(self) -> list[Path]:
+        return [] if self.path is None else [write_summary(self.path, self.summary)]
 
 
 def _medians(d: np.ndarray, ok: np.ndarray) -> np.ndarray:
