@@ -109,6 +109,12 @@ class TrackingConfig:
     gate_reset_frames: int = 3  # ... unless it stays there this many frames in a row
     bone_lengths: bool = True  # keep each person's limb lengths at their running estimate
 
+    @property
+    def ids(self) -> bool:
+        """Whether people keep ids over time: the tracker's memory (what zone events and
+        two-way smoothing need)."""
+        return self.enabled and self.memory == "tracker"
+
 
 @dataclass(frozen=True)
 class CameraSource:

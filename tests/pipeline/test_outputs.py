@@ -149,3 +149,18 @@ def test_an_output_that_cannot_be_opened_closes_the_others(scene, tmp_path, monk
         open_outputs(outputs, rig=scene.rig, config=cfg, stage=stage,
                      summary=RunSummary(scene.rig.names))  # fmt: skip
     assert len(closed) == 1
+
+
+@pytest.mark.parametrize("memory", ["recent", "none"])
+def test_zone_events_and_two_way_need_the_trackers_ids(memory: str) -> None:
+    from stereopose.config import Config, with_overrides
+    from stereopose.errors import StereoposeError
+    from stereopose.fence import Site
+    from stereopose.pipeline.outputs import Outputs, check_outputs
+
+    cfg = with_overrides(Config(), tracking={"memory": memory})
+    with pytest.raises(StereoposeError, match=r'zone events need tracking.*memory = "tracker"'):
+        check_outputs(cfg, Site(()), Outputs(poses=None))
+    with pytest.raises(StereoposeError, match="two-way smoothing needs tracking"):
+        check_outputs(cfg, None, Outputs(poses=None, two_way=True))
+    check_outputs(Config(), Site(()), Outputs(poses=None, two_way=True))  # the tracker: fine

@@ -102,10 +102,11 @@ class Outputs:
 
 def check_outputs(config: Config, site: Site | None, outputs: Outputs) -> None:
     """What the outputs need of the 3D stage, checked before anything is opened."""
-    if site is not None and not config.tracking.enabled:
-        raise StereoposeError("zone events need tracking (person ids): drop --no-tracking")
-    if outputs.two_way and not config.tracking.enabled:
-        raise StereoposeError("two-way smoothing needs tracking (person ids)")
+    how = 'drop --no-tracking, or set [tracking] memory = "tracker"'
+    if site is not None and not config.tracking.ids:
+        raise StereoposeError(f"zone events need tracking (person ids): {how}")
+    if outputs.two_way and not config.tracking.ids:
+        raise StereoposeError(f"two-way smoothing needs tracking (person ids): {how}")
 
 
 class ReportSink(ClosesOnce):

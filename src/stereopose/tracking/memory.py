@@ -100,9 +100,9 @@ def make_memory(rig: Rig, config: Config, record: bool = False) -> Memory:
     """The memory named by config.tracking.memory (`tracking.enabled = false` asks for
     `recent`, as before). record: the tracker keeps every measurement for two_way."""
     name = config.tracking.memory if config.tracking.enabled else "recent"
-    if record and name != "tracker":
+    if record and not config.tracking.ids:
         raise ValueError("two-way smoothing needs tracking (person ids)")
-    if name == "tracker":
+    if config.tracking.ids:
         from stereopose.tracking.tracker import Tracker
 
         return Tracker(rig, config, record=record)
