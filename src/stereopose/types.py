@@ -262,26 +262,36 @@ class People3D:
         if J.ndim != 3 or J.shape[1:] != (NUM_JOINTS, 3):
             raise ValueError(f"joints must have shape (P, {NUM_JOINTS}, 3), got {J.shape}")
         P = J.shape[0]
-        for name, shape in (
-            ("conf", (P, NUM_JOINTS)),
-            ("ids", (P,)),
-            ("reprojection_px", (P, NUM_JOINTS)),
-            ("views", (P, NUM_JOINTS)),
+        per_joint = (P, NUM_JOINTS)
+        set_ = object.__setattr__
+        set_(self, "joints", J)
+        set_(self, "frame", int(self.frame))
+        for name, shape, dtype in (
+            ("conf", per_joint, np.float64),
+            ("ids", (P,), np.int64),
+            ("reprojection_px", per_joint, np.float64),
+            ("views", per_joint, np.int64),
         ):
-            a = np.asarray(getattr(self, name)).reshape(shape) if P == 0 else getattr(self, name)
-            if np.shape(a) != shape:
-                raise ValueError(f"{name} must have shape {shape}, got {np.shape(a)}")
+            a = np.asarray(getattr(self, name), dtype=dtype)
+            if P == 0:
+                a = a.reshape(shape)
+            if a.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+            set_(self, name, a)
         det = np.asarray(self.detections, dtype=np.int64)
         if det.ndim != 2 or det.shape[0] != P:
             raise ValueError(f"detections must have shape ({P}, C), got {det.shape}")
-        object.__setattr__(self, "joints", J)
-        object.__setattr__(self, "frame", int(self.frame))
-        object.__setattr__(self, "detections", det)
-        for name, dtype in (("conf", np.float64), ("ids", np.int64), ("views", np.int64)):
-            arr = np.asarray(getattr(self, name), dtype=dtype).reshape(
-                (P,) if name == "ids" else (P, NUM_JOINTS)
-            )
-            object.__setattr__(self, name, arr)
+        set_(self, "detections", det)
+        predicted = np.zeros(P, dtype=bool) if self.predicted is None else self.predicted
+        velocity = np.full((P, 2), np.nan) if self.velocity is None else self.velocity
+        for name, value, shape, dtype in (
+            ("predicted", predicted, (P,), bool),
+            ("velocity", velocity, (P, 2), np.float64),
+        ):
+            arr = np.asarray(value, dtype=dtype)
+            if arr.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+            set_(self, name, arr)
         object.__setattr__(
             self,
             "reprojection_px",

@@ -13,7 +13,6 @@ from stereopose.arrays import checked
 from stereopose.association._kernels import claim_costs
 from stereopose.association.affinity import Detections
 from stereopose.association.assignment import linear_sum_assignment
-from stereopose.association.grouping import upper_pairs
 from stereopose.geometry._kernels import project_all
 from stereopose.skeleton import JOINT_PARTS, NUM_JOINTS, PART_OF_JOINT, SWAP
 
@@ -85,11 +84,14 @@ def exchanged(det: Detections, swap: np.ndarray) -> Detections:
     """det with left/right labels exchanged where swap (N, 2) is true, per body part."""
     if not swap.any():
         return det
+    rows = np.flatnonzero(swap.any(1))  # only the detections that change
     # per joint, the part whose swap moves it (the nose: a column that is never set)
-    flip = np.concatenate([swap, np.zeros((len(swap), 1), dtype=bool)], 1)[:, PART_OF_JOINT]
+    sw = swap[rows]
+    flip = np.concatenate([sw, np.zeros((len(sw), 1), dtype=bool)], 1)[:, PART_OF_JOINT]
     idx = np.where(flip, SWAP[None, :], _JOINTS[None, :])
-    n = np.arange(len(det))[:, None]
-    pixels, xy, conf = det.pixels[n, idx], det.xy[n, idx], det.conf[n, idx]
+    n = rows[:, None]
+    pixels, xy, conf = det.pixels.copy(), det.xy.copy(), det.conf.copy()
+    pixels[rows], xy[rows], conf[rows] = det.pixels[n, idx], det.xy[n, idx], det.conf[n, idx]
     return Detections(det.camera, det.index, pixels, xy, conf, det.size, det.size_px)
 
 
@@ -110,12 +112,14 @@ def claimed_groups(claims: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
 
 def pairs_within(groups: list[np.ndarray], free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Detection pairs (n < m) inside each group and among the free detections."""
-    n, m = [], []
-    for g in [*groups, free]:
-        a, b = upper_pairs(g.size)
-        n.append(g[a])
-        m.append(g[b])
-    return np.concatenate(n).astype(np.int64), np.concatenate(m).astype(np.int64)
+    n: list[int] = []
+    m: list[int] = []
+    for g in [*groups, free]:  # a frame's few detections: plain Python
+        members = g.tolist()
+        for i, a in enumerate(members):
+            n.extend([a] * (len(members) - i - 1))
+            m.extend(members[i + 1 :])
+    return np.array(n, dtype=np.int64), np.array(m, dtype=np.int64)
 
 
 def check_groups(groups, seeds, cost, max_cost):
