@@ -8,23 +8,31 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from scipy.optimize import linear_sum_assignment
 
 from stereopose.association.grouping import group_detections, pairwise_matches
 
 
+@st.composite
+def frames(draw):
+    """Detections per camera (counts), their pair costs, and, for the separated case, which
+    person each detection is in its camera (a permutation per camera)."""
+    counts = draw(st.lists(st.integers(0, 5), min_size=2, max_size=5))
+    N = sum(counts)
+    cost = draw(arrays(np.float64, (N, N), elements=st.floats(0.0, 0.2)))
+    person = np.array([p for c in counts for p in draw(st.permutations(range(c)))], dtype=np.int64)
+    return counts, cost, person, draw(st.booleans())
+
+
 @settings(max_examples=200, deadline=None)
-@given(
-    st.lists(st.integers(0, 5), min_size=2, max_size=5), st.integers(0, 2**32 - 1), st.booleans()
-)
-def test_pairwise_matches_are_optimal_per_camera_pair(counts, seed, separated):
+@given(frames())
+def test_pairwise_matches_are_optimal_per_camera_pair(frame):
     """Same total cost per camera pair as the Hungarian algorithm run pair by pair."""
-    rng = np.random.default_rng(seed)
+    counts, cost, person, separated = frame
     camera = np.repeat(np.arange(len(counts)), counts)
     N = camera.size
-    cost = rng.uniform(0, 0.2, (N, N))
     if separated:  # the common case: people far apart, one clear partner each
-        person = np.concatenate([rng.permutation(c) for c in counts])
         cost = np.where(person[:, None] == person[None, :], 0.01 * cost, cost + 0.5)
     cost = np.minimum(cost, cost.T)
     cost[camera[:, None] == camera[None, :]] = np.inf
