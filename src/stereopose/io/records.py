@@ -23,8 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from stereopose.skeleton import NUM_JOINTS
-from stereopose.tracking.positioning import floor_position, heading_deg
+from stereopose.skeleton import NUM_JOINTS, floor_position, heading_deg
 from stereopose.types import Event, People3D
 
 __all__ = [

@@ -13,7 +13,7 @@ from typing import IO
 
 from stereopose.errors import StereoposeError
 from stereopose.io.records import frame_record, parse_frame_record, people3d_from_record
-from stereopose.tracking.positioning import floor_position
+from stereopose.skeleton import floor_position
 from stereopose.types import People3D
 
 __all__ = ["PosesWriter", "floor_position", "frame_record", "load_people3d", "read_poses"]
