@@ -292,21 +292,6 @@ class People3D:
             if arr.shape != shape:
                 raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
             set_(self, name, arr)
-        object.__setattr__(
-            self,
-            "reprojection_px",
-            np.asarray(self.reprojection_px, dtype=np.float64).reshape(P, NUM_JOINTS),
-        )
-        predicted = np.zeros(P, dtype=bool) if self.predicted is None else self.predicted
-        velocity = np.full((P, 2), np.nan) if self.velocity is None else self.velocity
-        for name, value, shape, dtype in (
-            ("predicted", predicted, (P,), bool),
-            ("velocity", velocity, (P, 2), np.float64),
-        ):
-            arr = np.asarray(value, dtype=dtype)
-            if arr.shape != shape:
-                raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-            object.__setattr__(self, name, arr)
 
     def __len__(self) -> int:
         return int(self.joints.shape[0])

@@ -18,19 +18,12 @@ from typing import IO
 import numpy as np
 
 from stereopose.errors import StereoposeError
+from stereopose.io.writing import open_output
 from stereopose.skeleton import JOINTS, NUM_JOINTS
 from stereopose.types import People3D
 
 _TO_TRC = np.array([1, 2, 0])  # TRC (X, Y, Z) = world (y, z, x)
 _FROM_TRC = np.argsort(_TO_TRC)
-
-
-def _open(path: Path, what: str) -> IO[str]:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return path.open("w", encoding="utf-8", newline="")
-    except OSError as e:
-        raise StereoposeError(f"{path}: cannot write {what}: {e.strerror}") from None
 
 
 def _trc_header(name: str, fps: float, num_frames: str, first: int, last: str) -> str:
@@ -72,7 +65,7 @@ def write_trc(path: str | Path, frames: np.ndarray, joints: np.ndarray, fps: flo
     first, last = (int(frames[0]), int(frames[-1])) if F else (0, 0)
     text = _trc_header(path.name, fps, str(F), first, str(last))
     text += "".join(_trc_row(int(f), row, fps) for f, row in zip(frames, data, strict=True))
-    with _open(path, "TRC") as fh:
+    with open_output(path, "TRC", newline="") as fh:
         fh.write(text)
 
 
@@ -218,7 +211,7 @@ class CsvExporter:
     def __init__(self, path: str | Path, fps: float) -> None:
         self.path = Path(path)
         self.fps = float(fps)
-        self._f = _open(self.path, "CSV")
+        self._f = open_output(self.path, "CSV", newline="")
         self._w = csv.writer(self._f, lineterminator="\n")
         self._w.writerow(self.HEADER)
 

@@ -13,6 +13,7 @@ from typing import IO
 
 from stereopose.errors import StereoposeError
 from stereopose.io.records import frame_record, parse_frame_record, people3d_from_record
+from stereopose.io.writing import open_output
 from stereopose.skeleton import floor_position
 from stereopose.types import People3D
 
@@ -25,11 +26,7 @@ class PosesWriter:
     def __init__(self, path: str | Path, fps: float) -> None:
         self.path = Path(path)
         self.fps = float(fps)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._f: IO[str] = self.path.open("w", encoding="utf-8")
-        except OSError as e:
-            raise StereoposeError(f"{self.path}: cannot write 3D poses: {e.strerror}") from None
+        self._f: IO[str] = open_output(self.path, "3D poses")
         self.frames = 0
 
     def write(self, people: People3D) -> None:

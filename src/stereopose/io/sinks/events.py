@@ -31,6 +31,7 @@ from typing import IO
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.writing import open_output
 from stereopose.types import Event
 
 logger = logging.getLogger(__name__)
@@ -88,11 +89,7 @@ class JsonlSink(_EventSink):
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._f: IO[str] = self.path.open("w", encoding="utf-8")
-        except OSError as e:
-            raise StereoposeError(f"{self.path}: cannot write events: {e.strerror}") from None
+        self._f: IO[str] = open_output(self.path, "events")
 
     def write_events(self, events: Sequence[Event]) -> None:
         if events:
