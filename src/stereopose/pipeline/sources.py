@@ -24,8 +24,8 @@ logger = logging.getLogger(__name__)
 class KeypointFiles:
     """2D keypoint folders (one per camera) read frame by frame; t = frame / fps.
 
-    A malformed file is skipped (listed in the summary's skipped_files) and its frame still
-    goes on with the other cameras.
+    A malformed file is skipped (listed in the summary's skipped_files, counted per camera in
+    the closing warning) and its frame still goes on with the other cameras.
     """
 
     stages = FILE_STAGES
@@ -53,7 +53,12 @@ class KeypointFiles:
         summary.frames_read = self.frames_read
         summary.skipped_files = [(str(p), why) for p, why in self.seq.skipped]
         if summary.skipped_files:
-            logger.warning("%d keypoint file(s) skipped as malformed", len(summary.skipped_files))
+            per = ", ".join(f"{cam} {n}" for cam, n in self.seq.skipped_per_camera.items())
+            logger.warning(
+                "%d keypoint file(s) skipped as unreadable (%s); those cameras have no frame there",
+                len(summary.skipped_files),
+                per,
+            )
 
 
 def check_size(camera: Camera, image: np.ndarray) -> None:
