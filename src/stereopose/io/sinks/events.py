@@ -8,31 +8,33 @@ io.records.
 - SQLite (the embedded log): WAL journal; each frame's events are one transaction, committed
   before `write` returns, so a process killed at any moment (even with SIGKILL) loses no
   committed event and leaves a readable database. An existing log is appended to; every run
-  gets a row in `runs`.
-- Webhook: POSTs each event as JSON from a background thread; retries with exponential backoff;
-  a bounded queue that never blocks the frame loop (when it is full, the event is dropped and
-  counted); `close` waits a bounded time for the queue to drain.
+  gets a row in `runs`. A log locked by another process does not hold up the frame loop: its
+  events wait in memory and are stored with a later frame's (see SqliteSink).
+- Webhook (io.sinks.webhook): POSTs each event as JSON from a background thread that no reply
+  can stop; retries with a bounded backoff; a bounded queue that never blocks the frame loop;
+  every event counted once, delivered, failed or dropped.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import queue
 import sqlite3
-import threading
 import time
-import urllib.error
-import urllib.request
-from collections.abc import Callable, Iterable, Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
 
-from stereopose.errors import StereoposeError
+from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import open_output
 from stereopose.types import Event
+
+__all__ = ["COLUMNS", "CallbackSink", "JsonlSink", "SqliteSink", "WebhookSink", "describe",
+           "query_events", "read_events"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -120,13 +122,41 @@ def read_events(path: str | Path) -> list[Event]:
 
 
 class SqliteSink(_EventSink):
-    """Events in an SQLite database (WAL), one transaction per frame with events."""
+    """Events in an SQLite database (WAL), one transaction per write with events.
 
-    def __init__(self, path: str | Path, site: str | None = None, source: str | None = None):
+    The frame loop is never held up by another process's write lock: a write waits busy_s at
+    most; if the log is still locked (or fails otherwise), the events are kept in memory, in
+    order (at most buffer_size: more are dropped and counted), and stored with the next
+    frame's, tried again after retry_s, doubling to 2 s. Readers never block it (WAL). `close`
+    keeps trying for close_timeout_s; what is still not stored then is appended to
+    `<name>.unstored.jsonl` beside the database (the events contract) and `incomplete` says so.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        site: str | None = None,
+        source: str | None = None,
+        *,
+        busy_s: float = 0.05,
+        retry_s: float = 0.2,
+        buffer_size: int = 100_000,
+        open_timeout_s: float = 5.0,
+        close_timeout_s: float = 10.0,
+    ) -> None:
         self.path = Path(path)
+        self.busy_s, self.retry_s, self.buffer_size = busy_s, retry_s, buffer_size
+        self.close_timeout_s = close_timeout_s
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.db = sqlite3.connect(self.path, isolation_level=None)
+        except OSError as e:
+            raise OutputError(
+                f"{self.path}: cannot write the event database: {e.strerror}"
+            ) from None
+        try:
+            self.db = sqlite3.connect(
+                self.path, isolation_level=None, timeout=open_timeout_s, check_same_thread=False
+            )
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=NORMAL")
             self.db.executescript(SCHEMA)
@@ -135,28 +165,104 @@ class SqliteSink(_EventSink):
                 (time.time(), site, source),
             )
             self.run = int(cur.lastrowid)
+            self._busy(busy_s)
         except sqlite3.DatabaseError as e:
-            raise StereoposeError(f"{self.path}: cannot open the event database: {e}") from None
-        self.committed = 0
+            raise OutputError(f"{self.path}: cannot open the event database: {e}") from None
+        self.committed = self.dropped = 0
+        self.pending: deque[Event] = deque()
+        self.incomplete: str | None = None
+        self.kept_in: Path | None = None  # where close put the events it could not store
+        self._next_try = 0.0
+        self._delay = retry_s
+        self._error: str | None = None  # why the last store failed; None: it did not
+
+    def _busy(self, seconds: float) -> None:
+        self.db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * seconds))}")
 
     def write_events(self, events: Sequence[Event]) -> None:
-        if not events:
-            return
-        rows = [event_row(e, self.run) for e in events]
+        if events:
+            room = self.buffer_size - len(self.pending)
+            if len(events) > room:
+                self.dropped += len(events) - max(room, 0)
+                logger.error(
+                    "%s: %d event(s) waiting to be stored; %d dropped (%d so far)",
+                    self.path, len(self.pending), len(events) - max(room, 0), self.dropped,
+                )  # fmt: skip
+                events = events[: max(room, 0)]
+            self.pending.extend(events)
+        if self.pending and time.monotonic() >= self._next_try:
+            self._store()
+
+    def _store(self) -> bool:
+        """Every pending event in one transaction; whether they are stored."""
+        rows = [event_row(e, self.run) for e in self.pending]
         placeholders = ", ".join("?" * len(COLUMNS))
         try:
-            self.db.execute("BEGIN")
+            self.db.execute("BEGIN IMMEDIATE")
             self.db.executemany(
                 f"INSERT INTO events({', '.join(COLUMNS)}) VALUES ({placeholders})", rows
             )
             self.db.execute("COMMIT")
-        except sqlite3.DatabaseError as e:
-            raise StereoposeError(f"{self.path}: cannot store events: {e}") from None
+        except sqlite3.Error as e:
+            self._failed(e)
+            return False
+        self.pending.clear()
         self.committed += len(rows)
+        if self._error is not None:
+            logger.warning("%s: events stored again (%d that had waited)", self.path, len(rows))
+        self._error, self._delay = None, self.retry_s
+        return True
+
+    def _failed(self, e: sqlite3.Error) -> None:
+        try:
+            if self.db.in_transaction:
+                self.db.execute("ROLLBACK")
+        except sqlite3.Error:  # the connection is broken: the next try finds out
+            pass
+        if self._error is None:  # once per spell, not once per frame
+            logger.warning(
+                "%s: cannot store events now (%s); they are kept and tried again on later "
+                "frames", self.path, e,
+            )  # fmt: skip
+        self._error = str(e)
+        self._next_try = time.monotonic() + self._delay
+        self._delay = min(2 * self._delay, 2.0)
 
     def _close(self) -> list[Path]:
+        deadline = time.monotonic() + self.close_timeout_s
+        while self.pending:
+            left = deadline - time.monotonic()
+            self._busy(min(max(left, 0.0), 1.0))  # a lock waited for within the deadline
+            if self._store() or left <= 0:
+                break
+            if not self._error or "lock" not in self._error:
+                time.sleep(min(0.1, max(left, 0.0)))  # another failure: no busy wait to pace it
         self.db.close()
+        if self.pending or self.dropped:
+            self.incomplete = self._unstored()
+            logger.error("%s: %s", self.path, self.incomplete)
         return [self.path]
+
+    def _unstored(self) -> str:
+        """What could not be stored, the events kept beside the database where they can be."""
+        n = len(self.pending)
+        parts = []
+        if n:
+            parts.append(f"{n} event(s) not stored ({self._error})")
+        if self.dropped:
+            parts.append(
+                f"{self.dropped} dropped while it was locked (buffer of {self.buffer_size} full)"
+            )
+        if n:
+            kept = self.path.with_name(self.path.name + ".unstored.jsonl")
+            try:
+                with kept.open("a", encoding="utf-8") as f:  # appended: never overwritten
+                    f.write("".join(json.dumps(event_record(e)) + "\n" for e in self.pending))
+                self.kept_in = kept
+                parts.append(f"kept in {kept}")
+            except OSError as e:
+                parts.append(f"and cannot be kept in {kept}: {e.strerror}")
+        return "; ".join(parts)
 
 
 def query_events(
@@ -192,102 +298,6 @@ def query_events(
     except sqlite3.DatabaseError as e:
         raise StereoposeError(f"{path}: not a readable event database: {e}") from None
     return [dict(zip(COLUMNS, r, strict=True)) for r in rows]
-
-
-class WebhookSink(_EventSink):
-    """POSTs events as JSON to a URL from a background thread, never blocking `write`.
-
-    queue_size: events waiting at most; more are dropped (counted in `dropped`). An event whose
-    POST fails is retried `retries` times, waiting backoff_s, 2 backoff_s, ... (capped at
-    max_backoff_s); then it is dropped (counted in `failed`). `close` waits up to
-    drain_timeout_s for the queue to empty.
-    """
-
-    def __init__(
-        self,
-        url: str,
-        queue_size: int = 1000,
-        retries: int = 4,
-        backoff_s: float = 0.5,
-        max_backoff_s: float = 8.0,
-        timeout_s: float = 5.0,
-        drain_timeout_s: float = 10.0,
-        sleep: Callable[[float], None] | None = None,
-    ) -> None:
-        if not url.startswith(("http://", "https://")):
-            raise StereoposeError(f"webhook URL must start with http:// or https://, got {url!r}")
-        self.url = url
-        self.retries, self.backoff_s, self.max_backoff_s = retries, backoff_s, max_backoff_s
-        self.timeout_s, self.drain_timeout_s = timeout_s, drain_timeout_s
-        self.queue: queue.Queue[Event | None] = queue.Queue(maxsize=queue_size)
-        self.sent = self.dropped = self.failed = self.retried = 0
-        self._stop = threading.Event()
-        self._sleep = sleep or self._stop.wait
-        self._thread = threading.Thread(target=self._run, name="webhook", daemon=True)
-        self._thread.start()
-
-    def write_events(self, events: Iterable[Event]) -> None:
-        for e in events:
-            try:
-                self.queue.put_nowait(e)
-            except queue.Full:
-                self.dropped += 1
-
-    def _post(self, event: Event) -> None:
-        body = json.dumps(event_record(event)).encode()
-        req = urllib.request.Request(
-            self.url, data=body, headers={"Content-Type": "application/json"}, method="POST"
-        )
-        with urllib.request.urlopen(req, timeout=self.timeout_s) as resp:
-            resp.read()
-
-    def _deliver(self, event: Event) -> None:
-        delay = self.backoff_s
-        for attempt in range(self.retries + 1):
-            try:
-                self._post(event)
-                self.sent += 1
-                return
-            except (urllib.error.URLError, OSError, ValueError) as e:
-                if attempt == self.retries or self._stop.is_set():
-                    self.failed += 1
-                    logger.warning(
-                        "webhook %s: event dropped after %d tries: %s", self.url, attempt + 1, e
-                    )
-                    return
-                self.retried += 1
-                self._sleep(delay)
-                delay = min(2 * delay, self.max_backoff_s)
-
-    def _run(self) -> None:
-        while True:
-            event = self.queue.get()
-            if event is None:
-                return
-            self._deliver(event)
-
-    def _close(self) -> list[Path]:
-        deadline = time.monotonic() + self.drain_timeout_s
-        while not self.queue.empty() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        self._stop.set()  # retries stop waiting; what is still queued is dropped
-        while True:
-            try:
-                if self.queue.get_nowait() is not None:
-                    self.dropped += 1
-            except queue.Empty:
-                break
-        self.queue.put(None)
-        self._thread.join(timeout=self.timeout_s + 1.0)
-        if self.dropped or self.failed:
-            logger.warning(
-                "webhook %s: %d event(s) sent, %d dropped (queue full or closing), %d failed",
-                self.url,
-                self.sent,
-                self.dropped,
-                self.failed,
-            )
-        return []
 
 
 class CallbackSink(_EventSink):
