@@ -1,30 +1,95 @@
 """The one typed configuration schema; every default lives here.
 
 A TOML file overrides any subset of it; unknown tables or keys are rejected with an error that
-names the file and the key.
+names the file and the key. Every numeric field carries its range beside its default
+(`number(default, ge=..., le=...)`), checked whenever a section is built: from a file, in code,
+or by `dataclasses.replace` / `with_overrides` for command-line options.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import sys
 import types
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
+from stereopose.checks import DAY_S, FPS_MAX, FPS_MIN, Range
 from stereopose.errors import ConfigError
+from stereopose.skeleton import NUM_JOINTS
 
 Mode = Literal["pair", "weighted", "robust"]
 MODES: tuple[str, ...] = get_args(Mode)
+MAX_READ_BYTES = 16 * 1024 * 1024  # a configuration or site file larger than this is refused
+
+_T = TypeVar("_T")
+_LENGTH_M = 1000.0  # the largest distance a configuration may hold, metres
 
 
-@dataclass(frozen=True)
+def number(default: Any, **bounds: Any) -> Any:
+    """A numeric field with its range: ge/gt/le/lt bounds, integer, multiple_of (see Range)."""
+    return field(default=default, metadata={"range": Range(**bounds)})
+
+
+def _base(tp: Any) -> tuple[Any, bool]:
+    """(type without None, whether None is allowed)."""
+    if get_origin(tp) in (Union, types.UnionType):
+        options = [a for a in get_args(tp) if a is not type(None)]
+        return (options[0] if len(options) == 1 else tp), len(options) < len(get_args(tp))
+    return tp, False
+
+
+def _schema(section: str) -> Callable[[type[_T]], type[_T]]:
+    """A frozen dataclass of the schema at key path `section`, checked on every construction;
+    a numeric field without a range is refused when the class is defined."""
+
+    def wrap(cls: type[_T]) -> type[_T]:
+        cls.__post_init__ = _check_fields  # type: ignore[attr-defined]
+        cls = dataclass(frozen=True)(cls)
+        hints = get_type_hints(cls)
+        ranges, choices = {}, {}
+        for f in dataclasses.fields(cls):
+            tp, optional = _base(hints[f.name])
+            if tp in (int, float):
+                if "range" not in f.metadata:
+                    raise TypeError(f"{cls.__name__}.{f.name}: a number needs a range (number())")
+                ranges[f.name] = (f.metadata["range"], optional, tp is float)
+            elif get_origin(tp) is Literal:
+                choices[f.name] = get_args(tp)
+        cls._section, cls._ranges, cls._choices = section, ranges, choices  # type: ignore[attr-defined]
+        return cls
+
+    return wrap
+
+
+def _check_fields(self: Any) -> None:
+    cls = type(self)
+    for name, allowed in cls._choices.items():
+        value = getattr(self, name)
+        if value not in allowed:
+            raise ConfigError(f"{_key(cls, name)}: expected one of {list(allowed)}, got {value!r}")
+    for name, (rng, optional, is_float) in cls._ranges.items():
+        value = getattr(self, name)
+        if value is None and optional:
+            continue
+        rng.check(value, _key(cls, name))
+        if is_float:
+            object.__setattr__(self, name, float(value))
+
+
+def _key(cls: Any, name: str) -> str:
+    return f"{cls._section}.{name}" if cls._section else name
+
+
+@_schema("reconstruction.association")
 class AssociationConfig:
     """Cross-camera grouping of 2D people.
 
@@ -32,56 +97,68 @@ class AssociationConfig:
     near and far people are treated alike.
     """
 
-    min_conf: float = 0.3  # joints below this confidence do not vote
-    min_common_joints: int = 3  # a camera pair needs this many joints confident in both
-    max_cost: float = 0.12  # mean normalised epipolar distance accepted for a match
+    # joints below this confidence do not vote
+    min_conf: float = number(0.3, ge=0.0, le=1.0)
+    # a camera pair needs this many joints confident in both
+    min_common_joints: int = number(3, integer=True, ge=1, le=NUM_JOINTS)
+    # mean normalised epipolar distance accepted for a match
+    max_cost: float = number(0.12, gt=0.0, le=100.0)
     reassign_leftovers: bool = True  # give unmatched detections to a reconstructed person
     # a tracked person's pose reprojected into a camera claims the detection within this mean
     # joint distance, divided by the detection's size
-    track_max_cost: float = 0.25
+    track_max_cost: float = number(0.25, gt=0.0, le=100.0)
     # robust mode, frame-by-frame calls: the people of the previous frame (and of the few
     # frames before, for people missed since) seed the next frame as a tracked person's
     # predicted pose does, so their association and left/right labels carry over; 0: each
     # frame on its own
-    continuity_frames: int = 3
+    continuity_frames: int = number(3, integer=True, ge=0, le=1000)
 
 
-@dataclass(frozen=True)
+@_schema("reconstruction.triangulation")
 class TriangulationConfig:
     """Triangulation of one person's joints from the views of its group."""
 
     mode: Mode = "robust"
-    min_conf: float = 0.05  # joints below this confidence are not used
-    pair_a: float = 0.01  # `pair` mode: weight per pixel of mean epipolar distance
-    pair_b: float = 1.0  # `pair` mode: weight of the mean confidences of the two views
-    inlier_px: float = 10.0  # `robust`: reprojection error always accepted, pixels
-    inlier_rel: float = 0.03  # `robust`: ... or this fraction of the person's size in the view
+    # joints below this confidence are not used
+    min_conf: float = number(0.05, ge=0.0, le=1.0)
+    # `pair` mode: weight per pixel of mean epipolar distance
+    pair_a: float = number(0.01, ge=0.0, le=1e6)
+    # `pair` mode: weight of the mean confidences of the two views
+    pair_b: float = number(1.0, ge=0.0, le=1e6)
+    # `robust`: reprojection error always accepted, pixels
+    inlier_px: float = number(10.0, ge=0.0, le=1e5)
+    # `robust`: ... or this fraction of the person's size in the view
+    inlier_rel: float = number(0.03, ge=0.0, le=1.0)
     fix_swaps: bool = True  # `robust`: correct left/right labels swapped by the detector
     # `robust`: a joint seen in one view only is placed on that view's ray, at the point nearest
     # a reconstructed neighbouring joint (within one bone length of the truth); views = 1
     single_view: bool = True
 
 
-@dataclass(frozen=True)
+@_schema("reconstruction.plausibility")
 class PlausibilityConfig:
     """Rejection of reconstructed people that cannot be real."""
 
-    min_joints: int = 5  # fewer joints reconstructed from two views or more: not a person
-    floor_tolerance_m: float = 0.4  # lowest joint may be this far below the floor
-    max_height_m: float = 3.0  # vertical extent of a person's joints
-    max_limb_m: float = 1.0  # a joint making a PCP limb longer than this is dropped
+    # fewer joints reconstructed from two views or more: not a person
+    min_joints: int = number(5, integer=True, ge=0, le=NUM_JOINTS)
+    # lowest joint may be this far below the floor
+    floor_tolerance_m: float = number(0.4, ge=0.0, le=_LENGTH_M)
+    # vertical extent of a person's joints
+    max_height_m: float = number(3.0, gt=0.0, le=_LENGTH_M)
+    # a joint making a PCP limb longer than this is dropped
+    max_limb_m: float = number(1.0, gt=0.0, le=_LENGTH_M)
     # seen by fewer than this fraction of the cameras that should see them: a ghost
-    min_view_fraction: float = 0.4
+    min_view_fraction: float = number(0.4, ge=0.0, le=1.0)
 
 
-@dataclass(frozen=True)
+@_schema("reconstruction")
 class ReconstructionConfig:
     association: AssociationConfig = field(default_factory=AssociationConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
 
 
-@dataclass(frozen=True)
+@_schema("tracking")
 class TrackingConfig:
     """Identities over time, online smoothing and positioning of reconstructed people."""
 
@@ -90,23 +167,35 @@ class TrackingConfig:
     # persistent ids), "recent" (the last continuity_frames frames seed the next, ids per
     # frame) or "none" (every frame on its own)
     memory: Literal["tracker", "recent", "none"] = "tracker"
-    confirm_frames: int = 3  # a person gets an id after this many consecutive frames
-    bridge_s: float = 0.2  # gaps up to this long are filled by prediction, flagged predicted
-    seed_s: float = 0.4  # an unseen person's predicted pose is looked for in images this long
-    max_lost_s: float = 3.0  # an unseen person keeps their id this long, then the track ends
-    reid_radius_m: float = 1.0  # a returning person is this close to where they were last ...
-    reid_speed_mps: float = 1.5  # ... plus walking at this speed for the time unseen
-    duplicate_radius_m: float = 0.4  # a new person this close to a tracked one is the same
+    # a person gets an id after this many consecutive frames
+    confirm_frames: int = number(3, integer=True, ge=1, le=100_000)
+    # gaps up to this long are filled by prediction, flagged predicted
+    bridge_s: float = number(0.2, ge=0.0, le=DAY_S)
+    # an unseen person's predicted pose is looked for in images this long
+    seed_s: float = number(0.4, ge=0.0, le=DAY_S)
+    # an unseen person keeps their id this long, then the track ends
+    max_lost_s: float = number(3.0, ge=0.0, le=DAY_S)
+    # a returning person is this close to where they were last ...
+    reid_radius_m: float = number(1.0, ge=0.0, le=_LENGTH_M)
+    # ... plus walking at this speed for the time unseen
+    reid_speed_mps: float = number(1.5, ge=0.0, le=100.0)
+    # a new person this close to a tracked one is the same
+    duplicate_radius_m: float = number(0.4, ge=0.0, le=_LENGTH_M)
     smoothing: bool = True  # false: raw per-frame joints (the filter still predicts gaps)
-    process_noise: float = 3.0  # constant-velocity model: acceleration density, m^2/s^3 ...
-    limb_noise_factor: float = (
-        2.5  # ... times this for elbows and knees, squared for wrists, ankles
-    )
-    measurement_noise_m: float = 0.03  # joint noise of a reconstruction from two views
-    single_view_noise_m: float = 0.15  # ... of a joint seen in one view (depth from a neighbour)
-    gate_m: float = 0.25  # a joint jumping farther than this from its prediction ...
-    gate_sigmas: float = 4.0  # ... and this many standard deviations is not believed
-    gate_reset_frames: int = 3  # ... unless it stays there this many frames in a row
+    # constant-velocity model: acceleration density, m^2/s^3 ...
+    process_noise: float = number(3.0, gt=0.0, le=1e6)
+    # ... times this for elbows and knees, squared for wrists, ankles
+    limb_noise_factor: float = number(2.5, gt=0.0, le=1e3)
+    # joint noise of a reconstruction from two views
+    measurement_noise_m: float = number(0.03, gt=0.0, le=_LENGTH_M)
+    # ... of a joint seen in one view (depth from a neighbour)
+    single_view_noise_m: float = number(0.15, gt=0.0, le=_LENGTH_M)
+    # a joint jumping farther than this from its prediction ...
+    gate_m: float = number(0.25, gt=0.0, le=_LENGTH_M)
+    # ... and this many standard deviations is not believed
+    gate_sigmas: float = number(4.0, gt=0.0, le=1e3)
+    # ... unless it stays there this many frames in a row
+    gate_reset_frames: int = number(3, integer=True, ge=1, le=100_000)
     bone_lengths: bool = True  # keep each person's limb lengths at their running estimate
 
     @property
@@ -116,7 +205,7 @@ class TrackingConfig:
         return self.enabled and self.memory == "tracker"
 
 
-@dataclass(frozen=True)
+@_schema("cameras[]")
 class CameraSource:
     """One camera of a run: its calibration name and where its frames come from."""
 
@@ -124,25 +213,29 @@ class CameraSource:
     source: str = ""  # a video file, a folder of images, or an rtsp:// / http:// URL
 
 
-@dataclass(frozen=True)
+@_schema("detector")
 class DetectorConfig:
     backend: Literal["onnx", "ultralytics"] = "onnx"
     model: str | None = None  # a local .onnx or .pt file; default: yolo11n-pose from the cache
-    imgsz: int = 640  # model input, long side (a multiple of 32)
-    conf: float = 0.25  # person score threshold
-    iou: float = 0.7  # NMS overlap threshold
+    # model input, long side
+    imgsz: int = number(640, multiple_of=32, ge=32, le=8192)
+    conf: float = number(0.25, ge=0.0, le=1.0)  # person score threshold
+    iou: float = number(0.7, ge=0.0, le=1.0)  # NMS overlap threshold
     device: str = "cpu"  # cpu, cuda, cuda:N or auto
-    threads: int | None = None  # inference threads (default: all cores)
+    # inference threads (default: all cores)
+    threads: int | None = number(None, integer=True, ge=1, le=1024)
 
 
-@dataclass(frozen=True)
+@_schema("input")
 class InputConfig:
     sync: Literal["index", "time"] = "index"  # recorded cameras aligned by frame index or time
-    fps: float | None = None  # time steps per second (default: the first camera's frame rate)
-    max_frames: int | None = None  # stop after this many time steps
+    # time steps per second (default: the first camera's frame rate)
+    fps: float | None = number(None, ge=FPS_MIN, le=FPS_MAX)
+    # stop after this many time steps
+    max_frames: int | None = number(None, integer=True, ge=1)
 
 
-@dataclass(frozen=True)
+@_schema("outputs")
 class OutputConfig:
     """What a run writes into its output folder."""
 
@@ -152,14 +245,16 @@ class OutputConfig:
     csv: bool = True  # joints.csv
     two_way: bool = False  # trc/ and joints.csv smoothed both ways over each track, at the end
     overlays: bool = True  # overlays/<camera>.mp4: 2D skeletons, ids, reprojected 3D joints
-    overlay_scale: float = 0.5  # overlay video size relative to the camera's frames
+    # overlay video size relative to the camera's frames
+    overlay_scale: float = number(0.5, gt=0.0, le=1.0)
     report: bool = True  # report.html
     webhook: str | None = None  # POST each zone event to this URL
 
 
-@dataclass(frozen=True)
+@_schema("")
 class Config:
-    fps: float = 25.0  # time base when the input has none
+    # time base when the input has none
+    fps: float = number(25.0, ge=FPS_MIN, le=FPS_MAX)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     # what `stereopose run` reads and writes; paths are relative to the config file
@@ -199,7 +294,10 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:  # an integer beyond any float: its range check names it
+            return value
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
@@ -208,7 +306,8 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
 
 
 def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
-    """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys."""
+    """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys and values
+    out of range."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a table, got {data!r}")
     hints = get_type_hints(cls)
@@ -230,16 +329,31 @@ def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 
 
 def read_toml(path: Path, what: str) -> dict[str, Any]:
-    """A TOML file's tables; a missing, unreadable or invalid file is a ConfigError naming it
-    (`what`: what the file is, for the message)."""
+    """A TOML file's tables; a missing, unreadable, oversized or invalid file is a ConfigError
+    naming it (`what`: what the file is, for the message)."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"{path}: cannot read {what}: not a regular file")
+        with path.open("rb") as f:
+            raw = f.read(MAX_READ_BYTES + 1)
+        if len(raw) > MAX_READ_BYTES:
+            raise ConfigError(f"{path}: {what} is larger than {MAX_READ_BYTES >> 20} MiB")
+        text = raw.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: {what} not found") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read {what}: {e}") from None
+    return parse_toml(text, path)
+
+
+def parse_toml(text: str, path: Path | str) -> dict[str, Any]:
+    """TOML text -> tables; any parse failure is a ConfigError naming `path`."""
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays or tables
+        raise ConfigError(f"{path}: invalid TOML: arrays or tables nested too deeply") from None
 
 
 def load_config(path: str | Path | None = None) -> Config:
@@ -254,17 +368,38 @@ def load_config(path: str | Path | None = None) -> Config:
         raise ConfigError(f"{path}: {e}".replace(": : ", ": ")) from None
 
 
+def _replace(obj: _T, values: dict[str, Any], where: str) -> _T:
+    try:
+        return dataclasses.replace(obj, **values)
+    except TypeError as e:  # an unknown field
+        raise ConfigError(f"{where}: {e}") from None
+
+
 def with_overrides(config: Config, **sections: dict[str, Any]) -> Config:
     """A copy of `config` with fields of its sections replaced: `tracking`, or one of the
-    reconstruction sections.
+    reconstruction sections; the new values are checked as a file's would be.
 
     Example: with_overrides(cfg, triangulation={"mode": "pair"}, tracking={"enabled": False}).
     """
     if "tracking" in sections:
-        tracking = dataclasses.replace(config.tracking, **sections.pop("tracking"))
+        tracking = _replace(config.tracking, sections.pop("tracking"), "tracking")
         config = dataclasses.replace(config, tracking=tracking)
     rec = config.reconstruction
     for name, values in sections.items():
-        current = getattr(rec, name)
-        rec = dataclasses.replace(rec, **{name: dataclasses.replace(current, **values)})
+        current = getattr(rec, name, None)
+        if not dataclasses.is_dataclass(current):
+            raise ConfigError(f"reconstruction: no section {name!r}")
+        rec = dataclasses.replace(
+            rec, **{name: _replace(current, values, f"reconstruction.{name}")}
+        )
     return dataclasses.replace(config, reconstruction=rec)
+
+
+def check_options(args: argparse.Namespace, *sections: type) -> None:
+    """Check command-line options against the ranges of the schema fields of the same name in
+    `sections` (e.g. InputConfig: --fps, --max-frames); an error names the option."""
+    for cls in sections:
+        for name, (rng, _, _) in cls._ranges.items():
+            value = getattr(args, name, None)
+            if value is not None:
+                rng.check(value, f"--{name.replace('_', '-')}")

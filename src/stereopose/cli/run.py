@@ -18,22 +18,36 @@ def _demo(args: argparse.Namespace) -> int:
     from stereopose.pipeline.demo import write_demo_config
 
     config = write_demo_config(args.out)
+    overwrite = args.overwrite or _previous_demo(Path(args.out), config)
     out.print(
         "[bold]Real demo[/]: Pose2Sim's multi-person recording, 4 cameras (1088x1920, 60 fps), "
         f"its Qualisys calibration and a demo site -> {config}"
     )
-    rc = _run_config(config, "Real demo: detection, 3D reconstruction, tracking, zone events")
+    title = "Real demo: detection, 3D reconstruction, tracking, zone events"
+    rc = _run_config(config, title, overwrite)
     out.print(f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
               f"{Path(args.out) / 'overlays'}", highlight=False, soft_wrap=True)  # fmt: skip
     return rc
 
 
+def _previous_demo(out_dir: Path, config: Path) -> bool:
+    """Whether the run in `out_dir` is a previous demo (its summary names this demo.toml):
+    the demo replaces its own results, never another run's."""
+    import json
+
+    try:
+        previous = json.loads((out_dir / "summary.json").read_text(encoding="utf-8"))["config"]
+        return Path(previous).resolve() == Path(config).resolve()
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
 def _detect(args: argparse.Namespace) -> int:
+    from stereopose.config import DetectorConfig, InputConfig, check_options
     from stereopose.detection import make_detector
     from stereopose.pipeline import detect_videos
 
-    if args.max_frames is not None and args.max_frames <= 0:
-        raise StereoposeError(f"--max-frames must be positive, got {args.max_frames}")
+    check_options(args, InputConfig, DetectorConfig)  # --fps, --max-frames, --imgsz, ...
     detector = make_detector(
         args.backend, args.model, args.imgsz, args.conf, args.iou, args.device, args.threads
     )
@@ -48,6 +62,8 @@ def _detect(args: argparse.Namespace) -> int:
             sync=args.sync,
             fps=args.fps,
             max_frames=args.max_frames,
+            overwrite=args.overwrite,
+            model=args.model,
             on_step=lambda done, total, fps: progress.update(
                 task, completed=done, total=total, fps=fps
             ),
@@ -102,7 +118,7 @@ def _models(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_config(config_path: Path, title: str) -> int:
+def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
     if not Path(config_path).exists():  # at once, before the pipeline is imported
         raise ConfigError(f"{config_path}: configuration file not found")
     from stereopose.io.sinks import describe
@@ -122,6 +138,7 @@ def _run_config(config_path: Path, title: str) -> int:
                 task, completed=done, total=total, fps=fps
             ),
             on_events=show,
+            overwrite=overwrite,
         )
     d = summary.as_dict()
     table = Table(title=title, show_header=False)
@@ -164,7 +181,7 @@ def _run_config(config_path: Path, title: str) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    return _run_config(args.config, f"run {args.config}")
+    return _run_config(args.config, f"run {args.config}", args.overwrite)
 
 
 def _init(args: argparse.Namespace) -> int:
