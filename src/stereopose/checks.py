@@ -26,7 +26,7 @@ MAX_ZONES = 1000
 MAX_IMAGE_PX = 100_000.0
 MAX_FOCAL_PX = 1e6
 MAX_DISTORTION = 1e3  # |k1|, |k2|, |p1|, |p2|, |k3|
-MAX_ROTATION_RAD = 100.0  # norm of the Rodrigues vector (any rotation fits in pi)
+MAX_ROTATION_RAD = 100.0  # each Rodrigues component (any rotation has a vector of norm <= pi)
 MAX_TRANSLATION_M = 1e4
 
 
@@ -106,7 +106,7 @@ _SIZE = Range(ge=1.0, le=MAX_IMAGE_PX)
 _FOCAL = Range(gt=0.0, lt=MAX_FOCAL_PX)
 _PIXEL = Range(gt=-MAX_FOCAL_PX, lt=MAX_FOCAL_PX)  # principal point and skew
 _DISTORTION = Range(gt=-MAX_DISTORTION, lt=MAX_DISTORTION)
-_ROTATION = Range(le=MAX_ROTATION_RAD)
+_ROTATION = Range(ge=-MAX_ROTATION_RAD, le=MAX_ROTATION_RAD)
 _TRANSLATION = Range(gt=-MAX_TRANSLATION_M, lt=MAX_TRANSLATION_M)
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 
@@ -135,6 +135,7 @@ def check_camera_numbers(
     check(_PIXEL, matrix[0, 1], "skew (px)")
     for v, what in zip(distortions, _DIST_NAMES[: len(distortions)], strict=True):
         check(_DISTORTION, v, f"distortion {what}")
-    check(_ROTATION, float(np.linalg.norm(rvec)), "rotation angle (rad, Rodrigues norm)")
+    for v, what in zip(rvec, ("rx", "ry", "rz"), strict=True):
+        check(_ROTATION, v, f"rotation {what} (rad)")
     for v, what in zip(translation, ("tx", "ty", "tz"), strict=True):
         check(_TRANSLATION, v, f"translation {what} (m)")

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from stereopose.errors import CalibrationError, KeypointsError
+from stereopose.checks import check_camera_numbers
 from stereopose.skeleton import NUM_JOINTS
 
 
@@ -106,6 +107,7 @@ class Camera:
             R = rotation_matrix(rvec)
         t = _as_float_array(self.translation, (3,), "translation", owner)
         object.__setattr__(self, "size", (float(size[0]), float(size[1])))
+        check_camera_numbers(size, K, dist, rvec, t, owner)
         object.__setattr__(self, "matrix", _frozen(K))
         object.__setattr__(self, "distortions", _frozen(dist))
         object.__setattr__(self, "rotation", _frozen(rvec))
