@@ -7,6 +7,10 @@ One line per frame, frames with nobody included; the record is built and parsed 
 from __future__ import annotations
 
 import json
+import logging
+import math
+import os
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -14,8 +18,10 @@ from typing import IO
 from stereopose.errors import StereoposeError
 from stereopose.io.records import frame_record, parse_frame_record, people3d_from_record
 from stereopose.io.writing import open_output
-from stereopose.skeleton import floor_position
+from stereopose.skeleton import NUM_JOINTS, floor_position
 from stereopose.types import People3D
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["PosesWriter", "floor_position", "frame_record", "load_people3d", "read_poses"]
 
@@ -44,26 +50,112 @@ class PosesWriter:
         self.close()
 
 
-def read_poses(path: str | Path) -> Iterator[tuple[int, float | None, list[dict]]]:
+# A line holds one frame: 100 people take about 0.2 MB; a line far longer is not poses.
+MAX_LINE_BYTES = 64 * 2**20
+_MAX_INT64 = 2**63 - 1
+# optional per-person fields the readers turn into arrays: (key, length, null allowed inside)
+_OPTIONAL = (("position", 2, False), ("velocity", 2, True), ("conf", NUM_JOINTS, False),
+             ("views", NUM_JOINTS, False))  # fmt: skip
+_MAX_VALUE = 1e15  # beyond any coordinate, speed or count; within 64-bit integers
+
+
+def read_poses(
+    path: str | Path, *, skipped: list[tuple[int, str]] | None = None
+) -> Iterator[tuple[int, float | None, list[dict]]]:
     """Yield (frame, t, people) from a 3D poses JSONL file; people keep their JSON fields and
-    gain `joints_array` (17, 3) with NaN for null."""
+    gain `joints_array` (17, 3) with NaN for null.
+
+    A malformed line raises StereoposeError naming the file and the line; given `skipped` (a
+    list), such a line is skipped instead, with a warning, and its (line number, problem)
+    appended. Whatever the file holds, nothing else is raised."""
     path = Path(path)
+    with _open_regular(path) as f:
+        lineno = 0
+        while True:
+            raw = f.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                return
+            lineno += 1
+            try:
+                parsed = _parse_line(raw, f)
+            except ValueError as e:
+                if skipped is None:
+                    raise StereoposeError(
+                        f"{path}:{lineno}: malformed 3D poses line: {e}"
+                    ) from None
+                logger.warning("%s:%d: malformed 3D poses line skipped: %s", path, lineno, e)
+                skipped.append((lineno, str(e)))
+                continue
+            if parsed is not None:
+                yield parsed
+
+
+def _open_regular(path: Path) -> IO[bytes]:
+    """A regular file opened for reading (a named pipe would block), or StereoposeError."""
     try:
-        f = path.open(encoding="utf-8")
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise StereoposeError(f"{path}: cannot read 3D poses: not a regular file")
+        return path.open("rb")
     except OSError as e:
         raise StereoposeError(f"{path}: cannot read 3D poses: {e.strerror}") from None
-    with f:
-        for lineno, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            try:
-                parsed = parse_frame_record(json.loads(line))
-            except (ValueError, KeyError, TypeError) as e:
-                raise StereoposeError(f"{path}:{lineno}: malformed 3D poses line: {e}") from None
-            yield parsed
+
+
+def _parse_line(raw: bytes, f: IO[bytes]) -> tuple[int, float | None, list[dict]] | None:
+    """One line's frame (None for a blank line); ValueError naming the problem otherwise."""
+    if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
+        while (rest := f.readline(MAX_LINE_BYTES)) and not rest.endswith(b"\n"):
+            pass  # the rest of the overlong line
+        raise ValueError(f"longer than {MAX_LINE_BYTES // 2**20} MiB")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"not UTF-8 text: {e.reason} at byte {e.start}") from None
+    if not text.strip():
+        return None
+    try:
+        frame, t, people = parse_frame_record(json.loads(text))
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
+    except (KeyError, TypeError, IndexError, OverflowError) as e:
+        raise ValueError(f"{type(e).__name__}: {e}") from None
+    _check_record(frame, t, people)
+    return frame, t, people
+
+
+def _check_record(frame: int, t: float | None, people: object) -> None:
+    """The fields readers use beyond what parse_frame_record checks: ranges and shapes."""
+    if not 0 <= frame <= _MAX_INT64:
+        raise ValueError(f"frame {frame} is not a frame number")
+    if t is not None and not math.isfinite(t):
+        raise ValueError(f"t = {t} is not a time")
+    if not isinstance(people, list):
+        raise ValueError(f"'people' must be a list, got {type(people).__name__}")
+    for i, p in enumerate(people):
+        if not -_MAX_INT64 <= int(p["id"]) <= _MAX_INT64:
+            raise ValueError(f"person {i}: id {p['id']} beyond 64 bits")
+        for key, n, none_inside in _OPTIONAL:
+            if not _numbers(p.get(key), n, none_inside):
+                raise ValueError(f"person {i}: {key} must be null or {n} numbers")
+
+
+def _numbers(value: object, n: int, none_inside: bool) -> bool:
+    """Whether value is None or a list of n numbers within +-_MAX_VALUE (or nulls, with
+    none_inside)."""
+    if value is None:
+        return True
+    if not isinstance(value, list) or len(value) != n:
+        return False
+    for v in value:
+        if v is None and none_inside:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            return False
+        if not -_MAX_VALUE <= v <= _MAX_VALUE:  # NaN compares false
+            return False
+    return True
 
 
 def load_people3d(path: str | Path, num_cameras: int = 0) -> list[People3D]:
     """Read a 3D poses file back as People3D per frame (the per-joint reprojection errors and
-    the detections used are not stored)."""
+    the detections used are not stored); a malformed line is a StereoposeError."""
     return [people3d_from_record(f, people, num_cameras) for f, _t, people in read_poses(path)]
