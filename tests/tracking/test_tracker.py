@@ -97,12 +97,63 @@ def test_nobody_seen_then_tracks_end_after_max_lost() -> None:
     assert [t.frames_seen for t in tracker.trajectories()] == [10, 10]
 
 
-def test_frames_must_increase() -> None:
-    scene = simulate(difficulty="easy", num_frames=3, seed=2)
-    tracker = Stage3D(scene.rig)
-    tracker.step(2, frames_of(scene)[2])
-    with pytest.raises(ValueError, match="frame 2 does not come after frame 2"):
-        tracker.step(2, frames_of(scene)[2])
+def run_with_zone(scene: Scene, frame_numbers: list[int]):
+    """Tracked people and zone events of scene's frames numbered `frame_numbers`, with one
+    work area around the whole scene."""
+    from stereopose.fence import FenceMonitor, Site, Zone
+
+    cfg = dataclasses.replace(Config(), fps=scene.fps)
+    stage = Stage3D(scene.rig, cfg)
+    zone = Zone("hall", "work_area", np.array([[-50, -50], [50, -50], [50, 50], [-50, 50]]), (0, 3))
+    fences = FenceMonitor(Site((zone,)), cfg.fps, cfg.tracking.max_lost_s)
+    out, events = [], []
+    for n, people2d in zip(frame_numbers, frames_of(scene), strict=False):
+        people = stage.step(n, people2d)
+        out.append(people)
+        events += fences.update(people)
+    return out, events, stage
+
+
+@pytest.mark.parametrize("jump", [10**3, 10**6, 2**53 - 100])
+def test_a_jump_in_frame_numbers_ends_the_tracks_lost_too_long(jump: int) -> None:
+    """Frames 0-18, then frame numbers far ahead: the people there are new tracks, and the
+    people inside the zone before the jump exit it (lost) at the first frame after it."""
+    scene = simulate(difficulty="easy", num_frames=30, seed=11, p_enter=0.0, p_leave=0.0)
+    numbers = list(range(19)) + list(range(jump, jump + 11))
+    out, events, stage = run_with_zone(scene, numbers)
+    before = {int(i) for p in out[:19] for i in p.ids}
+    after = {int(i) for p in out[19:] for i in p.ids}
+    assert len(before) == 2 and len(after) == 2 and not before & after
+    assert not any(p.predicted.any() for p in out[19:])
+    exits = [e for e in events if e.type == "exit"]
+    assert sorted(e.person for e in exits) == sorted(before)
+    assert all(e.lost and e.frame == jump for e in exits)
+    enters = sorted(e.person for e in events if e.type == "enter")
+    assert enters == sorted(before | after)
+    ended = {t.id: t for t in stage.trajectories()}
+    assert all(ended[i].last_frame == 18 for i in before)
+
+
+def test_a_frame_that_does_not_come_later_is_skipped(caplog) -> None:
+    """A repeated or earlier frame number gives nobody, with a warning, and leaves the tracks
+    exactly as they were: the frames after it come out as if it had not been there."""
+    scene = simulate(difficulty="easy", num_frames=12, seed=2, p_enter=0.0, p_leave=0.0)
+    frames = frames_of(scene)
+    clean, _ = track(scene, frames)
+    cfg = dataclasses.replace(Config(), fps=scene.fps)
+    stage = Stage3D(scene.rig, cfg)
+    got = []
+    with caplog.at_level("WARNING"):
+        for t, f in enumerate(frames):
+            got.append(stage.step(t, f))
+            if t == 6:
+                assert len(stage.step(6, frames[6])) == 0  # repeated
+                assert len(stage.step(2, frames[2])) == 0  # back in time
+    assert "frame 6 does not come after frame 6" in caplog.text
+    assert "frame 2 does not come after frame 6" in caplog.text
+    for a, b in zip(clean, got, strict=True):
+        assert a.ids.tolist() == b.ids.tolist()
+        np.testing.assert_array_equal(a.joints, b.joints)
 
 
 @pytest.mark.realdata

@@ -16,6 +16,7 @@ Each frame:
 from __future__ import annotations
 
 import collections
+import logging
 from collections.abc import Sequence
 
 import numpy as np
@@ -29,6 +30,8 @@ from stereopose.tracking.filter import JointFilters
 from stereopose.tracking.offline import NOT_USED, RESTARTED, TrackLog, smooth_people
 from stereopose.tracking.positioning import Trajectory, floor_position
 from stereopose.types import People3D, Rig
+
+logger = logging.getLogger(__name__)
 
 # Trajectories of ended tracks kept (the oldest are forgotten beyond this): the tracker's
 # memory stays bounded however long it runs.
@@ -66,6 +69,8 @@ class Tracker:
         self._seed_rows = np.zeros(0, dtype=np.int64)
         self._next_id = 1
         self._frame = 0
+        self._last_frame = 0  # the last frame not skipped
+        self._skipping = False  # prior(self._frame) skipped its frame
         # per track a serial number that never changes; with `record`, its measurements
         self.serial = np.zeros(0, dtype=np.int64)
         self._next_serial = 0
@@ -79,6 +84,7 @@ class Tracker:
         self.hits = np.zeros(0, dtype=np.int64)
         self.seen_t = np.zeros(0)
         self.born = np.zeros(0, dtype=np.int64)
+        self.born_t = np.zeros(0)
         self.conf = np.zeros((0, NUM_JOINTS))
         self.joint_t = np.zeros((0, NUM_JOINTS))
         self.trajectories: dict[int, Trajectory] = {}
@@ -91,17 +97,30 @@ class Tracker:
         """Number of tracks held, tentative and lost ones included."""
         return int(self.ids.shape[0])
 
-    def prior(self, frame: int) -> np.ndarray | None:
+    def prior(self, frame: int, t: float | None = None) -> np.ndarray | None:
         """Every track's pose predicted to `frame`: the poses (T, 17, 3) of the tracks seen
         within seed_s, which seed the frame's reconstruction (None when there are none).
-        Frame numbers must increase; the time of a frame is frame / fps."""
+
+        The time of a frame is t seconds (None: frame / fps; live cameras give their frames'
+        arrival time, so prediction and max_lost_s follow the clock). Tracks unseen for more than max_lost_s by then end
+        first, however far the frame jumps ahead, so nobody lost that long keeps their id. A
+        frame that does not come after the last one is skipped with a warning (its `update`
+        gives nobody and changes nothing): the tracks stay as they were."""
         tc, fps = self.tc, self.config.fps
-        t = frame / fps
-        if self._t is not None and t <= self._t:
-            raise ValueError(f"frame {frame} does not come after frame {round(self._t * fps)}")
+        t = frame / fps if t is None else float(t)
+        if self._t is not None and not t > self._t:
+            logger.warning(
+                "frame %d does not come after frame %d: skipped by the tracker",
+                frame,
+                self._last_frame,
+            )
+            self._frame, self._skipping, self._unseen = frame, True, None
+            return None
         dt = 0.0 if self._t is None else t - self._t
         self._t = t
-        self._frame = frame
+        self._frame = self._last_frame = frame
+        self._skipping = False
+        self._end(t - self.seen_t > tc.max_lost_s + 1e-9)
         unseen = t - self.seen_t  # before this frame
         self.filters.predict(dt, self._q, moving=unseen <= tc.bridge_s + 1e-9)
         self._seed_rows = np.flatnonzero(unseen <= tc.seed_s + 1e-9)
@@ -111,6 +130,9 @@ class Tracker:
     def update(self, frame: int, rec: Reconstruction) -> People3D:
         """The tracked people at `frame` (ids persistent, joints smoothed) from its
         reconstruction, seeded by what `prior(frame)` returned."""
+        if frame == self._frame and self._skipping:
+            self._skipping = False
+            return People3D.empty(frame, self.num_cameras)
         if frame != self._frame or self._unseen is None:
             raise ValueError(f"frame {frame}: call prior({frame}) before update")
         t, unseen, seed_rows = self._t, self._unseen, self._seed_rows
@@ -191,6 +213,7 @@ class Tracker:
         self.hits = np.concatenate([self.hits, np.zeros(n, dtype=np.int64)])
         self.seen_t = np.concatenate([self.seen_t, np.full(n, -np.inf)])
         self.born = np.concatenate([self.born, np.full(n, frame, dtype=np.int64)])
+        self.born_t = np.concatenate([self.born_t, np.full(n, self._t)])
         self.conf = np.concatenate([self.conf, np.zeros((n, NUM_JOINTS))])
         self.joint_t = np.concatenate([self.joint_t, np.full((n, NUM_JOINTS), -np.inf)])
         serial = np.arange(self._next_serial, self._next_serial + n)
@@ -258,7 +281,7 @@ class Tracker:
                 self.trajectories[self._next_id] = Trajectory(
                     self._next_id,
                     int(self.born[r]),
-                    self.born[r] / self.config.fps,
+                    float(self.born_t[r]),
                     frame,
                     t,
                     frames_seen=int(self.hits[r]) - 1,
@@ -321,7 +344,10 @@ class Tracker:
         missed = np.ones(len(self), dtype=bool)
         missed[rows] = False
         self.hits[missed] = 0
-        drop = missed & ((self.ids == 0) | (t - self.seen_t > tc.max_lost_s + 1e-9))
+        self._end(missed & ((self.ids == 0) | (t - self.seen_t > tc.max_lost_s + 1e-9)))
+
+    def _end(self, drop: np.ndarray) -> None:
+        """Drop the tracks flagged in `drop` (len(self),); the confirmed ones have ended."""
         if drop.any():
             ended = self.ids[drop & (self.ids > 0)].tolist()
             self._ended.extend(ended)
@@ -331,5 +357,5 @@ class Tracker:
             keep = ~drop
             self.filters.keep(keep)
             self.bones.keep(keep)
-            for name in ("ids", "hits", "seen_t", "born", "conf", "joint_t", "serial"):
+            for name in ("ids", "hits", "seen_t", "born", "born_t", "conf", "joint_t", "serial"):
                 setattr(self, name, getattr(self, name)[keep])
