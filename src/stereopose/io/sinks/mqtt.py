@@ -1,0 +1,386 @@
+"""Alarms out over MQTT, the convention of camera-event systems (Frigate, Home Assistant).
+
+Topics under ``<prefix>/<site>/`` (see docs/mqtt.md):
+
+- ``events``: each zone event as the events JSON lines write it (io.records), QoS 1.
+- ``zones/<zone>``: who is inside each zone, retained, QoS 1; derived from the zone's enter and
+  exit events; every known zone is published (empty at first) on each connect.
+- ``people``: the current people (id, floor position, heading), at most ``people_hz`` per second
+  of the frames' own clock, QoS 0.
+- ``available``: ``online`` retained on connect; ``offline`` retained at a clean close and as
+  the last will, so a crash or a lost link reads ``offline``.
+
+The frame loop never waits on the network: `write` only appends to bounded queues; a sender
+thread hands messages to paho (whose network loop runs on its own thread and reconnects with
+backoff) while connected, a few at a time. When the queue bound is hit the oldest people update
+is dropped first, the oldest event only when no people update is left; drops are counted and
+logged once per burst. Zone states are not queued: only each zone's latest state is kept, and
+it is sent again on every connect (the broker may have lost it in a restart).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as paho
+
+from stereopose.io.records import event_record, frame_record
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_name, topic_part
+from stereopose.types import Event, People3D
+
+__all__ = ["MqttSettings", "MqttSink", "people_record", "topic_name", "topic_part"]
+
+logger = logging.getLogger(__name__)
+
+KINDS = ("events", "zones", "people")
+ONLINE, OFFLINE = "online", "offline"
+INFLIGHT = 20  # messages handed to paho and not yet acknowledged (paho's own default window)
+
+
+@dataclass
+class _Message:
+    kind: str
+    topic: str
+    payload: str
+    qos: int
+    retain: bool = False
+
+
+@dataclass
+class _Counts:
+    published: dict[str, int] = field(default_factory=lambda: dict.fromkeys(KINDS, 0))
+    dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(KINDS, 0))
+    failed: dict[str, int] = field(default_factory=lambda: dict.fromkeys(KINDS, 0))
+    refused: int = 0  # connections the broker refused (bad login, not authorised)
+    burst: int = 0  # dropped since the queue last had room
+
+
+class MqttSink(ClosesOnce):
+    """A sink of the frame loop publishing events, zone occupancy and people over MQTT.
+
+    settings: the broker and topics. zone_names: the site's zones, published empty at start
+    (zones met only in events are added as they come). `counts()` gives, per kind (events,
+    zones, people), how many were published (acknowledged for QoS 1), are still queued, were
+    dropped (queue full) or failed (the client refused the message).
+    """
+
+    stage = "write"
+
+    def __init__(self, settings: MqttSettings, zone_names: Iterable[str] = ()) -> None:
+        self.settings = s = settings
+        base = f"{s.topic_prefix}/{topic_part(s.site)}"
+        self.topics = {k: f"{base}/{k}" for k in ("events", "people", "available")}
+        self._zone_base = f"{base}/zones/"
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = False
+        self._queues: dict[str, deque[tuple[int, _Message]]] = {
+            "events": deque(),
+            "people": deque(),
+        }
+        self._seq = 0
+        self._zones: dict[str, tuple[set[int], float | None, int | None]] = {
+            z: (set(), None, None) for z in zone_names
+        }
+        self._dirty: set[str] = set(self._zones)
+        self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
+        self._connected = self._announce = self._resync = False
+        self._last_problem: str | None = None
+        self._people_t: float | None = None
+        self._people_empty = True
+        self._counts = _Counts()
+        self._client = self._make_client()
+        self._sender = threading.Thread(target=self._send_loop, name="mqtt-send", daemon=True)
+        self._sender.start()
+        self._client.connect_async(s.host, s.port, keepalive=s.keepalive_s)
+        self._client.loop_start()
+
+    def __repr__(self) -> str:
+        return f"MqttSink({self.settings!r})"
+
+    # --- the frame loop's side: never touches the network ---
+
+    def write(self, frame: FrameResult) -> None:
+        self.write_events(frame.events)
+        self._write_people(frame)
+
+    def write_events(self, events: Sequence[Event]) -> None:
+        """Queue events and update the occupancy of their zones."""
+        if not events:
+            return
+        with self._lock:
+            for e in events:
+                self._put(_Message("events", self.topics["events"], _dumps(event_record(e)), 1))
+                self._occupy(e)
+        self._wake.set()
+
+    def _occupy(self, e: Event) -> None:
+        inside, _, _ = self._zones.get(e.zone, (set(), None, None))
+        if e.type == "enter":
+            inside = inside | {e.person}
+        elif e.type == "exit":
+            inside = inside - {e.person}
+        elif e.zone in self._zones:
+            return
+        self._zones[e.zone] = (inside, e.t, e.frame)
+        self._dirty.add(e.zone)
+
+    def _write_people(self, frame: FrameResult) -> None:
+        hz = self.settings.people_hz
+        if hz <= 0:
+            return
+        t, last = frame.t, self._people_t
+        # by the frames' clock: the same frames always give the same updates; 1 us of slack
+        # for t = frame / fps landing a rounding error short of the period
+        if last is not None and last <= t < last + 1.0 / hz - 1e-6:
+            return
+        empty = len(frame.people3d) == 0
+        if empty and self._people_empty:
+            return  # nobody now and nobody in the last update: nothing new to say
+        self._people_t, self._people_empty = t, empty
+        payload = _dumps(people_record(frame.people3d, t))
+        with self._lock:
+            self._put(_Message("people", self.topics["people"], payload, 0))
+        self._wake.set()
+
+    def _put(self, msg: _Message) -> None:
+        """Append under the lock; at the bound drop the oldest people update, else the oldest
+        event."""
+        queues = self._queues
+        if sum(len(q) for q in queues.values()) >= self.settings.queue_size:
+            victim = queues["people"] if queues["people"] else queues["events"]
+            kind = victim.popleft()[1].kind
+            self._counts.dropped[kind] += 1
+            if self._counts.burst == 0:
+                logger.warning(
+                    "MQTT %s:%d: %d messages waiting, the bound: dropping the oldest "
+                    "(people updates first) until the broker takes them",
+                    self.settings.host, self.settings.port, self.settings.queue_size,
+                )  # fmt: skip
+            self._counts.burst += 1
+        self._seq += 1
+        queues[msg.kind].append((self._seq, msg))
+
+    # --- the sender thread: hands messages to paho while connected ---
+
+    def _send_loop(self) -> None:
+        while True:
+            self._wake.wait(0.2)
+            self._wake.clear()
+            while (msg := self._next()) is not None:
+                self._publish(msg)
+            if self._stop:
+                return
+
+    def _next(self) -> _Message | None:
+        """The next message to hand over, or None (not connected, window full, nothing)."""
+        with self._lock:
+            self._sweep()
+            if not self._connected or len(self._inflight) >= INFLIGHT:
+                return None
+            if self._resync:
+                if self._inflight:
+                    return None  # paho resends these first: later messages keep their order
+                self._resync = False
+            if self._announce:
+                self._announce = False
+                return _Message("available", self.topics["available"], ONLINE, 1, retain=True)
+            if self._dirty:
+                return self._zone_message(self._dirty.pop())
+            heads = [q for q in self._queues.values() if q]
+            if not heads:
+                self._end_burst()
+                return None
+            return min(heads, key=lambda q: q[0][0]).popleft()[1]
+
+    def _zone_message(self, zone: str) -> _Message:
+        inside, t, frame = self._zones[zone]
+        people = sorted(inside)
+        body = {"zone": zone, "people": people, "count": len(people), "t": t, "frame": frame}
+        return _Message("zones", self._zone_base + topic_part(zone), _dumps(body), 1, True)
+
+    def _publish(self, msg: _Message) -> None:
+        try:
+            info = self._client.publish(msg.topic, msg.payload, qos=msg.qos, retain=msg.retain)
+        except (ValueError, RuntimeError) as e:  # paho refuses it (too large, bad topic)
+            info, problem = None, str(e)
+        else:
+            ok = (paho.MQTT_ERR_SUCCESS, paho.MQTT_ERR_NO_CONN)  # NO_CONN: paho resends it
+            problem = None if info.rc in ok else paho.error_string(info.rc)
+        with self._lock:
+            if problem is None and info is not None:
+                self._inflight.append((msg.kind, info))
+            elif msg.kind in KINDS:
+                self._counts.failed[msg.kind] += 1
+                logger.error("MQTT: cannot publish to %s: %s", msg.topic, problem)
+
+    def _sweep(self) -> None:
+        """Count what the broker has acknowledged (QoS 1) or paho has sent (QoS 0)."""
+        while self._inflight and self._inflight[0][1].is_published():
+            kind, _ = self._inflight.popleft()
+            if kind in KINDS:
+                self._counts.published[kind] += 1
+        # later ones may be done before an earlier one (QoS 0 after a pending QoS 1)
+        if any(info.is_published() for _, info in self._inflight):
+            rest = deque()
+            for kind, info in self._inflight:
+                if info.is_published():
+                    if kind in KINDS:
+                        self._counts.published[kind] += 1
+                else:
+                    rest.append((kind, info))
+            self._inflight = rest
+
+    def _end_burst(self) -> None:
+        if self._counts.burst:
+            logger.warning("MQTT: %d messages were dropped while the queue was full",
+                           self._counts.burst)  # fmt: skip
+            self._counts.burst = 0
+
+    # --- paho's network thread ---
+
+    def _make_client(self) -> paho.Client:
+        s = self.settings
+        client_id = s.client_id or f"stereopose-{topic_part(s.site)}-{uuid.uuid4().hex[:8]}"
+        c = paho.Client(
+            paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv311
+        )
+        c.will_set(self.topics["available"], OFFLINE, qos=1, retain=True)
+        if s.username is not None:
+            c.username_pw_set(s.username, s.password)
+        if s.tls:
+            c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
+        c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
+        c.max_inflight_messages_set(INFLIGHT)
+        c.on_connect = self._on_connect
+        c.on_connect_fail = self._on_connect_fail
+        c.on_disconnect = self._on_disconnect
+        c.on_publish = lambda *_: self._wake.set()
+        return c
+
+    def _problem(self, level: int, text: str) -> None:
+        """Log a connection problem once, not on every retry."""
+        if text != self._last_problem:
+            self._last_problem = text
+            logger.log(level, "MQTT %s:%d: %s", self.settings.host, self.settings.port, text)
+
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if reason.is_failure:
+            with self._lock:
+                self._counts.refused += 1
+            self._problem(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
+            return
+        with self._lock:
+            self._connected = self._announce = True
+            self._resync = bool(self._inflight)
+            self._dirty.update(self._zones)  # the broker may have lost its retained states
+            waiting = sum(len(q) for q in self._queues.values())
+        if self._last_problem is not None:
+            logger.info("MQTT %s:%d: connected; %d messages waiting", self.settings.host,
+                        self.settings.port, waiting)  # fmt: skip
+        self._last_problem = None
+        self._wake.set()
+
+    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+        why = (
+            "broker unreachable or TLS handshake failed"
+            if self.settings.tls
+            else "broker unreachable"
+        )
+        self._problem(logging.WARNING, f"{why}; queueing and retrying")
+
+    def _on_disconnect(
+        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+    ) -> None:
+        with self._lock:
+            was_up, self._connected = self._connected, False
+        # after a refused login the link was never up: that refusal is the news, not this
+        if was_up and not self._stop:
+            self._problem(logging.WARNING, "connection lost; queueing and retrying")
+
+    # --- close ---
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """Per kind: published, queued (waiting or not yet acknowledged), dropped, failed."""
+        with self._lock:
+            self._sweep()
+            c = self._counts
+            queued = {k: len(self._queues.get(k, ())) for k in KINDS}
+            for kind, _ in self._inflight:
+                if kind in queued:
+                    queued[kind] += 1
+            queued["zones"] += len(self._dirty)
+            return {
+                k: {"published": c.published[k], "queued": queued[k], "dropped": c.dropped[k],
+                    "failed": c.failed[k]}
+                for k in KINDS
+            }  # fmt: skip
+
+    @property
+    def refused(self) -> int:
+        """Connections the broker refused (a bad login, not authorised)."""
+        return self._counts.refused
+
+    def _drained(self) -> bool:
+        return all(v["queued"] == 0 for v in self.counts().values())
+
+    def _close(self) -> list[Path]:
+        deadline = time.monotonic() + self.settings.close_timeout_s
+        while not self._drained() and time.monotonic() < deadline:
+            self._wake.set()
+            time.sleep(0.02)
+        self._stop = True
+        self._wake.set()
+        self._sender.join(timeout=1.0)
+        if self._connected:
+            info = self._client.publish(self.topics["available"], OFFLINE, qos=1, retain=True)
+            # the link may go meanwhile (paho raises); the will says offline then
+            with contextlib.suppress(RuntimeError, ValueError):
+                info.wait_for_publish(timeout=max(0.5, deadline - time.monotonic()))
+        self._client.disconnect()
+        self._stop_loop()
+        self._report()
+        return []
+
+    def _stop_loop(self) -> None:
+        """paho's loop_stop joins without a limit; a connect in progress must not hang close."""
+        stopper = threading.Thread(target=self._client.loop_stop, daemon=True)
+        stopper.start()
+        stopper.join(timeout=self.settings.close_timeout_s + 1.0)
+        if stopper.is_alive():
+            logger.warning("MQTT: the network thread did not stop; left behind")
+
+    def _report(self) -> None:
+        counts = self.counts()
+        text = "; ".join(f"{k} " + ", ".join(f"{n} {w}" for w, n in v.items()) for k, v in
+                         counts.items())  # fmt: skip
+        lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())
+        logger.log(logging.WARNING if lost else logging.INFO, "MQTT %s:%d closed: %s",
+                   self.settings.host, self.settings.port, text)  # fmt: skip
+
+
+def people_record(people: People3D, t: float) -> dict:
+    """The people topic's JSON: the poses record's frame, t and, per person, id, position
+    and heading_deg (the same fields and rounding as the 3D poses JSON lines)."""
+    rec = frame_record(people, fps=1.0)  # its t (frame / fps) is replaced by the frame's own
+    keep = ("id", "position", "heading_deg")
+    return {
+        "frame": rec["frame"],
+        "t": round(t, 6),
+        "people": [{k: p[k] for k in keep} for p in rec["people"]],
+    }
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj)  # as the events JSON lines write it

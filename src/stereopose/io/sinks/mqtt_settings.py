@@ -1,0 +1,136 @@
+"""The MQTT sink's settings and its topic rules: names made safe as topic levels.
+
+Every settings value is checked at once; a bad one is a ConfigError naming its key
+(``mqtt.<key>``), as the configuration file will spell it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stereopose.errors import ConfigError
+
+__all__ = ["MqttSettings", "topic_name", "topic_part"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class MqttSettings:
+    """Where and how the MQTT sink publishes; checked at once (ConfigError naming the key).
+
+    host, port: the broker. site: this installation's name, a topic level. topic_prefix: the
+    first topic level(s), '/'-separated. username, password: broker login (the password is
+    never shown). tls: connect with TLS, checking the broker's certificate against the system
+    CAs or ca_file. client_id: default ``stereopose-<site>-<random>``. keepalive_s: the broker
+    declares the link lost (and sends the will) after 1.5 keepalive_s of silence. queue_size:
+    events and people updates waiting at most while the broker is away. people_hz: people
+    updates per second of frame time (0: none). reconnect_min_s .. reconnect_max_s: the
+    reconnect backoff. close_timeout_s: how long `close` waits for the queue to drain.
+    """
+
+    host: str
+    site: str
+    port: int = 1883
+    topic_prefix: str = "stereopose"
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)
+    tls: bool = False
+    ca_file: Path | None = None
+    client_id: str | None = None
+    keepalive_s: int = 30
+    queue_size: int = 10_000
+    people_hz: float = 5.0
+    reconnect_min_s: float = 1.0
+    reconnect_max_s: float = 30.0
+    close_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.host, str) or not self.host.strip():
+            raise ConfigError(f"mqtt.host: expected a broker host name, got {self.host!r}")
+        port = self.port
+        if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
+            raise ConfigError(f"mqtt.port: expected an integer in 1..65535, got {self.port!r}")
+        if not isinstance(self.site, str) or not self.site.strip():
+            raise ConfigError(f"mqtt.site: expected a non-empty site name, got {self.site!r}")
+        _check_prefix(self.topic_prefix)
+        if self.ca_file is not None:
+            if not self.tls:
+                raise ConfigError("mqtt.ca_file: given, but mqtt.tls is false")
+            if not Path(self.ca_file).is_file():
+                raise ConfigError(f"mqtt.ca_file: no such file {str(self.ca_file)!r}")
+        if self.password is not None and self.username is None:
+            raise ConfigError("mqtt.password: given without mqtt.username")
+        for key, low in (("keepalive_s", 1), ("queue_size", 1)):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ConfigError(f"mqtt.{key}: expected an integer >= {low}, got {value!r}")
+        for key in ("people_hz", "reconnect_min_s", "reconnect_max_s", "close_timeout_s"):
+            value = getattr(self, key)
+            if not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+                raise ConfigError(f"mqtt.{key}: expected a number >= 0, got {value!r}")
+        if not 0 < self.reconnect_min_s <= self.reconnect_max_s:
+            raise ConfigError(
+                f"mqtt.reconnect_min_s: expected 0 < reconnect_min_s <= reconnect_max_s, got "
+                f"{self.reconnect_min_s!r} and {self.reconnect_max_s!r}"
+            )
+
+
+# Characters a topic level cannot hold as they are: '/' separates levels, '+' and '#' are
+# wildcards, '%' escapes; mosquitto drops a client that sends control characters,
+# non-characters or lone surrogates in a topic, so those are escaped too.
+def _escaped(ch: str) -> bool:
+    o = ord(ch)
+    return (
+        ch in "/+#%"
+        or o < 0x20
+        or 0x7F <= o <= 0x9F
+        or 0xD800 <= o <= 0xDFFF
+        or 0xFDD0 <= o <= 0xFDEF
+        or (o & 0xFFFF) >= 0xFFFE
+    )
+
+
+def topic_part(name: str) -> str:
+    """A zone or site name as one topic level: each character of ``/ + # %``, the control
+    characters and the Unicode non-characters percent-encoded (its UTF-8 bytes as ``%XX``),
+    the rest unchanged; the empty name is a lone ``%``. The mapping is one-to-one
+    (`topic_name` reverses it), so two zones never share a topic."""
+    if not name:
+        return "%"  # a lone '%' decodes to nothing else, and names never encode to it
+    return "".join(
+        "".join(f"%{b:02X}" for b in ch.encode("utf-8", "surrogatepass")) if _escaped(ch) else ch
+        for ch in name
+    )
+
+
+def topic_name(part: str) -> str:
+    """The name back from a topic level written by `topic_part`."""
+    if part == "%":
+        return ""
+    out, raw, i = [], bytearray(), 0
+    while i < len(part):
+        if part[i] == "%":
+            raw += bytes.fromhex(part[i + 1 : i + 3])
+            i += 3
+            continue
+        if raw:
+            out.append(raw.decode("utf-8", "surrogatepass"))
+            raw.clear()
+        out.append(part[i])
+        i += 1
+    if raw:
+        out.append(raw.decode("utf-8", "surrogatepass"))
+    return "".join(out)
+
+
+def _check_prefix(prefix: str) -> None:
+    if (
+        not isinstance(prefix, str)
+        or prefix.startswith("$")
+        or any(not lv or topic_part(lv) != lv for lv in prefix.split("/"))
+    ):
+        raise ConfigError(
+            f"mqtt.topic_prefix: expected '/'-separated non-empty levels without + # % or "
+            f"control characters, not starting with $, got {prefix!r}"
+        )
