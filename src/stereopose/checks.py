@@ -102,7 +102,7 @@ def _show(value: Any) -> str:
 
 FPS = Range(ge=FPS_MIN, le=FPS_MAX)
 SITE_COORD = Range(ge=-SITE_LIMIT_M, le=SITE_LIMIT_M)
-_SIZE = Range(ge=1.0, le=MAX_IMAGE_PX)
+IMAGE_SIZE = Range(ge=1.0, le=MAX_IMAGE_PX)
 _FOCAL = Range(gt=0.0, lt=MAX_FOCAL_PX)
 _PIXEL = Range(gt=-MAX_FOCAL_PX, lt=MAX_FOCAL_PX)  # principal point and skew
 _DISTORTION = Range(gt=-MAX_DISTORTION, lt=MAX_DISTORTION)
@@ -127,7 +127,7 @@ def check_camera_numbers(
         rng.check(float(value), f"{owner}: {what}", CalibrationError)
 
     for v, what in zip(size, ("width", "height"), strict=True):
-        check(_SIZE, v, f"size {what} (px)")
+        check(IMAGE_SIZE, v, f"size {what} (px)")
     check(_FOCAL, matrix[0, 0], "fx (px)")
     check(_FOCAL, matrix[1, 1], "fy (px)")
     check(_PIXEL, matrix[0, 2], "cx (px)")
