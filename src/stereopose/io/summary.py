@@ -84,6 +84,7 @@ class RunSummary:
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
     two_way_frames: int = 0
     outputs: list[Path] = field(default_factory=list)
+    failed_outputs: dict[str, str] = field(default_factory=dict)  # output -> why not written
     interrupted: bool = False
     error: str | None = None
 
@@ -202,6 +203,7 @@ class RunSummary:
             "interrupted": self.interrupted,
             "error": self.error,
             "outputs": [str(p) for p in self.outputs],
+            "failed_outputs": dict(self.failed_outputs),
         }
 
 

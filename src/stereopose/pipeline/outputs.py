@@ -32,8 +32,9 @@ from stereopose.io.sinks import (
     WebhookSink,
     close_all,
 )
-from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
 from stereopose.io.summary import RunSummary
+from stereopose.io.writing import probe_output
 from stereopose.types import Event, Rig
 
 # reconstruct_files' keyword names for the fields of Outputs
@@ -111,12 +112,14 @@ def check_outputs(config: Config, site: Site | None, outputs: Outputs) -> None:
 
 class ReportSink(ClosesOnce):
     """report.html, built at close from the run folder (after summary.json); none after an
-    error."""
+    error. Its folder is tried at once."""
 
     stage = "write"
 
     def __init__(self, run_dir: Path, summary: RunSummary) -> None:
         self.run_dir, self.summary = Path(run_dir), summary
+        self.path = self.run_dir / "report.html"
+        probe_output(self.path, "the report")
 
     def write(self, frame: FrameResult) -> None:
         pass
@@ -130,17 +133,21 @@ class ReportSink(ClosesOnce):
 
 
 def _event_sinks(
-    o: Outputs, site: Site, source: str, on_events: Callable[[list[Event]], None] | None
+    o: Outputs,
+    site: Site,
+    source: str,
+    on_events: Callable[[list[Event]], None] | None,
+    guard: Callable[[Sink, object], Sink],
 ) -> list[Sink]:
     sinks: list[Sink] = []
     if o.events is not None:
-        sinks.append(JsonlSink(o.events))
+        sinks.append(guard(JsonlSink(o.events), o.events))
     if o.events_db is not None:
-        sinks.append(SqliteSink(o.events_db, str(site.path or ""), source))
+        sinks.append(guard(SqliteSink(o.events_db, str(site.path or ""), source), o.events_db))
     if o.webhook is not None:
-        sinks.append(WebhookSink(o.webhook))
+        sinks.append(guard(WebhookSink(o.webhook), o.webhook))
     if on_events is not None:
-        sinks.append(CallbackSink(on_events))
+        sinks.append(guard(CallbackSink(on_events), "the events shown"))
     return sinks
 
 
@@ -156,35 +163,46 @@ def open_outputs(
     on_events: Callable[[list[Event]], None] | None = None,
 ) -> list[Sink]:
     """Every sink `outputs` names, in closing order (see the module); `stage` is the 3D stage
-    (its trajectories and two-way smoother). Event outputs only with a site. If one cannot be
-    opened, those already open are closed and the error is raised."""
+    (its trajectories and two-way smoother). Event outputs only with a site.
+
+    Each output is opened, or its folder tried, now: if one cannot be, those already open are
+    closed and its OutputError is raised, before any work. Later, an output that fails (disk
+    full, folder gone) stops alone (io.sinks.base.Guarded): the run and the other outputs go
+    on, and `summary.failed_outputs` names it and why.
+    """
     o, fps = outputs, config.fps
     sinks: list[Sink] = []
+
+    def guard(sink: Sink, label: object) -> Sink:
+        return Guarded(sink, str(label), summary.failed_outputs)
+
     try:
         if o.poses is not None:
-            sinks.append(PosesSink(o.poses, fps))
+            sinks.append(guard(PosesSink(o.poses, fps), o.poses))
         if site is not None:
-            sinks += _event_sinks(o, site, source, on_events)
+            sinks += _event_sinks(o, site, source, on_events, guard)
         exports: list[Sink] = []
         if o.csv is not None:
-            exports.append(CsvSink(o.csv, fps))
+            exports.append(guard(CsvSink(o.csv, fps), o.csv))
         if o.trc_dir is not None:  # a track unseen this long has ended: its file is closed
             idle = math.ceil(config.tracking.max_lost_s * fps) + 2
-            exports.append(TrcSink(o.trc_dir, fps, idle_frames=idle))
+            exports.append(guard(TrcSink(o.trc_dir, fps, idle_frames=idle), o.trc_dir))
         if o.two_way and exports:
-            sinks.append(TwoWaySink(exports, stage.two_way))
+            sinks.append(guard(TwoWaySink(exports, stage.two_way), "the two-way exports"))
         else:
             sinks += exports
         if o.overlays_dir is not None:
             from stereopose.pipeline.overlays import OverlaySink
 
-            sinks.append(OverlaySink(rig, o.overlays_dir, fps, o.overlay_scale))
-        sinks.append(CameraStatsSink(rig, summary.per_camera))
+            overlays = OverlaySink(rig, o.overlays_dir, fps, o.overlay_scale)
+            sinks.append(guard(overlays, o.overlays_dir))
+        sinks.append(guard(CameraStatsSink(rig, summary.per_camera), "the camera statistics"))
         if o.tracks is not None and stage.tracking:
-            sinks.append(TracksSink(o.tracks, stage.trajectories))
-        sinks.append(SummarySink(summary, o.summary))
+            sinks.append(guard(TracksSink(o.tracks, stage.trajectories), o.tracks))
+        sinks.append(guard(SummarySink(summary, o.summary), o.summary or "the run summary"))
         if o.report_dir is not None:
-            sinks.append(ReportSink(o.report_dir, summary))
+            report = ReportSink(o.report_dir, summary)
+            sinks.append(guard(report, report.path))
     except BaseException:
         close_all(sinks)
         raise

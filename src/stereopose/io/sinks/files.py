@@ -8,10 +8,11 @@ import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from stereopose.errors import StereoposeError
+from stereopose.errors import OutputError
 from stereopose.io.exports import CsvExporter, TrcExporter
 from stereopose.io.results import PosesWriter
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink, close_all
+from stereopose.io.writing import probe_folder, probe_output
 from stereopose.tracking.positioning import Trajectory
 from stereopose.types import People3D
 
@@ -51,11 +52,13 @@ class CsvSink(ClosesOnce):
 
 
 class TrcSink(ClosesOnce):
-    """One TRC file per person, streamed (io.exports.TrcExporter)."""
+    """One TRC file per person, streamed (io.exports.TrcExporter); the folder is made and
+    tried at once, since the files come as people do."""
 
     stage = "write"
 
     def __init__(self, out_dir: str | Path, fps: float, idle_frames: int | None = None) -> None:
+        probe_folder(out_dir, "TRC files")
         self.exporter = TrcExporter(out_dir, fps, idle_frames)
 
     def write(self, frame: FrameResult) -> None:
@@ -67,12 +70,14 @@ class TrcSink(ClosesOnce):
 
 class TracksSink(ClosesOnce):
     """The per-person trajectory summaries (tracks.json), written at close from
-    ``trajectories()`` (the 3D stage's: one small record per person, none per frame)."""
+    ``trajectories()`` (the 3D stage's: one small record per person, none per frame); its
+    folder is tried at once."""
 
     stage = "write"
 
     def __init__(self, path: str | Path, trajectories: Callable[[], list[Trajectory]]) -> None:
         self.path = Path(path)
+        probe_output(self.path, "trajectories")
         self.trajectories = trajectories
 
     def write(self, frame: FrameResult) -> None:
@@ -136,4 +141,4 @@ def write_trajectories(path: str | Path, trajectories: list[Trajectory]) -> None
             json.dumps([t.as_dict() for t in trajectories], indent=1) + "\n", encoding="utf-8"
         )
     except OSError as e:
-        raise StereoposeError(f"{path}: cannot write trajectories: {e.strerror}") from None
+        raise OutputError(f"{path}: cannot write trajectories: {e.strerror}") from None

@@ -10,6 +10,7 @@ import numpy as np
 from stereopose.geometry.camera import project_to_rig
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.summary import CameraStats, RunSummary, write_summary
+from stereopose.io.writing import probe_output
 from stereopose.skeleton import NUM_JOINTS, SWAP
 from stereopose.types import People2D, Rig
 
@@ -17,13 +18,16 @@ from stereopose.types import People2D, Rig
 class SummarySink(ClosesOnce):
     """Adds each frame's people and events to `summary`; at close, writes it to `path`
     (summary.json; None: kept in memory only). The frame loop fills in the timings, the
-    trajectories and the outputs before closing it, last but for the report."""
+    trajectories and the outputs before closing it, last but for the report. Its folder is
+    tried at once."""
 
     stage = "write"
 
     def __init__(self, summary: RunSummary, path: str | Path | None = None) -> None:
         self.summary = summary
         self.path = Path(path) if path is not None else None
+        if self.path is not None:
+            probe_output(self.path, "the run summary")
 
     def write(self, frame: FrameResult) -> None:
         self.summary.add(frame.people3d, frame.events)
