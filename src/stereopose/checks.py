@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -139,3 +140,23 @@ def check_camera_numbers(
         check(_ROTATION, v, f"rotation {what} (rad)")
     for v, what in zip(translation, ("tx", "ty", "tz"), strict=True):
         check(_TRANSLATION, v, f"translation {what} (m)")
+
+
+MAX_FILE_BYTES = 16 * 1024 * 1024  # a configuration, site or calibration file beyond: refused
+
+
+def read_limited(path: Path, what: str, error: type[StereoposeError]) -> bytes:
+    """The bytes of the regular file at path, at most MAX_FILE_BYTES; missing, unreadable, not a
+    regular file (a folder, a device) or larger: `error` naming the file (`what`: what it is)."""
+    try:
+        if path.exists() and not path.is_file():
+            raise error(f"{path}: cannot read {what}: not a regular file")
+        with path.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise error(f"{path}: {what} larger than {MAX_FILE_BYTES >> 20} MiB")
+    return raw

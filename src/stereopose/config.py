@@ -22,13 +22,12 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from stereopose.checks import DAY_S, FPS_MAX, FPS_MIN, Range
+from stereopose.checks import DAY_S, FPS_MAX, FPS_MIN, Range, read_limited
 from stereopose.errors import ConfigError
 from stereopose.skeleton import NUM_JOINTS
 
 Mode = Literal["pair", "weighted", "robust"]
 MODES: tuple[str, ...] = get_args(Mode)
-MAX_READ_BYTES = 16 * 1024 * 1024  # a configuration or site file larger than this is refused
 
 _T = TypeVar("_T")
 _LENGTH_M = 1000.0  # the largest distance a configuration may hold, metres
@@ -233,6 +232,10 @@ class InputConfig:
     fps: float | None = number(None, ge=FPS_MIN, le=FPS_MAX)
     # stop after this many time steps
     max_frames: int | None = number(None, integer=True, ge=1)
+    # live cameras: how long one try to open a stream, or one read, may take, seconds
+    open_timeout_s: float = number(5.0, gt=0.0, le=600.0)
+    # live cameras: end the run (exit 2) if no camera delivers a frame within this (none: wait)
+    first_frame_timeout_s: float | None = number(30.0, gt=0.0, le=DAY_S)
 
 
 @_schema("outputs")
@@ -331,17 +334,10 @@ def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 def read_toml(path: Path, what: str) -> dict[str, Any]:
     """A TOML file's tables; a missing, unreadable, oversized or invalid file is a ConfigError
     naming it (`what`: what the file is, for the message)."""
+    raw = read_limited(path, what, ConfigError)
     try:
-        if path.exists() and not path.is_file():
-            raise ConfigError(f"{path}: cannot read {what}: not a regular file")
-        with path.open("rb") as f:
-            raw = f.read(MAX_READ_BYTES + 1)
-        if len(raw) > MAX_READ_BYTES:
-            raise ConfigError(f"{path}: {what} is larger than {MAX_READ_BYTES >> 20} MiB")
         text = raw.decode("utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: {what} not found") from None
-    except (OSError, UnicodeDecodeError) as e:
+    except UnicodeDecodeError as e:
         raise ConfigError(f"{path}: cannot read {what}: {e}") from None
     return parse_toml(text, path)
 
@@ -350,7 +346,7 @@ def parse_toml(text: str, path: Path | str) -> dict[str, Any]:
     """TOML text -> tables; any parse failure is a ConfigError naming `path`."""
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
+    except ValueError as e:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
     except RecursionError:  # tomllib recurses once per level of nested arrays or tables
         raise ConfigError(f"{path}: invalid TOML: arrays or tables nested too deeply") from None

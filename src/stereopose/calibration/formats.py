@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
 
@@ -63,12 +64,7 @@ def load_calibration(path: str | Path, min_cameras: int = 2) -> Rig:
                 f"{path}: calibration needs at least {min_cameras} cameras, found {len(rig)}"
             )
         return rig
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read calibration file: {e.strerror or e}") from None
+    raw = read_limited(path, "calibration file", CalibrationError)
     if _is_qca(path, raw[:64]):
         from stereopose.calibration.qualisys import read_qca
 
@@ -88,8 +84,10 @@ def _parse_toml(path: Path, raw: bytes) -> Rig:
         doc = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError as e:
         raise CalibrationError(f"{path}: not UTF-8 text (byte {e.start}); expected TOML") from None
-    except tomllib.TOMLDecodeError as e:
+    except ValueError as e:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise CalibrationError(f"{path}: not valid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays or tables
+        raise CalibrationError(f"{path}: not valid TOML: nested too deeply") from None
     cameras: list[Camera] = []
     table_of: dict[str, str] = {}
     for key, table in doc.items():
@@ -115,14 +113,17 @@ def _numbers(path: Path, key: str, what: str, value: object) -> np.ndarray:
     """Nested lists of int/float (not bool, not str) with an allowed shape -> float array."""
     where = f"{path}: camera [{key}]: {what}"
 
-    def check(v: object) -> None:
-        if isinstance(v, list):
+    def check(v: object, depth: int) -> None:
+        if isinstance(v, list) and depth < 2:
             for x in v:
-                check(x)
+                check(x, depth + 1)
         elif isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise CalibrationError(f"{where} must contain only numbers, found {v!r}")
+            shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
+            raise CalibrationError(f"{where} must contain only numbers, found {shown}")
+        elif isinstance(v, int) and abs(v) > 2**63:
+            raise CalibrationError(f"{where}: an integer of {v.bit_length()} bits is too large")
 
-    check(value)
+    check(value, 0)
     shapes = _SHAPES[what]
     expected = " or ".join(str(s) for s in shapes)
     try:

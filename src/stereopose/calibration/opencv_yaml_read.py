@@ -15,10 +15,10 @@ import math
 import re
 from pathlib import Path
 
+from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 
 Node = str | list["Node"] | dict[str, "Node"]  # scalars stay text until read as numbers
-MAX_BYTES = 16 * 1024 * 1024
 _KEY = re.compile(r"^(.+?):(?:\s+|$)(.*)$")
 _SPECIAL = {".nan": math.nan, ".inf": math.inf, "+.inf": math.inf, "-.inf": -math.inf}
 _TAGS = ("!!opencv-matrix", "!<tag:yaml.org,2002:opencv-matrix>")
@@ -27,13 +27,7 @@ _Line = tuple[int, str, int]  # indentation, text, line number
 
 def read_yaml(path: Path) -> dict[str, Node]:
     """The top-level mapping of an OpenCV YAML file."""
-    try:
-        with path.open("rb") as f:
-            raw = f.read(MAX_BYTES + 1)
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read calibration file: {e.strerror or e}") from None
-    if len(raw) > MAX_BYTES:
-        raise CalibrationError(f"{path}: larger than {MAX_BYTES >> 20} MiB; not a calibration")
+    raw = read_limited(path, "calibration file", CalibrationError)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:

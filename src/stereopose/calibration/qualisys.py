@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
 
@@ -23,7 +24,12 @@ _ROTATION_TOL = 1e-4  # exports round the matrix entries
 
 
 def _natural_key(name: str) -> list[object]:
-    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", name) if p]
+    # digit runs compared by length, then text: numeric order without int() (no digit limit)
+    return [
+        (0, len(p.lstrip("0")), p.lstrip("0")) if p.isdigit() else (1, 0, p)
+        for p in re.split(r"(\d+)", name)
+        if p
+    ]
 
 
 def _float_attrs(
@@ -106,14 +112,11 @@ def _camera(path: Path, name: str, el: ET.Element) -> Camera:
 def read_qca(path: str | Path) -> Rig:
     """Read a Qualisys ``.qca.txt`` calibration into a Rig, cameras in natural order of serial."""
     path = Path(path)
+    raw = read_limited(path, "calibration file", CalibrationError)
     try:
-        root = ET.parse(path).getroot()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found") from None
-    except ET.ParseError as e:
+        root = ET.fromstring(raw)
+    except (ET.ParseError, ValueError, LookupError) as e:  # LookupError: unknown encoding
         raise CalibrationError(f"{path}: not a valid Qualisys XML file: {e}") from None
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read calibration file: {e.strerror or e}") from None
     elements = root.findall("cameras/camera")
     if not elements:
         raise CalibrationError(f"{path}: no <cameras>/<camera> elements in the Qualisys file")
