@@ -11,6 +11,8 @@ from __future__ import annotations
 import html
 import json
 import logging
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +20,20 @@ import plotly.graph_objects as go
 from plotly.offline import get_plotlyjs
 
 from stereopose.calibration.formats import load_calibration
+from stereopose.config import parse_toml
 from stereopose.errors import StereoposeError
 from stereopose.fence import Site, load_site
 from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
 from stereopose.skeleton import LIMBS
 from stereopose.types import Event, Rig
-from stereopose.viz.report_tables import CSS, cameras_html, people_html, summary_html
+from stereopose.viz.report_tables import (
+    CSS,
+    cameras_html,
+    check_summary,
+    people_html,
+    summary_html,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -40,18 +49,27 @@ def colour(person_id: int) -> str:
     return COLOURS[int(person_id) % len(COLOURS)]
 
 
-def _load_poses(path: Path) -> list[tuple[int, float, list[dict]]]:
-    """The 3D poses of a run; a run killed mid-write may end with a cut line: the frames before
-    it are kept, with a warning."""
+def _load_poses(path: Path) -> tuple[list[tuple[int, float, list[dict]]], int]:
+    """The 3D poses of a run and the number of damaged lines skipped (each with a warning): a
+    run killed mid-write ends with a cut line, a disk error can damage one in the middle."""
     poses: list[tuple[int, float, list[dict]]] = []
     if not path.is_file():
-        return poses
+        return poses, 0
+    skipped: list[tuple[int, str]] = []
     try:
-        for f, t, people in read_poses(path):
+        for f, t, people in read_poses(path, skipped=skipped):
             poses.append((f, t if t is not None else np.nan, people))
-    except StereoposeError as e:
+    except StereoposeError as e:  # the file itself cannot be read
         logger.warning("%s; the report shows the %d frames before it", e, len(poses))
-    return poses
+    if skipped:
+        logger.warning(
+            "%s: %d damaged line(s) skipped (first: line %d); the report shows the %d others",
+            path,
+            len(skipped),
+            skipped[0][0],
+            len(poses),
+        )
+    return poses, len(skipped)
 
 
 def _load_events(path: Path) -> list[Event]:
@@ -62,6 +80,46 @@ def _load_events(path: Path) -> list[Event]:
     except StereoposeError as e:
         logger.warning("%s; the report shows no events", e)
         return []
+
+
+def _read_text(path: Path, what: str) -> str:
+    """The UTF-8 text of a run file; StereoposeError naming it when it cannot be read."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise StereoposeError(f"{path}: unreadable {what}: not a regular file")
+        return path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: unreadable {what}: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise StereoposeError(
+            f"{path}: unreadable {what}: not UTF-8 text ({e.reason} at byte {e.start})"
+        ) from None
+
+
+def _load_summary(path: Path) -> dict:
+    """summary.json of a run, checked for what the report reads; errors name the file."""
+    text = _read_text(path, "run summary")
+    try:
+        s = json.loads(text)
+    except RecursionError:
+        raise StereoposeError(f"{path}: unreadable run summary: nested too deeply") from None
+    except ValueError as e:  # not JSON, or a number of thousands of digits
+        raise StereoposeError(f"{path}: unreadable run summary: {e}") from None
+    try:
+        check_summary(s)
+    except ValueError as e:
+        raise StereoposeError(f"{path}: damaged run summary: {e}") from None
+    return s
+
+
+def _load_config(path: Path) -> str:
+    """The configuration a run saved, as text ("(not saved)" without one); a damaged one is
+    an error naming it and its line."""
+    if not path.exists():
+        return "(not saved)"
+    text = _read_text(path, "configuration")
+    parse_toml(text, path)  # a ConfigError naming the file and the line
+    return text
 
 
 def _zone_prism(zone, name: str) -> go.Mesh3d:
@@ -286,18 +344,14 @@ def build_report(run_dir: str | Path) -> str:
     """The report of a run folder as one HTML string."""
     run_dir = Path(run_dir)
     summary_path = run_dir / "summary.json"
-    if not summary_path.is_file():
+    if not summary_path.exists():
         raise StereoposeError(f"{run_dir}: not a run folder (no summary.json)")
-    try:
-        s = json.loads(summary_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise StereoposeError(f"{summary_path}: unreadable run summary: {e}") from None
+    s = _load_summary(summary_path)
+    config = _load_config(run_dir / "config.toml")
     rig = load_calibration(run_dir / "calib.toml", min_cameras=1)
     site = load_site(run_dir / "site.toml") if (run_dir / "site.toml").is_file() else None
-    poses = _load_poses(run_dir / "poses3d.jsonl")
+    poses, damaged = _load_poses(run_dir / "poses3d.jsonl")
     events = _load_events(run_dir / "events.jsonl")
-    config = (run_dir / "config.toml").read_text(encoding="utf-8") if (
-        run_dir / "config.toml").is_file() else "(not saved)"  # fmt: skip
     figs = []
     if poses:
         figs.append(("3D view", figure_3d(poses, rig, site), "view3d"))
@@ -311,6 +365,7 @@ def build_report(run_dir: str | Path) -> str:
         f"<script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
         f"<h1>stereopose run <code>{html.escape(str(run_dir))}</code></h1>",
         "<h2>Summary</h2>", summary_html(s),
+        f"<p>{damaged} damaged line(s) of poses3d.jsonl skipped.</p>" if damaged else "",
         "<h2>People</h2>", people_html(s),
     ]  # fmt: skip
     for title, fig, div in figs:

@@ -1,10 +1,78 @@
-"""The report's tables: the run summary, the cameras and the people, as HTML."""
+"""The report's tables: the run summary, the cameras and the people, as HTML.
+
+`check_summary` checks what they read of a summary.json first, so a damaged one is an error
+naming the key, not a crash halfway through the page.
+"""
 
 from __future__ import annotations
 
 import html
 
 import numpy as np
+
+# summary.json keys the tables read as numbers (null allowed)
+_NUMBERS = ("fps_input", "fps", "load_s_3d", "people_per_frame", "reprojection_median_px")
+_CAMERA_NUMBERS = ("detections_per_frame", "reprojection_median_px", "reprojection_mean_px")
+_PERSON_NUMBERS = ("duration_s", "path_m")
+
+
+def _is_number(v: object) -> bool:
+    """A JSON number a table can format (null counts: it is shown as "-")."""
+    if v is None:
+        return True
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        float(v)
+    except OverflowError:
+        return False
+    return True
+
+
+def _numbers(d: dict, keys: tuple[str, ...], where: str) -> None:
+    for k in keys:
+        if not _is_number(d.get(k)):
+            raise ValueError(f"{where}{k}: expected a number or null, got {_short(d.get(k))}")
+
+
+def _short(v: object) -> str:
+    """A value for a message: a scalar as written (if short), else its type."""
+    if v is not None and not isinstance(v, (str, int, float)):
+        return "an array" if isinstance(v, list) else "an object"
+    text = "null" if v is None else repr(v) if not isinstance(v, int) or v.bit_length() < 64 else ""
+    return text if text and len(text) <= 40 else f"a long {type(v).__name__}"
+
+
+def _mapping(s: dict, key: str) -> dict:
+    v = s.get(key, {})
+    if not isinstance(v, dict):
+        raise ValueError(f"{key}: expected an object, got {_short(v)}")
+    return v
+
+
+def check_summary(s: object) -> None:
+    """Raise ValueError naming the key when a parsed summary.json cannot fill the tables."""
+    if not isinstance(s, dict):
+        raise ValueError(f"expected a JSON object, got {type(s).__name__}")
+    _numbers(s, _NUMBERS, "")
+    stages = _mapping(s, "fps_per_stage")
+    _numbers(stages, tuple(stages), "fps_per_stage.")
+    cameras = s.get("cameras", [])
+    if not isinstance(cameras, list) or not all(isinstance(c, str) for c in cameras):
+        raise ValueError(f"cameras: expected a list of names, got {_short(cameras)}")
+    _mapping(s, "events")
+    for key, numbers in (("per_camera", _CAMERA_NUMBERS), ("sources", ())):
+        for name, c in _mapping(s, key).items():
+            if not isinstance(c, dict):
+                raise ValueError(f"{key}.{name}: expected an object, got {_short(c)}")
+            _numbers(c, numbers, f"{key}.{name}.")
+    people = s.get("people", [])
+    if not isinstance(people, list):
+        raise ValueError(f"people: expected a list, got {_short(people)}")
+    for i, p in enumerate(people):
+        if not isinstance(p, dict) or "id" not in p:
+            raise ValueError(f"people[{i}]: expected an object with an id, got {_short(p)}")
+        _numbers(p, _PERSON_NUMBERS, f"people[{i}].")
 
 
 def _table(rows: list[list[str]], head: list[str]) -> str:
@@ -16,7 +84,7 @@ def _table(rows: list[list[str]], head: list[str]) -> str:
 
 
 def _fmt(v, unit: str = "", nd: int = 1) -> str:
-    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)) or not _is_number(v):
         return "-"
     return f"{v:.{nd}f}{unit}"
 

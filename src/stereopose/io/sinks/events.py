@@ -30,7 +30,7 @@ from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.webhook import WebhookSink
-from stereopose.io.writing import open_output
+from stereopose.io.writing import make_folder, open_output
 from stereopose.types import Event
 
 __all__ = ["COLUMNS", "CallbackSink", "JsonlSink", "SqliteSink", "WebhookSink", "describe",
@@ -111,13 +111,17 @@ def read_events(path: str | Path) -> list[Event]:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as e:
         raise StereoposeError(f"{path}: cannot read events: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise StereoposeError(f"{path}: cannot read events: not UTF-8 text ({e.reason})") from None
     for n, line in enumerate(lines, 1):
         if not line.strip():
             continue
         try:
             out.append(event_from_record(json.loads(line)))
-        except (ValueError, KeyError, TypeError, IndexError) as e:
+        except (ValueError, KeyError, TypeError, IndexError, OverflowError) as e:
             raise StereoposeError(f"{path}:{n}: malformed event line: {e}") from None
+        except RecursionError:
+            raise StereoposeError(f"{path}:{n}: malformed event line: nested too deeply") from None
     return out
 
 
@@ -148,7 +152,7 @@ class SqliteSink(_EventSink):
         self.busy_s, self.retry_s, self.buffer_size = busy_s, retry_s, buffer_size
         self.close_timeout_s = close_timeout_s
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            make_folder(self.path.parent)
         except OSError as e:
             raise OutputError(
                 f"{self.path}: cannot write the event database: {e.strerror}"
@@ -265,6 +269,15 @@ class SqliteSink(_EventSink):
         return "; ".join(parts)
 
 
+def _is_text(value: str) -> bool:
+    """Whether SQLite can take value (a command line can carry undecodable bytes)."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def query_events(
     path: str | Path,
     person: int | None = None,
@@ -273,10 +286,16 @@ def query_events(
     since: float | None = None,
 ) -> list[dict]:
     """Events of an SQLite log (every run), oldest first, filtered; rows as dicts of COLUMNS
-    (``event_from_record`` turns one into an Event)."""
+    (``event_from_record`` turns one into an Event). A person id beyond SQLite's 64-bit
+    integers matches no event; a zone or type that is not valid text is a StereoposeError."""
     path = Path(path)
     if not path.is_file():
         raise StereoposeError(f"{path}: event database not found")
+    if person is not None and not -(2**63) <= person < 2**63:
+        return []  # no stored id is that large
+    for what, text in (("zone", zone), ("type", event_type)):
+        if text is not None and not _is_text(text):
+            raise StereoposeError(f"{path}: the {what} to look for, {text!r}, is not valid text")
     where, args = [], []
     for col, value in (("person", person), ("zone", zone), ("type", event_type)):
         if value is not None:
