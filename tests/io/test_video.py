@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import logging
-import subprocess
 import time
-from functools import partial
 from pathlib import Path
 
 import cv2
@@ -20,22 +18,16 @@ from stereopose.io.video import (
     VideoFile,
     source_name,
 )
-from waiting import listening, wait_until
+from streams import free_port as _free_port
+from streams import serve as _serve
+from streams import wait_serving as _wait_serving
+from streams import write_video
+from waiting import wait_until
 
 
 def _level(image: np.ndarray) -> int:
     """The grey level a synthetic frame was written with (encoding blurs it a little)."""
     return round(float(image.mean()) / 10)
-
-
-def write_video(path: Path, n: int, fps: float, size=(96, 64)) -> Path:
-    """A video whose frame i is uniformly grey at level 10 * i (modulo 250)."""
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-    assert w.isOpened()
-    for i in range(n):
-        w.write(np.full((size[1], size[0], 3), (10 * i) % 250, np.uint8))
-    w.release()
-    return path
 
 
 def test_video_file_frames_with_times(tmp_path):
@@ -139,49 +131,7 @@ def test_stream_names():
     assert source_name("/data/cam03.mp4") == "cam03"
 
 
-# --- live streams: an HTTP MPEG-TS stream served by ffmpeg on localhost -----------------------
-
-
-def _ffmpeg() -> str:
-    import imageio_ffmpeg
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _serve(video: Path, port: int) -> subprocess.Popen:
-    """ffmpeg serving ``video`` in a loop, in real time, to one HTTP client."""
-    cmd = [
-        _ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(video),
-        "-an", "-c:v", "mpeg1video", "-q:v", "4", "-f", "mpegts", "-listen", "1",
-        f"http://127.0.0.1:{port}/live.ts",
-    ]  # fmt: skip
-    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def _wait_serving(servers: list[subprocess.Popen], ports: list[int]) -> None:
-    """Wait until each ffmpeg listens on its port, so that a camera connects at its first try;
-    if one does not, stop them all and fail."""
-    try:
-        for server, port in zip(servers, ports, strict=True):
-            wait_until(partial(_up, server, port), f"ffmpeg on port {port}")
-            assert server.poll() is None, f"ffmpeg exited with {server.returncode} before serving"
-    except BaseException:
-        for server in servers:
-            server.kill()
-            server.wait()
-        raise
-
-
-def _up(server: subprocess.Popen, port: int) -> bool:
-    return listening(port) or server.poll() is not None
+# --- live streams: an HTTP MPEG-TS stream served by ffmpeg on localhost (tests/streams.py) ---
 
 
 @pytest.fixture

@@ -5,9 +5,13 @@ Recorded sources (io.video) and live streams (io.stream) both build on this modu
 
 from __future__ import annotations
 
+import math
+import numbers
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from stereopose.checks import FPS_MAX, FPS_MIN
 from stereopose.errors import StereoposeError
 
 STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
@@ -16,6 +20,35 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 class VideoError(StereoposeError):
     """A camera source is missing, unreadable or corrupt."""
+
+
+def check_fps(fps: float | None, what: str) -> float | None:
+    """A frame rate given by the user: None, or a number in [FPS_MIN, FPS_MAX] (a VideoError
+    naming `what` otherwise): at 0, below 0 or NaN times would never advance, and at a huge
+    rate aligning cameras by time would take for ever."""
+    if fps is None:
+        return None
+    ok = not isinstance(fps, bool) and isinstance(fps, numbers.Real) and math.isfinite(fps)
+    if not (ok and FPS_MIN <= fps <= FPS_MAX):
+        raise VideoError(f"{what} must be a number from {FPS_MIN:g} to {FPS_MAX:g}, got {fps!r}")
+    return float(fps)
+
+
+@dataclass(frozen=True)
+class Clock:
+    """A run's time origin for live cameras: a frame grabbed at monotonic time m has
+    t = m - start seconds; wall-clock time is start_epoch + t (start_epoch: seconds since 1970,
+    read at the same instant as start)."""
+
+    start: float
+    start_epoch: float
+
+    @classmethod
+    def now(cls) -> Clock:
+        return cls(time.monotonic(), time.time())
+
+    def since(self, monotonic: float) -> float:
+        return monotonic - self.start
 
 
 def is_stream(spec: str) -> bool:

@@ -1,25 +1,84 @@
 """Live cameras: an RTSP/HTTP stream read on its own thread, newest frame first, reopened with
-exponential backoff when it drops out."""
+exponential backoff when it cannot be opened or drops out.
+
+Every wait is bounded: opening and reading use FFmpeg's own timeouts (``timeout_s``), a retry
+waits at most ``max_backoff_s``, and ``close()`` waits at most ``JOIN_S`` for the thread (one
+stuck inside an open or a read ends by itself within ``timeout_s``; it is a daemon thread). While
+a camera does not deliver, why and when it is tried next is logged every ``log_every_s``.
+"""
 
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
+from urllib.parse import urlsplit
 
 import cv2
 import numpy as np
 
-from stereopose.io.source import SourceStats, source_name
+from stereopose.io.source import Clock, SourceStats, source_name
 
 logger = logging.getLogger(__name__)
+
+JOIN_S = 1.0  # close() waits this long at most for the camera's thread
+DEFAULT_PORTS = {"rtsp": 554, "rtsps": 322, "http": 80, "https": 443, "rtmp": 1935}
+
+
+def redact(url: str) -> str:
+    """The URL without its password (user:secret@host -> user:***@host), for messages."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    netloc = parts.netloc.replace(f":{parts.password}@", ":***@", 1)
+    return parts._replace(netloc=netloc).geturl()
+
+
+def why_not_open(url: str, timeout_s: float) -> str:
+    """A short reason a stream did not open within timeout_s, from one plain TCP connection
+    to its server (itself given at most 2 s)."""
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname, parts.port or DEFAULT_PORTS.get(parts.scheme.lower())
+    except ValueError as e:
+        return f"invalid URL ({e})"
+    if not host or port is None:
+        return "the stream did not open"
+    try:
+        with socket.create_connection((host, port), timeout=min(timeout_s, 2.0)):
+            pass
+    except socket.gaierror:
+        return f"host {host} not found"
+    except ConnectionRefusedError:
+        return "connection refused"
+    except TimeoutError:
+        return f"no answer from {host}:{port} within {min(timeout_s, 2.0):g} s"
+    except OSError as e:
+        return e.strerror or type(e).__name__
+    return (
+        f"the server accepts connections but no video came within {timeout_s:g} s "
+        "(wrong path, or not a video stream)"
+    )
+
+
+def _capture_params(timeout_s: float) -> list[int]:
+    """FFmpeg's open and read timeouts, where this OpenCV has them."""
+    ms = max(1, int(timeout_s * 1000))
+    params = []
+    for name in ("CAP_PROP_OPEN_TIMEOUT_MSEC", "CAP_PROP_READ_TIMEOUT_MSEC"):
+        if hasattr(cv2, name):
+            params += [getattr(cv2, name), ms]
+    return params
 
 
 class LiveStream:
     """A live camera read on its own thread; ``latest()`` gives the newest unread frame.
 
-    When the connection fails or frames stop coming for ``timeout_s``, the stream is reopened
+    When the stream cannot be opened, or frames stop coming for ``timeout_s``, it is reopened
     after ``backoff_s`` seconds, doubling up to ``max_backoff_s``, for as long as the run lasts.
+    Each frame carries its arrival time on ``clock`` (seconds since the clock's start); each new
+    frame sets ``notify`` (an event shared by a set of cameras), if given.
     """
 
     live = True
@@ -31,32 +90,47 @@ class LiveStream:
         timeout_s: float = 5.0,
         backoff_s: float = 0.5,
         max_backoff_s: float = 10.0,
+        *,
+        clock: Clock | None = None,
+        notify: threading.Event | None = None,
+        log_every_s: float = 10.0,
     ) -> None:
         self.url = str(url)
         self.path = self.url
         self.name = name or source_name(self.url)
         self.timeout_s, self.backoff_s, self.max_backoff_s = timeout_s, backoff_s, max_backoff_s
+        self.clock = clock or Clock.now()
+        self.log_every_s = log_every_s
         self.fps: float | None = None
         self.count: int | None = None
         self.shape: tuple[int, int] | None = None
         self.stats = SourceStats()
         self.connected = False
+        self.problem = "not opened yet"  # why it does not deliver now, for messages
+        self._notify = notify
+        self._up = threading.Event()
         self._lock = threading.Lock()
         self._latest: tuple[int, float, np.ndarray] | None = None
         self._seq = 0
         self._read_seq = 0
         self._stop = threading.Event()
         self._down_since: float | None = time.monotonic()
+        self._logged: tuple[float, str] | None = None  # when and what was last logged
         self._thread = threading.Thread(target=self._run, name=f"camera-{self.name}", daemon=True)
         self._thread.start()
 
+    @property
+    def label(self) -> str:
+        """The camera's name and URL (password left out), for messages."""
+        return f"{self.name} ({redact(self.url)})"
+
+    @property
+    def delivered(self) -> bool:
+        """Whether a frame has arrived since the stream was created."""
+        return self._seq > 0
+
     def _open(self) -> cv2.VideoCapture | None:
-        ms = int(self.timeout_s * 1000)
-        cap = cv2.VideoCapture(
-            self.url,
-            cv2.CAP_FFMPEG,
-            [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms],
-        )
+        cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, _capture_params(self.timeout_s))
         if cap.isOpened():
             return cap
         cap.release()
@@ -64,63 +138,89 @@ class LiveStream:
 
     def _run(self) -> None:
         delay = self.backoff_s
-        first = True
         while not self._stop.is_set():
             cap = self._open()
             if cap is None:
-                if first:
-                    logger.warning("camera %s: cannot open %s; retrying", self.name, self.url)
-                first = False
-                self._stop.wait(delay)
-                delay = min(delay * 2, self.max_backoff_s)
-                continue
-            fps = cap.get(cv2.CAP_PROP_FPS)
-            if 0 < fps < 1000:
-                self.fps = float(fps)
-            got_frame = False
-            while not self._stop.is_set():
-                ok, image = cap.read()
-                if not ok or image is None:
+                self._waiting(why_not_open(self.url, self.timeout_s), delay)
+            else:
+                got_frame = self._read(cap)
+                cap.release()
+                if self._stop.is_set():
                     break
-                now = time.monotonic()
-                if not got_frame:
-                    got_frame = True
+                if got_frame:
                     delay = self.backoff_s
-                    self._went_up(now, first)
-                with self._lock:
-                    if self._latest is not None and self._read_seq < self._seq:
-                        self.stats.dropped += 1
-                    self._seq += 1
-                    self._latest = (self._seq, now, image)
-                    self.shape = image.shape[:2]
-            cap.release()
-            first = False
-            if self._stop.is_set():
+                    self._lost(delay)
+                else:
+                    self._waiting(f"opened, but no frame came within {self.timeout_s:g} s", delay)
+            if self._stop.wait(delay):
                 break
-            if self.connected:
-                self.connected = False
-                self._down_since = time.monotonic()
-                self.stats.failures += 1
-                logger.warning(
-                    "camera %s: stream %s lost; reconnecting (backoff %.1f s)",
-                    self.name,
-                    self.url,
-                    delay,
-                )
-            self._stop.wait(delay)
             delay = min(delay * 2, self.max_backoff_s)
 
-    def _went_up(self, now: float, first: bool) -> None:
+    def _read(self, cap: cv2.VideoCapture) -> bool:
+        """Read frames until the stream fails or the run stops; whether any frame came."""
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        if 0 < fps < 1000:
+            self.fps = float(fps)
+        got_frame = False
+        while not self._stop.is_set():
+            ok, image = cap.read()
+            if not ok or image is None:
+                break
+            now = time.monotonic()
+            if not got_frame:
+                got_frame = True
+                self._went_up(now)
+            with self._lock:
+                if self._latest is not None and self._read_seq < self._seq:
+                    self.stats.dropped += 1
+                self._seq += 1
+                self._latest = (self._seq, self.clock.since(now), image)
+                self.shape = image.shape[:2]
+            if self._notify is not None:
+                self._notify.set()
+        return got_frame
+
+    def _waiting(self, problem: str, delay: float) -> None:
+        """Not delivering: log why and when the next try comes, at most every log_every_s
+        (and whenever the reason changes)."""
+        self.problem = problem
+        now = time.monotonic()
+        last = self._logged
+        if last is None or now - last[0] >= self.log_every_s or last[1] != problem:
+            self._logged = (now, problem)
+            logger.warning(
+                "waiting for camera %s: %s; retry in %s", self.label, problem, _seconds(delay)
+            )
+
+    def _lost(self, delay: float) -> None:
+        self.connected = False
+        self._up.clear()
+        self._down_since = time.monotonic()
+        self.stats.failures += 1
+        self.problem = f"stream lost (no frame for {self.timeout_s:g} s, or it closed)"
+        self._logged = (self._down_since, self.problem)
+        logger.warning(
+            "camera %s: stream %s lost; reconnecting (backoff %.1f s)",
+            self.name,
+            redact(self.url),
+            delay,
+        )
+
+    def _went_up(self, now: float) -> None:
         if self._down_since is not None:
             self.stats.down_s += now - self._down_since
             self._down_since = None
-        if not first or self.stats.failures:
+        if self._logged is not None:  # it was waited for, or lost: say it is back
             self.stats.reconnects += 1
-            logger.warning("camera %s: stream %s back", self.name, self.url)
+            logger.warning("camera %s: stream %s back", self.name, redact(self.url))
+        self._logged = None
+        self.problem = ""
         self.connected = True
+        self._up.set()
 
     def latest(self) -> tuple[int, float, np.ndarray] | None:
-        """The newest frame not read before as (sequence number, monotonic time, image)."""
+        """The newest frame not read before as (sequence number, arrival time t on the clock,
+        image), or None."""
         with self._lock:
             if self._latest is None or self._latest[0] == self._read_seq:
                 return None
@@ -129,16 +229,19 @@ class LiveStream:
             return self._latest
 
     def wait_connected(self, timeout: float) -> bool:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if self.connected:
-                return True
-            time.sleep(0.02)
-        return self.connected
+        """Wait at most `timeout` seconds for the stream to deliver; whether it does."""
+        return self._up.wait(timeout)
 
     def close(self) -> None:
+        """Stop the thread, waiting for it at most JOIN_S (see the module's docstring)."""
         self._stop.set()
-        self._thread.join(timeout=self.timeout_s + 1)
+        self._thread.join(timeout=JOIN_S)
+        if self._thread.is_alive():
+            logger.debug("camera %s: its thread ends after its open or read times out", self.name)
         if self._down_since is not None:
             self.stats.down_s += time.monotonic() - self._down_since
             self._down_since = None
+
+
+def _seconds(s: float) -> str:
+    return f"{s:.1f} s" if s < 1 else f"{s:.0f} s"

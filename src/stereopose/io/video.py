@@ -8,16 +8,24 @@ file. ``CameraSet`` reads several cameras together and yields one ``FrameSet`` p
   (``sync="index"``) or by time (``sync="time"``: each camera's frame nearest the step's time, from
   its own frame rate), until every camera has ended;
 - live streams always give their latest frame (older, unread frames are dropped and counted); a
-  camera that drops out is reopened with exponential backoff while the other cameras go on, and
-  each loss and recovery is logged.
+  camera that cannot be opened or drops out is retried with exponential backoff while the other
+  cameras go on, and why it does not deliver is logged periodically. Each live frame carries its
+  arrival time on the set's clock (seconds since the set was opened; ``clock.start_epoch`` maps
+  it to wall-clock time), and a step's t is the newest arrival among its frames, strictly
+  increasing. Opening a set of live cameras waits until one of them delivers a frame: if none
+  does within ``first_frame_timeout_s``, a ``VideoError`` names every camera and why it did not
+  deliver (so nothing is written for a run that never sees a frame).
 
-Errors name the file or URL: a missing, unreadable or corrupt video is a ``VideoError``.
+Errors name the file or URL: a missing, unreadable or corrupt video is a ``VideoError``; so is a
+frame rate that is not a finite positive number (times would never advance).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -30,8 +38,10 @@ import numpy as np
 from stereopose.io.source import (
     IMAGE_SUFFIXES,
     STREAM_SCHEMES,
+    Clock,
     SourceStats,
     VideoError,
+    check_fps,
     is_stream,
     source_name,
 )
@@ -43,6 +53,7 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "STREAM_SCHEMES",
     "CameraSet",
+    "Clock",
     "FrameSet",
     "ImageFolder",
     "SourceStats",
@@ -69,6 +80,7 @@ class VideoFile:
     def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
         self.path = Path(path)
         self.name = name or self.path.stem
+        fps = check_fps(fps, f"{self.path}: fps")
         if not self.path.is_file():
             raise VideoError(f"{self.path}: video file not found")
         self.cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
@@ -120,6 +132,7 @@ class ImageFolder:
     def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
         self.path = Path(path)
         self.name = name or self.path.name
+        fps = check_fps(fps, f"{self.path}: fps")
         self.files = sorted(
             (p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
             key=_natural,
@@ -150,6 +163,29 @@ class ImageFolder:
         pass
 
 
+def _check_timeouts(open_timeout_s: float, first_frame_timeout_s: float | None) -> None:
+    for what, value in (("open_timeout_s", open_timeout_s),
+                        ("first_frame_timeout_s", first_frame_timeout_s)):  # fmt: skip
+        if value is None and what == "first_frame_timeout_s":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise VideoError(f"{what} must be a positive number of seconds, got {value!r}")
+        if not (math.isfinite(value) and value > 0):
+            raise VideoError(f"{what} must be a positive number of seconds, got {value!r}")
+
+
+def _after(s: Source, t: float, item: tuple | None) -> tuple | None:
+    """A recorded camera's next frame, None (its end) when its time does not come after `t`:
+    time alignment then could not advance past it."""
+    if item is None or item[1] > t:
+        return item
+    logger.warning(
+        "camera %s: frame %d's time %r does not come after %r; taken as its end",
+        s.name, item[0], item[1], t,
+    )  # fmt: skip
+    return None
+
+
 def _natural(path: Path) -> list[object]:
     import re
 
@@ -159,13 +195,25 @@ def _natural(path: Path) -> list[object]:
 Source = Union[VideoFile, ImageFolder, "LiveStream"]
 
 
-def open_source(spec: str | Path, name: str | None = None, fps: float | None = None) -> Source:
-    """A camera source from a file path, an image folder or a stream URL."""
+def open_source(
+    spec: str | Path,
+    name: str | None = None,
+    fps: float | None = None,
+    *,
+    clock: Clock | None = None,
+    notify: threading.Event | None = None,
+    open_timeout_s: float = 5.0,
+) -> Source:
+    """A camera source from a file path, an image folder or a stream URL.
+
+    fps: the frame rate of a recorded source (default: its own); clock, notify, open_timeout_s:
+    a live stream's (io.stream.LiveStream)."""
     text = str(spec)
+    fps = check_fps(fps, f"{text}: fps")
     if is_stream(text):
         from stereopose.io.stream import LiveStream
 
-        return LiveStream(text, name)
+        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify)
     path = Path(text)
     if path.is_dir():
         return ImageFolder(path, name, fps)
@@ -176,10 +224,11 @@ def open_source(spec: str | Path, name: str | None = None, fps: float | None = N
 class FrameSet:
     """One time step: each camera's image (None where it has no frame at this step).
 
-    t: the step's time, seconds (recorded: index / fps; live: since the run started).
+    t: the step's time, seconds (recorded: index / fps; live: the newest arrival time of the
+    step's frames on the set's clock, strictly increasing from step to step).
     source_frames: each camera's own frame number (live: its count of frames received).
     times: each camera's own time of its frame (recorded: in its file; live: when it arrived,
-    seconds since the run started), so that a camera lagging behind shows.
+    seconds on the set's clock), so that a camera lagging behind shows.
     """
 
     index: int
@@ -207,7 +256,12 @@ def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
 
 
 class CameraSet:
-    """Several cameras read in step; iterate for FrameSets; close() ends every reader."""
+    """Several cameras read in step; iterate for FrameSets; close() ends every reader.
+
+    open_timeout_s: a live stream's open and read timeout; first_frame_timeout_s: how long
+    opening live cameras waits for the first frame of any of them (None: for ever; Ctrl-C
+    ends the wait). clock: the live frames' time origin, read when the set is created.
+    """
 
     def __init__(
         self,
@@ -216,6 +270,9 @@ class CameraSet:
         sync: str = "index",
         fps: float | None = None,
         max_frames: int | None = None,
+        *,
+        open_timeout_s: float = 5.0,
+        first_frame_timeout_s: float | None = 30.0,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -226,11 +283,21 @@ class CameraSet:
             raise VideoError(f"camera names must be unique, got {', '.join(names)}; use --names")
         if sync not in ("index", "time"):
             raise VideoError(f"sync must be 'index' or 'time', got {sync!r}")
+        fps = check_fps(fps, "fps (time steps per second)")
+        _check_timeouts(open_timeout_s, first_frame_timeout_s)
+        if max_frames is not None and max_frames < 0:
+            raise VideoError(f"max_frames must be at least 0, got {max_frames}")
         self.sync, self.max_frames = sync, max_frames
+        self.first_frame_timeout_s = first_frame_timeout_s
+        self.clock = Clock.now()
+        self._fresh = threading.Event()  # set by a live camera at each new frame
         self.sources: list[Source] = []
         try:
             for spec, name in zip(specs, names, strict=False):
-                self.sources.append(open_source(spec, name, fps))
+                self.sources.append(
+                    open_source(spec, name, fps, clock=self.clock, notify=self._fresh,
+                                open_timeout_s=open_timeout_s)
+                )  # fmt: skip
         except BaseException:
             self.close()
             raise
@@ -238,6 +305,12 @@ class CameraSet:
         if self.live and not all(s.live for s in self.sources):
             self.close()
             raise VideoError("mixing live streams with recorded files is not supported")
+        if self.live:
+            try:
+                self._wait_first_frame()
+            except BaseException:  # the error, or Ctrl-C: no camera thread is left running
+                self.close()
+                raise
         rates = [s.fps for s in self.sources if s.fps]
         self.fps = float(fps or (rates[0] if rates else 25.0))
         self._ended: set[str] = set()
@@ -269,7 +342,9 @@ class CameraSet:
 
     def _recorded(self) -> Iterator[FrameSet]:
         half = 0.5 / self.fps
-        nxt = {s.name: s.read() for s in self.sources} if self.sync == "time" else {}
+        nxt = {}
+        if self.sync == "time":
+            nxt = {s.name: _after(s, -math.inf, s.read()) for s in self.sources}
         step = 0
         while self.max_frames is None or step < self.max_frames:
             t = step / self.fps
@@ -287,7 +362,7 @@ class CameraSet:
                 else:  # the last of this camera's frames with time in [t - half, t + half)
                     while nxt[s.name] is not None and nxt[s.name][1] < t + half:
                         item = nxt[s.name]
-                        nxt[s.name] = s.read()
+                        nxt[s.name] = _after(s, item[1], s.read())
                     if nxt[s.name] is None:
                         self._end(s)
                     if item is not None and item[1] < t - half:
@@ -306,10 +381,10 @@ class CameraSet:
         logger.info("camera %s: end of %s after %d frames", s.name, s.path, s.stats.frames)
 
     def _live(self) -> Iterator[FrameSet]:
-        start = time.monotonic()
         step = 0
-        period = 1.0 / self.fps
+        last_t = -math.inf
         while self.max_frames is None or step < self.max_frames:
+            self._fresh.clear()  # before reading, so that a frame arriving after is waited for
             images: dict[str, np.ndarray | None] = {}
             frames: dict[str, int] = {}
             times: dict[str, float] = {}
@@ -318,12 +393,36 @@ class CameraSet:
                 images[s.name] = None if got is None else got[2]
                 if got is not None:
                     frames[s.name] = got[0]
-                    times[s.name] = got[1] - start
-            if not frames:  # nothing new from any camera: wait a little
-                time.sleep(min(period, 0.01))
+                    times[s.name] = got[1]
+            if not frames:  # nothing new from any camera: wait for one, a bounded while
+                self._check_first_frame()
+                self._fresh.wait(0.25)
                 continue
-            yield FrameSet(step, time.monotonic() - start, images, frames, times)
+            # strictly increasing, also when a camera's frame arrived just before the last step's
+            last_t = max(max(times.values()), last_t + 1e-4)
+            yield FrameSet(step, last_t, images, frames, times)
             step += 1
+
+    def _wait_first_frame(self) -> None:
+        """Wait until a live camera delivers, or first_frame_timeout_s passes (VideoError)."""
+        while not any(s.delivered for s in self.sources):
+            self._check_first_frame()
+            self._fresh.wait(0.25)
+        logger.info("cameras opened; first frame after %.1f s", time.monotonic() - self.clock.start)
+
+    def _check_first_frame(self) -> None:
+        """A VideoError naming every camera once first_frame_timeout_s has passed since the
+        set was opened without any camera delivering a frame."""
+        limit = self.first_frame_timeout_s
+        if limit is None or any(s.delivered for s in self.sources):
+            return
+        if time.monotonic() - self.clock.start < limit:
+            return
+        why = "; ".join(f"{s.label}: {s.problem}" for s in self.sources)
+        raise VideoError(
+            f"no camera delivered a frame within {limit:g} s ({why}); "
+            "[input] first_frame_timeout_s sets how long to wait"
+        )
 
     def stats(self) -> dict[str, SourceStats]:
         return {s.name: s.stats for s in self.sources}
