@@ -106,9 +106,14 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
 def _events(args: argparse.Namespace) -> int:
     import csv
+    import math
+
+    from rich.text import Text
 
     from stereopose.io.sinks.events import COLUMNS, query_events
 
+    if args.since is not None and not math.isfinite(args.since):
+        raise StereoposeError(f"--since must be a time in seconds, got {args.since}")
     rows = query_events(
         args.db, person=args.person, zone=args.zone, event_type=args.type, since=args.since
     )
@@ -117,14 +122,17 @@ def _events(args: argparse.Namespace) -> int:
         w.writerow(COLUMNS)
         w.writerows([r[c] for c in COLUMNS] for r in rows)
         return 0
-    table = Table(title=f"{len(rows)} event(s) in {args.db}")
+    table = Table(title=Text(f"{len(rows)} event(s) in {args.db}"))
     cols = ("run", "t", "frame", "person", "zone", "kind", "type", "joint", "distance_m", "x", "y")
     for c in cols:
         table.add_column(c, justify="left" if c in ("zone", "kind", "type", "joint") else "right")
     for r in rows:
+        # Text cells: a zone name from the log is shown as it is, never read as markup
         table.add_row(
             *(
-                "" if r[c] is None else f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c])
+                Text(
+                    "" if r[c] is None else f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c])
+                )
                 for c in cols
             )
         )
