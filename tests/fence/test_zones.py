@@ -124,7 +124,10 @@ def test_site_loads_with_defaults_and_options(tmp_path: Path) -> None:
         (('kind = "energized"', 'kind = "energized"\ncolour = 1'), r"unknown key\(s\) colour"),
         (("z = [0.0, 2.5]", 'z = [0.0, 2.5]\njoints = ["elbow"]'), r"unknown joint 'elbow'"),
         (("z = [0.0, 2.5]", "z = [0.0, 2.5]\nexpected = [1]"), r"only make sense for a work_area"),
-        (("z = [0.0, 2.5]", "z = [0.0, 2.5]\nmargin_m = -1"), r"margin_m must be >= 0"),
+        (
+            ("z = [0.0, 2.5]", "z = [0.0, 2.5]\nmargin_m = -1"),
+            r"margin_m: expected .* \[0, 10000\], got -1",
+        ),
         (('name = "panel"\n', ""), r"zones\[0\]: missing `name`"),
         (("z = [0.0, 2.5]", ""), r"zone 'panel': missing `z`"),
     ],

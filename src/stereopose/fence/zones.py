@@ -21,13 +21,22 @@ All geometry here is vectorised over every joint of every person and every zone 
 
 from __future__ import annotations
 
-import math
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from stereopose.checks import (
+    DAY_S,
+    FPS,
+    MAX_ZONE_VERTICES,
+    MAX_ZONES,
+    SITE_COORD,
+    SITE_LIMIT_M,
+    Range,
+)
 from stereopose.config import read_toml
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, joint_index
@@ -48,6 +57,14 @@ _ZONE_KEYS = {
     "allowed",
     "expected",
 }
+# the ranges of a zone's numbers beside their meaning: metres of approach, seconds of debounce
+_ZONE_RANGES = {
+    "margin_m": Range(ge=0.0, le=SITE_COORD.le),
+    "enter_s": Range(ge=0.0, le=DAY_S),
+    "exit_s": Range(ge=0.0, le=DAY_S),
+    "dwell_s": Range(gt=0.0, le=DAY_S),
+}
+_PERSON_ID = Range(integer=True, ge=0, lt=2**63)
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,11 +88,7 @@ class Zone:
         where = f"zone {self.name!r}"
         if self.kind not in KINDS:
             raise ConfigError(f"{where}: unknown kind {self.kind!r}; expected one of {KINDS}")
-        poly = np.asarray(self.polygon, dtype=np.float64)
-        if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3:
-            raise ConfigError(f"{where}: polygon needs at least 3 [x, y] points, got {poly.shape}")
-        if not np.isfinite(poly).all():
-            raise ConfigError(f"{where}: polygon has a non-finite coordinate")
+        poly = _polygon(self.polygon, where)
         if np.allclose(poly[0], poly[-1]) and poly.shape[0] > 3:
             poly = poly[:-1]  # a closed ring repeats its first point
         bad = self_intersection(poly)
@@ -83,15 +96,19 @@ class Zone:
             raise ConfigError(f"{where}: polygon intersects itself (edges {bad[0]} and {bad[1]})")
         if abs(polygon_area(poly)) < 1e-6:
             raise ConfigError(f"{where}: polygon is degenerate (zero area)")
-        z0, z1 = (float(v) for v in self.z)
-        if not (math.isfinite(z0) and math.isfinite(z1)) or z0 >= z1:
+        band = tuple(self.z)
+        if len(band) != 2:
+            raise ConfigError(f"{where}: z must be [bottom, top], got {band!r}")
+        z0, z1 = (float(SITE_COORD.check(v, f"{where}: z")) for v in band)
+        if z0 >= z1:
             raise ConfigError(f"{where}: height band z = [{z0}, {z1}] must have bottom < top")
-        for key in ("margin_m", "enter_s", "exit_s"):
+        for key, rng in _ZONE_RANGES.items():
             v = getattr(self, key)
-            if not (math.isfinite(v) and v >= 0):
-                raise ConfigError(f"{where}: {key} must be >= 0, got {v}")
-        if self.dwell_s is not None and not self.dwell_s > 0:
-            raise ConfigError(f"{where}: dwell_s must be > 0, got {self.dwell_s}")
+            if v is not None:
+                object.__setattr__(self, key, float(rng.check(v, f"{where}: {key}")))
+        for key in ("allowed", "expected"):
+            for pid in getattr(self, key):
+                _PERSON_ID.check(pid, f"{where}: {key}")
         if self.expected and self.kind != "work_area":
             raise ConfigError(f"{where}: `expected` persons only make sense for a work_area")
         poly.setflags(write=False)
@@ -102,8 +119,36 @@ class Zone:
 @dataclass(frozen=True)
 class Site:
     zones: tuple[Zone, ...]
-    fps: float | None = None
+    fps: float | None = None  # frames per second, in [FPS_MIN, FPS_MAX]
     path: Path | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        if len(self.zones) > MAX_ZONES:
+            raise ConfigError(f"{len(self.zones)} zones; a site holds at most {MAX_ZONES}")
+        if self.fps is not None:
+            object.__setattr__(self, "fps", float(FPS.check(self.fps, "fps")))
+
+
+def _polygon(value: object, where: str) -> np.ndarray:
+    """(V, 2) finite floats within SITE_COORD, 3 <= V <= MAX_ZONE_VERTICES."""
+    try:
+        poly = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ConfigError(f"{where}: polygon must be a list of [x, y] points") from None
+    if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3:
+        raise ConfigError(f"{where}: polygon needs at least 3 [x, y] points, got {poly.shape}")
+    if poly.shape[0] > MAX_ZONE_VERTICES:
+        raise ConfigError(
+            f"{where}: polygon has {poly.shape[0]} points; at most {MAX_ZONE_VERTICES} allowed"
+        )
+    bad = ~(np.isfinite(poly) & (np.abs(poly) <= SITE_LIMIT_M))
+    if bad.any():
+        k, c = np.argwhere(bad)[0]
+        raise ConfigError(
+            f"{where}: polygon[{k}][{c}]: expected {SITE_COORD.describe()} (metres), "
+            f"got {poly[k, c]!r}"
+        )
+    return poly
 
 
 def polygon_area(poly: np.ndarray) -> float:
@@ -112,38 +157,59 @@ def polygon_area(poly: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
-def _cross(o, a, b) -> float:
-    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (
+        b[..., 0] - o[..., 0]
+    )
 
 
-def _segments_cross(p1, p2, q1, q2) -> bool:
-    """Whether segments p1p2 and q1q2 share a point (touching and overlapping included)."""
+def _on(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """c on segment ab, given collinear (d == 0)."""
+    return (
+        (d == 0)
+        & (np.minimum(a[..., 0], b[..., 0]) <= c[..., 0])
+        & (c[..., 0] <= np.maximum(a[..., 0], b[..., 0]))
+        & (np.minimum(a[..., 1], b[..., 1]) <= c[..., 1])
+        & (c[..., 1] <= np.maximum(a[..., 1], b[..., 1]))
+    )
+
+
+def _segments_meet(p1, p2, q1, q2) -> np.ndarray:
+    """Whether segments p1p2 and q1q2 share a point (touching and overlapping included),
+    broadcast over their leading axes."""
     d1, d2 = _cross(q1, q2, p1), _cross(q1, q2, p2)
     d3, d4 = _cross(p1, p2, q1), _cross(p1, p2, q2)
-    if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and 0 not in (d1, d2, d3, d4):
-        return True
-
-    def on(a, b, c, d) -> bool:  # c on segment ab, given collinear (d == 0)
-        return (
-            d == 0
-            and min(a[0], b[0]) <= c[0] <= max(a[0], b[0])
-            and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
-        )
-
-    return on(q1, q2, p1, d1) or on(q1, q2, p2, d2) or on(p1, p2, q1, d3) or on(p1, p2, q2, d4)
+    proper = ((d1 > 0) != (d2 > 0)) & ((d3 > 0) != (d4 > 0))
+    proper &= (d1 != 0) & (d2 != 0) & (d3 != 0) & (d4 != 0)
+    return (
+        proper
+        | _on(q1, q2, p1, d1)
+        | _on(q1, q2, p2, d2)
+        | _on(p1, p2, q1, d3)
+        | _on(p1, p2, q2, d4)
+    )
 
 
-def self_intersection(poly: np.ndarray) -> tuple[int, int] | None:
-    """The first pair of non-adjacent edges (i, j) that meet, or None for a simple polygon."""
+def self_intersection(poly: np.ndarray, rows: int = 128) -> tuple[int, int] | None:
+    """The first pair of non-adjacent edges (i, j), i < j, that meet, or None for a simple
+    polygon (V, 2). Every pair is tested at once, `rows` edges i at a time (memory)."""
     V = poly.shape[0]
-    for i in range(V):
-        a, b = poly[i], poly[(i + 1) % V]
-        for j in range(i + 1, V):
-            if j == i + 1 or (i == 0 and j == V - 1):
-                continue  # adjacent edges share a vertex by construction
-            if _segments_cross(a, b, poly[j], poly[(j + 1) % V]):
-                return i, j
+    a, b = poly, np.roll(poly, -1, axis=0)
+    j = np.arange(V)[None]
+    for start in range(0, V, rows):
+        i = np.arange(start, min(start + rows, V))[:, None]
+        # adjacent edges share a vertex by construction
+        pairs = (j > i + 1) & ~((i == 0) & (j == V - 1))
+        meet = _segments_meet(a[i], b[i], a[None], b[None]) & pairs
+        if meet.any():
+            k, m = np.argwhere(meet)[0]
+            return int(i[k, 0]), int(m)
     return None
+
+
+def _toml_str(text: str) -> str:
+    # JSON strings are TOML basic strings, except that TOML also forbids a raw DEL
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 def format_site(site: Site) -> str:
@@ -153,8 +219,8 @@ def format_site(site: Site) -> str:
         pts = ", ".join(f"[{x!r}, {y!r}]" for x, y in z.polygon.tolist())
         lines += [
             "[[zones]]",
-            f'name = "{z.name}"',
-            f'kind = "{z.kind}"',
+            f"name = {_toml_str(z.name)}",
+            f"kind = {_toml_str(z.kind)}",
             f"polygon = [{pts}]",
             f"z = [{z.z[0]!r}, {z.z[1]!r}]",
         ]
@@ -201,11 +267,7 @@ def _fps(data: dict[str, Any]) -> float | None:
     if unknown:
         raise ConfigError(f"unknown key(s) {', '.join(unknown)}; known: fps, zones")
     fps = data.get("fps")
-    if fps is None:
-        return None
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0:
-        raise ConfigError(f"fps must be a positive number, got {fps!r}")
-    return float(fps)
+    return None if fps is None else float(FPS.check(fps, "fps"))
 
 
 def _number(value: Any, what: str) -> float:
@@ -215,24 +277,39 @@ def _number(value: Any, what: str) -> float:
 
 
 def _ids(value: Any, what: str) -> frozenset[int]:
-    if not isinstance(value, list) or not all(
-        isinstance(v, int) and not isinstance(v, bool) for v in value
-    ):
-        raise ConfigError(f"{what}: expected a list of person ids, got {value!r}")
+    if not isinstance(value, list) or not all(_PERSON_ID.contains(v) for v in value):
+        raise ConfigError(f"{what}: expected a list of person ids (integers >= 0), got {value!r}")
     return frozenset(value)
+
+
+def _points(value: Any, where: str) -> list[list[float]]:
+    """A TOML polygon: a list of [x, y] pairs of numbers (not strings, not booleans)."""
+    ok = isinstance(value, list) and all(
+        isinstance(p, list)
+        and len(p) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
+        for p in value
+    )
+    if not ok:
+        raise ConfigError(f"{where}: polygon must be a list of [x, y] points (numbers, metres)")
+    return value
 
 
 def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
     raw = data.get("zones")
     if not isinstance(raw, list) or not raw:
         raise ConfigError("no [[zones]] defined")
+    if len(raw) > MAX_ZONES:
+        raise ConfigError(f"{len(raw)} zones; a site holds at most {MAX_ZONES}")
     zones, names = [], set()
     for k, z in enumerate(raw):
         if not isinstance(z, dict):
             raise ConfigError(f"zones[{k}]: expected a table")
         name = z.get("name")
-        if not isinstance(name, str) or not name:
+        if name is None:
             raise ConfigError(f"zones[{k}]: missing `name`")
+        if not isinstance(name, str) or not name:
+            raise ConfigError(f"zones[{k}]: name must be a non-empty string, got {name!r}")
         where = f"zone {name!r}"
         if name in names:
             raise ConfigError(f"{where}: the name is used twice")
@@ -244,10 +321,9 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
         for key in ("kind", "polygon", "z"):
             if key not in z:
                 raise ConfigError(f"{where}: missing `{key}`")
-        try:
-            poly = np.array(z["polygon"], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{where}: polygon must be a list of [x, y] points") from None
+        poly = _points(z["polygon"], where)
+        if not isinstance(z["kind"], str):
+            raise ConfigError(f"{where}: kind must be one of {KINDS}, got {z['kind']!r}")
         band = z["z"]
         if not isinstance(band, list) or len(band) != 2:
             raise ConfigError(f"{where}: z must be [bottom, top], got {band!r}")
@@ -269,7 +345,7 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
         zones.append(
             Zone(
                 name=name,
-                kind=str(z["kind"]),
+                kind=z["kind"],
                 polygon=poly,
                 z=(_number(band[0], f"{where}: z"), _number(band[1], f"{where}: z")),
                 **kwargs,
