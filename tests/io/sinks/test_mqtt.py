@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -228,7 +229,9 @@ def test_offline_by_the_last_will_when_the_process_dies(broker, closing) -> None
     wait_until(lambda: sub.on(f"{BASE}/available") == ["online", "offline"], "the last will")
 
 
-def test_broker_away_at_start_loses_nothing_within_the_bound(tmp_path: Path, closing) -> None:
+def test_broker_away_at_start_loses_nothing_within_the_bound(
+    tmp_path: Path, closing, caplog
+) -> None:
     broker = Broker(tmp_path / "broker").start()
     sub = Subscriber(broker.port, f"{BASE}/events", f"{BASE}/people", session="watcher")
     sub.close()  # its session (and what comes for it) stays with the broker
@@ -245,6 +248,8 @@ def test_broker_away_at_start_loses_nothing_within_the_bound(tmp_path: Path, clo
         c = sink.counts()
         assert c["people"]["dropped"] == 6 and c["events"]["dropped"] == 1
         assert c["events"]["queued"] == 10 and c["people"]["queued"] == 0
+        dropping = [r for r in caplog.records if "dropping the oldest" in r.getMessage()]
+        assert len(dropping) == 1  # once for the burst, not per message
         broker.start()
         sub = Subscriber(broker.port, f"{BASE}/events", f"{BASE}/people", session="watcher")
         closing(sub)
@@ -266,10 +271,10 @@ def test_broker_restarted_mid_run(tmp_path: Path, closing, caplog) -> None:
         closing(sub)
         sink = MqttSink(settings(broker.port))
         closing(sink)
+        wait_until(lambda: "online" in sub.on(f"{BASE}/available"), "online")
         for k in range(20):
             sink.write_events([event(k)])
-        wait_until(lambda: published(sink, "events") == 20, "the first events")
-        broker.restart()
+        broker.restart()  # some of these on their way, some still queued
         for k in range(20, 40):
             sink.write_events([event(k)])
         wait_until(lambda: published(sink, "events") == 40, "the events after the restart")
@@ -333,3 +338,23 @@ def test_close_is_bounded_with_no_broker(closing) -> None:
     sink.write(frame(0, [1], [event(0)]))
     sink.close()
     assert sink.counts()["events"]["queued"] == 1
+
+
+def test_a_hung_broker_blocks_neither_writes_nor_close(broker, closing) -> None:
+    sink = MqttSink(settings(broker.port, close_timeout_s=0.3))
+    closing(sink)
+    sub = Subscriber(broker.port, f"{BASE}/available")
+    closing(sub)
+    wait_until(lambda: sub.on(f"{BASE}/available") == ["online"], "online")
+    broker.proc.send_signal(signal.SIGSTOP)  # takes bytes, answers nothing
+    try:
+        for k in range(60):
+            sink.write(frame(k, [1], [event(k)]))
+        finished = threading.Thread(target=sink.close, daemon=True)
+        finished.start()
+        finished.join(timeout=10.0)
+        assert not finished.is_alive(), "close blocked on a hung broker"
+        c = sink.counts()["events"]
+        assert c["published"] + c["queued"] == 60 and c["queued"] >= 40  # at most 20 in flight
+    finally:
+        broker.proc.send_signal(signal.SIGCONT)

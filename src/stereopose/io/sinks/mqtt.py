@@ -213,8 +213,8 @@ class MqttSink(ClosesOnce):
     def _publish(self, msg: _Message) -> None:
         try:
             info = self._client.publish(msg.topic, msg.payload, qos=msg.qos, retain=msg.retain)
-        except (ValueError, RuntimeError) as e:  # paho refuses it (too large, bad topic)
-            info, problem = None, str(e)
+        except Exception as e:  # paho refuses it (too large, bad topic): the sender goes on
+            info, problem = None, f"{type(e).__name__}: {e}"
         else:
             ok = (paho.MQTT_ERR_SUCCESS, paho.MQTT_ERR_NO_CONN)  # NO_CONN: paho resends it
             problem = None if info.rc in ok else paho.error_string(info.rc)
