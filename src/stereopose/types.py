@@ -6,6 +6,7 @@ Array conventions: pixels of the original (distorted) image for 2D, metres in th
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -245,6 +246,7 @@ class People3D:
     predicted: (P,) true for a tracked person not seen in this frame, whose pose is predicted
         from the previous ones (default: all false).
     velocity: (P, 2) floor velocity in m/s, world x-y (default: NaN, unknown).
+    t: the frame's time in seconds on the run's clock (None: frame / fps, see `time`).
     """
 
     frame: int
@@ -256,6 +258,7 @@ class People3D:
     detections: np.ndarray
     predicted: np.ndarray | None = None
     velocity: np.ndarray | None = None
+    t: float | None = None
 
     def __post_init__(self) -> None:
         J = np.asarray(self.joints, dtype=np.float64)
@@ -297,6 +300,17 @@ class People3D:
 
     def __len__(self) -> int:
         return int(self.joints.shape[0])
+
+    def time(self, fps: float) -> float:
+        """The frame's time in seconds: `t` where the source gave one (live cameras stamp their
+        arrival time), frame / fps otherwise."""
+        return self.frame / fps if self.t is None else self.t
+
+    def at(self, t: float) -> People3D:
+        """The same people stamped with time t (the arrays shared, not copied or checked again)."""
+        out = copy.copy(self)
+        object.__setattr__(out, "t", float(t))
+        return out
 
     @classmethod
     def empty(cls, frame: int, num_cameras: int) -> People3D:

@@ -71,8 +71,8 @@ class SameStage:
         self.loaded += 1
         return 0.25
 
-    def step(self, frame, people2d) -> People3D:
-        return dataclasses.replace(self.people, frame=frame)
+    def step(self, frame, people2d, t=None) -> People3D:
+        return dataclasses.replace(self.people, frame=frame, t=t)
 
     def trajectories(self) -> list:
         return []
@@ -184,3 +184,104 @@ def test_state_does_not_grow_with_run_length(rig, tmp_path: Path) -> None:
     assert loop.summary.frames == 10_000 and sum(loop.summary.events.values()) == 100
     stats = loop.summary.per_camera["cam01"].reprojection
     assert stats.count == 10_000 * 34 and stats.nbytes == RunningStats().nbytes
+
+
+# --- each step's time through the loop, and Ctrl-C while the source waits -------------------
+
+
+class TimedSteps(Steps):
+    """Steps at the given times (seconds), as a live source gives them: not frame / fps."""
+
+    def __init__(self, rig, times: list[float]) -> None:
+        super().__init__(rig, len(times))
+        self.times = times
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        for f, t in enumerate(self.times):
+            yield SourceStep(f, t, self.people2d)
+
+
+def test_each_steps_time_reaches_every_record(rig, tmp_path: Path) -> None:
+    from stereopose.fence import FenceMonitor, Site, Zone
+    from stereopose.io.results import read_poses
+    from stereopose.io.sinks.events import read_events
+
+    times = [0.0, 0.4, 0.45, 1.7, 2.0, 3.9, 4.0, 4.05]  # irregular, as frames arrive
+    source = TimedSteps(rig, times)
+    stage = SameStage(source.people3d)
+    summary = RunSummary(rig.names, FILE_STAGES, "robust", True)
+    zone = Zone("z", "restricted", np.array([[4.0, 3.0], [6.0, 3.0], [6.0, 5.0], [4.0, 5.0]]),
+                (0.0, 2.5), enter_s=0.3)  # fmt: skip
+    site = Site((zone,))
+    outputs = Outputs(poses=tmp_path / "p.jsonl", events=tmp_path / "e.jsonl",
+                      csv=tmp_path / "j.csv")  # fmt: skip
+    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
+                         site=site)  # fmt: skip
+    FrameLoop(source, stage, sinks, summary, fences=FenceMonitor(site, 25.0)).run()
+    assert [t for _, t, _ in read_poses(tmp_path / "p.jsonl")] == times
+    csv_times = {float(r.split(",")[1]) for r in (tmp_path / "j.csv").read_text().splitlines()[1:]}
+    assert csv_times == set(times)
+    (enter,) = read_events(tmp_path / "e.jsonl")
+    # inside from t = 0 on, confirmed at the first step 0.3 s later: the step at t = 0.4
+    assert (enter.type, enter.frame, enter.t, enter.onset_t) == ("enter", 1, 0.4, 0.0)
+
+
+def test_the_tracker_follows_the_steps_time(scene) -> None:
+    """The same frames, one 10 s gap in their times: tracks end (max_lost_s is 3 s of time,
+    not 75 frames), and the people come back under new ids."""
+    from stereopose.pipeline.stage3d import Stage3D
+
+    def ids(times) -> list[set[int]]:
+        stage = Stage3D(scene.rig, Config(fps=scene.fps))
+        out = []
+        for f, (t, d) in enumerate(zip(times, scene.detections, strict=True)):
+            people = stage.step(f, d, t)
+            assert people.t == t
+            out.append(set(people.ids.tolist()))
+        return out
+
+    n = len(scene.detections)
+    even = [f / scene.fps for f in range(n)]
+    gap = [t + (10.0 if f >= n // 2 else 0.0) for f, t in enumerate(even)]
+    steady, broken = ids(even), ids(gap)
+    assert steady[n // 2 - 1] and steady[n // 2 - 1] <= steady[n // 2]  # they go on, same ids
+    before, after = broken[n // 2 - 1], set().union(*broken[n // 2 :])
+    assert before and after and not before & after
+
+
+class Stalls(Steps):
+    """`n` steps, then a wait for frames that never come (bounded, so a failing test ends)."""
+
+    def __init__(self, rig, n: int) -> None:
+        super().__init__(rig, n)
+        self.waiting = threading.Event()
+
+    @property
+    def total(self) -> None:
+        return None
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        yield from super().__iter__()
+        self.waiting.set()
+        if threading.Event().wait(20):  # pragma: no cover - never set
+            return
+        raise AssertionError("Ctrl-C did not end the wait for the source")
+
+
+def test_ctrl_c_while_the_source_waits_ends_the_run_at_once(rig, tmp_path: Path) -> None:
+    source = Stalls(rig, 3)
+    stage = SameStage(source.people3d)
+    summary = RunSummary(rig.names, FILE_STAGES, "robust", True)
+    outputs = Outputs(poses=tmp_path / "p.jsonl", summary=tmp_path / "summary.json")
+    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
+                         site=None)  # fmt: skip
+
+    def interrupt() -> None:
+        if source.waiting.wait(20):
+            signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    s = FrameLoop(source, stage, sinks, summary).run()  # the first Ctrl-C is enough
+    assert s.interrupted and s.frames == 3 and s.error is None
+    assert len((tmp_path / "p.jsonl").read_text().splitlines()) == 3
+    assert '"interrupted": true' in (tmp_path / "summary.json").read_text()

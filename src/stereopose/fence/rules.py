@@ -129,8 +129,9 @@ class FenceMonitor:
         return rows
 
     def update(self, people: People3D) -> list[Event]:
-        """Events raised at this frame (usually none)."""
-        t = people.frame / self.fps
+        """Events raised at this frame (usually none), at its time (People3D.time: live
+        cameras stamp their arrival time; frame / fps otherwise)."""
+        t = people.time(self.fps)
         events: list[Event] = []
         if len(people):
             rows = self._rows(people.ids)
@@ -162,7 +163,7 @@ class FenceMonitor:
                     events.extend(
                         self._events(people, p, k, t, flags, onset, began, geo, pos, near_onset)
                     )
-        events.extend(self._lost(t))
+        events.extend(self._lost(t, people.frame))
         return events
 
     def _geometry(self, joints: np.ndarray) -> _Geometry:
@@ -236,7 +237,7 @@ class FenceMonitor:
             )
         return out
 
-    def _lost(self, t: float) -> list[Event]:
+    def _lost(self, t: float, frame: int) -> list[Event]:
         """Exit events for people unseen for lost_s while inside; their state is dropped."""
         gone = t - self.last_seen > self.lost_s + _EPS
         if not gone.any():
@@ -251,7 +252,7 @@ class FenceMonitor:
                 out.append(
                     Event(
                         t=t,
-                        frame=round(t * self.fps),
+                        frame=frame,
                         person=pid,
                         zone=zone.name,
                         kind=zone.kind,

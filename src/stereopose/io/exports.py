@@ -216,7 +216,7 @@ class CsvExporter:
         self._w.writerow(self.HEADER)
 
     def add(self, people: People3D) -> None:
-        t = round(people.frame / self.fps, 6)
+        t = round(people.time(self.fps), 6)
         ok = np.isfinite(people.joints).all(-1)
         for p, j in zip(*np.nonzero(ok), strict=True):
             x, y, z = people.joints[p, j]

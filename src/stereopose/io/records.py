@@ -74,7 +74,7 @@ def _person_record(
 
 
 def frame_record(people: People3D, fps: float) -> dict:
-    """The JSON object of one frame of 3D people; t = frame / fps seconds."""
+    """The JSON object of one frame of 3D people; t: the frame's time (People3D.time)."""
     P = len(people)
     out = []
     if P:
@@ -91,7 +91,7 @@ def frame_record(people: People3D, fps: float) -> dict:
             mean_err.tolist(),
         )  # fmt: skip
         out = [_person_record(*row) for row in zip(*columns, strict=True)]
-    return {"frame": people.frame, "t": round(people.frame / fps, 6), "people": out}
+    return {"frame": people.frame, "t": round(people.time(fps), 6), "people": out}
 
 
 def _joints_array(joints: Sequence[Sequence[float] | None]) -> np.ndarray:

@@ -4,17 +4,20 @@
 source, a 3D stage and their sinks, and hand them to `FrameLoop`. Per frame it times each
 stage apart (the source's reading, detection, 3D, fences, and each sink under its own stage),
 calls `on_step(done, total, fps)`, and stops after the current frame when `stop` is set or on
-SIGINT (a second Ctrl-C stops at once). Whatever ends the loop (the source's end, `stop`,
-Ctrl-C, an error), every sink is closed, so what was written stays readable.
+SIGINT (at once while it waits for the source, and at a second Ctrl-C: pipeline.interrupt).
+Whatever ends the loop (the source's end, `stop`, Ctrl-C, an error), every sink is closed, so
+what was written stays readable.
+
+Each step's time t comes from the source (recorded: frame / fps; live cameras: when the frames
+arrived) and goes with the step to the 3D stage (the tracker's prediction and its max_lost_s),
+the fences (debounce, dwell, event times) and every sink record.
 
 Nothing in the loop keeps anything per frame: the summary holds running aggregates.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -24,10 +27,10 @@ from typing import Protocol
 import numpy as np
 
 from stereopose.config import Config
-from stereopose.errors import IncompleteOutputError
 from stereopose.fence import FenceMonitor, Site
 from stereopose.io.sinks import FrameResult, Sink
 from stereopose.io.summary import RunSummary
+from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.types import Event, People2D, Rig
@@ -39,9 +42,10 @@ OnStep = Callable[[int, "int | None", float], None]
 
 @dataclass(frozen=True, eq=False)
 class SourceStep:
-    """What a source gives per step: the frame number, its time t (seconds), each camera's 2D
-    people (None: the source's `detect` finds them in `images`), and each camera's image
-    (cameras only; None where a camera has no frame at this step)."""
+    """What a source gives per step: the frame number, its time t (seconds on the source's
+    clock, increasing from step to step), each camera's 2D people (None: the source's `detect`
+    finds them in `images`), and each camera's image (cameras only; None where a camera has no
+    frame at this step)."""
 
     frame: int
     t: float
@@ -80,30 +84,10 @@ class Stage(Protocol):
 
     def load(self) -> float: ...
 
-    def step(self, frame: int, people2d: Mapping[str, People2D]): ...
+    def step(self, frame: int, people2d: Mapping[str, People2D], t: float | None = None):
+        """The output people of `frame`, at time t (None: frame / fps), stamped with t."""
 
     def trajectories(self) -> list: ...
-
-
-@contextlib.contextmanager
-def _sigint(stop: threading.Event) -> Iterator[None]:
-    """Ctrl-C sets `stop` (the loop ends after the current frame); a second one raises
-    KeyboardInterrupt. Only in the main thread, where signal handlers can be set."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum, frame) -> None:
-        if stop.is_set():  # a second Ctrl-C: stop now
-            raise KeyboardInterrupt
-        logger.warning("interrupted: finishing the current frame and closing the outputs")
-        stop.set()
-
-    previous = signal.signal(signal.SIGINT, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 class FrameLoop:
@@ -128,6 +112,7 @@ class FrameLoop:
         self.summary, self.fences = summary, fences
         self.on_step = on_step
         self.stop = stop or threading.Event()
+        self.interrupt = Interrupt(self.stop)
         for sink in self.sinks:
             self.summary.seconds.setdefault(sink.stage, 0.0)
 
@@ -135,7 +120,8 @@ class FrameLoop:
         s = self.summary
         error: BaseException | None = None
         start = time.perf_counter()
-        with _sigint(self.stop):
+        self.interrupt.stop = self.stop  # `stop` may be replaced before run
+        with self.interrupt.installed():
             try:
                 s.load_s_3d = self.stage.load()
                 start = time.perf_counter()
@@ -165,7 +151,8 @@ class FrameLoop:
         done = 0
         while not self.stop.is_set():
             t0 = time.perf_counter()
-            step = next(it, None)
+            with self.interrupt.wait():
+                step = next(it, None)
             t1 = time.perf_counter()
             sec[first] += t1 - t0
             if step is None:
@@ -175,7 +162,7 @@ class FrameLoop:
                 people2d = self.source.detect(step)
                 t0, t1 = t1, time.perf_counter()
                 sec["detect"] += t1 - t0
-            people3d = self.stage.step(step.frame, people2d)
+            people3d = self.stage.step(step.frame, people2d, step.t)
             t2 = time.perf_counter()
             sec["3d"] += t2 - t1
             events = self.fences.update(people3d) if self.fences is not None else []
@@ -232,9 +219,7 @@ def run_frames(
 
     label: what the run reads (the event log's `runs.source`); summary_fields: more of the
     RunSummary's fields (out_dir, config_path). The outputs' needs (pipeline.outputs.
-    check_outputs) are checked by the caller, before anything is written. An output that failed
-    during the run (pipeline.outputs.open_outputs) raises IncompleteOutputError at the end,
-    every frame processed and the other outputs complete; it holds the summary.
+    check_outputs) are checked by the caller, before anything is written.
     """
     stage = Stage3D(rig, config, record=outputs.two_way, calib_path=calib_path)
     summary = RunSummary(
@@ -245,7 +230,4 @@ def run_frames(
     sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
                          site=site, source=label, on_events=on_events)  # fmt: skip
     loop = FrameLoop(source, stage, sinks, summary, fences=fences, on_step=on_step, stop=stop)
-    summary = loop.run()
-    if summary.failed_outputs:  # the work is done, but not all of it is kept: exit code 3
-        raise IncompleteOutputError(summary.failed_outputs, summary.outputs, summary)
-    return summary
+    return loop.run()

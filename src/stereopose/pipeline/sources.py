@@ -74,8 +74,10 @@ def check_size(camera: Camera, image: np.ndarray) -> None:
 class Cameras:
     """Cameras read in step (io.video.CameraSet), their people found by a pose detector.
 
-    Each camera's first frame is checked against its calibration's size. `finish` puts each
-    camera's reader statistics (frames, dropped, reconnects) into the summary.
+    Each camera's first frame is checked against its calibration's size. A step's t is the
+    set's (recorded: frame / fps; live: when its frames arrived, seconds since the cameras were
+    opened). `finish` puts each camera's reader statistics (frames, dropped, reconnects) into
+    the summary, and for live cameras the wall-clock time of t = 0 (clock_start_epoch).
     """
 
     stages = CAMERA_STAGES
@@ -105,6 +107,8 @@ class Cameras:
 
     def finish(self, summary: RunSummary) -> None:
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}
+        if self.live:
+            summary.clock_start_epoch = self.cams.clock.start_epoch
 
 
 def source_label(value: str | Path | Mapping[str, str]) -> str:

@@ -46,6 +46,7 @@ class Stage3D:
             raise CalibrationError(f"{calib_path}: {e}" if calib_path else str(e)) from None
         self.memory = make_memory(rig, config, record=record)
         self.tracking = self.memory.tracking
+        self.fps = float(config.fps)
         self._warm = (config.reconstruction, config.tracking, record)
         self.load_s: float | None = None  # time the compiled loops took to load, once
 
@@ -59,12 +60,18 @@ class Stage3D:
         return self.load_s
 
     def step(
-        self, frame: int, people2d: Mapping[str, People2D] | Sequence[People2D | None]
+        self,
+        frame: int,
+        people2d: Mapping[str, People2D] | Sequence[People2D | None],
+        t: float | None = None,
     ) -> People3D:
-        """One frame's output people: ids, joints (smoothed when tracking), positions."""
-        prior = self.memory.prior(frame)
+        """One frame's output people: ids, joints (smoothed when tracking), positions, stamped
+        with the frame's time t in seconds (None: frame / fps; live cameras give their frames'
+        arrival time, which the tracker predicts to)."""
+        t = frame / self.fps if t is None else float(t)
+        prior = self.memory.prior(frame, t)
         rec = self.reconstructor.reconstruct(frame, people2d, prior)
-        return self.memory.update(frame, rec)
+        return self.memory.update(frame, rec).at(t)
 
     def trajectories(self) -> list[Trajectory]:
         """Every tracked person's trajectory so far, by id (none without tracking)."""

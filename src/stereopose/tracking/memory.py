@@ -3,7 +3,7 @@
 A memory gives the prior of a frame (the poses expected in it, which seed its reconstruction)
 and turns that frame's reconstructed people into the output people:
 
-    prior = memory.prior(frame)
+    prior = memory.prior(frame, t)
     people = memory.update(frame, reconstructor.reconstruct(frame, people2d, prior))
 
 - ``tracker``: the Kalman tracker (persistent ids, online smoothing, trajectories);
@@ -33,8 +33,9 @@ class Memory(Protocol):
 
     tracking: bool  # the output ids persist over time
 
-    def prior(self, frame: int) -> np.ndarray | None:
-        """(T, 17, 3) poses expected at `frame` (NaN where unknown), or None."""
+    def prior(self, frame: int, t: float | None = None) -> np.ndarray | None:
+        """(T, 17, 3) poses expected at `frame`, at time t seconds (None: frame / fps), NaN
+        where unknown, or None."""
 
     def update(self, frame: int, rec: Reconstruction) -> People3D:
         """The output people of `frame` from its reconstruction (seeded by `prior`)."""
@@ -51,7 +52,7 @@ class NoMemory:
 
     tracking = False
 
-    def prior(self, frame: int) -> np.ndarray | None:
+    def prior(self, frame: int, t: float | None = None) -> np.ndarray | None:
         return None
 
     def update(self, frame: int, rec: Reconstruction) -> People3D:
@@ -78,7 +79,7 @@ class RecentPeople(NoMemory):
         self._seen = np.zeros(0, dtype=np.int64)  # frame each was last seen
         self._last: int | None = None
 
-    def prior(self, frame: int) -> np.ndarray | None:
+    def prior(self, frame: int, t: float | None = None) -> np.ndarray | None:
         if self._last is None or frame <= self._last:
             self._joints, self._seen = self._joints[:0], self._seen[:0]
         recent = frame - self._seen <= self.frames
