@@ -66,6 +66,8 @@ class RunSummary:
     out_dir: Path | None = None
     config_path: Path | None = None  # None: a reconstruction from keypoint files
     live: bool = False
+    # live cameras: wall-clock time (seconds since 1970) of t = 0; a record's wall time is this + t
+    clock_start_epoch: float | None = None
     fps_input: float = 0.0
     frames: int = 0
     frames_read: int | None = None  # keypoint input: frames with a readable keypoint file
@@ -177,6 +179,7 @@ class RunSummary:
             "mode": self.mode,
             "tracking": self.tracking,
             "live": self.live,
+            "clock_start_epoch": self.clock_start_epoch,
             "fps_input": self.fps_input,
             "frames": self.frames,
             "frames_read": self.frames_read,
