@@ -146,7 +146,7 @@ def _polygon(value: object, where: str) -> np.ndarray:
         k, c = np.argwhere(bad)[0]
         raise ConfigError(
             f"{where}: polygon[{k}][{c}]: expected {SITE_COORD.describe()} (metres), "
-            f"got {poly[k, c]!r}"
+            f"got {float(poly[k, c])!r}"
         )
     return poly
 
