@@ -7,6 +7,7 @@ whose y and z axes point opposite to OpenCV's (a rotation of pi about x).
 
 from __future__ import annotations
 
+import math
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -14,13 +15,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereopose.checks import read_limited
+from stereopose.checks import MAX_TRANSLATION_M, Range, read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
 
 _UNITS_PER_PX = 64.0
 _FLIP = np.diag([1.0, -1.0, -1.0])  # Qualisys camera frame -> OpenCV camera frame
 _ROTATION_TOL = 1e-4  # exports round the matrix entries
+_CENTRE_MM = Range(gt=-1000 * MAX_TRANSLATION_M, lt=1000 * MAX_TRANSLATION_M)
 
 
 def _natural_key(name: str) -> list[object]:
@@ -79,20 +81,20 @@ def _camera(path: Path, name: str, el: ET.Element) -> Camera:
             ],
         )
     )
-    tr = _float_attrs(
-        path,
-        name,
-        el.find("transform"),
-        "transform",
-        ["r11", "r12", "r13", "r21", "r22", "r23", "r31", "r32", "r33", "x", "y", "z"],
-    )
+    keys = ["r11", "r12", "r13", "r21", "r22", "r23", "r31", "r32", "r33", "x", "y", "z"]
+    tr = _float_attrs(path, name, el.find("transform"), "transform", keys)
+    for key, v in zip(keys[9:], tr[9:], strict=True):  # bounded before any arithmetic
+        _CENTRE_MM.check(v, f"{path}: camera {name!r}: <transform> {key} (mm)", CalibrationError)
     M = np.array(tr[:9]).reshape(3, 3)
     C_mm = np.array(tr[9:])
-    err = float(np.abs(M @ M.T - np.eye(3)).max())
+    # the entries of a rotation lie in [-1, 1]; beyond, M M^T could overflow
+    bounded = np.abs(M).max() <= 1.0 + _ROTATION_TOL
+    err = float(np.abs(M @ M.T - np.eye(3)).max()) if bounded else math.inf
     if err > _ROTATION_TOL or np.linalg.det(M) <= 0:
+        det = f"{np.linalg.det(M):.4f}" if bounded else "n/a"
         raise CalibrationError(
             f"{path}: camera {name!r}: <transform> r11..r33 is not a rotation matrix "
-            f"(|M M^T - I| = {err:.2e}, det = {np.linalg.det(M):.4f})"
+            f"(|M M^T - I| = {err:.2e}, det = {det})"
         )
     R = _FLIP @ M
     t = _FLIP @ (-M @ C_mm) / 1000.0
