@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import sqlite3
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 from frame_sources import SceneSource
 
 from stereopose.config import Config, OutputConfig
-from stereopose.errors import StereoposeError
+from stereopose.errors import OutputError, StereoposeError
 from stereopose.fence import FenceMonitor
 from stereopose.io.exports import read_trc
 from stereopose.io.records import event_record
@@ -164,3 +165,129 @@ def test_zone_events_and_two_way_need_the_trackers_ids(memory: str) -> None:
     with pytest.raises(StereoposeError, match="two-way smoothing needs tracking"):
         check_outputs(cfg, None, Outputs(poses=None, two_way=True))
     check_outputs(Config(), Site(()), Outputs(poses=None, two_way=True))  # the tracker: fine
+
+
+def _loop(scene, out: Path, outputs: Outputs):
+    """A frame loop over the scene with its zones, writing `outputs`; (loop, summary)."""
+    cfg = dataclasses.replace(Config(), fps=scene.fps)
+    site = make_zones(scene, np.random.default_rng(4))
+    stage = Stage3D(scene.rig, cfg)
+    summary = RunSummary(scene.rig.names, SceneSource.stages, "robust", stage.tracking)
+    sinks = open_outputs(outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage,
+                         site=site, source="sim")  # fmt: skip
+    return FrameLoop(SceneSource(scene), stage, sinks, summary, fences=FenceMonitor(site, cfg.fps))
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (ENOSPC on write)")
+def test_a_full_disk_stops_that_output_alone(scene, tmp_path: Path, caplog) -> None:
+    outputs = Outputs(poses=Path("/dev/full"), events=tmp_path / "events.jsonl",
+                      events_db=tmp_path / "events.sqlite", csv=tmp_path / "joints.csv",
+                      summary=tmp_path / "summary.json")  # fmt: skip
+    summary = _loop(scene, tmp_path, outputs).run()
+    F = len(scene.detections)
+    assert summary.frames == F  # every frame processed
+    assert summary.failed_outputs == {"/dev/full": "No space left on device"}
+    assert Path("/dev/full") not in summary.outputs
+    # one error for the output, not one per frame
+    assert sum("/dev/full" in r.getMessage() for r in caplog.records if r.levelname == "ERROR") == 1
+    # the alarm path and the other files are complete
+    events = read_events(tmp_path / "events.jsonl")
+    assert events
+    with sqlite3.connect(tmp_path / "events.sqlite") as db:
+        assert db.execute("select count(*) from events").fetchone()[0] == len(events)
+    frames = {int(r.split(",")[0]) for r in (tmp_path / "joints.csv").read_text().splitlines()[1:]}
+    assert max(frames) == F - 1
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["failed_outputs"] == {"/dev/full": "No space left on device"} and s["frames"] == F
+
+
+def test_an_output_folder_that_turns_into_a_file_stops_that_output(scene, tmp_path: Path) -> None:
+    trc = tmp_path / "trc"
+    outputs = Outputs(poses=tmp_path / "poses.jsonl", trc_dir=trc)
+    loop = _loop(scene, tmp_path, outputs)
+    trc.rmdir()
+    trc.write_text("")  # the folder is gone, a file in its place: each person's file fails
+    summary = loop.run()
+    assert summary.frames == len(scene.detections)
+    assert list(summary.failed_outputs) == [str(trc)]
+    assert "cannot write TRC" in summary.failed_outputs[str(trc)]
+    assert len((tmp_path / "poses.jsonl").read_text().splitlines()) == len(scene.detections)
+
+
+@pytest.mark.parametrize(
+    ("field", "name", "message"),
+    [
+        ("tracks", "file/tracks.json", "cannot write trajectories: .*file is a file, not a folder"),
+        ("trc_dir", "file/trc", "cannot write TRC files: .*file is a file, not a folder"),
+        ("summary", "folder", "cannot write the run summary: a folder is in its place"),
+        (
+            "events_db",
+            "file/e.sqlite",
+            "cannot write the event database: .*file is a file, not a folder",
+        ),
+        ("report_dir", "file", "cannot write the report: .*file is a file, not a folder"),
+    ],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_any_frame(
+    scene, tmp_path: Path, field: str, name: str, message: str
+) -> None:
+    (tmp_path / "file").write_text("")
+    (tmp_path / "folder").mkdir()
+    outputs = dataclasses.replace(Outputs(poses=tmp_path / "p.jsonl"), **{field: tmp_path / name})
+    with pytest.raises(OutputError, match=message):
+        _loop(scene, tmp_path, outputs)
+    assert (tmp_path / "p.jsonl").read_text() == ""  # opened, closed again, nothing written
+
+
+class _Writer:
+    """Another connection holding the event log's write lock from its own thread, from
+    `hold()` until `release()`."""
+
+    def __init__(self, db: Path) -> None:
+        self.db = db
+        self.held, self.go, self.done = threading.Event(), threading.Event(), threading.Event()
+
+    def hold(self) -> None:
+        threading.Thread(target=self._run, daemon=True).start()
+        assert self.held.wait(20), "the other connection did not get the lock"
+
+    def _run(self) -> None:
+        con = sqlite3.connect(self.db, isolation_level=None)
+        con.execute("BEGIN IMMEDIATE")
+        self.held.set()
+        self.go.wait(30)
+        con.execute("COMMIT")
+        con.close()
+        self.done.set()
+
+    def release(self) -> None:
+        self.go.set()
+        assert self.done.wait(20)
+
+
+def test_a_locked_event_log_neither_stops_the_run_nor_loses_events(scene, tmp_path: Path):
+    db = tmp_path / "events.sqlite"
+    outputs = Outputs(events=tmp_path / "events.jsonl", events_db=db)
+    loop = _loop(scene, tmp_path, outputs)
+    F = len(scene.detections)
+    writer = _Writer(db)
+    stored_under_lock: list[int] = []
+
+    def on_step(done: int, total, fps) -> None:
+        if done == 5:
+            writer.hold()  # from frame 5 on, another process writes to the log
+        if done == F:  # every frame went through under the lock; then it goes
+            with sqlite3.connect(db) as con:  # a reader is not held up either (WAL)
+                stored_under_lock.append(con.execute("select count(*) from events").fetchone()[0])
+            writer.release()
+
+    loop.on_step = on_step
+    summary = loop.run()
+    assert summary.frames == F and summary.failed_outputs == {}
+    events = read_events(tmp_path / "events.jsonl")
+    late = [e for e in events if e.frame >= 5]
+    assert late, "the scene should raise events after frame 5"
+    assert stored_under_lock == [len(events) - len(late)]
+    with sqlite3.connect(db) as con:
+        rows = con.execute("select frame, person, zone, type from events order by id").fetchall()
+    assert rows == [(e.frame, e.person, e.zone, e.type) for e in events]

@@ -11,7 +11,12 @@ import importlib
 from pathlib import Path
 
 from stereopose import __version__
-from stereopose.errors import StereoposeError
+from stereopose.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    IncompleteOutputError,
+    StereoposeError,
+)
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -270,9 +275,31 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return _handler(args.handler)(args)
+    except IncompleteOutputError as e:
+        _incomplete(e, console)
+        return e.exit_code
     except StereoposeError as e:
         console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
-        return 2
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         console.print("interrupted")
-        return 130
+        return EXIT_INTERRUPTED
+
+
+def _incomplete(e: IncompleteOutputError, console) -> None:
+    """What a command that finished kept, and which outputs it could not write (exit 3)."""
+    from rich.markup import escape
+
+    for path in e.written:
+        console.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
+    if e.note:
+        console.print(e.note, markup=False, highlight=False, soft_wrap=True)
+    if getattr(e.summary, "interrupted", False):
+        console.print("interrupted: the outputs above are complete up to the last frame processed")
+    n = len(e.failures)
+    console.print(
+        f"[bold red]error:[/] finished, but {n} output{'s' * (n != 1)} could not be written:",
+        highlight=False,
+    )
+    for what, why in e.failures.items():
+        console.print(f"  {escape(what)}: {escape(why)}", highlight=False, soft_wrap=True)

@@ -8,6 +8,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from stereopose.cli.common import console, out
+from stereopose.errors import IncompleteOutputError
 
 
 def _board(args: argparse.Namespace):
@@ -29,7 +30,7 @@ def _calibrate_intrinsics(args: argparse.Namespace) -> int:
             report_dir=args.report,
             on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
         )
-    table = Table(title=f"Intrinsics written to {args.out}")
+    table = Table(title=f"Intrinsics {_where(run, args.out)}")
     for col in ("camera", "photos used", "not used", "fx", "fy", "cx", "cy", "RMS px", "coverage"):
         table.add_column(col, justify="right")
     for name, r in run.results.items():
@@ -53,9 +54,27 @@ def _calibrate_intrinsics(args: argparse.Namespace) -> int:
             out.print(f"{name}: {view}: {e:.3f} px", markup=False, highlight=False)
         for w in r.warnings:
             console.print(f"[yellow]warning:[/] {escape(w)}")
-    for p in run.outputs[1:]:
-        out.print(f"wrote {p}", markup=False, highlight=False)
-    return 0
+    return _finish(run)
+
+
+def _where(run, target) -> str:
+    return f"written to {target}" if run.calibration is not None else "(not written: see below)"
+
+
+def _finish(run) -> int:
+    """The pictures written, and exit code 3 (the calibration kept) if an output failed."""
+    for p in run.outputs:
+        if p != run.calibration:
+            out.print(f"wrote {p}", markup=False, highlight=False)
+    if not run.failures:
+        return 0
+    note = ""
+    if run.kept is not None:
+        note = f"the calibration is kept in {run.kept}"
+    elif run.kept_text is not None:  # on standard output, where it can still be saved from
+        out.print(run.kept_text, markup=False, highlight=False)
+        note = "the calibration could not be kept in a file: it is printed above"
+    raise IncompleteOutputError(run.failures, note=note)
 
 
 def _calibrate_extrinsics(args: argparse.Namespace) -> int:
@@ -77,7 +96,7 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
             intrinsics_images=args.intrinsics_images,
         )
     r = run.result
-    table = Table(title=f"Rig written to {args.out}: RMS {r.rms_px:.3f} px")
+    table = Table(title=f"Rig {_where(run, args.out)}: RMS {r.rms_px:.3f} px")
     for col in ("camera", "board positions seen", "RMS px", "x m", "y m", "z m"):
         table.add_column(col, justify="right")
     for cam in r.rig:
@@ -97,6 +116,4 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
     for w in r.warnings:
         console.print(f"[yellow]warning:[/] {escape(w)}")
     out.print(f"bundle adjustment and pose graph: {r.seconds:.2f} s")
-    for p in run.outputs[1:]:
-        out.print(f"wrote {p}", markup=False, highlight=False)
-    return 0
+    return _finish(run)

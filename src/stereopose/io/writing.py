@@ -23,11 +23,23 @@ def reason(e: BaseException) -> str:
     return str(e) or type(e).__name__
 
 
+def make_folder(folder: Path) -> None:
+    """`folder` and its parents made; a file where a folder should be is named (mkdir itself
+    says only "File exists")."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        above = next(p for p in (folder, *folder.parents) if p.exists())
+        raise NotADirectoryError(
+            errno.ENOTDIR, f"{above} is a file, not a folder", str(folder)
+        ) from None
+
+
 def open_output(path: Path, what: str, newline: str | None = None) -> IO[str]:
     """`path` opened for writing (UTF-8), its parent folders made; an OSError becomes an
     OutputError "<path>: cannot write <what>: <reason>"."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_folder(path.parent)
         return path.open("w", encoding="utf-8", newline=newline)
     except OSError as e:
         raise OutputError(f"{path}: cannot write {what}: {e.strerror}") from None
@@ -37,7 +49,7 @@ def _probe(folder: Path) -> None:
     """A file can be created in `folder` (made if missing): an unnamed temporary file, so
     nothing is left behind. Catches a read-only or vanished folder and a file in its place;
     permissions too, except for root."""
-    folder.mkdir(parents=True, exist_ok=True)
+    make_folder(folder)
     with tempfile.TemporaryFile(dir=folder):
         pass
 

@@ -1,8 +1,15 @@
-"""Calibration runs: checkerboard photos -> intrinsics, then the rig's extrinsics."""
+"""Calibration runs: checkerboard photos -> intrinsics, then the rig's extrinsics.
+
+The outputs (the calibration, the report pictures) are tried before the work; if one still
+cannot be written at the end, the run records it in `failures` and keeps the calibration
+elsewhere (`kept`: a file in the temporary folder, or `kept_text` when even that fails), so
+that minutes of board detection and adjustment are never lost.
+"""
 
 from __future__ import annotations
 
 import logging
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,17 +18,32 @@ import numpy as np
 
 from stereopose.calibration.board import Board
 from stereopose.calibration.formats import load_calibration
-from stereopose.errors import CalibrationError
+from stereopose.errors import CalibrationError, StereoposeError
+from stereopose.io.writing import make_folder, probe_folder, probe_output, reason
 from stereopose.types import Rig
 
 logger = logging.getLogger(__name__)
 
 
 @dataclass
-class IntrinsicsRun:
-    results: dict  # camera -> IntrinsicsResult
-    detections: dict  # camera -> [Detection]
+class Kept:
+    """What a calibration run could not write, and where its calibration went instead.
+
+    failures: output -> why it could not be written; kept: the calibration (native TOML) saved
+    in the temporary folder instead; kept_text: that TOML, when even that could not be saved.
+    """
+
+    failures: dict[str, str] = field(default_factory=dict)
+    kept: Path | None = None
+    kept_text: str | None = None
+
+
+@dataclass
+class IntrinsicsRun(Kept):
+    results: dict = field(default_factory=dict)  # camera -> IntrinsicsResult
+    detections: dict = field(default_factory=dict)  # camera -> [Detection]
     outputs: list[Path] = field(default_factory=list)
+    calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
 def _camera_folders(images: Path) -> list[tuple[str, Path]]:
@@ -56,7 +78,8 @@ def calibrate_intrinsics_dir(
     OpenCV YAML folder / .yml); a PNG report in report_dir."""
     from stereopose.calibration.intrinsics import calibrate_intrinsics, detect_all, iter_images
 
-    run = IntrinsicsRun({}, {})
+    check_calibration_outputs(out, report_dir)
+    run = IntrinsicsRun()
     for name, folder in _camera_folders(Path(images)):
         if on_camera is not None:
             on_camera(name)
@@ -64,34 +87,82 @@ def calibrate_intrinsics_dir(
         run.detections[name] = dets
         run.results[name] = calibrate_intrinsics(name, dets, board, k3=k3)
     rig = Rig(tuple(r.camera for r in run.results.values()))
-    run.outputs.append(_save_rig(out, rig, {"intrinsics_only": True}))
+    _save_rig(run, out, rig, {"intrinsics_only": True})
     if report_dir is not None:
         from stereopose.viz.calibration import intrinsics_png
 
-        Path(report_dir).mkdir(parents=True, exist_ok=True)
-        run.outputs.append(
-            intrinsics_png(Path(report_dir) / "intrinsics.png", run.results, run.detections)
-        )
+        path = Path(report_dir) / "intrinsics.png"
+        _picture(run, path, lambda: intrinsics_png(path, run.results, run.detections))
     return run
 
 
-def _save_rig(out: str | Path, rig: Rig, metadata: dict) -> Path:
-    from stereopose.calibration.formats import save_calibration
-    from stereopose.calibration.opencv_yaml import write_opencv_yaml
+def check_calibration_outputs(out: str | Path, report_dir: str | Path | None) -> None:
+    """Raise an OutputError now, before any work, if the calibration `out` (.toml, or an
+    OpenCV YAML folder / .yml) or the report folder could not be written at the end."""
+    from stereopose.calibration.opencv_yaml import yaml_paths
 
     out = Path(out)
     if out.suffix.lower() == ".toml":
-        out.parent.mkdir(parents=True, exist_ok=True)
-        save_calibration(out, rig, metadata=metadata)
-        return out
-    return write_opencv_yaml(out, rig)[0]
+        probe_output(out, "the calibration")
+    else:
+        probe_folder(yaml_paths(out)[0].parent, "the calibration (intri.yml, extri.yml)")
+    if report_dir is not None:
+        probe_folder(report_dir, "the report pictures")
+
+
+def _save_rig(run: Kept, out: str | Path, rig: Rig, metadata: dict) -> None:
+    """The calibration to `out` (run.outputs, run.calibration); if it cannot be written, kept
+    elsewhere (see Kept) and the failure recorded."""
+    from stereopose.calibration.formats import format_calibration, save_calibration
+    from stereopose.calibration.opencv_yaml import write_opencv_yaml
+
+    out = Path(out)
+    text = format_calibration(rig, metadata)  # a bad rig is an error here, not a lost file
+    try:
+        if out.suffix.lower() == ".toml":
+            make_folder(out.parent)
+            save_calibration(out, rig, metadata=metadata)
+            written = out
+        else:
+            written = write_opencv_yaml(out, rig)[0]
+    except (OSError, StereoposeError) as e:  # the YAML writer's error is its cannot-write
+        run.failures[str(out)] = reason(e)
+        _keep(run, out, text)
+        return
+    run.calibration = written
+    run.outputs.append(written)
+
+
+def _keep(run: Kept, out: Path, text: str) -> None:
+    """The calibration's TOML in a new file of the temporary folder (never one that exists);
+    the text itself when that fails too."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=f"{out.stem or 'calibration'}-", suffix=".toml")
+        with open(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+        run.kept = Path(name)
+        logger.error("%s: cannot write the calibration; it is kept in %s", out, run.kept)
+    except OSError as e:
+        run.kept_text = text
+        logger.error("%s: cannot write the calibration, nor keep it (%s)", out, e.strerror)
+
+
+def _picture(run: Kept, path: Path, draw: Callable[[], Path]) -> None:
+    """A report picture drawn to `path` (run.outputs); a failure to write it recorded."""
+    try:
+        make_folder(path.parent)
+        run.outputs.append(draw())
+    except OSError as e:
+        run.failures[str(path)] = reason(e)
+        logger.error("%s: cannot write the report picture: %s", path, reason(e))
 
 
 @dataclass
-class ExtrinsicsRun:
-    result: object  # ExtrinsicsResult
-    found: dict  # camera -> {position: found?}
+class ExtrinsicsRun(Kept):
+    result: object = None  # ExtrinsicsResult
+    found: dict = field(default_factory=dict)  # camera -> {position: found?}
     outputs: list[Path] = field(default_factory=list)
+    calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
 def calibrate_extrinsics_dir(
@@ -117,6 +188,7 @@ def calibrate_extrinsics_dir(
     from stereopose.calibration.intrinsics import detect_all, iter_images
 
     rig = load_calibration(intrinsics, min_cameras=1)
+    check_calibration_outputs(out, report_dir)
     cams = {c.name: c for c in rig}
     corners: dict[str, dict[str, np.ndarray]] = {}
     found: dict[str, dict[str, bool]] = {}
@@ -152,19 +224,12 @@ def calibrate_extrinsics_dir(
                 if d.corners is not None:
                     corners[name][f"{name}:{Path(d.name).stem}"] = d.corners.points
     result = calibrate_extrinsics(cams, corners, board, floor, origin_m, yaw_deg, refine_intrinsics)
-    run = ExtrinsicsRun(result, found)
-    run.outputs.append(_save_rig(out, result.rig, {"rms_px": round(result.rms_px, 4)}))
+    run = ExtrinsicsRun(result=result, found=found)
+    _save_rig(run, out, result.rig, {"rms_px": round(result.rms_px, 4)})
     if report_dir is not None:
         from stereopose.viz.calibration import extrinsics_png
 
-        Path(report_dir).mkdir(parents=True, exist_ok=True)
-        run.outputs.append(
-            extrinsics_png(
-                Path(report_dir) / "extrinsics.png",
-                result.rig,
-                board,
-                result.board_poses,
-                result.residuals_px,
-            )
-        )
+        path = Path(report_dir) / "extrinsics.png"
+        _picture(run, path, lambda: extrinsics_png(path, result.rig, board, result.board_poses,
+                                                   result.residuals_px))  # fmt: skip
     return run

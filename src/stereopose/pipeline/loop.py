@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 
 from stereopose.config import Config
+from stereopose.errors import IncompleteOutputError
 from stereopose.fence import FenceMonitor, Site
 from stereopose.io.sinks import FrameResult, Sink
 from stereopose.io.summary import RunSummary
@@ -219,7 +220,9 @@ def run_frames(
 
     label: what the run reads (the event log's `runs.source`); summary_fields: more of the
     RunSummary's fields (out_dir, config_path). The outputs' needs (pipeline.outputs.
-    check_outputs) are checked by the caller, before anything is written.
+    check_outputs) are checked by the caller, before anything is written. An output that failed
+    during the run (pipeline.outputs.open_outputs) raises IncompleteOutputError at the end,
+    every frame processed and the other outputs complete; it holds the summary.
     """
     stage = Stage3D(rig, config, record=outputs.two_way, calib_path=calib_path)
     summary = RunSummary(
@@ -230,4 +233,7 @@ def run_frames(
     sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
                          site=site, source=label, on_events=on_events)  # fmt: skip
     loop = FrameLoop(source, stage, sinks, summary, fences=fences, on_step=on_step, stop=stop)
-    return loop.run()
+    summary = loop.run()
+    if summary.failed_outputs:  # the work is done, but not all of it is kept: exit code 3
+        raise IncompleteOutputError(summary.failed_outputs, summary.outputs, summary)
+    return summary
