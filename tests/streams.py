@@ -39,11 +39,14 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def serve(video: Path, port: int, name: str = "live") -> subprocess.Popen:
-    """ffmpeg serving ``video`` in a loop, in real time, as MPEG-TS over HTTP to one client."""
+def serve(
+    video: Path, port: int, name: str = "live", codec: str = "mpeg1video"
+) -> subprocess.Popen:
+    """ffmpeg serving ``video`` in a loop, in real time, as MPEG-TS over HTTP to one client
+    (codec mpeg4 for frame rates MPEG-1 does not have, such as 5 fps)."""
     cmd = [
         ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(video),
-        "-an", "-c:v", "mpeg1video", "-q:v", "4", "-f", "mpegts", "-listen", "1",
+        "-an", "-c:v", codec, "-q:v", "4", "-f", "mpegts", "-listen", "1",
         f"http://127.0.0.1:{port}/{name}.ts",
     ]  # fmt: skip
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -15,6 +15,7 @@ from stereopose.checks import FPS_MAX, FPS_MIN
 from stereopose.errors import StereoposeError
 
 STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
+JOIN_S = 1.0  # the longest a live camera's close() waits for its thread (one set's, all together)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 

@@ -18,11 +18,10 @@ from urllib.parse import urlsplit
 import cv2
 import numpy as np
 
-from stereopose.io.source import Clock, SourceStats, source_name
+from stereopose.io.source import JOIN_S, Clock, SourceStats, source_name
 
 logger = logging.getLogger(__name__)
 
-JOIN_S = 1.0  # close() waits this long at most for the camera's thread
 DEFAULT_PORTS = {"rtsp": 554, "rtsps": 322, "http": 80, "https": 443, "rtmp": 1935}
 
 
@@ -232,10 +231,14 @@ class LiveStream:
         """Wait at most `timeout` seconds for the stream to deliver; whether it does."""
         return self._up.wait(timeout)
 
-    def close(self) -> None:
-        """Stop the thread, waiting for it at most JOIN_S (see the module's docstring)."""
+    def stop(self) -> None:
+        """Ask the thread to stop, without waiting (close() waits)."""
         self._stop.set()
-        self._thread.join(timeout=JOIN_S)
+
+    def close(self, timeout_s: float = JOIN_S) -> None:
+        """Stop the thread, waiting for it at most timeout_s (see the module's docstring)."""
+        self._stop.set()
+        self._thread.join(timeout=timeout_s)
         if self._thread.is_alive():
             logger.debug("camera %s: its thread ends after its open or read times out", self.name)
         if self._down_since is not None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from stereopose.io.source import (
     IMAGE_SUFFIXES,
+    JOIN_S,
     STREAM_SCHEMES,
     Clock,
     SourceStats,
@@ -428,8 +429,17 @@ class CameraSet:
         return {s.name: s.stats for s in self.sources}
 
     def close(self) -> None:
+        """Close every camera; live ones are all stopped first, then waited for together, at
+        most JOIN_S in all."""
+        live = [s for s in self.sources if s.live]
+        for s in live:
+            s.stop()
+        deadline = time.monotonic() + (JOIN_S if live else 0.0)
         for s in self.sources:
-            s.close()
+            if s.live:
+                s.close(max(0.0, deadline - time.monotonic()))
+            else:
+                s.close()
 
     def __enter__(self) -> CameraSet:
         return self
