@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import IO
 
 from stereopose.errors import StereoposeError
+from stereopose.io.gzlines import DamagedGzipError, GzipLines
 from stereopose.io.records import frame_record, parse_frame_record, people3d_from_record
 from stereopose.io.writing import open_output
 from stereopose.skeleton import NUM_JOINTS, floor_position
@@ -50,6 +51,7 @@ class PosesWriter:
         self.close()
 
 
+SEGMENT_SUFFIX = ".jsonl.gz"  # a 3D poses segment (io.sinks.segments)
 # A line holds one frame: 100 people take about 0.2 MB; a line far longer is not poses.
 MAX_LINE_BYTES = 64 * 2**20
 _MAX_INT64 = 2**63 - 1
@@ -65,14 +67,27 @@ def read_poses(
     """Yield (frame, t, people) from a 3D poses JSONL file; people keep their JSON fields and
     gain `joints_array` (17, 3) with NaN for null.
 
-    A malformed line raises StereoposeError naming the file and the line; given `skipped` (a
-    list), such a line is skipped instead, with a warning, and its (line number, problem)
-    appended. Whatever the file holds, nothing else is raised."""
+    A `.gz` file (a segment, io.sinks.segments) is read through its gzip members, to its last
+    complete line when its writer was cut off; a folder is read as its segments in name (time)
+    order. A malformed line raises StereoposeError naming the file and the line; given
+    `skipped` (a list), such a line is skipped instead, with a warning, and its (line number,
+    problem) appended. Whatever the file holds, nothing else is raised."""
     path = Path(path)
+    if path.is_dir():
+        for part in _segments(path):
+            yield from read_poses(part, skipped=skipped)
+        return
     with _open_regular(path) as f:
         lineno = 0
         while True:
-            raw = f.readline(MAX_LINE_BYTES + 1)
+            try:
+                raw = f.readline(MAX_LINE_BYTES + 1)
+            except DamagedGzipError as e:  # nothing after it can be read
+                if skipped is None:
+                    raise StereoposeError(f"{path}:{lineno + 1}: {e}") from None
+                logger.warning("%s:%d: %s; the rest skipped", path, lineno + 1, e)
+                skipped.append((lineno + 1, str(e)))
+                return
             if not raw:
                 return
             lineno += 1
@@ -90,17 +105,32 @@ def read_poses(
                 yield parsed
 
 
-def _open_regular(path: Path) -> IO[bytes]:
-    """A regular file opened for reading (a named pipe would block), or StereoposeError."""
+def _segments(folder: Path) -> list[Path]:
+    """A folder's 3D poses segments in name order (their start times), or StereoposeError."""
+    try:
+        parts = sorted(p for p in folder.iterdir() if p.name.endswith(SEGMENT_SUFFIX))
+    except OSError as e:
+        raise StereoposeError(f"{folder}: cannot read 3D poses: {e.strerror}") from None
+    if not parts:
+        raise StereoposeError(f"{folder}: no 3D poses segments (*{SEGMENT_SUFFIX}) in the folder")
+    return parts
+
+
+def _open_regular(path: Path) -> IO[bytes] | GzipLines:
+    """A regular file opened for reading (a named pipe would block), or StereoposeError; a
+    `.gz` file as its decompressed lines."""
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
             raise StereoposeError(f"{path}: cannot read 3D poses: not a regular file")
-        return path.open("rb")
+        f = path.open("rb")
     except OSError as e:
         raise StereoposeError(f"{path}: cannot read 3D poses: {e.strerror}") from None
+    return GzipLines(f, str(path)) if path.name.endswith(".gz") else f
 
 
-def _parse_line(raw: bytes, f: IO[bytes]) -> tuple[int, float | None, list[dict]] | None:
+def _parse_line(
+    raw: bytes, f: IO[bytes] | GzipLines
+) -> tuple[int, float | None, list[dict]] | None:
     """One line's frame (None for a blank line); ValueError naming the problem otherwise."""
     if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
         while (rest := f.readline(MAX_LINE_BYTES)) and not rest.endswith(b"\n"):
