@@ -110,6 +110,12 @@ def test_bad_settings_name_the_key(change: dict, key: str) -> None:
         MqttSettings(**{"host": "broker", "site": "yard", **change})
 
 
+def test_a_ca_file_that_is_no_certificate(tmp_path: Path) -> None:
+    (tmp_path / "ca.pem").write_text("not a certificate\n")
+    with pytest.raises(ConfigError, match=r"^mqtt\.ca_file: cannot load CAs from .*ca\.pem"):
+        MqttSink(settings(free_port(), tls=True, ca_file=tmp_path / "ca.pem"))
+
+
 def test_the_password_is_never_shown() -> None:
     s = settings(1883, username="ops", password="hunter2", topic_prefix="plant/stereopose")
     assert "hunter2" not in repr(s) and "ops" in repr(s)

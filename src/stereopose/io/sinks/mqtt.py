@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import ssl
 import threading
 import time
 import uuid
@@ -34,6 +35,7 @@ from typing import Any
 
 import paho.mqtt.client as paho
 
+from stereopose.errors import ConfigError
 from stereopose.io.records import event_record, frame_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_name, topic_part
@@ -260,7 +262,10 @@ class MqttSink(ClosesOnce):
         if s.username is not None:
             c.username_pw_set(s.username, s.password)
         if s.tls:
-            c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
+            try:
+                c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
+            except (ssl.SSLError, OSError) as e:
+                raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
         c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
         c.max_inflight_messages_set(INFLIGHT)
         c.on_connect = self._on_connect
