@@ -1,0 +1,1 @@
+"""The always-on service: HTTP app, health and metrics, storage retention."""
