@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from stereopose.errors import ConfigError
 from stereopose.pipeline.paths import (
+    POSE_READS,
     RUN_PATTERNS,
     TRC_PATTERNS,
     Place,
@@ -40,7 +41,7 @@ def tree(tmp_path_factory) -> Path:
 
 
 def _inputs(base: Path) -> list[Place]:
-    return [Place("--calib", base / "calib.toml"), Place("--pose", base / "pose")]
+    return [Place("--calib", base / "calib.toml"), Place("--pose", base / "pose", POSE_READS)]
 
 
 def _refused(base: Path, *outputs: Path) -> str:
@@ -62,11 +63,24 @@ def test_an_output_that_is_an_input_is_refused_however_it_is_spelled(tree: Path)
         assert "--calib" in message
 
 
-def test_an_output_inside_an_input_folder_is_refused(tree: Path) -> None:
-    for inside in (tree / "pose" / "cam01_json" / "f_1.json", tree / "pose" / "new.jsonl",
-                   tree / "pose"):  # fmt: skip
+def test_an_output_inside_an_input_folder_where_it_is_read_is_refused(tree: Path) -> None:
+    for inside in (tree / "pose" / "cam01_json" / "f_1.json", tree / "pose" / "new_1.JSON",
+                   tree / "pose" / "cam02_json" / "x.csv", tree / "pose"):  # fmt: skip
         message = _refused(tree, inside)
-        assert str(tree / "pose") in message
+        assert f"inside the --pose folder {tree / 'pose'}, which is read as input" in message or (
+            f"it is the --pose {tree / 'pose'}" in message
+        )
+    with pytest.raises(ConfigError, match="inside the --pose folder"):  # a new camera folder
+        check_places(_inputs(tree), [Place("--trc", tree / "pose" / "cam09", folder=True)])
+    # a file the keypoints reader never reads, beside the camera folders
+    check_places(_inputs(tree), [Place("--out", tree / "pose" / "poses3d.jsonl")])
+
+
+def test_every_output_inside_an_image_folder_is_refused(tree: Path) -> None:
+    photos = [Place("--images", tree / "a")]  # reads everything in it, sub-folders as cameras
+    for inside in (tree / "a" / "notes.txt", tree / "link" / "b" / "report.png"):
+        with pytest.raises(ConfigError, match=f"inside the --images folder {tree / 'a'}"):
+            check_places(photos, [Place("--report", inside)])
 
 
 def test_a_hard_link_to_a_file_inside_an_input_folder_is_refused(tmp_path: Path) -> None:

@@ -90,6 +90,11 @@ def _add_reconstruct(r: argparse.ArgumentParser, e: argparse.ArgumentParser) -> 
     )
     r.add_argument("--webhook", metavar="URL", help="POST each zone event as JSON to this URL")
     r.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the person files a previous run left in the --trc folder",
+    )
+    r.add_argument(
         "--no-tracking",
         action="store_true",
         help="per-frame people: no ids over time, no smoothing",
@@ -132,9 +137,17 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     )
     dt.add_argument("--fps", type=float, help="time-step rate (default: the first camera's)")
     dt.add_argument("--max-frames", type=int, help="stop after this many time steps")
+    dt.add_argument(
+        "--overwrite", action="store_true", help="replace the keypoint files of a previous run"
+    )
 
     parsers["run"].add_argument(
         "config", type=Path, metavar="CONFIG.toml", help="run configuration"
+    )
+    parsers["run"].add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the outputs of a previous run in the output folder",
     )
     it = parsers["init"]
     it.add_argument("path", nargs="?", default="stereopose.toml", help="(stereopose.toml)")
@@ -149,6 +162,11 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
 
     d = parsers["demo"]
     d.add_argument("--out", type=Path, default=Path("out/demo"))
+    d.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace another run's outputs in --out (a previous demo is always replaced)",
+    )
     d.add_argument(
         "--synthetic",
         action="store_true",

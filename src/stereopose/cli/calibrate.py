@@ -19,8 +19,10 @@ def _board(args: argparse.Namespace):
 
 def _calibrate_intrinsics(args: argparse.Namespace) -> int:
     from stereopose.pipeline import calibrate_intrinsics_dir
+    from stereopose.pipeline.paths import check_calibration_places
 
     board = _board(args)
+    check_calibration_places(args.images, args.out, args.report, "intrinsics.png")
     with console.status("detecting the board") as status:
         run = calibrate_intrinsics_dir(
             args.images,
@@ -79,8 +81,11 @@ def _finish(run) -> int:
 
 def _calibrate_extrinsics(args: argparse.Namespace) -> int:
     from stereopose.pipeline import calibrate_extrinsics_dir
+    from stereopose.pipeline.paths import check_calibration_places
 
     board = _board(args)
+    check_calibration_places(args.images, args.out, args.report, "extrinsics.png",
+                             args.intrinsics, args.intrinsics_images)  # fmt: skip
     with console.status("detecting the board") as status:
         run = calibrate_extrinsics_dir(
             args.images,

@@ -62,6 +62,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
             outputs=outputs,
             site=site,
             on_events=show if site is not None else None,
+            config_path=args.config,
+            overwrite=args.overwrite,
         )
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))

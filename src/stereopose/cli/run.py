@@ -31,14 +31,12 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _previous_demo(out_dir: Path, config: Path) -> bool:
-    """Whether the run in `out_dir` is a previous demo (its summary names this demo.toml):
-    the demo replaces its own results, never another run's."""
-    import json
-
+    """Whether the run in `out_dir` was this demo (its copy of the configuration used is this
+    demo.toml): the demo replaces its own results, never another run's."""
     try:
-        previous = json.loads((out_dir / "summary.json").read_text(encoding="utf-8"))["config"]
-        return Path(previous).resolve() == Path(config).resolve()
-    except (OSError, ValueError, KeyError, TypeError):
+        used = (out_dir / "config.toml").read_text(encoding="utf-8")
+        return used == Path(config).read_text(encoding="utf-8")
+    except OSError:
         return False
 
 

@@ -122,6 +122,7 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
             cfg,
             site=site if tracked else None,
             events_path=events_path if tracked else None,
+            config_path=args.config,
         )
         predictions = load_people3d(poses, len(scene.rig))
         m = evaluate(predictions, scene)

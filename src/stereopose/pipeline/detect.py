@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -10,7 +11,22 @@ from pathlib import Path
 
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
-from stereopose.io.video import CameraSet, FrameSet, SourceStats, usable_images
+from stereopose.io.video import (
+    CameraSet,
+    FrameSet,
+    SourceStats,
+    is_stream,
+    source_name,
+    usable_images,
+)
+from stereopose.pipeline.paths import (
+    Place,
+    check_places,
+    pattern_products,
+    places,
+    previous_outputs,
+    remove_outputs,
+)
 from stereopose.types import People2D
 
 logger = logging.getLogger(__name__)
@@ -48,6 +64,23 @@ def detect_step(detector: PoseDetector, step: FrameSet) -> dict[str, People2D]:
     return {n: f.people(n, step.index) for (n, _), f in zip(present, found, strict=True)}
 
 
+def _places(
+    sources: Sequence[str | Path],
+    out_dir: Path,
+    names: Sequence[str] | None,
+    model: str | Path | None,
+) -> tuple[list[Place], list[Place]]:
+    """The paths a detection run reads (its recorded sources, the model) and writes (the
+    folder and each camera's keypoints folder in it)."""
+    specs = [str(s) for s in sources]
+    cameras = list(names) if names is not None else [source_name(s) for s in specs]
+    inputs = [Place("--videos", Path(s)) for s in specs if not is_stream(s)]
+    inputs += places(("--model", model))
+    outputs = [Place("--out", out_dir, folder=True)]
+    outputs += [Place(f"--out's {n}_json", out_dir / f"{n}_json", folder=True) for n in cameras]
+    return inputs, outputs
+
+
 def detect_videos(
     sources: Sequence[str | Path],
     out_dir: str | Path,
@@ -57,15 +90,28 @@ def detect_videos(
     fps: float | None = None,
     max_frames: int | None = None,
     on_step: Callable[[int, int | None, float], None] | None = None,
+    overwrite: bool = False,
+    model: str | Path | None = None,
 ) -> DetectionSummary:
     """Detect people in every camera's frames and write ``<out_dir>/<camera>_json/`` files.
 
     Frame numbers are the step indices shared by all cameras (aligned by index or time, see
     ``CameraSet``); a camera with no image at a step gets no file there. ``on_step(done, total,
     fps)`` is called after each step. Ctrl-C stops the run after the files written so far.
+
+    No output may be an input (a source, `model`) or lie inside an input folder; keypoint
+    files of a previous run in these cameras' folders are refused unless `overwrite`, which
+    removes them once the cameras are open (other cameras' folders are left as they are).
     """
     out_dir = Path(out_dir)
+    inputs, outputs = _places(sources, out_dir, names, model)
+    check_places(inputs, outputs)
+    folder = Place("--out", out_dir)
+    # each camera's keypoints folder holds one run; other cameras' folders are not this run's
+    own = [f"{glob.escape(p.path.name)}/*.json" for p in outputs[1:]]
+    previous = previous_outputs(folder, pattern_products(own), overwrite, inputs)
     with CameraSet(sources, names, sync=sync, fps=fps, max_frames=max_frames) as cams:
+        remove_outputs(previous)
         summary = DetectionSummary(detector.name, tuple(cams.names))
         for name in cams.names:
             summary.frames[name] = summary.people[name] = summary.frames_with_people[name] = 0

@@ -10,6 +10,7 @@ no other file in the folder is touched.
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import logging
 import os
@@ -30,16 +31,27 @@ RUN_FILES = (
 SQLITE_SIDECARS = ("-wal", "-shm", "-journal")
 RUN_PATTERNS = ("trc/person_*.trc", "overlays/*.mp4")
 TRC_PATTERNS = ("person_*.trc",)
-KEYPOINT_PATTERNS = ("*_json/*.json",)
 
 
 @dataclass(frozen=True)
 class Place:
     """A path a command reads or writes; `what` is how the user named it (an option such as
-    "--calib", a configuration key such as "calibration")."""
+    "--calib", a configuration key such as "calibration").
+
+    reads (an input folder): globs, relative to it, of what is read there as input; an output
+    matching one, or any output folder inside it, is refused. folder (an output): it is a
+    folder of outputs (a new folder inside an input folder may be read as one of its own).
+    """
 
     what: str
     path: Path
+    reads: tuple[str, ...] = ("*",)
+    folder: bool = False
+
+
+# a keypoints folder reads *.json files in its camera folders (and sub-folders as cameras): a
+# file beside the camera folders that is not .json is never read
+POSE_READS = ("*/*", "*.json")
 
 
 def places(*pairs: tuple[str, str | Path | None]) -> list[Place]:
@@ -70,6 +82,14 @@ def same_path(a: Path, b: Path) -> bool:
 
 def _inside(path: Path, folder: Path) -> bool:
     return Path(_resolved(path)).is_relative_to(_resolved(folder))
+
+
+def _read_as_input(output: Place, folder: Place) -> bool:
+    """Whether `output`, inside the input folder `folder`, would be read as input."""
+    if output.folder:
+        return True
+    rel = Path(_resolved(output.path)).relative_to(_resolved(folder.path)).as_posix().lower()
+    return any(fnmatch.fnmatchcase(rel, pattern) for pattern in folder.reads)
 
 
 def _files_under(folder: Path) -> Iterator[Path]:
@@ -108,7 +128,7 @@ def _check_output(
         if same_path(output.path, i.path):
             raise _refuse(output, f"it is the {i.what} {i.path}, an input", hint)
     for f in folders:
-        if _inside(output.path, f.path):
+        if _inside(output.path, f.path) and _read_as_input(output, f):
             why = f"it lies inside the {f.what} folder {f.path}, which is read as input"
             raise _refuse(output, why, hint)
     linked = _hard_link_into(output.path, folders)
@@ -212,7 +232,7 @@ def output_places(outputs: Outputs, what: Callable[[str, Path], str]) -> list[Pl
     for field in ("poses", "events", "csv", "tracks", "summary", "trc_dir", "overlays_dir"):
         path = getattr(outputs, field)
         if path is not None:
-            found.append(Place(what(field, path), Path(path)))
+            found.append(Place(what(field, path), Path(path), folder=field.endswith("_dir")))
     if outputs.events_db is not None:
         found += sqlite_places(what("events_db", outputs.events_db), Path(outputs.events_db))
     if outputs.report_dir is not None:

@@ -18,6 +18,18 @@ from stereopose.io.results import load_people3d
 from stereopose.io.summary import RunSummary, write_summary
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
+from stereopose.pipeline.paths import (
+    POSE_READS,
+    TRC_PATTERNS,
+    Place,
+    check_places,
+    flag,
+    output_places,
+    pattern_products,
+    places,
+    previous_outputs,
+    remove_outputs,
+)
 from stereopose.pipeline.sources import KeypointFiles
 from stereopose.sim import Metrics, Scene, evaluate
 from stereopose.types import Event, Rig
@@ -36,6 +48,8 @@ def reconstruct_files(
     site: Site | None = None,
     on_events: Callable[[list[Event]], None] | None = None,
     stop: threading.Event | None = None,
+    config_path: str | Path | None = None,
+    overwrite: bool = False,
     **files: object,
 ) -> RunSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
@@ -48,6 +62,11 @@ def reconstruct_files(
     total) after each frame (progress display); `stop` ends the run after the current frame.
     Every output is closed properly when the run stops early (an error, Ctrl-C): what was
     written stays readable.
+
+    Before anything is read or written, no output may be an input (the calibration, the
+    keypoints folder or a file in it, the site, `config_path`: the configuration file read)
+    or another output (pipeline.paths). A TRC folder holding a previous run's person files
+    is refused unless `overwrite`, which removes them first.
     """
     if outputs is None:
         outputs = Outputs.from_keywords(out_path, **files)
@@ -55,6 +74,10 @@ def reconstruct_files(
         raise TypeError("give the outputs either as `outputs` or by keyword, not both")
     elif out_path is not None:
         outputs = dataclasses.replace(outputs, poses=Path(out_path))
+    inputs = places(("--calib", calib_path), ("--config", config_path),
+                    ("--site", site.path if site is not None else None))  # fmt: skip
+    inputs.append(Place("--pose", Path(pose_dir), reads=POSE_READS))
+    check_places(inputs, output_places(outputs, flag))
     rig = load_calibration(calib_path)
     seq = read_pose_dir(pose_dir, rig.names)
     if len(seq.cameras) < 2:
@@ -66,6 +89,9 @@ def reconstruct_files(
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
     check_outputs(config, site, outputs)
+    if outputs.trc_dir is not None:
+        trc = Place("--trc folder", outputs.trc_dir)
+        remove_outputs(previous_outputs(trc, pattern_products(TRC_PATTERNS), overwrite, inputs))
     source = KeypointFiles(seq, config.fps)
     on_step = None if on_frame is None else (lambda done, total, fps: on_frame(done, total))
     summary = run_frames(

@@ -4,7 +4,8 @@ The output folder holds ``poses3d.jsonl``, ``events.jsonl`` and ``events.sqlite`
 ``trc/person_<id>.trc``, ``joints.csv``, ``tracks.json``, ``overlays/<camera>.mp4``,
 ``report.html``, ``summary.json`` (frames, time per stage, people, events, reprojection error per
 camera) and what the report needs to be rebuilt: ``config.toml`` (the configuration used),
-``calib.toml`` and ``site.toml``.
+``calib.toml`` and ``site.toml``. The folder holds one run: a previous run's outputs there are
+refused, or replaced with ``overwrite``; a user's file is never written over (pipeline.paths).
 
 Recorded cameras are processed as fast as possible; live cameras in real time, each step taking
 every camera's newest frame. Ctrl-C (SIGINT) ends the run after the current step: every output is
@@ -28,6 +29,16 @@ from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
 from stereopose.io.video import CameraSet, is_stream
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
+from stereopose.pipeline.paths import (
+    Place,
+    check_places,
+    in_run_folder,
+    output_places,
+    places,
+    previous_outputs,
+    remove_outputs,
+    run_products,
+)
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.sources import Cameras
 from stereopose.types import Event
@@ -60,16 +71,42 @@ def check_run_config(cfg: Config, path: Path) -> None:
         raise ConfigError(f"{path}: camera names must be unique, got {', '.join(names)}")
 
 
+def _inputs(
+    config_path: Path, calib: Path, site: Path | None, sources: list[str], model: Path | None
+) -> list[Place]:
+    """Every path a run reads, named by its configuration key."""
+    found = places(("configuration", config_path), ("calibration", calib), ("site", site),
+                   ("detector.model", model))  # fmt: skip
+    found += [Place(f"cameras[{i}].source", Path(s)) for i, s in enumerate(sources)
+              if not is_stream(s)]  # fmt: skip
+    return found
+
+
+def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) -> list[Place]:
+    """Every path a run writes in its folder: the outputs, each camera's overlay video, and
+    the copies of the configuration, calibration and site used."""
+    found = output_places(outputs, in_run_folder)
+    if outputs.overlays_dir is not None:
+        found += [Place(f"overlays/{n}.mp4 in the output folder", outputs.overlays_dir /
+                        f"{n}.mp4") for n in cameras]  # fmt: skip
+    copies = ("config.toml", "calib.toml", "site.toml") if site else ("config.toml", "calib.toml")
+    return found + [Place(f"{n} in the output folder (a copy of the one used)", out_dir / n)
+                    for n in copies]  # fmt: skip
+
+
 def run(
     config_path: str | Path,
     on_step: Callable[[int, int | None, float], None] | None = None,
     on_events: Callable[[list[Event]], None] | None = None,
     stop: threading.Event | None = None,
+    overwrite: bool = False,
 ) -> RunSummary:
     """Run the configuration at ``config_path`` end to end; returns what it did.
 
     on_step(done, total, fps) after each time step; on_events(events) for each step's zone
-    events; ``stop`` (or SIGINT) ends the run after the current step.
+    events; ``stop`` (or SIGINT) ends the run after the current step. No output may be an
+    input or lie inside an input folder (pipeline.paths); an output folder holding a previous
+    run's outputs is refused unless ``overwrite``, which removes them (and only them) first.
     """
     config_path = Path(config_path)
     cfg = load_config(config_path)
@@ -85,23 +122,30 @@ def run(
             f"(which has {', '.join(rig.names)})"
         )
     rig = rig.subset(names)
-    site = load_site(_resolve(base, cfg.site)) if cfg.site else None
+    site_path = _resolve(base, cfg.site) if cfg.site else None
+    site = load_site(site_path) if site_path is not None else None
     sources = [c.source if is_stream(c.source) else str(_resolve(base, c.source)) for c in
                cfg.cameras]  # fmt: skip
     det = cfg.detector
     model = _resolve(base, det.model) if det.model else None
-    detector = make_detector(
-        det.backend, model, det.imgsz, det.conf, det.iou, det.device, det.threads
-    )
     out_dir = _resolve(base, cfg.output)
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
+    inputs = _inputs(config_path, calib_path, site_path, sources, model)
+    hint = f'set `output` in {config_path} to a folder of its own (such as "out/run")'
+    check_places(inputs, _outputs(outputs, out_dir, names, site is not None), hint)
+    folder = Place(f"{config_path}: the output folder", out_dir)
+    previous = previous_outputs(folder, run_products, overwrite, inputs)
+    detector = make_detector(
+        det.backend, model, det.imgsz, det.conf, det.iou, det.device, det.threads
+    )
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise StereoposeError(f"{out_dir}: cannot create the output folder: {e.strerror}") from None
     with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames) as cams:
         cfg = dataclasses.replace(cfg, fps=cams.fps)
+        remove_outputs(previous)  # every check passed and every camera opened: now replace
         (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
         save_inputs(out_dir, rig, site)
         return run_frames(
