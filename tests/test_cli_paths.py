@@ -86,6 +86,8 @@ COLLISIONS = {
         ["--out", "T/p.jsonl", "--site", "S/site.toml", "--events", "T/p.jsonl"], ["T/p.jsonl"]),
     "events-db is the poses file": (
         ["--out", "T/p.db", "--site", "S/site.toml", "--events-db", "T/p.db"], ["T/p.db"]),
+    "csv inside the trc folder": (["--out", "T/p.jsonl", "--trc", "T/trc", "--csv",
+                                   "T/trc/person_1.trc"], ["T/trc"]),
     "csv is the event log's journal": (
         ["--out", "T/p.jsonl", "--site", "S/site.toml", "--events-db", "T/e.db", "--csv",
          "T/e.db-wal"], ["T/e.db-wal"]),
@@ -202,3 +204,14 @@ def test_the_demo_replaces_only_its_own_previous_run(tmp_path: Path) -> None:
     assert not _previous_demo(tmp_path, demo)  # another run's folder
     (tmp_path / "config.toml").write_text(demo.read_text())
     assert _previous_demo(tmp_path, demo)
+
+
+def test_the_synthetic_demo_leaves_no_other_mode_s_poses(tmp_path: Path, capsys) -> None:
+    argv = ["demo", "--synthetic", "--out", str(tmp_path), "--frames", "6", "--difficulty", "easy"]
+    (tmp_path / "notes.txt").write_text("mine\n")
+    assert main(argv) == 0
+    assert (tmp_path / "poses3d_weighted.jsonl").is_file()
+    assert main([*argv, "--mode", "pair"]) == 0
+    left = sorted(p.name for p in tmp_path.glob("poses3d_*.jsonl"))
+    assert left == ["poses3d_pair.jsonl", "poses3d_pair_tracked.jsonl"]
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"

@@ -100,6 +100,14 @@ def test_two_outputs_at_one_path_are_refused(tree: Path) -> None:
     _refused(tree, tree / "link" / "x.csv", tree / "a" / "x.csv")  # one through a link
 
 
+def test_a_file_inside_an_output_folder_is_refused(tree: Path) -> None:
+    trc = Place("--trc", tree / "trc", folder=True)
+    for outputs in ([trc, Place("--csv", tree / "trc" / "person_1.trc")],
+                    [Place("--csv", tree / "trc" / "joints.csv"), trc]):  # fmt: skip
+        with pytest.raises(ConfigError, match=f"inside the --trc folder {tree / 'trc'}"):
+            check_places(_inputs(tree), outputs)
+
+
 def test_distinct_outputs_beside_the_inputs_are_fine(tree: Path) -> None:
     outputs = [tree / "p.jsonl", tree / "a" / "p.jsonl", tree / "calib.toml.bak", tree / "pose2"]
     check_places(_inputs(tree), [Place(str(p), p) for p in outputs])

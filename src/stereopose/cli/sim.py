@@ -83,6 +83,21 @@ def _print_events(scene, site, events_path: Path, predictions, scene_dir: Path) 
     )
 
 
+def _poses_name(mode: str, tracked: bool) -> str:
+    return f"poses3d_{mode}{'_tracked' * tracked}.jsonl"
+
+
+def _remove_other_modes(out_dir: Path, runs: set[tuple[str, bool]]) -> None:
+    """A previous demo's poses of the modes this one does not run: they would be mixed with
+    this demo's results (only the demo writes these names)."""
+    from stereopose.pipeline.paths import remove_outputs
+
+    stale = [
+        out_dir / _poses_name(m, t) for m in MODES for t in (False, True) if (m, t) not in runs
+    ]
+    remove_outputs([p for p in stale if p.is_file()])
+
+
 def _demo_synthetic(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -109,12 +124,13 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
     cfg0 = dataclasses.replace(_config(args), fps=scene.fps)
     runs = [(m, m, False) for m in modes]
     runs.append((f"{modes[-1]} + tracking", modes[-1], True))
+    _remove_other_modes(out_dir, {(mode, tracked) for _, mode, tracked in runs})
     site = make_zones(scene, np.random.default_rng([args.seed, 7]))
     save_site(scene_dir / "site.toml", site)
     events_path = out_dir / "events.jsonl"
     for label, mode, tracked in runs:
         cfg = with_overrides(cfg0, triangulation={"mode": mode}, tracking={"enabled": tracked})
-        poses = out_dir / f"poses3d_{mode}{'_tracked' * tracked}.jsonl"
+        poses = out_dir / _poses_name(mode, tracked)
         summary = reconstruct_files(
             scene_dir / "calib.toml",
             scene_dir / "pose",

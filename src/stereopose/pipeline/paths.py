@@ -142,16 +142,20 @@ def check_places(
     """ConfigError naming both paths if an output is an input, lies inside an input folder,
     or is the path of another output; `hint` says what to do. Nothing is written: checked
     before anything is."""
-    inputs = list(inputs)
+    inputs, outputs = list(inputs), list(outputs)
     folders = [i for i in inputs if i.path.is_dir()]
-    seen: list[Place] = []
-    for o in outputs:
+    for k, o in enumerate(outputs):
         _check_output(o, inputs, folders, hint)
-        for other in seen:
+        for other in outputs[:k]:
             if same_path(o.path, other.path):
                 why = f"{other.what} writes the same path {other.path}"
                 raise _refuse(o, why, "give each output its own path")
-        seen.append(o)
+        for other in outputs:  # a file in a folder another output fills (--trc) may collide
+            if other.folder and not o.folder and _inside(o.path, other.path):
+                why = (
+                    f"it lies inside the {other.what} folder {other.path}, which that output fills"
+                )
+                raise _refuse(o, why, "give each output its own path")
 
 
 def _listed_outputs(folder: Path) -> list[Path]:

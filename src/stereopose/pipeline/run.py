@@ -85,7 +85,8 @@ def _inputs(
 def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) -> list[Place]:
     """Every path a run writes in its folder: the outputs, each camera's overlay video, and
     the copies of the configuration, calibration and site used."""
-    found = output_places(outputs, in_run_folder)
+    # the overlay folder as its files: the run's other outputs are never inside it
+    found = [p for p in output_places(outputs, in_run_folder) if p.path != outputs.overlays_dir]
     if outputs.overlays_dir is not None:
         found += [Place(f"overlays/{n}.mp4 in the output folder", outputs.overlays_dir /
                         f"{n}.mp4") for n in cameras]  # fmt: skip
