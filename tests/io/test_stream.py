@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stereopose.io.stream import JOIN_S, LiveStream, redact
-from stereopose.io.video import CameraSet, VideoError, open_source
+from stereopose.io.video import CameraSet, VideoError, open_source, source_name
 from streams import (
     StallingServer,
     free_port,
@@ -160,3 +160,19 @@ def test_live_steps_carry_their_frames_arrival_time(live_video) -> None:
     span, taken_span = ts[-1] - ts[0], seen[-1][1] - seen[0][1]
     assert span == pytest.approx(taken_span, abs=0.3)
     assert span > 2 * 9 / cams.fps  # at least 3 frames per step: far from step / fps
+
+
+_SCHEMES = st.sampled_from(["rtsp://", "http://", "udp://", "HTTPS://"])
+_WORD = st.text("abcXYZ019-_", min_size=1, max_size=8)
+
+
+@given(rest=st.text(), scheme=_SCHEMES)
+def test_any_stream_url_gets_a_name_and_a_label(rest: str, scheme: str) -> None:
+    assert source_name(scheme + rest) and isinstance(redact(scheme + rest), str)
+
+
+@given(scheme=_SCHEMES, user=_WORD, password=st.text("abc019!$%;=~", min_size=1), host=_WORD,
+       path=st.text())  # fmt: skip
+def test_a_urls_password_is_never_shown(scheme, user, password, host, path) -> None:
+    shown = redact(f"{scheme}{user}:{password}@{host}:554/{path}")
+    assert shown.startswith(f"{scheme}{user}:***@{host}:554/")

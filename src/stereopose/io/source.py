@@ -10,6 +10,7 @@ import numbers
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from stereopose.checks import FPS_MAX, FPS_MIN
 from stereopose.errors import StereoposeError
@@ -59,8 +60,13 @@ def is_stream(spec: str) -> bool:
 def source_name(spec: str) -> str:
     """Default camera name: the file or folder stem; for a URL, its last path part."""
     if is_stream(spec):
-        tail = str(spec).rstrip("/").rsplit("/", 1)[-1]
-        return tail.split("?")[0].rsplit(".", 1)[0] or "stream"
+        try:
+            parts = urlsplit(str(spec))
+            host = parts.hostname
+        except ValueError:  # malformed (an unclosed [ipv6 host, say): FFmpeg will say so
+            return "stream"
+        tail = parts.path.rstrip("/").rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        return tail or host or "stream"  # no path: the host (rtsp://10.0.0.5/)
     return Path(spec).stem
 
 

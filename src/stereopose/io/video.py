@@ -422,7 +422,7 @@ class CameraSet:
         why = "; ".join(f"{s.label}: {s.problem}" for s in self.sources)
         raise VideoError(
             f"no camera delivered a frame within {limit:g} s ({why}); "
-            "[input] first_frame_timeout_s sets how long to wait"
+            "a run's [input] first_frame_timeout_s sets how long to wait"
         )
 
     def stats(self) -> dict[str, SourceStats]:
