@@ -1,0 +1,60 @@
+"""The service's HTTP app: `create_app(state, ...)` takes the running parts and mounts one
+router per resource (service.api): /api/health, /metrics and the offline OpenAPI page /docs.
+
+Every answer is JSON or the resource's own format, never a traceback page: debug is off,
+unknown paths are 404 and wrong methods 405 as {"detail": ...}, and an error inside a route is
+a 500 {"detail": "internal error"} (its traceback goes to the log).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+from prometheus_client import CollectorRegistry
+
+from stereopose import __version__
+from stereopose.service.api import docs, health, metrics
+from stereopose.service.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
+from stereopose.service.metrics import make_registry
+from stereopose.service.state import ServiceState
+
+logger = logging.getLogger(__name__)
+
+
+async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
+    # answered outside the middleware (Starlette's outermost layer): its headers added here
+    headers = {k.decode(): v.decode() for k, v in EXTRA_HEADERS}
+    return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)
+
+
+def create_app(
+    state: ServiceState,
+    *,
+    registry: CollectorRegistry | None = None,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    lifespan: Callable[[FastAPI], Any] | None = None,
+) -> FastAPI:
+    """The app over `state`. registry: the metrics registry (None: one of its own over
+    `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
+    and stops with the server (the frame loop, the sinks)."""
+    app = FastAPI(
+        title="stereopose",
+        version=__version__,
+        debug=False,
+        docs_url=None,  # served from the package's files instead (api.docs)
+        redoc_url=None,
+        swagger_ui_oauth2_redirect_url=None,
+        lifespan=lifespan,
+    )
+    app.state.service = state
+    app.state.metrics_registry = registry if registry is not None else make_registry(state)
+    app.add_exception_handler(Exception, _internal_error)
+    app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
+    app.include_router(health.router)
+    app.include_router(metrics.router)
+    docs.mount_docs(app)
+    return app

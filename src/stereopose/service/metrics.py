@@ -1,0 +1,103 @@
+"""Prometheus metrics of the service, read from its ServiceState at each scrape.
+
+Every app has its own CollectorRegistry (never the process-wide one), so several apps and the
+tests do not collide. One collector turns one `ServiceState.snapshot()` into every metric
+family, so a scrape is consistent with itself and with the health answer of the same moment.
+Labels are cameras, stages, event types, queues and storage kinds: bounded sets (no person id).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+from prometheus_client.metrics_core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    Metric,
+)
+from prometheus_client.registry import Collector
+
+from stereopose.service.state import HistogramSnapshot, ServiceState, Snapshot
+
+PREFIX = "stereopose_"
+CONTENT_TYPE = CONTENT_TYPE_LATEST
+
+
+def _buckets(h: HistogramSnapshot) -> list[tuple[str, float]]:
+    pairs = zip(h.bounds, h.cumulative, strict=True)
+    return [("+Inf" if b == float("inf") else repr(b), c) for b, c in pairs]
+
+
+def _counter(name: str, doc: str, label: str | None, values: dict[str, float]) -> Metric:
+    family = CounterMetricFamily(PREFIX + name, doc, labels=[label] if label else None)
+    for key, value in values.items():
+        family.add_metric([key] if label else [], value)
+    return family
+
+
+def _gauge(name: str, doc: str, label: str | None, values: dict[str, float]) -> Metric:
+    family = GaugeMetricFamily(PREFIX + name, doc, labels=[label] if label else None)
+    for key, value in values.items():
+        family.add_metric([key] if label else [], value)
+    return family
+
+
+def families(s: Snapshot) -> Iterator[Metric]:
+    """Every metric family of one snapshot."""
+    cams = s.cameras
+    yield _gauge("info", "Version of the running service.", "version", {s.version: 1})
+    yield _gauge("uptime_seconds", "Seconds since the service started.", None, {"": s.uptime_s})
+    yield _counter("frames", "Frames processed.", None, {"": s.frames})
+    yield _counter("frames_dropped", "Frames dropped per camera.", "camera",
+                   {c.name: c.dropped_frames for c in cams})  # fmt: skip
+    yield _counter("camera_reconnects", "Stream reconnects per camera.", "camera",
+                   {c.name: c.reconnects for c in cams})  # fmt: skip
+    yield _gauge("camera_up", "1 while the camera delivers frames within its timeout.", "camera",
+                 {c.name: float(c.up) for c in cams})  # fmt: skip
+    yield _gauge("camera_fps", "Frames per second over the camera's recent frames.", "camera",
+                 {c.name: c.fps for c in cams})  # fmt: skip
+    stages = HistogramMetricFamily(
+        PREFIX + "stage_seconds", "Seconds per frame spent in each stage.", labels=["stage"]
+    )
+    for stage, h in s.stages.items():
+        stages.add_metric([stage], _buckets(h), h.sum_s)
+    yield stages
+    e2e = HistogramMetricFamily(
+        PREFIX + "end_to_end_latency_seconds", "Seconds from a frame's arrival to its outputs."
+    )
+    e2e.add_metric([], _buckets(s.end_to_end), s.end_to_end.sum_s)
+    yield e2e
+    yield _gauge("people", "People in the last frame.", None, {"": s.people})
+    yield _counter("events", "Zone events by type.", "type", dict(s.events))
+    yield _gauge("queue_size", "Messages waiting per queue.", "queue",
+                 {q.name: q.size for q in s.queues if q.size is not None})  # fmt: skip
+    yield _counter("queue_dropped", "Messages dropped per queue.", "queue",
+                   {q.name: q.dropped for q in s.queues if q.dropped is not None})  # fmt: skip
+    yield _gauge("storage_bytes", "Bytes stored per kind.", "kind", dict(s.storage))
+
+
+class StateCollector(Collector):
+    """Collects every family from one snapshot of `state` per scrape."""
+
+    def __init__(self, state: ServiceState) -> None:
+        self.state = state
+
+    def collect(self) -> Iterator[Metric]:
+        yield from families(self.state.snapshot())
+
+    def describe(self) -> list[Metric]:
+        return []  # nothing to check at registration; the names are fixed above
+
+
+def make_registry(state: ServiceState) -> CollectorRegistry:
+    """A registry of its own holding the collector of `state`."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(StateCollector(state))
+    return registry
+
+
+def exposition(registry: CollectorRegistry) -> bytes:
+    """The registry in Prometheus text format."""
+    return generate_latest(registry)
