@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from stereopose.io.stream import JOIN_S, LiveStream, redact
+from stereopose.io.stream import JOIN_S, LiveStream, redact, why_not_open
 from stereopose.io.video import CameraSet, VideoError, open_source, source_name
 from streams import (
     StallingServer,
@@ -78,6 +78,14 @@ def test_a_camera_that_stops_sending_is_lost_logged_and_retried(ts_bytes, caplog
             stream.close()
     assert stream.delivered and stream.stats.failures >= 1 and len(server.clients) >= 2
     assert "camera cam: stream" in caplog.text and "lost" in caplog.text and "back" in caplog.text
+
+
+def test_why_a_stream_did_not_open_is_told_by_its_server() -> None:
+    port = free_port()
+    assert why_not_open(f"tcp://127.0.0.1:{port}", 1.0) == "connection refused"
+    assert why_not_open("rtsp://nosuchhost.invalid/", 1.0) == "host nosuchhost.invalid not found"
+    assert why_not_open("udp://127.0.0.1:5000", 1.0).startswith("no stream arrived within 1 s")
+    assert why_not_open("http://[::1/x", 1.0).startswith("invalid URL")
 
 
 def test_redact_hides_only_the_password() -> None:

@@ -47,6 +47,8 @@ def why_not_open(url: str, timeout_s: float) -> str:
         host, port = parts.hostname, parts.port or DEFAULT_PORTS.get(parts.scheme.lower())
     except ValueError as e:
         return f"invalid URL ({e})"
+    if parts.scheme.lower() == "udp":  # nothing to connect to: packets come, or they do not
+        return f"no stream arrived within {timeout_s:g} s"
     if not host or port is None:
         return "the stream did not open"
     try:
