@@ -18,7 +18,14 @@ from served import get, get_json
 
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.service.app import create_app
-from stereopose.service.server import ServeError, Server, ServeSettings, bind, is_loopback
+from stereopose.service.server import (
+    MAX_CONNECTIONS,
+    ServeError,
+    Server,
+    ServeSettings,
+    bind,
+    is_loopback,
+)
 from stereopose.service.state import ServiceState
 from waiting import wait_until
 
@@ -155,3 +162,16 @@ def test_settings_are_valid_or_a_config_error(port: object, host: str):
         assert str(e).startswith(("serve.host ", "serve.port "))
         return
     assert isinstance(s.port, int) and 0 <= s.port <= 65535 and s.host == host
+
+
+def test_connections_beyond_the_cap_get_503_and_the_server_recovers():
+    with Server(create_app(ServiceState()), ServeSettings(port=0)) as server:
+        idle = [
+            socket.create_connection(("127.0.0.1", server.port)) for _ in range(MAX_CONNECTIONS)
+        ]
+        try:
+            wait_until(lambda: get(server.url + "/metrics")[0] == 503, "the cap to be reached")
+        finally:
+            for s in idle:
+                s.close()
+        wait_until(lambda: get(server.url + "/metrics")[0] == 200, "room again")
