@@ -198,3 +198,21 @@ def test_ctrl_c_ends_detect_while_it_waits_for_a_first_frame(tmp_path: Path) -> 
         code = detect.interrupt()
     assert code == 130, detect.text()
     assert "Traceback" not in detect.text()
+
+
+def test_detect_stops_after_the_step_in_progress_at_the_first_ctrl_c(tmp_path: Path) -> None:
+    from stereopose.detection import make_detector
+    from stereopose.pipeline.detect import detect_videos
+
+    videos = [_write_video(tmp_path / f"cam0{i}.mp4", 20, 25.0, size=SIZE) for i in (1, 2)]
+
+    def interrupt(done, total, fps) -> None:
+        if done == 2:
+            signal.raise_signal(signal.SIGINT)
+
+    before = signal.getsignal(signal.SIGINT)
+    summary = detect_videos(videos, tmp_path / "kp", make_detector("onnx", imgsz=320),
+                            on_step=interrupt)  # fmt: skip
+    assert summary.interrupted and summary.steps == 2 and signal.getsignal(signal.SIGINT) is before
+    for cam in ("cam01", "cam02"):
+        assert len(list((tmp_path / "kp" / f"{cam}_json").iterdir())) == 2

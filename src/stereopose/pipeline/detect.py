@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import glob
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from stereopose.io.video import (
     source_name,
     usable_images,
 )
+from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.paths import (
     Place,
     check_places,
@@ -64,6 +66,41 @@ def detect_step(detector: PoseDetector, step: FrameSet) -> dict[str, People2D]:
     return {n: f.people(n, step.index) for (n, _), f in zip(present, found, strict=True)}
 
 
+def _detect_frames(
+    cams: CameraSet,
+    detector: PoseDetector,
+    out_dir: Path,
+    summary: DetectionSummary,
+    interrupt: Interrupt,
+    on_step: Callable[[int, int | None, float], None] | None,
+) -> None:
+    """Each step of `cams` detected and written, until their end or a stop (Ctrl-C)."""
+    total = cams.count
+    start = time.perf_counter()
+    it = iter(cams)
+    while not interrupt.stop.is_set():
+        t0 = time.perf_counter()
+        with interrupt.wait():
+            step = next(it, None)
+        t1 = time.perf_counter()
+        summary.seconds_decode += t1 - t0
+        if step is None:
+            break
+        people2d = detect_step(detector, step)
+        t2 = time.perf_counter()
+        for name, people in people2d.items():
+            write_pose_frame(out_dir, name, people)
+            summary.frames[name] += 1
+            summary.people[name] += len(people)
+            summary.frames_with_people[name] += bool(len(people))
+        summary.seconds_detect += t2 - t1
+        summary.seconds_write += time.perf_counter() - t2
+        summary.steps += 1
+        if on_step is not None:
+            elapsed = time.perf_counter() - start
+            on_step(summary.steps, total, summary.steps / elapsed if elapsed else 0.0)
+
+
 def _places(
     sources: Sequence[str | Path],
     out_dir: Path,
@@ -92,12 +129,16 @@ def detect_videos(
     on_step: Callable[[int, int | None, float], None] | None = None,
     overwrite: bool = False,
     model: str | Path | None = None,
+    open_timeout_s: float = 5.0,
+    first_frame_timeout_s: float | None = 30.0,
 ) -> DetectionSummary:
     """Detect people in every camera's frames and write ``<out_dir>/<camera>_json/`` files.
 
     Frame numbers are the step indices shared by all cameras (aligned by index or time, see
     ``CameraSet``); a camera with no image at a step gets no file there. ``on_step(done, total,
-    fps)`` is called after each step. Ctrl-C stops the run after the files written so far.
+    fps)`` is called after each step. Ctrl-C stops the run after the step in progress (at once
+    while waiting for a live camera; pipeline.interrupt): the files written so far are complete.
+    open_timeout_s, first_frame_timeout_s: live cameras' bounds (io.video.CameraSet).
 
     No output may be an input (a source, `model`) or lie inside an input folder; keypoint
     files of a previous run in these cameras' folders are refused unless `overwrite`, which
@@ -110,36 +151,20 @@ def detect_videos(
     # each camera's keypoints folder holds one run; other cameras' folders are not this run's
     own = [f"{glob.escape(p.path.name)}/*.json" for p in outputs[1:]]
     previous = previous_outputs(folder, pattern_products(own), overwrite, inputs)
-    with CameraSet(sources, names, sync=sync, fps=fps, max_frames=max_frames) as cams:
+    with CameraSet(sources, names, sync=sync, fps=fps, max_frames=max_frames,
+                   open_timeout_s=open_timeout_s,
+                   first_frame_timeout_s=first_frame_timeout_s) as cams:  # fmt: skip
         remove_outputs(previous)
         summary = DetectionSummary(detector.name, tuple(cams.names))
         for name in cams.names:
             summary.frames[name] = summary.people[name] = summary.frames_with_people[name] = 0
-        total = cams.count
-        start = time.perf_counter()
-        it = iter(cams)
+        interrupt = Interrupt(threading.Event())
         try:
-            while True:
-                t0 = time.perf_counter()
-                step = next(it, None)
-                t1 = time.perf_counter()
-                summary.seconds_decode += t1 - t0
-                if step is None:
-                    break
-                people2d = detect_step(detector, step)
-                t2 = time.perf_counter()
-                for name, people in people2d.items():
-                    write_pose_frame(out_dir, name, people)
-                    summary.frames[name] += 1
-                    summary.people[name] += len(people)
-                    summary.frames_with_people[name] += bool(len(people))
-                summary.seconds_detect += t2 - t1
-                summary.seconds_write += time.perf_counter() - t2
-                summary.steps += 1
-                if on_step is not None:
-                    elapsed = time.perf_counter() - start
-                    on_step(summary.steps, total, summary.steps / elapsed if elapsed else 0.0)
+            with interrupt.installed():
+                _detect_frames(cams, detector, out_dir, summary, interrupt, on_step)
         except KeyboardInterrupt:
+            interrupt.stop.set()
+        if interrupt.stop.is_set():
             summary.interrupted = True
             logger.warning(
                 "interrupted after %d frames; files written so far are complete", summary.steps

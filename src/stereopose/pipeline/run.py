@@ -144,7 +144,9 @@ def run(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise StereoposeError(f"{out_dir}: cannot create the output folder: {e.strerror}") from None
-    with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames) as cams:
+    with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames,
+                   open_timeout_s=cfg.input.open_timeout_s,
+                   first_frame_timeout_s=cfg.input.first_frame_timeout_s) as cams:  # fmt: skip
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
         (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
