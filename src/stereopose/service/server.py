@@ -103,20 +103,24 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
             f"allowed here, got {where}"
         )
     try:
-        family, kind, proto, _, address = socket.getaddrinfo(
-            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
-        )[0]
+        candidates = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                        flags=socket.AI_PASSIVE)  # fmt: skip
     except (socket.gaierror, UnicodeError) as e:
         raise ServeError(f"cannot listen on {where}: the host is not known ({e})") from None
-    sock = socket.socket(family, kind, proto)
-    try:
-        # a port left in TIME_WAIT by the previous run is reusable; one in use is not (Linux)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind(address)
-    except OSError as e:
-        sock.close()
-        raise ServeError(f"cannot listen on {where}: {e.strerror or e}") from None
-    return sock
+    first: OSError | None = None
+    for family, kind, proto, _, address in candidates:  # "localhost": ::1 may be missing
+        sock = socket.socket(family, kind, proto)
+        try:
+            # a port left in TIME_WAIT by the previous run is reusable; one in use is not (Linux)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind(address)
+        except OSError as e:
+            sock.close()
+            first = first or e
+            continue
+        return sock
+    why = (first.strerror or str(first)) if first else "no address"
+    raise ServeError(f"cannot listen on {where}: {why}")
 
 
 def uvicorn_config(
