@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from stereopose.errors import CalibrationError, KeypointsError
 from stereopose.checks import check_camera_numbers
+from stereopose.errors import CalibrationError, KeypointsError
 from stereopose.skeleton import NUM_JOINTS
 
 
@@ -107,8 +107,8 @@ class Camera:
             rvec = _as_float_array(rot.ravel() if rot.size == 3 else rot, (3,), "rotation", owner)
             R = rotation_matrix(rvec)
         t = _as_float_array(self.translation, (3,), "translation", owner)
-        object.__setattr__(self, "size", (float(size[0]), float(size[1])))
         check_camera_numbers(size, K, dist, rvec, t, owner)
+        object.__setattr__(self, "size", (float(size[0]), float(size[1])))
         object.__setattr__(self, "matrix", _frozen(K))
         object.__setattr__(self, "distortions", _frozen(dist))
         object.__setattr__(self, "rotation", _frozen(rvec))
