@@ -102,10 +102,11 @@ class Tracker:
         within seed_s, which seed the frame's reconstruction (None when there are none).
 
         The time of a frame is t seconds (None: frame / fps; live cameras give their frames'
-        arrival time, so prediction and max_lost_s follow the clock). Tracks unseen for more than max_lost_s by then end
-        first, however far the frame jumps ahead, so nobody lost that long keeps their id. A
-        frame that does not come after the last one is skipped with a warning (its `update`
-        gives nobody and changes nothing): the tracks stay as they were."""
+        arrival time, so prediction and max_lost_s follow the clock). Tracks unseen for more
+        than max_lost_s by then end first, however far the frame jumps ahead, so nobody lost
+        that long keeps their id. A frame that does not come after the last one is skipped
+        with a warning (its `update` gives nobody and changes nothing): the tracks stay as they
+        were."""
         tc, fps = self.tc, self.config.fps
         t = frame / fps if t is None else float(t)
         if self._t is not None and not t > self._t:
