@@ -1,0 +1,445 @@
+"""Event clips: for each alarm, a short MP4 per camera that saw the person, from `pre_s`
+before the event to `post_s` after it, in `clips/<UTC time>_<person>_<zone>_<camera>.mp4`.
+
+The frame loop only hands each frame over (a bounded queue: a frame that finds it full is
+dropped and counted; its events are kept). A buffer thread draws each camera's frame (`draw`,
+e.g. viz.clips.clip_drawer: skeletons and ids), JPEG-encodes it and keeps the last `pre_s`
+seconds per camera, bounded by count and by bytes (the oldest dropped and counted). An alarm
+opens a clip on each camera that saw its person, starting with what the buffer holds; a later
+alarm on a camera whose clip is still open extends that clip (to `clip_max_s` at most), so
+events close together share one clip and no frame is written twice. A writer thread encodes
+the clips as `<name>.part.mp4`, checks that the file decodes, and renames it to `<name>.mp4`
+(never over an existing file). A clip that cannot be written (disk full, folder gone) is
+logged (once per spell), counted and removed; later clips are tried again.
+
+Times are the frames' own (`FrameResult.t`); names use wall time `wall_start + t` (UTC). The
+clip's frame rate is the run's `fps`, so its duration is its frame count / fps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import queue
+import re
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereopose.errors import StereoposeError
+from stereopose.io.settings import check_settings, ranged
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.writing import make_folder, probe_folder, reason
+from stereopose.types import Event, People2D, People3D
+
+__all__ = ["CLIPS_DIR", "CLIP_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink", "Draw",
+           "clip_name", "is_alarm"]  # fmt: skip
+
+logger = logging.getLogger(__name__)
+
+CLIPS_DIR = "clips"
+CLIP_SUFFIX = ".mp4"
+PART_SUFFIX = ".part.mp4"  # a clip being written
+_EPS = 1e-9  # frame times compared with some slack
+_MAX_TWINS = 999
+
+# (camera, image (H, W, 3) BGR, its 2D people or None, the 3D people, scale, label) -> the
+# picture to keep, about `scale` times the image's size
+Draw = Callable[[str, np.ndarray, "People2D | None", People3D, float, str], np.ndarray]
+
+
+def is_alarm(e: Event) -> bool:
+    """The default alarm: entering or approaching an energized zone."""
+    return e.kind == "energized" and e.type in ("enter", "approach")
+
+
+def _plain(image: np.ndarray, scale: float) -> np.ndarray:
+    h, w = image.shape[:2]
+    return image if scale == 1.0 else cv2.resize(image, (max(1, round(w * scale)),
+                                                         max(1, round(h * scale))))  # fmt: skip
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClipSettings:
+    """Keys of the `[storage]` section. clip_pre_s, clip_post_s: seconds before and after an
+    alarm; clip_max_s: the longest clip (alarms that keep coming start a new one);
+    clip_buffer_frames, clip_buffer_bytes: the most each camera's buffer holds;
+    clip_queue_frames: frames waiting for the buffer thread; clip_jpeg_quality; clip_scale:
+    the clips' size relative to the camera images; clip_close_timeout_s: how long `close`
+    waits for the clips under way."""
+
+    clip_pre_s: float = ranged(5.0, ge=0.0, le=60.0)
+    clip_post_s: float = ranged(10.0, ge=0.0, le=600.0)
+    clip_max_s: float = ranged(120.0, gt=0.0, le=3600.0)
+    clip_buffer_frames: int = ranged(600, ge=1, le=100_000, integer=True)
+    clip_buffer_bytes: int = ranged(64 * 2**20, ge=2**16, le=2**36, integer=True)
+    clip_queue_frames: int = ranged(64, ge=1, le=10_000, integer=True)
+    clip_jpeg_quality: int = ranged(85, ge=10, le=100, integer=True)
+    clip_scale: float = ranged(0.5, gt=0.0, le=1.0)
+    clip_close_timeout_s: float = ranged(10.0, ge=0.0, le=600.0)
+
+    def __post_init__(self) -> None:
+        check_settings(self, "storage")
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+def _part(text: str, limit: int = 48) -> str:
+    """One part of a file name from any text: letters, digits, '_', '.', '-' kept (the rest
+    as '-'), no leading dot, at most `limit` characters, never empty."""
+    safe = _UNSAFE.sub("-", text).lstrip(".-")[:limit].rstrip(".-")
+    return safe or "x"
+
+
+def clip_name(wall_t: float, person: int, zone: str, camera: str) -> str:
+    """`<UTC time>_<person>_<zone>_<camera>` (no suffix), every part safe in a file name."""
+    stamp = datetime.fromtimestamp(wall_t, timezone.utc).strftime("%Y%m%d-%H%M%S")
+    return f"{stamp}_{_part(str(person))}_{_part(zone)}_{_part(camera)}"
+
+
+class _Ring:
+    """One camera's last frames as (t, JPEG bytes), bounded by age, count and bytes."""
+
+    def __init__(self, keep_s: float, max_frames: int, max_bytes: int) -> None:
+        self.keep_s, self.max_frames, self.max_bytes = keep_s, max_frames, max_bytes
+        self.frames: deque[tuple[float, bytes]] = deque()
+        self.bytes = 0
+        self.dropped = 0  # by the count or byte bound, not by age
+
+    def push(self, t: float, jpeg: bytes) -> None:
+        self.frames.append((t, jpeg))
+        self.bytes += len(jpeg)
+        while self.frames and self.frames[0][0] < t - self.keep_s - _EPS:
+            self._pop()
+        while len(self.frames) > self.max_frames or self.bytes > self.max_bytes:
+            self._pop()
+            self.dropped += 1
+
+    def _pop(self) -> None:
+        self.bytes -= len(self.frames.popleft()[1])
+
+    def since(self, t0: float) -> list[tuple[float, bytes]]:
+        return [f for f in self.frames if f[0] >= t0 - _EPS]
+
+
+@dataclass(eq=False)
+class _Clip:
+    camera: str
+    name: str
+    start_t: float
+    end_t: float
+    limit_t: float
+    last_t: float = -math.inf
+    frames: int = 0
+    part: Path | None = None
+    writer: cv2.VideoWriter | None = None
+    size: tuple[int, int] | None = None
+    failed: bool = False
+    events: list[Event] = field(default_factory=list)
+
+
+class ClipSink(ClosesOnce):
+    """Event clips in `<out_dir>/clips/` (see the module).
+
+    cameras: the rig's camera names in order (People3D.detections' columns: who saw whom);
+    fps: the clips' frame rate; wall_start: the Unix time of t = 0; draw: how a kept frame is
+    drawn (default: the image alone, scaled); alarm: which events make clips. `close` returns
+    the clips written. Counted: frames_dropped (the frame queue was full), buffer_dropped (a
+    camera's buffer was full), clips_written, clips_failed, errors (frames that could not be
+    drawn or encoded).
+    """
+
+    stage = "write"
+
+    def __init__(
+        self,
+        out_dir: str | Path,
+        cameras: Sequence[str],
+        fps: float,
+        *,
+        wall_start: float,
+        draw: Draw | None = None,
+        alarm: Callable[[Event], bool] = is_alarm,
+        settings: ClipSettings | None = None,
+    ) -> None:
+        if isinstance(wall_start, bool) or not isinstance(wall_start, (int, float)):
+            raise StereoposeError(f"clips: wall_start must be a Unix time, got {wall_start!r}")
+        if not math.isfinite(wall_start) or not 0 <= wall_start < 2**33:
+            raise StereoposeError(f"clips: wall_start must be a Unix time, got {wall_start!r}")
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and 0.1 <= fps <= 1000):
+            raise StereoposeError(f"clips: fps must be in [0.1, 1000], got {fps!r}")
+        self.settings = s = settings or ClipSettings()
+        self.folder = Path(out_dir) / CLIPS_DIR
+        probe_folder(self.folder, "event clips")
+        self.cameras, self.fps, self.wall_start = list(cameras), float(fps), float(wall_start)
+        self.draw = draw or (lambda cam, image, p2, p3, scale, label: _plain(image, scale))
+        self.alarm = alarm
+        self.frames_dropped = self.clips_written = self.clips_failed = self.errors = 0
+        self.last_error: str | None = None
+        self.incomplete: str | None = None
+        self.written: list[Path] = []
+        keep = s.clip_pre_s
+        self._rings = {c: _Ring(keep, s.clip_buffer_frames, s.clip_buffer_bytes) for c in cameras}
+        self._open: dict[str, _Clip] = {}  # camera -> its clip under way (buffer thread)
+        self._done_t: dict[str, float] = {}  # camera -> time of the last frame in a clip
+        self._frames: queue.Queue = queue.Queue(s.clip_queue_frames)
+        self._late: deque[Event] = deque(maxlen=10_000)  # alarms of dropped frames
+        self._jobs: queue.Queue = queue.Queue(256)
+        self._failing = False  # within a spell of failed clips (logged once)
+        self._dropping = False
+        self._lock = threading.Lock()
+        self._buffer = threading.Thread(target=self._buffer_loop, name="clips-buffer", daemon=True)
+        self._writer = threading.Thread(target=self._write_loop, name="clips-writer", daemon=True)
+        self._buffer.start()
+        self._writer.start()
+
+    @property
+    def buffer_dropped(self) -> int:
+        return sum(r.dropped for r in self._rings.values())
+
+    # -- the frame loop's side ---------------------------------------------------------------
+
+    def write(self, frame: FrameResult) -> None:
+        alarms = tuple(e for e in frame.events if self.alarm(e))
+        images = {c: im for c, im in (frame.images or {}).items() if im is not None}
+        if not images and not alarms:
+            return
+        item = (float(frame.t), images, dict(frame.people2d), frame.people3d, alarms)
+        try:
+            self._frames.put_nowait(item)
+        except queue.Full:
+            self.frames_dropped += 1
+            self._late.extend(alarms)
+            if not self._dropping:
+                logger.warning("event clips: the buffer thread is behind; frames dropped "
+                               "(%d so far)", self.frames_dropped)  # fmt: skip
+            self._dropping = True
+            return
+        self._dropping = False
+
+    # -- the buffer thread -------------------------------------------------------------------
+
+    def _buffer_loop(self) -> None:
+        last_t = 0.0
+        while True:
+            item = self._frames.get()
+            if item is None:
+                break
+            last_t = item[0]
+            try:
+                self._take(*item)
+            except Exception:  # a bug must not stop the clips: logged, counted
+                self.errors += 1
+                logger.exception("event clips: a frame could not be kept")
+        if self._late:  # alarms of frames dropped at the end: clips of what the buffers hold
+            self._take(last_t, {}, {}, People3D.empty(0, 0), ())
+        for clip in list(self._open.values()):
+            self._finish(clip)
+        self._jobs.put(None)
+
+    def _take(self, t: float, images: Mapping[str, np.ndarray], people2d: Mapping[str, People2D],
+              people3d: People3D, alarms: Sequence[Event]) -> None:  # fmt: skip
+        stamp = datetime.fromtimestamp(self.wall_start + t, timezone.utc).strftime("%H:%M:%S")
+        for camera, image in images.items():
+            ring = self._rings.get(camera)
+            if ring is None:
+                continue
+            jpeg = self._encode(camera, image, people2d.get(camera), people3d, f"{camera} {stamp}")
+            if jpeg is not None:
+                ring.push(t, jpeg)
+        late = [self._late.popleft() for _ in range(len(self._late))]
+        for e in (*late, *alarms):
+            for camera in self._witnesses(e, people3d, images):
+                self._alarm(camera, e, t)
+        for camera, clip in list(self._open.items()):
+            ring = self._rings[camera]
+            if ring.frames and ring.frames[-1][0] == t and t > clip.last_t + _EPS:
+                self._send(clip, [ring.frames[-1]])
+            if t >= clip.end_t - _EPS:
+                self._finish(clip)
+
+    def _encode(self, camera: str, image: np.ndarray, p2: People2D | None, p3: People3D,
+                label: str) -> bytes | None:  # fmt: skip
+        try:
+            picture = self.draw(camera, image, p2, p3, self.settings.clip_scale, label)
+            ok, buf = cv2.imencode(
+                ".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, self.settings.clip_jpeg_quality]
+            )
+        except (cv2.error, ValueError, TypeError) as e:
+            ok, buf = False, e
+        if not ok:
+            self.errors += 1
+            logger.debug("event clips: camera %s: frame not kept: %s", camera, buf)
+            return None
+        return buf.tobytes()
+
+    def _witnesses(self, e: Event, people3d: People3D, images: Mapping) -> list[str]:
+        """The cameras that saw the event's person at this frame (by the detections used);
+        every camera with a frame when that is not known."""
+        rows = np.flatnonzero(people3d.ids == e.person)
+        det = people3d.detections
+        if len(rows) and det.shape[1] == len(self.cameras):
+            seen = [c for c, d in zip(self.cameras, det[rows[0]], strict=True) if d >= 0]
+            if seen:
+                return seen
+        return [c for c in self.cameras if c in images or self._rings[c].frames]
+
+    def _alarm(self, camera: str, e: Event, t: float) -> None:
+        """Extend the camera's open clip, or open one from what its buffer holds."""
+        s = self.settings
+        clip = self._open.get(camera)
+        if clip is not None and e.t <= clip.end_t + _EPS:
+            clip.end_t = min(max(clip.end_t, e.t + s.clip_post_s), clip.limit_t)
+            clip.events.append(e)
+            return
+        if clip is not None:
+            self._finish(clip)
+        done = self._done_t.get(camera, -math.inf)  # frames up to it are in an earlier clip
+        frames = [f for f in self._rings[camera].since(e.t - s.clip_pre_s)
+                  if done + _EPS < f[0] <= t + _EPS]  # fmt: skip
+        start = frames[0][0] if frames else max(e.t - s.clip_pre_s, done)
+        name = clip_name(self.wall_start + e.t, e.person, e.zone, camera)
+        limit = start + s.clip_max_s
+        clip = _Clip(camera, name, start, min(e.t + s.clip_post_s, limit), limit, events=[e])
+        self._open[camera] = clip
+        self._jobs.put(("open", clip))
+        if frames:
+            self._send(clip, frames)
+
+    def _send(self, clip: _Clip, frames: list[tuple[float, bytes]]) -> None:
+        clip.last_t = frames[-1][0]
+        self._done_t[clip.camera] = clip.last_t
+        self._jobs.put(("frames", clip, [jpeg for _, jpeg in frames]))
+
+    def _finish(self, clip: _Clip) -> None:
+        self._open.pop(clip.camera, None)
+        self._jobs.put(("close", clip))
+
+    # -- the writer thread -------------------------------------------------------------------
+
+    def _write_loop(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            kind, clip, *rest = job
+            if clip.failed:
+                continue
+            try:
+                if kind == "open":
+                    self._start(clip)
+                elif kind == "frames":
+                    self._write_frames(clip, rest[0])
+                else:
+                    self._end(clip)
+            except (OSError, cv2.error, StereoposeError) as e:
+                self._clip_failed(clip, e)
+            except Exception as e:  # a bug must not stop the writer: that clip is lost
+                logger.exception("event clips: %s failed", clip.name)
+                self._clip_failed(clip, e)
+
+    def _start(self, clip: _Clip) -> None:
+        make_folder(self.folder)
+        for n in range(_MAX_TWINS + 1):
+            stem = f"{clip.name}_{n:03d}" if n else clip.name
+            part = self.folder / (stem + PART_SUFFIX)
+            if (self.folder / (stem + CLIP_SUFFIX)).exists():
+                continue
+            try:
+                part.open("xb").close()  # the name is ours
+            except FileExistsError:
+                continue
+            clip.part, clip.name = part, stem
+            return
+        raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
+
+    def _write_frames(self, clip: _Clip, frames: list[bytes]) -> None:
+        for jpeg in frames:
+            image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+            if image is None:
+                continue
+            if clip.writer is None:
+                clip.size = (image.shape[1], image.shape[0])
+                clip.writer = cv2.VideoWriter(
+                    str(clip.part), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, clip.size
+                )
+                if not clip.writer.isOpened():
+                    raise StereoposeError(f"{clip.part}: cannot write the clip")
+            elif (image.shape[1], image.shape[0]) != clip.size:
+                image = cv2.resize(image, clip.size)
+            clip.writer.write(image)
+            clip.frames += 1
+
+    def _end(self, clip: _Clip) -> None:
+        if clip.writer is None:  # no frame came: nothing to keep
+            clip.part.unlink(missing_ok=True)
+            return
+        clip.writer.release()
+        clip.writer = None
+        cap = cv2.VideoCapture(str(clip.part))
+        decoded = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        cap.release()
+        if decoded != clip.frames:
+            raise StereoposeError(
+                f"{clip.part}: {decoded} of {clip.frames} frames decode (disk full?)"
+            )
+        final = self._publish(clip)
+        with self._lock:
+            self.written.append(final)
+            self.clips_written += 1
+        if self._failing:
+            logger.warning("event clips written again (%d failed)", self.clips_failed)
+            self._failing = False
+
+    def _publish(self, clip: _Clip) -> Path:
+        """The finished part renamed to its clip name, never over another file."""
+        for n in range(_MAX_TWINS + 1):
+            final = self.folder / ((f"{clip.name}_{n:03d}" if n else clip.name) + CLIP_SUFFIX)
+            try:
+                os.link(clip.part, final)
+            except FileExistsError:
+                continue
+            clip.part.unlink()
+            return final
+        raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
+
+    def _clip_failed(self, clip: _Clip, e: BaseException) -> None:
+        clip.failed = True
+        if clip.writer is not None:
+            clip.writer.release()
+            clip.writer = None
+        if clip.part is not None:
+            try:
+                clip.part.unlink(missing_ok=True)
+            except OSError as gone:
+                logger.debug("%s: cannot remove: %s", clip.part, gone)
+        self.clips_failed += 1
+        self.last_error = reason(e)
+        if not self._failing:
+            logger.error("event clips: %s: not written (%s); counted, later clips tried again",
+                         clip.name, self.last_error)  # fmt: skip
+        self._failing = True
+
+    # -- closing -----------------------------------------------------------------------------
+
+    def _close(self) -> list[Path]:
+        deadline = time.monotonic() + self.settings.clip_close_timeout_s
+        with contextlib.suppress(queue.Full):  # the buffer thread is stuck: joins time out
+            self._frames.put(None, timeout=max(0.0, deadline - time.monotonic()))
+        for thread in (self._buffer, self._writer):
+            thread.join(max(0.0, deadline - time.monotonic()))
+        problems = []
+        if self._buffer.is_alive() or self._writer.is_alive():
+            problems.append("clips still being written at close (left as *.part.mp4)")
+        if self.clips_failed:
+            problems.append(f"{self.clips_failed} event clip(s) not written ({self.last_error})")
+        self.incomplete = "; ".join(problems) or None
+        with self._lock:
+            return list(self.written)
