@@ -9,7 +9,7 @@ from rich.table import Table
 
 from stereopose.cli.common import _px, out, rate_progress
 from stereopose.cli.sim import _demo_synthetic
-from stereopose.errors import ConfigError, StereoposeError
+from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeError
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -89,6 +89,11 @@ def _detect(args: argparse.Namespace) -> int:
         f"{summary.steps / steps_s if steps_s else 0:.1f} time steps/s overall",
         highlight=False,
     )
+    if summary.failed_outputs:
+        folders = {
+            str(Path(args.out) / f"{n}_json"): why for n, why in summary.failed_outputs.items()
+        }
+        raise IncompleteOutputError(folders, summary=summary)
     if summary.interrupted:
         out.print("interrupted: the files above are complete up to the last time step")
         return 130

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
+from stereopose.errors import KeypointsError
 from stereopose.io.video import (
     CameraSet,
     FrameSet,
@@ -49,6 +50,9 @@ class DetectionSummary:
     seconds_write: float = 0.0
     sources: dict[str, SourceStats] = field(default_factory=dict)
     interrupted: bool = False
+    # camera -> why its keypoint files stopped being written (a full or vanished disk): that
+    # camera's files are complete up to the failure, the other cameras go on
+    failed_outputs: dict[str, str] = field(default_factory=dict)
 
     @property
     def images(self) -> int:
@@ -89,7 +93,14 @@ def _detect_frames(
         people2d = detect_step(detector, step)
         t2 = time.perf_counter()
         for name, people in people2d.items():
-            write_pose_frame(out_dir, name, people)
+            if name in summary.failed_outputs:
+                continue
+            try:
+                write_pose_frame(out_dir, name, people)
+            except KeypointsError as e:  # the disk, not the input: log once, go on
+                summary.failed_outputs[name] = str(e).removeprefix(f"{out_dir / name}_json: ")
+                logger.error("camera %s: keypoint files no longer written: %s", name, e)
+                continue
             summary.frames[name] += 1
             summary.people[name] += len(people)
             summary.frames_with_people[name] += bool(len(people))
