@@ -42,11 +42,13 @@ def test_a_full_disk_under_one_output_is_exit_3_and_the_alarms_are_kept(
     db, events = tmp_path / "e.sqlite", tmp_path / "e.jsonl"
     rc = _reconstruct(scene, "/dev/full", "--site", str(scene / "site.toml"),
                       "--events-db", str(db), "--events", str(events))  # fmt: skip
-    err = capsys.readouterr().err
+    printed = capsys.readouterr()
+    err, out = printed.err, printed.out
     assert rc == 3
     assert "finished, but 1 output could not be written" in err
-    assert "/dev/full: No space left on device" in err and "Traceback" not in err
-    assert f"wrote {events}" in err.replace("\n", "")
+    assert "/dev/full: No space left on device" in err and "Traceback" not in err + out
+    assert "3D poses written to /dev/full" in out  # the run's table, then what failed
+    assert f"wrote {events}" in out.replace("\n", "")
     got = read_events(events)
     assert got
     with sqlite3.connect(db) as con:

@@ -10,7 +10,13 @@ from pathlib import Path
 from rich.table import Table
 
 from stereopose.cli.common import _config, _progress, _px, _trajectory_table, out
-from stereopose.errors import CalibrationError, ConfigError, KeypointsError, StereoposeError
+from stereopose.errors import (
+    CalibrationError,
+    ConfigError,
+    IncompleteOutputError,
+    KeypointsError,
+    StereoposeError,
+)
 
 
 def _check_inputs(args: argparse.Namespace) -> None:
@@ -53,18 +59,22 @@ def _reconstruct(args: argparse.Namespace) -> int:
             webhook=args.webhook,
             two_way=args.two_way,
         )
-        summary = reconstruct_files(
-            args.calib,
-            args.pose,
-            None,
-            cfg,
-            on_frame=lambda done, total: progress.update(task, completed=done, total=total),
-            outputs=outputs,
-            site=site,
-            on_events=show if site is not None else None,
-            config_path=args.config,
-            overwrite=args.overwrite,
-        )
+        incomplete: IncompleteOutputError | None = None
+        try:
+            summary = reconstruct_files(
+                args.calib,
+                args.pose,
+                None,
+                cfg,
+                on_frame=lambda done, total: progress.update(task, completed=done, total=total),
+                outputs=outputs,
+                site=site,
+                on_events=show if site is not None else None,
+                config_path=args.config,
+                overwrite=args.overwrite,
+            )
+        except IncompleteOutputError as e:  # the work is done: its table first, then exit 3
+            incomplete, summary = e, e.summary
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
     table.add_row("mode", summary.mode)
@@ -100,6 +110,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
         out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     for path, why in summary.skipped_files:
         out.print(f"skipped {path}: {why}", markup=False, highlight=False, soft_wrap=True)
+    if incomplete is not None:
+        incomplete.written = []  # listed above
+        raise incomplete
     if summary.interrupted:
         out.print("interrupted: every output above is complete up to the last frame processed")
         return 130

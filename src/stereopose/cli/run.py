@@ -135,14 +135,18 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
             for e in events:
                 progress.console.print(describe(e), markup=False, highlight=False)
 
-        summary = run(
-            config_path,
-            on_step=lambda done, total, fps: progress.update(
-                task, completed=done, total=total, fps=fps
-            ),
-            on_events=show,
-            overwrite=overwrite,
-        )
+        incomplete: IncompleteOutputError | None = None
+        try:
+            summary = run(
+                config_path,
+                on_step=lambda done, total, fps: progress.update(
+                    task, completed=done, total=total, fps=fps
+                ),
+                on_events=show,
+                overwrite=overwrite,
+            )
+        except IncompleteOutputError as e:  # the run is done: its table first, then exit 3
+            incomplete, summary = e, e.summary
     d = summary.as_dict()
     table = Table(title=title, show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
@@ -177,6 +181,9 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
     out.print(f"outputs in {summary.out_dir}:", highlight=False)
     for path in summary.outputs:
         out.print(f"  {path}", markup=False, highlight=False, soft_wrap=True)
+    if incomplete is not None:
+        incomplete.written = []  # listed above
+        raise incomplete
     if summary.interrupted:
         out.print("interrupted: every output above is complete up to the last frame processed")
         return 130
