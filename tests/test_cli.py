@@ -171,6 +171,24 @@ def test_simulate_rejects_bad_counts(tmp_path: Path, capsys) -> None:
     assert "between 2 and 12" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--fps", "nan", "--fps: expected a finite number"),
+        ("--fps", "-1", "--fps: expected a finite number"),
+        ("--fps", "1e400", "--fps: expected a finite number"),
+        ("--frames", "0", "--frames must be in 1..100000"),
+        ("--frames", "1000000000", "--frames must be in 1..100000"),
+    ],
+)
+def test_simulate_rejects_values_out_of_range(
+    tmp_path: Path, capsys, option: str, value: str, message: str
+) -> None:
+    assert main(["simulate", str(tmp_path / "s"), option, value]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
 def test_all_keypoint_files_malformed_is_an_error(tmp_path: Path, capsys) -> None:
     calib = tmp_path / "scene"
     assert main(["simulate", str(calib), "--frames", "2", "--cameras", "2", "--people", "1"]) == 0

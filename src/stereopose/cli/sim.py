@@ -9,21 +9,22 @@ from typing import TYPE_CHECKING
 
 from rich.table import Table
 
-from stereopose.config import MODES, with_overrides
+from stereopose.cli.common import _config, out
+from stereopose.config import MODES, Config, with_overrides
 from stereopose.errors import StereoposeError
 
 if TYPE_CHECKING:
     from stereopose.sim import Scene
-from stereopose.cli.common import _config, out
+
+MAX_FRAMES = 100_000  # an hour at 25 frames/s
 
 
 def _simulated(**kwargs: object) -> Scene:
     from stereopose.sim import simulate
 
-    if kwargs["num_frames"] < 1:
-        raise StereoposeError(f"--frames must be at least 1, got {kwargs['num_frames']}")
-    if kwargs.get("fps", 25.0) <= 0:
-        raise StereoposeError(f"--fps must be positive, got {kwargs['fps']}")
+    if not 1 <= kwargs["num_frames"] <= MAX_FRAMES:  # a scene is held in memory
+        raise StereoposeError(f"--frames must be in 1..{MAX_FRAMES}, got {kwargs['num_frames']}")
+    Config._ranges["fps"][0].check(kwargs.get("fps", 25.0), "--fps")  # the schema's range
     try:
         return simulate(**kwargs)
     except ValueError as e:
