@@ -196,3 +196,26 @@ def test_a_run_cut_mid_line_reports_the_frames_before(run_copy: Path, capsys, ca
     poses.write_text(text[: len(text) - len(text.splitlines()[-1]) // 2 - 1])  # killed mid-line
     rc, printed = report(run_copy, capsys, caplog)
     assert rc == 0 and "1 damaged line(s) skipped (first: line 20)" in printed
+
+
+def test_a_reader_that_stops_early_ends_the_listing_quietly(tmp_path: Path) -> None:
+    """`stereopose events LOG --csv | head -1`: the closed pipe is no error and no traceback."""
+    import subprocess
+    import sys
+
+    db = tmp_path / "many.sqlite"
+    sink = SqliteSink(db)
+    sink.write_events(
+        [Event(t=i / 25, frame=i, person=1, zone="z", kind="work_area", type="enter", onset_t=0)
+         for i in range(20000)]
+    )  # fmt: skip
+    sink.close()
+    cmd = [sys.executable, "-m", "stereopose.cli", "events", str(db), "--csv"]
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as p:
+        first = p.stdout.readline()
+        p.stdout.close()  # as `head -1` does
+        err = p.stderr.read().decode()
+        rc = p.wait(timeout=60)
+    assert first.startswith(b"run,")
+    assert rc == 0, err
+    assert "Traceback" not in err and "BrokenPipe" not in err

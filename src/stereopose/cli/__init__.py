@@ -302,6 +302,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         console.print("interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader of our output went away (`... | head`): end quietly
+        import os
+        import sys
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _incomplete(e: IncompleteOutputError, console) -> None:
