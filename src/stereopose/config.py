@@ -210,6 +210,11 @@ class CameraSource:
 
     name: str = ""
     source: str = ""  # a video file, a folder of images, or an rtsp:// / http:// URL
+    # a recorded file played forward then backward for ever, time stamps increasing (serve)
+    loop: bool = False
+    # optional low-resolution substream (URL or file) used for detection; `source` is used for
+    # clips; empty: `source` for both
+    detect: str = ""
 
 
 @_schema("detector")
@@ -223,6 +228,8 @@ class DetectorConfig:
     device: str = "cpu"  # cpu, cuda, cuda:N or auto
     # inference threads (default: all cores)
     threads: int | None = number(None, integer=True, ge=1, le=1024)
+    # ONNX model weights: "fp32" or "int8" (the INT8-quantised model)
+    precision: Literal["fp32", "int8"] = "fp32"
 
 
 @_schema("input")
@@ -236,6 +243,8 @@ class InputConfig:
     open_timeout_s: float = number(5.0, gt=0.0, le=600.0)
     # live cameras: end the run (exit 2) if no camera delivers a frame within this (none: wait)
     first_frame_timeout_s: float | None = number(30.0, gt=0.0, le=DAY_S)
+    # cap on detection steps per second (default: as fast as the detector allows)
+    detect_fps: float | None = number(None, ge=FPS_MIN, le=FPS_MAX)
 
 
 @_schema("outputs")
@@ -254,6 +263,59 @@ class OutputConfig:
     webhook: str | None = None  # POST each zone event to this URL
 
 
+@_schema("serve")
+class ServeConfig:
+    """`stereopose serve`: its HTTP server and its health watch."""
+
+    # address of the health/metrics server; anything but loopback is reachable from the network
+    host: str = "127.0.0.1"
+    port: int = number(8787, integer=True, ge=0, le=65535)  # 0: any free port
+    # a camera with no frame for this long raises camera_down
+    camera_timeout_s: float = number(5.0, gt=0.0, le=DAY_S)
+    # a camera's reprojection error above this many times its baseline: calibration_drift
+    calib_warn_factor: float = number(2.0, gt=1.0, le=1000.0)
+    # how often status.json (the health snapshot) is rewritten
+    status_interval_s: float = number(10.0, gt=0.0, le=DAY_S)
+
+
+@_schema("mqtt")
+class MqttConfig:
+    """Events, zone occupancy and people out over MQTT (serve); host empty: MQTT off."""
+
+    host: str = ""
+    port: int = number(1883, integer=True, ge=1, le=65535)
+    site: str = "site"  # this installation's name, a topic level
+    topic_prefix: str = "stereopose"
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)  # never shown
+    tls: bool = False
+    ca_file: str | None = None  # relative to the config file
+    # people updates per second (0: none)
+    people_hz: float = number(5.0, ge=0.0, le=1000.0)
+    # messages held at most while the broker is away (then counted as dropped)
+    queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
+
+
+@_schema("storage")
+class StorageConfig:
+    """What serve keeps in its output folder, and for how long."""
+
+    # seconds of poses per segment file
+    segment_s: float = number(3600.0, ge=1.0, le=DAY_S)
+    # pose segments are deleted after this many days
+    retention_days: float = number(7.0, gt=0.0, le=36500.0)
+    # pose segments and clips together at most this many GB (0: no cap)
+    max_gb: float = number(20.0, ge=0.0, le=1e6)
+    clip_retention_days: float = number(30.0, gt=0.0, le=36500.0)
+    event_retention_days: float = number(365.0, gt=0.0, le=36500.0)
+    clips: bool = True  # an MP4 per camera for each alarm
+    # seconds of clip before and after an alarm
+    clip_pre_s: float = number(5.0, ge=0.0, le=60.0)
+    clip_post_s: float = number(5.0, ge=0.0, le=600.0)
+    # seconds between retention passes
+    maintenance_interval_s: float = number(60.0, gt=0.0, le=DAY_S)
+
+
 @_schema("")
 class Config:
     # time base when the input has none
@@ -268,6 +330,9 @@ class Config:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     input: InputConfig = field(default_factory=InputConfig)
     outputs: OutputConfig = field(default_factory=OutputConfig)
+    serve: ServeConfig = field(default_factory=ServeConfig)
+    mqtt: MqttConfig = field(default_factory=MqttConfig)
+    storage: StorageConfig = field(default_factory=StorageConfig)
 
 
 def _check_value(value: Any, tp: Any, where: str) -> Any:
