@@ -32,6 +32,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "stereopose.cli.run:_detect",
     ),
     "run": ("cameras -> 3D people, tracks, zone events, report", "stereopose.cli.run:_run"),
+    "serve": (
+        "the always-on service: cameras for ever, events out, health and metrics over HTTP",
+        "stereopose.cli.serve:_serve",
+    ),
     "init": ("write a commented example run configuration", "stereopose.cli.run:_init"),
     "report": ("rebuild report.html of a run folder", "stereopose.cli.run:_report"),
     "models": (
@@ -149,6 +153,7 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         action="store_true",
         help="replace the outputs of a previous run in the output folder",
     )
+    _add_serve(parsers["serve"])
     it = parsers["init"]
     it.add_argument("path", nargs="?", default="stereopose.toml", help="(stereopose.toml)")
     it.add_argument("--force", action="store_true", help="overwrite an existing file")
@@ -178,6 +183,36 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--mode", choices=MODES, help="only this triangulation mode (default: all)")
     d.add_argument("--config", type=Path, help="TOML file overriding the defaults")
+
+
+def _add_serve(sv: argparse.ArgumentParser) -> None:
+    """`serve`."""
+    sv.add_argument(
+        "config",
+        type=Path,
+        nargs="?",
+        metavar="CONFIG.toml",
+        help="service configuration (the run schema plus [serve], [mqtt], [storage])",
+    )
+    sv.add_argument(
+        "--demo",
+        action="store_true",
+        help="serve the real 4-camera demo, its videos looped for ever",
+    )
+    sv.add_argument("--port", type=int, help="HTTP port of health and metrics (default 8787)")
+    sv.add_argument(
+        "--data",
+        type=Path,
+        metavar="DIR",
+        help="--demo: the service's data folder (default <out>/data)",
+    )
+    sv.add_argument(
+        "--out",
+        type=Path,
+        default=Path("out/serve-demo"),
+        metavar="DIR",
+        help="--demo: where its configuration is written (out/serve-demo)",
+    )
 
 
 def _add_calibrate(cal: argparse.ArgumentParser) -> None:

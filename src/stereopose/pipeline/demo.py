@@ -35,3 +35,45 @@ def write_demo_config(out_dir: str | Path) -> Path:
     path = out_dir / "demo.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
+
+
+def write_serve_demo_config(
+    out_dir: str | Path,
+    data_dir: str | Path | None = None,
+    port: int = 8787,
+    *,
+    imgsz: int = 640,
+    detect_fps: float | None = None,
+) -> Path:
+    """``<out_dir>/serve.toml`` and ``demo_site.toml``: the real demo's four videos as cameras
+    looped for ever (forward then backward), the demo site, the service's data in `data_dir`
+    (default ``<out_dir>/data``), its HTTP server on 127.0.0.1:`port`. The demo files are
+    fetched once."""
+    out_dir = Path(out_dir)
+    write_demo_config(out_dir)  # the site beside it, and the demo files fetched
+    demo = pose2sim_demo_dir() / "Demo_MultiPerson"
+    data = Path(data_dir).resolve() if data_dir is not None else out_dir.resolve() / "data"
+    lines = [
+        "# The real demo served: Pose2Sim's multi-person recording (4 cameras, 1088x1920,",
+        "# 60 fps), each video played forward then backward for ever, through `stereopose serve`.",
+        f"calibration = {_toml_str(str(demo / 'calibration' / 'Calib.qca.txt'))}",
+        'site = "demo_site.toml"',
+        f"output = {_toml_str(str(data))}",
+        "",
+        "[detector]",
+        f"imgsz = {int(imgsz)}",
+        "",
+        "[serve]",
+        'host = "127.0.0.1"',
+        f"port = {int(port)}",
+        "",
+    ]
+    if detect_fps is not None:
+        lines[-1:-1] = ["[input]", f"detect_fps = {float(detect_fps)!r}", ""]
+    for name in CAMERAS:
+        video = demo / "videos" / f"{name}.mp4"
+        lines += ["[[cameras]]", f'name = "{name}"', f"source = {_toml_str(str(video))}",
+                  "loop = true", ""]  # fmt: skip
+    path = out_dir / "serve.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path

@@ -1,0 +1,284 @@
+"""`stereopose serve`: the frame loop for ever, with bounded storage, alarms out and health.
+
+Once the configuration is checked (pipeline.serve_setup: exit 2 before any work), the service
+starts its HTTP server (service.app: /api/health, /metrics), opens the cameras and runs the
+frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
+
+- pose segments `poses/<UTC start>.jsonl.gz` (io.sinks.segments);
+- the event log `events.sqlite` (appended to across restarts), the webhook when
+  [outputs] webhook is set, MQTT when [mqtt] host is set;
+- event clips `clips/` (io.sinks.clips) unless [storage] clips = false;
+- the health state (service.state) and `status.json`, its snapshot every status_interval_s.
+
+One storage maintainer thread (service.storage) applies [storage]'s retention and cap. Events
+other than zone events (a camera down or up, calibration drift, a zone closed at restart) go
+through the same event sinks. A stop closes every output, each within its own bound, then the
+maintainer and the server; a second signal meanwhile is ignored.
+
+Nothing is kept per frame: the summary holds running aggregates, every queue is bounded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stereopose.config import Config
+from stereopose.detection import make_detector
+from stereopose.errors import StereoposeError
+from stereopose.fence import FenceMonitor
+from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
+from stereopose.io.summary import RunSummary
+from stereopose.io.video import CameraSet
+from stereopose.io.writing import make_folder
+from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.serve_parts import (
+    ServeSource,
+    StateSink,
+    StatusSink,
+    quiet_signals,
+    stop_signals,
+)
+from stereopose.pipeline.serve_setup import ServePlan, plan_serve
+from stereopose.pipeline.sources import Cameras, source_label
+from stereopose.pipeline.stage3d import Stage3D
+from stereopose.service.api.health import health_of
+from stereopose.service.app import create_app
+from stereopose.service.server import Server
+from stereopose.service.state import ServiceState
+from stereopose.service.storage import StorageMaintainer
+
+__all__ = ["ServeResult", "plan_serve", "serve"]
+
+logger = logging.getLogger(__name__)
+
+HEARTBEAT_S = 0.5  # the longest the loop goes without a step while no camera delivers
+
+
+@dataclass
+class ServeResult:
+    """What a service run did: its summary, the address it served on, the outputs closed and
+    those that failed on the way (each output that failed stops alone, the service goes on)."""
+
+    summary: RunSummary
+    url: str
+    outputs: list[Path] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+
+
+class _Closing(ClosesOnce):
+    """The first sink closed: from then on a signal no longer cuts the closing short."""
+
+    stage = "write"
+
+    def __init__(self) -> None:
+        self._quiet = quiet_signals()
+
+    def write(self, frame: FrameResult) -> None:
+        pass
+
+    def _close(self) -> list[Path]:
+        self._quiet.__enter__()  # left by serve once everything is closed
+        return []
+
+    def release(self) -> None:
+        if self._closed:
+            self._quiet.__exit__(None, None, None)
+
+
+class _Service:
+    """The running parts of one `serve`, built from a plan; `run()` once."""
+
+    def __init__(self, plan: ServePlan, stop: threading.Event) -> None:
+        self.plan, self.stop = plan, stop
+        self.state = ServiceState(
+            plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
+        )
+        self.server: Server | None = None
+        self.maintainer: StorageMaintainer | None = None
+        self.status: StatusSink | None = None
+        self.failed: dict[str, str] = {}
+        self.probes: dict[str, Callable[[], dict]] = {}
+
+    # -- starting -------------------------------------------------------------------------
+
+    def start_server(self) -> str:
+        app = create_app(self.state)
+        self.server = Server(app, self.plan.http)
+        self.server.start()
+        return self.server.url
+
+    def start_maintainer(self) -> None:
+        p = self.plan
+        self.maintainer = StorageMaintainer(p.out_dir, event_log=p.events_db, settings=p.retention)
+        self.state.register_storage(self.maintainer.usage)
+        self.probes["storage"] = self.maintainer.health
+        self.maintainer.start()
+
+    def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
+                   stats: Callable[[], dict], arrival: Callable[[float], float | None]
+                   ) -> list[Sink]:  # fmt: skip
+        """Every sink, in closing order; if one cannot be opened, those open are closed."""
+        p, sinks = self.plan, []
+
+        def guard(sink: Sink, label: object) -> Sink:
+            return Guarded(sink, str(label), self.failed)
+
+        try:
+            from stereopose.io.sinks.segments import SegmentSink
+
+            sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
+                                           settings=p.segments), p.out_dir / "poses"))  # fmt: skip
+            sinks += self._event_sinks(cfg, guard)
+            if p.clips is not None and p.site is not None:
+                sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
+            sinks.append(guard(StateSink(self.state, summary, arrival=arrival,
+                                         stats=stats), "the health state"))  # fmt: skip
+            self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
+            sinks.append(guard(self.status, p.status_path))
+        except BaseException:
+            close_all(sinks)
+            raise
+        return sinks
+
+    def _event_sinks(self, cfg: Config, guard) -> list[Sink]:
+        p, sinks = self.plan, []
+        site = str(p.site.path or "") if p.site is not None else ""
+        db = SqliteSink(p.events_db, site, source_label(list(p.sources)))
+        self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
+        sinks.append(guard(db, p.events_db))
+        if cfg.outputs.webhook:
+            hook = WebhookSink(cfg.outputs.webhook)
+            self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
+            sinks.append(guard(hook, cfg.outputs.webhook))
+        if p.mqtt is not None:
+            from stereopose.io.sinks.mqtt import MqttSink
+
+            zones = [z.name for z in p.site.zones] if p.site is not None else []
+            mqtt = MqttSink(p.mqtt, zones)
+            self.state.register_queue("mqtt", lambda: _queued(mqtt), lambda: _dropped(mqtt))
+            self.probes["mqtt"] = mqtt.counts
+            sinks.append(guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
+        return sinks
+
+    def _clips(self, cfg: Config, wall_start: float):
+        from stereopose.io.sinks.clips import ClipSink
+        from stereopose.viz.clips import clip_drawer
+
+        p = self.plan
+        clips = ClipSink(p.out_dir, p.rig.names, cfg.fps, wall_start=wall_start,
+                         draw=clip_drawer(p.rig), settings=p.clips)  # fmt: skip
+        self.state.register_queue("clips", clips._frames.qsize, lambda: clips.frames_dropped)
+        self.probes["clips"] = lambda: {"written": clips.clips_written,
+                                        "failed": clips.clips_failed,
+                                        "frames_dropped": clips.frames_dropped}  # fmt: skip
+        return clips
+
+    # -- health -----------------------------------------------------------------------------
+
+    def snapshot(self) -> dict:
+        """status.json: the health answer, the outputs that failed, each part's figures."""
+        doc = health_of(self.state.snapshot()).model_dump()
+        doc["written_at"] = time.time()
+        doc["failed_outputs"] = dict(self.failed)
+        for name, probe in list(self.probes.items()):
+            try:
+                doc[name] = probe()
+            except Exception as e:  # a part's figures missing never stops the status
+                doc[name] = {"error": str(e)}
+        return doc
+
+    # -- stopping ---------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """The maintainer and the server, each within its bound."""
+        if self.maintainer is not None and not self.maintainer.stop(5.0):
+            logger.warning("storage: the maintainer did not stop within 5 s")
+        if self.server is not None:
+            self.server.stop()
+
+
+def _queued(mqtt) -> int:
+    return sum(v["queued"] for v in mqtt.counts().values())
+
+
+def _dropped(mqtt) -> int:
+    return sum(v["dropped"] for v in mqtt.counts().values())
+
+
+def _open_cameras(plan: ServePlan) -> CameraSet:
+    cfg = plan.config
+    # a service waits for its cameras however long they take: none is an error here
+    return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
+                     None, open_timeout_s=cfg.input.open_timeout_s,
+                     first_frame_timeout_s=None)  # fmt: skip
+
+
+def serve(
+    config_path: str | Path,
+    *,
+    plan: ServePlan | None = None,
+    stop: threading.Event | None = None,
+    on_ready: Callable[[str], None] | None = None,
+) -> ServeResult:
+    """Serve the configuration at `config_path` until `stop` is set, SIGINT or SIGTERM.
+
+    plan: already checked (plan_serve); on_ready(url): once the HTTP server answers. Returns
+    when every output is closed. A ConfigError (bad configuration) or a ServeError (the port
+    taken) comes before any output is written.
+    """
+    plan = plan or plan_serve(config_path)
+    stop = stop or threading.Event()
+    cfg = plan.config
+    detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
+                             cfg.detector.conf, cfg.detector.iou, cfg.detector.device,
+                             cfg.detector.threads)  # fmt: skip
+    service = _Service(plan, stop)
+    closing = _Closing()
+    with stop_signals():
+        try:
+            url = service.start_server()
+            if on_ready is not None:
+                on_ready(url)
+            try:
+                make_folder(plan.out_dir)
+            except OSError as e:
+                raise StereoposeError(f"{plan.out_dir}: cannot create the output folder: "
+                                      f"{e.strerror}") from None  # fmt: skip
+            service.start_maintainer()
+            with _open_cameras(plan) as cams:
+                summary = _run_loop(plan, service, cams, detector, stop, closing)
+        finally:
+            with quiet_signals():
+                service.close()
+            closing.release()
+    return ServeResult(summary, url, summary.outputs, dict(service.failed))
+
+
+def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, stop,
+              closing: _Closing) -> RunSummary:  # fmt: skip
+    cfg = dataclasses.replace(plan.config, fps=cams.fps)
+    rig = plan.rig
+    source = ServeSource(Cameras(cams, rig, detector), stop=stop,
+                         detect_fps=cfg.input.detect_fps, heartbeat_s=HEARTBEAT_S)  # fmt: skip
+    stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path))
+    summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,
+                         stage.tracking, live=source.live, fps_input=source.fps,
+                         out_dir=plan.out_dir, config_path=plan.config_path)  # fmt: skip
+    wall_start = cams.clock.start_epoch
+    start_mono = cams.clock.start
+
+    def arrival(t: float) -> float | None:
+        return start_mono + t if source.live else None
+
+    fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
+    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival)
+    logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
+    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=fences, stop=stop)
+    return loop.run()

@@ -1,0 +1,270 @@
+"""Parts of `stereopose serve` around the frame loop: its paced source, the sinks that feed
+the health state and status.json, and the stop signals.
+
+- `ServeSource` takes the steps of any frame-loop source on a thread of its own, at most
+  `detect_fps` per second, and gives the loop an empty step (no images, nobody) whenever the
+  source has given nothing for `heartbeat_s`: time goes on for the tracker and the fences, and
+  the events of a blind camera get out although no frame comes.
+- `StateSink` feeds the ServiceState (cameras' frames, stage times, people, events, the
+  readers' drops and reconnects); `StatusSink` writes status.json (the health snapshot) every
+  `interval_s`, atomically, and once more at close.
+- `stop_signals` makes SIGTERM act as SIGINT does (the frame loop's Ctrl-C: stop after the
+  step in progress, at once while waiting), and `quiet_signals` ignores both while the outputs
+  close, so a second signal cannot cut a close short.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.summary import RunSummary
+from stereopose.pipeline.loop import Source, SourceStep
+from stereopose.types import People2D
+
+logger = logging.getLogger(__name__)
+
+_END = object()
+
+
+class ServeSource:
+    """A frame-loop source for the service (see the module). Steps are renumbered from 0 and
+    their times made strictly increasing; `heartbeats` counts the empty steps given."""
+
+    def __init__(
+        self,
+        inner: Source,
+        *,
+        stop: threading.Event,
+        detect_fps: float | None = None,
+        heartbeat_s: float = 0.5,
+    ) -> None:
+        self.inner, self.stop = inner, stop
+        self.cameras, self.stages = inner.cameras, inner.stages
+        self.fps, self.live = inner.fps, inner.live
+        self.min_gap_s = 1.0 / detect_fps if detect_fps else 0.0
+        self.heartbeat_s = heartbeat_s
+        self.heartbeats = 0
+        self._want = threading.Event()
+        self._got: queue.Queue = queue.Queue(1)
+        self._thread: threading.Thread | None = None
+
+    @property
+    def total(self) -> int | None:
+        return None
+
+    def _produce(self) -> None:
+        it = iter(self.inner)
+        while not self.stop.is_set():
+            if not self._want.wait(0.2):
+                continue
+            self._want.clear()
+            try:
+                item = next(it, _END)
+            except BaseException as e:  # the loop's thread raises it
+                item = e
+            self._got.put(item)
+            if item is _END or isinstance(item, BaseException):
+                return
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        self._thread = threading.Thread(target=self._produce, name="serve-source", daemon=True)
+        self._thread.start()
+        frame, last_t, last_mono = 0, -math.inf, time.monotonic()
+        asked = 0.0
+        pending = False
+        while not self.stop.is_set():
+            if not pending:
+                self._pace(asked)
+                asked = time.monotonic()
+                self._want.set()
+                pending = True
+            item = self._wait()
+            now = time.monotonic()
+            if item is None:  # nothing for heartbeat_s: an empty step, time going on
+                if self.stop.is_set():
+                    return
+                t = last_t + (now - last_mono) if math.isfinite(last_t) else 0.0
+                self.heartbeats += 1
+                step = SourceStep(frame, t, {}, None)
+            else:
+                pending = False
+                if item is _END:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                t = max(float(item.t), last_t + 1e-4) if math.isfinite(last_t) else float(item.t)
+                step = SourceStep(frame, t, item.people2d, item.images)
+            frame, last_t, last_mono = frame + 1, step.t, now
+            yield step
+
+    def _pace(self, asked: float) -> None:
+        """Wait (stop-aware) until min_gap_s after the last request."""
+        left = asked + self.min_gap_s - time.monotonic()
+        if left > 0:
+            self.stop.wait(left)
+
+    def _wait(self) -> object | None:
+        deadline = time.monotonic() + self.heartbeat_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or self.stop.is_set():
+                return None
+            try:
+                return self._got.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+
+    def detect(self, step: SourceStep) -> Mapping[str, People2D]:
+        return self.inner.detect(step)
+
+    def finish(self, summary: RunSummary) -> None:
+        self.inner.finish(summary)
+
+
+class StateSink(ClosesOnce):
+    """Feeds `state` (service.state.ServiceState) and the run's `summary` (its running
+    aggregates) from each frame: which cameras delivered, the seconds each stage took since the
+    last frame (from summary.seconds), people and events. arrival(t): a step
+    time's monotonic time (None: not known, the latency is the sum of the stages); stats(): the
+    camera readers' figures (io.source.SourceStats by camera), read every `stats_s`."""
+
+    stage = "state"
+
+    def __init__(
+        self,
+        state,
+        summary: RunSummary,
+        *,
+        arrival: Callable[[float], float | None] = lambda t: None,
+        stats: Callable[[], Mapping[str, object]] | None = None,
+        stats_s: float = 1.0,
+    ) -> None:
+        self.state, self.summary, self.seconds = state, summary, summary.seconds
+        self.arrival, self.stats, self.stats_s = arrival, stats, stats_s
+        self._last = dict(self.seconds)
+        self._seen: dict[str, tuple[int, int]] = {}  # camera -> (dropped, reconnects) so far
+        self._stats_at = -math.inf
+
+    def write(self, frame: FrameResult) -> None:
+        for name, image in (frame.images or {}).items():
+            if image is not None:
+                self.state.camera_frame(name)
+        now = dict(self.seconds)
+        timings = {k: v - self._last.get(k, 0.0) for k, v in now.items()}
+        self._last = now
+        self.state.on_frame(frame, timings, self.arrival(frame.t))
+        self.summary.add(frame.people3d, frame.events)
+        if frame.events:
+            self.state.on_events(frame.events)
+        if self.stats is not None and time.monotonic() - self._stats_at >= self.stats_s:
+            self._stats_at = time.monotonic()
+            self._readers()
+
+    def _readers(self) -> None:
+        for name, st in self.stats().items():
+            dropped, reconnects = getattr(st, "dropped", 0), getattr(st, "reconnects", 0)
+            was_dropped, was_reconnects = self._seen.get(name, (0, 0))
+            if dropped > was_dropped:
+                self.state.camera_dropped(name, dropped - was_dropped)
+            if reconnects > was_reconnects:
+                self.state.camera_reconnect(name)
+            self._seen[name] = (dropped, reconnects)
+
+    def _close(self) -> list[Path]:
+        return []
+
+
+class StatusSink(ClosesOnce):
+    """status.json: `snapshot()` (a JSON-able dict) written every interval_s of wall time and
+    at close, through a temporary file renamed over it, so a reader never sees half of one.
+    A failed write is logged once per spell and tried again at the next interval."""
+
+    stage = "write"
+
+    def __init__(self, path: Path, snapshot: Callable[[], dict], interval_s: float) -> None:
+        self.path, self.snapshot, self.interval_s = Path(path), snapshot, interval_s
+        self._next = -math.inf
+        self._failing = False
+        self.writes = self.failures = 0
+
+    def write(self, frame: FrameResult) -> None:
+        if time.monotonic() >= self._next:
+            self.write_now()
+
+    def write_now(self) -> bool:
+        """Write the snapshot now; whether it was written."""
+        self._next = time.monotonic() + self.interval_s
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        try:
+            text = json.dumps(self.snapshot(), indent=1, default=str)
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(text + "\n")
+            os.replace(tmp, self.path)
+        except OSError as e:
+            self.failures += 1
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            if not self._failing:
+                logger.error("%s: cannot write the status (%s); tried again every %g s",
+                             self.path, e.strerror or e, self.interval_s)  # fmt: skip
+            self._failing = True
+            return False
+        if self._failing:
+            logger.warning("%s: status written again", self.path)
+        self._failing = False
+        self.writes += 1
+        return True
+
+    def _close(self) -> list[Path]:
+        return [self.path] if self.write_now() else []
+
+
+@contextlib.contextmanager
+def stop_signals() -> Iterator[None]:
+    """SIGTERM handled as SIGINT is at that moment (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def as_sigint(signum: int, frame: object) -> None:
+        handler = signal.getsignal(signal.SIGINT)
+        if callable(handler):
+            handler(signal.SIGINT, frame)
+        else:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, as_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def quiet_signals() -> Iterator[None]:
+    """SIGINT and SIGTERM logged and otherwise ignored (main thread only): the outputs are
+    closing, each within its own bound."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def note(signum: int, frame: object) -> None:
+        logger.warning("already stopping: closing the outputs")
+
+    previous = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
