@@ -165,9 +165,14 @@ def site_dicts(draw) -> dict[str, Any]:
                 [*sorted(ZONE), "joints", "margin_m", "dwell_s", "enter_s", "exit_s", "allowed"]
             )
         )
-        if key in ("polygon", "z") and draw(st.booleans()):
+        # an earlier draw may have replaced the polygon or band by a hostile value already
+        nested = isinstance(zone.get(key), list) and len(zone[key]) > 0
+        if key in ("polygon", "z") and nested and draw(st.booleans()):
             target = zone[key] if key == "z" else draw(st.sampled_from(zone[key]))
-            target[draw(st.integers(0, 1))] = draw(numbers | values)
+            if isinstance(target, list) and len(target) >= 2:
+                target[draw(st.integers(0, 1))] = draw(numbers | values)
+            else:
+                zone[key] = draw(numbers | values)
         else:
             zone[key] = draw(numbers | values)
     return site
