@@ -218,7 +218,11 @@ def _fps(data: dict[str, Any]) -> float | None:
 def _number(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{what}: expected a number, got {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        bits = int(value).bit_length()
+        raise ConfigError(f"{what}: expected a number, got an integer of {bits} bits") from None
 
 
 def _ids(value: Any, what: str) -> frozenset[int]:
