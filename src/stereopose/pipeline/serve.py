@@ -38,6 +38,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.io.video import CameraSet
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.serve_events import ServeEvents
 from stereopose.pipeline.serve_parts import (
     ServeSource,
     StateSink,
@@ -50,9 +51,12 @@ from stereopose.pipeline.sources import Cameras, source_label
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.service.api.health import health_of
 from stereopose.service.app import create_app
+from stereopose.service.calib_health import CalibrationHealth
+from stereopose.service.restart import Resume
 from stereopose.service.server import Server
 from stereopose.service.state import ServiceState
 from stereopose.service.storage import StorageMaintainer
+from stereopose.service.watch import CameraWatch
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -95,8 +99,8 @@ class _Closing(ClosesOnce):
 class _Service:
     """The running parts of one `serve`, built from a plan; `run()` once."""
 
-    def __init__(self, plan: ServePlan, stop: threading.Event) -> None:
-        self.plan, self.stop = plan, stop
+    def __init__(self, plan: ServePlan, stop: threading.Event, resume: Resume) -> None:
+        self.plan, self.stop, self.resume = plan, stop, resume
         self.state = ServiceState(
             plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
         )
@@ -150,7 +154,8 @@ class _Service:
     def _event_sinks(self, cfg: Config, guard) -> list[Sink]:
         p, sinks = self.plan, []
         site = str(p.site.path or "") if p.site is not None else ""
-        db = SqliteSink(p.events_db, site, source_label(list(p.sources)))
+        db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
+                        first_id=self.resume.next_id)  # fmt: skip
         self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
         sinks.append(guard(db, p.events_db))
         if cfg.outputs.webhook:
@@ -216,8 +221,10 @@ def _open_cameras(plan: ServePlan) -> CameraSet:
     cfg = plan.config
     # a service waits for its cameras however long they take: none is an error here
     return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
-                     None, open_timeout_s=cfg.input.open_timeout_s,
-                     first_frame_timeout_s=None)  # fmt: skip
+                     None, open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
+                     loop=[c.loop for c in cfg.cameras],
+                     detect=[d or None for d in plan.detect_sources],
+                     detect_fps=cfg.input.detect_fps)  # fmt: skip
 
 
 def serve(
@@ -239,7 +246,11 @@ def serve(
     detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
                              cfg.detector.conf, cfg.detector.iou, cfg.detector.device,
                              cfg.detector.threads)  # fmt: skip
-    service = _Service(plan, stop)
+    resume = Resume.from_log(plan.events_db)  # before any id is given or event written
+    if resume.occupied:
+        logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
+                       len(resume.occupied))  # fmt: skip
+    service = _Service(plan, stop, resume)
     closing = _Closing()
     with stop_signals():
         try:
@@ -265,9 +276,13 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
               closing: _Closing) -> RunSummary:  # fmt: skip
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
-    source = ServeSource(Cameras(cams, rig, detector), stop=stop,
-                         detect_fps=cfg.input.detect_fps, heartbeat_s=HEARTBEAT_S)  # fmt: skip
-    stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path))
+    fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
+    watch = CameraWatch(rig.names, cfg.serve.camera_timeout_s, start=0.0)
+    calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
+    events = ServeEvents(fences, watch, calib, service.resume.closing_events)
+    source = ServeSource(Cameras(cams, rig, detector), stop=stop, heartbeat_s=HEARTBEAT_S,
+                         on_step=events.step, on_detect=events.detected)  # fmt: skip
+    stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path), first_id=service.resume.next_id)
     summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,
                          stage.tracking, live=source.live, fps_input=source.fps,
                          out_dir=plan.out_dir, config_path=plan.config_path)  # fmt: skip
@@ -277,8 +292,7 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     def arrival(t: float) -> float | None:
         return start_mono + t if source.live else None
 
-    fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
     sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival)
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
-    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=fences, stop=stop)
+    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=events, stop=stop)
     return loop.run()

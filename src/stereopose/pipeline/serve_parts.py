@@ -1,9 +1,9 @@
-"""Parts of `stereopose serve` around the frame loop: its paced source, the sinks that feed
+"""Parts of `stereopose serve` around the frame loop: its source, the sinks that feed
 the health state and status.json, and the stop signals.
 
-- `ServeSource` takes the steps of any frame-loop source on a thread of its own, at most
-  `detect_fps` per second, and gives the loop an empty step (no images, nobody) whenever the
-  source has given nothing for `heartbeat_s`: time goes on for the tracker and the fences, and
+- `ServeSource` takes the steps of any frame-loop source on a thread of its own, and gives
+  the loop an empty step (no images, nobody) whenever the source has given nothing for
+  `heartbeat_s`: time goes on for the tracker and the fences, and
   the events of a blind camera get out although no frame comes.
 - `StateSink` feeds the ServiceState (cameras' frames, stage times, people, events, the
   readers' drops and reconnects); `StatusSink` writes status.json (the health snapshot) every
@@ -46,14 +46,15 @@ class ServeSource:
         inner: Source,
         *,
         stop: threading.Event,
-        detect_fps: float | None = None,
         heartbeat_s: float = 0.5,
+        on_step: Callable[[SourceStep], None] | None = None,
+        on_detect: Callable[[Mapping[str, People2D]], None] | None = None,
     ) -> None:
         self.inner, self.stop = inner, stop
         self.cameras, self.stages = inner.cameras, inner.stages
         self.fps, self.live = inner.fps, inner.live
-        self.min_gap_s = 1.0 / detect_fps if detect_fps else 0.0
         self.heartbeat_s = heartbeat_s
+        self.on_step, self.on_detect = on_step, on_detect
         self.heartbeats = 0
         self._want = threading.Event()
         self._got: queue.Queue = queue.Queue(1)
@@ -81,12 +82,9 @@ class ServeSource:
         self._thread = threading.Thread(target=self._produce, name="serve-source", daemon=True)
         self._thread.start()
         frame, last_t, last_mono = 0, -math.inf, time.monotonic()
-        asked = 0.0
         pending = False
         while not self.stop.is_set():
             if not pending:
-                self._pace(asked)
-                asked = time.monotonic()
                 self._want.set()
                 pending = True
             item = self._wait()
@@ -106,13 +104,9 @@ class ServeSource:
                 t = max(float(item.t), last_t + 1e-4) if math.isfinite(last_t) else float(item.t)
                 step = SourceStep(frame, t, item.people2d, item.images)
             frame, last_t, last_mono = frame + 1, step.t, now
+            if self.on_step is not None:
+                self.on_step(step)
             yield step
-
-    def _pace(self, asked: float) -> None:
-        """Wait (stop-aware) until min_gap_s after the last request."""
-        left = asked + self.min_gap_s - time.monotonic()
-        if left > 0:
-            self.stop.wait(left)
 
     def _wait(self) -> object | None:
         deadline = time.monotonic() + self.heartbeat_s
@@ -126,7 +120,10 @@ class ServeSource:
                 continue
 
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
-        return self.inner.detect(step)
+        people2d = self.inner.detect(step)
+        if self.on_detect is not None:
+            self.on_detect(people2d)
+        return people2d
 
     def finish(self, summary: RunSummary) -> None:
         self.inner.finish(summary)

@@ -29,6 +29,7 @@ class Stage3D:
     """Association, triangulation and the memory of past frames, for one rig.
 
     record: keep every track's measurements, for `two_way` (the tracker's memory only).
+    first_id: the tracker's first person id (a restarted service continues above its log's).
     """
 
     def __init__(
@@ -38,13 +39,14 @@ class Stage3D:
         *,
         record: bool = False,
         calib_path: str = "",
+        first_id: int = 1,
     ) -> None:
         config = config or Config()
         try:
             self.reconstructor = Reconstructor(rig, config.reconstruction)
         except CalibrationError as e:
             raise CalibrationError(f"{calib_path}: {e}" if calib_path else str(e)) from None
-        self.memory = make_memory(rig, config, record=record)
+        self.memory = make_memory(rig, config, record=record, first_id=first_id)
         self.tracking = self.memory.tracking
         self.fps = float(config.fps)
         self._warm = (config.reconstruction, config.tracking, record)

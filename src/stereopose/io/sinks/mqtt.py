@@ -128,6 +128,8 @@ class MqttSink(ClosesOnce):
         self._wake.set()
 
     def _occupy(self, e: Event) -> None:
+        if not e.zone:  # a camera's event: no zone's occupancy changes
+            return
         inside, _, _ = self._zones.get(e.zone, (set(), None, None))
         if e.type == "enter":
             inside = inside | {e.person}
