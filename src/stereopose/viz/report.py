@@ -16,12 +16,11 @@ import stat
 from pathlib import Path
 
 import numpy as np
-import plotly.graph_objects as go
-from plotly.offline import get_plotlyjs
 
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import parse_toml
 from stereopose.errors import StereoposeError
+from stereopose.extras import require
 from stereopose.fence import Site, load_site
 from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
@@ -34,6 +33,11 @@ from stereopose.viz.report_tables import (
     people_html,
     summary_html,
 )
+
+# a runtime install has no plotly: say which extra to install, not an ImportError
+require("plotly", "report", "the HTML report (report.html)")
+import plotly.graph_objects as go  # noqa: E402
+from plotly.offline import get_plotlyjs  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
