@@ -1,0 +1,94 @@
+"""`stereopose serve`: a bad configuration is exit 2 before any work, naming the file and key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from stereopose.calibration.formats import save_calibration
+from stereopose.cli import main
+from stereopose.sim import simulate
+
+
+@pytest.fixture(scope="module")
+def calib(tmp_path_factory) -> Path:
+    scene = simulate(num_cameras=2, num_people=1, num_frames=2, seed=1, difficulty="easy")
+    path = tmp_path_factory.mktemp("calib") / "calib.toml"
+    save_calibration(path, scene.rig)
+    return path
+
+
+def _config(folder: Path, calib: Path, extra: str, source: str = "cam.mp4") -> Path:
+    from stereopose.calibration.formats import load_calibration
+
+    names = load_calibration(calib).names
+    cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{source}"\n\n' for n in names)
+    path = folder / "serve.toml"
+    path.write_text(f'calibration = "{calib}"\noutput = "out"\n\n{extra}\n\n{cams}')
+    return path
+
+
+BAD = [
+    ('[mqtt]\nhost = "localhost"\ntopic_prefix = "$SYS"', "mqtt.topic_prefix"),
+    ('[mqtt]\nhost = "localhost"\npassword = "x"', "mqtt.password"),
+    ('[mqtt]\nhost = "localhost"\nca_file = "ca.pem"', "mqtt.ca_file"),
+    ("[mqtt]\nport = 0", "mqtt.port"),
+    ("[mqtt]\nqueue_size = 0", "mqtt.queue_size"),
+    ('[mqtt]\nhots = "x"', "hots"),
+    ("[serve]\nport = 70000", "serve.port"),
+    ('[serve]\nhost = "not a host!"', "serve.host"),
+    ("[serve]\ncamera_timeout_s = 0", "serve.camera_timeout_s"),
+    ("[serve]\ncalib_warn_factor = 1.0", "serve.calib_warn_factor"),
+    ("[storage]\nretention_days = 0", "storage.retention_days"),
+    ("[storage]\nmax_gb = -1", "storage.max_gb"),
+    ("[storage]\nclip_pre_s = 100", "storage.clip_pre_s"),
+    ('[outputs]\nwebhook = "ftp://x"', "outputs.webhook"),
+    ("[input]\ndetect_fps = 0", "input.detect_fps"),
+    ('[detector]\nprecision = "int4"', "detector.precision"),
+]
+
+
+@pytest.mark.parametrize(("extra", "key"), BAD, ids=[k for _, k in BAD])
+def test_bad_setting_is_exit_2_naming_the_key(tmp_path, calib, capsys, extra, key):
+    path = _config(tmp_path, calib, extra)
+    assert main(["serve", str(path)]) == 2
+    err = capsys.readouterr().err.replace("\n", "")
+    assert key in err and str(path.name) in err
+    assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_a_stream_cannot_be_looped(tmp_path, calib, capsys):
+    path = _config(tmp_path, calib, "", source="rtsp://10.0.0.5/cam")
+    text = path.read_text().replace('source = "rtsp://10.0.0.5/cam"\n',
+                                    'source = "rtsp://10.0.0.5/cam"\nloop = true\n', 1)  # fmt: skip
+    path.write_text(text)
+    assert main(["serve", str(path)]) == 2
+    assert "cameras[0].loop" in capsys.readouterr().err
+
+
+def test_output_inside_an_input_folder_is_refused(tmp_path, calib, capsys):
+    images = tmp_path / "images"
+    images.mkdir()
+    path = _config(tmp_path, calib, "", source=str(images))
+    path.write_text(path.read_text().replace('output = "out"', f'output = "{images}"'))
+    assert main(["serve", str(path)]) == 2
+    err = capsys.readouterr().err.replace("\n", "")
+    assert "cameras[0].source" in err and "output" in err
+    assert list(images.iterdir()) == []
+
+
+def test_needs_a_config_or_the_demo(capsys):
+    assert main(["serve"]) == 2
+    assert "--demo" in capsys.readouterr().err
+
+
+@settings(max_examples=25, deadline=None)
+@given(port=st.one_of(st.integers(max_value=-1), st.integers(min_value=65536)))
+def test_any_port_out_of_range_is_refused(tmp_path_factory, calib, port):
+    folder = tmp_path_factory.mktemp("port")
+    path = _config(folder, calib, f"[serve]\nport = {port}")
+    assert main(["serve", str(path)]) == 2
+    assert main(["serve", str(_config(folder, calib, "")), "--port", str(port)]) == 2
