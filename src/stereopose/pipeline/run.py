@@ -26,7 +26,7 @@ from stereopose.detection import make_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import load_site
 from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
-from stereopose.io.video import CameraSet, is_stream
+from stereopose.io.video import CameraSet, is_stream, open_source
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
 from stereopose.pipeline.paths import (
@@ -40,8 +40,8 @@ from stereopose.pipeline.paths import (
     run_products,
 )
 from stereopose.pipeline.reconstruct import save_inputs
-from stereopose.pipeline.sources import Cameras
-from stereopose.types import Event
+from stereopose.pipeline.sources import Cameras, check_size
+from stereopose.types import Event, Rig
 
 __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
 
@@ -95,6 +95,21 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
                     for n in copies]  # fmt: skip
 
 
+def check_recorded_sizes(rig: Rig, names: list[str], sources: list[str]) -> None:
+    """Each recorded camera's first frame has its calibration's size (pipeline.sources.
+    check_size); live cameras are checked at their first frame, as they come."""
+    for name, spec in zip(names, sources, strict=True):
+        if is_stream(spec):
+            continue
+        source = open_source(spec, name)
+        try:
+            first = source.read()
+        finally:
+            source.close()
+        if first is not None and first[2] is not None:
+            check_size(rig[name], first[2])
+
+
 def run(
     config_path: str | Path,
     on_step: Callable[[int, int | None, float], None] | None = None,
@@ -144,6 +159,7 @@ def run(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise StereoposeError(f"{out_dir}: cannot create the output folder: {e.strerror}") from None
+    check_recorded_sizes(rig, names, sources)  # before any output: a wrong file writes nothing
     with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames,
                    open_timeout_s=cfg.input.open_timeout_s,
                    first_frame_timeout_s=cfg.input.first_frame_timeout_s) as cams:  # fmt: skip
