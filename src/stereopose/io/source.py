@@ -76,6 +76,9 @@ class SourceStats:
 
     frames: int = 0  # frames delivered
     dropped: int = 0  # live frames replaced by a newer one before they were read
+    grabbed: int = 0  # frames taken from the source (live: every frame that arrived)
+    decoded: int = 0  # frames converted to an image (live: only those a step asked for)
+    skipped: int = 0  # recorded frames passed over without decoding (detect_fps, or loop)
     failures: int = 0  # unreadable frames skipped (recorded) or connection losses (live)
     reconnects: int = 0
     down_s: float = 0.0  # time a live camera spent disconnected

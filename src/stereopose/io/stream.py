@@ -5,6 +5,12 @@ Every wait is bounded: opening and reading use FFmpeg's own timeouts (``timeout_
 waits at most ``max_backoff_s``, and ``close()`` waits at most ``JOIN_S`` for the thread (one
 stuck inside an open or a read ends by itself within ``timeout_s``; it is a daemon thread). While
 a camera does not deliver, why and when it is tried next is logged every ``log_every_s``.
+
+Decoding only what is used: the thread takes every frame that arrives (``grab``: FFmpeg's
+demuxing and decoding, which inter-coded video needs for every frame), but converts it to a BGR
+image (``retrieve``: the colour conversion and copy, about a third of the cost) only when a
+consumer has asked for a frame with ``request()``. So a step that takes every camera's frame
+gets the first one to arrive after it asked, and frames no step asked for cost no conversion.
 """
 
 from __future__ import annotations
@@ -84,7 +90,8 @@ class LiveStream:
     When the stream cannot be opened, or frames stop coming for ``timeout_s``, it is reopened
     after ``backoff_s`` seconds, doubling up to ``max_backoff_s``, for as long as the run lasts.
     Each frame carries its arrival time on ``clock`` (seconds since the clock's start); each new
-    frame sets ``notify`` (an event shared by a set of cameras), if given.
+    image sets ``notify`` (an event shared by a set of cameras), if given. The first frame is
+    decoded unasked; after it, one frame per ``request()`` (see the module's docstring).
     """
 
     live = True
@@ -117,8 +124,11 @@ class LiveStream:
         self._up = threading.Event()
         self._lock = threading.Lock()
         self._latest: tuple[int, float, np.ndarray] | None = None
-        self._seq = 0
+        self._seq = 0  # frames grabbed
         self._read_seq = 0
+        self._want = threading.Event()  # a consumer asked for the next frame's image
+        self._want.set()  # the first frame: its size and a first step without asking
+        self.last_frame_at: float | None = None  # monotonic time of the newest frame grabbed
         self._stop = threading.Event()
         self._down_since: float | None = time.monotonic()
         self._logged: tuple[float, str] | None = None  # when and what was last logged
@@ -163,21 +173,33 @@ class LiveStream:
             delay = min(delay * 2, self.max_backoff_s)
 
     def _read(self, cap: cv2.VideoCapture) -> bool:
-        """Read frames until the stream fails or the run stops; whether any frame came."""
+        """Grab frames until the stream fails or the run stops, decoding those asked for;
+        whether any frame came."""
         fps = cap.get(cv2.CAP_PROP_FPS)
         if 0 < fps < 1000:
             self.fps = float(fps)
         got_frame = False
         while not self._stop.is_set():
-            ok, image = cap.read()
-            if not ok or image is None:
+            if not cap.grab():
                 break
             now = time.monotonic()
+            self.last_frame_at = now
+            self.stats.grabbed += 1
             if not got_frame:
                 got_frame = True
                 self._went_up(now)
+            if not self._want.is_set():
+                with self._lock:
+                    self._seq += 1
+                    self.stats.dropped += 1  # arrived while no step wanted a frame
+                continue
+            ok, image = cap.retrieve()
+            if not ok or image is None:
+                break
+            self._want.clear()
+            self.stats.decoded += 1
             with self._lock:
-                if self._latest is not None and self._read_seq < self._seq:
+                if self._latest is not None and self._read_seq < self._latest[0]:
                     self.stats.dropped += 1
                 self._seq += 1
                 self._latest = (self._seq, self.clock.since(now), image)
@@ -224,9 +246,19 @@ class LiveStream:
         self.connected = True
         self._up.set()
 
+    def request(self) -> None:
+        """Ask for the next frame that arrives as an image (``latest()`` then gives it); an
+        image decoded before and not read is dropped (counted), so the next one is newer than
+        this call."""
+        with self._lock:
+            if self._latest is not None and self._read_seq < self._latest[0]:
+                self._read_seq = self._latest[0]
+                self.stats.dropped += 1
+        self._want.set()
+
     def latest(self) -> tuple[int, float, np.ndarray] | None:
-        """The newest frame not read before as (sequence number, arrival time t on the clock,
-        image), or None."""
+        """The newest image not read before as (sequence number: frames received so far,
+        arrival time t on the clock, image), or None."""
         with self._lock:
             if self._latest is None or self._latest[0] == self._read_seq:
                 return None

@@ -26,8 +26,6 @@ import logging
 import math
 import os
 import threading
-import time
-from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Union
@@ -35,9 +33,9 @@ from typing import TYPE_CHECKING, Union
 import cv2
 import numpy as np
 
+from stereopose.io.looping import PingPong, Seeker
 from stereopose.io.source import (
     IMAGE_SUFFIXES,
-    JOIN_S,
     STREAM_SCHEMES,
     Clock,
     SourceStats,
@@ -53,7 +51,7 @@ if TYPE_CHECKING:
 __all__ = [
     "IMAGE_SUFFIXES",
     "STREAM_SCHEMES",
-    "CameraSet",
+    "CameraSet",  # noqa: F822 (io.cameraset, by __getattr__)
     "Clock",
     "FrameSet",
     "ImageFolder",
@@ -74,11 +72,22 @@ cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 
 class VideoFile:
-    """A recorded video file, read frame by frame; t = index / fps."""
+    """A recorded video file, read frame by frame; t = index / fps.
+
+    loop: played forward, then backward, for ever (io.looping), the index and t increasing;
+    `period` frames of it (default: all; a set of cameras plays them in step).
+    """
 
     live = False
 
-    def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        name: str | None = None,
+        fps: float | None = None,
+        *,
+        loop: bool = False,
+    ):
         self.path = Path(path)
         self.name = name or self.path.stem
         fps = check_fps(fps, f"{self.path}: fps")
@@ -98,39 +107,114 @@ class VideoFile:
         count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
         self.count: int | None = count if count > 0 else None
         self.index = 0
-        self.stats = SourceStats()
+        self.stats = SourceStats(grabbed=1, decoded=1)
+        self.loop = bool(loop)
+        self._ended = False
+        self._play: PingPong | None = None
+        self._seeker: Seeker | None = None
+        if self.loop:
+            if self.count is None:
+                self.cap.release()
+                raise VideoError(f"{self.path}: cannot be looped: its number of frames is unknown")
+            self._play = PingPong(self.count)
+            self._seeker = Seeker(self.cap, first.nbytes, self._short)
+            self._seeker.chunk[0], self._seeker.cap_pos, self._first = first, 1, None
+
+    def set_period(self, n: int) -> None:
+        """A looped file plays only its first n frames (the set's common length)."""
+        if self._play is not None:
+            self._play.shrink(min(n, self._play.n))
+
+    def next_time(self) -> float | None:
+        """The time of the frame read() or skip() would give next; None once it has ended."""
+        return None if self._ended else self.index / self.fps
 
     def read(self) -> tuple[int, float, np.ndarray] | None:
         """The next frame as (index, t, image), or None at the end."""
-        if self._first is not None:
+        if self._play is not None:
+            image = self._looped()
+        elif self._first is not None:
             image, self._first = self._first, None
         else:
             ok, image = self.cap.read()
             if not ok or image is None:
-                if self.count is not None and self.index < self.count:
-                    logger.warning(
-                        "%s: decoding stopped at frame %d of %d (truncated or corrupt)",
-                        self.path,
-                        self.index,
-                        self.count,
-                    )
-                    self.count = self.index
-                return None
+                return self._end()
+            self.stats.grabbed += 1
+            self.stats.decoded += 1
         item = (self.index, self.index / self.fps, image)
         self.index += 1
         self.stats.frames += 1
         return item
+
+    def skip(self) -> bool:
+        """Pass over the next frame without decoding it to an image; False at the end."""
+        if self._ended:
+            return False
+        if self._play is not None:
+            if not self._seeker.grab(self._play.pos):
+                return self.skip()  # the file is shorter than it said: the loop turned back
+            self._play.advance()
+        elif self._first is not None:
+            self._first = None
+        elif self.cap.grab():
+            self.stats.grabbed += 1
+        else:
+            self._end()
+            return False
+        self.index += 1
+        self.stats.skipped += 1
+        return True
+
+    def _looped(self) -> np.ndarray:
+        for _ in range(3):  # a short file shrinks the loop once; its frame 0 decoded before
+            pos = self._play.pos
+            image = self._seeker.frame(pos)
+            if image is not None:
+                self.stats.decoded += 1
+                self._play.advance()
+                return image
+        raise VideoError(f"{self.path}: stopped decoding while looped")
+
+    def _short(self, n: int) -> None:
+        """A looped file decodes only n frames: the loop turns back there."""
+        if self._play is not None and n < self._play.n:
+            logger.warning(
+                "%s: decoding stopped at frame %d of %d (truncated or corrupt); looping %d frames",
+                self.path, n, self._play.n, max(n, 1),
+            )  # fmt: skip
+            self._play.shrink(n)
+
+    def _end(self) -> None:
+        self._ended = True
+        if self.count is not None and self.index < self.count:
+            logger.warning(
+                "%s: decoding stopped at frame %d of %d (truncated or corrupt)",
+                self.path,
+                self.index,
+                self.count,
+            )
+            self.count = self.index
+        return None
 
     def close(self) -> None:
         self.cap.release()
 
 
 class ImageFolder:
-    """A folder of images in name order (natural order of the numbers in the names)."""
+    """A folder of images in name order (natural order of the numbers in the names).
+
+    loop: played forward, then backward, for ever, as VideoFile's."""
 
     live = False
 
-    def __init__(self, path: str | Path, name: str | None = None, fps: float | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        name: str | None = None,
+        fps: float | None = None,
+        *,
+        loop: bool = False,
+    ):
         self.path = Path(path)
         self.name = name or self.path.name
         fps = check_fps(fps, f"{self.path}: fps")
@@ -145,20 +229,47 @@ class ImageFolder:
         self.index = 0
         self.shape: tuple[int, int] | None = None
         self.stats = SourceStats()
+        self.loop = bool(loop)
+        self._play = PingPong(len(self.files)) if self.loop else None
+
+    def set_period(self, n: int) -> None:
+        if self._play is not None:
+            self._play.shrink(min(n, self._play.n))
+
+    def next_time(self) -> float | None:
+        if self._play is None and self.index >= len(self.files):
+            return None
+        return self.index / self.fps
+
+    def _position(self) -> int | None:
+        if self._play is not None:
+            pos = self._play.pos
+            self._play.advance()
+            return pos
+        return self.index if self.index < len(self.files) else None
 
     def read(self) -> tuple[int, float, np.ndarray | None] | None:
-        if self.index >= len(self.files):
+        pos = self._position()
+        if pos is None:
             return None
-        path = self.files[self.index]
+        path = self.files[pos]
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             logger.warning("%s: unreadable image skipped", path)
             self.stats.failures += 1
         else:
             self.stats.frames += 1
+            self.stats.decoded += 1
         item = (self.index, self.index / self.fps, image)
         self.index += 1
         return item
+
+    def skip(self) -> bool:
+        if self._position() is None:
+            return False
+        self.index += 1
+        self.stats.skipped += 1
+        return True
 
     def close(self) -> None:
         pass
@@ -173,18 +284,6 @@ def _check_timeouts(open_timeout_s: float, first_frame_timeout_s: float | None) 
             raise VideoError(f"{what} must be a positive number of seconds, got {value!r}")
         if not (math.isfinite(value) and value > 0):
             raise VideoError(f"{what} must be a positive number of seconds, got {value!r}")
-
-
-def _after(s: Source, t: float, item: tuple | None) -> tuple | None:
-    """A recorded camera's next frame, None (its end) when its time does not come after `t`:
-    time alignment then could not advance past it."""
-    if item is None or item[1] > t:
-        return item
-    logger.warning(
-        "camera %s: frame %d's time %r does not come after %r; taken as its end",
-        s.name, item[0], item[1], t,
-    )  # fmt: skip
-    return None
 
 
 def _natural(path: Path) -> list[object]:
@@ -204,11 +303,13 @@ def open_source(
     clock: Clock | None = None,
     notify: threading.Event | None = None,
     open_timeout_s: float = 5.0,
+    loop: bool = False,
 ) -> Source:
     """A camera source from a file path, an image folder or a stream URL.
 
-    fps: the frame rate of a recorded source (default: its own); clock, notify, open_timeout_s:
-    a live stream's (io.stream.LiveStream)."""
+    fps, loop: a recorded source's frame rate (default: its own) and whether it is played for
+    ever (forward then backward); clock, notify, open_timeout_s: a live stream's
+    (io.stream.LiveStream)."""
     text = str(spec)
     fps = check_fps(fps, f"{text}: fps")
     if is_stream(text):
@@ -217,8 +318,8 @@ def open_source(
         return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify)
     path = Path(text)
     if path.is_dir():
-        return ImageFolder(path, name, fps)
-    return VideoFile(path, name, fps)
+        return ImageFolder(path, name, fps, loop=loop)
+    return VideoFile(path, name, fps, loop=loop)
 
 
 @dataclass
@@ -230,6 +331,8 @@ class FrameSet:
     source_frames: each camera's own frame number (live: its count of frames received).
     times: each camera's own time of its frame (recorded: in its file; live: when it arrived,
     seconds on the set's clock), so that a camera lagging behind shows.
+    detect: the frames of the cameras that have a detection substream (their own, smaller
+    size); a camera without one is detected on its image.
     """
 
     index: int
@@ -237,6 +340,7 @@ class FrameSet:
     images: dict[str, np.ndarray | None]
     source_frames: dict[str, int] = field(default_factory=dict)
     times: dict[str, float] = field(default_factory=dict)
+    detect: dict[str, np.ndarray | None] = field(default_factory=dict)
 
 
 def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
@@ -256,193 +360,10 @@ def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
     return usable
 
 
-class CameraSet:
-    """Several cameras read in step; iterate for FrameSets; close() ends every reader.
+def __getattr__(name: str) -> object:
+    # CameraSet lives in io.cameraset (which builds on this module); imported on first use
+    if name == "CameraSet":
+        from stereopose.io.cameraset import CameraSet
 
-    open_timeout_s: a live stream's open and read timeout; first_frame_timeout_s: how long
-    opening live cameras waits for the first frame of any of them (None: for ever; Ctrl-C
-    ends the wait). clock: the live frames' time origin, read when the set is created.
-    """
-
-    def __init__(
-        self,
-        specs: Sequence[str | Path],
-        names: Sequence[str] | None = None,
-        sync: str = "index",
-        fps: float | None = None,
-        max_frames: int | None = None,
-        *,
-        open_timeout_s: float = 5.0,
-        first_frame_timeout_s: float | None = 30.0,
-    ) -> None:
-        if not specs:
-            raise VideoError("no camera sources given")
-        if names is not None and len(names) != len(specs):
-            raise VideoError(f"{len(names)} camera names for {len(specs)} sources")
-        names = list(names) if names is not None else [source_name(str(s)) for s in specs]
-        if len(set(names)) != len(names):
-            raise VideoError(f"camera names must be unique, got {', '.join(names)}; use --names")
-        if sync not in ("index", "time"):
-            raise VideoError(f"sync must be 'index' or 'time', got {sync!r}")
-        fps = check_fps(fps, "fps (time steps per second)")
-        _check_timeouts(open_timeout_s, first_frame_timeout_s)
-        if max_frames is not None and max_frames < 0:
-            raise VideoError(f"max_frames must be at least 0, got {max_frames}")
-        self.sync, self.max_frames = sync, max_frames
-        self.first_frame_timeout_s = first_frame_timeout_s
-        self.clock = Clock.now()
-        self._fresh = threading.Event()  # set by a live camera at each new frame
-        self.sources: list[Source] = []
-        try:
-            for spec, name in zip(specs, names, strict=False):
-                self.sources.append(
-                    open_source(spec, name, fps, clock=self.clock, notify=self._fresh,
-                                open_timeout_s=open_timeout_s)
-                )  # fmt: skip
-        except BaseException:
-            self.close()
-            raise
-        self.live = any(s.live for s in self.sources)
-        if self.live and not all(s.live for s in self.sources):
-            self.close()
-            raise VideoError("mixing live streams with recorded files is not supported")
-        if self.live:
-            try:
-                self._wait_first_frame()
-            except BaseException:  # the error, or Ctrl-C: no camera thread is left running
-                self.close()
-                raise
-        rates = [s.fps for s in self.sources if s.fps]
-        self.fps = float(fps or (rates[0] if rates else 25.0))
-        self._ended: set[str] = set()
-
-    @property
-    def names(self) -> list[str]:
-        return [s.name for s in self.sources]
-
-    @property
-    def count(self) -> int | None:
-        """Number of steps of a recorded set (longest camera), or None if unknown or live."""
-        if self.live:
-            return None
-        counts = [s.count for s in self.sources]
-        if any(c is None for c in counts):
-            return None
-        n = (
-            max(counts)
-            if self.sync == "index"
-            else max(
-                int(np.ceil(c / s.fps * self.fps))
-                for c, s in zip(counts, self.sources, strict=False)
-            )
-        )
-        return min(n, self.max_frames) if self.max_frames else n
-
-    def __iter__(self) -> Iterator[FrameSet]:
-        return self._live() if self.live else self._recorded()
-
-    def _recorded(self) -> Iterator[FrameSet]:
-        half = 0.5 / self.fps
-        nxt = {}
-        if self.sync == "time":
-            nxt = {s.name: _after(s, -math.inf, s.read()) for s in self.sources}
-        step = 0
-        while self.max_frames is None or step < self.max_frames:
-            t = step / self.fps
-            images: dict[str, np.ndarray | None] = {}
-            frames: dict[str, int] = {}
-            times: dict[str, float] = {}
-            for s in self.sources:
-                item = None
-                if s.name in self._ended:
-                    pass
-                elif self.sync == "index":
-                    item = s.read()
-                    if item is None:
-                        self._end(s)
-                else:  # the last of this camera's frames with time in [t - half, t + half)
-                    while nxt[s.name] is not None and nxt[s.name][1] < t + half:
-                        item = nxt[s.name]
-                        nxt[s.name] = _after(s, item[1], s.read())
-                    if nxt[s.name] is None:
-                        self._end(s)
-                    if item is not None and item[1] < t - half:
-                        item = None
-                images[s.name] = None if item is None else item[2]
-                if item is not None and item[2] is not None:
-                    frames[s.name] = item[0]
-                    times[s.name] = item[1]
-            if not frames and len(self._ended) == len(self.sources):
-                return
-            yield FrameSet(step, t, images, frames, times)
-            step += 1
-
-    def _end(self, s: Source) -> None:
-        self._ended.add(s.name)
-        logger.info("camera %s: end of %s after %d frames", s.name, s.path, s.stats.frames)
-
-    def _live(self) -> Iterator[FrameSet]:
-        step = 0
-        last_t = -math.inf
-        while self.max_frames is None or step < self.max_frames:
-            self._fresh.clear()  # before reading, so that a frame arriving after is waited for
-            images: dict[str, np.ndarray | None] = {}
-            frames: dict[str, int] = {}
-            times: dict[str, float] = {}
-            for s in self.sources:
-                got = s.latest()
-                images[s.name] = None if got is None else got[2]
-                if got is not None:
-                    frames[s.name] = got[0]
-                    times[s.name] = got[1]
-            if not frames:  # nothing new from any camera: wait for one, a bounded while
-                self._check_first_frame()
-                self._fresh.wait(0.25)
-                continue
-            # strictly increasing, also when a camera's frame arrived just before the last step's
-            last_t = max(max(times.values()), last_t + 1e-4)
-            yield FrameSet(step, last_t, images, frames, times)
-            step += 1
-
-    def _wait_first_frame(self) -> None:
-        """Wait until a live camera delivers, or first_frame_timeout_s passes (VideoError)."""
-        while not any(s.delivered for s in self.sources):
-            self._check_first_frame()
-            self._fresh.wait(0.25)
-        logger.info("cameras opened; first frame after %.1f s", time.monotonic() - self.clock.start)
-
-    def _check_first_frame(self) -> None:
-        """A VideoError naming every camera once first_frame_timeout_s has passed since the
-        set was opened without any camera delivering a frame."""
-        limit = self.first_frame_timeout_s
-        if limit is None or any(s.delivered for s in self.sources):
-            return
-        if time.monotonic() - self.clock.start < limit:
-            return
-        why = "; ".join(f"{s.label}: {s.problem}" for s in self.sources)
-        raise VideoError(
-            f"no camera delivered a frame within {limit:g} s ({why}); "
-            "a run's [input] first_frame_timeout_s sets how long to wait"
-        )
-
-    def stats(self) -> dict[str, SourceStats]:
-        return {s.name: s.stats for s in self.sources}
-
-    def close(self) -> None:
-        """Close every camera; live ones are all stopped first, then waited for together, at
-        most JOIN_S in all."""
-        live = [s for s in self.sources if s.live]
-        for s in live:
-            s.stop()
-        deadline = time.monotonic() + (JOIN_S if live else 0.0)
-        for s in self.sources:
-            if s.live:
-                s.close(max(0.0, deadline - time.monotonic()))
-            else:
-                s.close()
-
-    def __enter__(self) -> CameraSet:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        return CameraSet
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

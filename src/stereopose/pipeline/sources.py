@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import PoseSequence
 from stereopose.errors import StereoposeError
 from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
-from stereopose.io.video import CameraSet, FrameSet
+from stereopose.io.video import CameraSet, FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import Camera, People2D, Rig
@@ -71,13 +72,26 @@ def check_size(camera: Camera, image: np.ndarray) -> None:
         )
 
 
+def scale_people(people: People2D, size: tuple[float, float], shape: tuple[int, ...]) -> People2D:
+    """People found in a substream frame of `shape` (h, w, ...) in pixels of the camera's own
+    (calibrated) `size` (w, h)."""
+    sx, sy = size[0] / shape[1], size[1] / shape[0]
+    kp = np.array(people.keypoints, dtype=np.float64)
+    kp[..., 0] *= sx
+    kp[..., 1] *= sy
+    boxes = None if people.boxes is None else np.asarray(people.boxes, float) * (sx, sy, sx, sy)
+    return People2D(people.camera, people.frame, kp, boxes, people.scores)
+
+
 class Cameras:
     """Cameras read in step (io.video.CameraSet), their people found by a pose detector.
 
     Each camera's first frame is checked against its calibration's size. A step's t is the
     set's (recorded: frame / fps; live: when its frames arrived, seconds since the cameras were
-    opened). `finish` puts each camera's reader statistics (frames, dropped, reconnects) into
-    the summary, and for live cameras the wall-clock time of t = 0 (clock_start_epoch).
+    opened). A camera with a detection substream is detected on its substream's frame, and its
+    people scaled to the calibration's size. `finish` puts each camera's reader statistics
+    (frames, dropped, reconnects) into the summary, and for live cameras the wall-clock time of
+    t = 0 (clock_start_epoch).
     """
 
     stages = CAMERA_STAGES
@@ -88,6 +102,8 @@ class Cameras:
         self.fps = float(cams.fps)
         self.live = bool(cams.live)
         self._checked: set[str] = set()
+        self._steps: dict[int, FrameSet] = {}  # the substream frames of the steps given
+        self._arrived: dict[int, float] = {}  # monotonic arrival of each step given out
 
     @property
     def total(self) -> int | None:
@@ -95,14 +111,33 @@ class Cameras:
 
     def __iter__(self) -> Iterator[SourceStep]:
         for step in self.cams:
+            live = self.live and step.times
+            arrived = self.cams.clock.start + min(step.times.values()) if live else None
+            while len(self._arrived) > 1:
+                self._arrived.pop(next(iter(self._arrived)))
+            self._arrived[step.index] = arrived if arrived is not None else time.monotonic()
+            if step.detect:  # kept for detect(), the one step given out (two, pipelined)
+                while len(self._steps) > 1:
+                    self._steps.pop(next(iter(self._steps)))
+                self._steps[step.index] = step
             yield SourceStep(step.index, step.t, None, step.images)
 
+    def arrival(self, step: SourceStep) -> float:
+        """When the step's oldest frame arrived (live) or was read (recorded), monotonic s."""
+        return self._arrived.get(step.frame, time.monotonic())
+
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
-        frames = FrameSet(step.frame, step.t, dict(step.images or {}))
+        images = dict(step.images or {})
+        full = self._steps.pop(step.frame, None)
+        subs = {n: im for n, im in (full.detect if full else {}).items() if im is not None}
+        for name, image in usable_images(FrameSet(step.frame, step.t, images)):
+            if name not in self._checked:
+                self._checked.add(name)
+                check_size(self.rig[name], image)
+        frames = FrameSet(step.frame, step.t, {**images, **subs})
         people2d = detect_step(self.detector, frames)
-        for name in people2d.keys() - self._checked:
-            self._checked.add(name)
-            check_size(self.rig[name], frames.images[name])
+        for name in people2d.keys() & subs.keys():
+            people2d[name] = scale_people(people2d[name], self.rig[name].size, subs[name].shape)
         return people2d
 
     def finish(self, summary: RunSummary) -> None:
