@@ -21,6 +21,7 @@ from stereopose.io.video import (
     source_name,
     usable_images,
 )
+from stereopose.io.writing import probe_folder
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.paths import (
     Place,
@@ -166,6 +167,7 @@ def detect_videos(
                    open_timeout_s=open_timeout_s,
                    first_frame_timeout_s=first_frame_timeout_s) as cams:  # fmt: skip
         remove_outputs(previous)
+        probe_folder(out_dir, "keypoint files")  # before any frame: exit 2, nothing detected
         summary = DetectionSummary(detector.name, tuple(cams.names))
         for name in cams.names:
             summary.frames[name] = summary.people[name] = summary.frames_with_people[name] = 0
