@@ -95,9 +95,14 @@ def test_it_writes_only_its_own_folders_and_secrets_come_from_root_only_files(un
     assert _one(unit, "Service", "WorkingDirectory") in writable
     state = "/var/lib/" + _one(unit, "Service", "StateDirectory")
     assert state in writable
-    # the model cache and the output folder live there, writable under ProtectSystem=strict
+    # the models come from a cache the service reads and cannot change
     env = dict(e.split("=", 1) for v in s["Environment"] for e in shlex.split(v))
-    assert env["STEREOPOSE_CACHE"].startswith(state + "/")
+    cache = env["STEREOPOSE_CACHE"]
+    assert cache.startswith("/") and not any(cache.startswith(w) for w in writable)
+    # numba's cache is writable, or each start would compile the 3D loops again
+    assert env["NUMBA_CACHE_DIR"].startswith(
+        "/var/cache/" + _one(unit, "Service", "CacheDirectory")
+    )
     assert any(f.lstrip("-").startswith("/etc/stereopose/") for f in s["EnvironmentFile"])
     # numba and ONNX Runtime write machine code at run time
     assert "MemoryDenyWriteExecute" not in s
