@@ -335,8 +335,12 @@ class Event:
     approach, dwell or left_work_area. joint: the triggering joint (enter, approach);
     distance_m: to the zone (approach); duration_s: time inside (exit, dwell, left_work_area);
     position: the person's floor point (x, y); allowed: the person is on the zone's allowed
-    list; lost: an exit closed because the person's track ended while inside. Its JSON record
-    (the events contract) is io.records.event_record.
+    list; lost: an exit closed because the person's track ended while inside; restart: an exit
+    closed at start-up because the process had stopped (killed) while the person was inside.
+    Camera events (kind "camera": camera_down, camera_up, calibration_drift,
+    calibration_recovered) have zone "", person -1 and name their `camera`; the calibration
+    events give the running and the baseline reprojection errors (pixels). Its JSON record (the
+    events contract) is io.records.event_record.
     """
 
     t: float
@@ -352,3 +356,7 @@ class Event:
     position: tuple[float, float] | None = None
     allowed: bool = False
     lost: bool = False
+    restart: bool = False
+    camera: str | None = None
+    reprojection_px: float | None = None
+    baseline_px: float | None = None

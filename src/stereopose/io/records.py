@@ -12,7 +12,8 @@ required when reading.
 
 Events: {"t": 2.12, "frame": 53, "person": 3, "zone": "work_area_1", "kind": "work_area",
 "type": "enter", "onset_t": 2.04, "joint": "right_wrist", "position": [x, y]}, with
-`distance_m`, `duration_s`, `allowed` and `lost` when they apply.
+`distance_m`, `duration_s`, `allowed`, `lost` and `restart` when they apply. Camera events
+add `camera` and, for the calibration's health, `reprojection_px` and `baseline_px`.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ __all__ = [
 
 # the SQLite event log's columns, in order (see io.sinks.events)
 EVENT_COLUMNS = ("run", "t", "frame", "person", "zone", "kind", "type", "onset_t", "joint",
-                 "distance_m", "duration_s", "x", "y", "allowed", "lost")  # fmt: skip
+                 "distance_m", "duration_s", "x", "y", "allowed", "lost", "restart", "camera",
+                 "reprojection_px", "baseline_px")  # fmt: skip
 
 
 def _round(x: float, nd: int) -> float | None:
@@ -168,6 +170,14 @@ def event_record(e: Event) -> dict:
         d["allowed"] = True
     if e.lost:
         d["lost"] = True
+    if e.restart:
+        d["restart"] = True
+    if e.camera is not None:
+        d["camera"] = e.camera
+    for key in ("reprojection_px", "baseline_px"):
+        value = getattr(e, key)
+        if value is not None:
+            d[key] = _round(value, 3)
     return d
 
 
@@ -192,11 +202,20 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
         position=(float(pos[0]), float(pos[1])) if pos else None,
         allowed=bool(d.get("allowed", False)),
         lost=bool(d.get("lost", False)),
+        restart=bool(d.get("restart", False)),
+        camera=None if d.get("camera") is None else str(d["camera"]),
+        reprojection_px=_optional_float(d.get("reprojection_px")),
+        baseline_px=_optional_float(d.get("baseline_px")),
     )
+
+
+def _optional_float(value: Any) -> float | None:
+    return None if value is None else float(value)
 
 
 def event_row(e: Event, run: int) -> tuple:
     """The SQLite row of an event (EVENT_COLUMNS order), full precision."""
     x, y = e.position if e.position else (None, None)
     return (run, e.t, e.frame, e.person, e.zone, e.kind, e.type, e.onset_t, e.joint,
-            e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost))  # fmt: skip
+            e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost), int(e.restart),
+            e.camera, e.reprojection_px, e.baseline_px)  # fmt: skip

@@ -97,16 +97,17 @@ class RecentPeople(NoMemory):
         return rec.people
 
 
-def make_memory(rig: Rig, config: Config, record: bool = False) -> Memory:
+def make_memory(rig: Rig, config: Config, record: bool = False, first_id: int = 1) -> Memory:
     """The memory named by config.tracking.memory (`tracking.enabled = false` asks for
-    `recent`, as before). record: the tracker keeps every measurement for two_way."""
+    `recent`, as before). record: the tracker keeps every measurement for two_way. first_id:
+    the tracker's first id (the other memories number each frame's people from 0)."""
     name = config.tracking.memory if config.tracking.enabled else "recent"
     if record and not config.tracking.ids:
         raise ValueError("two-way smoothing needs tracking (person ids)")
     if config.tracking.ids:
         from stereopose.tracking.tracker import Tracker
 
-        return Tracker(rig, config, record=record)
+        return Tracker(rig, config, record=record, first_id=first_id)
     rc = config.reconstruction
     frames = rc.association.continuity_frames
     if name == "recent" and rc.triangulation.mode == "robust" and frames > 0:

@@ -45,11 +45,16 @@ class Tracker:
 
     tracking = True
 
-    def __init__(self, rig: Rig, config: Config | None = None, record: bool = False) -> None:
+    def __init__(
+        self, rig: Rig, config: Config | None = None, record: bool = False, first_id: int = 1
+    ) -> None:
         """record: keep every track's measurements for `two_way` (offline smoothing): the one
         state that grows with the length of a run, by design (the smoother needs each whole
         track). Without it the tracker holds its live tracks and one trajectory summary per
-        person."""
+        person. first_id: the first id given (a restarted service continues above the ids of
+        its earlier runs, so that an id never names two people)."""
+        if first_id < 1:
+            raise ValueError(f"first_id must be at least 1, got {first_id}")
         self.config = config or Config()
         self.record = record
         self.tc = self.config.tracking
@@ -67,7 +72,7 @@ class Tracker:
         self._t: float | None = None
         self._unseen: np.ndarray | None = None  # set by prior, used by update
         self._seed_rows = np.zeros(0, dtype=np.int64)
-        self._next_id = 1
+        self._next_id = int(first_id)
         self._frame = 0
         self._last_frame = 0  # the last frame not skipped
         self._skipping = False  # prior(self._frame) skipped its frame

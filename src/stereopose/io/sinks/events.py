@@ -26,6 +26,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
 
+import numpy as np
+
 from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -45,7 +47,8 @@ CREATE TABLE IF NOT EXISTS runs (
     id INTEGER PRIMARY KEY,
     started REAL NOT NULL,           -- unix time
     site TEXT,
-    source TEXT
+    source TEXT,
+    ended REAL                       -- unix time of a clean close; NULL: still running or killed
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY,
@@ -63,12 +66,46 @@ CREATE TABLE IF NOT EXISTS events (
     x REAL,
     y REAL,
     allowed INTEGER NOT NULL DEFAULT 0,
-    lost INTEGER NOT NULL DEFAULT 0
+    lost INTEGER NOT NULL DEFAULT 0,
+    restart INTEGER NOT NULL DEFAULT 0,
+    camera TEXT,
+    reprojection_px REAL,
+    baseline_px REAL
+);
+CREATE TABLE IF NOT EXISTS id_reservations (
+    run INTEGER PRIMARY KEY REFERENCES runs(id),
+    upto INTEGER NOT NULL            -- every person id this run gave is below it
 );
 CREATE INDEX IF NOT EXISTS events_person ON events(person);
 CREATE INDEX IF NOT EXISTS events_zone ON events(zone);
 CREATE INDEX IF NOT EXISTS events_t ON events(t);
 """
+
+# columns later versions added, for a log an earlier version created (table, column, SQL type)
+ADDED_COLUMNS = (
+    ("runs", "ended", "REAL"),
+    ("events", "restart", "INTEGER NOT NULL DEFAULT 0"),
+    ("events", "camera", "TEXT"),
+    ("events", "reprojection_px", "REAL"),
+    ("events", "baseline_px", "REAL"),
+)
+
+
+def _columns(db: sqlite3.Connection, table: str) -> set[str]:
+    return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+
+
+def _upgrade(db: sqlite3.Connection) -> None:
+    """Adds the columns a log written by an earlier version lacks (its rows keep their values;
+    the new columns read as NULL, or 0 for restart)."""
+    for table, column, decl in ADDED_COLUMNS:
+        if column in _columns(db, table):
+            continue
+        try:
+            db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
+        except sqlite3.OperationalError as e:
+            if "duplicate column" not in str(e):  # another process added it first: fine
+                raise
 
 
 class _EventSink(ClosesOnce):
@@ -134,6 +171,12 @@ class SqliteSink(_EventSink):
     frame's, tried again after retry_s, doubling to 2 s. Readers never block it (WAL). `close`
     keeps trying for close_timeout_s; what is still not stored then is appended to
     `<name>.unstored.jsonl` beside the database (the events contract) and `incomplete` says so.
+
+    Person ids (serve): with first_id, the sink reserves ids in the log ahead of the tracker,
+    id_block at a time, each reservation committed before an id of it can be written anywhere:
+    the reservation is extended when a frame's highest id comes within half a block of its end
+    (so a process killed at any moment has reserved every id it gave; see service.restart). A
+    clean close records the run's end time.
     """
 
     def __init__(
@@ -147,8 +190,15 @@ class SqliteSink(_EventSink):
         buffer_size: int = 100_000,
         open_timeout_s: float = 5.0,
         close_timeout_s: float = 10.0,
+        first_id: int | None = None,
+        id_block: int = 1000,
     ) -> None:
         self.path = Path(path)
+        if id_block < 2:
+            raise ValueError(f"id_block must be at least 2, got {id_block}")
+        self.id_block = id_block
+        self.reserved: int | None = None  # ids below it are reserved (committed); None: off
+        self._want: int | None = None  # a reservation not committed yet
         self.busy_s, self.retry_s, self.buffer_size = busy_s, retry_s, buffer_size
         self.close_timeout_s = close_timeout_s
         try:
@@ -164,11 +214,19 @@ class SqliteSink(_EventSink):
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=NORMAL")
             self.db.executescript(SCHEMA)
+            _upgrade(self.db)
             cur = self.db.execute(
                 "INSERT INTO runs(started, site, source) VALUES (?, ?, ?)",
                 (time.time(), site, source),
             )
             self.run = int(cur.lastrowid)
+            if first_id is not None:
+                # the first block, committed before the tracker gives an id
+                self.db.execute(
+                    "INSERT INTO id_reservations(run, upto) VALUES (?, ?)",
+                    (self.run, first_id + id_block),
+                )
+                self.reserved = first_id + id_block
             self._busy(busy_s)
         except sqlite3.DatabaseError as e:
             raise OutputError(f"{self.path}: cannot open the event database: {e}") from None
@@ -183,6 +241,17 @@ class SqliteSink(_EventSink):
     def _busy(self, seconds: float) -> None:
         self.db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * seconds))}")
 
+    def write(self, frame: FrameResult) -> None:
+        if self.reserved is not None:
+            self._reserve(frame.people3d.ids)
+        self.write_events(frame.events)
+
+    def _reserve(self, ids: np.ndarray) -> None:
+        """Asks for more ids when `ids` come within half a block of the reservation's end (the
+        next store commits it, with the frame's events or on its own)."""
+        if len(ids) and int(ids.max()) >= self.reserved - self.id_block // 2:
+            self._want = max(self._want or 0, int(ids.max()) + self.id_block)
+
     def write_events(self, events: Sequence[Event]) -> None:
         if events:
             room = self.buffer_size - len(self.pending)
@@ -194,7 +263,7 @@ class SqliteSink(_EventSink):
                 )  # fmt: skip
                 events = events[: max(room, 0)]
             self.pending.extend(events)
-        if self.pending and time.monotonic() >= self._next_try:
+        if (self.pending or self._want is not None) and time.monotonic() >= self._next_try:
             self._store()
 
     def _store(self) -> bool:
@@ -206,13 +275,21 @@ class SqliteSink(_EventSink):
             self.db.executemany(
                 f"INSERT INTO events({', '.join(COLUMNS)}) VALUES ({placeholders})", rows
             )
+            want = self._want
+            if want is not None:
+                self.db.execute(
+                    "UPDATE id_reservations SET upto = MAX(upto, ?) WHERE run = ?",
+                    (want, self.run),
+                )
             self.db.execute("COMMIT")
         except sqlite3.Error as e:
             self._failed(e)
             return False
+        if want is not None:
+            self.reserved, self._want = max(self.reserved or 0, want), None
         self.pending.clear()
         self.committed += len(rows)
-        if self._error is not None:
+        if self._error is not None and rows:
             logger.warning("%s: events stored again (%d that had waited)", self.path, len(rows))
         self._error, self._delay = None, self.retry_s
         return True
@@ -234,18 +311,28 @@ class SqliteSink(_EventSink):
 
     def _close(self) -> list[Path]:
         deadline = time.monotonic() + self.close_timeout_s
-        while self.pending:
+        while self.pending or self._want is not None:
             left = deadline - time.monotonic()
             self._busy(min(max(left, 0.0), 1.0))  # a lock waited for within the deadline
             if self._store() or left <= 0:
                 break
             if not self._error or "lock" not in self._error:
                 time.sleep(min(0.1, max(left, 0.0)))  # another failure: no busy wait to pace it
+        self._ended()
         self.db.close()
         if self.pending or self.dropped:
             self.incomplete = self._unstored()
             logger.error("%s: %s", self.path, self.incomplete)
         return [self.path]
+
+    def _ended(self) -> None:
+        """Marks the run closed cleanly (all stored): a restart then knows nobody died inside."""
+        if self.pending or self.dropped:
+            return
+        try:
+            self.db.execute("UPDATE runs SET ended = ? WHERE id = ?", (time.time(), self.run))
+        except sqlite3.Error as e:
+            logger.warning("%s: cannot record the end of run %d: %s", self.path, self.run, e)
 
     def _unstored(self) -> str:
         """What could not be stored, the events kept beside the database where they can be."""
@@ -304,19 +391,28 @@ def query_events(
     if since is not None:
         where.append("t >= ?")
         args.append(since)
-    sql = f"SELECT {', '.join(COLUMNS)} FROM events"
+    sql = "SELECT {} FROM events"
     if where:
         sql += " WHERE " + " AND ".join(where)
     sql += " ORDER BY run, t, id"
     try:
         db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
         try:
-            rows = db.execute(sql, args).fetchall()
+            rows = db.execute(sql.format(_select(db)), args).fetchall()
         finally:
             db.close()
     except sqlite3.DatabaseError as e:
         raise StereoposeError(f"{path}: not a readable event database: {e}") from None
     return [dict(zip(COLUMNS, r, strict=True)) for r in rows]
+
+
+def _select(db: sqlite3.Connection) -> str:
+    """COLUMNS as a select list; those a log of an earlier version lacks read as NULL (0 for
+    restart), so old logs stay readable without being changed."""
+    have = _columns(db, "events")
+    if not have:
+        raise sqlite3.DatabaseError("no events table")
+    return ", ".join(c if c in have else ("0" if c == "restart" else "NULL") for c in COLUMNS)
 
 
 class CallbackSink(_EventSink):

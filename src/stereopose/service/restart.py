@@ -1,0 +1,151 @@
+"""What a restarted service takes over from the event log of its earlier runs.
+
+`stereopose serve` may be killed at any moment (kill -9, power cut). At the next start, before
+the frame loop gives its first id or writes its first event:
+
+    resume = Resume.from_log(output / "events.sqlite")
+    memory = make_memory(rig, config, first_id=resume.next_id)
+    sink = SqliteSink(db, ..., first_id=resume.next_id)      # reserves ids ahead
+    for s in event_sinks: s.write_events(resume.closing_events(t0, frame0))
+
+- `next_id`: one above every id any earlier run may have given: the highest id reserved in
+  the log (SqliteSink reserves blocks of ids, each committed before an id of it is used) and
+  the highest person of its events, whichever is larger; so an id never names two people.
+- `open_zones`: who was inside which zone at the last committed event: per (zone, person) the
+  latest enter or exit is an enter. Their `closing_events` are exits marked `restart`, written
+  first through every event sink, so that occupancy (SQLite, MQTT's retained zone states, the
+  webhook's receiver) is closed rather than left open for ever.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+from dataclasses import dataclass
+from pathlib import Path
+
+from stereopose.errors import StereoposeError
+from stereopose.types import Event
+
+__all__ = ["Occupancy", "Resume"]
+
+logger = logging.getLogger(__name__)
+
+# per (zone, person), its latest enter or exit (by row id: the order events were stored)
+_OPEN_SQL = """
+SELECT e.zone, e.kind, e.person, e.t, e.run, e.x, e.y, e.allowed
+FROM events AS e
+JOIN (
+    SELECT MAX(id) AS id FROM events WHERE type IN ('enter', 'exit') GROUP BY zone, person
+) AS last ON last.id = e.id
+WHERE e.type = 'enter'
+ORDER BY e.id
+"""
+
+
+@dataclass(frozen=True)
+class Occupancy:
+    """A person inside a zone at the last committed event of the log.
+
+    enter_t: the enter event's t (on the clock of its run); position: its floor point (x, y)."""
+
+    zone: str
+    kind: str
+    person: int
+    enter_t: float
+    run: int
+    position: tuple[float, float] | None = None
+    allowed: bool = False
+
+
+@dataclass(frozen=True)
+class Resume:
+    """The state a service starts from (see the module's docstring).
+
+    next_id: the first id to give; occupied: zone occupancy left open, in the order the enters
+    were stored; runs: the runs in the log; crashed: the last run did not close cleanly (killed,
+    or still running in another process)."""
+
+    next_id: int = 1
+    occupied: tuple[Occupancy, ...] = ()
+    runs: int = 0
+    crashed: bool = False
+
+    @property
+    def open_zones(self) -> dict[str, tuple[int, ...]]:
+        """zone -> the ids inside it when the last run stopped."""
+        out: dict[str, list[int]] = {}
+        for o in self.occupied:
+            out.setdefault(o.zone, []).append(o.person)
+        return {z: tuple(ids) for z, ids in out.items()}
+
+    @classmethod
+    def from_log(cls, db_path: str | Path) -> Resume:
+        """The state left by the event log at db_path (a fresh start when there is none).
+
+        Reads only (the log is not changed). A file that is not a readable event log is a
+        StereoposeError naming it: a service must not start over ids it cannot see."""
+        path = Path(db_path)
+        if not path.exists():
+            return cls()
+        try:
+            db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=5.0)
+            try:
+                return cls._read(db)
+            finally:
+                db.close()
+        except sqlite3.DatabaseError as e:
+            raise StereoposeError(
+                f"{path}: cannot resume from the event log: {e}; move it away to start afresh"
+            ) from None
+
+    @classmethod
+    def _read(cls, db: sqlite3.Connection) -> Resume:
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "events" not in tables or "runs" not in tables:
+            raise sqlite3.DatabaseError("no events or runs table (not an event log)")
+        top = db.execute("SELECT MAX(person) FROM events").fetchone()[0]
+        next_id = max(1, int(top) + 1 if top is not None else 1)
+        if "id_reservations" in tables:
+            upto = db.execute("SELECT MAX(upto) FROM id_reservations").fetchone()[0]
+            if upto is not None:
+                next_id = max(next_id, int(upto))
+        occupied = tuple(
+            Occupancy(
+                zone=zone,
+                kind=kind,
+                person=int(person),
+                enter_t=float(t),
+                run=int(run),
+                position=(float(x), float(y)) if x is not None and y is not None else None,
+                allowed=bool(allowed),
+            )
+            for zone, kind, person, t, run, x, y, allowed in db.execute(_OPEN_SQL)
+        )
+        runs = int(db.execute("SELECT COUNT(*) FROM runs").fetchone()[0])
+        crashed = False
+        cols = {r[1] for r in db.execute("PRAGMA table_info(runs)")}
+        if runs and "ended" in cols:
+            crashed = (
+                db.execute("SELECT ended FROM runs ORDER BY id DESC LIMIT 1").fetchone()[0] is None
+            )
+        return cls(next_id=next_id, occupied=occupied, runs=runs, crashed=crashed)
+
+    def closing_events(self, t: float, frame: int) -> list[Event]:
+        """An exit marked `restart` for each open occupancy, at time t and frame of the new run
+        (its onset is t too: when the person left is not known; duration_s unknown, None)."""
+        return [
+            Event(
+                t=t,
+                frame=frame,
+                person=o.person,
+                zone=o.zone,
+                kind=o.kind,
+                type="exit",
+                onset_t=t,
+                position=o.position,
+                allowed=o.allowed,
+                restart=True,
+            )
+            for o in self.occupied
+        ]
