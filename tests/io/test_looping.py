@@ -3,6 +3,7 @@ and live frames grabbed without decoding."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -39,7 +40,7 @@ def test_ping_pong_positions_bounce_between_the_ends(n, steps):
         seen.append(play.pos)
         play.advance()
     assert seen == [_bounce(i, n) for i in range(steps + 1)]
-    assert all(abs(a - b) <= 1 for a, b in zip(seen, seen[1:], strict=False))  # never a jump
+    assert all(abs(a - b) <= 1 for a, b in itertools.pairwise(seen))  # never a jump
 
 
 def test_looped_cameras_play_forward_then_backward_in_step(tmp_path, monkeypatch):
@@ -63,7 +64,7 @@ def test_a_looped_file_that_decodes_fewer_frames_turns_back_where_it_ends(tmp_pa
     v._play.n = 8  # as a file whose header announces more frames than it holds
     levels = [_level(v.read()[2]) for _ in range(14)]
     assert max(levels) == 4 and levels[:5] == [0, 1, 2, 3, 4]
-    assert all(abs(x - y) <= 1 for x, y in zip(levels, levels[1:], strict=False))
+    assert all(abs(x - y) <= 1 for x, y in itertools.pairwise(levels))
     v.close()
 
 

@@ -2,6 +2,7 @@
 
 ``make_detector`` builds a backend from local model files only: ``onnx`` (ONNX Runtime, the
 default) or ``ultralytics`` (PyTorch). Neither imports anything heavy until it is asked for.
+``precision = "int8"`` runs the ONNX model quantised to 8-bit integers (detection.models).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from stereopose.detection.base import PoseDetector, Poses
 from stereopose.detection.models import (
     ModelError,
     check_weights,
+    default_int8,
     default_onnx,
     default_weights,
     export_onnx,
@@ -19,6 +21,7 @@ from stereopose.detection.models import (
 )
 
 BACKENDS = ("onnx", "ultralytics")
+PRECISIONS = ("fp32", "int8")
 
 __all__ = ["BACKENDS", "ModelError", "PoseDetector", "Poses", "make_detector"]
 
@@ -31,11 +34,18 @@ def make_detector(
     iou: float = 0.7,
     device: str = "cpu",
     threads: int | None = None,
+    precision: str = "fp32",
 ) -> PoseDetector:
     """A pose detector. model: a local .onnx or .pt file (default: yolo11n-pose from the cache).
 
-    The onnx backend given a .pt file exports it to ONNX once, into the cache.
+    The onnx backend given a .pt file exports it to ONNX once, into the cache. precision
+    "int8" (onnx backend only): the model quantised once into the cache (``<stem>-int8.onnx``
+    beside it; a model already quantised is taken as it is).
     """
+    if precision not in PRECISIONS:
+        raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "int8" and backend != "onnx":
+        raise ModelError(f"precision int8 needs the onnx backend, not {backend!r}")
     if not isinstance(imgsz, int) or imgsz < 32 or imgsz % 32:
         raise ModelError(f"imgsz must be a positive multiple of 32, got {imgsz}")
     if not 0 <= conf <= 1 or not 0 <= iou <= 1:
@@ -51,9 +61,24 @@ def make_detector(
             if path.suffix == ".pt":
                 onnx = models_dir() / f"{path.stem}.onnx"
                 path = onnx if onnx.is_file() else export_onnx(path, onnx)
+        if precision == "int8":
+            path = _int8(path, model is None)
         return OnnxPoseDetector(path, **kwargs)
     if backend == "ultralytics":
         from stereopose.detection.yolo_ultralytics import UltralyticsPoseDetector
 
         return UltralyticsPoseDetector(model if model is not None else default_weights(), **kwargs)
     raise ModelError(f"unknown detector backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+
+
+def _int8(path: Path, default: bool) -> Path:
+    """The INT8 model of the ONNX model at `path`, quantised once (next to it, or for a user's
+    model into the cache, so that no folder of theirs is written)."""
+    from stereopose.detection.models import INT8_SUFFIX, quantize_int8
+
+    if default:
+        return default_int8()
+    if path.stem.endswith(INT8_SUFFIX):
+        return path
+    target = models_dir() / f"{path.stem}{INT8_SUFFIX}.onnx"
+    return target if target.is_file() else quantize_int8(path, target)

