@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import statistics
 import sys
@@ -109,14 +108,13 @@ def run_demo(model: Path, work: Path) -> dict:
     t0 = time.perf_counter()
     summary = run(config)
     wall = time.perf_counter() - t0
-    data = json.loads((work / "summary.json").read_text())
-    cams = data.get("cameras", {})
     return {
         "wall_s": wall,
         "frames": summary.frames,
-        "reprojection_median_px": data.get("reprojection_median_px"),
-        "per_camera_median_px": {k: v.get("reprojection_median_px") for k, v in cams.items()},
-        "tracks": data.get("tracks") or data.get("people"),
+        "reprojection_median_px": summary.reprojection_median_px,
+        "reprojection_mean_px": summary.mean_reprojection_px,
+        "confident_reprojection_median_px": summary.median_confident_reprojection_px,
+        "tracks": len(summary.trajectories or []),
     }
 
 
@@ -163,7 +161,9 @@ def markdown(r: dict) -> list[str]:
         f"| model size, MB | {r['model_bytes']['fp32'] / 1e6:.1f} | "
         f"{r['model_bytes']['int8'] / 1e6:.1f} |",
         f"| `run` on the demo: reprojection median, px | "
-        f"{run['fp32']['reprojection_median_px']} | {run['int8']['reprojection_median_px']} |",
+        f"{run['fp32']['reprojection_median_px']:.2f} | "
+        f"{run['int8']['reprojection_median_px']:.2f} |",
+        f"| `run` on the demo: tracks | {run['fp32']['tracks']} | {run['int8']['tracks']} |",
         f"| `run` on the demo: wall s ({run['fp32']['frames']} steps) | "
         f"{run['fp32']['wall_s']:.1f} | {run['int8']['wall_s']:.1f} |",
         "",
