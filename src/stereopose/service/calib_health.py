@@ -3,9 +3,10 @@
     health = CalibrationHealth(rig, warn_factor=config.serve.calib_warn_factor)
     events = health.update(frame)         # each FrameResult of the frame loop
 
-Per camera and frame, one sample: the people's 3D joints projected into the camera against the
-camera's own 2D detections, per person the detection that fits best (median joint distance, in
-pixels, left/right as fits best), the median over the people. The detection need not be one the
+Per camera and frame, one sample: the 3D joints of the people seen by at least three cameras
+projected into the camera against the camera's own 2D detections, per person the detection that
+fits best (median joint distance, in pixels, left/right as fits best; capped at a tenth of the
+image diagonal), the median over the people. The detection need not be one the
 3D rests on: a camera that moved is outvoted by the others, and its detections then no longer
 match the people's projections. The first `baseline_samples` samples give the camera's baseline
 (their median); the running value is the median of the last `window` samples. When it exceeds
@@ -34,6 +35,8 @@ __all__ = ["CalibrationHealth", "camera_errors"]
 logger = logging.getLogger(__name__)
 
 MIN_JOINTS = 6  # joints a person/detection pair must share for its distance to count
+MIN_VIEWS = 3  # cameras a person's joints must rest on to test another camera
+CAP_OF_DIAGONAL = 0.1  # a person's error is capped at this fraction of the image diagonal
 
 
 def _person_errors(px: np.ndarray, conf: np.ndarray, kp: np.ndarray) -> np.ndarray:
@@ -58,19 +61,23 @@ def camera_errors(
 ) -> dict[str, float]:
     """Camera name -> the frame's reprojection sample (pixels) for the cameras with both
     detections and a 3D person that fits one (see the module's docstring)."""
-    P = len(people3d)
-    if P == 0:
+    # a person seen by two cameras fits them whatever their calibration: only people seen by
+    # MIN_VIEWS or more say anything about one camera
+    keep = people3d.views.max(axis=1, initial=0) >= MIN_VIEWS
+    if not keep.any():
         return {}
-    px = project_to_rig(people3d.joints, rig)  # (P, 17, C, 2)
+    joints, conf = people3d.joints[keep], people3d.conf[keep]
+    px = project_to_rig(joints, rig)  # (P, 17, C, 2)
     out = {}
-    for ci, name in enumerate(rig.names):
-        p2 = people2d.get(name)
+    for ci, cam in enumerate(rig):
+        p2 = people2d.get(cam.name)
         if p2 is None or len(p2) == 0:
             continue
-        errs = _person_errors(px[:, :, ci], people3d.conf, np.asarray(p2.keypoints))
-        errs = errs[np.isfinite(errs)]
-        if errs.size:
-            out[name] = float(np.median(errs))
+        errs = _person_errors(px[:, :, ci], conf, np.asarray(p2.keypoints))
+        # beyond the cap the person is taken as not seen by this camera (occluded, out of
+        # view): counted at the cap, so that one such person moves the median little
+        errs = np.minimum(errs, CAP_OF_DIAGONAL * float(np.hypot(*cam.size)))
+        out[cam.name] = float(np.median(errs))
     return out
 
 
