@@ -43,7 +43,8 @@ $(RT_STAMP): pyproject.toml Makefile $(SOURCES)
 		|| { echo "no $(MODEL): copy it from a machine that has it, or run" \
 		"'stereopose models export' where PyTorch is installed (make install)" >&2; exit 2; }
 	$(RT_BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
-	$(RT_BIN)/python -c "import stereopose.service.app, stereopose.detection.yolo_onnx, sys; \
+	# the serve path loads here, without PyTorch
+	$(RT_BIN)/python -c "import stereopose.cli.serve, stereopose.pipeline.serve, sys; \
 		heavy = {'torch', 'ultralytics', 'triton'} & set(sys.modules); assert not heavy, heavy"
 	du -sh $(RUNTIME)
 	touch $(RT_STAMP)
