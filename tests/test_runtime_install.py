@@ -273,3 +273,26 @@ def test_the_runtime_venv_has_no_torch_and_loads_the_serve_path() -> None:
     assert "stereopose.detection.yolo_onnx" in have
     result = _probe(RUNTIME_PYTHON, have, frozenset())
     assert all("error" not in r and not r["heavy"] for r in result.values()), result
+
+
+def test_making_the_int8_model_without_onnx_says_which_extra_or_which_file_to_copy(
+    tmp_path: Path,
+) -> None:
+    code = (
+        "from pathlib import Path\n"
+        "from stereopose.detection.models import quantize_int8\n"
+        "from stereopose.extras import MissingExtraError\n"
+        f"try:\n    quantize_int8(out=Path({str(tmp_path / 'm-int8.onnx')!r}))\n"
+        "except MissingExtraError as e:\n    print(e)\nelse:\n    raise SystemExit(1)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", BLOCK + code, json.dumps(["onnx"])],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(SRC)},
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "pip install 'stereopose[int8]'" in run.stdout
+    assert str(tmp_path / "m-int8.onnx") in run.stdout
+    assert not list(tmp_path.iterdir())

