@@ -28,8 +28,9 @@ import numpy as np
 
 from stereopose.config import Config
 from stereopose.detection import make_detector
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.pose2sim_data import pose2sim_demo_dir
-from stereopose.io.video import CameraSet, VideoFile
+from stereopose.io.video import VideoFile
 from stereopose.pipeline import detect_videos, reconstruct_files
 
 HERE = Path(__file__).resolve().parent

@@ -12,7 +12,7 @@ import pytest
 from stereopose.config import Config
 from stereopose.detection import ModelError, make_detector
 from stereopose.detection.openpose import read_pose_file
-from stereopose.io.video import CameraSet
+from stereopose.io.cameraset import CameraSet
 from stereopose.pipeline import detect_videos, reconstruct_files
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]

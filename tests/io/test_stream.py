@@ -14,8 +14,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.stream import JOIN_S, LiveStream, redact, why_not_open
-from stereopose.io.video import CameraSet, VideoError, open_source, source_name
+from stereopose.io.video import VideoError, open_source, source_name
 from streams import (
     StallingServer,
     free_port,

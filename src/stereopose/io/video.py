@@ -2,7 +2,8 @@
 
 ``open_source(spec, name)`` opens one camera: a URL (rtsp, rtsps, http, https, rtmp, udp, tcp) is a
 live stream read on its own thread; a folder is a sequence of images; anything else is a video
-file. ``CameraSet`` reads several cameras together and yields one ``FrameSet`` per time step:
+file. ``CameraSet`` (io.cameraset) reads several cameras together and yields one ``FrameSet``
+per time step:
 
 - recorded sources (files, folders) are read as fast as they are consumed, aligned by frame index
   (``sync="index"``) or by time (``sync="time"``: each camera's frame nearest the step's time, from
@@ -51,7 +52,6 @@ if TYPE_CHECKING:
 __all__ = [
     "IMAGE_SUFFIXES",
     "STREAM_SCHEMES",
-    "CameraSet",  # noqa: F822 (io.cameraset, by __getattr__)
     "Clock",
     "FrameSet",
     "ImageFolder",
@@ -358,12 +358,3 @@ def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
             continue
         usable.append((name, image))
     return usable
-
-
-def __getattr__(name: str) -> object:
-    # CameraSet lives in io.cameraset (which builds on this module); imported on first use
-    if name == "CameraSet":
-        from stereopose.io.cameraset import CameraSet
-
-        return CameraSet
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

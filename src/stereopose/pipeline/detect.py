@@ -13,8 +13,8 @@ from pathlib import Path
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
 from stereopose.errors import KeypointsError
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.video import (
-    CameraSet,
     FrameSet,
     SourceStats,
     is_stream,
@@ -150,7 +150,7 @@ def detect_videos(
     ``CameraSet``); a camera with no image at a step gets no file there. ``on_step(done, total,
     fps)`` is called after each step. Ctrl-C stops the run after the step in progress (at once
     while waiting for a live camera; pipeline.interrupt): the files written so far are complete.
-    open_timeout_s, first_frame_timeout_s: live cameras' bounds (io.video.CameraSet).
+    open_timeout_s, first_frame_timeout_s: live cameras' bounds (io.cameraset.CameraSet).
 
     No output may be an input (a source, `model`) or lie inside an input folder; keypoint
     files of a previous run in these cameras' folders are refused unless `overwrite`, which

@@ -37,7 +37,8 @@ JOIN_S = 10.0  # the longest close() waits for one detection step to end
 
 class Handover:
     """A bounded hand-over between two threads. put(): with `drop`, an unread item is
-    replaced (newest wins, `dropped` counts it); without, put waits until there is room.
+    replaced (newest wins, `dropped` counts it); without, put waits until there is room;
+    `force` (the end, an error) puts at once, behind the items waiting (one over the bound).
     get(timeout) gives the oldest item, or None after timeout. close() wakes both sides."""
 
     def __init__(self, size: int = 1, drop: bool = True) -> None:
@@ -56,7 +57,8 @@ class Handover:
                 self._cond.wait(0.1)
             if self.closed:
                 return False
-            while len(self.items) >= self.size:
+            # a forced item (the end, an error) goes behind what is waiting, never in its place
+            while not force and len(self.items) >= self.size:
                 self.items.popleft()
                 self.dropped += 1
             self.items.append(item)

@@ -25,8 +25,9 @@ from stereopose.config import Config, load_config
 from stereopose.detection import make_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import load_site
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
-from stereopose.io.video import CameraSet, is_stream, open_source
+from stereopose.io.video import is_stream, open_source
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
 from stereopose.pipeline.paths import (

@@ -32,10 +32,10 @@ from stereopose.config import Config
 from stereopose.detection import make_detector
 from stereopose.errors import StereoposeError
 from stereopose.fence import FenceMonitor
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
 from stereopose.io.summary import RunSummary
-from stereopose.io.video import CameraSet
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.serve_events import ServeEvents

@@ -13,8 +13,9 @@ import numpy as np
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import PoseSequence
 from stereopose.errors import StereoposeError
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
-from stereopose.io.video import CameraSet, FrameSet, usable_images
+from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import Camera, People2D, Rig
@@ -84,7 +85,7 @@ def scale_people(people: People2D, size: tuple[float, float], shape: tuple[int, 
 
 
 class Cameras:
-    """Cameras read in step (io.video.CameraSet), their people found by a pose detector.
+    """Cameras read in step (io.cameraset.CameraSet), their people found by a pose detector.
 
     Each camera's first frame is checked against its calibration's size. A step's t is the
     set's (recorded: frame / fps; live: when its frames arrived, seconds since the cameras were
