@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
+from stereopose.io.cameraset import CameraSet
 from stereopose.io.stream import LiveStream
 from stereopose.io.video import (
-    CameraSet,
     ImageFolder,
     VideoError,
     VideoFile,
