@@ -47,7 +47,8 @@ class CameraSet:
     opening live cameras waits for the first frame of any of them (None: for ever; Ctrl-C
     ends the wait). clock: the live frames' time origin, read when the set is created.
     loop (one for all, or per camera), detect (per camera: a substream, or None / ""),
-    detect_fps: see the module's docstring.
+    detect_fps: see the module's docstring. wait_first_frame=False: opening does not wait for
+    a first frame (a service starts at once and reports its blind cameras).
     """
 
     def __init__(
@@ -63,6 +64,7 @@ class CameraSet:
         loop: bool | Sequence[bool] = False,
         detect: Sequence[str | Path | None] | None = None,
         detect_fps: float | None = None,
+        wait_first_frame: bool = True,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -93,7 +95,7 @@ class CameraSet:
                 if sub is not None:
                     self.detect_sources[name] = self._open(sub, name, fps, lp, open_timeout_s)
             self._check_kinds()
-            if self.live:
+            if self.live and wait_first_frame:
                 self._wait_first_frame()
         except BaseException:  # the error, or Ctrl-C: no camera thread is left running
             self.close()

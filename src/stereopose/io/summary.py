@@ -81,6 +81,7 @@ class RunSummary:
     confident_reprojection: RunningStats = field(default_factory=RunningStats, repr=False)
     per_camera: dict[str, CameraStats] = field(default_factory=dict)
     sources: dict[str, dict] = field(default_factory=dict)  # live cameras: dropped, reconnects
+    pipeline: dict[str, float | None] = field(default_factory=dict)  # pipelined detection's figures
     events: dict[str, int] = field(default_factory=dict)  # event type -> count
     trajectories: list[Trajectory] = field(default_factory=list)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
@@ -207,6 +208,8 @@ class RunSummary:
             "error": self.error,
             "outputs": [str(p) for p in self.outputs],
             "failed_outputs": dict(self.failed_outputs),
+            # only where detection was pipelined: a recorded run's summary.json is as before
+            **({"pipeline": dict(self.pipeline)} if self.pipeline else {}),
         }
 
 

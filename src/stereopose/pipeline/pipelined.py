@@ -95,6 +95,15 @@ class PipelineStats:
     wait_s: float = 0.0  # detection's thread waiting for the cameras' frames
     latency_s: deque = field(default_factory=lambda: deque(maxlen=LATENCY_KEPT))
 
+    def figures(self) -> dict[str, float | None]:
+        """The summary's `pipeline`: steps, drops, detection seconds, latency p50/p95 (s;
+        None before any step)."""
+        kept = bool(self.latency_s)
+        return {"detected": self.detected, "delivered": self.delivered, "dropped": self.dropped,
+                "detect_s": self.detect_s, "wait_s": self.wait_s,
+                "latency_p50_s": self.latency(0.5) if kept else None,
+                "latency_p95_s": self.latency(0.95) if kept else None}  # fmt: skip
+
     def latency(self, q: float) -> float:
         """The q-quantile (0..1) of the kept latencies, seconds; NaN when none."""
         return float(np.quantile(list(self.latency_s), q)) if self.latency_s else float("nan")
@@ -192,3 +201,4 @@ class PipelinedCameras:
         self.close()
         self.inner.finish(summary)
         summary.seconds["detect"] = summary.seconds.get("detect", 0.0) + self.stats.detect_s
+        summary.pipeline = self.stats.figures()

@@ -40,6 +40,7 @@ from stereopose.pipeline.paths import (
     remove_outputs,
     run_products,
 )
+from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.sources import Cameras, check_size
 from stereopose.types import Event, Rig
@@ -96,6 +97,18 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
                     for n in copies]  # fmt: skip
 
 
+def _source(base: Path, value: str) -> str:
+    """A camera's source as written (a stream URL, or "" for none), a file resolved."""
+    return value if not value or is_stream(value) else str(_resolve(base, value))
+
+
+def _camera_source(cams: CameraSet, rig: Rig, detector) -> Cameras | PipelinedCameras:
+    """Live cameras: detection on its own thread, always on the newest frames. Recorded ones
+    keep the plain source: every frame is detected in turn, and the outputs stay the same."""
+    cameras = Cameras(cams, rig, detector)
+    return PipelinedCameras(cameras) if cams.live else cameras
+
+
 def check_recorded_sizes(rig: Rig, names: list[str], sources: list[str]) -> None:
     """Each recorded camera's first frame has its calibration's size (pipeline.sources.
     check_size); live cameras are checked at their first frame, as they come."""
@@ -141,20 +154,22 @@ def run(
     rig = rig.subset(names)
     site_path = _resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
-    sources = [c.source if is_stream(c.source) else str(_resolve(base, c.source)) for c in
-               cfg.cameras]  # fmt: skip
+    sources = [_source(base, c.source) for c in cfg.cameras]
+    substreams = [_source(base, c.detect) for c in cfg.cameras]
     det = cfg.detector
     model = _resolve(base, det.model) if det.model else None
     out_dir = _resolve(base, cfg.output)
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
     inputs = _inputs(config_path, calib_path, site_path, sources, model)
+    inputs += [Place(f"cameras[{i}].detect", Path(d)) for i, d in enumerate(substreams)
+               if d and not is_stream(d)]  # fmt: skip
     hint = f'set `output` in {config_path} to a folder of its own (such as "out/run")'
     check_places(inputs, _outputs(outputs, out_dir, names, site is not None), hint)
     folder = Place(f"{config_path}: the output folder", out_dir)
     previous = previous_outputs(folder, run_products, overwrite, inputs)
     detector = make_detector(
-        det.backend, model, det.imgsz, det.conf, det.iou, det.device, det.threads
+        det.backend, model, det.imgsz, det.conf, det.iou, det.device, det.threads, det.precision
     )
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -163,13 +178,15 @@ def run(
     check_recorded_sizes(rig, names, sources)  # before any output: a wrong file writes nothing
     with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames,
                    open_timeout_s=cfg.input.open_timeout_s,
-                   first_frame_timeout_s=cfg.input.first_frame_timeout_s) as cams:  # fmt: skip
+                   first_frame_timeout_s=cfg.input.first_frame_timeout_s,
+                   loop=[c.loop for c in cfg.cameras], detect=[d or None for d in substreams],
+                   detect_fps=cfg.input.detect_fps) as cams:  # fmt: skip
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
         (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
         save_inputs(out_dir, rig, site)
         return run_frames(
-            rig, cfg, Cameras(cams, rig, detector), outputs, site,
+            rig, cfg, _camera_source(cams, rig, detector), outputs, site,
             calib_path=cfg.calibration or "", label=", ".join(cams.names), on_events=on_events,
             stop=stop, on_step=on_step, out_dir=out_dir, config_path=config_path,
         )  # fmt: skip

@@ -38,6 +38,7 @@ from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.serve_events import ServeEvents
 from stereopose.pipeline.serve_parts import (
     ServeSource,
@@ -185,6 +186,13 @@ class _Service:
                                         "frames_dropped": clips.frames_dropped}  # fmt: skip
         return clips
 
+    def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
+        """The detection hand-over as a queue of the health state; its figures in status."""
+        stats = pipelined.stats
+        self.state.register_queue("detection", lambda: len(pipelined.handover),
+                                  lambda: pipelined.handover.dropped)  # fmt: skip
+        self.probes["pipeline"] = stats.figures
+
     # -- health -----------------------------------------------------------------------------
 
     def snapshot(self) -> dict:
@@ -219,12 +227,13 @@ def _dropped(mqtt) -> int:
 
 def _open_cameras(plan: ServePlan) -> CameraSet:
     cfg = plan.config
-    # a service waits for its cameras however long they take: none is an error here
+    # a service starts at once however long its cameras take: the loop goes on in heartbeats
+    # and the camera watch raises camera_down for each camera that has not delivered
     return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
                      None, open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
                      loop=[c.loop for c in cfg.cameras],
                      detect=[d or None for d in plan.detect_sources],
-                     detect_fps=cfg.input.detect_fps)  # fmt: skip
+                     detect_fps=cfg.input.detect_fps, wait_first_frame=False)  # fmt: skip
 
 
 def serve(
@@ -245,7 +254,7 @@ def serve(
     cfg = plan.config
     detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
                              cfg.detector.conf, cfg.detector.iou, cfg.detector.device,
-                             cfg.detector.threads)  # fmt: skip
+                             cfg.detector.threads, cfg.detector.precision)  # fmt: skip
     resume = Resume.from_log(plan.events_db)  # before any id is given or event written
     if resume.occupied:
         logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
@@ -280,7 +289,10 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     watch = CameraWatch(rig.names, cfg.serve.camera_timeout_s, start=0.0)
     calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
     events = ServeEvents(fences, watch, calib, service.resume.closing_events)
-    source = ServeSource(Cameras(cams, rig, detector), stop=stop, heartbeat_s=HEARTBEAT_S,
+    # detection on its own thread, always on the newest frames (recorded: every step kept)
+    pipelined = PipelinedCameras(Cameras(cams, rig, detector))
+    service.watch_pipeline(pipelined)
+    source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
                          on_step=events.step, on_detect=events.detected)  # fmt: skip
     stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path), first_id=service.resume.next_id)
     summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,

@@ -4,7 +4,8 @@ the health state and status.json, and the stop signals.
 - `ServeSource` takes the steps of any frame-loop source on a thread of its own, and gives
   the loop an empty step (no images, nobody) whenever the source has given nothing for
   `heartbeat_s`: time goes on for the tracker and the fences, and
-  the events of a blind camera get out although no frame comes.
+  the events of a blind camera get out although no frame comes. Steps that carry their people
+  (pipelined detection) are told to `on_detect` as those found by `detect` are.
 - `StateSink` feeds the ServiceState (cameras' frames, stage times, people, events, the
   readers' drops and reconnects); `StatusSink` writes status.json (the health snapshot) every
   `interval_s`, atomically, and once more at close.
@@ -106,6 +107,8 @@ class ServeSource:
             frame, last_t, last_mono = frame + 1, step.t, now
             if self.on_step is not None:
                 self.on_step(step)
+            if item is not None and step.people2d is not None and self.on_detect is not None:
+                self.on_detect(step.people2d)  # a pipelined source's step carries its people
             yield step
 
     def _wait(self) -> object | None:
