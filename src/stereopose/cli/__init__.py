@@ -36,7 +36,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "the always-on service: cameras for ever, events out, health and metrics over HTTP",
         "stereopose.cli.serve:_serve",
     ),
-    "init": ("write a commented example run configuration", "stereopose.cli.run:_init"),
+    "init": (
+        "write a commented example run (or --serve: service) configuration",
+        "stereopose.cli.run:_init",
+    ),
     "report": ("rebuild report.html of a run folder", "stereopose.cli.run:_report"),
     "models": (
         "list, fetch or export the pose models in the cache",
@@ -155,7 +158,17 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     )
     _add_serve(parsers["serve"])
     it = parsers["init"]
-    it.add_argument("path", nargs="?", default="stereopose.toml", help="(stereopose.toml)")
+    it.add_argument(
+        "path",
+        nargs="?",
+        default=None,
+        help="(stereopose.toml; with --serve: stereopose-serve.toml)",
+    )
+    it.add_argument(
+        "--serve",
+        action="store_true",
+        help="write the example service configuration (`stereopose serve`)",
+    )
     it.add_argument("--force", action="store_true", help="overwrite an existing file")
     parsers["report"].add_argument("run_dir", type=Path, metavar="RUN_DIR")
 
@@ -164,6 +177,12 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     mo.add_argument("weights", type=Path, nargs="?", help="export: a YOLO pose .pt file")
     mo.add_argument("--out", type=Path, help="export: the .onnx file to write")
     mo.add_argument("--force", action="store_true", help="export again even if cached")
+    mo.add_argument(
+        "--int8",
+        action="store_true",
+        help="export: the INT8-quantised ONNX model ([detector] precision = "
+        '"int8"), from the .onnx or .pt given or the default model',
+    )
 
     d = parsers["demo"]
     d.add_argument("--out", type=Path, default=Path("out/demo"))

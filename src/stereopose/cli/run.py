@@ -105,6 +105,8 @@ def _models(args: argparse.Namespace) -> int:
 
     if args.action == "fetch":
         out.print(str(models.fetch_default_weights()), highlight=False, soft_wrap=True)
+    elif args.action == "export" and args.int8:
+        out.print(str(_export_int8(models, args)), highlight=False, soft_wrap=True)
     elif args.action == "export":
         if args.weights is None and args.out is None and not args.force:
             target = models.models_dir() / f"{models.DEFAULT_MODEL}.onnx"
@@ -119,6 +121,24 @@ def _models(args: argparse.Namespace) -> int:
         for path in found:
             out.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB", highlight=False)
     return 0
+
+
+def _export_int8(models, args: argparse.Namespace) -> Path:
+    """The INT8 model: of the .onnx given (or the cache's default), written to --out or beside
+    it; an existing one is kept unless --force."""
+    if args.weights is None:
+        src = models.default_onnx()
+        target = (
+            args.out or models.models_dir() / f"{models.DEFAULT_MODEL}{models.INT8_SUFFIX}.onnx"
+        )
+    else:
+        src = models.check_weights(Path(args.weights))
+        if src.suffix == ".pt":
+            src = models.export_onnx(src, models.models_dir() / f"{src.stem}.onnx")
+        target = args.out or src.with_name(f"{src.stem}{models.INT8_SUFFIX}.onnx")
+    if Path(target).is_file() and not args.force:
+        return Path(target)
+    return models.quantize_int8(src, target)
 
 
 def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
@@ -197,17 +217,19 @@ def _run(args: argparse.Namespace) -> int:
 def _init(args: argparse.Namespace) -> int:
     from importlib import resources
 
-    path = Path(args.path)
+    path = Path(args.path or ("stereopose-serve.toml" if args.serve else "stereopose.toml"))
     if path.exists() and not args.force:
         raise StereoposeError(f"{path}: already exists (use --force to overwrite)")
-    text = (resources.files("stereopose") / "data" / "example_run.toml").read_text("utf-8")
+    example = "example_serve.toml" if args.serve else "example_run.toml"
+    text = (resources.files("stereopose") / "data" / example).read_text("utf-8")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")
     except OSError as e:
         raise StereoposeError(f"{path}: cannot write: {e.strerror}") from None
+    command = "serve" if args.serve else "run"
     out.print(f"wrote {path}: edit the calibration, cameras and outputs, then "
-              f"`stereopose run {path}`", highlight=False, soft_wrap=True)  # fmt: skip
+              f"`stereopose {command} {path}`", highlight=False, soft_wrap=True)  # fmt: skip
     return 0
 
 
