@@ -113,3 +113,22 @@ def test_a_run_folder_holds_one_run(tmp_path: Path, capsys) -> None:
     assert {p: v for p, v in snapshot(tmp_path).items() if not p.is_relative_to(out)} == inputs
     second = json.loads((out / "summary.json").read_text())
     assert second["frames"] == 2 and not second["interrupted"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "secret"),
+    [
+        ("", False),
+        ('[mqtt]\nusername = "ops"\npassword = "s3cret"\n', True),
+        ('webhook = "http://token@127.0.0.1:9/alarms"\n', True),
+    ],
+)
+def test_the_configuration_copy_is_private_when_it_holds_a_secret(
+    tmp_path: Path, capsys, extra: str, secret: bool
+) -> None:
+    config = _config(tmp_path, "out", extra)  # after [outputs]: its webhook, or a new table
+    main(["run", str(config)])  # an unreachable webhook may end it with 3: the copy is made
+    capsys.readouterr()
+    copy = tmp_path / "out" / "config.toml"
+    assert copy.read_text() == config.read_text()
+    assert (copy.stat().st_mode & 0o077 == 0) is secret

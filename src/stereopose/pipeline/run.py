@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, load_config
@@ -109,6 +111,30 @@ def _camera_source(cams: CameraSet, rig: Rig, detector) -> Cameras | PipelinedCa
     return PipelinedCameras(cameras) if cams.live else cameras
 
 
+def _holds_secrets(cfg: Config) -> bool:
+    """Whether the configuration holds a password or a URL with credentials in it."""
+    urls = [cfg.outputs.webhook or "", *(c.source for c in cfg.cameras)]
+    urls += [c.detect for c in cfg.cameras if c.detect]
+    return bool(cfg.mqtt.password) or any(_credentials(u) for u in urls if "://" in u)
+
+
+def _credentials(url: str) -> bool:
+    try:
+        return urlsplit(url).username is not None
+    except ValueError:  # not a URL one can parse: treat as holding a secret
+        return True
+
+
+def copy_config(source: Path, target: Path, secret: bool) -> None:
+    """The configuration copied into the run folder (for `report`); readable by its owner
+    only when it holds a secret (an MQTT password, credentials in a URL)."""
+    text = source.read_text(encoding="utf-8")
+    target.unlink(missing_ok=True)  # a new file, so the mode below is the one it gets
+    fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if secret else 0o644)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
 def check_recorded_sizes(rig: Rig, names: list[str], sources: list[str]) -> None:
     """Each recorded camera's first frame has its calibration's size (pipeline.sources.
     check_size); live cameras are checked at their first frame, as they come."""
@@ -183,7 +209,7 @@ def run(
                    detect_fps=cfg.input.detect_fps) as cams:  # fmt: skip
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
-        (out_dir / "config.toml").write_text(config_path.read_text(encoding="utf-8"))
+        copy_config(config_path, out_dir / "config.toml", secret=_holds_secrets(cfg))
         save_inputs(out_dir, rig, site)
         return run_frames(
             rig, cfg, _camera_source(cams, rig, detector), outputs, site,
