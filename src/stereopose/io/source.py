@@ -82,3 +82,16 @@ class SourceStats:
     failures: int = 0  # unreadable frames skipped (recorded) or connection losses (live)
     reconnects: int = 0
     down_s: float = 0.0  # time a live camera spent disconnected
+
+
+def shown_url(url: str) -> str:
+    """A URL as messages and summaries may show it: without user and password
+    (``***@host``) and without its query (``?***``), which may hold a token."""
+    try:
+        parts = urlsplit(url)
+        host = parts.netloc.rsplit("@", 1)[-1]
+    except ValueError:  # malformed: the part after any credentials only
+        return "***@" + url.rsplit("@", 1)[-1] if "@" in url else url
+    netloc = f"***@{host}" if "@" in parts.netloc else host
+    query = "?***" if parts.query else ""
+    return f"{parts.scheme}://{netloc}{parts.path}{query}"

@@ -34,6 +34,7 @@ from stereopose.io.sinks import (
     close_all,
 )
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
+from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import probe_output
 from stereopose.types import Event, Rig
@@ -148,7 +149,7 @@ def _event_sinks(
     if o.events_db is not None:
         sinks.append(guard(SqliteSink(o.events_db, str(site.path or ""), source), o.events_db))
     if o.webhook is not None:
-        sinks.append(guard(WebhookSink(o.webhook), o.webhook))
+        sinks.append(guard(WebhookSink(o.webhook), shown_url(o.webhook)))
     if on_events is not None:
         sinks.append(guard(CallbackSink(on_events), "the events shown"))
     return sinks

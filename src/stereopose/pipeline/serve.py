@@ -35,6 +35,7 @@ from stereopose.fence import FenceMonitor
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
+from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop
@@ -162,7 +163,7 @@ class _Service:
         if cfg.outputs.webhook:
             hook = WebhookSink(cfg.outputs.webhook)
             self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
-            sinks.append(guard(hook, cfg.outputs.webhook))
+            sinks.append(guard(hook, shown_url(cfg.outputs.webhook)))
         if p.mqtt is not None:
             from stereopose.io.sinks.mqtt import MqttSink
 

@@ -52,6 +52,8 @@ def number(image: np.ndarray) -> int:
 
 def sink(tmp_path: Path, **kw) -> ClipSink:
     draw = kw.pop("draw", None)
+    # a queue that holds a whole test run: frames dropped when it is full are tested apart
+    kw.setdefault("clip_queue_frames", 1000)
     settings = ClipSettings(clip_pre_s=1.0, clip_post_s=1.0, clip_scale=1.0, **kw)
     return ClipSink(tmp_path, CAMERAS, FPS, wall_start=WALL, draw=draw, settings=settings)
 
@@ -98,6 +100,7 @@ def test_alarms_close_together_share_one_clip(tmp_path: Path) -> None:
                                        "20240501-130006_3_panel_A_cam1.mp4"]  # fmt: skip
     assert levels(paths[0]) == list(range(20, 46))  # extended to 1 s after the second
     assert levels(paths[1]) == list(range(50, 71))
+    assert s.frames_dropped == 0
 
 
 def test_a_clip_never_repeats_frames_of_the_one_before(tmp_path: Path) -> None:

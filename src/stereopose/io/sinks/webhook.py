@@ -28,6 +28,7 @@ from urllib.parse import urlsplit
 from stereopose.errors import StereoposeError
 from stereopose.io.records import event_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.source import shown_url
 from stereopose.types import Event
 
 logger = logging.getLogger(__name__)
@@ -76,6 +77,7 @@ class WebhookSink(ClosesOnce):
         except ValueError:
             raise StereoposeError(f"webhook URL {url!r}: the port is not a number") from None
         self.url = url
+        self.shown = shown_url(url)  # for messages: no credentials, no query
         self._https, self._host = parts.scheme == "https", parts.hostname
         self._target = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
         self.retries, self.backoff_s, self.max_backoff_s = retries, backoff_s, max_backoff_s
@@ -140,7 +142,7 @@ class WebhookSink(ClosesOnce):
             try:
                 resp.read(BODY_LIMIT)
             except Exception as e:  # a short or broken body: the status already came
-                logger.debug("webhook %s: reply body: %r", self.url, e)
+                logger.debug("webhook %s: reply body: %r", self.shown, e)
             return resp.status
         except Exception as e:
             if cut.is_set():
@@ -162,7 +164,7 @@ class WebhookSink(ClosesOnce):
             else:
                 if 200 <= status < 300:
                     if self._failing:
-                        logger.warning("webhook %s: delivering again", self.url)
+                        logger.warning("webhook %s: delivering again", self.shown)
                     self._failing = False
                     return "delivered"
                 why, again = f"HTTP {status}", status in RETRY_STATUSES or status >= 500
@@ -176,7 +178,7 @@ class WebhookSink(ClosesOnce):
 
     def _log_failure(self, event: Event, tries: int, why: str) -> None:
         log = logger.debug if self._failing else logger.warning
-        log("webhook %s: event of frame %d not delivered after %d tr%s: %s", self.url,
+        log("webhook %s: event of frame %d not delivered after %d tr%s: %s", self.shown,
             event.frame, tries, "y" if tries == 1 else "ies", why)  # fmt: skip
         self._failing = True
 
@@ -190,7 +192,7 @@ class WebhookSink(ClosesOnce):
             try:
                 outcome = self._deliver(item)
             except Exception:  # never: _deliver catches a try's errors; the thread lives on
-                logger.exception("webhook %s: sending an event failed", self.url)
+                logger.exception("webhook %s: sending an event failed", self.shown)
                 outcome = "failed"
             self._settle(item, outcome)
             with self._lock:
@@ -224,7 +226,7 @@ class WebhookSink(ClosesOnce):
                   "(queue full or closing)")  # fmt: skip
         if self.failed or self.dropped:
             self.incomplete = f"{self.failed + self.dropped} event(s) not delivered: {counts}"
-            logger.warning("webhook %s: %s", self.url, counts)
+            logger.warning("webhook %s: %s", self.shown, counts)
         else:
-            logger.info("webhook %s: %s", self.url, counts)
+            logger.info("webhook %s: %s", self.shown, counts)
         return []
