@@ -288,6 +288,9 @@ class MqttConfig:
     topic_prefix: str = "stereopose"
     username: str | None = None
     password: str | None = field(default=None, repr=False)  # never shown
+    # or a file holding the password (its first line; relative to the config file), so the
+    # configuration itself holds no secret and the file can be readable by the service only
+    password_file: str | None = None
     tls: bool = False
     ca_file: str | None = None  # relative to the config file
     # people updates per second (0: none)

@@ -92,3 +92,42 @@ def test_any_port_out_of_range_is_refused(tmp_path_factory, calib, port):
     path = _config(folder, calib, f"[serve]\nport = {port}")
     assert main(["serve", str(path)]) == 2
     assert main(["serve", str(_config(folder, calib, "")), "--port", str(port)]) == 2
+
+
+def _secret(folder: Path, text: str = "s3cret\n", mode: int = 0o600) -> Path:
+    path = folder / "mqtt.secret"
+    path.write_text(text)
+    path.chmod(mode)
+    return path
+
+
+MQTT = '[mqtt]\nhost = "localhost"\nusername = "ops"\n'
+
+
+def test_the_mqtt_password_can_come_from_a_private_file(tmp_path, calib):
+    from stereopose.pipeline.serve_setup import plan_serve
+
+    _secret(tmp_path)
+    path = _config(tmp_path, calib, MQTT + 'password_file = "mqtt.secret"')
+    plan = plan_serve(path)
+    assert plan.mqtt is not None and plan.mqtt.password == "s3cret"
+    assert "s3cret" not in path.read_text() and "s3cret" not in repr(plan)
+
+
+@pytest.mark.parametrize(
+    ("extra", "secret", "problem"),
+    [
+        ('password = "x"\npassword_file = "mqtt.secret"', ("s3cret\n", 0o600), "give one of"),
+        ('password_file = "mqtt.secret"', ("s3cret\n", 0o644), "readable by every user"),
+        ('password_file = "mqtt.secret"', ("\n", 0o600), "is empty"),
+        ('password_file = "nothing.secret"', ("s3cret\n", 0o600), "cannot read"),
+        ('password_file = "."', ("s3cret\n", 0o600), "not a small regular file"),
+    ],
+)
+def test_a_bad_password_file_is_exit_2_naming_it(tmp_path, calib, capsys, extra, secret, problem):
+    _secret(tmp_path, *secret)
+    path = _config(tmp_path, calib, MQTT + extra)
+    assert main(["serve", str(path)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "mqtt.password" in err and problem in err and "s3cret" not in err
+    assert not (tmp_path / "out").exists()

@@ -9,6 +9,7 @@ written and nothing opened but the files read.
 
 from __future__ import annotations
 
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -86,10 +87,34 @@ def _mqtt(path: Path, base: Path, cfg: Config) -> MqttSettings | None:
     if not m.host:
         return None
     ca = _resolve(base, m.ca_file) if m.ca_file else None
+    password = m.password
+    if m.password_file:
+        if m.password:
+            raise ConfigError(f"{path}: mqtt.password and mqtt.password_file: give one of them")
+        password = read_secret(_resolve(base, m.password_file), "mqtt.password_file", path)
     return _settings(path, MqttSettings, host=m.host, site=m.site, port=m.port,
-                     topic_prefix=m.topic_prefix, username=m.username, password=m.password,
+                     topic_prefix=m.topic_prefix, username=m.username, password=password,
                      tls=m.tls, ca_file=ca, people_hz=m.people_hz,
                      queue_size=m.queue_size)  # fmt: skip
+
+
+def read_secret(secret: Path, key: str, path: Path) -> str:
+    """The first line of a file holding a secret (a regular file of at most 4 KiB); a file
+    others may read is refused, as ssh refuses such a key."""
+    try:
+        st = secret.stat()
+        if not stat.S_ISREG(st.st_mode) or st.st_size > 4096:
+            raise ConfigError(f"{path}: {key}: {secret} is not a small regular file")
+        if st.st_mode & 0o007:
+            raise ConfigError(f"{path}: {key}: {secret} is readable by every user; chmod o-rwx it")
+        lines = secret.read_text(encoding="utf-8").splitlines()
+    except OSError as e:
+        raise ConfigError(f"{path}: {key}: cannot read {secret}: {e.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: {key}: {secret} is not UTF-8 text") from None
+    if not lines or not lines[0].strip():
+        raise ConfigError(f"{path}: {key}: {secret} is empty")
+    return lines[0].strip()
 
 
 def _storage(path: Path, cfg: Config) -> tuple[SegmentSettings, ClipSettings | None,
