@@ -364,3 +364,21 @@ def test_a_hung_broker_blocks_neither_writes_nor_close(broker, closing) -> None:
         assert c["published"] + c["queued"] == 60 and c["queued"] >= 40  # at most 20 in flight
     finally:
         broker.proc.send_signal(signal.SIGCONT)
+
+
+def test_a_message_published_as_the_link_drops_is_counted_when_resent(closing) -> None:
+    """paho keeps MQTT_ERR_NO_CONN in the info of a message published as the link went down,
+    and raises on asking it later, although it resends the message on reconnecting: the sink
+    counts it as waiting, then as published once paho says it went out."""
+    import paho.mqtt.client as paho
+
+    sink = MqttSink(settings(free_port()))  # no broker: nothing else is in flight
+    closing(sink)
+    info = paho.MQTTMessageInfo(7)
+    info.rc = paho.MQTT_ERR_NO_CONN
+    with pytest.raises(RuntimeError):
+        info.is_published()
+    sink._inflight.append(("events", info))
+    assert sink.counts()["events"]["queued"] == 1  # waiting, and no exception
+    sink._on_publish(None, None, 7)  # paho resent it after reconnecting
+    assert published(sink, "events") == 1 and sink.counts()["events"]["queued"] == 0

@@ -97,6 +97,9 @@ class MqttSink(ClosesOnce):
         }
         self._dirty: set[str] = set(self._zones)
         self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
+        # message ids paho says are sent (QoS 0) or acknowledged (QoS 1): a message published
+        # while the link was down keeps that error in its info even once paho has resent it
+        self._acked: set[int] = set()
         self._connected = self._announce = self._resync = False
         self._last_problem: str | None = None
         self._people_t: float | None = None
@@ -229,22 +232,35 @@ class MqttSink(ClosesOnce):
                 self._counts.failed[msg.kind] += 1
                 logger.error("MQTT: cannot publish to %s: %s", msg.topic, problem)
 
+    def _done(self, info: paho.MQTTMessageInfo) -> bool:
+        """Whether paho has sent (QoS 0) or the broker acknowledged (QoS 1) the message."""
+        if info.mid in self._acked:
+            return True
+        try:
+            return info.is_published()
+        except (RuntimeError, ValueError):  # published while disconnected: resent later
+            return False
+
     def _sweep(self) -> None:
         """Count what the broker has acknowledged (QoS 1) or paho has sent (QoS 0)."""
-        while self._inflight and self._inflight[0][1].is_published():
-            kind, _ = self._inflight.popleft()
+        while self._inflight and self._done(self._inflight[0][1]):
+            kind, info = self._inflight.popleft()
+            self._acked.discard(info.mid)
             if kind in KINDS:
                 self._counts.published[kind] += 1
         # later ones may be done before an earlier one (QoS 0 after a pending QoS 1)
-        if any(info.is_published() for _, info in self._inflight):
+        if any(self._done(info) for _, info in self._inflight):
             rest = deque()
             for kind, info in self._inflight:
-                if info.is_published():
+                if self._done(info):
+                    self._acked.discard(info.mid)
                     if kind in KINDS:
                         self._counts.published[kind] += 1
                 else:
                     rest.append((kind, info))
             self._inflight = rest
+        if len(self._acked) > 4 * INFLIGHT:  # ids of messages not followed here (none known)
+            self._acked.clear()
 
     def _end_burst(self) -> None:
         if self._counts.burst:
@@ -273,8 +289,12 @@ class MqttSink(ClosesOnce):
         c.on_connect = self._on_connect
         c.on_connect_fail = self._on_connect_fail
         c.on_disconnect = self._on_disconnect
-        c.on_publish = lambda *_: self._wake.set()
+        c.on_publish = self._on_publish
         return c
+
+    def _on_publish(self, client: Any, userdata: Any, mid: int, *rest: Any) -> None:
+        self._acked.add(mid)  # a set's add is atomic: no lock on paho's thread
+        self._wake.set()
 
     def _problem(self, level: int, text: str) -> None:
         """Log a connection problem once, not on every retry."""
