@@ -10,14 +10,13 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import urllib.request
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
 
 from brokers import Broker, Subscriber, free_port
+from receivers import Receiver
 from stereopose.io.sinks.events import query_events
 from stereopose.pipeline.demo import write_serve_demo_config
 from waiting import wait_until
@@ -25,32 +24,6 @@ from waiting import wait_until
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 ZONE_TYPES = ("enter", "exit", "approach", "dwell", "left_work_area")
-
-
-class Receiver:
-    """A webhook receiver on 127.0.0.1 recording each POSTed JSON body."""
-
-    def __init__(self) -> None:
-        self.bodies: list[dict] = []
-        received = self.bodies
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                n = int(self.headers.get("Content-Length", 0))
-                received.append(json.loads(self.rfile.read(n)))
-                self.send_response(200)
-                self.end_headers()
-
-            def log_message(self, *args) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_port}/hook"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
 
 
 def _get(url: str) -> tuple[int, bytes]:

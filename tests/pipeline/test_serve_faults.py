@@ -13,15 +13,14 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
 
 from brokers import Broker, Subscriber
 from brokers import free_port as free_tcp_port
+from receivers import Receiver
 from stereopose.calibration.formats import save_calibration
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.events import query_events
@@ -36,32 +35,6 @@ pytestmark = [pytest.mark.slow]
 
 SIZE = (96, 64)
 CAMERA_TYPES = ("camera_down", "camera_up")
-
-
-class Receiver:
-    """A webhook receiver on 127.0.0.1 recording each POSTed JSON body."""
-
-    def __init__(self) -> None:
-        self.bodies: list[dict] = []
-        received = self.bodies
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                n = int(self.headers.get("Content-Length", 0))
-                received.append(json.loads(self.rfile.read(n)))
-                self.send_response(200)
-                self.end_headers()
-
-            def log_message(self, *args) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_port}/hook"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
 
 
 def _calibration(folder: Path) -> tuple[Path, list[str]]:

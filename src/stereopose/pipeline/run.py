@@ -150,6 +150,20 @@ def check_recorded_sizes(rig: Rig, names: list[str], sources: list[str]) -> None
             check_size(rig[name], first[2])
 
 
+def run_rig(config_path: Path, calib_path: Path, cfg: Config) -> Rig:
+    """The calibration's cameras that the configuration names, in its order; a camera the
+    calibration lacks is a ConfigError naming both files."""
+    rig = load_calibration(calib_path)
+    names = [c.name for c in cfg.cameras]
+    unknown = [n for n in names if n not in rig.names]
+    if unknown:
+        raise ConfigError(
+            f"{config_path}: camera(s) {', '.join(unknown)} not in the calibration {calib_path} "
+            f"(which has {', '.join(rig.names)})"
+        )
+    return rig.subset(names)
+
+
 def run(
     config_path: str | Path,
     on_step: Callable[[int, int | None, float], None] | None = None,
@@ -169,15 +183,8 @@ def run(
     check_run_config(cfg, config_path)
     base = config_path.resolve().parent
     calib_path = _resolve(base, cfg.calibration)
-    rig = load_calibration(calib_path)
+    rig = run_rig(config_path, calib_path, cfg)
     names = [c.name for c in cfg.cameras]
-    unknown = [n for n in names if n not in rig.names]
-    if unknown:
-        raise ConfigError(
-            f"{config_path}: camera(s) {', '.join(unknown)} not in the calibration {calib_path} "
-            f"(which has {', '.join(rig.names)})"
-        )
-    rig = rig.subset(names)
     site_path = _resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
     sources = [_source(base, c.source) for c in cfg.cameras]

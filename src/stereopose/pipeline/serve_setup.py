@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, load_config
 from stereopose.errors import ConfigError
 from stereopose.fence import Site, load_site
@@ -24,7 +23,7 @@ from stereopose.io.sinks.segments import POSES_DIR, SegmentSettings
 from stereopose.io.video import is_stream
 from stereopose.pipeline.outputs import check_outputs
 from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
-from stereopose.pipeline.run import check_run_config
+from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.service.server import ServeSettings
 from stereopose.service.storage import RetentionSettings
 from stereopose.types import Rig
@@ -134,18 +133,6 @@ def _storage(path: Path, cfg: Config) -> tuple[SegmentSettings, ClipSettings | N
     return segments, clips, retention
 
 
-def _rig(path: Path, calib_path: Path, cfg: Config) -> Rig:
-    rig = load_calibration(calib_path)
-    names = [c.name for c in cfg.cameras]
-    unknown = [n for n in names if n not in rig.names]
-    if unknown:
-        raise ConfigError(
-            f"{path}: camera(s) {', '.join(unknown)} not in the calibration {calib_path} "
-            f"(which has {', '.join(rig.names)})"
-        )
-    return rig.subset(names)
-
-
 def _check_cameras(path: Path, cfg: Config) -> None:
     """What the service adds to a run's cameras: loop only for a recorded file; a webhook URL
     it can post to."""
@@ -191,7 +178,7 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     _check_cameras(path, cfg)
     base = path.resolve().parent
     calib_path = _resolve(base, cfg.calibration or "")
-    rig = _rig(path, calib_path, cfg)
+    rig = run_rig(path, calib_path, cfg)
     site_path = _resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
     check_outputs(cfg, site, _NoTwoWay)
