@@ -48,7 +48,8 @@ CREATE TABLE IF NOT EXISTS runs (
     started REAL NOT NULL,           -- unix time
     site TEXT,
     source TEXT,
-    ended REAL                       -- unix time of a clean close; NULL: still running or killed
+    ended REAL,                      -- unix time of a clean close; NULL: still running or killed
+    wall_start REAL                  -- unix time of t = 0 (serve); NULL: not recorded
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY,
@@ -84,6 +85,7 @@ CREATE INDEX IF NOT EXISTS events_t ON events(t);
 # columns later versions added, for a log an earlier version created (table, column, SQL type)
 ADDED_COLUMNS = (
     ("runs", "ended", "REAL"),
+    ("runs", "wall_start", "REAL"),
     ("events", "restart", "INTEGER NOT NULL DEFAULT 0"),
     ("events", "camera", "TEXT"),
     ("events", "reprojection_px", "REAL"),
@@ -176,7 +178,8 @@ class SqliteSink(_EventSink):
     id_block at a time, each reservation committed before an id of it can be written anywhere:
     the reservation is extended when a frame's highest id comes within half a block of its end
     (so a process killed at any moment has reserved every id it gave; see service.restart). A
-    clean close records the run's end time.
+    clean close records the run's end time. wall_start: the Unix time of t = 0, recorded in
+    the run's row (an event's wall time is wall_start + t).
     """
 
     def __init__(
@@ -192,6 +195,7 @@ class SqliteSink(_EventSink):
         close_timeout_s: float = 10.0,
         first_id: int | None = None,
         id_block: int = 1000,
+        wall_start: float | None = None,
     ) -> None:
         self.path = Path(path)
         if id_block < 2:
@@ -216,8 +220,8 @@ class SqliteSink(_EventSink):
             self.db.executescript(SCHEMA)
             _upgrade(self.db)
             cur = self.db.execute(
-                "INSERT INTO runs(started, site, source) VALUES (?, ?, ?)",
-                (time.time(), site, source),
+                "INSERT INTO runs(started, site, source, wall_start) VALUES (?, ?, ?, ?)",
+                (time.time(), site, source, wall_start),
             )
             self.run = int(cur.lastrowid)
             if first_id is not None:
