@@ -276,6 +276,10 @@ class ServeConfig:
     calib_warn_factor: float = number(2.0, gt=1.0, le=1000.0)
     # how often status.json (the health snapshot) is rewritten
     status_interval_s: float = number(10.0, gt=0.0, le=DAY_S)
+    # HTTPS: a PEM certificate (chain) and its private key (relative to the config file; both
+    # or neither; the key readable by its owner only)
+    certificate: str | None = None
+    key: str | None = None
 
 
 @_schema("mqtt")

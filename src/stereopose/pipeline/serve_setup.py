@@ -97,6 +97,37 @@ def _mqtt(path: Path, base: Path, cfg: Config) -> MqttSettings | None:
                      queue_size=m.queue_size)  # fmt: skip
 
 
+def _tls(path: Path, base: Path, cfg: Config) -> tuple[str | None, str | None]:
+    """[serve] certificate and key, resolved and checked: both or neither, each a readable
+    file, the key not readable by other users; the pair loadable as TLS."""
+    s = cfg.serve
+    if not s.certificate and not s.key:
+        return None, None
+    if not s.certificate or not s.key:
+        raise ConfigError(f"{path}: serve.certificate and serve.key: give both (HTTPS) or neither")
+    cert, key = _resolve(base, s.certificate), _resolve(base, s.key)
+    for name, file in (("serve.certificate", cert), ("serve.key", key)):
+        try:
+            st = file.stat()
+            with open(file, "rb"):
+                pass
+        except OSError as e:
+            raise ConfigError(f"{path}: {name}: cannot read {file}: {e.strerror}") from None
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(f"{path}: {name}: {file} is not a file")
+        if name == "serve.key" and st.st_mode & 0o007:
+            raise ConfigError(f"{path}: serve.key: {file} is readable by every user; "
+                              "chmod o-rwx it")  # fmt: skip
+    import ssl
+
+    try:
+        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, key)
+    except (ssl.SSLError, OSError) as e:
+        raise ConfigError(f"{path}: serve.certificate {cert} and serve.key {key} are not a "
+                          f"PEM certificate and its key: {e}") from None  # fmt: skip
+    return str(cert), str(key)
+
+
 def read_secret(secret: Path, key: str, path: Path) -> str:
     """The first line of a file holding a secret (a regular file of at most 4 KiB); a file
     others may read is refused, as ssh refuses such a key."""
@@ -182,7 +213,9 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     site_path = _resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
     check_outputs(cfg, site, _NoTwoWay)
-    http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port)
+    certificate, key = _tls(path, base, cfg)
+    http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
+                     certificate=certificate, key=key)  # fmt: skip
     segments, clips, retention = _storage(path, cfg)
     plan = ServePlan(
         config_path=path, config=cfg, rig=rig, calib_path=calib_path, site=site,

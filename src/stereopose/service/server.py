@@ -5,6 +5,10 @@ ServeError (a StereoposeError naming host:port) raised by `start()`, and port 0 
 port that `start()` returns. uvicorn is set for a closed network: no Server header, no
 X-Forwarded-* trusted, request line and headers bounded, a cap on concurrent connections,
 its logging left to the application (no dictConfig of its own), signals left to the caller.
+With a certificate and its key (ServeSettings), it speaks HTTPS only. Told how to count the
+console's users (`Server(users=...)`), it refuses to listen on an address other machines can
+reach while there is no user: the console would be open to nobody, and a first user is
+added on the machine itself (`stereopose users add`).
 """
 
 from __future__ import annotations
@@ -14,8 +18,10 @@ import ipaddress
 import logging
 import re
 import socket
+import ssl
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import uvicorn
@@ -56,10 +62,13 @@ class ServeError(StereoposeError):
 @dataclass(frozen=True)
 class ServeSettings:
     """Where the HTTP server listens. host: an IP address or host name ("0.0.0.0": every
-    interface); port: 0 to 65535 (0: any free port)."""
+    interface); port: 0 to 65535 (0: any free port); certificate, key: PEM files (both or
+    neither): HTTPS."""
 
     host: str = "127.0.0.1"
     port: int = 8787
+    certificate: str | None = None
+    key: str | None = None
 
     def __post_init__(self) -> None:
         host = self.host
@@ -68,6 +77,12 @@ class ServeSettings:
         port = self.port
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ConfigError(f"serve.port must be an integer in [0, 65535], got {port!r}")
+        if (self.certificate is None) != (self.key is None):
+            raise ConfigError("serve.certificate and serve.key: give both (HTTPS) or neither")
+
+    @property
+    def tls(self) -> bool:
+        return self.certificate is not None
 
 
 def _is_host(host: str) -> bool:
@@ -124,8 +139,9 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
 
 
 def uvicorn_config(
-    app: object, host: str, port: int, graceful_s: float = GRACEFUL_S
-) -> uvicorn.Config:
+    app: object, host: str, port: int, graceful_s: float = GRACEFUL_S,
+    certificate: str | None = None, key: str | None = None,
+) -> uvicorn.Config:  # fmt: skip
     """uvicorn's settings for the service (see the module docstring)."""
     return uvicorn.Config(
         app,
@@ -142,13 +158,17 @@ def uvicorn_config(
         timeout_keep_alive=KEEP_ALIVE_S,
         timeout_graceful_shutdown=graceful_s,  # type: ignore[arg-type]  # a float works
         h11_max_incomplete_event_size=MAX_HEADER_BYTES,
+        ssl_certfile=certificate,
+        ssl_keyfile=key,
     )
 
 
 class Server:
     """The app served from a background thread. `start()` binds, serves and returns the bound
     port once the server accepts connections; `stop()` ends it within shutdown_timeout_s.
-    graceful_s: how long open requests may finish at shutdown. Usable as a context manager."""
+    graceful_s: how long open requests may finish at shutdown; users: the number of console
+    users now (None: not checked), and users_hint: how to add one, for the refusal to listen
+    beyond this machine without any. Usable as a context manager."""
 
     def __init__(
         self,
@@ -159,8 +179,11 @@ class Server:
         start_timeout_s: float = 10.0,
         shutdown_timeout_s: float = 5.0,
         graceful_s: float = GRACEFUL_S,
+        users: Callable[[], int] | None = None,
+        users_hint: str = "stereopose users add NAME --role admin --config CONFIG.toml",
     ) -> None:
         self.app = app
+        self.users, self.users_hint = users, users_hint
         self.settings = settings or ServeSettings()
         self.local_only = local_only
         self.start_timeout_s = start_timeout_s
@@ -174,20 +197,30 @@ class Server:
 
     @property
     def url(self) -> str:
-        """http://host:port of the running server."""
+        """http(s)://host:port of the running server."""
         if self.port is None:
             raise RuntimeError("the server is not started")
-        return f"http://{_where(self.settings.host, self.port)}"
+        scheme = "https" if self.settings.tls else "http"
+        return f"{scheme}://{_where(self.settings.host, self.port)}"
 
     def start(self) -> int:
         """Bind, serve in a thread, wait until it accepts; the bound port."""
         if self._thread is not None:
             raise RuntimeError("the server is already started")
+        self._check_users()
         sock = bind(self.settings, local_only=self.local_only)
         self._sock = sock
         self.port = sock.getsockname()[1]
         where = _where(self.settings.host, self.port)
-        config = uvicorn_config(self.app, self.settings.host, self.port, self.graceful_s)
+        s = self.settings
+        try:
+            config = uvicorn_config(self.app, s.host, self.port, self.graceful_s,
+                                    s.certificate, s.key)  # fmt: skip
+            config.load()  # the certificate and key read now: a bad one is a ServeError
+        except (OSError, ssl.SSLError) as e:
+            self._close_socket()
+            raise ServeError(f"cannot serve HTTPS on {where} with serve.certificate "
+                             f"{s.certificate} and serve.key {s.key}: {e}") from None  # fmt: skip
         self._server = uvicorn.Server(config)
         self._thread = threading.Thread(target=self._serve, name=f"http {where}", daemon=True)
         self._thread.start()
@@ -204,6 +237,21 @@ class Server:
             time.sleep(0.01)
         logger.info("HTTP server listening on %s", self.url)
         return self.port
+
+    def _check_users(self) -> None:
+        host = self.settings.host
+        if self.users is None or is_loopback(host):
+            return
+        try:
+            n = self.users()
+        except StereoposeError as e:
+            raise ServeError(f"serve.host {host!r}: cannot read the console's users: {e}") from None
+        if n == 0:
+            raise ServeError(
+                f"serve.host {host!r} is reachable from other machines, and the console has no "
+                f"user yet: add one first with `{self.users_hint}` (the password is read from "
+                "standard input), or serve on 127.0.0.1"
+            )
 
     def stop(self) -> bool:
         """Stop serving: new connections refused at once, open requests given graceful_s,
