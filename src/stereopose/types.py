@@ -339,8 +339,14 @@ class Event:
     closed at start-up because the process had stopped (killed) while the person was inside.
     Camera events (kind "camera": camera_down, camera_up, calibration_drift,
     calibration_recovered) have zone "", person -1 and name their `camera`; the calibration
-    events give the running and the baseline reprojection errors (pixels). Its JSON record (the
-    events contract) is io.records.event_record.
+    events give the running and the baseline reprojection errors (pixels). Behaviour events
+    (kind "behaviour", stereopose.behaviour: person_down, person_up, lone_worker, work_position,
+    immobile, overreach and their `_end`s) name their `rule` and explain themselves with the
+    person's `posture`, `nearest_m` (the nearest other person, lone_worker), `facing_deg` (the
+    direction faced, degrees counter-clockwise from world +x) and `failed` (the conditions that
+    failed, comma-separated: work_position), `height_m` (the wrist's height, overreach) and
+    `speed_m_s` (how fast the hips dropped, person_down). Its JSON record (the events contract)
+    is io.records.event_record.
     """
 
     t: float
@@ -360,3 +366,10 @@ class Event:
     camera: str | None = None
     reprojection_px: float | None = None
     baseline_px: float | None = None
+    rule: str | None = None
+    posture: str | None = None
+    nearest_m: float | None = None
+    facing_deg: float | None = None
+    failed: str | None = None
+    height_m: float | None = None
+    speed_m_s: float | None = None

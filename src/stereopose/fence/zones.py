@@ -15,6 +15,10 @@ Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
     exit_s = 0.2                        # ... and outside this long to exit
     allowed = [3]                       # optional: person ids whose events are marked allowed
     expected = [1]                      # optional (work_area): persons expected to stay in it
+    [[rules]]                           # optional: behaviour rules (stereopose.behaviour)
+    name = "man_down"
+    type = "person_down"
+    down_s = 3.0
 
 All geometry here is vectorised over every joint of every person and every zone at once.
 """
@@ -28,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from stereopose.behaviour.definitions import Rule, format_rules, parse_rules
 from stereopose.checks import (
     DAY_S,
     FPS,
@@ -122,8 +127,10 @@ class Site:
     zones: tuple[Zone, ...]
     fps: float | None = None  # frames per second, in [FPS_MIN, FPS_MAX]
     path: Path | None = field(default=None, compare=False)
+    rules: tuple[Rule, ...] = ()  # behaviour rules (behaviour.definitions)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "rules", tuple(self.rules))
         if len(self.zones) > MAX_ZONES:
             raise ConfigError(f"{len(self.zones)} zones; a site holds at most {MAX_ZONES}")
         if self.fps is not None:
@@ -185,6 +192,7 @@ def format_site(site: Site) -> str:
             if ids:
                 lines.append(f"{key} = {ids}")
         lines.append("")
+    lines += format_rules(site.rules)
     return "\n".join(lines)
 
 
@@ -202,15 +210,17 @@ def load_site(path: str | Path) -> Site:
     path = Path(path)
     data = read_toml(path, "site file")
     try:
-        return Site(_zones(data), _fps(data), path)
+        fps = _fps(data)
+        zones = _zones(data)
+        return Site(zones, fps, path, rules=parse_rules(data.get("rules"), "", zones))
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
 
 
 def _fps(data: dict[str, Any]) -> float | None:
-    unknown = sorted(set(data) - {"fps", "zones"})
+    unknown = sorted(set(data) - {"fps", "zones", "rules"})
     if unknown:
-        raise ConfigError(f"unknown key(s) {', '.join(unknown)}; known: fps, zones")
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)}; known: fps, zones, rules")
     fps = data.get("fps")
     return None if fps is None else float(FPS.check(fps, "fps"))
 

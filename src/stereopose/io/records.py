@@ -4,16 +4,20 @@ written and read (poses and events JSON lines, SQLite rows, the webhook body, th
 3D poses, one record per frame (ARCHITECTURE.md), frames with nobody included:
 {"frame": 42, "t": 1.68, "people": [{"id": 3, "joints": [[x, y, z] or null, ...17],
  "conf": [...17], "position": [x, y], "velocity": [vx, vy], "speed": 0.8, "heading_deg": 91.5,
- "predicted": false, "views": [...17], "reprojection_px": 2.1}]}
+ "predicted": false, "views": [...17], "reprojection_px": 2.1, "posture": "standing",
+ "flags": ["arms_raised"]}]}
 Metres, world frame; joints to 0.1 mm, conf to 1e-3, velocity and speed (m/s) to 1 mm/s,
 heading (degrees counter-clockwise from world +x) to 0.1 degree, the person's mean
-reprojection error (pixels) to 0.01 px. Only `frame`, `people[].id` and `people[].joints` are
+reprojection error (pixels) to 0.01 px; `posture` and `flags` (behaviour.posture) only when
+the site has behaviour rules. Only `frame`, `people[].id` and `people[].joints` are
 required when reading.
 
 Events: {"t": 2.12, "frame": 53, "person": 3, "zone": "work_area_1", "kind": "work_area",
 "type": "enter", "onset_t": 2.04, "joint": "right_wrist", "position": [x, y]}, with
 `distance_m`, `duration_s`, `allowed`, `lost` and `restart` when they apply. Camera events
 add `camera` and, for the calibration's health, `reprojection_px` and `baseline_px`.
+Behaviour events (kind "behaviour") add `rule` and, where they apply, `posture`, `nearest_m`,
+`facing_deg`, `failed`, `height_m` and `speed_m_s`.
 """
 
 from __future__ import annotations
@@ -40,7 +44,11 @@ __all__ = [
 # the SQLite event log's columns, in order (see io.sinks.events)
 EVENT_COLUMNS = ("run", "t", "frame", "person", "zone", "kind", "type", "onset_t", "joint",
                  "distance_m", "duration_s", "x", "y", "allowed", "lost", "restart", "camera",
-                 "reprojection_px", "baseline_px")  # fmt: skip
+                 "reprojection_px", "baseline_px", "rule", "posture", "nearest_m", "facing_deg",
+                 "failed", "height_m", "speed_m_s")  # fmt: skip
+# the behaviour events' optional fields: (name, decimals; None for text)
+_BEHAVIOUR_FIELDS = (("rule", None), ("posture", None), ("nearest_m", 4), ("facing_deg", 1),
+                     ("failed", None), ("height_m", 4), ("speed_m_s", 3))  # fmt: skip
 
 
 def _round(x: float, nd: int) -> float | None:
@@ -75,8 +83,10 @@ def _person_record(
     }
 
 
-def frame_record(people: People3D, fps: float) -> dict:
-    """The JSON object of one frame of 3D people; t: the frame's time (People3D.time)."""
+def frame_record(people: People3D, fps: float, postures: Mapping[int, Any] | None = None) -> dict:
+    """The JSON object of one frame of 3D people; t: the frame's time (People3D.time).
+    postures: person id -> posture (behaviour.posture.Posture) when behaviour rules run: each
+    person with one gets `"posture"` and `"flags"`."""
     P = len(people)
     out = []
     if P:
@@ -93,6 +103,11 @@ def frame_record(people: People3D, fps: float) -> dict:
             mean_err.tolist(),
         )  # fmt: skip
         out = [_person_record(*row) for row in zip(*columns, strict=True)]
+        if postures:
+            for rec in out:
+                pos = postures.get(rec["id"])
+                if pos is not None:
+                    rec["posture"], rec["flags"] = pos.posture, list(pos.flags)
     return {"frame": people.frame, "t": round(people.time(fps), 6), "people": out}
 
 
@@ -178,6 +193,10 @@ def event_record(e: Event) -> dict:
         value = getattr(e, key)
         if value is not None:
             d[key] = _round(value, 3)
+    for key, nd in _BEHAVIOUR_FIELDS:
+        value = getattr(e, key)
+        if value is not None:
+            d[key] = value if nd is None else _round(value, nd)
     return d
 
 
@@ -206,6 +225,12 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
         camera=None if d.get("camera") is None else str(d["camera"]),
         reprojection_px=_optional_float(d.get("reprojection_px")),
         baseline_px=_optional_float(d.get("baseline_px")),
+        **{
+            key: (None if d.get(key) is None else str(d[key]))
+            if nd is None
+            else _optional_float(d.get(key))
+            for key, nd in _BEHAVIOUR_FIELDS
+        },
     )
 
 
@@ -218,4 +243,5 @@ def event_row(e: Event, run: int) -> tuple:
     x, y = e.position if e.position else (None, None)
     return (run, e.t, e.frame, e.person, e.zone, e.kind, e.type, e.onset_t, e.joint,
             e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost), int(e.restart),
-            e.camera, e.reprojection_px, e.baseline_px)  # fmt: skip
+            e.camera, e.reprojection_px, e.baseline_px, e.rule, e.posture, e.nearest_m,
+            e.facing_deg, e.failed, e.height_m, e.speed_m_s)  # fmt: skip

@@ -11,9 +11,9 @@ import logging
 import math
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from stereopose.errors import StereoposeError
 from stereopose.io.gzlines import DamagedGzipError, GzipLines
@@ -36,8 +36,10 @@ class PosesWriter:
         self._f: IO[str] = open_output(self.path, "3D poses")
         self.frames = 0
 
-    def write(self, people: People3D) -> None:
-        self._f.write(json.dumps(frame_record(people, self.fps), separators=(",", ":")) + "\n")
+    def write(self, people: People3D, postures: Mapping[int, Any] | None = None) -> None:
+        """One frame; postures: person id -> posture (see io.records.frame_record)."""
+        record = frame_record(people, self.fps, postures)
+        self._f.write(json.dumps(record, separators=(",", ":")) + "\n")
         self._f.flush()
         self.frames += 1
 

@@ -1,4 +1,5 @@
-"""The frame loop, shared by every run: source -> detection -> 3D stage -> fences -> sinks.
+"""The frame loop, shared by every run: source -> detection -> 3D stage -> fences and
+behaviour rules -> sinks.
 
 ``reconstruct`` (keypoint files), ``run`` and ``demo`` (cameras) and the service build a
 source, a 3D stage and their sinks, and hand them to `FrameLoop`. Per frame it times each
@@ -26,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from stereopose.behaviour.rules import BehaviourMonitor
 from stereopose.config import Config
 from stereopose.errors import IncompleteOutputError
 from stereopose.fence import FenceMonitor, Site
@@ -95,7 +97,9 @@ class FrameLoop:
     """One run's frame loop. `run()` once: it returns the summary, every sink closed.
 
     sinks: closed in their order at the end (pipeline.outputs.open_outputs puts the summary
-    and the report last). fences: zone events per frame (None: no site).
+    and the report last). fences: zone events per frame (None: no site). behaviour: the
+    site's behaviour rules (their events follow the zones'; the postures go to every sink in
+    FrameResult.postures; None: no rules).
     """
 
     def __init__(
@@ -106,11 +110,12 @@ class FrameLoop:
         summary: RunSummary,
         *,
         fences: FenceMonitor | None = None,
+        behaviour: BehaviourMonitor | None = None,
         on_step: OnStep | None = None,
         stop: threading.Event | None = None,
     ) -> None:
         self.source, self.stage, self.sinks = source, stage, list(sinks)
-        self.summary, self.fences = summary, fences
+        self.summary, self.fences, self.behaviour = summary, fences, behaviour
         self.on_step = on_step
         self.stop = stop or threading.Event()
         self.interrupt = Interrupt(self.stop)
@@ -167,9 +172,15 @@ class FrameLoop:
             t2 = time.perf_counter()
             sec["3d"] += t2 - t1
             events = self.fences.update(people3d) if self.fences is not None else []
+            postures = None
+            if self.behaviour is not None:
+                more, postures = self.behaviour.step(step.t, step.frame, people3d)
+                events = [*events, *more]
             t3 = time.perf_counter()
             sec["fences"] += t3 - t2
-            result = FrameResult(step.frame, step.t, people2d, people3d, events, step.images)
+            result = FrameResult(
+                step.frame, step.t, people2d, people3d, events, step.images, postures
+            )
             for sink in self.sinks:
                 sink.write(result)
                 t4 = time.perf_counter()
@@ -199,6 +210,13 @@ class FrameLoop:
                 logger.exception("closing %s failed", type(sink).__name__)
                 failed = failed or e
         return failed
+
+
+def behaviour_monitor(site: Site | None, config: Config) -> BehaviourMonitor | None:
+    """The monitor of the site's behaviour rules (None: no site, or no rules in it)."""
+    if site is None or not site.rules:
+        return None
+    return BehaviourMonitor(site.rules, site.zones, config.fps, config.tracking.max_lost_s)
 
 
 def run_frames(
@@ -232,7 +250,9 @@ def run_frames(
     fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
     sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
                          site=site, source=label, on_events=on_events)  # fmt: skip
-    loop = FrameLoop(source, stage, sinks, summary, fences=fences, on_step=on_step, stop=stop)
+    loop = FrameLoop(source, stage, sinks, summary, fences=fences,
+                     behaviour=behaviour_monitor(site, config), on_step=on_step,
+                     stop=stop)  # fmt: skip
     summary = loop.run()
     if summary.failed_outputs:  # the work is done, but not all of it is kept: exit code 3
         raise IncompleteOutputError(summary.failed_outputs, summary.outputs, summary)

@@ -6,7 +6,7 @@ import logging
 from collections.abc import Iterable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -24,6 +24,8 @@ class FrameResult:
     cameras). people2d: camera name -> that camera's 2D people (the cameras with an image or a
     keypoint file at this frame). events: the zone events raised at this frame. images: camera
     name -> its frame (H, W, 3) BGR at the calibration's size, or None; None for keypoint input.
+    postures: person id -> posture (behaviour.posture.Posture: `posture`, `flags`) when the
+    site has behaviour rules, else None.
     """
 
     frame: int
@@ -32,6 +34,7 @@ class FrameResult:
     people3d: People3D
     events: Sequence[Event] = ()
     images: Mapping[str, np.ndarray | None] | None = None
+    postures: Mapping[int, Any] | None = None
 
 
 class Sink(Protocol):

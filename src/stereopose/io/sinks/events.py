@@ -71,7 +71,14 @@ CREATE TABLE IF NOT EXISTS events (
     restart INTEGER NOT NULL DEFAULT 0,
     camera TEXT,
     reprojection_px REAL,
-    baseline_px REAL
+    baseline_px REAL,
+    rule TEXT,
+    posture TEXT,
+    nearest_m REAL,
+    facing_deg REAL,
+    failed TEXT,
+    height_m REAL,
+    speed_m_s REAL
 );
 CREATE TABLE IF NOT EXISTS id_reservations (
     run INTEGER PRIMARY KEY REFERENCES runs(id),
@@ -90,6 +97,13 @@ ADDED_COLUMNS = (
     ("events", "camera", "TEXT"),
     ("events", "reprojection_px", "REAL"),
     ("events", "baseline_px", "REAL"),
+    ("events", "rule", "TEXT"),
+    ("events", "posture", "TEXT"),
+    ("events", "nearest_m", "REAL"),
+    ("events", "facing_deg", "REAL"),
+    ("events", "failed", "TEXT"),
+    ("events", "height_m", "REAL"),
+    ("events", "speed_m_s", "REAL"),
 )
 
 

@@ -28,7 +28,7 @@ class PosesSink(ClosesOnce):
         self.writer = PosesWriter(path, fps)
 
     def write(self, frame: FrameResult) -> None:
-        self.writer.write(frame.people3d)
+        self.writer.write(frame.people3d, frame.postures)
 
     def _close(self) -> list[Path]:
         self.writer.close()

@@ -115,7 +115,7 @@ class SegmentSink(ClosesOnce):
         if self._buf_wall is None:
             self._buf_wall = wall
             self._flush_t = t + self.settings.segment_flush_s
-        record = frame_record(frame.people3d, self.fps)
+        record = frame_record(frame.people3d, self.fps, frame.postures)
         self._buf += (json.dumps(record, separators=(",", ":")) + "\n").encode()
         self._buffered += 1
         self._t = t

@@ -1,0 +1,444 @@
+"""Posture per person and frame, from the 3D joints and their recent motion.
+
+World frame: metres, z up, floor at z = 0; joints are COCO-17 (stereopose.skeleton), NaN where
+missing. Every posture is decided by geometry with a threshold of PostureSettings:
+
+- torso angle: between the hip centre -> shoulder centre vector and the vertical (the left or
+  right side alone when only that side is known; without hips or shoulders, the main axis of
+  the joints that are known);
+- hip height against the person's own standing hip height (a high quantile of their hip
+  heights while upright, PostureTracker; `standing_hip_m` until enough are seen);
+- knee angle: between thigh and shin at the knee (180 degrees: straight);
+- speed: of the person's floor point over the last `walk_window_s`.
+
+The postures, in the order they are tested:
+
+- lying: the body's top (the highest of the head and shoulders; the hips when neither is known)
+  below `lying_height_m`, with the torso at least `lying_deg` from vertical (or its angle
+  unknown). Joints that are missing (a body half out of view, seen by two cameras) are left out.
+- crouching (kneeling, squatting, sitting): hips below `low_hip_ratio` x the standing hip height
+  (without hips: the shoulders below that share of their standing height).
+- bending: hips high, torso at least `bend_deg` from vertical.
+- walking / standing: upright, the floor point moving at least `walk_speed_m_s` or not.
+- unknown: fewer than `min_joints` joints, or only limbs that tell nothing.
+
+Flags (not for a lying body): `arms_raised`, a wrist above the top of the head (`raised_m`
+above it; above the shoulders by `raised_shoulder_m` when the head is not known); `reaching`, a
+wrist farther than `reach_m` on the floor plan from its shoulder (from the shoulders' or hips'
+centre when that shoulder is missing).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereopose.skeleton import (
+    FACE,
+    LEFT_ANKLE,
+    LEFT_EAR,
+    LEFT_HIP,
+    LEFT_KNEE,
+    LEFT_SHOULDER,
+    LEFT_WRIST,
+    NUM_JOINTS,
+    RIGHT_ANKLE,
+    RIGHT_EAR,
+    RIGHT_HIP,
+    RIGHT_KNEE,
+    RIGHT_SHOULDER,
+    RIGHT_WRIST,
+)
+from stereopose.types import People3D
+
+__all__ = [
+    "DEFAULT_SETTINGS",
+    "FLAGS",
+    "POSTURES",
+    "UNKNOWN",
+    "Posture",
+    "PostureSettings",
+    "PostureTracker",
+    "classify",
+]
+
+POSTURES = ("standing", "walking", "bending", "crouching", "lying")
+UNKNOWN = "unknown"
+FLAGS = ("arms_raised", "reaching")
+UPRIGHT = frozenset({"standing", "walking", "bending"})  # "up" again after a fall
+
+_HEAD = (*FACE, LEFT_EAR, RIGHT_EAR)
+_HIPS = (LEFT_HIP, RIGHT_HIP)
+_SHOULDERS = (LEFT_SHOULDER, RIGHT_SHOULDER)
+_WRISTS = (LEFT_WRIST, RIGHT_WRIST)
+_LEGS = ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE), (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE))
+# standing shoulder height over standing hip height (adult proportions: 0.818 / 0.525)
+SHOULDER_OVER_HIP = 1.56
+_BINS_M = np.arange(0.3, 1.5001, 0.01)  # standing hip height histogram: bin edges, metres
+
+
+@dataclass(frozen=True)
+class PostureSettings:
+    """The thresholds of the postures (see the module). Heights in metres above the floor,
+    angles in degrees, speeds in m/s, times in seconds.
+
+    standing_hip_m: a person's standing hip height until their own is known (adults: ~0.9).
+    hip_quantile: the quantile of a person's upright hip heights taken as their standing one.
+    min_samples: upright frames needed before a person's own standing height is used.
+    low_hip_ratio: hips below this share of the standing height: crouching.
+    lying_height_m: the body's top (head, shoulders) below this: lying (with lying_deg).
+    lying_deg: torso at least this far from vertical for lying.
+    bend_deg: torso at least this far from vertical, hips high: bending.
+    upright_deg: torso within this of vertical: an upright frame (standing height samples).
+    knee_bent_deg: a knee angle below this is bent (reported; crouching needs low hips).
+    walk_speed_m_s, walk_window_s: walking when the floor point moves this fast over the window.
+    drop_dt_s, drop_window_s: the hips' drop speed is the peak, over the last drop_window_s, of
+        their downward speed measured over drop_dt_s.
+    raised_m: a wrist this far above the head's top is raised; raised_shoulder_m: above the
+        shoulders, when no head joint is known.
+    reach_m: a wrist this far (floor plan) from its shoulder is reaching.
+    min_joints: fewer known joints: unknown.
+    """
+
+    standing_hip_m: float = 0.9
+    hip_quantile: float = 0.9
+    min_samples: int = 12
+    low_hip_ratio: float = 0.72
+    lying_height_m: float = 0.6
+    lying_deg: float = 60.0
+    bend_deg: float = 30.0
+    upright_deg: float = 20.0
+    knee_bent_deg: float = 140.0
+    walk_speed_m_s: float = 0.3
+    walk_window_s: float = 1.0
+    drop_dt_s: float = 0.2
+    drop_window_s: float = 1.0
+    raised_m: float = 0.0
+    raised_shoulder_m: float = 0.35
+    reach_m: float = 0.45
+    min_joints: int = 3
+
+
+DEFAULT_SETTINGS = PostureSettings()
+
+
+@dataclass(frozen=True)
+class Posture:
+    """One person's posture at one frame.
+
+    posture: one of POSTURES, or "unknown"; flags: a subset of FLAGS, in that order.
+    torso_deg: torso angle to vertical (NaN: unknown); hip_height_m: the hip centre's height
+    (NaN: no hip known); standing_hip_m: the standing hip height it was compared with;
+    trunk_m: the hips' height, or the shoulders' without hips (falls are measured on it);
+    top_m: the body's top (head, shoulders; hips without them); knee_deg: the more bent knee's
+    angle (NaN: unknown); speed_m_s: floor speed (NaN: unknown); drop_m_s: the trunk's peak
+    drop speed over the last drop_window_s (0 when it did not drop; NaN: unknown); wrist_m:
+    the higher wrist's height; reach_m: the farther wrist's floor distance from its shoulder.
+    """
+
+    posture: str
+    flags: tuple[str, ...] = ()
+    torso_deg: float = math.nan
+    hip_height_m: float = math.nan
+    standing_hip_m: float = math.nan
+    trunk_m: float = math.nan
+    top_m: float = math.nan
+    knee_deg: float = math.nan
+    speed_m_s: float = math.nan
+    drop_m_s: float = math.nan
+    wrist_m: float = math.nan
+    reach_m: float = math.nan
+
+    @property
+    def upright(self) -> bool:
+        """Standing, walking or bending: up on their feet."""
+        return self.posture in UPRIGHT
+
+
+def _mean_z(J: np.ndarray, idx: tuple[int, ...]) -> float:
+    z = J[list(idx), 2]
+    z = z[np.isfinite(z)]
+    return float(z.mean()) if z.size else math.nan
+
+
+def _centre(J: np.ndarray, idx: tuple[int, ...]) -> np.ndarray:
+    pts = J[list(idx)]
+    pts = pts[np.isfinite(pts).all(-1)]
+    return pts.mean(0) if len(pts) else np.full(3, np.nan)
+
+
+def _angle_to_vertical(v: np.ndarray) -> float:
+    n = float(np.linalg.norm(v))
+    if not math.isfinite(n) or n < 1e-6:
+        return math.nan
+    return math.degrees(math.acos(min(1.0, abs(float(v[2])) / n)))
+
+
+def torso_vector(J: np.ndarray) -> np.ndarray:
+    """Hip centre -> shoulder centre (3,) of one skeleton (17, 3): both sides when all four
+    joints are known, else one side whole, else whatever hip and shoulder are known (NaN:
+    none)."""
+    ok = np.isfinite(J).all(-1)
+    if ok[list(_HIPS + _SHOULDERS)].all():
+        return _centre(J, _SHOULDERS) - _centre(J, _HIPS)
+    for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
+        if ok[hip] and ok[shoulder]:
+            return J[shoulder] - J[hip]
+    return _centre(J, _SHOULDERS) - _centre(J, _HIPS)
+
+
+def torso_angle(J: np.ndarray) -> float:
+    """Torso angle to vertical in degrees (see the module); NaN when it cannot be told."""
+    deg = _angle_to_vertical(torso_vector(J))
+    if math.isfinite(deg):
+        return deg
+    pts = J[np.isfinite(J).all(-1)]
+    if len(pts) < 4:
+        return math.nan
+    centred = pts - pts.mean(0)
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    if s[0] < 0.3 * math.sqrt(len(pts)) or s[0] < 1.5 * s[1]:  # too small or no clear axis
+        return math.nan
+    return _angle_to_vertical(vt[0])
+
+
+def knee_angle(J: np.ndarray) -> float:
+    """The more bent knee's angle between thigh and shin, degrees (180: straight; NaN: no leg
+    with hip, knee and ankle known)."""
+    best = math.nan
+    for hip, knee, ankle in _LEGS:
+        a, b = J[hip] - J[knee], J[ankle] - J[knee]
+        na, nb = np.linalg.norm(a), np.linalg.norm(b)
+        if not (np.isfinite(na) and np.isfinite(nb)) or na < 1e-6 or nb < 1e-6:
+            continue
+        deg = math.degrees(math.acos(float(np.clip(a @ b / (na * nb), -1.0, 1.0))))
+        best = deg if math.isnan(best) else min(best, deg)
+    return best
+
+
+def _flags(J: np.ndarray, s: PostureSettings) -> tuple[tuple[str, ...], float, float]:
+    """(flags, highest wrist height, farthest wrist reach)."""
+    wrists = J[list(_WRISTS)]
+    wrists = wrists[np.isfinite(wrists).all(-1)]
+    if not len(wrists):
+        return (), math.nan, math.nan
+    wrist_m = float(wrists[:, 2].max())
+    head = J[list(_HEAD), 2]
+    head = head[np.isfinite(head)]
+    if head.size:
+        raised = wrist_m > float(head.max()) + s.raised_m
+    else:
+        shoulders = _mean_z(J, _SHOULDERS)
+        raised = math.isfinite(shoulders) and wrist_m > shoulders + s.raised_shoulder_m
+    reach = math.nan
+    centre = _centre(J, _SHOULDERS)
+    if not np.isfinite(centre).all():
+        centre = _centre(J, _HIPS)
+    for w, sh in zip(_WRISTS, _SHOULDERS, strict=True):
+        base = J[sh] if np.isfinite(J[sh]).all() else centre
+        if np.isfinite(J[w]).all() and np.isfinite(base).all():
+            d = math.hypot(*(J[w, :2] - base[:2]))
+            reach = d if math.isnan(reach) else max(reach, d)
+    flags = []
+    if raised:
+        flags.append("arms_raised")
+    if math.isfinite(reach) and reach > s.reach_m:
+        flags.append("reaching")
+    return tuple(flags), wrist_m, reach
+
+
+def classify(
+    joints: np.ndarray,
+    standing_hip_m: float | None = None,
+    speed_m_s: float = math.nan,
+    settings: PostureSettings = PostureSettings(),  # frozen: never changed
+    drop_m_s: float = math.nan,
+) -> Posture:
+    """The posture of one skeleton: joints (17, 3) metres, world frame z up, NaN = missing.
+
+    standing_hip_m: the person's standing hip height (None: settings.standing_hip_m);
+    speed_m_s: their floor speed (NaN: unknown, taken as standing still); drop_m_s: passed
+    through into the result (PostureTracker measures it)."""
+    J = np.asarray(joints, dtype=np.float64)
+    if J.shape != (NUM_JOINTS, 3):
+        raise ValueError(f"joints must have shape ({NUM_JOINTS}, 3), got {J.shape}")
+    s = settings
+    ref = s.standing_hip_m if standing_hip_m is None else float(standing_hip_m)
+    known = np.isfinite(J).all(-1)
+    hip = _mean_z(J, _HIPS)
+    shoulders = _mean_z(J, _SHOULDERS)
+    trunk = hip if math.isfinite(hip) else shoulders
+    common = dict(hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s,
+                  drop_m_s=drop_m_s)  # fmt: skip
+    if known.sum() < s.min_joints:
+        return Posture(UNKNOWN, **common)
+    torso = torso_angle(J)
+    knee = knee_angle(J)
+    upper = J[list(_HEAD + _SHOULDERS), 2]
+    upper = upper[np.isfinite(upper)]
+    if upper.size:
+        top = float(upper.max())
+    elif math.isfinite(hip):
+        top = float(np.nanmax(J[list(_HIPS), 2]))
+    else:
+        top = math.nan
+    common.update(torso_deg=torso, top_m=top, knee_deg=knee)
+    if math.isnan(top):  # only limbs: a long low body lying, or nothing to tell
+        z = J[known, 2]
+        if math.isfinite(torso) and torso >= s.lying_deg and float(z.max()) < s.lying_height_m:
+            return Posture("lying", **common)
+        return Posture(UNKNOWN, **common)
+    if top < s.lying_height_m and (math.isnan(torso) or torso >= s.lying_deg):
+        return Posture("lying", **common)
+    flags, wrist_m, reach = _flags(J, s)
+    common.update(flags=flags, wrist_m=wrist_m, reach_m=reach)
+    if math.isfinite(hip):
+        low = hip < s.low_hip_ratio * ref
+    elif math.isfinite(shoulders):
+        low = shoulders < s.low_hip_ratio * ref * SHOULDER_OVER_HIP and not (
+            math.isfinite(torso) and torso >= s.bend_deg
+        )
+    else:
+        return Posture(UNKNOWN, **common)
+    if low:
+        return Posture("crouching", **common)
+    if math.isfinite(torso) and torso >= s.bend_deg:
+        return Posture("bending", **common)
+    walking = math.isfinite(speed_m_s) and speed_m_s >= s.walk_speed_m_s
+    return Posture("walking" if walking else "standing", **common)
+
+
+class _Person:
+    """One person's recent motion and standing height (bounded)."""
+
+    def __init__(self, maxlen: int) -> None:
+        self.floor: deque[tuple[float, float, float]] = deque(maxlen=maxlen)  # t, x, y
+        self.trunk: deque[tuple[float, float]] = deque(maxlen=maxlen)  # t, trunk height
+        self.drops: deque[tuple[float, float]] = deque(maxlen=maxlen)  # t, drop speed
+        self.hist = np.zeros(len(_BINS_M) - 1, dtype=np.int64)
+        self.last_t = -math.inf
+        self.last: Posture | None = None
+
+    def standing_hip(self, s: PostureSettings) -> float:
+        n = int(self.hist.sum())
+        if n < s.min_samples:
+            return s.standing_hip_m
+        k = int(np.searchsorted(np.cumsum(self.hist), s.hip_quantile * n))
+        k = min(k, len(self.hist) - 1)
+        return float(0.5 * (_BINS_M[k] + _BINS_M[k + 1]))
+
+
+class PostureTracker:
+    """Per person id: recent motion and the person's own standing height (bounded history;
+    forget ids whose track ended). `update` once per frame.
+
+    fps: the frame rate (sizes the motion history); lost_s: a person unseen this long is
+    forgotten (the tracker's max_lost_s). A person the tracker only predicts at a frame (not
+    seen) keeps the posture last seen.
+    """
+
+    def __init__(
+        self,
+        fps: float,
+        settings: PostureSettings = PostureSettings(),  # frozen: never changed
+        lost_s: float = 3.0,
+    ) -> None:
+        self.fps = float(fps)
+        self.settings = settings
+        self.lost_s = float(lost_s)
+        window = max(settings.walk_window_s, settings.drop_window_s + settings.drop_dt_s)
+        self._maxlen = max(8, math.ceil(window * self.fps * 1.5) + 2)
+        self.people: dict[int, _Person] = {}
+
+    def update(self, t: float, people: People3D) -> dict[int, Posture]:
+        """The posture of each person of this frame, by id."""
+        out: dict[int, Posture] = {}
+        predicted = people.predicted
+        for p in range(len(people)):
+            pid = int(people.ids[p])
+            person = self.people.get(pid)
+            if person is None:
+                person = self.people[pid] = _Person(self._maxlen)
+            if predicted[p] and person.last is not None:
+                out[pid] = person.last
+                continue
+            out[pid] = person.last = self._step(person, t, people.joints[p])
+            person.last_t = t
+        self._forget(t)
+        return out
+
+    def _step(self, person: _Person, t: float, J: np.ndarray) -> Posture:
+        s = self.settings
+        hips = J[list(_HIPS)]
+        hips = hips[np.isfinite(hips).all(-1)]
+        pts = hips if len(hips) else J[np.isfinite(J).all(-1)]
+        speed = math.nan
+        if len(pts):
+            x, y = (float(v) for v in pts[:, :2].mean(0))
+            person.floor.append((t, x, y))
+            speed = self._speed(person.floor, t, x, y)
+        trunk = _mean_z(J, _HIPS)
+        if math.isnan(trunk):
+            trunk = _mean_z(J, _SHOULDERS)
+        drop = self._drop(person, t, trunk)
+        ref = person.standing_hip(s)
+        posture = classify(J, ref, speed, s, drop)
+        hip = posture.hip_height_m
+        if (
+            math.isfinite(hip)
+            and math.isfinite(posture.torso_deg)
+            and posture.torso_deg <= s.upright_deg
+            and hip >= s.low_hip_ratio * ref
+        ):
+            k = int(np.searchsorted(_BINS_M, hip)) - 1
+            if 0 <= k < len(person.hist):
+                person.hist[k] += 1
+                if person.hist.sum() > 100_000:  # keeps adapting; the counts stay bounded
+                    person.hist //= 2
+        return posture
+
+    def _speed(self, floor: deque, t: float, x: float, y: float) -> float:
+        w = self.settings.walk_window_s
+        while len(floor) > 1 and t - floor[0][0] > w + 1e-9:
+            floor.popleft()
+        t0, x0, y0 = floor[0]
+        if t - t0 < 0.5 * w:  # too short a history to tell
+            return math.nan
+        return math.hypot(x - x0, y - y0) / (t - t0)
+
+    def _drop(self, person: _Person, t: float, z: float) -> float:
+        s = self.settings
+        hist, drops = person.trunk, person.drops
+        if math.isfinite(z):
+            hist.append((t, z))
+            while len(hist) > 1 and t - hist[0][0] > s.drop_dt_s + s.drop_window_s:
+                hist.popleft()
+            # the sample about drop_dt_s back (the latest at least that old)
+            back = None
+            for tb, zb in hist:
+                if t - tb >= s.drop_dt_s - 1e-9:
+                    back = (tb, zb)
+                else:
+                    break
+            if back is not None:
+                drops.append((t, (back[1] - z) / (t - back[0])))
+        while drops and t - drops[0][0] > s.drop_window_s + 1e-9:
+            drops.popleft()
+        if not drops:
+            return math.nan
+        return max(0.0, max(v for _, v in drops))
+
+    def _forget(self, t: float) -> None:
+        gone = [pid for pid, p in self.people.items() if t - p.last_t > self.lost_s + 1e-9]
+        for pid in gone:
+            del self.people[pid]
+
+    def standing_hip(self, pid: int) -> float:
+        """The standing hip height used for person pid (the default for an unknown id)."""
+        person = self.people.get(pid)
+        if person is None:
+            return self.settings.standing_hip_m
+        return person.standing_hip(self.settings)

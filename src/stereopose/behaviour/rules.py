@@ -1,0 +1,476 @@
+"""The behaviour rules over tracked people, frame by frame: person_down, lone_worker,
+work_position, immobile, overreach (their definitions: behaviour.definitions).
+
+`BehaviourMonitor.step(t, frame, people)` once per frame gives the frame's events and each
+person's posture (behaviour.posture). Conditions are debounced like the zone events: a
+condition must hold for its rule's delay before its event is raised (online, at the frame the
+delay completes, with `onset_t` the time the condition began), and an alarm ends (`<type>_end`,
+or `person_up`) once its condition has been false for the rule's exit delay. A person not seen
+at a frame keeps their state (and counts as company for lone_worker at their last place) until
+their track ends (`lost_s`, the tracker's max_lost_s): then their open alarms end, marked lost.
+A person down stays down while unseen: the alarm is raised on time even if the body is hidden.
+
+Every event has kind "behaviour", the rule's name in `rule`, the person's posture and floor
+position, and what explains it (behaviour events in types.Event).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stereopose.behaviour.definitions import (
+    BEHAVIOUR_KIND,
+    ImmobileRule,
+    LoneWorkerRule,
+    OverreachRule,
+    PersonDownRule,
+    Rule,
+    WorkPositionRule,
+    parse_rules,
+)
+from stereopose.behaviour.posture import (
+    DEFAULT_SETTINGS,
+    Posture,
+    PostureSettings,
+    PostureTracker,
+)
+from stereopose.fence.zones import Zone, ZoneGeometry
+from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, floor_position, heading_deg
+from stereopose.types import Event, People3D
+
+__all__ = ["BehaviourMonitor", "Rule", "parse_rules"]
+
+_EPS = 1e-9
+_WRISTS = (LEFT_WRIST, RIGHT_WRIST)
+
+
+@dataclass
+class _Latch:
+    """A debounced condition: on after `on_s` of raw true, off after `off_s` of raw false.
+    since: when the raw value began to differ from the state; began: when the current on
+    period's condition began."""
+
+    state: bool = False
+    since: float | None = None
+    began: float | None = None
+    onset: float = 0.0  # when the condition of the last change began
+
+    def step(self, raw: bool, t: float, on_s: float, off_s: float) -> str | None:
+        """ "rose", "fell" or None."""
+        if raw == self.state:
+            self.since = None
+            return None
+        if self.since is None:
+            self.since = t
+        if t - self.since < (off_s if self.state else on_s) - _EPS:
+            return None
+        self.state, self.onset, self.since = raw, self.since, None
+        if raw:
+            self.began = self.onset
+        return "rose" if raw else "fell"
+
+
+@dataclass
+class _Down:
+    """person_down per person: a fall seen (fall_t), lying after it (down), the alarm raised."""
+
+    fall_t: float | None = None
+    speed: float = math.nan
+    down: bool = False
+    raised: bool = False
+    up: _Latch = field(default_factory=_Latch)
+
+
+@dataclass
+class _Still:
+    """immobile per person: the mean joints since the stillness began, and since when."""
+
+    mean: np.ndarray | None = None
+    count: np.ndarray | None = None
+    since: float = 0.0
+    moved_since: float | None = None
+    raised: bool = False
+
+
+@dataclass
+class _Person:
+    """What the monitor keeps of one tracked person."""
+
+    last_seen: float
+    position: tuple[float, float] | None = None
+    posture: Posture | None = None
+    latches: dict[str, _Latch] = field(default_factory=dict)
+    down: dict[str, _Down] = field(default_factory=dict)
+    still: dict[str, _Still] = field(default_factory=dict)
+    detail: dict[str, dict] = field(default_factory=dict)  # what an alarm's rise said
+
+
+class BehaviourMonitor:
+    """Turns tracked people into behaviour events and postures (see the module).
+
+    rules: parsed rules (behaviour.definitions.parse_rules); zones: the site's zones the rules
+    name; fps: the frame rate; max_lost_s: a person unseen this long has left (their track
+    ended); settings: the posture thresholds.
+    """
+
+    def __init__(
+        self,
+        rules: Sequence[Rule],
+        zones: Sequence[Zone],
+        fps: float,
+        max_lost_s: float,
+        settings: PostureSettings = DEFAULT_SETTINGS,
+    ) -> None:
+        self.rules = tuple(rules)
+        self.zones = tuple(zones)
+        self.fps = float(fps)
+        self.lost_s = float(max_lost_s)
+        self.tracker = PostureTracker(fps, settings, max_lost_s)
+        self.geometry = ZoneGeometry(self.zones) if self.zones else None
+        self._zone_index = {z.name: k for k, z in enumerate(self.zones)}
+        energized = [k for k, z in enumerate(self.zones) if z.kind == "energized"]
+        self._energized = {
+            r.name: [self._zone_index[n] for n in r.energized] or energized
+            for r in self.rules
+            if isinstance(r, WorkPositionRule)
+        }
+        self.people: dict[int, _Person] = {}
+
+    def step(
+        self, t: float, frame: int, people: People3D
+    ) -> tuple[list[Event], dict[int, Posture]]:
+        """The events raised at this frame and each person's posture by id."""
+        postures = self.tracker.update(t, people)
+        events: list[Event] = []
+        P = len(people)
+        pos = floor_position(people.joints) if P else np.zeros((0, 2))
+        heading = heading_deg(people.joints) if P else np.zeros(0)
+        inside = dist = None
+        if P and self.geometry is not None:
+            inside, dist = self.geometry.distance(people.joints.reshape(-1, 3))
+            inside = inside.reshape(P, -1, len(self.zones))  # (P, 17, Z)
+            dist = dist.reshape(P, -1, len(self.zones))
+        seen = []
+        for p in range(P):
+            pid = int(people.ids[p])
+            person = self.people.get(pid)
+            if person is None:
+                person = self.people[pid] = _Person(last_seen=t)
+            if not people.predicted[p]:
+                person.last_seen = t
+            xy = pos[p]
+            person.position = (float(xy[0]), float(xy[1])) if np.isfinite(xy).all() else None
+            person.posture = postures.get(pid)
+            seen.append((p, pid, person))
+        base = dict(frame=frame, t=t)
+        for rule in self.rules:
+            for p, pid, person in seen:
+                if people.predicted[p] and not isinstance(rule, PersonDownRule):
+                    continue  # unseen: the state is kept as it was
+                ctx = _Ctx(p, pid, person, people, inside, dist, heading[p], base)
+                events.extend(self._apply(rule, ctx))
+            if isinstance(rule, PersonDownRule):  # time goes on for the unseen down
+                shown = {pid for _, pid, _ in seen}
+                for pid, person in self.people.items():
+                    if pid not in shown:
+                        events.extend(self._down_timer(rule, pid, person, t, frame))
+        events.extend(self._lost(t, frame))
+        return events, postures
+
+    def _apply(self, rule: Rule, ctx: _Ctx) -> list[Event]:
+        if isinstance(rule, PersonDownRule):
+            return self._person_down(rule, ctx)
+        if isinstance(rule, LoneWorkerRule):
+            return self._lone_worker(rule, ctx)
+        if isinstance(rule, WorkPositionRule):
+            return self._work_position(rule, ctx)
+        if isinstance(rule, ImmobileRule):
+            return self._immobile(rule, ctx)
+        return self._overreach(rule, ctx)
+
+    # -- events ----------------------------------------------------------------------------
+
+    def _event(self, rule: Rule, pid: int, person: _Person, type_: str, t: float, frame: int,
+               onset_t: float, **more) -> Event:  # fmt: skip
+        posture = person.posture.posture if person.posture is not None else None
+        more.setdefault("posture", posture)
+        return Event(
+            t=t, frame=frame, person=pid, zone=more.pop("zone", None) or "", kind=BEHAVIOUR_KIND,
+            type=type_, onset_t=float(onset_t), position=person.position, rule=rule.name, **more,
+        )  # fmt: skip
+
+    # -- person_down -----------------------------------------------------------------------
+
+    def _person_down(self, rule: PersonDownRule, c: _Ctx) -> list[Event]:
+        person, t = c.person, c.base["t"]
+        st = person.down.setdefault(rule.name, _Down())
+        pos = person.posture
+        if pos is None or c.people.predicted[c.p]:
+            return self._down_timer(rule, c.pid, person, t, c.base["frame"])
+        out: list[Event] = []
+        if st.fall_t is None:
+            fast = math.isfinite(pos.drop_m_s) and pos.drop_m_s >= rule.fall_speed_m_s
+            low = math.isfinite(pos.trunk_m) and pos.trunk_m <= rule.floor_m
+            if fast and low:
+                st.fall_t, st.speed, st.down, st.raised = t, pos.drop_m_s, False, False
+                st.up = _Latch()
+        if st.fall_t is None:
+            return out
+        if not st.down:
+            if pos.posture == "lying":
+                st.down = True
+            elif t - st.fall_t > rule.settle_s + _EPS:  # not a fall: they never lay
+                person.down[rule.name] = _Down()
+                return out
+        if st.down:
+            change = st.up.step(pos.upright, t, rule.up_s, 0.0)
+            if change == "rose":  # up again
+                if st.raised:
+                    out.append(
+                        self._event(
+                            rule, c.pid, person, "person_up", t, c.base["frame"],
+                            onset_t=st.up.onset, duration_s=float(st.up.onset - st.fall_t),
+                        )
+                    )  # fmt: skip
+                person.down[rule.name] = _Down()
+                return out
+        out.extend(self._down_timer(rule, c.pid, person, t, c.base["frame"]))
+        return out
+
+    def _down_timer(self, rule: PersonDownRule, pid: int, person: _Person, t: float,
+                    frame: int) -> list[Event]:  # fmt: skip
+        st = person.down.get(rule.name)
+        if st is None or not st.down or st.raised or st.fall_t is None:
+            return []
+        if t - st.fall_t < rule.down_s - _EPS:
+            return []
+        st.raised = True
+        person.detail[rule.name] = {}
+        return [
+            self._event(rule, pid, person, "person_down", t, frame, onset_t=st.fall_t,
+                        duration_s=float(t - st.fall_t), speed_m_s=float(st.speed),
+                        posture="lying")
+        ]  # fmt: skip
+
+    # -- lone_worker -----------------------------------------------------------------------
+
+    def _lone_worker(self, rule: LoneWorkerRule, c: _Ctx) -> list[Event]:
+        t, person = c.base["t"], c.person
+        zone, near = None, math.inf
+        if c.dist is not None:
+            for name in rule.zones:
+                k = self._zone_index[name]
+                d = float(np.min(c.dist[c.p, :, k]))
+                if d < near:
+                    zone, near = name, d
+        at_risk = zone is not None and near <= rule.approach_m + _EPS
+        nearest = self._nearest(c.pid, person)
+        alone = not (nearest <= rule.buddy_m + _EPS)
+        latch = person.latches.setdefault(rule.name, _Latch())
+        change = latch.step(at_risk and alone, t, rule.lone_s, rule.exit_s)
+        nearest_m = None if math.isinf(nearest) or math.isnan(nearest) else float(nearest)
+        if change == "rose":
+            person.detail[rule.name] = {"zone": zone}
+            return [
+                self._event(rule, c.pid, person, "lone_worker", t, c.base["frame"],
+                            onset_t=latch.began, zone=zone, nearest_m=nearest_m,
+                            duration_s=float(t - latch.began))
+            ]  # fmt: skip
+        if change == "fell":
+            began = latch.began if latch.began is not None else t
+            return [
+                self._event(rule, c.pid, person, "lone_worker_end", t, c.base["frame"],
+                            onset_t=latch.onset,
+                            zone=person.detail.pop(rule.name, {}).get("zone") or "",
+                            nearest_m=nearest_m, duration_s=float(t - began))
+            ]  # fmt: skip
+        return []
+
+    def _nearest(self, pid: int, person: _Person) -> float:
+        """Floor distance to the nearest other person (seen now or still tracked)."""
+        if person.position is None:
+            return math.nan
+        x, y = person.position
+        best = math.inf
+        for other_id, other in self.people.items():
+            if other_id != pid and other.position is not None:
+                best = min(best, math.hypot(other.position[0] - x, other.position[1] - y))
+        return best
+
+    # -- work_position ---------------------------------------------------------------------
+
+    def _work_position(self, rule: WorkPositionRule, c: _Ctx) -> list[Event]:
+        t, person = c.base["t"], c.person
+        hand_zone, hand = None, None
+        if c.inside is not None:
+            for k in self._energized[rule.name]:
+                for j in _WRISTS:
+                    if c.inside[c.p, j, k]:
+                        hand_zone, hand = self.zones[k].name, j
+                        break
+                if hand_zone is not None:
+                    break
+        failed: list[str] = []
+        facing = float(c.heading) if math.isfinite(c.heading) else None
+        if hand_zone is not None:
+            k = self._zone_index[rule.zone]
+            if person.position is None or not _on_floor_of(self.geometry, k, person.position):
+                failed.append("position")
+            if facing is None or abs(_angle_diff(facing, rule.facing_deg)) > rule.tolerance_deg:
+                failed.append("facing")
+            posture = person.posture.posture if person.posture is not None else None
+            if rule.postures is not None and posture not in rule.postures:
+                failed.append("posture")
+        latch = person.latches.setdefault(rule.name, _Latch())
+        change = latch.step(bool(failed), t, rule.enter_s, rule.exit_s)
+        if change == "rose":
+            person.detail[rule.name] = {"zone": hand_zone}
+            return [
+                self._event(rule, c.pid, person, "work_position", t, c.base["frame"],
+                            onset_t=latch.began, zone=hand_zone, joint=JOINTS[hand],
+                            failed=",".join(failed), facing_deg=facing)
+            ]  # fmt: skip
+        if change == "fell":
+            began = latch.began if latch.began is not None else t
+            return [
+                self._event(rule, c.pid, person, "work_position_end", t, c.base["frame"],
+                            onset_t=latch.onset,
+                            zone=person.detail.pop(rule.name, {}).get("zone") or "",
+                            facing_deg=facing, duration_s=float(t - began))
+            ]  # fmt: skip
+        return []
+
+    # -- immobile --------------------------------------------------------------------------
+
+    def _immobile(self, rule: ImmobileRule, c: _Ctx) -> list[Event]:
+        t, person = c.base["t"], c.person
+        J = c.people.joints[c.p]
+        ok = np.isfinite(J).all(-1)
+        st = person.still.get(rule.name)
+        if st is None or st.mean is None:
+            st = person.still[rule.name] = _Still(
+                np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
+            )
+            return []
+        both = ok & (st.count > 0)
+        moved = (
+            bool(both.any())
+            and float(np.max(np.linalg.norm(J[both] - st.mean[both], axis=-1))) > rule.still_m
+        )
+        out: list[Event] = []
+        if moved:
+            if st.moved_since is None:
+                st.moved_since = t
+            if t - st.moved_since >= rule.move_s - _EPS:
+                if st.raised:
+                    out.append(
+                        self._event(rule, c.pid, person, "immobile_end", t, c.base["frame"],
+                                    onset_t=st.moved_since,
+                                    duration_s=float(st.moved_since - st.since))
+                    )  # fmt: skip
+                person.still[rule.name] = _Still(
+                    np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
+                )
+            return out
+        st.moved_since = None
+        # the running mean of each joint over the still period (joints seen late join it)
+        n = st.count[ok] + 1
+        st.mean[ok] = np.where(
+            (st.count[ok] > 0)[:, None], st.mean[ok] + (J[ok] - st.mean[ok]) / n[:, None], J[ok]
+        )
+        st.count[ok] = n
+        if not st.raised and t - st.since >= rule.immobile_s - _EPS:
+            st.raised = True
+            out.append(
+                self._event(rule, c.pid, person, "immobile", t, c.base["frame"], onset_t=st.since,
+                            duration_s=float(t - st.since))
+            )  # fmt: skip
+        return out
+
+    # -- overreach -------------------------------------------------------------------------
+
+    def _overreach(self, rule: OverreachRule, c: _Ctx) -> list[Event]:
+        t, person = c.base["t"], c.person
+        z = c.people.joints[c.p, list(rule.joints), 2]
+        ok = np.isfinite(z)
+        top = int(np.argmax(np.where(ok, z, -np.inf))) if ok.any() else -1
+        height = float(z[top]) if top >= 0 else math.nan
+        raw = top >= 0 and height > rule.max_height_m
+        latch = person.latches.setdefault(rule.name, _Latch())
+        change = latch.step(raw, t, rule.enter_s, rule.exit_s)
+        if change == "rose":
+            return [
+                self._event(rule, c.pid, person, "overreach", t, c.base["frame"],
+                            onset_t=latch.began, joint=JOINTS[rule.joints[top]], height_m=height)
+            ]  # fmt: skip
+        if change == "fell":
+            began = latch.began if latch.began is not None else t
+            return [
+                self._event(rule, c.pid, person, "overreach_end", t, c.base["frame"],
+                            onset_t=latch.onset,
+                            duration_s=float(t - began))
+            ]  # fmt: skip
+        return []
+
+    # -- tracks that ended -----------------------------------------------------------------
+
+    def _lost(self, t: float, frame: int) -> list[Event]:
+        """End events, marked lost, for the open alarms of people whose track ended."""
+        gone = [pid for pid, p in self.people.items() if t - p.last_seen > self.lost_s + _EPS]
+        out: list[Event] = []
+        ends = {"lone_worker": "lone_worker_end", "work_position": "work_position_end",
+                "overreach": "overreach_end"}  # fmt: skip
+        for pid in gone:
+            person = self.people.pop(pid)
+            for rule in self.rules:
+                latch = person.latches.get(rule.name)
+                end = ends.get(rule.type)
+                if end and latch is not None and latch.state:
+                    detail = person.detail.get(rule.name, {})
+                    out.append(
+                        self._event(rule, pid, person, end, t, frame, onset_t=person.last_seen,
+                                    zone=detail.get("zone") or "", lost=True,
+                                    duration_s=float(person.last_seen - (latch.began or t)))
+                    )  # fmt: skip
+                st = person.still.get(rule.name)
+                if isinstance(rule, ImmobileRule) and st is not None and st.raised:
+                    out.append(
+                        self._event(rule, pid, person, "immobile_end", t, frame,
+                                    onset_t=person.last_seen, lost=True,
+                                    duration_s=float(person.last_seen - st.since))
+                    )  # fmt: skip
+        return out
+
+
+@dataclass
+class _Ctx:
+    """One person at one frame, as every rule sees them."""
+
+    p: int
+    pid: int
+    person: _Person
+    people: People3D
+    inside: np.ndarray | None  # (P, 17, Z) joints inside zones
+    dist: np.ndarray | None  # (P, 17, Z) joints' distances to zones, metres
+    heading: float
+    base: dict
+
+
+def _angle_diff(a: float, b: float) -> float:
+    """a - b in degrees, in (-180, 180]."""
+    d = (a - b) % 360.0
+    return d - 360.0 if d > 180.0 else d
+
+
+def _on_floor_of(geometry: ZoneGeometry | None, k: int, xy: tuple[float, float]) -> bool:
+    """Whether the floor point xy lies in zone k's polygon."""
+    if geometry is None:
+        return False
+    zone = geometry.zones[k]
+    mid = 0.5 * (zone.z[0] + zone.z[1])
+    inside, _ = geometry.test(np.array([[[xy[0], xy[1], mid]]]), np.array([k]))
+    return bool(inside[0, 0])
