@@ -38,7 +38,7 @@ from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
 from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
-from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.serve_events import ServeEvents
 from stereopose.pipeline.serve_parts import (
@@ -307,5 +307,6 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
 
     sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival)
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
-    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=events, stop=stop)
+    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=events,
+                     behaviour=behaviour_monitor(plan.site, cfg), stop=stop)  # fmt: skip
     return loop.run()
