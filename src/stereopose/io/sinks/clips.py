@@ -35,6 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -58,7 +59,10 @@ Draw = Callable[[str, np.ndarray, "People2D | None", People3D, float, str], np.n
 
 
 def is_alarm(e: Event) -> bool:
-    """The default alarm: entering or approaching an energized zone."""
+    """The default alarm: entering or approaching an energized zone, or a behaviour alarm
+    (person_down, lone_worker, work_position, immobile, overreach)."""
+    if e.kind == BEHAVIOUR_KIND:
+        return e.type in ALARM_TYPES
     return e.kind == "energized" and e.type in ("enter", "approach")
 
 
