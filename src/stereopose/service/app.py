@@ -1,5 +1,8 @@
 """The service's HTTP app: `create_app(state, ...)` takes the running parts and mounts one
-router per resource (service.api): /api/health, /metrics and the offline OpenAPI page /docs.
+router per resource (service.api): /api/health, /metrics and the offline OpenAPI page /docs
+(open), and the operator console: its page (/, /login, /console/...), /api/login and the
+routes behind the login (people, events, cameras, zones, clips, the live channel, users),
+over `console` (service.web.Console; without one, those routes answer 503).
 
 Every answer is JSON or the resource's own format, never a traceback page: debug is off,
 unknown paths are 404 and wrong methods 405 as {"detail": ...}, and an error inside a route is
@@ -17,7 +20,20 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CollectorRegistry
 
 from stereopose import __version__
-from stereopose.service.api import docs, health, metrics
+from stereopose.service.api import (
+    auth,
+    cameras,
+    clips,
+    docs,
+    events,
+    health,
+    live,
+    metrics,
+    page,
+    people,
+    users,
+    zones,
+)
 from stereopose.service.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
 from stereopose.service.metrics import make_registry
 from stereopose.service.state import ServiceState
@@ -37,10 +53,12 @@ def create_app(
     registry: CollectorRegistry | None = None,
     max_body_bytes: int = MAX_BODY_BYTES,
     lifespan: Callable[[FastAPI], Any] | None = None,
+    console: object | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
-    and stops with the server (the frame loop, the sinks)."""
+    and stops with the server (the frame loop, the sinks); console: the console's parts
+    (service.web.Console)."""
     app = FastAPI(
         title="stereopose",
         version=__version__,
@@ -51,10 +69,14 @@ def create_app(
         lifespan=lifespan,
     )
     app.state.service = state
+    app.state.console = console
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
+    for router in (auth, people, events, cameras, zones, clips, live, users):
+        app.include_router(router.router)
     docs.mount_docs(app)
+    page.mount_page(app)
     return app

@@ -1,0 +1,219 @@
+"""The event log as the console reads it: filtered pages of events, newest first, each with
+its wall time, its level, its acknowledgement and its clips.
+
+An event's wall time is its run's `wall_start` + t (the run's start time for a log written
+before wall_start was recorded). Its clips are the MP4 files of `<output>/clips` named from
+it (io.sinks.clips.clip_name: the event's UTC second, person, zone, any camera). Reads go
+through a read-only connection opened per query, so they never hold up the frame loop.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from stereopose.errors import StereoposeError
+from stereopose.io.records import EVENT_COLUMNS
+from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX, _part
+
+ALARM_TYPES = frozenset({"camera_down", "person_down", "fall"})
+WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
+MAX_LIMIT = 1000
+DEFAULT_LIMIT = 100
+_STAMP = re.compile(r"\d{8}-\d{6}_")
+_CLIPS_CACHE_S = 1.0
+
+
+class LogError(StereoposeError):
+    """The event log cannot be read."""
+
+
+def level(kind: str, type_: str) -> str:
+    """alarm: entering or approaching an energized zone, a camera down, a person down;
+    warning: dwell, leaving the work area, calibration drift, entering a restricted zone;
+    info: the rest."""
+    if (kind == "energized" and type_ in ("enter", "approach")) or type_ in ALARM_TYPES:
+        return "alarm"
+    if type_ in WARNING_TYPES or (kind == "restricted" and type_ == "enter"):
+        return "warning"
+    return "info"
+
+
+@dataclass(frozen=True)
+class Filters:
+    """since/until: wall time (Unix seconds); before_id/after_id: id bounds (exclusive)."""
+
+    since: float | None = None
+    until: float | None = None
+    person: int | None = None
+    zone: str | None = None
+    type: str | None = None
+    limit: int = DEFAULT_LIMIT
+    before_id: int | None = None
+    after_id: int | None = None
+
+
+def parse_time(value: str, name: str) -> float:
+    """Unix seconds from epoch seconds or ISO 8601 (a time without zone is UTC)."""
+    text = value.strip()
+    try:
+        t = float(text)
+    except ValueError:
+        try:
+            d = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        except ValueError:
+            raise ValueError(f"{name}: expected Unix seconds or an ISO 8601 time, "
+                             f"got {value!r}") from None  # fmt: skip
+        if d.tzinfo is None:
+            d = d.replace(tzinfo=timezone.utc)
+        t = d.timestamp()
+    if not math.isfinite(t):
+        raise ValueError(f"{name}: expected a finite time, got {value!r}")
+    return t
+
+
+class EventLog:
+    """Reads of the event log at `path`; clips from `clips_dir` (None: none)."""
+
+    def __init__(self, path: str | Path, clips_dir: str | Path | None = None) -> None:
+        self.path = Path(path)
+        self.clips_dir = Path(clips_dir) if clips_dir is not None else None
+        self._lock = threading.Lock()
+        self._clips: tuple[float, dict[str, list[str]]] | None = None
+
+    def _connect(self) -> sqlite3.Connection | None:
+        if not self.path.is_file():
+            return None
+        try:
+            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=0.5)
+            db.execute("PRAGMA busy_timeout = 500")
+            return db
+        except sqlite3.Error as e:
+            raise LogError(f"{self.path}: cannot read the event log: {e}") from None
+
+    def query(self, f: Filters) -> list[dict]:
+        """The events matching `f`, newest first (by id), at most f.limit."""
+        where, args = [], []
+        wall = "(COALESCE(r.wall_start, r.started) + e.t)"
+        for sql, value in (("e.person = ?", f.person), ("e.zone = ?", f.zone),
+                           ("e.type = ?", f.type), (f"{wall} >= ?", f.since),
+                           (f"{wall} <= ?", f.until), ("e.id < ?", f.before_id),
+                           ("e.id > ?", f.after_id)):  # fmt: skip
+            if value is not None:
+                where.append(sql)
+                args.append(value)
+        order = "ASC" if f.after_id is not None and f.before_id is None else "DESC"
+        rows = self._select(where, args, f"ORDER BY e.id {order} LIMIT ?", [f.limit])
+        if order == "ASC":
+            rows.reverse()
+        return rows
+
+    def after(self, last_id: int, limit: int = 500) -> list[dict]:
+        """Events with id > last_id, oldest first (the live tail)."""
+        return self._select(["e.id > ?"], [last_id], "ORDER BY e.id ASC LIMIT ?", [limit])
+
+    def last_id(self) -> int:
+        db = self._connect()
+        if db is None:
+            return 0
+        try:
+            row = db.execute("SELECT MAX(id) FROM events").fetchone()
+        except sqlite3.Error:
+            return 0
+        finally:
+            db.close()
+        return int(row[0] or 0)
+
+    def _select(self, where: list[str], args: list, tail: str, tail_args: list) -> list[dict]:
+        db = self._connect()
+        if db is None:
+            return []
+        try:
+            have = {r[1] for r in db.execute("PRAGMA table_info(events)")}
+            runs = {r[1] for r in db.execute("PRAGMA table_info(runs)")}
+            if not have:
+                return []
+            cols = ", ".join(f"e.{c}" if c in have else ("0" if c == "restart" else "NULL")
+                             for c in EVENT_COLUMNS)  # fmt: skip
+            start = "COALESCE(r.wall_start, r.started)" if "wall_start" in runs else "r.started"
+            acks = bool(db.execute(
+                "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'acks'"
+            ).fetchone())  # fmt: skip
+            ack_cols = "a.by, a.at" if acks else "NULL, NULL"
+            ack_join = "LEFT JOIN acks a ON a.event = e.id" if acks else ""
+            sql = (f"SELECT e.id, {start}, {cols}, {ack_cols} FROM events e "
+                   f"JOIN runs r ON r.id = e.run {ack_join}")  # fmt: skip
+            if where:
+                sql += " WHERE " + " AND ".join(w.replace("r.wall_start", "r.started")
+                                                if "wall_start" not in runs else w
+                                                for w in where)  # fmt: skip
+            rows = db.execute(f"{sql} {tail}", [*args, *tail_args]).fetchall()
+        except sqlite3.Error as e:
+            raise LogError(f"{self.path}: cannot read the event log: {e}") from None
+        finally:
+            db.close()
+        return [self._item(r) for r in rows]
+
+    def _item(self, row: tuple) -> dict:
+        event_id, start, *values = row
+        rec = dict(zip(EVENT_COLUMNS, values[: len(EVENT_COLUMNS)], strict=True))
+        by, at = values[len(EVENT_COLUMNS) :]
+        wall_t = float(start or 0.0) + float(rec["t"])
+        item = {"id": event_id, "t": rec["t"], "wall_t": round(wall_t, 3),
+                "time": datetime.fromtimestamp(wall_t, timezone.utc).isoformat(
+                    timespec="milliseconds").replace("+00:00", "Z"),
+                "frame": rec["frame"], "person": rec["person"], "zone": rec["zone"],
+                "kind": rec["kind"], "type": rec["type"],
+                "level": level(rec["kind"], rec["type"]), "camera": rec["camera"]}  # fmt: skip
+        for key in ("onset_t", "joint", "distance_m", "duration_s", "x", "y",
+                    "reprojection_px", "baseline_px"):  # fmt: skip
+            item[key] = rec[key]
+        for key in ("allowed", "lost", "restart"):
+            item[key] = bool(rec[key])
+        item["run"] = rec["run"]
+        item["ack"] = {"by": by, "at": at} if by is not None else None
+        item["clips"] = self.clips_of(wall_t, rec["person"], rec["zone"]) if rec["zone"] else []
+        return item
+
+    # -- clips -----------------------------------------------------------------------------
+
+    def clips_of(self, wall_t: float, person: int, zone: str) -> list[str]:
+        """/api/clips/ URLs of the clips named from an event at wall_t: `<UTC second>_<person>_
+        <zone>_<camera>.mp4` (one second either side, for the rounding of the run's start)."""
+        index = self._clip_index()
+        if not index:
+            return []
+        who = f"_{_part(str(person))}_{_part(zone)}_"
+        for dt in (0, -1, 1):
+            stamp = datetime.fromtimestamp(math.floor(wall_t) + dt, timezone.utc)
+            prefix = stamp.strftime("%Y%m%d-%H%M%S") + who
+            found = [n for n in index.get(prefix[:15], ()) if n.startswith(prefix)]
+            if found:
+                return [f"/api/clips/{name}" for name in sorted(found)]
+        return []
+
+    def _clip_index(self) -> dict[str, list[str]]:
+        """The finished clips by their names' UTC second (read again after a second)."""
+        if self.clips_dir is None:
+            return {}
+        now = time.monotonic()
+        with self._lock:
+            if self._clips is not None and now - self._clips[0] < _CLIPS_CACHE_S:
+                return self._clips[1]
+        index: dict[str, list[str]] = {}
+        try:
+            names = [e.name for e in self.clips_dir.iterdir()]
+        except OSError:
+            names = []
+        for name in names:
+            if name.endswith(CLIP_SUFFIX) and not name.endswith(PART_SUFFIX) and _STAMP.match(name):
+                index.setdefault(name[:15], []).append(name)
+        with self._lock:
+            self._clips = (now, index)
+        return index
