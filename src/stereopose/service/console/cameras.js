@@ -1,0 +1,104 @@
+// The camera strip: per camera its live picture (the newest snapshot with skeletons and ids,
+// fetched a few times a second while the page is visible and the camera up) and its health,
+// with a clear DOWN badge.
+
+const PERIOD_MS = 333; // about 3 pictures a second per camera
+
+function text(tag, className, content = "") {
+  const node = document.createElement(tag);
+  node.className = className;
+  node.textContent = content;
+  return node;
+}
+
+export class CameraStrip {
+  constructor(root) {
+    this.root = root;
+    this.cards = new Map(); // name -> {card, img, badge, stats, health, url, loading}
+    this.timer = null;
+    this.active = true; // the live tab is shown
+    document.addEventListener("visibilitychange", () => this.schedule());
+  }
+
+  setCameras(cameras) {
+    this.root.replaceChildren();
+    this.cards.clear();
+    for (const cam of cameras) {
+      const card = document.createElement("figure");
+      card.className = "camera-card";
+      card.dataset.camera = cam.name;
+      const frame = document.createElement("div");
+      frame.className = "snapshot";
+      if (Array.isArray(cam.image_size) && cam.image_size[0] > 0 && cam.image_size[1] > 0) {
+        frame.style.aspectRatio = `${cam.image_size[0]} / ${cam.image_size[1]}`; // CSSOM: no inline style
+      }
+      const img = document.createElement("img");
+      img.alt = `${cam.name} live picture`;
+      img.dataset.camera = cam.name;
+      const down = text("div", "down-overlay", "NO PICTURE");
+      frame.append(img, down);
+      const caption = document.createElement("figcaption");
+      const name = text("span", "camera-name", cam.name);
+      const badge = text("span", "badge", "");
+      const stats = text("span", "camera-stats muted", "");
+      caption.append(name, badge, stats);
+      card.append(frame, caption);
+      this.root.appendChild(card);
+      this.cards.set(cam.name, { card, img, badge, stats, health: null, url: cam.snapshot,
+        loading: false });
+      this.setHealth(cam.name, cam.health);
+    }
+    this.schedule();
+  }
+
+  setHealth(name, health) {
+    const c = this.cards.get(name);
+    if (!c || !health) return;
+    c.health = health;
+    const down = health.state === "down";
+    c.card.classList.toggle("down", down);
+    c.card.dataset.state = health.state;
+    c.badge.textContent = down ? "DOWN" : "UP";
+    c.badge.className = `badge ${down ? "badge-down" : "badge-up"}`;
+    const age = typeof health.last_frame_age_s === "number" ? `${health.last_frame_age_s.toFixed(1)} s` : "-";
+    const fps = typeof health.fps === "number" ? health.fps.toFixed(1) : "-";
+    c.stats.textContent = `${fps} fps · last frame ${age} · ${health.reconnects ?? 0} reconnects` +
+      (health.dropped_frames ? ` · ${health.dropped_frames} dropped` : "");
+  }
+
+  show(active) {
+    this.active = active;
+    this.schedule();
+  }
+
+  schedule() {
+    const run = this.active && document.visibilityState === "visible";
+    if (run && !this.timer) {
+      this.timer = setInterval(() => this.refresh(), PERIOD_MS);
+      this.refresh();
+    } else if (!run && this.timer) {
+      clearInterval(this.timer);
+      this.timer = null;
+    }
+  }
+
+  refresh() {
+    for (const c of this.cards.values()) {
+      // a camera down or without a first frame has no new picture (the server says 503)
+      if (c.loading || !c.url || !c.health || c.health.state !== "up" || c.health.frames === 0) continue;
+      c.loading = true;
+      const next = new Image();
+      next.alt = c.img.alt;
+      next.dataset.camera = c.img.dataset.camera;
+      next.addEventListener("load", () => {
+        c.img.replaceWith(next);
+        c.img = next;
+        c.loading = false;
+      });
+      next.addEventListener("error", () => {
+        c.loading = false;
+      });
+      next.src = `${c.url}?t=${Date.now()}`;
+    }
+  }
+}

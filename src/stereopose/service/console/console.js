@@ -1,0 +1,189 @@
+// The operator console: the login, then the live floor plan, the alarm feed, the cameras, the
+// 3D view and the history, fed by the API's first answers and then by the live channel.
+
+import * as api from "./api.js";
+import { CameraStrip } from "./cameras.js";
+import { Feed } from "./feed.js";
+import { FloorPlan } from "./floorplan.js";
+import { History } from "./history.js";
+import { View3D } from "./view3d.js";
+
+const byId = (id) => document.getElementById(id);
+
+class Console {
+  constructor() {
+    this.user = null;
+    this.cameras = [];
+    this.zones = [];
+    this.floor = new FloorPlan(byId("floor"), byId("floor-info"));
+    this.strip = new CameraStrip(byId("cameras"));
+    this.view3d = new View3D(byId("view3d"), byId("view3d-info"));
+    this.history = new History();
+    this.feed = new Feed({
+      list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
+      bannerAck: byId("alarm-ack"), counter: byId("alarm-count"), mute: byId("mute"),
+      alarmsOnly: byId("feed-alarms-only"),
+    });
+    this.live = new api.Live({
+      people: (body) => this.onPeople(body),
+      event: (e) => this.feed.add(e),
+      zones: (body) => this.onZones(body.zones || []),
+      cameras: (body) => this.onCameras(body.cameras || []),
+      ack: (body) => this.feed.acked(body.id, body.ack),
+    }, (up) => this.onLink(up));
+    this.tab = "live";
+    this.staleTimer = null;
+    api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
+    byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
+    byId("logout").addEventListener("click", () => this.onLogout());
+    for (const tab of document.querySelectorAll(".tab")) {
+      tab.addEventListener("click", () => this.showTab(tab.dataset.tab));
+    }
+    // the browser lets the alarm sound start only after a gesture
+    for (const kind of ["pointerdown", "keydown"]) {
+      document.addEventListener(kind, () => this.feed.unlockSound(), { passive: true });
+    }
+  }
+
+  async start() {
+    if (!api.hasSessionCookie()) {
+      this.showLogin();
+      return;
+    }
+    try {
+      this.enter(await api.me());
+    } catch {
+      this.showLogin();
+    }
+  }
+
+  showLogin(message = "") {
+    this.live.stop();
+    clearInterval(this.staleTimer);
+    this.strip.show(false);
+    this.view3d.show(false);
+    this.feed.sound.sounding(false);
+    this.user = null;
+    byId("console").hidden = true;
+    byId("login").hidden = false;
+    byId("login-error").textContent = message;
+    byId("login-password").value = "";
+    byId(byId("login-user").value ? "login-password" : "login-user").focus();
+  }
+
+  async onLogin(event) {
+    event.preventDefault();
+    this.feed.unlockSound();
+    const button = byId("login-submit");
+    button.disabled = true;
+    byId("login-error").textContent = "";
+    try {
+      const answer = await api.login(byId("login-user").value.trim(), byId("login-password").value);
+      this.enter(answer);
+    } catch (error) {
+      const status = error instanceof api.ApiError ? error.status : 0;
+      byId("login-error").textContent = status === 401 ? "Wrong user name or password."
+        : status === 429 ? "Too many attempts: wait a moment and try again."
+        : `Login failed: ${error.detail || error.message}`;
+    } finally {
+      button.disabled = false;
+      byId("login-password").value = "";
+    }
+  }
+
+  async onLogout() {
+    try {
+      await api.logout();
+    } catch {
+      // the session is gone either way
+    }
+    this.showLogin("Logged out.");
+  }
+
+  async enter(user) {
+    this.user = user;
+    byId("user").textContent = `${user.username} (${user.role})`;
+    document.body.dataset.role = user.role;
+    this.feed.setRole(user.role);
+    byId("login").hidden = true;
+    byId("console").hidden = false;
+    this.live.start();
+    this.showTab(this.tab);
+    clearInterval(this.staleTimer);
+    this.staleTimer = setInterval(() => this.checkStale(), 1000);
+    try {
+      const [cameras, zones, events, people] = await Promise.all([
+        api.cameras(), api.zones(), api.events({ limit: 100 }), api.people(),
+      ]);
+      this.onCameras(cameras.cameras || [], true);
+      this.onZones(zones.zones || []);
+      this.feed.reset(events.events || []);
+      this.onPeople(people);
+      this.history.search();
+    } catch (error) {
+      if (!(error instanceof api.ApiError && error.status === 401)) {
+        byId("floor-info").textContent = `not loaded: ${error.detail || error.message}`;
+      }
+    }
+  }
+
+  onPeople(body) {
+    this.floor.setPeople(body);
+    this.view3d.setPeople(body.people || []);
+  }
+
+  onZones(zones) {
+    this.zones = zones;
+    this.floor.setZones(zones);
+    this.view3d.setZones(zones);
+    this.history.setZones(zones);
+  }
+
+  /** All of /api/cameras at the start; later the live channel's health (maybe only that). */
+  onCameras(cameras, full = false) {
+    const known = new Set(this.cameras.map((c) => c.name));
+    const complete = cameras.every((c) => Array.isArray(c.position));
+    if (full || (complete && cameras.some((c) => !known.has(c.name)))) {
+      this.cameras = cameras;
+      this.floor.setCameras(cameras);
+      this.strip.setCameras(cameras);
+    } else {
+      const byName = new Map(cameras.map((c) => [c.name, c.health]));
+      for (const cam of this.cameras) if (byName.get(cam.name)) cam.health = byName.get(cam.name);
+      for (const [name, health] of byName) this.strip.setHealth(name, health);
+      this.floor.setHealth(byName);
+    }
+    this.view3d.setCameras(this.cameras);
+  }
+
+  onLink(up) {
+    const link = byId("link");
+    link.textContent = up ? "live" : "reconnecting";
+    link.className = `link ${up ? "link-up" : "link-down"}`;
+  }
+
+  checkStale() {
+    const age = this.floor.age();
+    byId("floor").classList.toggle("stale", age > 3);
+    if (age > 3 && Number.isFinite(age)) byId("floor-info").textContent = `no live data for ${age.toFixed(0)} s`;
+  }
+
+  showTab(name) {
+    this.tab = name;
+    for (const tab of document.querySelectorAll(".tab")) {
+      const active = tab.dataset.tab === name;
+      tab.classList.toggle("active", active);
+      tab.setAttribute("aria-selected", String(active));
+    }
+    for (const page of document.querySelectorAll(".tab-page")) {
+      page.hidden = page.id !== `tab-${name}`;
+    }
+    this.strip.show(name === "live");
+    this.view3d.show(name === "view3d");
+    if (name === "history" && this.user) this.history.search();
+  }
+}
+
+const app = new Console();
+window.stereoposeConsole = app; // for an operator's browser console, and the page's tests
+app.start();

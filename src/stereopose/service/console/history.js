@@ -1,0 +1,127 @@
+// History: events filtered by time range, person, zone and type (/api/events), a table with
+// each alarm's clips playable in the page, and the CSV export of the same filters.
+
+import { ApiError, events, eventsCsvUrl } from "./api.js";
+import { ackText, dateTime, describe, typeText } from "./feed.js";
+
+const PAGE = 200;
+const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_down",
+  "camera_down", "camera_up", "camera_moved", "calibration_drift"];
+
+const byId = (id) => document.getElementById(id);
+
+function epoch(input) {
+  if (!input.value) return "";
+  const ms = new Date(input.value).getTime(); // the browser's local time
+  return Number.isFinite(ms) ? (ms / 1000).toFixed(3) : "";
+}
+
+function cell(row, content, className = "") {
+  const td = document.createElement("td");
+  if (className) td.className = className;
+  if (content instanceof Node) td.appendChild(content);
+  else td.textContent = content;
+  row.appendChild(td);
+  return td;
+}
+
+export class History {
+  constructor() {
+    this.form = byId("history-form");
+    this.rows = byId("h-rows");
+    this.more = byId("h-more");
+    this.csv = byId("h-csv");
+    this.info = byId("h-info");
+    this.player = byId("player");
+    this.playerInfo = byId("player-info");
+    this.zoneSelect = byId("h-zone");
+    this.typeSelect = byId("h-type");
+    this.oldest = null;
+    for (const t of TYPES) this.typeSelect.appendChild(new Option(typeText(t), t));
+    this.form.addEventListener("submit", (e) => {
+      e.preventDefault();
+      this.search();
+    });
+    this.form.addEventListener("input", () => this.updateCsv());
+    this.more.addEventListener("click", () => this.search(true));
+    this.updateCsv();
+  }
+
+  setZones(zones) {
+    const current = this.zoneSelect.value;
+    const names = zones.map((z) => z.name);
+    const have = [...this.zoneSelect.options].map((o) => o.value).filter(Boolean);
+    if (names.join("\n") === have.join("\n")) return;
+    this.zoneSelect.replaceChildren(new Option("any", ""));
+    for (const name of names) this.zoneSelect.appendChild(new Option(name, name));
+    this.zoneSelect.value = names.includes(current) ? current : "";
+  }
+
+  filters() {
+    return {
+      since: epoch(byId("h-since")),
+      until: epoch(byId("h-until")),
+      person: byId("h-person").value.trim(),
+      zone: this.zoneSelect.value,
+      type: this.typeSelect.value,
+    };
+  }
+
+  updateCsv() {
+    this.csv.href = eventsCsvUrl(this.filters());
+  }
+
+  async search(older = false) {
+    const filters = { ...this.filters(), limit: PAGE };
+    if (older && this.oldest !== null) filters.before_id = this.oldest;
+    this.updateCsv();
+    this.info.textContent = "searching";
+    let answer;
+    try {
+      answer = await events(filters);
+    } catch (error) {
+      if (error instanceof ApiError && error.status === 401) return;
+      this.info.textContent = `not searched: ${error.detail || error.message}`;
+      return;
+    }
+    const found = answer.events || [];
+    if (!older) this.rows.replaceChildren();
+    for (const e of found) this.rows.appendChild(this.row(e));
+    if (found.length) this.oldest = found[found.length - 1].id;
+    this.more.hidden = found.length < PAGE;
+    const shown = this.rows.children.length;
+    this.info.textContent = `${shown} event${shown === 1 ? "" : "s"}`;
+  }
+
+  row(e) {
+    const tr = document.createElement("tr");
+    tr.dataset.eventId = String(e.id);
+    tr.className = `level-${e.level || "info"}`;
+    cell(tr, dateTime(e.wall_t), "time");
+    cell(tr, e.level || "info", `level level-${e.level || "info"}`);
+    cell(tr, typeText(e.type));
+    cell(tr, e.zone || "");
+    cell(tr, e.person !== null && e.person !== undefined && e.person >= 0 ? String(e.person) : "");
+    cell(tr, e.camera || "");
+    cell(tr, ackText(e.ack));
+    const clips = document.createElement("span");
+    for (const [i, url] of (e.clips || []).entries()) {
+      const button = document.createElement("button");
+      button.type = "button";
+      button.className = "play";
+      button.dataset.clip = url;
+      button.textContent = (e.clips.length > 1 ? `Play ${i + 1}` : "Play");
+      button.addEventListener("click", () => this.play(url, e));
+      clips.appendChild(button);
+    }
+    cell(tr, clips, "clips");
+    tr.title = describe(e);
+    return tr;
+  }
+
+  play(url, e) {
+    this.player.src = url;
+    this.playerInfo.textContent = `${dateTime(e.wall_t)} ${describe(e)}`;
+    this.player.play().catch(() => {}); // a browser may refuse to start playing by itself
+  }
+}
