@@ -36,6 +36,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "the always-on service: cameras for ever, events out, health and metrics over HTTP",
         "stereopose.cli.serve:_serve",
     ),
+    "users": (
+        "the operator console's users of a service: add, list, remove, passwd",
+        "stereopose.cli.users:_users",
+    ),
     "init": (
         "write a commented example run (or --serve: service) configuration",
         "stereopose.cli.run:_init",
@@ -157,6 +161,7 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         help="replace the outputs of a previous run in the output folder",
     )
     _add_serve(parsers["serve"])
+    _add_users(parsers["users"])
     it = parsers["init"]
     it.add_argument(
         "path",
@@ -231,6 +236,24 @@ def _add_serve(sv: argparse.ArgumentParser) -> None:
         default=Path("out/serve-demo"),
         metavar="DIR",
         help="--demo: where its configuration is written (out/serve-demo)",
+    )
+
+
+def _add_users(us: argparse.ArgumentParser) -> None:
+    """`users`."""
+    us.add_argument("action", choices=("add", "list", "remove", "passwd"))
+    us.add_argument("name", nargs="?", metavar="NAME", help="the user (add, remove, passwd)")
+    us.add_argument(
+        "--role",
+        choices=("viewer", "operator", "admin"),
+        help="add: viewer (sees), operator (also acknowledges alarms), admin (also users)",
+    )
+    us.add_argument(
+        "--config",
+        required=True,
+        type=Path,
+        metavar="CONFIG.toml",
+        help="the service's configuration: its users live in its output folder",
     )
 
 

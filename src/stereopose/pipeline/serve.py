@@ -1,13 +1,15 @@
 """`stereopose serve`: the frame loop for ever, with bounded storage, alarms out and health.
 
 Once the configuration is checked (pipeline.serve_setup: exit 2 before any work), the service
-starts its HTTP server (service.app: /api/health, /metrics), opens the cameras and runs the
+starts its HTTP server (service.app: /api/health, /metrics, the operator console over the
+users of `<output>/users.json`), opens the cameras and runs the
 frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
 
 - pose segments `poses/<UTC start>.jsonl.gz` (io.sinks.segments);
 - the event log `events.sqlite` (appended to across restarts), the webhook when
   [outputs] webhook is set, MQTT when [mqtt] host is set;
 - event clips `clips/` (io.sinks.clips) unless [storage] clips = false;
+- the console's live hub (service.live: people, zones, camera pictures for the page);
 - the health state (service.state) and `status.json`, its snapshot every status_interval_s.
 
 One storage maintainer thread (service.storage) applies [storage]'s retention and cap. Events
@@ -54,11 +56,14 @@ from stereopose.pipeline.stage3d import Stage3D
 from stereopose.service.api.health import health_of
 from stereopose.service.app import create_app
 from stereopose.service.calib_health import CalibrationHealth
+from stereopose.service.eventlog import EventLog
+from stereopose.service.live import ConsoleSink, LiveHub
 from stereopose.service.restart import Resume
 from stereopose.service.server import Server
 from stereopose.service.state import ServiceState
 from stereopose.service.storage import StorageMaintainer
 from stereopose.service.watch import CameraWatch
+from stereopose.service.web import Console
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -107,6 +112,7 @@ class _Service:
             plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
         )
         self.server: Server | None = None
+        self.console: Console | None = None
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
         self.failed: dict[str, str] = {}
@@ -115,9 +121,15 @@ class _Service:
     # -- starting -------------------------------------------------------------------------
 
     def start_server(self) -> str:
-        app = create_app(self.state)
-        self.server = Server(app, self.plan.http)
+        p = self.plan
+        hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
+        self.console = Console.in_folder(p.out_dir, hub)
+        self.probes["console"] = hub.figures
+        app = create_app(self.state, console=self.console)
+        hint = f"stereopose users add NAME --role admin --config {p.config_path}"
+        self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
+        hub.start()
         return self.server.url
 
     def start_maintainer(self) -> None:
@@ -141,9 +153,11 @@ class _Service:
 
             sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
                                            settings=p.segments), p.out_dir / "poses"))  # fmt: skip
-            sinks += self._event_sinks(cfg, guard)
+            sinks += self._event_sinks(cfg, guard, wall_start)
             if p.clips is not None and p.site is not None:
                 sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
+            if self.console is not None and self.console.hub is not None:
+                sinks.append(ConsoleSink(self.console.hub, wall_start))
             sinks.append(guard(StateSink(self.state, summary, arrival=arrival,
                                          stats=stats), "the health state"))  # fmt: skip
             self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
@@ -157,7 +171,7 @@ class _Service:
         p, sinks = self.plan, []
         site = str(p.site.path or "") if p.site is not None else ""
         db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
-                        first_id=self.resume.next_id)  # fmt: skip
+                        first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
         self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
         sinks.append(guard(db, p.events_db))
         if cfg.outputs.webhook:
@@ -211,9 +225,11 @@ class _Service:
     # -- stopping ---------------------------------------------------------------------------
 
     def close(self) -> None:
-        """The maintainer and the server, each within its bound."""
+        """The maintainer, the console and the server, each within its bound."""
         if self.maintainer is not None and not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
+        if self.console is not None:
+            self.console.close()  # its live streams end before the server stops
         if self.server is not None:
             self.server.stop()
 

@@ -504,3 +504,29 @@ class LiveHub:
                 "snapshots_made": self.snapshots_made,
                 "snapshots_dropped": self.snapshots_dropped,
                 "snapshot_errors": self.snapshot_errors}  # fmt: skip
+
+
+class ConsoleSink:
+    """The frame loop's sink feeding `hub` (wall_start: the Unix time of t = 0). A failure in
+    the hub is logged once and counted, never raised: the console must not stop the loop."""
+
+    stage = "write"
+
+    def __init__(self, hub: LiveHub, wall_start: float) -> None:
+        self.hub, self.wall_start = hub, float(wall_start)
+        self.errors = 0
+        self._closed = False
+
+    def write(self, frame: FrameResult) -> None:
+        if self._closed:
+            return
+        try:
+            self.hub.on_frame(frame, self.wall_start)
+        except Exception:
+            self.errors += 1
+            if self.errors == 1:
+                logger.exception("console: a frame could not be shown (later ones are tried)")
+
+    def close(self) -> list:
+        self._closed = True
+        return []
