@@ -167,7 +167,7 @@ class _Service:
             raise
         return sinks
 
-    def _event_sinks(self, cfg: Config, guard) -> list[Sink]:
+    def _event_sinks(self, cfg: Config, guard, wall_start: float) -> list[Sink]:
         p, sinks = self.plan, []
         site = str(p.site.path or "") if p.site is not None else ""
         db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
