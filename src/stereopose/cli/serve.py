@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from stereopose.cli.common import console, out
-from stereopose.errors import ConfigError, IncompleteOutputError
+from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeError
 
 
 def _config_path(args: argparse.Namespace) -> Path:
@@ -43,6 +43,21 @@ def _plan(path: Path, port: int | None):
     return plan_serve(path, cfg)
 
 
+def _console_line(url: str, config: Path, out_dir: Path) -> str:
+    """Where the operator console is, and how to add its first user when it has none."""
+    from stereopose.service.users import UserStore
+
+    line = f"operator console: {url}/"
+    try:
+        none = UserStore.in_folder(out_dir).count() == 0
+    except StereoposeError as e:
+        return f"{line} (its users cannot be read: {e})"
+    if none:
+        line += (f"; no user yet: add one with `stereopose users add NAME --role admin "
+                 f"--config {config}` (the password is read from standard input)")  # fmt: skip
+    return line
+
+
 def _serve(args: argparse.Namespace) -> int:
     path = _config_path(args)
     plan = _plan(path, args.port)
@@ -52,6 +67,7 @@ def _serve(args: argparse.Namespace) -> int:
         out.print(f"serving: health {url}/api/health, metrics {url}/metrics; outputs in "
                   f"{plan.out_dir}; stop with Ctrl-C or SIGTERM", highlight=False,
                   soft_wrap=True)  # fmt: skip
+        out.print(_console_line(url, path, plan.out_dir), highlight=False, soft_wrap=True)
 
     try:
         result = serve(path, plan=plan, on_ready=ready)
