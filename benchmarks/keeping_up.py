@@ -3,7 +3,10 @@
 The 4 demo videos (1088x1920, 60 fps, H.264) are served by ffmpeg from imageio-ffmpeg in real
 time as MPEG-TS over HTTP with stream copy (no re-encoding: the simulated cameras cost almost
 nothing). Optionally each camera also serves a substream: the same video at a quarter of the
-size (272x480), encoded once before the measurement and served the same way.
+size (272x480), encoded once before the measurement and served the same way; with substreams,
+the full streams are either decoded too (for drawn full-size clips, [input] full_streams =
+"decode") or kept encoded, only demuxed into a packet ring for the clips' stream copies (the
+default of `serve`, io.packets).
 
 For each set-up the frame loop runs for `--seconds` on the pipelined cameras
 (pipeline.pipelined: decoding per camera on its threads, detection on its own, 3D and the zones
@@ -37,6 +40,7 @@ from stereopose.detection import make_detector
 from stereopose.detection.models import demo_videos
 from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
+from stereopose.io.packets import PacketRing
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
@@ -77,7 +81,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det) -> dict:
+def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det,
+            packets: bool = False) -> dict:  # fmt: skip
     names = [v.stem for v in videos]
     servers, urls, sub_urls = [], [], []
     for v in videos:
@@ -93,8 +98,10 @@ def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det) ->
     rig = load_calibration(calib).subset(names)
     site = load_site(Path(str(resources.files("stereopose") / "data" / "demo_site.toml")))
     proc = psutil.Process()
+    rings = {n: PacketRing(20.0, 64 * 2**20) for n in names} if packets else None
     try:
-        with CameraSet(urls, names, detect=sub_urls or None, first_frame_timeout_s=30) as cams:
+        with CameraSet(urls, names, detect=sub_urls or None, first_frame_timeout_s=30,
+                       packets=rings) as cams:  # fmt: skip
             cfg = dataclasses.replace(Config(), fps=cams.fps)
             source = PipelinedCameras(Cameras(cams, rig, det))
             stage = Stage3D(rig, cfg, calib_path=str(calib))
@@ -118,6 +125,8 @@ def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det) ->
     loop_s = sum(v for k, v in summary.seconds.items() if k not in ("decode", "detect"))
     return {
         "substreams": bool(subs),
+        "full_streams": "packets" if packets else "decoded",
+        "packet_ring_mb": {n: r.bytes / 2**20 for n, r in (rings or {}).items()},
         "seconds": wall,
         "steps": st.delivered,
         "steps_per_s": st.delivered / wall,
@@ -154,11 +163,12 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory() as tmp:
         subs = [substream(v, Path(tmp) / f"{v.stem}_sub.mp4") for v in videos]
-        for use_subs in (False, True):
-            run = measure(videos, subs if use_subs else None, args.seconds, det)
+        for use_subs, packets in ((False, False), (True, False), (True, True)):
+            run = measure(videos, subs if use_subs else None, args.seconds, det, packets)
             r["runs"].append(run)
-            print(f"substreams={use_subs}: {run['steps_per_s']:.2f} steps/s, latency p95 "
-                  f"{run['latency_p95_s']:.2f} s", flush=True)  # fmt: skip
+            print(f"substreams={use_subs} packets={packets}: {run['steps_per_s']:.2f} steps/s, "
+                  f"latency p50 {run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
+                  flush=True)  # fmt: skip
     save("keeping_up", r, markdown(r))
 
 
@@ -180,8 +190,11 @@ def markdown(r: dict) -> list[str]:
         cams = run["cameras"].values()
         grabbed = sum(c["grabbed"] for c in cams) / len(cams)
         decoded = sum(c["decoded"] for c in cams) / len(cams)
-        what = "full streams + substreams (detect on the substream)" if run["substreams"] else (
-            "full streams only")  # fmt: skip
+        what = "full streams only"
+        if run["substreams"]:
+            what = ("full streams kept encoded (packets) + substreams (detect on the substream)"
+                    if run.get("full_streams") == "packets" else
+                    "full streams decoded + substreams (detect on the substream)")  # fmt: skip
         md.append(
             f"| {what} | {run['steps_per_s']:.2f} | {run['detect_ms_per_step']:.0f} | "
             f"{run['loop_ms_per_step']:.0f} | {run['latency_p50_s']:.2f} / "

@@ -245,6 +245,9 @@ class InputConfig:
     first_frame_timeout_s: float | None = number(30.0, gt=0.0, le=DAY_S)
     # cap on detection steps per second (default: as fast as the detector allows)
     detect_fps: float | None = number(None, ge=FPS_MIN, le=FPS_MAX)
+    # serve: a live camera with a detection substream keeps its full stream encoded, for the
+    # clips' full-stream copies ("copy"; nothing decoded), or decodes it for the drawn clips
+    full_streams: Literal["copy", "decode"] = "copy"
 
 
 @_schema("outputs")

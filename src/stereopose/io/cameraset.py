@@ -6,6 +6,9 @@ Beyond io.video's rules (alignment, live newest frames, first-frame wait):
   same length (the shortest camera's), so they turn in step;
 - ``detect``: per camera an optional second source, a low-resolution substream, read in step
   with the camera's own (the full one, for clips); its frames go in ``FrameSet.detect``;
+- ``packets``: per camera with a live substream, a ring (io.packets.PacketRing) that its full
+  stream is kept in, encoded, never decoded; its FrameSet image is then the substream's frame
+  (smaller than the calibration's size), so clips and pictures come from the substream;
 - ``detect_fps``: at most this many steps per second (recorded: of the files' time, the frames
   in between passed over without decoding; live: of wall-clock time, and a live camera converts
   to an image only the frame a step asked for).
@@ -17,13 +20,14 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from stereopose.io.packets import PacketRing
 from stereopose.io.source import JOIN_S, Clock, SourceStats, VideoError, check_fps, source_name
-from stereopose.io.video import FrameSet, Source, _check_timeouts, open_source
+from stereopose.io.video import FrameSet, Source, _check_timeouts, is_stream, open_source
 
 logger = logging.getLogger(__name__)
 
@@ -38,6 +42,10 @@ def _per_camera(value: object, n: int, what: str) -> list:
     if len(values) != n:
         raise VideoError(f"{len(values)} {what} values for {n} cameras")
     return values
+
+
+def _packets_only(s: Source) -> bool:
+    return getattr(s, "packets", None) is not None
 
 
 class CameraSet:
@@ -65,6 +73,7 @@ class CameraSet:
         detect: Sequence[str | Path | None] | None = None,
         detect_fps: float | None = None,
         wait_first_frame: bool = True,
+        packets: Mapping[str, PacketRing] | None = None,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -91,7 +100,8 @@ class CameraSet:
         self.detect_sources: dict[str, Source] = {}
         try:
             for spec, name, lp, sub in zip(specs, names, loops, substreams, strict=False):
-                self.sources.append(self._open(spec, name, fps, lp, open_timeout_s))
+                ring = (packets or {}).get(name) if sub is not None else None
+                self.sources.append(self._open(spec, name, fps, lp, open_timeout_s, ring))
                 if sub is not None:
                     self.detect_sources[name] = self._open(sub, name, fps, lp, open_timeout_s)
             self._check_kinds()
@@ -107,9 +117,11 @@ class CameraSet:
         self._ended: set[str] = set()
         self._ended_ids: set[int] = set()  # readers ended, substreams included
 
-    def _open(self, spec, name: str, fps: float | None, loop: bool, timeout: float) -> Source:
+    def _open(self, spec, name: str, fps: float | None, loop: bool, timeout: float,
+              packets: PacketRing | None = None) -> Source:  # fmt: skip
         source = open_source(spec, name, fps, clock=self.clock, notify=self._fresh,
-                             open_timeout_s=timeout, loop=loop)  # fmt: skip
+                             open_timeout_s=timeout, loop=loop,
+                             packets=packets if is_stream(str(spec)) else None)  # fmt: skip
         if loop and source.live:
             source.close()
             raise VideoError(f"camera {name}: loop is for recorded files, {spec} is a live stream")
@@ -257,6 +269,8 @@ class CameraSet:
                 images[s.name] = None if mine is None else mine[2]
                 if s.name in self.detect_sources:
                     detect[s.name] = None if sub is None else sub[2]
+                    if _packets_only(s):  # the picture of a camera kept encoded
+                        images[s.name] = detect[s.name]
                 first = sub or mine  # the time of the frame detection uses
                 if first is not None:
                     frames[s.name] = first[0]
@@ -280,6 +294,8 @@ class CameraSet:
             now = time.monotonic()
             waited = []
             for s in self.all_sources:
+                if _packets_only(s):  # never gives an image
+                    continue
                 if id(s) not in got and (item := s.latest()) is not None:
                     got[id(s)] = item
                 recent = s.last_frame_at is not None and now - s.last_frame_at < RECENT_S

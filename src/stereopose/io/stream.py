@@ -24,6 +24,7 @@ from urllib.parse import urlsplit
 import cv2
 import numpy as np
 
+from stereopose.io.packets import PacketRing, StreamFormat
 from stereopose.io.source import JOIN_S, Clock, SourceStats, source_name
 
 logger = logging.getLogger(__name__)
@@ -107,6 +108,7 @@ class LiveStream:
         clock: Clock | None = None,
         notify: threading.Event | None = None,
         log_every_s: float = 10.0,
+        packets: PacketRing | None = None,
     ) -> None:
         self.url = str(url)
         self.path = self.url
@@ -121,6 +123,7 @@ class LiveStream:
         self.connected = False
         self.problem = "not opened yet"  # why it does not deliver now, for messages
         self._notify = notify
+        self.packets = packets  # given: the stream is kept encoded there, never decoded
         self._up = threading.Event()
         self._lock = threading.Lock()
         self._latest: tuple[int, float, np.ndarray] | None = None
@@ -146,7 +149,10 @@ class LiveStream:
         return self._seq > 0
 
     def _open(self) -> cv2.VideoCapture | None:
-        cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, _capture_params(self.timeout_s))
+        params = _capture_params(self.timeout_s)
+        if self.packets is not None:  # demuxed only: grab() gives the encoded packet
+            params += [cv2.CAP_PROP_FORMAT, -1]
+        cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, params)
         if cap.isOpened():
             return cap
         cap.release()
@@ -178,6 +184,8 @@ class LiveStream:
         fps = cap.get(cv2.CAP_PROP_FPS)
         if 0 < fps < 1000:
             self.fps = float(fps)
+        if self.packets is not None:
+            return self._keep_packets(cap)
         got_frame = False
         while not self._stop.is_set():
             if not cap.grab():
@@ -206,6 +214,36 @@ class LiveStream:
                 self.shape = image.shape[:2]
             if self._notify is not None:
                 self._notify.set()
+        return got_frame
+
+    def _keep_packets(self, cap: cv2.VideoCapture) -> bool:
+        """Grab packets into `packets` until the stream fails or the run stops (no decoding,
+        no image ever given out); whether any came."""
+        ring = self.packets
+        ring.clear()  # a reopened stream starts again from its next keyframe
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        code = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little")
+        fourcc = code.decode("ascii", "replace").strip("\x00 ")
+        if w > 0 and h > 0:
+            self.shape = (h, w)
+            ring.format = StreamFormat(fourcc, self.fps or 25.0, (w, h))
+        got_frame = False
+        while not self._stop.is_set():
+            if not cap.grab():
+                break
+            now = time.monotonic()
+            ok, packet = cap.retrieve()
+            if not ok or packet is None:
+                break
+            self.last_frame_at = now
+            self.stats.grabbed += 1
+            if not got_frame:
+                got_frame = True
+                self._went_up(now)
+            keyframe = bool(cap.get(cv2.CAP_PROP_LRF_HAS_KEY_FRAME))
+            ring.push(self.clock.since(now), keyframe, packet.tobytes())
+            with self._lock:
+                self._seq += 1
         return got_frame
 
     def _waiting(self, problem: str, delay: float) -> None:

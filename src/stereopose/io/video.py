@@ -47,6 +47,7 @@ from stereopose.io.source import (
 )
 
 if TYPE_CHECKING:
+    from stereopose.io.packets import PacketRing
     from stereopose.io.stream import LiveStream
 
 __all__ = [
@@ -304,18 +305,20 @@ def open_source(
     notify: threading.Event | None = None,
     open_timeout_s: float = 5.0,
     loop: bool = False,
+    packets: PacketRing | None = None,
 ) -> Source:
     """A camera source from a file path, an image folder or a stream URL.
 
     fps, loop: a recorded source's frame rate (default: its own) and whether it is played for
-    ever (forward then backward); clock, notify, open_timeout_s: a live stream's
-    (io.stream.LiveStream)."""
+    ever (forward then backward); clock, notify, open_timeout_s, packets: a live stream's
+    (io.stream.LiveStream; packets: kept encoded there, never decoded)."""
     text = str(spec)
     fps = check_fps(fps, f"{text}: fps")
     if is_stream(text):
         from stereopose.io.stream import LiveStream
 
-        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify)
+        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify,
+                          packets=packets)  # fmt: skip
     path = Path(text)
     if path.is_dir():
         return ImageFolder(path, name, fps, loop=loop)

@@ -35,10 +35,13 @@ from stereopose.detection import make_detector
 from stereopose.errors import StereoposeError
 from stereopose.fence import FenceMonitor
 from stereopose.io.cameraset import CameraSet
+from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
+from stereopose.io.sinks.clips import ClipSettings
 from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
+from stereopose.io.video import is_stream
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
@@ -117,6 +120,12 @@ class _Service:
         self.status: StatusSink | None = None
         self.failed: dict[str, str] = {}
         self.probes: dict[str, Callable[[], dict]] = {}
+        self.packets = _packet_rings(plan)
+        if self.packets:
+            self.probes["full_streams"] = lambda: {
+                name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
+                for name, r in self.packets.items()
+            }
 
     # -- starting -------------------------------------------------------------------------
 
@@ -194,11 +203,14 @@ class _Service:
 
         p = self.plan
         clips = ClipSink(p.out_dir, p.rig.names, cfg.fps, wall_start=wall_start,
-                         draw=clip_drawer(p.rig), settings=p.clips)  # fmt: skip
+                         draw=clip_drawer(p.rig), settings=p.clips,
+                         packets=self.packets)  # fmt: skip
         self.state.register_queue("clips", clips._frames.qsize, lambda: clips.frames_dropped)
         self.probes["clips"] = lambda: {"written": clips.clips_written,
                                         "failed": clips.clips_failed,
-                                        "frames_dropped": clips.frames_dropped}  # fmt: skip
+                                        "frames_dropped": clips.frames_dropped,
+                                        "full_copies_written": clips.copies_written,
+                                        "full_copies_failed": clips.copies_failed}  # fmt: skip
         return clips
 
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
@@ -242,7 +254,22 @@ def _dropped(mqtt) -> int:
     return sum(v["dropped"] for v in mqtt.counts().values())
 
 
-def _open_cameras(plan: ServePlan) -> CameraSet:
+def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
+    """Per live camera with a live detection substream, the ring its full stream is kept in
+    (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
+    clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
+    cfg = plan.config
+    if cfg.input.full_streams != "copy":
+        return {}
+    s = plan.clips or ClipSettings()
+    keep_s = s.clip_pre_s + s.clip_post_s + 5.0
+    return {name: PacketRing(keep_s, s.clip_buffer_bytes)
+            for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources,
+                                      strict=True)
+            if sub and is_stream(str(src)) and is_stream(str(sub))}  # fmt: skip
+
+
+def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet:
     cfg = plan.config
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
     # and the camera watch raises camera_down for each camera that has not delivered
@@ -250,7 +277,8 @@ def _open_cameras(plan: ServePlan) -> CameraSet:
                      None, open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
                      loop=[c.loop for c in cfg.cameras],
                      detect=[d or None for d in plan.detect_sources],
-                     detect_fps=cfg.input.detect_fps, wait_first_frame=False)  # fmt: skip
+                     detect_fps=cfg.input.detect_fps, wait_first_frame=False,
+                     packets=packets)  # fmt: skip
 
 
 def serve(
@@ -289,7 +317,7 @@ def serve(
                 raise StereoposeError(f"{plan.out_dir}: cannot create the output folder: "
                                       f"{e.strerror}") from None  # fmt: skip
             service.start_maintainer()
-            with _open_cameras(plan) as cams:
+            with _open_cameras(plan, service.packets) as cams:
                 summary = _run_loop(plan, service, cams, detector, stop, closing)
         finally:
             with quiet_signals():

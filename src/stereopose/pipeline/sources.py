@@ -132,6 +132,8 @@ class Cameras:
         full = self._steps.pop(step.frame, None)
         subs = {n: im for n, im in (full.detect if full else {}).items() if im is not None}
         for name, image in usable_images(FrameSet(step.frame, step.t, images)):
+            if image is subs.get(name):  # a camera kept encoded shows its substream's frame
+                continue
             if name not in self._checked:
                 self._checked.add(name)
                 check_size(self.rig[name], image)

@@ -54,10 +54,19 @@ def draw_overlay(
     label: str = "",
     min_conf: float = 0.3,
 ) -> np.ndarray:
-    """A copy of ``image`` (resized by ``scale``) with detections and reprojected 3D people."""
+    """A copy of ``image`` (resized by ``scale``) with detections and reprojected 3D people.
+
+    Points are in the calibration's pixels: an image of another size (a camera's detection
+    substream) is resized to ``scale`` times the calibration's size, as a full one would be."""
+    cw, ch = (round(v) for v in camera.size)
     h, w = image.shape[:2]
-    out = image if scale == 1.0 else cv2.resize(image, (round(w * scale), round(h * scale)))
-    out = out.copy() if out is image else out
+    if (w, h) != (cw, ch):
+        w, h = cw, ch
+        out = cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))))
+    elif scale != 1.0:
+        out = cv2.resize(image, (round(w * scale), round(h * scale)))
+    else:
+        out = image.copy()
     thick = max(1, round(3 * scale))
     if people2d is not None:
         for kp in people2d.keypoints:

@@ -12,6 +12,12 @@ the clips as `<name>.part.mp4`, checks that the file decodes, and renames it to 
 (never over an existing file). A clip that cannot be written (disk full, folder gone) is
 logged (once per spell), counted and removed; later clips are tried again.
 
+A camera whose full stream is kept encoded (io.packets: it has a detection substream) gets its
+clip drawn on the substream's frames, at the same size as a full one's, and beside it
+`<name>.full.mp4`: its full stream over the same span, a stream copy (no re-encoding, nothing
+drawn), from the keyframe before the clip's start. A copy that cannot be written is logged and
+counted (copies_failed) and leaves its drawn clip alone.
+
 Times are the frames' own (`FrameResult.t`); names use wall time `wall_start + t` (UTC). The
 clip's frame rate is the run's `fps`, so its duration is its frame count / fps.
 """
@@ -37,18 +43,20 @@ import numpy as np
 
 from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
+from stereopose.io.packets import PacketRing, write_copy
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.writing import make_folder, probe_folder, reason
 from stereopose.types import Event, People2D, People3D
 
-__all__ = ["CLIPS_DIR", "CLIP_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink", "Draw",
-           "clip_name", "is_alarm"]  # fmt: skip
+__all__ = ["CLIPS_DIR", "CLIP_SUFFIX", "FULL_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink",
+           "Draw", "clip_name", "is_alarm"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
 CLIPS_DIR = "clips"
 CLIP_SUFFIX = ".mp4"
+FULL_SUFFIX = ".full.mp4"  # a clip's full-stream copy, beside it
 PART_SUFFIX = ".part.mp4"  # a clip being written
 _EPS = 1e-9  # frame times compared with some slack
 _MAX_TWINS = 999
@@ -175,6 +183,7 @@ class ClipSink(ClosesOnce):
         draw: Draw | None = None,
         alarm: Callable[[Event], bool] = is_alarm,
         settings: ClipSettings | None = None,
+        packets: Mapping[str, PacketRing] | None = None,
     ) -> None:
         if isinstance(wall_start, bool) or not isinstance(wall_start, (int, float)):
             raise StereoposeError(f"clips: wall_start must be a Unix time, got {wall_start!r}")
@@ -189,6 +198,8 @@ class ClipSink(ClosesOnce):
         self.draw = draw or (lambda cam, image, p2, p3, scale, label: _plain(image, scale))
         self.alarm = alarm
         self.frames_dropped = self.clips_written = self.clips_failed = self.errors = 0
+        self.packets = dict(packets or {})
+        self.copies_written = self.copies_failed = 0
         self.last_error: str | None = None
         self.incomplete: str | None = None
         self.written: list[Path] = []
@@ -398,6 +409,8 @@ class ClipSink(ClosesOnce):
         with self._lock:
             self.written.append(final)
             self.clips_written += 1
+        if clip.camera in self.packets:
+            self._copy(clip, final)
         if self._failing:
             logger.warning("event clips written again (%d failed)", self.clips_failed)
             self._failing = False
@@ -413,6 +426,29 @@ class ClipSink(ClosesOnce):
             clip.part.unlink()
             return final
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
+
+    def _copy(self, clip: _Clip, drawn: Path) -> None:
+        """The full stream's copy of the clip's span beside the drawn clip `drawn`."""
+        ring = self.packets[clip.camera]
+        stem = drawn.name[: -len(CLIP_SUFFIX)]
+        part = self.folder / (stem + ".full" + PART_SUFFIX)
+        final = self.folder / (stem + FULL_SUFFIX)
+        try:
+            packets = ring.between(clip.start_t, clip.last_t)
+            if ring.format is None or not packets:
+                raise StereoposeError("no packets of the full stream kept for its span")
+            write_copy(part, packets, ring.format)
+            os.link(part, final)
+            part.unlink()
+        except (OSError, cv2.error, StereoposeError) as e:
+            with contextlib.suppress(OSError):
+                part.unlink(missing_ok=True)
+            self.copies_failed += 1
+            logger.warning("event clips: %s: full-stream copy not written (%s)", stem, reason(e))
+            return
+        with self._lock:
+            self.written.append(final)
+            self.copies_written += 1
 
     def _clip_failed(self, clip: _Clip, e: BaseException) -> None:
         clip.failed = True
