@@ -107,8 +107,8 @@ class UserStore:
         self._dummy: str | None = None
 
     @classmethod
-    def in_folder(cls, out_dir: str | Path) -> UserStore:
-        return cls(Path(out_dir) / USERS_FILE)
+    def in_folder(cls, out_dir: str | Path, hasher: PasswordHasher | None = None) -> UserStore:
+        return cls(Path(out_dir) / USERS_FILE, hasher)
 
     # -- reading ---------------------------------------------------------------------------
 
