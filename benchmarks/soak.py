@@ -62,7 +62,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def palindrome(video: Path, out: Path) -> Path:
+def palindrome(video: Path, out: Path, scale: str | None = None) -> Path:
     """``video`` then the same frames backward, as H.264 with a keyframe each second (made
     once, before the soak; the stream itself is then only copied)."""
     if out.is_file():
@@ -70,7 +70,8 @@ def palindrome(video: Path, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     part = out.with_suffix(".part.mp4")
     cmd = [ffmpeg(), "-loglevel", "error", "-y", "-i", str(video), "-filter_complex",
-           "[0:v]split[a][b];[b]reverse[r];[a][r]concat=n=2:v=1:a=0[v]", "-map", "[v]",
+           ("[0:v]" + (f"scale={scale}," if scale else "") +
+            "split[a][b];[b]reverse[r];[a][r]concat=n=2:v=1:a=0[v]"), "-map", "[v]",
            "-c:v", "libx264", "-preset", "veryfast", "-crf", "20", "-g", "60",
            "-pix_fmt", "yuv420p", "-an", str(part)]  # fmt: skip
     subprocess.run(cmd, check=True, timeout=600)
@@ -123,15 +124,17 @@ class Camera:
         self._thread.join(timeout=5)
 
 
-def write_config(work: Path, cameras: list[Camera], port: int, args) -> Path:
-    """The serve demo's configuration with the live cameras as sources and the soak's storage
-    settings."""
+def write_config(work: Path, cameras: list[Camera], port: int, args,
+                 subs: dict[str, Camera] | None = None) -> Path:  # fmt: skip
+    """The serve demo's configuration with the live cameras as sources (and their substreams
+    as their `detect` sources) and the soak's storage settings."""
     path = write_serve_demo_config(work / "config", work / "data", port, imgsz=args.imgsz,
                                    detect_fps=args.detect_fps)  # fmt: skip
     text = path.read_text(encoding="utf-8")
     for cam in cameras:
         pattern = rf'(name = "{cam.name}"\n)source = .*\nloop = true\n'
-        text, n = re.subn(pattern, rf'\1source = "{cam.url}"\n', text)
+        detect = f'detect = "{subs[cam.name].url}"\n' if subs else ""
+        text, n = re.subn(pattern, rf'\1source = "{cam.url}"\n{detect}', text)
         assert n == 1, f"camera {cam.name} not found in {path}"
     text += (
         "\n[storage]\n"
@@ -213,13 +216,18 @@ def diff(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
     return {k: b[k] - a.get(k, 0.0) for k in b}
 
 
+def clip_files(data: Path) -> int:
+    return sum(1 for _ in (data / "clips").glob("*.mp4")) if (data / "clips").is_dir() else 0
+
+
 def sample(base: str, pid: int, data: Path, t0: float) -> dict:
     code, body = get(base + "/api/health")
     health = json.loads(body) if code in (200, 503) and body else None
     mcode, mbody = get(base + "/metrics")
     metrics = parse_metrics(mbody.decode()) if mcode == 200 else None
     return {"t_s": round(time.monotonic() - t0, 1), "rss_mb": rss_mb(pid), "health": health,
-            "metrics": metrics, "disk_bytes": folder_bytes(data)}  # fmt: skip
+            "metrics": metrics, "disk_bytes": folder_bytes(data),
+            "clip_files": clip_files(data)}  # fmt: skip
 
 
 def median(xs: list[float]) -> float:
@@ -264,11 +272,22 @@ def summarise(samples: list[dict], warmup_s: float, cap_bytes: float) -> dict:
         status = (s["health"] or {}).get("status", "no answer")
         statuses[status] = statuses.get(status, 0) + 1
     cams = (last["health"] or {}).get("cameras", {})
+    # a one-time step when the first alarm clip is written (its encoder and decoder loaded)
+    # is told apart from growth: the memory from the first sample with a clip on to the end
+    clipped = [s for s in after if s.get("clip_files")]
+    rss_clip = median([s["rss_mb"] for s in clipped[:3]]) if len(clipped) >= 6 else None
     return {
         "measured_s": round(span, 1),
         "rss_after_warmup_mb": round(rss_warm, 1),
         "rss_end_mb": round(rss_end, 1),
         "rss_growth_pct": round(100 * (rss_end - rss_warm) / rss_warm, 2),
+        "rss_after_first_clip_mb": _round(rss_clip, 1),
+        "rss_growth_after_first_clip_pct": (
+            round(100 * (rss_end - rss_clip) / rss_clip, 2) if rss_clip else None
+        ),
+        "rss_slope_after_first_clip_mb_per_h": _round(
+            slope_per_hour([(s["t_s"], s["rss_mb"]) for s in clipped])
+        ),
         "rss_slope_mb_per_h": _round(slope_per_hour([(s["t_s"], s["rss_mb"]) for s in after])),
         "rss_max_mb": round(max(s["rss_mb"] for s in ok), 1),
         "steps_per_s": round((lm.get("frames", 0) - fm.get("frames", 0)) / span, 3),
@@ -334,17 +353,23 @@ def soak(args) -> dict:
     if not args.forward_only:
         videos = {n: palindrome(v, work / "streams" / f"{n}.mp4") for n, v in videos.items()}
     cameras = [Camera(v, n).start() for n, v in videos.items()]
+    subs = {}
+    if args.substreams:  # 272x480, a sixteenth of the pixels, as cameras' substreams are
+        for n in videos:
+            small = palindrome(demo / f"{n}.mp4", work / "streams" / f"{n}_sub.mp4", "272:480")
+            subs[n] = Camera(small, f"{n}_sub").start()
     port = free_port()
     data, log = work / "data", work / "serve.log"
     if data.exists():  # a soak starts from an empty output folder (serve would resume it)
         shutil.rmtree(data)
-    config = write_config(work, cameras, port, args)
+    config = write_config(work, cameras, port, args, subs)
     base = f"http://127.0.0.1:{port}"
     proc = None
     samples: list[dict] = []
     try:
         deadline = time.monotonic() + 30
-        while not all(c.listening() for c in cameras) and time.monotonic() < deadline:
+        every = [*cameras, *subs.values()]
+        while not all(c.listening() for c in every) and time.monotonic() < deadline:
             time.sleep(0.2)
         proc = start_serve(args.serve_python, config, log)
         t_launch = time.monotonic()
@@ -365,7 +390,7 @@ def soak(args) -> dict:
     finally:
         if proc is not None and proc.poll() is None:
             stop_serve(proc, 10)
-        for c in cameras:
+        for c in [*cameras, *subs.values()]:
             c.stop()
     text = log.read_text(errors="replace")
     summary = summarise(samples, min(args.warmup_s, args.duration_s / 4), args.max_gb * 1e9)
@@ -393,6 +418,7 @@ def compact(s: dict) -> dict:
         "latency_count": max(m.get("e2e", {}).values(), default=None),
         "storage_bytes": sum(h.get("storage", {}).values()) if h else None,
         "disk_bytes": s["disk_bytes"],
+        "clip_files": s.get("clip_files"),
     }
 
 
@@ -419,6 +445,12 @@ def report(args, result: dict) -> list[str]:
         f"{'as recorded' if args.forward_only else 'forward then backward'}, served by ffmpeg "
         f"in real time with stream copy (looped); detector ONNX at {args.imgsz}"
         + (f", detect_fps {args.detect_fps:g}" if args.detect_fps else "")
+        + (
+            "; each camera also serves a 272x480 substream (the same, scaled), its detect "
+            "source, and its full stream is kept encoded for the clips' stream copies"
+            if args.substreams
+            else ""
+        )
         + f"; MQTT off; storage cap {cap}, segments of {args.segment_s:g} s; serve run by "
         f"`{_where(args.serve_python)}`.",
         "",
@@ -430,6 +462,10 @@ def report(args, result: dict) -> list[str]:
         f"| resident memory after warm-up / end / max | {s['rss_after_warmup_mb']} / "
         f"{s['rss_end_mb']} / {s['rss_max_mb']} MB |",
         f"| memory trend after warm-up | {_fmt(s['rss_slope_mb_per_h'])} MB per hour |",
+        f"| resident memory from the first alarm clip on / growth / trend | "
+        f"{_fmt(s.get('rss_after_first_clip_mb'))} MB / "
+        f"{_fmt(s.get('rss_growth_after_first_clip_pct'))} % / "
+        f"{_fmt(s.get('rss_slope_after_first_clip_mb_per_h'))} MB per hour |",
         f"| steps/s | {s['steps_per_s']} |",
         f"| end-to-end latency p50 / p95 | {_fmt(s['latency_p50_s'])} / "
         f"{_fmt(s['latency_p95_s'])} s |",
@@ -511,6 +547,11 @@ def main() -> None:
     )
     ap.add_argument("--imgsz", type=int, default=640, help="detector input size (640)")
     ap.add_argument("--detect-fps", type=float, help="[input] detect_fps (default: none)")
+    ap.add_argument(
+        "--substreams",
+        action="store_true",
+        help="each camera also serves a 272x480 substream, its detect source",
+    )
     ap.add_argument("--max-gb", type=float, default=1.0, help="[storage] max_gb (1)")
     ap.add_argument("--segment-s", type=float, default=300.0, help="[storage] segment_s (300)")
     ap.add_argument(
