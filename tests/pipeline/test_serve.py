@@ -7,6 +7,7 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -90,6 +91,9 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
         status, metrics = _get(base + "/metrics")
         assert status == 200 and b"stereopose_frames_total" in metrics
         assert b'stereopose_queue_size{queue="mqtt"}' in metrics
+        # detection runs on its own thread, and its time is in the stage figures all the same
+        detect = re.search(rb'stereopose_stage_seconds_sum\{stage="detect"\} (\S+)', metrics)
+        assert detect and float(detect.group(1)) > 0, metrics.decode()
         wait_until(lambda: (data / "status.json").exists(), "status.json")
         assert json.loads((data / "status.json").read_text())["status"] in ("ok", "degraded")
         assert sub.on("stereopose/demo/available")[-1] == "online"

@@ -120,6 +120,7 @@ class _Service:
         self.status: StatusSink | None = None
         self.failed: dict[str, str] = {}
         self.probes: dict[str, Callable[[], dict]] = {}
+        self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
         self.packets = _packet_rings(plan)
         if self.packets:
             self.probes["full_streams"] = lambda: {
@@ -167,8 +168,9 @@ class _Service:
                 sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
             if self.console is not None and self.console.hub is not None:
                 sinks.append(ConsoleSink(self.console.hub, wall_start))
-            sinks.append(guard(StateSink(self.state, summary, arrival=arrival,
-                                         stats=stats), "the health state"))  # fmt: skip
+            state = StateSink(self.state, summary, arrival=arrival, stats=stats,
+                              elsewhere=self.elsewhere)  # fmt: skip
+            sinks.append(guard(state, "the health state"))
             self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
             sinks.append(guard(self.status, p.status_path))
         except BaseException:
@@ -216,6 +218,7 @@ class _Service:
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
         """The detection hand-over as a queue of the health state; its figures in status."""
         stats = pipelined.stats
+        self.elsewhere = lambda: {"detect": stats.detect_s}
         self.state.register_queue("detection", lambda: len(pipelined.handover),
                                   lambda: pipelined.handover.dropped)  # fmt: skip
         self.probes["pipeline"] = stats.figures

@@ -137,7 +137,9 @@ class StateSink(ClosesOnce):
     aggregates) from each frame: which cameras delivered, the seconds each stage took since the
     last frame (from summary.seconds), people and events. arrival(t): a step
     time's monotonic time (None: not known, the latency is the sum of the stages); stats(): the
-    camera readers' figures (io.source.SourceStats by camera), read every `stats_s`."""
+    camera readers' figures (io.source.SourceStats by camera), read every `stats_s`;
+    elsewhere(): seconds so far of the stages timed off the loop's thread (a pipelined
+    detection), by stage, added to the summary's."""
 
     stage = "state"
 
@@ -149,8 +151,10 @@ class StateSink(ClosesOnce):
         arrival: Callable[[float], float | None] = lambda t: None,
         stats: Callable[[], Mapping[str, object]] | None = None,
         stats_s: float = 1.0,
+        elsewhere: Callable[[], Mapping[str, float]] | None = None,
     ) -> None:
         self.state, self.summary, self.seconds = state, summary, summary.seconds
+        self.elsewhere = elsewhere
         self.arrival, self.stats, self.stats_s = arrival, stats, stats_s
         self._last = dict(self.seconds)
         self._seen: dict[str, tuple[int, int]] = {}  # camera -> (dropped, reconnects) so far
@@ -161,6 +165,9 @@ class StateSink(ClosesOnce):
             if image is not None:
                 self.state.camera_frame(name)
         now = dict(self.seconds)
+        if self.elsewhere is not None:
+            for stage, seconds in self.elsewhere().items():
+                now[stage] = now.get(stage, 0.0) + seconds
         timings = {k: v - self._last.get(k, 0.0) for k, v in now.items()}
         self._last = now
         self.state.on_frame(frame, timings, self.arrival(frame.t))
