@@ -3,9 +3,10 @@
 World frame: metres, z up, floor at z = 0; joints are COCO-17 (stereopose.skeleton), NaN where
 missing. Every posture is decided by geometry with a threshold of PostureSettings:
 
-- torso angle: between the hip centre -> shoulder centre vector and the vertical (the left or
-  right side alone when only that side is known; without hips or shoulders, the main axis of
-  the joints that are known);
+- torso angle: between the hip centre -> shoulder centre vector and the vertical (one side
+  alone when only that side is known; a hip and a shoulder of opposite sides less their
+  sideways part; without shoulders, hips -> head; without hips, the main axis of the joints
+  that are known);
 - hip height against the person's own standing hip height (a high quantile of their hip
   heights while upright, PostureTracker; `standing_hip_m` until enough are seen);
 - knee angle: between thigh and shin at the knee (180 degrees: straight);
@@ -14,10 +15,11 @@ missing. Every posture is decided by geometry with a threshold of PostureSetting
 The postures, in the order they are tested:
 
 - lying: the body's top (the highest of the head and shoulders; the hips when neither is known)
-  below `lying_height_m`, with the torso at least `lying_deg` from vertical (or its angle
-  unknown). Joints that are missing (a body half out of view, seen by two cameras) are left out.
+  below `lying_height_m`, with the torso at least `lying_deg` from vertical and the thighs at
+  least `lying_thigh_deg` (each where it is known). Joints that are missing (a body half out
+  of view, seen by two cameras) are left out.
 - crouching (kneeling, squatting, sitting): hips below `low_hip_ratio` x the standing hip height
-  (without hips: the shoulders below that share of their standing height).
+  (without hips: the shoulders lowered as much).
 - bending: hips high, torso at least `bend_deg` from vertical.
 - walking / standing: upright, the floor point moving at least `walk_speed_m_s` or not.
 - unknown: fewer than `min_joints` joints, or only limbs that tell nothing.
@@ -40,6 +42,7 @@ from stereopose.skeleton import (
     FACE,
     LEFT_ANKLE,
     LEFT_EAR,
+    LEFT_ELBOW,
     LEFT_HIP,
     LEFT_KNEE,
     LEFT_SHOULDER,
@@ -47,6 +50,7 @@ from stereopose.skeleton import (
     NUM_JOINTS,
     RIGHT_ANKLE,
     RIGHT_EAR,
+    RIGHT_ELBOW,
     RIGHT_HIP,
     RIGHT_KNEE,
     RIGHT_SHOULDER,
@@ -75,6 +79,8 @@ _HIPS = (LEFT_HIP, RIGHT_HIP)
 _SHOULDERS = (LEFT_SHOULDER, RIGHT_SHOULDER)
 _WRISTS = (LEFT_WRIST, RIGHT_WRIST)
 _LEGS = ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE), (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE))
+_LATERAL_PAIRS = ((LEFT_KNEE, RIGHT_KNEE), (LEFT_ANKLE, RIGHT_ANKLE), (LEFT_ELBOW, RIGHT_ELBOW),
+                  (LEFT_EAR, RIGHT_EAR))  # fmt: skip
 # standing shoulder height over standing hip height (adult proportions: 0.818 / 0.525)
 SHOULDER_OVER_HIP = 1.56
 _BINS_M = np.arange(0.3, 1.5001, 0.01)  # standing hip height histogram: bin edges, metres
@@ -91,6 +97,8 @@ class PostureSettings:
     low_hip_ratio: hips below this share of the standing height: crouching.
     lying_height_m: the body's top (head, shoulders) below this: lying (with lying_deg).
     lying_deg: torso at least this far from vertical for lying.
+    lying_thigh_deg: thighs (where known) at least this far from vertical for lying (a worker
+        kneeling, thighs upright, bent forward into a low panel is not lying).
     bend_deg: torso at least this far from vertical, hips high: bending.
     upright_deg: torso within this of vertical: an upright frame (standing height samples).
     knee_bent_deg: a knee angle below this is bent (reported; crouching needs low hips).
@@ -107,8 +115,9 @@ class PostureSettings:
     hip_quantile: float = 0.9
     min_samples: int = 12
     low_hip_ratio: float = 0.72
-    lying_height_m: float = 0.6
-    lying_deg: float = 60.0
+    lying_height_m: float = 0.7
+    lying_deg: float = 45.0
+    lying_thigh_deg: float = 40.0
     bend_deg: float = 30.0
     upright_deg: float = 20.0
     knee_bent_deg: float = 140.0
@@ -177,17 +186,36 @@ def _angle_to_vertical(v: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, abs(float(v[2])) / n)))
 
 
+def _lateral(J: np.ndarray) -> np.ndarray | None:
+    """The body's right -> left unit vector (3,) from a pair of side joints (knees, ankles,
+    elbows, ears), None when no pair is known."""
+    for left, right in _LATERAL_PAIRS:
+        v = J[left] - J[right]
+        n = float(np.linalg.norm(v))
+        if math.isfinite(n) and n > 0.1:
+            return v / n
+    return None
+
+
 def torso_vector(J: np.ndarray) -> np.ndarray:
-    """Hip centre -> shoulder centre (3,) of one skeleton (17, 3): both sides when all four
-    joints are known, else one side whole, else whatever hip and shoulder are known (NaN:
-    none)."""
+    """Hip centre -> shoulder centre (3,) of one skeleton (17, 3) (NaN: cannot be told).
+
+    Both centres when all four joints are known, else one side's hip and shoulder; else a hip
+    and a shoulder of opposite sides, less their sideways part (the body's left-right axis
+    from another pair of joints); else the hips' centre -> the head's."""
     ok = np.isfinite(J).all(-1)
     if ok[list(_HIPS + _SHOULDERS)].all():
         return _centre(J, _SHOULDERS) - _centre(J, _HIPS)
     for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
         if ok[hip] and ok[shoulder]:
             return J[shoulder] - J[hip]
-    return _centre(J, _SHOULDERS) - _centre(J, _HIPS)
+    v = _centre(J, _SHOULDERS) - _centre(J, _HIPS)
+    if np.isfinite(v).all():
+        lateral = _lateral(J)
+        if lateral is None:
+            return np.full(3, np.nan)
+        return v - (v @ lateral) * lateral
+    return _centre(J, _HEAD) - _centre(J, _HIPS)
 
 
 def torso_angle(J: np.ndarray) -> float:
@@ -203,6 +231,13 @@ def torso_angle(J: np.ndarray) -> float:
     if s[0] < 0.3 * math.sqrt(len(pts)) or s[0] < 1.5 * s[1]:  # too small or no clear axis
         return math.nan
     return _angle_to_vertical(vt[0])
+
+
+def thigh_angle(J: np.ndarray) -> float:
+    """The thighs' (hip -> knee) mean angle to vertical, degrees (NaN: no thigh known)."""
+    degs = [_angle_to_vertical(J[knee] - J[hip]) for hip, knee, _ in _LEGS]
+    degs = [d for d in degs if math.isfinite(d)]
+    return sum(degs) / len(degs) if degs else math.nan
 
 
 def knee_angle(J: np.ndarray) -> float:
@@ -291,14 +326,20 @@ def classify(
         if math.isfinite(torso) and torso >= s.lying_deg and float(z.max()) < s.lying_height_m:
             return Posture("lying", **common)
         return Posture(UNKNOWN, **common)
-    if top < s.lying_height_m and (math.isnan(torso) or torso >= s.lying_deg):
+    thigh = thigh_angle(J)
+    if (
+        top < s.lying_height_m
+        and (math.isnan(torso) or torso >= s.lying_deg)
+        and (math.isnan(thigh) or thigh >= s.lying_thigh_deg)
+    ):
         return Posture("lying", **common)
     flags, wrist_m, reach = _flags(J, s)
     common.update(flags=flags, wrist_m=wrist_m, reach_m=reach)
     if math.isfinite(hip):
         low = hip < s.low_hip_ratio * ref
-    elif math.isfinite(shoulders):
-        low = shoulders < s.low_hip_ratio * ref * SHOULDER_OVER_HIP and not (
+    elif math.isfinite(shoulders):  # the shoulders as low as the hips would be
+        drop = (1.0 - s.low_hip_ratio) * ref
+        low = shoulders < ref * SHOULDER_OVER_HIP - drop and not (
             math.isfinite(torso) and torso >= s.bend_deg
         )
     else:
