@@ -17,6 +17,7 @@ import numpy as np
 
 from stereopose.errors import StereoposeError
 from stereopose.geometry.camera import project
+from stereopose.io.mp4 import FrameWriter
 from stereopose.skeleton import LIMBS
 from stereopose.types import Camera, People2D, People3D
 
@@ -119,30 +120,26 @@ class OverlayVideo:
             raise StereoposeError(f"overlay scale must be in (0, 1], got {scale}")
         self.path = Path(path)
         self.camera, self.fps, self.scale = camera, fps, scale
-        self.writer: cv2.VideoWriter | None = None
-        self.size: tuple[int, int] | None = None
-        self.frames = 0
+        self._video = FrameWriter(self.path, fps, "the overlay video")
+
+    @property
+    def frames(self) -> int:
+        return self._video.frames
+
+    @property
+    def size(self) -> tuple[int, int] | None:
+        return self._video.size
 
     def write(
         self, image: np.ndarray, people2d: People2D | None, people3d: People3D, label: str = ""
     ) -> None:
         out = draw_overlay(image, self.camera, people2d, people3d, self.scale, label)
-        if self.writer is None:
+        if not self._video.opened:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.size = (out.shape[1], out.shape[0])
-            self.writer = cv2.VideoWriter(
-                str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self.size
-            )
-            if not self.writer.isOpened():
-                raise StereoposeError(f"{self.path}: cannot write the overlay video")
-        elif (out.shape[1], out.shape[0]) != self.size:
-            out = cv2.resize(out, self.size)
-        self.writer.write(out)
-        self.frames += 1
+        self._video.write(out)
 
     def close(self) -> Path | None:
-        if self.writer is None:
+        if not self._video.opened:
             return None
-        self.writer.release()
-        self.writer = None
+        self._video.close()
         return self.path

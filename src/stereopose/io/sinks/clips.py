@@ -43,6 +43,7 @@ import numpy as np
 
 from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
+from stereopose.io.mp4 import FrameWriter
 from stereopose.io.packets import PacketRing, write_copy
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -154,8 +155,7 @@ class _Clip:
     last_t: float = -math.inf
     frames: int = 0
     part: Path | None = None
-    writer: cv2.VideoWriter | None = None
-    size: tuple[int, int] | None = None
+    writer: FrameWriter | None = None
     failed: bool = False
     events: list[Event] = field(default_factory=list)
 
@@ -381,14 +381,7 @@ class ClipSink(ClosesOnce):
             if image is None:
                 continue
             if clip.writer is None:
-                clip.size = (image.shape[1], image.shape[0])
-                clip.writer = cv2.VideoWriter(
-                    str(clip.part), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, clip.size
-                )
-                if not clip.writer.isOpened():
-                    raise StereoposeError(f"{clip.part}: cannot write the clip")
-            elif (image.shape[1], image.shape[0]) != clip.size:
-                image = cv2.resize(image, clip.size)
+                clip.writer = FrameWriter(clip.part, self.fps, "the clip")
             clip.writer.write(image)
             clip.frames += 1
 
@@ -396,7 +389,7 @@ class ClipSink(ClosesOnce):
         if clip.writer is None:  # no frame came: nothing to keep
             clip.part.unlink(missing_ok=True)
             return
-        clip.writer.release()
+        clip.writer.close()
         clip.writer = None
         cap = cv2.VideoCapture(str(clip.part))
         decoded = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
@@ -453,7 +446,7 @@ class ClipSink(ClosesOnce):
     def _clip_failed(self, clip: _Clip, e: BaseException) -> None:
         clip.failed = True
         if clip.writer is not None:
-            clip.writer.release()
+            clip.writer.close()
             clip.writer = None
         if clip.part is not None:
             try:
