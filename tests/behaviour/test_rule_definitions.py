@@ -1,0 +1,189 @@
+"""The site file's [[rules]]: read, written back, and every bad definition a clear error naming
+the file and the rule."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stereopose.behaviour import (
+    ImmobileRule,
+    LoneWorkerRule,
+    OverreachRule,
+    PersonDownRule,
+    WorkPositionRule,
+    parse_rules,
+)
+from stereopose.cli import main
+from stereopose.errors import ConfigError
+from stereopose.fence import load_site, save_site
+from stereopose.skeleton import JOINT_INDEX
+
+ZONES = """
+fps = 25.0
+[[zones]]
+name = "panel_A"
+kind = "energized"
+polygon = [[0.0, 2.0], [0.6, 2.0], [0.6, 4.0], [0.0, 4.0]]
+z = [0.0, 2.5]
+[[zones]]
+name = "front_A"
+kind = "work_area"
+polygon = [[0.6, 2.0], [1.6, 2.0], [1.6, 4.0], [0.6, 4.0]]
+z = [0.0, 2.5]
+"""
+
+RULES = """
+[[rules]]
+name = "man_down"
+type = "person_down"
+down_s = 3
+
+[[rules]]
+name = "two_man"
+type = "lone_worker"
+zones = ["panel_A"]
+buddy_m = 2.5
+lone_s = 10.0
+
+[[rules]]
+name = "position_A"
+type = "work_position"
+zone = "front_A"
+facing_deg = 180.0
+tolerance_deg = 25.0
+postures = ["standing", "crouching"]
+
+[[rules]]
+name = "still"
+type = "immobile"
+immobile_s = 30.0
+
+[[rules]]
+name = "overhead"
+type = "overreach"
+max_height_m = 2.1
+joints = ["left_wrist", "right_wrist", "left_elbow"]
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "site.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_rules_are_read_with_their_parameters_and_defaults(tmp_path: Path) -> None:
+    site = load_site(write(tmp_path, ZONES + RULES))
+    down, lone, pos, still, over = site.rules
+    assert down == PersonDownRule("man_down", down_s=3.0)
+    assert down.up_s == 1.0 and down.fall_speed_m_s == 1.0  # the defaults
+    assert lone == LoneWorkerRule("two_man", ("panel_A",), buddy_m=2.5, lone_s=10.0)
+    assert pos == WorkPositionRule("position_A", "front_A", 180.0, tolerance_deg=25.0,
+                                   postures=("standing", "crouching"))  # fmt: skip
+    assert still == ImmobileRule("still", 30.0)
+    assert over == OverreachRule("overhead", 2.1, joints=tuple(sorted(
+        JOINT_INDEX[j] for j in ("left_wrist", "right_wrist", "left_elbow"))))  # fmt: skip
+    assert [r.type for r in site.rules] == [
+        "person_down", "lone_worker", "work_position", "immobile", "overreach"]  # fmt: skip
+
+
+def test_a_site_without_rules_has_none(tmp_path: Path) -> None:
+    assert load_site(write(tmp_path, ZONES)).rules == ()
+
+
+def test_rules_written_back_read_the_same(tmp_path: Path) -> None:
+    site = load_site(write(tmp_path, ZONES + RULES))
+    out = tmp_path / "again.toml"
+    save_site(out, site)
+    again = load_site(out)
+    assert again.rules == site.rules and [z.name for z in again.zones] == ["panel_A", "front_A"]
+    assert "buddy_m = 2.5" in out.read_text() and "down_s" not in out.read_text()  # default
+
+
+def _rule(**kw) -> str:
+    lines = ["[[rules]]"]
+    for k, v in kw.items():
+        lines.append(f"{k} = {v}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("rule", "message"),
+    [
+        (_rule(name='"x"', type='"falling"'), "rule 'x': unknown type 'falling'; expected one of"),
+        (_rule(name='"x"'), "rule 'x': missing `type`"),
+        (_rule(type='"immobile"', immobile_s=3), "rules[0]: missing `name`"),
+        (_rule(name="3", type='"immobile"'), "rules[0]: name must be a non-empty string"),
+        (_rule(name='"x"', type='"person_down"', downs=3),
+         "rule 'x': unknown key(s) downs; person_down knows name, type, down_s"),
+        (_rule(name='"x"', type='"immobile"'), "rule 'x': missing `immobile_s`"),
+        (_rule(name='"x"', type='"person_down"', down_s=-1),
+         "rule 'x': down_s: expected a finite number in (0, 86400], got -1"),
+        (_rule(name='"x"', type='"person_down"', down_s="nan"), "rule 'x': down_s: expected"),
+        (_rule(name='"x"', type='"person_down"', down_s='"3"'), "rule 'x': down_s: expected"),
+        (_rule(name='"x"', type='"person_down"', down_s="true"), "rule 'x': down_s: expected"),
+        (_rule(name='"x"', type='"lone_worker"', zones='["panel_B"]'),
+         "rule 'x': zones: no zone named 'panel_B'; zones: front_A, panel_A"),
+        (_rule(name='"x"', type='"lone_worker"', zones="[]"),
+         "rule 'x': zones must be a non-empty list of names"),
+        (_rule(name='"x"', type='"lone_worker"'), "rule 'x': missing `zones`"),
+        (_rule(name='"x"', type='"lone_worker"', zones='["panel_A"]', buddy_m=0),
+         "rule 'x': buddy_m: expected a finite number in (0, 10000], got 0"),
+        (_rule(name='"x"', type='"work_position"', zone='"panel_A"', facing_deg=0),
+         "rule 'x': zone: zone 'panel_A' is energized; expected a work_area zone"),
+        (_rule(name='"x"', type='"work_position"', zone='"front_A"'),
+         "rule 'x': missing `facing_deg`"),
+        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
+               tolerance_deg=200), "rule 'x': tolerance_deg: expected a finite number in (0, 180]"),
+        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
+               postures='["sitting"]'), "rule 'x': postures: unknown posture(s) 'sitting'"),
+        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
+               energized='["front_A"]'), "rule 'x': energized: zone 'front_A' is work_area"),
+        (_rule(name='"x"', type='"overreach"', max_height_m=2, joints='["left_hand"]'),
+         "rule 'x': joints: unknown joint 'left_hand'"),
+        (_rule(name='"x"', type='"immobile"', immobile_s=1e400), "rule 'x': immobile_s: expected"),
+        (_rule(name='"x"', type='"immobile"', immobile_s=5) + _rule(name='"x"', type='"immobile"',
+                                                                    immobile_s=6),
+         "rule 'x': the name is used twice"),
+    ],
+)  # fmt: skip
+def test_bad_rule_definitions_name_the_file_and_the_rule(
+    tmp_path: Path, rule: str, message: str
+) -> None:
+    path = write(tmp_path, ZONES + rule)
+    with pytest.raises(ConfigError) as err:
+        load_site(path)
+    text = str(err.value)
+    assert text.startswith(f"{path}: ") and message in text, text
+
+
+def test_rules_must_be_tables_and_not_too_many(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"site.toml: rules must be \[\[rules\]\] tables"):
+        load_site(write(tmp_path, 'rules = "all"\n' + ZONES))
+    with pytest.raises(ConfigError, match=r"rules\[0\]: expected a table"):
+        load_site(write(tmp_path, "rules = [1]\n" + ZONES))
+    many = [{"name": f"r{k}", "type": "person_down"} for k in range(101)]
+    with pytest.raises(ConfigError, match="101 rules; a site holds at most 100"):
+        parse_rules(many, "here", ())
+
+
+def test_work_position_needs_an_energized_zone_somewhere(tmp_path: Path) -> None:
+    site = ZONES.replace('kind = "energized"', 'kind = "restricted"')
+    rule = _rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0)
+    with pytest.raises(ConfigError, match="rule 'x': the site has no energized zone"):
+        load_site(write(tmp_path, site + rule))
+
+
+def test_a_bad_rule_is_exit_2_on_the_command_line(tmp_path: Path, capsys) -> None:
+    scene = tmp_path / "scene"
+    assert main(["simulate", str(scene), "--frames", "3", "--cameras", "2", "--people", "1"]) == 0
+    capsys.readouterr()
+    site = write(tmp_path, ZONES + _rule(name='"down"', type='"person_down"', down_s=0))
+    rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
+               "--out", str(tmp_path / "p.jsonl"), "--site", str(site)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "site.toml: rule 'down': down_s: expected" in " ".join(err.split())
+    assert "Traceback" not in err
