@@ -82,6 +82,14 @@ export class CameraStrip {
     }
   }
 
+  /** Resolves once no picture is being fetched (or after `timeoutMs`). */
+  async idle(timeoutMs = 3000) {
+    const until = performance.now() + timeoutMs;
+    while ([...this.cards.values()].some((c) => c.loading) && performance.now() < until) {
+      await new Promise((resolve) => setTimeout(resolve, 50));
+    }
+  }
+
   refresh() {
     for (const c of this.cards.values()) {
       // a camera down or without a first frame has no new picture (the server says 503)

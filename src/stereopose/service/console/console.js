@@ -30,6 +30,7 @@ class Console {
       zones: (body) => this.onZones(body.zones || []),
       cameras: (body) => this.onCameras(body.cameras || []),
       ack: (body) => this.feed.acked(body.id, body.ack),
+      logout: () => this.showLogin("Your session has ended: log in again."),
     }, (up) => this.onLink(up));
     this.tab = "live";
     this.staleTimer = null;
@@ -92,6 +93,10 @@ class Console {
   }
 
   async onLogout() {
+    // nothing more asked with this session: the pictures in flight are let land first
+    this.live.stop();
+    this.strip.show(false);
+    await this.strip.idle();
     try {
       await api.logout();
     } catch {

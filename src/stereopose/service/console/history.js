@@ -5,8 +5,9 @@ import { ApiError, events, eventsCsvUrl } from "./api.js";
 import { ackText, dateTime, describe, typeText } from "./feed.js";
 
 const PAGE = 200;
-const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_down",
-  "camera_down", "camera_up", "camera_moved", "calibration_drift"];
+const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_down", "fall",
+  "lone_worker", "work_position", "immobile", "overreach", "camera_down", "camera_up",
+  "camera_moved", "calibration_drift"];
 
 const byId = (id) => document.getElementById(id);
 
@@ -34,9 +35,21 @@ export class History {
     this.info = byId("h-info");
     this.player = byId("player");
     this.playerInfo = byId("player-info");
+    this.download = byId("player-download");
+    this.playerError = byId("player-error");
+    this.player.addEventListener("error", () => {
+      // a clip in a format this browser does not decode can still be downloaded
+      const why = this.player.error ? this.player.error.message || `code ${this.player.error.code}` : "";
+      this.playerError.textContent = `This browser cannot play the clip (${why}); download it instead.`;
+      this.playerError.hidden = false;
+    });
+    this.player.addEventListener("loadeddata", () => {
+      this.playerError.hidden = true;
+    });
     this.zoneSelect = byId("h-zone");
     this.typeSelect = byId("h-type");
     this.oldest = null;
+    this.asked = 0; // the newest search: an older one's late answer is dropped
     for (const t of TYPES) this.typeSelect.appendChild(new Option(typeText(t), t));
     this.form.addEventListener("submit", (e) => {
       e.preventDefault();
@@ -76,14 +89,16 @@ export class History {
     if (older && this.oldest !== null) filters.before_id = this.oldest;
     this.updateCsv();
     this.info.textContent = "searching";
+    const asked = ++this.asked;
     let answer;
     try {
       answer = await events(filters);
     } catch (error) {
-      if (error instanceof ApiError && error.status === 401) return;
+      if (asked !== this.asked || (error instanceof ApiError && error.status === 401)) return;
       this.info.textContent = `not searched: ${error.detail || error.message}`;
       return;
     }
+    if (asked !== this.asked) return;
     const found = answer.events || [];
     if (!older) this.rows.replaceChildren();
     for (const e of found) this.rows.appendChild(this.row(e));
@@ -97,6 +112,7 @@ export class History {
     const tr = document.createElement("tr");
     tr.dataset.eventId = String(e.id);
     tr.className = `level-${e.level || "info"}`;
+    tr.dataset.type = e.type;
     cell(tr, dateTime(e.wall_t), "time");
     cell(tr, e.level || "info", `level level-${e.level || "info"}`);
     cell(tr, typeText(e.type));
@@ -120,6 +136,9 @@ export class History {
   }
 
   play(url, e) {
+    this.playerError.hidden = true;
+    this.download.href = url;
+    this.download.hidden = false;
     this.player.src = url;
     this.playerInfo.textContent = `${dateTime(e.wall_t)} ${describe(e)}`;
     this.player.play().catch(() => {}); // a browser may refuse to start playing by itself
