@@ -457,8 +457,15 @@ def describe(e: Event) -> str:
         extra.append("allowed")
     if e.lost:
         extra.append("track lost")
+    if e.rule is not None:  # a behaviour event: what explains it
+        extra += [x for x in (e.posture, e.failed and f"failed: {e.failed}") if x]
+        if e.nearest_m is not None:
+            extra.append(f"nearest {e.nearest_m:.1f} m")
+        if e.height_m is not None:
+            extra.append(f"at {e.height_m:.2f} m")
     more = f" ({', '.join(extra)})" if extra else ""
+    where = f"{e.rule}{' ' + e.zone if e.zone else ''}" if e.rule is not None else e.zone
     return (
         f"t={e.t:8.2f}s frame {e.frame:6d}  person {e.person:3d}  {e.type:14s} "
-        f"{e.zone} [{e.kind}]{more}"
+        f"{where} [{e.kind}]{more}"
     )
