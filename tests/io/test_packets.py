@@ -31,12 +31,15 @@ def test_the_ring_keeps_whole_groups_from_a_keyframe() -> None:
     for i in range(100):  # a keyframe every 10 packets, 25 packets a second
         ring.push(0.04 * (i + 1), i % 10 == 0, bytes([i]) * 10)
     # the newest 1 s at least, whole groups: the oldest kept starts at a keyframe
-    kept = ring.between(-1, 10)
+    kept = [data for _, data in ring.between(-1, 10)]
     assert kept[0] == bytes([80]) * 10 or kept[0] == bytes([70]) * 10
     assert kept[-1] == bytes([99]) * 10
     # from the last keyframe at or before t0, up to t1
-    part = ring.between(0.04 * 95, 0.04 * 97)
+    part = [data for _, data in ring.between(0.04 * 95, 0.04 * 97)]
     assert part == [bytes([i]) * 10 for i in range(90, 97)]
+    # what follows a copy written up to t0
+    more = ring.after(0.04 * 97, 0.04 * 99)
+    assert [data for _, data in more] == [bytes([97]) * 10, bytes([98]) * 10]
     assert ring.dropped_groups == 0
 
 
@@ -145,10 +148,9 @@ def test_an_alarm_clip_has_its_full_stream_copy_beside_it(tmp_path) -> None:
     sink = ClipSink(tmp_path, [cam], FPS, wall_start=1.8e9, settings=settings,
                     draw=clip_drawer(rig), packets={cam: ring})  # fmt: skip
     small = np.zeros((h // 4, w // 4, 3), np.uint8)
-    alarm = Event(2.0, 50, 1, "busbar", "energized", "enter", 2.0)
     for i in range(100):
         t = i / FPS
-        events = [alarm] if i == 50 else []
+        events = [Event(t, i, 1, "busbar", "energized", "enter", t)] if i == 50 else []
         sink.write(FrameResult(i, t, {}, People3D.empty(0, 0), events, {cam: small}))
     written = sink.close()
     drawn = [p for p in written if not p.name.endswith(FULL_SUFFIX)]
@@ -164,3 +166,33 @@ def test_an_alarm_clip_has_its_full_stream_copy_beside_it(tmp_path) -> None:
     n, ok = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), cap.read()[0]
     cap.release()
     assert ok and n >= 50  # 1 s before to 1 s after, from the keyframe before
+
+
+def test_a_clip_extended_by_later_alarms_has_all_of_its_full_stream(tmp_path) -> None:
+    """The copy is written as the clip goes on: a clip longer than the ring holds (alarms that
+    keep coming) still has its whole span; the ring is fed as a live reader feeds it."""
+    cam, (w, h) = "cam", (192, 128)
+    source = _demuxed(_encode(tmp_path / "in.ts", "libx264", 12.0, f"{w}x{h}"))
+    packets = source.between(0, 1e9)
+    ring = PacketRing(2.0, 2**24)  # 2 s: far shorter than the clip
+    ring.format = source.format
+    settings = ClipSettings(clip_pre_s=1.0, clip_post_s=1.0, clip_queue_frames=1000)
+    sink = ClipSink(tmp_path, [cam], FPS, wall_start=1.8e9, settings=settings,
+                    packets={cam: ring})  # fmt: skip
+    image = np.zeros((h, w, 3), np.uint8)
+    keys = {i for i in range(len(packets)) if i % 10 == 0}
+    for i in range(len(packets)):
+        t = i / FPS
+        ring.push(t, i in keys, packets[i][1])
+        alarm = 50 <= i <= 200 and i % 25 == 0  # every second from 2 s to 8 s
+        events = [Event(t, i, 1, "busbar", "energized", "enter", t)] if alarm else []
+        sink.write(FrameResult(i, t, {}, People3D.empty(0, 0), events, {cam: image}))
+        # a live feed is paced by the cameras: the writer keeps within the ring's span
+        wait_until(lambda: sink._jobs.qsize() == 0 and sink._frames.qsize() == 0, "the clips")
+    written = sink.close()
+    copies = [p for p in written if p.name.endswith(FULL_SUFFIX)]
+    assert len(copies) == 1 and sink.copies_failed == 0, written
+    cap = cv2.VideoCapture(str(copies[0]))
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert n >= 8 * FPS  # 1 s before the first alarm to 1 s after the last: 8 s and more

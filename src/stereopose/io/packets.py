@@ -5,8 +5,9 @@ clips; decoding it (about 5 ms a 1088x1920 H.264 frame, every frame, since inter
 needs each one) would take a core from the detector for 4 such cameras at 60 fps. So its
 reader (io.stream.LiveStream with ``packets``) only demuxes: each packet goes, with its arrival
 time and whether it is a keyframe, into a ``PacketRing``, and a clip of the full stream is
-those packets written into an MP4 without re-encoding (``write_copy``: a stream copy, as camera
-recorders do), from the last keyframe at or before the clip's start.
+those packets written into an MP4 without re-encoding (``StreamCopy``: a stream copy, as camera
+recorders do), from the last keyframe at or before the clip's start, then the packets that
+arrive after, as the clip goes on (``PacketRing.after``).
 
 The ring holds whole groups of pictures (a keyframe and the packets up to the next one), the
 newest ``keep_s`` seconds of them at least, bounded by ``max_bytes``: a group that no longer
@@ -26,7 +27,7 @@ import numpy as np
 
 from stereopose.errors import StereoposeError
 
-__all__ = ["PacketRing", "StreamFormat", "write_copy"]
+__all__ = ["PacketRing", "StreamCopy", "StreamFormat", "write_copy"]
 
 _EPS = 1e-9
 
@@ -92,9 +93,9 @@ class PacketRing:
                 self._bytes -= self._groups.popleft().bytes
                 self.dropped_groups += 1
 
-    def between(self, t0: float, t1: float) -> list[bytes]:
-        """The packets that arrived up to `t1`, from the last keyframe at or before `t0` (the
-        oldest kept keyframe when that one is gone); [] when none."""
+    def between(self, t0: float, t1: float) -> list[tuple[float, bytes]]:
+        """The packets (t, data) that arrived up to `t1`, from the last keyframe at or before
+        `t0` (the oldest kept keyframe when that one is gone); [] when none."""
         with self._lock:
             groups = list(self._groups)
         if not groups:
@@ -103,7 +104,14 @@ class PacketRing:
         for i, g in enumerate(groups):
             if g.start <= t0 + _EPS:
                 first = i
-        return [data for g in groups[first:] for t, data in g.packets if t <= t1 + _EPS]
+        return [(t, data) for g in groups[first:] for t, data in g.packets if t <= t1 + _EPS]
+
+    def after(self, t0: float, t1: float) -> list[tuple[float, bytes]]:
+        """The packets (t, data) that arrived after `t0` and up to `t1`: what follows a copy
+        written up to `t0`."""
+        with self._lock:
+            groups = [g for g in self._groups if g.packets[-1][0] > t0 + _EPS]
+            return [(t, d) for g in groups for t, d in g.packets if t0 + _EPS < t <= t1 + _EPS]
 
     def clear(self) -> None:
         """Forget every packet (the stream was reopened: what comes next may differ)."""
@@ -116,28 +124,59 @@ _MP4_TAGS = {"h264": "avc1", "avc1": "avc1", "x264": "avc1", "hevc": "hvc1", "he
              "hvc1": "hvc1", "h265": "hvc1"}  # fmt: skip
 
 
-def write_copy(path: str | Path, packets: list[bytes], fmt: StreamFormat) -> int:
-    """The packets written as they are into the MP4 at `path` (FFmpeg's muxer through OpenCV,
-    no re-encoding); the frames it then decodes to. Raises StereoposeError if it cannot be
-    written or does not decode (disk full, a codec MP4 does not take)."""
+class StreamCopy:
+    """Packets written as they are into the MP4 at `path` (FFmpeg's muxer through OpenCV, no
+    re-encoding), in several calls; `close()` then checks that it decodes and returns its
+    frame count. StereoposeError if it cannot be written or does not decode (disk full, a
+    codec MP4 does not take)."""
+
+    def __init__(self, path: str | Path, fmt: StreamFormat) -> None:
+        self.path, self.format = Path(path), fmt
+        self.packets = 0
+        tag = _MP4_TAGS.get(fmt.fourcc.lower(), fmt.fourcc)
+        self._writer: cv2.VideoWriter | None = cv2.VideoWriter(
+            str(self.path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*tag[:4].ljust(4)),
+            fmt.fps, fmt.size, [cv2.VIDEOWRITER_PROP_RAW_VIDEO, 1],
+        )  # fmt: skip
+        if not self._writer.isOpened():
+            self._writer = None
+            raise StereoposeError(f"{self.path}: cannot write a stream copy of {fmt.fourcc} video")
+
+    def write(self, packets: list[tuple[float, bytes]]) -> None:
+        if self._writer is None:
+            raise StereoposeError(f"{self.path}: the stream copy is closed")
+        for _, data in packets:
+            self._writer.write(np.frombuffer(data, np.uint8).reshape(1, -1))
+            self.packets += 1
+
+    def release(self) -> None:
+        """Close the file without checking it (the copy is being given up)."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+
+    def close(self) -> int:
+        self.release()
+        if not self.packets:
+            raise StereoposeError(f"{self.path}: no packets to write")
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        try:
+            frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+            ok = cap.isOpened() and cap.read()[0]
+        finally:
+            cap.release()
+        if not ok or frames <= 0:
+            raise StereoposeError(f"{self.path}: the stream copy does not decode (disk full?)")
+        return frames
+
+
+def write_copy(path: str | Path, packets: list[tuple[float, bytes]], fmt: StreamFormat) -> int:
+    """The packets (t, data) as one stream copy at `path` (StreamCopy); its frame count."""
     if not packets:
         raise StereoposeError(f"{path}: no packets to write")
-    tag = _MP4_TAGS.get(fmt.fourcc.lower(), fmt.fourcc)
-    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*tag[:4]),
-                             fmt.fps, fmt.size, [cv2.VIDEOWRITER_PROP_RAW_VIDEO, 1])  # fmt: skip
-    if not writer.isOpened():
-        raise StereoposeError(f"{path}: cannot write a stream copy of {fmt.fourcc} video")
+    copy = StreamCopy(path, fmt)
     try:
-        for data in packets:
-            writer.write(np.frombuffer(data, np.uint8).reshape(1, -1))
+        copy.write(packets)
     finally:
-        writer.release()
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
-    try:
-        frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
-        ok = cap.isOpened() and cap.read()[0]
-    finally:
-        cap.release()
-    if not ok or frames <= 0:
-        raise StereoposeError(f"{path}: the stream copy does not decode (disk full?)")
-    return frames
+        copy.release()
+    return copy.close()

@@ -15,8 +15,9 @@ logged (once per spell), counted and removed; later clips are tried again.
 A camera whose full stream is kept encoded (io.packets: it has a detection substream) gets its
 clip drawn on the substream's frames, at the same size as a full one's, and beside it
 `<name>.full.mp4`: its full stream over the same span, a stream copy (no re-encoding, nothing
-drawn), from the keyframe before the clip's start. A copy that cannot be written is logged and
-counted (copies_failed) and leaves its drawn clip alone.
+drawn), from the keyframe before the clip's start, written as the clip goes on (so a clip
+extended by later alarms has all of it). A copy that cannot be written is logged and counted
+(copies_failed) and leaves its drawn clip alone.
 
 Times are the frames' own (`FrameResult.t`); names use wall time `wall_start + t` (UTC). The
 clip's frame rate is the run's `fps`, so its duration is its frame count / fps.
@@ -44,7 +45,7 @@ import numpy as np
 from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
 from stereopose.io.mp4 import FrameWriter
-from stereopose.io.packets import PacketRing, write_copy
+from stereopose.io.packets import PacketRing, StreamCopy
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.writing import make_folder, probe_folder, reason
@@ -156,6 +157,9 @@ class _Clip:
     frames: int = 0
     part: Path | None = None
     writer: FrameWriter | None = None
+    copy: StreamCopy | None = None  # the full stream's copy under way
+    copy_t: float = -math.inf  # the time of its last packet written
+    copy_failed: bool = False
     failed: bool = False
     events: list[Event] = field(default_factory=list)
 
@@ -334,7 +338,7 @@ class ClipSink(ClosesOnce):
     def _send(self, clip: _Clip, frames: list[tuple[float, bytes]]) -> None:
         clip.last_t = frames[-1][0]
         self._done_t[clip.camera] = clip.last_t
-        self._jobs.put(("frames", clip, [jpeg for _, jpeg in frames]))
+        self._jobs.put(("frames", clip, [jpeg for _, jpeg in frames], clip.last_t))
 
     def _finish(self, clip: _Clip) -> None:
         self._open.pop(clip.camera, None)
@@ -352,6 +356,7 @@ class ClipSink(ClosesOnce):
                     self._start(clip)
                 elif kind == "frames":
                     self._write_frames(clip, rest[0])
+                    self._copy_more(clip, rest[1])
                 else:
                     self._end(clip)
             except (OSError, cv2.error, StereoposeError) as e:
@@ -391,6 +396,7 @@ class ClipSink(ClosesOnce):
             return
         clip.writer.close()
         clip.writer = None
+        self._copy_more(clip, clip.last_t)
         cap = cv2.VideoCapture(str(clip.part))
         decoded = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         cap.release()
@@ -402,8 +408,8 @@ class ClipSink(ClosesOnce):
         with self._lock:
             self.written.append(final)
             self.clips_written += 1
-        if clip.camera in self.packets:
-            self._copy(clip, final)
+        if clip.copy is not None:
+            self._finish_copy(clip, final)
         if self._failing:
             logger.warning("event clips written again (%d failed)", self.clips_failed)
             self._failing = False
@@ -420,34 +426,65 @@ class ClipSink(ClosesOnce):
             return final
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
 
-    def _copy(self, clip: _Clip, drawn: Path) -> None:
-        """The full stream's copy of the clip's span beside the drawn clip `drawn`."""
-        ring = self.packets[clip.camera]
-        stem = drawn.name[: -len(CLIP_SUFFIX)]
-        part = self.folder / (stem + ".full" + PART_SUFFIX)
-        final = self.folder / (stem + FULL_SUFFIX)
+    def _copy_part(self, clip: _Clip) -> Path:
+        return self.folder / (clip.name + ".full" + PART_SUFFIX)
+
+    def _copy_more(self, clip: _Clip, t: float) -> None:
+        """The clip's full-stream copy brought up to `t`: opened on the first call, from the
+        keyframe before the clip's start; then the packets since the last call."""
+        ring = self.packets.get(clip.camera)
+        if ring is None or clip.copy_failed or clip.part is None:
+            return
         try:
-            packets = ring.between(clip.start_t, clip.last_t)
-            if ring.format is None or not packets:
-                raise StereoposeError("no packets of the full stream kept for its span")
-            write_copy(part, packets, ring.format)
+            if clip.copy is None:
+                packets = ring.between(clip.start_t, t)
+                if ring.format is None or not packets:
+                    return  # nothing kept yet: tried again with the clip's next frames
+                clip.copy = StreamCopy(self._copy_part(clip), ring.format)
+            else:
+                packets = ring.after(clip.copy_t, t)
+            if packets:
+                clip.copy.write(packets)
+                clip.copy_t = packets[-1][0]
+        except (OSError, cv2.error, StereoposeError) as e:
+            self._copy_failed(clip, e)
+
+    def _finish_copy(self, clip: _Clip, drawn: Path) -> None:
+        """The copy closed, checked and named after the drawn clip `drawn`."""
+        part = self._copy_part(clip)
+        final = self.folder / (drawn.name[: -len(CLIP_SUFFIX)] + FULL_SUFFIX)
+        try:
+            clip.copy.close()
             os.link(part, final)
             part.unlink()
         except (OSError, cv2.error, StereoposeError) as e:
-            with contextlib.suppress(OSError):
-                part.unlink(missing_ok=True)
-            self.copies_failed += 1
-            logger.warning("event clips: %s: full-stream copy not written (%s)", stem, reason(e))
+            self._copy_failed(clip, e)
             return
+        clip.copy = None
         with self._lock:
             self.written.append(final)
             self.copies_written += 1
+
+    def _copy_failed(self, clip: _Clip, e: BaseException) -> None:
+        clip.copy_failed = True
+        if clip.copy is not None:
+            clip.copy.release()
+            clip.copy = None
+        with contextlib.suppress(OSError):
+            self._copy_part(clip).unlink(missing_ok=True)
+        self.copies_failed += 1
+        logger.warning("event clips: %s: full-stream copy not written (%s)", clip.name, reason(e))
 
     def _clip_failed(self, clip: _Clip, e: BaseException) -> None:
         clip.failed = True
         if clip.writer is not None:
             clip.writer.close()
             clip.writer = None
+        if clip.copy is not None:
+            clip.copy.release()
+            clip.copy = None
+            with contextlib.suppress(OSError):
+                self._copy_part(clip).unlink(missing_ok=True)
         if clip.part is not None:
             try:
                 clip.part.unlink(missing_ok=True)
