@@ -113,3 +113,16 @@ def test_the_users_command_as_a_process(tmp_path):
     assert r.returncode == 2 and "user name" in r.stderr and "Traceback" not in r.stderr
     r = _users(tmp_path / "missing.toml", "list")
     assert r.returncode == 2 and "not found" in r.stderr
+
+
+def test_serve_says_where_the_console_is_and_how_to_add_its_first_user(tmp_path):
+    from stereopose.cli.serve import _console_line
+
+    config = tmp_path / "serve.toml"
+    line = _console_line("http://127.0.0.1:8787", config, tmp_path / "data")
+    assert line.startswith("operator console: http://127.0.0.1:8787/; no user yet")
+    assert f"stereopose users add NAME --role admin --config {config}" in line
+    UserStore.in_folder(tmp_path / "data", hasher=fast_hasher()).add("ann", "ann-secret-1", "admin")
+    assert _console_line("http://127.0.0.1:8787", config, tmp_path / "data") == (
+        "operator console: http://127.0.0.1:8787/"
+    )

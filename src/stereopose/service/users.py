@@ -41,6 +41,7 @@ ROLES = ("viewer", "operator", "admin")
 MIN_PASSWORD = 8
 MAX_PASSWORD = 1024
 MAX_USERS = 1000
+HASHING_AT_ONCE = 2  # each argon2 hash takes 64 MiB: logins beyond this wait their turn
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")
 
 
@@ -105,6 +106,7 @@ class UserStore:
         self._seen: tuple[int, int, int] | None = None  # (inode, size, mtime_ns) read
         self._users: dict[str, dict] = {}
         self._dummy: str | None = None
+        self._hashing = threading.BoundedSemaphore(HASHING_AT_ONCE)
 
     @classmethod
     def in_folder(cls, out_dir: str | Path, hasher: PasswordHasher | None = None) -> UserStore:
@@ -176,14 +178,16 @@ class UserStore:
         rec = self._fresh().get(name) if isinstance(name, str) else None
         if not isinstance(password, str) or len(password) > MAX_PASSWORD:
             password = ""
-        if rec is None:
-            with contextlib.suppress(VerificationError, InvalidHashError):
-                self.hasher.verify(self._dummy_hash(), password or "x")
-            return None
-        try:
-            self.hasher.verify(rec["hash"], password)
-        except (VerifyMismatchError, VerificationError, InvalidHashError):
-            return None
+        with self._hashing:
+            dummy = self._dummy_hash()  # made at the first login, whoever it is for
+            if rec is None:
+                with contextlib.suppress(VerificationError, InvalidHashError):
+                    self.hasher.verify(dummy, password or "x")
+                return None
+            try:
+                self.hasher.verify(rec["hash"], password)
+            except (VerifyMismatchError, VerificationError, InvalidHashError):
+                return None
         return self._user(name, rec)
 
     def _dummy_hash(self) -> str:
@@ -191,13 +195,17 @@ class UserStore:
             self._dummy = self.hasher.hash(os.urandom(16).hex())
         return self._dummy
 
+    def _hash(self, password: str) -> str:
+        with self._hashing:
+            return self.hasher.hash(password)
+
     # -- changing --------------------------------------------------------------------------
 
     def add(self, name: str, password: str, role: str) -> User:
         check_name(name)
         check_role(role)
         check_password(password)
-        hashed = self.hasher.hash(password)
+        hashed = self._hash(password)
         with self._changing() as users:
             if name in users:
                 raise UserError(f"user {name!r} already exists (`stereopose users passwd` "
@@ -212,7 +220,7 @@ class UserStore:
 
     def set_password(self, name: str, password: str) -> User:
         check_password(password)
-        hashed = self.hasher.hash(password)
+        hashed = self._hash(password)
         with self._changing() as users:
             if name not in users:
                 raise UserError(f"no user {name!r}")
