@@ -89,3 +89,17 @@ def test_serve_demo_through_the_console(tmp_path):
     assert f"operator console: http://127.0.0.1:{port}/" in text
     assert "Traceback" not in text
     assert "olga-password" not in text
+
+
+def test_serve_on_every_interface_without_a_user_is_refused(tmp_path):
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", 0, imgsz=320)
+    config.write_text(config.read_text().replace('host = "127.0.0.1"', 'host = "0.0.0.0"'))
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
+    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+                       capture_output=True, text=True, timeout=120, env=env)  # fmt: skip
+    assert r.returncode == 2, r.stdout + r.stderr
+    message = " ".join(r.stderr.split())
+    assert "serve.host '0.0.0.0' is reachable from other machines" in message
+    assert f"stereopose users add NAME --role admin --config {config}" in message
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "data" / "events.sqlite").exists()  # refused before any work
