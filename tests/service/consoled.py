@@ -58,7 +58,7 @@ class Served:
 
     def client(self, user: str | None = None, **kw) -> httpx.Client:
         """An httpx client, logged in as `user` (its cookies) when given."""
-        c = httpx.Client(base_url=self.url, timeout=10, **kw)
+        c = httpx.Client(base_url=self.url, timeout=30, **kw)
         if user is not None:
             r = c.post("/api/login", json={"username": user, "password": PASSWORDS[user]})
             assert r.status_code == 200, r.text

@@ -11,7 +11,7 @@ import subprocess
 
 import httpx
 import pytest
-from consoled import PASSWORDS, console_server, demo_plan
+from consoled import PASSWORDS, console_server, demo_plan, fast_hasher
 
 from stereopose.errors import ConfigError
 from stereopose.service.auth import LoginLimiter, Sessions
@@ -28,7 +28,7 @@ def served(tmp_path):
 
 
 def test_login_gives_a_token_and_two_strict_cookies(served):
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         r = c.post("/api/login", json={"username": "otto", "password": PASSWORDS["otto"]})
         assert r.status_code == 200
         body = r.json()
@@ -46,7 +46,7 @@ def test_login_gives_a_token_and_two_strict_cookies(served):
 
 
 def test_a_wrong_password_and_an_unknown_name_get_the_same_401(served):
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         wrong = c.post("/api/login", json={"username": "otto", "password": "not-his-password"})
         unknown = c.post("/api/login", json={"username": "nobody", "password": "whatever-pw"})
         assert wrong.status_code == unknown.status_code == 401
@@ -56,7 +56,7 @@ def test_a_wrong_password_and_an_unknown_name_get_the_same_401(served):
 
 
 def test_five_failures_from_one_address_then_429_with_retry_after(served):
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         for n in range(5):
             r = c.post("/api/login", json={"username": f"guess{n}", "password": "guess-pw-x"})
             assert r.status_code == 401
@@ -96,7 +96,7 @@ def test_every_route_but_the_open_ones_is_401_without_a_session(served):
                                       "/api/live", "/api/users", "/api/users/1",
                                       "/api/users/1/password", "/api/me",
                                       "/api/logout"}  # fmt: skip
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         for method, path in routes:
             for headers in ({}, {"Authorization": "Bearer not-a-token"},
                             {"Cookie": "stereopose_session=not-a-token"}):  # fmt: skip
@@ -107,10 +107,12 @@ def test_every_route_but_the_open_ones_is_401_without_a_session(served):
 
 
 def test_a_bearer_token_works_without_cookie_or_csrf(served):
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         login = {"username": "otto", "password": PASSWORDS["otto"]}
         token = c.post("/api/login", json=login).json()["token"]
-    with httpx.Client(base_url=served.url, headers={"Authorization": f"Bearer {token}"}) as c:
+    with httpx.Client(
+        base_url=served.url, timeout=30, headers={"Authorization": f"Bearer {token}"}
+    ) as c:
         assert c.get("/api/me").json()["username"] == "otto"
         assert c.get("/api/events").status_code == 200
         assert c.post("/api/events/123456/ack").status_code == 404  # no CSRF asked: a bearer
@@ -175,15 +177,15 @@ def test_logout_ends_the_session_and_clears_the_cookies(served):
 def test_a_password_change_or_a_removal_ends_that_users_sessions(served):
     vera, otto = served.client("vera"), served.client("otto")
     try:
-        store = UserStore.in_folder(served.out)  # another process's view: the CLI's
+        store = UserStore.in_folder(served.out, hasher=fast_hasher())  # the CLI's view
         store.set_password("vera", "a-new-password")
         assert vera.get("/api/me").status_code == 401
         assert otto.get("/api/me").status_code == 200
         store.remove("otto")
         assert otto.get("/api/me").status_code == 401
         store.add("nina", "nina-password", "viewer")  # added while it runs: seen at once
-        r = httpx.post(served.url + "/api/login",
-                       json={"username": "nina", "password": "nina-password"})  # fmt: skip
+        nina = {"username": "nina", "password": "nina-password"}
+        r = httpx.post(served.url + "/api/login", json=nina, timeout=30)
         assert r.status_code == 200
     finally:
         vera.close()
@@ -202,8 +204,8 @@ def test_own_password_change_needs_the_old_one(served):
         r = c.post("/api/users/vera/password", json=change)
         assert r.status_code == 204
         assert c.get("/api/me").status_code == 401  # its own sessions end too
-        r = httpx.post(served.url + "/api/login",
-                       json={"username": "vera", "password": "vera-new-pass"})  # fmt: skip
+        vera = {"username": "vera", "password": "vera-new-pass"}
+        r = httpx.post(served.url + "/api/login", json=vera, timeout=30)
         assert r.status_code == 200
     finally:
         c.close()
@@ -231,7 +233,7 @@ def test_sessions_are_bounded_and_expire():
 
 
 def test_the_page_carries_its_security_headers(served):
-    with httpx.Client(base_url=served.url) as c:
+    with httpx.Client(base_url=served.url, timeout=30) as c:
         for path in ("/", "/login", "/console/plotly.min.js"):
             r = c.get(path)
             assert r.status_code == 200, path
@@ -258,7 +260,7 @@ def test_https_with_a_certificate_and_key(tmp_path):
     with console_server(tmp_path / "out", settings=settings) as s:
         assert s.url.startswith("https://127.0.0.1:")
         tls = ssl.create_default_context(cafile=cert)
-        with httpx.Client(base_url=s.url, verify=tls) as c:
+        with httpx.Client(base_url=s.url, verify=tls, timeout=30) as c:
             r = c.post("/api/login", json={"username": "ada", "password": PASSWORDS["ada"]})
             assert r.status_code == 200
             assert all("Secure" in h for h in r.headers.get_list("set-cookie"))
