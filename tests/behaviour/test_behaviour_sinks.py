@@ -31,6 +31,7 @@ from stereopose.io.sinks.events import (
 from stereopose.io.sinks.files import PosesSink
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
 from stereopose.types import Event
+from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
 from waiting import wait_until
 
 FPS = 25.0
@@ -199,3 +200,22 @@ def test_postures_in_the_3d_poses(tmp_path: Path, run) -> None:
     plain.close()
     rec = json.loads((tmp_path / "plain.jsonl").read_text())
     assert "posture" not in rec["people"][0] and "flags" not in rec["people"][0]
+
+
+def test_the_report_shows_postures_and_behaviour_events(tmp_path: Path, run) -> None:
+    sink = PosesSink(tmp_path / "poses3d.jsonl", FPS)
+    for f in run:
+        sink.write(f)
+    sink.close()
+    poses = list(read_poses(tmp_path / "poses3d.jsonl"))
+    table = postures_html(poses)
+    rows = {r.split("</td>")[0]: r for r in table.split("<tr><td>")[1:]}
+    assert set(rows) == {"1", "2"}
+    # person 2 stood the whole 5 s, 4 of them with an arm raised
+    cells = [c.removeprefix("<td>") for c in rows["2"].split("</td>")[1:-1]]
+    assert cells[0] == "5.0" and cells[-2] == "4.0"
+    events = behaviour_events_html(all_events(run))
+    assert events.count("<tr class='alarm'>") == 3 and "man_down" in events
+    assert "hips dropping" in events and "failed" not in events
+    assert postures_html([(0, 0.0, [{"id": 1, "joints": []}])]) == ""  # no rules: no section
+    assert behaviour_events_html([]) == ""

@@ -2,7 +2,9 @@
 
 It shows the run summary (frames, speed per stage, people, events), an interactive 3D view of the
 skeletons over time with the zones drawn as prisms, a floor map with the cameras, the zones and
-each person's trajectory, the event timeline, per-camera statistics and the configuration used.
+each person's trajectory, the event timeline, the behaviour section (time in each posture per
+person, the behaviour events) when the site has rules, per-camera statistics and the
+configuration used.
 ``write_report(run_dir)`` rebuilds it from the files of a run folder.
 """
 
@@ -26,6 +28,7 @@ from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
 from stereopose.skeleton import LIMBS
 from stereopose.types import Event, Rig
+from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
 from stereopose.viz.report_tables import (
     CSS,
     cameras_html,
@@ -379,6 +382,9 @@ def build_report(run_dir: str | Path) -> str:
                          + "</p>")  # fmt: skip
         parts.append(fig.to_html(full_html=False, include_plotlyjs=False, div_id=div,
                                  auto_play=False))  # fmt: skip
+    behaviour = postures_html(poses) + behaviour_events_html(events)
+    if behaviour:
+        parts += ["<h2>Behaviour</h2>", behaviour]
     parts += [
         "<h2>Cameras</h2>", cameras_html(s),
         "<h2>Configuration used</h2>", f"<pre>{html.escape(config)}</pre>",
