@@ -11,7 +11,7 @@ import pytest
 
 import bodies as b
 from stereopose.behaviour import parse_rules
-from stereopose.behaviour.rules import BehaviourMonitor
+from stereopose.behaviour.rules import HANDOVER_S, BehaviourMonitor
 from stereopose.fence.zones import Zone
 from stereopose.skeleton import RIGHT_SHOULDER, RIGHT_WRIST
 from stereopose.types import Event
@@ -429,3 +429,44 @@ def test_every_rule_at_once_keeps_people_apart() -> None:
 
     events = run(monitor(*rules), scene, 6.0)
     assert sorted((e.rule, e.person) for e in events) == [("d", 1), ("l", 7), ("o", 7)]
+
+
+def test_a_fall_that_breaks_the_track_is_handed_to_the_new_id() -> None:
+    """The tracker loses the body mid-fall (id 1, predicted then gone) and finds it again on
+    the floor as id 2: one person_down, for id 2, timed from the fall."""
+    base = fall(1.0)
+
+    def scene(t: float) -> dict[int, np.ndarray]:
+        J = base(t)[1]
+        if t < 1.6:  # standing, then falling: id 1
+            return {1: J}
+        if t < 1.8:  # lost in the middle of the fall: predicted where it was
+            return {1: base(1.56)[1]}
+        return {2: J}  # on the floor: a new id
+
+    mon = monitor({"name": "d", "type": "person_down", "down_s": 3.0}, lost_s=3.0)
+    events = run(mon, scene, 8.0, hidden=lambda t, i: i == 1 and t >= 1.6)
+    assert types(events) == ["person_down"] and events[0].person == 2
+    assert 1.0 <= events[0].onset_t < 1.6  # the drop seen on id 1
+    assert events[0].t == pytest.approx(events[0].onset_t + 3.0, abs=DT + 1e-9)
+
+    # a new id on the floor there, but HANDOVER_S after the drop: not that fall
+    def late(t: float) -> dict[int, np.ndarray]:
+        return scene(t) if t < 1.8 else ({} if t < 1.6 + HANDOVER_S + 0.2 else {2: base(t)[1]})
+
+    mon = monitor({"name": "d", "type": "person_down", "down_s": 3.0}, lost_s=3.0)
+    assert run(mon, late, 8.0, hidden=lambda t, i: i == 1 and t >= 1.6) == []
+
+
+def test_lying_s_raises_for_someone_found_lying() -> None:
+    """Someone already lying when first seen (no fall seen): nothing by default; with lying_s,
+    person_down after lying_s, and person_up when they stand."""
+    lie = b.lying(xy=(3.0, 3.0))
+    stand = b.standing(xy=(3.0, 3.0))
+    scene = lambda t: {1: lie if t < 10.0 else stand}  # noqa: E731
+    assert run(monitor({"name": "d", "type": "person_down"}), scene, 12.0) == []
+    events = run(monitor({"name": "d", "type": "person_down", "lying_s": 5.0}), scene, 12.0)
+    assert types(events) == ["person_down", "person_up"]
+    assert events[0].onset_t == 0.0 and events[0].t == pytest.approx(5.0, abs=1e-9)
+    assert events[0].speed_m_s is None
+    assert events[1].t == pytest.approx(11.0, abs=1e-9)

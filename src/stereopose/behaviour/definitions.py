@@ -62,15 +62,19 @@ class PersonDownRule:
     """A fall and the person not up again: the hips dropping faster than fall_speed_m_s (peak
     downward speed over 0.2 s, within the last second) to below floor_m (the trunk's height,
     metres), the body lying within settle_s after, and not up (standing, walking or bending
-    for up_s) down_s after the fall -> one `person_down`; `person_up` once they rise."""
+    for up_s) down_s after the fall -> one `person_down`; `person_up` once they rise.
+    lying_s (default: off): someone lying that long without a fall seen (it happened out of
+    view, or before the start) -> `person_down` too; it would also alarm for work done lying
+    under equipment."""
 
     type: ClassVar[str] = "person_down"
     name: str
     down_s: float = 3.0
     up_s: float = 1.0
     fall_speed_m_s: float = 1.0
-    floor_m: float = 0.5
+    floor_m: float = 0.4
     settle_s: float = 2.0
+    lying_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -147,6 +151,7 @@ _RANGES: dict[str, Range] = {
     "fall_speed_m_s": _SPEED,
     "floor_m": _METRES,
     "settle_s": _POSITIVE_S,
+    "lying_s": _POSITIVE_S,
     "buddy_m": _METRES,
     "lone_s": _SECONDS,
     "approach_m": Range(ge=0.0, le=SITE_LIMIT_M),

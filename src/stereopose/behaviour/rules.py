@@ -9,6 +9,9 @@ or `person_up`) once its condition has been false for the rule's exit delay. A p
 at a frame keeps their state (and counts as company for lone_worker at their last place) until
 their track ends (`lost_s`, the tracker's max_lost_s): then their open alarms end, marked lost.
 A person down stays down while unseen: the alarm is raised on time even if the body is hidden.
+A fall that breaks the track (the body gets a new id on the floor) is handed to the new id:
+a track that dropped fast and vanished, a new one low on the floor within HANDOVER_M of it
+within HANDOVER_S.
 
 Every event has kind "behaviour", the rule's name in `rule`, the person's posture and floor
 position, and what explains it (behaviour events in types.Event).
@@ -45,6 +48,10 @@ from stereopose.types import Event, People3D
 __all__ = ["BehaviourMonitor", "Rule", "parse_rules"]
 
 _EPS = 1e-9
+# a track that dropped fast and vanished, and a new one on the floor within HANDOVER_M of it
+# within HANDOVER_S: the same body, its id changed by the fall
+HANDOVER_S = 1.5
+HANDOVER_M = 1.5
 _WRISTS = (LEFT_WRIST, RIGHT_WRIST)
 
 
@@ -83,6 +90,7 @@ class _Down:
     down: bool = False
     raised: bool = False
     up: _Latch = field(default_factory=_Latch)
+    lying: _Latch = field(default_factory=_Latch)  # lying_s: lying without a fall seen
 
 
 @dataclass
@@ -101,6 +109,7 @@ class _Person:
     """What the monitor keeps of one tracked person."""
 
     last_seen: float
+    first_seen: float
     position: tuple[float, float] | None = None
     posture: Posture | None = None
     latches: dict[str, _Latch] = field(default_factory=dict)
@@ -139,6 +148,10 @@ class BehaviourMonitor:
             if isinstance(r, WorkPositionRule)
         }
         self.people: dict[int, _Person] = {}
+        downs = [r.fall_speed_m_s for r in self.rules if isinstance(r, PersonDownRule)]
+        self._fall_speed = min(downs) if downs else None
+        self._drops: dict[int, tuple[float, float, float, float]] = {}  # pid: t, x, y, m/s
+        self._seen_now: set[int] = set()
 
     def step(
         self, t: float, frame: int, people: People3D
@@ -159,13 +172,15 @@ class BehaviourMonitor:
             pid = int(people.ids[p])
             person = self.people.get(pid)
             if person is None:
-                person = self.people[pid] = _Person(last_seen=t)
+                person = self.people[pid] = _Person(last_seen=t, first_seen=t)
             if not people.predicted[p]:
                 person.last_seen = t
             xy = pos[p]
             person.position = (float(xy[0]), float(xy[1])) if np.isfinite(xy).all() else None
             person.posture = postures.get(pid)
             seen.append((p, pid, person))
+        self._seen_now = {pid for p, pid, _ in seen if not people.predicted[p]}
+        self._note_drops(t, seen)
         base = dict(frame=frame, t=t)
         for rule in self.rules:
             for p, pid, person in seen:
@@ -180,6 +195,17 @@ class BehaviourMonitor:
                         events.extend(self._down_timer(rule, pid, person, t, frame))
         events.extend(self._lost(t, frame))
         return events, postures
+
+    def _note_drops(self, t: float, seen: list) -> None:
+        """Who dropped fast lately, and where (for a fall whose track breaks: _handover)."""
+        if not self._fall_speed:
+            return
+        for pid, person in ((pid, person) for _, pid, person in seen if pid in self._seen_now):
+            pos = person.posture
+            if pos is not None and person.position is not None and pos.drop_m_s >= self._fall_speed:
+                self._drops[pid] = (t, *person.position, pos.drop_m_s)
+        for pid in [p for p, d in self._drops.items() if t - d[0] > HANDOVER_S + _EPS]:
+            del self._drops[pid]
 
     def _apply(self, rule: Rule, ctx: _Ctx) -> list[Event]:
         if isinstance(rule, PersonDownRule):
@@ -216,8 +242,11 @@ class BehaviourMonitor:
             fast = math.isfinite(pos.drop_m_s) and pos.drop_m_s >= rule.fall_speed_m_s
             low = math.isfinite(pos.trunk_m) and pos.trunk_m <= rule.floor_m
             if fast and low:
-                st.fall_t, st.speed, st.down, st.raised = t, pos.drop_m_s, False, False
-                st.up = _Latch()
+                st.fall_t, st.speed = t, pos.drop_m_s
+            elif low and t - person.first_seen <= HANDOVER_S + _EPS:
+                st = self._handover(rule, c.pid, person, t) or st
+            if st.fall_t is None and rule.lying_s is not None:
+                return self._found_lying(rule, c, st)
         if st.fall_t is None:
             return out
         if not st.down:
@@ -240,6 +269,43 @@ class BehaviourMonitor:
                 return out
         out.extend(self._down_timer(rule, c.pid, person, t, c.base["frame"]))
         return out
+
+    def _handover(self, rule: PersonDownRule, pid: int, person: _Person, t: float) -> _Down | None:
+        """A person first seen on the floor where another track, not seen now, had just
+        dropped fast: the tracker lost the body as it fell and gave it a new id. The fall (and
+        the old track's down state, if it had one) goes to the new id."""
+        if person.position is None:
+            return None
+        x, y = person.position
+        best = None
+        for other, (t0, ox, oy, speed) in self._drops.items():
+            if other == pid or other in self._seen_now or t - t0 > HANDOVER_S + _EPS:
+                continue
+            d = math.hypot(ox - x, oy - y)
+            if d <= HANDOVER_M and speed >= rule.fall_speed_m_s and (best is None or d < best[0]):
+                best = (d, other, t0, speed)
+        if best is None:
+            return None
+        _, other, t0, speed = best
+        old = self.people.get(other)
+        st = old.down.pop(rule.name, None) if old is not None else None
+        if st is None or st.fall_t is None:
+            st = _Down(fall_t=t0, speed=speed)
+        person.down[rule.name] = st
+        return st
+
+    def _found_lying(self, rule: PersonDownRule, c: _Ctx, st: _Down) -> list[Event]:
+        """lying_s: a person lying that long without a fall seen (it happened out of view, or
+        before the start) is down as well."""
+        t = c.base["t"]
+        lying = c.person.posture is not None and c.person.posture.posture == "lying"
+        if st.lying.step(lying, t, rule.lying_s, 0.0) != "rose":
+            return []
+        st.fall_t, st.down, st.raised = st.lying.began, True, True
+        return [
+            self._event(rule, c.pid, c.person, "person_down", t, c.base["frame"],
+                        onset_t=st.fall_t, duration_s=float(t - st.fall_t), posture="lying")
+        ]  # fmt: skip
 
     def _down_timer(self, rule: PersonDownRule, pid: int, person: _Person, t: float,
                     frame: int) -> list[Event]:  # fmt: skip
