@@ -33,6 +33,7 @@ class Console {
       logout: () => this.showLogin("Your session has ended: log in again."),
     }, (up) => this.onLink(up));
     this.tab = "live";
+    this.linkWasDown = false;
     this.staleTimer = null;
     api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
     byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
@@ -162,9 +163,23 @@ class Console {
   }
 
   onLink(up) {
+    if (up && this.linkWasDown && this.user) this.catchUp();
+    this.linkWasDown = !up;
     const link = byId("link");
     link.textContent = up ? "live" : "reconnecting";
     link.className = `link ${up ? "link-up" : "link-down"}`;
+  }
+
+  /** The events the feed missed while the live channel was down. */
+  async catchUp() {
+    const after = this.feed.newestId();
+    if (!after) return;
+    try {
+      const answer = await api.events({ after_id: after, limit: 1000 });
+      for (const e of [...(answer.events || [])].reverse()) this.feed.add(e);
+    } catch {
+      // the next reconnection tries again
+    }
   }
 
   checkStale() {

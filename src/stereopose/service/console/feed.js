@@ -90,7 +90,10 @@ export class Feed {
     li.dataset.eventId = String(e.id);
     this.render(e, li);
     if (live) li.classList.add("new");
-    this.list.prepend(li);
+    // newest first by id: a late one (fetched after a reconnection) goes to its place
+    let next = this.list.firstElementChild;
+    while (next && Number(next.dataset.eventId) > e.id) next = next.nextElementSibling;
+    this.list.insertBefore(li, next);
     while (this.list.children.length > MAX_ITEMS) {
       const last = this.list.lastElementChild;
       this.events.delete(Number(last.dataset.eventId));
@@ -152,6 +155,12 @@ export class Feed {
       const li = this.list.querySelector(`li[data-event-id="${id}"] .ack-state`);
       if (li) li.textContent = `ack failed: ${error.detail || error.message}`;
     }
+  }
+
+  /** The newest event id shown (0 when none). */
+  newestId() {
+    const first = this.list.firstElementChild;
+    return first ? Number(first.dataset.eventId) : 0;
   }
 
   unacked() {
