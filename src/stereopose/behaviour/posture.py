@@ -32,6 +32,7 @@ centre when that shoulder is missing).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -84,6 +85,7 @@ _LATERAL_PAIRS = ((LEFT_KNEE, RIGHT_KNEE), (LEFT_ANKLE, RIGHT_ANKLE), (LEFT_ELBO
 # standing shoulder height over standing hip height (adult proportions: 0.818 / 0.525)
 SHOULDER_OVER_HIP = 1.56
 _BINS_M = np.arange(0.3, 1.5001, 0.01)  # standing hip height histogram: bin edges, metres
+_BIN_EDGES = _BINS_M.tolist()
 
 
 @dataclass(frozen=True)
@@ -167,34 +169,124 @@ class Posture:
         return self.posture in UPRIGHT
 
 
-def _mean_z(J: np.ndarray, idx: tuple[int, ...]) -> float:
-    z = J[list(idx), 2]
-    z = z[np.isfinite(z)]
-    return float(z.mean()) if z.size else math.nan
+Point = tuple[float, float, float]
 
 
-def _centre(J: np.ndarray, idx: tuple[int, ...]) -> np.ndarray:
-    pts = J[list(idx)]
-    pts = pts[np.isfinite(pts).all(-1)]
-    return pts.mean(0) if len(pts) else np.full(3, np.nan)
+def _points(J: np.ndarray) -> list[Point | None]:
+    """The 17 joints as (x, y, z) tuples, None where missing: the geometry below works on
+    these in plain Python (17 points: faster than many small NumPy calls)."""
+    ok = np.isfinite(J).all(-1).tolist()
+    return [tuple(p) if k else None for p, k in zip(J.tolist(), ok, strict=True)]
 
 
-def _angle_to_vertical(v: np.ndarray) -> float:
-    n = float(np.linalg.norm(v))
+def _known(pts: list[Point | None], idx: tuple[int, ...]) -> list[Point]:
+    return [pts[i] for i in idx if pts[i] is not None]
+
+
+def _mean_z(pts: list[Point | None], idx: tuple[int, ...]) -> float:
+    z = [p[2] for p in _known(pts, idx)]
+    return sum(z) / len(z) if z else math.nan
+
+
+def _centre(pts: list[Point | None], idx: tuple[int, ...]) -> Point | None:
+    known = _known(pts, idx)
+    if not known:
+        return None
+    n = len(known)
+    return (sum(p[0] for p in known) / n, sum(p[1] for p in known) / n,
+            sum(p[2] for p in known) / n)  # fmt: skip
+
+
+def _sub(a: Point, b: Point) -> Point:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _angle_to_vertical(v: Point | None) -> float:
+    if v is None:
+        return math.nan
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     if not math.isfinite(n) or n < 1e-6:
         return math.nan
-    return math.degrees(math.acos(min(1.0, abs(float(v[2])) / n)))
+    return math.degrees(math.acos(min(1.0, abs(v[2]) / n)))
 
 
-def _lateral(J: np.ndarray) -> np.ndarray | None:
-    """The body's right -> left unit vector (3,) from a pair of side joints (knees, ankles,
-    elbows, ears), None when no pair is known."""
+def _lateral(pts: list[Point | None]) -> Point | None:
+    """The body's right -> left unit vector from a pair of side joints (knees, ankles, elbows,
+    ears), None when no pair is known."""
     for left, right in _LATERAL_PAIRS:
-        v = J[left] - J[right]
-        n = float(np.linalg.norm(v))
-        if math.isfinite(n) and n > 0.1:
-            return v / n
+        if pts[left] is not None and pts[right] is not None:
+            v = _sub(pts[left], pts[right])
+            n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            if n > 0.1:
+                return (v[0] / n, v[1] / n, v[2] / n)
     return None
+
+
+def _torso_vector(pts: list[Point | None]) -> Point | None:
+    if all(pts[i] is not None for i in _HIPS + _SHOULDERS):
+        return _sub(_centre(pts, _SHOULDERS), _centre(pts, _HIPS))
+    for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
+        if pts[hip] is not None and pts[shoulder] is not None:
+            return _sub(pts[shoulder], pts[hip])
+    hips = _centre(pts, _HIPS)
+    if hips is None:
+        return None
+    shoulders = _centre(pts, _SHOULDERS)
+    if shoulders is not None:
+        v = _sub(shoulders, hips)
+        lateral = _lateral(pts)
+        if lateral is None:
+            return None
+        d = v[0] * lateral[0] + v[1] * lateral[1] + v[2] * lateral[2]
+        return (v[0] - d * lateral[0], v[1] - d * lateral[1], v[2] - d * lateral[2])
+    head = _centre(pts, _HEAD)
+    return None if head is None else _sub(head, hips)
+
+
+def _torso_angle(pts: list[Point | None]) -> float:
+    deg = _angle_to_vertical(_torso_vector(pts))
+    if math.isfinite(deg):
+        return deg
+    known = [p for p in pts if p is not None]
+    if len(known) < 4:
+        return math.nan
+    P = np.array(known)
+    _, sv, vt = np.linalg.svd(P - P.mean(0), full_matrices=False)
+    if sv[0] < 0.3 * math.sqrt(len(P)) or sv[0] < 1.5 * sv[1]:  # too small or no clear axis
+        return math.nan
+    return _angle_to_vertical(tuple(vt[0]))
+
+
+def _thigh_angle(pts: list[Point | None]) -> float:
+    degs = [
+        _angle_to_vertical(_sub(pts[knee], pts[hip]))
+        for hip, knee, _ in _LEGS
+        if pts[hip] is not None and pts[knee] is not None
+    ]
+    degs = [d for d in degs if math.isfinite(d)]
+    return sum(degs) / len(degs) if degs else math.nan
+
+
+def _knee_angle(pts: list[Point | None]) -> float:
+    best = math.nan
+    for hip, knee, ankle in _LEGS:
+        if pts[hip] is None or pts[knee] is None or pts[ankle] is None:
+            continue
+        a, b = _sub(pts[hip], pts[knee]), _sub(pts[ankle], pts[knee])
+        na, nb = math.hypot(*a), math.hypot(*b)
+        if na < 1e-6 or nb < 1e-6:
+            continue
+        c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
+        deg = math.degrees(math.acos(max(-1.0, min(1.0, c))))
+        best = deg if math.isnan(best) else min(best, deg)
+    return best
+
+
+def _shape(J: np.ndarray) -> np.ndarray:
+    J = np.asarray(J, dtype=np.float64)
+    if J.shape != (NUM_JOINTS, 3):
+        raise ValueError(f"joints must have shape ({NUM_JOINTS}, 3), got {J.shape}")
+    return J
 
 
 def torso_vector(J: np.ndarray) -> np.ndarray:
@@ -203,79 +295,45 @@ def torso_vector(J: np.ndarray) -> np.ndarray:
     Both centres when all four joints are known, else one side's hip and shoulder; else a hip
     and a shoulder of opposite sides, less their sideways part (the body's left-right axis
     from another pair of joints); else the hips' centre -> the head's."""
-    ok = np.isfinite(J).all(-1)
-    if ok[list(_HIPS + _SHOULDERS)].all():
-        return _centre(J, _SHOULDERS) - _centre(J, _HIPS)
-    for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
-        if ok[hip] and ok[shoulder]:
-            return J[shoulder] - J[hip]
-    v = _centre(J, _SHOULDERS) - _centre(J, _HIPS)
-    if np.isfinite(v).all():
-        lateral = _lateral(J)
-        if lateral is None:
-            return np.full(3, np.nan)
-        return v - (v @ lateral) * lateral
-    return _centre(J, _HEAD) - _centre(J, _HIPS)
+    v = _torso_vector(_points(_shape(J)))
+    return np.full(3, np.nan) if v is None else np.array(v)
 
 
 def torso_angle(J: np.ndarray) -> float:
-    """Torso angle to vertical in degrees (see the module); NaN when it cannot be told."""
-    deg = _angle_to_vertical(torso_vector(J))
-    if math.isfinite(deg):
-        return deg
-    pts = J[np.isfinite(J).all(-1)]
-    if len(pts) < 4:
-        return math.nan
-    centred = pts - pts.mean(0)
-    _, s, vt = np.linalg.svd(centred, full_matrices=False)
-    if s[0] < 0.3 * math.sqrt(len(pts)) or s[0] < 1.5 * s[1]:  # too small or no clear axis
-        return math.nan
-    return _angle_to_vertical(vt[0])
+    """Torso angle to vertical in degrees (see the module; without hips, the main axis of the
+    known joints); NaN when it cannot be told."""
+    return _torso_angle(_points(_shape(J)))
 
 
 def thigh_angle(J: np.ndarray) -> float:
     """The thighs' (hip -> knee) mean angle to vertical, degrees (NaN: no thigh known)."""
-    degs = [_angle_to_vertical(J[knee] - J[hip]) for hip, knee, _ in _LEGS]
-    degs = [d for d in degs if math.isfinite(d)]
-    return sum(degs) / len(degs) if degs else math.nan
+    return _thigh_angle(_points(_shape(J)))
 
 
 def knee_angle(J: np.ndarray) -> float:
     """The more bent knee's angle between thigh and shin, degrees (180: straight; NaN: no leg
     with hip, knee and ankle known)."""
-    best = math.nan
-    for hip, knee, ankle in _LEGS:
-        a, b = J[hip] - J[knee], J[ankle] - J[knee]
-        na, nb = np.linalg.norm(a), np.linalg.norm(b)
-        if not (np.isfinite(na) and np.isfinite(nb)) or na < 1e-6 or nb < 1e-6:
-            continue
-        deg = math.degrees(math.acos(float(np.clip(a @ b / (na * nb), -1.0, 1.0))))
-        best = deg if math.isnan(best) else min(best, deg)
-    return best
+    return _knee_angle(_points(_shape(J)))
 
 
-def _flags(J: np.ndarray, s: PostureSettings) -> tuple[tuple[str, ...], float, float]:
+def _flags(pts: list[Point | None], s: PostureSettings) -> tuple[tuple[str, ...], float, float]:
     """(flags, highest wrist height, farthest wrist reach)."""
-    wrists = J[list(_WRISTS)]
-    wrists = wrists[np.isfinite(wrists).all(-1)]
-    if not len(wrists):
+    wrists = _known(pts, _WRISTS)
+    if not wrists:
         return (), math.nan, math.nan
-    wrist_m = float(wrists[:, 2].max())
-    head = J[list(_HEAD), 2]
-    head = head[np.isfinite(head)]
-    if head.size:
-        raised = wrist_m > float(head.max()) + s.raised_m
+    wrist_m = max(w[2] for w in wrists)
+    head = _known(pts, _HEAD)
+    if head:
+        raised = wrist_m > max(p[2] for p in head) + s.raised_m
     else:
-        shoulders = _mean_z(J, _SHOULDERS)
+        shoulders = _mean_z(pts, _SHOULDERS)
         raised = math.isfinite(shoulders) and wrist_m > shoulders + s.raised_shoulder_m
     reach = math.nan
-    centre = _centre(J, _SHOULDERS)
-    if not np.isfinite(centre).all():
-        centre = _centre(J, _HIPS)
+    centre = _centre(pts, _SHOULDERS) or _centre(pts, _HIPS)
     for w, sh in zip(_WRISTS, _SHOULDERS, strict=True):
-        base = J[sh] if np.isfinite(J[sh]).all() else centre
-        if np.isfinite(J[w]).all() and np.isfinite(base).all():
-            d = math.hypot(*(J[w, :2] - base[:2]))
+        base = pts[sh] or centre
+        if pts[w] is not None and base is not None:
+            d = math.hypot(pts[w][0] - base[0], pts[w][1] - base[1])
             reach = d if math.isnan(reach) else max(reach, d)
     flags = []
     if raised:
@@ -297,43 +355,44 @@ def classify(
     standing_hip_m: the person's standing hip height (None: settings.standing_hip_m);
     speed_m_s: their floor speed (NaN: unknown, taken as standing still); drop_m_s: passed
     through into the result (PostureTracker measures it)."""
-    J = np.asarray(joints, dtype=np.float64)
-    if J.shape != (NUM_JOINTS, 3):
-        raise ValueError(f"joints must have shape ({NUM_JOINTS}, 3), got {J.shape}")
+    return _classify(_points(_shape(joints)), standing_hip_m, speed_m_s, settings, drop_m_s)
+
+
+def _classify(
+    pts: list[Point | None],
+    standing_hip_m: float | None,
+    speed_m_s: float,
+    settings: PostureSettings,
+    drop_m_s: float,
+) -> Posture:
     s = settings
     ref = s.standing_hip_m if standing_hip_m is None else float(standing_hip_m)
-    known = np.isfinite(J).all(-1)
-    hip = _mean_z(J, _HIPS)
-    shoulders = _mean_z(J, _SHOULDERS)
+    n_known = sum(p is not None for p in pts)
+    hip = _mean_z(pts, _HIPS)
+    shoulders = _mean_z(pts, _SHOULDERS)
     trunk = hip if math.isfinite(hip) else shoulders
     common = dict(hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s,
                   drop_m_s=drop_m_s)  # fmt: skip
-    if known.sum() < s.min_joints:
+    if n_known < s.min_joints:
         return Posture(UNKNOWN, **common)
-    torso = torso_angle(J)
-    knee = knee_angle(J)
-    upper = J[list(_HEAD + _SHOULDERS), 2]
-    upper = upper[np.isfinite(upper)]
-    if upper.size:
-        top = float(upper.max())
-    elif math.isfinite(hip):
-        top = float(np.nanmax(J[list(_HIPS), 2]))
-    else:
-        top = math.nan
+    torso = _torso_angle(pts)
+    knee = _knee_angle(pts)
+    upper = _known(pts, _HEAD + _SHOULDERS) or _known(pts, _HIPS)
+    top = max(p[2] for p in upper) if upper else math.nan
     common.update(torso_deg=torso, top_m=top, knee_deg=knee)
     if math.isnan(top):  # only limbs: a long low body lying, or nothing to tell
-        z = J[known, 2]
-        if math.isfinite(torso) and torso >= s.lying_deg and float(z.max()) < s.lying_height_m:
+        highest = max(p[2] for p in pts if p is not None)
+        if math.isfinite(torso) and torso >= s.lying_deg and highest < s.lying_height_m:
             return Posture("lying", **common)
         return Posture(UNKNOWN, **common)
-    thigh = thigh_angle(J)
+    thigh = _thigh_angle(pts)
     if (
         top < s.lying_height_m
         and (math.isnan(torso) or torso >= s.lying_deg)
         and (math.isnan(thigh) or thigh >= s.lying_thigh_deg)
     ):
         return Posture("lying", **common)
-    flags, wrist_m, reach = _flags(J, s)
+    flags, wrist_m, reach = _flags(pts, s)
     common.update(flags=flags, wrist_m=wrist_m, reach_m=reach)
     if math.isfinite(hip):
         low = hip < s.low_hip_ratio * ref
@@ -360,11 +419,12 @@ class _Person:
         self.trunk: deque[tuple[float, float]] = deque(maxlen=maxlen)  # t, trunk height
         self.drops: deque[tuple[float, float]] = deque(maxlen=maxlen)  # t, drop speed
         self.hist = np.zeros(len(_BINS_M) - 1, dtype=np.int64)
+        self.samples = 0  # the histogram's total
         self.last_t = -math.inf
         self.last: Posture | None = None
 
     def standing_hip(self, s: PostureSettings) -> float:
-        n = int(self.hist.sum())
+        n = self.samples
         if n < s.min_samples:
             return s.standing_hip_m
         k = int(np.searchsorted(np.cumsum(self.hist), s.hip_quantile * n))
@@ -413,20 +473,19 @@ class PostureTracker:
 
     def _step(self, person: _Person, t: float, J: np.ndarray) -> Posture:
         s = self.settings
-        hips = J[list(_HIPS)]
-        hips = hips[np.isfinite(hips).all(-1)]
-        pts = hips if len(hips) else J[np.isfinite(J).all(-1)]
+        pts = _points(J)
+        centre = _centre(pts, _HIPS) or _centre(pts, tuple(range(NUM_JOINTS)))
         speed = math.nan
-        if len(pts):
-            x, y = (float(v) for v in pts[:, :2].mean(0))
+        if centre is not None:
+            x, y = centre[0], centre[1]
             person.floor.append((t, x, y))
             speed = self._speed(person.floor, t, x, y)
-        trunk = _mean_z(J, _HIPS)
+        trunk = _mean_z(pts, _HIPS)
         if math.isnan(trunk):
-            trunk = _mean_z(J, _SHOULDERS)
+            trunk = _mean_z(pts, _SHOULDERS)
         drop = self._drop(person, t, trunk)
         ref = person.standing_hip(s)
-        posture = classify(J, ref, speed, s, drop)
+        posture = _classify(pts, ref, speed, s, drop)
         hip = posture.hip_height_m
         if (
             math.isfinite(hip)
@@ -434,11 +493,13 @@ class PostureTracker:
             and posture.torso_deg <= s.upright_deg
             and hip >= s.low_hip_ratio * ref
         ):
-            k = int(np.searchsorted(_BINS_M, hip)) - 1
+            k = bisect.bisect_left(_BIN_EDGES, hip) - 1
             if 0 <= k < len(person.hist):
                 person.hist[k] += 1
-                if person.hist.sum() > 100_000:  # keeps adapting; the counts stay bounded
+                person.samples += 1
+                if person.samples > 100_000:  # keeps adapting; the counts stay bounded
                     person.hist //= 2
+                    person.samples = int(person.hist.sum())
         return posture
 
     def _speed(self, floor: deque, t: float, x: float, y: float) -> float:
