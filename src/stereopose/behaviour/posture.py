@@ -420,6 +420,7 @@ class _Person:
         self.drops: deque[tuple[float, float]] = deque(maxlen=maxlen)  # t, drop speed
         self.hist = np.zeros(len(_BINS_M) - 1, dtype=np.int64)
         self.samples = 0  # the histogram's total
+        self._ref: tuple[int, float] | None = None  # (samples, standing hip height) cached
         self.last_t = -math.inf
         self.last: Posture | None = None
 
@@ -427,9 +428,11 @@ class _Person:
         n = self.samples
         if n < s.min_samples:
             return s.standing_hip_m
-        k = int(np.searchsorted(np.cumsum(self.hist), s.hip_quantile * n))
-        k = min(k, len(self.hist) - 1)
-        return float(0.5 * (_BINS_M[k] + _BINS_M[k + 1]))
+        if self._ref is None or self._ref[0] != n:  # recomputed only when a sample came
+            k = int(np.searchsorted(np.cumsum(self.hist), s.hip_quantile * n))
+            k = min(k, len(self.hist) - 1)
+            self._ref = (n, float(0.5 * (_BINS_M[k] + _BINS_M[k + 1])))
+        return self._ref[1]
 
 
 class PostureTracker:

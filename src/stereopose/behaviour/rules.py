@@ -162,11 +162,11 @@ class BehaviourMonitor:
         P = len(people)
         pos = floor_position(people.joints) if P else np.zeros((0, 2))
         heading = heading_deg(people.joints) if P else np.zeros(0)
-        inside = dist = None
+        inside = nearest = None
         if P and self.geometry is not None:
             inside, dist = self.geometry.distance(people.joints.reshape(-1, 3))
             inside = inside.reshape(P, -1, len(self.zones))  # (P, 17, Z)
-            dist = dist.reshape(P, -1, len(self.zones))
+            nearest = dist.reshape(P, -1, len(self.zones)).min(axis=1)  # (P, Z)
         seen = []
         for p in range(P):
             pid = int(people.ids[p])
@@ -186,7 +186,7 @@ class BehaviourMonitor:
             for p, pid, person in seen:
                 if people.predicted[p] and not isinstance(rule, PersonDownRule):
                     continue  # unseen: the state is kept as it was
-                ctx = _Ctx(p, pid, person, people, inside, dist, heading[p], base)
+                ctx = _Ctx(p, pid, person, people, inside, nearest, heading[p], base)
                 events.extend(self._apply(rule, ctx))
             if isinstance(rule, PersonDownRule):  # time goes on for the unseen down
                 shown = {pid for _, pid, _ in seen}
@@ -327,10 +327,10 @@ class BehaviourMonitor:
     def _lone_worker(self, rule: LoneWorkerRule, c: _Ctx) -> list[Event]:
         t, person = c.base["t"], c.person
         zone, near = None, math.inf
-        if c.dist is not None:
+        if c.nearest is not None:
             for name in rule.zones:
                 k = self._zone_index[name]
-                d = float(np.min(c.dist[c.p, :, k]))
+                d = float(c.nearest[c.p, k])
                 if d < near:
                     zone, near = name, d
         at_risk = zone is not None and near <= rule.approach_m + _EPS
@@ -461,10 +461,9 @@ class BehaviourMonitor:
 
     def _overreach(self, rule: OverreachRule, c: _Ctx) -> list[Event]:
         t, person = c.base["t"], c.person
-        z = c.people.joints[c.p, list(rule.joints), 2]
-        ok = np.isfinite(z)
-        top = int(np.argmax(np.where(ok, z, -np.inf))) if ok.any() else -1
-        height = float(z[top]) if top >= 0 else math.nan
+        z = c.people.joints[c.p, list(rule.joints), 2].tolist()
+        known = [(h, k) for k, h in enumerate(z) if math.isfinite(h)]
+        height, top = max(known) if known else (math.nan, -1)
         raw = top >= 0 and height > rule.max_height_m
         latch = person.latches.setdefault(rule.name, _Latch())
         change = latch.step(raw, t, rule.enter_s, rule.exit_s)
@@ -521,7 +520,7 @@ class _Ctx:
     person: _Person
     people: People3D
     inside: np.ndarray | None  # (P, 17, Z) joints inside zones
-    dist: np.ndarray | None  # (P, 17, Z) joints' distances to zones, metres
+    nearest: np.ndarray | None  # (P, Z) the nearest joint's distance to each zone, metres
     heading: float
     base: dict
 
