@@ -306,3 +306,16 @@ def test_no_listening_beyond_this_machine_without_a_user(tmp_path):
         r = httpx.post(f"http://127.0.0.1:{port}/api/login",
                        json={"username": "ada", "password": PASSWORDS["ada"]})  # fmt: skip
         assert r.status_code == 200
+
+
+def test_a_damaged_users_file_lets_nobody_in_and_says_so(served):
+    c = served.client("vera")
+    try:
+        (served.out / "users.json").write_text("{damaged")
+        r = c.get("/api/me")
+        assert r.status_code == 503 and "users cannot be read" in r.json()["detail"]
+        r = c.post("/api/login", json={"username": "vera", "password": PASSWORDS["vera"]})
+        assert r.status_code == 503
+        assert "set-cookie" not in r.headers
+    finally:
+        c.close()

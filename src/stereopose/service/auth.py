@@ -31,7 +31,7 @@ from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
-from stereopose.service.users import ROLES, User, UserStore, role_at_least
+from stereopose.service.users import ROLES, User, UserError, UserStore, role_at_least
 
 logger = logging.getLogger(__name__)
 
@@ -215,7 +215,11 @@ def authenticated(request: Request, parts=Depends(console_parts)) -> Session:  #
     """The request's session; 401 without a live one; 403 when a cookie-authenticated
     state-changing request lacks the CSRF header."""
     token, by_cookie = request_token(request)
-    session = parts.sessions.find(token) if token else None
+    try:
+        session = parts.sessions.find(token) if token else None
+    except UserError as e:  # users.json damaged by hand: nobody gets in, and it says why
+        logger.error("console: %s", e)
+        raise HTTPException(503, "the console's users cannot be read (see the log)") from None
     if session is None:
         raise HTTPException(401, "not logged in (or the session ended)", headers=_UNAUTHORIZED)
     if by_cookie and request.method not in SAFE_METHODS:

@@ -8,6 +8,7 @@ get the same 401; too many failures from one address or for one name, 429 with R
 
 from __future__ import annotations
 
+import logging
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
@@ -22,6 +23,9 @@ from stereopose.service.auth import (
     console_parts,
     request_token,
 )
+from stereopose.service.users import UserError
+
+logger = logging.getLogger(__name__)
 
 router = APIRouter(tags=["login"])
 
@@ -73,7 +77,11 @@ def login(body: Login, request: Request, response: Response,
     if wait is not None:
         raise HTTPException(429, "too many failed logins; try again later",
                             headers={"Retry-After": str(wait)})  # fmt: skip
-    user = parts.users.verify(body.username, body.password)
+    try:
+        user = parts.users.verify(body.username, body.password)
+    except UserError as e:
+        logger.error("console: %s", e)
+        raise HTTPException(503, "the console's users cannot be read (see the log)") from None
     if user is None:
         parts.limiter.failed(address, name)
         raise HTTPException(401, "wrong user name or password")
