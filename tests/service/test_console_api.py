@@ -360,3 +360,36 @@ def test_the_live_channel_is_bounded_in_clients(served):
     finally:
         for c in clients:
             c.close()
+
+
+def test_a_slow_subscriber_loses_its_oldest_messages_counted():
+    import asyncio
+
+    from stereopose.service.live import Subscriber
+
+    loop = asyncio.new_event_loop()
+    try:
+        sub = Subscriber(loop, maxlen=3)
+        for i in range(5):
+            sub.put(f"m{i}".encode())
+        assert sub.dropped == 2 and sub.take() == [b"m2", b"m3", b"m4"] and len(sub) == 0
+    finally:
+        loop.close()
+    sub.put(b"after")  # its loop gone: kept, never an error
+    assert sub.take() == [b"after"]
+
+
+def test_trails_are_bounded_and_forgotten(served):
+    hub = served.console.hub
+    for i in range(400):  # 13 s at 30 fps, walking
+        hub.on_frame(_frame(i, -0.003 * i), WALL_START)
+    (p,) = hub.people()["people"]
+    assert 40 <= len(p["trail"]) <= 50  # about the last 5 s, at most 50 points
+    assert p["trail"][0][0] == pytest.approx(0.25 - 0.003 * 250, abs=0.05)
+    nobody = People3D.empty(400, 4)
+    for i in range(400, 560):
+        hub.on_frame(FrameResult(i, i / 30.0, {}, nobody), WALL_START)
+    assert hub.people()["people"] == [] and not hub._trails  # gone over 5 s: forgotten
+    metrics = httpx.get(served.url + "/metrics").text
+    assert 'stereopose_queue_size{queue="console_snapshots"}' in metrics
+    assert 'stereopose_queue_dropped_total{queue="console_snapshots"}' in metrics

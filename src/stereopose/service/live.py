@@ -244,8 +244,10 @@ class LiveHub:
                 if len(self._trails) >= MAX_TRAILS:
                     continue
                 trail = self._trails[pid] = deque(maxlen=TRAIL_POINTS)
-            if not trail or t - trail[-1][0] >= step:
+            if not trail or t - trail[-1][0] >= step - 1e-6:
                 trail.append((t, x, y))
+            while trail[0][0] < t - TRAIL_S - 1e-6:
+                trail.popleft()
             self._trail_seen[pid] = t
         for pid in [k for k, seen in self._trail_seen.items() if t - seen > TRAIL_S]:
             self._trails.pop(pid, None)
