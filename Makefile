@@ -64,6 +64,7 @@ bench: install
 	$(BIN)/python benchmarks/pcp_errors.py
 	$(BIN)/python benchmarks/tracking.py
 	$(BIN)/python benchmarks/fences.py
+	$(BIN)/python benchmarks/behaviour.py
 	$(BIN)/python benchmarks/calibration.py
 	$(BIN)/python benchmarks/detection.py
 	$(BIN)/python benchmarks/end_to_end.py
