@@ -89,13 +89,14 @@ def kneeling(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
 
 
 def squatting(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
-              lean: float = 0.4) -> np.ndarray:  # fmt: skip
-    """A deep squat: hips low and back, knees forward and high, feet flat, torso leaning."""
+              lean: float = 0.4, hip_z: float | None = None) -> np.ndarray:  # fmt: skip
+    """A deep squat (or, given hip_z, a shallower one): hips low and back, knees forward, feet
+    flat, torso leaning."""
     f, _ = _axes(heading)
     thigh, shin = THIGH * height, SHIN * height
     base = standing(height, xy, heading)
     ankles = {LEFT_ANKLE: base[LEFT_ANKLE].copy(), RIGHT_ANKLE: base[RIGHT_ANKLE].copy()}
-    hip_z = ANKLE_Z + 0.35 * height * 0.55
+    hip_z = ANKLE_Z + 0.35 * height * 0.55 if hip_z is None else hip_z
     J = _lowered(base, hip_z, back_m=0.25 * thigh, heading=heading, lean=lean)
     for hip_j, knee_j, ankle_j in ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
                                    (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE)):  # fmt: skip

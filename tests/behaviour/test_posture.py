@@ -167,19 +167,34 @@ def test_tracker_learns_a_persons_standing_height() -> None:
     against the default 0.9 m, it is not."""
     fps = 25.0
     tall = 2.05
-    half = b.standing(tall)
-    # hips lowered to 0.7 m with the upper body (a half squat)
-    half = b._lowered(half, 0.7)
-    assert classify(half).posture == "standing"
+    stand = b.standing(tall)
+    own = stand[[LEFT_HIP, RIGHT_HIP], 2].mean() - (stand[LEFT_ANKLE, 2] - 0.07)  # above feet
+    half = b.squatting(tall, lean=0.2, hip_z=0.72)  # a half squat, knees bent
+    assert classify(half).posture == "standing"  # against the default 0.9 m
     tracker = PostureTracker(fps)
     for k in range(50):
-        tracker.update(k / fps, b.people(k, {5: b.standing(tall)}, k / fps))
-    assert tracker.standing_hip(5) == pytest.approx(0.525 * tall, abs=0.02)
+        tracker.update(k / fps, b.people(k, {5: stand}, k / fps))
+    assert tracker.standing_hip(5) == pytest.approx(own, abs=0.01)
     assert tracker.update(2.0, b.people(50, {5: half}, 2.0))[5].posture == "crouching"
     # crouching for long does not lower the standing height it is compared with
     for k in range(51, 800):
         tracker.update(k / fps, b.people(k, {5: half}, k / fps))
-    assert tracker.standing_hip(5) == pytest.approx(0.525 * tall, abs=0.02)
+    assert tracker.standing_hip(5) == pytest.approx(own, abs=0.01)
+
+
+def test_standing_on_a_lower_floor_or_a_step_is_not_crouching() -> None:
+    """Hips are measured above the feet: a worker whose floor is 0.3 m below the world's
+    z = 0, or who stands on a 0.5 m step, is standing; kneeling there is crouching."""
+    for dz in (-0.3, 0.5):
+        shift = np.array([0.0, 0.0, dz])
+        assert classify(b.standing() + shift).posture == "standing"
+        assert classify(b.kneeling() + shift).posture == "crouching"
+    # a short worker (hips 0.6 m above the floor) is learnt as such
+    short = b.standing(1.2)
+    tracker = PostureTracker(25.0)
+    got = [tracker.update(k / 25, b.people(k, {1: short}, k / 25))[1].posture for k in range(30)]
+    assert set(got) == {"standing"}
+    assert tracker.standing_hip(1) == pytest.approx(0.525 * 1.2 - 0.045 * 1.2 + 0.07, abs=0.01)
 
 
 def test_tracker_drop_speed_and_forgetting() -> None:

@@ -7,9 +7,13 @@ missing. Every posture is decided by geometry with a threshold of PostureSetting
   alone when only that side is known; a hip and a shoulder of opposite sides less their
   sideways part; without shoulders, hips -> head; without hips, the main axis of the joints
   that are known);
-- hip height against the person's own standing hip height (a high quantile of their hip
-  heights while upright, PostureTracker; `standing_hip_m` until enough are seen);
-- knee angle: between thigh and shin at the knee (180 degrees: straight);
+- hip height above the feet (the lower ankle less `ankle_m`; the floor, z = 0, when no ankle
+  is known below the hips: so a person standing on a step, a ladder or a floor lower than the
+  world's z = 0 is not crouching) against the person's own standing hip height (a high
+  quantile of their hip heights while upright, PostureTracker; `standing_hip_m` until enough
+  are seen);
+- knee angle: between thigh and shin at the knee (180 degrees: straight); thigh angle: hip ->
+  knee against vertical;
 - speed: of the person's floor point over the last `walk_window_s`.
 
 The postures, in the order they are tested:
@@ -19,7 +23,8 @@ The postures, in the order they are tested:
   least `lying_thigh_deg` (each where it is known). Joints that are missing (a body half out
   of view, seen by two cameras) are left out.
 - crouching (kneeling, squatting, sitting): hips below `low_hip_ratio` x the standing hip height
-  (without hips: the shoulders lowered as much).
+  (without hips: the shoulders lowered as much), with the legs bent where they are known (a
+  knee bent below `knee_bent_deg` or the thighs `crouch_thigh_deg` from vertical).
 - bending: hips high, torso at least `bend_deg` from vertical.
 - walking / standing: upright, the floor point moving at least `walk_speed_m_s` or not.
 - unknown: fewer than `min_joints` joints, or only limbs that tell nothing.
@@ -97,13 +102,18 @@ class PostureSettings:
     hip_quantile: the quantile of a person's upright hip heights taken as their standing one.
     min_samples: upright frames needed before a person's own standing height is used.
     low_hip_ratio: hips below this share of the standing height: crouching.
+    ankle_m: the ankle joint's height above the sole (hip heights are taken above the feet).
+    min_standing_hip_m: upright frames with the hips lower than this above the feet are not
+        taken as standing height samples.
     lying_height_m: the body's top (head, shoulders) below this: lying (with lying_deg).
     lying_deg: torso at least this far from vertical for lying.
     lying_thigh_deg: thighs (where known) at least this far from vertical for lying (a worker
         kneeling, thighs upright, bent forward into a low panel is not lying).
     bend_deg: torso at least this far from vertical, hips high: bending.
     upright_deg: torso within this of vertical: an upright frame (standing height samples).
-    knee_bent_deg: a knee angle below this is bent (reported; crouching needs low hips).
+    knee_bent_deg, crouch_thigh_deg: the legs are bent when a knee's angle is below
+        knee_bent_deg or the thighs are crouch_thigh_deg or more from vertical (crouching needs
+        them bent where they are known; upright frames with them bent are no standing samples).
     walk_speed_m_s, walk_window_s: walking when the floor point moves this fast over the window.
     drop_dt_s, drop_window_s: the hips' drop speed is the peak, over the last drop_window_s, of
         their downward speed measured over drop_dt_s.
@@ -117,12 +127,15 @@ class PostureSettings:
     hip_quantile: float = 0.9
     min_samples: int = 12
     low_hip_ratio: float = 0.72
+    ankle_m: float = 0.07
+    min_standing_hip_m: float = 0.6
     lying_height_m: float = 0.7
     lying_deg: float = 45.0
     lying_thigh_deg: float = 40.0
     bend_deg: float = 30.0
     upright_deg: float = 20.0
     knee_bent_deg: float = 140.0
+    crouch_thigh_deg: float = 45.0
     walk_speed_m_s: float = 0.3
     walk_window_s: float = 1.0
     drop_dt_s: float = 0.2
@@ -142,7 +155,8 @@ class Posture:
 
     posture: one of POSTURES, or "unknown"; flags: a subset of FLAGS, in that order.
     torso_deg: torso angle to vertical (NaN: unknown); hip_height_m: the hip centre's height
-    (NaN: no hip known); standing_hip_m: the standing hip height it was compared with;
+    above the feet (see the module; NaN: no hip known); standing_hip_m: the standing hip
+    height it was compared with; thigh_deg: the thighs' angle to vertical;
     trunk_m: the hips' height, or the shoulders' without hips (falls are measured on it);
     top_m: the body's top (head, shoulders; hips without them); knee_deg: the more bent knee's
     angle (NaN: unknown); speed_m_s: floor speed (NaN: unknown); drop_m_s: the trunk's peak
@@ -158,6 +172,7 @@ class Posture:
     trunk_m: float = math.nan
     top_m: float = math.nan
     knee_deg: float = math.nan
+    thigh_deg: float = math.nan
     speed_m_s: float = math.nan
     drop_m_s: float = math.nan
     wrist_m: float = math.nan
@@ -282,6 +297,25 @@ def _knee_angle(pts: list[Point | None]) -> float:
     return best
 
 
+def _feet_z(pts: list[Point | None], trunk: float, s: PostureSettings) -> float:
+    """Where the feet are: the lower ankle less ankle_m, or the floor (0) when no ankle is
+    known at least 0.2 m below the trunk (an ankle at hip height is no foot to stand on)."""
+    ankles = [p[2] for p in _known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
+    if not ankles:
+        return 0.0
+    z = min(ankles)
+    if math.isfinite(trunk) and z > trunk - 0.2:
+        return 0.0
+    return z - s.ankle_m
+
+
+def _legs_bent(knee: float, thigh: float, s: PostureSettings) -> bool:
+    """A knee bent or the thighs inclined (each where known)."""
+    return (math.isfinite(knee) and knee < s.knee_bent_deg) or (
+        math.isfinite(thigh) and thigh >= s.crouch_thigh_deg
+    )
+
+
 def _shape(J: np.ndarray) -> np.ndarray:
     J = np.asarray(J, dtype=np.float64)
     if J.shape != (NUM_JOINTS, 3):
@@ -368,9 +402,11 @@ def _classify(
     s = settings
     ref = s.standing_hip_m if standing_hip_m is None else float(standing_hip_m)
     n_known = sum(p is not None for p in pts)
-    hip = _mean_z(pts, _HIPS)
+    hip_z = _mean_z(pts, _HIPS)
     shoulders = _mean_z(pts, _SHOULDERS)
-    trunk = hip if math.isfinite(hip) else shoulders
+    trunk = hip_z if math.isfinite(hip_z) else shoulders
+    feet = _feet_z(pts, trunk, s)
+    hip = hip_z - feet
     common = dict(hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s,
                   drop_m_s=drop_m_s)  # fmt: skip
     if n_known < s.min_joints:
@@ -386,6 +422,7 @@ def _classify(
             return Posture("lying", **common)
         return Posture(UNKNOWN, **common)
     thigh = _thigh_angle(pts)
+    common["thigh_deg"] = thigh
     if (
         top < s.lying_height_m
         and (math.isnan(torso) or torso >= s.lying_deg)
@@ -398,11 +435,13 @@ def _classify(
         low = hip < s.low_hip_ratio * ref
     elif math.isfinite(shoulders):  # the shoulders as low as the hips would be
         drop = (1.0 - s.low_hip_ratio) * ref
-        low = shoulders < ref * SHOULDER_OVER_HIP - drop and not (
+        low = shoulders - feet < ref * SHOULDER_OVER_HIP - drop and not (
             math.isfinite(torso) and torso >= s.bend_deg
         )
     else:
         return Posture(UNKNOWN, **common)
+    if low and (math.isfinite(knee) or math.isfinite(thigh)):
+        low = _legs_bent(knee, thigh, s)
     if low:
         return Posture("crouching", **common)
     if math.isfinite(torso) and torso >= s.bend_deg:
@@ -492,9 +531,11 @@ class PostureTracker:
         hip = posture.hip_height_m
         if (
             math.isfinite(hip)
+            and hip >= s.min_standing_hip_m
             and math.isfinite(posture.torso_deg)
             and posture.torso_deg <= s.upright_deg
-            and hip >= s.low_hip_ratio * ref
+            and not _legs_bent(posture.knee_deg, posture.thigh_deg, s)
+            and (posture.posture != "crouching" or math.isfinite(posture.knee_deg))
         ):
             k = bisect.bisect_left(_BIN_EDGES, hip) - 1
             if 0 <= k < len(person.hist):
