@@ -189,6 +189,12 @@ def test_standing_on_a_lower_floor_or_a_step_is_not_crouching() -> None:
         shift = np.array([0.0, 0.0, dz])
         assert classify(b.standing() + shift).posture == "standing"
         assert classify(b.kneeling() + shift).posture == "crouching"
+        assert classify(b.lying() + shift).posture == "lying"  # on a platform too
+    # legs hidden behind a cabinet: head and shoulders alone are high, not lying
+    upper = b.standing()
+    upper[[LEFT_HIP, RIGHT_HIP, LEFT_KNEE, RIGHT_KNEE, LEFT_ANKLE, RIGHT_ANKLE]] = np.nan
+    upper[[7, 8, 9, 10]] = np.nan
+    assert classify(upper).posture != "lying"
     # a short worker (hips 0.6 m above the floor) is learnt as such
     short = b.standing(1.2)
     tracker = PostureTracker(25.0)

@@ -19,7 +19,8 @@ missing. Every posture is decided by geometry with a threshold of PostureSetting
 The postures, in the order they are tested:
 
 - lying: the body's top (the highest of the head and shoulders; the hips when neither is known)
-  below `lying_height_m`, with the torso at least `lying_deg` from vertical and the thighs at
+  less than `lying_height_m` above the floor it lies on (the lower ankle less `ankle_m`; z = 0
+  when no ankle is known), with the torso at least `lying_deg` from vertical and the thighs at
   least `lying_thigh_deg` (each where it is known). Joints that are missing (a body half out
   of view, seen by two cameras) are left out.
 - crouching (kneeling, squatting, sitting): hips below `low_hip_ratio` x the standing hip height
@@ -423,8 +424,10 @@ def _classify(
         return Posture(UNKNOWN, **common)
     thigh = _thigh_angle(pts)
     common["thigh_deg"] = thigh
+    ankles = [p[2] for p in _known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
+    ground = min(ankles) - s.ankle_m if ankles else 0.0  # a platform's floor, or z = 0
     if (
-        top < s.lying_height_m
+        top - ground < s.lying_height_m
         and (math.isnan(torso) or torso >= s.lying_deg)
         and (math.isnan(thigh) or thigh >= s.lying_thigh_deg)
     ):
