@@ -159,6 +159,7 @@ class Posture:
     above the feet (see the module; NaN: no hip known); standing_hip_m: the standing hip
     height it was compared with; thigh_deg: the thighs' angle to vertical;
     trunk_m: the hips' height, or the shoulders' without hips (falls are measured on it);
+    ground_m: the floor under the body (the lower ankle less ankle_m; 0 without ankles);
     top_m: the body's top (head, shoulders; hips without them); knee_deg: the more bent knee's
     angle (NaN: unknown); speed_m_s: floor speed (NaN: unknown); drop_m_s: the trunk's peak
     drop speed over the last drop_window_s (0 when it did not drop; NaN: unknown); wrist_m:
@@ -174,6 +175,7 @@ class Posture:
     top_m: float = math.nan
     knee_deg: float = math.nan
     thigh_deg: float = math.nan
+    ground_m: float = 0.0
     speed_m_s: float = math.nan
     drop_m_s: float = math.nan
     wrist_m: float = math.nan
@@ -426,6 +428,7 @@ def _classify(
     common["thigh_deg"] = thigh
     ankles = [p[2] for p in _known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
     ground = min(ankles) - s.ankle_m if ankles else 0.0  # a platform's floor, or z = 0
+    common["ground_m"] = ground
     if (
         top - ground < s.lying_height_m
         and (math.isnan(torso) or torso >= s.lying_deg)

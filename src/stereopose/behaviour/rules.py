@@ -240,7 +240,7 @@ class BehaviourMonitor:
         out: list[Event] = []
         if st.fall_t is None:
             fast = math.isfinite(pos.drop_m_s) and pos.drop_m_s >= rule.fall_speed_m_s
-            low = math.isfinite(pos.trunk_m) and pos.trunk_m <= rule.floor_m
+            low = math.isfinite(pos.trunk_m) and pos.trunk_m - pos.ground_m <= rule.floor_m
             if fast and low:
                 st.fall_t, st.speed = t, pos.drop_m_s
             elif low and t - person.first_seen <= HANDOVER_S + _EPS:
