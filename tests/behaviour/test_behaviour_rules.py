@@ -474,12 +474,12 @@ def test_lying_s_raises_for_someone_found_lying() -> None:
 
 def test_a_fall_on_a_raised_platform_is_a_fall() -> None:
     """A maintenance platform 1 m up: the fall ends near the platform's floor (its ankles')."""
-    body = b.standing(xy=(3.0, 3.0)) + [0.0, 0.0, 1.0]
+    up = np.array([0.0, 0.0, 1.0])
+    body = b.standing(xy=(3.0, 3.0))
 
     def scene(t: float) -> dict[int, np.ndarray]:
         a = min(1.0, max(0.0, (t - 1.0) / 0.7))
-        J = b.tipped(body - [0.0, 0.0, 1.0], 0.0, 0.5 * np.pi * a * a) + [0.0, 0.0, 1.0]
-        return {1: J}
+        return {1: b.tipped(body, 0.0, 0.5 * np.pi * a * a) + up}
 
     events = run(monitor({"name": "d", "type": "person_down", "down_s": 3.0}), scene, 6.0)
     assert types(events) == ["person_down"]

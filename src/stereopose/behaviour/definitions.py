@@ -61,11 +61,11 @@ _TOLERANCE = Range(gt=0.0, le=180.0)
 class PersonDownRule:
     """A fall and the person not up again: the hips dropping faster than fall_speed_m_s (peak
     downward speed over 0.2 s, within the last second) to below floor_m (the trunk's height
-    above the floor under the body, metres), the body lying within settle_s after, and not up (standing, walking or bending
-    for up_s) down_s after the fall -> one `person_down`; `person_up` once they rise.
-    lying_s (default: off): someone lying that long without a fall seen (it happened out of
-    view, or before the start) -> `person_down` too; it would also alarm for work done lying
-    under equipment."""
+    above the floor under the body, metres), the body lying within settle_s after, and not up
+    (standing, walking or bending for up_s) down_s after the fall -> one `person_down`;
+    `person_up` once they rise. lying_s (default: off): someone lying that long without a fall
+    seen (it happened out of view, or before the start) -> `person_down` too; it would also
+    alarm for work done lying under equipment."""
 
     type: ClassVar[str] = "person_down"
     name: str
