@@ -187,3 +187,47 @@ def test_a_bad_rule_is_exit_2_on_the_command_line(tmp_path: Path, capsys) -> Non
     assert rc == 2
     assert "site.toml: rule 'down': down_s: expected" in " ".join(err.split())
     assert "Traceback" not in err
+
+
+def test_postures_thresholds_from_the_site(tmp_path: Path) -> None:
+    site = load_site(write(tmp_path, ZONES + "[postures]\nbend_deg = 35\nmin_samples = 50\n"))
+    assert site.postures.bend_deg == 35.0 and site.postures.min_samples == 50
+    assert site.postures.lying_height_m == 0.7  # the rest keep their defaults
+    assert load_site(write(tmp_path, ZONES)).postures is None
+    out = tmp_path / "again.toml"
+    save_site(out, site)
+    assert load_site(out).postures == site.postures
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ("bend = 35", "[postures]: unknown key(s) bend; known: standing_hip_m"),
+        ("bend_deg = 0", "[postures] bend_deg: expected a finite number in (0, 180], got 0"),
+        ("min_joints = 2.5", "[postures] min_joints: expected an integer in [1, 17]"),
+        ("low_hip_ratio = 1", "[postures] low_hip_ratio: expected a finite number in (0, 1)"),
+        ('reach_m = "far"', "[postures] reach_m: expected"),
+    ],
+)
+def test_bad_posture_thresholds_name_the_file_and_key(
+    tmp_path: Path, table: str, message: str
+) -> None:
+    path = write(tmp_path, ZONES + "[postures]\n" + table + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_site(path)
+    assert str(err.value).startswith(f"{path}: ") and message in str(err.value), str(err.value)
+
+
+def test_the_run_applies_the_sites_rules_and_thresholds(tmp_path: Path) -> None:
+    from stereopose.config import Config
+    from stereopose.pipeline.loop import behaviour_monitor
+
+    assert behaviour_monitor(None, Config()) is None
+    assert behaviour_monitor(load_site(write(tmp_path, ZONES)), Config()) is None
+    only = behaviour_monitor(load_site(write(tmp_path, ZONES + "[postures]\nbend_deg = 35\n")),
+                             Config())  # fmt: skip
+    assert only is not None and only.rules == () and only.tracker.settings.bend_deg == 35.0
+    both = behaviour_monitor(load_site(write(tmp_path, ZONES + RULES)), Config())
+    assert [r.name for r in both.rules] == ["man_down", "two_man", "position_A", "still",
+                                            "overhead"]  # fmt: skip
+    assert both.lost_s == Config().tracking.max_lost_s

@@ -20,7 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import MISSING, dataclass, fields
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from stereopose.behaviour.posture import POSTURES
+from stereopose.behaviour.posture import POSTURES, PostureSettings
 from stereopose.checks import DAY_S, SITE_LIMIT_M, Range
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, joint_index
@@ -39,7 +39,9 @@ __all__ = [
     "PersonDownRule",
     "Rule",
     "WorkPositionRule",
+    "format_postures",
     "format_rules",
+    "parse_postures",
     "parse_rules",
 ]
 
@@ -308,3 +310,64 @@ def format_rules(rules: Sequence[Rule]) -> list[str]:
             lines.append(f"{f.name} = {_toml(value)}")
         lines.append("")
     return lines
+
+
+# the ranges of the site's [postures] keys (PostureSettings), beside their units
+_DEG = Range(gt=0.0, le=180.0)
+_POSTURE_RANGES: dict[str, Range] = {
+    "standing_hip_m": Range(gt=0.0, le=3.0),
+    "hip_quantile": Range(gt=0.0, le=1.0),
+    "min_samples": Range(integer=True, ge=1, le=100_000),
+    "low_hip_ratio": Range(gt=0.0, lt=1.0),
+    "ankle_m": Range(ge=0.0, le=0.5),
+    "min_standing_hip_m": Range(ge=0.0, le=3.0),
+    "lying_height_m": Range(gt=0.0, le=3.0),
+    "lying_deg": _DEG,
+    "lying_thigh_deg": _DEG,
+    "bend_deg": _DEG,
+    "upright_deg": _DEG,
+    "knee_bent_deg": _DEG,
+    "crouch_thigh_deg": _DEG,
+    "walk_speed_m_s": Range(gt=0.0, le=10.0),
+    "walk_window_s": Range(gt=0.0, le=60.0),
+    "drop_dt_s": Range(gt=0.0, le=10.0),
+    "drop_window_s": Range(gt=0.0, le=60.0),
+    "raised_m": Range(ge=-1.0, le=2.0),
+    "raised_shoulder_m": Range(ge=-1.0, le=2.0),
+    "reach_m": Range(gt=0.0, le=3.0),
+    "min_joints": Range(integer=True, ge=1, le=17),
+}
+assert set(_POSTURE_RANGES) == {f.name for f in fields(PostureSettings)}
+
+
+def parse_postures(table: Any, where: str) -> PostureSettings | None:
+    """The site file's optional `[postures]` table: PostureSettings' thresholds to change for
+    this site (None: the defaults). An unknown key or a value out of range is a ConfigError
+    naming the key."""
+    lead = f"{where}: " if where else ""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"{lead}postures must be a [postures] table")
+    unknown = sorted(set(table) - set(_POSTURE_RANGES))
+    if unknown:
+        raise ConfigError(
+            f"{lead}[postures]: unknown key(s) {', '.join(unknown)}; "
+            f"known: {', '.join(_POSTURE_RANGES)}"
+        )
+    kwargs = {}
+    for key, value in table.items():
+        rng = _POSTURE_RANGES[key]
+        v = rng.check(value, f"{lead}[postures] {key}")
+        kwargs[key] = int(v) if rng.integer else float(v)
+    return PostureSettings(**kwargs)
+
+
+def format_postures(settings: PostureSettings | None) -> list[str]:
+    """The `[postures]` table's TOML lines (only the keys that differ from the defaults)."""
+    if settings is None:
+        return []
+    default = PostureSettings()
+    lines = [f"{f.name} = {getattr(settings, f.name)!r}" for f in fields(settings)
+             if getattr(settings, f.name) != getattr(default, f.name)]  # fmt: skip
+    return ["[postures]", *lines, ""] if lines else []

@@ -19,6 +19,8 @@ Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
     name = "man_down"
     type = "person_down"
     down_s = 3.0
+    [postures]                          # optional: posture thresholds (PostureSettings)
+    bend_deg = 35.0
 
 All geometry here is vectorised over every joint of every person and every zone at once.
 """
@@ -32,7 +34,14 @@ from typing import Any
 
 import numpy as np
 
-from stereopose.behaviour.definitions import Rule, format_rules, parse_rules
+from stereopose.behaviour.definitions import (
+    Rule,
+    format_postures,
+    format_rules,
+    parse_postures,
+    parse_rules,
+)
+from stereopose.behaviour.posture import PostureSettings
 from stereopose.checks import (
     DAY_S,
     FPS,
@@ -128,6 +137,7 @@ class Site:
     fps: float | None = None  # frames per second, in [FPS_MIN, FPS_MAX]
     path: Path | None = field(default=None, compare=False)
     rules: tuple[Rule, ...] = ()  # behaviour rules (behaviour.definitions)
+    postures: PostureSettings | None = None  # [postures]: the thresholds (None: defaults)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rules", tuple(self.rules))
@@ -193,6 +203,7 @@ def format_site(site: Site) -> str:
                 lines.append(f"{key} = {ids}")
         lines.append("")
     lines += format_rules(site.rules)
+    lines += format_postures(site.postures)
     return "\n".join(lines)
 
 
@@ -212,15 +223,19 @@ def load_site(path: str | Path) -> Site:
     try:
         fps = _fps(data)
         zones = _zones(data)
-        return Site(zones, fps, path, rules=parse_rules(data.get("rules"), "", zones))
+        rules = parse_rules(data.get("rules"), "", zones)
+        postures = parse_postures(data.get("postures"), "")
+        return Site(zones, fps, path, rules=rules, postures=postures)
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
 
 
 def _fps(data: dict[str, Any]) -> float | None:
-    unknown = sorted(set(data) - {"fps", "zones", "rules"})
+    unknown = sorted(set(data) - {"fps", "zones", "rules", "postures"})
     if unknown:
-        raise ConfigError(f"unknown key(s) {', '.join(unknown)}; known: fps, zones, rules")
+        raise ConfigError(
+            f"unknown key(s) {', '.join(unknown)}; known: fps, zones, rules, postures"
+        )
     fps = data.get("fps")
     return None if fps is None else float(FPS.check(fps, "fps"))
 

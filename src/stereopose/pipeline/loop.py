@@ -27,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from stereopose.behaviour.posture import PostureSettings
 from stereopose.behaviour.rules import BehaviourMonitor
 from stereopose.config import Config
 from stereopose.errors import IncompleteOutputError
@@ -213,10 +214,14 @@ class FrameLoop:
 
 
 def behaviour_monitor(site: Site | None, config: Config) -> BehaviourMonitor | None:
-    """The monitor of the site's behaviour rules (None: no site, or no rules in it)."""
-    if site is None or not site.rules:
+    """The monitor of the site's behaviour rules and postures (None: no site, or neither
+    [[rules]] nor [postures] in it)."""
+    if site is None or (not site.rules and site.postures is None):
         return None
-    return BehaviourMonitor(site.rules, site.zones, config.fps, config.tracking.max_lost_s)
+    settings = site.postures or PostureSettings()
+    return BehaviourMonitor(
+        site.rules, site.zones, config.fps, config.tracking.max_lost_s, settings
+    )
 
 
 def run_frames(
