@@ -45,7 +45,7 @@ def test_serve_demo_through_the_console(tmp_path):
                                 stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
     base = f"http://127.0.0.1:{port}"
     try:
-        c = httpx.Client(base_url=base, timeout=10)
+        c = httpx.Client(base_url=base, timeout=60)  # argon2 and a busy machine
         wait_until(lambda: _ok(c, "/") and _ok(c, "/console/plotly.min.js"), "the page",
                    timeout_s=90, poll_s=0.2)  # fmt: skip
         assert c.get("/api/people").status_code == 401

@@ -266,7 +266,7 @@ def test_cameras_their_view_health_and_snapshots(served, plan):
         image[500:900, 300:700] = (0, 128, 255)
         hub.on_frame(_frame(1, 0.0, images={"cam01": image, "cam02": None}), WALL_START)
         wait_until(lambda: c.get("/api/cameras/cam01/snapshot.jpg").status_code == 200,
-                   "the first snapshot", timeout_s=20)  # fmt: skip
+                   "the first snapshot (its drawing compiled at first)", timeout_s=90)  # fmt: skip
         r = c.get("/api/cameras/cam01/snapshot.jpg")
         assert (
             r.headers["content-type"] == "image/jpeg" and r.headers["cache-control"] == "no-store"
