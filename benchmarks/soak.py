@@ -497,7 +497,7 @@ def report(args, result: dict) -> list[str]:
         "dropped frames: frames each camera received but no step used; camera servers "
         "restarted: ffmpeg serves one connection, so each time serve opens a stream the "
         "server is started anew (serve's own reconnects are counted apart). The samples are in "
-        "soak.json.",
+        f"{args.name}.json.",
         "",
         "| t (s) | resident MB | steps | status | output folder MB |",
         "|---|---|---|---|---|",
