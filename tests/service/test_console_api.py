@@ -393,3 +393,31 @@ def test_trails_are_bounded_and_forgotten(served):
     metrics = httpx.get(served.url + "/metrics").text
     assert 'stereopose_queue_size{queue="console_snapshots"}' in metrics
     assert 'stereopose_queue_dropped_total{queue="console_snapshots"}' in metrics
+
+
+def test_people_carry_their_posture_when_the_behaviour_rules_give_one(served):
+    from stereopose.behaviour import PostureTracker
+
+    tracker = PostureTracker(30.0)
+    hub = served.console.hub
+    for i in range(5):
+        f = _frame(i, 0.0)
+        postures = tracker.update(f.t, f.people3d)
+        hub.on_frame(FrameResult(f.frame, f.t, {}, f.people3d, (), None, postures), WALL_START)
+    (p,) = hub.people()["people"]
+    assert p["posture"] == postures[7].posture and p["posture"] != "lying"  # on their feet
+    assert p["flags"] == list(postures[7].flags)
+
+
+def test_behaviour_alarms_are_alarms_and_every_column_is_listed(served):
+    down = Event(t=2.0, frame=60, person=7, zone="", kind="behaviour", type="person_down",
+                 onset_t=1.5, rule="down", posture="lying", height_m=0.2)  # fmt: skip
+    served.db.write_events([down])
+    c = served.client("vera")
+    try:
+        (e,) = c.get("/api/events").json()["events"]
+        assert e["level"] == "alarm" and e["type"] == "person_down"
+        assert (e["rule"], e["posture"], e["height_m"]) == ("down", "lying", 0.2)
+        assert e["clips"] == []
+    finally:
+        c.close()

@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from stereopose.behaviour.definitions import ALARM_TYPES as BEHAVIOUR_ALARMS
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX, _part
 
-ALARM_TYPES = frozenset({"camera_down", "person_down", "fall"})
+# a camera down, and the behaviour rules' alarms (a person down, alone, immobile, ...)
+ALARM_TYPES = frozenset({"camera_down"}) | BEHAVIOUR_ALARMS
 WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
 MAX_LIMIT = 1000
 DEFAULT_LIMIT = 100
@@ -35,7 +37,8 @@ class LogError(StereoposeError):
 
 
 def level(kind: str, type_: str) -> str:
-    """alarm: entering or approaching an energized zone, a camera down, a person down;
+    """alarm: entering or approaching an energized zone, a camera down, a behaviour alarm
+    (person_down, lone_worker, work_position, immobile, overreach);
     warning: dwell, leaving the work area, calibration drift, entering a restricted zone;
     info: the rest."""
     if (kind == "energized" and type_ in ("enter", "approach")) or type_ in ALARM_TYPES:
@@ -171,11 +174,9 @@ class EventLog:
                 "frame": rec["frame"], "person": rec["person"], "zone": rec["zone"],
                 "kind": rec["kind"], "type": rec["type"],
                 "level": level(rec["kind"], rec["type"]), "camera": rec["camera"]}  # fmt: skip
-        for key in ("onset_t", "joint", "distance_m", "duration_s", "x", "y",
-                    "reprojection_px", "baseline_px"):  # fmt: skip
-            item[key] = rec[key]
-        for key in ("allowed", "lost", "restart"):
-            item[key] = bool(rec[key])
+        for key, value in rec.items():  # every other column of the log, as stored
+            if key not in item and key != "run":
+                item[key] = bool(value) if key in ("allowed", "lost", "restart") else value
         item["run"] = rec["run"]
         item["ack"] = {"by": by, "at": at} if by is not None else None
         item["clips"] = self.clips_of(wall_t, rec["person"], rec["zone"]) if rec["zone"] else []

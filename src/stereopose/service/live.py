@@ -123,6 +123,7 @@ class _Latest:
     joints: np.ndarray
     positions: np.ndarray
     headings: np.ndarray
+    postures: Mapping[int, object] | None = None  # id -> behaviour.posture.Posture
 
 
 class Subscriber:
@@ -225,7 +226,8 @@ class LiveHub:
         else:
             positions, headings = np.zeros((0, 2)), np.zeros(0)
         t = float(frame.t)
-        latest = _Latest(int(frame.frame), t, wall_start + t, ids, joints, positions, headings)
+        latest = _Latest(int(frame.frame), t, wall_start + t, ids, joints, positions, headings,
+                         getattr(frame, "postures", None))  # fmt: skip
         with self._lock:
             self._latest = latest
             self._trail(t, ids, positions)
@@ -432,7 +434,9 @@ class LiveHub:
         if latest is None:
             return {"frame": None, "t": None, "wall_t": None, "people": []}
         people = []
+        postures = latest.postures or {}
         for row, pid in enumerate(latest.ids.tolist()):
+            posture = postures.get(pid)
             x, y = latest.positions[row].tolist()
             joints = [[round(a, 3), round(b, 3), round(c, 3)]
                       if math.isfinite(a) and math.isfinite(b) and math.isfinite(c) else None
@@ -444,8 +448,8 @@ class LiveHub:
                 "joints": joints,
                 "zones": sorted(z for z, ids in inside.items() if pid in ids),
                 "trail": [[round(px, 3), round(py, 3)] for _, px, py in trails.get(pid, [])],
-                "posture": None,
-                "flags": [],
+                "posture": getattr(posture, "posture", None),
+                "flags": [str(f) for f in getattr(posture, "flags", ())],
             })  # fmt: skip
         return {"frame": latest.frame, "t": round(latest.t, 3),
                 "wall_t": round(latest.wall_t, 3), "people": people}  # fmt: skip
