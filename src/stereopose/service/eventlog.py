@@ -179,7 +179,9 @@ class EventLog:
                 item[key] = bool(value) if key in ("allowed", "lost", "restart") else value
         item["run"] = rec["run"]
         item["ack"] = {"by": by, "at": at} if by is not None else None
-        item["clips"] = self.clips_of(wall_t, rec["person"], rec["zone"]) if rec["zone"] else []
+        # a behaviour alarm's clips too (no zone: named "x" in its place, as clip_name does)
+        person = rec["person"]
+        item["clips"] = self.clips_of(wall_t, person, rec["zone"] or "") if person >= 0 else []
         return item
 
     # -- clips -----------------------------------------------------------------------------
