@@ -18,15 +18,21 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import MISSING, dataclass, fields
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 from stereopose.behaviour.posture import POSTURES, PostureSettings
 from stereopose.checks import DAY_S, SITE_LIMIT_M, Range
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, joint_index
 
-if TYPE_CHECKING:  # zones are read by fence.zones, which imports this module
-    from stereopose.fence.zones import Zone
+
+class Zone(Protocol):
+    """What the rules need of a zone (fence.zones.Zone, which reads the site file and
+    imports this module)."""
+
+    name: str
+    kind: str
+
 
 __all__ = [
     "ALARM_TYPES",
