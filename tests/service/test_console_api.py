@@ -421,3 +421,14 @@ def test_behaviour_alarms_are_alarms_and_every_column_is_listed(served):
         assert e["clips"] == []
     finally:
         c.close()
+
+
+def test_open_live_streams_end_when_the_service_stops(tmp_path, plan):
+    with console_server(tmp_path / "out", plan) as s:
+        c = s.client("vera")
+        live = _Stream(c)
+        live.next("cameras", 10)
+        s.console.close()  # as serve does before stopping its server
+        wait_until(lambda: not live._thread.is_alive(), "the stream's end", timeout_s=10)
+        assert s.console.hub.clients == 0
+        c.close()
