@@ -5,6 +5,7 @@
 
 const SVG = "http://www.w3.org/2000/svg";
 const MARGIN_M = 0.8;
+const LINGER_MS = 2000;
 
 function el(name, attrs = {}, parent = null) {
   const node = document.createElementNS(SVG, name);
@@ -131,13 +132,21 @@ export class FloorPlan {
       const extra = [person.posture, ...(person.flags || [])].filter(Boolean).join(" ");
       marker.label.textContent = extra ? `${id} ${extra}` : id;
     }
+    // a person missing from a frame or two stays, faded, where last seen: no flicker
+    const now = performance.now();
     for (const [id, marker] of this.markers) {
-      if (seen.has(id)) continue;
-      marker.g.remove();
-      marker.trail.remove();
-      this.markers.delete(id);
+      const missing = !seen.has(id);
+      if (!missing) marker.seenAt = now;
+      marker.g.classList.toggle("lost", missing);
+      marker.trail.classList.toggle("lost", missing);
+      if (missing && now - marker.seenAt > LINGER_MS) {
+        marker.g.remove();
+        marker.trail.remove();
+        this.markers.delete(id);
+      }
     }
     this.info.textContent = `${seen.size} ${seen.size === 1 ? "person" : "people"} · frame ${body.frame ?? "-"}`;
+    this.svg.dataset.people = String(seen.size);
     this.fit();
   }
 
@@ -149,7 +158,7 @@ export class FloorPlan {
     const arrow = el("path", { class: "heading", d: "M 0.16 -0.1 L 0.55 0 L 0.16 0.1 Z" }, body);
     el("circle", { class: "person-dot", r: 0.17 }, body);
     const label = el("text", { class: "person-label", x: 0, y: 0.07 }, body);
-    const marker = { g, trail, arrow, label };
+    const marker = { g, trail, arrow, label, seenAt: performance.now() };
     this.markers.set(id, marker);
     return marker;
   }

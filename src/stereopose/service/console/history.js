@@ -26,6 +26,16 @@ function cell(row, content, className = "") {
   return td;
 }
 
+/** A clip's button: its camera, and "full" for the full stream's copy beside the drawn clip
+ * (clip names end in _<camera>.mp4 or _<camera>.full.mp4). */
+function clipLabel(url) {
+  const name = decodeURIComponent(url.split("/").pop() || "");
+  const full = name.endsWith(".full.mp4");
+  const stem = name.replace(/(\.full)?\.mp4$/, "");
+  const camera = stem.includes("_") ? stem.slice(stem.lastIndexOf("_") + 1) : stem;
+  return full ? `${camera} full` : camera;
+}
+
 export class History {
   constructor() {
     this.form = byId("history-form");
@@ -121,12 +131,13 @@ export class History {
     cell(tr, e.camera || "");
     cell(tr, ackText(e.ack));
     const clips = document.createElement("span");
-    for (const [i, url] of (e.clips || []).entries()) {
+    for (const url of e.clips || []) {
       const button = document.createElement("button");
       button.type = "button";
       button.className = "play";
       button.dataset.clip = url;
-      button.textContent = (e.clips.length > 1 ? `Play ${i + 1}` : "Play");
+      button.textContent = clipLabel(url);
+      button.title = `play ${url.split("/").pop()}`;
       button.addEventListener("click", () => this.play(url, e));
       clips.appendChild(button);
     }
