@@ -28,7 +28,7 @@ from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
 from stereopose.skeleton import LIMBS
 from stereopose.types import Event, Rig
-from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
+from stereopose.viz.report_behaviour import behaviour_events_html, explain, postures_html
 from stereopose.viz.report_tables import (
     CSS,
     cameras_html,
@@ -338,6 +338,8 @@ def _interval(fig: go.Figure, pid: int, zone: str, t0: float, t1: float) -> None
 
 def _event_text(e: Event) -> str:
     parts = [f"{e.type} {e.zone} ({e.kind})", f"id {e.person}", f"t={e.t:.2f}s"]
+    if e.rule is not None:  # a behaviour event: its rule, posture and what explains it
+        return ", ".join([*parts, f"rule {e.rule}", e.posture or "", explain(e)])
     if e.joint is not None:
         parts.append(f"joint {e.joint}")
     if e.distance_m is not None:

@@ -56,7 +56,9 @@ def postures_html(poses: Sequence[tuple[int, float, list[dict]]]) -> str:
     )
 
 
-def _explain(e: Event) -> str:
+def explain(e: Event) -> str:
+    """What explains a behaviour event, in words (its failed conditions, joint, heights,
+    distances, speed, duration)."""
     parts = []
     if e.failed:
         parts.append(f"failed: {e.failed}")
@@ -87,7 +89,7 @@ def behaviour_events_html(events: Sequence[Event]) -> str:
     for e in rows[:MAX_ROWS]:
         cls = " class='alarm'" if e.type in ALARM_TYPES else ""
         cells = (f"{e.t:.2f}", f"{e.onset_t:.2f}", str(e.person), e.type, e.rule or "",
-                 e.zone, e.posture or "", _explain(e))  # fmt: skip
+                 e.zone, e.posture or "", explain(e))  # fmt: skip
         body.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     more = f"<p>{len(rows) - MAX_ROWS} more not listed.</p>" if len(rows) > MAX_ROWS else ""
     head = "".join(f"<th>{c}</th>" for c in ("t (s)", "since (s)", "id", "event", "rule", "zone",
