@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import bodies as b
 from stereopose.behaviour import POSTURES, PostureSettings, PostureTracker, classify
@@ -227,3 +229,24 @@ def fall_sequence(fps: float, stand_s: float = 1.0, fall_s: float = 0.7, lie_s: 
         frames.append(b.tipped(body, heading, 0.5 * np.pi * (k / n) ** 2))
     frames += [b.tipped(body, heading, 0.5 * np.pi)] * int(lie_s * fps)
     return frames
+
+
+BUILDERS = {
+    "standing": lambda h, xy, a: b.standing(h, xy, a),
+    "bending": lambda h, xy, a: b.standing(h, xy, a, bend=1.0),
+    "crouching": lambda h, xy, a: b.kneeling(h, xy, a),
+    "lying": lambda h, xy, a: b.lying(h, xy, a, sideways=xy[0] > 0),
+}
+
+
+@given(
+    kind=st.sampled_from(sorted(BUILDERS)),
+    height=st.floats(1.5, 2.0),
+    x=st.floats(-50.0, 50.0),
+    y=st.floats(-50.0, 50.0),
+    heading=st.floats(-math.pi, math.pi),
+)
+@settings(max_examples=150, deadline=None)
+def test_posture_does_not_depend_on_where_or_which_way(kind, height, x, y, heading) -> None:
+    """The same body anywhere on the floor, facing any way, of any adult height."""
+    assert classify(BUILDERS[kind](height, (x, y), heading)).posture == kind
