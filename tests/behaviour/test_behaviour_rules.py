@@ -483,3 +483,13 @@ def test_a_fall_on_a_raised_platform_is_a_fall() -> None:
 
     events = run(monitor({"name": "d", "type": "person_down", "down_s": 3.0}), scene, 6.0)
     assert types(events) == ["person_down"]
+
+
+def test_overreach_only_near_its_zones() -> None:
+    rule = {"name": "busbar", "type": "overreach", "max_height_m": 1.9, "zones": ["panel"],
+            "approach_m": 0.5}  # fmt: skip
+    far = lambda t: {1: at(3.0, 3.0, reach_left=1.0)}  # noqa: E731
+    assert run(monitor(rule), far, 2.0) == []
+    near = lambda t: {1: at(1.0, 3.0, reach_left=1.0)}  # noqa: E731
+    events = run(monitor(rule), near, 2.0)
+    assert types(events) == ["overreach"] and events[0].zone == "panel"

@@ -136,7 +136,8 @@ class ImmobileRule:
 @dataclass(frozen=True)
 class OverreachRule:
     """One of `joints` (default: the wrists) above max_height_m for enter_s -> `overreach`;
-    `overreach_end` once below for exit_s."""
+    `overreach_end` once below for exit_s. zones (default: anywhere): only while the person
+    is in one of them or within approach_m of it (a barrier under overhead conductors)."""
 
     type: ClassVar[str] = "overreach"
     name: str
@@ -144,6 +145,8 @@ class OverreachRule:
     joints: tuple[int, ...] = (LEFT_WRIST, RIGHT_WRIST)
     enter_s: float = 0.2
     exit_s: float = 0.5
+    zones: tuple[str, ...] = ()
+    approach_m: float = 1.0
 
 
 Rule = PersonDownRule | LoneWorkerRule | WorkPositionRule | ImmobileRule | OverreachRule
@@ -283,7 +286,7 @@ def parse_rules(
 
 
 def _check_zones(rule: Rule, where: str, zones: Mapping[str, Zone]) -> None:
-    if isinstance(rule, LoneWorkerRule):
+    if isinstance(rule, (LoneWorkerRule, OverreachRule)):
         _zone_names(rule.zones, where, "zones", zones, None)
     elif isinstance(rule, WorkPositionRule):
         _zone_names([rule.zone], where, "zone", zones, "work_area")

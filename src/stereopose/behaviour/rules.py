@@ -326,13 +326,7 @@ class BehaviourMonitor:
 
     def _lone_worker(self, rule: LoneWorkerRule, c: _Ctx) -> list[Event]:
         t, person = c.base["t"], c.person
-        zone, near = None, math.inf
-        if c.nearest is not None:
-            for name in rule.zones:
-                k = self._zone_index[name]
-                d = float(c.nearest[c.p, k])
-                if d < near:
-                    zone, near = name, d
+        zone, near = self._nearest_zone(rule.zones, c)
         at_risk = zone is not None and near <= rule.approach_m + _EPS
         nearest = self._nearest(c.pid, person)
         alone = not (nearest <= rule.buddy_m + _EPS)
@@ -355,6 +349,16 @@ class BehaviourMonitor:
                             nearest_m=nearest_m, duration_s=float(t - began))
             ]  # fmt: skip
         return []
+
+    def _nearest_zone(self, names: Sequence[str], c: _Ctx) -> tuple[str | None, float]:
+        """The zone of `names` nearest to the person's joints, and its distance (0 inside)."""
+        zone, near = None, math.inf
+        if c.nearest is not None:
+            for name in names:
+                d = float(c.nearest[c.p, self._zone_index[name]])
+                if d < near:
+                    zone, near = name, d
+        return zone, near
 
     def _nearest(self, pid: int, person: _Person) -> float:
         """Floor distance to the nearest other person (seen now or still tracked)."""
@@ -465,19 +469,25 @@ class BehaviourMonitor:
         known = [(h, k) for k, h in enumerate(z) if math.isfinite(h)]
         height, top = max(known) if known else (math.nan, -1)
         raw = top >= 0 and height > rule.max_height_m
+        zone = None
+        if rule.zones:  # only near these zones
+            zone, near = self._nearest_zone(rule.zones, c)
+            raw = raw and near <= rule.approach_m + _EPS
         latch = person.latches.setdefault(rule.name, _Latch())
         change = latch.step(raw, t, rule.enter_s, rule.exit_s)
         if change == "rose":
+            person.detail[rule.name] = {"zone": zone}
             return [
                 self._event(rule, c.pid, person, "overreach", t, c.base["frame"],
-                            onset_t=latch.began, joint=JOINTS[rule.joints[top]], height_m=height)
+                            onset_t=latch.began, joint=JOINTS[rule.joints[top]], height_m=height,
+                            zone=zone)
             ]  # fmt: skip
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
                 self._event(rule, c.pid, person, "overreach_end", t, c.base["frame"],
-                            onset_t=latch.onset,
-                            duration_s=float(t - began))
+                            onset_t=latch.onset, duration_s=float(t - began),
+                            zone=person.detail.pop(rule.name, {}).get("zone"))
             ]  # fmt: skip
         return []
 
