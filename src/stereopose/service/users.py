@@ -41,7 +41,10 @@ ROLES = ("viewer", "operator", "admin")
 MIN_PASSWORD = 8
 MAX_PASSWORD = 1024
 MAX_USERS = 1000
-HASHING_AT_ONCE = 2  # each argon2 hash takes 64 MiB: logins beyond this wait their turn
+# One hash at a time, on one thread (64 MiB, 3 passes): a flood of logins takes one core at
+# most and waits its turn, never the frame loop's cores or the memory.
+HASHING_AT_ONCE = 1
+TIME_COST, MEMORY_KIB, PARALLELISM = 3, 64 * 1024, 1
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")
 
 
@@ -101,7 +104,8 @@ class UserStore:
 
     def __init__(self, path: str | Path, hasher: PasswordHasher | None = None) -> None:
         self.path = Path(path)
-        self.hasher = hasher or PasswordHasher()
+        self.hasher = hasher or PasswordHasher(time_cost=TIME_COST, memory_cost=MEMORY_KIB,
+                                               parallelism=PARALLELISM)  # fmt: skip
         self._lock = threading.Lock()
         self._seen: tuple[int, int, int] | None = None  # (inode, size, mtime_ns) read
         self._users: dict[str, dict] = {}
