@@ -269,6 +269,7 @@ def test_https_with_a_certificate_and_key(tmp_path):
             httpx.get(s.url.replace("https", "http") + "/api/health", timeout=5)
 
 
+@pytest.mark.realdata  # the real demo's configuration
 def test_the_configuration_checks_certificate_and_key(tmp_path):
     cert, key = _self_signed(tmp_path)
     plan = demo_plan(tmp_path)

@@ -25,6 +25,8 @@ from stereopose.io.sinks.clips import clip_name
 from stereopose.types import Event, People3D
 from waiting import wait_until
 
+pytestmark = pytest.mark.realdata  # the real demo's calibration and site
+
 # a real person of the demo (served, frame 3): joints in metres, COCO order
 REAL_JOINTS = [[0.02, -0.405, 1.262], [0.03, -0.437, 1.287], [0.034, -0.381, 1.29],
                [0.169, -0.447, 1.258], [0.087, -0.339, 1.266], [0.249, -0.478, 1.114],

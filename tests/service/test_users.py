@@ -81,6 +81,7 @@ def _users(config, *args, stdin: str = "") -> subprocess.CompletedProcess:
                           text=True, timeout=60, env=env)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_users_command_as_a_process(tmp_path):
     config = tmp_path / "serve.toml"
     config.write_text('output = "data"\n')
