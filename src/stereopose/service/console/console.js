@@ -21,7 +21,7 @@ class Console {
     this.history = new History();
     this.feed = new Feed({
       list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
-      bannerAck: byId("alarm-ack"), counter: byId("alarm-count"), mute: byId("mute"),
+      bannerAck: byId("alarm-ack"), bannerAckAll: byId("alarm-ack-all"), counter: byId("alarm-count"), mute: byId("mute"),
       alarmsOnly: byId("feed-alarms-only"),
     });
     this.live = new api.Live({

@@ -47,11 +47,12 @@ export function describe(e) {
 export const ackText = (a) => (a ? `${a.by} ${clock(a.at)}` : "");
 
 export class Feed {
-  constructor({ list, banner, bannerText, bannerAck, counter, mute, alarmsOnly }) {
+  constructor({ list, banner, bannerText, bannerAck, bannerAckAll, counter, mute, alarmsOnly }) {
     this.list = list;
     this.banner = banner;
     this.bannerText = bannerText;
     this.bannerAck = bannerAck;
+    this.bannerAckAll = bannerAckAll;
     this.counter = counter;
     this.mute = mute;
     this.alarmsOnly = alarmsOnly;
@@ -63,6 +64,7 @@ export class Feed {
       const newest = this.unacked()[0];
       if (newest) this.acknowledge(newest.id);
     });
+    this.bannerAckAll.addEventListener("click", () => this.acknowledgeAll());
     this.alarmsOnly.addEventListener("change", () => {
       this.list.classList.toggle("alarms-only", this.alarmsOnly.checked);
     });
@@ -71,6 +73,7 @@ export class Feed {
   setRole(role) {
     this.canAck = role === "operator" || role === "admin";
     this.bannerAck.hidden = !this.canAck;
+    this.update();
     for (const li of this.list.children) this.render(this.events.get(Number(li.dataset.eventId)), li);
   }
 
@@ -163,6 +166,16 @@ export class Feed {
     return first ? Number(first.dataset.eventId) : 0;
   }
 
+  /** Every unacknowledged alarm of the feed, newest first, one request at a time. */
+  async acknowledgeAll() {
+    this.bannerAckAll.disabled = true;
+    try {
+      for (const e of this.unacked()) await this.acknowledge(e.id);
+    } finally {
+      this.bannerAckAll.disabled = false;
+    }
+  }
+
   unacked() {
     return [...this.events.values()]
       .filter((e) => e.level === "alarm" && !e.ack)
@@ -175,6 +188,8 @@ export class Feed {
     this.counter.classList.toggle("active", open.length > 0);
     this.banner.hidden = open.length === 0;
     document.body.classList.toggle("alarm-active", open.length > 0);
+    this.bannerAckAll.hidden = !this.canAck || open.length < 2;
+    this.bannerAckAll.textContent = `Acknowledge all ${open.length}`;
     if (open.length) {
       const newest = open[0];
       this.bannerText.textContent = `${clock(newest.wall_t)} ${describe(newest)}` +
