@@ -45,23 +45,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.behaviour.body import (
+    HEAD,
+    HIPS,
+    SHOULDERS,
+    WRISTS,
+    Point,
+    centre,
+    knee_angle,
+    known,
+    mean_z,
+    points,
+    thigh_angle,
+    torso_angle,
+)
 from stereopose.skeleton import (
-    FACE,
     LEFT_ANKLE,
-    LEFT_EAR,
-    LEFT_ELBOW,
-    LEFT_HIP,
-    LEFT_KNEE,
-    LEFT_SHOULDER,
-    LEFT_WRIST,
     NUM_JOINTS,
     RIGHT_ANKLE,
-    RIGHT_EAR,
-    RIGHT_ELBOW,
-    RIGHT_HIP,
-    RIGHT_KNEE,
-    RIGHT_SHOULDER,
-    RIGHT_WRIST,
 )
 from stereopose.types import People3D
 
@@ -81,13 +82,6 @@ UNKNOWN = "unknown"
 FLAGS = ("arms_raised", "reaching")
 UPRIGHT = frozenset({"standing", "walking", "bending"})  # "up" again after a fall
 
-_HEAD = (*FACE, LEFT_EAR, RIGHT_EAR)
-_HIPS = (LEFT_HIP, RIGHT_HIP)
-_SHOULDERS = (LEFT_SHOULDER, RIGHT_SHOULDER)
-_WRISTS = (LEFT_WRIST, RIGHT_WRIST)
-_LEGS = ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE), (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE))
-_LATERAL_PAIRS = ((LEFT_KNEE, RIGHT_KNEE), (LEFT_ANKLE, RIGHT_ANKLE), (LEFT_ELBOW, RIGHT_ELBOW),
-                  (LEFT_EAR, RIGHT_EAR))  # fmt: skip
 # standing shoulder height over standing hip height (adult proportions: 0.818 / 0.525)
 SHOULDER_OVER_HIP = 1.56
 _BINS_M = np.arange(0.3, 1.5001, 0.01)  # standing hip height histogram: bin edges, metres
@@ -187,123 +181,10 @@ class Posture:
         return self.posture in UPRIGHT
 
 
-Point = tuple[float, float, float]
-
-
-def _points(J: np.ndarray) -> list[Point | None]:
-    """The 17 joints as (x, y, z) tuples, None where missing: the geometry below works on
-    these in plain Python (17 points: faster than many small NumPy calls)."""
-    ok = np.isfinite(J).all(-1).tolist()
-    return [tuple(p) if k else None for p, k in zip(J.tolist(), ok, strict=True)]
-
-
-def _known(pts: list[Point | None], idx: tuple[int, ...]) -> list[Point]:
-    return [pts[i] for i in idx if pts[i] is not None]
-
-
-def _mean_z(pts: list[Point | None], idx: tuple[int, ...]) -> float:
-    z = [p[2] for p in _known(pts, idx)]
-    return sum(z) / len(z) if z else math.nan
-
-
-def _centre(pts: list[Point | None], idx: tuple[int, ...]) -> Point | None:
-    known = _known(pts, idx)
-    if not known:
-        return None
-    n = len(known)
-    return (sum(p[0] for p in known) / n, sum(p[1] for p in known) / n,
-            sum(p[2] for p in known) / n)  # fmt: skip
-
-
-def _sub(a: Point, b: Point) -> Point:
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-def _angle_to_vertical(v: Point | None) -> float:
-    if v is None:
-        return math.nan
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if not math.isfinite(n) or n < 1e-6:
-        return math.nan
-    return math.degrees(math.acos(min(1.0, abs(v[2]) / n)))
-
-
-def _lateral(pts: list[Point | None]) -> Point | None:
-    """The body's right -> left unit vector from a pair of side joints (knees, ankles, elbows,
-    ears), None when no pair is known."""
-    for left, right in _LATERAL_PAIRS:
-        if pts[left] is not None and pts[right] is not None:
-            v = _sub(pts[left], pts[right])
-            n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-            if n > 0.1:
-                return (v[0] / n, v[1] / n, v[2] / n)
-    return None
-
-
-def _torso_vector(pts: list[Point | None]) -> Point | None:
-    if all(pts[i] is not None for i in _HIPS + _SHOULDERS):
-        return _sub(_centre(pts, _SHOULDERS), _centre(pts, _HIPS))
-    for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
-        if pts[hip] is not None and pts[shoulder] is not None:
-            return _sub(pts[shoulder], pts[hip])
-    hips = _centre(pts, _HIPS)
-    if hips is None:
-        return None
-    shoulders = _centre(pts, _SHOULDERS)
-    if shoulders is not None:
-        v = _sub(shoulders, hips)
-        lateral = _lateral(pts)
-        if lateral is None:
-            return None
-        d = v[0] * lateral[0] + v[1] * lateral[1] + v[2] * lateral[2]
-        return (v[0] - d * lateral[0], v[1] - d * lateral[1], v[2] - d * lateral[2])
-    head = _centre(pts, _HEAD)
-    return None if head is None else _sub(head, hips)
-
-
-def _torso_angle(pts: list[Point | None]) -> float:
-    deg = _angle_to_vertical(_torso_vector(pts))
-    if math.isfinite(deg):
-        return deg
-    known = [p for p in pts if p is not None]
-    if len(known) < 4:
-        return math.nan
-    P = np.array(known)
-    _, sv, vt = np.linalg.svd(P - P.mean(0), full_matrices=False)
-    if sv[0] < 0.3 * math.sqrt(len(P)) or sv[0] < 1.5 * sv[1]:  # too small or no clear axis
-        return math.nan
-    return _angle_to_vertical(tuple(vt[0]))
-
-
-def _thigh_angle(pts: list[Point | None]) -> float:
-    degs = [
-        _angle_to_vertical(_sub(pts[knee], pts[hip]))
-        for hip, knee, _ in _LEGS
-        if pts[hip] is not None and pts[knee] is not None
-    ]
-    degs = [d for d in degs if math.isfinite(d)]
-    return sum(degs) / len(degs) if degs else math.nan
-
-
-def _knee_angle(pts: list[Point | None]) -> float:
-    best = math.nan
-    for hip, knee, ankle in _LEGS:
-        if pts[hip] is None or pts[knee] is None or pts[ankle] is None:
-            continue
-        a, b = _sub(pts[hip], pts[knee]), _sub(pts[ankle], pts[knee])
-        na, nb = math.hypot(*a), math.hypot(*b)
-        if na < 1e-6 or nb < 1e-6:
-            continue
-        c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
-        deg = math.degrees(math.acos(max(-1.0, min(1.0, c))))
-        best = deg if math.isnan(best) else min(best, deg)
-    return best
-
-
 def _feet_z(pts: list[Point | None], trunk: float, s: PostureSettings) -> float:
     """Where the feet are: the lower ankle less ankle_m, or the floor (0) when no ankle is
     known at least 0.2 m below the trunk (an ankle at hip height is no foot to stand on)."""
-    ankles = [p[2] for p in _known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
+    ankles = [p[2] for p in known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
     if not ankles:
         return 0.0
     z = min(ankles)
@@ -319,56 +200,22 @@ def _legs_bent(knee: float, thigh: float, s: PostureSettings) -> bool:
     )
 
 
-def _shape(J: np.ndarray) -> np.ndarray:
-    J = np.asarray(J, dtype=np.float64)
-    if J.shape != (NUM_JOINTS, 3):
-        raise ValueError(f"joints must have shape ({NUM_JOINTS}, 3), got {J.shape}")
-    return J
-
-
-def torso_vector(J: np.ndarray) -> np.ndarray:
-    """Hip centre -> shoulder centre (3,) of one skeleton (17, 3) (NaN: cannot be told).
-
-    Both centres when all four joints are known, else one side's hip and shoulder; else a hip
-    and a shoulder of opposite sides, less their sideways part (the body's left-right axis
-    from another pair of joints); else the hips' centre -> the head's."""
-    v = _torso_vector(_points(_shape(J)))
-    return np.full(3, np.nan) if v is None else np.array(v)
-
-
-def torso_angle(J: np.ndarray) -> float:
-    """Torso angle to vertical in degrees (see the module; without hips, the main axis of the
-    known joints); NaN when it cannot be told."""
-    return _torso_angle(_points(_shape(J)))
-
-
-def thigh_angle(J: np.ndarray) -> float:
-    """The thighs' (hip -> knee) mean angle to vertical, degrees (NaN: no thigh known)."""
-    return _thigh_angle(_points(_shape(J)))
-
-
-def knee_angle(J: np.ndarray) -> float:
-    """The more bent knee's angle between thigh and shin, degrees (180: straight; NaN: no leg
-    with hip, knee and ankle known)."""
-    return _knee_angle(_points(_shape(J)))
-
-
 def _flags(pts: list[Point | None], s: PostureSettings) -> tuple[tuple[str, ...], float, float]:
     """(flags, highest wrist height, farthest wrist reach)."""
-    wrists = _known(pts, _WRISTS)
+    wrists = known(pts, WRISTS)
     if not wrists:
         return (), math.nan, math.nan
     wrist_m = max(w[2] for w in wrists)
-    head = _known(pts, _HEAD)
+    head = known(pts, HEAD)
     if head:
         raised = wrist_m > max(p[2] for p in head) + s.raised_m
     else:
-        shoulders = _mean_z(pts, _SHOULDERS)
+        shoulders = mean_z(pts, SHOULDERS)
         raised = math.isfinite(shoulders) and wrist_m > shoulders + s.raised_shoulder_m
     reach = math.nan
-    centre = _centre(pts, _SHOULDERS) or _centre(pts, _HIPS)
-    for w, sh in zip(_WRISTS, _SHOULDERS, strict=True):
-        base = pts[sh] or centre
+    mid = centre(pts, SHOULDERS) or centre(pts, HIPS)
+    for w, sh in zip(WRISTS, SHOULDERS, strict=True):
+        base = pts[sh] or mid
         if pts[w] is not None and base is not None:
             d = math.hypot(pts[w][0] - base[0], pts[w][1] - base[1])
             reach = d if math.isnan(reach) else max(reach, d)
@@ -392,7 +239,7 @@ def classify(
     standing_hip_m: the person's standing hip height (None: settings.standing_hip_m);
     speed_m_s: their floor speed (NaN: unknown, taken as standing still); drop_m_s: passed
     through into the result (PostureTracker measures it)."""
-    return _classify(_points(_shape(joints)), standing_hip_m, speed_m_s, settings, drop_m_s)
+    return _classify(points(joints), standing_hip_m, speed_m_s, settings, drop_m_s)
 
 
 def _classify(
@@ -405,8 +252,8 @@ def _classify(
     s = settings
     ref = s.standing_hip_m if standing_hip_m is None else float(standing_hip_m)
     n_known = sum(p is not None for p in pts)
-    hip_z = _mean_z(pts, _HIPS)
-    shoulders = _mean_z(pts, _SHOULDERS)
+    hip_z = mean_z(pts, HIPS)
+    shoulders = mean_z(pts, SHOULDERS)
     trunk = hip_z if math.isfinite(hip_z) else shoulders
     feet = _feet_z(pts, trunk, s)
     hip = hip_z - feet
@@ -414,9 +261,9 @@ def _classify(
                   drop_m_s=drop_m_s)  # fmt: skip
     if n_known < s.min_joints:
         return Posture(UNKNOWN, **common)
-    torso = _torso_angle(pts)
-    knee = _knee_angle(pts)
-    upper = _known(pts, _HEAD + _SHOULDERS) or _known(pts, _HIPS)
+    torso = torso_angle(pts)
+    knee = knee_angle(pts)
+    upper = known(pts, HEAD + SHOULDERS) or known(pts, HIPS)
     top = max(p[2] for p in upper) if upper else math.nan
     common.update(torso_deg=torso, top_m=top, knee_deg=knee)
     if math.isnan(top):  # only limbs: a long low body lying, or nothing to tell
@@ -424,9 +271,9 @@ def _classify(
         if math.isfinite(torso) and torso >= s.lying_deg and highest < s.lying_height_m:
             return Posture("lying", **common)
         return Posture(UNKNOWN, **common)
-    thigh = _thigh_angle(pts)
+    thigh = thigh_angle(pts)
     common["thigh_deg"] = thigh
-    ankles = [p[2] for p in _known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
+    ankles = [p[2] for p in known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
     ground = min(ankles) - s.ankle_m if ankles else 0.0  # a platform's floor, or z = 0
     common["ground_m"] = ground
     if (
@@ -521,16 +368,16 @@ class PostureTracker:
 
     def _step(self, person: _Person, t: float, J: np.ndarray) -> Posture:
         s = self.settings
-        pts = _points(J)
-        centre = _centre(pts, _HIPS) or _centre(pts, tuple(range(NUM_JOINTS)))
+        pts = points(J)
+        floor = centre(pts, HIPS) or centre(pts, tuple(range(NUM_JOINTS)))
         speed = math.nan
-        if centre is not None:
-            x, y = centre[0], centre[1]
+        if floor is not None:
+            x, y = floor[0], floor[1]
             person.floor.append((t, x, y))
             speed = self._speed(person.floor, t, x, y)
-        trunk = _mean_z(pts, _HIPS)
+        trunk = mean_z(pts, HIPS)
         if math.isnan(trunk):
-            trunk = _mean_z(pts, _SHOULDERS)
+            trunk = mean_z(pts, SHOULDERS)
         drop = self._drop(person, t, trunk)
         ref = person.standing_hip(s)
         posture = _classify(pts, ref, speed, s, drop)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,81 +40,27 @@ from stereopose.behaviour.posture import (
     PostureSettings,
     PostureTracker,
 )
+from stereopose.behaviour.state import (
+    EPS,
+    DownState,
+    Latch,
+    Seen,
+    StillState,
+    Tracked,
+    angle_diff,
+    on_floor_of,
+)
 from stereopose.fence.zones import Zone, ZoneGeometry
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, floor_position, heading_deg
 from stereopose.types import Event, People3D
 
 __all__ = ["BehaviourMonitor", "Rule", "parse_rules"]
 
-_EPS = 1e-9
 # a track that dropped fast and vanished, and a new one on the floor within HANDOVER_M of it
 # within HANDOVER_S: the same body, its id changed by the fall
 HANDOVER_S = 1.5
 HANDOVER_M = 1.5
 _WRISTS = (LEFT_WRIST, RIGHT_WRIST)
-
-
-@dataclass
-class _Latch:
-    """A debounced condition: on after `on_s` of raw true, off after `off_s` of raw false.
-    since: when the raw value began to differ from the state; began: when the current on
-    period's condition began."""
-
-    state: bool = False
-    since: float | None = None
-    began: float | None = None
-    onset: float = 0.0  # when the condition of the last change began
-
-    def step(self, raw: bool, t: float, on_s: float, off_s: float) -> str | None:
-        """ "rose", "fell" or None."""
-        if raw == self.state:
-            self.since = None
-            return None
-        if self.since is None:
-            self.since = t
-        if t - self.since < (off_s if self.state else on_s) - _EPS:
-            return None
-        self.state, self.onset, self.since = raw, self.since, None
-        if raw:
-            self.began = self.onset
-        return "rose" if raw else "fell"
-
-
-@dataclass
-class _Down:
-    """person_down per person: a fall seen (fall_t), lying after it (down), the alarm raised."""
-
-    fall_t: float | None = None
-    speed: float = math.nan
-    down: bool = False
-    raised: bool = False
-    up: _Latch = field(default_factory=_Latch)
-    lying: _Latch = field(default_factory=_Latch)  # lying_s: lying without a fall seen
-
-
-@dataclass
-class _Still:
-    """immobile per person: the mean joints since the stillness began, and since when."""
-
-    mean: np.ndarray | None = None
-    count: np.ndarray | None = None
-    since: float = 0.0
-    moved_since: float | None = None
-    raised: bool = False
-
-
-@dataclass
-class _Person:
-    """What the monitor keeps of one tracked person."""
-
-    last_seen: float
-    first_seen: float
-    position: tuple[float, float] | None = None
-    posture: Posture | None = None
-    latches: dict[str, _Latch] = field(default_factory=dict)
-    down: dict[str, _Down] = field(default_factory=dict)
-    still: dict[str, _Still] = field(default_factory=dict)
-    detail: dict[str, dict] = field(default_factory=dict)  # what an alarm's rise said
 
 
 class BehaviourMonitor:
@@ -147,7 +92,7 @@ class BehaviourMonitor:
             for r in self.rules
             if isinstance(r, WorkPositionRule)
         }
-        self.people: dict[int, _Person] = {}
+        self.people: dict[int, Tracked] = {}
         downs = [r.fall_speed_m_s for r in self.rules if isinstance(r, PersonDownRule)]
         self._fall_speed = min(downs) if downs else None
         self._drops: dict[int, tuple[float, float, float, float]] = {}  # pid: t, x, y, m/s
@@ -172,7 +117,7 @@ class BehaviourMonitor:
             pid = int(people.ids[p])
             person = self.people.get(pid)
             if person is None:
-                person = self.people[pid] = _Person(last_seen=t, first_seen=t)
+                person = self.people[pid] = Tracked(last_seen=t, first_seen=t)
             if not people.predicted[p]:
                 person.last_seen = t
             xy = pos[p]
@@ -186,7 +131,7 @@ class BehaviourMonitor:
             for p, pid, person in seen:
                 if people.predicted[p] and not isinstance(rule, PersonDownRule):
                     continue  # unseen: the state is kept as it was
-                ctx = _Ctx(p, pid, person, people, inside, nearest, heading[p], base)
+                ctx = Seen(p, pid, person, people, inside, nearest, heading[p], base)
                 events.extend(self._apply(rule, ctx))
             if isinstance(rule, PersonDownRule):  # time goes on for the unseen down
                 shown = {pid for _, pid, _ in seen}
@@ -204,10 +149,10 @@ class BehaviourMonitor:
             pos = person.posture
             if pos is not None and person.position is not None and pos.drop_m_s >= self._fall_speed:
                 self._drops[pid] = (t, *person.position, pos.drop_m_s)
-        for pid in [p for p, d in self._drops.items() if t - d[0] > HANDOVER_S + _EPS]:
+        for pid in [p for p, d in self._drops.items() if t - d[0] > HANDOVER_S + EPS]:
             del self._drops[pid]
 
-    def _apply(self, rule: Rule, ctx: _Ctx) -> list[Event]:
+    def _apply(self, rule: Rule, ctx: Seen) -> list[Event]:
         if isinstance(rule, PersonDownRule):
             return self._person_down(rule, ctx)
         if isinstance(rule, LoneWorkerRule):
@@ -220,7 +165,7 @@ class BehaviourMonitor:
 
     # -- events ----------------------------------------------------------------------------
 
-    def _event(self, rule: Rule, pid: int, person: _Person, type_: str, t: float, frame: int,
+    def _event(self, rule: Rule, pid: int, person: Tracked, type_: str, t: float, frame: int,
                onset_t: float, **more) -> Event:  # fmt: skip
         posture = person.posture.posture if person.posture is not None else None
         more.setdefault("posture", posture)
@@ -231,9 +176,9 @@ class BehaviourMonitor:
 
     # -- person_down -----------------------------------------------------------------------
 
-    def _person_down(self, rule: PersonDownRule, c: _Ctx) -> list[Event]:
+    def _person_down(self, rule: PersonDownRule, c: Seen) -> list[Event]:
         person, t = c.person, c.base["t"]
-        st = person.down.setdefault(rule.name, _Down())
+        st = person.down.setdefault(rule.name, DownState())
         pos = person.posture
         if pos is None or c.people.predicted[c.p]:
             return self._down_timer(rule, c.pid, person, t, c.base["frame"])
@@ -243,7 +188,7 @@ class BehaviourMonitor:
             low = math.isfinite(pos.trunk_m) and pos.trunk_m - pos.ground_m <= rule.floor_m
             if fast and low:
                 st.fall_t, st.speed = t, pos.drop_m_s
-            elif low and t - person.first_seen <= HANDOVER_S + _EPS:
+            elif low and t - person.first_seen <= HANDOVER_S + EPS:
                 st = self._handover(rule, c.pid, person, t) or st
             if st.fall_t is None and rule.lying_s is not None:
                 return self._found_lying(rule, c, st)
@@ -252,8 +197,8 @@ class BehaviourMonitor:
         if not st.down:
             if pos.posture == "lying":
                 st.down = True
-            elif t - st.fall_t > rule.settle_s + _EPS:  # not a fall: they never lay
-                person.down[rule.name] = _Down()
+            elif t - st.fall_t > rule.settle_s + EPS:  # not a fall: they never lay
+                person.down[rule.name] = DownState()
                 return out
         if st.down:
             change = st.up.step(pos.upright, t, rule.up_s, 0.0)
@@ -265,12 +210,14 @@ class BehaviourMonitor:
                             onset_t=st.up.onset, duration_s=float(st.up.onset - st.fall_t),
                         )
                     )  # fmt: skip
-                person.down[rule.name] = _Down()
+                person.down[rule.name] = DownState()
                 return out
         out.extend(self._down_timer(rule, c.pid, person, t, c.base["frame"]))
         return out
 
-    def _handover(self, rule: PersonDownRule, pid: int, person: _Person, t: float) -> _Down | None:
+    def _handover(
+        self, rule: PersonDownRule, pid: int, person: Tracked, t: float
+    ) -> DownState | None:
         """A person first seen on the floor where another track, not seen now, had just
         dropped fast: the tracker lost the body as it fell and gave it a new id. The fall (and
         the old track's down state, if it had one) goes to the new id."""
@@ -279,7 +226,7 @@ class BehaviourMonitor:
         x, y = person.position
         best = None
         for other, (t0, ox, oy, speed) in self._drops.items():
-            if other == pid or other in self._seen_now or t - t0 > HANDOVER_S + _EPS:
+            if other == pid or other in self._seen_now or t - t0 > HANDOVER_S + EPS:
                 continue
             d = math.hypot(ox - x, oy - y)
             if d <= HANDOVER_M and speed >= rule.fall_speed_m_s and (best is None or d < best[0]):
@@ -290,11 +237,11 @@ class BehaviourMonitor:
         old = self.people.get(other)
         st = old.down.pop(rule.name, None) if old is not None else None
         if st is None or st.fall_t is None:
-            st = _Down(fall_t=t0, speed=speed)
+            st = DownState(fall_t=t0, speed=speed)
         person.down[rule.name] = st
         return st
 
-    def _found_lying(self, rule: PersonDownRule, c: _Ctx, st: _Down) -> list[Event]:
+    def _found_lying(self, rule: PersonDownRule, c: Seen, st: DownState) -> list[Event]:
         """lying_s: a person lying that long without a fall seen (it happened out of view, or
         before the start) is down as well."""
         t = c.base["t"]
@@ -307,12 +254,12 @@ class BehaviourMonitor:
                         onset_t=st.fall_t, duration_s=float(t - st.fall_t), posture="lying")
         ]  # fmt: skip
 
-    def _down_timer(self, rule: PersonDownRule, pid: int, person: _Person, t: float,
+    def _down_timer(self, rule: PersonDownRule, pid: int, person: Tracked, t: float,
                     frame: int) -> list[Event]:  # fmt: skip
         st = person.down.get(rule.name)
         if st is None or not st.down or st.raised or st.fall_t is None:
             return []
-        if t - st.fall_t < rule.down_s - _EPS:
+        if t - st.fall_t < rule.down_s - EPS:
             return []
         st.raised = True
         person.detail[rule.name] = {}
@@ -324,13 +271,13 @@ class BehaviourMonitor:
 
     # -- lone_worker -----------------------------------------------------------------------
 
-    def _lone_worker(self, rule: LoneWorkerRule, c: _Ctx) -> list[Event]:
+    def _lone_worker(self, rule: LoneWorkerRule, c: Seen) -> list[Event]:
         t, person = c.base["t"], c.person
         zone, near = self._nearest_zone(rule.zones, c)
-        at_risk = zone is not None and near <= rule.approach_m + _EPS
+        at_risk = zone is not None and near <= rule.approach_m + EPS
         nearest = self._nearest(c.pid, person)
-        alone = not (nearest <= rule.buddy_m + _EPS)
-        latch = person.latches.setdefault(rule.name, _Latch())
+        alone = not (nearest <= rule.buddy_m + EPS)
+        latch = person.latches.setdefault(rule.name, Latch())
         change = latch.step(at_risk and alone, t, rule.lone_s, rule.exit_s)
         nearest_m = None if math.isinf(nearest) or math.isnan(nearest) else float(nearest)
         if change == "rose":
@@ -350,7 +297,7 @@ class BehaviourMonitor:
             ]  # fmt: skip
         return []
 
-    def _nearest_zone(self, names: Sequence[str], c: _Ctx) -> tuple[str | None, float]:
+    def _nearest_zone(self, names: Sequence[str], c: Seen) -> tuple[str | None, float]:
         """The zone of `names` nearest to the person's joints, and its distance (0 inside)."""
         zone, near = None, math.inf
         if c.nearest is not None:
@@ -360,7 +307,7 @@ class BehaviourMonitor:
                     zone, near = name, d
         return zone, near
 
-    def _nearest(self, pid: int, person: _Person) -> float:
+    def _nearest(self, pid: int, person: Tracked) -> float:
         """Floor distance to the nearest other person (seen now or still tracked)."""
         if person.position is None:
             return math.nan
@@ -373,7 +320,7 @@ class BehaviourMonitor:
 
     # -- work_position ---------------------------------------------------------------------
 
-    def _work_position(self, rule: WorkPositionRule, c: _Ctx) -> list[Event]:
+    def _work_position(self, rule: WorkPositionRule, c: Seen) -> list[Event]:
         t, person = c.base["t"], c.person
         hand_zone, hand = None, None
         if c.inside is not None:
@@ -388,14 +335,14 @@ class BehaviourMonitor:
         facing = float(c.heading) if math.isfinite(c.heading) else None
         if hand_zone is not None:
             k = self._zone_index[rule.zone]
-            if person.position is None or not _on_floor_of(self.geometry, k, person.position):
+            if person.position is None or not on_floor_of(self.geometry, k, person.position):
                 failed.append("position")
-            if facing is None or abs(_angle_diff(facing, rule.facing_deg)) > rule.tolerance_deg:
+            if facing is None or abs(angle_diff(facing, rule.facing_deg)) > rule.tolerance_deg:
                 failed.append("facing")
             posture = person.posture.posture if person.posture is not None else None
             if rule.postures is not None and posture not in rule.postures:
                 failed.append("posture")
-        latch = person.latches.setdefault(rule.name, _Latch())
+        latch = person.latches.setdefault(rule.name, Latch())
         change = latch.step(bool(failed), t, rule.enter_s, rule.exit_s)
         if change == "rose":
             person.detail[rule.name] = {"zone": hand_zone}
@@ -416,13 +363,13 @@ class BehaviourMonitor:
 
     # -- immobile --------------------------------------------------------------------------
 
-    def _immobile(self, rule: ImmobileRule, c: _Ctx) -> list[Event]:
+    def _immobile(self, rule: ImmobileRule, c: Seen) -> list[Event]:
         t, person = c.base["t"], c.person
         J = c.people.joints[c.p]
         ok = np.isfinite(J).all(-1)
         st = person.still.get(rule.name)
         if st is None or st.mean is None:
-            st = person.still[rule.name] = _Still(
+            st = person.still[rule.name] = StillState(
                 np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
             )
             return []
@@ -435,14 +382,14 @@ class BehaviourMonitor:
         if moved:
             if st.moved_since is None:
                 st.moved_since = t
-            if t - st.moved_since >= rule.move_s - _EPS:
+            if t - st.moved_since >= rule.move_s - EPS:
                 if st.raised:
                     out.append(
                         self._event(rule, c.pid, person, "immobile_end", t, c.base["frame"],
                                     onset_t=st.moved_since,
                                     duration_s=float(st.moved_since - st.since))
                     )  # fmt: skip
-                person.still[rule.name] = _Still(
+                person.still[rule.name] = StillState(
                     np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
                 )
             return out
@@ -453,7 +400,7 @@ class BehaviourMonitor:
             (st.count[ok] > 0)[:, None], st.mean[ok] + (J[ok] - st.mean[ok]) / n[:, None], J[ok]
         )
         st.count[ok] = n
-        if not st.raised and t - st.since >= rule.immobile_s - _EPS:
+        if not st.raised and t - st.since >= rule.immobile_s - EPS:
             st.raised = True
             out.append(
                 self._event(rule, c.pid, person, "immobile", t, c.base["frame"], onset_t=st.since,
@@ -463,7 +410,7 @@ class BehaviourMonitor:
 
     # -- overreach -------------------------------------------------------------------------
 
-    def _overreach(self, rule: OverreachRule, c: _Ctx) -> list[Event]:
+    def _overreach(self, rule: OverreachRule, c: Seen) -> list[Event]:
         t, person = c.base["t"], c.person
         z = c.people.joints[c.p, list(rule.joints), 2].tolist()
         known = [(h, k) for k, h in enumerate(z) if math.isfinite(h)]
@@ -472,8 +419,8 @@ class BehaviourMonitor:
         zone = None
         if rule.zones:  # only near these zones
             zone, near = self._nearest_zone(rule.zones, c)
-            raw = raw and near <= rule.approach_m + _EPS
-        latch = person.latches.setdefault(rule.name, _Latch())
+            raw = raw and near <= rule.approach_m + EPS
+        latch = person.latches.setdefault(rule.name, Latch())
         change = latch.step(raw, t, rule.enter_s, rule.exit_s)
         if change == "rose":
             person.detail[rule.name] = {"zone": zone}
@@ -495,7 +442,7 @@ class BehaviourMonitor:
 
     def _lost(self, t: float, frame: int) -> list[Event]:
         """End events, marked lost, for the open alarms of people whose track ended."""
-        gone = [pid for pid, p in self.people.items() if t - p.last_seen > self.lost_s + _EPS]
+        gone = [pid for pid, p in self.people.items() if t - p.last_seen > self.lost_s + EPS]
         out: list[Event] = []
         ends = {"lone_worker": "lone_worker_end", "work_position": "work_position_end",
                 "overreach": "overreach_end"}  # fmt: skip
@@ -519,33 +466,3 @@ class BehaviourMonitor:
                                     duration_s=float(person.last_seen - st.since))
                     )  # fmt: skip
         return out
-
-
-@dataclass
-class _Ctx:
-    """One person at one frame, as every rule sees them."""
-
-    p: int
-    pid: int
-    person: _Person
-    people: People3D
-    inside: np.ndarray | None  # (P, 17, Z) joints inside zones
-    nearest: np.ndarray | None  # (P, Z) the nearest joint's distance to each zone, metres
-    heading: float
-    base: dict
-
-
-def _angle_diff(a: float, b: float) -> float:
-    """a - b in degrees, in (-180, 180]."""
-    d = (a - b) % 360.0
-    return d - 360.0 if d > 180.0 else d
-
-
-def _on_floor_of(geometry: ZoneGeometry | None, k: int, xy: tuple[float, float]) -> bool:
-    """Whether the floor point xy lies in zone k's polygon."""
-    if geometry is None:
-        return False
-    zone = geometry.zones[k]
-    mid = 0.5 * (zone.z[0] + zone.z[1])
-    inside, _ = geometry.test(np.array([[[xy[0], xy[1], mid]]]), np.array([k]))
-    return bool(inside[0, 0])
