@@ -4,7 +4,8 @@ serve` running the real demo served as four live HTTP cameras (ffmpeg, stream co
 One served demo is shared by the module. A viewer sees no acknowledge button and is refused
 (403) when forcing one; an operator sees the demo's people move on the floor plan, an
 energized-zone alarm in the feed within a second of its row in SQLite, acknowledges it and
-finds the acknowledgement in SQLite, sees each camera's picture, the 3D view and the history
+finds the acknowledgement in SQLite, sees one acknowledged elsewhere arrive over the live
+channel, sees each camera's picture, the 3D view and the history
 with its CSV export and the clips of an alarm; a camera killed shows as DOWN within a few
 seconds. Every page: no console error, no request leaving 127.0.0.1, under the page's own
 Content-Security-Policy (so the test waits by polling page.evaluate: Playwright's
@@ -90,6 +91,16 @@ def _cameras_up(base: str) -> bool:
         return False
     cams = json.loads(body).get("cameras", {})
     return set(cams) == set(CAMERAS) and all(c["state"] == "up" for c in cams.values())
+
+
+def _post(url: str, body: dict | None, token: str | None = None) -> dict:
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
+    data = json.dumps(body or {}).encode()
+    request = urllib.request.Request(url, data=data, headers=headers, method="POST")
+    with urllib.request.urlopen(request, timeout=60) as r:
+        return json.loads(r.read())
 
 
 def _add_user(config: Path, name: str, role: str, password: str) -> None:
@@ -292,6 +303,11 @@ def test_an_operator_sees_people_alarms_cameras_3d_and_history(watched, served):
     ((by, at),) = served.rows(acked, (alarm_id,))
     assert by == "olga"
     assert abs(at - time.time()) < 60
+    # an alarm acknowledged elsewhere (a script with a bearer token) is shown acknowledged
+    other = page.get_attribute("#feed li.level-alarm:not(.acked)", "data-event-id")
+    token = _post(served.base + "/api/login", {"username": "olga", "password": USERS["olga"][1]})
+    _post(f"{served.base}/api/events/{other}/ack", None, token["token"])
+    page.wait_for_selector(f'#feed li[data-event-id="{other}"].acked', timeout=10_000)
     # each camera's picture is an image
     for name in CAMERAS:
         js = f"document.querySelector('img[data-camera=\"{name}\"]')?.naturalWidth > 0"
