@@ -1,16 +1,17 @@
 """The operator console in the real browser (Playwright + Debian's chromium) on `stereopose
-serve` running the real demo served as four live HTTP cameras (ffmpeg, stream copy, looped).
+serve` running the real demo as four live HTTP cameras (ffmpeg, looped): each its full stream
+(stream copy) and a quarter-size detection substream, as a site's cameras would be set up.
 
 One served demo is shared by the module. A viewer sees no acknowledge button and is refused
 (403) when forcing one; an operator sees the demo's people move on the floor plan, an
 energized-zone alarm in the feed within a second of its row in SQLite, acknowledges it and
 finds the acknowledgement in SQLite, sees one acknowledged elsewhere arrive over the live
-channel, sees each camera's picture, the 3D view and the history
-with its CSV export and the clips of an alarm; a camera killed shows as DOWN within a few
-seconds. Every page: no console error, no request leaving 127.0.0.1, under the page's own
-Content-Security-Policy (so the test waits by polling page.evaluate: Playwright's
-wait_for_function evaluates strings in the page, which the policy forbids). Screenshots go to
-out/console-screenshots/ (STEREOPOSE_SCREENSHOTS to put them elsewhere)."""
+channel, each camera's picture, the 3D view, the history with its CSV export and an alarm's
+clips; a camera killed shows as DOWN within a few seconds. Every page: no console error, no
+request leaving 127.0.0.1, under the page's own Content-Security-Policy (so the tests wait by
+polling page.evaluate: Playwright's wait_for_function evaluates strings in the page, which the
+policy forbids). Screenshots go to out/console-screenshots/ (STEREOPOSE_SCREENSHOTS to put
+them elsewhere)."""
 
 from __future__ import annotations
 
