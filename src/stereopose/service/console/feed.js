@@ -59,6 +59,7 @@ export class Feed {
     this.events = new Map(); // id -> event, the ones in the feed
     this.canAck = false;
     this.sound = new Alarm();
+    this.sound.onChange = () => this.showSound();
     this.mute.addEventListener("click", () => this.toggleMute());
     this.bannerAck.addEventListener("click", () => {
       const newest = this.unacked()[0];
@@ -196,14 +197,26 @@ export class Feed {
         (open.length > 1 ? ` (+${open.length - 1} more)` : "");
     }
     this.sound.sounding(open.length > 0);
+    this.showSound();
+  }
+
+  showSound() {
+    const muted = this.sound.muted;
+    // after a reload the browser holds the sound back until the page is clicked once
+    this.mute.textContent = muted ? "Sound muted" : this.sound.blocked() ? "Click for sound" : "Sound on";
+    this.mute.setAttribute("aria-pressed", String(muted));
+    this.mute.classList.toggle("muted", muted);
+    this.mute.classList.toggle("blocked", this.sound.blocked());
   }
 
   toggleMute() {
-    const muted = !this.sound.muted;
-    this.sound.mute(muted);
-    this.mute.textContent = muted ? "Sound muted" : "Sound on";
-    this.mute.setAttribute("aria-pressed", String(muted));
-    this.mute.classList.toggle("muted", muted);
+    // the click that let the sound start (its pointerdown unlocked it) is not a mute
+    if (this.sound.blocked() || performance.now() - this.sound.unlockedAt < 1000) {
+      this.sound.unlock();
+      return;
+    }
+    this.sound.mute(!this.sound.muted);
+    this.showSound();
   }
 
   /** Called from a click or key press: the browser lets the sound start only after one. */

@@ -10,12 +10,21 @@ export class Alarm {
     this.muted = false;
     this.on = false;
     this.timer = null;
+    this.onChange = null; // told when the sound can start
+    this.unlockedAt = -Infinity;
   }
 
   unlock() {
     if (this.context || typeof AudioContext === "undefined") return;
     this.context = new AudioContext();
+    this.unlockedAt = performance.now();
     if (this.on) this.beep();
+    if (this.onChange) this.onChange();
+  }
+
+  /** Whether an alarm should sound but the browser has not let the sound start yet. */
+  blocked() {
+    return this.on && !this.muted && !this.context;
   }
 
   mute(muted) {
