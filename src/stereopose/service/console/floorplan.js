@@ -91,13 +91,24 @@ export class FloorPlan {
       const shape = g.querySelector("polygon");
       shape.setAttribute("points", points(zone.polygon));
       const label = g.querySelector("text");
-      // the label inside the zone's top edge: a zone within another keeps its label apart
-      const [cx] = centroid(zone.polygon);
-      const top = Math.max(...zone.polygon.map((p) => p[1]));
-      label.setAttribute("x", cx.toFixed(3));
-      label.setAttribute("y", (-top + 0.08 * this.scale).toFixed(3));
       const who = (zone.occupants || []).length ? ` (${zone.occupants.join(", ")})` : "";
       label.textContent = `${zone.name}${who}`;
+      // the label inside the zone's top edge (a zone within another keeps its label apart),
+      // or below its bottom edge when the zone is narrower than its label
+      const [cx] = centroid(zone.polygon);
+      const ys = zone.polygon.map((p) => p[1]);
+      const xs = zone.polygon.map((p) => p[0]);
+      let width = 0;
+      try {
+        width = label.getComputedTextLength();
+      } catch {
+        width = 0; // not laid out (the plan hidden): inside
+      }
+      const outside = width > Math.max(...xs) - Math.min(...xs);
+      label.classList.toggle("outside", outside);
+      const y = outside ? -Math.min(...ys) + 0.06 * this.scale : -Math.max(...ys) + 0.08 * this.scale;
+      label.setAttribute("x", cx.toFixed(3));
+      label.setAttribute("y", y.toFixed(3));
     }
     for (const g of [...layer.children]) if (!seen.has(g.dataset.zone)) g.remove();
     this.fit();
