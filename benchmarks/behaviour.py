@@ -12,7 +12,7 @@ person_down is also scored against the scripted falls: found within 2 s after th
 landing + down_s. Results: benchmarks/results/behaviour.{md,json}.
 
 usage: python benchmarks/behaviour.py [--seeds 3] [--hours 0.5] [--quick]
-       [--part all|accuracy|false_alarms]
+       [--part all|accuracy|two_cameras|false_alarms]
 """
 
 from __future__ import annotations
@@ -60,12 +60,16 @@ def tracked(scene):
     return [stage.step(t, [d[n] for n in scene.rig.names]) for t, d in enumerate(scene.detections)]
 
 
-def run_scene(kind: str, seed: int, difficulty: str, duration_s: float, people: int) -> dict:
+def run_scene(
+    kind: str, seed: int, difficulty: str, duration_s: float, people: int, cameras=None
+) -> dict:
     """One scene through the 3D back end and the monitor: its events, the truth's, the track ->
     worker map (ids offset by kind, seed and difficulty: one namespace across scenes) and the
     falls."""
     t0 = time.perf_counter()
-    bs = simulate_behaviour(kind, seed, difficulty, duration_s, people, down_s=DOWN_S)
+    bs = simulate_behaviour(
+        kind, seed, difficulty, duration_s, people, num_cameras=cameras, down_s=DOWN_S
+    )
     t1 = time.perf_counter()
     preds = tracked(bs.scene)
     t2 = time.perf_counter()
@@ -76,6 +80,7 @@ def run_scene(kind: str, seed: int, difficulty: str, duration_s: float, people: 
     workers = track_workers(preds, bs.scene)
     kinds = ("falls", "work", "routine")
     off = 1000 * (seed + 1) + 10_000_000 * DIFFICULTIES.index(difficulty)
+    off += 0 if cameras is None else 100_000_000 * cameras
     off += 1_000_000 * kinds.index(kind)
     shift = lambda evs: [dataclasses.replace(e, person=e.person + off) for e in evs]  # noqa: E731
     falls = score_falls(bs, events, truth, workers)
@@ -101,9 +106,14 @@ def pooled(runs: list[dict]) -> tuple[list, list, dict]:
     return events, truth, workers
 
 
-def accuracy(difficulty: str, seeds: int, falls_s: float, work_s: float) -> dict:
-    runs = [run_scene("falls", s, difficulty, falls_s, 4) for s in range(seeds)]
-    runs += [run_scene("work", s, difficulty, work_s, 3) for s in range(seeds)]
+def accuracy(
+    difficulty: str, seeds: int, falls_s: float, work_s: float, cameras: int | None = None
+) -> dict:
+    """Falls and work scenes of a difficulty (with `cameras`: falls scenes only, seen by that
+    many cameras)."""
+    runs = [run_scene("falls", s, difficulty, falls_s, 4, cameras) for s in range(seeds)]
+    if cameras is None:
+        runs += [run_scene("work", s, difficulty, work_s, 3) for s in range(seeds)]
     events, truth, workers = pooled(runs)
     per_type = {t: evaluate_alarms(events, truth, workers, t).as_dict() for t in TYPES}
     falls = [f for r in runs for f in r["falls"]]
@@ -112,7 +122,7 @@ def accuracy(difficulty: str, seeds: int, falls_s: float, work_s: float) -> dict
     found = np.isfinite(delays) & (delays <= WITHIN_S)
     not_due = [f for f in falls if not f.due]
     row = {
-        "difficulty": difficulty,
+        "difficulty": difficulty if cameras is None else f"{difficulty}, {cameras} cameras",
         "scenes": len(runs),
         "frames": sum(r["frames"] for r in runs),
         "worker_h": sum(r["worker_s"] for r in runs) / 3600.0,
@@ -197,7 +207,7 @@ def write(results: dict) -> None:
         "",
         f"Measured {results['date']} on {results['machine']} by `benchmarks/behaviour.py "
         f"{' '.join(how)}` (the parts may be measured apart: `--part accuracy`, "
-        "`--part false_alarms`).",
+        "`--part two_cameras`, `--part false_alarms`).",
         "",
         "The 3D back end (association, triangulation, tracking) runs on each simulated scene's "
         "2D detections, the behaviour monitor on its tracked people; the same monitor on the true "
@@ -219,13 +229,14 @@ def write(results: dict) -> None:
             "",
             f"In time: raised at most {WITHIN_S:g} s after the scripted landing + down_s "
             "(target: 98 %). Due: falls the true joints raise person_down for (down longer than "
-            "down_s); not due: workers who scramble up at once.",
+            "down_s); not due: workers who scramble up at once. The rows with 2 cameras: the "
+            "same falls scenes seen by 2 cameras of the rig only (`--part two_cameras`).",
             "",
             "| difficulty | falls | due | in time | recall in time | delay mean s | delay max s "
             "| not due | not due raised |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
-        for r in acc:
+        for r in acc + results.get("two_cameras", []):
             f = r["falls"]
             md.append(
                 f"| {r['difficulty']} | {f['scripted']} | {f['due']} | {f['found_in_time']} | "
@@ -240,8 +251,8 @@ def write(results: dict) -> None:
             "| latency mean s | latency max s |",
             "|---|---|---:|---:|---:|---:|---:|---:|---:|",
         ]
-        for r in acc:
-            for t in TYPES:
+        for r in acc + results.get("two_cameras", []):
+            for t in TYPES if "cameras" not in r["difficulty"] else ("person_down",):
                 m = r["rules"][t]
                 md.append(
                     f"| {r['difficulty']} | {t} | {m['true']} | {m['predicted']} | "
@@ -281,14 +292,17 @@ def _load() -> dict:
         return {}
 
 
-def _merged(results: dict, other: str | None) -> dict:
-    """results with the other part's figures and arguments as last written (by a run of that
-    part alone, which may go on beside this one)."""
-    if other is None:
+def _merged(results: dict, mine: tuple[str, ...], partial: bool) -> dict:
+    """results with the other parts' figures and arguments as last written (by runs of those
+    parts alone, which may go on beside this one)."""
+    if not partial:
         return results
     keep = _load()
-    out = {**results, other: keep.get(other, results[other]), "args": dict(results["args"])}
-    out["args"].update({k: v for k, v in keep.get("args", {}).items() if k in _ARGS[other]})
+    out = {**results, "args": dict(results["args"])}
+    for part in PARTS:
+        if part not in mine and part in keep:
+            out[part] = keep[part]
+            out["args"].update({k: v for k, v in keep.get("args", {}).items() if k in _ARGS[part]})
     return out
 
 
@@ -299,7 +313,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="a smoke test: short scenes, 1 seed")
     ap.add_argument(
         "--part",
-        choices=("all", "accuracy", "false_alarms"),
+        choices=("all", *PARTS),
         default="all",
         help="measure one part only; the other's figures already written are kept",
     )
@@ -317,13 +331,12 @@ def main() -> None:
         "machine": machine(),
         "args": {"quick": quick},
         "accuracy": [],
+        "two_cameras": [],
         "false_alarms": None,
     }
-    other = None
-    if args.part != "all" and not quick:
-        other = "false_alarms" if args.part == "accuracy" else "accuracy"
-    mine = ("accuracy", "false_alarms") if args.part == "all" else (args.part,)
-    if "accuracy" in mine:
+    mine = PARTS if args.part == "all" else (args.part,)
+    partial = args.part != "all" and not quick
+    if "accuracy" in mine or "two_cameras" in mine:
         results["args"].update(seeds=seeds, falls_s=falls_s, work_s=work_s)
     if "false_alarms" in mine:
         results["args"].update(hours=hours, routine_s=routine_s, routine_people=routine_people)
@@ -332,15 +345,19 @@ def main() -> None:
         for d in DIFFICULTIES:  # written after each difficulty: a long run shows as it goes
             results["accuracy"].append(accuracy(d, seeds, falls_s, work_s))
             if not quick:
-                write(_merged(results, other))
+                write(_merged(results, mine, partial))
+    if "two_cameras" in mine:  # the falls seen by two cameras only
+        results["two_cameras"] = [accuracy("mid", seeds, falls_s, work_s, cameras=2)]
     if "false_alarms" in mine:
         results["false_alarms"] = false_alarms(hours, routine_s, routine_people)
     print(f"{time.perf_counter() - t0:.0f} s in all")
-    write(_merged(results, other))
+    write(_merged(results, mine, partial))
 
 
+PARTS = ("accuracy", "two_cameras", "false_alarms")
 _ARGS = {
     "accuracy": ("seeds", "falls_s", "work_s"),
+    "two_cameras": ("seeds", "falls_s"),
     "false_alarms": ("hours", "routine_s", "routine_people"),
 }
 
