@@ -1,5 +1,11 @@
 """GET /api/clips/{file}: an event clip, with Range requests (the page's video element seeks).
 
+GET /api/clips/{file}/play: the same clip played as Motion JPEG (multipart/x-mixed-replace, at
+the clip's frame rate, ending with its last frame), which an <img> shows in any browser: the
+drawn clips are MPEG-4 Part 2, which browsers' video elements do not decode (this OpenCV has
+no H.264 encoder, and a VP9 one far too slow for clips written as the alarms come). At most
+PLAYERS at once (503 beyond), each frame decoded and JPEG-encoded as it is sent.
+
 Only a finished clip directly in the output folder's clips/ is served: the name is one path
 part of letters, digits, '_', '.', '-' ending in .mp4 (not .part.mp4), not starting with a dot,
 and the file a regular file there (a symbolic link is refused); anything else is 404 (400 for a
@@ -11,9 +17,14 @@ from __future__ import annotations
 import os
 import re
 import stat
+import threading
+import time
+import weakref
+from pathlib import Path
 
+import cv2
 from fastapi import APIRouter, Depends, HTTPException
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, StreamingResponse
 
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX
 from stereopose.service.auth import Viewer, console_parts
@@ -23,10 +34,13 @@ router = APIRouter(tags=["events"])
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,250}")
 
 
-@router.get("/api/clips/{file}", response_class=FileResponse,
-            responses={200: {"content": {"video/mp4": {}}}, 400: {}, 404: {}})  # fmt: skip
-def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileResponse:  # noqa: B008
-    """The clip (video/mp4)."""
+PLAYERS = 4  # clips played as Motion JPEG at once
+_players = threading.BoundedSemaphore(PLAYERS)
+_BOUNDARY = "clipframe"
+
+
+def _clip_path(file: str, parts) -> tuple[Path, os.stat_result]:
+    """The clip's path and its stat, or the HTTPException that refuses it."""
     if not _NAME.fullmatch(file) or ".." in file or not file.endswith(CLIP_SUFFIX):
         raise HTTPException(400, "not a clip name")
     if file.endswith(PART_SUFFIX) or parts.clips_dir is None:
@@ -40,5 +54,71 @@ def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileRespon
         parts.clips_dir
     ):
         raise HTTPException(404, "no such clip")
+    return path, st
+
+
+@router.get("/api/clips/{file}", response_class=FileResponse,
+            responses={200: {"content": {"video/mp4": {}}}, 400: {}, 404: {}})  # fmt: skip
+def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileResponse:  # noqa: B008
+    """The clip (video/mp4)."""
+    path, st = _clip_path(file, parts)
     return FileResponse(path, media_type="video/mp4", stat_result=st,
                         headers={"Cache-Control": "private, max-age=3600"})  # fmt: skip
+
+
+@router.get("/api/clips/{file}/play", response_class=StreamingResponse,
+            responses={200: {"content": {f"multipart/x-mixed-replace; boundary={_BOUNDARY}": {}}},
+                       400: {}, 404: {}, 503: {}})  # fmt: skip
+def play(file: str, session: Viewer, parts=Depends(console_parts)) -> StreamingResponse:  # noqa: B008
+    """The clip played as Motion JPEG at its frame rate, for an <img> (any browser)."""
+    path, _ = _clip_path(file, parts)
+    if not _players.acquire(blocking=False):
+        raise HTTPException(503, f"{PLAYERS} clips are playing; try again when one ends",
+                            headers={"Retry-After": "5"})  # fmt: skip
+    player = _Player(path)  # releases its place when it ends, is closed or is dropped
+    if not player.opened:
+        player.close()
+        raise HTTPException(404, "the clip cannot be read")
+    kind = f"multipart/x-mixed-replace; boundary={_BOUNDARY}"
+    return StreamingResponse(player, media_type=kind, headers={"Cache-Control": "no-store"})
+
+
+class _Player:
+    """The clip's frames as JPEG parts, paced at its frame rate (iterated in the server's
+    thread pool). Its place among the PLAYERS is given back once: at its end, at close(), or
+    when it is dropped unfinished (a client that left)."""
+
+    def __init__(self, path: Path) -> None:
+        self._cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        self.opened = self._cap.isOpened()
+        fps = self._cap.get(cv2.CAP_PROP_FPS) if self.opened else 0.0
+        self._step = 1.0 / fps if 0.1 <= fps <= 1000 else 0.1
+        self._next_at = time.monotonic()
+        self._done = weakref.finalize(self, _finish, self._cap)
+
+    def __iter__(self) -> _Player:
+        return self
+
+    def __next__(self) -> bytes:
+        while self._done.alive:
+            ok, image = self._cap.read()
+            if not ok:
+                break
+            ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 80])
+            if not ok:
+                continue
+            time.sleep(max(0.0, self._next_at - time.monotonic()))
+            self._next_at += self._step
+            data = jpeg.tobytes()
+            head = f"--{_BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(data)}"
+            return head.encode() + b"\r\n\r\n" + data + b"\r\n"
+        self.close()
+        raise StopIteration
+
+    def close(self) -> None:
+        self._done()
+
+
+def _finish(cap: cv2.VideoCapture) -> None:
+    cap.release()
+    _players.release()
