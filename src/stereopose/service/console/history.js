@@ -47,11 +47,16 @@ export class History {
     this.playerInfo = byId("player-info");
     this.download = byId("player-download");
     this.playerError = byId("player-error");
-    this.player.addEventListener("error", () => {
-      // a clip in a format this browser does not decode can still be downloaded
-      const why = this.player.error ? this.player.error.message || `code ${this.player.error.code}` : "";
-      this.playerError.textContent = `This browser cannot play the clip (${why}); download it instead.`;
+    // drawn clips are MPEG-4 Part 2, which browsers' video elements do not decode: the
+    // server plays them as Motion JPEG into an <img> (GET /api/clips/<file>/play)
+    this.frames = byId("player-frames");
+    this.frames.addEventListener("error", () => {
+      this.playerError.textContent = "The clip cannot be played here; download it instead.";
       this.playerError.hidden = false;
+    });
+    this.player.addEventListener("error", () => {
+      if (this.player.hidden || !this.player.getAttribute("src")) return;
+      this.showFrames(this.player.getAttribute("src")); // a format this browser does not decode
     });
     this.player.addEventListener("loadeddata", () => {
       this.playerError.hidden = true;
@@ -150,8 +155,25 @@ export class History {
     this.playerError.hidden = true;
     this.download.href = url;
     this.download.hidden = false;
-    this.player.src = url;
     this.playerInfo.textContent = `${dateTime(e.wall_t)} ${describe(e)}`;
+    if (!url.endsWith(".full.mp4")) {
+      this.showFrames(url); // a drawn clip
+      return;
+    }
+    this.frames.hidden = true;
+    this.frames.removeAttribute("src");
+    this.player.hidden = false;
+    this.player.src = url; // a full stream's copy (H.264): the video element plays it
     this.player.play().catch(() => {}); // a browser may refuse to start playing by itself
+  }
+
+  /** The clip at `url` played by the server as Motion JPEG frames into the <img>. */
+  showFrames(url) {
+    this.player.pause();
+    this.player.removeAttribute("src");
+    this.player.load();
+    this.player.hidden = true;
+    this.frames.hidden = false;
+    this.frames.src = `${url}/play?at=${Date.now()}`; // a new request: played from the start
   }
 }
