@@ -34,6 +34,7 @@ class Console {
     }, (up) => this.onLink(up));
     this.tab = "live";
     this.linkWasDown = false;
+    this.pendingPeople = null;
     this.staleTimer = null;
     api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
     byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
@@ -133,9 +134,18 @@ class Console {
     }
   }
 
+  /** People at up to 5 a second: drawn at the next animation frame, only the newest, so the
+   * drawing never queues up ahead of an alarm. */
   onPeople(body) {
-    this.floor.setPeople(body);
     this.view3d.setPeople(body.people || []);
+    const pending = this.pendingPeople;
+    this.pendingPeople = body;
+    if (pending) return;
+    requestAnimationFrame(() => {
+      const newest = this.pendingPeople;
+      this.pendingPeople = null;
+      this.floor.setPeople(newest);
+    });
   }
 
   onZones(zones) {

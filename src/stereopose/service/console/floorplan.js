@@ -157,7 +157,6 @@ export class FloorPlan {
       }
     }
     this.info.textContent = `${seen.size} ${seen.size === 1 ? "person" : "people"} · frame ${body.frame ?? "-"}`;
-    this.svg.dataset.people = String(seen.size);
     this.fit();
   }
 
