@@ -131,12 +131,16 @@ def test_true_person_down_follows_the_scripted_falls() -> None:
         downs = [e for e in truth if e.type == "person_down"]
         for f in bs.falls:
             mine = [e for e in downs if e.person == f.worker]
-            long_down = f.down_for(bs.duration_s) > bs.down_s + 2.0
-            assert len(mine) == (1 if long_down else 0), (seed, f, mine)
-            if long_down:  # raised down_s after the fall was seen, about when it landed
+            down = f.down_for(bs.duration_s)
+            if down < 1.0:  # scrambled up at once: no alarm
+                assert not mine, (seed, f, mine)
+            elif down > bs.down_s + 0.5:  # raised down_s after the fall, about when it landed
+                assert len(mine) == 1, (seed, f, mine)
                 assert abs(mine[0].t - (f.t_floor + bs.down_s)) < 0.5
-            found[long_down] += 1
-        assert len(downs) == sum(f.down_for(bs.duration_s) > bs.down_s + 2.0 for f in bs.falls)
+            else:  # the scene ends about down_s after the landing
+                continue
+            found[down >= 1.0] += 1
+        assert len(downs) == sum(f.down_for(bs.duration_s) >= 1.0 for f in bs.falls)
     assert found[True] >= 4  # both kinds of fall were drawn
     assert found[False] >= 1
 

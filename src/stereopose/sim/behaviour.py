@@ -213,7 +213,8 @@ def _routine(rng, room, duration_s, worker, fall_at=None, down_s=3.0):
     s.t = -float(rng.uniform(0.0, 3.0))
     falls = []
     while s.t < duration_s:
-        if fall_at is not None and s.t >= fall_at and not falls:
+        upright = s.last in ("walk", "stand", "bend", "stoop")  # "stand" includes reaching
+        if fall_at is not None and s.t >= fall_at and not falls and upright:
             u = rng.random()
             if u < 0.5 or duration_s - s.t < down_s + 14.0:
                 lie = None
