@@ -83,7 +83,7 @@ def run_scene(
     off += 0 if cameras is None else 100_000_000 * cameras
     off += 1_000_000 * kinds.index(kind)
     shift = lambda evs: [dataclasses.replace(e, person=e.person + off) for e in evs]  # noqa: E731
-    falls = score_falls(bs, events, truth, workers)
+    falls = score_falls(bs, events, truth, workers, within_s=WITHIN_S)
     return {
         "events": shift(events),
         "truth": shift(truth),

@@ -139,9 +139,10 @@ def evaluate_alarms(
 
 @dataclass(frozen=True)
 class FallResult:
-    """One scripted fall: whether the true joints raise person_down for it (due), and the
-    run's first person_down of that worker after it: its delay after landing + down_s (NaN:
-    none within the fall's time down plus 10 s)."""
+    """One scripted fall: whether the true joints raise person_down for it (due; a fall that
+    lands less than down_s + within_s before the scene ends is never due: the run has no time
+    to raise it), and the run's first person_down of that worker after it: its delay after
+    landing + down_s (NaN: none within the fall's time down plus 10 s)."""
 
     worker: int
     t_floor: float
@@ -159,6 +160,7 @@ def score_falls(
     truth: Sequence[Event],
     workers: dict[int, int],
     rule: str = "man_down",
+    within_s: float = 2.0,
 ) -> list[FallResult]:
     """Each scripted fall of the scene against the true and the run's person_down of `rule`."""
     down_s = bs.down_s
@@ -166,7 +168,7 @@ def score_falls(
     end = bs.duration_s
     for f in bs.falls:
         horizon = f.t_floor + f.down_for(end) + 10.0
-        due = any(
+        due = f.t_floor + down_s + within_s <= end and any(
             g.rule == rule and g.person == f.worker and f.t0 - 1.0 <= g.onset_t <= horizon
             for g in _alarms(truth, "person_down")
         )
