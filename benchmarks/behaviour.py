@@ -74,9 +74,10 @@ def run_scene(
     preds = tracked(bs.scene)
     t2 = time.perf_counter()
     rules = scene_rules(bs)
-    events = monitor_events(bs, rules, preds)
+    # alarms of a scene's last 2 s, true or raised, are left out: the other side has no time
+    events = [e for e in monitor_events(bs, rules, preds) if e.t <= bs.duration_s - WITHIN_S]
     t3 = time.perf_counter()
-    truth = truth_events(bs, rules)
+    truth = [e for e in truth_events(bs, rules) if e.t <= bs.duration_s - WITHIN_S]
     workers = track_workers(preds, bs.scene)
     kinds = ("falls", "work", "routine")
     off = 1000 * (seed + 1) + 10_000_000 * DIFFICULTIES.index(difficulty)
@@ -120,7 +121,9 @@ def accuracy(
     due = [f for f in falls if f.due]
     delays = np.array([f.delay_s for f in due])
     found = np.isfinite(delays) & (delays <= WITHIN_S)
-    not_due = [f for f in falls if not f.due]
+    # falls landing too late in their scene to be scored are neither due nor not due
+    late = [f for f in falls if f.t_floor + DOWN_S + WITHIN_S > falls_s]
+    not_due = [f for f in falls if not f.due and f not in late]
     row = {
         "difficulty": difficulty if cameras is None else f"{difficulty}, {cameras} cameras",
         "scenes": len(runs),
@@ -135,6 +138,7 @@ def accuracy(
             "delay_mean_s": float(np.nanmean(delays)) if np.isfinite(delays).any() else math.nan,
             "delay_max_s": float(np.nanmax(delays)) if np.isfinite(delays).any() else math.nan,
             "missed": [f.as_dict() for f, ok in zip(due, found, strict=True) if not ok],
+            "too_late": len(late),
             "not_due": len(not_due),
             "not_due_raised": sum(math.isfinite(f.delay_s) for f in not_due),
         },
@@ -229,8 +233,10 @@ def write(results: dict) -> None:
             "",
             f"In time: raised at most {WITHIN_S:g} s after the scripted landing + down_s "
             "(target: 98 %). Due: falls the true joints raise person_down for (down longer than "
-            "down_s); not due: workers who scramble up at once. The rows with 2 cameras: the "
-            "same falls scenes seen by 2 cameras of the rig only (`--part two_cameras`).",
+            "down_s); not due: workers who scramble up at once; falls landing less than down_s "
+            "+ 2 s before their scene ends are neither (and alarms raised in a scene's last 2 s "
+            "are left out of the per-rule figures). The rows with 2 cameras: the same falls "
+            "scenes seen by 2 cameras of the rig only (`--part two_cameras`).",
             "",
             "| difficulty | falls | due | in time | recall in time | delay mean s | delay max s "
             "| not due | not due raised |",
