@@ -201,6 +201,22 @@ def test_people_are_rate_limited_by_frame_time(broker, closing) -> None:
     assert got[-1]["people"] == []
 
 
+def test_people_carry_their_posture_where_the_behaviour_rules_give_one(broker, closing) -> None:
+    from stereopose.behaviour.posture import Posture
+
+    sub = Subscriber(broker.port, f"{BASE}/people")
+    closing(sub)
+    sink = MqttSink(settings(broker.port, people_hz=5.0))
+    closing(sink)
+    postures = {3: Posture("crouching", ("reaching",))}  # person 8: none this frame
+    sink.write(FrameResult(0, 0.0, {}, people(0, [3, 8]), [], postures=postures))
+    wait_until(lambda: len(sub.on(f"{BASE}/people")) == 1, "the update")
+    got = json.loads(sub.on(f"{BASE}/people")[0])["people"]
+    assert got[0] == {"id": 3, "position": [0.5, 0.0], "heading_deg": 0.0,
+                      "posture": "crouching", "flags": ["reaching"]}  # fmt: skip
+    assert got[1] == {"id": 8, "position": [1.5, 0.0], "heading_deg": 0.0}
+
+
 def test_available_online_then_offline_at_close(broker, closing) -> None:
     sub = Subscriber(broker.port, f"{BASE}/available")
     closing(sub)

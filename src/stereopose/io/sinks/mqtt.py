@@ -28,7 +28,7 @@ import threading
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -156,7 +156,7 @@ class MqttSink(ClosesOnce):
         if empty and self._people_empty:
             return  # nobody now and nobody in the last update: nothing new to say
         self._people_t, self._people_empty = t, empty
-        payload = _dumps(people_record(frame.people3d, t))
+        payload = _dumps(people_record(frame.people3d, t, frame.postures))
         with self._lock:
             self._put(_Message("people", self.topics["people"], payload, 0))
         self._wake.set()
@@ -397,15 +397,16 @@ class MqttSink(ClosesOnce):
                    self.settings.host, self.settings.port, text)  # fmt: skip
 
 
-def people_record(people: People3D, t: float) -> dict:
+def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None = None) -> dict:
     """The people topic's JSON: the poses record's frame, t and, per person, id, position
-    and heading_deg (the same fields and rounding as the 3D poses JSON lines)."""
-    rec = frame_record(people, fps=1.0)  # its t (frame / fps) is replaced by the frame's own
-    keep = ("id", "position", "heading_deg")
+    and heading_deg (the same fields and rounding as the 3D poses JSON lines), and posture and
+    flags where the behaviour rules give them."""
+    rec = frame_record(people, fps=1.0, postures=postures)  # its t is replaced by the frame's
+    keep = ("id", "position", "heading_deg", "posture", "flags")
     return {
         "frame": rec["frame"],
         "t": round(t, 6),
-        "people": [{k: p[k] for k in keep} for p in rec["people"]],
+        "people": [{k: p[k] for k in keep if k in p} for p in rec["people"]],
     }
 
 
