@@ -127,6 +127,49 @@ def test_a_clean_close_is_not_a_crash_and_closed_zones_stay_closed(tmp_path: Pat
     assert [event_from_record(r) for r in query_events(db)][-2:] == closing
 
 
+def behaviour(t: float, person: int, type_: str, rule: str) -> Event:
+    return Event(t, round(t * 25), person, "", "behaviour", type_, t, rule=rule,
+                 position=(1.0, 2.0))  # fmt: skip
+
+
+def test_behaviour_alarms_left_open_are_ended_at_the_restart(tmp_path: Path) -> None:
+    """person_down without person_up, lone_worker without its end: each ended, marked restart,
+    through the same closing events as the zone exits; ended alarms stay ended."""
+    db = tmp_path / "events.sqlite"
+    sink = SqliteSink(db, first_id=1)
+    sink.write_events(
+        [
+            behaviour(1.0, 1, "person_down", "man_down"),
+            behaviour(2.0, 2, "lone_worker", "two_person"),
+            behaviour(3.0, 3, "person_down", "man_down"),
+            behaviour(4.0, 3, "person_up", "man_down"),  # up again: closed
+            Event(4.0, 100, 4, "panel", "energized", "enter", 4.0),
+        ]
+    )
+    sink.close()
+    resume = Resume.from_log(db)
+    assert [(a.rule, a.type, a.person) for a in resume.alarms] == [
+        ("man_down", "person_down", 1),
+        ("two_person", "lone_worker", 2),
+    ]
+    closing = resume.closing_events(0.5, 0)
+    assert [(e.kind, e.type, e.person, e.rule, e.restart) for e in closing] == [
+        ("energized", "exit", 4, None, True),
+        ("behaviour", "person_up", 1, "man_down", True),
+        ("behaviour", "lone_worker_end", 2, "two_person", True),
+    ]
+    again = SqliteSink(db, first_id=resume.next_id)
+    again.write_events(closing)
+    again.close()
+    after = Resume.from_log(db)
+    assert after.alarms == () and after.open_zones == {}
+    stored = query_events(db)[-2:]
+    assert [(r["type"], r["rule"], r["restart"]) for r in stored] == [
+        ("person_up", "man_down", True),
+        ("lone_worker_end", "two_person", True),
+    ]
+
+
 def test_next_id_covers_reserved_ids_that_no_event_names(tmp_path: Path) -> None:
     db = tmp_path / "events.sqlite"
     sink = SqliteSink(db, first_id=1, id_block=100)  # reserves 1..100 before any id is given

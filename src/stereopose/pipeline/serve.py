@@ -307,6 +307,9 @@ def serve(
     if resume.occupied:
         logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
                        len(resume.occupied))  # fmt: skip
+    if resume.alarms:
+        logger.warning("restart: %d behaviour alarm(s) left open by the last run are ended",
+                       len(resume.alarms))  # fmt: skip
     service = _Service(plan, stop, resume)
     closing = _Closing()
     with stop_signals():

@@ -15,6 +15,10 @@ the frame loop gives its first id or writes its first event:
   latest enter or exit is an enter. Their `closing_events` are exits marked `restart`, written
   first through every event sink, so that occupancy (SQLite, MQTT's retained zone states, the
   webhook's receiver) is closed rather than left open for ever.
+- `alarms`: the behaviour alarms left open (per rule and person, the latest behaviour event is
+  an alarm: person_down, lone_worker, ...). Their `closing_events` end them (`person_up`,
+  `<type>_end`) marked `restart`, after the zone exits: whoever was down when the service died
+  is not known to be down still, and the new run raises the alarm again if they are.
 """
 
 from __future__ import annotations
@@ -27,7 +31,12 @@ from pathlib import Path
 from stereopose.errors import StereoposeError
 from stereopose.types import Event
 
-__all__ = ["Occupancy", "Resume"]
+__all__ = ["Occupancy", "OpenAlarm", "Resume"]
+
+# how each behaviour alarm ends (stereopose.behaviour.rules)
+ALARM_ENDS = {"person_down": "person_up", "lone_worker": "lone_worker_end",
+              "work_position": "work_position_end", "immobile": "immobile_end",
+              "overreach": "overreach_end"}  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -41,6 +50,32 @@ JOIN (
 WHERE e.type = 'enter'
 ORDER BY e.id
 """
+
+
+# per (rule, person), its latest behaviour event, where that is an alarm (not its end)
+_OPEN_ALARMS_SQL = f"""
+SELECT e.rule, e.type, e.person, e.zone, e.t, e.run, e.x, e.y
+FROM events AS e
+JOIN (
+    SELECT MAX(id) AS id FROM events WHERE kind = 'behaviour' AND rule IS NOT NULL
+    GROUP BY rule, person
+) AS last ON last.id = e.id
+WHERE e.type IN ({", ".join(f"'{t}'" for t in ALARM_ENDS)})
+ORDER BY e.id
+"""
+
+
+@dataclass(frozen=True)
+class OpenAlarm:
+    """A behaviour alarm not ended at the last committed event of the log."""
+
+    rule: str
+    type: str
+    person: int
+    zone: str
+    t: float
+    run: int
+    position: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -68,6 +103,7 @@ class Resume:
 
     next_id: int = 1
     occupied: tuple[Occupancy, ...] = ()
+    alarms: tuple[OpenAlarm, ...] = ()
     runs: int = 0
     crashed: bool = False
 
@@ -122,6 +158,20 @@ class Resume:
             )
             for zone, kind, person, t, run, x, y, allowed in db.execute(_OPEN_SQL)
         )
+        alarms: tuple[OpenAlarm, ...] = ()
+        if "rule" in {r[1] for r in db.execute("PRAGMA table_info(events)")}:
+            alarms = tuple(
+                OpenAlarm(
+                    rule=str(rule),
+                    type=str(type_),
+                    person=int(person),
+                    zone=str(zone or ""),
+                    t=float(t),
+                    run=int(run),
+                    position=(float(x), float(y)) if x is not None and y is not None else None,
+                )
+                for rule, type_, person, zone, t, run, x, y in db.execute(_OPEN_ALARMS_SQL)
+            )
         runs = int(db.execute("SELECT COUNT(*) FROM runs").fetchone()[0])
         crashed = False
         cols = {r[1] for r in db.execute("PRAGMA table_info(runs)")}
@@ -129,7 +179,7 @@ class Resume:
             crashed = (
                 db.execute("SELECT ended FROM runs ORDER BY id DESC LIMIT 1").fetchone()[0] is None
             )
-        return cls(next_id=next_id, occupied=occupied, runs=runs, crashed=crashed)
+        return cls(next_id=next_id, occupied=occupied, alarms=alarms, runs=runs, crashed=crashed)
 
     def closing_events(self, t: float, frame: int) -> list[Event]:
         """An exit marked `restart` for each open occupancy, at time t and frame of the new run
@@ -148,4 +198,18 @@ class Resume:
                 restart=True,
             )
             for o in self.occupied
+        ] + [
+            Event(
+                t=t,
+                frame=frame,
+                person=a.person,
+                zone=a.zone,
+                kind="behaviour",
+                type=ALARM_ENDS[a.type],
+                onset_t=t,
+                position=a.position,
+                restart=True,
+                rule=a.rule,
+            )
+            for a in self.alarms
         ]
