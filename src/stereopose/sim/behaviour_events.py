@@ -22,6 +22,7 @@ from stereopose.behaviour.rules import BehaviourMonitor
 from stereopose.config import Config
 from stereopose.sim.behaviour import BehaviourScene, site_rules
 from stereopose.sim.detections import joints_in_view
+from stereopose.sim.events import greedy_pairs
 from stereopose.sim.scene import Scene
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import Event, People3D
@@ -115,14 +116,7 @@ def evaluate_alarms(
             gap = abs(e.t - g.t)
             if g.person == w and g.rule == e.rule and gap <= window_s:
                 pairs.append((gap, i, j))
-    pairs.sort()
-    used_p, used_t, latency = set(), set(), []
-    for _, i, j in pairs:
-        if i in used_p or j in used_t:
-            continue
-        used_p.add(i)
-        used_t.add(j)
-        latency.append(pred[i].t - true[j].t)
+    latency = [pred[i].t - true[j].t for i, j in greedy_pairs(pairs)]
     m = len(latency)
     lat = np.array(latency) if latency else np.array([np.nan])
     return AlarmMetrics(

@@ -80,6 +80,21 @@ def track_workers(predictions: Sequence[People3D], scene: Scene) -> dict[int, in
     return {i: c.most_common(1)[0][0] for i, c in votes.items()}
 
 
+def greedy_pairs(candidates: Sequence[tuple[float, int, int]]) -> list[tuple[int, int]]:
+    """One-to-one pairs (predicted i, true j) from candidates (gap, i, j), the smallest gaps
+    first: each predicted and each true event in one pair at most."""
+    used_p: set[int] = set()
+    used_t: set[int] = set()
+    pairs = []
+    for _, i, j in sorted(candidates):
+        if i in used_p or j in used_t:
+            continue
+        used_p.add(i)
+        used_t.add(j)
+        pairs.append((i, j))
+    return pairs
+
+
 def evaluate_events(
     events: Sequence[Event],
     truth: Sequence[Event],
@@ -97,14 +112,7 @@ def evaluate_events(
                 gap = abs(e.onset_t - g.onset_t)
                 if gap <= window_s:
                     pairs.append((gap, i, j))
-    pairs.sort()
-    used_p, used_t, latency = set(), set(), []
-    for _, i, j in pairs:
-        if i in used_p or j in used_t:
-            continue
-        used_p.add(i)
-        used_t.add(j)
-        latency.append(pred[i].t - true[j].onset_t)
+    latency = [pred[i].t - true[j].onset_t for i, j in greedy_pairs(pairs)]
     m = len(latency)
     lat = np.array(latency) if latency else np.array([np.nan])
     return EventMetrics(
