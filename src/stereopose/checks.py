@@ -160,3 +160,24 @@ def read_limited(path: Path, what: str, error: type[StereoposeError]) -> bytes:
     if len(raw) > MAX_FILE_BYTES:
         raise error(f"{path}: {what} larger than {MAX_FILE_BYTES >> 20} MiB")
     return raw
+
+
+def named_tables(items: list, section: str, what: str, lead: str = ""):
+    """Each (name, table) of a site file's `[[section]]` tables, in order: every item a table
+    with a unique non-empty string `name`, else a ConfigError (prefixed by `lead`) naming the
+    item, or the `what` by its name ("zone 'panel A': the name is used twice")."""
+    seen: set[str] = set()
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"{lead}{section}[{k}]: expected a table")
+        name = item.get("name")
+        if name is None:
+            raise ConfigError(f"{lead}{section}[{k}]: missing `name`")
+        if not isinstance(name, str) or not name:
+            raise ConfigError(
+                f"{lead}{section}[{k}]: name must be a non-empty string, got {name!r}"
+            )
+        if name in seen:
+            raise ConfigError(f"{lead}{what} {name!r}: the name is used twice")
+        seen.add(name)
+        yield name, item

@@ -21,7 +21,7 @@ from dataclasses import MISSING, dataclass, fields
 from typing import Any, ClassVar, Protocol
 
 from stereopose.behaviour.posture import POSTURES, PostureSettings
-from stereopose.checks import DAY_S, SITE_LIMIT_M, Range
+from stereopose.checks import DAY_S, SITE_LIMIT_M, Range, named_tables
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, joint_index
 
@@ -248,19 +248,8 @@ def parse_rules(
         raise ConfigError(f"{lead}{len(items)} rules; a site holds at most {MAX_RULES}")
     by_name = {z.name: z for z in zones}
     out: list[Rule] = []
-    seen: set[str] = set()
-    for k, item in enumerate(items):
-        if not isinstance(item, dict):
-            raise ConfigError(f"{lead}rules[{k}]: expected a table")
-        name = item.get("name")
-        if name is None:
-            raise ConfigError(f"{lead}rules[{k}]: missing `name`")
-        if not isinstance(name, str) or not name:
-            raise ConfigError(f"{lead}rules[{k}]: name must be a non-empty string, got {name!r}")
+    for name, item in named_tables(items, "rules", "rule", lead):
         here = f"{lead}rule {name!r}"
-        if name in seen:
-            raise ConfigError(f"{here}: the name is used twice")
-        seen.add(name)
         kind = item.get("type")
         if kind is None:
             raise ConfigError(f"{here}: missing `type`; one of {', '.join(RULE_TYPES)}")

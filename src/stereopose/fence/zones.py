@@ -50,6 +50,7 @@ from stereopose.checks import (
     SITE_COORD,
     SITE_LIMIT_M,
     Range,
+    named_tables,
 )
 from stereopose.config import read_toml
 from stereopose.errors import ConfigError
@@ -275,19 +276,9 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
         raise ConfigError("no [[zones]] defined")
     if len(raw) > MAX_ZONES:
         raise ConfigError(f"{len(raw)} zones; a site holds at most {MAX_ZONES}")
-    zones, names = [], set()
-    for k, z in enumerate(raw):
-        if not isinstance(z, dict):
-            raise ConfigError(f"zones[{k}]: expected a table")
-        name = z.get("name")
-        if name is None:
-            raise ConfigError(f"zones[{k}]: missing `name`")
-        if not isinstance(name, str) or not name:
-            raise ConfigError(f"zones[{k}]: name must be a non-empty string, got {name!r}")
+    zones = []
+    for name, z in named_tables(raw, "zones", "zone"):
         where = f"zone {name!r}"
-        if name in names:
-            raise ConfigError(f"{where}: the name is used twice")
-        names.add(name)
         unknown = sorted(set(z) - _ZONE_KEYS)
         if unknown:
             known = ", ".join(sorted(_ZONE_KEYS))
