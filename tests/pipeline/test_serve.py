@@ -11,7 +11,6 @@ import re
 import signal
 import subprocess
 import sys
-import urllib.request
 from pathlib import Path
 
 import pytest
@@ -20,21 +19,11 @@ from brokers import Broker, Subscriber, free_port
 from receivers import Receiver
 from stereopose.io.sinks.events import query_events
 from stereopose.pipeline.demo import write_serve_demo_config
-from waiting import wait_until
+from waiting import http_get, wait_until
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 ZONE_TYPES = ("enter", "exit", "approach", "dwell", "left_work_area")
-
-
-def _get(url: str) -> tuple[int, bytes]:
-    try:
-        with urllib.request.urlopen(url, timeout=5) as r:
-            return r.status, r.read()
-    except urllib.error.HTTPError as e:
-        return e.code, e.read()
-    except OSError:
-        return 0, b""
 
 
 def _key(e: dict) -> tuple:
@@ -81,14 +70,14 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
     base = f"http://127.0.0.1:{port}"
     proc = _start(config, log)
     try:
-        wait_until(lambda: _get(base + "/api/health")[0] == 200, "health 200", timeout_s=90)
+        wait_until(lambda: http_get(base + "/api/health")[0] == 200, "health 200", timeout_s=90)
         db = data / "events.sqlite"
         wait_until(lambda: db.exists() and len(query_events(db)) >= 2, "events in the log",
                    timeout_s=90, poll_s=0.5)  # fmt: skip
-        health = json.loads(_get(base + "/api/health")[1])
+        health = json.loads(http_get(base + "/api/health")[1])
         assert set(health["cameras"]) == {"cam01", "cam02", "cam03", "cam04"}
         assert all(c["state"] == "up" for c in health["cameras"].values())
-        status, metrics = _get(base + "/metrics")
+        status, metrics = http_get(base + "/metrics")
         assert status == 200 and b"stereopose_frames_total" in metrics
         assert b'stereopose_queue_size{queue="mqtt"}' in metrics
         # detection runs on its own thread, and its time is in the stage figures all the same

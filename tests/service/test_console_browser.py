@@ -37,7 +37,7 @@ import pytest
 from stereopose.io.pose2sim_data import pose2sim_demo_dir
 from stereopose.pipeline.demo import CAMERAS, write_serve_demo_config
 from streams import ffmpeg, free_port, serve, stop, wait_serving
-from waiting import wait_until
+from waiting import http_get, wait_until
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
@@ -76,18 +76,8 @@ class Served:
             return []
 
 
-def _get(url: str) -> tuple[int, bytes]:
-    try:
-        with urllib.request.urlopen(url, timeout=5) as r:
-            return r.status, r.read()
-    except urllib.error.HTTPError as e:
-        return e.code, e.read()
-    except OSError:
-        return 0, b""
-
-
 def _cameras_up(base: str) -> bool:
-    status, body = _get(base + "/api/health")
+    status, body = http_get(base + "/api/health")
     if status not in (200, 503):
         return False
     cams = json.loads(body).get("cameras", {})
