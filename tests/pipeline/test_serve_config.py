@@ -131,3 +131,15 @@ def test_a_bad_password_file_is_exit_2_naming_it(tmp_path, calib, capsys, extra,
     err = " ".join(capsys.readouterr().err.split())
     assert "mqtt.password" in err and problem in err and "s3cret" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_demo_config_keeps_the_port_given(tmp_path):
+    import argparse
+
+    from stereopose.cli.serve import _config_path
+
+    for port, want in ((19500, 19500), (None, 8787)):
+        args = argparse.Namespace(demo=True, config=None, out=tmp_path / str(port), data=None,
+                                  port=port)  # fmt: skip
+        text = _config_path(args).read_text()
+        assert f'\n[serve]\nhost = "127.0.0.1"\nport = {want}\n' in text

@@ -223,7 +223,11 @@ def _add_serve(sv: argparse.ArgumentParser) -> None:
         action="store_true",
         help="serve the real 4-camera demo, its videos looped for ever",
     )
-    sv.add_argument("--port", type=int, help="HTTP port of health and metrics (default 8787)")
+    sv.add_argument(
+        "--port",
+        type=int,
+        help="HTTP port of the console, its API, health and metrics (default 8787)",
+    )
     sv.add_argument(
         "--data",
         type=Path,

@@ -16,7 +16,9 @@ def _config_path(args: argparse.Namespace) -> Path:
             raise ConfigError("serve: give either CONFIG.toml or --demo, not both")
         from stereopose.pipeline.demo import write_serve_demo_config
 
-        path = write_serve_demo_config(args.out, args.data, 8787)
+        path = write_serve_demo_config(
+            args.out, args.data, 8787 if args.port is None else args.port
+        )
         out.print(
             "[bold]Serving the real demo[/]: Pose2Sim's 4 cameras looped (forward then backward), "
             f"its calibration and a demo site -> {path}",
