@@ -3,7 +3,10 @@ run: each collision is a clear error (exit code 2) and nothing the user gave is 
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -215,3 +218,48 @@ def test_the_synthetic_demo_leaves_no_other_mode_s_poses(tmp_path: Path, capsys)
     left = sorted(p.name for p in tmp_path.glob("poses3d_*.jsonl"))
     assert left == ["poses3d_pair.jsonl", "poses3d_pair_tracked.jsonl"]
     assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+RUN_CALIB = "".join(
+    f'[{cam}]\nname = "{cam}"\nsize = [ 64.0, 48.0]\n'
+    "matrix = [ [ 50.0, 0.0, 32.0], [ 0.0, 50.0, 24.0], [ 0.0, 0.0, 1.0]]\n"
+    f"distortions = [ 0.0, 0.0, 0.0, 0.0]\nrotation = [ 0.0, {ry}, 0.0]\n"
+    f"translation = [ {tx}, 0.0, 5.0]\nfisheye = false\n"
+    for cam, ry, tx in (("cam01", 0.0, 0.0), ("cam02", 0.5, 1.0))
+)
+
+
+@contextlib.contextmanager
+def _read_only_folder(path: Path):
+    """`path` a read-only tmpfs for the test (root only: mount(8)); skipped where not allowed."""
+    path.mkdir()
+    if shutil.which("mount") is None or os.geteuid() != 0:
+        pytest.skip("needs root and mount(8) to make a read-only file system")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(path)],
+                          capture_output=True, text=True)  # fmt: skip
+    if done.returncode != 0:
+        pytest.skip(f"mounting a read-only tmpfs is not permitted here: {done.stderr.strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", str(path)], check=True)
+
+
+def test_a_run_into_a_folder_on_a_read_only_file_system_is_exit_2_naming_it(
+    tmp_path: Path, capsys
+) -> None:
+    (tmp_path / "calib.toml").write_text(RUN_CALIB)
+    for cam in ("cam01", "cam02"):
+        (tmp_path / cam).mkdir()
+        for i in range(2):
+            cv2.imwrite(str(tmp_path / cam / f"{i:04d}.png"), np.zeros((48, 64, 3), np.uint8))
+    cameras = "".join(f'[[cameras]]\nname = "{c}"\nsource = "{c}"\n' for c in ("cam01", "cam02"))
+    config = tmp_path / "config.toml"
+    config.write_text(f'calibration = "calib.toml"\noutput = "out"\n{cameras}'
+                      "[detector]\nimgsz = 64\n[outputs]\nreport = false\n")  # fmt: skip
+    with _read_only_folder(tmp_path / "out") as out:
+        assert main(["run", str(config)]) == 2
+        captured = capsys.readouterr()
+    assert "Traceback" not in captured.out + captured.err
+    err = " ".join(captured.err.split())
+    assert err.startswith("error: ") and str(out) in err and "read-only file system" in err, err

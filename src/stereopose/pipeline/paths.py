@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from stereopose.errors import ConfigError
+from stereopose.errors import ConfigError, OutputError
 from stereopose.pipeline.outputs import Outputs
 
 logger = logging.getLogger(__name__)
@@ -198,6 +198,7 @@ def previous_outputs(
     to remove (`remove_outputs`) just before this run writes."""
     if not folder.path.is_dir():
         return []
+    check_writable(folder)
     previous = [p for p in products(folder.path) if not any(same_path(p, i.path) for i in inputs)]
     if previous and not overwrite:
         shown = ", ".join(str(p.relative_to(folder.path)) for p in previous[:4])
@@ -207,6 +208,22 @@ def previous_outputs(
             "pass --overwrite to replace them, or choose another folder"
         )
     return previous
+
+
+def check_writable(folder: Place) -> None:
+    """An OutputError naming `folder` and the reason when nothing can be written in it (a
+    read-only file system, no permission): refused before any work, not half-way."""
+    # access() answers EROFS for a read-only mount even to root, and touches nothing
+    if not os.access(folder.path, os.W_OK | os.X_OK):
+        why = "read-only file system" if _read_only(folder.path) else "permission denied"
+        raise OutputError(f"{folder.what} {folder.path}: cannot write there ({why})")
+
+
+def _read_only(path: Path) -> bool:
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
 
 
 def remove_outputs(paths: Sequence[Path]) -> None:
