@@ -14,7 +14,7 @@ import pytest
 from consoled import PASSWORDS, console_server, demo_plan, fast_hasher
 
 from stereopose.errors import ConfigError
-from stereopose.service.auth import LoginLimiter, Sessions
+from stereopose.service.auth import LoginLimiter, Sessions, TooManyAttemptsError
 from stereopose.service.server import ServeError, ServeSettings
 from stereopose.service.users import UserStore
 
@@ -65,19 +65,34 @@ def test_five_failures_from_one_address_then_429_with_retry_after(served):
         assert 1 <= int(r.headers["retry-after"]) <= 60
 
 
-def test_the_limiter_counts_per_key_and_forgets_after_its_window():
+def test_the_limiter_throttles_addresses_then_accounts_and_forgets_after_its_window():
     now = [0.0]
-    limiter = LoginLimiter(window_s=60, max_failures=5, clock=lambda: now[0])
+    limiter = LoginLimiter(window_s=60, max_failures=5, per_hour=60, burst=8, pair_s=600,
+                           clock=lambda: now[0])  # fmt: skip
     for _ in range(5):
-        assert limiter.retry_after("address:a", "name:ann") is None
-        limiter.failed("address:a", "name:ann")
-    assert limiter.retry_after("address:b", "name:ann") == 60  # the name, from anywhere
-    assert limiter.retry_after("address:a", "name:bob") == 60  # the address, for any name
-    assert limiter.retry_after("address:b", "name:bob") is None
+        limiter.end(limiter.begin("a", "ann"), ok=False)
+    with pytest.raises(TooManyAttemptsError, match="address") as refused:
+        limiter.begin("a", "bob")  # the address, for any name
+    assert refused.value.retry_after == 60
+    limiter.end(limiter.begin("b", "ann"), ok=True)  # not the name from elsewhere
     now[0] = 45.5
-    assert limiter.retry_after("address:b", "name:ann") == 15
-    now[0] = 60.0
-    assert limiter.retry_after("address:a", "name:ann") is None
+    with pytest.raises(TooManyAttemptsError) as refused:
+        limiter.begin("a", "ann")
+    assert refused.value.retry_after == 15
+    now[0] = 60.0  # the account has 3 + 1 tokens (one a minute)
+    for _ in range(4):
+        limiter.end(limiter.begin("c", "ann"), ok=False)
+    with pytest.raises(TooManyAttemptsError, match="account") as refused:
+        limiter.begin("c", "ann")  # an address that failed for ann waits for a token
+    assert refused.value.retry_after == 60
+    clean = limiter.begin("d", "ann")  # one that did not is still checked, one at a time
+    with pytest.raises(TooManyAttemptsError, match="account"):
+        limiter.begin("d", "ann")
+    limiter.end(clean, ok=True)
+    limiter.end(limiter.begin("d", "ann"), ok=True)  # a success leaves it clean
+    assert limiter.checked == 12 and limiter.refused == 4 and limiter.clean == 2
+    now[0] = 120.0
+    limiter.end(limiter.begin("c", "ann"), ok=False)  # a token came back, c's window passed
 
 
 def _routes(app) -> list[tuple[str, str]]:

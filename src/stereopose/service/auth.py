@@ -1,17 +1,18 @@
-"""Who is asking: login sessions, bearer tokens, CSRF, the login rate limit, role checks.
+"""Who is asking: login sessions, bearer tokens, CSRF, role checks (the login rate limit is
+service.login_limit's).
 
 - A login gives a random token (secrets.token_urlsafe) and a CSRF value. The server keeps
-  only the token's SHA-256 (in memory, at most MAX_SESSIONS: the oldest goes first); a session
-  ends at its absolute expiry (12 h), after IDLE_S without a request, at logout, and as soon
-  as its user is removed or their password or role changes (the user's stamp differs).
+  only the token's SHA-256 (in memory, at most SESSIONS_PER_USER per user, their own oldest
+  ending first, and MAX_SESSIONS in all, shared fairly: see Sessions); a session ends at its
+  absolute expiry (12 h), after IDLE_S without a request, at logout, and as soon as its user
+  is removed or their password or role changes (the user's stamp differs).
 - Every /api/ route but the open ones asks for a session: the cookie `stereopose_session` or
   `Authorization: Bearer <token>`; 401 otherwise. A state-changing request (POST, PUT, PATCH,
   DELETE) authenticated by the cookie must carry `X-CSRF-Token` equal to the session's CSRF
   value (403 otherwise): another site's page can make the browser send the cookie, never read
   the CSRF cookie. A bearer token is never sent by a browser on its own, so it needs none.
-- Login failures are counted per client address and per name over WINDOW_S; MAX_FAILURES of
-  either and the next attempt is 429 with Retry-After, before any password is checked.
-  Both tables are bounded.
+- Password guesses are limited by client address first, then per account, each attempt
+  counted before its password is checked (service.login_limit.LoginLimiter).
 - Nothing secret is logged: neither passwords nor tokens (a session is named by its user).
 """
 
@@ -20,18 +21,21 @@ from __future__ import annotations
 import hashlib
 import hmac
 import logging
-import math
 import secrets
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
+from stereopose.service.login_limit import LoginLimiter, TooManyAttemptsError
 from stereopose.service.users import ROLES, User, UserError, UserStore, role_at_least
+
+__all__ = ["LoginLimiter", "Session", "Sessions", "SessionsFullError", "TooManyAttemptsError",
+           "authenticated", "console_parts", "request_token", "require"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -41,9 +45,7 @@ CSRF_HEADER = "x-csrf-token"
 LIFETIME_S = 12 * 3600.0
 IDLE_S = 2 * 3600.0
 MAX_SESSIONS = 1000
-WINDOW_S = 60.0
-MAX_FAILURES = 5
-MAX_TRACKED = 10_000  # client addresses and names whose failures are counted
+SESSIONS_PER_USER = 10
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 
@@ -65,32 +67,90 @@ class Session:
     by_cookie: bool = False  # how this request authenticated (set per request on a copy)
 
 
+class SessionsFullError(Exception):
+    """No session can be made for this user now (the table is full of sessions of users of a
+    higher role); the login is answered 503."""
+
+
+def _privileged(role: str) -> bool:
+    return role_at_least(role, "operator")
+
+
 class Sessions:
-    """The sessions of one service (see the module). clock: Unix time."""
+    """The sessions of one service (see the module). clock: Unix time.
+
+    Fair among users: at most per_user sessions of one user (their new login ends their own
+    oldest one, never another user's), at most max_sessions in all. When the table is full, the
+    dead sessions (expired, idle) go first; then the user holding the most sessions loses their
+    oldest, a viewer's before an operator's or admin's, and a viewer's login never ends an
+    operator's or an admin's session (SessionsFullError instead)."""
 
     def __init__(self, users: UserStore, *, lifetime_s: float = LIFETIME_S,
                  idle_s: float = IDLE_S, max_sessions: int = MAX_SESSIONS,
+                 per_user: int = SESSIONS_PER_USER,
                  clock: Callable[[], float] = time.time) -> None:  # fmt: skip
         self.users = users
         self.lifetime_s, self.idle_s, self.max_sessions = lifetime_s, idle_s, max_sessions
+        self.per_user = max(1, per_user)
         self.clock = clock
         self._lock = threading.Lock()
-        self._by_digest: OrderedDict[str, Session] = OrderedDict()
-        self.evicted = 0
+        self._by_digest: dict[str, Session] = {}
+        self._by_user: dict[str, OrderedDict[str, None]] = {}  # name -> its keys, oldest first
+        self.evicted = 0  # live sessions ended to make room
+        self.refused = 0  # logins refused for a full table
 
     def create(self, user: User) -> tuple[str, Session]:
-        """A new session of `user`: (its token, the session)."""
+        """A new session of `user`: (its token, the session); SessionsFullError when there is no
+        room for it (see the class)."""
         token = secrets.token_urlsafe(32)
         now = self.clock()
         session = Session(user.name, user.role, user.stamp, secrets.token_urlsafe(24), now,
                           now + self.lifetime_s, now)  # fmt: skip
+        key = _digest(token)
         with self._lock:
-            self._by_digest[_digest(token)] = session
-            while len(self._by_digest) > self.max_sessions:
-                self._by_digest.popitem(last=False)
+            own = self._by_user.get(user.name)
+            if own is not None and len(own) >= self.per_user:
+                self._drop(next(iter(own)))
                 self.evicted += 1
+            elif len(self._by_digest) >= self.max_sessions:
+                self._make_room(now, _privileged(user.role))
+            self._by_digest[key] = session
+            self._by_user.setdefault(user.name, OrderedDict())[key] = None
         logger.info("console: %s logged in (%s)", user.name, user.role)
         return token, session
+
+    def _make_room(self, now: float, privileged: bool) -> None:
+        """One place in a full table (under the lock): see the class."""
+        for key in [k for k, s in self._by_digest.items() if self._dead(s, now)]:
+            self._drop(key)
+        if len(self._by_digest) < self.max_sessions:
+            return
+        # (their role, how many they hold, their name, their oldest session's key)
+        holders = [(_privileged(self._by_digest[oldest].role), -len(keys), name, oldest)
+                   for name, keys in self._by_user.items()
+                   for oldest in [next(iter(keys))]]  # fmt: skip
+        holders = [h for h in holders if privileged or not h[0]]
+        if not holders:
+            self.refused += 1
+            raise SessionsFullError("every session place is held by operators and admins")
+        _, _, name, oldest = min(holders)  # a viewer's first, then whoever holds the most
+        self._drop(oldest)
+        self.evicted += 1
+        logger.info("console: the oldest session of %s ended to make room", name)
+
+    def _dead(self, session: Session, now: float) -> bool:
+        return now >= session.expires_at or now - session.last_seen > self.idle_s
+
+    def _drop(self, key: str) -> Session | None:
+        """Forget one session (under the lock)."""
+        session = self._by_digest.pop(key, None)
+        if session is not None:
+            own = self._by_user.get(session.username)
+            if own is not None:
+                own.pop(key, None)
+                if not own:
+                    del self._by_user[session.username]
+        return session
 
     def find(self, token: str) -> Session | None:
         """The live session of `token` (its last use now), or None (unknown, expired, idle,
@@ -104,18 +164,17 @@ class Sessions:
         if session is None:
             return None
         user = self.users.get(session.username)
-        dead = (now >= session.expires_at or now - session.last_seen > self.idle_s
-                or user is None or user.stamp != session.stamp)  # fmt: skip
+        dead = self._dead(session, now) or user is None or user.stamp != session.stamp
         with self._lock:
             if dead:
-                self._by_digest.pop(key, None)
+                self._drop(key)
                 return None
             session.last_seen = now
         return session
 
     def end(self, token: str) -> bool:
         with self._lock:
-            session = self._by_digest.pop(_digest(token), None)
+            session = self._drop(_digest(token))
         if session is not None:
             logger.info("console: %s logged out", session.username)
         return session is not None
@@ -123,67 +182,18 @@ class Sessions:
     def end_user(self, username: str) -> int:
         """End every session of `username`; how many."""
         with self._lock:
-            keys = [k for k, s in self._by_digest.items() if s.username == username]
+            keys = list(self._by_user.get(username, ()))
             for k in keys:
-                del self._by_digest[k]
+                self._drop(k)
         return len(keys)
+
+    def count(self, username: str) -> int:
+        """How many sessions `username` holds."""
+        with self._lock:
+            return len(self._by_user.get(username, ()))
 
     def __len__(self) -> int:
         return len(self._by_digest)
-
-
-class LoginLimiter:
-    """Login failures per key (a client address, a name) within window_s; at max_failures
-    a key is refused until its oldest failure leaves the window."""
-
-    def __init__(self, *, window_s: float = WINDOW_S, max_failures: int = MAX_FAILURES,
-                 max_tracked: int = MAX_TRACKED,
-                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
-        self.window_s, self.max_failures, self.max_tracked = window_s, max_failures, max_tracked
-        self.clock = clock
-        self._lock = threading.Lock()
-        self._failures: OrderedDict[str, deque[float]] = OrderedDict()
-        self.refused = 0
-
-    def retry_after(self, *keys: str) -> int | None:
-        """Seconds until a login for these keys may be tried again; None: now."""
-        now = self.clock()
-        wait = 0.0
-        with self._lock:
-            for key in keys:
-                times = self._recent(key, now)
-                if times is not None and len(times) >= self.max_failures:
-                    wait = max(wait, times[0] + self.window_s - now)
-            if wait > 0:
-                self.refused += 1
-        return max(1, math.ceil(wait)) if wait > 0 else None
-
-    def failed(self, *keys: str) -> None:
-        now = self.clock()
-        with self._lock:
-            for key in keys:
-                times = self._recent(key, now)
-                if times is None:
-                    times = self._failures[key] = deque(maxlen=self.max_failures)
-                times.append(now)
-                self._failures.move_to_end(key)
-            while len(self._failures) > self.max_tracked:
-                self._failures.popitem(last=False)
-
-    def succeeded(self, key: str) -> None:
-        with self._lock:
-            self._failures.pop(key, None)
-
-    def _recent(self, key: str, now: float) -> deque[float] | None:
-        times = self._failures.get(key)
-        if times is None:
-            return None
-        while times and times[0] <= now - self.window_s:
-            times.popleft()
-        if not times:
-            del self._failures[key]
-            return None
-        return times
 
 
 # -- the routers' dependencies -------------------------------------------------------------

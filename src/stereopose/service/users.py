@@ -8,22 +8,29 @@ Changes (`stereopose users ...` while the service runs) are made under an exclus
 whenever its size, time or inode changed.
 
 Names: 1 to 32 characters, letters, digits, '_', '.', '-', starting with a letter or digit.
-Passwords: 8 to 1024 characters. Roles: viewer (sees), operator (also acknowledges alarms),
+Passwords: 12 to 1024 characters, not a common one (`common_passwords.txt` of this package,
+compared in lower case, also with the digits and punctuation around it stripped, so
+`Password2024!` is one), and at least 5 different characters. The policy applies when a
+password is set (`stereopose users add|passwd`, the API); a user whose password was set
+before still logs in with it. Roles: viewer (sees), operator (also acknowledges alarms),
 admin (also manages users).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import os
 import re
+import string
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from hashlib import sha256
+from importlib import resources
 from pathlib import Path
 
 from argon2 import PasswordHasher
@@ -32,13 +39,15 @@ from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatc
 from stereopose.errors import StereoposeError
 
 __all__ = ["MIN_PASSWORD", "ROLES", "USERS_FILE", "User", "UserError", "UserStore",
-           "check_name", "check_password", "role_at_least"]  # fmt: skip
+           "check_name", "check_password", "common_passwords", "role_at_least"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
 USERS_FILE = "users.json"
 ROLES = ("viewer", "operator", "admin")
-MIN_PASSWORD = 8
+MIN_PASSWORD = 12
+MIN_DISTINCT = 5  # different characters in a password
+COMMON_PASSWORDS = "common_passwords.txt"  # beside this module
 MAX_PASSWORD = 1024
 MAX_USERS = 1000
 # One hash at a time, on one thread (64 MiB, 3 passes): a flood of logins takes one core at
@@ -73,13 +82,34 @@ def check_name(name: object) -> str:
     return name
 
 
+_AROUND = string.digits + string.punctuation + string.whitespace
+
+
+@functools.cache
+def common_passwords() -> frozenset[str]:
+    """The common passwords shipped in the package (lower case); see the module."""
+    text = resources.files("stereopose.service").joinpath(COMMON_PASSWORDS).read_text("utf-8")
+    return frozenset(line.strip().lower() for line in text.splitlines()
+                     if line.strip() and not line.startswith("# "))  # fmt: skip
+
+
 def check_password(password: object) -> str:
+    """`password` when it may be set (see the module), else a UserError saying why."""
     if not isinstance(password, str) or not password:
         raise UserError("the password is empty")
     if len(password) < MIN_PASSWORD:
         raise UserError(f"the password is too short: at least {MIN_PASSWORD} characters")
     if len(password) > MAX_PASSWORD:
         raise UserError(f"the password is too long: at most {MAX_PASSWORD} characters")
+    lower = password.lower()
+    core = lower.strip(_AROUND)
+    common = common_passwords()
+    if lower in common or (len(core) >= 4 and core in common):
+        raise UserError("the password is too common (on the list of common passwords, perhaps "
+                        "with digits or punctuation around it): choose another")  # fmt: skip
+    if len(set(password)) < MIN_DISTINCT:
+        raise UserError(f"the password is too simple: at least {MIN_DISTINCT} different "
+                        "characters")  # fmt: skip
     return password
 
 

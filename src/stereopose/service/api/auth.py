@@ -3,31 +3,56 @@
 A login answers the token (for `Authorization: Bearer`) and sets two cookies: the session
 (HttpOnly, SameSite=Strict; Secure under TLS) and the CSRF value (readable by the page, which
 sends it back as X-CSRF-Token on state-changing requests). A wrong name and a wrong password
-get the same 401; too many failures from one address or for one name, 429 with Retry-After.
+get the same 401; too many failed attempts from one address, or for one name from an address
+that failed for it, 429 with Retry-After (service.login_limit). Every answer of these routes
+(and of the users' routes) carries `Cache-Control: no-store`: they hold users and sessions.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Annotated, Literal
+from collections.abc import Callable, Coroutine
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from fastapi.routing import APIRoute
 from pydantic import BaseModel, Field
 
 from stereopose.service.auth import (
     CSRF_COOKIE,
     SESSION_COOKIE,
     Session,
+    SessionsFullError,
+    TooManyAttemptsError,
     Viewer,
     authenticated,
     console_parts,
     request_token,
 )
-from stereopose.service.users import UserError
+from stereopose.service.users import User, UserError
 
 logger = logging.getLogger(__name__)
 
-router = APIRouter(tags=["login"])
+
+class NoStoreRoute(APIRoute):
+    """A route whose every answer, an error too, carries `Cache-Control: no-store`."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def no_store(request: Request) -> Response:
+            try:
+                response = await handler(request)
+            except HTTPException as e:
+                e.headers = {**(e.headers or {}), "Cache-Control": "no-store"}
+                raise
+            response.headers["Cache-Control"] = "no-store"
+            return response
+
+        return no_store
+
+
+router = APIRouter(tags=["login"], route_class=NoStoreRoute)
 
 
 class Login(BaseModel):
@@ -65,30 +90,45 @@ def _set_cookies(response: Response, request: Request, token: str, session: Sess
 
 
 _LOGIN_ERRORS = {401: {"description": "wrong name or password"},
-                 429: {"description": "too many failed logins; see Retry-After"}}  # fmt: skip
+                 429: {"description": "too many failed logins; see Retry-After"},
+                 503: {"description": "no session place, or the users unreadable"}}  # fmt: skip
+
+
+def checked_password(parts, request: Request, name: str, password: str) -> User | None:
+    """The user when `password` is `name`'s, else None, within the limit on guesses (429
+    when over it: nothing checked); 503 when the users cannot be read."""
+    try:
+        attempt = parts.limiter.begin(f"address:{client_address(request)}", name)
+    except TooManyAttemptsError as e:
+        raise HTTPException(429, f"{e.why}; try again later",
+                            headers={"Retry-After": str(e.retry_after)}) from None  # fmt: skip
+    not_failed = False
+    try:
+        user = parts.users.verify(name, password)
+        not_failed = user is not None
+    except UserError as e:
+        not_failed = True  # the users cannot be read: no password was tried
+        logger.error("console: %s", e)
+        raise HTTPException(503, "the console's users cannot be read (see the log)") from None
+    finally:
+        parts.limiter.end(attempt, not_failed)
+    return user
 
 
 @router.post("/api/login", response_model=LoginAnswer, responses=_LOGIN_ERRORS)
 def login(body: Login, request: Request, response: Response,
           parts=Depends(console_parts)) -> LoginAnswer:  # noqa: B008  # fmt: skip
     """Log in (sync: the password hash runs in the thread pool)."""
-    address, name = f"address:{client_address(request)}", f"name:{body.username}"
-    wait = parts.limiter.retry_after(address, name)
-    if wait is not None:
-        raise HTTPException(429, "too many failed logins; try again later",
-                            headers={"Retry-After": str(wait)})  # fmt: skip
-    try:
-        user = parts.users.verify(body.username, body.password)
-    except UserError as e:
-        logger.error("console: %s", e)
-        raise HTTPException(503, "the console's users cannot be read (see the log)") from None
+    user = checked_password(parts, request, body.username, body.password)
     if user is None:
-        parts.limiter.failed(address, name)
         raise HTTPException(401, "wrong user name or password")
-    parts.limiter.succeeded(name)
-    token, session = parts.sessions.create(user)
+    try:
+        token, session = parts.sessions.create(user)
+    except SessionsFullError as e:
+        logger.warning("console: %s not logged in: %s", user.name, e)
+        raise HTTPException(503, "no session place is free now; try again later",
+                            headers={"Retry-After": "60"}) from None  # fmt: skip
     _set_cookies(response, request, token, session)
-    response.headers["Cache-Control"] = "no-store"
     return LoginAnswer(token=token, username=user.name, role=user.role,
                        expires_at=session.expires_at, csrf=session.csrf)  # fmt: skip
 

@@ -1,19 +1,23 @@
 """The console's users over HTTP (admin): GET /api/users, POST /api/users, DELETE
 /api/users/{name}, POST /api/users/{name}/password (an admin, or the user with their old
-password). Removing a user or changing a password ends that user's sessions.
+password, which is checked within the same limit on guesses as a login: a wrong one counts as a
+failed login for that account and address, 429 beyond). Removing a user or changing a password
+ends that user's sessions. New passwords follow service.users' policy (422 otherwise). Every
+answer carries `Cache-Control: no-store`.
 """
 
 from __future__ import annotations
 
 from typing import Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Response
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from pydantic import BaseModel, Field
 
+from stereopose.service.api.auth import NoStoreRoute, checked_password
 from stereopose.service.auth import Admin, Session, Viewer, console_parts
-from stereopose.service.users import UserError, role_at_least
+from stereopose.service.users import UserError, check_password, role_at_least
 
-router = APIRouter(tags=["users"])
+router = APIRouter(tags=["users"], route_class=NoStoreRoute)
 
 
 class UserOut(BaseModel):
@@ -71,15 +75,21 @@ def remove_user(name: str, session: Admin, parts=Depends(console_parts)) -> Resp
 
 
 @router.post("/api/users/{name}/password", status_code=204, response_class=Response,
-             responses={403: {}, 404: {}, 422: {}})  # fmt: skip
-def change_password(name: str, body: NewPassword, session: Viewer,
+             responses={403: {}, 404: {}, 422: {}, 429: {}})  # fmt: skip
+def change_password(name: str, body: NewPassword, session: Viewer, request: Request,
                     parts=Depends(console_parts)) -> Response:  # noqa: B008  # fmt: skip
     """An admin sets anyone's password; a user sets their own, giving the old one."""
     me: Session = session
     if not role_at_least(me.role, "admin"):
         if me.username != name:
             raise HTTPException(403, "this needs the admin role (or your own name)")
-        if body.old_password is None or parts.users.verify(name, body.old_password) is None:
+        if body.old_password is None:
+            raise HTTPException(403, "the old password is wrong")
+        try:
+            check_password(body.password)  # a refused new one costs no guess
+        except UserError as e:
+            raise HTTPException(422, str(e)) from None
+        if checked_password(parts, request, name, body.old_password) is None:
             raise HTTPException(403, "the old password is wrong")
     if parts.users.get(name) is None:
         raise HTTPException(404, "no such user")
