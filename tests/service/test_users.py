@@ -116,6 +116,35 @@ def test_the_users_command_as_a_process(tmp_path):
     assert r.returncode == 2 and "not found" in r.stderr
 
 
+@pytest.mark.slow
+def test_the_users_command_refuses_weak_passwords_clearly(tmp_path):
+    config = tmp_path / "serve.toml"
+    config.write_text('output = "data"\n')
+    weak = [("eleven-char", "too short"), ("password1234", "too common"),
+            ("Dragon2024!!", "too common"), ("abababababab", "too simple")]  # fmt: skip
+    for password, why in weak:
+        r = _users(config, "add", "bob", "--role", "viewer", stdin=password + "\n")
+        assert r.returncode == 2 and why in r.stderr, (password, r.stderr)
+        assert "Traceback" not in r.stderr and password not in r.stdout + r.stderr
+    assert _users(config, "add", "bob", "--role", "viewer",
+                  stdin="bob-secret-1\n").returncode == 0  # fmt: skip
+    r = _users(config, "passwd", "bob", stdin="qwertyuiop12\n")
+    assert r.returncode == 2 and "too common" in r.stderr and "Traceback" not in r.stderr
+    assert UserStore(tmp_path / "data" / "users.json").verify("bob", "bob-secret-1")
+
+
+def test_the_policy_length_common_list_and_variety():
+    from stereopose.service.users import MIN_PASSWORD, check_password, common_passwords
+
+    assert MIN_PASSWORD == 12 and len(common_passwords()) > 5000
+    assert {"password", "123456", "qwertyuiopas", "1qaz2wsx3edc"} <= common_passwords()
+    for weak in ("Password!2024", "password12345", "1234567890123", "!!Football2023",
+                 "zzzzzzzzzzzz"):  # fmt: skip
+        with pytest.raises(UserError, match=r"too (common|simple)"):
+            check_password(weak)
+    assert check_password("vera's long passphrase") == "vera's long passphrase"
+
+
 def test_serve_says_where_the_console_is_and_how_to_add_its_first_user(tmp_path):
     from stereopose.cli.serve import _console_line
 
