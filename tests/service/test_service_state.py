@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from served import Clock, event, frame_result
 
 from stereopose.service import state as state_mod
+from stereopose.service.alarm_outputs import BACKLOG_S
 from stereopose.service.state import FPS_WINDOW, MAX_NAMES, ServiceState
 
 
@@ -120,6 +121,64 @@ def test_failing_probes_are_reported_never_raised(caplog):
     assert set(snap.problems) == {"queue broken: size unknown", "queue wrong: size unknown",
                                   "storage: some sizes unknown"}  # fmt: skip
     assert "gone" in caplog.text
+
+
+def test_an_alarm_output_down_degrades_with_its_reason_until_it_recovers():
+    clock = Clock()
+    health = [(False, 17, "broker unreachable")]
+    s = ServiceState(["cam"], clock=clock)
+    s.register_output("mqtt", lambda: health[0])
+    s.camera_frame("cam", clock.now)
+    snap = s.snapshot()
+    assert snap.status == "degraded"
+    assert snap.problems == ("output mqtt failing: broker unreachable (17 waiting)",)
+    (out,) = snap.outputs
+    assert (out.name, out.state, out.waiting, out.reason) == ("mqtt", "down", 17,
+                                                              "broker unreachable")  # fmt: skip
+    health[0] = (True, 0, None)
+    snap = s.snapshot()
+    assert snap.status == "ok" and snap.problems == ()
+    assert (snap.outputs[0].state, snap.outputs[0].reason) == ("up", None)
+
+
+def test_an_output_with_messages_waiting_at_every_read_for_a_while_is_falling_behind():
+    clock = Clock()
+    waiting = [3]
+    s = ServiceState(["cam"], camera_timeout_s=3600, clock=clock)
+    s.register_output("webhook", lambda: (True, waiting[0], None))
+    s.camera_frame("cam", clock.now)
+    assert s.snapshot().status == "ok"  # waiting now and then is how messages go out
+    clock.now += BACKLOG_S / 2
+    assert s.snapshot().status == "ok"
+    clock.now += BACKLOG_S / 2
+    waiting[0] = 40
+    snap = s.snapshot()
+    assert snap.status == "degraded"
+    assert snap.problems == (f"output webhook falling behind: 40 waiting for {BACKLOG_S:.0f} s",)
+    waiting[0] = 0  # one read with nothing waiting: it keeps up
+    assert s.snapshot().status == "ok"
+    waiting[0] = 2
+    clock.now += BACKLOG_S - 1
+    assert s.snapshot().status == "ok" and s.snapshot().outputs[0].backlog_s == 0.0
+
+
+def test_an_output_probe_that_fails_or_answers_nonsense_is_down(caplog):
+    clock = Clock()
+    s = ServiceState(["cam"], clock=clock)
+    s.camera_frame("cam", clock.now)
+
+    def broken() -> tuple[bool, int, str | None]:
+        raise RuntimeError("probe bug")
+
+    s.register_output("broken", broken)
+    s.register_output("truthy", lambda: (1, 0, None))  # type: ignore[arg-type, return-value]
+    s.register_output("silent", lambda: (False, -1, None))
+    snap = s.snapshot()
+    assert [(o.name, o.up, o.waiting, o.reason) for o in snap.outputs] == [
+        ("broken", False, None, "its health is unknown"), ("truthy", False, 0, "not delivering"),
+        ("silent", False, None, "not delivering")]  # fmt: skip
+    assert snap.status == "degraded" and len(snap.problems) == 3
+    assert "probe bug" in caplog.text
 
 
 def test_memory_is_bounded_however_long_it_runs():

@@ -9,6 +9,8 @@ the health state and status.json, and the stop signals.
 - `StateSink` feeds the ServiceState (cameras' frames, stage times, people, events, the
   readers' drops and reconnects); `StatusSink` writes status.json (the health snapshot) every
   `interval_s`, atomically, and once more at close.
+- `output_health` is the health probe of an alarm output behind its Guarded wrapper (down once
+  the wrapper has stopped it).
 - `stop_signals` makes SIGTERM act as SIGINT does (the frame loop's Ctrl-C: stop after the
   step in progress, at once while waiting), and `quiet_signals` ignores both while the outputs
   close, so a second signal cannot cut a close short.
@@ -235,6 +237,19 @@ class StatusSink(ClosesOnce):
 
     def _close(self) -> list[Path]:
         return [self.path] if self.write_now() else []
+
+
+def output_health(sink) -> Callable[[], tuple[bool, int, str | None]]:
+    """The probe of an alarm output (io.sinks.health) for ServiceState.register_output:
+    its own health(), and down once its Guarded wrapper has stopped it after a failure."""
+
+    def probe() -> tuple[bool, int, str | None]:
+        ok, waiting, reason = sink.health()
+        if getattr(sink, "failed", False):  # the failure itself (it may name a file) is logged
+            return False, waiting, "stopped after a failure (see the log)"
+        return ok, waiting, reason
+
+    return probe
 
 
 @contextlib.contextmanager

@@ -3,12 +3,15 @@
 Every app has its own CollectorRegistry (never the process-wide one), so several apps and the
 tests do not collide. One collector turns one `ServiceState.snapshot()` into every metric
 family, so a scrape is consistent with itself and with the health answer of the same moment.
-Labels are cameras, stages, event types, queues and storage kinds: bounded sets (no person id).
+Labels are cameras, stages, event types, queues, alarm outputs and storage kinds: bounded sets
+(no person id). The version (stereopose_info) is shown to a scrape that carries a session;
+an anonymous one reads version="" (the /metrics route sets VERSION_SHOWN for its scrape).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextvars import ContextVar
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.metrics_core import (
@@ -23,6 +26,8 @@ from stereopose.service.state import HistogramSnapshot, ServiceState, Snapshot
 
 PREFIX = "stereopose_"
 CONTENT_TYPE = CONTENT_TYPE_LATEST
+# whether this scrape may see the version: set by the route around its one exposition
+VERSION_SHOWN: ContextVar[bool] = ContextVar("stereopose_version_shown", default=True)
 
 
 def _buckets(h: HistogramSnapshot) -> list[tuple[str, float]]:
@@ -44,10 +49,11 @@ def _gauge(name: str, doc: str, label: str | None, values: dict[str, float]) -> 
     return family
 
 
-def families(s: Snapshot) -> Iterator[Metric]:
-    """Every metric family of one snapshot."""
+def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
+    """Every metric family of one snapshot (show_version False: version="")."""
     cams = s.cameras
-    yield _gauge("info", "Version of the running service.", "version", {s.version: 1})
+    version = s.version if show_version else ""
+    yield _gauge("info", "Version of the running service.", "version", {version: 1})
     yield _gauge("uptime_seconds", "Seconds since the service started.", None, {"": s.uptime_s})
     yield _counter("frames", "Frames processed.", None, {"": s.frames})
     yield _counter("frames_dropped", "Frames dropped per camera.", "camera",
@@ -76,6 +82,13 @@ def families(s: Snapshot) -> Iterator[Metric]:
     yield _counter("queue_dropped", "Messages dropped per queue.", "queue",
                    {q.name: q.dropped for q in s.queues if q.dropped is not None})  # fmt: skip
     yield _gauge("storage_bytes", "Bytes stored per kind.", "kind", dict(s.storage))
+    yield _gauge("output_up", "1 while the alarm output delivers.", "output",
+                 {o.name: float(o.up) for o in s.outputs})  # fmt: skip
+    waiting = {o.name: o.waiting for o in s.outputs if o.waiting is not None}
+    yield _gauge("output_waiting", "Messages the alarm output holds, not delivered yet.",
+                 "output", waiting)  # fmt: skip
+    yield _gauge("output_backlog_seconds", "Seconds the alarm output has had messages waiting.",
+                 "output", {o.name: o.backlog_s for o in s.outputs})  # fmt: skip
 
 
 class StateCollector(Collector):
@@ -85,7 +98,7 @@ class StateCollector(Collector):
         self.state = state
 
     def collect(self) -> Iterator[Metric]:
-        yield from families(self.state.snapshot())
+        yield from families(self.state.snapshot(), show_version=VERSION_SHOWN.get())
 
     def describe(self) -> list[Metric]:
         return []  # nothing to check at registration; the names are fixed above

@@ -4,8 +4,12 @@ The frame loop and the camera readers write (`camera_frame`, `on_frame`, `on_eve
 the HTTP side only reads `snapshot()`, a frozen copy taken under one lock, so a health answer
 and a metrics scrape each see one consistent moment. Memory is bounded whatever runs for how
 long: per camera a fixed window of arrival times, per stage a fixed set of histogram buckets,
-and a cap on the number of cameras, stages, event types and queues (names beyond it are
-counted under no new label, with one warning).
+and a cap on the number of cameras, stages, event types, queues and outputs (names beyond it
+are counted under no new label, with one warning).
+
+Alarm outputs (MQTT, the webhook, the event log, SCADA links: io.sinks.health) are registered
+with `register_output`: the service is degraded while one is not ok, or while one has had
+messages waiting at every read for BACKLOG_S (it takes them more slowly than they come).
 
 Times are seconds on `clock` (time.monotonic by default); arrival times given to the state
 must be on the same clock.
@@ -23,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from itertools import pairwise
 
 from stereopose import __version__
+from stereopose.service.alarm_outputs import OutputProbe, OutputSnapshot, OutputWatch
 
 logger = logging.getLogger(__name__)
 
@@ -91,11 +96,12 @@ class Snapshot:
     queues: tuple[QueueSnapshot, ...]
     storage: Mapping[str, int]
     problems: tuple[str, ...] = field(default=())
+    outputs: tuple[OutputSnapshot, ...] = field(default=())
 
     @property
     def status(self) -> str:
-        """down: no camera delivering; degraded: a camera down, a queue dropping or a probe
-        failing; ok otherwise."""
+        """down: no camera delivering; degraded: a camera down, a queue dropping, an alarm
+        output failing or falling behind, or a probe failing; ok otherwise."""
         if not any(c.up for c in self.cameras):
             return "down"
         return "degraded" if self.problems else "ok"
@@ -196,6 +202,7 @@ class ServiceState:
         self._end_to_end = _Histogram(bounds)
         self._events: dict[str, int] = {}
         self._queues: dict[str, _Queue] = {}
+        self._outputs: dict[str, OutputWatch] = {}
         self._storage: StorageProbe | None = None
         self._frames = 0
         self._people = 0
@@ -288,6 +295,13 @@ class ServiceState:
             if name in self._queues or self._admit("queue", name, self._queues):
                 self._queues[name] = _Queue(size, dropped)
 
+    def register_output(self, name: str, health: OutputProbe) -> None:
+        """An alarm output to watch: health() its (ok, waiting, reason) now (io.sinks.health),
+        called at each health or metrics read, outside the lock: quick, never blocking."""
+        with self._lock:
+            if name in self._outputs or self._admit("output", name, self._outputs):
+                self._outputs[name] = OutputWatch(health)
+
     def register_storage(self, probe: StorageProbe) -> None:
         """probe(): bytes used per kind of stored data; called at each read, must be quick."""
         with self._lock:
@@ -299,14 +313,17 @@ class ServiceState:
         """Everything at one moment; the probes are called first, outside the lock."""
         with self._lock:
             queues = dict(self._queues)
+            outputs = dict(self._outputs)
             storage_probe = self._storage
         problems: list[str] = []
         probed = {name: self._probe_queue(name, q, problems) for name, q in queues.items()}
+        healths = {name: o.probe(name) for name, o in outputs.items()}
         storage = self._probe_storage(storage_probe, problems)
         with self._lock:
             now = self._clock()
             cameras = tuple(self._camera_snapshot(n, c, now) for n, c in self._cameras.items())
             queue_snaps = tuple(self._queue_snapshot(n, *probed[n], now) for n in probed)
+            output_snaps = tuple(outputs[n].snapshot(n, *healths[n], now) for n in healths)
             snap = Snapshot(
                 version=__version__,
                 uptime_s=max(now - self._started, 0.0),
@@ -318,9 +335,11 @@ class ServiceState:
                 events=dict(self._events),
                 queues=queue_snaps,
                 storage=storage,
+                outputs=output_snaps,
             )
         problems += [f"camera {c.name} down" for c in cameras if not c.up]
         problems += [f"queue {q.name} dropping" for q in queue_snaps if q.dropping]
+        problems += [p for o in output_snaps if (p := o.problem)]
         return replace(snap, problems=tuple(problems))
 
     # -- inside ---------------------------------------------------------------------------------

@@ -373,6 +373,12 @@ class SqliteSink(_EventSink):
                 parts.append(f"and cannot be kept in {kept}: {e.strerror}")
         return "; ".join(parts)
 
+    def health(self) -> tuple[bool, int, str | None]:
+        """(ok, waiting, reason) for the service's health (io.sinks.health): not ok while the
+        last store failed (disk full, locked, read-only); waiting: the events not stored."""
+        error = self._error
+        return error is None, len(self.pending), error and f"cannot store events ({error})"
+
 
 def _is_text(value: str) -> bool:
     """Whether SQLite can take value (a command line can carry undecodable bytes)."""

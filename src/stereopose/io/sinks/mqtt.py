@@ -38,6 +38,7 @@ import paho.mqtt.client as paho
 from stereopose.errors import ConfigError
 from stereopose.io.records import event_record, frame_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.health import OutputHealth
 from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_name, topic_part
 from stereopose.types import Event, People3D
 
@@ -353,6 +354,25 @@ class MqttSink(ClosesOnce):
                     "failed": c.failed[k]}
                 for k in KINDS
             }  # fmt: skip
+
+    def health(self) -> OutputHealth:
+        """Not ok while not connected (the broker unreachable, the link lost, the login
+        refused); waiting: the messages not yet acknowledged, of every kind."""
+        waiting = sum(v["queued"] for v in self.counts().values())
+        with self._lock:
+            connected, refused = self._connected, self._counts.refused
+        if connected:
+            return OutputHealth(True, waiting)
+        problem = self._last_problem or ""
+        if problem.startswith("the broker refused"):
+            why = f"the broker refused the connection ({refused} time(s))"
+        elif problem.startswith("connection lost"):
+            why = "connection to the broker lost"
+        elif problem:
+            why = "broker unreachable"
+        else:
+            why = "not connected to the broker yet"
+        return OutputHealth(False, waiting, why)
 
     @property
     def refused(self) -> int:

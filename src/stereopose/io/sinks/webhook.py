@@ -28,6 +28,7 @@ from urllib.parse import urlsplit
 from stereopose.errors import StereoposeError
 from stereopose.io.records import event_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.health import OutputHealth
 from stereopose.io.source import shown_url
 from stereopose.types import Event
 
@@ -88,6 +89,7 @@ class WebhookSink(ClosesOnce):
         self._lock = threading.Lock()
         self._current: _Item | None = None
         self._failing = False  # within a spell of failures: logged once, not per event
+        self._last_try: str | None = None  # why the last try failed; None: it delivered
         self._stop = threading.Event()
         self._sleep = sleep or self._stop.wait
         self._thread = threading.Thread(target=self._run, name="webhook", daemon=True)
@@ -161,13 +163,16 @@ class WebhookSink(ClosesOnce):
                 status = self._post(body)
             except Exception as e:  # whatever the reply was, it ends this try only
                 why, again = f"{type(e).__name__}: {e}", True
+                self._last_try = type(e).__name__  # for health: never the URL or its host
             else:
                 if 200 <= status < 300:
+                    self._last_try = None
                     if self._failing:
                         logger.warning("webhook %s: delivering again", self.shown)
                     self._failing = False
                     return "delivered"
                 why, again = f"HTTP {status}", status in RETRY_STATUSES or status >= 500
+                self._last_try = why
             if not again or attempt == self.retries or self._stop.is_set():
                 self._log_failure(item.event, attempt + 1, why)
                 return "failed"
@@ -197,6 +202,15 @@ class WebhookSink(ClosesOnce):
             self._settle(item, outcome)
             with self._lock:
                 self._current = None
+
+    def health(self) -> OutputHealth:
+        """Not ok from a failed try until the next delivery; waiting: queued and on the wire."""
+        with self._lock:
+            waiting = self.queue.qsize() + (self._current is not None)
+            last = self._last_try
+        if last is None:
+            return OutputHealth(True, waiting)
+        return OutputHealth(False, waiting, f"the receiver is not taking events ({last})")
 
     # -- closing ---------------------------------------------------------------------------
 

@@ -1,18 +1,22 @@
 """GET /api/health: is the service delivering, and what each camera and queue is doing.
 
 Open without login: the bind address and the firewall protect it. 200 while ok or degraded,
-503 while down (no camera delivering), so a plain HTTP probe tells down from up.
+503 while down (no camera delivering), so a plain HTTP probe tells down from up. Degraded
+names each alarm output (MQTT, the webhook, the event log, ...) that is failing or falling
+behind in `problems`, and `outputs` gives each one's state. The version is null unless the
+request carries a live session (an anonymous client learns nothing to look up).
 """
 
 from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel
 
 from stereopose.service.api.deps import service_state
-from stereopose.service.state import ServiceState, Snapshot
+from stereopose.service.api.visitor import has_session
+from stereopose.service.state import OutputSnapshot, ServiceState, Snapshot
 
 router = APIRouter(tags=["health"])
 
@@ -28,27 +32,43 @@ class CameraHealth(BaseModel):
     dropped_frames: int
 
 
+class OutputHealth(BaseModel):
+    """One alarm output. waiting: messages not delivered yet (null: not known); reason: why
+    it is down (null while up); backlog_s: how long it has had messages waiting."""
+
+    state: Literal["up", "down"]
+    waiting: int | None
+    reason: str | None
+    backlog_s: float
+
+
 class Health(BaseModel):
-    """The service now. queues: messages waiting per queue (null: its probe failed);
-    storage: bytes per kind of stored data; problems: why it is degraded or down."""
+    """The service now. version: null without a session; queues: messages waiting per queue
+    (null: its probe failed); storage: bytes per kind of stored data; outputs: each alarm
+    output; problems: why it is degraded or down."""
 
     status: Literal["ok", "degraded", "down"]
     uptime_s: float
-    version: str
+    version: str | None
     frames: int
     people: int
     cameras: dict[str, CameraHealth]
     queues: dict[str, int | None]
     storage: dict[str, int]
     problems: list[str]
+    outputs: dict[str, OutputHealth]
 
 
-def health_of(s: Snapshot) -> Health:
-    """The health answer of one snapshot."""
+def _output(o: OutputSnapshot) -> OutputHealth:
+    return OutputHealth(state=o.state, waiting=o.waiting, reason=o.reason, backlog_s=o.backlog_s)
+
+
+def health_of(s: Snapshot, *, show_version: bool = True) -> Health:
+    """The health answer of one snapshot (show_version False: version null)."""
     return Health(
         status=s.status,
         uptime_s=s.uptime_s,
-        version=s.version,
+        version=s.version if show_version else None,
         frames=s.frames,
         people=s.people,
         cameras={
@@ -64,14 +84,16 @@ def health_of(s: Snapshot) -> Health:
         },
         queues={q.name: q.size for q in s.queues},
         storage=dict(s.storage),
+        outputs={o.name: _output(o) for o in s.outputs},
         problems=list(s.problems) or (["no camera delivering"] if s.status == "down" else []),
     )
 
 
 @router.get("/api/health", response_model=Health, responses={503: {"model": Health}})
-def health(response: Response, state: Annotated[ServiceState, Depends(service_state)]) -> Health:
+def health(request: Request, response: Response,
+           state: Annotated[ServiceState, Depends(service_state)]) -> Health:  # fmt: skip
     """The service's health (sync: its probes run in the thread pool, off the event loop)."""
-    answer = health_of(state.snapshot())
+    answer = health_of(state.snapshot(), show_version=has_session(request))
     response.status_code = 503 if answer.status == "down" else 200
     response.headers["Cache-Control"] = "no-store"
     return answer
