@@ -15,6 +15,10 @@ for the web side.
   (at most max_clients): `people` (at most people_hz), `event` (each new row), `zones` (on a
   change and every ZONES_S), `cameras` (every CAMERAS_S), `ack` (when one is made).
   Each subscriber has a queue of client_queue messages; a slow one loses its oldest (counted).
+- The subscribers' places are shared fairly (service.places): at most per_user streams of one
+  user (a newer one ends their own oldest), and max_clients // RESERVED_SHARE kept for
+  operators and admins, whose alarm channel is always served: when every place is held, the
+  oldest viewer's stream ends for them.
 - Bounded: trails (trail_points per person, TRAIL_S long, MAX_TRAILS people), subscribers,
   their queues, the snapshot queue.
 """
@@ -40,6 +44,7 @@ import numpy as np
 from stereopose.fence import Site
 from stereopose.io.sinks.base import FrameResult
 from stereopose.service.eventlog import EventLog, LogError
+from stereopose.service.places import FairPlaces, Place
 from stereopose.service.state import ServiceState
 from stereopose.skeleton import floor_position, heading_deg
 from stereopose.types import Camera, Rig
@@ -57,6 +62,8 @@ ZONES_S = 2.0
 CAMERAS_S = 1.0
 FOV_RANGE_M = 15.0
 ALARM_HOLD_S = 3.0  # an approach keeps its zone in alarm this long
+STREAMS_PER_USER = 4
+RESERVED_SHARE = 4  # max_clients // RESERVED_SHARE places kept for operators and admins
 
 
 def _num(x: float, nd: int = 3) -> float | None:
@@ -128,12 +135,15 @@ class _Latest:
 
 class Subscriber:
     """One page on the push channel: a bounded queue of encoded messages, woken on its event
-    loop; `dropped` counts what it lost for being slow."""
+    loop; `dropped` counts what it lost for being slow; `ended`: why the hub ended it to make
+    room for another (its stream then closes), None while it stands."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, maxlen: int) -> None:
         self.loop, self.maxlen = loop, maxlen
         self.wake = asyncio.Event()
         self.dropped = 0
+        self.ended: str | None = None
+        self.place: Place | None = None
         self._queue: deque[bytes] = deque()
         self._lock = threading.Lock()
 
@@ -174,6 +184,7 @@ class LiveHub:
         jpeg_quality: int = 75,
         people_hz: float = 5.0,
         max_clients: int = 32,
+        per_user: int = STREAMS_PER_USER,
         client_queue: int = 256,
         draw: Callable | None = None,
         clock: Callable[[], float] = time.monotonic,
@@ -181,6 +192,7 @@ class LiveHub:
         self.rig, self.site, self.state, self.log = rig, site, state, log
         self.snapshot_hz, self.snapshot_scale = snapshot_hz, snapshot_scale
         self.jpeg_quality, self.people_hz = jpeg_quality, people_hz
+        self._places = FairPlaces(max_clients, per_user=per_user)
         self.max_clients, self.client_queue = max_clients, client_queue
         self.clock = clock
         if draw is None:
@@ -381,20 +393,41 @@ class LiveHub:
 
     # -- subscribers -----------------------------------------------------------------------
 
-    def subscribe(self, loop: asyncio.AbstractEventLoop) -> Subscriber | None:
-        """A new subscriber with the current people, zones and cameras queued; None when
-        max_clients are connected."""
+    @property
+    def max_clients(self) -> int:
+        return self._places.total
+
+    @max_clients.setter
+    def max_clients(self, n: int) -> None:
+        self._places.total, self._places.reserved = n, n // RESERVED_SHARE
+
+    def subscribe(self, loop: asyncio.AbstractEventLoop, user: str = "",
+                  privileged: bool = False) -> Subscriber | None:  # fmt: skip
+        """A new subscriber of `user` with the current people, zones and cameras queued; None
+        when no place is free for them (see the module; privileged: an operator or admin).
+        A stream ended to make room for this one has its `ended` set and is woken."""
+        if self.closed:
+            return None
+        sub = Subscriber(loop, self.client_queue)
+        sub.place = self._places.take(user, privileged, lambda why: self._ended(sub, why))
+        if sub.place is None:
+            return None
         with self._lock:
-            if len(self._subs) >= self.max_clients or self.closed:
-                return None
-            sub = Subscriber(loop, self.client_queue)
             self._subs.add(sub)
         for kind, body in (("people", self.people()), ("zones", self.zones()),
                            ("cameras", self.cameras())):  # fmt: skip
             sub.put(_sse(kind, body))
         return sub
 
+    def _ended(self, sub: Subscriber, why: str) -> None:
+        sub.ended = why
+        self.unsubscribe(sub)
+        with contextlib.suppress(RuntimeError):  # its loop has closed: the stream is over
+            sub.loop.call_soon_threadsafe(sub.wake.set)
+
     def unsubscribe(self, sub: Subscriber) -> None:
+        if sub.place is not None:
+            self._places.give_back(sub.place)
         with self._lock:
             if sub in self._subs:
                 self._subs.discard(sub)
@@ -507,6 +540,8 @@ class LiveHub:
 
     def figures(self) -> Mapping[str, int]:
         return {"clients": self.clients, "messages_dropped": self.messages_dropped,
+                "clients_replaced": self._places.replaced,
+                "clients_bumped": self._places.bumped, "clients_refused": self._places.refused,
                 "snapshots_made": self.snapshots_made,
                 "snapshots_dropped": self.snapshots_dropped,
                 "snapshot_errors": self.snapshot_errors}  # fmt: skip

@@ -4,7 +4,10 @@ GET /api/clips/{file}/play: the same clip played as Motion JPEG (multipart/x-mix
 the clip's frame rate, ending with its last frame), which an <img> shows in any browser: the
 drawn clips are MPEG-4 Part 2, which browsers' video elements do not decode (this OpenCV has
 no H.264 encoder, and a VP9 one far too slow for clips written as the alarms come). At most
-PLAYERS at once (503 beyond), each frame decoded and JPEG-encoded as it is sent.
+PLAYERS at once and PLAYERS_PER_USER of one user (service.places: a user's newer player ends
+their own oldest; 503 with Retry-After when the others' hold every place), each frame decoded
+and JPEG-encoded as it is sent. A player's place comes back as soon as its answer ends: at the
+clip's end, when its client leaves (seen within a frame), or when it is ended for a newer one.
 
 Only a finished clip directly in the output folder's clips/ is served: the name is one path
 part of letters, digits, '_', '.', '-' ending in .mp4 (not .part.mp4), not starting with a dot,
@@ -25,9 +28,11 @@ from pathlib import Path
 import cv2
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import FileResponse, StreamingResponse
+from starlette.types import Receive, Scope, Send
 
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX
 from stereopose.service.auth import Viewer, console_parts
+from stereopose.service.places import FairPlaces, Place
 
 router = APIRouter(tags=["events"])
 
@@ -35,7 +40,8 @@ _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,250}")
 
 
 PLAYERS = 4  # clips played as Motion JPEG at once
-_players = threading.BoundedSemaphore(PLAYERS)
+PLAYERS_PER_USER = 2
+players = FairPlaces(PLAYERS, per_user=PLAYERS_PER_USER)  # no places reserved: nobody's alarms
 _BOUNDARY = "clipframe"
 
 
@@ -72,39 +78,61 @@ def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileRespon
 def play(file: str, session: Viewer, parts=Depends(console_parts)) -> StreamingResponse:  # noqa: B008
     """The clip played as Motion JPEG at its frame rate, for an <img> (any browser)."""
     path, _ = _clip_path(file, parts)
-    if not _players.acquire(blocking=False):
+    place = players.take(session.username, privileged=False)
+    if place is None:
         raise HTTPException(503, f"{PLAYERS} clips are playing; try again when one ends",
                             headers={"Retry-After": "5"})  # fmt: skip
-    player = _Player(path)  # releases its place when it ends, is closed or is dropped
+    player = _Player(path, place)  # gives its place back when it ends, is closed or dropped
     if not player.opened:
         player.close()
         raise HTTPException(404, "the clip cannot be read")
     kind = f"multipart/x-mixed-replace; boundary={_BOUNDARY}"
-    return StreamingResponse(player, media_type=kind, headers={"Cache-Control": "no-store"})
+    return _PlayerResponse(player, media_type=kind, headers={"Cache-Control": "no-store"})
+
+
+class _PlayerResponse(StreamingResponse):
+    """The player's answer: closes the player (its place given back) as soon as the answer
+    is over, however it ends (the clip's end, the client gone, the server stopping), not
+    when the garbage collector gets to it."""
+
+    def __init__(self, player: _Player, **kw) -> None:
+        super().__init__(player, **kw)
+        self.player = player
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self.player.close()
 
 
 class _Player:
     """The clip's frames as JPEG parts, paced at its frame rate (iterated in the server's
-    thread pool). Its place among the PLAYERS is given back once: at its end, at close(), or
-    when it is dropped unfinished (a client that left)."""
+    thread pool). It stops at the clip's end and when its place is ended for a newer player
+    of its user; its place is given back once, at close() or when it is dropped."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, place: Place) -> None:
         self._cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        self.place = place
         self.opened = self._cap.isOpened()
         fps = self._cap.get(cv2.CAP_PROP_FPS) if self.opened else 0.0
         self._step = 1.0 / fps if 0.1 <= fps <= 1000 else 0.1
         self._next_at = time.monotonic()
-        self._done = weakref.finalize(self, _finish, self._cap)
+        self._lock = threading.Lock()  # the decoder is used by one thread at a time
+        self._done = weakref.finalize(self, _finish, self._cap, place)
 
     def __iter__(self) -> _Player:
         return self
 
     def __next__(self) -> bytes:
-        while self._done.alive:
-            ok, image = self._cap.read()
-            if not ok:
-                break
-            ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        while self.place.ended is None:
+            with self._lock:
+                if not self._done.alive:
+                    break
+                ok, image = self._cap.read()
+                if not ok:
+                    break
+                ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 80])
             if not ok:
                 continue
             time.sleep(max(0.0, self._next_at - time.monotonic()))
@@ -116,9 +144,11 @@ class _Player:
         raise StopIteration
 
     def close(self) -> None:
-        self._done()
+        players.give_back(self.place)  # at once, whatever the decoder is doing
+        with self._lock:
+            self._done()
 
 
-def _finish(cap: cv2.VideoCapture) -> None:
+def _finish(cap: cv2.VideoCapture, place: Place) -> None:
     cap.release()
-    _players.release()
+    players.give_back(place)
