@@ -14,7 +14,7 @@ import pytest
 from consoled import PASSWORDS, console_server, demo_plan, fast_hasher
 
 from stereopose.errors import ConfigError
-from stereopose.service.auth import LoginLimiter, Sessions, TooManyAttemptsError
+from stereopose.service.auth import LoginLimiter, Sessions, SessionsFullError, TooManyAttemptsError
 from stereopose.service.server import ServeError, ServeSettings
 from stereopose.service.users import UserStore
 
@@ -245,6 +245,30 @@ def test_sessions_are_bounded_and_expire():
         assert sessions.find(t) is not None  # kept alive by use...
     now[0] += 20
     assert sessions.find(t) is None  # ...until its absolute expiry, 100 s after its login
+
+
+def test_a_full_session_table_is_shared_fairly():
+    from stereopose.service.users import User
+
+    roles = {"ann": "viewer", "bea": "viewer", "oli": "operator", "ada": "admin"}
+    people = {n: User(n, r, 0.0, 0.0, "stamp") for n, r in roles.items()}
+    store = UserStore.__new__(UserStore)  # a store answering these users, without a file
+    store.get = people.get
+    sessions = Sessions(store, max_sessions=6, per_user=3)
+    ann = [sessions.create(people["ann"])[0] for _ in range(5)]  # her own oldest go
+    assert sessions.count("ann") == 3 and sessions.find(ann[1]) is None
+    oli = [sessions.create(people["oli"])[0] for _ in range(3)]
+    sessions.create(people["bea"])  # full: the one holding the most (ann) loses her oldest
+    assert sessions.count("ann") == 2 and sessions.find(ann[2]) is None
+    sessions.create(people["ada"])  # a viewer's before an operator's
+    sessions.create(people["ada"])
+    assert (sessions.count("ann"), sessions.count("bea")) == (0, 1)
+    assert all(sessions.find(t) is not None for t in oli)
+    sessions.create(people["ada"])  # only viewers left to lose: ann's or bea's last
+    assert sessions.count("ann") + sessions.count("bea") == 0 and len(sessions) == 6
+    with pytest.raises(SessionsFullError):  # a viewer never ends an operator's or admin's
+        sessions.create(people["bea"])
+    assert all(sessions.find(t) is not None for t in oli) and sessions.count("ada") == 3
 
 
 def test_the_page_carries_its_security_headers(served):
