@@ -45,6 +45,7 @@ def _add_users(served, *names: str) -> None:
         served.console.users.add(name, PASSWORDS[name], "operator" if name == "olav" else "viewer")
 
 
+@pytest.mark.slow  # 1,000 argon2 checks
 def test_a_thousand_logins_of_a_viewer_leave_the_operators_session(tmp_path):
     with console_server(tmp_path / "out") as served:
         otto = _client(served, "otto")
