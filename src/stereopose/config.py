@@ -283,6 +283,10 @@ class ServeConfig:
     # or neither; the key readable by its owner only)
     certificate: str | None = None
     key: str | None = None
+    # Host names (and addresses) the service answers to besides the bound address, the
+    # loopback names and, bound to 0.0.0.0, the machine's names and addresses; another Host
+    # header is refused (421, against DNS rebinding). "*": any; "*.example.org": a domain.
+    allowed_hosts: tuple[str, ...] = ()
 
 
 @_schema("mqtt")

@@ -15,7 +15,6 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 from served import Clock, event, frame_result, get, get_json, serving
 
-from stereopose import __version__
 from stereopose.service.app import create_app
 from stereopose.service.limits import MAX_BODY_BYTES
 from stereopose.service.server import MAX_HEADER_BYTES, Server, ServeSettings
@@ -62,7 +61,8 @@ def test_health_reports_the_state(fed):
         status, h = get_json(server.url + "/api/health")
     assert status == 200
     assert h["status"] == "ok" and h["problems"] == []
-    assert h["version"] == __version__ and h["uptime_s"] == pytest.approx(1.0)
+    assert h["version"] is None  # anonymous: no version (see test_app_exposure)
+    assert h["uptime_s"] == pytest.approx(1.0) and h["outputs"] == {}
     assert (h["frames"], h["people"]) == (2, 3)
     cam1, cam2 = h["cameras"]["cam_01"], h["cameras"]["cam_02"]
     assert cam1 == {"fps": pytest.approx(10.0), "last_frame_age_s": 0.0, "state": "up",
@@ -114,7 +114,7 @@ def test_metrics_names_and_values(fed):
     assert m["stereopose_queue_dropped_total"] == {(("queue", "mqtt"),): 0.0}
     assert m["stereopose_storage_bytes"] == {
         (("kind", "clips"),): 1234.0, (("kind", "events_db"),): 56.0}  # fmt: skip
-    assert m["stereopose_info"] == {(("version", __version__),): 1.0}
+    assert m["stereopose_info"] == {(("version", ""),): 1.0}  # anonymous: no version
     assert m["stereopose_uptime_seconds"][()] == pytest.approx(1.0)
     detect = (("stage", "detect"),)
     assert m["stereopose_stage_seconds_count"][detect] == 2.0

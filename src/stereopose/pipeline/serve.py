@@ -10,7 +10,13 @@ frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
   [outputs] webhook is set, MQTT when [mqtt] host is set;
 - event clips `clips/` (io.sinks.clips) unless [storage] clips = false;
 - the console's live hub (service.live: people, zones, camera pictures for the page);
-- the health state (service.state) and `status.json`, its snapshot every status_interval_s.
+- the health state (service.state) and `status.json`, its snapshot every status_interval_s;
+  every alarm output (the event log, the webhook, MQTT; any later one with a `health()`, see
+  io.sinks.health) is registered with it, so health is degraded while one fails.
+
+The data folder is private: the service runs with a umask of 077 and takes group and other
+permissions off what an earlier run left (pipeline.private). Its HTTP server answers only
+the Host names of service.hosts.allowed_hosts ([serve] allowed_hosts adds some).
 
 One storage maintainer thread (service.storage) applies [storage]'s retention and cap. Events
 other than zone events (a camera down or up, calibration drift, a zone closed at restart) go
@@ -45,11 +51,13 @@ from stereopose.io.video import is_stream
 from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
+from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.serve_events import ServeEvents
 from stereopose.pipeline.serve_parts import (
     ServeSource,
     StateSink,
     StatusSink,
+    output_health,
     quiet_signals,
     stop_signals,
 )
@@ -60,6 +68,7 @@ from stereopose.service.api.health import health_of
 from stereopose.service.app import create_app
 from stereopose.service.calib_health import CalibrationHealth
 from stereopose.service.eventlog import EventLog
+from stereopose.service.hosts import allowed_hosts
 from stereopose.service.live import ConsoleSink, LiveHub
 from stereopose.service.restart import Resume
 from stereopose.service.server import Server
@@ -135,7 +144,8 @@ class _Service:
         hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
         self.console = Console.in_folder(p.out_dir, hub)
         self.probes["console"] = hub.figures
-        app = create_app(self.state, console=self.console)
+        hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
+        app = create_app(self.state, console=self.console, allowed_hosts=hosts)
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
@@ -184,11 +194,12 @@ class _Service:
         db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
                         first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
         self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
-        sinks.append(guard(db, p.events_db))
+        sinks.append(self._alarm_output("events_db", guard(db, p.events_db)))
         if cfg.outputs.webhook:
             hook = WebhookSink(cfg.outputs.webhook)
             self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
-            sinks.append(guard(hook, shown_url(cfg.outputs.webhook)))
+            label = shown_url(cfg.outputs.webhook)
+            sinks.append(self._alarm_output("webhook", guard(hook, label)))
         if p.mqtt is not None:
             from stereopose.io.sinks.mqtt import MqttSink
 
@@ -196,8 +207,15 @@ class _Service:
             mqtt = MqttSink(p.mqtt, zones)
             self.state.register_queue("mqtt", lambda: _queued(mqtt), lambda: _dropped(mqtt))
             self.probes["mqtt"] = mqtt.counts
-            sinks.append(guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
+            sinks.append(
+                self._alarm_output("mqtt", guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
+            )
         return sinks
+
+    def _alarm_output(self, name: str, sink: Guarded) -> Guarded:
+        """`sink` watched by the health state as the alarm output `name` (io.sinks.health)."""
+        self.state.register_output(name, output_health(sink))
+        return sink
 
     def _clips(self, cfg: Config, wall_start: float):
         from stereopose.io.sinks.clips import ClipSink
@@ -298,7 +316,13 @@ def serve(
     taken) comes before any output is written.
     """
     plan = plan or plan_serve(config_path)
-    stop = stop or threading.Event()
+    with private_files():  # before any file of the service is made
+        tighten(plan.out_dir)
+        return _serve(plan, stop or threading.Event(), on_ready)
+
+
+def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], None] | None
+           ) -> ServeResult:  # fmt: skip
     cfg = plan.config
     detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
                              cfg.detector.conf, cfg.detector.iou, cfg.detector.device,

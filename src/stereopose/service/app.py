@@ -6,13 +6,16 @@ over `console` (service.web.Console; without one, those routes answer 503).
 
 Every answer is JSON or the resource's own format, never a traceback page: debug is off,
 unknown paths are 404 and wrong methods 405 as {"detail": ...}, and an error inside a route is
-a 500 {"detail": "internal error"} (its traceback goes to the log).
+a 500 {"detail": "internal error"} (its traceback goes to the log). No answer names a file of
+the server (service.error_answers): an error whose message holds a path is answered with a generic
+one, the message going to the log. With allowed_hosts, a request for another Host is
+refused (service.hosts).
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -20,6 +23,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CollectorRegistry
 
 from stereopose import __version__
+from stereopose.service import error_answers
 from stereopose.service.api import (
     auth,
     cameras,
@@ -34,6 +38,7 @@ from stereopose.service.api import (
     users,
     zones,
 )
+from stereopose.service.hosts import HostCheck
 from stereopose.service.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
 from stereopose.service.metrics import make_registry
 from stereopose.service.state import ServiceState
@@ -54,17 +59,20 @@ def create_app(
     max_body_bytes: int = MAX_BODY_BYTES,
     lifespan: Callable[[FastAPI], Any] | None = None,
     console: object | None = None,
+    allowed_hosts: Iterable[str] | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
     and stops with the server (the frame loop, the sinks); console: the console's parts
-    (service.web.Console)."""
+    (service.web.Console); allowed_hosts: the Host names served (service.hosts.allowed_hosts;
+    None: any)."""
     app = FastAPI(
         title="stereopose",
-        version=__version__,
+        version=__version__,  # shown only with a session (api.docs serves /openapi.json)
         debug=False,
         docs_url=None,  # served from the package's files instead (api.docs)
         redoc_url=None,
+        openapi_url=None,
         swagger_ui_oauth2_redirect_url=None,
         lifespan=lifespan,
     )
@@ -72,6 +80,9 @@ def create_app(
     app.state.console = console
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
+    error_answers.add_handlers(app)
+    if allowed_hosts is not None:  # inside RequestLimits: its refusals get the extra headers
+        app.add_middleware(HostCheck, allowed=tuple(allowed_hosts))
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
