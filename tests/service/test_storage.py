@@ -82,7 +82,11 @@ def test_the_file_being_written_stays_even_above_the_cap(tmp_path: Path, caplog)
 
 def event_log(path: Path, times: list[float], started: float) -> Path:
     sink = SqliteSink(path)
-    sink.write_events([Event(t, int(t * 10), 1, "panel", "energized", "enter", t) for t in times])
+    # in and out in turn: the last one an exit, so that no enter is kept as open
+    n = len(times)
+    sink.write_events([Event(t, int(t * 10), 1, "panel", "energized",
+                             "exit" if (n - 1 - i) % 2 == 0 else "enter", t)
+                       for i, t in enumerate(times)])  # fmt: skip
     sink.close()
     with sqlite3.connect(path) as db:  # the run started at `started` (Unix time)
         db.execute("UPDATE runs SET started = ?", (started,))

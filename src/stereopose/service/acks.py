@@ -3,8 +3,10 @@
 The `acks` table lives in `events.sqlite` beside the events it names, through a connection of
 its own (WAL, a short busy timeout, so the frame loop's writes and an acknowledgement never
 hold each other up for long). An event is acknowledged once: the first acknowledgement stays,
-a second one answers with it. Acks of events pruned by retention are pruned with them
-(`prune`, called as the log is opened).
+a second one answers with it. An acknowledgement belongs to one event for ever: event ids
+are never given again (io.sinks.eventdb's high-water marks), retention deletes an event's
+acknowledgement in the transaction that deletes the event (service.storage), and any left
+by an earlier version are deleted as the log is opened.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from stereopose.errors import StereoposeError
+from stereopose.io.sinks.eventdb import connect_writer, raise_marks
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS acks (
@@ -45,14 +48,17 @@ class AckStore:
             return self._db
         if not self.path.is_file():
             return None
+        db = None
         try:
-            db = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_MS / 1000,
-                                 check_same_thread=False)  # fmt: skip
-            db.execute(f"PRAGMA busy_timeout = {BUSY_MS}")
-            db.execute("PRAGMA journal_mode=WAL")
+            # the writer's settings; the marks raised (above every id an ack names) before
+            # the acks of events gone are deleted
+            db = connect_writer(self.path, BUSY_MS / 1000)
             db.executescript(SCHEMA)
+            raise_marks(db)
             db.execute("DELETE FROM acks WHERE event NOT IN (SELECT id FROM events)")
         except sqlite3.Error as e:
+            if db is not None:
+                db.close()
             raise AckError(f"{self.path}: cannot open the acknowledgements: {e}") from None
         self._db = db
         return db

@@ -4,7 +4,10 @@ its wall time, its level, its acknowledgement and its clips.
 An event's wall time is its run's `wall_start` + t (the run's start time for a log written
 before wall_start was recorded). Its clips are the MP4 files of `<output>/clips` named from
 it (io.sinks.clips.clip_name: the event's UTC second, person, zone, any camera). Reads go
-through a read-only connection opened per query, so they never hold up the frame loop.
+through a read-only connection opened per query, so they never hold up the frame loop; a
+read that meets a transient error (the log locked, or its WAL being recovered by a process
+starting after a kill) is tried again before it is reported. Event ids are never given
+again (io.sinks.eventdb), so "the events after id N" are the ones stored since.
 """
 
 from __future__ import annotations
@@ -17,14 +20,16 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from urllib.request import pathname2url
 
 from stereopose.behaviour.definitions import ALARM_TYPES as BEHAVIOUR_ALARMS
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX, _part
+from stereopose.io.sinks.eventdb import reading, transient
 
 # a camera down, and the behaviour rules' alarms (a person down, alone, immobile, ...)
-ALARM_TYPES = frozenset({"camera_down"}) | BEHAVIOUR_ALARMS
+ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS
 WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
 MAX_LIMIT = 1000
 DEFAULT_LIMIT = 100
@@ -91,10 +96,13 @@ class EventLog:
         self._clips: tuple[float, dict[str, list[str]]] | None = None
 
     def _connect(self) -> sqlite3.Connection | None:
+        """A read-only connection (never `immutable`: the log changes under it; WAL gives each
+        query a consistent snapshot of what was committed)."""
         if not self.path.is_file():
             return None
         try:
-            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=0.5)
+            db = sqlite3.connect(f"file:{pathname2url(str(self.path.resolve()))}?mode=ro",
+                                 uri=True, timeout=0.5)  # fmt: skip
             db.execute("PRAGMA busy_timeout = 500")
             return db
         except sqlite3.Error as e:
@@ -122,18 +130,40 @@ class EventLog:
         return self._select(["e.id > ?"], [last_id], "ORDER BY e.id ASC LIMIT ?", [limit])
 
     def last_id(self) -> int:
+        """The largest event id stored (0: none; the file not there yet). Ids are never given
+        again, so the events after it are exactly the ones stored later, however many were
+        pruned. A LogError when the log cannot be read (not 0: a tail from 0 would send every
+        stored event again)."""
+        try:
+            return reading(self._last_id)
+        except sqlite3.DatabaseError as e:
+            raise LogError(f"{self.path}: cannot read the event log: {e}") from None
+
+    def _last_id(self) -> int:
         db = self._connect()
         if db is None:
             return 0
         try:
+            tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
+            if "events" not in tables:
+                return 0
             row = db.execute("SELECT MAX(id) FROM events").fetchone()
-        except sqlite3.Error:
-            return 0
+        except sqlite3.DatabaseError as e:
+            if transient(e):
+                raise
+            raise LogError(f"{self.path}: cannot read the event log: {e}") from None
         finally:
             db.close()
         return int(row[0] or 0)
 
     def _select(self, where: list[str], args: list, tail: str, tail_args: list) -> list[dict]:
+        try:
+            return reading(lambda: self._select_once(where, args, tail, tail_args))
+        except sqlite3.DatabaseError as e:
+            raise LogError(f"{self.path}: cannot read the event log: {e}") from None
+
+    def _select_once(self, where: list[str], args: list, tail: str, tail_args: list
+                     ) -> list[dict]:  # fmt: skip
         db = self._connect()
         if db is None:
             return []
@@ -157,7 +187,9 @@ class EventLog:
                                                 if "wall_start" not in runs else w
                                                 for w in where)  # fmt: skip
             rows = db.execute(f"{sql} {tail}", [*args, *tail_args]).fetchall()
-        except sqlite3.Error as e:
+        except sqlite3.DatabaseError as e:
+            if transient(e):  # tried again by _select
+                raise
             raise LogError(f"{self.path}: cannot read the event log: {e}") from None
         finally:
             db.close()

@@ -375,12 +375,14 @@ class LiveHub:
             return None
         try:
             return self.log.last_id() if self.log.path.is_file() else 0
-        except LogError:
-            return 0
+        except LogError:  # not known now (0 would push every stored event again): next tick
+            return None
 
     def _tail(self, last_id: int | None) -> int | None:
-        if self.log is None or last_id is None:
+        if self.log is None:
             return last_id
+        if last_id is None:  # the log was not readable at the start: where it ends now
+            return self._last_id()
         try:
             new = self.log.after(last_id)
         except LogError as e:

@@ -27,11 +27,14 @@ import logging
 import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.request import pathname2url
 
 from stereopose.errors import StereoposeError
+from stereopose.io.sinks.eventdb import read_mark, reading
+from stereopose.service.person_ids import PersonIds
 from stereopose.types import Event
 
-__all__ = ["Occupancy", "OpenAlarm", "Resume"]
+__all__ = ["Occupancy", "OpenAlarm", "Resume", "open_rows"]
 
 # how each behaviour alarm ends (stereopose.behaviour.rules)
 ALARM_ENDS = {"person_down": "person_up", "lone_worker": "lone_worker_end",
@@ -41,28 +44,42 @@ ALARM_ENDS = {"person_down": "person_up", "lone_worker": "lone_worker_end",
 logger = logging.getLogger(__name__)
 
 # per (zone, person), its latest enter or exit (by row id: the order events were stored)
-_OPEN_SQL = """
+_LAST_ZONE_SQL = """
+SELECT MAX(id) AS id FROM events WHERE type IN ('enter', 'exit') GROUP BY zone, person
+"""
+_OPEN_SQL = f"""
 SELECT e.zone, e.kind, e.person, e.t, e.run, e.x, e.y, e.allowed
-FROM events AS e
-JOIN (
-    SELECT MAX(id) AS id FROM events WHERE type IN ('enter', 'exit') GROUP BY zone, person
-) AS last ON last.id = e.id
+FROM events AS e JOIN ({_LAST_ZONE_SQL}) AS last ON last.id = e.id
 WHERE e.type = 'enter'
 ORDER BY e.id
 """
 
-
 # per (rule, person), its latest behaviour event, where that is an alarm (not its end)
+_LAST_ALARM_SQL = """
+SELECT MAX(id) AS id FROM events WHERE kind = 'behaviour' AND rule IS NOT NULL
+GROUP BY rule, person
+"""
+_ALARM_TYPES_SQL = ", ".join(f"'{t}'" for t in ALARM_ENDS)
 _OPEN_ALARMS_SQL = f"""
 SELECT e.rule, e.type, e.person, e.zone, e.t, e.run, e.x, e.y
-FROM events AS e
-JOIN (
-    SELECT MAX(id) AS id FROM events WHERE kind = 'behaviour' AND rule IS NOT NULL
-    GROUP BY rule, person
-) AS last ON last.id = e.id
-WHERE e.type IN ({", ".join(f"'{t}'" for t in ALARM_ENDS)})
+FROM events AS e JOIN ({_LAST_ALARM_SQL}) AS last ON last.id = e.id
+WHERE e.type IN ({_ALARM_TYPES_SQL})
 ORDER BY e.id
 """
+
+
+def open_rows(db: sqlite3.Connection) -> set[int]:
+    """The ids of the events that hold state open: each enter still the latest of its (zone,
+    person), each behaviour alarm still the latest of its (rule, person). Retention keeps them
+    (service.storage): deleted, the state they open could never be closed at a restart."""
+    found = {int(i) for (i,) in db.execute(
+        f"SELECT e.id FROM events AS e JOIN ({_LAST_ZONE_SQL}) AS last ON last.id = e.id "
+        "WHERE e.type = 'enter'")}  # fmt: skip
+    if "rule" in {r[1] for r in db.execute("PRAGMA table_info(events)")}:
+        found |= {int(i) for (i,) in db.execute(
+            f"SELECT e.id FROM events AS e JOIN ({_LAST_ALARM_SQL}) AS last ON last.id = e.id "
+            f"WHERE e.type IN ({_ALARM_TYPES_SQL})")}  # fmt: skip
+    return found
 
 
 @dataclass(frozen=True)
@@ -124,12 +141,18 @@ class Resume:
         path = Path(db_path)
         if not path.exists():
             return cls()
-        try:
-            db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=5.0)
+
+        def read() -> Resume:
+            db = sqlite3.connect(f"file:{pathname2url(str(path.resolve()))}?mode=ro",
+                                 uri=True, timeout=5.0)  # fmt: skip
             try:
+                db.execute("BEGIN")  # one snapshot: the ids and the open state agree
                 return cls._read(db)
             finally:
                 db.close()
+
+        try:
+            return reading(read)
         except sqlite3.DatabaseError as e:
             raise StereoposeError(
                 f"{path}: cannot resume from the event log: {e}; move it away to start afresh"
@@ -146,6 +169,9 @@ class Resume:
             upto = db.execute("SELECT MAX(upto) FROM id_reservations").fetchone()[0]
             if upto is not None:
                 next_id = max(next_id, int(upto))
+        mark = read_mark(db, "persons")  # ids reserved ahead (service.person_ids)
+        if mark is not None:
+            next_id = max(next_id, mark)
         occupied = tuple(
             Occupancy(
                 zone=zone,
@@ -180,6 +206,11 @@ class Resume:
                 db.execute("SELECT ended FROM runs ORDER BY id DESC LIMIT 1").fetchone()[0] is None
             )
         return cls(next_id=next_id, occupied=occupied, alarms=alarms, runs=runs, crashed=crashed)
+
+    def person_ids(self, db_path: str | Path, block: int = 1000) -> PersonIds:
+        """Where the new run's tracker takes its ids: from next_id on, each reserved in the
+        log at db_path before it is given (service.person_ids)."""
+        return PersonIds(db_path, self.next_id, block=block)
 
     def closing_events(self, t: float, frame: int) -> list[Event]:
         """An exit marked `restart` for each open occupancy, at time t and frame of the new run

@@ -6,7 +6,11 @@ The one place that deletes (as Frigate's StorageMaintainer): every `interval_s` 
    (`clips/*.mp4`) older than `clip_retention_days`, by the time of their last write;
 2. then, while segments and clips together hold more than `max_bytes`, the oldest of them;
 3. deletes events older than `event_retention_days` from the event log, in short
-   transactions of `event_batch` rows; a log locked by its writer is tried again next pass.
+   transactions of `event_batch` rows, and their acknowledgements with them; a log locked by
+   its writer is tried again next pass. The rows that keep a zone occupied or a behaviour
+   alarm open (service.restart) stay until they are closed, however old, so that a restart
+   still closes them; and ids are never given again (the log's high-water marks,
+   io.sinks.eventdb, are never lowered).
 The newest segment (the one being written) and a clip being written (`*.part.mp4` written to
 in the last hour) are never deleted; nor is any file the sinks did not name so. A failure
 (permission, a file gone meanwhile) is logged and counted, and the pass goes on; the thread
@@ -28,7 +32,9 @@ from pathlib import Path
 from stereopose.checks import DAY_S
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.clips import CLIP_SUFFIX, CLIPS_DIR, PART_SUFFIX
+from stereopose.io.sinks.eventdb import connect_writer
 from stereopose.io.sinks.segments import POSES_DIR, SEGMENT_SUFFIX
+from stereopose.service.restart import open_rows
 
 __all__ = ["KINDS", "PassResult", "RetentionSettings", "StorageMaintainer"]
 
@@ -250,17 +256,26 @@ class StorageMaintainer:
             return
         cutoff = now - self.settings.event_retention_days * DAY_S
         try:
-            db = sqlite3.connect(
-                f"file:{path}?mode=rw", uri=True, timeout=self.settings.busy_s,
-                isolation_level=None, check_same_thread=False,
-            )  # fmt: skip
+            # the writer's settings (WAL, synchronous), the marks raised before any delete
+            db = connect_writer(path, self.settings.busy_s)
+        except sqlite3.OperationalError as e:
+            if "locked" in str(e) or "busy" in str(e):
+                result.events_locked = True
+                self.events_locked += 1
+            else:
+                self._failed(result, f"{path}: cannot open the event log: {e}")
+            return
         except sqlite3.Error as e:
             self._failed(result, f"{path}: cannot open the event log: {e}")
             return
         try:
-            runs = db.execute("SELECT id, started FROM runs WHERE started < ?", (cutoff,))
-            for run, started in runs.fetchall():
-                if not self._prune_run(db, run, cutoff - started, result):
+            runs = db.execute("SELECT id, started FROM runs WHERE started < ?",
+                              (cutoff,)).fetchall()  # fmt: skip
+            keep = open_rows(db) if runs else set()
+            acks = bool(db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND "
+                                   "name = 'acks'").fetchone())  # fmt: skip
+            for run, started in runs:
+                if not self._prune_run(db, run, cutoff - started, result, keep, acks):
                     break
         except sqlite3.OperationalError as e:
             self._busy_or_failed(db, result, e)
@@ -269,23 +284,29 @@ class StorageMaintainer:
         finally:
             db.close()
 
-    def _prune_run(self, db: sqlite3.Connection, run: int, before_t: float, r: PassResult) -> bool:
-        """Delete one run's events with t < before_t, batch by batch; False when this pass has
-        deleted its share (the rest waits for the next pass)."""
-        batch = self.settings.event_batch
+    def _prune_run(self, db: sqlite3.Connection, run: int, before_t: float, r: PassResult,
+                   keep: set[int], acks: bool) -> bool:  # fmt: skip
+        """Delete one run's events with t < before_t, batch by batch, their acknowledgements
+        with them (an ack names one event for ever), but never `keep` (the rows that hold a
+        zone occupied or an alarm open: a restart must still see them to close them); False
+        when this pass has deleted its share (the rest waits for the next pass)."""
+        batch, after = self.settings.event_batch, 0
         while True:
             if r.deleted["events"] >= _MAX_BATCHES * batch:
                 return False
             db.execute("BEGIN IMMEDIATE")
-            n = db.execute(
-                "DELETE FROM events WHERE id IN "
-                "(SELECT id FROM events WHERE run = ? AND t < ? LIMIT ?)",
-                (run, before_t, batch),
-            ).rowcount
+            found = [i for (i,) in db.execute(
+                "SELECT id FROM events WHERE run = ? AND t < ? AND id > ? ORDER BY id LIMIT ?",
+                (run, before_t, after, batch))]  # fmt: skip
+            gone = [(i,) for i in found if i not in keep]
+            db.executemany("DELETE FROM events WHERE id = ?", gone)
+            if acks:
+                db.executemany("DELETE FROM acks WHERE event = ?", gone)
             db.execute("COMMIT")
-            r.deleted["events"] += n
-            if n < batch:
+            r.deleted["events"] += len(gone)
+            if len(found) < batch:
                 return True
+            after = found[-1]
 
     def _busy_or_failed(self, db: sqlite3.Connection, result: PassResult, e: sqlite3.Error) -> None:
         try:

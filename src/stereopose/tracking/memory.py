@@ -22,6 +22,7 @@ import numpy as np
 from stereopose.config import Config
 from stereopose.reconstruction import Reconstruction
 from stereopose.skeleton import NUM_JOINTS
+from stereopose.tracking.ids import IdSource
 from stereopose.tracking.positioning import Trajectory
 from stereopose.types import People3D, Rig
 
@@ -97,10 +98,12 @@ class RecentPeople(NoMemory):
         return rec.people
 
 
-def make_memory(rig: Rig, config: Config, record: bool = False, first_id: int = 1) -> Memory:
+def make_memory(rig: Rig, config: Config, record: bool = False,
+                first_id: int | IdSource = 1) -> Memory:  # fmt: skip
     """The memory named by config.tracking.memory (`tracking.enabled = false` asks for
     `recent`, as before). record: the tracker keeps every measurement for two_way. first_id:
-    the tracker's first id (the other memories number each frame's people from 0)."""
+    the tracker's first id, or the IdSource it takes its ids from (tracking.ids); the other
+    memories number each frame's people from 0."""
     name = config.tracking.memory if config.tracking.enabled else "recent"
     if record and not config.tracking.ids:
         raise ValueError("two-way smoothing needs tracking (person ids)")

@@ -27,6 +27,7 @@ from stereopose.reconstruction import Reconstruction
 from stereopose.skeleton import LEFT_HIP, NUM_JOINTS, RIGHT_HIP, joint_index
 from stereopose.tracking.bones import BoneLengths
 from stereopose.tracking.filter import JointFilters
+from stereopose.tracking.ids import IdSource, id_source
 from stereopose.tracking.offline import NOT_USED, RESTARTED, TrackLog, smooth_people
 from stereopose.tracking.positioning import Trajectory, floor_position
 from stereopose.types import People3D, Rig
@@ -46,15 +47,21 @@ class Tracker:
     tracking = True
 
     def __init__(
-        self, rig: Rig, config: Config | None = None, record: bool = False, first_id: int = 1
+        self,
+        rig: Rig,
+        config: Config | None = None,
+        record: bool = False,
+        first_id: int | IdSource = 1,
     ) -> None:
         """record: keep every track's measurements for `two_way` (offline smoothing): the one
         state that grows with the length of a run, by design (the smoother needs each whole
         track). Without it the tracker holds its live tracks and one trajectory summary per
         person. first_id: the first id given (a restarted service continues above the ids of
-        its earlier runs, so that an id never names two people)."""
-        if first_id < 1:
-            raise ValueError(f"first_id must be at least 1, got {first_id}")
+        its earlier runs, so that an id never names two people), or the IdSource to take each
+        new id from (tracking.ids: a service's ids reserved in its log; a track waits,
+        tentative, while the source has none)."""
+        self._ids = id_source(first_id)
+        self.ids_waited = 0  # frames a confirmed track waited for an id (the source had none)
         self.config = config or Config()
         self.record = record
         self.tc = self.config.tracking
@@ -72,7 +79,6 @@ class Tracker:
         self._t: float | None = None
         self._unseen: np.ndarray | None = None  # set by prior, used by update
         self._seed_rows = np.zeros(0, dtype=np.int64)
-        self._next_id = int(first_id)
         self._frame = 0
         self._last_frame = 0  # the last frame not skipped
         self._skipping = False  # prior(self._frame) skipped its frame
@@ -280,19 +286,22 @@ class Tracker:
         confirm = was & (self.hits >= tc.confirm_frames)
         if confirm.any():
             for r in np.flatnonzero(confirm):
-                self.ids[r] = self._next_id
+                pid = self._ids.take()
+                if pid is None:  # none reserved now: tentative until a later frame
+                    self.ids_waited += 1
+                    break
+                self.ids[r] = pid
                 if self.record:  # what two_way needs; nothing kept per person otherwise
-                    self._serial_of_id[self._next_id] = int(self.serial[r])
+                    self._serial_of_id[pid] = int(self.serial[r])
                 # the frames it was seen before confirmation count too (this one is added below)
-                self.trajectories[self._next_id] = Trajectory(
-                    self._next_id,
+                self.trajectories[pid] = Trajectory(
+                    pid,
                     int(self.born[r]),
                     float(self.born_t[r]),
                     frame,
                     t,
                     frames_seen=int(self.hits[r]) - 1,
                 )
-                self._next_id += 1
         alive = (self.ids > 0) & (t - self.seen_t <= tc.bridge_s + 1e-9)
         out_rows = np.flatnonzero(alive)
         out_rows = out_rows[np.argsort(self.ids[out_rows])]

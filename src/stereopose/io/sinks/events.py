@@ -7,9 +7,12 @@ io.records.
 - JSON lines: the events contract, one line per event, flushed at once.
 - SQLite (the embedded log): WAL journal; each frame's events are one transaction, committed
   before `write` returns, so a process killed at any moment (even with SIGKILL) loses no
-  committed event and leaves a readable database. An existing log is appended to; every run
-  gets a row in `runs`. A log locked by another process does not hold up the frame loop: its
-  events wait in memory and are stored with a later frame's (see SqliteSink).
+  committed event and leaves a readable database. Event ids come from the log's high-water
+  mark (io.sinks.eventdb), taken in the transaction that stores them: they strictly increase
+  for the life of the log, whatever retention deleted, so (site, id) names one event for
+  ever. An existing log is appended to; every run gets a row in `runs`. A log locked by
+  another process does not hold up the frame loop: its events wait in memory and are stored
+  with a later frame's (see SqliteSink).
 - Webhook (io.sinks.webhook): POSTs each event as JSON from a background thread that no reply
   can stop; retries with a bounded backoff; a bounded queue that never blocks the frame loop;
   every event counted once, delivered, failed or dropped.
@@ -25,12 +28,14 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
+from urllib.request import pathname2url
 
 import numpy as np
 
 from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
 from stereopose.types import Event
@@ -83,6 +88,10 @@ CREATE TABLE IF NOT EXISTS events (
 CREATE TABLE IF NOT EXISTS id_reservations (
     run INTEGER PRIMARY KEY REFERENCES runs(id),
     upto INTEGER NOT NULL            -- every person id this run gave is below it
+);
+CREATE TABLE IF NOT EXISTS counters (
+    name TEXT PRIMARY KEY,
+    next INTEGER NOT NULL            -- high-water mark: every id of this kind is below it
 );
 CREATE INDEX IF NOT EXISTS events_person ON events(person);
 CREATE INDEX IF NOT EXISTS events_zone ON events(zone);
@@ -226,13 +235,10 @@ class SqliteSink(_EventSink):
                 f"{self.path}: cannot write the event database: {e.strerror}"
             ) from None
         try:
-            self.db = sqlite3.connect(
-                self.path, isolation_level=None, timeout=open_timeout_s, check_same_thread=False
-            )
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute("PRAGMA synchronous=NORMAL")
+            self.db = connect_writer(self.path, open_timeout_s, create=True)
             self.db.executescript(SCHEMA)
             _upgrade(self.db)
+            raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             cur = self.db.execute(
                 "INSERT INTO runs(started, site, source, wall_start) VALUES (?, ?, ?, ?)",
                 (time.time(), site, source, wall_start),
@@ -290,9 +296,13 @@ class SqliteSink(_EventSink):
         placeholders = ", ".join("?" * len(COLUMNS))
         try:
             self.db.execute("BEGIN IMMEDIATE")
-            self.db.executemany(
-                f"INSERT INTO events({', '.join(COLUMNS)}) VALUES ({placeholders})", rows
-            )
+            if rows:  # ids from the mark, raised in this transaction: never one given before
+                top = self.db.execute("SELECT MAX(id) FROM events").fetchone()[0]
+                first = take(self.db, "events", len(rows), floor=int(top or 0) + 1)
+                self.db.executemany(
+                    f"INSERT INTO events(id, {', '.join(COLUMNS)}) VALUES (?, {placeholders})",
+                    [(first + i, *row) for i, row in enumerate(rows)],
+                )
             want = self._want
             if want is not None:
                 self.db.execute(
@@ -419,12 +429,16 @@ def query_events(
     if where:
         sql += " WHERE " + " AND ".join(where)
     sql += " ORDER BY run, t, id"
-    try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+
+    def read() -> list:
+        db = sqlite3.connect(f"file:{pathname2url(str(path.resolve()))}?mode=ro", uri=True)
         try:
-            rows = db.execute(sql.format(_select(db)), args).fetchall()
+            return db.execute(sql.format(_select(db)), args).fetchall()
         finally:
             db.close()
+
+    try:
+        rows = reading(read)
     except sqlite3.DatabaseError as e:
         raise StereoposeError(f"{path}: not a readable event database: {e}") from None
     return [dict(zip(COLUMNS, r, strict=True)) for r in rows]

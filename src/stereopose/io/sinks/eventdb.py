@@ -1,0 +1,144 @@
+"""The event log's SQLite file: one way to open it for writing, and its high-water marks.
+
+Every connection that writes `events.sqlite` (the event sink, the person-id reservations,
+the acknowledgements, retention) is opened by `connect_writer`, so they all agree: WAL
+journal, synchronous=NORMAL, a busy timeout; and each raises the high-water marks first.
+
+High-water marks (table `counters`, one row per kind of id): `next` is the first id not
+given yet; every id of that kind ever given is below it. An id is taken (`take`) inside the
+write transaction that stores what it names, so the raised mark and the row commit together
+and no id can be seen anywhere before its mark is durable; nothing ever lowers a mark (the
+retention deletes rows, never counters). So ids strictly increase for the life of the log,
+whatever was deleted and whenever a process was killed. Kinds: `events` (events.id),
+`persons` (person ids, reserved ahead by service.person_ids); further kinds (incidents) are
+added the same way, with their seed in SEEDS.
+
+A log of an earlier version (no `counters`, or rows written by a version that did not raise
+them) is brought up to date by `raise_marks` at every writer's open: each mark is raised
+above the largest id its kind's rows and any row naming one (an acknowledgement names an
+event) hold. Ids that an earlier version gave and deleted, with nothing left naming them,
+cannot be known: the marks start above what is left.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+from urllib.request import pathname2url
+
+__all__ = ["COUNTERS_SCHEMA", "SEEDS", "connect_writer", "raise_marks", "read_mark", "reading",
+           "take", "transient"]  # fmt: skip
+
+COUNTERS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS counters (
+    name TEXT PRIMARY KEY,
+    next INTEGER NOT NULL            -- the first id not given; every id given is below it
+);
+"""
+
+# per kind, (table, SQL giving one above the largest id held by that table): the floor of
+# its mark; a table missing from a log is skipped
+SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
+    "events": (("events", "SELECT MAX(id) + 1 FROM events"),
+               ("acks", "SELECT MAX(event) + 1 FROM acks")),
+    "persons": (("events", "SELECT MAX(person) + 1 FROM events"),
+                ("id_reservations", "SELECT MAX(upto) FROM id_reservations")),
+}  # fmt: skip
+
+# what a reader may see for a moment while writers of a WAL log start, end or check-point:
+# worth one more try (an error that stays is reported as it is)
+_TRANSIENT = ("locked", "busy", "malformed", "disk i/o error")
+
+T = TypeVar("T")
+
+
+def transient(e: sqlite3.Error) -> bool:
+    """Whether e may pass on a second try (a lock, a WAL being recovered by another process)."""
+    text = str(e).lower()
+    return any(word in text for word in _TRANSIENT)
+
+
+def reading(read: Callable[[], T], tries: int = 3, pause_s: float = 0.05) -> T:
+    """read(), tried again (at most `tries` times) after a transient error; the last error
+    raised. For read-only readers: a reader that opens the log while another process recovers
+    its WAL after a kill may see an error for a moment that a new connection does not."""
+    for n in range(tries):
+        try:
+            return read()
+        except sqlite3.DatabaseError as e:
+            if n == tries - 1 or not transient(e):
+                raise
+            time.sleep(pause_s * (n + 1))
+    raise AssertionError("unreachable")
+
+
+def connect_writer(path: str | Path, busy_s: float, *, create: bool = False) -> sqlite3.Connection:
+    """A connection that may write the log at path: autocommit (transactions are explicit),
+    WAL, synchronous=NORMAL (a transaction committed survives the process killed; WAL keeps
+    the file consistent whatever moment), busy_s the longest a lock is waited for; the marks
+    raised (when the log has its tables). create: the file may be made (the event sink);
+    otherwise an existing log is required (mode=rw). sqlite3.Error when it cannot."""
+    target: str | Path = Path(path)
+    if not create:  # an existing file only: never an empty log made beside a moved one
+        target = f"file:{pathname2url(str(Path(path).resolve()))}?mode=rw"
+    db = sqlite3.connect(target, uri=not create, isolation_level=None, timeout=busy_s,
+                         check_same_thread=False)  # fmt: skip
+    try:
+        db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * busy_s))}")
+        if db.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
+            db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA synchronous=NORMAL")
+        raise_marks(db)
+    except BaseException:
+        db.close()
+        raise
+    return db
+
+
+def _tables(db: sqlite3.Connection) -> set[str]:
+    return {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+
+
+def raise_marks(db: sqlite3.Connection) -> None:
+    """Each mark of SEEDS raised above the ids its tables hold (created at the first id);
+    nothing when the log has no events table yet. One short write transaction."""
+    if "events" not in _tables(db):
+        return
+    db.execute("BEGIN IMMEDIATE")
+    try:
+        db.execute(COUNTERS_SCHEMA.strip().rstrip(";"))
+        tables = _tables(db)
+        for name, seeds in SEEDS.items():
+            floor = 1
+            for table, sql in seeds:
+                if table in tables:
+                    floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
+            db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
+                       "UPDATE SET next = MAX(next, excluded.next)", (name, floor))  # fmt: skip
+        db.execute("COMMIT")
+    except BaseException:
+        if db.in_transaction:
+            db.execute("ROLLBACK")
+        raise
+
+
+def read_mark(db: sqlite3.Connection, name: str) -> int | None:
+    """The mark `name` (the first id not given), None when the log has none."""
+    if "counters" not in _tables(db):
+        return None
+    row = db.execute("SELECT next FROM counters WHERE name = ?", (name,)).fetchone()
+    return None if row is None else int(row[0])
+
+
+def take(db: sqlite3.Connection, name: str, n: int, floor: int = 1) -> int:
+    """The first of n ids of kind `name`, the mark raised past them; inside a write
+    transaction of db (BEGIN IMMEDIATE), so it commits with what the ids name. floor: the
+    least first id the caller may take (its own earlier ones, rows of another writer)."""
+    row = db.execute("SELECT next FROM counters WHERE name = ?", (name,)).fetchone()
+    first = max(floor, int(row[0]) if row is not None else 1)
+    db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
+               "UPDATE SET next = MAX(next, excluded.next)", (name, first + n))  # fmt: skip
+    return first
