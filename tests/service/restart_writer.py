@@ -3,10 +3,12 @@
     python restart_writer.py EVENTS.sqlite SEED
 
 Resumes from the log (Resume.from_log), writes the restart exits first, then frames for ever:
-people appear (some enter a zone and leave it later, some only walk by) with ids from next_id
-on. Reports on stdout, flushed, in this order: `next N`; `given ID` before a frame holding that
-id is written anywhere (as a pose segment would hold it before the event log commits);
-`event TYPE ZONE PERSON FRAME RESTART` for each event once its write has committed.
+people appear (some enter a zone and leave it later, some only walk by) with ids taken as
+serve's tracker takes them (Resume.person_ids: each reserved in the log first; a new person
+waits while none is reserved). Reports on stdout, flushed, in this order: `next N`; `given ID`
+before a frame holding that id is written anywhere (as a pose segment would hold it before
+the event log commits); `event TYPE ZONE PERSON FRAME RESTART` for each event once its write
+has committed; `waiting` once when a new person first waits for an id.
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ def main(db: str, seed: int) -> None:
     sink.write_events(closing)
     assert not sink.pending
     report(closing)
-    next_id = resume.next_id
+    source = resume.person_ids(db, block=ID_BLOCK)
+    waited = False
     inside: dict[int, tuple[str, int]] = {}  # id -> (zone, frames left inside)
     passing: dict[int, int] = {}  # ids seen without a zone event -> frames left
     frame = 0
@@ -75,7 +78,12 @@ def main(db: str, seed: int) -> None:
             if left == 0:
                 del passing[pid]
         for _ in range(int(rng.integers(0, 3))):  # at most 2 new ids a frame
-            pid, next_id = next_id, next_id + 1
+            pid = source.take()
+            if pid is None:  # none reserved (the log locked): this person waits
+                if not waited:
+                    say("waiting")
+                    waited = True
+                break
             say("given", pid)
             if rng.random() < 0.6:
                 zone = f"z{int(rng.integers(3))}"

@@ -1,0 +1,262 @@
+"""Ids that are never given again, on a real event log: event ids above every earlier one
+after retention has emptied the log, acknowledgements that stay with their event, person ids
+reserved before they are given (also while the log is locked, and across kill -9), zones left
+open closed at every restart, and the live channel pushing the rows stored after a pruning."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_restart import WRITER, run_writer_until_killed
+
+from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.service.acks import AckStore
+from stereopose.service.eventlog import EventLog, Filters
+from stereopose.service.person_ids import PersonIds
+from stereopose.service.restart import Resume
+from stereopose.service.storage import RetentionSettings, StorageMaintainer
+from stereopose.types import Event
+from waiting import wait_until
+
+DAY = 86400.0
+
+
+def passing(n: int, first_t: float = 1.0) -> list[Event]:
+    """n events that leave nothing open (approaches: no zone occupied, no alarm)."""
+    return [Event(first_t + i, i, 1, "panel", "energized", "approach", first_t + i)
+            for i in range(n)]  # fmt: skip
+
+
+def ids(db: Path) -> list[int]:
+    con = sqlite3.connect(db)
+    try:
+        return [i for (i,) in con.execute("SELECT id FROM events ORDER BY id")]
+    finally:
+        con.close()
+
+
+def prune_everything(out: Path, db: Path) -> int:
+    """A retention pass ten days ahead, with a one-day retention: every event it may delete."""
+    settings = RetentionSettings(event_retention_days=1.0)
+    m = StorageMaintainer(out, event_log=db, settings=settings, now=lambda: time.time() + 10 * DAY)
+    result = m.run_once()
+    assert result.errors == 0, m.last_error
+    return result.deleted["events"]
+
+
+def test_ids_after_retention_emptied_the_log_are_above_every_earlier_id(tmp_path: Path) -> None:
+    db = tmp_path / "events.sqlite"
+    sink = SqliteSink(db)
+    sink.write_events(passing(5))
+    sink.close()
+    before = ids(db)
+    assert prune_everything(tmp_path, db) == 5 and ids(db) == []
+    sink = SqliteSink(db)
+    sink.write_events(passing(3))
+    sink.write_events(passing(2, 10.0))
+    sink.close()
+    after = ids(db)
+    assert len(after) == 5 and min(after) > max(before), f"ids given again: {after}"
+    assert after == sorted(after)
+
+
+def test_an_old_ack_never_shows_on_a_new_event(tmp_path: Path) -> None:
+    db = tmp_path / "events.sqlite"
+    sink = SqliteSink(db)
+    sink.write_events(passing(4))
+    acks = AckStore(db)  # one connection for the service's life, as the console holds it
+    try:
+        assert acks.ack(2, "olga") is not None
+        assert prune_everything(tmp_path, db) == 4
+        sink.write_events(passing(4, 20.0))
+        log = EventLog(db)
+        rows = log.query(Filters())
+        assert len(rows) == 4 and all(r["ack"] is None for r in rows), rows
+        assert acks.of(r["id"] for r in rows) == {}
+        con = sqlite3.connect(db)
+        assert con.execute("SELECT COUNT(*) FROM acks").fetchone() == (0,)  # pruned with it
+        con.close()
+        assert acks.ack(2, "olga") is None  # no event 2 any more, nor ever again
+    finally:
+        acks.close()
+        sink.close()
+
+
+OLD_LOG = """
+CREATE TABLE runs (id INTEGER PRIMARY KEY, started REAL NOT NULL, site TEXT, source TEXT);
+CREATE TABLE events (
+    id INTEGER PRIMARY KEY, run INTEGER NOT NULL REFERENCES runs(id), t REAL NOT NULL,
+    frame INTEGER NOT NULL, person INTEGER NOT NULL, zone TEXT NOT NULL, kind TEXT NOT NULL,
+    type TEXT NOT NULL, onset_t REAL, joint TEXT, distance_m REAL, duration_s REAL, x REAL,
+    y REAL, allowed INTEGER NOT NULL DEFAULT 0, lost INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE acks (event INTEGER PRIMARY KEY REFERENCES events(id), by TEXT NOT NULL,
+    at REAL NOT NULL);
+INSERT INTO runs VALUES (1, 1750000000.0, 'site', 'run');
+INSERT INTO events(id, run, t, frame, person, zone, kind, type, onset_t)
+    VALUES (3, 1, 1.0, 25, 7, 'panel', 'energized', 'approach', 1.0);
+INSERT INTO acks VALUES (9, 'olga', 1750000100.0);  -- its event pruned by that version
+"""
+
+
+def test_a_log_of_an_earlier_version_gets_marks_above_its_events_and_acks(tmp_path: Path) -> None:
+    db = tmp_path / "events.sqlite"
+    con = sqlite3.connect(db)
+    con.executescript(OLD_LOG)
+    con.close()
+    sink = SqliteSink(db)
+    sink.write_events(passing(2, 5.0))
+    sink.close()
+    assert ids(db)[0] == 3 and min(ids(db)[1:]) > 9  # above the acknowledged id too
+    rows = EventLog(db).query(Filters())
+    assert [r["ack"] for r in rows] == [None, None, None]
+
+
+def test_person_ids_are_reserved_before_they_are_given(tmp_path: Path) -> None:
+    db = tmp_path / "events.sqlite"
+    source = PersonIds(db, 5, block=4)
+
+    def mark() -> int:
+        con = sqlite3.connect(db)
+        try:
+            return con.execute("SELECT next FROM counters WHERE name = 'persons'").fetchone()[0]
+        finally:
+            con.close()
+
+    for expected in range(5, 12):
+        got = source.take()
+        assert got == expected and mark() > got  # committed before it is handed out
+    holder = sqlite3.connect(db, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")  # another process holds the log
+    try:
+        given = []
+        while (pid := source.take()) is not None:
+            given.append(pid)
+        assert given and max(given) < mark() and source.error
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    assert Resume.from_log(db).next_id > max(given)
+
+
+@pytest.mark.slow
+def test_person_ids_are_never_below_the_reserved_range_after_kills(tmp_path: Path) -> None:
+    """The log locked by another process while the writer gives ids, then kill -9: every id
+    it gave was reserved, so the next start gives ids above them all."""
+    db = tmp_path / "events.sqlite"
+    given: set[int] = set()
+    for round_ in range(3):
+        resume = Resume.from_log(db)
+        assert resume.next_id > max(given, default=0), "an id could name two people"
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+        proc = subprocess.Popen([sys.executable, str(WRITER), str(db), str(100 + round_)],
+                                stdout=subprocess.PIPE, text=True, env=env)  # fmt: skip
+        holder = None
+        lines: list[list[str]] = []
+        try:
+            locked_at = None
+            for line in proc.stdout:
+                lines.append(line.split())
+                if lines[-1][0] == "given" and locked_at is None and len(lines) > 4:
+                    holder = sqlite3.connect(db, isolation_level=None, timeout=10.0)
+                    holder.execute("BEGIN IMMEDIATE")  # the log held while ids are given
+                    locked_at = len(lines)
+                if lines[-1] == ["waiting"] or (locked_at and len(lines) - locked_at > 60):
+                    break
+        finally:
+            proc.send_signal(signal.SIGKILL)
+            rest, _ = proc.communicate(timeout=30)
+            if holder is not None:
+                holder.execute("ROLLBACK")
+                holder.close()
+        lines += [w.split() for w in rest.splitlines() if w.strip()]
+        assert proc.returncode == -signal.SIGKILL, "the writer ended before it was killed"
+        round_given = {int(w[1]) for w in lines if w[0] == "given"}
+        assert round_given and min(round_given) >= resume.next_id
+        given |= round_given
+    assert Resume.from_log(db).next_id > max(given)
+
+
+@pytest.mark.slow
+def test_ids_increase_and_open_zones_close_over_kill_cycles_with_retention(
+    tmp_path: Path,
+) -> None:
+    """kill -9 at random moments (a fixed seed), retention emptying the log between the
+    runs: event ids strictly increase over every cycle, and each restart closes exactly the
+    zones the killed runs left occupied."""
+    db = tmp_path / "events.sqlite"
+    rng = np.random.default_rng(24)
+    seen_top = 0  # the largest event id ever seen in the log
+    kept: set[int] = set()  # the ids retention left: the enters still open
+    inside: set[tuple[str, int]] = set()  # who is inside by every event committed so far
+    for cycle in range(4):
+        run_writer_until_killed(db, 240 + cycle, int(rng.integers(5, 80)))
+        new_ids = [i for i in ids(db) if i not in kept]
+        assert new_ids and min(new_ids) > seen_top, f"cycle {cycle}: an id given again"
+        rows = query_events(db)  # by run, then t: the order each run stored them
+        new = [r for r in rows if r["run"] == max(r["run"] for r in rows)]
+        closing = {(r["zone"], r["person"]) for r in new if r["restart"]}
+        assert closing == inside, f"cycle {cycle}: restart closed {closing}, open {inside}"
+        for r in new:
+            if r["type"] == "enter":
+                inside.add((r["zone"], r["person"]))
+            elif r["type"] == "exit":
+                inside.discard((r["zone"], r["person"]))
+        seen_top = max(ids(db))
+        prune_everything(tmp_path, db)
+        kept = set(ids(db))
+        assert {(r["zone"], r["person"]) for r in query_events(db)} == inside
+
+
+def test_the_live_hub_pushes_new_rows_after_the_log_was_emptied(
+    tmp_path: Path, shared_data_dir: Path
+) -> None:
+    from stereopose.calibration.formats import load_calibration
+    from stereopose.service.live import LiveHub
+    from stereopose.service.state import ServiceState
+
+    db = tmp_path / "events.sqlite"
+    sink = SqliteSink(db)
+    sink.write_events(passing(5))
+    rig = load_calibration(shared_data_dir / "calib.toml")
+    hub = LiveHub(rig, None, ServiceState(rig.names), EventLog(db), snapshot_hz=0.0)
+    loop = asyncio.new_event_loop()
+    try:
+        hub.start()
+        sub = hub.subscribe(loop, "otto", privileged=True)
+        assert sub is not None
+        pushed: list[int] = []
+        kinds: list[str] = []
+
+        def events_pushed() -> list[int]:
+            for message in sub.take():
+                kind, data = message.decode().split("\n")[:2]
+                kinds.append(kind)
+                if kind == "event: event":
+                    pushed.append(json.loads(data.removeprefix("data: "))["id"])
+            return pushed
+
+        # the hub's first round (the zones sent again) has taken where the log ends
+        wait_until(lambda: events_pushed() == [] and kinds.count("event: zones") >= 2,
+                   "the live channel's first round")  # fmt: skip
+        sink.write_events(passing(1, 9.0))
+        wait_until(lambda: len(events_pushed()) == 1, "the event stored after the start")
+        assert prune_everything(tmp_path, db) == 6
+        sink.write_events(passing(3, 30.0))
+        wait_until(lambda: len(events_pushed()) >= 4, "the events stored after the pruning")
+        sink.write_events(passing(1, 40.0))
+        wait_until(lambda: len(events_pushed()) >= 5, "one more")
+        assert len(pushed) == 5 and pushed[1:] == ids(db)  # each once, in order
+    finally:
+        hub.close()
+        loop.close()
+        sink.close()
