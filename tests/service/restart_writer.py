@@ -7,8 +7,10 @@ people appear (some enter a zone and leave it later, some only walk by) with ids
 serve's tracker takes them (Resume.person_ids: each reserved in the log first; a new person
 waits while none is reserved). Reports on stdout, flushed, in this order: `next N`; `given ID`
 before a frame holding that id is written anywhere (as a pose segment would hold it before
-the event log commits); `event TYPE ZONE PERSON FRAME RESTART` for each event once its write
-has committed; `waiting` once when a new person first waits for an id.
+the event log commits); `sent TYPE ZONE PERSON` for each event once the sink has taken it
+(committed, or waiting for a locked log: MQTT would have sent it by then); `event TYPE ZONE
+PERSON FRAME RESTART` for each event once its write has committed; `waiting` once when a new
+person first waits for an id.
 """
 
 from __future__ import annotations
@@ -44,6 +46,11 @@ def say(*words: object) -> None:
     sys.stdout.flush()
 
 
+def sent(events: list[Event]) -> None:
+    for e in events:
+        say("sent", e.type, e.zone, e.person)
+
+
 def report(events: list[Event]) -> None:
     for e in events:
         say("event", e.type, e.zone, e.person, e.frame, int(e.restart))
@@ -57,6 +64,7 @@ def main(db: str, seed: int) -> None:
     closing = resume.closing_events(0.0, 0)
     sink.write_events(closing)
     assert not sink.pending
+    sent(closing)
     report(closing)
     source = resume.person_ids(db, block=ID_BLOCK)
     waited = False
@@ -93,6 +101,7 @@ def main(db: str, seed: int) -> None:
                 passing[pid] = int(rng.integers(1, 20))
         ids = sorted([*inside, *passing])
         sink.write(FrameResult(frame, t, {}, people(frame, ids), events))
+        sent(events)
         if not sink.pending:
             report(events)
 

@@ -20,6 +20,7 @@ import pytest
 from test_restart import WRITER, run_writer_until_killed
 
 from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.io.sinks.spill import spill_path
 from stereopose.service.acks import AckStore
 from stereopose.service.eventlog import EventLog, Filters
 from stereopose.service.person_ids import PersonIds
@@ -151,9 +152,12 @@ def test_person_ids_are_reserved_before_they_are_given(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_person_ids_are_never_below_the_reserved_range_after_kills(tmp_path: Path) -> None:
     """The log locked by another process while the writer gives ids, then kill -9: every id
-    it gave was reserved, so the next start gives ids above them all."""
+    it gave was reserved, so the next start gives ids above them all; and every zone entered
+    by an event the writer sent (stored, or waiting for the locked log) is closed at the next
+    start."""
     db = tmp_path / "events.sqlite"
     given: set[int] = set()
+    inside: set[tuple[str, int]] = set()  # by every event sent so far
     for round_ in range(3):
         resume = Resume.from_log(db)
         assert resume.next_id > max(given, default=0), "an id could name two people"
@@ -180,9 +184,17 @@ def test_person_ids_are_never_below_the_reserved_range_after_kills(tmp_path: Pat
                 holder.close()
         lines += [w.split() for w in rest.splitlines() if w.strip()]
         assert proc.returncode == -signal.SIGKILL, "the writer ended before it was killed"
+        assert ["waiting"] in lines, "the writer never waited for an id: the lock did not hold"
         round_given = {int(w[1]) for w in lines if w[0] == "given"}
         assert round_given and min(round_given) >= resume.next_id
         given |= round_given
+        closing = {(w[2], int(w[3])) for w in lines if w[0] == "event" and w[5] == "1"}
+        assert closing >= inside, f"left open: {inside - closing}"
+        for w in lines:
+            if w[0] == "sent" and w[1] == "enter":
+                inside.add((w[2], int(w[3])))
+            elif w[0] == "sent" and w[1] == "exit":
+                inside.discard((w[2], int(w[3])))
     assert Resume.from_log(db).next_id > max(given)
 
 
@@ -260,3 +272,29 @@ def test_the_live_hub_pushes_new_rows_after_the_log_was_emptied(
         hub.close()
         loop.close()
         sink.close()
+
+
+def test_events_waiting_for_a_locked_log_are_kept_and_stored_once_at_the_next_start(
+    tmp_path: Path,
+) -> None:
+    """An enter sent while the log was locked, then the process gone without closing (as
+    after kill -9): the next start closes its zone and stores it in the log, once."""
+    db = tmp_path / "events.sqlite"
+    first = SqliteSink(db, busy_s=0.01)
+    holder = sqlite3.connect(db, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    try:
+        first.write_events([Event(1.0, 25, 7, "panel", "energized", "enter", 1.0)])
+        assert first.pending and spill_path(db).is_file()
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    kept = spill_path(db).read_text()
+    first.db.close()  # gone without a word, its event still waiting
+    assert Resume.from_log(db).open_zones == {"panel": (7,)}
+    SqliteSink(db).close()
+    assert [(r["type"], r["person"]) for r in query_events(db)] == [("enter", 7)]
+    assert not spill_path(db).exists()
+    spill_path(db).write_text(kept)  # as if killed after storing it, before removing the file
+    SqliteSink(db).close()
+    assert len(query_events(db)) == 1 and not spill_path(db).exists()

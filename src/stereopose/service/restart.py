@@ -4,17 +4,22 @@
 the frame loop gives its first id or writes its first event:
 
     resume = Resume.from_log(output / "events.sqlite")
-    memory = make_memory(rig, config, first_id=resume.next_id)
-    sink = SqliteSink(db, ..., first_id=resume.next_id)      # reserves ids ahead
+    memory = make_memory(rig, config, first_id=resume.person_ids(db))  # ids reserved first
+    sink = SqliteSink(db, ..., first_id=resume.next_id)
     for s in event_sinks: s.write_events(resume.closing_events(t0, frame0))
 
-- `next_id`: one above every id any earlier run may have given: the highest id reserved in
-  the log (SqliteSink reserves blocks of ids, each committed before an id of it is used) and
-  the highest person of its events, whichever is larger; so an id never names two people.
+- `next_id`: one above every id any earlier run may have given: the log's `persons`
+  high-water mark (service.person_ids reserves blocks of ids on it, each committed before the
+  tracker gives an id of it), the highest id SqliteSink reserved (`id_reservations`) and the
+  highest person of its events, whichever is largest; so an id never names two people,
+  whatever retention deleted (it never lowers a mark) and whenever a run was killed.
 - `open_zones`: who was inside which zone at the last committed event: per (zone, person) the
-  latest enter or exit is an enter. Their `closing_events` are exits marked `restart`, written
-  first through every event sink, so that occupancy (SQLite, MQTT's retained zone states, the
-  webhook's receiver) is closed rather than left open for ever.
+  latest enter or exit is an enter; the events a killed run left waiting beside the log
+  (io.sinks.spill: not stored yet, but sent by MQTT and the webhook) count after the log's.
+  Retention never deletes such an enter while it is open (service.storage). Their
+  `closing_events` are exits marked `restart`, written first through every event sink, so
+  that occupancy (SQLite, MQTT's retained zone states, the webhook's receiver) is closed
+  rather than left open for ever.
 - `alarms`: the behaviour alarms left open (per rule and person, the latest behaviour event is
   an alarm: person_down, lone_worker, ...). Their `closing_events` end them (`person_up`,
   `<type>_end`) marked `restart`, after the zone exits: whoever was down when the service died
@@ -25,12 +30,13 @@ from __future__ import annotations
 
 import logging
 import sqlite3
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from urllib.request import pathname2url
 
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.eventdb import read_mark, reading
+from stereopose.io.sinks.spill import read_spill
 from stereopose.service.person_ids import PersonIds
 from stereopose.types import Event
 
@@ -152,7 +158,7 @@ class Resume:
                 db.close()
 
         try:
-            return reading(read)
+            return reading(read).with_waiting(read_spill(path))
         except sqlite3.DatabaseError as e:
             raise StereoposeError(
                 f"{path}: cannot resume from the event log: {e}; move it away to start afresh"
@@ -206,6 +212,30 @@ class Resume:
                 db.execute("SELECT ended FROM runs ORDER BY id DESC LIMIT 1").fetchone()[0] is None
             )
         return cls(next_id=next_id, occupied=occupied, alarms=alarms, runs=runs, crashed=crashed)
+
+    def with_waiting(self, waiting: list[tuple[int, Event]]) -> Resume:
+        """This state with the events a run left waiting beside the log (io.sinks.spill: not
+        stored when it died, but sent by the other sinks) applied after the log's, in order."""
+        if not waiting:
+            return self
+        zones = {(o.zone, o.person): o for o in self.occupied}
+        alarms = {(a.rule, a.person): a for a in self.alarms}
+        next_id = self.next_id
+        for run, e in waiting:
+            next_id = max(next_id, e.person + 1)
+            if e.type == "enter":
+                zones[(e.zone, e.person)] = Occupancy(e.zone, e.kind, e.person, e.t, run,
+                                                      e.position, e.allowed)  # fmt: skip
+            elif e.type == "exit":
+                zones.pop((e.zone, e.person), None)
+            elif e.kind == "behaviour" and e.rule is not None:
+                if e.type in ALARM_ENDS:
+                    alarms[(e.rule, e.person)] = OpenAlarm(e.rule, e.type, e.person, e.zone, e.t,
+                                                           run, e.position)  # fmt: skip
+                else:
+                    alarms.pop((e.rule, e.person), None)
+        return replace(self, next_id=next_id, occupied=tuple(zones.values()),
+                       alarms=tuple(alarms.values()))  # fmt: skip
 
     def person_ids(self, db_path: str | Path, block: int = 1000) -> PersonIds:
         """Where the new run's tracker takes its ids: from next_id on, each reserved in the

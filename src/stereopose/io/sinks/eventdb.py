@@ -40,13 +40,17 @@ CREATE TABLE IF NOT EXISTS counters (
 """
 
 # per kind, (table, SQL giving one above the largest id held by that table): the floor of
-# its mark; a table missing from a log is skipped
+# its mark at every writer's open; a table missing from a log is skipped
 SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
     "events": (("events", "SELECT MAX(id) + 1 FROM events"),
                ("acks", "SELECT MAX(event) + 1 FROM acks")),
-    "persons": (("events", "SELECT MAX(person) + 1 FROM events"),
-                ("id_reservations", "SELECT MAX(upto) FROM id_reservations")),
+    "persons": (("events", "SELECT MAX(person) + 1 FROM events"),),
 }  # fmt: skip
+# the same, only as the mark is made (an earlier version's reservations; SqliteSink still
+# records its own there, below the mark, which must not push the mark a block up each run)
+FIRST_SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
+    "persons": (("id_reservations", "SELECT MAX(upto) FROM id_reservations"),),
+}
 
 # what a reader may see for a moment while writers of a WAL log start, end or check-point:
 # worth one more try (an error that stays is reported as it is)
@@ -111,9 +115,10 @@ def raise_marks(db: sqlite3.Connection) -> None:
     try:
         db.execute(COUNTERS_SCHEMA.strip().rstrip(";"))
         tables = _tables(db)
+        have = {n for (n,) in db.execute("SELECT name FROM counters")}
         for name, seeds in SEEDS.items():
             floor = 1
-            for table, sql in seeds:
+            for table, sql in seeds + (() if name in have else FIRST_SEEDS.get(name, ())):
                 if table in tables:
                     floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
             db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "

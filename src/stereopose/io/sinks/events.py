@@ -36,6 +36,7 @@ from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
+from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
 from stereopose.types import Event
@@ -193,9 +194,13 @@ class SqliteSink(_EventSink):
     The frame loop is never held up by another process's write lock: a write waits busy_s at
     most; if the log is still locked (or fails otherwise), the events are kept in memory, in
     order (at most buffer_size: more are dropped and counted), and stored with the next
-    frame's, tried again after retry_s, doubling to 2 s. Readers never block it (WAL). `close`
-    keeps trying for close_timeout_s; what is still not stored then is appended to
-    `<name>.unstored.jsonl` beside the database (the events contract) and `incomplete` says so.
+    frame's, tried again after retry_s, doubling to 2 s. Readers never block it (WAL). Events
+    that wait are also appended to `<name>.pending.jsonl` (io.sinks.spill) until they are
+    stored: a run killed meanwhile leaves them there, and the next start reads them (the
+    zones they leave open are closed) and stores them in the log. `close` keeps trying for
+    close_timeout_s; what is still not stored then is appended to `<name>.unstored.jsonl`
+    beside the database (the events contract) and `incomplete` says so (the next start
+    stores them in the log too, from the pending file).
 
     Person ids (serve): with first_id, the sink reserves ids in the log ahead of the tracker,
     id_block at a time, each reservation committed before an id of it can be written anywhere:
@@ -239,6 +244,8 @@ class SqliteSink(_EventSink):
             self.db.executescript(SCHEMA)
             _upgrade(self.db)
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
+            self.spill = Spill(self.path)
+            self._old_spill = not self._store_spill()
             cur = self.db.execute(
                 "INSERT INTO runs(started, site, source, wall_start) VALUES (?, ?, ?, ?)",
                 (time.time(), site, source, wall_start),
@@ -256,11 +263,23 @@ class SqliteSink(_EventSink):
             raise OutputError(f"{self.path}: cannot open the event database: {e}") from None
         self.committed = self.dropped = 0
         self.pending: deque[Event] = deque()
+        self._spilled = 0  # the first pending events, kept in the spill file too
         self.incomplete: str | None = None
         self.kept_in: Path | None = None  # where close put the events it could not store
         self._next_try = 0.0
         self._delay = retry_s
         self._error: str | None = None  # why the last store failed; None: it did not
+
+    def _store_spill(self) -> bool:
+        """The events an earlier run left waiting beside the log, stored; whether that is done
+        (if not, tried again before the next store; the file is kept until it is)."""
+        try:
+            store_spill(self.db, self.path)
+        except sqlite3.Error as e:
+            logger.warning("%s: cannot store the events an earlier run left waiting now: %s",
+                           self.path, e)  # fmt: skip
+            return False
+        return True
 
     def _busy(self, seconds: float) -> None:
         self.db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * seconds))}")
@@ -289,9 +308,20 @@ class SqliteSink(_EventSink):
             self.pending.extend(events)
         if (self.pending or self._want is not None) and time.monotonic() >= self._next_try:
             self._store()
+        self._keep_waiting()
+
+    def _keep_waiting(self) -> None:
+        """The events still waiting, kept on disk too (the other sinks have sent them already:
+        a kill now must not lose the only record of them; io.sinks.spill)."""
+        if len(self.pending) > self._spilled and self.spill.add(
+            self.run, list(self.pending)[self._spilled :]
+        ):
+            self._spilled = len(self.pending)
 
     def _store(self) -> bool:
         """Every pending event in one transaction; whether they are stored."""
+        if self._old_spill:
+            self._old_spill = not self._store_spill()
         rows = [event_row(e, self.run) for e in self.pending]
         placeholders = ", ".join("?" * len(COLUMNS))
         try:
@@ -313,6 +343,9 @@ class SqliteSink(_EventSink):
         except sqlite3.Error as e:
             self._failed(e)
             return False
+        if self._spilled and not self._old_spill:
+            self.spill.clear()
+        self._spilled = 0
         if want is not None:
             self.reserved, self._want = max(self.reserved or 0, want), None
         self.pending.clear()
@@ -346,6 +379,7 @@ class SqliteSink(_EventSink):
                 break
             if not self._error or "lock" not in self._error:
                 time.sleep(min(0.1, max(left, 0.0)))  # another failure: no busy wait to pace it
+        self._keep_waiting()
         self._ended()
         self.db.close()
         if self.pending or self.dropped:
