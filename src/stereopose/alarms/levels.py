@@ -1,0 +1,115 @@
+"""Which events are alarms, which hazard each belongs to, and which event ends it.
+
+Every event has a level (`level`): alarm, warning or info. Alarms and warnings belong to an
+incident; info events belong to none (their `incident` is null in the events contract). The
+hazard an event concerns is its key (`hazard_key`):
+
+    ("zone", zone, person)            enter, approach, dwell, exit of a person at a zone
+    ("left_work_area", zone, person)  an expected person out of their work area
+    ("rule", rule, person)            a behaviour rule's alarm and its end
+    ("camera", camera)                camera_down / camera_up
+    ("calibration", camera)           calibration_drift / calibration_recovered
+    ("service",)                      service_stalled / service_resumed
+
+A camera's picture and its calibration are two hazards: a camera that comes back does not
+make its drifted calibration good again, so camera_up must not clear a calibration incident.
+
+The event types are written out here rather than imported (stereopose.behaviour imports this
+package for the site file's defaults); tests/alarms check that they agree with the modules
+that raise the events. service.eventlog.level gives the same levels and should call this one.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from stereopose.types import Event
+
+__all__ = [
+    "ALARM",
+    "BEHAVIOUR_ALARMS",
+    "BEHAVIOUR_ENDS",
+    "INFO",
+    "WARNING",
+    "HazardKey",
+    "clears",
+    "hazard_key",
+    "level",
+    "raises",
+]
+
+ALARM, WARNING, INFO = "alarm", "warning", "info"
+Level = Literal["alarm", "warning", "info"]
+HazardKey = tuple[str | int, ...]
+
+# each behaviour alarm and the event that ends it (stereopose.behaviour.rules)
+BEHAVIOUR_ENDS = {
+    "person_down": "person_up",
+    "lone_worker": "lone_worker_end",
+    "work_position": "work_position_end",
+    "immobile": "immobile_end",
+    "overreach": "overreach_end",
+}
+BEHAVIOUR_ALARMS = frozenset(BEHAVIOUR_ENDS)
+# the camera's and the service's own: each condition and the event that ends it
+DIAGNOSTIC_ENDS = {
+    "camera_down": "camera_up",
+    "calibration_drift": "calibration_recovered",
+    "service_stalled": "service_resumed",
+}
+_ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS
+_WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
+_ENDS = frozenset(BEHAVIOUR_ENDS.values()) | frozenset(DIAGNOSTIC_ENDS.values())
+
+
+def level(kind: str, type_: str) -> Level:
+    """alarm: entering or approaching an energized zone, a camera down, the service stalled,
+    a behaviour alarm (person_down, lone_worker, work_position, immobile, overreach);
+    warning: dwell, leaving the work area, calibration drift, entering a restricted zone;
+    info: the rest (exits, the ends of conditions, entering a work area)."""
+    if (kind == "energized" and type_ in ("enter", "approach")) or type_ in _ALARM_TYPES:
+        return ALARM
+    if type_ in _WARNING_TYPES or (kind == "restricted" and type_ == "enter"):
+        return WARNING
+    return INFO
+
+
+def hazard_key(event: Event) -> HazardKey | None:
+    """The hazard an event concerns (see the module's table), also for the events that end
+    one; None for an event that concerns no hazard (an enter of a work area is no hazard, but
+    it ends a left_work_area: see `clears`)."""
+    t = event.type
+    if t == "left_work_area":
+        return ("left_work_area", event.zone, event.person)
+    if t in BEHAVIOUR_ALARMS or (event.rule is not None and t in _ENDS):
+        return ("rule", event.rule or "", event.person)
+    if t in ("camera_down", "camera_up"):
+        return ("camera", event.camera or "")
+    if t in ("calibration_drift", "calibration_recovered"):
+        return ("calibration", event.camera or "")
+    if t in ("service_stalled", "service_resumed"):
+        return ("service",)
+    if t in ("enter", "approach", "dwell", "exit") and event.zone:
+        return ("zone", event.zone, event.person)
+    return None
+
+
+def raises(event: Event) -> bool:
+    """Whether the event activates its hazard's incident (an alarm or a warning)."""
+    return level(event.kind, event.type) != INFO
+
+
+def clears(event: Event) -> list[HazardKey]:
+    """The hazards whose condition this event ends: an exit ends its zone's (the person is
+    out: an exit is raised only once out for the zone's exit delay), an enter of a zone ends
+    an absence from it (left_work_area), `<type>_end` / person_up / camera_up /
+    calibration_recovered / service_resumed end theirs."""
+    t = event.type
+    if t == "exit" and event.zone:
+        return [("zone", event.zone, event.person)]
+    if t == "enter" and event.zone:
+        return [("left_work_area", event.zone, event.person)]
+    if t in _ENDS:
+        key = hazard_key(event)
+        return [] if key is None else [key]
+    return []
