@@ -4,6 +4,8 @@
     name = "man_down"
     type = "person_down"        # person_down | lone_worker | work_position | immobile | overreach
     down_s = 3.0                # the type's parameters (see each class below)
+    priority = 1                # optional, every type: its incidents' priority, 1-4 or a name
+    rearm_s = 30.0              # optional, every type: a return within this long, same incident
 
 Every rule has a unique `name` and a `type`; each type has its own keys, and a key the type does
 not know, a missing required key, a number out of its range or a zone the site does not have is a
@@ -17,9 +19,10 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar, Protocol
 
+from stereopose.alarms.priority import DEFAULT_REARM_S, REARM, parse_priority
 from stereopose.behaviour.posture import POSTURES, PostureSettings
 from stereopose.checks import DAY_S, SITE_LIMIT_M, Range, named_tables
 from stereopose.errors import ConfigError
@@ -66,7 +69,25 @@ _TOLERANCE = Range(gt=0.0, le=180.0)
 
 
 @dataclass(frozen=True)
-class PersonDownRule:
+class _Alarming:
+    """What every rule has for its incidents (stereopose.alarms): priority (1 critical ... 4
+    low; None: the default of its type) and rearm_s (a return within this long after its
+    incident cleared is the same incident)."""
+
+    priority: int | None = field(default=None, kw_only=True)
+    rearm_s: float = field(default=DEFAULT_REARM_S, kw_only=True)
+
+    def __post_init__(self) -> None:
+        if self.priority is not None:
+            name = getattr(self, "name", "")
+            object.__setattr__(self, "priority", parse_priority(self.priority, f"rule {name!r}"))
+
+
+_ALARMING = frozenset(f.name for f in fields(_Alarming))
+
+
+@dataclass(frozen=True)
+class PersonDownRule(_Alarming):
     """A fall and the person not up again: the hips dropping faster than fall_speed_m_s (peak
     downward speed over 0.2 s, within the last second) to below floor_m (the trunk's height
     above the floor under the body, metres), the body lying within settle_s after, and not up
@@ -86,7 +107,7 @@ class PersonDownRule:
 
 
 @dataclass(frozen=True)
-class LoneWorkerRule:
+class LoneWorkerRule(_Alarming):
     """Someone inside one of `zones` or within approach_m of it (any joint) with nobody else
     within buddy_m (floor distance) for lone_s -> `lone_worker`; `lone_worker_end` once they
     have had company or left for exit_s."""
@@ -101,7 +122,7 @@ class LoneWorkerRule:
 
 
 @dataclass(frozen=True)
-class WorkPositionRule:
+class WorkPositionRule(_Alarming):
     """While a wrist is inside one of `energized` (default: every energized zone), the person
     must stand in the work area `zone` (floor position), face facing_deg (degrees counter-
     clockwise from world +x) within tolerance_deg and, when `postures` is given, hold one of
@@ -121,7 +142,7 @@ class WorkPositionRule:
 
 
 @dataclass(frozen=True)
-class ImmobileRule:
+class ImmobileRule(_Alarming):
     """A person none of whose joints moves more than still_m (from their mean position since
     the stillness began) for immobile_s -> `immobile`; `immobile_end` once a joint has moved
     for move_s."""
@@ -134,7 +155,7 @@ class ImmobileRule:
 
 
 @dataclass(frozen=True)
-class OverreachRule:
+class OverreachRule(_Alarming):
     """One of `joints` (default: the wrists) above max_height_m for enter_s -> `overreach`;
     `overreach_end` once below for exit_s. zones (default: anywhere): only while the person
     is in one of them or within approach_m of it (a barrier under overhead conductors)."""
@@ -174,13 +195,20 @@ _RANGES: dict[str, Range] = {
     "still_m": _METRES,
     "move_s": _SECONDS,
     "max_height_m": _HEIGHT,
+    "rearm_s": REARM,
 }
+
+
+def _fields(rule: Any) -> list:
+    """A rule type's fields, the type's own first, then priority and rearm_s."""
+    own = [f for f in fields(rule) if f.name not in _ALARMING]
+    return own + [f for f in fields(rule) if f.name in _ALARMING]
 
 
 def _keys(cls: type) -> tuple[list[str], list[str]]:
     """(required, optional) keys of a rule type, besides name and type."""
     required, optional = [], []
-    for f in fields(cls):
+    for f in _fields(cls):
         if f.name != "name":
             (required if f.default is MISSING else optional).append(f.name)
     return required, optional
@@ -210,6 +238,8 @@ def _value(key: str, value: Any, where: str) -> Any:
     if key in _RANGES:
         rng = _RANGES[key]
         return float(rng.check(value, f"{where}: {key}"))
+    if key == "priority":
+        return parse_priority(value, where)
     if key in ("zones", "energized"):
         return _names(value, where, key)
     if key == "zone":
@@ -297,7 +327,7 @@ def format_rules(rules: Sequence[Rule]) -> list[str]:
     lines: list[str] = []
     for rule in rules:
         lines += ["[[rules]]", f"name = {_toml(rule.name)}", f"type = {_toml(rule.type)}"]
-        for f in fields(rule):
+        for f in _fields(rule):
             if f.name == "name":
                 continue
             value = getattr(rule, f.name)

@@ -15,6 +15,8 @@ Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
     exit_s = 0.2                        # ... and outside this long to exit
     allowed = [3]                       # optional: person ids whose events are marked allowed
     expected = [1]                      # optional (work_area): persons expected to stay in it
+    priority = 1                        # optional: its incidents' priority, 1-4 or a name
+    rearm_s = 30.0                      # optional: a return within this long is the same incident
     [[rules]]                           # optional: behaviour rules (stereopose.behaviour)
     name = "man_down"
     type = "person_down"
@@ -34,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from stereopose.alarms.priority import DEFAULT_REARM_S, REARM, parse_priority
 from stereopose.behaviour.definitions import (
     Rule,
     format_postures,
@@ -72,6 +75,8 @@ _ZONE_KEYS = {
     "exit_s",
     "allowed",
     "expected",
+    "priority",
+    "rearm_s",
 }
 # the ranges of a zone's numbers beside their meaning: metres of approach, seconds of debounce
 _ZONE_RANGES = {
@@ -79,6 +84,7 @@ _ZONE_RANGES = {
     "enter_s": Range(ge=0.0, le=DAY_S),
     "exit_s": Range(ge=0.0, le=DAY_S),
     "dwell_s": Range(gt=0.0, le=DAY_S),
+    "rearm_s": REARM,
 }
 _PERSON_ID = Range(integer=True, ge=0, lt=2**63)
 
@@ -86,7 +92,10 @@ _PERSON_ID = Range(integer=True, ge=0, lt=2**63)
 @dataclass(frozen=True, eq=False)
 class Zone:
     """A prism over a floor polygon: polygon (V, 2) metres (world x-y, either orientation),
-    z = (bottom, top) metres; joints: indices of the triggering joints (all 17 by default)."""
+    z = (bottom, top) metres; joints: indices of the triggering joints (all 17 by default);
+    priority: its incidents' (1 critical ... 4 low; None: alarms.priority's defaults by kind
+    and event), rearm_s: seconds after its incident cleared within which a return is the same
+    incident."""
 
     name: str
     kind: str
@@ -99,9 +108,13 @@ class Zone:
     exit_s: float = DEFAULT_EXIT_S
     allowed: frozenset[int] = frozenset()
     expected: frozenset[int] = frozenset()
+    priority: int | None = None
+    rearm_s: float = DEFAULT_REARM_S
 
     def __post_init__(self) -> None:
         where = f"zone {self.name!r}"
+        if self.priority is not None:
+            object.__setattr__(self, "priority", parse_priority(self.priority, where))
         if self.kind not in KINDS:
             raise ConfigError(f"{where}: unknown kind {self.kind!r}; expected one of {KINDS}")
         poly = _polygon(self.polygon, where)
@@ -194,6 +207,8 @@ def format_site(site: Site) -> str:
             ("dwell_s", None),
             ("enter_s", DEFAULT_ENTER_S),
             ("exit_s", DEFAULT_EXIT_S),
+            ("priority", None),
+            ("rearm_s", DEFAULT_REARM_S),
         ):
             v = getattr(z, key)
             if v != default:
@@ -301,9 +316,11 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
                 kwargs["joints"] = tuple(sorted({joint_index(str(j)) for j in js}))
             except ValueError as e:
                 raise ConfigError(f"{where}: {e}") from None
-        for key in ("margin_m", "dwell_s", "enter_s", "exit_s"):
+        for key in ("margin_m", "dwell_s", "enter_s", "exit_s", "rearm_s"):
             if key in z:
                 kwargs[key] = _number(z[key], f"{where}: {key}")
+        if "priority" in z:
+            kwargs["priority"] = parse_priority(z["priority"], where)
         for key in ("allowed", "expected"):
             if key in z:
                 kwargs[key] = _ids(z[key], f"{where}: {key}")
