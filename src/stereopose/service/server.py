@@ -3,8 +3,10 @@
 The listening socket is bound in the caller's thread, so a busy port or a bad address is a
 ServeError (a StereoposeError naming host:port) raised by `start()`, and port 0 gives a free
 port that `start()` returns. uvicorn is set for a closed network: no Server header, no
-X-Forwarded-* trusted, request line and headers bounded, a cap on concurrent connections,
-its logging left to the application (no dictConfig of its own), signals left to the caller.
+X-Forwarded-* trusted, its logging left to the application (no dictConfig of its own),
+signals left to the caller; its h11 protocol is service.connections' (timeouts for idle and
+slow connections, request heads bounded, caps per client address and in all, health always
+served; `Server(limits=ConnectionLimits(...))` changes them).
 With a certificate and its key (ServeSettings), it speaks HTTPS only. Told how to count the
 console's users (`Server(users=...)`), it refuses to listen on an address other machines can
 reach while there is no user: the console would be open to nobody, and a first user is
@@ -27,12 +29,14 @@ from dataclasses import dataclass
 import uvicorn
 
 from stereopose.errors import ConfigError, StereoposeError
+from stereopose.service.connections import MAX_HEADER_BYTES as MAX_HEADER_BYTES  # re-exported
+from stereopose.service.connections import ConnectionLimits, guarded_protocol
 
 logger = logging.getLogger(__name__)
 
-MAX_HEADER_BYTES = 16 * 1024  # request line + headers; a browser sends a few KiB at most
-MAX_CONNECTIONS = 64  # beyond this, uvicorn answers 503 at once
-KEEP_ALIVE_S = 5
+MAX_REQUESTS = ConnectionLimits.max_requests  # answers in progress; beyond them 503
+MAX_CONNECTIONS = ConnectionLimits.max_connections  # open at once (the longest waiting gives way)
+KEEP_ALIVE_S = ConnectionLimits.idle_s
 GRACEFUL_S = 3  # open requests get this long at shutdown, then are cancelled
 
 _HOSTNAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?")
@@ -141,23 +145,25 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
 def uvicorn_config(
     app: object, host: str, port: int, graceful_s: float = GRACEFUL_S,
     certificate: str | None = None, key: str | None = None,
+    limits: ConnectionLimits | None = None,
 ) -> uvicorn.Config:  # fmt: skip
     """uvicorn's settings for the service (see the module docstring)."""
+    limits = limits or ConnectionLimits()
     return uvicorn.Config(
         app,
         host=host,
         port=port,
-        http="h11",
+        http=guarded_protocol(limits),
         ws="none",  # no route takes a websocket yet
         lifespan="on",
         log_config=None,
         access_log=False,
         server_header=False,
         proxy_headers=False,
-        limit_concurrency=MAX_CONNECTIONS,
-        timeout_keep_alive=KEEP_ALIVE_S,
-        timeout_graceful_shutdown=graceful_s,  # type: ignore[arg-type]  # a float works
-        h11_max_incomplete_event_size=MAX_HEADER_BYTES,
+        limit_concurrency=None,  # counted by the protocol: answers in progress, not connections
+        timeout_keep_alive=limits.idle_s,  # type: ignore[arg-type]  # a float works
+        timeout_graceful_shutdown=graceful_s,  # type: ignore[arg-type]
+        h11_max_incomplete_event_size=limits.max_header_bytes,
         ssl_certfile=certificate,
         ssl_keyfile=key,
     )
@@ -168,7 +174,8 @@ class Server:
     port once the server accepts connections; `stop()` ends it within shutdown_timeout_s.
     graceful_s: how long open requests may finish at shutdown; users: the number of console
     users now (None: not checked), and users_hint: how to add one, for the refusal to listen
-    beyond this machine without any. Usable as a context manager."""
+    beyond this machine without any; limits: what one connection and one client address may
+    hold (service.connections; None: its defaults). Usable as a context manager."""
 
     def __init__(
         self,
@@ -181,8 +188,10 @@ class Server:
         graceful_s: float = GRACEFUL_S,
         users: Callable[[], int] | None = None,
         users_hint: str = "stereopose users add NAME --role admin --config CONFIG.toml",
+        limits: ConnectionLimits | None = None,
     ) -> None:
         self.app = app
+        self.limits = limits or ConnectionLimits()
         self.users, self.users_hint = users, users_hint
         self.settings = settings or ServeSettings()
         self.local_only = local_only
@@ -215,7 +224,7 @@ class Server:
         s = self.settings
         try:
             config = uvicorn_config(self.app, s.host, self.port, self.graceful_s,
-                                    s.certificate, s.key)  # fmt: skip
+                                    s.certificate, s.key, self.limits)  # fmt: skip
             config.load()  # the certificate and key read now: a bad one is a ServeError
         except (OSError, ssl.SSLError) as e:
             self._close_socket()
