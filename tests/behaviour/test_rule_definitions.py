@@ -144,6 +144,13 @@ def _rule(**kw) -> str:
         (_rule(name='"x"', type='"overreach"', max_height_m=2, joints='["left_hand"]'),
          "rule 'x': joints: unknown joint 'left_hand'"),
         (_rule(name='"x"', type='"immobile"', immobile_s=1e400), "rule 'x': immobile_s: expected"),
+        (_rule(name='"x"', type='"person_down"', priority=0),
+         "rule 'x': priority: expected an integer in [1, 4] or one of critical, high, medium, low"),
+        (_rule(name='"x"', type='"person_down"', priority='"top"'), "rule 'x': priority: expected"),
+        (_rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=-1),
+         "rule 'x': rearm_s: expected a finite number in [0, 86400], got -1"),
+        (_rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=1e6),
+         "rule 'x': rearm_s: expected"),
         (_rule(name='"x"', type='"immobile"', immobile_s=5) + _rule(name='"x"', type='"immobile"',
                                                                     immobile_s=6),
          "rule 'x': the name is used twice"),
@@ -231,3 +238,23 @@ def test_the_run_applies_the_sites_rules_and_thresholds(tmp_path: Path) -> None:
     assert [r.name for r in both.rules] == ["man_down", "two_man", "position_A", "still",
                                             "overhead"]  # fmt: skip
     assert both.lost_s == Config().tracking.max_lost_s
+
+
+def test_every_rule_type_takes_a_priority_and_a_rearm_time(tmp_path: Path) -> None:
+    from stereopose.alarms.priority import DEFAULT_REARM_S
+
+    text = ZONES + RULES.replace("down_s = 3\n", 'down_s = 3\npriority = "medium"\nrearm_s = 5\n')
+    text = text.replace("immobile_s = 30.0\n", "immobile_s = 30.0\npriority = 1\n")
+    site = load_site(write(tmp_path, text))
+    down, lone, _, still, _ = site.rules
+    assert (down.priority, down.rearm_s) == (3, 5.0)
+    assert (still.priority, still.rearm_s) == (1, DEFAULT_REARM_S)
+    assert (lone.priority, lone.rearm_s) == (None, DEFAULT_REARM_S)
+    out = tmp_path / "again.toml"
+    save_site(out, site)
+    assert load_site(out).rules == site.rules
+    written = out.read_text()
+    assert written.count("priority") == 2 and written.count("rearm_s") == 1
+    assert PersonDownRule("d", priority="low").priority == 4
+    with pytest.raises(ConfigError, match="rule 'd': priority: expected"):
+        PersonDownRule("d", priority=0)

@@ -168,3 +168,46 @@ def test_site_round_trip(tmp_path: Path) -> None:
         b.allowed,
     )
     np.testing.assert_array_equal(a.polygon, b.polygon)
+
+
+def test_priority_and_rearm_per_zone(tmp_path: Path) -> None:
+    from stereopose.alarms.priority import DEFAULT_REARM_S, HIGH, LOW
+    from stereopose.fence import save_site
+
+    text = (
+        ZONE
+        + 'priority = "high"\nrearm_s = 12.5\n'
+        + ZONE.replace('"panel"', '"bench"').replace("energized", "work_area")
+        + "priority = 4\n"
+        + ZONE.replace('"panel"', '"door"').replace("energized", "restricted")
+    )
+    site = load_site(write(tmp_path, text))
+    panel, bench, door = site.zones
+    assert (panel.priority, panel.rearm_s) == (HIGH, 12.5)
+    assert (bench.priority, bench.rearm_s) == (LOW, DEFAULT_REARM_S)
+    assert (door.priority, door.rearm_s) == (None, DEFAULT_REARM_S)  # the defaults by event
+    save_site(tmp_path / "again.toml", site)
+    written = (tmp_path / "again.toml").read_text()
+    assert written.count("priority") == 2 and written.count("rearm_s") == 1
+    back = load_site(tmp_path / "again.toml").zones
+    assert [(z.priority, z.rearm_s) for z in back] == [(z.priority, z.rearm_s) for z in site.zones]
+    assert Zone("x", "energized", np.array(SQUARE), (0.0, 1.0), priority="critical").priority == 1
+    with pytest.raises(ConfigError, match="zone 'x': priority: expected"):
+        Zone("x", "energized", np.array(SQUARE), (0.0, 1.0), priority=9)
+    with pytest.raises(ConfigError, match="zone 'x': rearm_s: expected"):
+        Zone("x", "energized", np.array(SQUARE), (0.0, 1.0), rearm_s=-0.5)
+
+
+def test_a_bad_priority_is_exit_2_naming_file_zone_and_value(tmp_path: Path, capsys) -> None:
+    from stereopose.cli import main
+
+    scene = tmp_path / "scene"
+    assert main(["simulate", str(scene), "--frames", "3", "--cameras", "2", "--people", "1"]) == 0
+    capsys.readouterr()
+    site = write(tmp_path, ZONE + "priority = 7\n")
+    rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
+               "--out", str(tmp_path / "p.jsonl"), "--site", str(site)])  # fmt: skip
+    err = " ".join(capsys.readouterr().err.split())
+    assert rc == 2
+    assert "site.toml: zone 'panel': priority: expected an integer in [1, 4]" in err
+    assert "got 7" in err and "Traceback" not in err
