@@ -298,3 +298,15 @@ def test_events_waiting_for_a_locked_log_are_kept_and_stored_once_at_the_next_st
     spill_path(db).write_text(kept)  # as if killed after storing it, before removing the file
     SqliteSink(db).close()
     assert len(query_events(db)) == 1 and not spill_path(db).exists()
+
+
+def test_a_log_killed_before_its_tables_were_committed_is_a_fresh_start(tmp_path: Path) -> None:
+    db = tmp_path / "events.sqlite"
+    db.touch()  # what sqlite3.connect leaves when the process dies right after it
+    assert Resume.from_log(db).next_id == 1
+    con = sqlite3.connect(db)
+    con.execute("PRAGMA journal_mode=WAL")  # or the header written, still no table
+    con.close()
+    assert Resume.from_log(db).runs == 0
+    SqliteSink(db).close()
+    assert Resume.from_log(db).runs == 1

@@ -167,6 +167,8 @@ class Resume:
     @classmethod
     def _read(cls, db: sqlite3.Connection) -> Resume:
         tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if not tables:  # made by a run killed before its tables were committed: nothing in it
+            return cls()
         if "events" not in tables or "runs" not in tables:
             raise sqlite3.DatabaseError("no events or runs table (not an event log)")
         top = db.execute("SELECT MAX(person) FROM events").fetchone()[0]
