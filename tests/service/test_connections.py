@@ -22,7 +22,7 @@ from served import Clock, frame_result, get, get_json, serving
 
 from stereopose.errors import ConfigError
 from stereopose.service.app import create_app
-from stereopose.service.connections import MAX_HEADER_BYTES, ConnectionLimits
+from stereopose.service.connections import MAX_HEADER_BYTES, ConnectionLimits, client_key
 from stereopose.service.server import Server, ServeSettings
 from stereopose.service.state import ServiceState
 from waiting import wait_until
@@ -111,6 +111,15 @@ def test_limits_are_checked():
         ConnectionLimits(max_per_address=0)
     with pytest.raises(ConfigError, match=r"max_connections must be above .* 72 <= 64 \+ 8"):
         ConnectionLimits(max_connections=72)
+
+
+@pytest.mark.parametrize(("host", "key"), [
+    ("127.0.0.2", "127.0.0.2"), ("::1", "::1"), ("::ffff:10.0.0.7", "10.0.0.7"),
+    ("2001:db8:1:2:aaaa::1", "2001:db8:1:2::/64"), ("2001:db8:1:2:bbbb::9", "2001:db8:1:2::/64"),
+    ("", ""),
+])  # fmt: skip
+def test_a_client_address_is_an_ipv4_address_or_an_ipv6_64(host: str, key: str):
+    assert client_key(host) == key
 
 
 def test_idle_connections_do_not_hold_health(peers):

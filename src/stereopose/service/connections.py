@@ -13,11 +13,11 @@ gives the protocol class (`uvicorn.Config(http=...)`) that closes these, per ser
   or of the connection's opening for the first request: else 408 and closed;
 - a request head (line + headers) over `max_header_bytes` is answered 431 and closed, before
   anything parses it;
-- at most `max_per_address` connections from one client address and `max_connections` in
-  all: a new one beyond either takes the place of the longest-waiting connection with no
-  answer in progress (of that address, or of any), and is refused (503, closed) only when
-  every place is busy answering; an answer being streamed (live channel, clip player) is
-  never closed for it;
+- at most `max_per_address` connections from one client address (an IPv6 one: its /64)
+  and `max_connections` in all: a new one beyond either takes the place of the
+  longest-waiting connection with no answer in progress (of that address, or of any), and
+  is refused (503, closed) only when every place is busy answering; an answer being
+  streamed (live channel, clip player) is never closed for it;
 - at most `max_requests` answers in progress (streams included); beyond it 503, while
   /api/health and /metrics have `health_reserve` places more.
 
@@ -28,6 +28,7 @@ LOG_EVERY_S per kind.
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import logging
 import time
 from collections import Counter
@@ -85,6 +86,21 @@ class ConnectionLimits:
             if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
                 raise ConfigError(f"connection limits: {name} must be a number > 0, "
                                   f"got {value!r}")  # fmt: skip
+
+
+def client_key(host: str) -> str:
+    """The client address a connection counts against: an IPv6 host has a /64 of its own
+    (one address each would give it millions of places), an IPv4-mapped one is its IPv4."""
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        return host
+    if isinstance(ip, ipaddress.IPv6Address):
+        if ip.ipv4_mapped is not None:
+            return str(ip.ipv4_mapped)
+        if not ip.is_loopback:
+            return str(ipaddress.IPv6Network((ip, 64), strict=False))
+    return str(ip)
 
 
 class ConnectionTable:
@@ -174,7 +190,7 @@ class GuardedH11Protocol(H11Protocol):
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         limits, table = self.limits, self.table
-        address = self.client[0] if self.client else ""
+        address = client_key(self.client[0] if self.client else "")
         if table.by_address[address] >= limits.max_per_address and not self._take_place(
             address, f"more than {limits.max_per_address} connections from {address}"
         ):
