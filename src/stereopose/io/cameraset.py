@@ -11,7 +11,10 @@ Beyond io.video's rules (alignment, live newest frames, first-frame wait):
   (smaller than the calibration's size), so clips and pictures come from the substream;
 - ``detect_fps``: at most this many steps per second (recorded: of the files' time, the frames
   in between passed over without decoding; live: of wall-clock time, and a live camera converts
-  to an image only the frame a step asked for).
+  to an image only the frame a step asked for);
+- ``wall_clock``: recorded files stamped as live frames are: a step's t is when its frames were
+  read, seconds on the set's clock (strictly increasing), so wall time = clock.start_epoch + t
+  (a service plays its files as live cameras; a run on files keeps frame / fps).
 """
 
 from __future__ import annotations
@@ -56,7 +59,8 @@ class CameraSet:
     ends the wait). clock: the live frames' time origin, read when the set is created.
     loop (one for all, or per camera), detect (per camera: a substream, or None / ""),
     detect_fps: see the module's docstring. wait_first_frame=False: opening does not wait for
-    a first frame (a service starts at once and reports its blind cameras).
+    a first frame (a service starts at once and reports its blind cameras). wall_clock: see the
+    module's docstring.
     """
 
     def __init__(
@@ -74,6 +78,7 @@ class CameraSet:
         detect_fps: float | None = None,
         wait_first_frame: bool = True,
         packets: Mapping[str, PacketRing] | None = None,
+        wall_clock: bool = False,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -92,6 +97,7 @@ class CameraSet:
         loops = [bool(x) for x in _per_camera(loop, len(specs), "loop")]
         substreams = [str(x) if x else None for x in _per_camera(detect, len(specs), "detect")]
         self.sync, self.max_frames = sync, max_frames
+        self.wall_clock = bool(wall_clock)
         self.first_frame_timeout_s = first_frame_timeout_s
         self.clock = Clock.now()
         self._fresh = threading.Event()  # set by a live camera at each new image
@@ -186,6 +192,7 @@ class CameraSet:
     def _recorded(self) -> Iterator[FrameSet]:
         half = 0.5 / self.fps
         step = 0
+        last_read = -math.inf  # wall_clock: the last step's time
         while self.max_frames is None or step < self.max_frames:
             if self._closing.is_set():
                 return
@@ -209,8 +216,10 @@ class CameraSet:
                     detect[s.name] = None if got is None else got[2]
             if not frames and len(self._ended) == len(self.sources):
                 return
-            yield FrameSet(index if self.sync == "index" else round(t * self.fps), t, images,
-                           frames, times, detect)  # fmt: skip
+            number = index if self.sync == "index" else round(t * self.fps)
+            if self.wall_clock:  # when the frames were read, as a live camera's arrival
+                t = last_read = max(self.clock.since(time.monotonic()), last_read + 1e-4)
+            yield FrameSet(number, t, images, frames, times, detect)
             step += 1
 
     def _take(self, s: Source, index: int, t: float, half: float) -> tuple | None:
@@ -341,6 +350,19 @@ class CameraSet:
     def stats(self) -> dict[str, SourceStats]:
         """Each camera's reader statistics (its own source; substreams: detect_stats)."""
         return {s.name: s.stats for s in self.sources}
+
+    def delivering(self, name: str, within_s: float) -> bool:
+        """Whether camera `name`'s reader has a frame to give: a live stream's newest frame came
+        within `within_s` seconds; a recorded file has not ended. (A service whose steps are
+        late while its readers deliver is itself late, not its cameras.)"""
+        for s in self.sources:
+            if s.name != name:
+                continue
+            if not s.live:
+                return id(s) not in self._ended_ids
+            last = getattr(s, "last_frame_at", None)
+            return last is not None and time.monotonic() - last < within_s
+        return False
 
     def detect_stats(self) -> dict[str, SourceStats]:
         return {name: s.stats for name, s in self.detect_sources.items()}

@@ -88,11 +88,12 @@ class Cameras:
     """Cameras read in step (io.cameraset.CameraSet), their people found by a pose detector.
 
     Each camera's first frame is checked against its calibration's size. A step's t is the
-    set's (recorded: frame / fps; live: when its frames arrived, seconds since the cameras were
+    set's (recorded: frame / fps, or when its frames were read with the set's wall_clock, as a
+    service plays files; live: when its frames arrived, seconds since the cameras were
     opened). A camera with a detection substream is detected on its substream's frame, and its
     people scaled to the calibration's size. `finish` puts each camera's reader statistics
-    (frames, dropped, reconnects) into the summary, and for live cameras the wall-clock time of
-    t = 0 (clock_start_epoch).
+    (frames, dropped, reconnects) into the summary, and for live cameras (or files on the
+    wall clock) the wall-clock time of t = 0 (clock_start_epoch).
     """
 
     stages = CAMERA_STAGES
@@ -145,7 +146,7 @@ class Cameras:
 
     def finish(self, summary: RunSummary) -> None:
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}
-        if self.live:
+        if self.live or self.cams.wall_clock:
             summary.clock_start_epoch = self.cams.clock.start_epoch
 
 
