@@ -255,3 +255,67 @@ def test_bad_construction_arguments():
         ServiceState(camera_timeout_s=0)
     with pytest.raises(ValueError, match="increasing"):
         ServiceState(latency_buckets_s=(0.1, 0.1))
+
+
+def test_a_camera_processed_far_under_its_nominal_rate_degrades_with_the_reason():
+    clock = Clock()
+    s = ServiceState(camera_timeout_s=5.0, clock=clock)
+    s.add_camera("fast", nominal_fps=10.0)
+    s.add_camera("slow", nominal_fps=25.0)
+    for i in range(301):  # 30 s: "fast" at its 10 frames/s, "slow" at 2 of its 25
+        s.camera_frame("fast", clock.now)
+        if i % 5 == 0:
+            s.camera_frame("slow", clock.now)
+        clock.now += 0.1
+    snap = s.snapshot()
+    cams = {c.name: c for c in snap.cameras}
+    assert cams["fast"].slow is None and cams["fast"].processed_fps == pytest.approx(10, rel=0.1)
+    assert cams["slow"].processed_fps == pytest.approx(2.0, rel=0.1)
+    assert snap.status == "degraded"
+    (problem,) = snap.problems
+    assert problem.startswith("camera slow: processed at 2") and "nominal 25/s" in problem
+    for _ in range(700):  # 70 s at its nominal rate: the window forgets the slow minute
+        s.camera_frame("slow", clock.now)
+        s.camera_frame("fast", clock.now)
+        clock.now += 0.04
+    assert s.snapshot().status == "ok"
+
+
+def test_most_frames_dropped_degrades_beyond_those_a_lower_nominal_rate_passes_over():
+    clock = Clock()
+    s = ServiceState(camera_timeout_s=5.0, clock=clock)
+    s.add_camera("paced", nominal_fps=5.0, source_fps=25.0)  # detect_fps 5 of a 25 fps stream
+    s.add_camera("choked")  # a stream whose rate is not known
+    for _ in range(150):  # 30 s, 5 steps a second; each camera's reader drops 4 of 5 frames
+        s.camera_frame("paced", clock.now)
+        s.camera_frame("choked", clock.now)
+        s.camera_dropped("paced", 4)
+        s.camera_dropped("choked", 4)
+        clock.now += 0.2
+    snap = s.snapshot()
+    assert snap.problems == ("camera choked: 80% of its frames dropped over the last 60 s",)
+    assert {c.name: c.dropped_share for c in snap.cameras} == pytest.approx(
+        {"paced": 0.8, "choked": 0.8}
+    )
+
+
+def test_a_camera_is_not_judged_on_its_first_seconds_nor_without_a_nominal_rate():
+    clock = Clock()
+    s = ServiceState(camera_timeout_s=5.0, clock=clock)
+    s.add_camera("new", nominal_fps=25.0)
+    s.camera_frame("unknown", clock.now)  # no nominal rate: never judged slow
+    for _ in range(5):  # 5 s at 1 frame/s: too soon to judge
+        s.camera_frame("new", clock.now)
+        s.camera_frame("unknown", clock.now)
+        clock.now += 1.0
+    assert s.snapshot().problems == ()
+
+
+def test_a_stall_of_the_service_is_a_problem_while_it_lasts():
+    clock = Clock()
+    s = ServiceState(["cam"], clock=clock)
+    s.camera_frame("cam", clock.now)
+    s.service_stall("stalled since 12.0 s")
+    assert s.snapshot().problems == ("service stalled since 12.0 s",)
+    s.service_stall(None)
+    assert s.snapshot().status == "ok"

@@ -7,6 +7,12 @@ long: per camera a fixed window of arrival times, per stage a fixed set of histo
 and a cap on the number of cameras, stages, event types, queues and outputs (names beyond it
 are counted under no new label, with one warning).
 
+A camera is also degraded while the service keeps up with it badly over the last minute
+(service.rates.CameraRates): it is processed under half of its nominal rate (its frame rate, or
+[input] detect_fps; `add_camera(name, nominal_fps=...)`), or most of its frames are dropped
+(beyond those a lower nominal rate leaves out). A stall of the whole service (service.stall)
+is a problem while it lasts (`service_stall`).
+
 Alarm outputs (MQTT, the webhook, the event log, SCADA links: io.sinks.health) are registered
 with `register_output`: the service is degraded while one is not ok, or while one has had
 messages waiting at every read for BACKLOG_S (it takes them more slowly than they come).
@@ -28,6 +34,7 @@ from itertools import pairwise
 
 from stereopose import __version__
 from stereopose.service.alarm_outputs import OutputProbe, OutputSnapshot, OutputWatch
+from stereopose.service.rates import CameraRates
 
 logger = logging.getLogger(__name__)
 
@@ -54,7 +61,9 @@ class HistogramSnapshot:
 @dataclass(frozen=True)
 class CameraSnapshot:
     """One camera: fps over its recent frames (0 while down), the age of its last frame in
-    seconds (None: none yet), up when that age is within its timeout."""
+    seconds (None: none yet), up when that age is within its timeout; nominal_fps: the rate it
+    should be processed at (None: not known); processed_fps and dropped_share: over the last
+    minute (None until judged: service.rates); slow: why it is processed badly (None: it is not)."""
 
     name: str
     fps: float
@@ -64,6 +73,10 @@ class CameraSnapshot:
     reconnects: int
     dropped_frames: int
     timeout_s: float
+    nominal_fps: float | None = None
+    processed_fps: float | None = None
+    dropped_share: float | None = None
+    slow: str | None = None
 
     @property
     def state(self) -> str:
@@ -100,8 +113,10 @@ class Snapshot:
 
     @property
     def status(self) -> str:
-        """down: no camera delivering; degraded: a camera down, a queue dropping, an alarm
-        output failing or falling behind, or a probe failing; ok otherwise."""
+        """down: no camera delivering; degraded: a camera down or processed badly (far
+        under its nominal rate, most of its frames dropped), the service stalled, a queue
+        dropping, an alarm output failing or falling behind, or a probe failing; ok
+        otherwise."""
         if not any(c.up for c in self.cameras):
             return "down"
         return "degraded" if self.problems else "ok"
@@ -138,6 +153,7 @@ class _Camera:
     reconnects: int = 0
     dropped: int = 0
     lost: bool = False  # a reconnect since the last frame: down until the next one
+    rates: CameraRates = field(default_factory=CameraRates)
 
 
 @dataclass
@@ -206,21 +222,34 @@ class ServiceState:
         self._storage: StorageProbe | None = None
         self._frames = 0
         self._people = 0
+        self._stall: str | None = None
         self._refused: set[str] = set()  # kinds of name already warned about (cap reached)
         for name in cameras:
             self.add_camera(name)
 
     # -- writers: the frame loop and the camera readers ----------------------------------------
 
-    def add_camera(self, name: str, timeout_s: float | None = None) -> None:
-        """Expect camera `name` (down until its first frame); timeout_s: its own timeout."""
+    def add_camera(
+        self,
+        name: str,
+        timeout_s: float | None = None,
+        *,
+        nominal_fps: float | None = None,
+        source_fps: float | None = None,
+    ) -> None:
+        """Expect camera `name` (down until its first frame); timeout_s: its own timeout;
+        nominal_fps: the frames per second the service should process of it (its rate, or
+        [input] detect_fps), None: not judged; source_fps: the camera's own rate, when the
+        nominal is lower (its other frames are passed over, not dropped for want of time)."""
         timeout = self._timeout_s if timeout_s is None else _duration(timeout_s)
         if not timeout:
             raise ValueError(f"camera {name!r}: timeout_s must be a positive number")
+        nominal, own = _duration(nominal_fps), _duration(source_fps)
         with self._lock:
             cam = self._camera(name)
             if cam is not None:
                 cam.timeout_s = timeout
+                cam.rates.set_nominal(nominal, own)
 
     def camera_frame(self, name: str, t_arrival: float | None = None) -> None:
         """Camera `name` delivered a frame at t_arrival (None: now) on the state's clock."""
@@ -233,6 +262,7 @@ class ServiceState:
             if cam.arrivals and t < cam.arrivals[-1]:  # out of order: as the last one
                 t = cam.arrivals[-1]
             cam.arrivals.append(t)
+            cam.rates.processed.add(t)
             cam.frames += 1
             cam.lost = False
 
@@ -242,6 +272,7 @@ class ServiceState:
             cam = self._camera(name)
             if cam is not None and (k := _count(n)):
                 cam.dropped += k
+                cam.rates.drops.add(self._clock(), k)
 
     def camera_reconnect(self, name: str) -> None:
         """Camera `name` lost its stream and reopens it: down until its next frame."""
@@ -285,6 +316,12 @@ class ServiceState:
                 if t in self._events or self._admit("event type", t, self._events):
                     self._events[t] = self._events.get(t, 0) + 1
 
+    def service_stall(self, reason: str | None) -> None:
+        """The whole service stalled (service.stall: reason, e.g. since when), or None: it
+        runs again."""
+        with self._lock:
+            self._stall = None if reason is None else str(reason)[:200]
+
     def register_queue(
         self, name: str, size: QueueProbe, dropped: Callable[[], int] | None = None
     ) -> None:
@@ -322,6 +359,7 @@ class ServiceState:
         with self._lock:
             now = self._clock()
             cameras = tuple(self._camera_snapshot(n, c, now) for n, c in self._cameras.items())
+            stall = self._stall
             queue_snaps = tuple(self._queue_snapshot(n, *probed[n], now) for n in probed)
             output_snaps = tuple(outputs[n].snapshot(n, *healths[n], now) for n in healths)
             snap = Snapshot(
@@ -337,7 +375,10 @@ class ServiceState:
                 storage=storage,
                 outputs=output_snaps,
             )
+        if stall is not None:
+            problems.append(f"service {stall}")
         problems += [f"camera {c.name} down" for c in cameras if not c.up]
+        problems += [f"camera {c.name}: {c.slow}" for c in cameras if c.up and c.slow]
         problems += [f"queue {q.name} dropping" for q in queue_snaps if q.dropping]
         problems += [p for o in output_snaps if (p := o.problem)]
         return replace(snap, problems=tuple(problems))
@@ -372,8 +413,10 @@ class ServiceState:
         up = age is not None and age <= cam.timeout_s and not cam.lost
         span = cam.arrivals[-1] - cam.arrivals[0] if len(cam.arrivals) > 1 else 0.0
         fps = (len(cam.arrivals) - 1) / span if up and span > 0 else 0.0
+        processed, share, slow = cam.rates.judge(now)
         return CameraSnapshot(name, fps, age, up, cam.frames, cam.reconnects, cam.dropped,
-                              cam.timeout_s)  # fmt: skip
+                              cam.timeout_s, cam.rates.nominal_fps, processed, share,
+                              slow)  # fmt: skip
 
     def _queue_snapshot(
         self, name: str, size: int | None, dropped: int | None, now: float
