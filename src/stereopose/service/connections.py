@@ -30,6 +30,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import re
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -37,7 +38,6 @@ from http import HTTPStatus
 from typing import Any, ClassVar
 
 import h11
-from h11._receivebuffer import blank_line_regex
 from starlette.types import ASGIApp, Receive, Scope, Send
 from uvicorn.config import Config
 from uvicorn.protocols.http.flow_control import service_unavailable
@@ -51,6 +51,7 @@ logger = logging.getLogger(__name__)
 MAX_HEADER_BYTES = 16 * 1024  # request line + headers; a browser sends a few KiB at most
 HEALTH_PATHS = frozenset({"/api/health", "/metrics"})
 LOG_EVERY_S = 10.0
+_HEAD_END = re.compile(rb"\n\r?\n")  # where h11 ends a request head (a bare newline too)
 
 
 @dataclass(frozen=True)
@@ -264,7 +265,7 @@ class GuardedH11Protocol(H11Protocol):
         """Whether the request head (buffered + data) is whole and over the limit; if so it
         is answered 431 and the connection closed. An incomplete one is bounded by h11."""
         pending = self.conn.trailing_data[0] + data  # at most the limit + one read
-        end = blank_line_regex.search(pending)
+        end = _HEAD_END.search(pending)
         if end is None or end.end() <= self.limits.max_header_bytes:
             return False
         limit = self.limits.max_header_bytes
