@@ -202,11 +202,13 @@ class SqliteSink(_EventSink):
     beside the database (the events contract) and `incomplete` says so (the next start
     stores them in the log too, from the pending file).
 
-    Person ids (serve): with first_id, the sink reserves ids in the log ahead of the tracker,
-    id_block at a time, each reservation committed before an id of it can be written anywhere:
-    the reservation is extended when a frame's highest id comes within half a block of its end
-    (so a process killed at any moment has reserved every id it gave; see service.restart). A
-    clean close records the run's end time. wall_start: the Unix time of t = 0, recorded in
+    Person ids: with first_id, the sink records the ids its run gives in `id_reservations`,
+    id_block at a time, extended when a frame's highest id comes within half a block of its
+    end (a record beside the frames; a log read by an earlier version still sees them). What
+    keeps ids from being given twice is service.person_ids: serve's tracker takes each id from
+    a block reserved on the log's `persons` mark before the id is given, so no frame (nor
+    segment, MQTT message) can hold an id a restart would give again. A clean close records
+    the run's end time. wall_start: the Unix time of t = 0, recorded in
     the run's row (an event's wall time is wall_start + t).
     """
 
