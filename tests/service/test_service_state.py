@@ -261,7 +261,8 @@ def test_a_camera_processed_far_under_its_nominal_rate_degrades_with_the_reason(
     clock = Clock()
     s = ServiceState(camera_timeout_s=5.0, clock=clock)
     s.add_camera("fast", nominal_fps=10.0)
-    s.add_camera("slow", nominal_fps=25.0)
+    s.add_camera("slow", timeout_s=4.0)
+    s.camera_rate("slow", 25.0)  # known later (a stream once connected), its timeout kept
     for i in range(301):  # 30 s: "fast" at its 10 frames/s, "slow" at 2 of its 25
         s.camera_frame("fast", clock.now)
         if i % 5 == 0:
@@ -271,6 +272,7 @@ def test_a_camera_processed_far_under_its_nominal_rate_degrades_with_the_reason(
     cams = {c.name: c for c in snap.cameras}
     assert cams["fast"].slow is None and cams["fast"].processed_fps == pytest.approx(10, rel=0.1)
     assert cams["slow"].processed_fps == pytest.approx(2.0, rel=0.1)
+    assert (cams["slow"].nominal_fps, cams["slow"].timeout_s) == (25.0, 4.0)
     assert snap.status == "degraded"
     (problem,) = snap.problems
     assert problem.startswith("camera slow: processed at 2") and "nominal 25/s" in problem

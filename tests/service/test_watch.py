@@ -87,3 +87,15 @@ def test_camera_events_survive_the_event_log_and_json(tmp_path: Path) -> None:
     assert [event_from_record(r) for r in rows] == events
     assert [event_from_record(event_record(e)) for e in events] == events
     assert rows[0]["camera"] == "cam01" and event_record(events[1])["camera"] == "cam01"
+
+
+def test_overdue_names_what_poll_would_take_down_and_a_shift_gives_a_stall_back() -> None:
+    watch = CameraWatch(["a", "b", "c"], timeout_s=2.0, start=0.0)
+    watch.frame("a", 1.0)
+    watch.frame("b", 1.5)
+    assert watch.overdue(2.9) == ["c"]  # never delivered: counted from the start
+    assert watch.overdue(3.6) == ["a", "b", "c"] and watch.up() == ["a", "b", "c"]
+    watch.shift(3.0)  # a stall of 3 s that ended: not their silence
+    assert watch.overdue(3.6) == [] and watch.poll(3.6) == []
+    assert [(e.type, e.camera) for e in watch.poll(5.0)] == [("camera_down", "c")]
+    assert watch.up() == ["a", "b"]

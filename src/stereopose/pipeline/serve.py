@@ -18,10 +18,17 @@ The data folder is private: the service runs with a umask of 077 and takes group
 permissions off what an earlier run left (pipeline.private). Its HTTP server answers only
 the Host names of service.hosts.allowed_hosts ([serve] allowed_hosts adds some).
 
+Recorded files are played as live cameras: every step, and so every event, is stamped with
+when its frames were read, seconds since the service's t = 0 (wall time = wall_start + t). A
+stall of the whole service (the machine overloaded or the process paused: every camera late at
+once) is one service_stalled / service_resumed pair, not a camera_down per camera, and ends no
+track (pipeline.serve_events). Health is degraded while a camera is processed far under its
+nominal rate or drops most of its frames (service.state).
+
 One storage maintainer thread (service.storage) applies [storage]'s retention and cap. Events
-other than zone events (a camera down or up, calibration drift, a zone closed at restart) go
-through the same event sinks. A stop closes every output, each within its own bound, then the
-maintainer and the server; a second signal meanwhile is ignored.
+other than zone events (a camera down or up, the service stalled or resumed, calibration drift,
+a zone closed at restart) go through the same event sinks. A stop closes every output, each
+within its own bound, then the maintainer and the server; a second signal meanwhile is ignored.
 
 Nothing is kept per frame: the summary holds running aggregates, every queue is bounded.
 """
@@ -52,7 +59,7 @@ from stereopose.io.writing import make_folder
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.serve_events import ServeEvents
+from stereopose.pipeline.serve_events import HeldRules, HeldStage, ServeEvents
 from stereopose.pipeline.serve_parts import (
     ServeSource,
     StateSink,
@@ -160,8 +167,8 @@ class _Service:
         self.maintainer.start()
 
     def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
-                   stats: Callable[[], dict], arrival: Callable[[float], float | None]
-                   ) -> list[Sink]:  # fmt: skip
+                   stats: Callable[[], dict], arrival: Callable[[float], float | None],
+                   rates: Callable[[], dict] | None = None) -> list[Sink]:  # fmt: skip
         """Every sink, in closing order; if one cannot be opened, those open are closed."""
         p, sinks = self.plan, []
 
@@ -179,7 +186,7 @@ class _Service:
             if self.console is not None and self.console.hub is not None:
                 sinks.append(ConsoleSink(self.console.hub, wall_start))
             state = StateSink(self.state, summary, arrival=arrival, stats=stats,
-                              elsewhere=self.elsewhere)  # fmt: skip
+                              elsewhere=self.elsewhere, rates=rates)  # fmt: skip
             sinks.append(guard(state, "the health state"))
             self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
             sinks.append(guard(self.status, p.status_path))
@@ -290,6 +297,17 @@ def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
             if sub and is_stream(str(src)) and is_stream(str(sub))}  # fmt: skip
 
 
+def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
+    """Per camera (the rate the service should process it at, its own rate): its frame rate,
+    or detect_fps when lower; None while not known (a live stream not yet connected)."""
+    out = {}
+    for s in cams.sources:
+        own = float(s.fps) if s.fps else None
+        nominal = min(own, cams.detect_fps) if own and cams.detect_fps else own
+        out[s.name] = (nominal, own)
+    return out
+
+
 def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet:
     cfg = plan.config
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
@@ -299,7 +317,7 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet:
                      loop=[c.loop for c in cfg.cameras],
                      detect=[d or None for d in plan.detect_sources],
                      detect_fps=cfg.input.detect_fps, wait_first_frame=False,
-                     packets=packets)  # fmt: skip
+                     packets=packets, wall_clock=True)  # fmt: skip
 
 
 def serve(
@@ -361,17 +379,27 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
     fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
-    watch = CameraWatch(rig.names, cfg.serve.camera_timeout_s, start=0.0)
+    timeout_s = cfg.serve.camera_timeout_s
+    watch = CameraWatch(rig.names, timeout_s, start=0.0)
     calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
-    events = ServeEvents(fences, watch, calib, service.resume.closing_events)
+
+    def now_t() -> float:  # the service's clock: the steps' and the events' t
+        return cams.clock.since(time.monotonic())
+
+    events = ServeEvents(fences, watch, calib, service.resume.closing_events,
+                         fresh=lambda name: cams.delivering(name, timeout_s), clock=now_t,
+                         on_stall=service.state.service_stall)  # fmt: skip
     # detection on its own thread, always on the newest frames (recorded: every step kept)
     pipelined = PipelinedCameras(Cameras(cams, rig, detector))
     service.watch_pipeline(pipelined)
     source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
-                         on_step=events.step, on_detect=events.detected)  # fmt: skip
+                         on_step=events.step, on_detect=events.detected,
+                         clock=now_t)  # fmt: skip
     # each person id reserved in the log before it is given (service.person_ids)
     stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path),
                     first_id=service.resume.person_ids(plan.events_db))  # fmt: skip
+    # a step the service was too late for is no observation; a stall's length not their age
+    stage, rules = HeldStage(stage, events), behaviour_monitor(plan.site, cfg)
     summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,
                          stage.tracking, live=source.live, fps_input=source.fps,
                          out_dir=plan.out_dir, config_path=plan.config_path)  # fmt: skip
@@ -379,10 +407,12 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     start_mono = cams.clock.start
 
     def arrival(t: float) -> float | None:
-        return start_mono + t if source.live else None
+        return start_mono + t if source.live or cams.wall_clock else None
 
-    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival)
+    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival,
+                               lambda: nominal_rates(cams))  # fmt: skip
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=events,
-                     behaviour=behaviour_monitor(plan.site, cfg), stop=stop)  # fmt: skip
+                     behaviour=HeldRules(rules, events) if rules is not None else None,
+                     stop=stop)  # fmt: skip
     return loop.run()

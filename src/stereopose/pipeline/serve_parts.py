@@ -3,8 +3,9 @@ the health state and status.json, and the stop signals.
 
 - `ServeSource` takes the steps of any frame-loop source on a thread of its own, and gives
   the loop an empty step (no images, nobody) whenever the source has given nothing for
-  `heartbeat_s`: time goes on for the tracker and the fences, and
-  the events of a blind camera get out although no frame comes. Steps that carry their people
+  `heartbeat_s`, stamped with `clock()` (the service's time now) when given: time goes on for
+  the camera watch and the stall watch (pipeline.serve_events), and the events of a blind
+  camera get out although no frame comes. Steps that carry their people
   (pipelined detection) are told to `on_detect` as those found by `detect` are.
 - `StateSink` feeds the ServiceState (cameras' frames, stage times, people, events, the
   readers' drops and reconnects); `StatusSink` writes status.json (the health snapshot) every
@@ -52,8 +53,9 @@ class ServeSource:
         heartbeat_s: float = 0.5,
         on_step: Callable[[SourceStep], None] | None = None,
         on_detect: Callable[[Mapping[str, People2D]], None] | None = None,
+        clock: Callable[[], float] | None = None,
     ) -> None:
-        self.inner, self.stop = inner, stop
+        self.inner, self.stop, self.clock = inner, stop, clock
         self.cameras, self.stages = inner.cameras, inner.stages
         self.fps, self.live = inner.fps, inner.live
         self.heartbeat_s = heartbeat_s
@@ -95,7 +97,10 @@ class ServeSource:
             if item is None:  # nothing for heartbeat_s: an empty step, time going on
                 if self.stop.is_set():
                     return
-                t = last_t + (now - last_mono) if math.isfinite(last_t) else 0.0
+                if self.clock is not None:
+                    t = max(float(self.clock()), last_t + 1e-4)
+                else:
+                    t = last_t + (now - last_mono) if math.isfinite(last_t) else 0.0
                 self.heartbeats += 1
                 step = SourceStep(frame, t, {}, None)
             else:
@@ -141,7 +146,8 @@ class StateSink(ClosesOnce):
     time's monotonic time (None: not known, the latency is the sum of the stages); stats(): the
     camera readers' figures (io.source.SourceStats by camera), read every `stats_s`;
     elsewhere(): seconds so far of the stages timed off the loop's thread (a pipelined
-    detection), by stage, added to the summary's."""
+    detection), by stage, added to the summary's; rates(): per camera (nominal fps, its own
+    fps), told to the state when they change (read with the stats)."""
 
     stage = "state"
 
@@ -154,9 +160,11 @@ class StateSink(ClosesOnce):
         stats: Callable[[], Mapping[str, object]] | None = None,
         stats_s: float = 1.0,
         elsewhere: Callable[[], Mapping[str, float]] | None = None,
+        rates: Callable[[], Mapping[str, tuple[float | None, float | None]]] | None = None,
     ) -> None:
         self.state, self.summary, self.seconds = state, summary, summary.seconds
-        self.elsewhere = elsewhere
+        self.elsewhere, self.rates = elsewhere, rates
+        self._rates: dict[str, tuple[float | None, float | None]] = {}
         self.arrival, self.stats, self.stats_s = arrival, stats, stats_s
         self._last = dict(self.seconds)
         self._seen: dict[str, tuple[int, int]] = {}  # camera -> (dropped, reconnects) so far
@@ -179,6 +187,13 @@ class StateSink(ClosesOnce):
         if self.stats is not None and time.monotonic() - self._stats_at >= self.stats_s:
             self._stats_at = time.monotonic()
             self._readers()
+            self._nominal()
+
+    def _nominal(self) -> None:
+        for name, (nominal, own) in (self.rates() if self.rates else {}).items():
+            if self._rates.get(name) != (nominal, own):
+                self._rates[name] = (nominal, own)
+                self.state.camera_rate(name, nominal, own)
 
     def _readers(self) -> None:
         for name, st in self.stats().items():

@@ -76,7 +76,8 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
     e2e.add_metric([], _buckets(s.end_to_end), s.end_to_end.sum_s)
     yield e2e
     yield _gauge("people", "People in the last frame.", None, {"": s.people})
-    yield _counter("events", "Zone events by type.", "type", dict(s.events))
+    yield _counter("events", "Events by type: zone, behaviour, camera, calibration and service "
+                   "events.", "type", dict(s.events))  # fmt: skip
     yield _gauge("queue_size", "Messages waiting per queue.", "queue",
                  {q.name: q.size for q in s.queues if q.size is not None})  # fmt: skip
     yield _counter("queue_dropped", "Messages dropped per queue.", "queue",

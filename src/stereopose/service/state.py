@@ -251,6 +251,17 @@ class ServiceState:
                 cam.timeout_s = timeout
                 cam.rates.set_nominal(nominal, own)
 
+    def camera_rate(
+        self, name: str, nominal_fps: float | None, source_fps: float | None = None
+    ) -> None:
+        """Camera `name`'s nominal rate (and its own), as for add_camera, once they are known
+        (a live stream's, when it connects); its timeout is left as it is."""
+        nominal, own = _duration(nominal_fps), _duration(source_fps)
+        with self._lock:
+            cam = self._camera(name)
+            if cam is not None:
+                cam.rates.set_nominal(nominal, own)
+
     def camera_frame(self, name: str, t_arrival: float | None = None) -> None:
         """Camera `name` delivered a frame at t_arrival (None: now) on the state's clock."""
         with self._lock:

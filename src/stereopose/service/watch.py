@@ -8,6 +8,10 @@
 never gave one counts from `start`), and `camera_up` when a frame comes again (duration_s: how
 long it was down). Times are seconds on one clock, the frame loop's (injectable: tests step it).
 The events (kind "camera", zone "", person -1, `camera` naming it) go through every event sink.
+
+Every camera late at once is first a question for service.stall: `overdue(t)` names the cameras
+that `poll` would take down at t, so the service can tell its own stall from its cameras', and
+`shift(s)` gives the cameras still up the time of a stall back (a stall is not their silence).
 """
 
 from __future__ import annotations
@@ -89,6 +93,31 @@ class CameraWatch:
                     out.append(camera_event("camera_down", name, t, frame, since))
                     logger.error("camera %s: no frame for %.1f s", name, t - since)
         return out
+
+    def overdue(self, t: float) -> list[str]:
+        """The cameras not down whose silence has reached timeout_s at t (poll would take
+        them down)."""
+        out = []
+        for name, st in self.cameras.items():
+            since = st.quiet_since if st.last_t is None else st.last_t
+            if not st.down and t - since >= self.timeout_s:
+                out.append(name)
+        return out
+
+    def up(self) -> list[str]:
+        """The cameras not down (up, or waiting for their first frame)."""
+        return [name for name, st in self.cameras.items() if not st.down]
+
+    def shift(self, seconds: float) -> None:
+        """The cameras not down lose `seconds` of their silence (a stall of the service that
+        ended: the time it lasted is not theirs)."""
+        if not (seconds > 0 and math.isfinite(seconds)):
+            return
+        for st in self.cameras.values():
+            if not st.down:
+                st.quiet_since += seconds
+                if st.last_t is not None:
+                    st.last_t += seconds
 
     def state(self, name: str) -> str:
         """ "up", "down" or "waiting" (no frame yet, not yet timed out)."""
