@@ -55,7 +55,8 @@ class AlarmRates:
     def __init__(self, standing_s: float = STANDING_S, max_events: int = MAX_EVENTS) -> None:
         self.standing_s = float(standing_s)
         self.max_events = int(max_events)
-        self.dropped = 0
+        self.dropped = 0  # notifications dropped from a full window
+        self.dropped_occurrences = 0
         self._notified: deque[tuple[float, HazardKey]] = deque()
         self._occurred: deque[tuple[float, int]] = deque()
         self._latest = float("-inf")
@@ -64,30 +65,33 @@ class AlarmRates:
         """Count the notifications and occurrences among `changes` (in time order)."""
         for c in changes:
             self._latest = max(self._latest, c.t)
+            self._prune(self._latest)  # what has left the windows makes room first
             if c.notify:
-                self._push(self._notified, (c.t, c.incident.key))
+                self.dropped += self._push(self._notified, (c.t, c.incident.key))
             if c.what in (RAISED, OCCURRENCE):
-                self._push(self._occurred, (c.t, c.incident.id))
-        self._prune(self._latest)
+                self.dropped_occurrences += self._push(self._occurred, (c.t, c.incident.id))
 
-    def _push(self, window: deque, item: tuple) -> None:
-        if len(window) >= self.max_events:
+    def _push(self, window: deque, item: tuple) -> int:
+        """Append; 1 when the oldest had to go to make room."""
+        full = len(window) >= self.max_events
+        if full:
             window.popleft()
-            self.dropped += 1
         window.append(item)
+        return int(full)
 
     def _prune(self, now: float) -> None:
-        while self._notified and self._notified[0][0] < now - HOUR_S:
+        # each window is (now - length, now]
+        while self._notified and self._notified[0][0] <= now - HOUR_S:
             self._notified.popleft()
-        while self._occurred and self._occurred[0][0] < now - CHATTER_S:
+        while self._occurred and self._occurred[0][0] <= now - CHATTER_S:
             self._occurred.popleft()
 
     def figures(self, now: float, incidents: Iterable[IncidentRecord] = ()) -> RateFigures:
         """The figures at now; incidents: the book's (for the standing ones)."""
         self._prune(now)
-        last10 = sum(1 for t, _ in self._notified if t >= now - TEN_MIN_S)
-        chatter = _repeated(((t, k) for t, k in self._notified if t >= now - CHATTER_S))
-        repeats = _repeated(((t, i) for t, i in self._occurred if t >= now - CHATTER_S))
+        last10 = sum(1 for t, _ in self._notified if t > now - TEN_MIN_S)
+        chatter = _repeated(((t, k) for t, k in self._notified if t > now - CHATTER_S))
+        repeats = _repeated(((t, i) for t, i in self._occurred if t > now - CHATTER_S))
         standing = sum(
             1
             for r in incidents
