@@ -264,3 +264,29 @@ def test_restore_takes_open_incidents_back_once() -> None:
     assert whats(step(new, [], 604.0))[0] == ("unshelved", ACTIVE, ACTIVE)
     # the approach of person 2 clears after its quiet time, as before the restart
     assert new.get(3).state == CLEARED
+
+
+def test_shelving_holds_for_the_hazard_until_it_runs_out() -> None:
+    """A camera flapping during maintenance: its new incidents are born shelved, quiet."""
+    book = IncidentBook()
+    step(book, [camera(0.0, "camera_down")])
+    book.shelve(1, "ann", "maintenance", 3600.0, 1.0)
+    for k in range(1, 5):  # down for 10 s every 5 minutes: each time past the re-arm
+        step(book, [camera(300.0 * k - 290.0, "camera_up")])
+        book.acknowledge(book.incidents()[-1].id, "ann", 300.0 * k - 289.0)
+        up = step(book, [camera(300.0 * k, "camera_down")])
+        (c,) = up.changes
+        assert (c.what, c.notify, c.incident.shelved, c.incident.shelved_until) == (
+            "raised", False, True, 3601.0)  # fmt: skip
+        assert c.incident.shelved_reason == "maintenance" and c.incident.shelved_by == "ann"
+    assert len(book) <= 2  # the closed ones are forgotten all the same
+    up = step(book, [], 3601.0)
+    assert [(c.what, c.incident.id) for c in up.changes] == [("unshelved", 5)]
+    step(book, [camera(3700.0, "camera_up")])
+    up = step(book, [camera(4000.0, "camera_down")])
+    assert [c.incident.id for c in up.notifications] == [6]  # the shelving has run out
+    # an operator's unshelving ends it for the hazard at once
+    book.shelve(6, "ann", "again", 600.0, 4001.0)
+    book.unshelve(6, "ann", 4002.0)
+    step(book, [camera(4003.0, "camera_up")])
+    assert len(step(book, [camera(4100.0, "camera_down")]).notifications) == 1

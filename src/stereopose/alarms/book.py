@@ -8,19 +8,22 @@
     book.acknowledge(id, by, now) / book.shelve(id, by, reason, duration_s, now) / unshelve
 
 Every alarm- or warning-level event (alarms.levels) belongs to the incident of its hazard. An
-event of a hazard whose incident is open (active, or cleared and not yet acknowledged) or
-cleared less than its `rearm_s` ago is an occurrence of that incident: counted, its last time
-and priority updated, no notification. Otherwise it raises a new incident (a notification,
-unless the hazard's incident is shelved). So an approach that becomes an entry, a hand going
-in and out of a panel, an exit at the margin followed by a new approach: one incident.
+event of a hazard whose incident is active, or cleared less than its `rearm_s` ago, is an
+occurrence of that incident: counted, its last time and priority updated, no notification.
+Otherwise it raises a new incident, with a notification (the previous one, cleared, waits for
+its acknowledgement apart). So an approach that becomes an entry, a hand going in and out of a
+panel, an exit at the margin followed by a new approach: one incident. Shelving holds for the
+hazard: while an operator's shelving runs, a new incident of the same hazard is born shelved,
+without a notification (a camera flapping during maintenance stays quiet).
 
 A zone's incident clears when the person has left the zone (its exit) and is not approaching
 it. The fence raises no event when an approach ends, so the caller says which (zone, person)
 pairs still hold (`holding`: inside or within the margin, fence.rules.FenceMonitor's
-`inside.state | near.state`); without it, an incident that only approached clears
-`approach_clear_s` after its last event. A behaviour incident clears at its end event
-(person_up, `<type>_end`), a camera's at camera_up, a calibration's at calibration_recovered,
-the service's at service_resumed.
+`inside.state | near.state`): an exit while the pair still holds does not clear, and an
+incident whose pair no longer holds clears. Without it, an exit clears, and an incident that
+only approached clears `approach_clear_s` after its last event. A behaviour incident clears
+at its end event (person_up, `<type>_end`), a camera's at camera_up, a calibration's at
+calibration_recovered, the service's at service_resumed.
 
 First-out: when a second incident is raised within first_out_s of the first of a burst, the
 first is marked first-out (a change), the others are not.
@@ -135,6 +138,7 @@ class IncidentBook:
         self._shelf: list[tuple[float, int]] = []
         self._approach: list[tuple[float, int]] = []
         self._burst: tuple[float, int] | None = None  # (time, id) of a burst's first
+        self._shelved: dict[HazardKey, IncidentRecord] = {}  # each shelved hazard's shelving
 
     # -- reading
     def __len__(self) -> int:
@@ -214,7 +218,12 @@ class IncidentBook:
             inc = Incident.raised(self.next_id(), key, e.t, e.type, priority, rearm_s, event_id)
             self._by_id[inc.id] = inc
             self._by_key[key] = inc.id
-            changes.append(Change(RAISED, None, inc.record(), e.t, notify=True))
+            shelf = self._shelved.get(key)
+            quiet = shelf is not None and (shelf.shelved_until or 0.0) > e.t
+            if quiet:
+                inc.shelve_as(shelf)
+                heapq.heappush(self._shelf, (shelf.shelved_until, inc.id))
+            changes.append(Change(RAISED, None, inc.record(), e.t, notify=not quiet))
             self._first_out(inc, e.t, changes)
         if key[0] == "zone":
             self._zone_active.add(inc.id)
@@ -302,6 +311,8 @@ class IncidentBook:
             inc = self._by_id.get(i)
             if inc is not None and inc.record().shelved_until == until and inc.expire(now):
                 changes.append(Change(UNSHELVED, inc.state, inc.record(), now))
+        for key in [k for k, r in self._shelved.items() if (r.shelved_until or 0.0) <= now]:
+            del self._shelved[key]
 
     # -- an operator's acts
     def _find(self, incident_id: int) -> Incident:
@@ -330,10 +341,12 @@ class IncidentBook:
         until = inc.record().shelved_until
         assert until is not None
         heapq.heappush(self._shelf, (until, inc.id))
+        self._shelved[inc.key] = inc.record()
         return [Change(SHELVED, inc.state, inc.record(), now, by=by)]
 
     def unshelve(self, incident_id: int, by: str, now: float) -> list[Change]:
         inc = self._find(incident_id)
+        self._shelved.pop(inc.key, None)
         if not inc.unshelve():
             return []
         return [Change(UNSHELVED, inc.state, inc.record(), now, by=by)]
@@ -360,4 +373,5 @@ class IncidentBook:
                 heapq.heappush(self._forget, (rec.cleared_at + rec.rearm_s, rec.id))
             if rec.shelved_until is not None:
                 heapq.heappush(self._shelf, (rec.shelved_until, rec.id))
+                self._shelved[rec.key] = rec
         return taken

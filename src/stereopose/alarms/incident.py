@@ -234,6 +234,11 @@ class Incident:
                   shelved_reason=text[:MAX_REASON])  # fmt: skip
         return True
 
+    def shelve_as(self, other: IncidentRecord) -> None:
+        """Shelved as `other` is (a new incident of a hazard the operator has shelved)."""
+        self._set(shelved_until=other.shelved_until, shelved_by=other.shelved_by,
+                  shelved_reason=other.shelved_reason)  # fmt: skip
+
     def unshelve(self) -> bool:
         """Back in service (an operator's act, or the shelving's time ran out)."""
         if self._rec.shelved_until is None:
