@@ -106,21 +106,41 @@ def _tables(db: sqlite3.Connection) -> set[str]:
     return {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
 
 
+def _floors(db: sqlite3.Connection) -> dict[str, int]:
+    """Per mark, the least value it may have: one above the ids its tables hold."""
+    tables = _tables(db)
+    have = (
+        {n for (n,) in db.execute("SELECT name FROM counters")} if "counters" in tables else set()
+    )
+    floors = {}
+    for name, seeds in SEEDS.items():
+        floor = 1
+        for table, sql in seeds + (() if name in have else FIRST_SEEDS.get(name, ())):
+            if table in tables:
+                floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
+        floors[name] = floor
+    return floors
+
+
+def _marks(db: sqlite3.Connection) -> dict[str, int]:
+    if "counters" not in _tables(db):
+        return {}
+    return {n: int(v) for n, v in db.execute("SELECT name, next FROM counters")}
+
+
 def raise_marks(db: sqlite3.Connection) -> None:
     """Each mark of SEEDS raised above the ids its tables hold (created at the first id);
-    nothing when the log has no events table yet. One short write transaction."""
+    nothing when the log has no events table yet. Read first: a short write transaction only
+    when a mark is missing or behind (an earlier version's log, or rows it wrote since)."""
     if "events" not in _tables(db):
+        return
+    marks = _marks(db)
+    if all(marks.get(name, 0) >= floor for name, floor in _floors(db).items()):
         return
     db.execute("BEGIN IMMEDIATE")
     try:
         db.execute(COUNTERS_SCHEMA.strip().rstrip(";"))
-        tables = _tables(db)
-        have = {n for (n,) in db.execute("SELECT name FROM counters")}
-        for name, seeds in SEEDS.items():
-            floor = 1
-            for table, sql in seeds + (() if name in have else FIRST_SEEDS.get(name, ())):
-                if table in tables:
-                    floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
+        for name, floor in _floors(db).items():  # again, under the write lock
             db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
                        "UPDATE SET next = MAX(next, excluded.next)", (name, floor))  # fmt: skip
         db.execute("COMMIT")
