@@ -14,6 +14,7 @@ import pytest
 from argon2 import PasswordHasher
 from consoled import PASSWORDS, console_server, fast_hasher
 
+from stereopose.service.connections import ConnectionLimits
 from stereopose.service.login_limit import ACCOUNT_BURST, MAX_FAILURES
 
 
@@ -60,7 +61,16 @@ def test_failures_from_one_address_throttle_it_not_the_operator_elsewhere(served
         assert operator.get("/api/me").json()["username"] == "otto"
 
 
-def test_a_parallel_burst_of_wrong_logins_checks_at_most_the_limit(served):
+@pytest.fixture
+def roomy(tmp_path):
+    """A server whose per-address connection cap lets 24 connections of one address in (the
+    login limit, not the connection table, is what the burst meets)."""
+    with console_server(tmp_path / "out", limits=ConnectionLimits(max_per_address=32)) as s:
+        yield s
+
+
+def test_a_parallel_burst_of_wrong_logins_checks_at_most_the_limit(roomy):
+    served = roomy
     hasher = CountingHasher(time_cost=2, memory_cost=16 * 1024, parallelism=1)  # a slow hash
     served.console.users.hasher = hasher
     answers: list[int] = []
