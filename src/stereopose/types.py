@@ -373,3 +373,7 @@ class Event:
     failed: str | None = None
     height_m: float | None = None
     speed_m_s: float | None = None
+    # the incident it belongs to (stereopose.alarms; None: an info event, or no incident book)
+    # and that incident's priority (1 critical .. 4 low; None for info events)
+    incident: int | None = None
+    priority: int | None = None

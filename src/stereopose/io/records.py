@@ -45,7 +45,7 @@ __all__ = [
 EVENT_COLUMNS = ("run", "t", "frame", "person", "zone", "kind", "type", "onset_t", "joint",
                  "distance_m", "duration_s", "x", "y", "allowed", "lost", "restart", "camera",
                  "reprojection_px", "baseline_px", "rule", "posture", "nearest_m", "facing_deg",
-                 "failed", "height_m", "speed_m_s")  # fmt: skip
+                 "failed", "height_m", "speed_m_s", "incident", "priority")  # fmt: skip
 # the behaviour events' optional fields: (name, decimals; None for text)
 _BEHAVIOUR_FIELDS = (("rule", None), ("posture", None), ("nearest_m", 4), ("facing_deg", 1),
                      ("failed", None), ("height_m", 4), ("speed_m_s", 3))  # fmt: skip
@@ -197,6 +197,8 @@ def event_record(e: Event) -> dict:
         value = getattr(e, key)
         if value is not None:
             d[key] = value if nd is None else _round(value, nd)
+    d["incident"] = e.incident  # always there: null for info events (or no incident book)
+    d["priority"] = e.priority
     return d
 
 
@@ -231,6 +233,8 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
             else _optional_float(d.get(key))
             for key, nd in _BEHAVIOUR_FIELDS
         },
+        incident=None if d.get("incident") is None else int(d["incident"]),
+        priority=None if d.get("priority") is None else int(d["priority"]),
     )
 
 
@@ -244,4 +248,5 @@ def event_row(e: Event, run: int) -> tuple:
     return (run, e.t, e.frame, e.person, e.zone, e.kind, e.type, e.onset_t, e.joint,
             e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost), int(e.restart),
             e.camera, e.reprojection_px, e.baseline_px, e.rule, e.posture, e.nearest_m,
-            e.facing_deg, e.failed, e.height_m, e.speed_m_s)  # fmt: skip
+            e.facing_deg, e.failed, e.height_m, e.speed_m_s, e.incident,
+            e.priority)  # fmt: skip

@@ -43,6 +43,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import make_detector
 from stereopose.errors import StereoposeError
@@ -52,6 +53,7 @@ from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
 from stereopose.io.sinks.clips import ClipSettings
+from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.video import is_stream
@@ -60,6 +62,7 @@ from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.serve_events import HeldRules, HeldStage, ServeEvents
+from stereopose.pipeline.serve_incidents import IncidentStep
 from stereopose.pipeline.serve_parts import (
     ServeSource,
     StateSink,
@@ -131,6 +134,9 @@ class _Service:
             plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
         )
         self.server: Server | None = None
+        self.app = None
+        self.db: SqliteSink | None = None
+        self.incident_outputs: list[Callable] = []  # each given every step's incident changes
         self.console: Console | None = None
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
@@ -151,8 +157,10 @@ class _Service:
         hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
         self.console = Console.in_folder(p.out_dir, hub)
         self.probes["console"] = hub.figures
+        self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
         hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
         app = create_app(self.state, console=self.console, allowed_hosts=hosts)
+        self.app = app  # its incidents (api.incidents) set once the frame loop has its book
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
@@ -200,10 +208,12 @@ class _Service:
         site = str(p.site.path or "") if p.site is not None else ""
         db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
                         first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
+        self.db = db
         self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
         sinks.append(self._alarm_output("events_db", guard(db, p.events_db)))
         if cfg.outputs.webhook:
             hook = WebhookSink(cfg.outputs.webhook)
+            self.incident_outputs.append(hook.write_changes)
             self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
             label = shown_url(cfg.outputs.webhook)
             sinks.append(self._alarm_output("webhook", guard(hook, label)))
@@ -212,6 +222,7 @@ class _Service:
 
             zones = [z.name for z in p.site.zones] if p.site is not None else []
             mqtt = MqttSink(p.mqtt, zones)
+            self.incident_outputs.append(mqtt.write_changes)
             self.state.register_queue("mqtt", lambda: _queued(mqtt), lambda: _dropped(mqtt))
             self.probes["mqtt"] = mqtt.counts
             sinks.append(
@@ -272,6 +283,12 @@ class _Service:
             self.console.close()  # its live streams end before the server stops
         if self.server is not None:
             self.server.stop()
+
+
+def _live_changes(hub: LiveHub, changes) -> None:
+    """Each incident change to the console's live channel, as an `incident` message."""
+    for c in changes:
+        hub.publish("incident", c.to_dict())
 
 
 def _queued(mqtt) -> int:
@@ -412,7 +429,34 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival,
                                lambda: nominal_rates(cams))  # fmt: skip
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
-    loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=events,
-                     behaviour=HeldRules(rules, events) if rules is not None else None,
-                     stop=stop)  # fmt: skip
-    return loop.run()
+    ids = IncidentIds(plan.events_db)
+    try:
+        incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
+        loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=incidents,
+                         behaviour=incidents, stop=stop)  # fmt: skip
+        return loop.run()
+    finally:
+        ids.close()
+
+
+def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, fences,
+               ids: IncidentIds, wall_start: float, clock: Callable[[], float]
+               ) -> IncidentStep:  # fmt: skip
+    """The incident book over the step's events (pipeline.serve_incidents): ids from the
+    log's mark, the incidents the last run left open restored (on this run's clock), its
+    changes stored with the step's events and given to every incident output; the HTTP API's
+    acts reach it through the app."""
+    settings = AlarmSettings.from_site(plan.site) if plan.site is not None else AlarmSettings()
+    book = IncidentBook(settings, next_id=ids)
+    restored = book.restore(service.resume.open_incidents(wall_start))
+    if restored:
+        logger.warning("restart: %d incident(s) left open by the last run are open again",
+                       restored)  # fmt: skip
+    db = service.db
+    step = IncidentStep(book, events, HeldRules(rules, events) if rules is not None else None,
+                        fences, store=db.put_incidents if db is not None else None,
+                        outputs=service.incident_outputs, clock=clock)  # fmt: skip
+    service.probes["alarms"] = step.figures
+    if service.app is not None:
+        service.app.state.incidents = step
+    return step

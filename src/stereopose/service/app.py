@@ -86,7 +86,9 @@ def create_app(
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
-    for router in (auth, people, events, cameras, zones, clips, live, users):
+    from stereopose.service.api import incidents
+
+    for router in (auth, people, events, incidents, cameras, zones, clips, live, users):
         app.include_router(router.router)
     docs.mount_docs(app)
     page.mount_page(app)

@@ -36,6 +36,7 @@ from urllib.request import pathname2url
 
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.eventdb import read_mark, reading
+from stereopose.io.sinks.incidents import on_clock, open_incidents
 from stereopose.io.sinks.spill import read_spill
 from stereopose.service.person_ids import PersonIds
 from stereopose.types import Event
@@ -129,6 +130,8 @@ class Resume:
     alarms: tuple[OpenAlarm, ...] = ()
     runs: int = 0
     crashed: bool = False
+    # the incidents not closed, (record, the wall_start of its times): io.sinks.incidents
+    incidents: tuple = ()
 
     @property
     def open_zones(self) -> dict[str, tuple[int, ...]]:
@@ -213,7 +216,14 @@ class Resume:
             crashed = (
                 db.execute("SELECT ended FROM runs ORDER BY id DESC LIMIT 1").fetchone()[0] is None
             )
-        return cls(next_id=next_id, occupied=occupied, alarms=alarms, runs=runs, crashed=crashed)
+        return cls(
+            next_id=next_id,
+            occupied=occupied,
+            alarms=alarms,
+            runs=runs,
+            crashed=crashed,
+            incidents=tuple(open_incidents(db)),
+        )
 
     def with_waiting(self, waiting: list[tuple[int, Event]]) -> Resume:
         """This state with the events a run left waiting beside the log (io.sinks.spill: not
@@ -238,6 +248,12 @@ class Resume:
                     alarms.pop((e.rule, e.person), None)
         return replace(self, next_id=next_id, occupied=tuple(zones.values()),
                        alarms=tuple(alarms.values()))  # fmt: skip
+
+    def open_incidents(self, wall_start: float | None) -> list:
+        """The incidents the last run left open, their times on the clock starting at
+        wall_start (the new run's): for IncidentBook.restore. The closing events of the first
+        step then clear those whose hazard is gone."""
+        return [on_clock(rec, wall, wall_start) for rec, wall in self.incidents]
 
     def person_ids(self, db_path: str | Path, block: int = 1000) -> PersonIds:
         """Where the new run's tracker takes its ids: from next_id on, each reserved in the

@@ -45,6 +45,8 @@ SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
     "events": (("events", "SELECT MAX(id) + 1 FROM events"),
                ("acks", "SELECT MAX(event) + 1 FROM acks")),
     "persons": (("events", "SELECT MAX(person) + 1 FROM events"),),
+    # an incident's id is in the incidents table before any event names it (io.sinks.incidents)
+    "incidents": (("incidents", "SELECT MAX(id) + 1 FROM incidents"),),
 }  # fmt: skip
 # the same, only as the mark is made (an earlier version's reservations; SqliteSink still
 # records its own there, below the mark, which must not push the mark a block up each run)

@@ -36,6 +36,7 @@ from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
+from stereopose.io.sinks.incidents import INCIDENTS_SCHEMA, upsert_incidents
 from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
@@ -114,6 +115,8 @@ ADDED_COLUMNS = (
     ("events", "failed", "TEXT"),
     ("events", "height_m", "REAL"),
     ("events", "speed_m_s", "REAL"),
+    ("events", "incident", "INTEGER"),
+    ("events", "priority", "INTEGER"),
 )
 
 
@@ -243,7 +246,7 @@ class SqliteSink(_EventSink):
             ) from None
         try:
             self.db = connect_writer(self.path, open_timeout_s, create=True)
-            self.db.executescript(SCHEMA)
+            self.db.executescript(SCHEMA + INCIDENTS_SCHEMA)
             _upgrade(self.db)
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             self.spill = Spill(self.path)
@@ -265,6 +268,10 @@ class SqliteSink(_EventSink):
             raise OutputError(f"{self.path}: cannot open the event database: {e}") from None
         self.committed = self.dropped = 0
         self.pending: deque[Event] = deque()
+        # incidents changed since the last store: id -> (record, wall_start of its times),
+        # stored with the next events (one per incident: bounded by the book)
+        self.incidents: dict[int, tuple[object, float | None]] = {}
+        self.wall_start = wall_start
         self._spilled = 0  # the first pending events, kept in the spill file too
         self.incomplete: str | None = None
         self.kept_in: Path | None = None  # where close put the events it could not store
@@ -282,6 +289,12 @@ class SqliteSink(_EventSink):
                            self.path, e)  # fmt: skip
             return False
         return True
+
+    def put_incidents(self, records: Sequence[object]) -> None:
+        """Incident records (alarms.IncidentRecord) to store with the next events; a later
+        record of an incident replaces an earlier one not stored yet."""
+        for rec in records:
+            self.incidents[int(rec.id)] = (rec, self.wall_start)
 
     def _busy(self, seconds: float) -> None:
         self.db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * seconds))}")
@@ -308,7 +321,9 @@ class SqliteSink(_EventSink):
                 )  # fmt: skip
                 events = events[: max(room, 0)]
             self.pending.extend(events)
-        if (self.pending or self._want is not None) and time.monotonic() >= self._next_try:
+        if (self.pending or self._want is not None or self.incidents) and (
+            time.monotonic() >= self._next_try
+        ):
             self._store()
         self._keep_waiting()
 
@@ -335,6 +350,9 @@ class SqliteSink(_EventSink):
                     f"INSERT INTO events(id, {', '.join(COLUMNS)}) VALUES (?, {placeholders})",
                     [(first + i, *row) for i, row in enumerate(rows)],
                 )
+            stored = dict(self.incidents)
+            if stored:  # each incident's record with the step's events: one transaction
+                upsert_incidents(self.db, stored.values())
             want = self._want
             if want is not None:
                 self.db.execute(
@@ -351,6 +369,9 @@ class SqliteSink(_EventSink):
         if want is not None:
             self.reserved, self._want = max(self.reserved or 0, want), None
         self.pending.clear()
+        for i, held in stored.items():  # a change made meanwhile stays to be stored
+            if self.incidents.get(i) is held:
+                del self.incidents[i]
         self.committed += len(rows)
         if self._error is not None and rows:
             logger.warning("%s: events stored again (%d that had waited)", self.path, len(rows))
@@ -374,7 +395,7 @@ class SqliteSink(_EventSink):
 
     def _close(self) -> list[Path]:
         deadline = time.monotonic() + self.close_timeout_s
-        while self.pending or self._want is not None:
+        while self.pending or self._want is not None or self.incidents:
             left = deadline - time.monotonic()
             self._busy(min(max(left, 0.0), 1.0))  # a lock waited for within the deadline
             if self._store() or left <= 0:

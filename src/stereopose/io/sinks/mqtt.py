@@ -46,7 +46,7 @@ __all__ = ["MqttSettings", "MqttSink", "people_record", "topic_name", "topic_par
 
 logger = logging.getLogger(__name__)
 
-KINDS = ("events", "zones", "people")
+KINDS = ("events", "zones", "people", "incidents")
 ONLINE, OFFLINE = "online", "offline"
 INFLIGHT = 20  # messages handed to paho and not yet acknowledged (paho's own default window)
 
@@ -83,7 +83,7 @@ class MqttSink(ClosesOnce):
     def __init__(self, settings: MqttSettings, zone_names: Iterable[str] = ()) -> None:
         self.settings = s = settings
         base = f"{s.topic_prefix}/{topic_part(s.site)}"
-        self.topics = {k: f"{base}/{k}" for k in ("events", "people", "available")}
+        self.topics = {k: f"{base}/{k}" for k in ("events", "people", "available", "incidents")}
         self._zone_base = f"{base}/zones/"
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -91,6 +91,7 @@ class MqttSink(ClosesOnce):
         self._queues: dict[str, deque[tuple[int, _Message]]] = {
             "events": deque(),
             "people": deque(),
+            "incidents": deque(),
         }
         self._seq = 0
         self._zones: dict[str, tuple[set[int], float | None, int | None]] = {
@@ -131,6 +132,17 @@ class MqttSink(ClosesOnce):
                 self._occupy(e)
         self._wake.set()
 
+    def write_changes(self, changes: Sequence[Any]) -> None:
+        """Queue incident changes (alarms.Change) for `<prefix>/<site>/incidents`, QoS 1: each
+        Change.to_dict(), in order with the events."""
+        if not changes:
+            return
+        with self._lock:
+            for c in changes:
+                body = _dumps(c.to_dict())
+                self._put(_Message("incidents", self.topics["incidents"], body, 1))
+        self._wake.set()
+
     def _occupy(self, e: Event) -> None:
         if not e.zone:  # a camera's event: no zone's occupancy changes
             return
@@ -167,7 +179,7 @@ class MqttSink(ClosesOnce):
         event."""
         queues = self._queues
         if sum(len(q) for q in queues.values()) >= self.settings.queue_size:
-            victim = queues["people"] if queues["people"] else queues["events"]
+            victim = next(queues[k] for k in ("people", "events", "incidents") if queues[k])
             kind = victim.popleft()[1].kind
             self._counts.dropped[kind] += 1
             if self._counts.burst == 0:

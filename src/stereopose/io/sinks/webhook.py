@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit
 
 from stereopose.errors import StereoposeError
@@ -42,8 +43,9 @@ BODY_LIMIT = 65536  # bytes of a reply read at most: the body is not ours to jud
 class _Item:
     """One event on its way; `outcome` is set once ("delivered", "failed" or "dropped")."""
 
-    event: Event
+    event: Event | None
     outcome: str | None = None
+    change: dict | None = None  # an incident's change instead of an event (write_changes)
 
 
 class WebhookSink(ClosesOnce):
@@ -111,6 +113,18 @@ class WebhookSink(ClosesOnce):
                 with self._lock:
                     self.dropped += 1
 
+    def write_changes(self, changes: Iterable[Any]) -> None:
+        """Incident changes (alarms.Change), each POSTed as {"incident_change": true, ...
+        Change.to_dict()}: a receiver tells them from events by that key (an event has no
+        `incident_change`). Queued, counted and dropped like the events."""
+        for c in changes:
+            try:
+                self.queue.put_nowait(_Item(None, change={"incident_change": True,
+                                                          **c.to_dict()}))  # fmt: skip
+            except queue.Full:
+                with self._lock:
+                    self.dropped += 1
+
     def _settle(self, item: _Item, outcome: str) -> None:
         """Count `item` once, in `outcome`'s count."""
         with self._lock:
@@ -156,7 +170,8 @@ class WebhookSink(ClosesOnce):
 
     def _deliver(self, item: _Item) -> str:
         """Tries `item` until it is delivered, refused or out of tries; the outcome."""
-        body = json.dumps(event_record(item.event)).encode()
+        doc = item.change if item.event is None else event_record(item.event)
+        body = json.dumps(doc).encode()
         delay = self.backoff_s
         for attempt in range(self.retries + 1):
             try:
@@ -174,17 +189,19 @@ class WebhookSink(ClosesOnce):
                 why, again = f"HTTP {status}", status in RETRY_STATUSES or status >= 500
                 self._last_try = why
             if not again or attempt == self.retries or self._stop.is_set():
-                self._log_failure(item.event, attempt + 1, why)
+                self._log_failure(item, attempt + 1, why)
                 return "failed"
             self.retried += 1
             self._sleep(delay)
             delay = min(2 * delay, self.max_backoff_s)
         return "failed"  # not reached: the last try returns above
 
-    def _log_failure(self, event: Event, tries: int, why: str) -> None:
+    def _log_failure(self, item: _Item, tries: int, why: str) -> None:
         log = logger.debug if self._failing else logger.warning
-        log("webhook %s: event of frame %d not delivered after %d tr%s: %s", self.shown,
-            event.frame, tries, "y" if tries == 1 else "ies", why)  # fmt: skip
+        what = (f"event of frame {item.event.frame}" if item.event is not None
+                else f"change of incident {item.change['incident']['id']}")  # fmt: skip
+        log("webhook %s: %s not delivered after %d tr%s: %s", self.shown, what, tries,
+            "y" if tries == 1 else "ies", why)  # fmt: skip
         self._failing = True
 
     def _run(self) -> None:

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import csv
 import io
+import sqlite3
 from datetime import datetime, timezone
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request
 from fastapi.responses import JSONResponse, Response
 
+from stereopose.alarms.incident import IncidentError
+from stereopose.io.sinks.incidents import incident_of_event
 from stereopose.service.acks import AckError
 from stereopose.service.auth import Operator, Viewer, console_parts
 from stereopose.service.eventlog import MAX_LIMIT, Filters, LogError, parse_time
@@ -100,10 +103,11 @@ def events_csv(session: Viewer, f: Annotated[Filters, Depends(filters)],
 
 
 @router.post("/api/events/{event_id}/ack", responses={403: {}, 404: {}})
-def ack(event_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
+def ack(event_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator, request: Request,
         parts=Depends(console_parts)) -> dict:  # noqa: B008  # fmt: skip
     """Acknowledge the event as this user (operator or admin); an event acknowledged before
-    answers with its first acknowledgement."""
+    answers with its first acknowledgement. Its incident is acknowledged too (`incident`: its
+    record; null when the event has none or it is no longer open)."""
     if parts.acks is None:
         raise HTTPException(404, "no such event")
     try:
@@ -113,7 +117,24 @@ def ack(event_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
     if done is None:
         raise HTTPException(404, "no such event")
     record, made = done
-    body = {"id": event_id, "ack": record}
+    body = {
+        "id": event_id,
+        "ack": record,
+        "incident": _ack_incident(request, parts, event_id, session.username),
+    }
     if made and parts.hub is not None:
         parts.hub.publish("ack", body)
     return body
+
+
+def _ack_incident(request: Request, parts, event_id: int, by: str) -> dict | None:
+    """The event's incident acknowledged in the running service's book (its record)."""
+    desk = getattr(request.app.state, "incidents", None)
+    log = getattr(parts, "log", None)
+    if desk is None or log is None:
+        return None
+    try:
+        incident = incident_of_event(log.path, event_id)
+        return None if incident is None else desk.acknowledge(incident, by).to_dict()
+    except (IncidentError, sqlite3.Error):  # closed and forgotten, or the log unreadable now
+        return None

@@ -1,0 +1,222 @@
+"""The incidents of the event log (`events.sqlite`, table `incidents`): each incident's current
+record, its ids, and reading them back.
+
+One row per incident (stereopose.alarms.IncidentRecord): the indexed columns a reader filters
+on (state, priority, zone, person, times) and the whole record as JSON (`record`). A row is
+upserted by the event sink (io.sinks.events.SqliteSink) in the transaction that stores the
+step's events, so the log's incidents and events always agree, whatever moment a process is
+killed. `wall_start` is the Unix time of t = 0 of the clock the record's times are on (the run
+that last changed it): a wall time is wall_start + t, and a restart puts the record on its own
+clock (`on_clock`).
+
+Ids: from the log's `incidents` high-water mark (io.sinks.eventdb), reserved a block at a time
+in a transaction of their own (`IncidentIds`) before the book gives one, so no id is ever
+given twice, even to incidents a kill left unstored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sqlite3
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.request import pathname2url
+
+from stereopose.alarms import IncidentRecord
+from stereopose.alarms.incident import IncidentError
+from stereopose.io.sinks.eventdb import connect_writer, reading, take
+
+__all__ = ["INCIDENTS_SCHEMA", "IncidentFilters", "IncidentIds", "incident_of_event",
+           "on_clock", "open_incidents", "query_incidents", "upsert_incidents"]  # fmt: skip
+
+INCIDENTS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS incidents (
+    id INTEGER PRIMARY KEY,
+    state TEXT NOT NULL,             -- active, acknowledged, cleared, closed
+    priority INTEGER NOT NULL,       -- 1 critical .. 4 low
+    occurrences INTEGER NOT NULL,
+    kind TEXT NOT NULL,              -- the hazard's kind: zone, rule, camera, ...
+    zone TEXT,
+    rule TEXT,
+    person INTEGER,
+    camera TEXT,
+    first_t REAL NOT NULL,           -- seconds on the clock of wall_start
+    last_t REAL NOT NULL,
+    wall_start REAL,                 -- Unix time of t = 0 of the record's times
+    record TEXT NOT NULL             -- IncidentRecord.to_dict() as JSON
+);
+CREATE INDEX IF NOT EXISTS incidents_state ON incidents(state);
+CREATE INDEX IF NOT EXISTS incidents_zone ON incidents(zone);
+CREATE INDEX IF NOT EXISTS incidents_person ON incidents(person);
+"""
+
+_TIMES = ("first_t", "last_t", "active_since", "cleared_at", "closed_at", "acked_at",
+          "shelved_until")  # fmt: skip
+MAX_LIMIT = 1000
+
+
+def upsert_incidents(db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord, float | None]]
+                     ) -> None:  # fmt: skip
+    """Each (record, wall_start) as its incident's row, inside the caller's transaction."""
+    db.executemany(
+        "INSERT INTO incidents(id, state, priority, occurrences, kind, zone, rule, person, "
+        "camera, first_t, last_t, wall_start, record) "
+        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+        "ON CONFLICT(id) DO UPDATE SET state = excluded.state, priority = excluded.priority, "
+        "occurrences = excluded.occurrences, "
+        "first_t = excluded.first_t, last_t = excluded.last_t, "
+        "wall_start = excluded.wall_start, record = excluded.record",
+        [(r.id, r.state, r.priority, r.occurrences, str(r.key[0]), r.zone, r.rule, r.person,
+          r.camera, r.first_t, r.last_t, wall, json.dumps(r.to_dict())) for r, wall in held],
+    )  # fmt: skip
+
+
+def on_clock(rec: IncidentRecord, wall_from: float | None, wall_to: float | None
+             ) -> IncidentRecord:  # fmt: skip
+    """The record's times moved from the clock starting at wall_from to that at wall_to."""
+    if wall_from is None or wall_to is None:
+        return rec
+    shift = float(wall_from) - float(wall_to)
+    return dataclasses.replace(rec, **{k: getattr(rec, k) + shift for k in _TIMES
+                                       if getattr(rec, k) is not None})  # fmt: skip
+
+
+def _ro(path: Path) -> sqlite3.Connection:
+    return sqlite3.connect(f"file:{pathname2url(str(path.resolve()))}?mode=ro", uri=True,
+                           timeout=5.0)  # fmt: skip
+
+
+def _has_table(db: sqlite3.Connection) -> bool:
+    return db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'incidents'"
+                      ).fetchone() is not None  # fmt: skip
+
+
+def open_incidents(db: sqlite3.Connection) -> list[tuple[IncidentRecord, float | None]]:
+    """The incidents not closed, (record, wall_start), oldest first; a row that is not a
+    record is skipped (it cannot be restored, and is still read by the API)."""
+    if not _has_table(db):
+        return []
+    out = []
+    for text, wall in db.execute(
+        "SELECT record, wall_start FROM incidents WHERE state != 'closed' ORDER BY id"
+    ):
+        try:
+            out.append((IncidentRecord.from_dict(json.loads(text)), wall))
+        except (IncidentError, ValueError, TypeError):
+            continue
+    return out
+
+
+@dataclass(frozen=True)
+class IncidentFilters:
+    """GET /api/incidents: since / until on the last time (Unix seconds)."""
+
+    state: str | None = None
+    priority: int | None = None
+    zone: str | None = None
+    person: int | None = None
+    since: float | None = None
+    until: float | None = None
+    limit: int = 100
+
+
+def query_incidents(path: str | Path, f: IncidentFilters) -> list[dict]:
+    """Incidents of the log at path, newest first, each its record's fields with wall times
+    (first_wall_t, last_wall_t, acked_wall_at, shelved_wall_until); [] without a log.
+    sqlite3.Error when it cannot be read."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    where, args = [], []
+    for col, value in (("state", f.state), ("priority", f.priority), ("zone", f.zone),
+                       ("person", f.person)):  # fmt: skip
+        if value is not None:
+            where.append(f"{col} = ?")
+            args.append(value)
+    if f.since is not None:
+        where.append("wall_start + last_t >= ?")
+        args.append(f.since)
+    if f.until is not None:
+        where.append("wall_start + first_t <= ?")
+        args.append(f.until)
+    sql = "SELECT record, wall_start FROM incidents"
+    if where:
+        sql += " WHERE " + " AND ".join(where)
+    sql += " ORDER BY id DESC LIMIT ?"
+    args.append(max(1, min(int(f.limit), MAX_LIMIT)))
+
+    def read() -> list:
+        db = _ro(path)
+        try:
+            return db.execute(sql, args).fetchall() if _has_table(db) else []
+        finally:
+            db.close()
+
+    out = []
+    for text, wall in reading(read):
+        d = json.loads(text)
+        for name, key in (("first_wall_t", "first_t"), ("last_wall_t", "last_t"),
+                          ("acked_wall_at", "acked_at"),
+                          ("shelved_wall_until", "shelved_until")):  # fmt: skip
+            d[name] = None if wall is None or d.get(key) is None else wall + d[key]
+        out.append(d)
+    return out
+
+
+def incident_of_event(path: str | Path, event_id: int) -> int | None:
+    """The incident the event `event_id` of the log belongs to (None: none, or no such)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+
+    def read():
+        db = _ro(path)
+        try:
+            cols = {r[1] for r in db.execute("PRAGMA table_info(events)")}
+            if "incident" not in cols:
+                return None
+            return db.execute("SELECT incident FROM events WHERE id = ?", (event_id,)).fetchone()
+        finally:
+            db.close()
+
+    row = reading(read)
+    return None if row is None or row[0] is None else int(row[0])
+
+
+class IncidentIds:
+    """Incident ids from the log's `incidents` mark, `block` reserved at a time in their own
+    committed transaction (before the book gives one: a kill skips ids, never repeats one).
+    Call from one thread; `close()` at the end."""
+
+    def __init__(self, path: str | Path, block: int = 20, busy_s: float = 5.0) -> None:
+        self.path, self.block, self.busy_s = Path(path), max(1, int(block)), busy_s
+        self._next = self._end = 0
+        self._db: sqlite3.Connection | None = None
+
+    def __call__(self) -> int:
+        if self._next >= self._end:
+            self._reserve()
+        self._next += 1
+        return self._next - 1
+
+    def _reserve(self) -> None:
+        if self._db is None:
+            self._db = connect_writer(self.path, self.busy_s)
+        db = self._db
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            top = db.execute("SELECT MAX(id) FROM incidents").fetchone()[0]
+            first = take(db, "incidents", self.block, floor=max(int(top or 0) + 1, self._end))
+            db.execute("COMMIT")
+        except BaseException:
+            if db.in_transaction:
+                db.execute("ROLLBACK")
+            raise
+        self._next, self._end = first, first + self.block
+
+    def close(self) -> None:
+        if self._db is not None:
+            self._db.close()
+            self._db = None

@@ -1,0 +1,138 @@
+"""The service's incidents: every step's events through the incident book before any sink.
+
+`IncidentStep` takes the frame loop's two event roles (FrameLoop's `fences` and `behaviour`):
+`update(people3d)` keeps the step's zone, camera and service events, `step(t, frame, people)`
+adds the behaviour events and hands them all, in order, to the book
+(stereopose.alarms.IncidentBook), with the pairs the fence still holds (inside or at the
+margin). Each event reaches the sinks with its `incident` and `priority` (both None for an
+info-level event: it belongs to no incident, and its priority is not an alarm's).
+
+Each change of an incident (raised, occurrence, cleared, acknowledged, shelved, ...) is handed
+to the event log (SqliteSink.put_incidents: stored in the step's transaction) and to every
+`outputs` callable (MQTT, the webhook, the live channel) before the step's events reach the
+sinks. An operator's act (the HTTP API's thread) takes the lock around the book and answers at
+once with the record; its changes wait (bounded, counted when dropped) and go out with the
+next step, which comes within the loop's heartbeat.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from stereopose.alarms import AlarmRates, Change, IncidentBook, IncidentRecord
+from stereopose.alarms.incident import IncidentError
+from stereopose.types import Event, People3D
+
+__all__ = ["IncidentStep"]
+
+logger = logging.getLogger(__name__)
+
+MAX_WAITING = 10_000  # operators' changes waiting for the next step
+
+
+class IncidentStep:
+    """See the module. fences: the service's events (ServeEvents); rules: the behaviour
+    rules (HeldRules) or None; monitor: the fence monitor (for `holding`) or None; store(records):
+    persists incident records; outputs: callables given each step's changes; clock(): the
+    service's time now (the events' clock)."""
+
+    def __init__(self, book: IncidentBook, fences, rules, monitor, *,
+                 store: Callable[[Sequence[IncidentRecord]], None] | None = None,
+                 outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
+                 clock: Callable[[], float]) -> None:  # fmt: skip
+        self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
+        self.store, self.outputs, self.clock = store, list(outputs), clock
+        self.rates = AlarmRates()
+        self.lock = threading.Lock()
+        self.waiting: deque[Change] = deque()
+        self.dropped = 0  # operators' changes dropped (the queue full): counted, logged
+        self._events: list[Event] = []
+
+    # -- the frame loop's roles
+    def update(self, people3d: People3D) -> list[Event]:
+        self._events = list(self.fences.update(people3d))
+        return []  # given with the behaviour events, through the book (step)
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
+        events, postures = self._events, None
+        self._events = []
+        if self.rules is not None:
+            more, postures = self.rules.step(t, frame, people)
+            events = [*events, *more]
+        with self.lock:
+            now = max(float(t), *(e.t for e in events)) if events else float(t)
+            up = self.book.update(events, now, holding=self._holding())
+            changes = [*self.waiting, *up.changes]
+            self.waiting.clear()
+            out = [self._stamped(e, i) for e, i in zip(events, up.incidents, strict=True)]
+        self._publish(changes)
+        return out, postures
+
+    def _stamped(self, e: Event, incident: int | None) -> Event:
+        if incident is None:
+            return e
+        try:
+            priority = self.book.get(incident).priority
+        except IncidentError:  # dropped from a full book within the step
+            priority = None
+        return dataclasses.replace(e, incident=incident, priority=priority)
+
+    def _holding(self) -> set[tuple[str, int]] | None:
+        mon = self.monitor
+        if mon is None or getattr(mon, "inside", None) is None:
+            return None
+        rows, ks = np.nonzero(mon.inside.state | mon.near.state)
+        return {(mon.zones[k].name, int(mon.ids[r])) for r, k in zip(rows, ks, strict=True)}
+
+    def _publish(self, changes: Sequence[Change]) -> None:
+        if not changes:
+            return
+        self.rates.observe(changes)
+        if self.store is not None:
+            self.store([c.incident for c in changes])
+        for out in self.outputs:
+            try:
+                out(changes)
+            except Exception as e:  # one output failing never stops the others or the loop
+                logger.warning("incidents: an output failed: %s", e)
+
+    # -- an operator's acts (any thread)
+    def _act(self, act: Callable[[float], list[Change]], incident_id: int) -> IncidentRecord:
+        with self.lock:
+            changes = act(float(self.clock()))
+            if len(self.waiting) + len(changes) > MAX_WAITING:
+                self.dropped += len(changes)
+                logger.error("incidents: %d change(s) dropped (the queue is full)", len(changes))
+            else:
+                self.waiting.extend(changes)
+            return self.book.get(incident_id)
+
+    def acknowledge(self, incident_id: int, by: str) -> IncidentRecord:
+        """UnknownIncidentError for an id the book does not hold."""
+        return self._act(lambda now: self.book.acknowledge(incident_id, by, now), incident_id)
+
+    def shelve(self, incident_id: int, by: str, reason: str, duration_s: float) -> IncidentRecord:
+        """UnknownIncidentError for an unknown id, IncidentError for a bad shelving."""
+        return self._act(lambda now: self.book.shelve(incident_id, by, reason, duration_s, now),
+                         incident_id)  # fmt: skip
+
+    def figures(self) -> dict:
+        """The alarm rates (alarms.rates) and the open incidents by priority and state."""
+        with self.lock:
+            records = self.book.incidents()
+            now = float(self.clock())
+            doc = self.rates.figures(now, records).to_dict()
+        by: dict[str, int] = {}
+        for r in records:
+            if r.state != "closed":
+                name = f"p{r.priority}_{r.state}"
+                by[name] = by.get(name, 0) + 1
+        doc["open"] = by
+        doc["operator_changes_dropped"] = self.dropped
+        return doc
