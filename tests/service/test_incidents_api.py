@@ -215,3 +215,21 @@ def test_restart_restores_open_incidents_once_new_ids_above(tmp_path, plan):
         rows = _rows(served, "SELECT id FROM incidents ORDER BY id")
         assert [r[0] for r in rows] == ids  # stored once each
         run.close()
+
+
+def test_alarm_rates_in_metrics(tmp_path, plan):
+    with console_server(tmp_path / "out", plan) as served:
+        run = Run(served, plan)
+        served.state.register_alarms(run.desk.figures)
+        _reaches(run)
+        text = served.client().get("/metrics").text
+        # two incidents raised (the busbar, the camera): two notifications in both windows
+        assert 'stereopose_alarm_notifications{window="10m"} 2.0' in text
+        assert 'stereopose_alarm_notifications{window="1h"} 2.0' in text
+        assert "stereopose_alarm_flood 0.0" in text
+        assert 'stereopose_incidents_open{priority="1",state="cleared"} 1.0' in text
+        assert 'stereopose_incidents_open{priority="4",state="active"} 1.0' in text
+        figures = run.desk.figures()
+        assert figures["notifications_10min"] == 2 and figures["open"] == {
+            "p1_cleared": 1, "p4_active": 1}  # fmt: skip
+        run.close()

@@ -457,6 +457,7 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
                         fences, store=db.put_incidents if db is not None else None,
                         outputs=service.incident_outputs, clock=clock)  # fmt: skip
     service.probes["alarms"] = step.figures
+    service.state.register_alarms(step.figures)  # in /metrics
     if service.app is not None:
         service.app.state.incidents = step
     return step

@@ -90,6 +90,31 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
                  "output", waiting)  # fmt: skip
     yield _gauge("output_backlog_seconds", "Seconds the alarm output has had messages waiting.",
                  "output", {o.name: o.backlog_s for o in s.outputs})  # fmt: skip
+    if s.alarms:
+        yield from _alarm_families(s.alarms)
+
+
+def _alarm_families(a) -> Iterator[Metric]:
+    """The alarm rates (alarms.rates, ISA-18.2's figures) and the open incidents by priority
+    and state (at most 4 x 3 label pairs)."""
+    yield _gauge("alarm_notifications", "Alarm notifications (new incidents not shelved) in the "
+                 "last window (10m, 1h); the flood line is 10 per 10 minutes.", "window",
+                 {"10m": float(a.get("notifications_10min", 0)),
+                  "1h": float(a.get("notifications_1h", 0))})  # fmt: skip
+    yield _gauge("alarm_flood", "1 while notifications in the last 10 minutes exceed the "
+                 "flood line.", None, {"": float(bool(a.get("flood")))})  # fmt: skip
+    yield _gauge("alarm_chattering", "Hazards notified 3 or more times in the last 60 s.", None,
+                 {"": float(a.get("chattering", 0))})  # fmt: skip
+    yield _gauge("alarm_standing", "Incidents active for more than 24 h.", None,
+                 {"": float(a.get("standing", 0))})  # fmt: skip
+    family = GaugeMetricFamily(PREFIX + "incidents_open", "Incidents not closed, by priority "
+                               "(1 critical .. 4 low) and state.",
+                               labels=["priority", "state"])  # fmt: skip
+    opened = a.get("open") or {}
+    for key, n in sorted(opened.items()):
+        priority, _, state = str(key).removeprefix("p").partition("_")
+        family.add_metric([priority, state], float(n))
+    yield family
 
 
 class StateCollector(Collector):

@@ -110,6 +110,9 @@ class Snapshot:
     storage: Mapping[str, int]
     problems: tuple[str, ...] = field(default=())
     outputs: tuple[OutputSnapshot, ...] = field(default=())
+    # the alarm rates and open incidents (pipeline.serve_incidents.IncidentStep.figures);
+    # empty without an incident book
+    alarms: Mapping[str, object] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
@@ -220,6 +223,7 @@ class ServiceState:
         self._queues: dict[str, _Queue] = {}
         self._outputs: dict[str, OutputWatch] = {}
         self._storage: StorageProbe | None = None
+        self._alarms: Callable[[], Mapping[str, object]] | None = None
         self._frames = 0
         self._people = 0
         self._stall: str | None = None
@@ -350,6 +354,11 @@ class ServiceState:
             if name in self._outputs or self._admit("output", name, self._outputs):
                 self._outputs[name] = OutputWatch(health)
 
+    def register_alarms(self, probe: Callable[[], Mapping[str, object]]) -> None:
+        """probe(): the alarm rates' figures; called at each read, must be quick."""
+        with self._lock:
+            self._alarms = probe
+
     def register_storage(self, probe: StorageProbe) -> None:
         """probe(): bytes used per kind of stored data; called at each read, must be quick."""
         with self._lock:
@@ -363,7 +372,14 @@ class ServiceState:
             queues = dict(self._queues)
             outputs = dict(self._outputs)
             storage_probe = self._storage
+            alarms_probe = self._alarms
         problems: list[str] = []
+        alarms: Mapping[str, object] = {}
+        if alarms_probe is not None:
+            try:
+                alarms = dict(alarms_probe())
+            except Exception as e:  # a probe failing never stops the health answer
+                problems.append(f"alarm rates: {e}")
         probed = {name: self._probe_queue(name, q, problems) for name, q in queues.items()}
         healths = {name: o.probe(name) for name, o in outputs.items()}
         storage = self._probe_storage(storage_probe, problems)
@@ -385,6 +401,7 @@ class ServiceState:
                 queues=queue_snaps,
                 storage=storage,
                 outputs=output_snaps,
+                alarms=alarms,
             )
         if stall is not None:
             problems.append(f"service {stall}")
