@@ -4,6 +4,9 @@
 
 const PERIOD_MS = 500; // 2 pictures a second per camera
 
+/** A camera's picture URL, its name one escaped path segment (a name may hold ? # / % <). */
+export const snapshotUrl = (name) => `/api/cameras/${encodeURIComponent(name)}/snapshot.jpg`;
+
 function text(tag, className, content = "") {
   const node = document.createElement(tag);
   node.className = className;
@@ -44,7 +47,7 @@ export class CameraStrip {
       caption.append(name, badge, stats);
       card.append(frame, caption);
       this.root.appendChild(card);
-      this.cards.set(cam.name, { card, img, badge, stats, health: null, url: cam.snapshot,
+      this.cards.set(cam.name, { card, img, badge, stats, health: null, url: snapshotUrl(cam.name),
         loading: false });
       this.setHealth(cam.name, cam.health);
     }

@@ -39,6 +39,7 @@ export function describe(e) {
   parts.push(typeText(e.type));
   if (e.zone) parts.push(e.zone);
   if (e.kind && e.zone && e.kind !== e.zone) parts.push(`(${e.kind})`);
+  if (e.rule) parts.push(`(rule ${e.rule})`);
   if (e.camera && !String(e.type).startsWith("camera")) parts.push(`· ${e.camera}`);
   else if (e.camera && !e.zone) parts.push(e.camera);
   return parts.join(" ");

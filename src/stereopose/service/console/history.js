@@ -29,12 +29,25 @@ function cell(row, content, className = "") {
 /** A clip's button: its camera, and "full" for the full stream's copy beside the drawn clip
  * (clip names end in _<camera>.mp4 or _<camera>.full.mp4). */
 function clipLabel(url) {
-  const name = decodeURIComponent(url.split("/").pop() || "");
+  const name = clipFile(url);
   const full = name.endsWith(".full.mp4");
   const stem = name.replace(/(\.full)?\.mp4$/, "");
   const camera = stem.includes("_") ? stem.slice(stem.lastIndexOf("_") + 1) : stem;
   return full ? `${camera} full` : camera;
 }
+
+/** The file name of a clip's URL as the server gives it (/api/clips/<file>, maybe escaped). */
+function clipFile(url) {
+  const file = String(url).split("/").pop() || "";
+  try {
+    return decodeURIComponent(file);
+  } catch {
+    return file; // a bare %: not escaped
+  }
+}
+
+/** A clip's URL with its file name escaped as one path segment. */
+const clipUrl = (url) => `/api/clips/${encodeURIComponent(clipFile(url))}`;
 
 export class History {
   constructor() {
@@ -136,13 +149,14 @@ export class History {
     cell(tr, e.camera || "");
     cell(tr, ackText(e.ack));
     const clips = document.createElement("span");
-    for (const url of e.clips || []) {
+    for (const given of e.clips || []) {
+      const url = clipUrl(given);
       const button = document.createElement("button");
       button.type = "button";
       button.className = "play";
       button.dataset.clip = url;
       button.textContent = clipLabel(url);
-      button.title = `play ${url.split("/").pop()}`;
+      button.title = `play ${clipFile(url)}`;
       button.addEventListener("click", () => this.play(url, e));
       clips.appendChild(button);
     }

@@ -30,6 +30,12 @@ function loadPlotly() {
 
 const colour = (id) => COLOURS[Math.abs(Number(id)) % COLOURS.length];
 
+/** A name as plotly's SVG text (legend, hover, annotations): plotly reads `<b>`, `<a href>`,
+ * `<span style>` ... in it as markup (links, and style attributes the page's CSP refuses) and
+ * decodes &amp; &lt; &gt; (only a few entities: no &quot;) once, so these three show as typed. */
+export const plain = (value) => String(value ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;")
+  .replace(/>/g, "&gt;");
+
 function skeleton(person) {
   const x = [];
   const y = [];
@@ -44,7 +50,7 @@ function skeleton(person) {
     z.push(p[2], q[2], null);
   }
   return {
-    type: "scatter3d", mode: "lines", name: `id ${person.id}`, x, y, z,
+    type: "scatter3d", mode: "lines", name: `id ${plain(person.id)}`, x, y, z,
     line: { color: colour(person.id), width: 6 }, hoverinfo: "name",
   };
 }
@@ -54,7 +60,7 @@ function heads(people) {
   return {
     type: "scatter3d", mode: "text+markers", name: "ids", showlegend: false,
     x: shown.map((p) => p.joints[0][0]), y: shown.map((p) => p.joints[0][1]),
-    z: shown.map((p) => p.joints[0][2] + 0.25), text: shown.map((p) => String(p.id)),
+    z: shown.map((p) => p.joints[0][2] + 0.25), text: shown.map((p) => String(p.id)), // WebGL text: numbers only
     marker: { size: 3, color: shown.map((p) => colour(p.id)) },
     textfont: { color: "#ffffff", size: 14 }, hoverinfo: "skip",
   };
@@ -84,22 +90,31 @@ function prism(zone) {
   }
   const state = zone.state || "free";
   return {
-    type: "scatter3d", mode: "lines", name: `${zone.name} (${state})`, x, y, z,
+    type: "scatter3d", mode: "lines", name: `${plain(zone.name)} (${plain(state)})`, x, y, z,
     line: { color: ZONE_COLOURS[state] || "#999999", width: state === "alarm" ? 7 : 3 },
     hoverinfo: "name",
   };
 }
 
+// The cameras' names are annotations (SVG text, where escaping holds), not the trace's `text`:
+// plotly draws 3D text in WebGL, which reads <b>, <i>, <sub>, <sup> in it and no entity.
 function cameraMarkers(cameras) {
   const shown = cameras.filter((c) => Array.isArray(c.position));
   return {
-    type: "scatter3d", mode: "markers+text", name: "cameras",
+    type: "scatter3d", mode: "markers", name: "cameras",
     x: shown.map((c) => c.position[0]), y: shown.map((c) => c.position[1]),
-    z: shown.map((c) => c.position[2]), text: shown.map((c) => c.name),
+    z: shown.map((c) => c.position[2]), hovertext: shown.map((c) => plain(c.name)),
     marker: { size: 5, symbol: "diamond",
       color: shown.map((c) => (c.health && c.health.state === "down" ? "#ff3b3b" : "#8ab4ff")) },
-    textfont: { color: "#c8d3e0", size: 11 }, hoverinfo: "text",
+    hoverinfo: "text",
   };
+}
+
+function cameraLabels(cameras) {
+  return cameras.filter((c) => Array.isArray(c.position)).map((c) => ({
+    x: c.position[0], y: c.position[1], z: c.position[2], text: plain(c.name),
+    showarrow: false, yshift: 12, font: { color: "#c8d3e0", size: 11 },
+  }));
 }
 
 export class View3D {
@@ -149,7 +164,7 @@ export class View3D {
       margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: true,
       legend: { bgcolor: "rgba(0,0,0,0)", x: 0, y: 1 },
       scene: {
-        aspectmode: "data", bgcolor: "#0d1117",
+        aspectmode: "data", bgcolor: "#0d1117", annotations: cameraLabels(this.cameras),
         xaxis: { title: { text: "x (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
         yaxis: { title: { text: "y (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
         zaxis: { title: { text: "z (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
