@@ -116,7 +116,12 @@ def test_event_record_is_the_contract() -> None:
     rec = event_record(dataclasses.replace(EVENTS[0], position=(1.23456, -0.5)))
     assert rec == {"t": 2.12, "frame": 53, "person": 3, "zone": "work_area_1",
                    "kind": "work_area", "type": "enter", "onset_t": 2.04,
-                   "joint": "right_wrist", "position": [1.2346, -0.5]}  # fmt: skip
+                   "joint": "right_wrist", "position": [1.2346, -0.5],
+                   "incident": None, "priority": None}  # fmt: skip
+    # every line carries its incident and priority (null: none), and reads back
+    stamped = dataclasses.replace(EVENTS[0], incident=12, priority=1)
+    assert event_record(stamped)["incident"] == 12 and event_record(stamped)["priority"] == 1
+    assert event_from_record(event_record(stamped)) == stamped
     assert event_record(EVENTS[2])["allowed"] is True and "joint" not in event_record(EVENTS[2])
     assert event_record(EVENTS[2])["position"] is None
     assert not hasattr(EVENTS[0], "as_dict")  # io.records is the one serialisation

@@ -13,10 +13,12 @@ import sqlite3
 import pytest
 from consoled import WALL_START, console_server, demo_plan, zone_event
 from served import frame_result
+from test_console_api import _Stream
 
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.io.sinks.events import JsonlSink
 from stereopose.io.sinks.incidents import IncidentIds
+from stereopose.pipeline.serve import _live_changes
 from stereopose.pipeline.serve_incidents import IncidentStep
 from stereopose.service.restart import Resume
 from stereopose.types import Event
@@ -44,15 +46,18 @@ class Script:
 class Run:
     """An IncidentStep as serve wires it, over the served log; `step(events)` one step."""
 
-    def __init__(self, served, plan, resume: Resume | None = None) -> None:
+    def __init__(self, served, plan, resume: Resume | None = None, live: bool = False) -> None:
         self.served, self.script, self.t, self.frame = served, Script(), 0.0, 0
         self.ids = IncidentIds(served.out / "events.sqlite")
         book = IncidentBook(AlarmSettings.from_site(plan.site), next_id=self.ids)
         if resume is not None:
             book.restore(resume.open_incidents(WALL_START))
         self.changes: list = []
+        outputs = [self.changes.extend]
+        if live:  # as serve wires the console's live channel
+            outputs.append(lambda changes: _live_changes(served.console.hub, changes))
         self.desk = IncidentStep(book, self.script, None, None, store=served.db.put_incidents,
-                                 outputs=[self.changes.extend], clock=lambda: self.t)  # fmt: skip
+                                 outputs=outputs, clock=lambda: self.t)  # fmt: skip
         served.server.app.state.incidents = self.desk
         self.jsonl = JsonlSink(served.out / "events.jsonl")
 
@@ -233,3 +238,30 @@ def test_alarm_rates_in_metrics(tmp_path, plan):
         assert figures["notifications_10min"] == 2 and figures["open"] == {
             "p1_cleared": 1, "p4_active": 1}  # fmt: skip
         run.close()
+
+
+def test_the_live_channel_pushes_each_incident_change(tmp_path, plan):
+    with console_server(tmp_path / "out", plan) as served:
+        run = Run(served, plan, live=True)
+        c, otto = served.client("vera"), served.client("otto")
+        try:
+            live = _Stream(c)
+            live.next("cameras", 10)
+            run.step([zone_event(30, "enter")])
+            raised = live.next("incident", 5)
+            assert raised["change"] == "raised" and raised["notify"] is True
+            incident = raised["incident"]["id"]
+            event = live.next("event", 5)
+            assert event["incident"] == incident and event["priority"] == 1
+            run.step([zone_event(40, "enter")])  # the same hazard: an occurrence, no notify
+            again = live.next("incident", 5)
+            assert again["change"] == "occurrence" and not again["notify"]
+            assert again["incident"]["occurrences"] == 2
+            otto.post(f"/api/incidents/{incident}/ack").raise_for_status()
+            run.step()
+            acked = live.next("incident", 5)
+            assert acked["change"] == "acknowledged" and acked["by"] == "otto"
+        finally:
+            c.close()
+            otto.close()
+            run.close()
