@@ -22,6 +22,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from urllib.request import pathname2url
 
+from stereopose.alarms.levels import level as alarm_level
 from stereopose.behaviour.definitions import ALARM_TYPES as BEHAVIOUR_ALARMS
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS
@@ -45,12 +46,9 @@ def level(kind: str, type_: str) -> str:
     """alarm: entering or approaching an energized zone, a camera down, a behaviour alarm
     (person_down, lone_worker, work_position, immobile, overreach);
     warning: dwell, leaving the work area, calibration drift, entering a restricted zone;
-    info: the rest."""
-    if (kind == "energized" and type_ in ("enter", "approach")) or type_ in ALARM_TYPES:
-        return "alarm"
-    if type_ in WARNING_TYPES or (kind == "restricted" and type_ == "enter"):
-        return "warning"
-    return "info"
+    info: the rest. The incidents' own table (alarms.levels), so the log and the incident
+    book never disagree on what raises an incident."""
+    return alarm_level(kind, type_)
 
 
 @dataclass(frozen=True)
