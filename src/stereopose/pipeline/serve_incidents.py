@@ -65,6 +65,9 @@ class IncidentStep:
         if self.rules is not None:
             more, postures = self.rules.step(t, frame, people)
             events = [*events, *more]
+        top_up = getattr(self.book.next_id, "top_up", None)
+        if top_up is not None:  # ids reserved ahead: the book never waits for the log's lock
+            top_up()
         with self.lock:
             now = max(float(t), *(e.t for e in events)) if events else float(t)
             up = self.book.update(events, now, holding=self._holding())

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import sqlite3
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -55,6 +56,8 @@ CREATE INDEX IF NOT EXISTS incidents_person ON incidents(person);
 _TIMES = ("first_t", "last_t", "active_since", "cleared_at", "closed_at", "acked_at",
           "shelved_until")  # fmt: skip
 MAX_LIMIT = 1000
+
+logger = logging.getLogger(__name__)
 
 
 def upsert_incidents(db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord, float | None]]
@@ -188,23 +191,45 @@ def incident_of_event(path: str | Path, event_id: int) -> int | None:
 class IncidentIds:
     """Incident ids from the log's `incidents` mark, `block` reserved at a time in their own
     committed transaction (before the book gives one: a kill skips ids, never repeats one).
-    Call from one thread; `close()` at the end."""
+    `top_up()` (each step, before the book runs) reserves the next block while half of the
+    current one is left, waiting at most a moment for the log's lock; only ids run out
+    wait up to busy_s. Call from one thread; `close()` at the end."""
 
     def __init__(self, path: str | Path, block: int = 20, busy_s: float = 5.0) -> None:
-        self.path, self.block, self.busy_s = Path(path), max(1, int(block)), busy_s
-        self._next = self._end = 0
+        self.path, self.block, self.busy_s = Path(path), max(2, int(block)), busy_s
+        self._ranges: list[list[int]] = []  # [next, end) blocks reserved, in order
         self._db: sqlite3.Connection | None = None
+        self._end = 0  # the end of the last block reserved
+        self.failed = 0  # top-ups that could not reserve now (tried again next step)
 
     def __call__(self) -> int:
-        if self._next >= self._end:
-            self._reserve()
-        self._next += 1
-        return self._next - 1
+        while self._ranges and self._ranges[0][0] >= self._ranges[0][1]:
+            self._ranges.pop(0)
+        if not self._ranges:
+            self._reserve(self.busy_s)
+        r = self._ranges[0]
+        r[0] += 1
+        return r[0] - 1
 
-    def _reserve(self) -> None:
+    def left(self) -> int:
+        return sum(end - nxt for nxt, end in self._ranges)
+
+    def top_up(self, busy_s: float = 0.05) -> None:
+        if self.left() >= self.block // 2:
+            return
+        try:
+            self._reserve(busy_s)
+        except sqlite3.Error as e:
+            self.failed += 1
+            if self.failed == 1:
+                logger.warning("%s: cannot reserve incident ids now (%s); tried again",
+                               self.path, e)  # fmt: skip
+
+    def _reserve(self, busy_s: float) -> None:
         if self._db is None:
             self._db = connect_writer(self.path, self.busy_s)
         db = self._db
+        db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * busy_s))}")
         db.execute("BEGIN IMMEDIATE")
         try:
             top = db.execute("SELECT MAX(id) FROM incidents").fetchone()[0]
@@ -214,7 +239,8 @@ class IncidentIds:
             if db.in_transaction:
                 db.execute("ROLLBACK")
             raise
-        self._next, self._end = first, first + self.block
+        self._end = first + self.block
+        self._ranges.append([first, first + self.block])
 
     def close(self) -> None:
         if self._db is not None:
