@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from urllib.parse import quote
 
 import cv2
 import numpy as np
@@ -117,7 +118,7 @@ def camera_view(cam: Camera, range_m: float = FOV_RANGE_M) -> dict:
         "hfov_deg": round(hfov, 1),
         "floor_fov": [[round(float(x), 3), round(float(y), 3)] for x, y in poly],
         "image_size": [int(w), int(h)],
-        "snapshot": f"/api/cameras/{cam.name}/snapshot.jpg",
+        "snapshot": f"/api/cameras/{quote(cam.name, safe='')}/snapshot.jpg",  # any name
     }
 
 
