@@ -78,5 +78,7 @@ def test_webhook_gets_incident_changes_marked_apart() -> None:
     first, *rest = receiver.bodies
     assert "incident_change" not in first and first["type"] == "enter"
     assert all(b["incident_change"] is True for b in rest)
+    # a receiver reading every body as an event sees a type it does not know, never none
+    assert {(b["type"], b["kind"]) for b in rest} == {("incident_change", "incident")}
     assert [b["change"] for b in rest] == [c.what for c in changes]
     assert rest[0]["incident"]["priority"] == 1

@@ -114,13 +114,16 @@ class WebhookSink(ClosesOnce):
                     self.dropped += 1
 
     def write_changes(self, changes: Iterable[Any]) -> None:
-        """Incident changes (alarms.Change), each POSTed as {"incident_change": true, ...
-        Change.to_dict()}: a receiver tells them from events by that key (an event has no
-        `incident_change`). Queued, counted and dropped like the events."""
+        """Incident changes (alarms.Change), each POSTed as {"incident_change": true,
+        "type": "incident_change", "kind": "incident", ...Change.to_dict()}: a receiver tells
+        them from events by that key, and one that reads every body as an event sees a type
+        it does not know (never a body without `type`). Queued, counted and dropped like the
+        events."""
         for c in changes:
+            body = {"incident_change": True, "type": "incident_change", "kind": "incident",
+                    **c.to_dict()}  # fmt: skip
             try:
-                self.queue.put_nowait(_Item(None, change={"incident_change": True,
-                                                          **c.to_dict()}))  # fmt: skip
+                self.queue.put_nowait(_Item(None, change=body))
             except queue.Full:
                 with self._lock:
                     self.dropped += 1
