@@ -34,6 +34,18 @@ CSV_COLUMNS = ("id", "time", "wall_t", "t", "frame", "person", "zone", "kind", "
 _TIME = Query(max_length=64, description="Unix seconds or ISO 8601")
 
 
+def query_times(since: str | None, until: str | None) -> dict[str, float]:
+    """The since/until query values as Unix seconds (those given); 422 for a bad one."""
+    times = {}
+    for name, value in (("since", since), ("until", until)):
+        if value is not None and value.strip():
+            try:
+                times[name] = parse_time(value, name)
+            except ValueError as e:
+                raise HTTPException(422, str(e)) from None
+    return times
+
+
 def filters(
     since: Annotated[str | None, _TIME] = None,
     until: Annotated[str | None, _TIME] = None,
@@ -44,13 +56,7 @@ def filters(
     before_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
     after_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
 ) -> Filters:  # fmt: skip
-    times = {}
-    for name, value in (("since", since), ("until", until)):
-        if value is not None and value.strip():
-            try:
-                times[name] = parse_time(value, name)
-            except ValueError as e:
-                raise HTTPException(422, str(e)) from None
+    times = query_times(since, until)
     return Filters(since=times.get("since"), until=times.get("until"), person=person,
                    zone=zone or None, type=type or None, limit=limit, before_id=before_id,
                    after_id=after_id)  # fmt: skip

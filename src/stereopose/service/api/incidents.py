@@ -25,8 +25,8 @@ from pydantic import BaseModel, Field
 from stereopose.alarms import UnknownIncidentError
 from stereopose.alarms.incident import MAX_SHELVE_S, IncidentError
 from stereopose.io.sinks.incidents import MAX_LIMIT, IncidentFilters, query_incidents
+from stereopose.service.api.events import query_times
 from stereopose.service.auth import Operator, Viewer, console_parts
-from stereopose.service.eventlog import parse_time
 
 router = APIRouter(tags=["incidents"])
 
@@ -49,13 +49,7 @@ def filters(
     until: Annotated[str | None, _TIME] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
 ) -> IncidentFilters:  # fmt: skip
-    times = {}
-    for name, value in (("since", since), ("until", until)):
-        if value is not None and value.strip():
-            try:
-                times[name] = parse_time(value, name)
-            except ValueError as e:
-                raise HTTPException(422, str(e)) from None
+    times = query_times(since, until)
     return IncidentFilters(state=state, priority=priority, zone=zone or None, person=person,
                            since=times.get("since"), until=times.get("until"),
                            limit=limit)  # fmt: skip
