@@ -11,7 +11,10 @@ from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.source import shown_url
 from stereopose.types import Event
 
-secret = st.text(st.characters(codec="ascii", categories=("L", "N")), min_size=6, max_size=12)
+# a secret that is not a word the shown URL keeps anyway (its scheme, host, port, path)
+KEPT = "https rtsp cam.local:554/live/alarms?key=***"
+secret = st.text(st.characters(codec="ascii", categories=("L", "N")), min_size=6,
+                 max_size=12).filter(lambda s: s not in KEPT)  # fmt: skip
 
 
 @given(secret, secret, st.sampled_from(["http", "https", "rtsp"]))
