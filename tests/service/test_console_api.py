@@ -434,3 +434,26 @@ def test_open_live_streams_end_when_the_service_stops(tmp_path, plan):
         wait_until(lambda: not live._thread.is_alive(), "the stream's end", timeout_s=10)
         assert s.console.hub.clients == 0
         c.close()
+
+
+def test_a_hand_inside_an_energized_zone_makes_its_person_an_occupant_at_once(served):
+    """No enter event yet (its debounce): the wrist inside the busbar's prism is enough."""
+    hub = served.console.hub
+    busbar = next(z for z in hub._zones.values() if z.name == "overhead_busbar")
+    centre = [*np.asarray(busbar.polygon, float).mean(axis=0), sum(busbar.z) / 2]
+    c = served.client("vera")
+    try:
+        frame = _frame(1, 0.0)
+        frame.people3d.joints[0, 10] = centre  # the right wrist, inside the prism
+        hub.on_frame(frame, WALL_START)
+        zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
+        assert zones["overhead_busbar"]["occupants"] == [7]
+        assert zones["overhead_busbar"]["state"] == "alarm"
+        (p,) = c.get("/api/people").json()["people"]
+        assert "overhead_busbar" in p["zones"]
+        hub.on_frame(_frame(2, 0.0), WALL_START)  # the hand out again
+        zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
+        assert zones["overhead_busbar"]["occupants"] == []
+        assert c.get("/api/people").json()["people"][0]["zones"] == []
+    finally:
+        c.close()

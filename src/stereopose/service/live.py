@@ -42,7 +42,7 @@ from urllib.parse import quote
 import cv2
 import numpy as np
 
-from stereopose.fence import Site
+from stereopose.fence import Site, ZoneGeometry
 from stereopose.io.sinks.base import FrameResult
 from stereopose.service.eventlog import EventLog, LogError
 from stereopose.service.places import FairPlaces, Place
@@ -211,6 +211,11 @@ class LiveHub:
         zones = site.zones if site is not None else ()
         self._zones = {z.name: z for z in zones}
         self._inside: dict[str, set[int]] = {z.name: set() for z in zones}
+        # energized zones, tested each frame: whoever has a triggering joint inside one now
+        # is its occupant at once (the enter event waits for its debounce)
+        self._energized = tuple(z for z in zones if z.kind == "energized")
+        self._geometry = ZoneGeometry(self._energized) if self._energized else None
+        self._touching: dict[str, frozenset[int]] = {}
         self._approach: dict[str, float] = {}  # zone -> service time of its last approach
         self._zones_version = 0
         self._snapshots: dict[str, tuple[bytes, float]] = {}
@@ -241,13 +246,31 @@ class LiveHub:
         t = float(frame.t)
         latest = _Latest(int(frame.frame), t, wall_start + t, ids, joints, positions, headings,
                          getattr(frame, "postures", None))  # fmt: skip
+        touching = self._touching_now(joints, ids)
         with self._lock:
             self._latest = latest
             self._trail(t, ids, positions)
+            if touching != self._touching:
+                self._touching = touching
+                self._zones_version += 1
             if frame.events:
                 self._occupancy(frame.events, t)
         if frame.images and any(im is not None for im in frame.images.values()):
             self._offer_snapshot(frame, wall_start)
+
+    def _touching_now(self, joints: np.ndarray, ids: np.ndarray) -> dict[str, frozenset[int]]:
+        """Energized zone -> the ids with one of its triggering joints inside it (joints
+        (P, 17, 3) metres)."""
+        if self._geometry is None or not len(ids) or joints.ndim != 3:
+            return {}
+        P, J = joints.shape[:2]
+        inside = self._geometry.inside(joints.reshape(-1, 3)).reshape(P, J, -1)
+        out = {}
+        for k, z in enumerate(self._energized):
+            rows = np.flatnonzero(inside[:, list(z.joints), k].any(axis=1))
+            if len(rows):
+                out[z.name] = frozenset(int(i) for i in ids[rows])
+        return out
 
     def _trail(self, t: float, ids: np.ndarray, positions: np.ndarray) -> None:
         step = TRAIL_S / TRAIL_POINTS
@@ -466,7 +489,7 @@ class LiveHub:
         with self._lock:
             latest = self._latest
             trails = {pid: list(tr) for pid, tr in self._trails.items()}
-            inside = {z: set(ids) for z, ids in self._inside.items()}
+            inside = self._occupants()
         if latest is None:
             return {"frame": None, "t": None, "wall_t": None, "people": []}
         people = []
@@ -490,10 +513,15 @@ class LiveHub:
         return {"frame": latest.frame, "t": round(latest.t, 3),
                 "wall_t": round(latest.wall_t, 3), "people": people}  # fmt: skip
 
+    def _occupants(self) -> dict[str, set[int]]:
+        """Zone -> who is inside: by its enter and exit events, and for an energized zone
+        also whoever has a triggering joint in it now (under the lock)."""
+        return {z: ids | self._touching.get(z, frozenset()) for z, ids in self._inside.items()}
+
     def zones(self) -> dict:
         """The /api/zones body: each zone with its state and who is inside."""
         with self._lock:
-            inside = {z: sorted(ids) for z, ids in self._inside.items()}
+            inside = {z: sorted(ids) for z, ids in self._occupants().items()}
             approach = dict(self._approach)
             now_t = self._latest.t if self._latest is not None else 0.0
         out = []
