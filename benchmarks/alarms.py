@@ -18,7 +18,8 @@ scene's simulated 2D detections, the fences on its tracked people, and the incid
   those entries were already notified, by their incident's approach within the same episode.
 
 With --demo-log EVENTS.sqlite, the same figures of a served demo's event log (`serve --demo`
-for 10 minutes or more): alarm events and incidents per 10 minutes, per (zone, person) pair.
+for 10 minutes or more): alarm events and incidents per 10 minutes, the hazards ((zone or rule,
+person) pairs) they concern, and the chattering ones.
 
 Results: benchmarks/results/alarms.{md,json}.
 
@@ -183,6 +184,7 @@ def demo_log(path: Path) -> dict:
             "SELECT e.t + COALESCE(r.wall_start, r.started), e.zone, e.person, "
             "e.kind, e.type, "
             + ("e.incident" if "incident" in cols else "NULL")
+            + (", e.rule" if "rule" in cols else ", NULL")
             + " FROM events e JOIN runs r ON r.id = e.run ORDER BY e.id"
         ).fetchall()
     finally:
@@ -199,15 +201,15 @@ def demo_log(path: Path) -> dict:
             firsts.setdefault(int(r[5]), r)
     times: dict[object, list[float]] = {}
     for r in firsts.values():
-        times.setdefault((r[1], r[2]), []).append(r[0])
-    pairs = {(r[1], r[2]) for r in alarms if r[3] != "camera"}
+        times.setdefault((r[6] or r[1], r[2]), []).append(r[0])  # a hazard: zone or rule, person
+    pairs = {(r[6] or r[1], r[2]) for r in alarms if r[3] != "camera"}
     return {
         "minutes": round(minutes, 1), "alarm_events": len(alarms),
         "alarms_per_10min_before": round(10 * len(alarms) / max(minutes, 1e-9), 1),
         "incidents": len(firsts) if "incident" in cols else None,
         "incidents_per_10min": (round(10 * len(firsts) / max(minutes, 1e-9), 1)
                                 if "incident" in cols else None),
-        "person_zone_pairs": len(pairs),
+        "hazards": len(pairs),
         "chattering_after": chattering(times) if "incident" in cols else None,
     }  # fmt: skip
 
