@@ -285,6 +285,15 @@ def test_cameras_their_view_health_and_snapshots(served, plan):
         c.close()
 
 
+def test_a_small_substreams_picture_keeps_its_size_so_ids_can_be_read():
+    from stereopose.service.live import SNAPSHOT_MIN_SIDE, picture_scale
+
+    assert picture_scale((1920, 1088, 3), 0.5) == 0.5  # 960 px: large enough at half size
+    assert picture_scale((480, 272, 3), 0.5) == 1.0  # never above the frame's own size
+    assert picture_scale((1000, 800, 3), 0.5) == pytest.approx(SNAPSHOT_MIN_SIDE / 1000)
+    assert picture_scale((0, 0, 3), 0.25) == 1.0  # no division by zero
+
+
 class _Stream:
     """The live channel read on a thread: every (event, data) pair kept in order."""
 

@@ -57,7 +57,8 @@ class Run:
         if live:  # as serve wires the console's live channel
             outputs.append(lambda changes: _live_changes(served.console.hub, changes))
         self.desk = IncidentStep(book, self.script, None, None, store=served.db.put_incidents,
-                                 outputs=outputs, clock=lambda: self.t)  # fmt: skip
+                                 outputs=outputs, clock=lambda: self.t,
+                                 wall_start=WALL_START)  # fmt: skip
         served.server.app.state.incidents = self.desk
         self.jsonl = JsonlSink(served.out / "events.jsonl")
 
@@ -237,7 +238,25 @@ def test_alarm_rates_in_metrics(tmp_path, plan):
         figures = run.desk.figures()
         assert figures["notifications_10min"] == 2 and figures["open"] == {
             "p1_cleared": 1, "p4_active": 1}  # fmt: skip
+        # the console's alarm-rate panel: the same figures, for a logged-in user only
+        assert served.client().get("/api/alarm-rates").status_code == 401
+        rates = served.client("vera").get("/api/alarm-rates").json()
+        assert rates["running"] is True and rates["notifications_10min"] == 2
+        assert rates["flood_line"] == 10 and rates["shelved"] == 0
+        assert served.client().get("/api/health").json()["alarms"] is None
+        health = served.client("vera").get("/api/health").json()
+        assert health["alarms"]["notifications_1h"] == 2
+        camera = next(i.id for i in run.desk.book.incidents() if i.camera)
+        served.client("otto").post(f"/api/incidents/{camera}/shelve",
+                                   json={"reason": "lens cleaned", "duration_s": 60})  # fmt: skip
+        assert served.client("vera").get("/api/alarm-rates").json()["shelved"] == 1
+        assert "stereopose_alarm_shelved 1.0" in served.client().get("/metrics").text
         run.close()
+
+
+def test_alarm_rates_before_the_book_runs(tmp_path, plan):
+    with console_server(tmp_path / "out", plan) as served:
+        assert served.client("vera").get("/api/alarm-rates").json() == {"running": False}
 
 
 def test_the_live_channel_pushes_each_incident_change(tmp_path, plan):
@@ -250,6 +269,9 @@ def test_the_live_channel_pushes_each_incident_change(tmp_path, plan):
             run.step([zone_event(30, "enter")])
             raised = live.next("incident", 5)
             assert raised["change"] == "raised" and raised["notify"] is True
+            # on the wall clock too, as the console shows it
+            assert raised["wall_t"] == pytest.approx(WALL_START + 1.0)
+            assert raised["incident"]["first_wall_t"] == pytest.approx(WALL_START + 1.0)
             incident = raised["incident"]["id"]
             event = live.next("event", 5)
             assert event["incident"] == incident and event["priority"] == 1
@@ -261,6 +283,7 @@ def test_the_live_channel_pushes_each_incident_change(tmp_path, plan):
             run.step()
             acked = live.next("incident", 5)
             assert acked["change"] == "acknowledged" and acked["by"] == "otto"
+            assert acked["incident"]["acked_wall_at"] == pytest.approx(WALL_START + run.t)
         finally:
             c.close()
             otto.close()

@@ -76,7 +76,9 @@ class Change:
     """One change of one incident: `what` (raised, occurrence, cleared, acknowledged, shelved,
     unshelved, first_out, dropped), the state `before` it (None when raised), the incident
     after it, when (t), by whom (an operator's act; None otherwise) and whether it asks for a
-    sound and a banner (notify: a new incident not shelved)."""
+    sound and a banner (notify: a new incident not shelved). wall_start: the Unix time of
+    t = 0 when the caller knows it: to_dict then gives the wall times too (wall_t, and the
+    incident's first_wall_t, last_wall_t, acked_wall_at, shelved_wall_until)."""
 
     what: str
     before: str | None
@@ -84,11 +86,16 @@ class Change:
     t: float
     notify: bool = False
     by: str | None = None
+    wall_start: float | None = None
 
     def to_dict(self) -> dict:
-        return {"change": self.what, "before": self.before, "state": self.incident.state,
-                "t": self.t, "notify": self.notify, "by": self.by,
-                "incident": self.incident.to_dict()}  # fmt: skip
+        wall = self.wall_start
+        d = {"change": self.what, "before": self.before, "state": self.incident.state,
+             "t": self.t, "notify": self.notify, "by": self.by,
+             "incident": self.incident.to_dict(wall)}  # fmt: skip
+        if wall is not None:
+            d["wall_t"] = wall + self.t
+        return d
 
 
 @dataclass(frozen=True)

@@ -38,9 +38,11 @@ __all__ = [
     "CLOSED",
     "MAX_SHELVE_S",
     "STATES",
+    "WALL_TIMES",
     "Incident",
     "IncidentError",
     "IncidentRecord",
+    "with_wall_times",
 ]
 
 ACTIVE, ACKNOWLEDGED, CLEARED, CLOSED = "active", "acknowledged", "cleared", "closed"
@@ -106,13 +108,16 @@ class IncidentRecord:
     def camera(self) -> str | None:
         return str(self.key[1]) if self.key[0] in ("camera", "calibration") else None
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, wall_start: float | None = None) -> dict[str, Any]:
         """JSON-ready: the fields, the key as a list, and zone / rule / person / camera /
-        shelved spelled out for readers that do not parse keys."""
+        shelved spelled out for readers that do not parse keys; with wall_start (the Unix
+        time of t = 0) the wall times too (WALL_TIMES)."""
         d = asdict(self)
         d["key"] = list(self.key)
         d.update(zone=self.zone, rule=self.rule, person=self.person, camera=self.camera,
                  shelved=self.shelved)  # fmt: skip
+        if wall_start is not None:
+            with_wall_times(d, wall_start)
         return d
 
     @classmethod
@@ -128,6 +133,18 @@ class IncidentRecord:
         if rec.state not in STATES:
             raise IncidentError(f"incident {rec.id}: unknown state {rec.state!r}")
         return rec
+
+
+# each wall time of a record's dict (Unix seconds) and the time on the events' clock it is of
+WALL_TIMES = (("first_wall_t", "first_t"), ("last_wall_t", "last_t"),
+              ("acked_wall_at", "acked_at"), ("shelved_wall_until", "shelved_until"))  # fmt: skip
+
+
+def with_wall_times(d: dict[str, Any], wall_start: float | None) -> dict[str, Any]:
+    """d (a record's dict) with its WALL_TIMES: wall_start + t (None without either)."""
+    for name, key in WALL_TIMES:
+        d[name] = None if wall_start is None or d.get(key) is None else wall_start + d[key]
+    return d
 
 
 class Incident:

@@ -455,7 +455,8 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
     db = service.db
     step = IncidentStep(book, events, HeldRules(rules, events) if rules is not None else None,
                         fences, store=db.put_incidents if db is not None else None,
-                        outputs=service.incident_outputs, clock=clock)  # fmt: skip
+                        outputs=service.incident_outputs, clock=clock,
+                        wall_start=wall_start)  # fmt: skip
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics
     if service.app is not None:

@@ -45,8 +45,9 @@ class IncidentStep:
     def __init__(self, book: IncidentBook, fences, rules, monitor, *,
                  store: Callable[[Sequence[IncidentRecord]], None] | None = None,
                  outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
-                 clock: Callable[[], float]) -> None:  # fmt: skip
+                 clock: Callable[[], float], wall_start: float | None = None) -> None:  # fmt: skip
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
+        self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.store, self.outputs, self.clock = store, list(outputs), clock
         self.rates = AlarmRates()
         self.lock = threading.Lock()
@@ -96,6 +97,8 @@ class IncidentStep:
     def _publish(self, changes: Sequence[Change]) -> None:
         if not changes:
             return
+        if self.wall_start is not None:
+            changes = [dataclasses.replace(c, wall_start=self.wall_start) for c in changes]
         self.rates.observe(changes)
         if self.store is not None:
             self.store([c.incident for c in changes])
@@ -132,10 +135,13 @@ class IncidentStep:
             now = float(self.clock())
             doc = self.rates.figures(now, records).to_dict()
         by: dict[str, int] = {}
+        shelved = 0
         for r in records:
             if r.state != "closed":
                 name = f"p{r.priority}_{r.state}"
                 by[name] = by.get(name, 0) + 1
+                shelved += r.shelved
         doc["open"] = by
+        doc["shelved"] = shelved
         doc["operator_changes_dropped"] = self.dropped
         return doc

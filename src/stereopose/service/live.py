@@ -57,6 +57,9 @@ TRAIL_POINTS = 50
 MAX_TRAILS = 256
 SNAPSHOT_QUEUE = 2
 IDLE_SNAPSHOT_HZ = 0.5
+# a picture's longest side at least this many pixels (up to the frame's own size), so that the
+# ids drawn on a small detection substream can still be read when the picture is enlarged
+SNAPSHOT_MIN_SIDE = 640
 WATCHED_S = 10.0  # a snapshot asked for within this long: someone is looking
 TAIL_S = 0.1
 ZONES_S = 2.0
@@ -165,6 +168,13 @@ class Subscriber:
 
     def __len__(self) -> int:
         return len(self._queue)
+
+
+def picture_scale(shape: tuple[int, ...], scale: float) -> float:
+    """The scale of a frame of `shape` (height, width, ...) in its picture: `scale`, or more
+    (never above the frame's own size) so the longest side has SNAPSHOT_MIN_SIDE pixels."""
+    longest = max(int(shape[0]), int(shape[1]), 1)
+    return max(float(scale), min(1.0, SNAPSHOT_MIN_SIDE / longest))
 
 
 class LiveHub:
@@ -356,8 +366,9 @@ class LiveHub:
                 if image is None or camera not in self._views:
                     continue
                 try:
-                    picture = self.draw(camera, image, people2d.get(camera), people3d,
-                                        self.snapshot_scale, f"{camera} {stamp}")  # fmt: skip
+                    scale = picture_scale(image.shape, self.snapshot_scale)
+                    picture = self.draw(camera, image, people2d.get(camera), people3d, scale,
+                                        f"{camera} {stamp}")  # fmt: skip
                     quality = [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality]
                     ok, buf = cv2.imencode(".jpg", picture, quality)
                 except Exception:  # a bad frame must not stop the pictures

@@ -107,6 +107,8 @@ def _alarm_families(a) -> Iterator[Metric]:
                  {"": float(a.get("chattering", 0))})  # fmt: skip
     yield _gauge("alarm_standing", "Incidents active for more than 24 h.", None,
                  {"": float(a.get("standing", 0))})  # fmt: skip
+    yield _gauge("alarm_shelved", "Open incidents shelved by an operator.", None,
+                 {"": float(a.get("shelved", 0))})  # fmt: skip
     family = GaugeMetricFamily(PREFIX + "incidents_open", "Incidents not closed, by priority "
                                "(1 critical .. 4 low) and state.",
                                labels=["priority", "state"])  # fmt: skip

@@ -20,26 +20,14 @@ from stereopose.geometry.camera import project
 from stereopose.io.mp4 import FrameWriter
 from stereopose.skeleton import LIMBS
 from stereopose.types import Camera, People2D, People3D
+from stereopose.viz.colours import id_colour_bgr
 
 logger = logging.getLogger(__name__)
 
-# Tableau 10, BGR
-PALETTE = (
-    (180, 119, 31),
-    (14, 127, 255),
-    (44, 160, 44),
-    (40, 39, 214),
-    (189, 103, 148),
-    (75, 86, 140),
-    (194, 119, 227),
-    (127, 127, 127),
-    (34, 189, 188),
-    (207, 190, 23),
-)
-
 
 def colour(person_id: int) -> tuple[int, int, int]:
-    return PALETTE[int(person_id) % len(PALETTE)]
+    """The person's colour (viz.colours: the same on the console's plan and 3D view), BGR."""
+    return id_colour_bgr(person_id)
 
 
 def _pt(xy: np.ndarray, scale: float) -> tuple[int, int]:

@@ -28,6 +28,7 @@ from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
 from stereopose.skeleton import LIMBS
 from stereopose.types import Event, Rig
+from stereopose.viz.colours import id_colour
 from stereopose.viz.report_behaviour import behaviour_events_html, explain, postures_html
 from stereopose.viz.report_tables import (
     CSS,
@@ -45,15 +46,13 @@ from plotly.offline import get_plotlyjs  # noqa: E402
 logger = logging.getLogger(__name__)
 
 MAX_3D_FRAMES = 150
-COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-           "#7f7f7f", "#bcbd22", "#17becf")  # fmt: skip
 ZONE_COLOURS = {"energized": "#b30000", "restricted": "#e6ab02", "work_area": "#1b9e77"}
 EVENT_SYMBOLS = {"enter": "triangle-right", "exit": "triangle-left", "approach": "diamond",
                  "dwell": "square", "left_work_area": "x"}  # fmt: skip
 
 
 def colour(person_id: int) -> str:
-    return COLOURS[int(person_id) % len(COLOURS)]
+    return id_colour(person_id)  # the console's and the overlays' colour of this id
 
 
 def _load_poses(path: Path) -> tuple[list[tuple[int, float, list[dict]]], int]:

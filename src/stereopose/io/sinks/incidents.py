@@ -26,7 +26,7 @@ from pathlib import Path
 from urllib.request import pathname2url
 
 from stereopose.alarms import IncidentRecord
-from stereopose.alarms.incident import IncidentError
+from stereopose.alarms.incident import IncidentError, with_wall_times
 from stereopose.io.sinks.eventdb import connect_writer, reading, take
 
 __all__ = ["INCIDENTS_SCHEMA", "IncidentFilters", "IncidentIds", "incident_of_event",
@@ -159,12 +159,7 @@ def query_incidents(path: str | Path, f: IncidentFilters) -> list[dict]:
 
     out = []
     for text, wall in reading(read):
-        d = json.loads(text)
-        for name, key in (("first_wall_t", "first_t"), ("last_wall_t", "last_t"),
-                          ("acked_wall_at", "acked_at"),
-                          ("shelved_wall_until", "shelved_until")):  # fmt: skip
-            d[name] = None if wall is None or d.get(key) is None else wall + d[key]
-        out.append(d)
+        out.append(with_wall_times(json.loads(text), wall))
     return out
 
 

@@ -9,7 +9,7 @@ request carries a live session (an anonymous client learns nothing to look up).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel
@@ -45,7 +45,9 @@ class OutputHealth(BaseModel):
 class Health(BaseModel):
     """The service now. version: null without a session; queues: messages waiting per queue
     (null: its probe failed); storage: bytes per kind of stored data; outputs: each alarm
-    output; problems: why it is degraded or down."""
+    output; problems: why it is degraded or down; alarms: the operator's alarm load
+    (notifications in 10 minutes and an hour against the flood line, chattering, standing
+    and open incidents: alarms.rates), null without a session or an incident book."""
 
     status: Literal["ok", "degraded", "down"]
     uptime_s: float
@@ -57,6 +59,7 @@ class Health(BaseModel):
     storage: dict[str, int]
     problems: list[str]
     outputs: dict[str, OutputHealth]
+    alarms: dict[str, Any] | None = None
 
 
 def _output(o: OutputSnapshot) -> OutputHealth:
@@ -64,7 +67,7 @@ def _output(o: OutputSnapshot) -> OutputHealth:
 
 
 def health_of(s: Snapshot, *, show_version: bool = True) -> Health:
-    """The health answer of one snapshot (show_version False: version null)."""
+    """The health answer of one snapshot (show_version False: version and alarms null)."""
     return Health(
         status=s.status,
         uptime_s=s.uptime_s,
@@ -86,6 +89,7 @@ def health_of(s: Snapshot, *, show_version: bool = True) -> Health:
         storage=dict(s.storage),
         outputs={o.name: _output(o) for o in s.outputs},
         problems=list(s.problems) or (["no camera delivering"] if s.status == "down" else []),
+        alarms=dict(s.alarms) if show_version and s.alarms else None,
     )
 
 

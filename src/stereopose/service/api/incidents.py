@@ -76,14 +76,14 @@ def _desk(request: Request):
     return desk
 
 
-def _answer(act) -> dict:
+def _answer(desk, act) -> dict:
     try:
         rec = act()
     except UnknownIncidentError as e:
         raise HTTPException(404, str(e)) from None
     except IncidentError as e:
         raise HTTPException(422, str(e)) from None
-    return {"incident": rec.to_dict()}
+    return {"incident": rec.to_dict(getattr(desk, "wall_start", None))}
 
 
 @router.post("/api/incidents/{incident_id}/ack", responses={403: {}, 404: {}})
@@ -91,7 +91,7 @@ def ack(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
         request: Request) -> dict:  # fmt: skip
     """Acknowledge the incident as this user; {"incident": its record}."""
     desk = _desk(request)
-    return _answer(lambda: desk.acknowledge(incident_id, session.username))
+    return _answer(desk, lambda: desk.acknowledge(incident_id, session.username))
 
 
 @router.post("/api/incidents/{incident_id}/shelve", responses={403: {}, 404: {}, 422: {}})
@@ -99,5 +99,15 @@ def shelve(incident_id: Annotated[int, Path(ge=0, le=_I64)], body: Shelving,
            session: Operator, request: Request) -> dict:  # fmt: skip
     """Shelve the incident's hazard for duration_s (at most 8 h) with a reason."""
     desk = _desk(request)
-    return _answer(lambda: desk.shelve(incident_id, session.username, body.reason,
+    return _answer(desk, lambda: desk.shelve(incident_id, session.username, body.reason,
                                        body.duration_s))  # fmt: skip
+
+
+@router.get("/api/alarm-rates")
+def alarm_rates(session: Viewer, request: Request) -> JSONResponse:
+    """The operator's alarm load now (alarms.rates): notifications in the last 10 minutes
+    and hour against the flood line, chattering and standing incidents, the open incidents
+    by priority and state; `running` false (and no figures) before the incident book runs."""
+    desk = getattr(request.app.state, "incidents", None)
+    body = {"running": False} if desk is None else {"running": True, **desk.figures()}
+    return JSONResponse(body, headers={"Cache-Control": "no-store"})
