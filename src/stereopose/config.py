@@ -82,6 +82,9 @@ def _check_fields(self: Any) -> None:
         rng.check(value, _key(cls, name))
         if is_float:
             object.__setattr__(self, name, float(value))
+    check = getattr(cls, "_check", None)
+    if check is not None:  # what a range cannot say (an address, a list that may not be empty)
+        check(self)
 
 
 def _key(cls: Any, name: str) -> str:
@@ -310,6 +313,49 @@ class MqttConfig:
     queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
 
 
+@_schema("iec104")
+class Iec104Config:
+    """serve's IEC 60870-5-104 outstation (stereopose.scada.iec104, docs/scada.md); needs the
+    `scada` extra. Off unless enabled; `stereopose points CONFIG.toml` prints its points."""
+
+    enabled: bool = False
+    # the address it listens on (IPv4); anything but loopback is reachable from the network
+    host: str = "127.0.0.1"
+    port: int = number(2404, integer=True, ge=1, le=65535)
+    common_address: int = number(1, integer=True, ge=1, le=65534)  # the station's ASDU address
+    # the masters that may connect: IPv4 addresses or networks ("10.0.0.0/24"); others are
+    # refused at connect
+    allowed_clients: tuple[str, ...] = ("127.0.0.1",)
+    # open connections at most (a master and its redundant twin); more are refused
+    max_connections: int = number(2, integer=True, ge=1, le=64)
+    # single commands that acknowledge a zone's or a priority's incidents (off: no command
+    # point exists, a command is answered unknown)
+    commands: bool = False
+    # the time tags' clock: "utc", or "local" (the machine's time zone, as dispatch centres on
+    # local time expect)
+    time_tags: Literal["utc", "local"] = "utc"
+    # point changes held at most for the outstation's thread (then counted as dropped)
+    queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
+
+    def _check(self) -> None:
+        import ipaddress
+
+        try:
+            ipaddress.IPv4Address(self.host)
+        except ValueError:
+            raise ConfigError(
+                f"iec104.host: expected an IPv4 address to listen on, got {self.host!r}"
+            ) from None
+        if not self.allowed_clients:
+            raise ConfigError("iec104.allowed_clients: empty, so no master could connect")
+        for i, a in enumerate(self.allowed_clients):
+            try:
+                ipaddress.IPv4Network(a, strict=False)
+            except ValueError:
+                raise ConfigError(f"iec104.allowed_clients[{i}]: expected an IPv4 address or "
+                                  f"network (\"10.0.0.0/24\"), got {a!r}") from None  # fmt: skip
+
+
 @_schema("storage")
 class StorageConfig:
     """What serve keeps in its output folder, and for how long."""
@@ -346,6 +392,7 @@ class Config:
     outputs: OutputConfig = field(default_factory=OutputConfig)
     serve: ServeConfig = field(default_factory=ServeConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
+    iec104: Iec104Config = field(default_factory=Iec104Config)
     storage: StorageConfig = field(default_factory=StorageConfig)
 
 

@@ -40,6 +40,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "the operator console's users of a service: add, list, remove, passwd",
         "stereopose.cli.users:_users",
     ),
+    "points": (
+        "the IEC 60870-5-104 points of a service's configuration, as CSV (ioa,type,...)",
+        "stereopose.cli.points:_points",
+    ),
     "init": (
         "write a commented example run (or --serve: service) configuration",
         "stereopose.cli.run:_init",
@@ -161,6 +165,7 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         help="replace the outputs of a previous run in the output folder",
     )
     _add_serve(parsers["serve"])
+    _add_points(parsers["points"])
     _add_users(parsers["users"])
     it = parsers["init"]
     it.add_argument(
@@ -240,6 +245,16 @@ def _add_serve(sv: argparse.ArgumentParser) -> None:
         default=Path("out/serve-demo"),
         metavar="DIR",
         help="--demo: where its configuration is written (out/serve-demo)",
+    )
+
+
+def _add_points(pt: argparse.ArgumentParser) -> None:
+    """`points`."""
+    pt.add_argument(
+        "config",
+        type=Path,
+        metavar="CONFIG.toml",
+        help="the service's configuration (its calibration, site and [iec104])",
     )
 
 
