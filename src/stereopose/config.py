@@ -356,6 +356,67 @@ class Iec104Config:
                                   f"network (\"10.0.0.0/24\"), got {a!r}") from None  # fmt: skip
 
 
+OpcuaPolicy = Literal[
+    "Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "Aes128Sha256RsaOaep_SignAndEncrypt",
+    "Aes128Sha256RsaOaep_Sign", "Aes256Sha256RsaPss_SignAndEncrypt", "Aes256Sha256RsaPss_Sign",
+]  # fmt: skip
+
+
+@_schema("opcua")
+class OpcuaConfig:
+    """serve's OPC UA server (stereopose.scada.opcua, docs/scada.md): the site, its zones,
+    cameras and counts, and each incident as an Alarms and Conditions alarm; needs the `scada`
+    extra. Off unless enabled. Clients log in as the console's users (operator or admin to
+    acknowledge)."""
+
+    enabled: bool = False
+    # the address it listens on; anything but loopback is reachable from the network
+    host: str = "127.0.0.1"
+    port: int = number(4840, integer=True, ge=1, le=65535)
+    path: str = "/stereopose"  # the endpoint: opc.tcp://host:port/path
+    site: str = "site"  # this installation's name: the site object's name in the address space
+    # the server's application instance certificate (DER or PEM) and its private key (PEM),
+    # relative to the config file, both or neither (the key readable by its owner only);
+    # neither: a self-signed pair made once in <output>/opcua/, its thumbprint logged
+    certificate: str | None = None
+    key: str | None = None
+    # a folder of the client certificates that may connect (relative to the config file);
+    # unset: any client certificate, the user login decides
+    trusted_clients: str | None = None
+    # the security policies offered, all signed; no unsecured endpoint is ever offered
+    security: tuple[OpcuaPolicy, ...] = ("Basic256Sha256_SignAndEncrypt",)
+    # clients without a login may browse and subscribe (never acknowledge)
+    allow_anonymous: bool = False
+    # client connections at most (more are refused at connect)
+    max_connections: int = number(16, integer=True, ge=1, le=1000)
+    # incident changes held at most for the server's thread (then counted as dropped)
+    queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
+
+    def _check(self) -> None:
+        import ipaddress
+        import re
+
+        try:
+            ipaddress.ip_address(self.host)
+        except ValueError:
+            raise ConfigError(
+                f"opcua.host: expected an IP address to listen on, got {self.host!r}"
+            ) from None
+        if not re.fullmatch(r"(/[A-Za-z0-9._~-]+)*/?", self.path) or len(self.path) > 200:
+            raise ConfigError(f"opcua.path: expected a URL path such as \"/stereopose\", "
+                              f"got {self.path!r}")  # fmt: skip
+        if not self.site or len(self.site) > 64 or not self.site.isprintable():
+            raise ConfigError(f"opcua.site: 1 to 64 printable characters, got {self.site!r}")
+        if bool(self.certificate) != bool(self.key):
+            raise ConfigError("opcua.certificate and opcua.key: give both or neither")
+        if not self.security:
+            raise ConfigError("opcua.security: empty, so no client could connect")
+        for i, name in enumerate(self.security):
+            if name not in get_args(OpcuaPolicy):
+                raise ConfigError(f"opcua.security[{i}]: expected one of "
+                                  f"{list(get_args(OpcuaPolicy))}, got {name!r}")  # fmt: skip
+
+
 @_schema("storage")
 class StorageConfig:
     """What serve keeps in its output folder, and for how long."""
@@ -393,6 +454,7 @@ class Config:
     serve: ServeConfig = field(default_factory=ServeConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
     iec104: Iec104Config = field(default_factory=Iec104Config)
+    opcua: OpcuaConfig = field(default_factory=OpcuaConfig)
     storage: StorageConfig = field(default_factory=StorageConfig)
 
 
