@@ -1,0 +1,404 @@
+"""serve's OPC UA server: the site in an address space, each incident an alarm condition.
+
+    server = OpcuaServer(settings, zones, cameras, users)   # scada.opcua_settings, UserStore
+    server.start()                 # listening once it returns (a StereoposeError otherwise)
+    server.wall_start = ...        # the Unix time of the service's t = 0
+    server.write(frame)            # the frame loop: zone occupancy, cameras, people (a sink)
+    server.write_changes(changes)  # an incident output (alarms.Change)
+    server.attach(desk)            # the incident step: acknowledgements, the open incidents
+    server.close()
+
+asyncua is asyncio: the server runs on its own thread with its own event loop. The frame loop
+only enqueues: zone occupancy, camera states and the people count are kept as their latest
+values (bounded by the site), incident changes in a queue of `queue_size` (the oldest dropped
+and counted at the bound, after which the conditions are read again from the book). The
+address space and the alarms are scada.opcua_space's.
+
+Security: only signed endpoints ([opcua] security, Basic256Sha256 SignAndEncrypt by default)
+with the application certificate of scada.opcua_settings; clients log in as the console's
+users (scada.opcua_security: the same names and passwords as `<output>/users.json`),
+anonymous clients only when allow_anonymous. Every login may browse, read and subscribe, and
+call ConditionRefresh; none may write or change the address space; Acknowledge needs the role
+operator or admin, checked again at each call (a user removed, demoted or given a new password
+since the login is refused). An Acknowledge (OPC UA's method of the condition, with the event's
+EventId) acknowledges the incident in the book as the session's user, as the console's ack
+does; an ack made elsewhere (the console, the API) reaches the condition as the book's change.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from pathlib import Path
+
+from asyncua import Server, ua
+from asyncua.common.connection import TransportLimits
+
+from stereopose.alarms import UnknownIncidentError
+from stereopose.alarms.book import DROPPED
+from stereopose.alarms.incident import CLOSED, IncidentRecord
+from stereopose.errors import StereoposeError
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.health import OutputHealth
+from stereopose.scada.opcua_security import (
+    ACK_ROLES,
+    LoginServer,
+    Permissions,
+    Users,
+    caller,
+    trusted_clients,
+)
+from stereopose.scada.opcua_settings import OpcuaSettings, application_certificate
+from stereopose.scada.opcua_space import CameraNode, SiteSpace, ZoneNode
+
+__all__ = ["CameraNode", "OpcuaServer", "ZoneNode"]
+
+logger = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 60.0  # the standard address space takes seconds to load on a loaded machine
+STOP_TIMEOUT_S = 10.0
+STATUS_EVERY_S = 2.0  # the health status polled this often
+MAX_MESSAGE = 4 * 1024 * 1024  # bytes of one request at most
+_ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+
+
+class OpcuaServer(ClosesOnce):
+    """See the module. zones, cameras: what the address space shows; users: the console's
+    users (service.users.UserStore: verify(name, password) and get(name) give a user with
+    name, role and stamp); status(): the service's health status (ok / degraded / down),
+    polled."""
+
+    stage = "write"
+
+    def __init__(self, settings: OpcuaSettings, zones: Sequence[ZoneNode],
+                 cameras: Sequence[CameraNode], users, *,
+                 status=None) -> None:  # fmt: skip
+        self.settings, self.users, self.status = settings, users, status
+        self.zones, self.cameras = list(zones), list(cameras)
+        self.wall_start: float | None = None
+        self.desk = None
+        self.certificate = None  # the AppCertificate, once started
+        self._lock = threading.Lock()
+        self._changes: deque[tuple[IncidentRecord, str, float | None, float | None]] = deque()
+        self._occupants: dict[str, set[int]] = {z.name: set() for z in self.zones}
+        self._dirty_zones: dict[str, float | None] = {}
+        self._dirty_cameras: dict[str, tuple[bool, float | None]] = {}
+        self._stall: bool | None = None
+        self._people: int | None = None
+        self._people_sent: int | None = None
+        self._resync = False
+        self._pending = False
+        self.dropped = 0  # incident changes dropped (the queue full)
+        self.acks = self.acks_refused = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="opcua", daemon=True)
+        self.space: SiteSpace | None = None
+
+    def __repr__(self) -> str:
+        return f"OpcuaServer({self.settings.endpoint})"
+
+    # -- starting and stopping ------------------------------------------------------------
+
+    def start(self, timeout_s: float = START_TIMEOUT_S) -> None:
+        """Listening once this returns; a StereoposeError says why it cannot."""
+        self._thread.start()
+        if not self._ready.wait(timeout_s):
+            raise StereoposeError(f"OPC UA {self.settings.endpoint}: not started within "
+                                  f"{timeout_s:g} s")  # fmt: skip
+        if self._error is not None:
+            self._thread.join(STOP_TIMEOUT_S)
+            raise StereoposeError(f"OPC UA {self.settings.endpoint}: cannot start: {self._error}")
+        logger.info("OPC UA: serving %s", self.settings.endpoint)
+
+    def _close(self) -> list[Path]:
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None and self._thread.is_alive():
+            with contextlib.suppress(RuntimeError):  # the loop already closed
+                loop.call_soon_threadsafe(stop.set)
+            self._thread.join(STOP_TIMEOUT_S)
+            if self._thread.is_alive():
+                logger.warning("OPC UA: the server did not stop within %g s", STOP_TIMEOUT_S)
+        return []
+
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._main())
+        except BaseException as e:  # reported by start(), or logged once running
+            if not self._ready.is_set():
+                self._error = e
+                self._ready.set()
+            else:
+                logger.exception("OPC UA: the server stopped")
+
+    async def _main(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._wake, self._stop = asyncio.Event(), asyncio.Event()
+        logging.getLogger("asyncua").setLevel(logging.WARNING)  # its info logs every request
+        server = await self._server()
+        try:
+            await server.start()
+        except OSError as e:
+            raise StereoposeError(f"cannot listen: {e.strerror or e}") from None
+        self._ready.set()
+        poll = asyncio.create_task(self._poll_status())
+        try:
+            while not self._stop.is_set():
+                await self._wait()
+                try:
+                    await self._drain()
+                except Exception:  # a bug here must not end the server
+                    logger.exception("OPC UA: updating the address space failed")
+        finally:
+            poll.cancel()
+            try:
+                if self.space is not None:
+                    await self.space.write("site/Running", False, ua.VariantType.Boolean)
+            finally:
+                await server.stop()
+
+    async def _wait(self) -> None:
+        stop = asyncio.create_task(self._stop.wait())
+        wake = asyncio.create_task(self._wake.wait())
+        await asyncio.wait((stop, wake), return_when=asyncio.FIRST_COMPLETED)
+        for t in (stop, wake):
+            t.cancel()
+        self._wake.clear()
+        with self._lock:
+            self._pending = False
+
+    async def _server(self) -> Server:
+        s = self.settings
+        iserver = LoginServer(user_manager=Users(self.users, s.allow_anonymous))
+        iserver.bind_condition_methods = True  # ConditionRefresh
+        iserver.max_connections = s.max_connections
+        iserver.max_subscriptions = 4 * s.max_connections
+        iserver.max_monitored_item_queue_size = 1000
+        iserver.max_pending_activation_seconds = 10.0
+        server = Server(iserver=iserver)
+        server.limits = TransportLimits(max_recv_buffer=65535, max_send_buffer=65535,
+                                        max_chunk_count=MAX_MESSAGE // 65535 + 1,
+                                        max_message_size=MAX_MESSAGE)  # fmt: skip
+        await server.init()
+        app = application_certificate(s)
+        self.certificate = app
+        await server.set_application_uri(app.application_uri)
+        server.set_server_name(f"stereopose {s.site}")
+        server.product_uri = "urn:stereopose"
+        server.manufacturer_name = "stereopose"
+        server.application_type = ua.ApplicationType.Server
+        server.set_endpoint(s.endpoint)
+        policies = [getattr(ua.SecurityPolicyType, name) for name in s.security]
+        server.set_security_policy(policies, permission_ruleset=Permissions())
+        tokens: list[type] = [ua.UserNameIdentityToken]
+        if s.allow_anonymous:
+            tokens.append(ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        iserver.certificate, iserver.private_key = app.certificate, app.key
+        if s.trusted_clients is not None:
+            server.set_certificate_validator(await trusted_clients(s.trusted_clients))
+        self.space = SiteSpace(server, s.site, self.zones, self.cameras)
+        await self.space.build()
+        server.link_method(server.get_node(_ACK), self._acknowledge)
+        return server
+
+    # -- the frame loop's side: only enqueues -----------------------------------------------
+
+    def write(self, frame: FrameResult) -> None:
+        """The frame's zone and camera events and its people count, kept as latest values."""
+        people = len(frame.people3d)
+        if not frame.events and people == self._people:
+            return
+        wall0 = self.wall_start
+        with self._lock:
+            self._people = people
+            for e in frame.events:
+                wall = None if wall0 is None else wall0 + e.t
+                if e.type in ("enter", "exit") and e.zone in self._occupants:
+                    inside = self._occupants[e.zone]
+                    (inside.add if e.type == "enter" else inside.discard)(e.person)
+                    self._dirty_zones[e.zone] = wall
+                elif e.type in ("camera_down", "camera_up") and e.camera:
+                    self._dirty_cameras[e.camera] = (e.type == "camera_up", wall)
+                elif e.type in ("service_stalled", "service_resumed"):
+                    self._stall = e.type == "service_stalled"
+        self._poke()
+
+    def write_changes(self, changes: Sequence) -> None:
+        """Incident changes (alarms.Change), queued for the server's thread (bounded)."""
+        if not changes:
+            return
+        with self._lock:
+            for c in changes:
+                wall = None if c.wall_start is None else c.wall_start + c.t
+                if len(self._changes) >= self.settings.queue_size:
+                    self._changes.popleft()
+                    self.dropped += 1
+                    if not self._resync:
+                        logger.warning("OPC UA: %d incident changes waiting, the bound: dropping "
+                                       "the oldest (the conditions are read again from the book)",
+                                       self.settings.queue_size)  # fmt: skip
+                    self._resync = True
+                self._changes.append((c.incident, c.what, wall, c.wall_start))
+        self._poke()
+
+    def attach(self, desk) -> None:
+        """The incident step (pipeline.serve_incidents.IncidentStep): its `acknowledge` for
+        the Acknowledge method, and its book's open incidents shown at once."""
+        with self._lock:
+            self.desk = desk
+            self._resync = True
+        self._poke()
+
+    def _poke(self) -> None:
+        """Wake the server's loop (once until it has looked)."""
+        loop, wake = self._loop, self._wake
+        if loop is None or wake is None:
+            return
+        with self._lock:
+            if self._pending:
+                return
+            self._pending = True
+        with contextlib.suppress(RuntimeError):  # the loop is closing
+            loop.call_soon_threadsafe(wake.set)
+
+    # -- the server's loop ----------------------------------------------------------------
+
+    async def _drain(self) -> None:
+        space = self.space
+        with self._lock:
+            changes = list(self._changes)
+            self._changes.clear()
+            zones = {z: (len(self._occupants[z]), w) for z, w in self._dirty_zones.items()}
+            cameras, stall = dict(self._dirty_cameras), self._stall
+            self._dirty_zones.clear()
+            self._dirty_cameras.clear()
+            people, resync, desk = self._people, self._resync, self.desk
+            self._resync = False
+        if stall is not None:
+            await space.set_stalled(stall)
+        for name, (up, wall) in cameras.items():
+            await space.set_camera(name, up, wall)
+        for name, (n, wall) in zones.items():
+            await space.set_zone(name, n, wall)
+        if people is not None and people != self._people_sent:
+            self._people_sent = people
+            await space.write("site/People", people, ua.VariantType.UInt32)
+        records = []
+        for rec, what, wall, wall_start in changes:
+            if what == DROPPED:
+                await space.drop(rec, wall, wall_start)
+            else:
+                records.append((rec, wall, wall_start))
+        await space.apply(records)
+        if resync and desk is not None:
+            await self._resync_from(desk)
+
+    async def _resync_from(self, desk) -> None:
+        """The book's incidents as the conditions (after drops, or when attached)."""
+
+        def read():
+            with desk.lock:
+                return desk.book.incidents()
+
+        records = await asyncio.get_running_loop().run_in_executor(None, read)
+        wall_start = getattr(desk, "wall_start", None)
+        kept = {r.id for r in records}
+        for gone in [i for i in self.space.conditions if i not in kept]:
+            rec = self.space.conditions[gone].record
+            await self.space.drop(dataclasses.replace(rec, state=CLOSED), None, wall_start)
+        await self.space.apply([(r, None, wall_start) for r in records])
+
+    async def _poll_status(self) -> None:
+        if self.status is None:
+            return
+        last = None
+        while True:
+            try:
+                status = await asyncio.get_running_loop().run_in_executor(None, self.status)
+            except Exception as e:  # the status missing never stops the server
+                logger.debug("OPC UA: no status: %s", e)
+            else:
+                if status != last:
+                    last = status
+                    await self.space.write("site/Status", str(status), ua.VariantType.String)
+            await asyncio.sleep(STATUS_EVERY_S)
+
+    async def _acknowledge(self, parent: ua.NodeId, *args) -> ua.StatusCode | list:
+        """OPC UA's Acknowledge(EventId, Comment) on a condition: the incident's ack."""
+        code = await self._ack(parent, caller(), args)
+        if code is not None:
+            self.acks_refused += 1
+            return ua.StatusCode(code)
+        self.acks += 1
+        return []
+
+    async def _ack(self, parent: ua.NodeId, caller, args) -> int | None:
+        space, desk = self.space, self.desk
+        name = getattr(caller, "name", None)
+        if name is None or not self._may_acknowledge(caller):
+            logger.warning("OPC UA: acknowledge refused for %s",
+                           repr(name) if name else "an anonymous client")  # fmt: skip
+            return ua.StatusCodes.BadUserAccessDenied
+        incident = space.by_node.get(parent)
+        if incident is None:
+            return ua.StatusCodes.BadNodeIdUnknown
+        cond = space.conditions[incident]
+        if len(args) != 2:
+            return (ua.StatusCodes.BadArgumentsMissing if len(args) < 2
+                    else ua.StatusCodes.BadTooManyArguments)  # fmt: skip
+        event_id = args[0].Value if isinstance(args[0], ua.Variant) else None
+        if not isinstance(event_id, bytes) or event_id not in cond.event_ids:
+            return ua.StatusCodes.BadEventIdUnknown
+        if cond.acked:
+            return ua.StatusCodes.BadConditionBranchAlreadyAcked
+        if desk is None:
+            return ua.StatusCodes.BadResourceUnavailable
+        comment = args[1].Value if isinstance(args[1], ua.Variant) else None
+        text = getattr(comment, "Text", None) or ""
+        try:
+            rec = await asyncio.get_running_loop().run_in_executor(
+                None, desk.acknowledge, incident, name
+            )
+        except UnknownIncidentError:
+            return ua.StatusCodes.BadNodeIdUnknown
+        logger.info("OPC UA: incident %d acknowledged by %s%s", incident, name,
+                    f" ({text[:200]!r})" if text else "")  # fmt: skip
+        await space.apply([(rec, time.time(), getattr(desk, "wall_start", None))])
+        return None
+
+    def _may_acknowledge(self, caller) -> bool:
+        try:
+            user = self.users.get(caller.name)
+        except StereoposeError as e:
+            logger.error("OPC UA: cannot read the users: %s", e)
+            return False
+        # removed, or its role or password changed since the login: refused
+        return user is not None and user.stamp == caller.stamp and user.role in ACK_ROLES
+
+    # -- figures ----------------------------------------------------------------------------
+
+    def health(self) -> OutputHealth:
+        """Not ok once the server's thread has ended; waiting: the changes queued."""
+        with self._lock:
+            waiting = len(self._changes)
+        if self._closed or self._thread.is_alive():
+            return OutputHealth(True, waiting)
+        return OutputHealth(False, waiting, "the OPC UA server stopped")
+
+    def counts(self) -> dict:
+        with self._lock:
+            queued = len(self._changes)
+        space = self.space
+        return {"queued": queued, "dropped": self.dropped, "acknowledged": self.acks,
+                "acknowledge_refused": self.acks_refused,
+                "conditions": len(space.conditions) if space is not None else 0}  # fmt: skip

@@ -1,0 +1,111 @@
+"""Who may do what on serve's OPC UA server: logins, permissions, the caller of a method.
+
+Clients log in as the console's users (service.users: the same names, passwords and argon2
+hashes); anonymous clients only when [opcua] allow_anonymous. Every login may browse, read,
+subscribe and call methods (ConditionRefresh); nobody may write or change the address space
+(asyncua's Admin role is never given). Which user calls a method: `caller()`, set for the
+duration of each Call request of a session (asyncua gives a method callback no session).
+`trusted_clients(folder)`: only the client certificates in a folder may open a channel.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import dataclasses
+import logging
+from pathlib import Path
+
+from asyncua import ua
+from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
+from asyncua.server.internal_server import InternalServer
+from asyncua.server.internal_session import InternalSession
+
+from stereopose.errors import StereoposeError
+
+__all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller",
+           "trusted_clients"]  # fmt: skip
+
+logger = logging.getLogger(__name__)
+
+# the console's roles (service.users) that may acknowledge, as its API lets them
+ACK_ROLES = ("operator", "admin")
+_CALLER: contextvars.ContextVar[User | None] = contextvars.ContextVar("opcua_caller", default=None)
+
+
+@dataclasses.dataclass
+class Login(User):
+    """A session's user: the console user's name and the stamp of its role and password at
+    login (service.users.User.stamp), or anonymous (name None)."""
+
+    stamp: str | None = None
+
+
+class _CallerSession(InternalSession):
+    """A session whose method calls know their caller (the Acknowledge needs the user)."""
+
+    async def call(self, params):
+        token = _CALLER.set(self.user)
+        try:
+            return await super().call(params)
+        finally:
+            _CALLER.reset(token)
+
+
+class LoginServer(InternalServer):
+    """asyncua's internal server whose sessions know the caller of their methods."""
+
+    def create_session(self, name: str, user: User = User(role=UserRole.Anonymous),  # noqa: B008
+                       external: bool = False) -> InternalSession:  # fmt: skip
+        return _CallerSession(self, self.aspace, self.subscription_service, name, user=user,
+                              external=external)  # fmt: skip
+
+
+class Permissions(PermissionRuleset):
+    """Logins read, browse, subscribe and call methods; nobody writes or edits nodes."""
+
+    def __init__(self) -> None:
+        allowed = set(map(ua.NodeId, USER_TYPES))
+        allowed.discard(ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary))
+        self._allowed = frozenset(allowed)
+
+    def check_validity(self, user, action_type_id, body) -> bool:
+        # a session not yet activated holds asyncua's default user, not a Login
+        return isinstance(user, Login) and action_type_id in self._allowed
+
+
+class Users:
+    """asyncua's user manager over the console's users (see the module)."""
+
+    def __init__(self, users, allow_anonymous: bool) -> None:
+        self.users, self.allow_anonymous = users, allow_anonymous
+
+    def get_user(self, iserver, username=None, password=None, certificate=None) -> User | None:
+        if username is None:
+            return Login(role=UserRole.Anonymous) if self.allow_anonymous else None
+        try:
+            user = self.users.verify(str(username), password if isinstance(password, str) else "")
+        except StereoposeError as e:  # the users file unreadable
+            logger.error("OPC UA: cannot check a login: %s", e)
+            return None
+        if user is None:
+            logger.warning("OPC UA: login refused for %r", str(username)[:40])
+            return None
+        logger.info("OPC UA: %s logged in (%s)", user.name, user.role)
+        return Login(role=UserRole.User, name=user.name, stamp=user.stamp)
+
+
+def caller() -> User | None:
+    """The user of the session whose method call runs now (None outside a call)."""
+    return _CALLER.get()
+
+
+async def trusted_clients(folder: Path):
+    """Only the client certificates in `folder` (and those their CAs there signed)."""
+    from asyncua.crypto.truststore import TrustStore
+    from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+
+    store = TrustStore([folder], [])
+    await store.load()
+    opts = (CertificateValidatorOptions.BASIC_VALIDATION | CertificateValidatorOptions.TRUSTED
+            | CertificateValidatorOptions.PEER_CLIENT)  # fmt: skip
+    return CertificateValidator(opts, store)
