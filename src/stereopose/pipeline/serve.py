@@ -18,6 +18,10 @@ The data folder is private: the service runs with a umask of 077 and takes group
 permissions off what an earlier run left (pipeline.private). Its HTTP server answers only
 the Host names of service.hosts.allowed_hosts ([serve] allowed_hosts adds some).
 
+With [opcua] enabled, the OPC UA server (scada.opcua: the site's zones, cameras and counts,
+each incident an alarm condition, logins as the console's users) listens from the start,
+before the cameras open; it is an incident output and a sink, closed with the event sinks.
+
 Recorded files are played as live cameras: every step, and so every event, is stamped with
 when its frames were read, seconds since the service's t = 0 (wall time = wall_start + t). A
 stall of the whole service (the machine overloaded or the process paused: every camera late at
@@ -74,6 +78,7 @@ from stereopose.pipeline.serve_parts import (
 from stereopose.pipeline.serve_setup import ServePlan, plan_serve
 from stereopose.pipeline.sources import Cameras, source_label
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.service.api.health import health_of
 from stereopose.service.app import create_app
 from stereopose.service.calib_health import CalibrationHealth
@@ -144,6 +149,8 @@ class _Service:
         self.probes: dict[str, Callable[[], dict]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
         self.packets = _packet_rings(plan)
+        self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
+        self.opcua = None  # the OPC UA server, once started
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -165,6 +172,7 @@ class _Service:
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
         hub.start()
+        self.start_opcua()
         return self.server.url
 
     def start_maintainer(self) -> None:
@@ -173,6 +181,34 @@ class _Service:
         self.state.register_storage(self.maintainer.usage)
         self.probes["storage"] = self.maintainer.health
         self.maintainer.start()
+
+    def start_opcua(self) -> None:
+        """[opcua]: the OPC UA server (scada.opcua) listening, an incident output from now
+        on; its users are the console's. A StereoposeError when it cannot listen."""
+        settings, p = self.opcua_settings, self.plan
+        if settings is None or self.console is None:
+            return
+        from stereopose.scada.opcua import CameraNode, OpcuaServer
+        from stereopose.scada.opcua_space import site_zones
+
+        server = OpcuaServer(settings, site_zones(p.site, p.rig),
+                             [CameraNode(n) for n in p.rig.names], self.console.users,
+                             status=lambda: self.state.snapshot().status)  # fmt: skip
+        server.start()
+        self.opcua = server
+        self.incident_outputs.append(server.write_changes)
+        self.state.register_queue("opcua", lambda: server.counts()["queued"],
+                                  lambda: server.dropped)  # fmt: skip
+        self.probes["opcua"] = server.counts
+
+    def _opcua_sink(self, guard, wall_start: float) -> list[Sink]:
+        """The OPC UA server as a sink (zone, camera and service events, people), watched as
+        an alarm output."""
+        server = self.opcua
+        if server is None:
+            return []
+        server.wall_start = wall_start
+        return [self._alarm_output("opcua", guard(server, f"OPC UA {server.settings.endpoint}"))]
 
     def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
                    stats: Callable[[], dict], arrival: Callable[[float], float | None],
@@ -189,6 +225,7 @@ class _Service:
             sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
                                            settings=p.segments), p.out_dir / "poses"))  # fmt: skip
             sinks += self._event_sinks(cfg, guard, wall_start)
+            sinks += self._opcua_sink(guard, wall_start)
             if p.clips is not None and p.site is not None:
                 sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
             if self.console is not None and self.console.hub is not None:
@@ -277,6 +314,8 @@ class _Service:
 
     def close(self) -> None:
         """The maintainer, the console and the server, each within its bound."""
+        if self.opcua is not None:
+            self.opcua.close()  # once (a sink of the loop closes it first)
         if self.maintainer is not None and not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
         if self.console is not None:
@@ -370,6 +409,8 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
         logger.warning("restart: %d behaviour alarm(s) left open by the last run are ended",
                        len(resume.alarms))  # fmt: skip
     service = _Service(plan, stop, resume)
+    # [opcua] checked before any work: a ConfigError naming the file and the key
+    service.opcua_settings = opcua_settings(plan.config_path, cfg, plan.out_dir)
     closing = _Closing()
     with stop_signals():
         try:
@@ -432,6 +473,8 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     ids = IncidentIds(plan.events_db)
     try:
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
+        if service.opcua is not None:  # its Acknowledge, and the restored incidents shown
+            service.opcua.attach(incidents)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=incidents,
                          behaviour=incidents, stop=stop)  # fmt: skip
         return loop.run()
