@@ -476,6 +476,31 @@ def test_acks_both_ways_between_opcua_and_the_console(tmp_path, pair):
         asyncio.run(body(site, served))
 
 
+def test_changes_over_the_bound_are_dropped_counted_and_read_again_from_the_book(tmp_path, pair):
+    async def body(site: Site) -> None:
+        client = await connect(site.url, pair, "vera")
+        try:
+            # one step, five incidents: more changes than the queue holds
+            out = await in_thread(site.run, [enter(1.0, person=p) for p in range(5)])
+            assert site.server.dropped >= 3
+            idx, root = await site_node(client)
+            folder = await root.get_child([f"{idx}:Incidents"])
+
+            async def all_there():
+                names = {(await n.read_browse_name()).Name for n in await folder.get_children()}
+                return names == {f"Incident {e.incident}" for e in out}
+
+            await until(all_there, "every incident's condition, read again from the book")
+            unacked = client.get_node(ua.NodeId("site/UnacknowledgedIncidents", idx))
+            await until(lambda: _equals(unacked, 5), "5 unacknowledged")
+        finally:
+            await client.disconnect()
+
+    with running(tmp_path, queue_size=2) as site:
+        asyncio.run(body(site))
+        assert site.server.counts()["dropped"] == site.server.dropped
+
+
 # -- logins and security --------------------------------------------------------------------
 
 
@@ -504,6 +529,44 @@ def test_anonymous_wrong_password_and_unsecured_connections_are_refused(tmp_path
         asyncio.run(body(site))
     assert "login refused for 'otto'" in caplog.text
     assert "not-his-password" not in caplog.text  # never a password in the log
+
+
+@pytest.mark.slow  # the half-sent messages are closed by the 10 s activation bound
+def test_garbage_and_a_crowd_of_connections_leave_a_client_served(tmp_path, pair):
+    import socket
+
+    async def body(site: Site) -> None:
+        crowd = []
+        for k in range(12):  # more than max_connections (8), each sending garbage
+            s = socket.create_connection(("127.0.0.1", site.server.settings.port), timeout=10)
+            with contextlib.suppress(OSError):  # refused ones may already be closed
+                s.sendall(bytes(range(256)) * 4 if k % 2 else b"HEL\x00\xff\xff\xff\xff" * 64)
+            crowd.append(s)
+
+        async def all_closed() -> bool:  # the server drops each of them by itself
+            for s in crowd:
+                try:
+                    s.settimeout(0.01)
+                    if s.recv(65536):
+                        return False  # an error answer first; the close comes after
+                except TimeoutError:
+                    return False
+                except OSError:
+                    pass
+            return True
+
+        await until(all_closed, "the garbage connections closed by the server")
+        for s in crowd:
+            s.close()
+        client = await connect(site.url, pair, "vera")
+        try:
+            idx, _ = await site_node(client)
+            assert await client.get_node(ua.NodeId("site/Running", idx)).read_value() is True
+        finally:
+            await client.disconnect()
+
+    with running(tmp_path) as site:
+        asyncio.run(body(site))
 
 
 def test_anonymous_when_allowed_browses_but_never_acknowledges(tmp_path, pair):

@@ -130,7 +130,9 @@ class SiteSpace:
         self._camera_up = dict.fromkeys(self.cameras, True)
         self._stalled = False
         self._zone_values: dict[str, tuple[int, bool]] = {}
+        # per zone, the wall times of its occupancy's and its alarm's last change
         self._zone_t: dict[str, float | None] = {}
+        self._alarm_t: dict[str, float | None] = {}
 
     def nid(self, path: str) -> ua.NodeId:
         return ua.NodeId(path, self.idx)
@@ -162,7 +164,7 @@ class SiteSpace:
                 await obj.add_variable(self.nid(f"zone/{z.name}/{name}"),
                                        ua.QualifiedName(name, self.idx), value, vt)  # fmt: skip
             self._zone_values[z.name] = (0, False)
-            self._zone_t[z.name] = None
+            self._zone_t[z.name] = self._alarm_t[z.name] = None
         cams = await site.add_folder(self.nid("site/Cameras"), self.qn("Cameras"))
         for c in self.cameras:
             obj = await cams.add_object(self.nid(f"camera/{c}"), ua.QualifiedName(c, self.idx))
@@ -187,18 +189,24 @@ class SiteSpace:
             return
         self._zone_values[zone] = (occupants, self._zone_values[zone][1])
         self._zone_t[zone] = wall
-        await self._write_zone(zone)
+        await self._write_zone(zone, alarm=False)
 
-    async def _write_zone(self, zone: str, wall: float | None = None) -> None:
+    async def _write_zone(self, zone: str, occupancy: bool = True, alarm: bool = True) -> None:
+        """The zone's occupancy and/or alarm values, each with the time of its own change and
+        the quality its cameras give now."""
         z = self.zones[zone]
-        occupants, alarm = self._zone_values[zone]
+        occupants, alarmed = self._zone_values[zone]
         good = bool(z.cameras) and not self._stalled and all(self._camera_up.get(c, True)
                                                              for c in z.cameras)  # fmt: skip
-        when = wall if wall is not None else self._zone_t[zone]
-        await self.write(f"zone/{zone}/Occupants", occupants, ua.VariantType.UInt32, when, good)
-        await self.write(f"zone/{zone}/Occupied", occupants > 0, ua.VariantType.Boolean, when,
-                         good)  # fmt: skip
-        await self.write(f"zone/{zone}/Alarm", alarm, ua.VariantType.Boolean, when, good)
+        if occupancy:
+            when = self._zone_t[zone]
+            await self.write(f"zone/{zone}/Occupants", occupants, ua.VariantType.UInt32, when,
+                             good)  # fmt: skip
+            await self.write(f"zone/{zone}/Occupied", occupants > 0, ua.VariantType.Boolean,
+                             when, good)  # fmt: skip
+        if alarm:
+            await self.write(f"zone/{zone}/Alarm", alarmed, ua.VariantType.Boolean,
+                             self._alarm_t[zone], good)  # fmt: skip
 
     async def set_camera(self, camera: str, up: bool, wall: float | None) -> None:
         if camera not in self._camera_up:
@@ -221,7 +229,7 @@ class SiteSpace:
                     ) -> None:  # fmt: skip
         """Each (record, wall time of the change, wall_start) as its condition's event, then
         the counts and the zones' alarms; a record equal to the one held is skipped."""
-        touched: set[str] = set()
+        touched: dict[str, float | None] = {}
         for rec, wall, wall_start in records:
             held = self.conditions.get(rec.id)
             if held is not None and held.record == rec:
@@ -230,26 +238,28 @@ class SiteSpace:
                 continue  # never shown open: nothing for a client to remove
             await self._emit(rec, wall, wall_start)
             if rec.zone is not None:
-                touched.add(rec.zone)
+                touched[rec.zone] = wall
         await self._counts(touched)
 
     async def drop(self, rec: IncidentRecord, wall: float | None, wall_start: float | None) -> None:
         """The book dropped it (full): its condition's last event, not retained."""
         if rec.id in self.conditions:
             await self._emit(rec, wall, wall_start, retain=False)
-            await self._counts({rec.zone} if rec.zone else set())
+            await self._counts({rec.zone: wall} if rec.zone else {})
 
-    async def _counts(self, zones: set[str]) -> None:
+    async def _counts(self, zones: dict[str, float | None]) -> None:
+        """The incident counts, and the alarm of `zones` (zone -> wall time of its change)."""
         recs = [c.record for c in self.conditions.values()]
         active = sum(r.state in (ACTIVE, ACKNOWLEDGED) for r in recs)
         unacked = sum(r.state in (ACTIVE, CLEARED) for r in recs)
         await self.write("site/ActiveIncidents", active, ua.VariantType.UInt32)
         await self.write("site/UnacknowledgedIncidents", unacked, ua.VariantType.UInt32)
         alarmed = {r.zone for r in recs if r.zone is not None and r.active}
-        for zone in zones:
+        for zone, wall in zones.items():
             if zone in self.zones and self._zone_values[zone][1] != (zone in alarmed):
                 self._zone_values[zone] = (self._zone_values[zone][0], zone in alarmed)
-                await self._write_zone(zone, wall=time.time())
+                self._alarm_t[zone] = wall
+                await self._write_zone(zone, occupancy=False)
 
     async def _emit(self, rec: IncidentRecord, wall: float | None, wall_start: float | None,
                     retain: bool | None = None) -> None:  # fmt: skip
