@@ -330,3 +330,43 @@ def test_a_log_killed_before_its_tables_were_committed_is_a_fresh_start(tmp_path
     assert Resume.from_log(db).runs == 0
     SqliteSink(db).close()
     assert Resume.from_log(db).runs == 1
+
+
+def test_incidents_waiting_for_a_locked_log_are_kept_and_taken_back_at_the_next_start(
+    tmp_path: Path,
+) -> None:
+    """An incident raised (and published) while the log was locked, then the process gone as
+    after kill -9: the next start takes it back open, and stores its latest record, once."""
+    from stereopose.alarms import AlarmSettings, IncidentBook
+    from stereopose.io.sinks.incidents import IncidentFilters, query_incidents
+    from stereopose.io.sinks.spill import read_spilled_incidents
+
+    db = tmp_path / "events.sqlite"
+    first = SqliteSink(db, busy_s=0.01, wall_start=1_000.0)
+    book = IncidentBook(AlarmSettings(), next_id=iter(range(1, 100)).__next__)
+    enter = Event(1.0, 25, 7, "panel", "energized", "enter", 1.0)
+    up = book.update([enter], 1.0)
+    holder = sqlite3.connect(db, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    try:
+        first.put_incidents([c.incident for c in up.changes])
+        first.write_events([enter])
+        again = book.update([Event(2.0, 50, 7, "panel", "energized", "enter", 2.0)], 2.0)
+        first.put_incidents([c.incident for c in again.changes])
+        first.write_events([])
+        spilled = read_spilled_incidents(db)
+        assert list(spilled) == [up.incidents[0]] and spilled[up.incidents[0]][1] == 1_000.0
+        assert spilled[up.incidents[0]][0].occurrences == 2  # the latest record wins
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    first.db.close()  # gone without a word, its incident still waiting
+    resumed = Resume.from_log(db)
+    assert [(r.id, r.state, r.occurrences) for r, _ in resumed.incidents] == [
+        (up.incidents[0], "active", 2)]  # fmt: skip
+    assert [e.type for _, e in read_spill(db)] == ["enter"]  # the events read as before
+    SqliteSink(db).close()
+    stored = query_incidents(db, IncidentFilters())
+    assert [(i["id"], i["occurrences"]) for i in stored] == [(up.incidents[0], 2)]
+    assert stored[0]["first_wall_t"] == 1_001.0
+    assert not spill_path(db).exists()

@@ -37,7 +37,7 @@ from urllib.request import pathname2url
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.eventdb import read_mark, reading
 from stereopose.io.sinks.incidents import on_clock, open_incidents
-from stereopose.io.sinks.spill import read_spill
+from stereopose.io.sinks.spill import read_spill, read_spilled_incidents
 from stereopose.service.person_ids import PersonIds
 from stereopose.types import Event
 
@@ -161,7 +161,8 @@ class Resume:
                 db.close()
 
         try:
-            return reading(read).with_waiting(read_spill(path))
+            return reading(read).with_waiting(read_spill(path)).with_incidents(
+                read_spilled_incidents(path))  # fmt: skip
         except sqlite3.DatabaseError as e:
             raise StereoposeError(
                 f"{path}: cannot resume from the event log: {e}; move it away to start afresh"
@@ -248,6 +249,16 @@ class Resume:
                     alarms.pop((e.rule, e.person), None)
         return replace(self, next_id=next_id, occupied=tuple(zones.values()),
                        alarms=tuple(alarms.values()))  # fmt: skip
+
+    def with_incidents(self, spilled: dict) -> Resume:
+        """This state with the incident records a run left waiting beside the log (id ->
+        (record, wall_start)): each replaces the log's row of its incident; closed ones go."""
+        if not spilled:
+            return self
+        held = {rec.id: (rec, wall) for rec, wall in self.incidents}
+        held.update(spilled)
+        kept = tuple(held[i] for i in sorted(held) if held[i][0].state != "closed")
+        return replace(self, incidents=kept)
 
     def open_incidents(self, wall_start: float | None) -> list:
         """The incidents the last run left open, their times on the clock starting at

@@ -271,6 +271,7 @@ class SqliteSink(_EventSink):
         # incidents changed since the last store: id -> (record, wall_start of its times),
         # stored with the next events (one per incident: bounded by the book)
         self.incidents: dict[int, tuple[object, float | None]] = {}
+        self._incidents_spilled: dict[int, tuple] = {}  # of those, the ones in the spill file
         self.wall_start = wall_start
         self._spilled = 0  # the first pending events, kept in the spill file too
         self.incomplete: str | None = None
@@ -328,12 +329,17 @@ class SqliteSink(_EventSink):
         self._keep_waiting()
 
     def _keep_waiting(self) -> None:
-        """The events still waiting, kept on disk too (the other sinks have sent them already:
-        a kill now must not lose the only record of them; io.sinks.spill)."""
+        """The events and incident records still waiting, kept on disk too (the other sinks
+        have sent them already: a kill now must not lose the only record of them;
+        io.sinks.spill)."""
         if len(self.pending) > self._spilled and self.spill.add(
             self.run, list(self.pending)[self._spilled :]
         ):
             self._spilled = len(self.pending)
+        fresh = {i: held for i, held in self.incidents.items()
+                 if self._incidents_spilled.get(i) is not held}  # fmt: skip
+        if fresh and self.spill.add_incidents(self.run, list(fresh.values())):
+            self._incidents_spilled.update(fresh)
 
     def _store(self) -> bool:
         """Every pending event in one transaction; whether they are stored."""
@@ -363,7 +369,7 @@ class SqliteSink(_EventSink):
         except sqlite3.Error as e:
             self._failed(e)
             return False
-        if self._spilled and not self._old_spill:
+        if (self._spilled or self._incidents_spilled) and not self._old_spill:
             self.spill.clear()
         self._spilled = 0
         if want is not None:
@@ -372,6 +378,8 @@ class SqliteSink(_EventSink):
         for i, held in stored.items():  # a change made meanwhile stays to be stored
             if self.incidents.get(i) is held:
                 del self.incidents[i]
+        if not self._old_spill:  # the file is gone: what still waits is in it no more
+            self._incidents_spilled.clear()
         self.committed += len(rows)
         if self._error is not None and rows:
             logger.warning("%s: events stored again (%d that had waited)", self.path, len(rows))

@@ -8,6 +8,11 @@ wait, to `<log>.pending.jsonl` (one JSON object a line: `{"run": N, "event": {..
 event as the events contract writes it); the file is emptied once they are stored. The next
 start reads it as part of the log (service.restart: the zones and alarms it leaves open), and
 the next SqliteSink stores its events in the log, each once, then removes the file.
+
+Incident records waiting with them (alarms: a change of an incident the other outputs have
+published) are kept in the same file, `{"run": N, "incident": {...}, "wall_start": W}` (the
+record as the incidents table holds it; the latest line of an incident wins): the next start
+takes back the incidents they leave open, and stores them in the log's incidents table.
 """
 
 from __future__ import annotations
@@ -18,11 +23,14 @@ import sqlite3
 from collections.abc import Sequence
 from pathlib import Path
 
+from stereopose.alarms import IncidentRecord
+from stereopose.alarms.incident import IncidentError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.eventdb import take
+from stereopose.io.sinks.incidents import upsert_incidents
 from stereopose.types import Event
 
-__all__ = ["Spill", "read_spill", "spill_path", "store_spill"]
+__all__ = ["Spill", "read_spill", "read_spilled_incidents", "spill_path", "store_spill"]
 
 logger = logging.getLogger(__name__)
 
@@ -62,6 +70,25 @@ class Spill:
         self._written, self.error = True, None
         return True
 
+    def add_incidents(self, run: int, held: Sequence[tuple[IncidentRecord, float | None]]
+                      ) -> bool:  # fmt: skip
+        """Appends incident records, each (record, wall_start), flushed; whether they are kept."""
+        if not held:
+            return True
+        try:
+            with self.path.open("a", encoding="utf-8") as f:
+                f.write("".join(json.dumps({"run": run, "incident": rec.to_dict(),
+                                            "wall_start": wall}) + "\n"
+                                for rec, wall in held))  # fmt: skip
+        except OSError as e:
+            if self.error is None:
+                logger.error("%s: cannot keep the incidents waiting for the log: %s",
+                             self.path, e.strerror)  # fmt: skip
+            self.error = e.strerror or str(e)
+            return False
+        self._written, self.error = True, None
+        return True
+
     def clear(self) -> None:
         """Every event of the file is stored: the file goes."""
         if self._written:
@@ -72,25 +99,51 @@ class Spill:
             self._written = False
 
 
-def read_spill(log: str | Path) -> list[tuple[int, Event]]:
-    """(run, event) of the file beside the log at `log`, in order ([] when there is none); a
-    line that is not one (a write cut by a kill) is skipped with a warning."""
+def _lines(log: str | Path) -> tuple[Path, list[str]]:
     path = spill_path(log)
     try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        return path, path.read_text(encoding="utf-8", errors="replace").splitlines()
     except FileNotFoundError:
-        return []
+        return path, []
     except OSError as e:
         logger.warning("%s: cannot read the events waiting for the log: %s", path, e.strerror)
-        return []
+        return path, []
+
+
+def read_spill(log: str | Path) -> list[tuple[int, Event]]:
+    """(run, event) of the file beside the log at `log`, in order ([] when there is none); a
+    line that is not one (a write cut by a kill) is skipped with a warning, an incident's line
+    (read_spilled_incidents) without one."""
+    path, lines = _lines(log)
     out = []
     for n, line in enumerate(lines, 1):
         try:
             doc = json.loads(line)
+            if isinstance(doc, dict) and "incident" in doc and "event" not in doc:
+                continue
             out.append((int(doc["run"]), event_from_record(doc["event"])))
         except (ValueError, KeyError, TypeError, IndexError, OverflowError, RecursionError):
             if line.strip():
                 logger.warning("%s:%d: not an event waiting for the log; skipped", path, n)
+    return out
+
+
+def read_spilled_incidents(log: str | Path) -> dict[int, tuple[IncidentRecord, float | None]]:
+    """Incident id -> (record, wall_start) of the file beside the log, the latest line of each;
+    a damaged incident line is skipped with a warning."""
+    path, lines = _lines(log)
+    out: dict[int, tuple[IncidentRecord, float | None]] = {}
+    for n, line in enumerate(lines, 1):
+        try:
+            doc = json.loads(line)
+            if not isinstance(doc, dict) or "incident" not in doc:
+                continue
+            rec = IncidentRecord.from_dict(doc["incident"])
+            wall = doc.get("wall_start")
+            out[int(rec.id)] = (rec, None if wall is None else float(wall))
+        except (IncidentError, ValueError, KeyError, TypeError, IndexError, OverflowError,
+                RecursionError):  # fmt: skip
+            logger.warning("%s:%d: not an incident waiting for the log; skipped", path, n)
     return out
 
 
@@ -99,7 +152,8 @@ def store_spill(db: sqlite3.Connection, log: str | Path) -> int:
     already there, stored before a kill removed the file, is not stored again), with ids from
     the log's mark; then removes the file. How many were stored."""
     waiting = read_spill(log)
-    if not waiting:
+    incidents = read_spilled_incidents(log)
+    if not waiting and not incidents:
         spill_path(log).unlink(missing_ok=True)
         return 0
     runs = {r for (r,) in db.execute("SELECT id FROM runs")}
@@ -118,13 +172,15 @@ def store_spill(db: sqlite3.Connection, log: str | Path) -> int:
             db.execute(f"INSERT INTO events(id, {', '.join(EVENT_COLUMNS)}) "
                        f"VALUES ({placeholders})", (first, *row))  # fmt: skip
             stored += 1
+        if incidents:
+            upsert_incidents(db, incidents.values())
         db.execute("COMMIT")
     except BaseException:
         if db.in_transaction:
             db.execute("ROLLBACK")
         raise
     spill_path(log).unlink(missing_ok=True)
-    if stored:
-        logger.warning("%s: %d event(s) an earlier run could not store are stored now", log,
-                       stored)  # fmt: skip
+    if stored or incidents:
+        logger.warning("%s: %d event(s) and %d incident record(s) an earlier run could not "
+                       "store are stored now", log, stored, len(incidents))  # fmt: skip
     return stored

@@ -83,6 +83,12 @@ export const cameras = () => call("/api/cameras");
 export const zones = () => call("/api/zones");
 export const people = () => call("/api/people");
 export const ack = (id) => call(`/api/events/${encodeURIComponent(id)}/ack`, { method: "POST" });
+export const ackIncident = (id) => call(`/api/incidents/${encodeURIComponent(id)}/ack`, { method: "POST" });
+export const shelveIncident = (id, reason, durationS) => call(
+  `/api/incidents/${encodeURIComponent(id)}/shelve`,
+  { method: "POST", body: { reason, duration_s: durationS } },
+);
+export const alarmRates = () => call("/api/alarm-rates");
 
 /** The query string of history filters: only the ones given. */
 export function query(filters) {
@@ -95,12 +101,14 @@ export function query(filters) {
 }
 
 export const events = (filters = {}) => call(`/api/events${query(filters)}`);
+export const incidents = (filters = {}) => call(`/api/incidents${query(filters)}`);
 export const eventsCsvUrl = (filters = {}) => `/api/events.csv${query(filters)}`;
 
 /**
- * The live channel: `handlers` maps event names (people, event, zones, cameras, ack) to
- * functions of the parsed data; `onState(connected)` hears the link go up and down. A channel
- * the server closed (a 401, a restart) is opened again after checking the session.
+ * The live channel: `handlers` maps event names (people, event, incident, zones, cameras, ack,
+ * closed) to functions of the parsed data; `onState(connected)` hears the link go up and down.
+ * A channel the server closed (a 401, a restart) is opened again after checking the session;
+ * one it ended for another of the user's streams (`closed`) is not opened again by itself.
  */
 export class Live {
   constructor(handlers, onState) {

@@ -1,6 +1,8 @@
 // The camera strip: per camera its live picture (the newest snapshot with skeletons and ids,
 // fetched a few times a second while the page is visible and the camera up) and its health,
-// with a clear DOWN badge.
+// with a clear DOWN badge. A click on a picture opens it large (the camera of a new alarm is
+// opened so by the console); the large view follows the same pictures and closes with its
+// button or Escape.
 
 const PERIOD_MS = 500; // 2 pictures a second per camera
 
@@ -15,12 +17,62 @@ function text(tag, className, content = "") {
 }
 
 export class CameraStrip {
-  constructor(root) {
+  constructor(root, large = null) {
     this.root = root;
     this.cards = new Map(); // name -> {card, img, badge, stats, health, url, loading}
     this.timer = null;
     this.active = true; // the live tab is shown
+    this.large = large; // {dialog, img, title, why, close} or null
+    this.opened = null; // the camera shown large
     document.addEventListener("visibilitychange", () => this.schedule());
+    if (large) {
+      large.close.addEventListener("click", () => this.closeLarge());
+      large.dialog.addEventListener("keydown", (e) => {
+        if (e.key === "Escape") this.closeLarge();
+      });
+      document.addEventListener("keydown", (e) => {
+        if (e.key === "Escape" && this.opened) this.closeLarge();
+      });
+    }
+  }
+
+  /** The camera `name` shown large (why: a line saying why it opened, e.g. the alarm's;
+   * incident: the incident it was opened for, if any). */
+  open(name, why = "", incident = null) {
+    const c = this.cards.get(name);
+    if (!this.large || !c) return;
+    this.opened = name;
+    const { dialog, img, title } = this.large;
+    dialog.dataset.camera = name;
+    if (incident === null) delete dialog.dataset.incident;
+    else dialog.dataset.incident = String(incident);
+    title.textContent = name;
+    this.large.why.textContent = why;
+    img.setAttribute("aria-label", `${name} live picture, large`);
+    this.paint(c.img);
+    for (const card of this.cards.values()) card.card.classList.toggle("opened", card === c);
+    if (!dialog.open) dialog.show(); // not modal: the feed and its Ack stay usable
+  }
+
+  /** The large view's canvas painted with a decoded picture (no second request for it). */
+  paint(picture) {
+    const canvas = this.large && this.large.img;
+    if (!canvas || !picture.naturalWidth) return;
+    if (canvas.width !== picture.naturalWidth || canvas.height !== picture.naturalHeight) {
+      canvas.width = picture.naturalWidth;
+      canvas.height = picture.naturalHeight;
+    }
+    canvas.getContext("2d").drawImage(picture, 0, 0);
+    canvas.dataset.painted = String(Number(canvas.dataset.painted || 0) + 1);
+  }
+
+  closeLarge() {
+    if (!this.large) return;
+    this.opened = null;
+    this.large.dialog.close();
+    delete this.large.dialog.dataset.camera;
+    delete this.large.dialog.dataset.incident;
+    for (const card of this.cards.values()) card.card.classList.remove("opened");
   }
 
   setCameras(cameras) {
@@ -46,6 +98,8 @@ export class CameraStrip {
       const stats = text("span", "camera-stats muted", "");
       caption.append(name, badge, stats);
       card.append(frame, caption);
+      frame.title = `${cam.name}: click to enlarge`;
+      frame.addEventListener("click", () => this.open(cam.name));
       this.root.appendChild(card);
       this.cards.set(cam.name, { card, img, badge, stats, health: null, url: snapshotUrl(cam.name),
         loading: false });
@@ -108,6 +162,7 @@ export class CameraStrip {
           c.img.replaceWith(next);
           c.img = next;
           c.loading = false;
+          if (this.opened === next.dataset.camera) this.paint(next);
         },
         () => {
           c.loading = false;

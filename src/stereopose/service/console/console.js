@@ -3,12 +3,23 @@
 
 import * as api from "./api.js";
 import { CameraStrip } from "./cameras.js";
-import { Feed } from "./feed.js";
+import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
 import { View3D } from "./view3d.js";
 
 const byId = (id) => document.getElementById(id);
+const RATES_MS = 10_000;
+
+function insidePolygon([x, y], polygon) {
+  let inside = false;
+  for (let i = 0, j = polygon.length - 1; i < polygon.length; j = i++) {
+    const [xi, yi] = polygon[i];
+    const [xj, yj] = polygon[j];
+    if ((yi > y) !== (yj > y) && x < ((xj - xi) * (y - yi)) / (yj - yi) + xi) inside = !inside;
+  }
+  return inside;
+}
 
 class Console {
   constructor() {
@@ -16,17 +27,24 @@ class Console {
     this.cameras = [];
     this.zones = [];
     this.floor = new FloorPlan(byId("floor"), byId("floor-info"));
-    this.strip = new CameraStrip(byId("cameras"));
+    this.strip = new CameraStrip(byId("cameras"), {
+      dialog: byId("camera-view"), img: byId("camera-view-picture"), title: byId("camera-view-title"),
+      why: byId("camera-view-why"), close: byId("camera-view-close"),
+    });
     this.view3d = new View3D(byId("view3d"), byId("view3d-info"));
     this.history = new History();
     this.feed = new Feed({
       list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
       bannerAck: byId("alarm-ack"), bannerAckAll: byId("alarm-ack-all"), counter: byId("alarm-count"), mute: byId("mute"),
-      alarmsOnly: byId("feed-alarms-only"),
+      alarmsOnly: byId("feed-alarms-only"), shelveDialog: byId("shelve-dialog"),
     });
+    this.feed.onRaised = (rec) => this.onRaised(rec);
+    this.ratesTimer = null;
     this.live = new api.Live({
       people: (body) => this.onPeople(body),
       event: (e) => this.feed.add(e),
+      incident: (message) => this.onIncident(message),
+      closed: (body) => this.onClosed(body),
       zones: (body) => this.onZones(body.zones || []),
       cameras: (body) => this.onCameras(body.cameras || []),
       ack: (body) => this.feed.acked(body.id, body.ack),
@@ -39,6 +57,9 @@ class Console {
     api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
     byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
     byId("logout").addEventListener("click", () => this.onLogout());
+    byId("link").addEventListener("click", () => {
+      if (this.user && byId("link").classList.contains("ended")) this.live.start();
+    });
     for (const tab of document.querySelectorAll(".tab")) {
       tab.addEventListener("click", () => this.showTab(tab.dataset.tab));
     }
@@ -63,7 +84,9 @@ class Console {
   showLogin(message = "") {
     this.live.stop();
     clearInterval(this.staleTimer);
+    clearInterval(this.ratesTimer);
     this.strip.show(false);
+    this.strip.closeLarge();
     this.view3d.show(false);
     this.feed.sound.sounding(false);
     this.user = null;
@@ -97,8 +120,10 @@ class Console {
   async onLogout() {
     // nothing more asked with this session: the pictures in flight are let land first
     this.live.stop();
+    clearInterval(this.ratesTimer);
     this.strip.show(false);
     await this.strip.idle();
+    await this.ratesPending;
     try {
       await api.logout();
     } catch {
@@ -118,14 +143,18 @@ class Console {
     this.showTab(this.tab);
     clearInterval(this.staleTimer);
     this.staleTimer = setInterval(() => this.checkStale(), 1000);
+    clearInterval(this.ratesTimer);
+    this.ratesTimer = setInterval(() => this.showRates(), RATES_MS);
     try {
-      const [cameras, zones, events, people] = await Promise.all([
-        api.cameras(), api.zones(), api.events({ limit: 100 }), api.people(),
+      const [cameras, zones, events, incidents, people] = await Promise.all([
+        api.cameras(), api.zones(), api.events({ limit: 100 }), api.incidents({ limit: 100 }),
+        api.people(),
       ]);
       this.onCameras(cameras.cameras || [], true);
       this.onZones(zones.zones || []);
-      this.feed.reset(events.events || []);
+      this.feed.reset(incidents.incidents || [], events.events || []);
       this.onPeople(people);
+      this.showRates();
       this.history.search();
     } catch (error) {
       if (!(error instanceof api.ApiError && error.status === 401)) {
@@ -150,6 +179,7 @@ class Console {
 
   onZones(zones) {
     this.zones = zones;
+    this.feed.setZones(zones);
     this.floor.setZones(zones);
     this.view3d.setZones(zones);
     this.history.setZones(zones);
@@ -172,6 +202,83 @@ class Console {
     this.view3d.setCameras(this.cameras);
   }
 
+  /** A live incident change: its feed line, and the alarm-rate panel when one is raised. */
+  onIncident(message) {
+    this.feed.change(message);
+    if (message && message.change === "raised") this.showRates();
+  }
+
+  /** A new incident (a sound and a banner): its camera opened large, on the live tab, unless
+   * the large view shows a more urgent incident not yet acknowledged. */
+  onRaised(rec) {
+    if (this.tab !== "live") return;
+    const shown = this.feed.incidents.get(Number(byId("camera-view").dataset.incident));
+    if (byId("camera-view").open && shown && shown.priority < rec.priority
+      && ["active", "cleared"].includes(shown.state)) return;
+    const camera = this.cameraFor(rec);
+    if (camera) this.strip.open(camera, `alarm: ${describeIncident(rec, this.feed.zoneKinds)}`, rec.id);
+  }
+
+  /** The camera that best shows an incident: its own (a camera's incident), else the up
+   * camera nearest to the person (or the zone) among those whose view on the floor holds it. */
+  cameraFor(rec) {
+    if (rec.camera) return this.cameras.some((c) => c.name === rec.camera) ? rec.camera : null;
+    let point = null;
+    const person = (this.floor.people || []).find((p) => p.id === rec.person);
+    if (person && Array.isArray(person.position)) point = person.position;
+    const zone = this.zones.find((z) => z.name === rec.zone);
+    if (!point && zone && zone.polygon && zone.polygon.length) {
+      point = zone.polygon.reduce((a, p) => [a[0] + p[0] / zone.polygon.length, a[1] + p[1] / zone.polygon.length], [0, 0]);
+    }
+    const up = this.cameras.filter((c) => Array.isArray(c.position) && (!c.health || c.health.state !== "down"));
+    if (!up.length) return null;
+    if (!point) return up[0].name;
+    const distance = (c) => Math.hypot(c.position[0] - point[0], c.position[1] - point[1]);
+    const seeing = up.filter((c) => Array.isArray(c.floor_fov) && c.floor_fov.length >= 3 && insidePolygon(point, c.floor_fov));
+    const pool = seeing.length ? seeing : up;
+    return pool.reduce((best, c) => (distance(c) < distance(best) ? c : best)).name;
+  }
+
+  /** The alarm-rate panel: the operator's load against the flood line (api /api/alarm-rates). */
+  showRates() {
+    // kept, so that a logout lets the one in flight land before the session ends
+    this.ratesPending = this.fetchRates();
+    return this.ratesPending;
+  }
+
+  async fetchRates() {
+    let r;
+    try {
+      r = await api.alarmRates();
+    } catch {
+      return; // the next period tries again
+    }
+    const panel = byId("rates");
+    if (!r.running) {
+      panel.dataset.running = "false";
+      return;
+    }
+    panel.dataset.running = "true";
+    byId("rate-10min").textContent = String(r.notifications_10min);
+    byId("rate-1h").textContent = String(r.notifications_1h);
+    byId("rate-flood").textContent = String(r.flood_line);
+    byId("rate-chattering").textContent = String(r.chattering);
+    byId("rate-standing").textContent = String(r.standing);
+    byId("rate-shelved").textContent = String(r.shelved ?? 0);
+    panel.classList.toggle("flood", !!r.flood);
+    panel.classList.toggle("chattering", r.chattering > 0);
+  }
+
+  /** The server ended this page's live channel for another of the user's (too many open): it
+   * stays closed until the operator asks for it again, so two pages never take turns. */
+  onClosed(body) {
+    this.live.stop();
+    const link = byId("link");
+    link.textContent = "ended: click to reconnect";
+    link.title = body && body.reason ? String(body.reason) : "the live channel was ended";
+    link.className = "link link-down ended";
+  }
+
   onLink(up) {
     if (up && this.linkWasDown && this.user) this.catchUp();
     this.linkWasDown = !up;
@@ -180,13 +287,17 @@ class Console {
     link.className = `link ${up ? "link-up" : "link-down"}`;
   }
 
-  /** The events the feed missed while the live channel was down. */
+  /** The events and incident changes the feed missed while the live channel was down. */
   async catchUp() {
     const after = this.feed.newestId();
-    if (!after) return;
     try {
-      const answer = await api.events({ after_id: after, limit: 1000 });
-      for (const e of [...(answer.events || [])].reverse()) this.feed.add(e);
+      const [events, incidents] = await Promise.all([
+        after ? api.events({ after_id: after, limit: 1000 }) : { events: [] },
+        api.incidents({ limit: 100 }),
+      ]);
+      for (const e of [...(events.events || [])].reverse()) this.feed.add(e);
+      for (const rec of [...(incidents.incidents || [])].reverse()) this.feed.incident(rec, false);
+      this.feed.update();
     } catch {
       // the next reconnection tries again
     }

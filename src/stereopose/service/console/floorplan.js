@@ -1,7 +1,11 @@
 // The live floor plan, an SVG in metres (world x right, y up; SVG y is -y): the cameras with
 // their fields of view on the floor, the zones coloured by state, each person a marker with
 // id, heading arrow and trail. The view fits itself to the zones, cameras and people.
-// Markers carry data-person, data-x, data-y (metres) so their positions can be read.
+// Markers carry data-person, data-x, data-y (metres) so their positions can be read. Each id
+// has its colour (colours.js, as in 3D and the camera pictures); a person with a joint inside
+// an energized zone is drawn red (data-danger="true").
+
+import { idColour } from "./colours.js";
 
 const SVG = "http://www.w3.org/2000/svg";
 const MARGIN_M = 0.8;
@@ -129,8 +133,9 @@ export class FloorPlan {
       g.dataset.x = x.toFixed(3);
       g.dataset.y = y.toFixed(3);
       g.setAttribute("transform", `translate(${x.toFixed(3)},${(-y).toFixed(3)})`);
-      const inAlarm = this.zones.some((z) => z.state === "alarm" && (z.occupants || []).includes(person.id));
+      const inAlarm = inDanger(person, this.zones);
       g.classList.toggle("in-alarm", inAlarm);
+      g.dataset.danger = String(inAlarm);
       g.classList.toggle("flagged", (person.flags || []).length > 0);
       if (finite(person.heading_deg)) {
         arrow.setAttribute("transform", `rotate(${(-person.heading_deg).toFixed(1)})`);
@@ -166,7 +171,10 @@ export class FloorPlan {
     const body = el("g", { class: "body" }, g);
     this.scaleBody(body);
     const arrow = el("path", { class: "heading", d: "M 0.16 -0.1 L 0.55 0 L 0.16 0.1 Z" }, body);
-    el("circle", { class: "person-dot", r: 0.17 }, body);
+    el("circle", { class: "person-halo", r: 0.3 }, body);
+    const dot = el("circle", { class: "person-dot", r: 0.17 }, body);
+    dot.style.setProperty("--id-colour", idColour(id)); // CSSOM: no inline style attribute
+    g.dataset.colour = idColour(id);
     const label = el("text", { class: "person-label", x: 0, y: 0.07 }, body);
     const marker = { g, trail, arrow, label, seenAt: performance.now() };
     this.markers.set(id, marker);
@@ -224,6 +232,14 @@ export class FloorPlan {
   age() {
     return this.lastPeopleAt ? (performance.now() - this.lastPeopleAt) / 1000 : Infinity;
   }
+}
+
+/** Whether the person is in danger: inside an energized zone (a joint in it: the zone's
+ * occupants, or the person's own zones), or an occupant of a zone in alarm. */
+export function inDanger(person, zones) {
+  const mine = new Set(person.zones || []);
+  return zones.some((z) => (z.kind === "energized" && (mine.has(z.name) || (z.occupants || []).includes(person.id)))
+    || (z.state === "alarm" && (z.occupants || []).includes(person.id)));
 }
 
 function centroid(polygon) {

@@ -146,7 +146,11 @@ export class History {
     cell(tr, typeText(e.type));
     cell(tr, e.zone || "");
     cell(tr, e.person !== null && e.person !== undefined && e.person >= 0 ? String(e.person) : "");
-    cell(tr, e.camera || "");
+    // a zone's or a rule's event names no camera: the cameras its clips are of show it
+    const seenBy = [...new Set((e.clips || []).map((c) => clipLabel(clipUrl(c)).replace(/ full$/, "")))];
+    cell(tr, e.camera || seenBy.join(", "), e.camera ? "" : "muted");
+    cell(tr, e.incident !== null && e.incident !== undefined
+      ? `#${e.incident}${e.priority ? ` P${e.priority}` : ""}` : "", "incident");
     cell(tr, ackText(e.ack));
     const clips = document.createElement("span");
     for (const given of e.clips || []) {

@@ -2,14 +2,15 @@
 // first time the view is opened): each person's skeleton, the zones as prisms, the cameras.
 // Redrawn with Plotly.react at a modest rate while the view is shown.
 
+import { ALARM_COLOUR, idColour } from "./colours.js";
+import { inDanger } from "./floorplan.js";
+
 const PERIOD_MS = 500;
 // COCO-17 limbs (joint indices)
 const LIMBS = [
   [0, 1], [0, 2], [1, 3], [2, 4], [5, 6], [5, 7], [7, 9], [6, 8], [8, 10], [5, 11], [6, 12],
   [11, 12], [11, 13], [13, 15], [12, 14], [14, 16],
 ];
-const COLOURS = ["#ff7f0e", "#2ca02c", "#1f77b4", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-  "#bcbd22", "#17becf"];
 const ZONE_COLOURS = { free: "#4caf50", occupied: "#ffb020", alarm: "#ff3b3b" };
 
 let loading = null;
@@ -28,7 +29,8 @@ function loadPlotly() {
   return loading;
 }
 
-const colour = (id) => COLOURS[Math.abs(Number(id)) % COLOURS.length];
+// each id its colour (as on the plan and in the camera pictures); a person in danger red
+const colour = (person, zones) => (inDanger(person, zones) ? ALARM_COLOUR : idColour(person.id));
 
 /** A name as plotly's SVG text (legend, hover, annotations): plotly reads `<b>`, `<a href>`,
  * `<span style>` ... in it as markup (links, and style attributes the page's CSP refuses) and
@@ -36,7 +38,7 @@ const colour = (id) => COLOURS[Math.abs(Number(id)) % COLOURS.length];
 export const plain = (value) => String(value ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;")
   .replace(/>/g, "&gt;");
 
-function skeleton(person) {
+function skeleton(person, zones) {
   const x = [];
   const y = [];
   const z = [];
@@ -51,17 +53,18 @@ function skeleton(person) {
   }
   return {
     type: "scatter3d", mode: "lines", name: `id ${plain(person.id)}`, x, y, z,
-    line: { color: colour(person.id), width: 6 }, hoverinfo: "name",
+    line: { color: colour(person, zones), width: inDanger(person, zones) ? 10 : 6 },
+    hoverinfo: "name", meta: { person: person.id, danger: inDanger(person, zones) },
   };
 }
 
-function heads(people) {
+function heads(people, zones) {
   const shown = people.filter((p) => p.joints && p.joints[0]);
   return {
     type: "scatter3d", mode: "text+markers", name: "ids", showlegend: false,
     x: shown.map((p) => p.joints[0][0]), y: shown.map((p) => p.joints[0][1]),
     z: shown.map((p) => p.joints[0][2] + 0.25), text: shown.map((p) => String(p.id)), // WebGL text: numbers only
-    marker: { size: 3, color: shown.map((p) => colour(p.id)) },
+    marker: { size: 3, color: shown.map((p) => colour(p, zones)) },
     textfont: { color: "#ffffff", size: 14 }, hoverinfo: "skip",
   };
 }
@@ -155,8 +158,8 @@ export class View3D {
     const traces = [
       ...this.zones.map(prism),
       cameraMarkers(this.cameras),
-      ...this.people.map(skeleton),
-      heads(this.people),
+      ...this.people.map((p) => skeleton(p, this.zones)),
+      heads(this.people, this.zones),
     ];
     const layout = {
       uirevision: "keep", // the operator's camera angle stays across updates
