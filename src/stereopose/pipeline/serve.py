@@ -7,7 +7,8 @@ frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
 
 - pose segments `poses/<UTC start>.jsonl.gz` (io.sinks.segments);
 - the event log `events.sqlite` (appended to across restarts), the webhook when
-  [outputs] webhook is set, MQTT when [mqtt] host is set;
+  [outputs] webhook is set, MQTT when [mqtt] host is set, the IEC 60870-5-104 outstation
+  when [iec104] is enabled (scada.iec104; also an incident output);
 - event clips `clips/` (io.sinks.clips) unless [storage] clips = false;
 - the console's live hub (service.live: people, zones, camera pictures for the page);
 - the health state (service.state) and `status.json`, its snapshot every status_interval_s;
@@ -51,6 +52,7 @@ from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import make_detector
 from stereopose.errors import StereoposeError
+from stereopose.extras import require
 from stereopose.fence import FenceMonitor
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
@@ -142,6 +144,7 @@ class _Service:
         self.app = None
         self.db: SqliteSink | None = None
         self.incident_outputs: list[Callable] = []  # each given every step's incident changes
+        self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
         self.console: Console | None = None
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
@@ -265,7 +268,25 @@ class _Service:
             sinks.append(
                 self._alarm_output("mqtt", guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
             )
+        if cfg.iec104.enabled:
+            sinks.append(self._iec104(cfg, guard, wall_start))
         return sinks
+
+    def _iec104(self, cfg: Config, guard, wall_start: float) -> Sink:
+        """The IEC 60870-5-104 outstation (scada.iec104): a sink for the zone, camera and
+        service events, an incident output, `service degraded` from the health answer."""
+        from stereopose.scada.iec104 import Iec104Settings, Outstation
+        from stereopose.scada.points import points_table
+
+        p, s = self.plan, Iec104Settings.from_config(cfg.iec104)
+        station = Outstation(s, points_table(p.site, p.rig, commands=s.commands),
+                             wall_start=wall_start,
+                             status=lambda: self.state.snapshot().status)  # fmt: skip
+        self.iec104 = station
+        self.incident_outputs.append(station.write_changes)
+        self.state.register_queue("iec104", station.queued, lambda: station.dropped)
+        self.probes["iec104"] = station.figures
+        return self._alarm_output("iec104", guard(station, f"IEC 60870-5-104 {s.host}:{s.port}"))
 
     def _alarm_output(self, name: str, sink: Guarded) -> Guarded:
         """`sink` watched by the health state as the alarm output `name` (io.sinks.health)."""
@@ -398,6 +419,8 @@ def serve(
 def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], None] | None
            ) -> ServeResult:  # fmt: skip
     cfg = plan.config
+    if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
+        require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
     detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
                              cfg.detector.conf, cfg.detector.iou, cfg.detector.device,
                              cfg.detector.threads, cfg.detector.precision)  # fmt: skip
@@ -502,6 +525,9 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
                         wall_start=wall_start)  # fmt: skip
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics
+    if service.iec104 is not None:  # the restored incidents, and its commands' way in
+        service.iec104.incidents(book.incidents())
+        service.iec104.acknowledger = step.acknowledge
     if service.app is not None:
         service.app.state.incidents = step
     return step

@@ -1,0 +1,514 @@
+"""serve's IEC 60870-5-104 outstation (controlled station) over c104's Server (lib60870).
+
+    station = Outstation(Iec104Settings.from_config(cfg.iec104), points_table(site, rig),
+                         wall_start=wall_start, status=lambda: state.snapshot().status)
+    station.write(frame)              # a sink of the frame loop: zone, camera, service events
+    station.write_changes(changes)    # an incident output (alarms.book.Change)
+    station.incidents(records)        # the open incidents at start (a restart restored them)
+    station.acknowledger = step.acknowledge   # the commands' way to the incident book
+    station.close()
+
+The points are those of stereopose.scada.points (what `stereopose points` prints), in one
+station of common address `common_address`. Each change of a point's value or quality is sent
+at once as a spontaneous message (cause 3) carrying the time of the event that changed it
+(CP56Time2a, the event's wall time: wall_start + its t, in UTC or the machine's local time as
+`time_tags` says); a general interrogation (C_IC_NA_1) returns every monitoring point as it is
+now, with the time of its last change. A point is invalid (IV) while one of the cameras that
+see what it watches is down, or while the service is stalled; a zone no camera sees is always
+invalid. Cameras count as up until the camera watch says otherwise (camera_down), as serve's
+health does.
+
+The frame loop never waits on the network: `write` and `write_changes` only append to one
+bounded queue (`queue_size`; at the bound the newest item is dropped, counted and logged once
+per burst); the outstation's own thread folds the queue into the points, polls the health
+answer for `service degraded` once a second and hands the changes to c104, whose threads talk
+to the masters.
+
+Clients: a connection from an address outside `allowed_clients` is refused at once (counted,
+logged once per address); at most `max_connections` are open together (c104 refuses the
+rest). Whatever a client sends, lib60870 parses it: a malformed frame closes that client's
+connection only. Clock synchronisation (C_CS_NA_1): confirmed positively, as the standard
+asks of a controlled station, and never applied: the system clock is the machine's (NTP),
+never set by a master. The master's offset from it is kept (`figures()["clock_offset_s"]`) and
+logged as a warning when over CLOCK_WARN_S, since the time tags would disagree with the
+master's clock by that much. Commands (`commands = true`): a single command ON to a zone's or
+a priority's acknowledge point acknowledges each of its unacknowledged incidents (as an
+operator would, by "iec104 master <originator address>"); OFF is refused (negative
+confirmation). Without `commands` no command point exists and a command is answered with an
+unknown address.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import ipaddress
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stereopose.errors import StereoposeError
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.health import OutputHealth
+from stereopose.scada.points import COMMAND, Point, PointsTable
+
+__all__ = ["CLOCK_WARN_S", "Iec104Settings", "Outstation"]
+
+logger = logging.getLogger(__name__)
+
+CLOCK_WARN_S = 1.0  # a master's clock this far from ours is worth a warning
+STATUS_INTERVAL_S = 1.0  # how often the health answer is read for `service degraded`
+TICK_MS = 50  # c104's server loop period (its smallest)
+MAX_LOGGED_ADDRESSES = 100  # refused addresses logged one by one; beyond, only counted
+_UNACKED = ("active", "cleared")
+_SCALED_MAX = 32767  # a scaled value's largest (M_ME_TE_1 holds a 16-bit integer)
+FIGURES = ("queued_max", "dropped", "transmitted", "refused", "commands", "commands_refused",
+           "clock_syncs")  # fmt: skip
+
+
+def _typed(fn: Callable, *, ret: Any, **params: Any) -> Callable:
+    """`fn` with the annotations c104 checks a callback's signature against (as objects: this
+    module's postponed annotations would be strings)."""
+    fn.__annotations__ = {**params, "return": ret}
+    return fn
+
+
+class Iec104Error(StereoposeError):
+    """The outstation cannot start (its port taken, c104 missing)."""
+
+
+@dataclass(frozen=True)
+class Iec104Settings:
+    """What the outstation needs (config.Iec104Config, checked): host, port, common_address,
+    allowed_clients (IPv4 networks), max_connections, commands, time_tags ("utc" or
+    "local"), queue_size."""
+
+    host: str = "127.0.0.1"
+    port: int = 2404
+    common_address: int = 1
+    allowed_clients: tuple[ipaddress.IPv4Network, ...] = (ipaddress.IPv4Network("127.0.0.1"),)
+    max_connections: int = 2
+    commands: bool = False
+    time_tags: str = "utc"
+    queue_size: int = 10_000
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> Iec104Settings:
+        """From [iec104] (config.Iec104Config, whose construction checked every value)."""
+        nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
+        return cls(cfg.host, cfg.port, cfg.common_address, nets, cfg.max_connections,
+                   cfg.commands, cfg.time_tags, cfg.queue_size)  # fmt: skip
+
+    def allows(self, ip: str) -> bool:
+        """Whether a client at `ip` ("a.b.c.d", or "a.b.c.d:port") may connect."""
+        try:
+            addr = ipaddress.IPv4Address(ip.rsplit(":", 1)[0] if ip.count(":") == 1 else ip)
+        except ValueError:
+            return False
+        return any(addr in net for net in self.allowed_clients)
+
+    def stamp(self, wall_t: float) -> dt.datetime:
+        """A time tag (CP56Time2a: c104 writes the datetime's fields) of a Unix time."""
+        if self.time_tags == "local":
+            return dt.datetime.fromtimestamp(wall_t)
+        return dt.datetime.fromtimestamp(wall_t, dt.timezone.utc)
+
+    def unix(self, fields: dt.datetime) -> float:
+        """A master's time (CP56Time2a fields, no zone) as a Unix time, read as time_tags."""
+        if fields.tzinfo is not None:
+            return fields.timestamp()
+        if self.time_tags == "local":
+            return fields.timestamp()
+        return fields.replace(tzinfo=dt.timezone.utc).timestamp()
+
+
+@dataclass
+class _State:
+    """What the points are computed from (the outstation's thread only)."""
+
+    inside: dict[str, set[int]]
+    camera_up: dict[str, bool]
+    stalled: bool = False
+    running: bool = True
+    degraded: bool = False
+    people: int = 0
+
+
+class Outstation(ClosesOnce):
+    """See the module. settings: Iec104Settings; table: the points (scada.points);
+    wall_start: the Unix time of the events' t = 0; status(): the health answer's status
+    ("ok", "degraded", "down"), read on the outstation's thread, or None (never degraded);
+    acknowledger(incident_id, by): the incident book's acknowledge (commands), settable later.
+    Starts serving at once; an Iec104Error when the port cannot be taken."""
+
+    stage = "write"
+
+    def __init__(self, settings: Iec104Settings, table: PointsTable, *, wall_start: float,
+                 status: Callable[[], str] | None = None,
+                 acknowledger: Callable[[int, str], Any] | None = None,
+                 status_interval_s: float = STATUS_INTERVAL_S) -> None:  # fmt: skip
+        try:
+            import c104
+        except ImportError:
+            raise Iec104Error("the IEC 60870-5-104 outstation ([iec104]) needs c104: "
+                              "pip install 'stereopose[scada]'") from None  # fmt: skip
+        self._c104 = c104
+        self.settings, self.table, self.wall_start = settings, table, float(wall_start)
+        self.status, self.acknowledger = status, acknowledger
+        self.status_interval_s = float(status_interval_s)
+        cams = {p.name: True for p in table if p.kind == "camera_up"}
+        zones = {p.name: set() for p in table if p.kind == "zone_occupied"}
+        self._state = _State(zones, cams)  # type: ignore[arg-type]
+        self._records: dict[int, Any] = {}  # open incidents by id (IncidentRecord)
+        self._records_lock = threading.Lock()  # the worker writes, a command reads
+        self._queue: deque[tuple[str, Any]] = deque()
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._sent: dict[int, tuple[Any, bool]] = {}  # ioa -> (value, invalid) last set
+        self._last_people = 0
+        self._burst = 0
+        self._figures = dict.fromkeys(FIGURES, 0)
+        self._clock_offset_s: float | None = None
+        self._refused_logged: set[str] = set()
+        self._server = self._make_server(c104)
+        self._points = self._make_points(c104)
+        self._set_all(time.time())
+        try:
+            self._server.start()
+        except RuntimeError as e:
+            raise Iec104Error(f"IEC 60870-5-104 on {settings.host}:{settings.port}: cannot "
+                              f"listen ({e})") from None  # fmt: skip
+        self._thread = threading.Thread(target=self._run, name="iec104", daemon=True)
+        self._thread.start()
+        logger.info("IEC 60870-5-104 outstation on %s:%d, common address %d, %d points",
+                    settings.host, settings.port, settings.common_address,
+                    len(table))  # fmt: skip
+
+    def __repr__(self) -> str:
+        return f"Outstation({self.settings.host}:{self.settings.port})"
+
+    # --- the frame loop's side: only appends to the bounded queue ---------------------------
+
+    def write(self, frame: FrameResult) -> None:
+        wall = self.wall_start + float(frame.t)
+        if frame.events:
+            self._put("events", tuple(frame.events))
+        n = len(getattr(frame.people3d, "ids", ()))
+        if n != self._last_people:
+            self._last_people = n
+            self._put("people", (wall, n))
+
+    def write_changes(self, changes: Sequence[Any]) -> None:
+        """An incident output: each step's changes (alarms.book.Change)."""
+        if changes:
+            self._put("changes", tuple(changes))
+
+    def incidents(self, records: Iterable[Any]) -> None:
+        """The incidents open now (IncidentRecord), e.g. restored at a restart."""
+        self._put("records", tuple(records))
+
+    def _put(self, kind: str, item: Any) -> None:
+        with self._cond:
+            if len(self._queue) >= self.settings.queue_size:
+                self._figures["dropped"] += 1
+                if self._burst == 0:
+                    logger.warning("IEC 60870-5-104: %d changes waiting, the bound: dropping "
+                                   "new ones until the outstation catches up",
+                                   self.settings.queue_size)  # fmt: skip
+                self._burst += 1
+                return
+            self._queue.append((kind, item))
+            self._figures["queued_max"] = max(self._figures["queued_max"], len(self._queue))
+            self._cond.notify()
+
+    # --- the outstation's thread -------------------------------------------------------------
+
+    def _run(self) -> None:
+        next_status = 0.0
+        while True:
+            with self._cond:
+                if not self._queue and not self._stopping:
+                    self._cond.wait(timeout=max(0.0, next_status - time.monotonic()))
+                items = list(self._queue)
+                self._queue.clear()
+                stopping = self._stopping
+                if not items and self._burst:
+                    logger.warning("IEC 60870-5-104: %d changes were dropped while the queue "
+                                   "was full", self._burst)  # fmt: skip
+                    self._burst = 0
+            for kind, item in items:
+                try:
+                    self._apply(kind, item)
+                except Exception:  # a bad item never stops the outstation
+                    logger.exception("IEC 60870-5-104: cannot apply a %s update", kind)
+            if time.monotonic() >= next_status:
+                next_status = time.monotonic() + self.status_interval_s
+                self._poll_status()
+            if stopping:
+                return
+
+    def _apply(self, kind: str, item: Any) -> None:
+        s = self._state
+        if kind == "events":
+            for e in item:
+                self._event(e)
+                self._refresh(self.wall_start + float(e.t))
+        elif kind == "people":
+            wall, s.people = item
+            self._refresh(wall)
+        elif kind == "changes":
+            for c in item:
+                self._record(c.incident)
+                self._refresh(self.wall_start + float(c.t))
+        elif kind == "records":
+            for r in item:
+                self._record(r)
+            self._refresh(time.time())
+
+    def _event(self, e: Any) -> None:
+        s = self._state
+        if e.kind == "camera" and e.camera in s.camera_up:
+            if e.type == "camera_down":
+                s.camera_up[e.camera] = False
+            elif e.type == "camera_up":
+                s.camera_up[e.camera] = True
+        elif e.kind == "service":
+            if e.type == "service_stalled":
+                s.stalled = True
+            elif e.type == "service_resumed":
+                s.stalled = False
+        elif e.zone in s.inside:
+            if e.type == "enter":
+                s.inside[e.zone].add(int(e.person))
+            elif e.type == "exit":
+                s.inside[e.zone].discard(int(e.person))
+
+    def _record(self, r: Any) -> None:
+        with self._records_lock:
+            if r.state == "closed":
+                self._records.pop(r.id, None)
+            else:
+                self._records[r.id] = r
+
+    def _poll_status(self) -> None:
+        if self.status is None:
+            return
+        try:
+            degraded = self.status() != "ok"
+        except Exception as e:  # the health answer failing is no reason to stop
+            logger.debug("IEC 60870-5-104: cannot read the health state: %s", e)
+            return
+        if degraded != self._state.degraded:
+            self._state.degraded = degraded
+            self._refresh(time.time())
+
+    # --- points ------------------------------------------------------------------------------
+
+    def _values(self) -> dict[int, tuple[Any, bool]]:
+        """ioa -> (value, invalid) of every monitoring point now."""
+        s = self._state
+        with self._records_lock:
+            records = list(self._records.values())
+        zone_alarm = {r.zone for r in records if r.active and r.zone is not None}
+        rule_alarm = {r.rule for r in records if r.active and r.rule is not None}
+        unacked = sum(r.state in _UNACKED for r in records)
+        now = {
+            "service_running": s.running and not s.stalled,
+            "service_degraded": s.degraded,
+            "people": s.people,
+            "unacknowledged": unacked,
+        }
+        out = {}
+        for p in self.table.monitored:
+            if p.kind in now:
+                value = now[p.kind]
+            elif p.kind == "camera_up":
+                value = s.camera_up.get(p.name, True)
+            elif p.kind == "zone_occupied":
+                value = bool(s.inside.get(p.name))
+            else:  # zone_alarm, rule_alarm
+                value = p.name in (zone_alarm if p.kind == "zone_alarm" else rule_alarm)
+            out[p.ioa] = (value, self._invalid(p))
+        return out
+
+    def _invalid(self, p: Point) -> bool:
+        s = self._state
+        if p.unseen:
+            return True
+        if p.kind in ("service_running", "service_degraded", "unacknowledged"):
+            return False
+        return s.stalled or any(not s.camera_up.get(c, True) for c in p.cameras)
+
+    def _refresh(self, wall_t: float) -> None:
+        """Set and send spontaneously every point whose value or quality changed, tagged at
+        wall_t (the time of what changed it)."""
+        for ioa, vq in self._values().items():
+            if self._sent.get(ioa) != vq:
+                self._set(ioa, vq, wall_t)
+                try:
+                    self._points[ioa].transmit(cause=self._c104.Cot.SPONTANEOUS)
+                except Exception as e:  # c104 refusing one message never stops the others
+                    logger.warning("IEC 60870-5-104: cannot send point %d: %s", ioa, e)
+                self._figures["transmitted"] += 1
+
+    def _set_all(self, wall_t: float) -> None:
+        for ioa, vq in self._values().items():
+            self._set(ioa, vq, wall_t)
+
+    def _set(self, ioa: int, vq: tuple[Any, bool], wall_t: float) -> None:
+        c104 = self._c104
+        value, invalid = vq
+        quality = c104.Quality.Invalid if invalid else c104.Quality()
+        stamp = self.settings.stamp(wall_t)
+        point = self._points[ioa]
+        if point.type == c104.Type.M_ME_TE_1:
+            n = max(-_SCALED_MAX, min(_SCALED_MAX, int(value)))
+            point.info = c104.ScaledInfo(actual=c104.Int16(n), quality=quality, recorded_at=stamp)
+        else:
+            point.info = c104.SingleInfo(on=bool(value), quality=quality, recorded_at=stamp)
+        self._sent[ioa] = vq
+
+    # --- c104's side: the server, its callbacks (c104's threads) -----------------------------
+
+    def _make_server(self, c104: Any) -> Any:
+        s = self.settings
+        server = c104.Server(ip=s.host, port=s.port, tick_rate_ms=TICK_MS,
+                             max_connections=s.max_connections)  # fmt: skip
+
+        def on_connect(server, ip):
+            if s.allows(ip):
+                return True
+            self._refuse(ip)
+            return False
+
+        def on_clock_sync(server, ip, date_time):
+            self._clock_sync(ip, date_time)
+            return c104.ResponseState.SUCCESS
+
+        server.on_connect(callable=_typed(on_connect, server=c104.Server, ip=str, ret=bool))
+        server.on_clock_sync(callable=_typed(on_clock_sync, server=c104.Server, ip=str,
+                                             date_time=dt.datetime,
+                                             ret=c104.ResponseState))  # fmt: skip
+        return server
+
+    def _make_points(self, c104: Any) -> dict[int, Any]:
+        station = self._server.add_station(common_address=self.settings.common_address)
+        types = {"M_SP_TB_1": c104.Type.M_SP_TB_1, "M_ME_TE_1": c104.Type.M_ME_TE_1,
+                 "C_SC_NA_1": c104.Type.C_SC_NA_1}  # fmt: skip
+        points = {}
+        for p in self.table:
+            point = station.add_point(io_address=p.ioa, type=types[p.type])
+            if point is None:
+                raise Iec104Error(f"IEC 60870-5-104: point {p.ioa} cannot be made")
+            if p.type == COMMAND:
+                point.on_receive(callable=self._command_handler(c104, p))
+            points[p.ioa] = point
+        return points
+
+    def _command_handler(self, c104: Any, p: Point) -> Callable:
+        def on_command(point, previous_info, message):
+            try:
+                ok = bool(point.value) and self._acknowledge(p, message.originator_address)
+            except Exception:  # a failing acknowledgement is a negative confirmation
+                logger.exception("IEC 60870-5-104: command to point %d failed", p.ioa)
+                ok = False
+            self._figures["commands" if ok else "commands_refused"] += 1
+            return c104.ResponseState.SUCCESS if ok else c104.ResponseState.FAILURE
+
+        return _typed(on_command, point=c104.Point, previous_info=c104.Information,
+                      message=c104.IncomingMessage, ret=c104.ResponseState)  # fmt: skip
+
+    def _acknowledge(self, p: Point, originator: int) -> bool:
+        """Acknowledge the unacknowledged incidents of the command's zone or priority."""
+        ack = self.acknowledger
+        if ack is None:
+            return False
+        with self._records_lock:
+            records = list(self._records.values())
+        if p.kind == "ack_zone":
+            ids = [r.id for r in records if r.state in _UNACKED and r.zone == p.name]
+        else:
+            ids = [r.id for r in records if r.state in _UNACKED and str(r.priority) == p.name]
+        by = f"iec104 master {originator}"
+        for i in ids:
+            try:
+                ack(i, by)
+            except StereoposeError as e:  # closed meanwhile: nothing left to acknowledge
+                logger.info("IEC 60870-5-104: incident %d: %s", i, e)
+        logger.info("IEC 60870-5-104: %s acknowledged %d incident(s) by point %d", by,
+                    len(ids), p.ioa)  # fmt: skip
+        return True
+
+    def _refuse(self, ip: str) -> None:
+        self._figures["refused"] += 1
+        host = ip.rsplit(":", 1)[0]
+        if host not in self._refused_logged and len(self._refused_logged) < MAX_LOGGED_ADDRESSES:
+            self._refused_logged.add(host)
+            logger.warning("IEC 60870-5-104: connection from %s refused: not in "
+                           "iec104.allowed_clients", host)  # fmt: skip
+
+    def _clock_sync(self, ip: str, fields: dt.datetime) -> None:
+        try:
+            offset = self.settings.unix(fields) - time.time()
+        except (ValueError, OverflowError, OSError):
+            return
+        self._figures["clock_syncs"] += 1
+        first = self._clock_offset_s is None
+        self._clock_offset_s = offset
+        if abs(offset) > CLOCK_WARN_S and (first or self._figures["clock_syncs"] % 100 == 1):
+            logger.warning("IEC 60870-5-104: the master at %s is %+.1f s from this machine's "
+                           "clock (not applied: the time tags keep this machine's clock; "
+                           "check NTP, and iec104.time_tags)", ip.rsplit(":", 1)[0],
+                           offset)  # fmt: skip
+
+    # --- reading, closing --------------------------------------------------------------------
+
+    def figures(self) -> dict:
+        """Connections open, refused, points sent, commands, clock syncs, the queue."""
+        with self._cond:
+            queued = len(self._queue)
+        f = dict(self._figures)
+        f.update(queued=queued, clock_offset_s=self._clock_offset_s,
+                 connections=self._server.open_connection_count,
+                 active_connections=self._server.active_connection_count)  # fmt: skip
+        return f
+
+    def queued(self) -> int:
+        with self._cond:
+            return len(self._queue)
+
+    @property
+    def dropped(self) -> int:
+        return self._figures["dropped"]
+
+    def health(self) -> OutputHealth:
+        """Not ok once the server or the outstation's thread has stopped; waiting: the
+        changes not yet folded into the points (a master not connected is no fault here: the
+        master connects to the outstation, and interrogates once it does)."""
+        waiting = self.queued()
+        if not self._thread.is_alive() or not self._server.is_running:
+            return OutputHealth(False, waiting, "the IEC 60870-5-104 outstation stopped")
+        return OutputHealth(True, waiting)
+
+    def _close(self) -> list[Path]:
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+        self._thread.join(timeout=5.0)
+        if self._thread.is_alive():
+            logger.warning("IEC 60870-5-104: the outstation's thread did not stop; left behind")
+        else:
+            self._state.running = False  # the masters see the service stop
+            self._refresh(time.time())
+            time.sleep(2 * TICK_MS / 1000)  # c104 sends on its next ticks
+        self._server.stop()
+        f = self.figures()
+        logger.log(logging.WARNING if f["dropped"] else logging.INFO,
+                   "IEC 60870-5-104 closed: %d points sent, %d dropped, %d refused connections, "
+                   "%d commands", f["transmitted"], f["dropped"], f["refused"],
+                   f["commands"])  # fmt: skip
+        return []
