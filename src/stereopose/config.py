@@ -222,17 +222,18 @@ class CameraSource:
 
 @_schema("detector")
 class DetectorConfig:
-    backend: Literal["onnx", "ultralytics"] = "onnx"
+    backend: Literal["onnx", "openvino", "ultralytics"] = "onnx"
     model: str | None = None  # a local .onnx or .pt file; default: yolo11n-pose from the cache
     # model input, long side
     imgsz: int = number(640, multiple_of=32, ge=32, le=8192)
     conf: float = number(0.25, ge=0.0, le=1.0)  # person score threshold
     iou: float = number(0.7, ge=0.0, le=1.0)  # NMS overlap threshold
-    device: str = "cpu"  # cpu, cuda, cuda:N or auto
+    device: str = "cpu"  # cpu, cuda, cuda:N or auto; openvino: cpu, gpu, gpu.N or auto
     # inference threads (default: all cores)
     threads: int | None = number(None, integer=True, ge=1, le=1024)
-    # ONNX model weights: "fp32" or "int8" (the INT8-quantised model)
-    precision: Literal["fp32", "int8"] = "fp32"
+    # "fp32", "int8" (the INT8-quantised model; onnx only) or "bf16" (openvino on a
+    # CPU with bfloat16 instructions)
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
 
 
 @_schema("input")

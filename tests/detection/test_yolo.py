@@ -116,7 +116,7 @@ def test_detection_opens_no_network_socket(videos, monkeypatch):
     monkeypatch.setattr(socket, "create_connection", lambda *a, **k: connect(socket.socket(), a))
     with CameraSet(videos[:2], max_frames=1) as cams:
         images = list(next(iter(cams)).images.values())
-    for backend in ("onnx", "ultralytics"):
+    for backend in ("onnx", "openvino", "ultralytics"):
         found = make_detector(backend).detect(images)
         assert all(len(p) >= 2 for p in found)
     assert attempts == []

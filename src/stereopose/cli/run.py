@@ -47,7 +47,14 @@ def _detect(args: argparse.Namespace) -> int:
 
     check_options(args, InputConfig, DetectorConfig)  # --fps, --max-frames, --imgsz, ...
     detector = make_detector(
-        args.backend, args.model, args.imgsz, args.conf, args.iou, args.device, args.threads
+        args.backend,
+        args.model,
+        args.imgsz,
+        args.conf,
+        args.iou,
+        args.device,
+        args.threads,
+        args.precision,
     )
     progress = rate_progress("detecting")
     with progress:

@@ -1,8 +1,10 @@
 """Person detection: YOLO-Pose backends and readers/writers of 2D keypoint files.
 
 ``make_detector`` builds a backend from local model files only: ``onnx`` (ONNX Runtime, the
-default) or ``ultralytics`` (PyTorch). Neither imports anything heavy until it is asked for.
-``precision = "int8"`` runs the ONNX model quantised to 8-bit integers (detection.models).
+default), ``openvino`` (OpenVINO, on the same ONNX model) or ``ultralytics`` (PyTorch). None
+imports anything heavy until it is asked for. ``precision = "int8"`` (onnx) runs the ONNX model
+quantised to 8-bit integers (detection.models); ``"bf16"`` (openvino on a CPU that has it) runs
+in bfloat16.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from stereopose.detection.models import (
     models_dir,
 )
 
-BACKENDS = ("onnx", "ultralytics")
-PRECISIONS = ("fp32", "int8")
+BACKENDS = ("onnx", "openvino", "ultralytics")
+PRECISIONS = ("fp32", "bf16", "int8")
 
 __all__ = ["BACKENDS", "ModelError", "PoseDetector", "Poses", "make_detector"]
 
@@ -38,22 +40,24 @@ def make_detector(
 ) -> PoseDetector:
     """A pose detector. model: a local .onnx or .pt file (default: yolo11n-pose from the cache).
 
-    The onnx backend given a .pt file exports it to ONNX once, into the cache. precision
-    "int8" (onnx backend only): the model quantised once into the cache (``<stem>-int8.onnx``
-    beside it; a model already quantised is taken as it is).
+    The onnx and openvino backends given a .pt file export it to ONNX once, into the cache.
+    precision "int8" (onnx only): the model quantised once into the cache (``<stem>-int8.onnx``
+    beside it; a model already quantised is taken as it is); "bf16": openvino only.
     """
     if precision not in PRECISIONS:
         raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8" and backend != "onnx":
+        # OpenVINO runs ONNX Runtime's INT8 model, but loses people with it (person scores
+        # about 0.3 where ONNX Runtime gives 0.9: benchmarks/results/openvino.md)
         raise ModelError(f"precision int8 needs the onnx backend, not {backend!r}")
+    if precision == "bf16" and backend != "openvino":
+        raise ModelError(f"precision bf16 needs the openvino backend, not {backend!r}")
     if not isinstance(imgsz, int) or imgsz < 32 or imgsz % 32:
         raise ModelError(f"imgsz must be a positive multiple of 32, got {imgsz}")
     if not 0 <= conf <= 1 or not 0 <= iou <= 1:
         raise ModelError(f"conf and iou must be in [0, 1], got {conf} and {iou}")
     kwargs = {"imgsz": imgsz, "conf": conf, "iou": iou, "device": device, "threads": threads}
-    if backend == "onnx":
-        from stereopose.detection.yolo_onnx import OnnxPoseDetector
-
+    if backend in ("onnx", "openvino"):
         if model is None:
             path = default_onnx()
         else:
@@ -63,6 +67,12 @@ def make_detector(
                 path = onnx if onnx.is_file() else export_onnx(path, onnx)
         if precision == "int8":
             path = _int8(path, model is None)
+        if backend == "openvino":
+            from stereopose.detection.yolo_openvino import OpenVinoPoseDetector
+
+            return OpenVinoPoseDetector(path, precision=precision, **kwargs)
+        from stereopose.detection.yolo_onnx import OnnxPoseDetector
+
         return OnnxPoseDetector(path, **kwargs)
     if backend == "ultralytics":
         from stereopose.detection.yolo_ultralytics import UltralyticsPoseDetector

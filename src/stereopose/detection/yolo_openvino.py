@@ -1,0 +1,162 @@
+"""YOLO-Pose on OpenVINO: the same ONNX model, letterbox, decode and NMS as the onnx backend.
+
+OpenVINO (Intel's runtime, the one Frigate uses on CPUs and Intel GPUs) reads the ONNX model
+itself; nothing is converted on disk. precision: "fp32" runs every layer in 32-bit floats
+(the onnx backend's results to a fraction of a pixel); "bf16" lets the CPU run in bfloat16,
+which OpenVINO chooses by itself on CPUs that have it (AVX512_BF16, AMX), faster and a little
+less exact (benchmarks/results/openvino.md). The device is "cpu", "gpu" (an Intel
+GPU: "gpu.0", "gpu.1", ...) or "auto" (OpenVINO picks).
+"""
+
+from __future__ import annotations
+
+import ast
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from stereopose.detection.base import (
+    Poses,
+    check_image,
+    decode,
+    group_by_shape,
+    letterbox_for,
+    letterbox_image,
+    to_blob,
+)
+from stereopose.detection.models import ModelError, check_weights
+from stereopose.skeleton import NUM_JOINTS
+
+logger = logging.getLogger(__name__)
+
+_HINTS = {"fp32": "f32", "bf16": "bf16"}  # INFERENCE_PRECISION_HINT
+
+
+def ov_device(device: str) -> str:
+    """OpenVINO's device name of a [detector] device."""
+    d = device.strip().lower()
+    if d == "cpu":
+        return "CPU"
+    if d == "auto":
+        return "AUTO"
+    if d == "gpu" or (d.startswith("gpu.") and d[4:].isdigit()):
+        return d.upper()
+    raise ModelError(f"device {device!r}: the openvino backend runs on cpu, gpu, gpu.N or auto")
+
+
+class OpenVinoPoseDetector:
+    """A YOLO pose model in ONNX (output (B, 56, N), no NMS inside) compiled by OpenVINO."""
+
+    name = "openvino"
+
+    def __init__(
+        self,
+        model: str | Path,
+        imgsz: int = 640,
+        conf: float = 0.25,
+        iou: float = 0.7,
+        max_det: int = 300,
+        device: str = "cpu",
+        threads: int | None = None,
+        precision: str = "fp32",
+    ) -> None:
+        self.model = check_weights(Path(model))
+        if self.model.suffix != ".onnx":
+            raise ModelError(f"{self.model}: the openvino backend needs an .onnx model")
+        if precision not in _HINTS:
+            raise ModelError(f"precision {precision!r}: the openvino backend runs fp32 or "
+                             "bf16")  # fmt: skip
+        try:
+            import openvino as ov
+        except ImportError:
+            raise ModelError("the openvino backend needs OpenVINO: "
+                             "pip install 'stereopose[openvino]'") from None  # fmt: skip
+        self.device = ov_device(device)
+        core = ov.Core()
+        have = core.available_devices
+        if self.device != "AUTO" and self.device.split(".")[0] not in {
+            d.split(".")[0] for d in have
+        }:
+            raise ModelError(f"device {device!r}: OpenVINO finds no such device here "
+                             f"(available: {', '.join(have) or 'none'})")  # fmt: skip
+        if precision == "bf16" and self.device == "CPU":
+            caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+            if "BF16" not in caps:
+                raise ModelError("precision bf16: this CPU has no bfloat16 instructions "
+                                 "(AVX512_BF16 or AMX); use fp32")  # fmt: skip
+        try:
+            net = core.read_model(str(self.model))
+        except Exception as e:  # OpenVINO raises its own RuntimeError kinds on a bad file
+            raise ModelError(f"{self.model}: not a readable ONNX model: {e}") from None
+        if len(net.inputs) != 1 or net.inputs[0].get_partial_shape().rank.get_length() != 4:
+            raise ModelError(f"{self.model}: expected one image input (B, 3, H, W)")
+        meta = _metadata(net)
+        kpt = ast.literal_eval(meta["kpt_shape"]) if "kpt_shape" in meta else [NUM_JOINTS, 3]
+        if list(kpt) != [NUM_JOINTS, 3]:
+            raise ModelError(f"{self.model}: keypoint shape {kpt}, expected COCO-17 [17, 3]")
+        self.stride = int(meta.get("stride", 32))
+        shape = net.inputs[0].get_partial_shape()
+        self.dynamic = shape[2].is_dynamic or shape[3].is_dynamic
+        self.fixed = None if self.dynamic else (shape[2].get_length(), shape[3].get_length())
+        self.batch_dynamic = shape[0].is_dynamic
+        config: dict[str, str] = {"PERFORMANCE_HINT": "LATENCY"}
+        n = threads or int(os.environ.get("STEREOPOSE_THREADS", 0))
+        if n and self.device == "CPU":
+            config["INFERENCE_NUM_THREADS"] = str(n)
+        if precision == "bf16" and self.device.startswith("GPU"):
+            raise ModelError("precision bf16 is for CPUs; an Intel GPU runs fp32 (or its own "
+                             "f16 with device auto)")  # fmt: skip
+        if self.device != "AUTO":  # a GPU runs f16 unless told
+            config["INFERENCE_PRECISION_HINT"] = _HINTS[precision]
+        try:
+            self.compiled = core.compile_model(net, self.device, config)
+        except Exception as e:
+            raise ModelError(f"{self.model}: OpenVINO cannot compile it for {self.device}: "
+                             f"{e}") from None  # fmt: skip
+        self.request = self.compiled.create_infer_request()
+        try:
+            ran = self.compiled.get_property("INFERENCE_PRECISION_HINT").get_type_name()
+        except Exception:  # a device without the property (AUTO before it chose)
+            ran = "unknown"
+        self.precision = precision
+        self.runs_in = ran  # what the device compiled it to: f32, bf16, f16
+        self.imgsz = imgsz
+        self.conf, self.iou, self.max_det = conf, iou, max_det
+        self.providers = [f"OpenVINO {ov.__version__.split('-')[0]} {self.device} {ran}"]
+        logger.debug("openvino: %s on %s, inference precision %s", self.model.name,
+                     self.device, ran)  # fmt: skip
+
+    def _infer(self, blob: np.ndarray) -> np.ndarray:
+        if self.batch_dynamic or len(blob) == 1:
+            return np.array(self.request.infer([blob])[0])
+        return np.concatenate([np.array(self.request.infer([b[None]])[0]) for b in blob])
+
+    def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
+        images = [check_image(im, i) for i, im in enumerate(images)]
+        results: list[Poses] = [Poses.empty()] * len(images)
+        for shape, idx in group_by_shape(images).items():
+            if self.dynamic:
+                lb = letterbox_for(shape, self.imgsz, self.stride, auto=True)
+            else:
+                lb = letterbox_for(shape, self.fixed, self.stride, auto=False)
+            blob = to_blob([letterbox_image(images[i], lb) for i in idx])
+            out = self._infer(blob)
+            for k, i in enumerate(idx):
+                results[i] = decode(out[k], lb, self.conf, self.iou, self.max_det)
+        return results
+
+
+def _metadata(net) -> dict[str, str]:
+    """The ONNX model's metadata (Ultralytics writes kpt_shape, stride) as OpenVINO keeps it."""
+    out: dict[str, str] = {}
+    try:
+        info = net.get_rt_info()["framework"]
+        for key in ("kpt_shape", "stride"):
+            if key in info:
+                out[key] = str(net.get_rt_info(["framework", key]).astype(str))
+    except Exception:  # no metadata: the COCO-17 defaults
+        return {}
+    return out
