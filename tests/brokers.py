@@ -4,6 +4,7 @@ and a real paho subscriber that records what it gets."""
 from __future__ import annotations
 
 import getpass
+import json
 import os
 import shutil
 import signal
@@ -162,6 +163,72 @@ class Subscriber:
         """The payloads received on `topic`, in order."""
         with self._lock:
             return [m.payload for m in self.messages if m.topic == topic]
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+class LogReceiver:
+    """A control room's side of the protocol (docs/mqtt.md): stores each event by (site, id)
+    once, accepts an event whose prev is at most its mark and raises the mark to its id,
+    confirms the mark (retained), and asks for a replay after its mark when an event's prev
+    lies beyond it. `lose(n)`: drop the next n events unseen, as a bridge cut would."""
+
+    def __init__(self, port: int, mark: int = 0, replay_on_start: bool = True,
+                 base: str = "stereopose/north%2Fyard/log") -> None:  # fmt: skip
+        self.base = base
+        self.stored: dict[int, dict] = {}
+        self.received = 0
+        self.replays = 0
+        self.mark = mark
+        self._lose = 0
+        self._lock = threading.Lock()
+        self._ready = threading.Event()
+        self.replay_on_start = replay_on_start
+        self.client = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+        self.client.reconnect_delay_set(0.05, 0.2)
+        self.client.on_connect = self._on_connect
+        self.client.on_subscribe = lambda *_: self._ready.set()
+        self.client.on_message = self._on_message
+        self.client.connect_async("127.0.0.1", port, keepalive=10)
+        self.client.loop_start()
+        wait_until(self._ready.is_set, "the receiver's subscription")
+
+    def _on_connect(self, client, userdata, flags, reason, props) -> None:
+        if reason.is_failure:
+            return
+        client.subscribe(f"{self.base}/events", qos=1)
+        self._confirm()
+        if self.replay_on_start:
+            client.publish(f"{self.base}/replay", json.dumps({"after_id": self.mark}), qos=1)
+
+    def _confirm(self) -> None:
+        self.client.publish(f"{self.base}/confirmed", json.dumps({"events": self.mark}), qos=1,
+                            retain=True)  # fmt: skip
+
+    def _on_message(self, client, userdata, msg) -> None:
+        e = json.loads(msg.payload)
+        with self._lock:
+            self.received += 1
+            if self._lose:
+                self._lose -= 1
+                return
+            if e["prev"] > self.mark:  # some were lost before it: ask again after the mark
+                self.replays += 1
+                client.publish(f"{self.base}/replay", json.dumps({"after_id": self.mark}), qos=1)
+                return
+            self.stored.setdefault(e["id"], e)
+            self.mark = max(self.mark, e["id"])
+        self._confirm()
+
+    def lose(self, n: int) -> None:
+        with self._lock:
+            self._lose = n
+
+    def ids(self) -> list[int]:
+        with self._lock:
+            return sorted(self.stored)
 
     def close(self) -> None:
         self.client.disconnect()

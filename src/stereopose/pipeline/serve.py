@@ -145,6 +145,7 @@ class _Service:
         self.db: SqliteSink | None = None
         self.incident_outputs: list[Callable] = []  # each given every step's incident changes
         self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
+        self.outbox = None  # the event log as an outbox over MQTT (service.outbox)
         self.console: Console | None = None
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
@@ -268,6 +269,12 @@ class _Service:
             sinks.append(
                 self._alarm_output("mqtt", guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
             )
+            if cfg.mqtt.outbox:
+                from stereopose.service.outbox import LogOutbox
+
+                log = EventLog(p.events_db, p.out_dir / "clips")
+                self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s)
+                self.probes["outbox"] = self.outbox.figures
         if cfg.iec104.enabled:
             sinks.append(self._iec104(cfg, guard, wall_start))
         return sinks
@@ -337,6 +344,8 @@ class _Service:
         """The maintainer, the console and the server, each within its bound."""
         if self.opcua is not None:
             self.opcua.close()  # once (a sink of the loop closes it first)
+        if self.outbox is not None:
+            self.outbox.close()
         if self.maintainer is not None and not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
         if self.console is not None:

@@ -1,0 +1,76 @@
+"""The event log as an outbox in a real `stereopose serve` on the looped real demo, with a
+real mosquitto and a receiver that confirms what it stores: after a kill -9 of the service and
+a restart, the receiver holds every event of events.sqlite, each once, with the ids of the
+log; a stop's last events go out with the next start."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import pytest
+from test_serve import _start, _stop  # the same serve process and stop
+
+from brokers import Broker, LogReceiver, free_port
+from stereopose.pipeline.demo import write_serve_demo_config
+from waiting import wait_until
+
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]
+
+
+def _ids(db) -> list[int]:
+    if not db.exists():
+        return []
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+    try:
+        return [i for (i,) in con.execute("SELECT id FROM events ORDER BY id")]
+    except sqlite3.OperationalError:  # not made yet
+        return []
+    finally:
+        con.close()
+
+
+def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
+    broker = Broker(tmp_path / "broker").start()
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
+                                     imgsz=320)  # fmt: skip
+    config.write_text(config.read_text().replace(
+        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n'
+        "outbox_resend_s = 2\n\n[serve]\n", 1))  # fmt: skip
+    db, log = tmp_path / "data" / "events.sqlite", tmp_path / "serve.log"
+    rx = LogReceiver(broker.port, base="stereopose/demo/log")
+    try:
+        proc = _start(config, log)
+        try:
+            wait_until(lambda: len(_ids(db)) >= 3, "events in the log", timeout_s=120,
+                       poll_s=0.5)  # fmt: skip
+            wait_until(lambda: set(_ids(db)[:3]) <= set(rx.ids()), "them at the receiver",
+                       timeout_s=30)  # fmt: skip
+        finally:
+            proc.kill()
+            proc.wait(timeout=10)
+        first_run = _ids(db)
+        received_before = rx.received
+        proc = _start(config, log)
+        try:
+            wait_until(lambda: len(_ids(db)) >= len(first_run) + 3, "events of the new run",
+                       timeout_s=120, poll_s=0.5)  # fmt: skip
+        finally:
+            rc = _stop(proc, log)
+        assert rc == 0, log.read_text()
+        # the stop sent what the log held; a kill left nothing unsent for ever: the receiver
+        # holds every event of the log, each once, as the log numbers them
+        proc = _start(config, log)
+        try:
+            wait_until(lambda: rx.ids() == _ids(db), "every event of the log at the receiver",
+                       timeout_s=60)  # fmt: skip
+        finally:
+            _stop(proc, log)
+        stored = rx.stored
+        assert all(stored[i]["site"] == "demo" and stored[i]["id"] == i for i in stored)
+        assert len(_ids(db)) > len(first_run) > 0 and rx.received > received_before
+        status = json.loads((tmp_path / "data" / "status.json").read_text())
+        assert status["outbox"]["published"] >= 1 and status["outbox"]["malformed"] == 0
+    finally:
+        rx.close()
+        broker.stop()
