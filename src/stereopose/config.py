@@ -320,6 +320,16 @@ class MqttConfig:
     outbox_resend_s: float = number(30.0, ge=0.0, le=DAY_S)
 
 
+@_schema("control_room")
+class ControlRoomConfig:
+    """`stereopose control-room` (stereopose.controlroom, docs/control-room.md)."""
+
+    # the store: an SQLite file (relative to `output`; empty: <output>/control.sqlite)
+    database: str = ""
+    # a site with no message for this long is shown offline
+    offline_after_s: float = number(90.0, gt=0.0, le=DAY_S)
+
+
 @_schema("iec104")
 class Iec104Config:
     """serve's IEC 60870-5-104 outstation (stereopose.scada.iec104, docs/scada.md); needs the
@@ -463,6 +473,7 @@ class Config:
     iec104: Iec104Config = field(default_factory=Iec104Config)
     opcua: OpcuaConfig = field(default_factory=OpcuaConfig)
     storage: StorageConfig = field(default_factory=StorageConfig)
+    control_room: ControlRoomConfig = field(default_factory=ControlRoomConfig)
 
 
 def _check_value(value: Any, tp: Any, where: str) -> Any:

@@ -36,6 +36,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "the always-on service: cameras for ever, events out, health and metrics over HTTP",
         "stereopose.cli.serve:_serve",
     ),
+    "control-room": (
+        "one control room for many sites: their events over the central broker, stored once",
+        "stereopose.cli.control_room:_control_room",
+    ),
     "users": (
         "the operator console's users of a service: add, list, remove, passwd",
         "stereopose.cli.users:_users",
@@ -170,6 +174,9 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     )
     _add_serve(parsers["serve"])
     _add_points(parsers["points"])
+    parsers["control-room"].add_argument(
+        "config", type=Path, help="the control room's configuration (output, [serve], [mqtt], "
+        "[control_room])")  # fmt: skip
     _add_users(parsers["users"])
     it = parsers["init"]
     it.add_argument(

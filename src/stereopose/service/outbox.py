@@ -208,7 +208,7 @@ class LogOutbox:
                 self._confirmed_at = time.monotonic()
             room = self.inflight - len(self._unacked)
             cursor = self._cursor
-        while room > 0 and not self._stop.is_set():
+        while room > 0:
             try:
                 rows = self.log.after(cursor, limit=min(PAGE, room))
             except StereoposeError as e:  # the log locked or being recovered: next time
@@ -253,11 +253,24 @@ class LogOutbox:
         return f  # fmt: skip
 
     def close(self, timeout_s: float = 5.0) -> None:
-        """Stop sending (what the broker has not acknowledged is sent again by the next run,
-        after the confirmed mark) and disconnect."""
+        """Send what the log holds beyond the cursor, waiting for the broker's acknowledgement
+        at most `timeout_s` (a service closes this after its last events are stored), then
+        disconnect; what is left is sent by the next run, after the confirmed mark."""
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        try:
+            while time.monotonic() < deadline and self._connected:
+                self._send()
+                with self._lock:
+                    waiting = len(self._unacked - self._acked)
+                    cursor = self._cursor
+                if not waiting and cursor >= self.log.last_id():
+                    break
+                time.sleep(0.02)
+        except StereoposeError as e:  # the log unreadable at the end: the next run sends it
+            logger.warning("event outbox: cannot send the last events: %s", e)
         try:
             self.client.disconnect()
         finally:

@@ -1,0 +1,158 @@
+"""The control room's HTTP API, with the site console's login, roles and hardening.
+
+- `GET /api/health` (open): `{"status", "broker", "sites": {state: n}, "ingest": {...}}`;
+- `GET /metrics` (open): `stereopose_controlroom_*` in Prometheus' text format;
+- `POST /api/login`, `POST /api/logout`, `GET /api/me`: the site console's (service.api.auth),
+  over the control room's own `users.json` (`stereopose users add ... --config CONTROL.toml`);
+- `GET /api/sites` (viewer): `{"sites": [{"site", "state", "last_seen", "cameras",
+  "cameras_up", "people", "open_incidents", "events", "mark"}]}`;
+- `GET /api/events?site=S&after_id=N&limit=L` (viewer): `{"events": [{"site", "id", ...}]}`
+  in (site, id) order, a page after `after_id`.
+
+Every answer is JSON; bodies, headers and connections are bounded, and Host names checked, as
+the site service's are (service.limits, service.hosts, service.connections).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from typing import Annotated
+
+from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, Response
+from prometheus_client import CollectorRegistry
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+from stereopose import __version__
+from stereopose.controlroom.store import MAX_LIMIT, StoreError
+from stereopose.service import error_answers
+from stereopose.service.api import auth
+from stereopose.service.app import _internal_error
+from stereopose.service.auth import Viewer
+from stereopose.service.hosts import HostCheck
+from stereopose.service.limits import MAX_BODY_BYTES, RequestLimits
+from stereopose.service.metrics import CONTENT_TYPE, exposition
+
+__all__ = ["create_control_app"]
+
+STATES = ("live", "offline", "degraded", "unknown")
+_I64 = 2**63 - 1
+
+router = APIRouter()
+
+
+def _room(request: Request):
+    return request.app.state.room
+
+
+@router.get("/api/health")
+def health(request: Request, response: Response) -> dict:
+    room = _room(request)
+    f = room.ingest.figures()
+    try:
+        by_state = {s: 0 for s in STATES}
+        for row in room.store.sites():
+            by_state[row.state if row.state in by_state else "unknown"] += 1
+        store_ok = True
+    except StoreError:
+        by_state, store_ok = {}, False
+    ok = f["connected"] and store_ok
+    response.headers["Cache-Control"] = "no-store"
+    return {"status": "ok" if ok else "degraded", "broker": f["connected"], "store": store_ok,
+            "sites": by_state, "ingest": f}  # fmt: skip
+
+
+@router.get("/api/sites")
+def sites(request: Request, session: Viewer) -> dict:
+    room = _room(request)
+    try:
+        rows = room.store.sites()
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be read") from e
+    out = []
+    for r in rows:
+        h = r.health or {}
+        out.append({"site": r.site, "state": r.state, "last_seen": r.last_seen,
+                    "cameras": h.get("cameras"), "cameras_up": h.get("cameras_up"),
+                    "people": h.get("people"), "open_incidents": h.get("open_incidents"),
+                    "events": room.store.count(r.site), "mark": r.mark})  # fmt: skip
+    return {"sites": out}
+
+
+@router.get("/api/events")
+def events(request: Request, session: Viewer,
+           site: Annotated[str | None, Query(max_length=200)] = None,
+           after_id: Annotated[int, Query(ge=0, le=_I64)] = 0,
+           limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> dict:  # fmt: skip
+    try:
+        return {"events": _room(request).store.events(site, after_id, limit)}
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be read") from e
+
+
+@router.get("/metrics", response_class=Response)
+def metrics(request: Request) -> Response:
+    return Response(exposition(request.app.state.metrics_registry), media_type=CONTENT_TYPE,
+                    headers={"Cache-Control": "no-store"})  # fmt: skip
+
+
+class _Collector:
+    def __init__(self, room) -> None:
+        self.room = room
+
+    def collect(self):
+        f = self.room.ingest.figures()
+        g = GaugeMetricFamily("stereopose_controlroom_sites", "sites by state", labels=["state"])
+        counts = {s: 0 for s in STATES}
+        try:
+            for row in self.room.store.sites():
+                counts[row.state if row.state in counts else "unknown"] += 1
+        except StoreError:
+            pass
+        for s, n in counts.items():
+            g.add_metric([s], n)
+        yield g
+        yield GaugeMetricFamily("stereopose_controlroom_messages_per_second",
+                                "messages in per second (recent)",
+                                value=f["messages_per_s"])  # fmt: skip
+        for name, key, doc in (("events_stored", "stored", "events stored"),
+                               ("duplicates_dropped", "duplicates", "events received again and "
+                                "not stored twice"),
+                               ("gaps", "gaps", "events whose prev showed some lost on the way"),
+                               ("replays", "replays", "replays asked of sites"),
+                               ("malformed", "malformed", "messages that were not events"),
+                               ("dropped", "dropped", "messages dropped at the queue's bound "
+                                "(sent again by their sites)")):  # fmt: skip
+            yield CounterMetricFamily(f"stereopose_controlroom_{name}", doc, value=f[key])
+        lag = GaugeMetricFamily("stereopose_controlroom_lag_seconds",
+                                "seconds since each site's last message",
+                                labels=["site"])  # fmt: skip
+        for site, s in self.room.ingest.lag_s().items():
+            lag.add_metric([site], s)
+        yield lag
+
+    def describe(self):
+        return []
+
+
+def create_control_app(room, *, allowed_hosts: Iterable[str] | None = None,
+                       max_body_bytes: int = MAX_BODY_BYTES) -> FastAPI:  # fmt: skip
+    """The app over `room` (its `store`, `ingest` and `console`: service.web.Console for the
+    login)."""
+    app = FastAPI(title="stereopose control room", version=__version__, debug=False,
+                  docs_url=None, redoc_url=None, openapi_url=None,
+                  swagger_ui_oauth2_redirect_url=None)  # fmt: skip
+    app.state.room = room
+    app.state.console = room.console
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Collector(room))
+    app.state.metrics_registry = registry
+    app.state.started = time.time()
+    app.add_exception_handler(Exception, _internal_error)
+    error_answers.add_handlers(app)
+    if allowed_hosts is not None:
+        app.add_middleware(HostCheck, allowed=tuple(allowed_hosts))
+    app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
+    app.include_router(router)
+    app.include_router(auth.router)
+    return app

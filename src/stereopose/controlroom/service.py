@@ -1,0 +1,119 @@
+"""`stereopose control-room CONFIG.toml`: the ingest, the store and the HTTP API of one control
+room, until SIGINT or SIGTERM.
+
+The configuration reads like a site's: `output` (the control room's folder: its store
+`control.sqlite`, its `users.json`), `[serve] host port certificate key allowed_hosts`,
+`[mqtt] host port username password(_file) tls ca_file topic_prefix` (the central broker),
+and `[control_room]` (`database`, `offline_after_s`). Everything is checked before anything
+starts; a bad value is exit 2 naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from stereopose.config import Config, load_config
+from stereopose.controlroom.ingest import Ingest
+from stereopose.controlroom.store import ControlStore
+from stereopose.errors import ConfigError
+
+__all__ = ["ControlRoom", "plan_control_room", "run_control_room"]
+
+logger = logging.getLogger(__name__)
+
+STORE = "control.sqlite"
+
+
+@dataclass(frozen=True)
+class ControlPlan:
+    config_path: Path
+    config: Config
+    out_dir: Path
+    database: Path
+    mqtt: object  # MqttSettings
+    http: object  # ServeSettings
+
+
+def plan_control_room(config_path: str | Path) -> ControlPlan:
+    from stereopose.pipeline.serve_setup import _mqtt, _resolve, _settings, _tls
+    from stereopose.service.server import ServeSettings
+
+    path = Path(config_path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: configuration file not found")
+    cfg = load_config(path)
+    base = path.resolve().parent
+    if not cfg.mqtt.host:
+        raise ConfigError(f"{path}: mqtt.host: the control room needs the central broker")
+    mqtt = _mqtt(path, base, cfg)
+    db = cfg.control_room.database
+    if db.startswith(("postgresql:", "postgres:")):
+        raise ConfigError(f"{path}: control_room.database: PostgreSQL is not supported by "
+                          "this version; give an SQLite file (or leave it empty)")  # fmt: skip
+    out_dir = _resolve(base, cfg.output)
+    database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
+    certificate, key = _tls(path, base, cfg)
+    http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
+                     certificate=certificate, key=key)  # fmt: skip
+    return ControlPlan(path, cfg, out_dir, database, mqtt, http)
+
+
+class ControlRoom:
+    """The running parts: store, ingest, console (the login), and the HTTP server."""
+
+    def __init__(self, plan: ControlPlan) -> None:
+        from stereopose.controlroom.app import create_control_app
+        from stereopose.io.writing import make_folder
+        from stereopose.service.auth import Sessions
+        from stereopose.service.hosts import allowed_hosts
+        from stereopose.service.server import Server
+        from stereopose.service.users import UserStore
+        from stereopose.service.web import Console
+
+        self.plan = plan
+        make_folder(plan.out_dir)
+        self.store = ControlStore(plan.database)
+        users = UserStore.in_folder(plan.out_dir)
+        self.console = Console(users=users, sessions=Sessions(users))
+        hosts = allowed_hosts(plan.http.host, plan.config.serve.allowed_hosts)
+        app = create_control_app(self, allowed_hosts=hosts)
+        hint = f"stereopose users add NAME --role admin --config {plan.config_path}"
+        self.server = Server(app, plan.http, users=users.count, users_hint=hint)
+        self.ingest: Ingest | None = None
+        self.server.start()
+        self.url = self.server.url
+        self.ingest = Ingest(plan.mqtt, self.store,
+                             offline_after_s=plan.config.control_room.offline_after_s)  # fmt: skip
+
+    def close(self) -> None:
+        if self.ingest is not None:
+            self.ingest.close()
+        self.server.stop()
+        self.store.close()
+
+
+def run_control_room(config_path: str | Path, stop: threading.Event | None = None,
+                     on_ready=None) -> None:  # fmt: skip
+    from stereopose.pipeline.private import private_files, tighten
+    from stereopose.pipeline.serve_parts import quiet_signals, stop_signals
+
+    plan = plan_control_room(config_path)
+    stop = stop or threading.Event()
+    with private_files():
+        if plan.out_dir.exists():
+            tighten(plan.out_dir)
+        with stop_signals():
+            room = ControlRoom(plan)
+            try:
+                if on_ready is not None:
+                    on_ready(room.url, plan)
+                while not stop.wait(0.5):
+                    pass
+            except KeyboardInterrupt:
+                pass
+            finally:
+                with quiet_signals():
+                    room.close()

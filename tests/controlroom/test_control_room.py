@@ -1,0 +1,234 @@
+"""`stereopose control-room` as a real process against a real mosquitto: sites (each a real
+event log published by its outbox, and one served demo) stored centrally, each (site, id)
+once, across a SIGKILL of the control room, a broker restart and a site away; its API behind
+the console's login; a site stopped shown offline; bad configurations exit 2."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from brokers import Broker, free_port
+from stereopose.controlroom.store import ControlStore
+from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.mqtt import MqttSettings
+from stereopose.service.eventlog import EventLog
+from stereopose.service.outbox import LogOutbox
+from stereopose.types import Event
+from waiting import wait_until
+
+ENV = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1")
+
+
+class Site:
+    """A site's event log (a real SqliteSink) and its outbox to the broker."""
+
+    def __init__(self, folder: Path, name: str, port: int) -> None:
+        self.name, self.k = name, 0
+        self.sink = SqliteSink(folder / f"{name}.sqlite", "site.toml", "test", wall_start=1.8e9)
+        self.log = EventLog(folder / f"{name}.sqlite")
+        self.box = LogOutbox(MqttSettings(host="127.0.0.1", port=port, site=name,
+                                          reconnect_min_s=0.05, reconnect_max_s=0.2),
+                             self.log, resend_s=1.0)  # fmt: skip
+
+    def write(self, n: int) -> None:
+        evs = []
+        for _ in range(n):
+            self.k += 1
+            evs.append(Event(t=self.k / 25, frame=self.k, person=self.k % 2, zone="bus",
+                             kind="energized", type="enter", onset_t=self.k / 25))  # fmt: skip
+        self.sink.write_events(evs)
+
+    def ids(self) -> list[int]:
+        return [e["id"] for e in self.log.after(0, limit=100_000)]
+
+    def close(self) -> None:
+        self.box.close()
+        self.sink.close()
+
+
+def _config(folder: Path, broker_port: int, http_port: int, extra: str = "") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "control.toml"
+    path.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
+                    f'host = "127.0.0.1"\nport = {broker_port}\n{extra}')  # fmt: skip
+    return path
+
+
+def _add_user(config: Path) -> None:
+    add = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "add", "vera",
+                          "--role", "viewer", "--config", str(config)], input="vera-password\n",
+                         text=True, capture_output=True, env=ENV, timeout=60)  # fmt: skip
+    assert add.returncode == 0, add.stderr
+
+
+def _start(config: Path, log: Path) -> subprocess.Popen:
+    with open(log, "ab") as f:
+        cmd = [sys.executable, "-m", "stereopose.cli", "control-room", str(config)]
+        return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=ENV)
+
+
+def _client(http_port: int) -> httpx.Client:
+    c = httpx.Client(base_url=f"http://127.0.0.1:{http_port}", timeout=30)
+
+    def up() -> bool:
+        try:
+            return c.get("/api/health").status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    wait_until(up, "the control room's API", timeout_s=60, poll_s=0.2)
+    r = c.post("/api/login", json={"username": "vera", "password": "vera-password"})
+    assert r.status_code == 200, r.text
+    c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+    return c
+
+
+def _central(c: httpx.Client, site: str) -> list[int]:
+    ids, after = [], 0
+    while True:  # every page, in id order
+        page = c.get("/api/events", params={"site": site, "after_id": after, "limit": 7}).json()
+        got = [e["id"] for e in page["events"]]
+        assert all(e["site"] == site for e in page["events"])
+        if not got:
+            return ids
+        ids += got
+        after = got[-1]
+
+
+@pytest.mark.slow
+def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_path):
+    broker = Broker(tmp_path / "broker").start()
+    http_port = free_port()
+    config = _config(tmp_path / "room", broker.port, http_port)
+    _add_user(config)
+    log = tmp_path / "room.log"
+    a, b = Site(tmp_path, "north", broker.port), Site(tmp_path, "south/yard", broker.port)
+    a.write(5)  # before the control room exists: it asks for them (a gap after its mark 0)
+    proc = _start(config, log)
+    try:
+        c = _client(http_port)
+        assert httpx.get(f"http://127.0.0.1:{http_port}/api/sites").status_code == 401
+        a.write(10)
+        b.write(8)
+        wait_until(lambda: _central(c, "north") == a.ids(), "north's events", timeout_s=30)
+        wait_until(lambda: _central(c, "south/yard") == b.ids(), "south's events", timeout_s=30)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        a.write(20)  # while the control room is dead
+        broker.restart()
+        b.write(4)
+        proc = _start(config, log)
+        c = _client(http_port)
+        a.write(3)
+        wait_until(lambda: _central(c, "north") == a.ids(), "north after the kill", timeout_s=30)
+        wait_until(lambda: _central(c, "south/yard") == b.ids(), "south after the restart",
+                   timeout_s=30)  # fmt: skip
+        sites = {s["site"]: s for s in c.get("/api/sites").json()["sites"]}
+        assert set(sites) == {"north", "south/yard"}
+        assert sites["north"]["events"] == len(a.ids()) == 38
+        assert sites["north"]["mark"] == a.ids()[-1] and sites["north"]["state"] == "live"
+        health = c.get("/api/health").json()
+        assert health["status"] == "ok" and health["broker"] is True
+        metrics = c.get("/metrics").text
+        assert 'stereopose_controlroom_sites{state="live"} 2.0' in metrics
+        assert "stereopose_controlroom_duplicates_dropped_total" in metrics
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+        a.close()
+        b.close()
+        broker.stop()
+    assert rc == 0, log.read_text()
+    store = ControlStore(tmp_path / "room" / "data" / "control.sqlite")
+    try:  # each (site, id) once, exactly the sites' logs
+        assert [e["id"] for e in store.events("north", 0, 1000)] == a.ids()
+        assert [e["id"] for e in store.events("south/yard", 0, 1000)] == b.ids()
+    finally:
+        store.close()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [('[control_room]\ndatabase = "postgresql://db/fleet"\n', "PostgreSQL is not supported"),
+     ("[control_room]\noffline_after_s = -1\n", "control_room.offline_after_s"),
+     ("[control_room]\nhost = 1\n", "unknown key")],
+)  # fmt: skip
+def test_a_bad_configuration_is_exit_2_naming_the_key(tmp_path, extra, message):
+    config = _config(tmp_path, free_port(), free_port(), extra)
+    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
+                       capture_output=True, text=True, env=ENV, timeout=60)  # fmt: skip
+    assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_no_broker_configured_is_exit_2(tmp_path):
+    config = tmp_path / "control.toml"
+    config.write_text('output = "data"\n')
+    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
+                       capture_output=True, text=True, env=ENV, timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "mqtt.host" in r.stderr, r.stderr
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(tmp_path):
+    import sqlite3
+
+    from stereopose.pipeline.demo import write_serve_demo_config
+
+    broker = Broker(tmp_path / "broker").start()
+    http_port = free_port()
+    room_config = _config(tmp_path / "room", broker.port, http_port)
+    _add_user(room_config)
+    site_config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
+                                          imgsz=320)  # fmt: skip
+    site_config.write_text(site_config.read_text().replace(
+        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n'
+        "[serve]\n", 1))  # fmt: skip
+    db = tmp_path / "data" / "events.sqlite"
+
+    def site_ids() -> list[int]:
+        if not db.exists():
+            return []
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+        try:
+            return [i for (i,) in con.execute("SELECT id FROM events ORDER BY id")]
+        except sqlite3.OperationalError:
+            return []
+        finally:
+            con.close()
+
+    room = _start(room_config, tmp_path / "room.log")
+    with open(tmp_path / "serve.log", "ab") as f:
+        serve = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve",
+                                  str(site_config)], stdout=f, stderr=subprocess.STDOUT,
+                                 env=ENV)  # fmt: skip
+    try:
+        c = _client(http_port)
+        wait_until(lambda: len(site_ids()) >= 3, "the site's events", timeout_s=120, poll_s=0.5)
+        wait_until(lambda: set(site_ids()[:3]) <= set(_central(c, "demo")),
+                   "them in the control room", timeout_s=30)  # fmt: skip
+        site = {s["site"]: s for s in c.get("/api/sites").json()["sites"]}["demo"]
+        assert site["state"] == "live"
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()
+
+        def state() -> str:
+            return {s["site"]: s for s in c.get("/api/sites").json()["sites"]}["demo"]["state"]
+
+        wait_until(lambda: state() == "offline", "the site offline", timeout_s=30)
+        # what the site stored, to its last event at the stop, is all there, each once
+        wait_until(lambda: _central(c, "demo") == site_ids(), "every event of the site",
+                   timeout_s=30)  # fmt: skip
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        room.send_signal(signal.SIGTERM)
+        room.wait(timeout=30)
+        broker.stop()
