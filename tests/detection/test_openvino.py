@@ -75,7 +75,7 @@ def test_bf16_finds_the_same_people_within_a_few_pixels(frames, reference):
     found = det.detect(frames)
     assert [len(p) for p in found] == [len(p) for p in reference]
     # bfloat16 keeps 8 bits of mantissa: joints move by a few pixels of a 1088x1920 frame
-    # (benchmarks/openvino.py measures what that does to the 3D joints)
+    # (benchmarks/backends.py measures what that does to the 3D joints)
     for a, b in zip(reference, found, strict=True):
         assert 0.0 < _matched(a, b) < 12.0
 

@@ -48,7 +48,7 @@ def make_detector(
         raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8" and backend != "onnx":
         # OpenVINO runs ONNX Runtime's INT8 model, but loses people with it (person scores
-        # about 0.3 where ONNX Runtime gives 0.9: benchmarks/results/openvino.md)
+        # about 0.3 where ONNX Runtime gives 0.9: benchmarks/results/backends.md)
         raise ModelError(f"precision int8 needs the onnx backend, not {backend!r}")
     if precision == "bf16" and backend != "openvino":
         raise ModelError(f"precision bf16 needs the openvino backend, not {backend!r}")

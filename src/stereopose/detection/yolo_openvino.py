@@ -4,7 +4,7 @@ OpenVINO (Intel's runtime, the one Frigate uses on CPUs and Intel GPUs) reads th
 itself; nothing is converted on disk. precision: "fp32" runs every layer in 32-bit floats
 (the onnx backend's results to a fraction of a pixel); "bf16" lets the CPU run in bfloat16,
 which OpenVINO chooses by itself on CPUs that have it (AVX512_BF16, AMX), faster and a little
-less exact (benchmarks/results/openvino.md). The device is "cpu", "gpu" (an Intel
+less exact (benchmarks/results/backends.md). The device is "cpu", "gpu" (an Intel
 GPU: "gpu.0", "gpu.1", ...) or "auto" (OpenVINO picks).
 """
 
