@@ -43,14 +43,15 @@ class Broker:
     """mosquitto with its config, persistence and log in `folder`; not started until `start`.
 
     users: name -> password (then anonymous clients are refused). tls: (cert, key) files to
-    listen with TLS. Retained messages and persistent sessions survive `restart` (the broker
-    saves them when it stops)."""
+    listen with TLS. extra: more configuration lines (an acl_file, a bridge). Retained messages
+    and persistent sessions survive `restart` (the broker saves them when it stops)."""
 
     def __init__(
         self,
         folder: Path,
         users: dict[str, str] | None = None,
         tls: tuple[Path, Path] | None = None,
+        extra: tuple[str, ...] = (),
     ) -> None:
         self.binary = require_mosquitto()
         self.folder = folder
@@ -80,6 +81,7 @@ class Broker:
             lines.append("allow_anonymous true")
         if tls:
             lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
+        lines += list(extra)  # an ACL, a bridge, ...
         self.config = folder / "mosquitto.conf"
         self.config.write_text("\n".join(lines) + "\n")
         self.log = folder / "mosquitto.log"
