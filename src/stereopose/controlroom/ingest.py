@@ -2,8 +2,11 @@
 the site's mark confirmed back (service.outbox's protocol, docs/mqtt.md#the-event-log-outbox),
 and each site's state from its availability and its last message.
 
-Subscriptions under the central broker's `<prefix>/+/`: `log/events` (QoS 1) and `available`
-(retained: `online`, or `offline` from a clean stop or the site's last will). paho's thread
+Subscriptions under the central broker's `<prefix>/+/`: `log/events` (QoS 1), `available`
+(retained: `online`, or `offline` from a clean stop or the site's last will) and
+`log/heartbeat` (the site's last id and clock every 10 s: what the previous heartbeat
+announced and is still not stored is asked for again; the clock's offset is kept and logged
+beyond CLOCK_WARN_S). paho's thread
 only appends what comes to a bounded queue (at the bound a message is dropped and counted: its
 site sends it again, since it is not confirmed); the ingest's own thread takes the queue every
 `batch_s`, applies the protocol per site in arrival order (an event whose `prev` is at most
@@ -35,6 +38,7 @@ __all__ = ["Ingest"]
 logger = logging.getLogger(__name__)
 
 QUEUE = 100_000  # messages waiting for the ingest's thread at most
+CLOCK_WARN_S = 5.0  # a site's clock this far from ours is logged
 _MAX_ID = 2**63 - 1
 
 
@@ -57,10 +61,15 @@ class Ingest:
         self._asked: dict[str, float] = {}  # site -> when a replay was last asked for
         self._seen: dict[str, float] = {}  # site -> its last message (Unix time)
         self._available: dict[str, str] = {}
+        self._state: dict[str, str] = {}  # site -> the state last written to the store
+        self.clock_offsets: dict[str, float] = {}  # site -> its clock minus ours (s)
+        self._clock_warned: set[str] = set()
+        self._announced: dict[str, int] = {}  # site -> the last id its last heartbeat gave
         self.counts = {"messages": 0, "stored": 0, "duplicates": 0, "gaps": 0, "replays": 0,
-                       "malformed": 0, "dropped": 0, "store_errors": 0}  # fmt: skip
+                       "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0}  # fmt: skip
         self._rate: deque[tuple[float, int]] = deque(maxlen=64)  # (time, messages) samples
         self.connected = False
+        self.subscribed = False  # the broker confirmed the subscriptions of this connection
         self.client = self._make_client()
         self._thread = threading.Thread(target=self._run, name="control-ingest", daemon=True)
         self.client.connect_async(settings.host, settings.port, keepalive=settings.keepalive_s)
@@ -82,7 +91,12 @@ class Ingest:
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
+        c.on_subscribe = self._on_subscribe
         return c
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any,
+                      props: Any) -> None:  # fmt: skip
+        self.subscribed = True
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
@@ -90,12 +104,13 @@ class Ingest:
                          self.settings.host, self.settings.port, reason)  # fmt: skip
             return
         self.connected = True
-        client.subscribe([(f"{self.prefix}/+/log/events", 1), (f"{self.prefix}/+/available", 1)])
+        client.subscribe([(f"{self.prefix}/+/log/events", 1), (f"{self.prefix}/+/available", 1),
+                          (f"{self.prefix}/+/log/heartbeat", 0)])  # fmt: skip
         logger.info("control room: connected to %s:%d", self.settings.host, self.settings.port)
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
                        props: Any) -> None:  # fmt: skip
-        self.connected = False
+        self.connected = self.subscribed = False
         if not self._stop.is_set():
             logger.warning("control room: lost the broker %s:%d (%s); reconnecting",
                            self.settings.host, self.settings.port, reason)  # fmt: skip
@@ -131,8 +146,10 @@ class Ingest:
             if what == "available":
                 text = payload.decode("utf-8", "replace").strip()
                 self._available[site] = text
-                self.store.set_site(site, state="live" if text == "online" else "offline",
-                                    last_seen=at if text == "online" else None)  # fmt: skip
+                self._set_state(site, "live" if text == "online" else "offline")
+                continue
+            if what == "log/heartbeat":
+                self._beat(site, payload, at)
                 continue
             event = _event(payload)
             if event is None or event.get("site", site) != site:
@@ -157,7 +174,7 @@ class Ingest:
             self.counts["stored"] += new
             self.counts["duplicates"] += len(events) - new
             if self._available.get(site) != "offline":
-                self.store.set_site(site, state="live")
+                self._set_state(site, "live")
             self.client.publish(f"{self.prefix}/{topic_part(site)}/log/confirmed",
                                 json.dumps({"events": self.marks[site]}), qos=1,
                                 retain=True)  # fmt: skip
@@ -167,7 +184,42 @@ class Ingest:
                 self._available[site] = "offline"
                 logger.warning("control room: site %s silent for %.0f s: offline", site,
                                now - seen)  # fmt: skip
-                self.store.set_site(site, state="offline")
+                self._set_state(site, "offline")
+
+    def _beat(self, site: str, payload: bytes, at: float) -> None:
+        """A site's heartbeat: its log's last id beyond the mark (the last events were lost
+        and nothing later shows it) asks for a replay; its clock's offset is kept."""
+        try:
+            beat = json.loads(payload)
+            last, sent = int(beat["last_id"]), float(beat["time"])
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError):
+            self.counts["malformed"] += 1
+            return
+        self.clock_offsets[site] = round(sent - at, 3)
+        if abs(sent - at) > CLOCK_WARN_S and site not in self._clock_warned:
+            self._clock_warned.add(site)
+            logger.warning("control room: site %s's clock is %+.1f s from this machine's",
+                           site, sent - at)  # fmt: skip
+        if self._available.get(site) != "offline":
+            self._set_state(site, "live")
+        # what the previous heartbeat announced is still not stored (not merely on its way)
+        mark = self.marks.get(site, 0)
+        if mark < self._announced.get(site, 0):
+            self.counts["behind"] += 1
+            self._ask_replay(site, mark)
+        self._announced[site] = last
+
+    def _set_state(self, site: str, state: str) -> None:
+        """The site's state in the store, written only when it changes."""
+        if self._state.get(site) == state:
+            return
+        try:
+            self.store.set_site(site, state=state, last_seen=time.time())
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+            return
+        self._state[site] = state
 
     def _ask_replay(self, site: str, mark: int) -> None:
         now = time.monotonic()
@@ -183,7 +235,7 @@ class Ingest:
     def figures(self) -> dict:
         with self._lock:
             queued = len(self._queue)
-        f = dict(self.counts, queued=queued, connected=self.connected)
+        f = dict(self.counts, queued=queued, connected=self.connected, subscribed=self.subscribed)
         if len(self._rate) >= 2:
             (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
             f["messages_per_s"] = round((n1 - n0) / (t1 - t0), 2) if t1 > t0 else 0.0

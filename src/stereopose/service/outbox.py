@@ -11,6 +11,10 @@ Topics under ``<prefix>/<site>/log/`` (docs/mqtt.md#the-event-log-outbox):
   has stored with nothing missing before it.
 - ``replay`` (a receiver publishes, QoS 1): ``{"after_id": N}``, send every stored event
   after id N again.
+- ``heartbeat`` (the site publishes every `heartbeat_s`, QoS 0): ``{"last_id": N, "time": T}``:
+  the log's last id and the site's clock, so a receiver knows the site is there while nothing
+  happens, sees the last events were lost when no later one shows it, and can tell how far
+  the site's clock is from its own.
 
 A receiver stores an event whose ``prev`` is at most its own mark (nothing is missing before
 it; a duplicate is dropped by its id) and raises its mark to the event's id; an event whose
@@ -49,6 +53,7 @@ logger = logging.getLogger(__name__)
 INFLIGHT = 50  # messages handed to paho and not yet acknowledged
 PAGE = 200  # events read from the log at once at most
 POLL_S = 0.25  # how often the log is read for new events when nothing wakes the thread
+HEARTBEAT_S = 10.0  # how often the log's last id and the clock are published
 _MAX_ID = 2**63 - 1
 
 
@@ -61,11 +66,12 @@ class LogOutbox:
 
     def __init__(self, settings: MqttSettings, log: Any, *, resend_s: float = 30.0,
                  start_after: int | None = None, inflight: int = INFLIGHT,
-                 poll_s: float = POLL_S) -> None:  # fmt: skip
+                 poll_s: float = POLL_S, heartbeat_s: float = HEARTBEAT_S) -> None:  # fmt: skip
+        self.heartbeat_s = float(heartbeat_s)
         self.settings, self.log = settings, log
         self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
         base = f"{settings.topic_prefix}/{topic_part(settings.site)}/log"
-        self.topics = {k: f"{base}/{k}" for k in ("events", "confirmed", "replay")}
+        self.topics = {k: f"{base}/{k}" for k in ("events", "confirmed", "replay", "heartbeat")}
         self.start_after = int(log.last_id() if start_after is None else start_after)
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -180,11 +186,15 @@ class LogOutbox:
     # --- the sending thread --------------------------------------------------------------
 
     def _run(self) -> None:
+        beat = 0.0
         while not self._stop.is_set():
             self._wake.wait(self.poll_s)
             self._wake.clear()
             try:
                 self._send()
+                if self._connected and time.monotonic() - beat >= self.heartbeat_s:
+                    beat = time.monotonic()
+                    self._heartbeat()
             except Exception:  # a bug must not end the outbox: logged, tried again
                 logger.exception("event outbox: sending failed; trying again")
                 self._stop.wait(1.0)
@@ -232,6 +242,15 @@ class LogOutbox:
                     self.counts["resent" if cursor <= self._high else "published"] += 1
                     self._high = max(self._high, cursor)
                 room -= 1
+
+    def _heartbeat(self) -> None:
+        try:
+            last = int(self.log.last_id())
+        except StereoposeError as e:
+            self._problem(logging.WARNING, f"cannot read the event log: {e}")
+            return
+        body = json.dumps({"last_id": last, "time": round(time.time(), 3)})
+        self.client.publish(self.topics["heartbeat"], body, qos=0)
 
     def wake(self) -> None:
         self._wake.set()

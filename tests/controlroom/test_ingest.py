@@ -1,0 +1,97 @@
+"""The control room's ingest in-process against a real mosquitto: a site's last events lost
+with nothing after them are found by its heartbeat; a quiet site stays live by it; the site's
+clock offset is kept; malformed messages are counted."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import paho.mqtt.client as paho
+import pytest
+
+from brokers import Broker
+from stereopose.controlroom.ingest import Ingest
+from stereopose.controlroom.store import ControlStore
+from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.mqtt import MqttSettings
+from stereopose.service.eventlog import EventLog
+from stereopose.service.outbox import LogOutbox
+from stereopose.types import Event
+from waiting import wait_until
+
+
+def _settings(port: int, site: str = "north") -> MqttSettings:
+    return MqttSettings(host="127.0.0.1", port=port, site=site, reconnect_min_s=0.05,
+                        reconnect_max_s=0.2)  # fmt: skip
+
+
+@pytest.fixture
+def broker(tmp_path: Path):
+    b = Broker(tmp_path / "broker").start()
+    yield b
+    b.stop()
+
+
+def _write(sink: SqliteSink, start: int, n: int) -> None:
+    sink.write_events([Event(t=k / 25, frame=k, person=1, zone="bus", kind="energized",
+                             type="enter", onset_t=k / 25)
+                       for k in range(start, start + n)])  # fmt: skip
+
+
+def test_the_last_events_lost_are_found_by_the_heartbeat(broker, tmp_path):
+    sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
+    log = EventLog(tmp_path / "north.sqlite")
+    box = LogOutbox(_settings(broker.port), log, resend_s=0, heartbeat_s=0.3)
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
+    try:
+        _write(sink, 1, 3)
+        wait_until(lambda: store.marks().get("north") == 3, "the first events")
+        ingest.close()  # the control room away: the next two reach nobody
+        _write(sink, 4, 2)
+        wait_until(lambda: box.figures()["cursor"] == 5 and box.figures()["unacknowledged"] == 0,
+                   "the broker taking them")  # fmt: skip
+        ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
+        wait_until(lambda: ingest.subscribed, "the control room back")
+        # nothing later shows the gap, and the outbox does not resend (resend_s = 0): only
+        # the heartbeat's last id tells the control room they exist
+        wait_until(lambda: store.marks().get("north") == 5, "the lost tail", timeout_s=20)
+        assert [e["id"] for e in store.events("north", 0, 100)] == [1, 2, 3, 4, 5]
+        assert ingest.figures()["behind"] >= 1, (ingest.figures(), box.figures())
+        assert abs(ingest.clock_offsets["north"]) < 1.0  # one machine: the same clock
+        sites = {s.site: s for s in store.sites()}
+        assert sites["north"].state == "live"
+    finally:
+        ingest.close()
+        box.close()
+        sink.close()
+        store.close()
+
+
+def test_malformed_events_and_heartbeats_are_counted_never_stored(broker, tmp_path):
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store)
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    c.connect("127.0.0.1", broker.port)
+    c.loop_start()
+    try:
+        wait_until(lambda: ingest.subscribed, "the ingest subscribed")
+        wait_until(lambda: c.is_connected(), "the client connected")
+        bad = [("stereopose/x/log/events", b"not json"),
+               ("stereopose/x/log/events", b'{"id": "1", "prev": 0}'),
+               ("stereopose/x/log/events", b'{"id": 1, "prev": -1}'),
+               ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "site": "y"}'),
+               ("stereopose/x/log/heartbeat", b'{"last_id": "many"}'),
+               ("stereopose/x/log/heartbeat", b"\xff")]  # fmt: skip
+        for topic, payload in bad:
+            c.publish(topic, payload, qos=1).wait_for_publish(5)
+        wait_until(
+            lambda: ingest.figures()["malformed"] == len(bad),
+            f"each one counted {ingest.figures()}",
+        )
+        assert store.events(None, 0, 100) == []
+    finally:
+        c.loop_stop()
+        c.disconnect()
+        ingest.close()
+        store.close()
