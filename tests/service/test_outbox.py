@@ -187,7 +187,7 @@ def test_malformed_control_messages_are_counted_and_ignored(broker, log, closing
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     c.connect("127.0.0.1", broker.port)
     c.loop_start()
-    wait_until(lambda: box.figures()["connected"], "the outbox connected")
+    wait_until(lambda: box.figures()["subscribed"], "the outbox subscribed")
     for payload in (b"not json", b'{"events": -1}', b'{"events": true}', b"\xff\xfe",
                     b'{"after_id": "7"}', b"[1, 2]"):  # fmt: skip
         c.publish(f"{BASE}/confirmed", payload, qos=1).wait_for_publish(5)

@@ -80,6 +80,7 @@ class LogOutbox:
         self._confirmed: int | None = None  # the receiver's mark
         self._confirmed_at = time.monotonic()  # when the mark last moved (or was set)
         self._connected = False
+        self._subscribed = False  # the broker confirmed this connection's subscriptions
         self._restart_at: int | None = None  # start again after this id (connect, replay)
         self._unacked: set[int] = set()  # paho message ids not yet acknowledged
         self._acked: set[int] = set()
@@ -119,7 +120,13 @@ class LogOutbox:
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
         c.on_publish = self._on_publish
+        c.on_subscribe = self._on_subscribe
         return c
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any,
+                      props: Any) -> None:  # fmt: skip
+        with self._lock:
+            self._subscribed = True
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
@@ -142,7 +149,7 @@ class LogOutbox:
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
                        props: Any) -> None:  # fmt: skip
         with self._lock:
-            self._connected = False
+            self._connected = self._subscribed = False
         if not self._stop.is_set():
             self._problem(logging.WARNING, f"the broker connection was lost ({reason}); "
                           "the events not confirmed are sent again when it is back")  # fmt: skip
@@ -266,6 +273,7 @@ class LogOutbox:
                 cursor=self._cursor,
                 confirmed=self._confirmed,
                 connected=self._connected,
+                subscribed=self._subscribed,
                 unacknowledged=len(self._unacked - self._acked),
                 lag=None if self._confirmed is None else max(0, self._high - self._confirmed),
             )
