@@ -131,6 +131,7 @@ def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
     closing(rx)
     log.write(3)
     wait_until(lambda: len(rx.ids()) == 3, "the first events")
+    wait_until(lambda: box.figures()["confirmed"] == log.ids()[-1], "their confirmation")
     rx.lose(4)  # the next four never arrive; nothing after them comes either
     log.write(4)
     wait_until(lambda: box.figures()["cursor"] == log.ids()[-1], "the outbox sending on")
@@ -140,12 +141,13 @@ def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
 
 
 def test_a_gap_seen_by_the_receiver_is_filled_by_a_replay(broker, log, closing):
-    rx = LogReceiver(broker.port)
+    rx = LogReceiver(broker.port, replay_on_start=False)  # no replay but the gap's
     closing(rx)
     box = LogOutbox(settings(broker.port), log.read, resend_s=0)
     closing(box)
     log.write(3)
     wait_until(lambda: len(rx.ids()) == 3, "the first events")
+    wait_until(lambda: box.figures()["confirmed"] == log.ids()[-1], "their confirmation")
     rx.lose(2)
     log.write(2)
     wait_until(lambda: box.figures()["cursor"] == log.ids()[-1], "the lost ones sent")
