@@ -28,11 +28,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, save
+from int8 import _iou, frames  # the demo's steps, box overlap: as the INT8 benchmark reads them
 from stereopose.detection import make_detector
 from stereopose.detection.models import default_int8, demo_videos
 
@@ -45,19 +45,6 @@ IMGSZ = (640, 320)
 PCK_PX = (1.0, 2.0, 5.0)
 
 
-def frames(videos: list[Path], steps: int) -> list[list[np.ndarray]]:
-    caps = [cv2.VideoCapture(str(v), cv2.CAP_FFMPEG) for v in videos]
-    out = []
-    for _ in range(steps):
-        step = [c.read()[1] for c in caps]
-        if any(im is None for im in step):
-            break
-        out.append(step)
-    for c in caps:
-        c.release()
-    return out
-
-
 def speed(det, data: list[list[np.ndarray]]) -> float:
     det.detect(data[0])  # warm-up
     times = []
@@ -66,14 +53,6 @@ def speed(det, data: list[list[np.ndarray]]) -> float:
         det.detect(step)
         times.append((time.perf_counter() - t0) * 1000 / len(step))
     return statistics.median(times)
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    x1, y1 = max(a[0], b[0]), max(a[1], b[1])
-    x2, y2 = min(a[2], b[2]), min(a[3], b[3])
-    inter = max(0.0, x2 - x1) * max(0.0, y2 - y1)
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
 
 
 def agreement(ref_det, det, data: list[list[np.ndarray]]) -> dict:

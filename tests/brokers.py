@@ -33,6 +33,21 @@ def require_mosquitto() -> str:
     return MOSQUITTO
 
 
+def make_certificate(folder: Path, name: str = "cert") -> tuple[Path, Path]:
+    """A self-signed certificate for localhost and 127.0.0.1 and its key, in `folder`; skip
+    where openssl cannot make one."""
+    cert, key = folder / f"{name}.pem", folder / f"{name}-key.pem"
+    openssl = ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt",
+               "ec_paramgen_curve:prime256v1", "-nodes", "-days", "1", "-subj", "/CN=localhost",
+               "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
+               "-keyout", str(key), "-out", str(cert)]  # fmt: skip
+    try:
+        subprocess.run(openssl, check=True, capture_output=True)
+    except (OSError, subprocess.CalledProcessError) as e:
+        pytest.skip(f"cannot make a test certificate with openssl: {e}")
+    return cert, key
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

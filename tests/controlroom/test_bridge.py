@@ -16,7 +16,7 @@ import paho.mqtt.client as paho
 import pytest
 from test_control_room import ENV, _add_user, _central, _client
 
-from brokers import Broker, free_port
+from brokers import Broker, free_port, make_certificate
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.service.eventlog import EventLog
@@ -27,19 +27,6 @@ from waiting import wait_until
 pytestmark = pytest.mark.slow
 
 PACKAGING = Path(__file__).resolve().parents[2] / "packaging" / "mosquitto"
-
-
-def _certificate(folder: Path) -> tuple[Path, Path]:
-    cert, key = folder / "central.pem", folder / "central-key.pem"
-    openssl = ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt",
-               "ec_paramgen_curve:prime256v1", "-nodes", "-days", "1", "-subj", "/CN=localhost",
-               "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
-               "-keyout", str(key), "-out", str(cert)]  # fmt: skip
-    try:
-        subprocess.run(openssl, check=True, capture_output=True)
-    except (OSError, subprocess.CalledProcessError) as e:
-        pytest.skip(f"cannot make a test certificate with openssl: {e}")
-    return cert, key
 
 
 def _acl(folder: Path) -> Path:
@@ -62,7 +49,7 @@ def _bridge(cert: Path, central_port: int, password: str) -> list[str]:
 
 
 def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
-    cert, key = _certificate(tmp_path)
+    cert, key = make_certificate(tmp_path, "central")
     users = {"site-north": "north-pw", "site-south": "south-pw", "control-room": "room-pw"}
     central = Broker(tmp_path / "central", users=users, tls=(cert, key),
                      extra=(f"acl_file {_acl(tmp_path)}",)).start()  # fmt: skip

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import logging
-import ssl
 import threading
 import time
 import uuid
@@ -30,8 +29,7 @@ from typing import Any
 import paho.mqtt.client as paho
 
 from stereopose.controlroom.store import ControlStore, StoreError
-from stereopose.errors import ConfigError
-from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_name, topic_part
+from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_name, topic_part
 
 __all__ = ["Ingest"]
 
@@ -78,16 +76,7 @@ class Ingest:
 
     def _make_client(self) -> paho.Client:
         s = self.settings
-        c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311,
-                        client_id=f"stereopose-control-room-{uuid.uuid4().hex[:8]}")  # fmt: skip
-        if s.username is not None:
-            c.username_pw_set(s.username, s.password)
-        if s.tls:
-            try:
-                c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
-            except (ssl.SSLError, OSError) as e:
-                raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
-        c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
+        c = make_client(s, f"stereopose-control-room-{uuid.uuid4().hex[:8]}")
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message

@@ -59,6 +59,7 @@ class SiteRow:
     state: str
     last_seen: float | None
     health: dict | None
+    events: int = 0  # events stored
 
 
 class ControlStore:
@@ -148,15 +149,16 @@ class ControlStore:
     def sites(self, only: Iterable[str] | None = None) -> list[SiteRow]:
         db = self._reader()
         try:
-            rows = db.execute("SELECT site, mark, state, last_seen, health FROM sites "
-                              "ORDER BY site").fetchall()  # fmt: skip
+            rows = db.execute("SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
+                              "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
+                              "FROM sites s ORDER BY s.site").fetchall()  # fmt: skip
         except sqlite3.Error as e:
             raise StoreError(f"{self.path}: cannot read the sites: {e}") from None
         finally:
             db.close()
         keep = None if only is None else set(only)
-        return [SiteRow(s, m, st, seen, json.loads(h) if h else None)
-                for s, m, st, seen, h in rows if keep is None or s in keep]  # fmt: skip
+        return [SiteRow(s, m, st, seen, json.loads(h) if h else None, n)
+                for s, m, st, seen, h, n in rows if keep is None or s in keep]  # fmt: skip
 
     def events(self, site: str | None = None, after_id: int = 0, limit: int = 100,
                sites: Iterable[str] | None = None) -> list[dict]:  # fmt: skip
@@ -180,14 +182,6 @@ class ControlStore:
         finally:
             db.close()
         return [{**json.loads(rec), "site": s} for s, rec in rows]
-
-    def count(self, site: str) -> int:
-        db = self._reader()
-        try:
-            return int(db.execute("SELECT COUNT(*) FROM events WHERE site = ?",
-                                  (site,)).fetchone()[0])  # fmt: skip
-        finally:
-            db.close()
 
     def close(self) -> None:
         with self._lock:

@@ -171,3 +171,22 @@ def group_by_shape(images: Sequence[np.ndarray]) -> dict[tuple[int, int], list[i
     for i, im in enumerate(images):
         groups.setdefault((im.shape[0], im.shape[1]), []).append(i)
     return groups
+
+
+def detect_letterboxed(model, images: Sequence[np.ndarray]) -> list[Poses]:
+    """The people of each image through an exported YOLO pose model: images of one size
+    letterboxed together (model.dynamic: to model.imgsz, padded to model.stride; else to
+    model.fixed), one `model._infer(blob)` -> (B, 56, N) per size, decoded with model.conf,
+    model.iou and model.max_det (the onnx and openvino backends)."""
+    images = [check_image(im, i) for i, im in enumerate(images)]
+    results: list[Poses] = [Poses.empty()] * len(images)
+    for shape, idx in group_by_shape(images).items():
+        if model.dynamic:
+            lb = letterbox_for(shape, model.imgsz, model.stride, auto=True)
+        else:
+            lb = letterbox_for(shape, model.fixed, model.stride, auto=False)
+        blob = to_blob([letterbox_image(images[i], lb) for i in idx])
+        out = model._infer(blob)
+        for k, i in enumerate(idx):
+            results[i] = decode(out[k], lb, model.conf, model.iou, model.max_det)
+    return results

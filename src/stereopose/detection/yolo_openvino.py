@@ -18,15 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.detection.base import (
-    Poses,
-    check_image,
-    decode,
-    group_by_shape,
-    letterbox_for,
-    letterbox_image,
-    to_blob,
-)
+from stereopose.detection.base import Poses, detect_letterboxed
 from stereopose.detection.models import ModelError, check_weights
 from stereopose.skeleton import NUM_JOINTS
 
@@ -135,18 +127,7 @@ class OpenVinoPoseDetector:
         return np.concatenate([np.array(self.request.infer([b[None]])[0]) for b in blob])
 
     def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
-        images = [check_image(im, i) for i, im in enumerate(images)]
-        results: list[Poses] = [Poses.empty()] * len(images)
-        for shape, idx in group_by_shape(images).items():
-            if self.dynamic:
-                lb = letterbox_for(shape, self.imgsz, self.stride, auto=True)
-            else:
-                lb = letterbox_for(shape, self.fixed, self.stride, auto=False)
-            blob = to_blob([letterbox_image(images[i], lb) for i in idx])
-            out = self._infer(blob)
-            for k, i in enumerate(idx):
-                results[i] = decode(out[k], lb, self.conf, self.iou, self.max_det)
-        return results
+        return detect_letterboxed(self, images)
 
 
 def _metadata(net) -> dict[str, str]:

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import json
 import logging
-import ssl
 import threading
 import time
 import uuid
@@ -44,7 +43,7 @@ from typing import Any
 import paho.mqtt.client as paho
 
 from stereopose.errors import ConfigError, StereoposeError
-from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_part
+from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_part
 
 __all__ = ["LogOutbox"]
 
@@ -106,15 +105,7 @@ class LogOutbox:
     def _make_client(self) -> paho.Client:
         s = self.settings
         cid = f"stereopose-{topic_part(s.site)}-outbox-{uuid.uuid4().hex[:8]}"
-        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=cid, protocol=paho.MQTTv311)
-        if s.username is not None:
-            c.username_pw_set(s.username, s.password)
-        if s.tls:
-            try:
-                c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
-            except (ssl.SSLError, OSError) as e:
-                raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
-        c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
+        c = make_client(s, cid)
         c.max_inflight_messages_set(self.inflight)
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from brokers import Broker, Subscriber, free_port, require_mosquitto
+from brokers import Broker, Subscriber, free_port, make_certificate, require_mosquitto
 from stereopose.errors import ConfigError
 from stereopose.io.sinks import FrameResult
 from stereopose.io.sinks.events import JsonlSink
@@ -336,15 +336,7 @@ def test_login_right_and_wrong(tmp_path: Path, closing, caplog) -> None:
 
 def test_tls_with_a_given_ca(tmp_path: Path, closing) -> None:
     require_mosquitto()
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    openssl = ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt",
-               "ec_paramgen_curve:prime256v1", "-nodes", "-days", "1", "-subj", "/CN=localhost",
-               "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
-               "-keyout", str(key), "-out", str(cert)]  # fmt: skip
-    try:
-        subprocess.run(openssl, check=True, capture_output=True)
-    except (OSError, subprocess.CalledProcessError) as e:
-        pytest.skip(f"cannot make a test certificate with openssl: {e}")
+    cert, key = make_certificate(tmp_path)
     broker = Broker(tmp_path / "broker", tls=(cert, key)).start()
     try:
         sink = MqttSink(settings(broker.port, host="localhost", tls=True, ca_file=cert))

@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import ssl
 import threading
 import time
 import uuid
@@ -35,11 +34,10 @@ from typing import Any
 
 import paho.mqtt.client as paho
 
-from stereopose.errors import ConfigError
 from stereopose.io.records import event_record, frame_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
-from stereopose.io.sinks.mqtt_settings import MqttSettings, topic_name, topic_part
+from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_name, topic_part
 from stereopose.types import Event, People3D
 
 __all__ = ["MqttSettings", "MqttSink", "people_record", "topic_name", "topic_part"]
@@ -286,18 +284,8 @@ class MqttSink(ClosesOnce):
     def _make_client(self) -> paho.Client:
         s = self.settings
         client_id = s.client_id or f"stereopose-{topic_part(s.site)}-{uuid.uuid4().hex[:8]}"
-        c = paho.Client(
-            paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv311
-        )
+        c = make_client(s, client_id)
         c.will_set(self.topics["available"], OFFLINE, qos=1, retain=True)
-        if s.username is not None:
-            c.username_pw_set(s.username, s.password)
-        if s.tls:
-            try:
-                c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
-            except (ssl.SSLError, OSError) as e:
-                raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
-        c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
         c.max_inflight_messages_set(INFLIGHT)
         c.on_connect = self._on_connect
         c.on_connect_fail = self._on_connect_fail

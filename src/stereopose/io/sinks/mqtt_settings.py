@@ -12,7 +12,7 @@ from pathlib import Path
 
 from stereopose.errors import ConfigError
 
-__all__ = ["MqttSettings", "topic_name", "topic_part"]
+__all__ = ["MqttSettings", "make_client", "topic_name", "topic_part"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -74,6 +74,26 @@ class MqttSettings:
                 f"mqtt.reconnect_min_s: expected 0 < reconnect_min_s <= reconnect_max_s, got "
                 f"{self.reconnect_min_s!r} and {self.reconnect_max_s!r}"
             )
+
+
+def make_client(s: MqttSettings, client_id: str):
+    """A paho client (MQTT 3.1.1) with the settings' login, TLS (a ConfigError naming
+    mqtt.ca_file when its CAs cannot be loaded) and reconnect backoff; callbacks are the
+    caller's."""
+    import ssl
+
+    import paho.mqtt.client as paho
+
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv311)
+    if s.username is not None:
+        c.username_pw_set(s.username, s.password)
+    if s.tls:
+        try:
+            c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
+        except (ssl.SSLError, OSError) as e:
+            raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
+    c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
+    return c
 
 
 # Characters a topic level cannot hold as they are: '/' separates levels, '+' and '#' are
