@@ -273,11 +273,18 @@ class _Service:
                 from stereopose.service.outbox import LogOutbox
 
                 log = EventLog(p.events_db, p.out_dir / "clips")
-                self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s)
+                self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
+                                        summary=self._summary)  # fmt: skip
                 self.probes["outbox"] = self.outbox.figures
         if cfg.iec104.enabled:
             sinks.append(self._iec104(cfg, guard, wall_start))
         return sinks
+
+    def _summary(self) -> dict:
+        """The site at a glance, in the outbox's heartbeat (a control room's site list)."""
+        snap = self.state.snapshot()
+        return {"status": snap.status, "cameras": len(snap.cameras),
+                "cameras_up": sum(1 for c in snap.cameras if c.up), "people": snap.people}
 
     def _iec104(self, cfg: Config, guard, wall_start: float) -> Sink:
         """The IEC 60870-5-104 outstation (scada.iec104): a sink for the zone, camera and
@@ -537,6 +544,8 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
     if service.iec104 is not None:  # the restored incidents, and its commands' way in
         service.iec104.incidents(book.incidents())
         service.iec104.acknowledger = step.acknowledge
+    if service.outbox is not None:  # a control room's acknowledgements
+        service.outbox.acknowledger = step.acknowledge
     if service.app is not None:
         service.app.state.incidents = step
     return step

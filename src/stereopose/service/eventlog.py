@@ -28,6 +28,7 @@ from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX, _part
 from stereopose.io.sinks.eventdb import reading, transient
+from stereopose.io.sinks.incidents import changes_after, last_change
 
 # a camera down, and the behaviour rules' alarms (a person down, alone, immobile, ...)
 ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS
@@ -136,6 +137,21 @@ class EventLog:
             return reading(self._last_id)
         except sqlite3.DatabaseError as e:
             raise LogError(f"{self.path}: cannot read the event log: {e}") from None
+
+    def incident_changes_after(self, seq: int, limit: int = 200) -> list[dict]:
+        """The incidents changed after change `seq`, in change order: {"seq", "incident"}
+        (io.sinks.incidents.changes_after); a LogError when the log cannot be read."""
+        try:
+            return changes_after(self.path, seq, limit)
+        except sqlite3.DatabaseError as e:
+            raise LogError(f"{self.path}: cannot read the incidents: {e}") from None
+
+    def last_incident_change(self) -> int:
+        """The last change number given to an incident (0: none)."""
+        try:
+            return last_change(self.path)
+        except sqlite3.DatabaseError as e:
+            raise LogError(f"{self.path}: cannot read the incidents: {e}") from None
 
     def _last_id(self) -> int:
         db = self._connect()

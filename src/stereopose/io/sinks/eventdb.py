@@ -47,6 +47,8 @@ SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
     "persons": (("events", "SELECT MAX(person) + 1 FROM events"),),
     # an incident's id is in the incidents table before any event names it (io.sinks.incidents)
     "incidents": (("incidents", "SELECT MAX(id) + 1 FROM incidents"),),
+    # the change number of an incident row's last write (io.sinks.incidents.upsert_incidents)
+    "incident_changes": (("incidents", "SELECT MAX(seq) + 1 FROM incidents"),),
 }  # fmt: skip
 # the same, only as the mark is made (an earlier version's reservations; SqliteSink still
 # records its own there, below the mark, which must not push the mark a block up each run)
@@ -119,7 +121,11 @@ def _floors(db: sqlite3.Connection) -> dict[str, int]:
         floor = 1
         for table, sql in seeds + (() if name in have else FIRST_SEEDS.get(name, ())):
             if table in tables:
-                floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
+                try:
+                    floor = max(floor, int(db.execute(sql).fetchone()[0] or 0))
+                except sqlite3.OperationalError as e:  # an earlier version's table: no column
+                    if "no such column" not in str(e):
+                        raise
         floors[name] = floor
     return floors
 

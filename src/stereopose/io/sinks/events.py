@@ -36,7 +36,8 @@ from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
-from stereopose.io.sinks.incidents import INCIDENTS_SCHEMA, upsert_incidents
+from stereopose.io.sinks.incidents import (INCIDENTS_SCHEMA, INCIDENTS_SEQ_INDEX,
+                                          upsert_incidents)  # fmt: skip
 from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
@@ -106,6 +107,7 @@ ADDED_COLUMNS = (
     ("runs", "wall_start", "REAL"),
     ("events", "restart", "INTEGER NOT NULL DEFAULT 0"),
     ("events", "camera", "TEXT"),
+    ("incidents", "seq", "INTEGER"),
     ("events", "reprojection_px", "REAL"),
     ("events", "baseline_px", "REAL"),
     ("events", "rule", "TEXT"),
@@ -248,6 +250,7 @@ class SqliteSink(_EventSink):
             self.db = connect_writer(self.path, open_timeout_s, create=True)
             self.db.executescript(SCHEMA + INCIDENTS_SCHEMA)
             _upgrade(self.db)
+            self.db.execute(INCIDENTS_SEQ_INDEX)
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             self.spill = Spill(self.path)
             self._old_spill = not self._store_spill()

@@ -27,10 +27,11 @@ from urllib.request import pathname2url
 
 from stereopose.alarms import IncidentRecord
 from stereopose.alarms.incident import IncidentError, with_wall_times
-from stereopose.io.sinks.eventdb import connect_writer, reading, take
+from stereopose.io.sinks.eventdb import connect_writer, read_mark, reading, take
 
-__all__ = ["INCIDENTS_SCHEMA", "IncidentFilters", "IncidentIds", "incident_of_event",
-           "on_clock", "open_incidents", "query_incidents", "upsert_incidents"]  # fmt: skip
+__all__ = ["INCIDENTS_SCHEMA", "INCIDENTS_SEQ_INDEX", "IncidentFilters", "IncidentIds",
+           "changes_after", "incident_of_event", "last_change", "on_clock", "open_incidents",
+           "query_incidents", "upsert_incidents"]  # fmt: skip
 
 INCIDENTS_SCHEMA = """
 CREATE TABLE IF NOT EXISTS incidents (
@@ -46,12 +47,16 @@ CREATE TABLE IF NOT EXISTS incidents (
     first_t REAL NOT NULL,           -- seconds on the clock of wall_start
     last_t REAL NOT NULL,
     wall_start REAL,                 -- Unix time of t = 0 of the record's times
-    record TEXT NOT NULL             -- IncidentRecord.to_dict() as JSON
+    record TEXT NOT NULL,            -- IncidentRecord.to_dict() as JSON
+    seq INTEGER                      -- the log's change number of the row's last write
 );
 CREATE INDEX IF NOT EXISTS incidents_state ON incidents(state);
 CREATE INDEX IF NOT EXISTS incidents_zone ON incidents(zone);
 CREATE INDEX IF NOT EXISTS incidents_person ON incidents(person);
 """
+# after the upgrade has added `seq` to an earlier version's table
+INCIDENTS_SEQ_INDEX = "CREATE INDEX IF NOT EXISTS incidents_seq ON incidents(seq)"
+
 
 _TIMES = ("first_t", "last_t", "active_since", "cleared_at", "closed_at", "acked_at",
           "shelved_until")  # fmt: skip
@@ -62,17 +67,25 @@ logger = logging.getLogger(__name__)
 
 def upsert_incidents(db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord, float | None]]
                      ) -> None:  # fmt: skip
-    """Each (record, wall_start) as its incident's row, inside the caller's transaction."""
+    """Each (record, wall_start) as its incident's row, inside the caller's write
+    transaction; each row written gets the next change number (`seq`, from the log's
+    `incident_changes` mark: only grows, never given twice), so a reader that has every
+    change up to N (the outbox's receiver) asks only for the rows with seq > N."""
+    held = list(held)
+    if not held:
+        return
+    first = take(db, "incident_changes", len(held))
     db.executemany(
         "INSERT INTO incidents(id, state, priority, occurrences, kind, zone, rule, person, "
-        "camera, first_t, last_t, wall_start, record) "
-        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+        "camera, first_t, last_t, wall_start, record, seq) "
+        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
         "ON CONFLICT(id) DO UPDATE SET state = excluded.state, priority = excluded.priority, "
         "occurrences = excluded.occurrences, "
         "first_t = excluded.first_t, last_t = excluded.last_t, "
-        "wall_start = excluded.wall_start, record = excluded.record",
+        "wall_start = excluded.wall_start, record = excluded.record, seq = excluded.seq",
         [(r.id, r.state, r.priority, r.occurrences, str(r.key[0]), r.zone, r.rule, r.person,
-          r.camera, r.first_t, r.last_t, wall, json.dumps(r.to_dict())) for r, wall in held],
+          r.camera, r.first_t, r.last_t, wall, json.dumps(r.to_dict()), first + i)
+         for i, (r, wall) in enumerate(held)],
     )  # fmt: skip
 
 
@@ -161,6 +174,53 @@ def query_incidents(path: str | Path, f: IncidentFilters) -> list[dict]:
     for text, wall in reading(read):
         out.append(with_wall_times(json.loads(text), wall))
     return out
+
+
+def changes_after(path: str | Path, seq: int, limit: int = 200) -> list[dict]:
+    """The incidents whose last change is after change `seq`, in change order: each
+    {"seq": its change, "incident": its record with wall times}; [] without a log or before
+    any change. sqlite3.Error when it cannot be read."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+
+    def read() -> list:
+        db = _ro(path)
+        try:
+            if not _has_table(db) or "seq" not in _columns(db):
+                return []
+            return db.execute("SELECT seq, record, wall_start FROM incidents WHERE seq > ? "
+                              "ORDER BY seq LIMIT ?", (int(seq), int(limit))).fetchall()
+        finally:
+            db.close()
+
+    return [{"seq": int(n), "incident": with_wall_times(json.loads(text), wall)}
+            for n, text, wall in reading(read)]  # fmt: skip
+
+
+def last_change(path: str | Path) -> int:
+    """The last change number given to an incident row (0: none, or no log)."""
+    path = Path(path)
+    if not path.is_file():
+        return 0
+
+    def read() -> int:
+        db = _ro(path)
+        try:
+            mark = read_mark(db, "incident_changes")
+            if mark is not None:
+                return mark - 1
+            if not _has_table(db) or "seq" not in _columns(db):
+                return 0
+            return int(db.execute("SELECT MAX(seq) FROM incidents").fetchone()[0] or 0)
+        finally:
+            db.close()
+
+    return reading(read)
+
+
+def _columns(db: sqlite3.Connection) -> set[str]:
+    return {r[1] for r in db.execute("PRAGMA table_info(incidents)")}
 
 
 def incident_of_event(path: str | Path, event_id: int) -> int | None:
