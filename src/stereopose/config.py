@@ -277,6 +277,8 @@ class ServeConfig:
     # address of the health/metrics server; anything but loopback is reachable from the network
     host: str = "127.0.0.1"
     port: int = number(8787, integer=True, ge=0, le=65535)  # 0: any free port
+    # the console's address as others reach it (https://...): a control room links to it
+    public_url: str = ""
     # a camera with no frame for this long raises camera_down
     camera_timeout_s: float = number(5.0, gt=0.0, le=DAY_S)
     # a camera's reprojection error above this many times its baseline: calibration_drift
@@ -328,6 +330,17 @@ class ControlRoomConfig:
     database: str = ""
     # a site with no message for this long is shown offline
     offline_after_s: float = number(90.0, gt=0.0, le=DAY_S)
+    # a site whose clock is further than this from the control room's raises an incident
+    clock_tolerance_s: float = number(5.0, gt=0.0, le=DAY_S)
+    # this control room's name: a site's console shows an acknowledgement made here as
+    # "USER via NAME"
+    name: str = "control-room"
+    # how often an acknowledgement not yet answered by its site is asked again
+    command_resend_s: float = number(5.0, gt=0.0, le=3600.0)
+
+    def _check(self) -> None:
+        if not (0 < len(self.name) <= 64 and self.name.isprintable()):
+            raise ConfigError("control_room.name: 1 to 64 printable characters")
 
 
 @_schema("iec104")

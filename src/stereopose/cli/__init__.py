@@ -279,6 +279,12 @@ def _add_users(us: argparse.ArgumentParser) -> None:
         help="add: viewer (sees), operator (also acknowledges alarms), admin (also users)",
     )
     us.add_argument(
+        "--sites",
+        metavar="SITE,SITE",
+        help="add, for a control room: the only sites this user sees and acts on "
+        "(default: every site)",
+    )
+    us.add_argument(
         "--config",
         required=True,
         type=Path,

@@ -54,7 +54,8 @@ def _users(args: argparse.Namespace) -> int:
         if not users:
             out.print(f"no users in {store.path}", highlight=False, soft_wrap=True)
         for u in users:
-            out.print(f"{u.name}\t{u.role}", highlight=False, markup=False)
+            sites = "" if u.sites is None else "\t" + ",".join(u.sites)
+            out.print(f"{u.name}\t{u.role}{sites}", highlight=False, markup=False)
         return 0
     if not args.name:
         raise StereoposeError(f"users {action}: give the user's NAME")
@@ -65,8 +66,15 @@ def _users(args: argparse.Namespace) -> int:
         if store.get(name) is not None:
             raise StereoposeError(f"user {name!r} already exists in {store.path} "
                                   "(`stereopose users passwd` changes a password)")  # fmt: skip
-        store.add(name, check_password(read_password()), args.role)
-        out.print(f"added {name} ({args.role}) to {store.path}", highlight=False, soft_wrap=True)
+        sites = None
+        if getattr(args, "sites", None):
+            sites = tuple(x.strip() for x in args.sites.split(",") if x.strip())
+            if not sites:
+                raise StereoposeError("users add: --sites: give one site name or more")
+        store.add(name, check_password(read_password()), args.role, sites)
+        limit = f", sites {', '.join(sites)}" if sites else ""
+        out.print(f"added {name} ({args.role}{limit}) to {store.path}", highlight=False,
+                  soft_wrap=True)  # fmt: skip
     elif action == "passwd":
         if store.get(name) is None:
             raise StereoposeError(f"no user {name!r} in {store.path}")

@@ -7,7 +7,23 @@
 - `GET /api/sites` (viewer): `{"sites": [{"site", "state", "last_seen", "cameras",
   "cameras_up", "people", "open_incidents", "events", "mark"}]}`;
 - `GET /api/events?site=S&after_id=N&limit=L` (viewer): `{"events": [{"site", "id", ...}]}`
-  in (site, id) order, a page after `after_id`.
+  in (site, id) order, a page after `after_id`;
+- `GET /api/incidents?site=S&state=open|active|acknowledged|cleared|closed&limit=L`
+  (viewer): `{"incidents": [...]}`: the sites' incidents (each its site's record with `site`,
+  `seq`, `source: "site"` and `ack_pending`: acknowledgements asked and not yet answered),
+  then the control room's own (`source: "control_room"`: a site offline, a site's clock off);
+- `POST /api/sites/{site}/incidents/{id}/ack` (operator): asks the site to acknowledge its
+  incident as this user (`"USER via NAME"` at the site); 202 `{"command", "incident"}` (the
+  site's answer comes back with the incident's record), 200 when it is acknowledged already,
+  404 for an incident the control room does not hold;
+- `POST /api/room-incidents/{id}/ack` (operator): acknowledges a control room's incident;
+- `GET /api/sites/{site}/plan` (viewer): the site's zones (from its retained `plan` topic)
+  and its people now (its `people` topic, followed while someone looks: a few seconds after
+  the last look it is left), `{"site", "plan", "people", "console_url"}`;
+- `GET /` and `/console/...`: the control room's console page.
+
+A user limited to some sites (`stereopose users add NAME --sites A,B`) sees and acts on those
+only: every list is filtered, and another site's page or incident is 404.
 
 Every answer is JSON; bodies, headers and connections are bounded, and Host names checked, as
 the site service's are (service.limits, service.hosts, service.connections).
@@ -17,18 +33,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from typing import Annotated
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, Response
+from fastapi import APIRouter, FastAPI, HTTPException, Path, Query, Request, Response
+from fastapi.responses import JSONResponse
 from prometheus_client import CollectorRegistry
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
 from stereopose import __version__
+from stereopose.controlroom import page
 from stereopose.controlroom.store import MAX_LIMIT, StoreError
 from stereopose.service import error_answers
 from stereopose.service.api import auth
 from stereopose.service.app import _internal_error
-from stereopose.service.auth import Viewer
+from stereopose.service.auth import Operator, Viewer
 from stereopose.service.hosts import HostCheck
 from stereopose.service.limits import MAX_BODY_BYTES, RequestLimits
 from stereopose.service.metrics import CONTENT_TYPE, exposition
@@ -43,6 +61,20 @@ router = APIRouter()
 
 def _room(request: Request):
     return request.app.state.room
+
+
+def _allowed(request: Request, session) -> set[str] | None:
+    """The sites this session's user may see (None: every site)."""
+    user = request.app.state.console.users.get(session.username)
+    if user is None or user.sites is None:
+        return None if user is not None else set()
+    return set(user.sites)
+
+
+def _check_site(request: Request, session, site: str) -> None:
+    allowed = _allowed(request, session)
+    if allowed is not None and site not in allowed:
+        raise HTTPException(404, f"no site {site!r}")
 
 
 @router.get("/api/health")
@@ -66,15 +98,21 @@ def health(request: Request, response: Response) -> dict:
 def sites(request: Request, session: Viewer) -> dict:
     room = _room(request)
     try:
-        rows = room.store.sites()
+        rows = room.store.sites(_allowed(request, session))
+        open_counts = room.store.open_counts()
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
     out = []
     for r in rows:
         h = r.health or {}
-        out.append({"site": r.site, "state": r.state, "last_seen": r.last_seen,
+        state = r.state
+        if state == "live" and h.get("status") in ("degraded", "down"):
+            state = "degraded"
+        by = open_counts.get(r.site, {})
+        out.append({"site": r.site, "state": state, "last_seen": r.last_seen,
                     "cameras": h.get("cameras"), "cameras_up": h.get("cameras_up"),
-                    "people": h.get("people"), "open_incidents": h.get("open_incidents"),
+                    "people": h.get("people"), "open_incidents": sum(by.values()),
+                    "open_by_priority": by, "status": h.get("status"),
                     "events": r.events, "mark": r.mark,
                     "clock_offset_s": room.ingest.clock_offsets.get(r.site)})  # fmt: skip
     return {"sites": out}
@@ -86,9 +124,76 @@ def events(request: Request, session: Viewer,
            after_id: Annotated[int, Query(ge=0, le=_I64)] = 0,
            limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> dict:  # fmt: skip
     try:
-        return {"events": _room(request).store.events(site, after_id, limit)}
+        return {
+            "events": _room(request).store.events(
+                site, after_id, limit, sites=_allowed(request, session)
+            )
+        }
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
+
+
+@router.get("/api/incidents")
+def incidents(request: Request, session: Viewer,
+              site: Annotated[str | None, Query(max_length=200)] = None,
+              state: Annotated[Literal["open", "active", "acknowledged", "cleared", "closed"]
+                               | None, Query()] = None,
+              limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> JSONResponse:  # fmt: skip
+    try:
+        found = _room(request).store.incidents(site, state, _allowed(request, session), limit)
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be read") from e
+    return JSONResponse({"incidents": found}, headers={"Cache-Control": "no-store"})
+
+
+@router.post("/api/sites/{site}/incidents/{incident_id}/ack", status_code=202,
+             responses={200: {}, 403: {}, 404: {}})  # fmt: skip
+def ack(site: Annotated[str, Path(max_length=200)],
+        incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
+        request: Request, response: Response) -> dict:  # fmt: skip
+    """Ask the site to acknowledge its incident as this user (see the module)."""
+    _check_site(request, session, site)
+    room = _room(request)
+    try:
+        rec = room.store.incident(site, incident_id)
+        if rec is None:
+            raise HTTPException(404, f"site {site!r} has no incident {incident_id} here")
+        if rec.get("acked_by"):
+            response.status_code = 200
+            return {"command": None, "incident": rec}
+        command = room.ingest.ask_ack(site, incident_id, session.username)
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be written") from e
+    return {"command": command, "incident": rec}
+
+
+@router.post("/api/room-incidents/{incident_id}/ack", responses={403: {}, 404: {}})
+def ack_room(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
+             request: Request) -> dict:  # fmt: skip
+    """Acknowledge one of the control room's own incidents (a site offline, its clock off)."""
+    room = _room(request)
+    try:
+        found = [r for r in room.store.incidents(limit=MAX_LIMIT, sites=_allowed(request, session))
+                 if r["source"] == "control_room" and r["id"] == incident_id]  # fmt: skip
+        rec = room.store.ack_room_incident(incident_id, session.username, time.time()) \
+            if found else None  # fmt: skip
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be written") from e
+    if rec is None:
+        raise HTTPException(404, f"no control-room incident {incident_id}")
+    return {"incident": rec}
+
+
+@router.get("/api/sites/{site}/plan")
+def plan(site: Annotated[str, Path(max_length=200)], session: Viewer,
+         request: Request) -> JSONResponse:  # fmt: skip
+    """The site's zones and people now (see the module)."""
+    _check_site(request, session, site)
+    room = _room(request)
+    if site not in room.ingest.known_sites():
+        raise HTTPException(404, f"no site {site!r}")
+    found = room.ingest.watch(site)
+    return JSONResponse({"site": site, **found}, headers={"Cache-Control": "no-store"})
 
 
 @router.get("/metrics", response_class=Response)
@@ -123,7 +228,15 @@ class _Collector:
                                ("replays", "replays", "replays asked of sites"),
                                ("malformed", "malformed", "messages that were not events"),
                                ("dropped", "dropped", "messages dropped at the queue's bound "
-                                "(sent again by their sites)")):  # fmt: skip
+                                "(sent again by their sites)"),
+                               ("incident_changes", "incident_changes", "incident changes "
+                                "stored"),
+                               ("commands_sent", "commands_sent", "acknowledgements sent to "
+                                "sites (again until answered)"),
+                               ("commands_done", "commands_done", "acknowledgements "
+                                "answered by sites"),
+                               ("room_incidents", "room_incidents", "incidents raised by the "
+                                "control room (a site offline, its clock off)")):  # fmt: skip
             yield CounterMetricFamily(f"stereopose_controlroom_{name}", doc, value=f[key])
         lag = GaugeMetricFamily("stereopose_controlroom_lag_seconds",
                                 "seconds since each site's last message",
@@ -156,4 +269,5 @@ def create_control_app(room, *, allowed_hosts: Iterable[str] | None = None,
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(router)
     app.include_router(auth.router)
+    page.mount_page(app)
     return app

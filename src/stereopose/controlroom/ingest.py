@@ -2,11 +2,15 @@
 the site's mark confirmed back (service.outbox's protocol, docs/mqtt.md#the-event-log-outbox),
 and each site's state from its availability and its last message.
 
-Subscriptions under the central broker's `<prefix>/+/`: `log/events` (QoS 1), `available`
-(retained: `online`, or `offline` from a clean stop or the site's last will) and
-`log/heartbeat` (the site's last id and clock every 10 s: what the previous heartbeat
-announced and is still not stored is asked for again; the clock's offset is kept and logged
-beyond CLOCK_WARN_S). paho's thread
+Subscriptions under the central broker's `<prefix>/+/`: `log/events` and `log/incidents`
+(QoS 1), `available` (retained: `online`, or `offline` from a clean stop or the site's last
+will), `log/heartbeat` (the site's last numbers, clock and summary every 10 s: what the
+previous heartbeat announced and is still not stored is asked for again; the clock's offset
+is kept, and beyond `clock_tolerance_s` raises a control-room incident) and `commands/done`
+(a site's answer to an acknowledgement asked of it: `ask_ack` stores the command, the ingest
+sends it on the site's `commands/ack` and again every `command_resend_s` until answered, so
+an acknowledgement made while a site is cut off reaches it when the link is back). A site
+shown offline raises a control-room incident, cleared when it is live again. paho's thread
 only appends what comes to a bounded queue (at the bound a message is dropped and counted: its
 site sends it again, since it is not confirmed); the ingest's own thread takes the queue every
 `batch_s`, applies the protocol per site in arrival order (an event whose `prev` is at most
@@ -37,6 +41,10 @@ logger = logging.getLogger(__name__)
 
 QUEUE = 100_000  # messages waiting for the ingest's thread at most
 CLOCK_WARN_S = 5.0  # a site's clock this far from ours is logged
+SUMMARY = ("status", "cameras", "cameras_up", "people")  # a heartbeat's summary of its site
+WATCH_S = 15.0  # a site's people are followed this long after its page last looked
+MAX_PLAN_BYTES = 1 << 20  # a plan or people message larger than this is ignored
+MAX_SITES = 100_000  # plans kept at most
 _MAX_ID = 2**63 - 1
 
 
@@ -46,8 +54,23 @@ class Ingest:
 
     def __init__(self, settings: MqttSettings, store: ControlStore, *,
                  offline_after_s: float = 90.0, batch_s: float = 0.1, replay_every_s: float = 2.0,
-                 queue_size: int = QUEUE) -> None:  # fmt: skip
+                 queue_size: int = QUEUE, clock_tolerance_s: float = 5.0,
+                 name: str = "control-room", command_resend_s: float = 5.0) -> None:  # fmt: skip
         self.settings, self.store = settings, store
+        self.clock_tolerance_s, self.name = float(clock_tolerance_s), name
+        self.command_resend_s = float(command_resend_s)
+        self.imarks = store.incident_marks()  # the ingest thread's only
+        self._announced_i: dict[str, int] = {}
+        self.summaries: dict[str, dict] = {}  # site -> its heartbeat's summary
+        self._summaries_dirty: set[str] = set()
+        # command -> [site, incident, by, last sent (monotonic; 0: not yet)]
+        self._commands: dict[int, list] = {
+            c: [s, i, b, 0.0] for c, s, i, b in store.pending_commands()
+        }
+        self._clock_off: set[str] = set()  # sites with an active clock incident
+        self._plans: dict[str, dict] = {}  # site -> its retained plan (zones, console_url)
+        self._people: dict[str, tuple[float, dict]] = {}  # watched site -> (when, latest)
+        self._watched: dict[str, float] = {}  # site -> when its page last looked (monotonic)
         self.offline_after_s, self.batch_s = float(offline_after_s), float(batch_s)
         self.replay_every_s = float(replay_every_s)
         self.prefix = settings.topic_prefix
@@ -56,7 +79,7 @@ class Ingest:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.marks = store.marks()  # the ingest thread's only
-        self._asked: dict[str, float] = {}  # site -> when a replay was last asked for
+        self._asked: dict[tuple[str, bool], float] = {}  # (site, incidents) -> last replay
         self._seen: dict[str, float] = {}  # site -> its last message (Unix time)
         self._available: dict[str, str] = {}
         self._state: dict[str, str] = {}  # site -> the state last written to the store
@@ -64,7 +87,9 @@ class Ingest:
         self._clock_warned: set[str] = set()
         self._announced: dict[str, int] = {}  # site -> the last id its last heartbeat gave
         self.counts = {"messages": 0, "stored": 0, "duplicates": 0, "gaps": 0, "replays": 0,
-                       "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0}  # fmt: skip
+                       "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0,
+                       "incident_changes": 0, "commands_sent": 0, "commands_done": 0,
+                       "room_incidents": 0}  # fmt: skip
         self._rate: deque[tuple[float, int]] = deque(maxlen=64)  # (time, messages) samples
         self.connected = False
         self.subscribed = False  # the broker confirmed the subscriptions of this connection
@@ -94,7 +119,17 @@ class Ingest:
             return
         self.connected = True
         client.subscribe([(f"{self.prefix}/+/log/events", 1), (f"{self.prefix}/+/available", 1),
-                          (f"{self.prefix}/+/log/heartbeat", 0)])  # fmt: skip
+                          (f"{self.prefix}/+/log/heartbeat", 0),
+                          (f"{self.prefix}/+/log/incidents", 1),
+                          (f"{self.prefix}/+/commands/done", 1),
+                          (f"{self.prefix}/+/plan", 1)])  # fmt: skip
+        with self._lock:
+            watched = list(self._watched)
+        for site in watched:  # a new connection: the pages being looked at follow again
+            client.subscribe(f"{self.prefix}/{topic_part(site)}/people", 0)
+        with self._lock:  # the unanswered acknowledgements go again at once
+            for c in self._commands.values():
+                c[3] = 0.0
         logger.info("control room: connected to %s:%d", self.settings.host, self.settings.port)
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
@@ -109,6 +144,9 @@ class Ingest:
         if not msg.topic.startswith(self.prefix + "/") or len(rest) < 2:
             return
         site, what = topic_name(rest[0]), "/".join(rest[1:])
+        if what in ("plan", "people"):  # the latest only, kept at once (bounded: one a site)
+            self._latest(site, what, msg.payload)
+            return
         with self._lock:
             if len(self._queue) >= self.queue_size:
                 self.counts["dropped"] += 1  # not confirmed: its site sends it again
@@ -129,6 +167,7 @@ class Ingest:
             batch = list(self._queue)
             self._queue.clear()
         per_site: dict[str, list[dict]] = {}
+        changes: dict[str, list[dict]] = {}
         for site, what, payload, at in batch:
             self.counts["messages"] += 1
             self._seen[site] = max(self._seen.get(site, 0.0), at)
@@ -140,33 +179,47 @@ class Ingest:
             if what == "log/heartbeat":
                 self._beat(site, payload, at)
                 continue
-            event = _event(payload)
-            if event is None or event.get("site", site) != site:
+            if what == "commands/done":
+                self._done(site, payload)
+                continue
+            incidents = what == "log/incidents"
+            if what != "log/events" and not incidents:
+                continue
+            msg = _numbered(payload, "seq" if incidents else "id")
+            if msg is None or msg.get("site", site) != site or (
+                    incidents and not _incident_change(msg)):  # fmt: skip
                 self.counts["malformed"] += 1
                 continue
-            mark = self.marks.get(site, 0)
-            if event["prev"] > mark:  # lost on the way: from the mark again
+            marks = self.imarks if incidents else self.marks
+            mark = marks.get(site, 0)
+            if msg["prev"] > mark:  # lost on the way: from the mark again
                 self.counts["gaps"] += 1
-                self._ask_replay(site, mark)
+                self._ask_replay(site, mark, incidents=incidents)
                 continue
-            per_site.setdefault(site, []).append(event)
-            self.marks[site] = max(mark, event["id"])
+            (changes if incidents else per_site).setdefault(site, []).append(msg)
+            marks[site] = max(mark, msg["seq" if incidents else "id"])
         now = time.time()
-        for site, events in per_site.items():
+        for site in set(per_site) | set(changes):
             try:
-                new = self.store.put_events(site, events, self.marks[site], now)
+                if site in per_site:
+                    events = per_site[site]
+                    new = self.store.put_events(site, events, self.marks[site], now)
+                    self.counts["stored"] += new
+                    self.counts["duplicates"] += len(events) - new
+                if site in changes:
+                    self.counts["incident_changes"] += self.store.put_incidents(
+                        site, changes[site], self.imarks[site], now)  # fmt: skip
             except StoreError as e:  # not confirmed: the site sends them again
                 self.counts["store_errors"] += 1
-                self.marks = self.store.marks()
+                self.marks, self.imarks = self.store.marks(), self.store.incident_marks()
                 logger.error("control room: %s", e)
                 continue
-            self.counts["stored"] += new
-            self.counts["duplicates"] += len(events) - new
             if self._available.get(site) != "offline":
                 self._set_state(site, "live")
-            self.client.publish(f"{self.prefix}/{topic_part(site)}/log/confirmed",
-                                json.dumps({"events": self.marks[site]}), qos=1,
-                                retain=True)  # fmt: skip
+            self._confirm(site)
+        self._flush_summaries()
+        self._send_commands()
+        self._leave_unwatched()
         self._rate.append((now, self.counts["messages"]))
         for site, seen in list(self._seen.items()):
             if now - seen > self.offline_after_s and self._available.get(site) != "offline":
@@ -174,6 +227,12 @@ class Ingest:
                 logger.warning("control room: site %s silent for %.0f s: offline", site,
                                now - seen)  # fmt: skip
                 self._set_state(site, "offline")
+
+    def _confirm(self, site: str) -> None:
+        """The site's marks of both streams on its `log/confirmed` (retained: one message)."""
+        body = {"events": self.marks.get(site, 0), "incidents": self.imarks.get(site, 0)}
+        self.client.publish(f"{self.prefix}/{topic_part(site)}/log/confirmed", json.dumps(body),
+                            qos=1, retain=True)  # fmt: skip
 
     def _beat(self, site: str, payload: bytes, at: float) -> None:
         """A site's heartbeat: its log's last id beyond the mark (the last events were lost
@@ -184,11 +243,16 @@ class Ingest:
         except (ValueError, TypeError, KeyError, UnicodeDecodeError):
             self.counts["malformed"] += 1
             return
-        self.clock_offsets[site] = round(sent - at, 3)
-        if abs(sent - at) > CLOCK_WARN_S and site not in self._clock_warned:
+        self.clock_offsets[site] = offset = round(sent - at, 3)
+        if abs(offset) > CLOCK_WARN_S and site not in self._clock_warned:
             self._clock_warned.add(site)
             logger.warning("control room: site %s's clock is %+.1f s from this machine's",
-                           site, sent - at)  # fmt: skip
+                           site, offset)  # fmt: skip
+        self._clock(site, offset)
+        summary = {k: beat[k] for k in SUMMARY if k in beat}
+        if summary and self.summaries.get(site) != summary:
+            self.summaries[site] = summary
+            self._summaries_dirty.add(site)
         if self._available.get(site) != "offline":
             self._set_state(site, "live")
         # what the previous heartbeat announced is still not stored (not merely on its way)
@@ -197,27 +261,172 @@ class Ingest:
             self.counts["behind"] += 1
             self._ask_replay(site, mark)
         self._announced[site] = last
+        seq = beat.get("last_incident_seq")
+        if isinstance(seq, int) and not isinstance(seq, bool):
+            imark = self.imarks.get(site, 0)
+            if imark < self._announced_i.get(site, 0):
+                self.counts["behind"] += 1
+                self._ask_replay(site, imark, incidents=True)
+            self._announced_i[site] = seq
 
-    def _set_state(self, site: str, state: str) -> None:
-        """The site's state in the store, written only when it changes."""
-        if self._state.get(site) == state:
+    def _clock(self, site: str, offset: float) -> None:
+        """A control-room incident while the site's clock is off by more than the bound."""
+        now = time.time()
+        try:
+            if abs(offset) > self.clock_tolerance_s and site not in self._clock_off:
+                self._clock_off.add(site)
+                if self.store.raise_room_incident(site, "site_clock", 3, f"the site's clock "
+                                                  f"is {offset:+.1f} s from the control "
+                                                  "room's", now) is not None:  # fmt: skip
+                    self.counts["room_incidents"] += 1
+            elif abs(offset) <= self.clock_tolerance_s and site in self._clock_off:
+                self._clock_off.discard(site)
+                self.store.clear_room_incidents(site, "site_clock", now)
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+
+    def _flush_summaries(self) -> None:
+        if not self._summaries_dirty:
+            return
+        dirty = {s: self.summaries[s] for s in self._summaries_dirty}
+        try:
+            self.store.set_summaries(dirty)
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+            return
+        self._summaries_dirty.clear()
+
+    # --- a site's page: its plan and its people while looked at --------------------------
+
+    def _latest(self, site: str, what: str, payload: bytes) -> None:
+        if len(payload) > MAX_PLAN_BYTES:
             return
         try:
-            self.store.set_site(site, state=state, last_seen=time.time())
+            doc = json.loads(payload) if payload else None
+        except (ValueError, UnicodeDecodeError):
+            doc = None
+        if doc is not None and not isinstance(doc, dict):
+            doc = None
+        with self._lock:
+            if what == "plan":
+                if doc is None:
+                    self._plans.pop(site, None)
+                elif len(self._plans) < MAX_SITES or site in self._plans:
+                    self._plans[site] = doc
+            elif site in self._watched and doc is not None:
+                self._people[site] = (time.time(), doc)
+
+    def known_sites(self) -> set[str]:
+        with self._lock:
+            return set(self._seen) | set(self._plans) | set(self.marks)
+
+    def watch(self, site: str) -> dict:
+        """The site's plan and people now; following its people topic from now on, until
+        nobody asked for WATCH_S."""
+        with self._lock:
+            new = site not in self._watched
+            self._watched[site] = time.monotonic()
+            plan = self._plans.get(site)
+            seen = self._people.get(site)
+        if new:
+            self.client.subscribe(f"{self.prefix}/{topic_part(site)}/people", 0)
+        people = None
+        if seen is not None:
+            people = {**seen[1], "received_at": round(seen[0], 3)}
+        return {"plan": plan, "people": people,
+                "console_url": (plan or {}).get("console_url")}  # fmt: skip
+
+    def _leave_unwatched(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            gone = [s for s, t in self._watched.items() if now - t > WATCH_S]
+            for s in gone:
+                del self._watched[s]
+                self._people.pop(s, None)
+        for s in gone:
+            self.client.unsubscribe(f"{self.prefix}/{topic_part(s)}/people")
+
+    # --- acknowledgements asked of sites -------------------------------------------------
+
+    def ask_ack(self, site: str, incident: int, by: str) -> int:
+        """Ask `site` to acknowledge its `incident` as `by` (any thread); the command's id.
+        StoreError when it cannot be stored."""
+        command = self.store.add_command(site, incident, by, time.time())
+        with self._lock:
+            self._commands[command] = [site, incident, by, 0.0]
+        return command
+
+    def _send_commands(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            due = [(c, v) for c, v in self._commands.items()
+                   if now - v[3] >= self.command_resend_s]  # fmt: skip
+            for _, v in due:
+                v[3] = now
+        for command, (site, incident, by, _) in due:
+            body = {"command": str(command), "incident": incident, "by": by, "from": self.name}
+            self.client.publish(f"{self.prefix}/{topic_part(site)}/commands/ack",
+                                json.dumps(body), qos=1)  # fmt: skip
+            self.counts["commands_sent"] += 1
+
+    def _done(self, site: str, payload: bytes) -> None:
+        try:
+            done = json.loads(payload)
+            command, result = int(done["command"]), str(done["result"])[:32]
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError):
+            self.counts["malformed"] += 1
+            return
+        with self._lock:
+            mine = self._commands.get(command)
+            if mine is None or mine[0] != site:  # answered before, or not this site's
+                return
+            del self._commands[command]
+        try:
+            self.store.finish_command(command, result, time.time())
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+        self.counts["commands_done"] += 1
+        if result != "acknowledged":
+            logger.info("control room: site %s answered the acknowledgement of incident %s: "
+                        "%s", site, mine[1], result)  # fmt: skip
+
+    def _set_state(self, site: str, state: str) -> None:
+        """The site's state in the store, written only when it changes; offline raises a
+        control-room incident, live clears it."""
+        if self._state.get(site) == state:
+            return
+        now = time.time()
+        try:
+            self.store.set_site(site, state=state, last_seen=now)
+            if state == "offline":
+                if (
+                    self.store.raise_room_incident(
+                        site, "site_offline", 2, "the site is offline", now
+                    )
+                    is not None
+                ):
+                    self.counts["room_incidents"] += 1
+            else:
+                self.store.clear_room_incidents(site, "site_offline", now)
         except StoreError as e:
             self.counts["store_errors"] += 1
             logger.error("control room: %s", e)
             return
         self._state[site] = state
 
-    def _ask_replay(self, site: str, mark: int) -> None:
+    def _ask_replay(self, site: str, mark: int, incidents: bool = False) -> None:
         now = time.monotonic()
-        if now - self._asked.get(site, -1e9) < self.replay_every_s:
+        key = (site, incidents)
+        if now - self._asked.get(key, -1e9) < self.replay_every_s:
             return
-        self._asked[site] = now
+        self._asked[key] = now
         self.counts["replays"] += 1
-        self.client.publish(f"{self.prefix}/{topic_part(site)}/log/replay",
-                            json.dumps({"after_id": mark}), qos=1)  # fmt: skip
+        body = {"incidents_after": mark} if incidents else {"after_id": mark}
+        self.client.publish(f"{self.prefix}/{topic_part(site)}/log/replay", json.dumps(body),
+                            qos=1)  # fmt: skip
 
     # --- figures, close ------------------------------------------------------------------
 
@@ -246,16 +455,24 @@ class Ingest:
             self.client.loop_stop()
 
 
-def _event(payload: bytes) -> dict | None:
-    """An outbox message with an int id and prev, or None."""
+def _numbered(payload: bytes, key: str) -> dict | None:
+    """An outbox message with an int `key` and prev, or None."""
     try:
         e = json.loads(payload)
     except (ValueError, UnicodeDecodeError):
         return None
     if not isinstance(e, dict):
         return None
-    for key in ("id", "prev"):
-        v = e.get(key)
+    for k in (key, "prev"):
+        v = e.get(k)
         if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= _MAX_ID:
             return None
     return e
+
+
+def _incident_change(msg: dict) -> bool:
+    rec = msg.get("incident")
+    if not isinstance(rec, dict):
+        return False
+    i = rec.get("id")
+    return isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= _MAX_ID

@@ -4,7 +4,8 @@ room, until SIGINT or SIGTERM.
 The configuration reads like a site's: `output` (the control room's folder: its store
 `control.sqlite`, its `users.json`), `[serve] host port certificate key allowed_hosts`,
 `[mqtt] host port username password(_file) tls ca_file topic_prefix` (the central broker),
-and `[control_room]` (`database`, `offline_after_s`). Everything is checked before anything
+and `[control_room]` (`database`, `offline_after_s`, `clock_tolerance_s`, `name`,
+`command_resend_s`). Everything is checked before anything
 starts; a bad value is exit 2 naming the file and the key.
 """
 
@@ -85,8 +86,10 @@ class ControlRoom:
         self.ingest: Ingest | None = None
         self.server.start()
         self.url = self.server.url
-        self.ingest = Ingest(plan.mqtt, self.store,
-                             offline_after_s=plan.config.control_room.offline_after_s)  # fmt: skip
+        cr = plan.config.control_room
+        self.ingest = Ingest(plan.mqtt, self.store, offline_after_s=cr.offline_after_s,
+                             clock_tolerance_s=cr.clock_tolerance_s, name=cr.name,
+                             command_resend_s=cr.command_resend_s)  # fmt: skip
 
     def close(self) -> None:
         if self.ingest is not None:

@@ -274,17 +274,30 @@ class _Service:
 
                 log = EventLog(p.events_db, p.out_dir / "clips")
                 self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
-                                        summary=self._summary)  # fmt: skip
+                                        summary=self._summary, plan=self._plan(cfg))  # fmt: skip
                 self.probes["outbox"] = self.outbox.figures
         if cfg.iec104.enabled:
             sinks.append(self._iec104(cfg, guard, wall_start))
         return sinks
 
+    def _plan(self, cfg: Config) -> dict:
+        """The site's zones and console address, for a control room's page of the site."""
+        site = self.plan.site
+        zones = [] if site is None else [
+            {"name": z.name, "kind": z.kind,
+             "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon]}
+            for z in site.zones]  # fmt: skip
+        return {"zones": zones, "console_url": cfg.serve.public_url or None}
+
     def _summary(self) -> dict:
         """The site at a glance, in the outbox's heartbeat (a control room's site list)."""
         snap = self.state.snapshot()
-        return {"status": snap.status, "cameras": len(snap.cameras),
-                "cameras_up": sum(1 for c in snap.cameras if c.up), "people": snap.people}
+        return {
+            "status": snap.status,
+            "cameras": len(snap.cameras),
+            "cameras_up": sum(1 for c in snap.cameras if c.up),
+            "people": snap.people,
+        }
 
     def _iec104(self, cfg: Config, guard, wall_start: float) -> Sink:
         """The IEC 60870-5-104 outstation (scada.iec104): a sink for the zone, camera and

@@ -31,6 +31,9 @@ Topics under ``<prefix>/<site>/`` (docs/mqtt.md#the-event-log-outbox):
   ``{"command": C, "incident": I, "result": "acknowledged" | "already" | "unknown" |
   "unavailable"}``. Sent again until answered, a command acts at most once: an incident
   acknowledged stays so.
+- ``plan`` (the site publishes at each connection, retained, QoS 1): ``{"zones": [{"name",
+  "kind", "polygon"}], "console_url"}``: the site's zones (floor polygons, metres) and its own
+  console's address (``[serve] public_url``), for a control room's page of the site.
 
 A receiver stores a message whose ``prev`` is at most its own mark of that stream (nothing is
 missing before it; a duplicate is dropped by its number) and raises its mark to the message's
@@ -103,15 +106,18 @@ class LogOutbox:
                  start_after: int | None = None, inflight: int = INFLIGHT,
                  poll_s: float = POLL_S, heartbeat_s: float = HEARTBEAT_S,
                  acknowledger: Callable[[int, str], Any] | None = None,
-                 summary: Callable[[], dict] | None = None) -> None:  # fmt: skip
+                 summary: Callable[[], dict] | None = None,
+                 plan: dict | None = None) -> None:  # fmt: skip
         self.heartbeat_s = float(heartbeat_s)
         self.settings, self.log = settings, log
         self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
         self.acknowledger, self.summary = acknowledger, summary
+        self.plan = plan
         site = f"{settings.topic_prefix}/{topic_part(settings.site)}"
         self.topics = {k: f"{site}/log/{k}" for k in ("events", "incidents", "confirmed",
                                                       "replay", "heartbeat")}  # fmt: skip
-        self.topics.update(ack=f"{site}/commands/ack", done=f"{site}/commands/done")
+        self.topics.update(ack=f"{site}/commands/ack", done=f"{site}/commands/done",
+                           plan=f"{site}/plan")  # fmt: skip
         self.streams = [_Stream("events", self.topics["events"], "id", "after_id",
                                 lambda n, k: log.after(n, limit=k), log.last_id)]  # fmt: skip
         if start_after is not None:
@@ -168,6 +174,8 @@ class LogOutbox:
             return
         client.subscribe([(self.topics["confirmed"], 1), (self.topics["replay"], 1),
                           (self.topics["ack"], 1)])  # fmt: skip
+        if self.plan is not None:  # retained: a control room's page of this site
+            client.publish(self.topics["plan"], json.dumps(self.plan), qos=1, retain=True)
         with self._lock:
             self._connected = True
             self._unacked.clear()
@@ -234,8 +242,8 @@ class LogOutbox:
         if cmd is None:
             with self._lock:
                 self.counts["malformed"] += 1
-            logger.warning("event outbox: ignored a malformed command on %s (expected "
-                           '{"command", "incident", "by", "from"})', self.topics["ack"])  # fmt: skip
+            logger.warning("event outbox: ignored a malformed command on %s (expected %s)",
+                           self.topics["ack"], COMMAND_KEYS)  # fmt: skip
             return
         with self._lock:
             self.counts["commands"] += 1
@@ -402,6 +410,7 @@ def _lag(st: _Stream) -> int | None:
     return None if st.confirmed is None else max(0, st.high - st.confirmed)
 
 
+COMMAND_KEYS = '{"command", "incident", "by", "from"}'
 _NAME = 64  # the longest user or place name a command may carry
 
 

@@ -1,6 +1,8 @@
 """The console's users: `<output>/users.json`, beside the event log.
 
-One JSON document {"version": 1, "users": {name: {"role", "hash", "created", "changed"}}},
+One JSON document {"version": 1, "users": {name: {"role", "hash", "created", "changed"}}}
+(and "sites": [names] for a control room's user limited to some sites: see
+stereopose.controlroom),
 written atomically (a temporary file renamed over it) and readable by its owner only (0600).
 Passwords are argon2id hashes (argon2-cffi); the plain password is never stored or logged.
 Changes (`stereopose users ...` while the service runs) are made under an exclusive lock of
@@ -39,7 +41,8 @@ from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatc
 from stereopose.errors import StereoposeError
 
 __all__ = ["MIN_PASSWORD", "ROLES", "USERS_FILE", "User", "UserError", "UserStore",
-           "check_name", "check_password", "common_passwords", "role_at_least"]  # fmt: skip
+           "check_name", "check_password", "check_site", "common_passwords",
+           "role_at_least"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +74,7 @@ class User:
     created: float
     changed: float
     stamp: str
+    sites: tuple[str, ...] | None = None  # a control room's user: only these sites (None: all)
 
 
 def check_name(name: object) -> str:
@@ -124,8 +128,18 @@ def role_at_least(role: str, needed: str) -> bool:
     return role in ROLES and ROLES.index(role) >= ROLES.index(needed)
 
 
+def check_site(name: object) -> str:
+    """A site's name as a user's limit: 1 to 200 printable characters."""
+    if not isinstance(name, str) or not 0 < len(name) <= 200 or not name.isprintable():
+        raise UserError(f"site {name!r}: expected 1 to 200 printable characters")
+    return name
+
+
 def _stamp(record: dict) -> str:
-    return sha256(f"{record['role']}\0{record['hash']}".encode()).hexdigest()[:32]
+    text = f"{record['role']}\0{record['hash']}"
+    if record.get("sites") is not None:
+        text += "\0" + "\0".join(record["sites"])
+    return sha256(text.encode()).hexdigest()[:32]
 
 
 class UserStore:
@@ -186,6 +200,11 @@ class UserStore:
                 check_role(rec["role"])
                 if not isinstance(rec["hash"], str):
                     raise TypeError(f"{name}: hash is not text")
+                sites = rec.get("sites")
+                if sites is not None and not (
+                    isinstance(sites, list) and all(isinstance(x, str) for x in sites)
+                ):
+                    raise TypeError(f"{name}: sites is not a list of names")  # fmt: skip
         except (ValueError, KeyError, TypeError, UserError) as e:
             raise UserError(f"{self.path}: not a users file ({e})") from None
         return users
@@ -203,8 +222,10 @@ class UserStore:
 
     @staticmethod
     def _user(name: str, rec: dict) -> User:
+        sites = rec.get("sites")
         return User(name, rec["role"], float(rec.get("created", 0.0)),
-                    float(rec.get("changed", 0.0)), _stamp(rec))  # fmt: skip
+                    float(rec.get("changed", 0.0)), _stamp(rec),
+                    None if sites is None else tuple(sites))  # fmt: skip
 
     def verify(self, name: str, password: str) -> User | None:
         """The user when `password` is theirs, else None. An unknown name costs one hash as a
@@ -235,8 +256,12 @@ class UserStore:
 
     # -- changing --------------------------------------------------------------------------
 
-    def add(self, name: str, password: str, role: str) -> User:
+    def add(self, name: str, password: str, role: str,
+            sites: tuple[str, ...] | None = None) -> User:  # fmt: skip
+        """sites: the only sites a control room shows this user (None: every site)."""
         check_name(name)
+        if sites is not None:
+            sites = tuple(check_site(x) for x in sites)
         check_role(role)
         check_password(password)
         hashed = self._hash(password)
@@ -248,6 +273,8 @@ class UserStore:
                 raise UserError(f"{self.path}: at most {MAX_USERS} users")
             now = time.time()
             users[name] = {"role": role, "hash": hashed, "created": now, "changed": now}
+            if sites is not None:
+                users[name]["sites"] = sorted(set(sites))
             rec = users[name]
         logger.info("users: %s added (%s)", name, role)
         return self._user(name, rec)

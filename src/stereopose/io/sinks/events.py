@@ -36,8 +36,7 @@ from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
-from stereopose.io.sinks.incidents import (INCIDENTS_SCHEMA, INCIDENTS_SEQ_INDEX,
-                                          upsert_incidents)  # fmt: skip
+from stereopose.io.sinks.incidents import INCIDENTS_SCHEMA, INCIDENTS_SEQ_INDEX, upsert_incidents
 from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output

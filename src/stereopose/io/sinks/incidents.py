@@ -189,8 +189,10 @@ def changes_after(path: str | Path, seq: int, limit: int = 200) -> list[dict]:
         try:
             if not _has_table(db) or "seq" not in _columns(db):
                 return []
-            return db.execute("SELECT seq, record, wall_start FROM incidents WHERE seq > ? "
-                              "ORDER BY seq LIMIT ?", (int(seq), int(limit))).fetchall()
+            return db.execute(
+                "SELECT seq, record, wall_start FROM incidents WHERE seq > ? ORDER BY seq LIMIT ?",
+                (int(seq), int(limit)),
+            ).fetchall()
         finally:
             db.close()
 
