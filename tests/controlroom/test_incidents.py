@@ -115,7 +115,7 @@ def _central(store: ControlStore, site: str, incident: int) -> dict | None:
 
 
 def test_a_sites_incidents_are_held_centrally_with_their_latest_state(broker, room, tmp_path):
-    store, ingest = room
+    store, _ingest = room
     site = Site(tmp_path, broker.port)
     try:
         first = site.enter()
@@ -200,7 +200,7 @@ def test_an_ack_asked_while_the_broker_is_away_arrives_when_it_is_back(broker, r
 
 def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker, room,
                                                                           tmp_path):  # fmt: skip
-    store, ingest = room
+    store, _ingest = room
     site = Site(tmp_path, broker.port, heartbeat_s=0.2)
     try:
         site.enter()
@@ -218,7 +218,7 @@ def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker
                            for i in store.incidents(site="east"))  # fmt: skip
 
             wait_until(ahead, "the clock incident", poll_s=0.3)
-            clock = [i for i in store.incidents(site="east") if i["kind"] == "site_clock"][0]
+            clock = next(i for i in store.incidents(site="east") if i["kind"] == "site_clock")
             assert clock["source"] == "control_room" and clock["priority"] == 3
             assert "+60" in clock["detail"]
 
