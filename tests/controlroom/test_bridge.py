@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import httpx
 import paho.mqtt.client as paho
 import pytest
 from test_control_room import ENV, _add_user, _central, _client
@@ -121,5 +122,152 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
         room.wait(timeout=30)
         box.close()
         sink.close()
+        site_broker.stop()
+        central.stop()
+
+
+def _ids(db: Path) -> list[int]:
+    import sqlite3
+
+    if not db.exists():
+        return []
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+    try:
+        return [i for (i,) in con.execute("SELECT id FROM events ORDER BY id")]
+    except sqlite3.OperationalError:
+        return []
+    finally:
+        con.close()
+
+
+@pytest.mark.realdata
+def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_both_ways(
+        tmp_path):  # fmt: skip
+    """The issue's whole scene: a site `serve` on the demo, its mosquitto bridged (the
+    shipped configuration) to the central one, the control room on the central one. During a
+    60-s cut of the central side the control room is killed and started again, an operator
+    acknowledges an incident in the control room and another at the site; once the link is
+    back both acknowledgements are on both sides, every event of the site's log is stored
+    centrally once, and the site stopped is shown offline within its allowance."""
+    import signal
+
+    from test_control_room import _add, _login
+
+    from stereopose.pipeline.demo import write_serve_demo_config
+
+    cert, key = make_certificate(tmp_path, "central")
+    users = {"site-north": "north-pw", "control-room": "room-pw"}
+    central = Broker(tmp_path / "central", users=users, tls=(cert, key),
+                     extra=(f"acl_file {_acl(tmp_path)}",)).start()  # fmt: skip
+    site_broker = Broker(tmp_path / "site", extra=tuple(_bridge(cert, central.port,
+                                                                "north-pw"))).start()  # fmt: skip
+    http_port, site_port = free_port(), free_port()
+    room_dir = tmp_path / "room"
+    room_dir.mkdir()
+    (room_dir / "mqtt.secret").write_text("room-pw\n")
+    (room_dir / "mqtt.secret").chmod(0o600)
+    config = room_dir / "control.toml"
+    config.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
+                      f'host = "localhost"\nport = {central.port}\ntls = true\n'
+                      f'ca_file = "{cert}"\nusername = "control-room"\n'
+                      'password_file = "mqtt.secret"\n\n[control_room]\n'
+                      "offline_after_s = 30\ncommand_resend_s = 2\n")  # fmt: skip
+    _add_user(config)
+    _add(config, "olga", "operator")
+    site_config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", site_port,
+                                          imgsz=320)  # fmt: skip
+    site_config.write_text(site_config.read_text().replace(
+        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {site_broker.port}\nsite = "north"\n'
+        "outbox_resend_s = 5\n\n[serve]\n", 1))  # fmt: skip
+    _add(site_config, "sam", "operator")
+    db = tmp_path / "data" / "events.sqlite"
+
+    def start_room() -> subprocess.Popen:
+        with open(tmp_path / "room.log", "ab") as f:
+            cmd = [sys.executable, "-m", "stereopose.cli", "control-room", str(config)]
+            return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=ENV)
+
+    room = start_room()
+    with open(tmp_path / "serve.log", "ab") as f:
+        serve = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve",
+                                  str(site_config)], stdout=f, stderr=subprocess.STDOUT,
+                                 env=ENV)  # fmt: skip
+    try:
+        c = _client(http_port)
+        olga = _login(http_port, "olga", "olga-password")
+
+        def site_up() -> bool:
+            try:
+                return httpx.get(f"http://127.0.0.1:{site_port}/api/health").status_code < 500
+            except httpx.HTTPError:
+                return False
+
+        wait_until(site_up, "the site's API", timeout_s=120, poll_s=0.5)
+        sam = _login(site_port, "sam", "sam-password")
+
+        def central_incidents() -> dict[int, dict]:
+            found = c.get("/api/incidents", params={"site": "north"}).json()["incidents"]
+            return {i["id"]: i for i in found if i["source"] == "site"}
+
+        def unacked() -> list[int]:
+            return sorted(i for i, r in central_incidents().items() if not r.get("acked_by"))
+
+        wait_until(lambda: len(unacked()) >= 2, "two incidents in the control room",
+                   timeout_s=180, poll_s=0.5)  # fmt: skip
+        first, second = unacked()[:2]
+        central.stop()  # the cut: the bridge and the control room lose the central side
+        cut = time.monotonic()
+        r = olga.post(f"/api/sites/north/incidents/{first}/ack")
+        assert r.status_code == 202, r.text
+        r = sam.post(f"/api/incidents/{second}/ack")
+        assert r.status_code == 200, r.text
+        room.send_signal(signal.SIGKILL)  # and the control room dies in the middle of it
+        room.wait(timeout=10)
+        room = start_room()
+        c, olga = _client(http_port), _login(http_port, "olga", "olga-password")
+        time.sleep(max(0.0, 60 - (time.monotonic() - cut)))  # the cut lasts its 60 s
+        central.start()
+
+        def site_record(i: int) -> dict:
+            found = sam.get("/api/incidents", params={"limit": 1000}).json()["incidents"]
+            return next(r for r in found if r["id"] == i)
+
+        wait_until(lambda: site_record(first).get("acked_by") == "olga via control-room",
+                   "the control room's ack at the site", timeout_s=60, poll_s=0.5)  # fmt: skip
+        wait_until(lambda: central_incidents()[second].get("acked_by") == "sam",
+                   "the site's ack in the control room", timeout_s=60, poll_s=0.5)  # fmt: skip
+        wait_until(lambda: central_incidents()[first].get("acked_by") == "olga via control-room",
+                   "the control room's ack back", timeout_s=60, poll_s=0.5)  # fmt: skip
+        site = next(s for s in c.get("/api/sites").json()["sites"] if s["site"] == "north")
+        assert site["state"] in ("live", "degraded") and site["cameras"] == 4
+        # what the bridge dropped while cut is sent again from the site's log
+        logged = _ids(db)
+        wait_until(lambda: set(logged) <= set(_central(c, "north")),
+                   "the events of the cut in the control room", timeout_s=60,
+                   poll_s=0.5)  # fmt: skip
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()[-3000:]
+        stopped = time.monotonic()
+
+        def central_ids() -> list[int]:
+            return _central(c, "north")
+
+        wait_until(lambda: central_ids() == _ids(db), "every event of the site, once",
+                   timeout_s=60, poll_s=0.5)  # fmt: skip
+
+        def state() -> str:
+            return next(s for s in c.get("/api/sites").json()["sites"]
+                        if s["site"] == "north")["state"]  # fmt: skip
+
+        wait_until(lambda: state() == "offline", "the site offline", timeout_s=60, poll_s=0.5)
+        assert time.monotonic() - stopped < 30 + 15  # its allowance (offline_after_s) at most
+        offline = [i for i in c.get("/api/incidents", params={"site": "north"}).json()["incidents"]
+                   if i.get("kind") == "site_offline"]  # fmt: skip
+        assert offline and offline[0]["state"] == "active"
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        room.terminate()
+        room.wait(timeout=30)
         site_broker.stop()
         central.stop()

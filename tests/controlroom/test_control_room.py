@@ -232,3 +232,96 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
         room.send_signal(signal.SIGTERM)
         room.wait(timeout=30)
         broker.stop()
+
+
+def _login(http_port: int, user: str, password: str) -> httpx.Client:
+    c = httpx.Client(base_url=f"http://127.0.0.1:{http_port}", timeout=30)
+    r = c.post("/api/login", json={"username": user, "password": password})
+    assert r.status_code == 200, r.text
+    c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+    return c
+
+
+def _add(config: Path, name: str, role: str, *more: str) -> None:
+    add = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "add", name,
+                          "--role", role, *more, "--config", str(config)],
+                         input=f"{name}-password\n", text=True, capture_output=True, env=ENV,
+                         timeout=60)  # fmt: skip
+    assert add.returncode == 0, add.stderr
+
+
+@pytest.mark.slow
+def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
+    from test_incidents import Site as IncidentSite
+
+    broker = Broker(tmp_path / "broker").start()
+    http_port = free_port()
+    config = _config(tmp_path / "room", broker.port, http_port,
+                     '[control_room]\nname = "utility-cr"\ncommand_resend_s = 0.5\n')  # fmt: skip
+    _add_user(config)  # vera, a viewer of every site
+    _add(config, "olga", "operator", "--sites", "north")
+    listed = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "list",
+                             "--config", str(config)], capture_output=True, text=True, env=ENV,
+                            timeout=60)  # fmt: skip
+    assert listed.stdout.split("\n")[0].split() == ["olga", "operator", "north"], listed.stdout
+    plan = {"zones": [{"name": "busbar", "kind": "energized",
+                       "polygon": [[0, 0], [2, 0], [2, 1], [0, 1]]}],
+            "console_url": "https://north.example.org:8787/"}  # fmt: skip
+    north = IncidentSite(tmp_path, broker.port, "north", plan=plan)
+    south = IncidentSite(tmp_path, broker.port, "south")
+    proc = _start(config, tmp_path / "room.log")
+    try:
+        vera = _client(http_port)
+        olga = _login(http_port, "olga", "olga-password")
+        n_inc, s_inc = north.enter(), south.enter()
+
+        def central(c: httpx.Client, site: str) -> dict:
+            found = c.get("/api/incidents", params={"site": site}).json()["incidents"]
+            return {i["id"]: i for i in found if i["source"] == "site"}
+
+        wait_until(lambda: n_inc in central(vera, "north") and s_inc in central(vera, "south"),
+                   "both sites' incidents", timeout_s=30)  # fmt: skip
+        wait_until(lambda: {s["site"] for s in vera.get("/api/sites").json()["sites"]}
+                   == {"north", "south"}, "both sites listed")  # fmt: skip
+        assert {s["site"] for s in olga.get("/api/sites").json()["sites"]} == {"north"}
+        north_row = next(s for s in vera.get("/api/sites").json()["sites"] if s["site"] == "north")
+        assert north_row["open_incidents"] == 1 and north_row["open_by_priority"] == {"1": 1}
+        assert olga.get("/api/events", params={"site": "south"}).json()["events"] == []
+        assert central(olga, "south") == {}
+        assert olga.get("/api/sites/south/plan").status_code == 404
+        # a viewer may not acknowledge; an operator not another's site
+        assert vera.post(f"/api/sites/north/incidents/{n_inc}/ack").status_code == 403
+        assert olga.post(f"/api/sites/south/incidents/{s_inc}/ack").status_code == 404
+        assert olga.post("/api/sites/north/incidents/99999/ack").status_code == 404
+        r = olga.post(f"/api/sites/north/incidents/{n_inc}/ack")
+        assert r.status_code == 202 and r.json()["command"] is not None, r.text
+        wait_until(lambda: north.record(n_inc).acked_by == "olga via utility-cr",
+                   "the acknowledgement at the site", timeout_s=30)  # fmt: skip
+        north.run()
+        wait_until(lambda: central(vera, "north")[n_inc].get("acked_by") == "olga via utility-cr",
+                   "the acknowledgement back", timeout_s=30)  # fmt: skip
+        again = olga.post(f"/api/sites/north/incidents/{n_inc}/ack")
+        assert again.status_code == 200 and again.json()["command"] is None
+        # the site's page: its plan, its people followed while looked at, its console's link
+        page = olga.get("/api/sites/north/plan").json()
+        wait_until(lambda: olga.get("/api/sites/north/plan").json()["plan"] == plan,
+                   "the site's plan")  # fmt: skip
+        assert page["site"] == "north"
+        assert olga.get("/api/sites/north/plan").json()["console_url"] == plan["console_url"]
+        # the console's page and its files, with the site console's headers
+        root = httpx.get(f"http://127.0.0.1:{http_port}/")
+        assert root.status_code == 200 and "control room" in root.text
+        assert "default-src 'self'" in root.headers["content-security-policy"]
+        for path in ("/room/room.js", "/room/room.css", "/console/console.css",
+                     "/console/api.js"):  # fmt: skip
+            assert httpx.get(f"http://127.0.0.1:{http_port}{path}").status_code == 200, path
+        assert httpx.get(f"http://127.0.0.1:{http_port}/room/%2e%2e/page.py").status_code == 404
+        metrics = vera.get("/metrics").text
+        assert "stereopose_controlroom_commands_done_total 1.0" in metrics
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+        north.close()
+        south.close()
+        broker.stop()
+    assert rc == 0, (tmp_path / "room.log").read_text()
