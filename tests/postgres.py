@@ -5,6 +5,7 @@ PostgreSQL or psycopg, unless CI requires it (STEREOPOSE_REQUIRE_POSTGRES=1)."""
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import shutil
@@ -72,10 +73,8 @@ class Postgres:
         return self
 
     def stop(self, remove: bool = False) -> None:
-        try:
+        with contextlib.suppress(RuntimeError):  # stopped already
             self._run([self.pg_ctl, "-D", str(self.data), "-m", "fast", "-w", "stop"])
-        except RuntimeError:
-            pass
         if remove:
             shutil.rmtree(self.folder, ignore_errors=True)
 
