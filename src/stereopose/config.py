@@ -341,10 +341,17 @@ class ControlRoomConfig:
     name: str = "control-room"
     # how often an acknowledgement not yet answered by its site is asked again
     command_resend_s: float = number(5.0, gt=0.0, le=3600.0)
+    # several control-room workers on one PostgreSQL store: the MQTT shared subscription's
+    # group they share the sites' messages in ("": one worker takes every message)
+    shared_group: str = ""
 
     def _check(self) -> None:
         if not (0 < len(self.name) <= 64 and self.name.isprintable()):
             raise ConfigError("control_room.name: 1 to 64 printable characters")
+        g = self.shared_group
+        if g and not (len(g) <= 64 and g.isprintable() and not set(g) & set("/+#")):
+            raise ConfigError("control_room.shared_group: up to 64 printable characters, "
+                              "no / + #")  # fmt: skip
 
 
 @_schema("iec104")

@@ -113,3 +113,14 @@ def test_a_store_that_cannot_be_reached_is_a_clear_error_without_its_password(po
     assert "sekrit-word" not in str(e.value) and "cannot open the control room's store" in str(
         e.value)  # fmt: skip
     assert shown_database(url) == f"postgresql://stereopose:***@127.0.0.1:{postgres.port + 1}/none"
+
+
+def test_many_sites_in_one_transaction(store):
+    new, written = store.put_batch(
+        {"north": (_events([1, 2]), 2), "south": (_events([1], "south"), 1)},
+        {"north": ([_change(1), _change(2, state="cleared")], 2)}, 10.0)  # fmt: skip
+    assert (new, written) == (3, 2)  # incident 1 written twice, its newer record last
+    assert store.incident("north", 1)["state"] == "cleared"
+    new, _ = store.put_batch({"north": (_events([2, 3]), 3)}, {}, 11.0)
+    assert new == 1 and store.marks() == {"north": 3, "south": 1}
+    assert store.incident_marks()["north"] == 2 and store.duplicates == 1

@@ -102,7 +102,7 @@ def sites(request: Request, session: Viewer) -> dict:
         open_counts = room.store.open_counts()
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
-    out = []
+    out, offsets = [], room.ingest.clock_offsets
     for r in rows:
         h = r.health or {}
         state = r.state
@@ -114,7 +114,7 @@ def sites(request: Request, session: Viewer) -> dict:
                     "people": h.get("people"), "open_incidents": sum(by.values()),
                     "open_by_priority": by, "status": h.get("status"),
                     "events": r.events, "mark": r.mark,
-                    "clock_offset_s": room.ingest.clock_offsets.get(r.site)})  # fmt: skip
+                    "clock_offset_s": offsets.get(r.site, h.get("clock_offset_s"))})  # fmt: skip
     return {"sites": out}
 
 

@@ -42,6 +42,8 @@ logger = logging.getLogger(__name__)
 QUEUE = 100_000  # messages waiting for the ingest's thread at most
 CLOCK_WARN_S = 5.0  # a site's clock this far from ours is logged
 SUMMARY = ("status", "cameras", "cameras_up", "people")  # a heartbeat's summary of its site
+HOLD_S = 3.0  # a worker holds a message this long for the one before it (another worker's)
+MAX_HELD = 10_000  # messages held per site and stream at most
 WATCH_S = 15.0  # a site's people are followed this long after its page last looked
 MAX_PLAN_BYTES = 1 << 20  # a plan or people message larger than this is ignored
 MAX_SITES = 100_000  # plans kept at most
@@ -55,9 +57,15 @@ class Ingest:
     def __init__(self, settings: MqttSettings, store: ControlStore, *,
                  offline_after_s: float = 90.0, batch_s: float = 0.1, replay_every_s: float = 2.0,
                  queue_size: int = QUEUE, clock_tolerance_s: float = 5.0,
-                 name: str = "control-room", command_resend_s: float = 5.0) -> None:  # fmt: skip
+                 name: str = "control-room", command_resend_s: float = 5.0,
+                 shared_group: str = "") -> None:  # fmt: skip
         self.settings, self.store = settings, store
         self.clock_tolerance_s, self.name = float(clock_tolerance_s), name
+        # several workers on one store: the broker gives each a share of the sites' messages
+        self.shared = f"$share/{shared_group}/" if shared_group else ""
+        # (site, incidents?) -> prev -> (message, held since): a worker's out-of-order share
+        self._held: dict[tuple[str, bool], dict[int, tuple[dict, float]]] = {}
+        self._pending_checked = time.monotonic()
         self.command_resend_s = float(command_resend_s)
         self.imarks = store.incident_marks()  # the ingest thread's only
         self._announced_i: dict[str, int] = {}
@@ -118,11 +126,17 @@ class Ingest:
                          self.settings.host, self.settings.port, reason)  # fmt: skip
             return
         self.connected = True
-        client.subscribe([(f"{self.prefix}/+/log/events", 1), (f"{self.prefix}/+/available", 1),
-                          (f"{self.prefix}/+/log/heartbeat", 0),
-                          (f"{self.prefix}/+/log/incidents", 1),
-                          (f"{self.prefix}/+/commands/done", 1),
-                          (f"{self.prefix}/+/plan", 1)])  # fmt: skip
+        share = self.shared
+        client.subscribe(
+            [
+                (f"{share}{self.prefix}/+/log/events", 1),
+                (f"{share}{self.prefix}/+/available", 1),
+                (f"{share}{self.prefix}/+/log/heartbeat", 0),
+                (f"{share}{self.prefix}/+/log/incidents", 1),
+                (f"{share}{self.prefix}/+/commands/done", 1),
+                (f"{self.prefix}/+/plan", 1),
+            ]
+        )  # every worker's page needs them: fmt: skip
         with self._lock:
             watched = list(self._watched)
         for site in watched:  # a new connection: the pages being looked at follow again
@@ -190,15 +204,79 @@ class Ingest:
                     incidents and not _incident_change(msg)):  # fmt: skip
                 self.counts["malformed"] += 1
                 continue
-            marks = self.imarks if incidents else self.marks
-            mark = marks.get(site, 0)
-            if msg["prev"] > mark:  # lost on the way: from the mark again
-                self.counts["gaps"] += 1
-                self._ask_replay(site, mark, incidents=incidents)
-                continue
-            (changes if incidents else per_site).setdefault(site, []).append(msg)
-            marks[site] = max(mark, msg["seq" if incidents else "id"])
+            self._accept(site, incidents, msg, per_site, changes)
+        if self._held:  # a worker's share: what came before them may be in the store now
+            self._release_held(per_site, changes)
         now = time.time()
+        batch_sites = set(per_site) | set(changes)
+        if batch_sites:
+            try:  # one transaction for the whole batch
+                new, written = self.store.put_batch(
+                    {s: (v, self.marks[s]) for s, v in per_site.items()},
+                    {s: (v, self.imarks[s]) for s, v in changes.items()}, now)  # fmt: skip
+                self.counts["stored"] += new
+                self.counts["duplicates"] += sum(len(v) for v in per_site.values()) - new
+                self.counts["incident_changes"] += written
+                done = batch_sites
+            except StoreError as e:  # then site by site: one site's fault stops only it
+                logger.warning("control room: %s; storing site by site", e)
+                done = self._put_each(per_site, changes, now)
+            for site in done:
+                if self._available.get(site) != "offline":
+                    self._set_state(site, "live")
+                self._confirm(site)
+        self._flush_summaries()
+        self._send_commands()
+        self._leave_unwatched()
+        self._rate.append((now, self.counts["messages"]))
+        for site, seen in list(self._seen.items()):
+            if now - seen > self.offline_after_s and self._available.get(site) != "offline":
+                self._available[site] = "offline"
+                logger.warning("control room: site %s silent for %.0f s: offline", site,
+                               now - seen)  # fmt: skip
+                self._set_state(site, "offline")
+
+    def _accept(self, site: str, incidents: bool, msg: dict, per_site: dict, changes: dict,
+                held_since: float | None = None) -> None:  # fmt: skip
+        """An outbox message to store when nothing is missing before it; else a gap (one
+        worker: a replay asked) or, sharing the sites with other workers, held a moment (the
+        one before it may be another worker's, stored by it meanwhile)."""
+        marks = self.imarks if incidents else self.marks
+        mark = marks.get(site, 0)
+        if msg["prev"] > mark:
+            now = time.monotonic()
+            since = now if held_since is None else held_since
+            if self.shared and now - since < HOLD_S:
+                held = self._held.setdefault((site, incidents), {})
+                if len(held) < MAX_HELD:
+                    held[msg["prev"]] = (msg, since)
+                    return
+                self.counts["dropped"] += 1  # not confirmed: its site sends it again
+            self.counts["gaps"] += 1
+            self._ask_replay(site, mark, incidents=incidents)
+            return
+        (changes if incidents else per_site).setdefault(site, []).append(msg)
+        marks[site] = max(mark, msg["seq" if incidents else "id"])
+
+    def _release_held(self, per_site: dict, changes: dict) -> None:
+        """The held messages again, in order, after the marks are read from the shared
+        store (what the other workers stored); any held past HOLD_S is a gap."""
+        try:
+            stored = (self.store.marks(), self.store.incident_marks())
+        except StoreError:
+            stored = ({}, {})
+        for marks, theirs in ((self.marks, stored[0]), (self.imarks, stored[1])):
+            for site, m in theirs.items():
+                if m > marks.get(site, 0):
+                    marks[site] = m
+        held, self._held = self._held, {}
+        for (site, incidents), items in held.items():
+            for _, (msg, since) in sorted(items.items()):
+                self._accept(site, incidents, msg, per_site, changes, held_since=since)
+
+    def _put_each(self, per_site: dict, changes: dict, now: float) -> set[str]:
+        """Each site's batch in its own transaction; the sites stored."""
+        done = set()
         for site in set(per_site) | set(changes):
             try:
                 if site in per_site:
@@ -214,19 +292,8 @@ class Ingest:
                 self.marks, self.imarks = self.store.marks(), self.store.incident_marks()
                 logger.error("control room: %s", e)
                 continue
-            if self._available.get(site) != "offline":
-                self._set_state(site, "live")
-            self._confirm(site)
-        self._flush_summaries()
-        self._send_commands()
-        self._leave_unwatched()
-        self._rate.append((now, self.counts["messages"]))
-        for site, seen in list(self._seen.items()):
-            if now - seen > self.offline_after_s and self._available.get(site) != "offline":
-                self._available[site] = "offline"
-                logger.warning("control room: site %s silent for %.0f s: offline", site,
-                               now - seen)  # fmt: skip
-                self._set_state(site, "offline")
+            done.add(site)
+        return done
 
     def _confirm(self, site: str) -> None:
         """The site's marks of both streams on its `log/confirmed` (retained: one message)."""
@@ -250,6 +317,8 @@ class Ingest:
                            site, offset)  # fmt: skip
         self._clock(site, offset)
         summary = {k: beat[k] for k in SUMMARY if k in beat}
+        if summary:
+            summary["clock_offset_s"] = round(offset, 1)  # in the store: every worker's
         if summary and self.summaries.get(site) != summary:
             self.summaries[site] = summary
             self._summaries_dirty.add(site)
@@ -360,6 +429,16 @@ class Ingest:
 
     def _send_commands(self) -> None:
         now = time.monotonic()
+        if self.shared and now - self._pending_checked > self.command_resend_s:
+            self._pending_checked = now  # answered through another worker: not sent again
+            try:
+                open_ = {c for c, *_ in self.store.pending_commands()}
+            except StoreError:
+                open_ = None
+            if open_ is not None:
+                with self._lock:
+                    for c in [c for c in self._commands if c not in open_]:
+                        del self._commands[c]
         with self._lock:
             due = [(c, v) for c, v in self._commands.items()
                    if now - v[3] >= self.command_resend_s]  # fmt: skip
@@ -379,10 +458,19 @@ class Ingest:
             self.counts["malformed"] += 1
             return
         with self._lock:
-            mine = self._commands.get(command)
-            if mine is None or mine[0] != site:  # answered before, or not this site's
-                return
-            del self._commands[command]
+            mine = self._commands.pop(command, None)
+        if mine is not None and mine[0] != site:  # not this site's command: kept
+            with self._lock:
+                self._commands[command] = mine
+            return
+        if mine is None:
+            if self.shared:  # another worker's: answered in the shared store
+                try:
+                    self.store.finish_command(command, result, time.time(), site=site)
+                except StoreError as e:
+                    self.counts["store_errors"] += 1
+                    logger.error("control room: %s", e)
+            return
         try:
             self.store.finish_command(command, result, time.time())
         except StoreError as e:

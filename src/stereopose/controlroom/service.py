@@ -77,6 +77,10 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
             host = parts.netloc.rpartition("@")[2]
             database = urlunsplit(parts._replace(netloc=f"{user}:{word}@{host}"))
     else:
+        if cfg.control_room.shared_group:
+            raise ConfigError(f"{path}: control_room.shared_group: several workers share one "
+                              "PostgreSQL store; give control_room.database = "
+                              '"postgresql://..."')  # fmt: skip
         database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
     certificate, key = _tls(path, base, cfg)
     http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
@@ -111,7 +115,8 @@ class ControlRoom:
         cr = plan.config.control_room
         self.ingest = Ingest(plan.mqtt, self.store, offline_after_s=cr.offline_after_s,
                              clock_tolerance_s=cr.clock_tolerance_s, name=cr.name,
-                             command_resend_s=cr.command_resend_s)  # fmt: skip
+                             command_resend_s=cr.command_resend_s,
+                             shared_group=cr.shared_group)  # fmt: skip
 
     def close(self) -> None:
         if self.ingest is not None:

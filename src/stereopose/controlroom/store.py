@@ -93,6 +93,7 @@ CREATE INDEX IF NOT EXISTS room_incidents_open ON room_incidents(site, kind, sta
 ADDED = (("sites", "incident_mark", "INTEGER NOT NULL DEFAULT 0"),)
 OPEN_STATES = ("active", "acknowledged", "cleared")
 MAX_LIMIT = 1000
+SCHEMA_LOCK = 0x5354_4552_4551  # PostgreSQL advisory lock held while the tables are made
 
 
 class StoreError(StereoposeError):
@@ -167,6 +168,8 @@ class ControlStore:
         self.db = None
         try:
             self._writer()
+            if self.postgres:  # several workers starting at once make the tables one at a time
+                self.db.execute("SELECT pg_advisory_xact_lock(%s)", (SCHEMA_LOCK,))
             for st in self.dialect.schema():
                 self.db.execute(st)
             for table, column, decl in ADDED:
@@ -260,54 +263,42 @@ class ControlStore:
     def put_events(self, site: str, events: Sequence[dict], mark: int, now: float) -> int:
         """Store a site's events (each (site, id) once) and its new mark, in one transaction;
         the number newly stored."""
-        rows = [(site, int(e["id"]), _num(e.get("wall_t")), _text(e.get("type")),
-                 _text(e.get("zone")), _int(e.get("person")), _int(e.get("incident")),
-                 _int(e.get("priority")), now, json.dumps(e, separators=(",", ":")))
-                for e in events]  # fmt: skip
+        rows = [_event_row(site, e, now) for e in events]
         with self._writing(f"store {len(rows)} event(s) of site {site!r}") as run:
-            new = run.many(
-                "INSERT OR IGNORE INTO events(site, id, wall_t, type, zone, person, "
-                "incident, priority, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?)",
-                rows,
-            )
-            run(
-                "INSERT INTO sites(site, mark, last_seen) VALUES (?, ?, ?) ON CONFLICT(site) "
-                "DO UPDATE SET mark = GREATEST(sites.mark, excluded.mark), "
-                "last_seen = excluded.last_seen",
-                (site, mark, now),
-            )
+            new = run.many(_PUT_EVENT, rows)
+            run(_RAISE_MARK, (site, mark, now))
         self.stored += new
         self.duplicates += len(rows) - new
         return new
+
+    def put_batch(self, events: dict[str, tuple[Sequence[dict], int]],
+                  changes: dict[str, tuple[Sequence[dict], int]],
+                  now: float) -> tuple[int, int]:  # fmt: skip
+        """Many sites' events and incident changes with their new marks ({site: (items,
+        mark)}), in one transaction (one commit however many sites: what a fleet's store
+        needs); (events newly stored, incident records written)."""
+        ev_rows = [_event_row(site, e, now) for site, (items, _) in events.items() for e in items]
+        ch_rows = [_change_row(site, c, now) for site, (items, _) in changes.items()
+                   for c in items]  # fmt: skip
+        what = f"store {len(ev_rows)} event(s) and {len(ch_rows)} incident change(s)"
+        with self._writing(what) as run:
+            new = run.many(_PUT_EVENT, ev_rows)
+            written = run.many(_PUT_CHANGE, ch_rows)
+            run.many(_RAISE_MARK, [(site, mark, now) for site, (_, mark) in events.items()])
+            run.many(_RAISE_INCIDENT_MARK,
+                     [(site, mark, now) for site, (_, mark) in changes.items()])  # fmt: skip
+        self.stored += new
+        self.duplicates += len(ev_rows) - new
+        return new, written
 
     def put_incidents(self, site: str, changes: Sequence[dict], mark: int, now: float) -> int:
         """Store a site's incident changes ({"seq", "incident": record}; a record replaces the
         stored one only when its seq is newer) and its new incidents mark, in one
         transaction; the number of records written."""
-        rows = []
-        for c in changes:
-            rec = c["incident"]
-            rows.append((site, int(rec["id"]), int(c["seq"]), _text(rec.get("state")),
-                         _int(rec.get("priority")), _text(rec.get("zone")),
-                         _int(rec.get("person")), _num(rec.get("last_wall_t")), now,
-                         json.dumps(rec, separators=(",", ":"))))  # fmt: skip
+        rows = [_change_row(site, c, now) for c in changes]
         with self._writing(f"store {len(rows)} incident change(s) of site {site!r}") as run:
-            new = run.many(
-                "INSERT INTO incidents(site, id, seq, state, priority, zone, person, "
-                "last_wall_t, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?) "
-                "ON CONFLICT(site, id) DO UPDATE SET seq = excluded.seq, "
-                "state = excluded.state, priority = excluded.priority, "
-                "zone = excluded.zone, person = excluded.person, "
-                "last_wall_t = excluded.last_wall_t, stored_at = excluded.stored_at, "
-                "record = excluded.record WHERE excluded.seq > incidents.seq",
-                rows,
-            )
-            run(
-                "INSERT INTO sites(site, incident_mark, last_seen) VALUES (?, ?, ?) "
-                "ON CONFLICT(site) DO UPDATE SET incident_mark = GREATEST("
-                "sites.incident_mark, excluded.incident_mark), last_seen = excluded.last_seen",
-                (site, mark, now),
-            )
+            new = run.many(_PUT_CHANGE, rows)
+            run(_RAISE_INCIDENT_MARK, (site, mark, now))
         return new
 
     def add_command(self, site: str, incident: int, by: str, now: float) -> int:
@@ -318,11 +309,16 @@ class ControlStore:
             row = row.fetchone()
         return int(row[0])
 
-    def finish_command(self, command: int, result: str, now: float) -> bool:
-        """The site's answer to `command`; whether it was still waiting."""
+    def finish_command(self, command: int, result: str, now: float,
+                       site: str | None = None) -> bool:  # fmt: skip
+        """The site's answer to `command` (of `site` when given); whether it was waiting."""
+        sql = "UPDATE commands SET done_at = ?, result = ? WHERE id = ? AND done_at IS NULL"
+        args: list = [now, result, command]
+        if site is not None:
+            sql += " AND site = ?"
+            args.append(site)
         with self._writing("store a site's answer") as run:
-            cur = run("UPDATE commands SET done_at = ?, result = ? WHERE id = ? AND done_at "
-                      "IS NULL", (now, result, command))  # fmt: skip
+            cur = run(sql, args)
         return cur.rowcount > 0
 
     def pending_commands(self) -> list[tuple[int, str, int, str]]:
@@ -519,6 +515,44 @@ _shown = shown_database
 
 def _why(e: BaseException) -> str:
     return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+
+
+_PUT_EVENT = (
+    "INSERT OR IGNORE INTO events(site, id, wall_t, type, zone, person, incident, "
+    "priority, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?)"
+)
+_PUT_CHANGE = (
+    "INSERT INTO incidents(site, id, seq, state, priority, zone, person, last_wall_t, "
+    "stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?) ON CONFLICT(site, id) DO UPDATE "
+    "SET seq = excluded.seq, state = excluded.state, priority = excluded.priority, "
+    "zone = excluded.zone, person = excluded.person, last_wall_t = "
+    "excluded.last_wall_t, stored_at = excluded.stored_at, record = excluded.record "
+    "WHERE excluded.seq > incidents.seq"
+)
+_RAISE_MARK = (
+    "INSERT INTO sites(site, mark, last_seen) VALUES (?, ?, ?) ON CONFLICT(site) DO "
+    "UPDATE SET mark = GREATEST(sites.mark, excluded.mark), last_seen = "
+    "excluded.last_seen"
+)
+_RAISE_INCIDENT_MARK = (
+    "INSERT INTO sites(site, incident_mark, last_seen) VALUES (?, ?, ?) ON "
+    "CONFLICT(site) DO UPDATE SET incident_mark = GREATEST("
+    "sites.incident_mark, excluded.incident_mark), last_seen = "
+    "excluded.last_seen"
+)
+
+
+def _event_row(site: str, e: dict, now: float) -> tuple:
+    return (site, int(e["id"]), _num(e.get("wall_t")), _text(e.get("type")),
+            _text(e.get("zone")), _int(e.get("person")), _int(e.get("incident")),
+            _int(e.get("priority")), now, json.dumps(e, separators=(",", ":")))  # fmt: skip
+
+
+def _change_row(site: str, c: dict, now: float) -> tuple:
+    rec = c["incident"]
+    return (site, int(rec["id"]), int(c["seq"]), _text(rec.get("state")),
+            _int(rec.get("priority")), _text(rec.get("zone")), _int(rec.get("person")),
+            _num(rec.get("last_wall_t")), now, json.dumps(rec, separators=(",", ":")))  # fmt: skip
 
 
 _ROOM_COLUMNS = "id, site, kind, priority, state, raised_at, cleared_at, acked_by, acked_at, detail"
