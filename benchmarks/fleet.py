@@ -385,6 +385,20 @@ def markdown(r: dict) -> list[str]:
         "stored by the other); their RSS and CPU are the sum of both. people msgs/s: the "
         "rate the simulated sites reached (offered 5 Hz a site); events/s in: likewise.",
     ]
+    one_worker = [x for x in r["runs"] if x["workers"] == 1]
+    if one_worker:
+        big = max(one_worker, key=lambda x: x["sites"])
+        worst = max(x["latency_s"]["p95"] or 0 for x in one_worker)
+        cpu = max(x["control_room_cpu_share"] for x in one_worker)
+        offered = big["sites"] * r["events_hz_per_site"]
+        md += ["", f"Reading: every event of every run stored exactly once (lost "
+               f"{sum(x['lost'] for x in r['runs'])}, twice "
+               f"{sum(x['stored_twice'] for x in r['runs'])}); with one worker p95 at most "
+               f"{worst} s and at most {cpu} of a core. The control room did not saturate "
+               f"here: at {big['sites']} sites the simulated sites themselves (their "
+               f"processes on the same 2 cores) reached {big['events_per_s']} of the "
+               f"{offered:g} events/s offered, so its limit lies beyond what this machine "
+               "can offer it."]  # fmt: skip
     return md
 
 
