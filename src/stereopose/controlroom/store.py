@@ -404,14 +404,9 @@ class ControlStore:
         """Events in (site, id) order: of `site` after `after_id`, or of every site (of
         `sites` when given); at most `limit` (<= MAX_LIMIT)."""
         limit = max(1, min(int(limit), MAX_LIMIT))
-        where, args = ["id > ?"], [int(after_id)]
-        if site is not None:
-            where.append("site = ?")
-            args.append(site)
-        if sites is not None:
-            allowed = sorted(set(sites))
-            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
-            args += allowed
+        where, args = _of_sites(site, sites)
+        where.append("id > ?")
+        args.append(int(after_id))
         with self._reading("read the events") as run:
             rows = run(f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
                        "ORDER BY site, id LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
@@ -424,19 +419,12 @@ class ControlStore:
         when given; at most `limit` of each kind. Each site incident carries the
         acknowledgements asked of its site and not answered yet (`ack_pending`)."""
         limit = max(1, min(int(limit), MAX_LIMIT))
-        where, args = [], []
-        if site is not None:
-            where.append("site = ?")
-            args.append(site)
+        where, args = _of_sites(site, sites)
         if state == "open":
             where.append("state IN ('active', 'acknowledged', 'cleared')")
         elif state is not None:
             where.append("state = ?")
             args.append(state)
-        if sites is not None:
-            allowed = sorted(set(sites))
-            where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
-            args += allowed
         cond = f" WHERE {' AND '.join(where)}" if where else ""
         with self._reading("read the incidents") as run:
             rows = run(f"SELECT site, seq, record FROM incidents{cond} ORDER BY stored_at "
@@ -540,6 +528,19 @@ _RAISE_INCIDENT_MARK = (
     "sites.incident_mark, excluded.incident_mark), last_seen = "
     "excluded.last_seen"
 )
+
+
+def _of_sites(site: str | None, sites: Iterable[str] | None) -> tuple[list[str], list]:
+    """The conditions (and their values) for rows of `site`, and of `sites` when given."""
+    where, args = [], []
+    if site is not None:
+        where.append("site = ?")
+        args.append(site)
+    if sites is not None:
+        allowed = sorted(set(sites))
+        where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
+        args += allowed
+    return where, args
 
 
 def _event_row(site: str, e: dict, now: float) -> tuple:
