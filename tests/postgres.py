@@ -59,8 +59,9 @@ class Postgres:
         self.url = f"postgresql://stereopose:{PASSWORD}@127.0.0.1:{self.port}/postgres"
 
     def _run(self, cmd: list[str]) -> None:
-        if self.root:
-            cmd = ["runuser", "-u", "postgres", "--", *cmd]
+        if self.root:  # util-linux's runuser, in /usr/sbin
+            runuser = shutil.which("runuser", path=f"{os.environ.get('PATH', '')}:/usr/sbin:/sbin")
+            cmd = [runuser or "runuser", "-u", "postgres", "--", *cmd]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=self.folder)
         if r.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)}: {r.stderr or r.stdout}")
