@@ -344,6 +344,8 @@ class ControlRoomConfig:
     # several control-room workers on one PostgreSQL store: the MQTT shared subscription's
     # group they share the sites' messages in ("": one worker takes every message)
     shared_group: str = ""
+    # the store keeps events (and closed incidents, answered acknowledgements) this long
+    retention_days: float = number(365.0, gt=0.0, le=36500.0)
 
     def _check(self) -> None:
         if not (0 < len(self.name) <= 64 and self.name.isprintable()):

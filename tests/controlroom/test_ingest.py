@@ -95,3 +95,34 @@ def test_malformed_events_and_heartbeats_are_counted_never_stored(broker, tmp_pa
         c.disconnect()
         ingest.close()
         store.close()
+
+
+def test_a_pruned_event_sent_again_is_not_stored_again(broker, tmp_path):
+    import json
+
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store, retention_days=30)
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    c.connect("127.0.0.1", broker.port)
+    c.loop_start()
+
+    def send(i: int) -> None:
+        body = {"site": "x", "id": i, "prev": i - 1, "type": "enter", "zone": "bus"}
+        c.publish("stereopose/x/log/events", json.dumps(body), qos=1).wait_for_publish(5)
+
+    try:
+        wait_until(lambda: ingest.subscribed, "the ingest subscribed")
+        for i in (1, 2):
+            send(i)
+        wait_until(lambda: store.marks().get("x") == 2, "both stored")
+        assert store.prune(float("inf")) == 2  # retention took them
+        send(1)  # a resend of a pruned event, then a new one
+        send(3)
+        wait_until(lambda: store.marks().get("x") == 3, "the new one")
+        assert [e["id"] for e in store.events("x")] == [3]
+        assert ingest.figures()["duplicates"] == 1
+    finally:
+        c.loop_stop()
+        c.disconnect()
+        ingest.close()
+        store.close()

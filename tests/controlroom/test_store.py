@@ -124,3 +124,22 @@ def test_many_sites_in_one_transaction(store):
     new, _ = store.put_batch({"north": (_events([2, 3]), 3)}, {}, 11.0)
     assert new == 1 and store.marks() == {"north": 3, "south": 1}
     assert store.incident_marks()["north"] == 2 and store.duplicates == 1
+
+
+def test_old_rows_are_pruned_and_the_marks_stay(store):
+    store.put_events("north", _events([1, 2]), 2, 10.0)
+    store.put_events("north", _events([3]), 3, 100.0)
+    store.put_incidents("north", [_change(1, state="closed")], 1, 10.0)
+    store.put_incidents("north", [_change(2, incident=2)], 2, 10.0)  # open: kept
+    done = store.add_command("north", 2, "olga", 10.0)
+    store.finish_command(done, "acknowledged", 11.0)
+    waiting = store.add_command("north", 2, "paul", 12.0)  # not answered: kept
+    room = store.raise_room_incident("north", "site_offline", 2, "offline", 10.0)
+    store.ack_room_incident(room, "olga", 11.0)
+    store.clear_room_incidents("north", "site_offline", 12.0)  # closed at 12
+    assert store.prune(50.0) == 5
+    assert [e["id"] for e in store.events("north")] == [3]
+    assert [i["id"] for i in store.incidents(site="north")] == [2]
+    assert [c for c, *_ in store.pending_commands()] == [waiting]
+    assert store.marks() == {"north": 3} and store.incident_marks() == {"north": 2}
+    assert store.room_incident(room) is None

@@ -172,11 +172,13 @@ def ack_room(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator
              request: Request) -> dict:  # fmt: skip
     """Acknowledge one of the control room's own incidents (a site offline, its clock off)."""
     room = _room(request)
+    allowed = _allowed(request, session)
     try:
-        found = [r for r in room.store.incidents(limit=MAX_LIMIT, sites=_allowed(request, session))
-                 if r["source"] == "control_room" and r["id"] == incident_id]  # fmt: skip
-        rec = room.store.ack_room_incident(incident_id, session.username, time.time()) \
-            if found else None  # fmt: skip
+        rec = room.store.room_incident(incident_id)
+        if rec is not None and (allowed is None or rec["site"] in allowed):
+            rec = room.store.ack_room_incident(incident_id, session.username, time.time())
+        else:
+            rec = None
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be written") from e
     if rec is None:
@@ -190,7 +192,12 @@ def plan(site: Annotated[str, Path(max_length=200)], session: Viewer,
     """The site's zones and people now (see the module)."""
     _check_site(request, session, site)
     room = _room(request)
-    if site not in room.ingest.known_sites():
+    try:
+        known = site in room.ingest.known_sites() or any(
+            r.site == site for r in room.store.sites([site]))  # fmt: skip
+    except StoreError as e:
+        raise HTTPException(503, "the control room's store cannot be read") from e
+    if not known:
         raise HTTPException(404, f"no site {site!r}")
     found = room.ingest.watch(site)
     return JSONResponse({"site": site, **found}, headers={"Cache-Control": "no-store"})

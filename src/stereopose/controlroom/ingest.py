@@ -47,6 +47,7 @@ MAX_HELD = 10_000  # messages held per site and stream at most
 WATCH_S = 15.0  # a site's people are followed this long after its page last looked
 MAX_PLAN_BYTES = 1 << 20  # a plan or people message larger than this is ignored
 MAX_SITES = 100_000  # plans kept at most
+PRUNE_EVERY_S = 3600.0  # how often the store's old rows are pruned
 _MAX_ID = 2**63 - 1
 
 
@@ -58,8 +59,10 @@ class Ingest:
                  offline_after_s: float = 90.0, batch_s: float = 0.1, replay_every_s: float = 2.0,
                  queue_size: int = QUEUE, clock_tolerance_s: float = 5.0,
                  name: str = "control-room", command_resend_s: float = 5.0,
-                 shared_group: str = "") -> None:  # fmt: skip
+                 shared_group: str = "", retention_days: float | None = None) -> None:  # fmt: skip
         self.settings, self.store = settings, store
+        self.retention_days = retention_days  # None: kept for ever
+        self._pruned_at = -PRUNE_EVERY_S  # the first step prunes
         self.clock_tolerance_s, self.name = float(clock_tolerance_s), name
         # several workers on one store: the broker gives each a share of the sites' messages
         self.shared = f"$share/{shared_group}/" if shared_group else ""
@@ -136,7 +139,7 @@ class Ingest:
                 (f"{share}{self.prefix}/+/commands/done", 1),
                 (f"{self.prefix}/+/plan", 1),
             ]
-        )  # every worker's page needs them: fmt: skip
+        )  # plan unshared: every worker's pages need every site's
         with self._lock:
             watched = list(self._watched)
         for site in watched:  # a new connection: the pages being looked at follow again
@@ -228,6 +231,7 @@ class Ingest:
         self._flush_summaries()
         self._send_commands()
         self._leave_unwatched()
+        self._prune()
         self._rate.append((now, self.counts["messages"]))
         for site, seen in list(self._seen.items()):
             if now - seen > self.offline_after_s and self._available.get(site) != "offline":
@@ -243,6 +247,10 @@ class Ingest:
         one before it may be another worker's, stored by it meanwhile)."""
         marks = self.imarks if incidents else self.marks
         mark = marks.get(site, 0)
+        number = msg["seq" if incidents else "id"]
+        if number <= mark:  # stored already (and perhaps pruned since): a resend
+            self.counts["duplicates"] += 1
+            return
         if msg["prev"] > mark:
             now = time.monotonic()
             since = now if held_since is None else held_since
@@ -256,7 +264,7 @@ class Ingest:
             self._ask_replay(site, mark, incidents=incidents)
             return
         (changes if incidents else per_site).setdefault(site, []).append(msg)
-        marks[site] = max(mark, msg["seq" if incidents else "id"])
+        marks[site] = number
 
     def _release_held(self, per_site: dict, changes: dict) -> None:
         """The held messages again, in order, after the marks are read from the shared
@@ -294,6 +302,23 @@ class Ingest:
                 continue
             done.add(site)
         return done
+
+    def _prune(self) -> None:
+        """Once an hour, what is older than `retention_days` out of the store (the marks
+        stay: nothing pruned is asked for or stored again)."""
+        now = time.monotonic()
+        if self.retention_days is None or now - self._pruned_at < PRUNE_EVERY_S:
+            return
+        self._pruned_at = now
+        try:
+            gone = self.store.prune(time.time() - self.retention_days * 86400.0)
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+            return
+        if gone:
+            logger.info("control room: %d row(s) older than %g days pruned", gone,
+                        self.retention_days)  # fmt: skip
 
     def _confirm(self, site: str) -> None:
         """The site's marks of both streams on its `log/confirmed` (retained: one message)."""
@@ -388,8 +413,9 @@ class Ingest:
                 self._people[site] = (time.time(), doc)
 
     def known_sites(self) -> set[str]:
+        """The sites with a plan (any thread; the store holds every site heard of)."""
         with self._lock:
-            return set(self._seen) | set(self._plans) | set(self.marks)
+            return set(self._plans)
 
     def watch(self, site: str) -> dict:
         """The site's plan and people now; following its people topic from now on, until
@@ -458,11 +484,10 @@ class Ingest:
             self.counts["malformed"] += 1
             return
         with self._lock:
-            mine = self._commands.pop(command, None)
-        if mine is not None and mine[0] != site:  # not this site's command: kept
-            with self._lock:
-                self._commands[command] = mine
-            return
+            mine = self._commands.get(command)
+            if mine is not None and mine[0] != site:  # not this site's command: kept
+                return
+            self._commands.pop(command, None)
         if mine is None:
             if self.shared:  # another worker's: answered in the shared store
                 try:
@@ -532,7 +557,8 @@ class Ingest:
     def lag_s(self) -> dict[str, float]:
         """Per site: seconds since its last message."""
         now = time.time()
-        return {s: round(now - t, 3) for s, t in self._seen.items()}
+        seen = dict(self._seen)  # the ingest thread's: copied at once
+        return {s: round(now - t, 3) for s, t in seen.items()}
 
     def close(self) -> None:
         self._stop.set()

@@ -116,7 +116,8 @@ class ControlRoom:
         self.ingest = Ingest(plan.mqtt, self.store, offline_after_s=cr.offline_after_s,
                              clock_tolerance_s=cr.clock_tolerance_s, name=cr.name,
                              command_resend_s=cr.command_resend_s,
-                             shared_group=cr.shared_group)  # fmt: skip
+                             shared_group=cr.shared_group,
+                             retention_days=cr.retention_days)  # fmt: skip
 
     def close(self) -> None:
         if self.ingest is not None:

@@ -361,6 +361,20 @@ class ControlStore:
                       (incident,)).fetchone()  # fmt: skip
         return None if row is None else _room_incident(row)
 
+    def prune(self, before: float) -> int:
+        """The events stored before `before` (Unix time), and the closed incidents, answered
+        commands and closed control-room incidents last changed before it, deleted; the rows
+        deleted. The sites and their marks stay, so nothing pruned is stored again."""
+        n = 0
+        with self._writing("prune the store") as run:
+            for sql in ("DELETE FROM events WHERE stored_at < ?",
+                        "DELETE FROM incidents WHERE state = 'closed' AND stored_at < ?",
+                        "DELETE FROM commands WHERE done_at IS NOT NULL AND done_at < ?",
+                        "DELETE FROM room_incidents WHERE state = 'closed' AND "
+                        "COALESCE(cleared_at, raised_at) < ?"):  # fmt: skip
+                n += max(0, run(sql, (before,)).rowcount)
+        return n
+
     def set_site(self, site: str, *, state: str | None = None, last_seen: float | None = None,
                  health: dict | None = None) -> None:  # fmt: skip
         with self._writing(f"update site {site!r}") as run:
@@ -457,6 +471,13 @@ class ControlStore:
             by = out.setdefault(site, {})
             by[str(priority)] = by.get(str(priority), 0) + int(n)
         return out
+
+    def room_incident(self, incident: int) -> dict | None:
+        """A control-room incident, None when there is none with that id."""
+        with self._reading("read the incidents") as run:
+            row = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?",
+                      (incident,)).fetchone()  # fmt: skip
+        return None if row is None else _room_incident(row)
 
     def incident(self, site: str, incident: int) -> dict | None:
         """A site's incident as stored, None when the control room has none by that id."""
