@@ -49,23 +49,34 @@ def _bridge(cert: Path, central_port: int, password: str) -> list[str]:
     return [line for line in text.splitlines() if line and not line.startswith("#")]
 
 
-def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
-    cert, key = make_certificate(tmp_path, "central")
-    users = {"site-north": "north-pw", "site-south": "south-pw", "control-room": "room-pw"}
+def _brokers(tmp_path: Path, cert: Path, key: Path, users: dict[str, str]) -> tuple:
+    """The central broker (TLS, logins, the shipped ACL) and the site's, bridged to it."""
     central = Broker(tmp_path / "central", users=users, tls=(cert, key),
                      extra=(f"acl_file {_acl(tmp_path)}",)).start()  # fmt: skip
-    site_broker = Broker(tmp_path / "site", extra=tuple(_bridge(cert, central.port,
-                                                                "north-pw"))).start()  # fmt: skip
-    http_port = free_port()
-    room_dir = tmp_path / "room"
+    site = Broker(tmp_path / "site", extra=tuple(_bridge(cert, central.port, "north-pw")))
+    return central, site.start()
+
+
+def _room_config(room_dir: Path, central_port: int, cert: Path, http_port: int,
+                 extra: str = "") -> Path:  # fmt: skip
+    """A control room's configuration on the central broker, its login in a secret file."""
     room_dir.mkdir()
     (room_dir / "mqtt.secret").write_text("room-pw\n")
     (room_dir / "mqtt.secret").chmod(0o600)
     config = room_dir / "control.toml"
     config.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
-                      f'host = "localhost"\nport = {central.port}\ntls = true\n'
+                      f'host = "localhost"\nport = {central_port}\ntls = true\n'
                       f'ca_file = "{cert}"\nusername = "control-room"\n'
-                      'password_file = "mqtt.secret"\n')  # fmt: skip
+                      f'password_file = "mqtt.secret"\n\n{extra}')  # fmt: skip
+    return config
+
+
+def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
+    cert, key = make_certificate(tmp_path, "central")
+    users = {"site-north": "north-pw", "site-south": "south-pw", "control-room": "room-pw"}
+    central, site_broker = _brokers(tmp_path, cert, key, users)
+    http_port = free_port()
+    config = _room_config(tmp_path / "room", central.port, cert, http_port)
     _add_user(config)
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     log = EventLog(tmp_path / "north.sqlite")
@@ -157,21 +168,15 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
 
     cert, key = make_certificate(tmp_path, "central")
     users = {"site-north": "north-pw", "control-room": "room-pw"}
-    central = Broker(tmp_path / "central", users=users, tls=(cert, key),
-                     extra=(f"acl_file {_acl(tmp_path)}",)).start()  # fmt: skip
-    site_broker = Broker(tmp_path / "site", extra=tuple(_bridge(cert, central.port,
-                                                                "north-pw"))).start()  # fmt: skip
+    central, site_broker = _brokers(tmp_path, cert, key, users)
     http_port, site_port = free_port(), free_port()
-    room_dir = tmp_path / "room"
-    room_dir.mkdir()
-    (room_dir / "mqtt.secret").write_text("room-pw\n")
-    (room_dir / "mqtt.secret").chmod(0o600)
-    config = room_dir / "control.toml"
-    config.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
-                      f'host = "localhost"\nport = {central.port}\ntls = true\n'
-                      f'ca_file = "{cert}"\nusername = "control-room"\n'
-                      'password_file = "mqtt.secret"\n\n[control_room]\n'
-                      "offline_after_s = 30\ncommand_resend_s = 2\n")  # fmt: skip
+    config = _room_config(
+        tmp_path / "room",
+        central.port,
+        cert,
+        http_port,
+        "[control_room]\noffline_after_s = 30\ncommand_resend_s = 2\n",
+    )
     _add_user(config)
     _add(config, "olga", "operator")
     site_config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", site_port,
