@@ -72,7 +72,7 @@ class Ingest:
         self.command_resend_s = float(command_resend_s)
         self.imarks = store.incident_marks()  # the ingest thread's only
         self._announced_i: dict[str, int] = {}
-        self.summaries: dict[str, dict] = {}  # site -> its heartbeat's summary
+        self._summaries: dict[str, dict] = {}  # site -> its heartbeat's summary
         self._summaries_dirty: set[str] = set()
         # command -> [site, incident, by, last sent (monotonic; 0: not yet)]
         self._commands: dict[int, list] = {
@@ -344,8 +344,8 @@ class Ingest:
         summary = {k: beat[k] for k in SUMMARY if k in beat}
         if summary:
             summary["clock_offset_s"] = round(offset, 1)  # in the store: every worker's
-        if summary and self.summaries.get(site) != summary:
-            self.summaries[site] = summary
+        if summary and self._summaries.get(site) != summary:
+            self._summaries[site] = summary
             self._summaries_dirty.add(site)
         if self._available.get(site) != "offline":
             self._set_state(site, "live")
@@ -383,7 +383,7 @@ class Ingest:
     def _flush_summaries(self) -> None:
         if not self._summaries_dirty:
             return
-        dirty = {s: self.summaries[s] for s in self._summaries_dirty}
+        dirty = {s: self._summaries[s] for s in self._summaries_dirty}
         try:
             self.store.set_summaries(dirty)
         except StoreError as e:

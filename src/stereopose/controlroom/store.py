@@ -27,7 +27,7 @@ from urllib.request import pathname2url
 
 from stereopose.errors import StereoposeError
 
-__all__ = ["ControlStore", "SiteRow", "StoreError", "open_store", "shown_database"]
+__all__ = ["ControlStore", "SiteRow", "StoreError", "shown_database"]
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sites (
@@ -135,14 +135,9 @@ class _Dialect:
         return [st.strip() for st in text.split(";") if st.strip()]
 
 
-def open_store(database: str | Path) -> ControlStore:
-    """The store named by `database`: a postgresql:// (or postgres://) URL, else an SQLite
-    file's path."""
-    return ControlStore(database)
-
-
 class ControlStore:
-    """The store at `database` (see open_store; the tables made when missing). Writes come
+    """The store at `database`: a postgresql:// (or postgres://) URL, else an SQLite file's
+    path (the tables made when missing). Writes come
     from one thread (the ingest's; an acknowledgement asked from the API's), under a lock;
     reads from any thread."""
 
@@ -152,7 +147,7 @@ class ControlStore:
         self.dialect = _Dialect(self.postgres)
         self.url = text if self.postgres else None
         self.path = Path(text) if not self.postgres else None
-        self.name = _shown(text) if self.postgres else str(self.path)
+        self.name = shown_database(text) if self.postgres else str(self.path)
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
         self._errors: tuple[type[BaseException], ...] = (sqlite3.Error,)
@@ -517,9 +512,6 @@ class _Run:
 def shown_database(database: str | Path) -> str:
     """A store's name as it may be shown: a URL without its password."""
     return re.sub(r"(://[^:/@]*):[^@]*@", r"\1:***@", str(database))
-
-
-_shown = shown_database
 
 
 def _why(e: BaseException) -> str:
