@@ -12,7 +12,7 @@ from stereopose.detection.models import demo_videos
 
 @pytest.mark.parametrize(
     ("backend", "precision", "message"),
-    [("onnx", "fp16", "precision must be one of fp32, bf16, int8"),
+    [("onnx", "fp8", "precision must be one of fp32, bf16, int8, fp16"),
      ("ultralytics", "int8", "int8 needs the onnx backend")],
 )  # fmt: skip
 def test_an_unknown_precision_or_backend_is_refused(backend, precision, message):

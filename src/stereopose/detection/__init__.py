@@ -4,7 +4,8 @@
 default), ``openvino`` (OpenVINO, on the same ONNX model) or ``ultralytics`` (PyTorch). None
 imports anything heavy until it is asked for. ``precision = "int8"`` (onnx) runs the ONNX model
 quantised to 8-bit integers (detection.models); ``"bf16"`` (openvino on a CPU that has it) runs
-in bfloat16.
+in bfloat16; ``"fp16"`` (onnx with device tensorrt) lets TensorRT run in half precision. The onnx
+backend's device is cpu, cuda[:N], tensorrt[:N] or auto (detection.yolo_onnx).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from stereopose.detection.models import (
 )
 
 BACKENDS = ("onnx", "openvino", "ultralytics")
-PRECISIONS = ("fp32", "bf16", "int8")
+PRECISIONS = ("fp32", "bf16", "int8", "fp16")
 
 __all__ = ["BACKENDS", "ModelError", "PoseDetector", "Poses", "make_detector"]
 
@@ -42,7 +43,8 @@ def make_detector(
 
     The onnx and openvino backends given a .pt file export it to ONNX once, into the cache.
     precision "int8" (onnx only): the model quantised once into the cache (``<stem>-int8.onnx``
-    beside it; a model already quantised is taken as it is); "bf16": openvino only.
+    beside it; a model already quantised is taken as it is); "bf16": openvino only; "fp16":
+    onnx on device tensorrt only.
     """
     if precision not in PRECISIONS:
         raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
@@ -52,6 +54,10 @@ def make_detector(
         raise ModelError(f"precision int8 needs the onnx backend, not {backend!r}")
     if precision == "bf16" and backend != "openvino":
         raise ModelError(f"precision bf16 needs the openvino backend, not {backend!r}")
+    if precision == "fp16" and backend != "onnx":
+        # OpenVINO on an Intel GPU runs f16 by itself (device auto); fp16 is TensorRT's
+        raise ModelError(f"precision fp16 needs the onnx backend (device tensorrt), not "
+                         f"{backend!r}")  # fmt: skip
     if not isinstance(imgsz, int) or imgsz < 32 or imgsz % 32:
         raise ModelError(f"imgsz must be a positive multiple of 32, got {imgsz}")
     if not 0 <= conf <= 1 or not 0 <= iou <= 1:
@@ -73,7 +79,7 @@ def make_detector(
             return OpenVinoPoseDetector(path, precision=precision, **kwargs)
         from stereopose.detection.yolo_onnx import OnnxPoseDetector
 
-        return OnnxPoseDetector(path, **kwargs)
+        return OnnxPoseDetector(path, precision=precision, **kwargs)
     if backend == "ultralytics":
         from stereopose.detection.yolo_ultralytics import UltralyticsPoseDetector
 
