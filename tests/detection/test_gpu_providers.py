@@ -4,6 +4,9 @@ and auto, clear errors for what this ONNX Runtime lacks, and the cameras of a st
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -213,3 +216,37 @@ def test_the_cameras_of_a_step_in_one_batch_find_what_one_at_a_time_finds(step, 
         np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-2)
         np.testing.assert_allclose(a.keypoints, b.keypoints, atol=1e-2)
         np.testing.assert_allclose(a.scores, b.scores, atol=1e-4)
+
+
+GPU_BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "gpu.py"
+
+
+def _gpu_benchmark(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(GPU_BENCHMARK), *args], capture_output=True,
+                          text=True, timeout=300, cwd=cwd)  # fmt: skip
+
+
+def test_the_gpu_benchmark_without_a_gpu_says_so_and_measures_nothing(tmp_path):
+    import onnxruntime as ort
+
+    if CUDA in ort.get_available_providers():
+        pytest.skip("this ONNX Runtime has CUDA")
+    done = _gpu_benchmark("--out", str(tmp_path), cwd=tmp_path)
+    assert done.returncode == 2
+    assert "no CUDA provider in this ONNX Runtime" in done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_gpu_benchmark_runs_its_measures_on_the_cpu(model, step, tmp_path):
+    done = _gpu_benchmark("--providers", "cpu", "--batches", "1,2", "--repeats", "1", "--steps",
+                          "1", "--out", str(tmp_path), cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    r = json.loads((tmp_path / "gpu.json").read_text())
+    v = r["variants"]["cpu_fp32"]
+    assert v["providers"] == [CPU] and list(v["batches"]) == ["1", "2"]
+    assert v["batches"]["2"]["input"] == [2, 3, 640, 384]
+    assert v["agreement"]["median_px"] == 0.0 and v["agreement"]["people_only_this"] == 0
+    assert "| cpu fp32 |" in (tmp_path / "gpu.md").read_text()
