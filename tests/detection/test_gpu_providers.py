@@ -156,7 +156,7 @@ def test_a_gpu_that_did_not_start_is_an_error_not_a_silent_cpu(model, falling_ba
     trt = dict(falling_back.calls[-1])[TENSORRT]
     assert trt["trt_profile_max_shapes"] == "images:8x3x640x640"
     engines = Path(trt["trt_engine_cache_path"])
-    assert engines == tmp_path / "cache" / "models" / "trt" / "yolo11n-pose-fp16"
+    assert engines == tmp_path / "cache" / "models" / "trt" / "yolo11n-pose-fp16-640-b8"
     assert engines.is_dir()
     assert OnnxPoseDetector(model, device="auto").providers == [CPU]  # auto takes what there is
 

@@ -186,8 +186,9 @@ class OnnxPoseDetector:
 
         kind, _ = parse_device(device)
         available = ort.get_available_providers()
-        stem = f"{self.model.stem}-fp16" if precision == "fp16" else self.model.stem
-        engines = models_dir() / "trt" / stem  # an engine per model and precision
+        # an engine per model, precision and profile, never one built for other shapes
+        half = "-fp16" if precision == "fp16" else ""
+        engines = models_dir() / "trt" / f"{self.model.stem}{half}-{imgsz}-b{max_batch}"
         providers = _providers(device, available, precision, engines)  # errors before loading
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or int(os.environ.get("STEREOPOSE_THREADS", 0))
@@ -214,7 +215,10 @@ class OnnxPoseDetector:
         self.device, self.precision, self.max_batch = device, precision, max_batch
         if providers[0][0] != CPU:
             if kind == "tensorrt":
-                engines.mkdir(parents=True, exist_ok=True)
+                try:
+                    engines.mkdir(parents=True, exist_ok=True)
+                except OSError as e:
+                    raise ModelError(f"{engines}: TensorRT's engine folder: {e}") from None
                 profile = trt_profile(self.input_name, shape, imgsz, max_batch)
                 providers = _providers(device, available, precision, engines, profile)
             self.session = self._session(ort, options, providers)
