@@ -220,6 +220,14 @@ class CameraSource:
     detect: str = ""
 
 
+@_schema("nodes[]")
+class NodeConfig:
+    """One detection node (`stereopose detect-node CONFIG --node NAME`): its cameras."""
+
+    name: str = ""
+    cameras: tuple[str, ...] = ()
+
+
 @_schema("detector")
 class DetectorConfig:
     backend: Literal["onnx", "openvino", "ultralytics"] = "onnx"
@@ -252,6 +260,21 @@ class InputConfig:
     # serve: a live camera with a detection substream keeps its full stream encoded, for the
     # clips' full-stream copies ("copy"; nothing decoded), or decodes it for the drawn clips
     full_streams: Literal["copy", "decode"] = "copy"
+    # serve: where the cameras' 2D people come from: "local" (serve opens the cameras and
+    # detects), or "nodes" (`stereopose detect-node` processes publish them on the site's
+    # broker, [mqtt]; serve groups them into time steps by capture time)
+    detection: Literal["local", "nodes"] = "local"
+    # nodes: the cameras' frames within this many seconds of a step's first are one step
+    # (default: half the step period, of detect_fps or else of the cameras' fps)
+    node_window_s: float | None = number(None, gt=0.0, le=10.0)
+    # nodes: the longest a step waits for its missing cameras, seconds after its first arrived
+    node_wait_s: float = number(0.5, gt=0.0, le=10.0)
+    # nodes: a node whose clock is off the service's by more than this is refused, seconds
+    node_clock_tolerance_s: float = number(0.25, gt=0.0, le=3600.0)
+    # nodes: each camera's picture (for the console and clips) sent this often, per second
+    node_picture_hz: float = number(1.0, ge=0.0, le=30.0)
+    # nodes: the pictures' scale of the calibration's size
+    node_picture_scale: float = number(0.25, gt=0.0, le=1.0)
 
 
 @_schema("outputs")
@@ -491,6 +514,7 @@ class Config:
     site: str | None = None
     output: str = "out/run"
     cameras: tuple[CameraSource, ...] = ()
+    nodes: tuple[NodeConfig, ...] = ()
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     input: InputConfig = field(default_factory=InputConfig)
     outputs: OutputConfig = field(default_factory=OutputConfig)

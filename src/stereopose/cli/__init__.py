@@ -36,6 +36,10 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "the always-on service: cameras for ever, events out, health and metrics over HTTP",
         "stereopose.cli.serve:_serve",
     ),
+    "detect-node": (
+        "a detection node: some of a site's cameras detected here, their people to its broker",
+        "stereopose.cli.detect_node:_detect_node",
+    ),
     "control-room": (
         "one control room for many sites: their events over the central broker, stored once",
         "stereopose.cli.control_room:_control_room",
@@ -174,6 +178,17 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     )
     _add_serve(parsers["serve"])
     _add_points(parsers["points"])
+    dn = parsers["detect-node"]
+    dn.add_argument(
+        "config",
+        type=Path,
+        metavar="CONFIG.toml",
+        help="the site's service configuration (its cameras, [detector], [mqtt])",
+    )
+    dn.add_argument("--cameras", metavar="A,B", help="the node's cameras, comma-separated")
+    dn.add_argument("--node", metavar="NAME", help="the node's [[nodes]] entry (its cameras)")
+    dn.add_argument("--name", help="the node's name on the broker (default: its [[nodes]] "
+                    "name, or the host name and its cameras)")  # fmt: skip
     parsers["control-room"].add_argument(
         "config", type=Path, help="the control room's configuration (output, [serve], [mqtt], "
         "[control_room])")  # fmt: skip

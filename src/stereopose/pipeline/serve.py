@@ -64,6 +64,7 @@ from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.video import is_stream
 from stereopose.io.writing import make_folder
+from stereopose.nodes.fusion import NodeInput
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
@@ -336,6 +337,12 @@ class _Service:
                                         "full_copies_failed": clips.copies_failed}  # fmt: skip
         return clips
 
+    def watch_nodes(self, nodes) -> None:
+        """The nodes' camera-frames waiting for their step as a queue of the health state
+        (late, over-full and refused ones as its drops); the nodes' figures in status."""
+        self.state.register_queue("nodes", nodes.waiting, nodes.lost)
+        self.probes["nodes"] = nodes.report
+
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
         """The detection hand-over as a queue of the health state; its figures in status."""
         stats = pipelined.stats
@@ -393,7 +400,7 @@ def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
     (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
     clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
     cfg = plan.config
-    if cfg.input.full_streams != "copy":
+    if cfg.input.full_streams != "copy" or cfg.input.detection == "nodes":
         return {}
     s = plan.clips or ClipSettings()
     keep_s = s.clip_pre_s + s.clip_post_s + 5.0
@@ -414,8 +421,14 @@ def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None
     return out
 
 
-def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet:
+def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet | NodeInput:
     cfg = plan.config
+    if cfg.input.detection == "nodes":  # the cameras' people from the detection nodes
+        assert plan.mqtt is not None  # plan_serve: [mqtt] host is set
+        i = cfg.input
+        return NodeInput(plan.mqtt, plan.rig, fps=i.detect_fps or i.fps or cfg.fps,
+                         window_s=i.node_window_s, wait_s=i.node_wait_s,
+                         clock_tolerance_s=i.node_clock_tolerance_s)  # fmt: skip
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
     # and the camera watch raises camera_down for each camera that has not delivered
     return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
@@ -450,9 +463,14 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
     cfg = plan.config
     if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
         require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
-    detector = make_detector(cfg.detector.backend, plan.model, cfg.detector.imgsz,
-                             cfg.detector.conf, cfg.detector.iou, cfg.detector.device,
-                             cfg.detector.threads, cfg.detector.precision)  # fmt: skip
+    d = cfg.detector  # none in this process when the nodes detect
+    detector = (
+        None
+        if cfg.input.detection == "nodes"
+        else make_detector(
+            d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device, d.threads, d.precision
+        )
+    )
     resume = Resume.from_log(plan.events_db)  # before any id is given or event written
     if resume.occupied:
         logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
@@ -484,7 +502,7 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
     return ServeResult(summary, url, summary.outputs, dict(service.failed))
 
 
-def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, stop,
+def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, detector, stop,
               closing: _Closing) -> RunSummary:  # fmt: skip
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
@@ -499,9 +517,12 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
     events = ServeEvents(fences, watch, calib, service.resume.closing_events,
                          fresh=lambda name: cams.delivering(name, timeout_s), clock=now_t,
                          on_stall=service.state.service_stall)  # fmt: skip
-    # detection on its own thread, always on the newest frames (recorded: every step kept)
-    pipelined = PipelinedCameras(Cameras(cams, rig, detector))
-    service.watch_pipeline(pipelined)
+    if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
+        pipelined, rates = cams, cams.rates
+        service.watch_nodes(cams)
+    else:  # detection on its own thread, always on the newest frames (recorded: every step)
+        pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector)), None
+        service.watch_pipeline(pipelined)
     source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
                          on_step=events.step, on_detect=events.detected,
                          clock=now_t)  # fmt: skip
@@ -520,7 +541,7 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet, detector, sto
         return start_mono + t if source.live or cams.wall_clock else None
 
     sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival,
-                               lambda: nominal_rates(cams))  # fmt: skip
+                               rates or (lambda: nominal_rates(cams)))  # fmt: skip
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:

@@ -217,6 +217,9 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
                      certificate=certificate, key=key)  # fmt: skip
     segments, clips, retention = _storage(path, cfg)
+    if cfg.input.detection == "nodes" and not cfg.mqtt.host:
+        raise ConfigError(f"{path}: input.detection = \"nodes\": the nodes' people come over "
+                          "the site's broker; set [mqtt] host")  # fmt: skip
     plan = ServePlan(
         config_path=path, config=cfg, rig=rig, calib_path=calib_path, site=site,
         site_path=site_path, sources=tuple(_source(base, c.source) for c in cfg.cameras),

@@ -1,0 +1,414 @@
+"""The fusion side: `serve` with ``[input] detection = "nodes"`` takes every camera's 2D people
+from the detection nodes (nodes.node) over the site's broker and gives the frame loop time
+steps of them, as its own cameras and detector would.
+
+`NodeInput` subscribes to the site's keypoints, pictures and node topics (nodes.wire) and
+groups the camera-frames into steps by capture time:
+
+- a step begins with the earliest capture time t0 waiting, and takes each camera's earliest
+  frame within t0 + window (node_window_s; default half a step period, so the frames of one
+  grid time on every node are one step);
+- it is given to the loop as soon as every active camera (one heard from within ACTIVE_S) has
+  a frame in it or a newer one waiting (its node passed this time over), or once node_wait_s
+  has gone by since its first frame arrived: a slow or dead node delays the others by at most
+  that much;
+- a frame that arrives after its step was given (capture time at or before that step's end),
+  or from before the service started, is late: dropped and counted per camera; each camera's
+  frames waiting are at most PENDING (the oldest dropped and counted).
+
+A step's t is its capture time on the service's clock (seconds since `clock.start_epoch`), so
+latency is measured from capture. Each camera of a step carries the newest picture its node
+sent (or a grey one until the first), the one the console shows and the clips are made of.
+Each node's health (retained, with its last will) is followed: its clock's offset measured
+from its health messages (median of the last CLOCK_KEPT), and a node off by more than
+node_clock_tolerance_s is refused: its frames are dropped (counted) until its clock is right,
+and its cameras go down. Malformed messages are counted and logged once a minute per kind.
+A camera whose node stops sending is down after camera_timeout_s, through the camera watch as
+a local camera is. The broker away is retried for ever; its restart is survived (subscribed
+again on every connection).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import statistics
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
+from stereopose.io.source import Clock
+from stereopose.io.summary import CAMERA_STAGES, RunSummary
+from stereopose.nodes.wire import (
+    Keypoints,
+    Topics,
+    WireError,
+    decode_health,
+    decode_people,
+    decode_picture,
+)
+from stereopose.pipeline.loop import SourceStep
+from stereopose.types import People2D, Rig
+
+logger = logging.getLogger(__name__)
+
+PENDING = 32  # camera-frames waiting per camera
+ACTIVE_S = 1.0  # a camera heard from within this long is waited for
+CLOCK_KEPT = 5
+WARN_S = 60.0  # the same kind of bad message logged at most this often
+PLACEHOLDER_DIV = 8  # a camera with no picture yet shows a grey one of 1/8 its size
+
+
+@dataclass
+class CameraFigures:
+    """One camera as the fusion service receives it."""
+
+    frames: int = 0  # camera-frames received
+    used: int = 0  # in a step given to the loop
+    late: int = 0
+    dropped: int = 0  # waiting frames over PENDING
+    refused: int = 0  # from a node with its clock off
+    bytes: int = 0
+    pictures: int = 0
+    node: str | None = None
+    last_mono: float | None = None
+    reconnects: int = 0  # the readers' figure, for the health state (a node's link: none)
+
+
+@dataclass
+class NodeState:
+    name: str
+    state: str = "online"
+    offsets: deque = field(default_factory=lambda: deque(maxlen=CLOCK_KEPT))
+    refused: bool = False
+    last_mono: float | None = None
+    health: dict = field(default_factory=dict)
+
+    @property
+    def offset(self) -> float | None:
+        return statistics.median(self.offsets) if self.offsets else None
+
+
+class NodeInput:
+    """The frame-loop source of a service fed by nodes (see the module); a context manager:
+    connected on enter, disconnected on exit."""
+
+    stages = CAMERA_STAGES
+    live = True
+    total = None
+
+    def __init__(self, settings: MqttSettings, rig: Rig, *, fps: float,
+                 window_s: float | None = None, wait_s: float = 0.5,
+                 clock_tolerance_s: float = 0.25, clock: Clock | None = None) -> None:  # fmt: skip
+        self.settings, self.rig = settings, rig
+        self.cameras = tuple(rig.names)
+        self.names = list(rig.names)
+        self.fps = float(fps)
+        self.window_s = float(window_s) if window_s else 0.5 / self.fps
+        self.wait_s, self.tolerance_s = float(wait_s), float(clock_tolerance_s)
+        self.clock = clock or Clock.now()
+        self.wall_clock = True
+        self.topics = Topics.of(settings.topic_prefix, settings.site)
+        self.figures = {n: CameraFigures() for n in self.cameras}
+        self.nodes: dict[str, NodeState] = {}
+        self.malformed = 0
+        self.unknown = 0  # messages for cameras not in the calibration
+        self.steps = 0
+        self.partial = 0  # steps given without every active camera (node_wait_s ran out)
+        self.connected = False
+        self._pending: dict[str, deque[tuple[Keypoints, float]]] = {
+            n: deque() for n in self.cameras}  # fmt: skip
+        self._pictures: dict[str, np.ndarray] = {}
+        self._placeholders = {n: _grey(rig[n].size) for n in self.cameras}
+        self._given_end = -math.inf  # the capture time up to which steps were given
+        self._cond = threading.Condition()
+        self._closed = False
+        self._warned: dict[str, float] = {}
+        self._problem: str | None = None
+        self.client = None
+
+    # -- the broker ---------------------------------------------------------------------------
+
+    def __enter__(self) -> NodeInput:
+        s = self.settings
+        c = make_client(s, f"stereopose-fusion-{uuid.uuid4().hex[:8]}")
+        c.on_connect, c.on_disconnect = self._on_connect, self._on_disconnect
+        c.on_connect_fail, c.on_message = self._on_connect_fail, self._on_message
+        self.client = c
+        c.connect_async(s.host, s.port, keepalive=s.keepalive_s)
+        c.loop_start()
+        logger.info("detection from nodes: %s under %s/ on %s:%d", ", ".join(self.cameras),
+                    self.topics.base, s.host, s.port)  # fmt: skip
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.end()
+        if self.client is not None:
+            self.client.disconnect()
+            self.client.loop_stop()
+
+    def end(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if reason.is_failure:
+            self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
+            return
+        base = self.topics.base
+        client.subscribe([(f"{base}/keypoints/+", 0), (f"{base}/pictures/+", 0),
+                          (f"{base}/nodes/+", 1)])  # fmt: skip
+        self.connected = True
+        if self._problem is not None:
+            logger.info("MQTT %s:%d: connected", self.settings.host, self.settings.port)
+        self._problem = None
+
+    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
+                       props: Any) -> None:  # fmt: skip
+        was, self.connected = self.connected, False
+        if was and not self._closed:
+            self._say(logging.WARNING, "connection lost: no camera-frames from the nodes "
+                      "meanwhile; retrying")  # fmt: skip
+
+    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+        self._say(logging.WARNING, "broker unreachable; retrying")
+
+    def _say(self, level: int, text: str) -> None:
+        if text != self._problem:
+            self._problem = text
+            logger.log(level, "MQTT %s:%d: %s", self.settings.host, self.settings.port, text)
+
+    def _warn(self, kind: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._warned.get(kind, -math.inf) >= WARN_S:
+            self._warned[kind] = now
+            logger.warning("%s (such messages skipped and counted)", text)
+
+    # -- messages (paho's thread) ---------------------------------------------------------------
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            self._message(msg.topic, bytes(msg.payload), bool(msg.retain))
+        except Exception as e:  # nothing a message holds may end paho's thread
+            self.malformed += 1
+            self._warn("error", f"nodes: a message on {msg.topic} could not be read: {e}")
+
+    def _message(self, topic: str, payload: bytes, retained: bool) -> None:
+        parsed = self.topics.parse(topic)
+        if parsed is None:
+            return
+        kind, name = parsed
+        if kind == "nodes":
+            self._health(name, payload, retained)
+            return
+        fig = self.figures.get(name)
+        if fig is None:
+            self.unknown += 1
+            self._warn(f"unknown:{name}", f"nodes: camera {name!r} is not one of the "
+                       f"service's cameras ({', '.join(self.cameras)})")  # fmt: skip
+            return
+        try:
+            if kind == "pictures":
+                self._picture(name, payload)
+            else:
+                self._keypoints(name, payload)
+        except WireError as e:
+            self.malformed += 1
+            self._warn(f"{kind}:{name}", f"nodes: {topic}: {e}")
+
+    def _health(self, name: str, payload: bytes, retained: bool) -> None:
+        if not payload:  # a retained message cleared
+            return
+        try:
+            doc = decode_health(payload)
+        except WireError as e:
+            self.malformed += 1
+            self._warn(f"health:{name}", f"nodes: {self.topics.node(name)}: {e}")
+            return
+        with self._cond:
+            node = self.nodes.setdefault(name, NodeState(name))
+            was = node.state
+            node.state = str(doc["state"])
+            node.last_mono = time.monotonic()
+            if node.state == "online":
+                node.health = {k: doc.get(k) for k in ("cameras", "detect_ms", "queue",
+                                                       "backend")}  # fmt: skip
+                if not retained:  # a retained one is old: its clock says nothing of now
+                    node.offsets.append(float(doc["clock"]) - time.time())
+                    self._judge_clock(node)
+        if was != node.state:
+            log = logger.warning if node.state == "offline" else logger.info
+            log("node %s is %s", name, node.state)
+
+    def _judge_clock(self, node: NodeState) -> None:
+        off = node.offset
+        if off is None:
+            return
+        bad = abs(off) > self.tolerance_s
+        if bad and not node.refused:
+            logger.error("node %s: its clock is off the service's by %+.3f s (more than "
+                         "input.node_clock_tolerance_s = %g s): its frames are refused until "
+                         "its clock is set right", node.name, off, self.tolerance_s)  # fmt: skip
+        elif node.refused and not bad:
+            logger.warning("node %s: its clock is right again (%+.3f s): its frames are taken",
+                           node.name, off)  # fmt: skip
+        node.refused = bad
+
+    def _picture(self, name: str, payload: bytes) -> None:
+        _, jpeg = decode_picture(payload)
+        image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+        if image is None:
+            raise WireError("its JPEG cannot be decoded")
+        with self._cond:
+            self._pictures[name] = image
+            self.figures[name].pictures += 1
+
+    def _keypoints(self, name: str, payload: bytes) -> None:
+        kp = decode_people(payload, name)
+        now, wall = time.monotonic(), time.time()
+        with self._cond:
+            fig = self.figures[name]
+            fig.frames += 1
+            fig.bytes += len(payload)
+            fig.node = kp.node
+            node = self.nodes.get(kp.node)
+            if (node is not None and node.refused) or kp.t > wall + self.tolerance_s:
+                fig.refused += 1  # a node's clock off, or a frame from the future
+                if node is None or not node.refused:
+                    self._warn(f"future:{kp.node}", f"nodes: node {kp.node}: a frame of "
+                               f"camera {name} captured {kp.t - wall:+.3f} s from now")  # fmt: skip
+                return
+            fig.last_mono = now
+            if kp.t <= self._given_end or kp.t < self.clock.start_epoch:
+                fig.late += 1
+                return
+            q = self._pending[name]
+            if len(q) >= PENDING:
+                q.popleft()
+                fig.dropped += 1
+            q.append((kp, now))
+            self._cond.notify_all()
+
+    # -- steps (the frame loop's side) -------------------------------------------------------
+
+    def _ready(self, now: float) -> tuple[float, dict[str, Keypoints]] | None:
+        """The step that can be given now (under the lock), taken off the waiting frames."""
+        firsts = {n: q[0] for n, q in self._pending.items() if q}
+        if not firsts:
+            return None
+        t0 = min(kp.t for kp, _ in firsts.values())
+        end = t0 + self.window_s
+        group = {n: item for n, item in firsts.items() if item[0].t <= end}
+        arrived = min(at for _, at in group.values())
+        active = {n for n, f in self.figures.items()
+                  if f.last_mono is not None and now - f.last_mono <= ACTIVE_S}  # fmt: skip
+        settled = set(firsts)  # in the step, or a newer frame waiting: nothing more to come
+        if not active <= settled and now - arrived < self.wait_s:
+            return None
+        if not active <= set(group):
+            self.partial += 1
+        for n in group:
+            self._pending[n].popleft()
+        self._given_end = end
+        return t0, {n: kp for n, (kp, _) in group.items()}
+
+    def __iter__(self) -> Iterator[SourceStep]:
+        while True:
+            with self._cond:
+                while True:
+                    if self._closed:
+                        return
+                    got = self._ready(time.monotonic())
+                    if got is not None:
+                        break
+                    self._cond.wait(0.02)
+                t0, group = got
+                step = self.steps
+                self.steps += 1
+                images = {}
+                for n in group:
+                    self.figures[n].used += 1
+                    images[n] = self._pictures.get(n, self._placeholders[n])
+            people = {n: People2D(n, step, kp.people.keypoints, kp.people.boxes,
+                                  kp.people.scores) for n, kp in group.items()}  # fmt: skip
+            yield SourceStep(step, t0 - self.clock.start_epoch, people, images)
+
+    def detect(self, step: SourceStep) -> Mapping[str, People2D]:
+        raise TypeError("the nodes' steps carry their people")
+
+    def arrival(self, t: float) -> float:
+        return self.clock.start + t
+
+    # -- health ----------------------------------------------------------------------------------
+
+    def delivering(self, name: str, within_s: float) -> bool:
+        """Whether camera `name` has had a frame from its node within `within_s`."""
+        last = self.figures[name].last_mono
+        return last is not None and time.monotonic() - last <= within_s
+
+    def stats(self) -> dict[str, CameraFigures]:
+        return dict(self.figures)
+
+    def rates(self) -> dict[str, tuple[float | None, float | None]]:
+        """Per camera (the rate it should be processed at, its own rate), from its node's
+        health; None while not known."""
+        out: dict[str, tuple[float | None, float | None]] = {}
+        with self._cond:
+            for name, fig in self.figures.items():
+                node = self.nodes.get(fig.node or "")
+                cam = ((node.health.get("cameras") or {}).get(name) if node else None) or {}
+                own, det = _rate(cam.get("fps")), _rate(cam.get("detect_fps"))
+                out[name] = (min(own, det) if own and det else own or det, own)
+        return out
+
+    def report(self) -> dict:
+        """status.json's `nodes`: the link, each node, each camera's figures."""
+        now = time.monotonic()
+        with self._cond:
+            nodes = {
+                n.name: {"state": n.state, "clock_offset_s": _round(n.offset),
+                         "clock_refused": n.refused,
+                         "seen_s_ago": None if n.last_mono is None
+                         else round(now - n.last_mono, 1), **n.health}
+                for n in self.nodes.values()}  # fmt: skip
+            cams = {name: {"node": f.node, "frames": f.frames, "used": f.used, "late": f.late,
+                           "dropped": f.dropped, "refused": f.refused, "bytes": f.bytes,
+                           "pictures": f.pictures, "waiting": len(self._pending[name])}
+                    for name, f in self.figures.items()}  # fmt: skip
+        return {"connected": self.connected, "window_s": self.window_s, "steps": self.steps,
+                "partial_steps": self.partial, "malformed": self.malformed,
+                "unknown_cameras": self.unknown, "nodes": nodes, "cameras": cams}  # fmt: skip
+
+    def waiting(self) -> int:
+        return sum(len(q) for q in self._pending.values())
+
+    def lost(self) -> int:
+        return sum(f.late + f.dropped + f.refused for f in self.figures.values())
+
+    def finish(self, summary: RunSummary) -> None:
+        summary.sources = {n: {"frames": f.frames, "dropped": f.dropped + f.late,
+                               "reconnects": 0} for n, f in self.figures.items()}  # fmt: skip
+        summary.clock_start_epoch = self.clock.start_epoch
+
+
+def _grey(size: tuple[float, float]) -> np.ndarray:
+    w = max(16, round(size[0] / PLACEHOLDER_DIV))
+    h = max(16, round(size[1] / PLACEHOLDER_DIV))
+    return np.full((h, w, 3), 96, np.uint8)
+
+
+def _rate(v: object) -> float | None:
+    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) and v > 0 else None
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None else round(v, 4)

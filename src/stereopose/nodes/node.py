@@ -1,0 +1,401 @@
+"""`stereopose detect-node`: some of a site's cameras detected on this machine, their 2D
+people published on the site's broker for the fusion service (`serve`, [input] detection =
+"nodes"; nodes.fusion).
+
+The node reads the site's own configuration (its cameras, calibration, [detector], [input]
+and [mqtt]) and opens only its cameras: those of ``--cameras``, or of its ``[[nodes]]`` entry
+(``--node NAME``). Live cameras are read as `serve` reads them (newest frames, substreams,
+detect_fps, reconnects); recorded files are played on the wall clock (nodes.paced), so that
+nodes on several machines show the same moment at the same time. Each step's frames go
+through the detector in one call; each camera's people, in the calibration's pixels, go out
+on ``keypoints/<camera>`` with their capture time (nodes.wire), QoS 0. A picture of each
+camera goes out `node_picture_hz` times a second (``pictures/<camera>``, JPEG at
+`node_picture_scale`), for the console's pictures and the alarm clips: the pictures are small
+and rare next to a camera's stream, and the fusion service needs no decoder and no link to
+the cameras. The node's health (its cameras, detection time, queue, clock) goes out every
+HEALTH_S on ``nodes/<node>``, retained, with a last will saying offline.
+
+Messages wait for the broker in one queue of `queue_size` (the oldest dropped when full, and
+counted); a keypoints message older than STALE_S when its turn comes is dropped too (the
+fusion service would take it as late). The broker away is retried for ever.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import socket
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from stereopose.config import Config, load_config
+from stereopose.detection import make_detector
+from stereopose.errors import ConfigError
+from stereopose.io.cameraset import CameraSet
+from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
+from stereopose.io.video import FrameSet, is_stream
+from stereopose.nodes.paced import PacedFiles
+from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
+from stereopose.pipeline.detect import detect_step
+from stereopose.pipeline.run import check_run_config, run_rig
+from stereopose.pipeline.serve_setup import _mqtt, _resolve, _source
+from stereopose.pipeline.sources import check_size, scale_people
+from stereopose.types import People2D, Rig
+
+logger = logging.getLogger(__name__)
+
+HEALTH_S = 1.0
+STALE_S = 2.0
+QUEUE_SIZE = 256
+JPEG_QUALITY = 70
+
+
+@dataclass(frozen=True)
+class NodePlan:
+    """A node's part of the site's configuration, checked."""
+
+    config_path: Path
+    config: Config
+    name: str
+    rig: Rig  # its cameras only
+    sources: tuple[str, ...]
+    detect_sources: tuple[str, ...]
+    loop: tuple[bool, ...]
+    mqtt: MqttSettings
+    model: Path | None
+
+
+def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
+              node: str | None = None, name: str | None = None) -> NodePlan:  # fmt: skip
+    """The node of `config_path` with `cameras` (or those of its [[nodes]] entry `node`); a
+    ConfigError naming the file and the problem."""
+    path = Path(config_path)
+    cfg = load_config(path)
+    check_run_config(cfg, path)
+    if cfg.mqtt.host == "":
+        raise ConfigError(f"{path}: mqtt.host: a detection node publishes on the site's broker; "
+                          "set [mqtt] host")  # fmt: skip
+    if node is not None:
+        entry = next((n for n in cfg.nodes if n.name == node), None)
+        if entry is None:
+            known = ", ".join(n.name for n in cfg.nodes) or "none"
+            raise ConfigError(f"{path}: no [[nodes]] entry named {node!r} (known: {known})")
+        if cameras:
+            raise ConfigError(f"{path}: give the node's --cameras or --node, not both")
+        cameras, name = entry.cameras, name or entry.name
+    if not cameras:
+        raise ConfigError(f"{path}: a detection node needs its cameras (--cameras A,B or "
+                          "--node NAME of a [[nodes]] entry)")  # fmt: skip
+    by_name = {c.name: (i, c) for i, c in enumerate(cfg.cameras)}
+    unknown = [c for c in cameras if c not in by_name]
+    if unknown:
+        raise ConfigError(f"{path}: camera(s) {', '.join(unknown)} not among its [[cameras]] "
+                          f"({', '.join(by_name)})")  # fmt: skip
+    if len(set(cameras)) != len(cameras):
+        raise ConfigError(f"{path}: a camera named twice in the node's cameras")
+    base = path.resolve().parent
+    rig = run_rig(path, _resolve(base, cfg.calibration or ""), cfg).subset(list(cameras))
+    picked = [by_name[c][1] for c in cameras]
+    sources = tuple(_source(base, c.source) for c in picked)
+    kinds = {is_stream(s) for s in sources}
+    if len(kinds) > 1:
+        raise ConfigError(f"{path}: a node's cameras are all live streams or all recorded "
+                          f"files; {', '.join(cameras)} mix them: give them two nodes")  # fmt: skip
+    for s, c in zip(sources, picked, strict=True):
+        if not is_stream(s) and not Path(s).is_file():
+            raise ConfigError(f"{path}: camera {c.name}: no such video file {s}")
+    settings = _mqtt(path, base, cfg)
+    assert settings is not None
+    node_name = name or f"{socket.gethostname()}-{'-'.join(cameras)}"
+    return NodePlan(
+        config_path=path, config=cfg, name=node_name, rig=rig, sources=sources,
+        detect_sources=tuple(_source(base, c.detect) for c in picked),
+        loop=tuple(c.loop for c in picked), mqtt=settings,
+        model=_resolve(base, cfg.detector.model) if cfg.detector.model else None,
+    )  # fmt: skip
+
+
+@dataclass
+class _Counts:
+    published: int = 0
+    dropped: int = 0  # the queue full, or stale when their turn came
+    pictures: int = 0
+    bytes: int = 0
+
+
+class Publisher:
+    """The node's link to the broker: a bounded queue of QoS 0 messages sent on a thread of
+    its own while connected, the retained health with its last will."""
+
+    def __init__(self, settings: MqttSettings, topics: Topics, node: str,
+                 queue_size: int = QUEUE_SIZE) -> None:  # fmt: skip
+        self.settings, self.topics, self.node = settings, topics, node
+        self.counts = _Counts()
+        self.connected = False
+        self._queue: deque[tuple[str, bytes, float]] = deque()
+        self._size = queue_size
+        self._lock = threading.Condition()
+        self._stop = False
+        self._problem: str | None = None
+        cid = f"stereopose-node-{uuid.uuid4().hex[:8]}"
+        c = make_client(settings, cid)
+        c.will_set(topics.node(node), health_message(node, "offline"), qos=1, retain=True)
+        c.max_queued_messages_set(queue_size)
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_connect_fail = self._on_connect_fail
+        self.client = c
+        self.on_connect: Any = None
+        c.connect_async(settings.host, settings.port, keepalive=settings.keepalive_s)
+        c.loop_start()
+        self._thread = threading.Thread(target=self._send, name="node-publish", daemon=True)
+        self._thread.start()
+
+    def _on_connect(self, client, userdata, flags, reason, props) -> None:
+        if reason.is_failure:
+            self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
+            return
+        with self._lock:
+            self.connected = True
+            self._lock.notify_all()
+        if self._problem is not None:
+            logger.info("MQTT %s:%d: connected", self.settings.host, self.settings.port)
+        self._problem = None
+        if self.on_connect is not None:
+            self.on_connect()
+
+    def _on_disconnect(self, client, userdata, flags, reason, props) -> None:
+        with self._lock:
+            was, self.connected = self.connected, False
+        if was and not self._stop:
+            self._say(logging.WARNING, "connection lost; retrying")
+
+    def _on_connect_fail(self, client, userdata) -> None:
+        self._say(logging.WARNING, "broker unreachable; retrying")
+
+    def _say(self, level: int, text: str) -> None:
+        if text != self._problem:
+            self._problem = text
+            logger.log(level, "MQTT %s:%d: %s", self.settings.host, self.settings.port, text)
+
+    def put(self, topic: str, payload: bytes) -> None:
+        with self._lock:
+            if len(self._queue) >= self._size:
+                self._queue.popleft()
+                self.counts.dropped += 1
+            self._queue.append((topic, payload, time.monotonic()))
+            self._lock.notify_all()
+
+    def queued(self) -> int:
+        return len(self._queue)
+
+    def _send(self) -> None:
+        while True:
+            with self._lock:
+                while not self._stop and not (self.connected and self._queue):
+                    self._lock.wait(0.5)
+                if self._stop and (not self.connected or not self._queue):
+                    return
+                topic, payload, at = self._queue.popleft()
+            if time.monotonic() - at > STALE_S:
+                self.counts.dropped += 1
+                continue
+            info = self.client.publish(topic, payload, qos=0)
+            if info.rc == 0:
+                self.counts.published += 1
+                self.counts.bytes += len(payload)
+            else:
+                self.counts.dropped += 1
+
+    def health(self, payload: bytes) -> None:
+        """The node's health, retained (QoS 1); nothing while the broker is away."""
+        if self.connected:
+            self.client.publish(self.topics.node(self.node), payload, qos=1, retain=True)
+
+    def close(self, timeout_s: float = 3.0) -> None:
+        """Say offline (retained), drain what is queued within the bound, disconnect."""
+        with self._lock:
+            self._stop = True
+            self._lock.notify_all()
+        self._thread.join(timeout_s)
+        if self.connected:
+            info = self.client.publish(self.topics.node(self.node),
+                                       health_message(self.node, "offline"), qos=1,
+                                       retain=True)  # fmt: skip
+            with contextlib.suppress(RuntimeError, ValueError):  # the link went meanwhile
+                info.wait_for_publish(timeout_s)
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+@dataclass
+class NodeFigures:
+    steps: int = 0
+    detect_s: float = 0.0
+    last_detect_ms: float | None = None
+    frames: dict[str, int] = field(default_factory=dict)
+    payload_bytes: dict[str, int] = field(default_factory=dict)  # per camera, all frames
+
+
+class DetectNode:
+    """One node's run (see the module): `run(stop)` until `stop` is set."""
+
+    def __init__(self, plan: NodePlan) -> None:
+        self.plan = plan
+        cfg = plan.config
+        d = cfg.detector
+        self.detector = make_detector(d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device,
+                                      d.threads, d.precision)  # fmt: skip
+        self.topics = Topics.of(plan.mqtt.topic_prefix, plan.mqtt.site)
+        self.figures = NodeFigures()
+        self.picture_hz = cfg.input.node_picture_hz
+        self.picture_scale = cfg.input.node_picture_scale
+        self._pictured: dict[str, float] = {}
+        self._checked: set[str] = set()
+        self.publisher: Publisher | None = None
+        self._source: Any = None
+
+    # -- the cameras --------------------------------------------------------------------------
+
+    def _open(self):
+        p, cfg = self.plan, self.plan.config
+        if not is_stream(p.sources[0]):
+            spec = {n: (s, loop) for n, s, loop in zip(p.rig.names, p.sources, p.loop,
+                                                        strict=True)}  # fmt: skip
+            return PacedFiles(spec, cfg.input.detect_fps)
+        return CameraSet(list(p.sources), list(p.rig.names), cfg.input.sync, cfg.input.fps, None,
+                         open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
+                         detect=[d or None for d in p.detect_sources],
+                         detect_fps=cfg.input.detect_fps, wait_first_frame=False,
+                         wall_clock=True)  # fmt: skip
+
+    def _steps(self, source):
+        """(capture epoch, FrameSet of the images detected on, the FrameSet) per step."""
+        if isinstance(source, PacedFiles):
+            for fs in source:
+                yield fs.t, fs, fs
+            return
+        for fs in source:
+            if not fs.times:
+                continue
+            t = source.clock.start_epoch + min(fs.times.values())
+            subs = {n: im for n, im in (fs.detect or {}).items() if im is not None}
+            yield t, FrameSet(fs.index, fs.t, {**fs.images, **subs}), fs
+
+    def camera_figures(self) -> dict[str, dict]:
+        src, out = self._source, {}
+        timeout_s = self.plan.config.serve.camera_timeout_s
+        for name in self.plan.rig.names:
+            entry: dict = {"frames": self.figures.frames.get(name, 0)}
+            if isinstance(src, PacedFiles):
+                cam = src.cameras[name]
+                entry |= {"fps": cam.fps, "detect_fps": src.rate,
+                          "dropped": src.stats[name].skipped, "up": True}  # fmt: skip
+            elif isinstance(src, CameraSet):
+                st = src.stats().get(name)
+                s = next((s for s in src.sources if s.name == name), None)
+                entry |= {"fps": float(s.fps) if s is not None and s.fps else None,
+                          "detect_fps": src.detect_fps,
+                          "dropped": getattr(st, "dropped", 0),
+                          "up": src.delivering(name, timeout_s)}  # fmt: skip
+            out[name] = entry
+        return out
+
+    # -- the run ------------------------------------------------------------------------------
+
+    def run(self, stop: threading.Event) -> NodeFigures:
+        p = self.plan
+        self.publisher = pub = Publisher(p.mqtt, self.topics, p.name,
+                                         max(QUEUE_SIZE, 8 * len(p.rig.names)))  # fmt: skip
+        pub.on_connect = lambda: pub.health(self._health())
+        try:
+            self._source = source = self._open()
+            logger.info("node %s: detecting %s; publishing on %s:%d under %s/", p.name,
+                        ", ".join(p.rig.names), p.mqtt.host, p.mqtt.port,
+                        self.topics.base)  # fmt: skip
+            threading.Thread(target=self._beats, args=(stop, source), name="node-health",
+                             daemon=True).start()  # fmt: skip
+            try:
+                for t, frames, full in self._steps(source):
+                    if stop.is_set():
+                        break
+                    self._step(t, frames, full)
+            finally:
+                stop.set()
+                if isinstance(source, CameraSet):
+                    source.close()
+        finally:
+            pub.close()
+        return self.figures
+
+    def _step(self, t: float, frames: FrameSet, full: FrameSet) -> None:
+        t0 = time.perf_counter()
+        images = {n: im for n, im in frames.images.items() if im is not None}
+        for name, image in images.items():
+            if name not in self._checked and image is full.images.get(name):
+                self._checked.add(name)
+                check_size(self.plan.rig[name], image)
+        people = detect_step(self.detector, FrameSet(frames.index, frames.t, images))
+        spent = time.perf_counter() - t0
+        self.figures.steps += 1
+        self.figures.detect_s += spent
+        self.figures.last_detect_ms = spent * 1000
+        pub = self.publisher
+        assert pub is not None
+        for name, found in people.items():
+            cam = self.plan.rig[name]
+            image = images[name]
+            if (image.shape[1], image.shape[0]) != (round(cam.size[0]), round(cam.size[1])):
+                found = scale_people(found, cam.size, image.shape)
+            found = People2D(name, frames.index, found.keypoints, found.boxes, found.scores)
+            payload = encode_people(self.plan.name, found, t, cam.size)
+            pub.put(self.topics.keypoints(name), payload)
+            self.figures.frames[name] = self.figures.frames.get(name, 0) + 1
+            sizes = self.figures.payload_bytes
+            sizes[name] = sizes.get(name, 0) + len(payload)
+            self._picture(name, t, full.images.get(name))
+
+    def _picture(self, name: str, t: float, image) -> None:
+        if image is None or self.picture_hz <= 0:
+            return
+        now = time.monotonic()
+        if now - self._pictured.get(name, -1e9) < 1.0 / self.picture_hz:
+            return
+        self._pictured[name] = now
+        cam = self.plan.rig[name]
+        w = max(16, round(cam.size[0] * self.picture_scale))
+        h = max(16, round(cam.size[1] * self.picture_scale))
+        small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+        ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if ok and self.publisher is not None:
+            self.publisher.put(self.topics.picture(name), encode_picture(t, jpeg.tobytes()))
+            self.publisher.counts.pictures += 1
+
+    def _health(self) -> bytes:
+        pub = self.publisher
+        return health_message(
+            self.plan.name, "online", clock=time.time(), cameras=self.camera_figures(),
+            detect_ms=None if self.figures.last_detect_ms is None
+            else round(self.figures.last_detect_ms, 1),
+            queue={"queued": pub.queued() if pub else 0,
+                   "dropped": pub.counts.dropped if pub else 0},
+            backend=getattr(self.detector, "name", "?"),
+        )  # fmt: skip
+
+    def _beats(self, stop: threading.Event, source) -> None:
+        """The health every HEALTH_S whatever the cameras do; the source ended at the stop."""
+        while not stop.wait(HEALTH_S):
+            if self.publisher is not None:
+                try:
+                    self.publisher.health(self._health())
+                except Exception as e:  # a figure missing must not end the health
+                    logger.warning("node health not sent: %s", e)
+        source.end()

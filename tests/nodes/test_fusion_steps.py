@@ -1,0 +1,159 @@
+"""The fusion side's steps: the nodes' camera-frames grouped by capture time; late, refused
+and hostile ones counted, never stepped on."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from stereopose.calibration import load_calibration
+from stereopose.io.sinks.mqtt_settings import MqttSettings
+from stereopose.io.source import Clock
+from stereopose.nodes.fusion import NodeInput
+from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
+from stereopose.types import People2D
+from waiting import wait_until
+
+CAMS = ("cam01", "cam02", "cam03", "cam04")
+
+
+@pytest.fixture
+def rig(pose2sim_dir):
+    return load_calibration(pose2sim_dir / "Demo_MultiPerson" / "calibration" / "Calib.qca.txt")
+
+
+def _input(rig, **kw) -> NodeInput:
+    settings = MqttSettings(host="127.0.0.1", site="north")
+    start = time.time() - 10  # the service started 10 s ago
+    return NodeInput(settings, rig.subset(list(CAMS)), fps=2.0,
+                     clock=Clock(time.monotonic() - 10, start), **kw)  # fmt: skip
+
+
+def _send(inp: NodeInput, node: str, camera: str, t: float, people: int = 1) -> None:
+    kp = np.zeros((people, 17, 3))
+    kp[..., 0], kp[..., 1], kp[..., 2] = 100.0, 200.0, 0.9
+    payload = encode_people(node, People2D(camera, 0, kp), t, (1088, 1920))
+    inp._message(Topics.of("stereopose", "north").keypoints(camera), payload, False)
+
+
+class Steps:
+    """The input's steps, taken on a thread of their own as the service's source does."""
+
+    def __init__(self, inp: NodeInput) -> None:
+        self.inp, self.got = inp, []
+        self.thread = threading.Thread(target=self._take, daemon=True)
+        self.thread.start()
+
+    def _take(self) -> None:
+        for step in self.inp:
+            self.got.append(step)
+
+    def close(self) -> None:
+        self.inp.end()
+        self.thread.join(5)
+
+
+def test_frames_of_one_capture_time_on_two_nodes_are_one_step(rig):
+    inp = _input(rig)
+    steps = Steps(inp)
+    try:
+        now = time.time()
+        for k in range(3):
+            t = now - 2 + k * 0.5  # the 2-Hz grid
+            for cam in CAMS[:2]:
+                _send(inp, "a", cam, t)
+            for cam in CAMS[2:]:
+                _send(inp, "b", cam, t + 0.004)  # the other node's clock 4 ms on
+        wait_until(lambda: len(steps.got) >= 2, "two steps")
+        first = steps.got[0]
+        assert set(first.people2d) == set(CAMS)
+        assert first.t == pytest.approx(now - 2 - inp.clock.start_epoch, abs=1e-3)
+        assert set(first.images) == set(CAMS)  # grey pictures until the nodes send one
+        assert steps.got[1].t - first.t == pytest.approx(0.5, abs=1e-3)
+        assert inp.report()["partial_steps"] == 0
+        # a frame of a time already given is late: counted, never a step of its own
+        _send(inp, "a", "cam01", now - 2)
+        assert inp.figures["cam01"].late == 1
+    finally:
+        steps.close()
+
+
+def test_a_silent_node_delays_a_step_by_at_most_the_wait(rig):
+    inp = _input(rig, wait_s=0.2)
+    steps = Steps(inp)
+    try:
+        now = time.time()
+        for cam in CAMS:  # everyone heard from: all four are waited for
+            _send(inp, "a" if cam in CAMS[:2] else "b", cam, now - 3)
+        wait_until(lambda: len(steps.got) == 1, "the first step")
+        sent = time.monotonic()
+        for cam in CAMS[:2]:  # node b says nothing more
+            _send(inp, "a", cam, now - 2.5)
+        wait_until(lambda: len(steps.got) == 2, "the step without node b")
+        assert time.monotonic() - sent >= 0.2
+        assert set(steps.got[1].people2d) == set(CAMS[:2])
+        assert inp.report()["partial_steps"] == 1
+        # a camera that skipped this time (a newer frame waiting) is not waited for
+        _send(inp, "a", "cam01", now - 2.0)
+        _send(inp, "a", "cam02", now - 2.0)
+        _send(inp, "b", "cam03", now - 1.5)
+        _send(inp, "b", "cam04", now - 1.5)
+        wait_until(lambda: len(steps.got) == 4, "two more steps")
+        assert set(steps.got[2].people2d) == set(CAMS[:2])
+    finally:
+        steps.close()
+
+
+def test_a_node_whose_clock_is_off_is_refused_until_it_is_right(rig, caplog):
+    inp = _input(rig, clock_tolerance_s=0.25)
+    topic = Topics.of("stereopose", "north").node("b")
+    # a retained message's clock is old: it says nothing of the node's clock now
+    inp._message(topic, health_message("b", "online", clock=time.time() - 100), True)
+    assert not inp.nodes["b"].refused
+    inp._message(topic, health_message("b", "online", clock=time.time() + 3), False)
+    assert inp.nodes["b"].refused
+    assert "clock is off the service's by +3" in caplog.text
+    _send(inp, "b", "cam03", time.time() - 1)
+    assert inp.figures["cam03"].refused == 1 and not inp._pending["cam03"]
+    for _ in range(5):
+        inp._message(topic, health_message("b", "online", clock=time.time()), False)
+    assert not inp.nodes["b"].refused
+    _send(inp, "b", "cam03", time.time() - 0.5)
+    assert len(inp._pending["cam03"]) == 1
+    # a frame from the future (a node not yet heard from) is refused as well
+    _send(inp, "c", "cam04", time.time() + 5)
+    assert inp.figures["cam04"].refused == 1
+
+
+def test_hostile_messages_are_counted_and_skipped(rig, caplog):
+    inp = _input(rig)
+    t = Topics.of("stereopose", "north")
+    inp._message(t.keypoints("cam01"), b"\x00garbage", False)
+    inp._message(t.keypoints("cam09"), b"{}", False)
+    inp._message(t.picture("cam01"), encode_picture(1.0, b"\xff\xd8 not really"), False)
+    inp._message(t.node("x"), b"[]", False)
+    inp._message("stereopose/north/keypoints/a/b", b"{}", False)  # not a node topic
+    assert inp.malformed == 3 and inp.unknown == 1
+    assert "cam09" in caplog.text and "not JSON" in caplog.text
+    assert not any(inp._pending.values())
+
+
+def test_a_picture_from_a_node_is_the_cameras_image_in_its_steps(rig):
+    import cv2
+
+    inp = _input(rig)
+    steps = Steps(inp)
+    try:
+        image = np.full((480, 272, 3), 200, np.uint8)
+        _, jpeg = cv2.imencode(".jpg", image)
+        inp._message(Topics.of("stereopose", "north").picture("cam01"),
+                     encode_picture(time.time(), jpeg.tobytes()), False)  # fmt: skip
+        _send(inp, "a", "cam01", time.time() - 1)
+        wait_until(lambda: steps.got, "a step")
+        assert steps.got[0].images["cam01"].shape == (480, 272, 3)
+        assert inp.report()["cameras"]["cam01"]["pictures"] == 1
+    finally:
+        steps.close()
