@@ -122,3 +122,38 @@ def test_systemd_analyze_verifies_the_unit_without_a_warning(tmp_path: Path) -> 
     )
     about_it = [line for line in (proc.stdout + proc.stderr).splitlines() if UNIT.name in line]
     assert proc.returncode == 0 and not about_it, proc.stdout + proc.stderr
+
+
+NODE_UNIT = UNIT.with_name("stereopose-node@.service")
+
+
+def test_a_node_unit_runs_the_nodes_own_entry_and_is_always_restarted() -> None:
+    unit = parse_unit(NODE_UNIT.read_text(encoding="utf-8"))
+    assert _one(unit, "Service", "Restart") == "always"
+    assert _one(unit, "Unit", "StartLimitIntervalSec") == "0"
+    assert _one(unit, "Service", "User") not in ("", "root", "0")
+    assert _one(unit, "Service", "KillSignal") == "SIGTERM"
+    for key, value in (("NoNewPrivileges", "yes"), ("ProtectSystem", "strict"),
+                       ("PrivateTmp", "yes"), ("ProtectHome", "yes")):  # fmt: skip
+        assert _one(unit, "Service", key) == value, key
+    assert "ReadWritePaths" not in unit["Service"]  # a node writes no file
+    argv = shlex.split(_one(unit, "Service", "ExecStart").replace("%i", "node-a"))
+    assert argv[1:] == ["detect-node", "/etc/stereopose/serve.toml", "--node", "node-a"]
+    from stereopose.cli import build_parser
+
+    args = build_parser().parse_args(argv[1:])
+    assert (args.command, args.node) == ("detect-node", "node-a")
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="no systemd-analyze")
+def test_systemd_analyze_verifies_a_node_instance_without_a_warning(tmp_path: Path) -> None:
+    here = Path(sys.executable).parent / "stereopose"
+    text = NODE_UNIT.read_text(encoding="utf-8")
+    argv0 = shlex.split(_one(parse_unit(text), "Service", "ExecStart"))[0]
+    copy = tmp_path / "stereopose-node@node-a.service"
+    copy.write_text(text.replace(argv0, str(here)), encoding="utf-8")
+    proc = subprocess.run(
+        ["systemd-analyze", "verify", str(copy)], capture_output=True, text=True, timeout=60
+    )
+    about_it = [line for line in (proc.stdout + proc.stderr).splitlines() if "stereopose" in line]
+    assert proc.returncode == 0 and not about_it, proc.stdout + proc.stderr

@@ -236,12 +236,13 @@ class DetectorConfig:
     imgsz: int = number(640, multiple_of=32, ge=32, le=8192)
     conf: float = number(0.25, ge=0.0, le=1.0)  # person score threshold
     iou: float = number(0.7, ge=0.0, le=1.0)  # NMS overlap threshold
-    device: str = "cpu"  # cpu, cuda, cuda:N or auto; openvino: cpu, gpu, gpu.N or auto
+    # cpu, cuda, cuda:N, tensorrt, tensorrt:N or auto; openvino: cpu, gpu, gpu.N or auto
+    device: str = "cpu"
     # inference threads (default: all cores)
     threads: int | None = number(None, integer=True, ge=1, le=1024)
-    # "fp32", "int8" (the INT8-quantised model; onnx only) or "bf16" (openvino on a
-    # CPU with bfloat16 instructions)
-    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    # "fp32", "int8" (the INT8-quantised model; onnx only), "bf16" (openvino on a
+    # CPU with bfloat16 instructions) or "fp16" (onnx on device tensorrt)
+    precision: Literal["fp32", "bf16", "int8", "fp16"] = "fp32"
 
 
 @_schema("input")
