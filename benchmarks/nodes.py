@@ -1,0 +1,385 @@
+"""Detection over nodes against one process: the real demo's cameras looped, 4, 8 and 16 of them.
+
+For each number of cameras N (the demo's four cameras repeated under new names, each copy with
+its original's calibration and video) three set-ups run as real processes on this machine,
+with a real mosquitto:
+
+- `single`: today's `stereopose serve`, the cameras opened and detected in its own process;
+- `1 node`: one `stereopose detect-node` with all N cameras and the fusion `serve`
+  ([input] detection = "nodes");
+- `2 nodes`: two nodes with N/2 cameras each (one inference thread each) and the fusion serve.
+
+Once every camera is up and the loop warm, each set-up is measured for --seconds: steps per
+second (/api/health's frames), latency from capture to the people update on the broker (each
+step's `people` message, published at every step: received wall time - (the run's wall_start
++ the step's t); in `single` the capture time is when the frames were read), latency to the
+zone events, the broker's bytes per second on the node topics (keypoints, pictures, health),
+what was dropped (the nodes' queues, late / over-full / refused camera-frames, steps given
+without every camera; single: detection steps dropped at the hand-over) and each process's CPU.
+The nodes run on the wall-clock grid of detect_fps = the single process's measured rate for
+that N (the largest of GRID at or under it), so that they can keep up.
+
+Then, from the measured per-camera costs (bytes per camera-frame, the fusion's CPU per step
+and camera), a table on paper for 64 cameras at 25 fps on 4 GPU nodes.
+
+Results in results/nodes.{json,md}. The machine is shared by every process: on one machine two
+nodes cannot add capacity, only show what the split costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import os
+import shutil
+import signal
+import socket
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import paho.mqtt.client as paho
+import psutil
+
+from common import machine, save
+from stereopose.calibration.formats import load_calibration, save_calibration
+from stereopose.detection.models import demo_videos
+from stereopose.types import Rig
+
+GRID = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.5, 15.0, 20.0, 25.0)
+SITE = "bench"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_setup(folder: Path, n: int, mode: str, broker: int, http: int, grid: float | None,
+                imgsz: int) -> Path:  # fmt: skip
+    """The rig of n cameras, the demo site and the service's configuration in `folder`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    videos = demo_videos()
+    calib = sorted(Path(videos[0]).parents[1].glob("calibration/Calib.qca.txt"))[0]
+    demo = load_calibration(calib)
+    cams = [dataclasses.replace(demo[i % 4], name=f"c{i + 1:02d}") for i in range(n)]
+    save_calibration(folder / "calib.toml", Rig(cams))
+    site = resources.files("stereopose") / "data" / "demo_site.toml"
+    (folder / "site.toml").write_text(site.read_text(encoding="utf-8"))
+    lines = ['calibration = "calib.toml"', 'site = "site.toml"', 'output = "data"', "",
+             "[detector]", f"imgsz = {imgsz}", "", "[input]"]  # fmt: skip
+    if mode != "single":
+        lines.append('detection = "nodes"')
+    if grid is not None and mode != "single":
+        lines.append(f"detect_fps = {grid}")
+    lines += ["", "[serve]", f"port = {http}", "status_interval_s = 1", "",
+              "[mqtt]", 'host = "127.0.0.1"', f"port = {broker}", f'site = "{SITE}"',
+              "people_hz = 1000", "outbox = false", "",
+              "[storage]", "clips = false", ""]  # fmt: skip
+    for i in range(n):
+        lines += ["[[cameras]]", f'name = "c{i + 1:02d}"',
+                  f'source = "{videos[i % 4]}"', "loop = true", ""]  # fmt: skip
+    path = folder / "serve.toml"
+    path.write_text("\n".join(lines))
+    return path
+
+
+class Listener:
+    """The broker's side: bytes on the node topics, the people updates' and events' latency."""
+
+    def __init__(self, port: int, wall_start) -> None:
+        self.wall_start = wall_start  # () -> the run's wall_start, or None while not known
+        self.bytes = {"keypoints": 0, "pictures": 0, "nodes": 0}
+        self.people: list[float] = []
+        self.events: list[float] = []
+        self.measuring = False
+        self.client = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+        self.client.on_connect = lambda c, *_: c.subscribe(f"stereopose/{SITE}/#", 0)
+        self.client.on_message = self._on
+        self.client.connect("127.0.0.1", port)
+        self.client.loop_start()
+
+    def _on(self, client, userdata, msg) -> None:
+        if not self.measuring:
+            return
+        now = time.time()
+        kind = msg.topic.split("/")[2]
+        if kind in self.bytes:
+            self.bytes[kind] += len(msg.payload)
+            return
+        start = self.wall_start()
+        if start is None or kind not in ("people", "events"):
+            return
+        doc = json.loads(msg.payload)
+        if kind == "people":
+            self.people.append(now - (start + doc["t"]))
+        elif doc.get("kind") == "energized":
+            self.events.append(now - (start + doc["t"]))
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def health(port: int) -> dict:
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=5) as r:
+            return json.loads(r.read())
+    except OSError:
+        return {}
+
+
+def wall_start(db: Path) -> float | None:
+    if not db.exists():
+        return None
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=2)
+        try:
+            row = con.execute("SELECT wall_start FROM runs ORDER BY id DESC LIMIT 1").fetchone()
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+    return None if row is None else row[0]
+
+
+def status(folder: Path) -> dict:
+    try:
+        return json.loads((folder / "data" / "status.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def cpu(procs: dict[str, psutil.Process]) -> dict[str, float]:
+    out = {}
+    for name, p in procs.items():
+        try:
+            t = p.cpu_times()
+            out[name] = t.user + t.system
+        except psutil.Error:
+            out[name] = float("nan")
+    return out
+
+
+def q(values: list[float], p: float) -> float | None:
+    return round(float(np.quantile(values, p)), 3) if values else None
+
+
+def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
+              mosquitto: str) -> dict:  # fmt: skip
+    tmp = Path(tempfile.mkdtemp(prefix=f"nodes-{n}-{mode.replace(' ', '')}-"))
+    broker_port, http = free_port(), free_port()
+    (tmp / "mosquitto.conf").write_text(f"listener {broker_port} 127.0.0.1\nallow_anonymous true\n"
+                                        "persistence false\n")  # fmt: skip
+    config = write_setup(tmp, n, mode, broker_port, http, grid, imgsz)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    procs: dict[str, subprocess.Popen] = {}
+    logs = []
+
+    def start(name: str, args: list[str], extra: dict | None = None) -> None:
+        log = open(tmp / f"{name}.log", "wb")  # noqa: SIM115  # closed at the end
+        logs.append(log)
+        procs[name] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
+                                       env={**env, **(extra or {})})  # fmt: skip
+
+    cli = [sys.executable, "-m", "stereopose.cli"]
+    start("mosquitto", [mosquitto, "-c", str(tmp / "mosquitto.conf")])
+    time.sleep(0.5)
+    start("serve", [*cli, "serve", str(config)])
+    names = [f"c{i + 1:02d}" for i in range(n)]
+    if mode == "1 node":
+        start("node-1", [*cli, "detect-node", str(config), "--cameras", ",".join(names),
+                         "--name", "node-1"])  # fmt: skip
+    elif mode == "2 nodes":
+        for k, part in enumerate((names[: n // 2], names[n // 2 :]), 1):
+            start(f"node-{k}", [*cli, "detect-node", str(config), "--cameras", ",".join(part),
+                                "--name", f"node-{k}"], {"STEREOPOSE_THREADS": "1"})  # fmt: skip
+    listener = None
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:
+            h = health(http)
+            cams = h.get("cameras", {})
+            if len(cams) == n and all(c["state"] == "up" for c in cams.values()):
+                break
+            for name, p in procs.items():
+                if p.poll() is not None:
+                    raise RuntimeError(f"{name} ended: {(tmp / f'{name}.log').read_text()[-2000:]}")
+            time.sleep(1)
+        else:
+            raise RuntimeError(f"{n} {mode}: the cameras did not come up")
+        time.sleep(15)  # warm: the 3D stage compiled, the nodes' queues settled
+        db = tmp / "data" / "events.sqlite"
+        listener = Listener(broker_port, lambda: wall_start(db))
+        ps = {k: psutil.Process(p.pid) for k, p in procs.items() if k != "mosquitto"}
+        ps["mosquitto"] = psutil.Process(procs["mosquitto"].pid)
+        s0, h0, c0, t0 = status(tmp), health(http), cpu(ps), time.monotonic()
+        listener.measuring = True
+        time.sleep(seconds)
+        listener.measuring = False
+        s1, h1, c1, t1 = status(tmp), health(http), cpu(ps), time.monotonic()
+        span = t1 - t0
+        steps = h1.get("frames", 0) - h0.get("frames", 0)
+        out = {"cameras": n, "mode": mode, "detect_fps": grid if mode != "single" else None,
+               "seconds": round(span, 1), "steps": steps, "steps_per_s": round(steps / span, 2),
+               "people_latency_p50_s": q(listener.people, 0.5),
+               "people_latency_p95_s": q(listener.people, 0.95),
+               "people_updates": len(listener.people),
+               "event_latency_p50_s": q(listener.events, 0.5),
+               "event_latency_p95_s": q(listener.events, 0.95),
+               "events": len(listener.events),
+               "broker_bytes_per_s": {k: round(v / span) for k, v in listener.bytes.items()},
+               "cpu_cores": {k: round((c1[k] - c0[k]) / span, 2) for k in c0},
+               "people_mean": h1.get("people")}  # fmt: skip
+        if mode == "single":
+            p0, p1 = s0.get("pipeline", {}), s1.get("pipeline", {})
+            out["dropped_steps"] = p1.get("dropped", 0) - p0.get("dropped", 0)
+        else:
+            r0, r1 = s0.get("nodes", {}), s1.get("nodes", {})
+            lost = {}
+            for key in ("late", "dropped", "refused"):
+                lost[key] = sum(c[key] for c in r1["cameras"].values()) - sum(
+                    c[key] for c in r0["cameras"].values()
+                )
+            frames = sum(c["frames"] for c in r1["cameras"].values()) - sum(
+                c["frames"] for c in r0["cameras"].values()
+            )
+            kp_bytes = sum(c["bytes"] for c in r1["cameras"].values()) - sum(
+                c["bytes"] for c in r0["cameras"].values()
+            )
+            out["camera_frames"] = frames
+            out["bytes_per_camera_frame"] = round(kp_bytes / frames) if frames else None
+            out["lost_camera_frames"] = lost
+            out["partial_steps"] = r1.get("partial_steps", 0) - r0.get("partial_steps", 0)
+            out["node_queue_dropped"] = sum(
+                (v.get("queue") or {}).get("dropped", 0) for v in r1.get("nodes", {}).values()
+            )
+            skipped = {}
+            for name, v in r1.get("nodes", {}).items():
+                skipped[name] = sum(c.get("dropped", 0) for c in (v.get("cameras") or {}).values())
+            out["grid_times_passed_over"] = skipped
+        return out
+    finally:
+        if listener is not None:
+            listener.close()
+        for p in reversed(list(procs.values())):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(30)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        for log in logs:
+            log.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def paper(results: list[dict]) -> list[str]:
+    """64 cameras at 25 fps on 4 GPU nodes, from the measured per-camera costs."""
+    nodes = [r for r in results if r["mode"] != "single" and r.get("bytes_per_camera_frame")]
+    if not nodes:
+        return []
+    per_frame = statistics.median(r["bytes_per_camera_frame"] for r in nodes)
+    # the fusion service's CPU per step, against the cameras: a line through the node runs
+    xs = [r["cameras"] for r in nodes if r["steps"]]
+    ys = [r["cpu_cores"]["serve"] / r["steps_per_s"] for r in nodes if r["steps"]]
+    slope, base = np.polyfit(xs, ys, 1) if len(set(xs)) > 1 else (ys[0] / xs[0], 0.0)
+    fusion_s = base + slope * 64  # CPU seconds per step at 64 cameras
+    kp = 64 * 25 * per_frame
+    pic = (
+        64
+        * 1.0
+        * statistics.median(r["broker_bytes_per_s"]["pictures"] / r["cameras"] for r in nodes)
+    )
+    return [
+        "",
+        "## On paper: 64 cameras at 25 fps on 4 GPU nodes",
+        "",
+        "From the figures above (this machine's CPU for the fusion service; no GPU was measured: "
+        "benchmarks/gpu.py gives the GPU side when one is lent):",
+        "",
+        "| | per node (16 cameras) | whole site (64 cameras) |",
+        "|---|---|---|",
+        "| camera-frames per second | 400 | 1,600 |",
+        f"| keypoints to the broker (median {per_frame:.0f} B a camera-frame, the demo's 3 "
+        f"people) | {16 * 25 * per_frame / 1e3:.0f} kB/s | {kp / 1e6:.2f} MB/s "
+        f"({kp * 8 / 1e6:.1f} Mbit/s) |",
+        f"| pictures (1 Hz, 1/4 size) | {pic / 4 / 1e3:.0f} kB/s | {pic / 1e3:.0f} kB/s |",
+        "| GPU detection needed | 400 frames/s: at most 2.5 ms a frame at batch 16 | 4 GPUs |",
+        f"| fusion CPU per step (fit {base * 1e3:.1f} ms + {slope * 1e3:.2f} ms a camera) | | "
+        f"{fusion_s * 1e3:.0f} ms: {fusion_s * 25:.1f} cores at 25 steps/s |",
+        "",
+        "The broker's load is small (a 1 Gbit/s site network carries it a hundred times over); "
+        "the fusion's cost per step grows with the cameras (more views to match and "
+        "triangulate), so at 64 cameras and 25 steps/s the line above says how many of one "
+        "machine's cores it needs; the 3D stage's own figures are in reconstruct_process.md.",
+    ]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cameras", default="4,8,16")
+    ap.add_argument("--seconds", type=float, default=40.0)
+    ap.add_argument("--imgsz", type=int, default=640)
+    ap.add_argument("--modes", default="single,1 node,2 nodes")
+    args = ap.parse_args()
+    mosquitto = shutil.which("mosquitto", path=os.pathsep.join([os.environ["PATH"], "/usr/sbin"]))
+    if mosquitto is None or not demo_videos():
+        sys.exit("needs mosquitto (Debian package) and the demo videos (make install)")
+    results, load0 = [], os.getloadavg()[0]
+    for n in (int(x) for x in args.cameras.split(",")):
+        grid = None
+        for mode in args.modes.split(","):
+            r = run_setup(n, mode, grid, args.seconds, args.imgsz, mosquitto)
+            if mode == "single":
+                grid = max([g for g in GRID if g <= r["steps_per_s"]] or [GRID[0]])
+            print(json.dumps(r), flush=True)
+            results.append(r)
+    head = {"date": datetime.date.today().isoformat(), "machine": machine(),
+            "imgsz": args.imgsz, "seconds": args.seconds,
+            "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)]}  # fmt: skip
+    md = ["# Detection over nodes against one process",
+          "",
+          f"`python benchmarks/nodes.py`, {head['date']}, "
+          f"{head['machine'].replace(', one thread', '')}; "
+          f"every process (mosquitto, serve, the nodes) on this one machine; imgsz {args.imgsz}, "
+          f"{args.seconds:.0f} s measured per set-up after warming; load average "
+          f"{head['load_average'][0]} at the start, {head['load_average'][1]} at the end. The "
+          "demo's 4 cameras repeated to 8 and 16 (same videos, same calibration per copy).",
+          "",
+          "| cameras | set-up | detect_fps | steps/s | capture -> people p50 / p95 s | "
+          "-> zone event p50 / p95 s | broker B/s (keypoints + pictures + health) | "
+          "B a camera-frame | lost (late / over-full / refused), partial steps | CPU cores "
+          "(serve / nodes / mosquitto) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in results:
+        b = r["broker_bytes_per_s"]
+        cores = r["cpu_cores"]
+        nodes = sum(v for k, v in cores.items() if k.startswith("node"))
+        if r["mode"] == "single":
+            lost = f"{r['dropped_steps']} steps dropped"
+        else:
+            lc = r["lost_camera_frames"]
+            lost = f"{lc['late']} / {lc['dropped']} / {lc['refused']}, {r['partial_steps']}"
+        md.append(
+            f"| {r['cameras']} | {r['mode']} | {r['detect_fps'] or '-'} | {r['steps_per_s']} | "
+            f"{r['people_latency_p50_s']} / {r['people_latency_p95_s']} | "
+            f"{r['event_latency_p50_s']} / {r['event_latency_p95_s']} ({r['events']}) | "
+            f"{sum(b.values()):,} | {r.get('bytes_per_camera_frame') or '-'} | {lost} | "
+            f"{cores['serve']} / {nodes:.2f} / {cores['mosquitto']} |")  # fmt: skip
+    md += paper(results)
+    save("nodes", {**head, "results": results}, md)
+
+
+if __name__ == "__main__":
+    main()
