@@ -12,7 +12,7 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "stereopose"
 # the top of the data flow: these may import each other and everything below them
-TOP = ("pipeline", "cli", "service", "viz", "controlroom")
+TOP = ("pipeline", "cli", "service", "viz", "controlroom", "nodes")
 
 
 def find_modules(src: Path, package: str) -> dict[str, Path]:
