@@ -244,6 +244,8 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
         if mode == "single":
             p0, p1 = s0.get("pipeline", {}), s1.get("pipeline", {})
             out["dropped_steps"] = p1.get("dropped", 0) - p0.get("dropped", 0)
+            out["pipeline_latency_p50_s"] = p1.get("latency_p50_s")  # read -> loop done
+            out["pipeline_latency_p95_s"] = p1.get("latency_p95_s")
         else:
             r0, r1 = s0.get("nodes", {}), s1.get("nodes", {})
             lost = {}

@@ -150,12 +150,12 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     dt.add_argument("--imgsz", type=int, default=640, help="model input size, long side (640)")
     dt.add_argument("--conf", type=float, default=0.25, help="person score threshold (0.25)")
     dt.add_argument("--iou", type=float, default=0.7, help="NMS overlap threshold (0.7)")
-    dt.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (cpu); "
-                    "openvino: cpu, gpu, gpu.N or auto")  # fmt: skip
+    dt.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N, tensorrt, "
+                    "tensorrt:N or auto (cpu); openvino: cpu, gpu, gpu.N or auto")  # fmt: skip
     dt.add_argument("--threads", type=int, help="inference threads (default: all cores)")
-    dt.add_argument("--precision", choices=("fp32", "bf16", "int8"), default="fp32",
-                    help="fp32; int8: the INT8-quantised model (onnx, openvino); bf16: openvino "
-                    "on a CPU with bfloat16 instructions")  # fmt: skip
+    dt.add_argument("--precision", choices=("fp32", "bf16", "int8", "fp16"), default="fp32",
+                    help="fp32; int8: the INT8-quantised model (onnx); bf16: openvino on a CPU "
+                    "with bfloat16 instructions; fp16: onnx on --device tensorrt")  # fmt: skip
     dt.add_argument(
         "--sync",
         choices=("index", "time"),

@@ -17,7 +17,9 @@ groups the camera-frames into steps by capture time:
   frames waiting are at most PENDING (the oldest dropped and counted).
 
 A step's t is its capture time on the service's clock (seconds since `clock.start_epoch`), so
-latency is measured from capture. Each camera of a step carries the newest picture its node
+latency is measured from capture; the service's empty steps (no frame for a while) are stamped
+`lag_s` before now, the longest way of a frame to its step, so a real step never has to be
+moved later than its capture time. Each camera of a step carries the newest picture its node
 sent (or a grey one until the first), the one the console shows and the clips are made of.
 Each node's health (retained, with its last will) is followed: its clock's offset measured
 from its health messages (median of the last CLOCK_KEPT), and a node off by more than
@@ -65,6 +67,7 @@ ACTIVE_S = 1.0  # a camera heard from within this long is waited for
 CLOCK_KEPT = 5
 WARN_S = 60.0  # the same kind of bad message logged at most this often
 PLACEHOLDER_DIV = 8  # a camera with no picture yet shows a grey one of 1/8 its size
+DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
 
 
 @dataclass
@@ -115,6 +118,10 @@ class NodeInput:
         self.window_s = float(window_s) if window_s else 0.5 / self.fps
         self.wait_s, self.tolerance_s = float(wait_s), float(clock_tolerance_s)
         self.clock = clock or Clock.now()
+        # the longest a camera-frame takes from capture to its step here (detection at the
+        # node, the window, the wait): an empty step's time is this much before now, so that
+        # a step with the frames of that time can still follow it
+        self.lag_s = self.wait_s + self.window_s + DETECT_ALLOWANCE_S
         self.wall_clock = True
         self.topics = Topics.of(settings.topic_prefix, settings.site)
         self.figures = {n: CameraFigures() for n in self.cameras}

@@ -523,9 +523,12 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector)), None
         service.watch_pipeline(pipelined)
+    # an empty step's time: now, or for the nodes now less their frames' longest way here (a
+    # step's time is its capture time, and the steps' times only rise)
+    lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
     source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
                          on_step=events.step, on_detect=events.detected,
-                         clock=now_t)  # fmt: skip
+                         clock=lambda: now_t() - lag_s)  # fmt: skip
     # each person id reserved in the log before it is given (service.person_ids)
     stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path),
                     first_id=service.resume.person_ids(plan.events_db))  # fmt: skip
