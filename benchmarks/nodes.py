@@ -10,12 +10,15 @@ with a real mosquitto:
 - `2 nodes`: two nodes with N/2 cameras each (one inference thread each) and the fusion serve.
 
 Once every camera is up and the loop warm, each set-up is measured for --seconds: steps per
-second (/api/health's frames), latency from capture to the people update on the broker (each
-step's `people` message, published at every step: received wall time - (the run's wall_start
-+ the step's t); in `single` the capture time is when the frames were read), latency to the
-zone events, the broker's bytes per second on the node topics (keypoints, pictures, health),
-what was dropped (the nodes' queues, late / over-full / refused camera-frames, steps given
-without every camera; single: detection steps dropped at the hand-over) and each process's CPU.
+second (detected steps given to the loop: status.json's pipeline `delivered`, or the nodes'
+`steps`; the service's empty heartbeat steps are not counted), the latency of each step
+(nodes: from capture to its `people` message on the broker, received wall time - (the run's
+wall_start + the step's t), and to its zone events; a heartbeat step, off the detect_fps grid,
+left out; single: the pipeline's own figure, from the frames' read to the end of the loop's
+work, as its heartbeats move a slow step's t), the broker's bytes per second on the node
+topics (keypoints, pictures, health), what was dropped (the nodes' queues, late / over-full /
+refused camera-frames, steps given without every camera; single: detection steps dropped at
+the hand-over) and each process's CPU.
 The nodes run on the wall-clock grid of detect_fps = the single process's measured rate for
 that N (the largest of GRID at or under it), so that they can keep up.
 
@@ -97,8 +100,11 @@ def write_setup(folder: Path, n: int, mode: str, broker: int, http: int, grid: f
 class Listener:
     """The broker's side: bytes on the node topics, the people updates' and events' latency."""
 
-    def __init__(self, port: int, wall_start) -> None:
+    def __init__(self, port: int, wall_start, grid: float | None) -> None:
         self.wall_start = wall_start  # () -> the run's wall_start, or None while not known
+        # nodes: a step's t is a capture time on the detect_fps grid; an empty step (the
+        # service's heartbeat, repeating the last people) is off it and left out
+        self.grid = grid
         self.bytes = {"keypoints": 0, "pictures": 0, "nodes": 0}
         self.people: list[float] = []
         self.events: list[float] = []
@@ -121,6 +127,11 @@ class Listener:
         if start is None or kind not in ("people", "events"):
             return
         doc = json.loads(msg.payload)
+        if self.grid is None:
+            return  # one process: its steps' own latency is the pipeline's (status.json)
+        ticks = (start + doc["t"]) * self.grid
+        if abs(ticks - round(ticks)) > 1e-3:
+            return
         if kind == "people":
             self.people.append(now - (start + doc["t"]))
         elif doc.get("kind") == "energized":
@@ -220,16 +231,20 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
             raise RuntimeError(f"{n} {mode}: the cameras did not come up")
         time.sleep(15)  # warm: the 3D stage compiled, the nodes' queues settled
         db = tmp / "data" / "events.sqlite"
-        listener = Listener(broker_port, lambda: wall_start(db))
+        listener = Listener(broker_port, lambda: wall_start(db),
+                            None if mode == "single" else grid)  # fmt: skip
         ps = {k: psutil.Process(p.pid) for k, p in procs.items() if k != "mosquitto"}
         ps["mosquitto"] = psutil.Process(procs["mosquitto"].pid)
-        s0, h0, c0, t0 = status(tmp), health(http), cpu(ps), time.monotonic()
+        s0, c0, t0 = status(tmp), cpu(ps), time.monotonic()
         listener.measuring = True
         time.sleep(seconds)
         listener.measuring = False
         s1, h1, c1, t1 = status(tmp), health(http), cpu(ps), time.monotonic()
         span = t1 - t0
-        steps = h1.get("frames", 0) - h0.get("frames", 0)
+        if mode == "single":  # the steps detected and given to the loop (no empty step)
+            steps = s1["pipeline"]["delivered"] - s0["pipeline"]["delivered"]
+        else:
+            steps = s1["nodes"]["steps"] - s0["nodes"]["steps"]
         out = {"cameras": n, "mode": mode, "detect_fps": grid if mode != "single" else None,
                "seconds": round(span, 1), "steps": steps, "steps_per_s": round(steps / span, 2),
                "people_latency_p50_s": q(listener.people, 0.5),
@@ -284,6 +299,18 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
         for log in logs:
             log.close()
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def events(r: dict) -> str:
+    if r["mode"] == "single" or not r["events"]:
+        return "-"
+    return f"{r['event_latency_p50_s']} / {r['event_latency_p95_s']} ({r['events']})"
+
+
+def latency(r: dict) -> str:
+    if r["mode"] == "single":
+        return f"{r['pipeline_latency_p50_s']:.3f} / {r['pipeline_latency_p95_s']:.3f} (read)"
+    return f"{r['people_latency_p50_s']} / {r['people_latency_p95_s']}"
 
 
 def paper(results: list[dict]) -> list[str]:
@@ -375,8 +402,8 @@ def main() -> None:
             lost = f"{lc['late']} / {lc['dropped']} / {lc['refused']}, {r['partial_steps']}"
         md.append(
             f"| {r['cameras']} | {r['mode']} | {r['detect_fps'] or '-'} | {r['steps_per_s']} | "
-            f"{r['people_latency_p50_s']} / {r['people_latency_p95_s']} | "
-            f"{r['event_latency_p50_s']} / {r['event_latency_p95_s']} ({r['events']}) | "
+            f"{latency(r)} | "
+            f"{events(r)} | "
             f"{sum(b.values()):,} | {r.get('bytes_per_camera_frame') or '-'} | {lost} | "
             f"{cores['serve']} / {nodes:.2f} / {cores['mosquitto']} |")  # fmt: skip
     md += paper(results)

@@ -99,6 +99,9 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         wait_until(lambda: nodes_report()["cameras"]["cam04"]["node"] is not None,
                    "the nodes in status.json", 30, 0.5)  # fmt: skip
         report = nodes_report()
+        # the alarms' clips, made of the nodes' pictures
+        clips = tmp_path / "data" / "clips"
+        wait_until(lambda: any(clips.rglob("*.mp4")), "an alarm's clip", 60, 0.5)
         assert set(report["nodes"]) == {"node-a", "node-b"}
         assert report["cameras"]["cam01"]["node"] == "node-a"
         assert report["cameras"]["cam04"]["node"] == "node-b"

@@ -155,5 +155,16 @@ def test_a_picture_from_a_node_is_the_cameras_image_in_its_steps(rig):
         wait_until(lambda: steps.got, "a step")
         assert steps.got[0].images["cam01"].shape == (480, 272, 3)
         assert inp.report()["cameras"]["cam01"]["pictures"] == 1
+        # a node of another picture scale: its pictures at this camera's one size (a clip's)
+        _, big = cv2.imencode(".jpg", np.full((960, 544, 3), 50, np.uint8))
+        inp._message(Topics.of("stereopose", "north").picture("cam01"),
+                     encode_picture(time.time(), big.tobytes()), False)  # fmt: skip
+        t = time.time() - 0.5
+        _send(inp, "a", "cam01", t)
+        _send(inp, "a", "cam02", t)
+        wait_until(lambda: len(steps.got) == 2, "a second step")
+        assert steps.got[1].images["cam02"].shape == (480, 272, 3)  # grey, of the same size
+        assert steps.got[1].images["cam01"].shape == (480, 272, 3)
+        assert steps.got[1].images["cam01"].mean() < 100
     finally:
         steps.close()

@@ -20,7 +20,8 @@ A step's t is its capture time on the service's clock (seconds since `clock.star
 latency is measured from capture; the service's empty steps (no frame for a while) are stamped
 `lag_s` before now, the longest way of a frame to its step, so a real step never has to be
 moved later than its capture time. Each camera of a step carries the newest picture its node
-sent (or a grey one until the first), the one the console shows and the clips are made of.
+sent (or a grey one until the first; every picture of a camera at the size of
+node_picture_scale), the one the console shows and the clips are made of.
 Each node's health (retained, with its last will) is followed: its clock's offset measured
 from its health messages (median of the last CLOCK_KEPT), and a node off by more than
 node_clock_tolerance_s is refused: its frames are dropped (counted) until its clock is right,
@@ -66,7 +67,7 @@ PENDING = 32  # camera-frames waiting per camera
 ACTIVE_S = 1.0  # a camera heard from within this long is waited for
 CLOCK_KEPT = 5
 WARN_S = 60.0  # the same kind of bad message logged at most this often
-PLACEHOLDER_DIV = 8  # a camera with no picture yet shows a grey one of 1/8 its size
+MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
 DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
 
 
@@ -110,7 +111,8 @@ class NodeInput:
 
     def __init__(self, settings: MqttSettings, rig: Rig, *, fps: float,
                  window_s: float | None = None, wait_s: float = 0.5,
-                 clock_tolerance_s: float = 0.25, clock: Clock | None = None) -> None:  # fmt: skip
+                 clock_tolerance_s: float = 0.25, picture_scale: float = 0.25,
+                 clock: Clock | None = None) -> None:  # fmt: skip
         self.settings, self.rig = settings, rig
         self.cameras = tuple(rig.names)
         self.names = list(rig.names)
@@ -134,7 +136,10 @@ class NodeInput:
         self._pending: dict[str, deque[tuple[Keypoints, float]]] = {
             n: deque() for n in self.cameras}  # fmt: skip
         self._pictures: dict[str, np.ndarray] = {}
-        self._placeholders = {n: _grey(rig[n].size) for n in self.cameras}
+        # every picture of a camera has one size (a clip's frames must): the nodes' pictures'
+        self._sizes = {n: _picture_size(rig[n].size, picture_scale) for n in self.cameras}
+        self._placeholders = {n: np.full((h, w, 3), 96, np.uint8)
+                              for n, (w, h) in self._sizes.items()}  # fmt: skip
         self._given_end = -math.inf  # the capture time up to which steps were given
         self._cond = threading.Condition()
         self._closed = False
@@ -196,6 +201,8 @@ class NodeInput:
 
     def _warn(self, kind: str, text: str) -> None:
         now = time.monotonic()
+        if len(self._warned) >= MAX_NODES:  # kinds named by what a publisher sent: bounded
+            self._warned.clear()
         if now - self._warned.get(kind, -math.inf) >= WARN_S:
             self._warned[kind] = now
             logger.warning("%s (such messages skipped and counted)", text)
@@ -242,6 +249,10 @@ class NodeInput:
             self._warn(f"health:{name}", f"nodes: {self.topics.node(name)}: {e}")
             return
         with self._cond:
+            if name not in self.nodes and len(self.nodes) >= MAX_NODES:
+                self.unknown += 1
+                self._warn("nodes", f"nodes: more than {MAX_NODES} nodes; {name!r} is ignored")
+                return
             node = self.nodes.setdefault(name, NodeState(name))
             was = node.state
             node.state = str(doc["state"])
@@ -275,6 +286,9 @@ class NodeInput:
         image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
         if image is None:
             raise WireError("its JPEG cannot be decoded")
+        w, h = self._sizes[name]
+        if image.shape[:2] != (h, w):  # a node of another picture scale
+            image = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
         with self._cond:
             self._pictures[name] = image
             self.figures[name].pictures += 1
@@ -407,10 +421,9 @@ class NodeInput:
         summary.clock_start_epoch = self.clock.start_epoch
 
 
-def _grey(size: tuple[float, float]) -> np.ndarray:
-    w = max(16, round(size[0] / PLACEHOLDER_DIV))
-    h = max(16, round(size[1] / PLACEHOLDER_DIV))
-    return np.full((h, w, 3), 96, np.uint8)
+def _picture_size(size: tuple[float, float], scale: float) -> tuple[int, int]:
+    """(width, height) of a camera's pictures from its node (nodes.node's rounding)."""
+    return max(16, round(size[0] * scale)), max(16, round(size[1] * scale))
 
 
 def _rate(v: object) -> float | None:

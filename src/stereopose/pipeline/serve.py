@@ -428,7 +428,8 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet 
         i = cfg.input
         return NodeInput(plan.mqtt, plan.rig, fps=i.detect_fps or i.fps or cfg.fps,
                          window_s=i.node_window_s, wait_s=i.node_wait_s,
-                         clock_tolerance_s=i.node_clock_tolerance_s)  # fmt: skip
+                         clock_tolerance_s=i.node_clock_tolerance_s,
+                         picture_scale=i.node_picture_scale)  # fmt: skip
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
     # and the camera watch raises camera_down for each camera that has not delivered
     return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
