@@ -85,7 +85,10 @@ def write_setup(folder: Path, n: int, mode: str, broker: int, http: int, grid: f
         lines.append('detection = "nodes"')
     if grid is not None and mode != "single":
         lines.append(f"detect_fps = {grid}")
-    lines += ["", "[serve]", f"port = {http}", "status_interval_s = 1", "",
+    # a camera's frames come a step period and a node's detection late: at 16 cameras on this
+    # machine over 4 s, more than serve's default timeout of 5 s
+    lines += ["", "[serve]", f"port = {http}", "status_interval_s = 1", "camera_timeout_s = 15",
+              "",
               "[mqtt]", 'host = "127.0.0.1"', f"port = {broker}", f'site = "{SITE}"',
               "people_hz = 1000", "outbox = false", "",
               "[storage]", "clips = false", ""]  # fmt: skip
@@ -361,13 +364,27 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=40.0)
     ap.add_argument("--imgsz", type=int, default=640)
     ap.add_argument("--modes", default="single,1 node,2 nodes")
+    ap.add_argument(
+        "--previous",
+        type=Path,
+        help="results of earlier set-ups (this script's JSON lines) to keep",
+    )
+    ap.add_argument("--grid", type=float, help="the nodes' detect_fps (default: the single "
+                    "process's rate for the same cameras)")  # fmt: skip
     args = ap.parse_args()
     mosquitto = shutil.which("mosquitto", path=os.pathsep.join([os.environ["PATH"], "/usr/sbin"]))
     if mosquitto is None or not demo_videos():
         sys.exit("needs mosquitto (Debian package) and the demo videos (make install)")
     results, load0 = [], os.getloadavg()[0]
+    if args.previous is not None:
+        for line in args.previous.read_text().splitlines():
+            if line.startswith("{"):
+                results.append(json.loads(line))
+                print(line, flush=True)
     for n in (int(x) for x in args.cameras.split(",")):
-        grid = None
+        grid = args.grid or next((max([g for g in GRID if g <= r["steps_per_s"]] or [GRID[0]])
+                                  for r in results if r["cameras"] == n
+                                  and r["mode"] == "single"), None)  # fmt: skip
         for mode in args.modes.split(","):
             r = run_setup(n, mode, grid, args.seconds, args.imgsz, mosquitto)
             if mode == "single":

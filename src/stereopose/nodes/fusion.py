@@ -8,7 +8,8 @@ groups the camera-frames into steps by capture time:
 - a step begins with the earliest capture time t0 waiting, and takes each camera's earliest
   frame within t0 + window (node_window_s; default half a step period, so the frames of one
   grid time on every node are one step);
-- it is given to the loop as soon as every active camera (one heard from within ACTIVE_S) has
+- it is given to the loop as soon as every active camera (one heard from within ACTIVE_S or
+  ACTIVE_STEPS step periods, whichever is longer, its node not offline) has
   a frame in it or a newer one waiting (its node passed this time over), or once node_wait_s
   has gone by since its first frame arrived: a slow or dead node delays the others by at most
   that much;
@@ -64,7 +65,8 @@ from stereopose.types import People2D, Rig
 logger = logging.getLogger(__name__)
 
 PENDING = 32  # camera-frames waiting per camera
-ACTIVE_S = 1.0  # a camera heard from within this long is waited for
+ACTIVE_S = 1.0  # a camera heard from within this long (or ACTIVE_STEPS step periods) is
+ACTIVE_STEPS = 4  # waited for, unless its node is known to be offline
 CLOCK_KEPT = 5
 WARN_S = 60.0  # the same kind of bad message logged at most this often
 MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
@@ -124,6 +126,8 @@ class NodeInput:
         # node, the window, the wait): an empty step's time is this much before now, so that
         # a step with the frames of that time can still follow it
         self.lag_s = self.wait_s + self.window_s + DETECT_ALLOWANCE_S
+        # a camera heard from within this long is waited for: a few step periods
+        self.active_s = max(ACTIVE_S, ACTIVE_STEPS / self.fps)
         self.wall_clock = True
         self.topics = Topics.of(settings.topic_prefix, settings.site)
         self.figures = {n: CameraFigures() for n in self.cameras}
@@ -331,7 +335,8 @@ class NodeInput:
         group = {n: item for n, item in firsts.items() if item[0].t <= end}
         arrived = min(at for _, at in group.values())
         active = {n for n, f in self.figures.items()
-                  if f.last_mono is not None and now - f.last_mono <= ACTIVE_S}  # fmt: skip
+                  if f.last_mono is not None and now - f.last_mono <= self.active_s
+                  and self._online(f.node)}  # fmt: skip
         settled = set(firsts)  # in the step, or a newer frame waiting: nothing more to come
         if not active <= settled and now - arrived < self.wait_s:
             return None
@@ -341,6 +346,11 @@ class NodeInput:
             self._pending[n].popleft()
         self._given_end = end
         return t0, {n: kp for n, (kp, _) in group.items()}
+
+    def _online(self, node: str | None) -> bool:
+        """Whether a node is not known to be offline (its will or its goodbye)."""
+        state = self.nodes.get(node or "")
+        return state is None or state.state != "offline"
 
     def __iter__(self) -> Iterator[SourceStep]:
         while True:

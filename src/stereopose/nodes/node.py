@@ -4,8 +4,9 @@ people published on the site's broker for the fusion service (`serve`, [input] d
 
 The node reads the site's own configuration (its cameras, calibration, [detector], [input]
 and [mqtt]) and opens only its cameras: those of ``--cameras``, or of its ``[[nodes]]`` entry
-(``--node NAME``). Live cameras are read as `serve` reads them (newest frames, substreams,
-detect_fps, reconnects); recorded files are played on the wall clock (nodes.paced), so that
+(``--node NAME``). Live cameras are read as `serve` reads them (newest frames, detect_fps,
+reconnects; a camera with a `detect` substream from that substream alone, its full stream
+never opened at the node); recorded files are played on the wall clock (nodes.paced), so that
 nodes on several machines show the same moment at the same time. Each step's frames go
 through the detector in one call; each camera's people, in the calibration's pixels, go out
 on ``keypoints/<camera>`` with their capture time (nodes.wire), QoS 0. A picture of each
@@ -260,6 +261,7 @@ class DetectNode:
         self.picture_scale = cfg.input.node_picture_scale
         self._pictured: dict[str, float] = {}
         self._checked: set[str] = set()
+        self._subs: set[str] = set()  # cameras read from their detection substream
         self.publisher: Publisher | None = None
         self._source: Any = None
 
@@ -267,13 +269,16 @@ class DetectNode:
 
     def _open(self):
         p, cfg = self.plan, self.plan.config
+        # a camera with a detection substream is read from it alone: its people are found on
+        # it and its picture made of it; the full stream is never opened here
+        self._subs = {n for n, d in zip(p.rig.names, p.detect_sources, strict=True) if d}
+        sources = [d or s for s, d in zip(p.sources, p.detect_sources, strict=True)]
         if not is_stream(p.sources[0]):
-            spec = {n: (s, loop) for n, s, loop in zip(p.rig.names, p.sources, p.loop,
+            spec = {n: (s, loop) for n, s, loop in zip(p.rig.names, sources, p.loop,
                                                         strict=True)}  # fmt: skip
             return PacedFiles(spec, cfg.input.detect_fps)
-        return CameraSet(list(p.sources), list(p.rig.names), cfg.input.sync, cfg.input.fps, None,
+        return CameraSet(sources, list(p.rig.names), cfg.input.sync, cfg.input.fps, None,
                          open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
-                         detect=[d or None for d in p.detect_sources],
                          detect_fps=cfg.input.detect_fps, wait_first_frame=False,
                          wall_clock=True)  # fmt: skip
 
@@ -287,8 +292,7 @@ class DetectNode:
             if not fs.times:
                 continue
             t = source.clock.start_epoch + min(fs.times.values())
-            subs = {n: im for n, im in (fs.detect or {}).items() if im is not None}
-            yield t, FrameSet(fs.index, fs.t, {**fs.images, **subs}), fs
+            yield t, fs, fs
 
     def camera_figures(self) -> dict[str, dict]:
         src, out = self._source, {}
@@ -340,7 +344,7 @@ class DetectNode:
         t0 = time.perf_counter()
         images = {n: im for n, im in frames.images.items() if im is not None}
         for name, image in images.items():
-            if name not in self._checked and image is full.images.get(name):
+            if name not in self._checked and name not in self._subs:
                 self._checked.add(name)
                 check_size(self.plan.rig[name], image)
         people = detect_step(self.detector, FrameSet(frames.index, frames.t, images))

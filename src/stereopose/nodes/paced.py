@@ -8,9 +8,10 @@ recording, played forward then backward for ever (io.looping's order) when it lo
 node's start once when it does not. Every node plays the same frame at the same T whenever it
 was started, as synchronised cameras would.
 
-Steps are taken on a grid of the wall clock (every 1 / detect_fps s, or every frame): the
-node waits for the next grid time and shows each camera's frame of that time; grid times it
-was too busy for are passed over (counted in `skipped`), as a live camera's frames are. Each
+Steps are taken on a grid of the wall clock (every 1 / detect_fps s, or every frame): each
+step shows every camera's frame of the newest grid time already come (the next one is waited
+for once that has been shown); grid times the node was too busy for are passed over (counted
+in `skipped`), as a live camera's frames are. Each
 camera's frames are decoded once at the start and kept as JPEG (quality 95) in memory, at
 most MAX_BYTES per camera, so any frame is one JPEG decode away.
 """
@@ -136,7 +137,9 @@ class PacedFiles:
         g = 1.0 / self.rate
         last: int | None = None
         while not self._end.is_set():
-            k = math.ceil(time.time() / g)
+            # the newest grid time already come, as a live camera's newest frame; the next
+            # one waited for when it has been shown
+            k = math.floor(time.time() / g)
             if last is not None and k <= last:
                 k = last + 1
             if last is not None and k > last + 1:
