@@ -9,12 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
+from demo_frames import demo_step
 from stereopose.detection import ModelError, make_detector
-from stereopose.detection.models import demo_videos
 from stereopose.detection.yolo_onnx import (
     CPU,
     CUDA,
@@ -177,18 +176,7 @@ def test_what_this_onnx_runtime_cannot_run_is_a_clear_error(model):
 @pytest.fixture(scope="module")
 def step() -> list[np.ndarray]:
     """One step of the real demo: its 4 cameras' frame 40."""
-    videos = demo_videos()
-    if not videos:
-        pytest.skip("the demo videos are not in the cache")
-    out = []
-    for v in videos:
-        cap = cv2.VideoCapture(str(v), cv2.CAP_FFMPEG)
-        cap.set(cv2.CAP_PROP_POS_FRAMES, 40)
-        ok, frame = cap.read()
-        cap.release()
-        assert ok, v
-        out.append(frame)
-    return out
+    return demo_step(40)
 
 
 class _Counting:

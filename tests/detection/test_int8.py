@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
+from demo_frames import demo_step
 from stereopose.detection import ModelError, make_detector
-from stereopose.detection.models import demo_videos
 
 
 @pytest.mark.parametrize(
@@ -23,14 +22,7 @@ def test_an_unknown_precision_or_backend_is_refused(backend, precision, message)
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_int8_model_finds_the_people_fp32_finds_in_a_real_demo_frame():
-    videos = demo_videos()
-    if not videos:
-        pytest.skip("the demo videos are not in the cache")
-    cap = cv2.VideoCapture(str(videos[0]), cv2.CAP_FFMPEG)
-    cap.set(cv2.CAP_PROP_POS_FRAMES, 50)
-    ok, frame = cap.read()
-    cap.release()
-    assert ok
+    frame = demo_step(50)[0]
     q = make_detector(precision="int8", threads=1)
     assert q.model.name.endswith("-int8.onnx")
     found = q.detect([frame])[0]

@@ -3,31 +3,19 @@ close to it, and clear errors for what it cannot run."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
+from demo_frames import demo_step
 from stereopose.config import Config, ConfigError, from_dict
 from stereopose.detection import ModelError, make_detector
-from stereopose.detection.models import demo_videos
 
 pytest.importorskip("openvino")
 
 
 @pytest.fixture(scope="module")
 def frames() -> list[np.ndarray]:
-    videos = demo_videos()
-    if not videos:
-        pytest.skip("the demo videos are not in the cache")
-    out = []
-    for v in videos:
-        cap = cv2.VideoCapture(str(v), cv2.CAP_FFMPEG)
-        cap.set(cv2.CAP_PROP_POS_FRAMES, 30)
-        ok, frame = cap.read()
-        cap.release()
-        assert ok, v
-        out.append(frame)
-    return out
+    return demo_step(30)
 
 
 @pytest.fixture(scope="module")

@@ -376,9 +376,6 @@ class NodeInput:
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
         raise TypeError("the nodes' steps carry their people")
 
-    def arrival(self, t: float) -> float:
-        return self.clock.start + t
-
     # -- health ----------------------------------------------------------------------------------
 
     def delivering(self, name: str, within_s: float) -> bool:

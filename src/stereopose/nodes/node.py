@@ -49,7 +49,7 @@ from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.pipeline.serve_setup import _mqtt, _resolve, _source
 from stereopose.pipeline.sources import check_size, scale_people
-from stereopose.types import People2D, Rig
+from stereopose.types import Rig
 
 logger = logging.getLogger(__name__)
 
@@ -243,7 +243,6 @@ class NodeFigures:
     detect_s: float = 0.0
     last_detect_ms: float | None = None
     frames: dict[str, int] = field(default_factory=dict)
-    payload_bytes: dict[str, int] = field(default_factory=dict)  # per camera, all frames
 
 
 class DetectNode:
@@ -283,16 +282,14 @@ class DetectNode:
                          wall_clock=True)  # fmt: skip
 
     def _steps(self, source):
-        """(capture epoch, FrameSet of the images detected on, the FrameSet) per step."""
+        """(capture time, seconds since 1970; the FrameSet) per step with a frame."""
         if isinstance(source, PacedFiles):
             for fs in source:
-                yield fs.t, fs, fs
+                yield fs.t, fs
             return
         for fs in source:
-            if not fs.times:
-                continue
-            t = source.clock.start_epoch + min(fs.times.values())
-            yield t, fs, fs
+            if fs.times:
+                yield source.clock.start_epoch + min(fs.times.values()), fs
 
     def camera_figures(self) -> dict[str, dict]:
         src, out = self._source, {}
@@ -328,10 +325,10 @@ class DetectNode:
             threading.Thread(target=self._beats, args=(stop, source), name="node-health",
                              daemon=True).start()  # fmt: skip
             try:
-                for t, frames, full in self._steps(source):
+                for t, frames in self._steps(source):
                     if stop.is_set():
                         break
-                    self._step(t, frames, full)
+                    self._step(t, frames)
             finally:
                 stop.set()
                 if isinstance(source, CameraSet):
@@ -340,14 +337,14 @@ class DetectNode:
             pub.close()
         return self.figures
 
-    def _step(self, t: float, frames: FrameSet, full: FrameSet) -> None:
+    def _step(self, t: float, frames: FrameSet) -> None:
         t0 = time.perf_counter()
-        images = {n: im for n, im in frames.images.items() if im is not None}
+        images = frames.images
         for name, image in images.items():
-            if name not in self._checked and name not in self._subs:
+            if image is not None and name not in self._checked and name not in self._subs:
                 self._checked.add(name)
                 check_size(self.plan.rig[name], image)
-        people = detect_step(self.detector, FrameSet(frames.index, frames.t, images))
+        people = detect_step(self.detector, frames)  # its people named and numbered
         spent = time.perf_counter() - t0
         self.figures.steps += 1
         self.figures.detect_s += spent
@@ -359,13 +356,9 @@ class DetectNode:
             image = images[name]
             if (image.shape[1], image.shape[0]) != (round(cam.size[0]), round(cam.size[1])):
                 found = scale_people(found, cam.size, image.shape)
-            found = People2D(name, frames.index, found.keypoints, found.boxes, found.scores)
-            payload = encode_people(self.plan.name, found, t, cam.size)
-            pub.put(self.topics.keypoints(name), payload)
+            pub.put(self.topics.keypoints(name), encode_people(self.plan.name, found, t, cam.size))
             self.figures.frames[name] = self.figures.frames.get(name, 0) + 1
-            sizes = self.figures.payload_bytes
-            sizes[name] = sizes.get(name, 0) + len(payload)
-            self._picture(name, t, full.images.get(name))
+            self._picture(name, t, image)
 
     def _picture(self, name: str, t: float, image) -> None:
         if image is None or self.picture_hz <= 0:

@@ -43,7 +43,6 @@ class PacedError(StereoposeError):
 
 @dataclass
 class PacedStats:
-    frames: int = 0  # steps shown
     skipped: int = 0  # grid times passed over (the node was busy)
 
 
@@ -113,8 +112,6 @@ class PacedFiles:
     the capture time, seconds since 1970. rate: grid times per second (default: the highest
     of the files' frame rates). end() stops an iteration waiting for its next grid time."""
 
-    live = True
-
     def __init__(self, cameras: Mapping[str, tuple[str, bool]], rate: float | None = None,
                  max_bytes: int = MAX_BYTES) -> None:  # fmt: skip
         self.cameras = {name: PacedCamera(name, path, loop, max_bytes)
@@ -155,7 +152,6 @@ class PacedFiles:
                 images[name] = None if pos is None else cam.image(pos)
                 if pos is not None:
                     frames[name] = pos
-                    self.stats[name].frames += 1
             if not frames:
                 logger.info("every recorded camera of this node has ended")
                 return

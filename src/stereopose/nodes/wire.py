@@ -177,7 +177,7 @@ def decode_people(payload: bytes, camera: str) -> Keypoints:
             scores[i] = _number(p["s"], f"people[{i}].s")
     if n and not ((kp[..., 2] >= 0) & (kp[..., 2] <= 1)).all():
         raise WireError("a joint's confidence outside [0, 1]")
-    kp[kp[..., 2] <= 0] = (np.nan, np.nan, 0.0)
+    # a joint of confidence 0 (sent as 0, 0, 0) is made missing by People2D itself
     found = People2D(camera, frame, kp, boxes if has_boxes else None, scores)
     return Keypoints(node, camera, frame, t, (w, h), found)
 
