@@ -13,7 +13,9 @@
 
     python benchmarks/backends.py [--steps 25]
 
-Results in results/backends.{json,md}.
+Results in results/backends.{json,md}, one section per kind of CPU (its model name): a run on
+an AMD EPYC with AVX512_BF16 keeps the Intel Xeon with AMX's section and replaces only its own,
+since bfloat16's rounding differs between the two (see the bf16 test's bounds).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, save
+from common import RESULTS, machine, save
 from int8 import _iou, frames  # the demo's steps, box overlap: as the INT8 benchmark reads them
 from stereopose.detection import make_detector
 from stereopose.detection.models import default_int8, demo_videos
@@ -59,7 +61,9 @@ def agreement(ref_det, det, data: list[list[np.ndarray]]) -> dict:
     dists: list[float] = []
     only_ref = only_other = matched = 0
     scores: list[float] = []
+    per_step: list[np.ndarray] = []  # one step's 4 frames: what the bf16 test sees
     for step in data:
+        first = len(dists)
         for a, b in zip(ref_det.detect(step), det.detect(step), strict=True):
             scores += [float(s) for s in b.scores]
             pairs = sorted(((_iou(a.boxes[i], b.boxes[j]), i, j) for i in range(len(a))
@@ -76,7 +80,9 @@ def agreement(ref_det, det, data: list[list[np.ndarray]]) -> dict:
             matched += len(used_a)
             only_ref += len(a) - len(used_a)
             only_other += len(b) - len(used_b)
+        per_step.append(np.asarray(dists[first:]))
     d = np.asarray(dists)
+    steps = [x for x in per_step if x.size]
     return {
         "people_matched": matched,
         "people_only_reference": only_ref,
@@ -87,6 +93,10 @@ def agreement(ref_det, det, data: list[list[np.ndarray]]) -> dict:
         "p95_px": float(np.quantile(d, 0.95)) if d.size else None,
         "max_px": float(d.max()) if d.size else None,
         **{f"pck_{t:g}px": float((d <= t).mean()) if d.size else None for t in PCK_PX},
+        # the worst step's median and p95, and its worst joint
+        "step_median_px_max": max((float(np.median(x)) for x in steps), default=None),
+        "step_p95_px_max": max((float(np.quantile(x, 0.95)) for x in steps), default=None),
+        "step_max_px_median": float(np.median([x.max() for x in steps])) if steps else None,
     }
 
 
@@ -202,15 +212,65 @@ def main() -> None:
         r["joints_moved"] = {name: joints_moved(poses["onnxruntime_fp32"], poses[name])
                              for name in VARIANTS if name != "onnxruntime_fp32"}  # fmt: skip
     r["load_average_end"] = os.getloadavg()
-    save("backends", r, markdown(r))
+    cpus = _earlier()
+    cpus[_cpu(r["machine"])] = r
+    save("backends", {"cpus": cpus}, markdown(cpus))
 
 
-def markdown(r: dict) -> list[str]:
-    ms, ag, run, moved = r["ms_per_frame"], r["agreement"], r["run"], r["joints_moved"]
-    names = list(VARIANTS)
+def _cpu(machine_: str) -> str:
+    """The kind of CPU a result was measured on: the model name of its machine line."""
+    return machine_.split(",")[0].strip()
+
+
+def _earlier() -> dict:
+    """The sections of earlier runs, by CPU; a file from before sections is one run."""
+    path = RESULTS / "backends.json"
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    if "cpus" in old:
+        return dict(old["cpus"])
+    return {_cpu(old["machine"]): old} if "machine" in old else {}
+
+
+def markdown(cpus: dict) -> list[str]:
     md = [
         "# OpenVINO against ONNX Runtime (YOLO11n-pose, CPU)",
         "",
+        "One section per kind of CPU: OpenVINO runs bf16 with AMX on an Intel Xeon and with "
+        "AVX512_BF16 on an AMD EPYC, and the two round differently.",
+        "",
+        "bf16 against ONNX Runtime fp32, by CPU (imgsz 640; 2D joints both see with confidence "
+        ">= 0.5; 3D joints of `stereopose run` on the demo):",
+        "",
+        "| CPU | people matched / only one | 2D median / p95 / max px | worst step's median / "
+        "p95 px | PCK 5 px | 3D median / p95 mm | ms per frame, 2 threads: fp32 -> bf16 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for cpu, r in cpus.items():
+        a, m, ms = (
+            r["agreement"]["openvino_bf16"],
+            r["joints_moved"]["openvino_bf16"],
+            r["ms_per_frame"],
+        )
+        md.append(
+            f"| {cpu} | {a['people_matched']} / "
+            f"{a['people_only_reference'] + a['people_only_this']} | {_f(a['median_px'], 2)} / "
+            f"{_f(a['p95_px'], 2)} / {_f(a['max_px'], 1)} | {_f(a.get('step_median_px_max'), 2)}"
+            f" / {_f(a.get('step_p95_px_max'), 2)} | {_f(a['pck_5px'], 3)} | "
+            f"{_f(m['median_mm'], 2)} / {_f(m['p95_mm'], 1)} | "
+            f"{ms['onnxruntime_fp32_640_2thread']:.1f} -> {ms['openvino_bf16_640_2thread']:.1f} |"
+        )
+    for cpu, r in cpus.items():
+        md += ["", f"## {cpu}", "", *section(r)]
+    return md
+
+
+def section(r: dict) -> list[str]:
+    ms, ag, run, moved = r["ms_per_frame"], r["agreement"], r["run"], r["joints_moved"]
+    names = list(VARIANTS)
+    md = [
         f"`python benchmarks/backends.py --steps {r['steps']}`, {r['date']}, {r['machine']} "
         f"(capabilities {', '.join(r['cpu_capabilities'])}), OpenVINO {r['openvino']}; load "
         f"average {r['load_average_start'][0]:.2f} at the start, "

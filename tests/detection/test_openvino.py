@@ -49,23 +49,53 @@ def test_fp32_finds_what_onnx_runtime_finds_to_a_tenth_of_a_pixel(frames, refere
         assert np.allclose(a.scores, b.scores, atol=1e-3)
 
 
+# bf16 keeps 8 bits of mantissa. Measured against ONNX Runtime fp32 on the real demo
+# (benchmarks/results/backends.md, 25 steps) the two kinds of CPU agree: on an Intel Xeon
+# with AMX median 0.57 px, p95 5.6 px; on an AMD EPYC with AVX512_BF16 median 0.59 px, p95
+# 5.9 px; 94 % of joints within 5 px on both. Pooled over five steps (about 720 joints) the
+# AMD EPYC gave medians 0.63-0.70 px and p95s 3.5-9.6 px. A few joints whose heatmap is
+# ambiguous jump by 20-130 px on both CPUs, in a different step on each: the worst single
+# joint describes the rounding of one CPU, not the backend, and is not bounded here.
+BF16_STEPS = (10, 30, 50, 70, 90)
+BF16_MEDIAN_PX = 1.5  # about twice the worst five-step median measured
+BF16_P95_PX = 15.0  # about 1.5x the worst five-step p95 measured
+BF16_WITHIN_5PX = 0.85  # 0.92-0.97 measured over five steps
+
+
+def _displacements(a, b) -> np.ndarray:
+    """The displacement (px) of every joint both detections of one image see confidently,
+    each person of `a` matched to the nearest box of `b`."""
+    out = []
+    for k, box in enumerate(a.boxes):
+        j = int(np.argmin(np.abs(b.boxes - box).sum(axis=1)))
+        seen = (a.keypoints[k, :, 2] > 0.5) & (b.keypoints[j, :, 2] > 0.5)
+        out.append(np.linalg.norm(a.keypoints[k, seen, :2] - b.keypoints[j, seen, :2], axis=1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_bf16_finds_the_same_people_within_a_few_pixels(frames, reference):
+def test_bf16_finds_the_same_people_within_a_few_pixels():
     import openvino as ov
 
     if "BF16" not in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"):
         with pytest.raises(ModelError, match="no bfloat16 instructions"):
             make_detector("openvino", precision="bf16")
         return
-    det = make_detector("openvino", threads=1, precision="bf16")
+    det = make_detector("openvino", threads=2, precision="bf16")
     assert det.runs_in == "bf16"
-    found = det.detect(frames)
-    assert [len(p) for p in found] == [len(p) for p in reference]
-    # bfloat16 keeps 8 bits of mantissa: joints move by a few pixels of a 1088x1920 frame
-    # (benchmarks/backends.py measures what that does to the 3D joints)
-    for a, b in zip(reference, found, strict=True):
-        assert 0.0 < _matched(a, b) < 12.0
+    ref = make_detector("onnx", threads=2)
+    moved = []
+    for index in BF16_STEPS:
+        step = demo_step(index)
+        reference, found = ref.detect(step), det.detect(step)
+        assert [len(p) for p in found] == [len(p) for p in reference], index
+        moved += [_displacements(a, b) for a, b in zip(reference, found, strict=True)]
+    d = np.concatenate(moved)
+    assert d.size > 500  # the demo's people, confidently seen
+    assert 0.0 < np.median(d) < BF16_MEDIAN_PX  # bf16 really ran, and moved joints a little
+    assert np.quantile(d, 0.95) < BF16_P95_PX
+    assert (d <= 5.0).mean() >= BF16_WITHIN_5PX
 
 
 @pytest.mark.parametrize(
