@@ -243,6 +243,22 @@ class DetectorConfig:
     # "fp32", "int8" (the INT8-quantised model; onnx only), "bf16" (openvino on a
     # CPU with bfloat16 instructions) or "fp16" (onnx on device tensorrt)
     precision: Literal["fp32", "bf16", "int8", "fp16"] = "fp32"
+    # detect where the people are (their tracks, each camera's own people, motion, periodic
+    # full scans), at the camera's own resolution (detection.regional); false: every camera's
+    # whole frame at imgsz, every step
+    regions: bool = True
+    # each region's model input side (a multiple of 32): smaller regions are enlarged to it,
+    # larger ones shrunk
+    region_imgsz: int = number(320, multiple_of=32, ge=64, le=4096)
+    # each camera's whole frame scanned this often (staggered across cameras), seconds: someone
+    # who walked in unseen and stands still is found within this and one step
+    full_scan_s: float = number(2.0, gt=0.0, le=3600.0)
+    # grey levels of change that count as motion (lower: more sensitive)
+    motion_threshold: int = number(25, integer=True, ge=1, le=255)
+    # a region's people seen at least this many times as finely as in the whole frame at
+    # imgsz (a person too large for a region at that detail is detected in the whole frame);
+    # below 1: large people cost less, their joints a little less exact
+    region_detail: float = number(1.0, gt=0.0, le=4.0)
 
 
 @_schema("input")

@@ -156,6 +156,14 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     dt.add_argument("--precision", choices=("fp32", "bf16", "int8", "fp16"), default="fp32",
                     help="fp32; int8: the INT8-quantised model (onnx); bf16: openvino on a CPU "
                     "with bfloat16 instructions; fp16: onnx on --device tensorrt")  # fmt: skip
+    dt.add_argument("--regions", action=argparse.BooleanOptionalAction, default=True,
+                    help="detect where the people are (each camera's own people, motion, a "
+                    "full scan every --full-scan-s), at the camera's own resolution; "
+                    "--no-regions: every whole frame at --imgsz (default: regions)")  # fmt: skip
+    dt.add_argument("--region-imgsz", type=int, default=320,
+                    help="each region's model input side, a multiple of 32 (320)")  # fmt: skip
+    dt.add_argument("--full-scan-s", type=float, default=2.0,
+                    help="each camera's whole frame scanned this often, seconds (2)")  # fmt: skip
     dt.add_argument(
         "--sync",
         choices=("index", "time"),

@@ -56,6 +56,12 @@ def _detect(args: argparse.Namespace) -> int:
         args.threads,
         args.precision,
     )
+    regions = None
+    if args.regions:
+        from stereopose.detection.regional import RegionDetector, RegionSettings
+
+        settings = RegionSettings(imgsz=args.region_imgsz, full_scan_s=args.full_scan_s)
+        regions = RegionDetector(detector, settings)
     progress = rate_progress("detecting")
     with progress:
         task = progress.add_task("detecting", total=None, fps=0.0)
@@ -69,6 +75,7 @@ def _detect(args: argparse.Namespace) -> int:
             max_frames=args.max_frames,
             overwrite=args.overwrite,
             model=args.model,
+            regions=regions,
             on_step=lambda done, total, fps: progress.update(
                 task, completed=done, total=total, fps=fps
             ),
@@ -96,6 +103,10 @@ def _detect(args: argparse.Namespace) -> int:
         f"{summary.steps / steps_s if steps_s else 0:.1f} time steps/s overall",
         highlight=False,
     )
+    if summary.regions:
+        from stereopose.detection.regional import describe
+
+        out.print(describe(summary.regions), highlight=False)
     if summary.failed_outputs:
         folders = {
             str(Path(args.out) / f"{n}_json"): why for n, why in summary.failed_outputs.items()

@@ -46,8 +46,12 @@ class PoseDetector(Protocol):
 
     name: str
 
-    def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
-        """One Poses per image, in order; images of one time step are batched where possible."""
+    def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
+        """One Poses per image, in order; images of one time step are batched where possible.
+
+        imgsz: the model input's side for this call, each image letterboxed into an imgsz x
+        imgsz square (the regions of detection.regional, all in one batch); None: the
+        detector's own imgsz, long side, padded to the stride (whole frames)."""
         ...
 
 
@@ -173,18 +177,34 @@ def group_by_shape(images: Sequence[np.ndarray]) -> dict[tuple[int, int], list[i
     return groups
 
 
-def detect_letterboxed(model, images: Sequence[np.ndarray]) -> list[Poses]:
+def detect_letterboxed(
+    model, images: Sequence[np.ndarray], imgsz: int | None = None
+) -> list[Poses]:
     """The people of each image through an exported YOLO pose model: images of one size
-    letterboxed together (model.dynamic: to model.imgsz, padded to model.stride; else to
-    model.fixed), one `model._infer(blob)` -> (B, 56, N) per size, decoded with model.conf,
-    model.iou and model.max_det (the onnx and openvino backends)."""
+    letterboxed together (model.dynamic: to model.imgsz, padded to model.stride; `imgsz`
+    given: every image into an imgsz x imgsz square, so that images of any size make one
+    batch; a model of fixed input: to model.fixed), one `model._infer(blob)` -> (B, 56, N) per
+    input shape, decoded with model.conf, model.iou and model.max_det (the onnx and openvino
+    backends)."""
     images = [check_image(im, i) for i, im in enumerate(images)]
     results: list[Poses] = [Poses.empty()] * len(images)
+    if not model.dynamic:
+        fixed = model.fixed
+    elif imgsz is not None:
+        fixed = (int(imgsz), int(imgsz))
+    else:
+        fixed = None
+    if fixed is not None:  # one input shape: one batch whatever the images' sizes
+        boxes = [letterbox_for(im.shape[:2], fixed, model.stride, auto=False) for im in images]
+        if images:
+            out = model._infer(
+                to_blob([letterbox_image(im, lb) for im, lb in zip(images, boxes, strict=False)])
+            )
+            for k, lb in enumerate(boxes):
+                results[k] = decode(out[k], lb, model.conf, model.iou, model.max_det)
+        return results
     for shape, idx in group_by_shape(images).items():
-        if model.dynamic:
-            lb = letterbox_for(shape, model.imgsz, model.stride, auto=True)
-        else:
-            lb = letterbox_for(shape, model.fixed, model.stride, auto=False)
+        lb = letterbox_for(shape, model.imgsz, model.stride, auto=True)
         blob = to_blob([letterbox_image(images[i], lb) for i in idx])
         out = model._infer(blob)
         for k, i in enumerate(idx):

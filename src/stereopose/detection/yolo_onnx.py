@@ -255,5 +255,5 @@ class OnnxPoseDetector:
         return np.concatenate([self.session.run(None, {self.input_name: blob[k : k + step]})[0]
                                for k in range(0, len(blob), step)])  # fmt: skip
 
-    def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
-        return detect_letterboxed(self, images)
+    def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
+        return detect_letterboxed(self, images, imgsz)

@@ -126,8 +126,8 @@ class OpenVinoPoseDetector:
             return np.array(self.request.infer([blob])[0])
         return np.concatenate([np.array(self.request.infer([b[None]])[0]) for b in blob])
 
-    def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
-        return detect_letterboxed(self, images)
+    def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
+        return detect_letterboxed(self, images, imgsz)
 
 
 def _metadata(net) -> dict[str, str]:

@@ -54,13 +54,13 @@ class UltralyticsPoseDetector:
         if self.device == "auto":
             self.device = "cuda"
 
-    def detect(self, images: Sequence[np.ndarray]) -> list[Poses]:
+    def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         images = [check_image(im, i) for i, im in enumerate(images)]
         results: list[Poses] = [Poses.empty()] * len(images)
         for idx in group_by_shape(images).values():
             batch = self.model.predict(
                 [images[i] for i in idx],
-                imgsz=self.imgsz,
+                imgsz=imgsz or self.imgsz,
                 conf=self.conf,
                 iou=self.iou,
                 max_det=self.max_det,

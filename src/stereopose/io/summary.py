@@ -82,6 +82,8 @@ class RunSummary:
     per_camera: dict[str, CameraStats] = field(default_factory=dict)
     sources: dict[str, dict] = field(default_factory=dict)  # live cameras: dropped, reconnects
     pipeline: dict[str, float | None] = field(default_factory=dict)  # pipelined detection's figures
+    # detection in regions, by camera (detection.regional.CameraRegions); empty: whole frames
+    regions: dict[str, dict[str, float | int]] = field(default_factory=dict)
     events: dict[str, int] = field(default_factory=dict)  # event type -> count
     trajectories: list[Trajectory] = field(default_factory=list)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
@@ -210,6 +212,8 @@ class RunSummary:
             "failed_outputs": dict(self.failed_outputs),
             # only where detection was pipelined: a recorded run's summary.json is as before
             **({"pipeline": dict(self.pipeline)} if self.pipeline else {}),
+            # only where detection ran in regions
+            **({"regions": dict(self.regions)} if self.regions else {}),
         }
 
 

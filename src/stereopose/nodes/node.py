@@ -24,6 +24,7 @@ fusion service would take it as late). The broker away is retried for ever.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import socket
 import threading
@@ -39,6 +40,7 @@ import cv2
 
 from stereopose.config import Config, load_config
 from stereopose.detection import make_detector
+from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
@@ -254,6 +256,8 @@ class DetectNode:
         d = cfg.detector
         self.detector = make_detector(d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device,
                                       d.threads, d.precision)  # fmt: skip
+        # regions from each camera's own people, motion and full scans (a node has no 3D)
+        self.regions = region_detector(self.detector, d)
         self.topics = Topics.of(plan.mqtt.topic_prefix, plan.mqtt.site)
         self.figures = NodeFigures()
         self.picture_hz = cfg.input.node_picture_hz
@@ -344,7 +348,8 @@ class DetectNode:
             if image is not None and name not in self._checked and name not in self._subs:
                 self._checked.add(name)
                 check_size(self.plan.rig[name], image)
-        people = detect_step(self.detector, frames)  # its people named and numbered
+        # its people named and numbered, at the capture time t
+        people = detect_step(self.detector, dataclasses.replace(frames, t=t), self.regions)
         spent = time.perf_counter() - t0
         self.figures.steps += 1
         self.figures.detect_s += spent
@@ -385,7 +390,17 @@ class DetectNode:
             queue={"queued": pub.queued() if pub else 0,
                    "dropped": pub.counts.dropped if pub else 0},
             backend=getattr(self.detector, "name", "?"),
+            regions=self._region_figures(),
         )  # fmt: skip
+
+    def _region_figures(self) -> dict[str, dict[str, float]] | None:
+        """Each camera's detection in regions, in brief: regions and full scans so far, the
+        share of whole frames' model input used (None: whole frames)."""
+        if self.regions is None:
+            return None
+        return {cam: {"regions": c["regions"], "full_scans": c["full_scans"],
+                      "input_share": round(float(c["input_share"]), 3)}
+                for cam, c in self.regions.report().items()}  # fmt: skip
 
     def _beats(self, stop: threading.Event, source) -> None:
         """The health every HEALTH_S whatever the cameras do; the source ended at the stop."""

@@ -6,12 +6,15 @@ import glob
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import write_pose_frame
+from stereopose.detection.regional import RegionDetector
 from stereopose.errors import KeypointsError
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.video import (
@@ -54,6 +57,9 @@ class DetectionSummary:
     # camera -> why its keypoint files stopped being written (a full or vanished disk): that
     # camera's files are complete up to the failure, the other cameras go on
     failed_outputs: dict[str, str] = field(default_factory=dict)
+    # camera -> detection in regions' figures (detection.regional.CameraRegions); empty: whole
+    # frames
+    regions: dict[str, dict[str, float | int]] = field(default_factory=dict)
 
     @property
     def images(self) -> int:
@@ -64,11 +70,21 @@ class DetectionSummary:
         return 1000 * self.seconds_detect / self.images if self.images else float("nan")
 
 
-def detect_step(detector: PoseDetector, step: FrameSet) -> dict[str, People2D]:
-    """The people of each camera with a usable image at this step, in one detector call."""
+def detect_step(
+    detector: PoseDetector,
+    step: FrameSet,
+    regions: RegionDetector | None = None,
+    hints: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, People2D]:
+    """The people of each camera with a usable image at this step: in one detector call over
+    the whole frames, or with `regions` in the regions where people are (detection.regional;
+    hints: each camera's tracked people's boxes (N, 4) in its image's pixels)."""
     present = usable_images(step)
-    found = detector.detect([im for _, im in present]) if present else []
-    return {n: f.people(n, step.index) for (n, _), f in zip(present, found, strict=True)}
+    if regions is not None:
+        found = regions.detect(dict(present), step.t, hints) if present else {}
+        return {n: found[n].people(n, step.index) for n, _ in present}
+    found_all = detector.detect([im for _, im in present]) if present else []
+    return {n: f.people(n, step.index) for (n, _), f in zip(present, found_all, strict=True)}
 
 
 def _detect_frames(
@@ -78,6 +94,7 @@ def _detect_frames(
     summary: DetectionSummary,
     interrupt: Interrupt,
     on_step: Callable[[int, int | None, float], None] | None,
+    regions: RegionDetector | None = None,
 ) -> None:
     """Each step of `cams` detected and written, until their end or a stop (Ctrl-C)."""
     total = cams.count
@@ -91,7 +108,7 @@ def _detect_frames(
         summary.seconds_decode += t1 - t0
         if step is None:
             break
-        people2d = detect_step(detector, step)
+        people2d = detect_step(detector, step, regions)
         t2 = time.perf_counter()
         for name, people in people2d.items():
             if name in summary.failed_outputs:
@@ -143,6 +160,7 @@ def detect_videos(
     model: str | Path | None = None,
     open_timeout_s: float = 5.0,
     first_frame_timeout_s: float | None = 30.0,
+    regions: RegionDetector | None = None,
 ) -> DetectionSummary:
     """Detect people in every camera's frames and write ``<out_dir>/<camera>_json/`` files.
 
@@ -151,6 +169,8 @@ def detect_videos(
     fps)`` is called after each step. Ctrl-C stops the run after the step in progress (at once
     while waiting for a live camera; pipeline.interrupt): the files written so far are complete.
     open_timeout_s, first_frame_timeout_s: live cameras' bounds (io.cameraset.CameraSet).
+    regions: detect in the regions where people are (detection.regional: each camera's own
+    people, motion, full scans), around `detector`; None: whole frames.
 
     No output may be an input (a source, `model`) or lie inside an input folder; keypoint
     files of a previous run in these cameras' folders are refused unless `overwrite`, which
@@ -174,7 +194,7 @@ def detect_videos(
         interrupt = Interrupt(threading.Event())
         try:
             with interrupt.installed():
-                _detect_frames(cams, detector, out_dir, summary, interrupt, on_step)
+                _detect_frames(cams, detector, out_dir, summary, interrupt, on_step, regions)
         except KeyboardInterrupt:
             interrupt.stop.set()
         if interrupt.stop.is_set():
@@ -183,6 +203,8 @@ def detect_videos(
                 "interrupted after %d frames; files written so far are complete", summary.steps
             )
         summary.sources = cams.stats()
+        if regions is not None:
+            summary.regions = regions.report()
     for name, n in summary.frames.items():
         if n == 0:
             logger.warning("camera %s: no frame detected", name)

@@ -80,6 +80,9 @@ class Source(Protocol):
         """What the source knows of the run, into the summary (camera statistics, files
         skipped)."""
 
+    # A source that detects in regions also has `tracked(people3d)`: the frame loop gives it
+    # each step's 3D people, where it looks next (pipeline.sources.Cameras).
+
 
 class Stage(Protocol):
     """The 3D stage (pipeline.stage3d.Stage3D)."""
@@ -155,6 +158,7 @@ class FrameLoop:
         first = self.source.stages[0]
         total = self.source.total
         it = iter(self.source)
+        tracked = getattr(self.source, "tracked", None)
         done = 0
         while not self.stop.is_set():
             t0 = time.perf_counter()
@@ -170,6 +174,8 @@ class FrameLoop:
                 t0, t1 = t1, time.perf_counter()
                 sec["detect"] += t1 - t0
             people3d = self.stage.step(step.frame, people2d, step.t)
+            if tracked is not None:  # the tracks back to detection: the next steps' regions
+                tracked(people3d)
             t2 = time.perf_counter()
             sec["3d"] += t2 - t1
             events = self.fences.update(people3d) if self.fences is not None else []

@@ -27,7 +27,7 @@ import numpy as np
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import SourceStep
 from stereopose.pipeline.sources import Cameras
-from stereopose.types import People2D
+from stereopose.types import People2D, People3D
 
 logger = logging.getLogger(__name__)
 
@@ -182,6 +182,10 @@ class PipelinedCameras:
 
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
         raise TypeError("a pipelined source's steps carry their people")
+
+    def tracked(self, people: People3D) -> None:
+        """The loop's people of its last step, for the regions of the steps detected next."""
+        self.inner.tracked(people)
 
     def close(self) -> None:
         """Stop detection's thread (it ends after its current step) and wait for it."""

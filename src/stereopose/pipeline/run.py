@@ -23,8 +23,9 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from stereopose.calibration.formats import load_calibration
-from stereopose.config import Config, load_config
+from stereopose.config import Config, DetectorConfig, load_config
 from stereopose.detection import make_detector
+from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import load_site
 from stereopose.io.cameraset import CameraSet
@@ -104,10 +105,13 @@ def _source(base: Path, value: str) -> str:
     return value if not value or is_stream(value) else str(_resolve(base, value))
 
 
-def _camera_source(cams: CameraSet, rig: Rig, detector) -> Cameras | PipelinedCameras:
+def _camera_source(
+    cams: CameraSet, rig: Rig, detector, settings: DetectorConfig
+) -> Cameras | PipelinedCameras:
     """Live cameras: detection on its own thread, always on the newest frames. Recorded ones
-    keep the plain source: every frame is detected in turn, and the outputs stay the same."""
-    cameras = Cameras(cams, rig, detector)
+    keep the plain source: every frame is detected in turn, and the outputs stay the same.
+    settings: [detector] regions and its settings (detection.regional)."""
+    cameras = Cameras(cams, rig, detector, region_detector(detector, settings))
     return PipelinedCameras(cameras) if cams.live else cameras
 
 
@@ -219,7 +223,7 @@ def run(
         copy_config(config_path, out_dir / "config.toml", secret=_holds_secrets(cfg))
         save_inputs(out_dir, rig, site)
         return run_frames(
-            rig, cfg, _camera_source(cams, rig, detector), outputs, site,
+            rig, cfg, _camera_source(cams, rig, detector, det), outputs, site,
             calib_path=cfg.calibration or "", label=", ".join(cams.names), on_events=on_events,
             stop=stop, on_step=on_step, out_dir=out_dir, config_path=config_path,
         )  # fmt: skip

@@ -51,6 +51,7 @@ from pathlib import Path
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import make_detector
+from stereopose.detection.regional import RegionDetector, region_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import FenceMonitor
@@ -351,6 +352,12 @@ class _Service:
                                   lambda: pipelined.handover.dropped)  # fmt: skip
         self.probes["pipeline"] = stats.figures
 
+    def watch_regions(self, regions: RegionDetector) -> None:
+        """Detection in regions' figures by camera in status, /metrics and the console."""
+        self.state.register_regions(regions.report)
+        self.probes["regions"] = regions.report
+        self.regions = regions
+
     # -- health -----------------------------------------------------------------------------
 
     def snapshot(self) -> dict:
@@ -522,8 +529,11 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
-        pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector)), None
+        regions = region_detector(detector, cfg.detector)
+        pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector, regions)), None
         service.watch_pipeline(pipelined)
+        if regions is not None:
+            service.watch_regions(regions)
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0

@@ -34,7 +34,7 @@ from pathlib import Path
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import Source, SourceStep
-from stereopose.types import People2D
+from stereopose.types import People2D, People3D
 
 logger = logging.getLogger(__name__)
 
@@ -134,6 +134,12 @@ class ServeSource:
         if self.on_detect is not None:
             self.on_detect(people2d)
         return people2d
+
+    def tracked(self, people: People3D) -> None:
+        """The loop's people of its last step, to a source that detects in regions."""
+        tracked = getattr(self.inner, "tracked", None)
+        if tracked is not None:
+            tracked(people)
 
     def finish(self, summary: RunSummary) -> None:
         self.inner.finish(summary)

@@ -12,13 +12,15 @@ import numpy as np
 
 from stereopose.detection import PoseDetector
 from stereopose.detection.openpose import PoseSequence
+from stereopose.detection.regional import RegionDetector
 from stereopose.errors import StereoposeError
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
 from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
-from stereopose.types import Camera, People2D, Rig
+from stereopose.pipeline.track_regions import track_boxes
+from stereopose.types import Camera, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -94,12 +96,20 @@ class Cameras:
     people scaled to the calibration's size. `finish` puts each camera's reader statistics
     (frames, dropped, reconnects) into the summary, and for live cameras (or files on the
     wall clock) the wall-clock time of t = 0 (clock_start_epoch).
+
+    regions: detect where the people are (detection.regional), the tracked people of the last
+    step the frame loop gave back (`tracked`) projected into each camera; None: whole frames.
     """
 
     stages = CAMERA_STAGES
 
-    def __init__(self, cams: CameraSet, rig: Rig, detector: PoseDetector) -> None:
+    def __init__(
+        self, cams: CameraSet, rig: Rig, detector: PoseDetector,
+        regions: RegionDetector | None = None,
+    ) -> None:  # fmt: skip
         self.cams, self.rig, self.detector = cams, rig, detector
+        self.regions = regions
+        self._tracked: People3D | None = None
         self.cameras = tuple(cams.names)
         self.fps = float(cams.fps)
         self.live = bool(cams.live)
@@ -139,12 +149,33 @@ class Cameras:
                 self._checked.add(name)
                 check_size(self.rig[name], image)
         frames = FrameSet(step.frame, step.t, {**images, **subs})
-        people2d = detect_step(self.detector, frames)
+        hints = self._hints(frames, step.t) if self.regions is not None else None
+        people2d = detect_step(self.detector, frames, self.regions, hints)
         for name in people2d.keys() & subs.keys():
             people2d[name] = scale_people(people2d[name], self.rig[name].size, subs[name].shape)
         return people2d
 
+    def tracked(self, people: People3D) -> None:
+        """The frame loop's people of its last step: the next steps' regions (any thread)."""
+        self._tracked = people
+
+    def _hints(self, frames: FrameSet, t: float) -> dict[str, np.ndarray]:
+        """Each camera's tracked people's boxes at t, in the pixels of the image detected."""
+        people = self._tracked
+        if people is None or not len(people):
+            return {}
+        out = {}
+        for name, image in frames.images.items():
+            if image is None or name not in self.rig.names:
+                continue
+            cam = self.rig[name]
+            sx, sy = image.shape[1] / cam.size[0], image.shape[0] / cam.size[1]
+            out[name] = track_boxes(people, cam, t) * (sx, sy, sx, sy)
+        return out
+
     def finish(self, summary: RunSummary) -> None:
+        if self.regions is not None:
+            summary.regions = self.regions.report()
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}
         if self.live or self.cams.wall_clock:
             summary.clock_start_epoch = self.cams.clock.start_epoch

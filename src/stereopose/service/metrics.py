@@ -92,6 +92,34 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
                  "output", {o.name: o.backlog_s for o in s.outputs})  # fmt: skip
     if s.alarms:
         yield from _alarm_families(s.alarms)
+    if s.regions:
+        yield from _region_families(s.regions)
+
+
+# detection in regions (detection.regional.CameraRegions): metric, figure, help
+_REGIONS = (
+    ("detection_steps", "steps", "Steps detected per camera."),
+    ("detection_regions", "regions", "Regions cut and detected per camera."),
+    ("detection_whole_frames", "whole_frames", "Steps a camera was detected in its whole frame "
+     "(a scan, or regions that would cost more and see no finer)."),
+    ("detection_idle_steps", "idle_steps", "Steps a camera needed no inference: nobody tracked "
+     "or seen, no motion, no scan due."),
+    ("detection_full_scans", "full_scans", "Full scans of the camera's frame."),
+    ("detection_input_pixels", "input_px", "Model input pixels detected per camera."),
+    ("detection_whole_input_pixels", "whole_input_px", "Model input pixels whole frames at the "
+     "detector's imgsz would have taken, per camera."),
+    ("detection_newcomers_by_motion", "found_by_motion", "People found in a motion region "
+     "where no track or earlier person was, per camera."),
+    ("detection_newcomers_by_scan", "found_by_scan", "People found by a full scan where no "
+     "track or earlier person was, per camera."),
+)  # fmt: skip
+
+
+def _region_families(regions) -> Iterator[Metric]:
+    """Detection in regions by camera: what it detected, against whole frames."""
+    for name, key, doc in _REGIONS:
+        yield _counter(name, doc, "camera", {cam: float(c.get(key, 0)) for cam, c in
+                                             regions.items()})  # fmt: skip
 
 
 def _alarm_families(a) -> Iterator[Metric]:

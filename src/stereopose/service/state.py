@@ -113,6 +113,9 @@ class Snapshot:
     # the alarm rates and open incidents (pipeline.serve_incidents.IncidentStep.figures);
     # empty without an incident book
     alarms: Mapping[str, object] = field(default_factory=dict)
+    # detection in regions by camera (detection.regional.CameraRegions.as_dict); empty: whole
+    # frames, or the nodes detect
+    regions: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
@@ -224,6 +227,7 @@ class ServiceState:
         self._outputs: dict[str, OutputWatch] = {}
         self._storage: StorageProbe | None = None
         self._alarms: Callable[[], Mapping[str, object]] | None = None
+        self._regions: Callable[[], Mapping[str, Mapping[str, float]]] | None = None
         self._frames = 0
         self._people = 0
         self._stall: str | None = None
@@ -359,6 +363,11 @@ class ServiceState:
         with self._lock:
             self._alarms = probe
 
+    def register_regions(self, probe: Callable[[], Mapping[str, Mapping[str, float]]]) -> None:
+        """probe(): detection in regions' figures by camera; called at each read, quick."""
+        with self._lock:
+            self._regions = probe
+
     def register_storage(self, probe: StorageProbe) -> None:
         """probe(): bytes used per kind of stored data; called at each read, must be quick."""
         with self._lock:
@@ -373,7 +382,14 @@ class ServiceState:
             outputs = dict(self._outputs)
             storage_probe = self._storage
             alarms_probe = self._alarms
+            regions_probe = self._regions
         problems: list[str] = []
+        regions: Mapping[str, Mapping[str, float]] = {}
+        if regions_probe is not None:
+            try:
+                regions = dict(regions_probe())
+            except Exception as e:  # a probe failing never stops the health answer
+                problems.append(f"detection regions: {e}")
         alarms: Mapping[str, object] = {}
         if alarms_probe is not None:
             try:
@@ -402,6 +418,7 @@ class ServiceState:
                 storage=storage,
                 outputs=output_snaps,
                 alarms=alarms,
+                regions=regions,
             )
         if stall is not None:
             problems.append(f"service {stall}")

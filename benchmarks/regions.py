@@ -1,0 +1,273 @@
+"""Detection in regions against whole frames at 640 and at 1280, through `stereopose run`, on the
+real demo and on scenes made from it.
+
+Scenes (every one from the real 4-camera recording and its calibration):
+- full: the demo as it is (1088x1920 portrait frames, people 600-1000 px tall);
+- far_0.2, far_0.3: each frame shrunk to a fifth (a third) into a grey 1920x1080 canvas, the
+  calibration scaled to match (stereopose.sim.distant): people about 120-200 (180-300) px tall,
+  as workers 8-10 m from a wide 1080p camera;
+- empty: the canvas alone with sensor noise (sigma 2 grey levels): nobody, nothing moving;
+- newcomer: the canvas empty for 3 s, then the far_0.3 workers there at once and standing
+  still (their frame frozen) for the rest, at 10 frames/s.
+
+For each scene and set-up in the same run: detection ms per step and the whole step's, people
+per camera per frame, the frames in which the two longest tracks are both there ("ids
+stable"), the median reprojection error, the 3D joints against the whole-frame 1280 result
+(people matched per frame, mm), and for the newcomer scene the time from his appearance to
+his first 3D output (regions with motion, regions by the full scans alone, whole frames).
+Capacity: cameras one box holds at 5 steps/s, from the whole step's time per camera.
+
+    python benchmarks/regions.py [--frames 100]
+
+Results in results/regions.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from backends import joints_moved  # 3D joints matched per frame, as the backends compare them
+from common import machine, save
+from stereopose.calibration.formats import load_calibration, save_calibration
+from stereopose.detection.models import demo_videos
+from stereopose.pipeline.demo import CAMERAS, write_demo_config
+from stereopose.pipeline.run import run
+from stereopose.sim.distant import Distant
+
+SETUPS = {  # name: [detector] lines
+    "whole_640": "regions = false\nimgsz = 640",
+    "whole_1280": "regions = false\nimgsz = 1280",
+    "regions": "regions = true",
+}
+NEWCOMER_AT_S = 3.0
+NEWCOMER_FPS = 10.0
+STEP_RATE = 5.0  # steps/s a box must keep up with, for its capacity
+
+
+def _frames(n: int) -> dict[str, list[np.ndarray]]:
+    out = {}
+    for name, video in zip(CAMERAS, demo_videos(), strict=True):
+        cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+        frames = []
+        while len(frames) < n:
+            ok, im = cap.read()
+            if not ok:
+                break
+            frames.append(im)
+        cap.release()
+        out[name] = frames
+    return out
+
+
+def _write(folder: Path, frames: dict[str, list[np.ndarray]], fps: float) -> dict[str, Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name, images in frames.items():
+        path = folder / f"{name}.mp4"
+        h, w = images[0].shape[:2]
+        out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+        for im in images:
+            out.write(im)
+        out.release()
+        paths[name] = path
+    return paths
+
+
+def scenes(work: Path, n: int) -> dict[str, tuple[Path, dict[str, Path], float]]:
+    """name -> (calibration, videos by camera, fps)."""
+    demo_cfg = write_demo_config(work / "demo")
+    lines = demo_cfg.read_text().splitlines()
+    calib = Path(next(ln.split("=", 1)[1].strip().strip('"') for ln in lines
+                      if ln.startswith("calibration")))  # fmt: skip
+    rig = load_calibration(calib)
+    real = _frames(n)
+    out = {"full": (calib, dict(zip(CAMERAS, demo_videos(), strict=True)), 60.0)}
+    rng = np.random.default_rng(0)
+    for scale in (0.2, 0.3):
+        d = Distant(scale)
+        path = work / f"far_{scale}.toml"
+        save_calibration(path, d.rig(rig))
+        frames = {c: [d.frame(im) for im in real[c]] for c in CAMERAS}
+        out[f"far_{scale}"] = (path, _write(work / f"far_{scale}", frames, 60.0), 60.0)
+    d = Distant(0.3)
+    path = work / "far_0.3.toml"
+    empty = {c: [np.clip(d.empty() + rng.normal(0, 2, d.empty().shape), 0, 255).astype(np.uint8)
+                 for _ in range(n)] for c in CAMERAS}  # fmt: skip
+    out["empty"] = (path, _write(work / "empty", empty, 60.0), 60.0)
+    first = round(NEWCOMER_AT_S * NEWCOMER_FPS)
+    newcomer = {c: [d.empty()] * first + [d.frame(real[c][0])] * max(n - first, 1)
+                for c in CAMERAS}  # fmt: skip
+    out["newcomer"] = (path, _write(work / "newcomer", newcomer, NEWCOMER_FPS), NEWCOMER_FPS)
+    return out
+
+
+def one_run(work: Path, calib: Path, videos: dict[str, Path], detector: str) -> tuple[dict, Path]:
+    work.mkdir(parents=True, exist_ok=True)
+    lines = [
+        f'calibration = "{calib}"',
+        'output = "."',
+        "",
+        "[detector]",
+        detector,
+        "",
+        "[outputs]",
+        "trc = false",
+        "csv = false",
+        "overlays = false",
+        "report = false",
+        "",
+    ]
+    for name, video in videos.items():
+        lines += ["[[cameras]]", f'name = "{name}"', f'source = "{video}"', ""]
+    config = work / "run.toml"
+    config.write_text("\n".join(lines))
+    t0 = time.perf_counter()
+    s = run(config)
+    wall = time.perf_counter() - t0
+    poses = work / "poses3d.jsonl"
+    return {
+        "frames": s.frames,
+        "wall_s": wall,
+        "detect_ms_per_step": 1000 * s.seconds.get("detect", 0.0) / max(s.frames, 1),
+        "step_ms": 1000 * sum(s.seconds.values()) / max(s.frames, 1),
+        "people_per_camera": {
+            c: v.as_dict()["detections_per_frame"] for c, v in s.per_camera.items()
+        },  # fmt: skip
+        "reprojection_median_px": s.reprojection_median_px,
+        "ids_stable_frames": _stable(poses),
+        "regions": s.regions,
+    }, poses
+
+
+def _stable(poses: Path) -> int:
+    """Frames in which the two ids seen in most frames are both there."""
+    frames, count = [], {}
+    for line in poses.read_text().splitlines():
+        ids = {p["id"] for p in json.loads(line)["people"]}
+        frames.append(ids)
+        for i in ids:
+            count[i] = count.get(i, 0) + 1
+    top = sorted(count, key=count.get, reverse=True)[:2]
+    return sum(1 for ids in frames if len(top) == 2 and set(top) <= ids)
+
+
+def first_output_s(poses: Path, fps: float) -> float | None:
+    """Seconds from the newcomer's appearance to the first frame with someone in 3D."""
+    first = round(NEWCOMER_AT_S * fps)
+    for line in poses.read_text().splitlines():
+        rec = json.loads(line)
+        if rec["frame"] >= first and rec["people"]:
+            return (rec["frame"] - first) / fps
+    return None
+
+
+def kept_after_first(poses: Path, fps: float) -> float | None:
+    """The share of frames after the newcomer's first output with someone in 3D."""
+    recs = [json.loads(line) for line in poses.read_text().splitlines()]
+    first = round(NEWCOMER_AT_S * fps)
+    seen = [bool(r["people"]) for r in recs if r["frame"] >= first]
+    if True not in seen:
+        return None
+    after = seen[seen.index(True) :]
+    return sum(after) / len(after)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=100)
+    args = ap.parse_args()
+    if not demo_videos():
+        sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
+    r: dict = {"date": datetime.date.today().isoformat(),
+               "machine": machine().replace("one thread", "all cores"), "frames": args.frames,
+               "scenes": {}}  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for scene, (calib, videos, fps) in scenes(work / "scenes", args.frames).items():
+            runs, poses = {}, {}
+            setups = dict(SETUPS)
+            if scene == "newcomer":
+                setups["regions_scans_only"] = "regions = true\nmotion_threshold = 255"
+            for name, det in setups.items():
+                runs[name], poses[name] = one_run(work / scene / name, calib, videos, det)
+                print(scene, name, {k: v for k, v in runs[name].items() if k != "regions"},
+                      flush=True)  # fmt: skip
+            for name in setups:
+                if name != "whole_1280":
+                    runs[name]["joints_against_1280"] = joints_moved(poses["whole_1280"],
+                                                                     poses[name])  # fmt: skip
+                if scene == "newcomer":
+                    runs[name]["first_output_s"] = first_output_s(poses[name], fps)
+                    runs[name]["kept_after_first"] = kept_after_first(poses[name], fps)
+            r["scenes"][scene] = {"fps": fps, "runs": runs}
+    save("regions", r, markdown(r))
+
+
+def capacity(step_ms: float, cameras: int = 4) -> float:
+    """Cameras one box keeps at STEP_RATE steps/s, from the whole step's time of `cameras`."""
+    return 1000 / STEP_RATE / (step_ms / cameras) if step_ms > 0 else float("inf")
+
+
+def markdown(r: dict) -> list[str]:
+    md = [
+        "# Detection in regions against whole frames",
+        "",
+        f"`python benchmarks/regions.py --frames {r['frames']}`, {r['date']}, {r['machine']}. "
+        "Every figure from `stereopose run` (ONNX Runtime, YOLO11n-pose, the 3D stage, "
+        "tracking) on the real demo and on scenes made from it; regions at their defaults "
+        "(region_imgsz 320, full_scan_s 2, region_detail 1). ms per step: detection's, and the "
+        "whole step's (decoding, detection, 3D, writing) over 4 cameras.",
+        "",
+        "| scene | set-up | detection ms/step | step ms | people per camera (cam01 / 02 / "
+        "03 / 04) | ids stable (frames) | reprojection median px | 3D joints against 1280: "
+        "median / p95 mm | model input against whole 640 | cameras at 5 steps/s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for scene, sc in r["scenes"].items():
+        for name, x in sc["runs"].items():
+            ppl = " / ".join(f"{v:.2f}" for v in x["people_per_camera"].values())
+            m = x.get("joints_against_1280")
+            moved = f"{_f(m['median_mm'], 1)} / {_f(m['p95_mm'], 1)}" if m else "(reference)"
+            share = "-"
+            if x["regions"]:
+                used = sum(c["input_px"] for c in x["regions"].values())
+                whole = sum(c["whole_input_px"] for c in x["regions"].values())
+                share = f"{100 * used / whole:.0f} %" if whole else "-"
+            md.append(
+                f"| {scene} | {name.replace('_', ' ')} | {x['detect_ms_per_step']:.0f} | "
+                f"{x['step_ms']:.0f} | {ppl} | {x['ids_stable_frames']} of {x['frames']} | "
+                f"{_f(x['reprojection_median_px'], 2)} | {moved} | {share} | "
+                f"{capacity(x['step_ms']):.1f} |"
+            )
+    nc = r["scenes"].get("newcomer")
+    if nc:
+        md += [
+            "",
+            f"Newcomer (appears at {NEWCOMER_AT_S:g} s and stands still, {nc['fps']:g} frames/s): "
+            "seconds to his first 3D output, and the share of frames after it with him in 3D:",
+            "",
+            "| set-up | first output s | kept after |",
+            "|---|---|---|",
+        ]
+        for name, x in nc["runs"].items():
+            md.append(f"| {name.replace('_', ' ')} | {_f(x['first_output_s'], 2)} | "
+                      f"{_f(x['kept_after_first'], 3)} |")  # fmt: skip
+    return md
+
+
+def _f(x, nd: int) -> str:
+    return "-" if x is None else f"{x:.{nd}f}"
+
+
+if __name__ == "__main__":
+    main()

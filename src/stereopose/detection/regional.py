@@ -1,0 +1,348 @@
+"""Detection in regions: each camera's people found where they are, at the camera's own
+resolution, instead of in its whole frame shrunk to the model's input.
+
+Per camera and step the regions come from:
+- ``track``: boxes given by the caller, each tracked person projected into the camera at the
+  step's time (pipeline.regions), so a worker standing still keeps his region for as long as
+  he is tracked, and a camera that just missed him looks again where he is;
+- ``seen``: the camera's own people of its last steps, each kept for `hold_s` after it was
+  last found (someone seen by this camera only; a node, or `detect`, with no 3D at all);
+- ``motion``: a cheap motion detector on a small grey copy of the frame (detection.motion),
+  for newcomers;
+- ``scan``: every `full_scan_s`, staggered across cameras, the whole frame in overlapping
+  tiles at half the camera's resolution, so that someone who walked in unseen and stands
+  still is found within `full_scan_s` and one step.
+
+Regions are squares merged into a few (detection.regions), cut from the frame at its own
+resolution and letterboxed each into a `imgsz` x `imgsz` model input: smaller ones are
+enlarged (a distant worker at the camera's full detail), larger ones shrunk. Where the whole
+frame at the detector's own size would cost less and see every region at least as finely, the
+camera is detected whole instead. All regions of all cameras of a step go through the detector
+in one batch, the whole frames in another. Keypoints come back in the frame's pixels; a person
+touching a region's side that is not the frame's was cut by it, and is dropped when another
+region holds him whole, and otherwise kept, his next region grown toward where the rest of him
+must be. A camera with nobody, no motion and no scan due costs no inference at all.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from stereopose.detection.base import PoseDetector, Poses, letterbox_for
+from stereopose.detection.motion import MotionDetector
+from stereopose.detection.regions import (
+    Region,
+    cut_sides,
+    dedupe,
+    grow_cut,
+    merge,
+    squares,
+    tiles,
+)
+
+logger = logging.getLogger(__name__)
+
+HELD_MAX = 64  # a camera's own people held for their regions, at most
+# people boxes in regions: they move on between steps, so a little more than motion's
+SEEN_MIN_SIDE = 0.5  # of imgsz: a region at most twice enlarged
+
+
+@dataclass(frozen=True)
+class RegionSettings:
+    """imgsz: each region's model input side (a multiple of 32); full_scan_s: each camera's
+    whole frame scanned this often, seconds; motion_threshold: grey levels of change that count
+    as motion (lower: more sensitive); hold_s: a camera's own person keeps his region this long
+    after he was last found; detail: a region's people are seen at least this many times as
+    finely as in the whole frame at the detector's imgsz (a region too large for that gives way
+    to the whole frame); below 1, large people cost less and their joints are less exact."""
+
+    imgsz: int = 320
+    full_scan_s: float = 2.0
+    motion_threshold: int = 25
+    hold_s: float = 1.0
+    detail: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.imgsz, int) or self.imgsz < 64 or self.imgsz % 32:
+            raise ValueError(f"region imgsz must be a multiple of 32 of at least 64, "
+                             f"got {self.imgsz!r}")  # fmt: skip
+        if not self.full_scan_s > 0:
+            raise ValueError(f"full_scan_s must be positive, got {self.full_scan_s!r}")
+        if not self.hold_s >= 0:
+            raise ValueError(f"hold_s must be at least 0, got {self.hold_s!r}")
+        if not 0 < self.detail <= 4:
+            raise ValueError(f"region detail must be in (0, 4], got {self.detail!r}")
+
+
+@dataclass
+class CameraRegions:
+    """One camera's figures: steps detected; regions cut; steps detected whole (regions would
+    cost more and see no finer); steps with no inference at all; full scans; model input
+    pixels used, and what whole frames at the detector's size would have used; frame pixels cut
+    into regions, and the frames' own pixels; people found; newcomers found by motion and by a
+    scan (people in no region of a track or of the camera's own people)."""
+
+    steps: int = 0
+    regions: int = 0
+    whole_frames: int = 0
+    idle_steps: int = 0
+    full_scans: int = 0
+    input_px: int = 0
+    whole_input_px: int = 0
+    crop_px: int = 0
+    frame_px: int = 0
+    people: int = 0
+    found_by_motion: int = 0
+    found_by_scan: int = 0
+
+    def as_dict(self) -> dict[str, float | int]:
+        out: dict[str, float | int] = asdict(self)
+        out["input_share"] = self.input_px / self.whole_input_px if self.whole_input_px else 0.0
+        return out
+
+
+@dataclass
+class _Camera:
+    motion: MotionDetector
+    next_scan: float  # the step time of its next full scan
+    first_gap: float  # of full_scan_s to its second scan (staggered), then 1
+    held: list[tuple[np.ndarray, float]] = field(default_factory=list)  # (box, last found)
+    last: list[Region] = field(default_factory=list)  # the regions of its last step
+    whole: bool = False  # its last step ran on the whole frame
+
+
+class RegionDetector:
+    """A pose detector (detection.PoseDetector) run on regions of each camera's frames.
+
+    `detect(images, t, hints)` once per step: images by camera (BGR uint8, each camera's own
+    size), the step's time t (seconds, increasing), hints by camera (N, 4) x1 y1 x2 y2 in that
+    camera's image pixels (the tracked people projected); the people found by camera, in the
+    images' pixels. `cameras` figures by camera; `regions(camera)` the last step's regions.
+    """
+
+    def __init__(self, detector: PoseDetector, settings: RegionSettings | None = None) -> None:
+        self.detector = detector
+        self.name = detector.name
+        self.settings = settings or RegionSettings()
+        self.whole_imgsz = int(getattr(detector, "imgsz", 640))
+        self.iou = float(getattr(detector, "iou", 0.7))
+        self.cameras: dict[str, CameraRegions] = {}
+        self._state: dict[str, _Camera] = {}
+
+    def regions(self, camera: str) -> list[Region]:
+        """The regions of `camera`'s last step (empty: detected whole, or nothing to see);
+        any thread."""
+        state = self._state.get(camera)
+        return list(state.last) if state else []
+
+    def whole(self, camera: str) -> bool:
+        """Whether `camera`'s last step ran on its whole frame; any thread."""
+        state = self._state.get(camera)
+        return bool(state and state.whole)
+
+    def report(self) -> dict[str, dict[str, float | int]]:
+        """The figures by camera (CameraRegions.as_dict); any thread."""
+        return {name: c.as_dict() for name, c in list(self.cameras.items())}
+
+    def _register(self, names: list[str], t: float) -> None:
+        """Cameras seen for the first time: each is scanned now, and its next scans staggered
+        across the full_scan_s period ((k + 1) / n of it after this one: never longer)."""
+        new = [n for n in names if n not in self._state]
+        for k, name in enumerate(new):
+            self._state[name] = _Camera(MotionDetector(self.settings.motion_threshold),
+                                        next_scan=t, first_gap=(k + 1) / len(new))  # fmt: skip
+            self.cameras[name] = CameraRegions()
+
+    def _plan(
+        self, name: str, image: np.ndarray, t: float, hints: np.ndarray | None
+    ) -> tuple[list[Region], bool, bool]:
+        """A camera's regions at this step, whether it is a scan, and whether it is detected
+        whole instead."""
+        s = self.settings
+        state = self._state[name]
+        h, w = image.shape[:2]
+        size = (w, h)
+        moving = state.motion.update(image)
+        state.held = [(b, seen) for b, seen in state.held if t - seen <= s.hold_s]
+        scan = t >= state.next_scan
+        if scan:
+            gap = s.full_scan_s * state.first_gap
+            state.first_gap = 1.0
+            state.next_scan = max(state.next_scan + gap, t + 0.5 * gap)
+        whole = letterbox_for((h, w), self.whole_imgsz, 32, auto=True)
+        whole_scale = min(whole.gain)
+        # the largest region seen at least `detail` times as finely as in the whole frame
+        largest = s.imgsz / (whole_scale * s.detail)
+        small = SEEN_MIN_SIDE * s.imgsz
+        people = []
+        if hints is not None and len(hints):
+            people += squares(hints, size, "track", small)
+        if state.held:
+            people += squares(np.array([b for b, _ in state.held]), size, "seen", small)
+        # motion where nobody is known yet: a newcomer (a known person's moving limbs are in
+        # his own region already)
+        motion = [m for m in squares(moving, size, "motion", s.imgsz)
+                  if not any(_inside(m, r) for r in people)]  # fmt: skip
+        regions = merge(people + motion, size, largest)
+        if scan:  # the whole frame (people of any size whole), and tiles where it sees coarser
+            tile = 2 * s.imgsz
+            return regions + (tiles(size, tile) if whole_scale < s.imgsz / tile else []), True, True
+        if not regions:
+            return [], False, False
+        if any(max(r.side_w, r.side_h) > largest for r in regions):
+            # someone too large for a region's detail: the whole frame, and the regions that
+            # see their people more finely than it does
+            finer = [r for r in regions if s.imgsz / max(r.side_w, r.side_h) > whole_scale
+                     and r.why & {"track", "seen"}]  # fmt: skip
+            return finer, False, True
+        whole_px = whole.input_shape[0] * whole.input_shape[1]
+        finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
+        if len(regions) * s.imgsz**2 >= whole_px and whole_scale >= finest:
+            return [], False, True  # cheaper whole, and no region seen finer
+        return regions, False, False
+
+    def detect(
+        self,
+        images: Mapping[str, np.ndarray],
+        t: float,
+        hints: Mapping[str, np.ndarray] | None = None,
+    ) -> dict[str, Poses]:
+        s = self.settings
+        crops: list[np.ndarray] = []
+        owners: list[tuple[str, Region]] = []
+        wholes: list[str] = []
+        self._register(list(images), t)
+        for name, image in images.items():
+            regions, scan, whole = self._plan(name, image, t, (hints or {}).get(name))
+            stats = self.cameras[name]
+            h, w = image.shape[:2]
+            lb = letterbox_for((h, w), self.whole_imgsz, 32, auto=True)
+            stats.steps += 1
+            stats.frame_px += w * h
+            stats.whole_input_px += lb.input_shape[0] * lb.input_shape[1]
+            stats.full_scans += scan
+            if whole:
+                wholes.append(name)
+                stats.whole_frames += 1
+                stats.input_px += lb.input_shape[0] * lb.input_shape[1]
+                stats.crop_px += w * h
+            elif not regions:
+                stats.idle_steps += 1
+            stats.regions += len(regions)
+            stats.input_px += len(regions) * s.imgsz**2
+            stats.crop_px += sum(r.area for r in regions)
+            self._state[name].last = regions
+            self._state[name].whole = whole
+            for r in regions:
+                crops.append(r.cut(image))
+                owners.append((name, r))
+        found: dict[str, list[tuple[Poses, Region | None]]] = {n: [] for n in images}
+        if crops:
+            for (name, r), poses in zip(owners, self.detector.detect(crops, imgsz=s.imgsz),
+                                        strict=True):  # fmt: skip
+                found[name].append((poses, r))
+        if wholes:
+            for name, poses in zip(wholes, self.detector.detect([images[n] for n in wholes]),
+                                   strict=True):  # fmt: skip
+                found[name].append((poses, None))
+        out: dict[str, Poses] = {}
+        for name, image in images.items():
+            h, w = image.shape[:2]
+            out[name] = self._gather(name, found[name], (w, h), t)
+        return out
+
+    def _gather(self, name: str, found: list[tuple[Poses, Region | None]],
+                size: tuple[int, int], t: float) -> Poses:  # fmt: skip
+        """One camera's people from its regions, in frame pixels, each person once; its held
+        people and newcomer counts brought up to date."""
+        kps, boxes, scores, cut, grown, why = [], [], [], [], [], []
+        for poses, r in found:
+            if not len(poses):
+                continue
+            kp, bx = np.array(poses.keypoints, float), np.array(poses.boxes, float)
+            if r is not None:
+                kp[..., 0] += r.x
+                kp[..., 1] += r.y
+                bx[:, [0, 2]] += r.x
+                bx[:, [1, 3]] += r.y
+            for k in range(len(poses)):
+                sides = cut_sides(bx[k], r, size) if r is not None else (False,) * 4
+                kps.append(kp[k])
+                boxes.append(bx[k])
+                scores.append(float(poses.scores[k]))
+                cut.append(any(sides))
+                grown.append(grow_cut(bx[k], sides) if any(sides) else bx[k])
+                why.append(r.why if r is not None else frozenset({"whole"}))
+        stats, state = self.cameras[name], self._state[name]
+        if not kps:
+            return Poses.empty()
+        keep = dedupe(np.array(boxes), np.array(scores), np.array(cut), self.iou)
+        known = [b for b, _ in state.held]
+        for i in keep:
+            cx, cy = (boxes[i][0] + boxes[i][2]) / 2, (boxes[i][1] + boxes[i][3]) / 2
+            if (
+                "track" in why[i]
+                or "seen" in why[i]
+                or any(b[0] <= cx <= b[2] and b[1] <= cy <= b[3] for b in known)
+            ):
+                continue
+            if "motion" in why[i]:
+                stats.found_by_motion += 1
+            elif "scan" in why[i]:
+                stats.found_by_scan += 1
+        new = [grown[i] for i in keep]
+        state.held = [(b, seen) for b, seen in state.held if not _overlaps_any(b, new)]
+        state.held = ([(b, t) for b in new] + state.held)[:HELD_MAX]
+        stats.people += len(keep)
+        return Poses(np.array([kps[i] for i in keep]), np.array([boxes[i] for i in keep]),
+                     np.array([scores[i] for i in keep]))  # fmt: skip
+
+
+def _inside(a: Region, b: Region) -> bool:
+    """Whether region a's centre lies in region b."""
+    cx, cy = a.x + a.side_w / 2, a.y + a.side_h / 2
+    return b.x <= cx <= b.x + b.side_w and b.y <= cy <= b.y + b.side_h
+
+
+def _overlaps_any(box: np.ndarray, others: list[np.ndarray], iou: float = 0.3) -> bool:
+    for o in others:
+        iw = min(box[2], o[2]) - max(box[0], o[0])
+        ih = min(box[3], o[3]) - max(box[1], o[1])
+        inter = max(iw, 0.0) * max(ih, 0.0)
+        union = (box[2] - box[0]) * (box[3] - box[1]) + (o[2] - o[0]) * (o[3] - o[1]) - inter
+        if union > 0 and inter / union > iou:
+            return True
+    return False
+
+
+def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
+    """The RegionDetector of a detector and its `[detector]` settings (config.DetectorConfig:
+    regions, region_imgsz, full_scan_s, motion_threshold); None with regions = false."""
+    if not settings.regions:
+        return None
+    return RegionDetector(detector, RegionSettings(
+        imgsz=settings.region_imgsz, full_scan_s=settings.full_scan_s,
+        motion_threshold=settings.motion_threshold, detail=settings.region_detail,
+    ))  # fmt: skip
+
+
+def describe(report: Mapping[str, Mapping[str, float | int]]) -> str:
+    """One line of a run's figures by camera (RegionDetector.report()): the share of whole
+    frames' model input used, regions per step, scans and newcomers."""
+    used = sum(c["input_px"] for c in report.values())
+    whole = sum(c["whole_input_px"] for c in report.values())
+    per = ", ".join(
+        f"{name} {100 * c['input_share']:.0f} % ({c['regions'] / max(c['steps'], 1):.1f} "
+        f"regions/step)"
+        for name, c in report.items()
+    )
+    scans = sum(c["full_scans"] for c in report.values())
+    motion = sum(c["found_by_motion"] for c in report.values())
+    scanned = sum(c["found_by_scan"] for c in report.values())
+    share = 100 * used / whole if whole else 0.0
+    return (f"regions: {share:.0f} % of whole frames' model input ({per}); {scans} full "
+            f"scans; newcomers found by motion {motion}, by a scan {scanned}")  # fmt: skip
