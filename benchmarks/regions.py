@@ -142,7 +142,7 @@ def one_run(work: Path, calib: Path, videos: dict[str, Path], detector: str) -> 
         "step_ms": 1000 * sum(s.seconds.values()) / max(s.frames, 1),
         "people_per_camera": {
             c: v.as_dict()["detections_per_frame"] for c, v in s.per_camera.items()
-        },  # fmt: skip
+        },
         "reprojection_median_px": s.reprojection_median_px,
         "ids_stable_frames": _stable(poses),
         "regions": s.regions,
