@@ -198,6 +198,8 @@ def main() -> None:
             setups = dict(SETUPS)
             if scene == "newcomer":
                 setups["regions_scans_only"] = "regions = true\nmotion_threshold = 255"
+            if scene == "full":  # people too large for a region at whole frames' detail
+                setups["regions_detail_0.5"] = "regions = true\nregion_detail = 0.5"
             for name, det in setups.items():
                 runs[name], poses[name] = one_run(work / scene / name, calib, videos, det)
                 print(scene, name, {k: v for k, v in runs[name].items() if k != "regions"},

@@ -83,8 +83,17 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
         # detection runs on its own thread, and its time is in the stage figures all the same
         detect = re.search(rb'stereopose_stage_seconds_sum\{stage="detect"\} (\S+)', metrics)
         assert detect and float(detect.group(1)) > 0, metrics.decode()
+        # detection in regions (the default): its figures per camera
+        for cam in ("cam01", "cam02", "cam03", "cam04"):
+            steps = re.search(rb'stereopose_detection_steps_total\{camera="%s"\} (\S+)'
+                              % cam.encode(), metrics)  # fmt: skip
+            assert steps and float(steps.group(1)) > 0, metrics.decode()
+        assert b"stereopose_detection_full_scans_total" in metrics
         wait_until(lambda: (data / "status.json").exists(), "status.json")
-        assert json.loads((data / "status.json").read_text())["status"] in ("ok", "degraded")
+        doc = json.loads((data / "status.json").read_text())
+        assert doc["status"] in ("ok", "degraded")
+        assert set(doc["regions"]) == {"cam01", "cam02", "cam03", "cam04"}
+        assert all(c["full_scans"] >= 1 and c["input_px"] > 0 for c in doc["regions"].values())
         assert sub.on("stereopose/demo/available")[-1] == "online"
     finally:
         rc = _stop(proc, log)

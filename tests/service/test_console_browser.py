@@ -488,6 +488,29 @@ def test_a_camera_picture_opens_large(watched, served):
     page.wait_for_selector("#camera-view", state="hidden", timeout=5_000)
 
 
+def test_the_regions_toggle_shows_where_detection_looked(watched, served):
+    w = watched("olga")
+    page = w.page
+    card = f'figure.camera-card[data-camera="{CAMERAS[0]}"]'
+    # the cameras' health comes every few seconds with what detection looked at
+    wait_until(lambda: page.evaluate(f"document.querySelector('{card}')?.dataset.detection"),
+               "the first camera's detection mode", timeout_s=30, poll_s=0.2)  # fmt: skip
+    mode = page.get_attribute(card, "data-detection")
+    assert mode in ("regions", "whole", "whole+regions", "idle")
+    assert not page.is_visible(f"{card} .regions")
+    page.click("#regions-toggle")
+    assert page.get_attribute("#regions-toggle", "aria-pressed") == "true"
+    assert page.is_visible(f"{card} .regions")
+    # the served demo's people fill the frames: someone is looked at in some camera
+    wait_until(lambda: page.locator("figure.camera-card .region").count() > 0,
+               "a region drawn", timeout_s=30, poll_s=0.2)  # fmt: skip
+    box = page.locator("figure.camera-card .region").first.bounding_box()
+    frame = page.locator("figure.camera-card .snapshot").first.bounding_box()
+    assert box and frame and box["width"] > 0 and box["width"] <= frame["width"] + 1
+    page.click("#regions-toggle")
+    assert not page.is_visible(f"{card} .regions")
+
+
 def _clipped(w: Watched, served: Served) -> dict | None:
     """The newest alarm with a clip, through the API as the page is logged in."""
     answer = w.page.request.get(f"{served.base}/api/events?limit=1000")

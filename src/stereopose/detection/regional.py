@@ -113,6 +113,7 @@ class _Camera:
     held: list[tuple[np.ndarray, float]] = field(default_factory=list)  # (box, last found)
     last: list[Region] = field(default_factory=list)  # the regions of its last step
     whole: bool = False  # its last step ran on the whole frame
+    size: tuple[int, int] | None = None  # its frames' (w, h)
 
 
 class RegionDetector:
@@ -138,6 +139,29 @@ class RegionDetector:
         any thread."""
         state = self._state.get(camera)
         return list(state.last) if state else []
+
+    def view(self, camera: str) -> dict | None:
+        """What `camera`'s last step detected, for the console: {"mode": "regions", "whole",
+        "whole+regions" or "idle", "regions": [[x, y, w, h, why], ...]} with x, y, w, h as
+        fractions of the frame (so a substream's regions fit the full picture) and why the
+        reasons joined by "+"; None before its first step. Any thread."""
+        state = self._state.get(camera)
+        if state is None or state.size is None:
+            return None
+        w, h = state.size
+        boxes = [
+            [
+                round(r.x / w, 4),
+                round(r.y / h, 4),
+                round(r.side_w / w, 4),
+                round(r.side_h / h, 4),
+                "+".join(sorted(r.why)),
+            ]
+            for r in list(state.last)
+        ]
+        mode = ("whole+regions" if boxes else "whole") if state.whole else (
+            "regions" if boxes else "idle")  # fmt: skip
+        return {"mode": mode, "regions": boxes}
 
     def whole(self, camera: str) -> bool:
         """Whether `camera`'s last step ran on its whole frame; any thread."""
@@ -194,9 +218,10 @@ class RegionDetector:
         if not regions:
             return [], False, False
         if any(max(r.side_w, r.side_h) > largest for r in regions):
-            # someone too large for a region's detail: the whole frame, and the regions that
-            # see their people more finely than it does
-            finer = [r for r in regions if s.imgsz / max(r.side_w, r.side_h) > whole_scale
+            # someone too large for a region's detail: the whole frame, and the regions of
+            # people it would see at less than half their region's detail (a distant worker
+            # beside a near one)
+            finer = [r for r in regions if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale
                      and r.why & {"track", "seen"}]  # fmt: skip
             return finer, False, True
         whole_px = whole.input_shape[0] * whole.input_shape[1]
@@ -237,6 +262,7 @@ class RegionDetector:
             stats.crop_px += sum(r.area for r in regions)
             self._state[name].last = regions
             self._state[name].whole = whole
+            self._state[name].size = (w, h)
             for r in regions:
                 crops.append(r.cut(image))
                 owners.append((name, r))

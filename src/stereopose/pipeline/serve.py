@@ -356,7 +356,8 @@ class _Service:
         """Detection in regions' figures by camera in status, /metrics and the console."""
         self.state.register_regions(regions.report)
         self.probes["regions"] = regions.report
-        self.regions = regions
+        if self.console is not None and self.console.hub is not None:
+            self.console.hub.show_regions(regions.view)
 
     # -- health -----------------------------------------------------------------------------
 

@@ -229,6 +229,7 @@ class LiveHub:
         self._approach: dict[str, float] = {}  # zone -> service time of its last approach
         self._zones_version = 0
         self._snapshots: dict[str, tuple[bytes, float]] = {}
+        self._regions_view: Callable[[str], dict | None] | None = None
         self._snap_q: queue.Queue = queue.Queue(SNAPSHOT_QUEUE)
         self._snap_at = -math.inf
         self._watched_at = -math.inf
@@ -568,8 +569,16 @@ class LiveHub:
                 "frames": c.frames if c else 0,
                 "dropped_frames": c.dropped_frames if c else 0,
             }  # fmt: skip
+            if self._regions_view is not None:
+                item["regions"] = self._regions_view(name)
             out.append(item)
         return {"cameras": out}
+
+    def show_regions(self, view: Callable[[str], dict | None]) -> None:
+        """view(camera): what detection in regions looked at in the camera's last step
+        (detection.regional.RegionDetector.view), given with each camera in /api/cameras and
+        the live channel, for the console's Regions toggle."""
+        self._regions_view = view
 
     def has_camera(self, name: str) -> bool:
         return name in self._views

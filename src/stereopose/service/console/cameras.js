@@ -2,7 +2,8 @@
 // fetched a few times a second while the page is visible and the camera up) and its health,
 // with a clear DOWN badge. A click on a picture opens it large (the camera of a new alarm is
 // opened so by the console); the large view follows the same pictures and closes with its
-// button or Escape.
+// button or Escape. The Regions toggle draws over each picture where detection looked in the
+// camera's last step (tracked people, its own people, motion, a scan), refreshed with its health.
 
 const PERIOD_MS = 500; // 2 pictures a second per camera
 
@@ -91,7 +92,10 @@ export class CameraStrip {
       img.alt = `${cam.name} live picture`;
       img.dataset.camera = cam.name;
       const down = text("div", "down-overlay", "NO PICTURE");
-      frame.append(img, down);
+      const regions = document.createElement("div");
+      regions.className = "regions";
+      regions.setAttribute("aria-hidden", "true");
+      frame.append(img, regions, down);
       const caption = document.createElement("figcaption");
       const name = text("span", "camera-name", cam.name);
       const badge = text("span", "badge", "");
@@ -101,9 +105,10 @@ export class CameraStrip {
       frame.title = `${cam.name}: click to enlarge`;
       frame.addEventListener("click", () => this.open(cam.name));
       this.root.appendChild(card);
-      this.cards.set(cam.name, { card, img, badge, stats, health: null, url: snapshotUrl(cam.name),
-        loading: false });
+      this.cards.set(cam.name, { card, img, badge, stats, regions, health: null,
+        url: snapshotUrl(cam.name), loading: false });
       this.setHealth(cam.name, cam.health);
+      this.setRegions(cam.name, cam.regions);
     }
     this.schedule();
   }
@@ -121,6 +126,32 @@ export class CameraStrip {
     const fps = typeof health.fps === "number" ? health.fps.toFixed(1) : "-";
     c.stats.textContent = `${fps} fps · last frame ${age} · ${health.reconnects ?? 0} reconnects` +
       (health.dropped_frames ? ` · ${health.dropped_frames} dropped` : "");
+  }
+
+  /** Where detection looked in the camera's last step: {mode, regions: [[x, y, w, h, why]]}
+   * as fractions of the picture (null: whole frames, or not known yet). */
+  setRegions(name, view) {
+    const c = this.cards.get(name);
+    if (!c) return;
+    const boxes = view && Array.isArray(view.regions) ? view.regions : [];
+    c.card.dataset.detection = view && typeof view.mode === "string" ? view.mode : "";
+    c.regions.replaceChildren(...boxes.filter((b) => Array.isArray(b) && b.length >= 4).map((b) => {
+      const box = document.createElement("div");
+      const why = String(b[4] || "");
+      box.className = `region ${why.split("+").map((w) => `why-${w.replace(/[^a-z]/g, "")}`).join(" ")}`;
+      box.title = why;
+      const pct = (v) => `${Math.max(0, Math.min(100, 100 * Number(v) || 0)).toFixed(2)}%`;
+      box.style.left = pct(b[0]);
+      box.style.top = pct(b[1]);
+      box.style.width = pct(b[2]);
+      box.style.height = pct(b[3]);
+      return box;
+    }));
+  }
+
+  /** The Regions toggle: draw the regions over every picture, or not. */
+  showRegions(on) {
+    this.root.classList.toggle("show-regions", Boolean(on));
   }
 
   show(active) {

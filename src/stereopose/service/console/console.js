@@ -31,6 +31,12 @@ class Console {
       dialog: byId("camera-view"), img: byId("camera-view-picture"), title: byId("camera-view-title"),
       why: byId("camera-view-why"), close: byId("camera-view-close"),
     });
+    const regionsToggle = byId("regions-toggle");
+    regionsToggle.addEventListener("click", () => {
+      const on = regionsToggle.getAttribute("aria-pressed") !== "true";
+      regionsToggle.setAttribute("aria-pressed", String(on));
+      this.strip.showRegions(on);
+    });
     this.view3d = new View3D(byId("view3d"), byId("view3d-info"));
     this.history = new History();
     this.feed = new Feed({
@@ -197,6 +203,7 @@ class Console {
       const byName = new Map(cameras.map((c) => [c.name, c.health]));
       for (const cam of this.cameras) if (byName.get(cam.name)) cam.health = byName.get(cam.name);
       for (const [name, health] of byName) this.strip.setHealth(name, health);
+      for (const cam of cameras) if ("regions" in cam) this.strip.setRegions(cam.name, cam.regions);
       this.floor.setHealth(byName);
     }
     this.view3d.setCameras(this.cameras);
