@@ -114,6 +114,7 @@ class _Camera:
     last: list[Region] = field(default_factory=list)  # the regions of its last step
     whole: bool = False  # its last step ran on the whole frame
     size: tuple[int, int] | None = None  # its frames' (w, h)
+    scanned: bool = False  # its last step was a full scan
 
 
 class RegionDetector:
@@ -204,7 +205,10 @@ class RegionDetector:
         small = SEEN_MIN_SIDE * s.imgsz
         people = []
         if hints is not None and len(hints):
-            people += squares(hints, size, "track", small)
+            # a track's box mostly outside the view, or too large for a region, is no one this
+            # camera sees well: his own detections (seen) or the whole frame's scan say more
+            people += [r for r in squares(_in_view(hints, size), size, "track", small)
+                       if max(r.side_w, r.side_h) <= largest]  # fmt: skip
         if state.held:
             people += squares(np.array([b for b, _ in state.held]), size, "seen", small)
         # motion where nobody is known yet: a newcomer (a known person's moving limbs are in
@@ -263,6 +267,7 @@ class RegionDetector:
             self._state[name].last = regions
             self._state[name].whole = whole
             self._state[name].size = (w, h)
+            self._state[name].scanned = scan
             for r in regions:
                 crops.append(r.cut(image))
                 owners.append((name, r))
@@ -286,6 +291,7 @@ class RegionDetector:
         """One camera's people from its regions, in frame pixels, each person once; its held
         people and newcomer counts brought up to date."""
         kps, boxes, scores, cut, grown, why = [], [], [], [], [], []
+        whole_why = frozenset({"whole", "scan"} if self._state[name].scanned else {"whole"})
         for poses, r in found:
             if not len(poses):
                 continue
@@ -302,11 +308,12 @@ class RegionDetector:
                 scores.append(float(poses.scores[k]))
                 cut.append(any(sides))
                 grown.append(grow_cut(bx[k], sides) if any(sides) else bx[k])
-                why.append(r.why if r is not None else frozenset({"whole"}))
+                why.append(r.why if r is not None else whole_why)
         stats, state = self.cameras[name], self._state[name]
         if not kps:
             return Poses.empty()
-        keep = dedupe(np.array(boxes), np.array(scores), np.array(cut), self.iou)
+        whole = np.array(["whole" in w for w in why])
+        keep = dedupe(np.array(boxes), np.array(scores), np.array(cut), self.iou, whole)
         known = [b for b, _ in state.held]
         for i in keep:
             cx, cy = (boxes[i][0] + boxes[i][2]) / 2, (boxes[i][1] + boxes[i][3]) / 2
@@ -326,6 +333,18 @@ class RegionDetector:
         stats.people += len(keep)
         return Poses(np.array([kps[i] for i in keep]), np.array([boxes[i] for i in keep]),
                      np.array([scores[i] for i in keep]))  # fmt: skip
+
+
+def _in_view(boxes: np.ndarray, size: tuple[int, int], share: float = 0.5) -> np.ndarray:
+    """The boxes (N, 4) with at least `share` of their area inside a frame of `size`."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    w, h = size
+    iw = np.clip(np.minimum(b[:, 2], w) - np.maximum(b[:, 0], 0), 0, None)
+    ih = np.clip(np.minimum(b[:, 3], h) - np.maximum(b[:, 1], 0), 0, None)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        keep = np.isfinite(b).all(axis=1) & (area > 0) & (iw * ih >= share * area)
+    return b[keep]
 
 
 def _inside(a: Region, b: Region) -> bool:

@@ -154,18 +154,26 @@ def grow_cut(box: np.ndarray, sides: tuple[bool, ...]) -> np.ndarray:
                      x2 + ext * sides[2], y2 + ext * sides[3]])  # fmt: skip
 
 
-def dedupe(boxes: np.ndarray, scores: np.ndarray, cut: np.ndarray, iou: float) -> np.ndarray:
+def dedupe(
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    cut: np.ndarray,
+    iou: float,
+    whole: np.ndarray | None = None,
+) -> np.ndarray:
     """The detections to keep of one frame found in overlapping regions: whole ones before cut
     ones, then by score. One is dropped when it overlaps a kept one by more than `iou` (box
     IoU: the same person found whole in two regions), or when one of the two was cut by its
     region and it lies mostly (70 %) inside the other (a person cut by one region lies inside
     his whole self from another; two whole people, one behind the other, are both kept), or
     when it was cut and a third of it lies on a whole one (a fragment of him, or a ghost the
-    cut made).
+    cut made). whole (N,) bool: found in the whole frame, kept before the rest (a scan's
+    tiles add only the people the whole frame did not find).
     boxes (N, 4), scores (N,), cut (N,) bool; kept indices."""
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     cut = np.asarray(cut, dtype=bool)
-    order = np.lexsort((-np.asarray(scores, float), cut))
+    first = np.zeros(len(b), bool) if whole is None else np.asarray(whole, dtype=bool)
+    order = np.lexsort((-np.asarray(scores, float), cut, ~first))
     area = np.maximum((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]), 1e-9)
     keep: list[int] = []
     for i in order:
