@@ -481,6 +481,40 @@ def test_detect_real_videos(pose2sim_dir: Path, tmp_path: Path, capsys) -> None:
     assert rc == 0 and (out / "north_json" / "north_000000000000_keypoints.json").is_file()
 
 
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_detect_no_regions_is_whole_frames_and_regions_say_what_they_cost(
+    pose2sim_dir: Path, tmp_path: Path, capsys
+) -> None:
+    import cv2
+
+    from stereopose.detection import make_detector
+
+    video = pose2sim_dir / "Demo_MultiPerson" / "videos" / "cam01.mp4"
+    whole, regions = tmp_path / "whole", tmp_path / "regions"
+    args = ["detect", "--videos", str(video), "--max-frames", "3"]
+    assert main([*args, "--out", str(whole), "--no-regions"]) == 0
+    assert "regions:" not in capsys.readouterr().out
+    assert main([*args, "--out", str(regions)]) == 0
+    assert "% of whole frames' model input" in " ".join(capsys.readouterr().out.split())
+    # --no-regions: exactly the detector on each whole frame, as before regions existed
+    cap = cv2.VideoCapture(str(video))
+    ok, frame = cap.read()
+    cap.release()
+    assert ok
+    (want,) = make_detector("onnx").detect([frame])
+    got = json.loads((whole / "cam01_json" / "cam01_000000000000_keypoints.json").read_text())
+    kp = np.array([p["pose_keypoints_2d"] for p in got["people"]]).reshape(-1, 17, 3)
+    assert kp.shape[0] == len(want)
+    order = np.argsort(-np.array([p["score"] for p in got["people"]]))
+    np.testing.assert_allclose(kp[order][..., :2], want.keypoints[..., :2], atol=0.01)
+    # regions find the same people here (their first step is a scan of the whole frame)
+    first = json.loads((regions / "cam01_json" / "cam01_000000000000_keypoints.json").read_text())
+    assert len(first["people"]) == len(want)
+    assert main([*args, "--out", str(tmp_path / "x"), "--region-imgsz", "300"]) == 2
+    assert "--region-imgsz" in capsys.readouterr().err
+
+
 def test_detect_bad_input_is_a_clear_error(tmp_path: Path, capsys) -> None:
     junk = tmp_path / "cam09.mp4"
     junk.write_bytes(b"\x00" * 5000)

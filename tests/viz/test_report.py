@@ -72,4 +72,12 @@ def test_report_of_a_run_cut_mid_line(real_demo_dir: Path, tmp_path: Path, caplo
     (run / "poses3d.jsonl").write_text(text[: len(text) // 2])  # killed mid-line
     write_report(run)
     assert "1 damaged line(s) skipped" in caplog.text  # the cut line, counted
-    assert "3D view" in (run / "report.html").read_text()
+    page = (run / "report.html").read_text()
+    assert "3D view" in page
+    # the demo detects in regions (the default): each camera's cost against whole frames
+    import json
+
+    regions = json.loads((run / "summary.json").read_text())["regions"]
+    assert set(regions) == {"cam01", "cam02", "cam03", "cam04"}
+    assert all(r["full_scans"] >= 1 and r["steps"] == 100 for r in regions.values())
+    assert "model input of whole frames&#x27;" in page and "newcomers: motion / scan" in page

@@ -207,6 +207,10 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
             for k, v in d["per_camera"].items()
         ),
     )
+    if summary.regions:
+        from stereopose.detection.regional import describe as regions_line
+
+        table.add_row("detection", regions_line(summary.regions).removeprefix("regions: "))
     out.print(table)
     if summary.people:
         people = Table(title="People tracked")

@@ -14,6 +14,7 @@ import numpy as np
 _NUMBERS = ("fps_input", "fps", "load_s_3d", "people_per_frame", "reprojection_median_px")
 _CAMERA_NUMBERS = ("detections_per_frame", "reprojection_median_px", "reprojection_mean_px")
 _PERSON_NUMBERS = ("duration_s", "path_m")
+_REGION_NUMBERS = ("regions", "input_share", "whole_frames", "idle_steps", "full_scans", "steps")
 
 
 def _is_number(v: object) -> bool:
@@ -61,7 +62,8 @@ def check_summary(s: object) -> None:
     if not isinstance(cameras, list) or not all(isinstance(c, str) for c in cameras):
         raise ValueError(f"cameras: expected a list of names, got {_short(cameras)}")
     _mapping(s, "events")
-    for key, numbers in (("per_camera", _CAMERA_NUMBERS), ("sources", ())):
+    for key, numbers in (("per_camera", _CAMERA_NUMBERS), ("sources", ()),
+                         ("regions", _REGION_NUMBERS)):  # fmt: skip
         for name, c in _mapping(s, key).items():
             if not isinstance(c, dict):
                 raise ValueError(f"{key}.{name}: expected an object, got {_short(c)}")
@@ -122,6 +124,19 @@ def cameras_html(s: dict) -> str:
         ])  # fmt: skip
     head = ["camera", "frames", "detections/frame", "reprojection median", "reprojection mean",
             "dropped", "failures", "reconnects"]  # fmt: skip
+    regions = s.get("regions") or {}
+    if regions:  # detection in regions: what each camera cost against whole frames
+        head += ["regions/step", "model input of whole frames'", "whole / idle steps",
+                 "full scans", "newcomers: motion / scan"]  # fmt: skip
+        for row, name in zip(rows, s.get("per_camera", {}), strict=True):
+            r = regions.get(name) or {}
+            steps = r.get("steps") or 0
+            row += [_fmt(r.get("regions", 0) / steps if steps else None, "", 1),
+                    _fmt(100 * r["input_share"] if _is_number(r.get("input_share")) else None,
+                         " %", 0),
+                    f"{r.get('whole_frames', '-')} / {r.get('idle_steps', '-')}",
+                    r.get("full_scans", "-"),
+                    f"{r.get('found_by_motion', '-')} / {r.get('found_by_scan', '-')}"]  # fmt: skip
     return _table(rows, head)
 
 
