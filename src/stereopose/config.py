@@ -24,6 +24,7 @@ else:  # pragma: no cover
 
 from stereopose.checks import DAY_S, FPS_MAX, FPS_MIN, Range, read_limited
 from stereopose.errors import ConfigError
+from stereopose.secrets import shown
 from stereopose.skeleton import NUM_JOINTS
 
 Mode = Literal["pair", "weighted", "robust"]
@@ -551,32 +552,33 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
     if origin is tuple:
         item = get_args(tp)[0]
         if not isinstance(value, list):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {shown(where, value)}")
         if dataclasses.is_dataclass(item):
             return tuple(from_dict(item, v, f"{where}[{i}]") for i, v in enumerate(value))
         return tuple(_check_value(v, item, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is Literal:
         if value not in get_args(tp):
-            raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got {value!r}")
+            raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got "
+                              f"{shown(where, value)}")  # fmt: skip
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+            raise ConfigError(f"{where}: expected true or false, got {shown(where, value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {shown(where, value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
+            raise ConfigError(f"{where}: expected a number, got {shown(where, value)}")
         try:
             return float(value)
         except OverflowError:  # an integer beyond any float: its range check names it
             return value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
+            raise ConfigError(f"{where}: expected a string, got {shown(where, value)}")
         return value
     return value
 
@@ -585,7 +587,7 @@ def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
     """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys and values
     out of range."""
     if not isinstance(data, dict):
-        raise ConfigError(f"{where}: expected a table, got {data!r}")
+        raise ConfigError(f"{where}: expected a table, got {shown(where, data)}")
     hints = get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)

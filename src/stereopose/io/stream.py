@@ -26,24 +26,11 @@ import numpy as np
 
 from stereopose.io.packets import PacketRing, StreamFormat
 from stereopose.io.source import JOIN_S, Clock, SourceStats, source_name
+from stereopose.secrets import redact
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_PORTS = {"rtsp": 554, "rtsps": 322, "http": 80, "https": 443, "rtmp": 1935}
-
-
-def redact(url: str) -> str:
-    """The URL without its password (user:secret@host -> user:***@host), for messages."""
-    try:
-        parts = urlsplit(url)
-        password = parts.password
-    except ValueError:  # malformed: shown up to its host part, which may hold a password
-        return url.split("@", 1)[-1] if "@" in url else url
-    if password is None:
-        return url
-    start = url.find("//") + 2  # the netloc follows verbatim: the rest is kept as it was
-    netloc = parts.netloc.replace(f":{password}@", ":***@", 1)
-    return url[:start] + netloc + url[start + len(parts.netloc) :]
 
 
 def why_not_open(url: str, timeout_s: float) -> str:

@@ -24,6 +24,7 @@ from stereopose.io.video import is_stream
 from stereopose.pipeline.outputs import check_outputs
 from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
 from stereopose.pipeline.run import check_run_config, run_rig
+from stereopose.secrets import redact
 from stereopose.service.server import ServeSettings
 from stereopose.service.storage import RetentionSettings
 from stereopose.types import Rig
@@ -170,7 +171,7 @@ def _check_cameras(path: Path, cfg: Config) -> None:
     for i, c in enumerate(cfg.cameras):
         if c.loop and is_stream(c.source):
             raise ConfigError(f"{path}: cameras[{i}].loop: only a recorded file can be looped, "
-                              f"got the stream {c.source!r}")  # fmt: skip
+                              f"got the stream {redact(c.source)!r}")  # fmt: skip
     hook = cfg.outputs.webhook
     if hook is not None:
         parts = urlsplit(hook)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
 from stereopose.pipeline.track_regions import track_boxes
+from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
@@ -181,6 +182,9 @@ class Cameras:
             summary.clock_start_epoch = self.cams.clock.start_epoch
 
 
-def source_label(value: str | Path | Mapping[str, str]) -> str:
-    """What a run read, for the event log's `runs.source`."""
-    return ", ".join(value) if isinstance(value, Mapping) else str(value)
+def source_label(value: str | Path | Mapping[str, str] | Sequence[str]) -> str:
+    """What a run read, for the event log's `runs.source`: camera names, or the sources with
+    no URL's password (rtsp://user:***@host/...)."""
+    if isinstance(value, (str, Path)):
+        return redact_all(str(value))
+    return redact_all(", ".join(str(v) for v in value))

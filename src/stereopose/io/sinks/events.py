@@ -40,6 +40,7 @@ from stereopose.io.sinks.incidents import INCIDENTS_SCHEMA, INCIDENTS_SEQ_INDEX,
 from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
+from stereopose.secrets import redact_all
 from stereopose.types import Event
 
 __all__ = ["COLUMNS", "CallbackSink", "JsonlSink", "SqliteSink", "WebhookSink", "describe",
@@ -136,6 +137,22 @@ def _upgrade(db: sqlite3.Connection) -> None:
         except sqlite3.OperationalError as e:
             if "duplicate column" not in str(e):  # another process added it first: fine
                 raise
+
+
+def mask_sources(db: sqlite3.Connection) -> int:
+    """Every run's `source` without a URL's password (logs of earlier versions stored camera
+    URLs as written); the old text overwritten in the file (secure_delete), not left in freed
+    pages. Returns the rows changed."""
+    rows = db.execute("SELECT id, source FROM runs WHERE source LIKE '%://%@%'").fetchall()
+    changed = [(redact_all(src), rid) for rid, src in rows if redact_all(src) != src]
+    if changed:
+        db.execute("PRAGMA secure_delete = ON")
+        with db:
+            db.executemany("UPDATE runs SET source = ? WHERE id = ?", changed)
+        db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        logger.warning("%d run(s) of the event log named a camera URL with its password: masked",
+                       len(changed))  # fmt: skip
+    return len(changed)
 
 
 class _EventSink(ClosesOnce):
@@ -253,9 +270,10 @@ class SqliteSink(_EventSink):
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             self.spill = Spill(self.path)
             self._old_spill = not self._store_spill()
+            mask_sources(self.db)  # a log an earlier version wrote: no camera's password
             cur = self.db.execute(
                 "INSERT INTO runs(started, site, source, wall_start) VALUES (?, ?, ?, ?)",
-                (time.time(), site, source, wall_start),
+                (time.time(), site, None if source is None else redact_all(source), wall_start),
             )
             self.run = int(cur.lastrowid)
             if first_id is not None:

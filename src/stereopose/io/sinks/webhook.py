@@ -74,11 +74,13 @@ class WebhookSink(ClosesOnce):
     ) -> None:
         parts = urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
-            raise StereoposeError(f"webhook URL must start with http:// or https://, got {url!r}")
+            raise StereoposeError(f"webhook URL must start with http:// or https://, got "
+                                 f"{shown_url(url)!r}")  # fmt: skip
         try:
             self._port = parts.port
         except ValueError:
-            raise StereoposeError(f"webhook URL {url!r}: the port is not a number") from None
+            raise StereoposeError(f"webhook URL {shown_url(url)!r}: the port is not a "
+                                 "number") from None  # fmt: skip
         self.url = url
         self.shown = shown_url(url)  # for messages: no credentials, no query
         self._https, self._host = parts.scheme == "https", parts.hostname
