@@ -304,6 +304,10 @@ def test_https_with_a_certificate_and_key(tmp_path):
             assert r.status_code == 200
             assert all("Secure" in h for h in r.headers.get_list("set-cookie"))
             assert c.get("/api/me").json()["username"] == "ada"
+            # a browser that saw the console over HTTPS never tries it in clear again
+            for path in ("/api/health", "/console/", "/api/nothing"):
+                hsts = c.get(path).headers.get("strict-transport-security", "")
+                assert hsts.startswith("max-age=") and int(hsts.split("=")[1]) >= 15_552_000
         with pytest.raises(httpx.HTTPError):  # plain HTTP is not answered
             httpx.get(s.url.replace("https", "http") + "/api/health", timeout=5)
 

@@ -204,6 +204,41 @@ def test_request_heads_over_16_kib_are_refused_before_any_route():
         assert MAX_HEADER_BYTES == 16 * 1024
 
 
+def test_a_request_framed_both_ways_is_refused_and_its_connection_closed():
+    app = create_app(ServiceState())
+    seen: list[str] = []
+
+    @app.post("/api/seen")
+    async def seen_post() -> dict:
+        seen.append("post")
+        return {}
+
+    @app.get("/api/seen")
+    async def seen_get() -> dict:
+        seen.append("get")
+        return {}
+
+    with Server(app, ServeSettings(port=0)) as server:
+        port = server.port
+        assert port is not None
+        hidden = b"GET /api/seen HTTP/1.1\r\nhost: x\r\n\r\n"
+        body = b"0\r\n\r\n" + hidden  # chunked: empty; by length: a second request follows
+        smuggled = (b"POST /api/seen HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n"
+                    b"content-length: %d\r\ntransfer-encoding: chunked\r\n\r\n" % len(body)
+                    + body)  # fmt: skip
+        answer = answer_of(port, smuggled)
+        assert answer.startswith(b"HTTP/1.1 400 "), answer[:80]
+        assert answer.count(b"HTTP/1.1") == 1  # the hidden request is never answered
+        assert seen == []
+        # each framing alone is served
+        plain = (
+            b"POST /api/seen HTTP/1.1\r\nhost: x\r\ncontent-length: 2\r\n"
+            b"connection: close\r\n\r\n{}"
+        )
+        assert answer_of(port, plain).startswith(b"HTTP/1.1 200 ")
+        assert seen == ["post"]
+
+
 def holding_app(release: threading.Event) -> FastAPI:
     """The service's app with /api/hold: an answer streamed until `release` is set."""
     app = create_app(healthy_state())

@@ -262,16 +262,27 @@ class GuardedH11Protocol(H11Protocol):
             self._cancel()
 
     def _head_over(self, data: bytes) -> bool:
-        """Whether the request head (buffered + data) is whole and over the limit; if so it
-        is answered 431 and the connection closed. An incomplete one is bounded by h11."""
+        """Whether the request head (buffered + data) is whole and over the limit, or frames
+        its body twice; if so it is answered (431, 400) and the connection closed. An
+        incomplete one is bounded by h11."""
         pending = self.conn.trailing_data[0] + data  # at most the limit + one read
         end = _HEAD_END.search(pending)
-        if end is None or end.end() <= self.limits.max_header_bytes:
+        if end is None:
             return False
         limit = self.limits.max_header_bytes
-        self._refuse(431, f"request line and headers over {limit} bytes", "header",
-                     f"a request head of {end.end()} bytes (over {limit}) refused")  # fmt: skip
-        return True
+        if end.end() > limit:
+            self._refuse(431, f"request line and headers over {limit} bytes", "header",
+                         f"a request head of {end.end()} bytes (over {limit}) refused")  # fmt: skip
+            return True
+        names = {line.split(b":", 1)[0].strip().lower()
+                 for line in pending[: end.start()].split(b"\n")[1:]}  # fmt: skip
+        if b"content-length" in names and b"transfer-encoding" in names:
+            # RFC 9112 6.1: a request framed both ways may smuggle a second one in its body
+            self._refuse(400, "Content-Length and Transfer-Encoding together", "smuggling",
+                         "a request with both Content-Length and Transfer-Encoding refused, "
+                         "its connection closed")  # fmt: skip
+            return True
+        return False
 
     def _arm(self, delay_s: float) -> None:
         self._cancel()

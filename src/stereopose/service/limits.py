@@ -18,6 +18,8 @@ MAX_BODY_BYTES = 1 << 20  # no route takes more than a small JSON document
 # nosniff: a browser never runs an answer as another type; no-referrer: nothing of the
 # service's URLs leaks to another site.
 EXTRA_HEADERS = [(b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer")]
+# over HTTPS: a browser that saw the console once never tries it in clear again for a year
+HSTS = (b"strict-transport-security", b"max-age=31536000")
 
 
 async def _answer(send: Send, status: int, detail: str) -> None:
@@ -39,7 +41,8 @@ def _content_length(scope: Scope) -> int | str | None:
 
 
 class RequestLimits:
-    """Bodies above max_body_bytes refused with 413; EXTRA_HEADERS on every answer."""
+    """Bodies above max_body_bytes refused with 413; EXTRA_HEADERS on every answer, and HSTS
+    on every answer over HTTPS."""
 
     def __init__(self, app: ASGIApp, max_body_bytes: int = MAX_BODY_BYTES) -> None:
         self.app = app
@@ -67,9 +70,11 @@ class RequestLimits:
                     raise HTTPException(413, f"request body over {self.max_body_bytes} bytes")
             return message
 
+        extra = [*EXTRA_HEADERS, HSTS] if scope.get("scheme") == "https" else EXTRA_HEADERS
+
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
-                message = {**message, "headers": [*message.get("headers", []), *EXTRA_HEADERS]}
+                message = {**message, "headers": [*message.get("headers", []), *extra]}
             await send(message)
 
         await self.app(scope, limited_receive, send_with_headers)
