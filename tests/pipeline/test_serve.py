@@ -112,6 +112,9 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
     lines = gzip.decompress(segments[-1].read_bytes()).decode().splitlines()
     assert lines and all("frame" in json.loads(line) for line in lines)
     assert "Traceback" not in log.read_text()
+    # its first lines say which interfaces are on
+    assert "interfaces: MQTT on 127.0.0.1:" in log.read_text()
+    assert "IEC 104 off, OPC UA off" in log.read_text()
 
 
 def _fresh(events: list[dict]) -> list[dict]:

@@ -143,3 +143,24 @@ def test_demo_config_keeps_the_port_given(tmp_path):
                                   port=port)  # fmt: skip
         text = _config_path(args).read_text()
         assert f'\n[serve]\nhost = "127.0.0.1"\nport = {want}\n' in text
+
+
+def test_the_service_says_which_interfaces_are_on_and_warns_of_one_left_off(tmp_path):
+    from stereopose.config import load_config
+    from stereopose.pipeline.serve_setup import disabled_settings, interfaces
+
+    path = tmp_path / "serve.toml"
+    path.write_text('[mqtt]\nhost = "127.0.0.1"\nport = 1884\n\n'
+                    '[iec104]\nhost = "10.0.0.5"\nport = 2405\n\n'
+                    '[opcua]\nenabled = true\n')  # fmt: skip
+    cfg = load_config(path)
+    assert interfaces(cfg) == [
+        "MQTT on 127.0.0.1:1884 (site site)",
+        "webhook off",
+        "IEC 104 off",
+        "OPC UA on opc.tcp://127.0.0.1:4840/stereopose",
+    ]
+    (warning,) = disabled_settings(cfg)
+    assert warning.startswith("[iec104] sets host, port but not enabled = true")
+    assert "set [iec104] enabled = true" in warning
+    assert disabled_settings(load_config(None)) == []  # sections left alone: nothing to say

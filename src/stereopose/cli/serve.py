@@ -64,12 +64,15 @@ def _serve(args: argparse.Namespace) -> int:
     path = _config_path(args)
     plan = _plan(path, args.port)
     from stereopose.pipeline.serve import serve
+    from stereopose.pipeline.serve_setup import interfaces
 
     def ready(url: str) -> None:
         out.print(f"serving: health {url}/api/health, metrics {url}/metrics; outputs in "
                   f"{plan.out_dir}; stop with Ctrl-C or SIGTERM", highlight=False,
                   soft_wrap=True)  # fmt: skip
         out.print(_console_line(url, path, plan.out_dir), highlight=False, soft_wrap=True)
+        out.print(f"interfaces: {', '.join(interfaces(plan.config))}", highlight=False,
+                  soft_wrap=True)  # fmt: skip
 
     try:
         result = serve(path, plan=plan, on_ready=ready)

@@ -79,7 +79,12 @@ from stereopose.pipeline.serve_parts import (
     quiet_signals,
     stop_signals,
 )
-from stereopose.pipeline.serve_setup import ServePlan, plan_serve
+from stereopose.pipeline.serve_setup import (
+    ServePlan,
+    disabled_settings,
+    interfaces,
+    plan_serve,
+)
 from stereopose.pipeline.sources import Cameras, source_label
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.scada.opcua_settings import opcua_settings
@@ -472,6 +477,9 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
     cfg = plan.config
     if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
         require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
+    logger.info("interfaces: %s", ", ".join(interfaces(cfg)))  # the command prints it too
+    for warning in disabled_settings(cfg):
+        logger.warning("%s: %s", plan.config_path, warning)
     d = cfg.detector  # none in this process when the nodes detect
     detector = (
         None

@@ -9,6 +9,7 @@ written and nothing opened but the files read.
 
 from __future__ import annotations
 
+import dataclasses
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -237,3 +238,36 @@ class _NoTwoWay:
     """check_outputs' view of the service's outputs: nothing smoothed both ways."""
 
     two_way = False
+
+
+def interfaces(cfg: Config) -> list[str]:
+    """Which optional interface of the service is on, and where, for its first log line."""
+    shown = []
+    m = cfg.mqtt
+    shown.append(f"MQTT on {m.host}:{m.port} (site {m.site})" if m.host else "MQTT off")
+    shown.append("webhook on" if cfg.outputs.webhook else "webhook off")
+    i = cfg.iec104
+    shown.append(f"IEC 104 on {i.host}:{i.port}" if i.enabled else "IEC 104 off")
+    o = cfg.opcua
+    shown.append(f"OPC UA on opc.tcp://{o.host}:{o.port}{o.path}" if o.enabled else "OPC UA off")
+    return shown
+
+
+def disabled_settings(cfg: Config) -> list[str]:
+    """A warning for each interface left off whose section sets keys all the same: the
+    operator meant it on, most likely."""
+    out = []
+    for section, name in (("iec104", "the IEC 104 outstation"), ("opcua", "the OPC UA server")):
+        value = getattr(cfg, section)
+        if value.enabled:
+            continue
+        default = type(value)()
+        changed = [
+            f.name
+            for f in dataclasses.fields(value)
+            if f.name != "enabled" and getattr(value, f.name) != getattr(default, f.name)
+        ]
+        if changed:
+            out.append(f"[{section}] sets {', '.join(changed)} but not enabled = true: {name} is "
+                       f"off; set [{section}] enabled = true to turn it on")  # fmt: skip
+    return out
