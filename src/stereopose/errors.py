@@ -61,3 +61,7 @@ class IncompleteOutputError(Exception):
             f"finished, but {n} output{'s' * (n != 1)} could not be written: "
             + "; ".join(f"{k}: {v}" for k, v in self.failures.items())
         )
+
+
+class HashingBusyError(Exception):
+    """Too many password checks under way: try again in a moment (nothing was checked)."""

@@ -176,3 +176,44 @@ def test_answers_carrying_users_or_sessions_are_no_store(served):
                                                 204, 401]  # fmt: skip
     for r in answers:
         assert r.headers.get("cache-control") == "no-store", (r.request.url, r.status_code)
+
+
+def test_a_login_flood_from_many_addresses_never_holds_up_health_or_a_session(served):
+    served.console.users.hasher = CountingHasher(
+        time_cost=3, memory_cost=32 * 1024, parallelism=1
+    )  # a slow hash: a real flood
+    with _from(served, 3) as operator:
+        assert _login(operator, "otto").status_code == 200  # logged in before the flood
+        answers: list[httpx.Response] = []
+        start = threading.Barrier(40)
+
+        def guess(n: int) -> None:
+            with _from(served, 10 + n) as c:  # 40 addresses, one wrong guess each
+                start.wait()
+                answers.append(_login(c, "vera", f"guess-number-{n}"))
+
+        threads = [threading.Thread(target=guess, args=(n,)) for n in range(40)]
+        for t in threads:
+            t.start()
+        try:
+            # while the checks still queue: refused at once with a time to come back
+            for _ in range(200):
+                if any(r.status_code == 503 for r in answers):
+                    break
+                threading.Event().wait(0.05)
+            busy = [r for r in answers if r.status_code == 503]
+            assert busy, [r.status_code for r in answers]
+            assert all(int(r.headers["retry-after"]) >= 1 for r in busy)
+            # health and the logged-in console answer within a deadline meanwhile
+            with httpx.Client(base_url=served.url, timeout=2.0) as probe:
+                assert probe.get("/api/health").status_code in (200, 503)
+            assert operator.get("/api/me", timeout=2.0).json()["username"] == "otto"
+        finally:
+            for t in threads:
+                t.join(120)
+    codes = sorted({r.status_code for r in answers})
+    assert len(answers) == 40 and set(codes) <= {401, 503}
+    checked = served.console.users.hasher.checked
+    # the operator's own login, and each 401: a 503 checked nothing
+    assert checked == 1 + sum(r.status_code == 401 for r in answers)
+    assert served.console.users.checks_refused == sum(r.status_code == 503 for r in answers)

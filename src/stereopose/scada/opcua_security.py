@@ -20,7 +20,7 @@ from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User,
 from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 
-from stereopose.errors import StereoposeError
+from stereopose.errors import HashingBusyError, StereoposeError
 
 __all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller",
            "trusted_clients"]  # fmt: skip
@@ -82,10 +82,15 @@ class Users:
     def get_user(self, iserver, username=None, password=None, certificate=None) -> User | None:
         if username is None:
             return Login(role=UserRole.Anonymous) if self.allow_anonymous else None
+        check = getattr(self.users, "verify_admitted", self.users.verify)
         try:
-            user = self.users.verify(str(username), password if isinstance(password, str) else "")
+            user = check(str(username), password if isinstance(password, str) else "")
         except StereoposeError as e:  # the users file unreadable
             logger.error("OPC UA: cannot check a login: %s", e)
+            return None
+        except HashingBusyError:  # a flood of logins: refused unchecked, the server goes on
+            logger.warning("OPC UA: login of %r refused: too many password checks at once",
+                           str(username)[:40])  # fmt: skip
             return None
         if user is None:
             logger.warning("OPC UA: login refused for %r", str(username)[:40])

@@ -38,7 +38,7 @@ from pathlib import Path
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
 
-from stereopose.errors import StereoposeError
+from stereopose.errors import HashingBusyError, StereoposeError
 
 __all__ = ["MIN_PASSWORD", "ROLES", "USERS_FILE", "User", "UserError", "UserStore",
            "check_name", "check_password", "check_site", "common_passwords",
@@ -56,6 +56,10 @@ MAX_USERS = 1000
 # One hash at a time, on one thread (64 MiB, 3 passes): a flood of logins takes one core at
 # most and waits its turn, never the frame loop's cores or the memory.
 HASHING_AT_ONCE = 1
+# password checks let in at once, the one hashing and those waiting their turn: beyond them a
+# check is refused at once (HashingBusyError), so a flood of logins holds a few of the HTTP
+# threads, never all of them (health and the logged-in consoles answer meanwhile)
+CHECKS_ADMITTED = 8
 TIME_COST, MEMORY_KIB, PARALLELISM = 3, 64 * 1024, 1
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")
 
@@ -155,6 +159,8 @@ class UserStore:
         self._users: dict[str, dict] = {}
         self._dummy: str | None = None
         self._hashing = threading.BoundedSemaphore(HASHING_AT_ONCE)
+        self._admitted = threading.BoundedSemaphore(CHECKS_ADMITTED)
+        self.checks_refused = 0  # password checks refused as over the bound
 
     @classmethod
     def in_folder(cls, out_dir: str | Path, hasher: PasswordHasher | None = None) -> UserStore:
@@ -226,6 +232,17 @@ class UserStore:
         return User(name, rec["role"], float(rec.get("created", 0.0)),
                     float(rec.get("changed", 0.0)), _stamp(rec),
                     None if sites is None else tuple(sites))  # fmt: skip
+
+    def verify_admitted(self, name: str, password: str) -> User | None:
+        """`verify` within the bound on password checks waiting at once (CHECKS_ADMITTED);
+        HashingBusyError, at once and with nothing checked, when it is full."""
+        if not self._admitted.acquire(blocking=False):
+            self.checks_refused += 1
+            raise HashingBusyError("too many password checks at once")
+        try:
+            return self.verify(name, password)
+        finally:
+            self._admitted.release()
 
     def verify(self, name: str, password: str) -> User | None:
         """The user when `password` is theirs, else None. An unknown name costs one hash as a

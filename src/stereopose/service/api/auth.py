@@ -18,6 +18,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from fastapi.routing import APIRoute
 from pydantic import BaseModel, Field
 
+from stereopose.errors import HashingBusyError
 from stereopose.service.auth import (
     CSRF_COOKIE,
     SESSION_COOKIE,
@@ -91,7 +92,8 @@ def _set_cookies(response: Response, request: Request, token: str, session: Sess
 
 _LOGIN_ERRORS = {401: {"description": "wrong name or password"},
                  429: {"description": "too many failed logins; see Retry-After"},
-                 503: {"description": "no session place, or the users unreadable"}}  # fmt: skip
+                 503: {"description": "no session place, too many logins under way (see "
+                              "Retry-After), or the users unreadable"}}  # fmt: skip
 
 
 def checked_password(parts, request: Request, name: str, password: str) -> User | None:
@@ -104,8 +106,12 @@ def checked_password(parts, request: Request, name: str, password: str) -> User 
                             headers={"Retry-After": str(e.retry_after)}) from None  # fmt: skip
     not_failed = False
     try:
-        user = parts.users.verify(name, password)
+        user = parts.users.verify_admitted(name, password)
         not_failed = user is not None
+    except HashingBusyError:
+        not_failed = True  # nothing was checked: no failure counted against anyone
+        raise HTTPException(503, "too many logins under way; try again in a moment",
+                            headers={"Retry-After": "2"}) from None  # fmt: skip
     except UserError as e:
         not_failed = True  # the users cannot be read: no password was tried
         logger.error("console: %s", e)
