@@ -6,7 +6,8 @@ Scenes (every one from the real 4-camera recording and its calibration):
 - far_0.2, far_0.3: each frame shrunk to a fifth (a third) into a grey 1920x1080 canvas, the
   calibration scaled to match (stereopose.sim.distant): people about 120-200 (180-300) px tall,
   as workers 8-10 m from a wide 1080p camera;
-- empty: the canvas alone with sensor noise (sigma 2 grey levels): nobody, nothing moving;
+- empty: the canvas alone with sensor noise (sigma 2 grey levels): nobody, nothing moving, at
+  5 frames/s (a served camera's step rate: the full scans come as often as they would);
 - newcomer: the canvas empty for 3 s, then the far_0.3 workers there at once and standing
   still (their frame frozen) for the rest, at 10 frames/s.
 
@@ -51,6 +52,7 @@ SETUPS = {  # name: [detector] lines
 }
 NEWCOMER_AT_S = 3.0
 NEWCOMER_FPS = 10.0
+EMPTY_FPS = 5.0
 STEP_RATE = 5.0  # steps/s a box must keep up with, for its capacity
 
 
@@ -103,7 +105,8 @@ def scenes(work: Path, n: int) -> dict[str, tuple[Path, dict[str, Path], float]]
     path = work / "far_0.3.toml"
     empty = {c: [np.clip(d.empty() + rng.normal(0, 2, d.empty().shape), 0, 255).astype(np.uint8)
                  for _ in range(n)] for c in CAMERAS}  # fmt: skip
-    out["empty"] = (path, _write(work / "empty", empty, 60.0), 60.0)
+    # at 5 frames/s, a served camera's step rate: 100 frames hold several full scans
+    out["empty"] = (path, _write(work / "empty", empty, EMPTY_FPS), EMPTY_FPS)
     first = round(NEWCOMER_AT_S * NEWCOMER_FPS)
     newcomer = {c: [d.empty()] * first + [d.frame(real[c][0])] * max(n - first, 1)
                 for c in CAMERAS}  # fmt: skip
@@ -227,7 +230,7 @@ def markdown(r: dict) -> list[str]:
         f"`python benchmarks/regions.py --frames {r['frames']}`, {r['date']}, {r['machine']}. "
         "Every figure from `stereopose run` (ONNX Runtime, YOLO11n-pose, the 3D stage, "
         "tracking) on the real demo and on scenes made from it; regions at their defaults "
-        "(region_imgsz 320, full_scan_s 2, region_detail 1). ms per step: detection's, and the "
+        "(region_imgsz 320, full_scan_s 3, region_detail 1). ms per step: detection's, and the "
         "whole step's (decoding, detection, 3D, writing) over 4 cameras.",
         "",
         "| scene | set-up | detection ms/step | step ms | people per camera (cam01 / 02 / "

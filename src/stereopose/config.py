@@ -253,7 +253,7 @@ class DetectorConfig:
     region_imgsz: int = number(320, multiple_of=32, ge=64, le=4096)
     # each camera's whole frame scanned this often (staggered across cameras), seconds: someone
     # who walked in unseen and stands still is found within this and one step
-    full_scan_s: float = number(2.0, gt=0.0, le=3600.0)
+    full_scan_s: float = number(3.0, gt=0.0, le=3600.0)
     # grey levels of change that count as motion (lower: more sensitive)
     motion_threshold: int = number(25, integer=True, ge=1, le=255)
     # a region's people seen at least this many times as finely as in the whole frame at

@@ -78,7 +78,7 @@ def test_a_worker_who_stands_still_is_kept(detector, steps):
 
 
 def test_a_newcomer_who_stands_still_is_found_by_the_scan(detector, steps):
-    far = Distant(0.3)
+    far = Distant(0.45, at=(800, 100))  # 270-450 px tall: the scan's whole frame sees them
     empty = far.empty()
     settings = RegionSettings(full_scan_s=1.0, motion_threshold=255)  # no motion: the scan alone
     regions = RegionDetector(detector, settings)

@@ -162,8 +162,8 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
                     "--no-regions: every whole frame at --imgsz (default: regions)")  # fmt: skip
     dt.add_argument("--region-imgsz", type=int, default=320,
                     help="each region's model input side, a multiple of 32 (320)")  # fmt: skip
-    dt.add_argument("--full-scan-s", type=float, default=2.0,
-                    help="each camera's whole frame scanned this often, seconds (2)")  # fmt: skip
+    dt.add_argument("--full-scan-s", type=float, default=3.0,
+                    help="each camera's whole frame scanned this often, seconds (3)")  # fmt: skip
     dt.add_argument(
         "--sync",
         choices=("index", "time"),

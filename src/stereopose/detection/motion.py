@@ -1,7 +1,8 @@
 """Motion in one camera, found cheaply on a small grey copy of its frames (as Frigate finds it):
 where a newcomer may be, for the regions of detection.regional.
 
-The frame is shrunk to HEIGHT pixels high and blurred; each pixel that differs from a running
+The frame is sampled to about HEIGHT pixels high (every n-th pixel: the frame itself is never
+read whole) and blurred; each pixel that differs from a running
 average of the past frames by more than `threshold` grey levels is moving; moving pixels are
 dilated into blobs, and each blob of at least MIN_AREA small pixels is a box, in pixels of the
 frame. A change over most of the frame (the light, the camera's exposure, a camera moved) is no
@@ -32,11 +33,9 @@ class MotionDetector:
         self.resets = 0  # global changes seen
 
     def update(self, image: np.ndarray) -> np.ndarray:
-        h, w = image.shape[:2]
-        scale = HEIGHT / h
-        small = cv2.resize(image, (max(round(w * scale), 1), HEIGHT),
-                           interpolation=cv2.INTER_AREA)  # fmt: skip
-        grey = cv2.GaussianBlur(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY), (3, 3), 0)
+        step = max(image.shape[0] // HEIGHT, 1)  # every step-th pixel: no pass over the frame
+        small = np.ascontiguousarray(image[::step, ::step])
+        grey = cv2.GaussianBlur(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY), (5, 5), 0)
         grey = grey.astype(np.float32)
         if self._average is None or self._shape != image.shape:
             self._average, self._shape = grey, image.shape
@@ -56,4 +55,4 @@ class MotionDetector:
         ]
         if not boxes:
             return np.zeros((0, 4))
-        return np.asarray(boxes, dtype=np.float64) / scale
+        return np.asarray(boxes, dtype=np.float64) * step  # small pixel k is pixel k * step

@@ -9,9 +9,12 @@ Per camera and step the regions come from:
   last found (someone seen by this camera only; a node, or `detect`, with no 3D at all);
 - ``motion``: a cheap motion detector on a small grey copy of the frame (detection.motion),
   for newcomers;
-- ``scan``: every `full_scan_s`, staggered across cameras, the whole frame in overlapping
-  tiles at half the camera's resolution, so that someone who walked in unseen and stands
-  still is found within `full_scan_s` and one step.
+- ``scan``: every `full_scan_s`, staggered across cameras, the whole frame at the detector's
+  size, so that someone who walked in unseen and stands still is found within `full_scan_s`
+  and one step; where the whole frame sees more coarsely than half the camera's resolution,
+  each scan adds one of the frame's overlapping tiles at that resolution in turn (a distant
+  worker never seen moving is found within as many scans as there are tiles); a camera's
+  first scan takes every tile.
 
 Regions are squares merged into a few (detection.regions), cut from the frame at its own
 resolution and letterboxed each into a `imgsz` x `imgsz` model input: smaller ones are
@@ -61,7 +64,7 @@ class RegionSettings:
     to the whole frame); below 1, large people cost less and their joints are less exact."""
 
     imgsz: int = 320
-    full_scan_s: float = 2.0
+    full_scan_s: float = 3.0
     motion_threshold: int = 25
     hold_s: float = 1.0
     detail: float = 1.0
@@ -115,6 +118,7 @@ class _Camera:
     whole: bool = False  # its last step ran on the whole frame
     size: tuple[int, int] | None = None  # its frames' (w, h)
     scanned: bool = False  # its last step was a full scan
+    tile_turn: int = -1  # the tile its last scan looked at
 
 
 class RegionDetector:
@@ -216,9 +220,20 @@ class RegionDetector:
         motion = [m for m in squares(moving, size, "motion", s.imgsz)
                   if not any(_inside(m, r) for r in people)]  # fmt: skip
         regions = merge(people + motion, size, largest)
-        if scan:  # the whole frame (people of any size whole), and tiles where it sees coarser
+        if scan:
+            # the whole frame (people of any size whole), and where it sees more coarsely than
+            # a tile at half the camera's resolution, the next tile in turn (a scan costs about
+            # one whole frame and a region: every tile is looked at once in as many scans);
+            # the camera's first scan, every tile
             tile = 2 * s.imgsz
-            return regions + (tiles(size, tile) if whole_scale < s.imgsz / tile else []), True, True
+            if whole_scale >= s.imgsz / tile:
+                return regions, True, True
+            grid = tiles(size, tile)
+            if state.tile_turn < 0:  # its first scan: it knows nothing yet, every tile
+                state.tile_turn = len(grid) - 1
+                return [*regions, *grid], True, True
+            state.tile_turn = (state.tile_turn + 1) % len(grid)
+            return [*regions, grid[state.tile_turn]], True, True
         if not regions:
             return [], False, False
         if any(max(r.side_w, r.side_h) > largest for r in regions):
