@@ -334,6 +334,11 @@ class ServeConfig:
     # loopback names and, bound to 0.0.0.0, the machine's names and addresses; another Host
     # header is refused (421, against DNS rebinding). "*": any; "*.example.org": a domain.
     allowed_hosts: tuple[str, ...] = ()
+    # reverse proxies in front of the service (addresses or networks, "10.0.0.0/24"): their
+    # connections are not capped per address (every client behind one shares it), and the
+    # client address they forward (X-Forwarded-For) counts for the login limits instead of
+    # theirs; anyone else's X-Forwarded-For is ignored
+    trusted_proxies: tuple[str, ...] = ()
 
 
 @_schema("mqtt")

@@ -84,7 +84,8 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
         database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
     certificate, key = _tls(path, base, cfg)
     http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
-                     certificate=certificate, key=key)  # fmt: skip
+                     certificate=certificate, key=key,
+                     trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
     return ControlPlan(path, cfg, out_dir, database, mqtt, http)
 
 

@@ -217,7 +217,8 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     check_outputs(cfg, site, _NoTwoWay)
     certificate, key = _tls(path, base, cfg)
     http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
-                     certificate=certificate, key=key)  # fmt: skip
+                     certificate=certificate, key=key,
+                     trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
     segments, clips, retention = _storage(path, cfg)
     if cfg.input.detection == "nodes" and not cfg.mqtt.host:
         raise ConfigError(f"{path}: input.detection = \"nodes\": the nodes' people come over "

@@ -17,7 +17,10 @@ gives the protocol class (`uvicorn.Config(http=...)`) that closes these, per ser
   and `max_connections` in all: a new one beyond either takes the place of the
   longest-waiting connection with no answer in progress (of that address, or of any), and
   is refused (503, closed) only when every place is busy answering; an answer being
-  streamed (live channel, clip player) is never closed for it;
+  streamed (live channel, clip player) is never closed for it, nor a connection that has
+  carried a logged-in request (it has a place of its own, outside its address's cap:
+  operators behind one NAT share an address); a trusted reverse proxy's address
+  (`trusted_proxies`) is not capped per address;
 - at most `max_requests` answers in progress (streams included); beyond it 503, while
   /api/health and /metrics have `health_reserve` places more.
 
@@ -38,7 +41,7 @@ from http import HTTPStatus
 from typing import Any, ClassVar
 
 import h11
-from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from uvicorn.config import Config
 from uvicorn.protocols.http.flow_control import service_unavailable
 from uvicorn.protocols.http.h11_impl import H11Protocol
@@ -65,6 +68,9 @@ class ConnectionLimits:
     idle_s: float = 5.0
     request_s: float = 10.0
     max_header_bytes: int = MAX_HEADER_BYTES
+    # reverse proxies (addresses or networks): not capped per address, every client behind
+    # one comes from its address
+    trusted_proxies: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("max_connections", "max_per_address", "max_requests", "max_header_bytes"):
@@ -82,11 +88,28 @@ class ConnectionLimits:
                 f"health_reserve, got {self.max_connections} <= "
                 f"{self.max_requests} + {self.health_reserve}"
             )
+        try:
+            nets = tuple(ipaddress.ip_network(p, strict=False) for p in self.trusted_proxies)
+        except (TypeError, ValueError):
+            raise ConfigError(f"connection limits: trusted_proxies must be IP addresses or "
+                              f"networks, got {self.trusted_proxies!r}") from None  # fmt: skip
+        object.__setattr__(self, "_proxies", nets)
         for name in ("idle_s", "request_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
                 raise ConfigError(f"connection limits: {name} must be a number > 0, "
                                   f"got {value!r}")  # fmt: skip
+
+
+def is_trusted_proxy(limits: ConnectionLimits, host: str) -> bool:
+    """Whether `host` is one of the limits' trusted reverse proxies."""
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped
+    return any(ip in net for net in limits._proxies)  # type: ignore[attr-defined]
 
 
 def client_key(host: str) -> str:
@@ -105,11 +128,17 @@ def client_key(host: str) -> str:
 
 
 class ConnectionTable:
-    """The open connections of one server, by client address, and what was refused."""
+    """The open connections of one server, by client address, and what was refused.
+
+    A connection that has carried a logged-in request (`logged_in`) has a place of its own:
+    it no longer counts against its address's cap, and a new connection never takes its
+    place (operators behind one NAT or proxy share an address with whatever else comes from
+    it). `by_address` counts the other connections."""
 
     def __init__(self) -> None:
         self.open: dict[GuardedH11Protocol, str] = {}
         self.by_address: Counter[str] = Counter()
+        self.sessions: set[GuardedH11Protocol] = set()
         self.counts: Counter[str] = Counter()  # refused/closed, by reason
         self._logged: dict[str, float] = {}
 
@@ -117,17 +146,32 @@ class ConnectionTable:
         self.open[conn] = address
         self.by_address[address] += 1
 
+    def _uncount(self, address: str) -> None:
+        self.by_address[address] -= 1
+        if self.by_address[address] <= 0:
+            del self.by_address[address]
+
+    def logged_in(self, conn: GuardedH11Protocol) -> None:
+        """`conn` carried a request of a live session: a place of its own from now on."""
+        address = self.open.get(conn)
+        if address is not None and conn not in self.sessions:
+            self.sessions.add(conn)
+            self._uncount(address)
+
     def remove(self, conn: GuardedH11Protocol) -> None:
         address = self.open.pop(conn, None)
-        if address is not None:
-            self.by_address[address] -= 1
-            if self.by_address[address] <= 0:
-                del self.by_address[address]
+        if address is None:
+            return
+        if conn in self.sessions:
+            self.sessions.discard(conn)
+        else:
+            self._uncount(address)
 
     def longest_waiting(self, address: str | None = None) -> GuardedH11Protocol | None:
-        """The connection (of `address`, or any) waiting longest with no answer in progress."""
+        """The connection (of `address`, or any) waiting longest with no answer in progress,
+        of those without a session: a logged-in console is never closed for a newcomer."""
         waiting = [c for c, a in self.open.items() if (address is None or a == address)
-                   and c.waiting()]  # fmt: skip
+                   and c not in self.sessions and c.waiting()]  # fmt: skip
         return min(waiting, key=lambda c: c.waiting_since, default=None)
 
     def note(self, reason: str, what: str) -> None:
@@ -148,22 +192,35 @@ def _raw_answer(status: int, text: str) -> bytes:
 
 
 class _Admission:
-    """Answers in progress bounded (503 beyond), with places kept for health and metrics."""
+    """Answers in progress bounded (503 beyond), with places kept for health and metrics; a
+    request the app found logged in (its scope's state holds a session, service.auth) gives
+    its connection a place of its own (ConnectionTable.logged_in)."""
 
     def __init__(self, app: ASGIApp, tasks: set[Any], limits: ConnectionLimits,
-                 table: ConnectionTable) -> None:  # fmt: skip
+                 table: ConnectionTable, conn: GuardedH11Protocol) -> None:  # fmt: skip
         self.app, self.tasks, self.limits, self.table = app, tasks, limits, table
+        self.conn = conn
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http":
-            room = self.limits.max_requests  # this request's own task is among self.tasks
-            if scope["path"] in HEALTH_PATHS:
-                room += self.limits.health_reserve
-            if len(self.tasks) > room:
-                self.table.note("busy", f"more than {room} requests in progress: answered 503")
-                await service_unavailable(scope, receive, send)  # type: ignore[arg-type]
-                return
-        await self.app(scope, receive, send)
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        room = self.limits.max_requests  # this request's own task is among self.tasks
+        if scope["path"] in HEALTH_PATHS:
+            room += self.limits.health_reserve
+        if len(self.tasks) > room:
+            self.table.note("busy", f"more than {room} requests in progress: answered 503")
+            await service_unavailable(scope, receive, send)  # type: ignore[arg-type]
+            return
+
+        async def marking_send(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                state = scope.get("state")
+                if isinstance(state, dict) and state.get("session") is not None:
+                    self.table.logged_in(self.conn)
+            await send(message)
+
+        await self.app(scope, receive, marking_send)
 
 
 class GuardedH11Protocol(H11Protocol):
@@ -176,7 +233,7 @@ class GuardedH11Protocol(H11Protocol):
     def __init__(self, config: Config, server_state: ServerState, app_state: dict[str, Any],
                  _loop: asyncio.AbstractEventLoop | None = None) -> None:  # fmt: skip
         super().__init__(config, server_state, app_state, _loop)
-        self.app = _Admission(self.app, server_state.tasks, self.limits, self.table)
+        self.app = _Admission(self.app, server_state.tasks, self.limits, self.table, self)
         self.waiting_since = time.monotonic()  # since when no answer is in progress
         self._timer: asyncio.TimerHandle | None = None
         self._reading = False  # a request's first byte came, the request is not whole yet
@@ -191,9 +248,15 @@ class GuardedH11Protocol(H11Protocol):
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         limits, table = self.limits, self.table
-        address = client_key(self.client[0] if self.client else "")
-        if table.by_address[address] >= limits.max_per_address and not self._take_place(
-            address, f"more than {limits.max_per_address} connections from {address}"
+        host = self.client[0] if self.client else ""
+        address = client_key(host)
+        capped = not is_trusted_proxy(limits, host)  # a proxy's clients come from its address
+        if (
+            capped
+            and table.by_address[address] >= limits.max_per_address
+            and not self._take_place(
+                address, f"more than {limits.max_per_address} connections from {address}"
+            )
         ):
             self._refuse(503, "too many connections from this address", "address",
                          f"{address}: every connection of it busy, one refused")  # fmt: skip

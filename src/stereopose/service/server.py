@@ -3,7 +3,8 @@
 The listening socket is bound in the caller's thread, so a busy port or a bad address is a
 ServeError (a StereoposeError naming host:port) raised by `start()`, and port 0 gives a free
 port that `start()` returns. uvicorn is set for a closed network: no Server header, no
-X-Forwarded-* trusted, its logging left to the application (no dictConfig of its own),
+X-Forwarded-* trusted but from [serve] trusted_proxies, its logging left to the application
+(no dictConfig of its own),
 signals left to the caller; its h11 protocol is service.connections' (timeouts for idle and
 slow connections, request heads bounded, caps per client address and in all, health always
 served; `Server(limits=ConnectionLimits(...))` changes them).
@@ -16,6 +17,7 @@ added on the machine itself (`stereopose users add`).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import ipaddress
 import logging
 import re
@@ -73,6 +75,7 @@ class ServeSettings:
     port: int = 8787
     certificate: str | None = None
     key: str | None = None
+    trusted_proxies: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         host = self.host
@@ -83,6 +86,12 @@ class ServeSettings:
             raise ConfigError(f"serve.port must be an integer in [0, 65535], got {port!r}")
         if (self.certificate is None) != (self.key is None):
             raise ConfigError("serve.certificate and serve.key: give both (HTTPS) or neither")
+        for proxy in self.trusted_proxies:
+            try:
+                ipaddress.ip_network(proxy, strict=False)
+            except ValueError:
+                raise ConfigError(f"serve.trusted_proxies: expected an IP address or network, "
+                                  f"got {proxy!r}") from None  # fmt: skip
 
     @property
     def tls(self) -> bool:
@@ -146,9 +155,13 @@ def uvicorn_config(
     app: object, host: str, port: int, graceful_s: float = GRACEFUL_S,
     certificate: str | None = None, key: str | None = None,
     limits: ConnectionLimits | None = None,
+    trusted_proxies: tuple[str, ...] = (),
 ) -> uvicorn.Config:  # fmt: skip
-    """uvicorn's settings for the service (see the module docstring)."""
+    """uvicorn's settings for the service (see the module docstring); trusted_proxies: the
+    only peers whose X-Forwarded-For and X-Forwarded-Proto are believed."""
     limits = limits or ConnectionLimits()
+    if trusted_proxies:
+        limits = dataclasses.replace(limits, trusted_proxies=tuple(trusted_proxies))
     return uvicorn.Config(
         app,
         host=host,
@@ -159,7 +172,8 @@ def uvicorn_config(
         log_config=None,
         access_log=False,
         server_header=False,
-        proxy_headers=False,
+        proxy_headers=bool(trusted_proxies),
+        forwarded_allow_ips=list(trusted_proxies) or None,
         limit_concurrency=None,  # counted by the protocol: answers in progress, not connections
         timeout_keep_alive=limits.idle_s,  # type: ignore[arg-type]  # a float works
         timeout_graceful_shutdown=graceful_s,  # type: ignore[arg-type]
@@ -224,7 +238,8 @@ class Server:
         s = self.settings
         try:
             config = uvicorn_config(self.app, s.host, self.port, self.graceful_s,
-                                    s.certificate, s.key, self.limits)  # fmt: skip
+                                    s.certificate, s.key, self.limits,
+                                    s.trusted_proxies)  # fmt: skip
             config.load()  # the certificate and key read now: a bad one is a ServeError
         except (OSError, ssl.SSLError) as e:
             self._close_socket()
