@@ -42,6 +42,14 @@ def test_an_approach_that_becomes_an_entry_is_one_incident_that_rises() -> None:
     assert whats(up) == [("occurrence", ACTIVE, ACTIVE)]
     r = book.get(1)
     assert (r.occurrences, r.priority, r.type, r.last_type) == (2, 1, "approach", "enter")
+    assert r.worst_type == "enter"  # its line names the entry, not the approach
+    up = step(book, [zone(1.0, "approach")])  # back at the margin: the worst stays the entry
+    r = book.get(1)
+    assert (r.last_type, r.worst_type, r.priority) == ("approach", "enter", 1)
+    assert type(r).from_dict(r.to_dict()).worst_type == "enter"
+    old = r.to_dict()
+    del old["worst_type"]  # a record an earlier version stored
+    assert type(r).from_dict(old).worst_type == ""
 
 
 def test_a_repeated_reach_is_one_incident_with_a_count_and_one_notification() -> None:

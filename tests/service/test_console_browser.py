@@ -397,6 +397,14 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     assert page.locator(f'#feed li[data-incident-id="{incident}"]').count() == 1
     for e in events:
         assert page.locator(f'#feed li[data-event-id="{e}"]').count() == 0
+    # open incidents stay on top, those not acknowledged first, above the info history
+    ranks = page.evaluate("[...document.querySelectorAll('#feed li')].map(li => +li.dataset.rank)")
+    assert ranks == sorted(ranks) and ranks[0] == 0, ranks
+    # its line names its worst occurrence (an approach that became an entry: "entered")
+    worst = _stored(served, incident).get("worst_type")
+    assert worst and page.get_attribute(line, "data-worst") == worst
+    words = {"enter": "entered", "approach": "approaching"}.get(worst, worst)
+    assert page.inner_text(f"{line} .what").split(" · now ")[0].count(words) == 1
     shown = page.inner_text(f"{line} .count")  # a later occurrence may have come meanwhile
     assert shown.startswith("×") and int(shown[1:]) >= count, shown
     assert _stored(served, incident)["occurrences"] >= count
@@ -483,6 +491,11 @@ def test_a_camera_picture_opens_large(watched, served):
                          " return [c.width, c.height, r.width, r.height]; })()")  # fmt: skip
     assert max(size[0], size[1]) >= 480  # the substream's own size: ids readable
     assert max(size[2], size[3]) >= 400  # shown large
+    # beside the floor plan, never over it: the plan (the person drawn red on it) stays seen
+    floor = page.locator("#floor").bounding_box()
+    view = page.locator("#camera-view").bounding_box()
+    assert floor and view and floor["width"] >= 300 and floor["height"] >= 200
+    assert floor["x"] + floor["width"] <= view["x"] + 1 or view["x"] + view["width"] <= floor["x"]
     page.screenshot(path=str(SHOTS / "camera-large.png"))
     page.click("#camera-view-close")
     page.wait_for_selector("#camera-view", state="hidden", timeout=5_000)

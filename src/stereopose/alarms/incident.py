@@ -59,8 +59,10 @@ class IncidentError(StereoposeError, ValueError):
 class IncidentRecord:
     """An incident as it is at one moment. Times in the clock of the events' `t` (seconds);
     key: the hazard (alarms.levels); type: the event type that raised it, last_type the
-    latest occurrence's; first_event / last_event: the caller's ids of those events (None
-    when the caller gave none); first_out: the first of a burst of incidents."""
+    latest occurrence's, worst_type that of its most urgent occurrence (the first of them;
+    "" in a record of an earlier version: read `type`); first_event / last_event: the
+    caller's ids of those events (None when the caller gave none); first_out: the first of a
+    burst of incidents."""
 
     id: int
     key: HazardKey
@@ -83,6 +85,7 @@ class IncidentRecord:
     first_event: int | None = None
     last_event: int | None = None
     first_out: bool = False
+    worst_type: str = ""
 
     @property
     def shelved(self) -> bool:
@@ -166,7 +169,8 @@ class Incident:
     ) -> Incident:
         """A new incident, active and unacknowledged, with its first occurrence at t."""
         return cls(IncidentRecord(id=id_, key=key, state=ACTIVE, priority=priority,
-                                  type=type_, last_type=type_, occurrences=1, first_t=t,
+                                  type=type_, last_type=type_, worst_type=type_,
+                                  occurrences=1, first_t=t,
                                   last_t=t, active_since=t, rearm_s=rearm_s,
                                   first_event=event_id, last_event=event_id))  # fmt: skip
 
@@ -206,8 +210,9 @@ class Incident:
         elif state == CLOSED:
             state = ACKNOWLEDGED
         last_event = event_id if event_id is not None else r.last_event
+        worst = type_ if priority < r.priority else (r.worst_type or r.type)
         self._set(state=state, occurrences=r.occurrences + 1, last_t=max(r.last_t, t),
-                  last_type=type_, priority=min(r.priority, priority),
+                  last_type=type_, worst_type=worst, priority=min(r.priority, priority),
                   active_since=r.active_since if r.active else t, cleared_at=None,
                   closed_at=None, last_event=last_event)  # fmt: skip
         return True

@@ -63,11 +63,14 @@ export function describe(e) {
   return parts.join(" ");
 }
 
-/** The words of an incident: its hazard and the type that raised it (and the latest one). */
+/** The words of an incident: its hazard and its worst occurrence (an approach that became an
+ * entry reads "entered"; a record of an earlier version: the type that raised it), and the
+ * latest one when that differs. */
 export function describeIncident(rec, zoneKinds = new Map()) {
   const parts = [];
+  const worst = rec.worst_type || rec.type;
   if (known(rec.person) && rec.person >= 0) parts.push(`person ${rec.person}`);
-  parts.push(typeText(rec.type));
+  parts.push(typeText(worst));
   if (rec.zone) {
     parts.push(rec.zone);
     const kind = zoneKinds.get(rec.zone);
@@ -76,7 +79,7 @@ export function describeIncident(rec, zoneKinds = new Map()) {
   if (rec.rule) parts.push(`(rule ${rec.rule})`);
   if (rec.camera && !rec.zone) parts.push(rec.camera);
   if (rec.key && rec.key[0] === "service") parts.push("(the service)");
-  if (rec.last_type && rec.last_type !== rec.type) parts.push(`· now ${typeText(rec.last_type)}`);
+  if (rec.last_type && rec.last_type !== worst) parts.push(`· now ${typeText(rec.last_type)}`);
   return parts.join(" ");
 }
 
@@ -158,12 +161,27 @@ export class Feed {
     this.update();
   }
 
-  /** Where a line goes: newest first by its wall time (an incident's first), ids breaking ties. */
+  /** A line's place in the feed: 0 an open incident not acknowledged, 1 another open one,
+   * 2 the history (closed incidents, info events). */
+  rank(li) {
+    const rec = li.dataset.incidentId ? this.incidents.get(Number(li.dataset.incidentId)) : null;
+    if (!rec || rec.state === "closed") return 2;
+    return UNACKED.has(rec.state) ? 0 : 1;
+  }
+
+  /** Where a line goes: the open incidents on top, those not acknowledged first, above the
+   * history; within each, newest first by its wall time (an incident's first). */
   place(li) {
     const at = Number(li.dataset.at);
+    const rank = this.rank(li);
+    li.dataset.rank = String(rank);
+    if (li.parentNode === this.list) li.remove();
     let next = this.list.firstElementChild;
-    while (next && next !== li && Number(next.dataset.at) > at) next = next.nextElementSibling;
-    if (next !== li) this.list.insertBefore(li, next);
+    while (next && (Number(next.dataset.rank) < rank
+                    || (Number(next.dataset.rank) === rank && Number(next.dataset.at) > at))) {
+      next = next.nextElementSibling;
+    }
+    this.list.insertBefore(li, next);
     while (this.list.children.length > MAX_ITEMS) {
       const last = this.list.lastElementChild;
       if (last.dataset.incidentId) this.incidents.delete(Number(last.dataset.incidentId));
@@ -217,7 +235,7 @@ export class Feed {
     }
     li.dataset.at = String(rec.first_wall_t ?? rec.first_t ?? 0);
     this.renderIncident(rec, li);
-    if (made) this.place(li);
+    if (made || this.rank(li) !== Number(li.dataset.rank)) this.place(li); // its state moved it
     if (live) this.update();
   }
 
@@ -269,6 +287,7 @@ export class Feed {
     li.dataset.count = String(rec.occurrences);
     li.dataset.shelved = String(!!rec.shelved);
     li.dataset.type = rec.type;
+    li.dataset.worst = rec.worst_type || rec.type;
     if (rec.zone) li.dataset.zone = rec.zone;
     if (known(rec.person)) li.dataset.person = String(rec.person);
     if (rec.camera) li.dataset.camera = rec.camera;
