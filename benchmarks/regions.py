@@ -215,7 +215,45 @@ def main() -> None:
                     runs[name]["first_output_s"] = first_output_s(poses[name], fps)
                     runs[name]["kept_after_first"] = kept_after_first(poses[name], fps)
             r["scenes"][scene] = {"fps": fps, "runs": runs}
+        r["empty_camera"] = empty_camera(videos_of(work / "scenes" / "empty"))
     save("regions", r, markdown(r))
+
+
+def videos_of(folder: Path) -> list[Path]:
+    return sorted(folder.glob("*.mp4"))
+
+
+def empty_camera(videos: list[Path], steps: int = 60) -> dict:
+    """One empty camera's detection once its first scan is done: ms per step at 5 steps/s
+    (its idle steps and its later scans, full_scan_s apart), against a whole-frame inference
+    at 640 of the same frame."""
+    from stereopose.detection import make_detector
+    from stereopose.detection.regional import RegionDetector
+
+    cap = cv2.VideoCapture(str(videos[0]), cv2.CAP_FFMPEG)
+    frames = []
+    while len(frames) < steps + 1:
+        ok, im = cap.read()
+        if not ok:
+            break
+        frames.append(im)
+    cap.release()
+    det = make_detector("onnx")
+    regions = RegionDetector(det)
+    regions.detect({"cam": frames[0]}, 0.0)  # its first scan: the whole frame and every tile
+    t0 = time.perf_counter()
+    for k, im in enumerate(frames[1:], start=1):
+        regions.detect({"cam": im}, k / EMPTY_FPS)
+    per_step = (time.perf_counter() - t0) / (len(frames) - 1)
+    det.detect([frames[0]])  # warm
+    t0 = time.perf_counter()
+    for im in frames[:10]:
+        det.detect([im])
+    whole = (time.perf_counter() - t0) / 10
+    c = regions.report()["cam"]
+    return {"steps": len(frames) - 1, "ms_per_step": 1000 * per_step,
+            "whole_640_ms": 1000 * whole, "share_of_whole": per_step / whole,
+            "full_scans": c["full_scans"] - 1, "idle_steps": c["idle_steps"]}  # fmt: skip
 
 
 def capacity(step_ms: float, cameras: int = 4) -> float:
@@ -254,6 +292,15 @@ def markdown(r: dict) -> list[str]:
                 f"{_f(x['reprojection_median_px'], 2)} | {moved} | {share} | "
                 f"{capacity(x['step_ms']):.1f} |"
             )
+    ec = r.get("empty_camera")
+    if ec:
+        md += [
+            "",
+            f"An empty camera once its first scan is done ({ec['steps']} steps at "
+            f"{EMPTY_FPS:g} steps/s, {ec['full_scans']} later scans, {ec['idle_steps']} idle "
+            f"steps): {ec['ms_per_step']:.1f} ms per step against {ec['whole_640_ms']:.1f} ms "
+            f"for its whole frame at 640, {100 * ec['share_of_whole']:.1f} % of it.",
+        ]
     nc = r["scenes"].get("newcomer")
     if nc:
         md += [

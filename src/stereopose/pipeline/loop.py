@@ -37,7 +37,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.types import Event, People2D, Rig
+from stereopose.types import Event, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -261,10 +261,39 @@ def run_frames(
     fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
     sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
                          site=site, source=label, on_events=on_events)  # fmt: skip
-    loop = FrameLoop(source, stage, sinks, summary, fences=fences,
-                     behaviour=behaviour_monitor(site, config), on_step=on_step,
-                     stop=stop)  # fmt: skip
+    behaviour = behaviour_monitor(site, config)
+    if fences is not None:  # the service's incidents: the same book, ids and priorities
+        incidents = run_incidents(site, fences, behaviour, sinks)
+        loop = FrameLoop(source, stage, sinks, summary, fences=incidents,
+                         behaviour=incidents, on_step=on_step, stop=stop)  # fmt: skip
+    else:
+        loop = FrameLoop(source, stage, sinks, summary, on_step=on_step, stop=stop)
     summary = loop.run()
     if summary.failed_outputs:  # the work is done, but not all of it is kept: exit code 3
         raise IncompleteOutputError(summary.failed_outputs, summary.outputs, summary)
     return summary
+
+
+def run_incidents(site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor | None,
+                  sinks: Sequence[Sink]):  # fmt: skip
+    """The incident book of `serve` over a run's events (pipeline.serve_incidents): each
+    alarm-level event stamped with its incident's id and priority as the service would (ids
+    from 1, the run's own), the incidents' records stored in the run's event log."""
+    from stereopose.alarms import IncidentBook
+    from stereopose.alarms.priority import AlarmSettings
+    from stereopose.io.sinks import SqliteSink
+    from stereopose.pipeline.serve_incidents import IncidentStep
+
+    db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
+    last_t = [0.0]
+
+    class _Rules:  # the behaviour rules, the step's time kept (the book's clock for acts)
+        def step(self, t: float, frame: int, people: People3D):
+            last_t[0] = float(t)
+            if behaviour is None:
+                return [], None
+            return behaviour.step(t, frame, people)
+
+    return IncidentStep(IncidentBook(AlarmSettings.from_site(site)), fences, _Rules(), fences,
+                        store=db.put_incidents if db is not None else None,
+                        clock=lambda: last_t[0])  # fmt: skip

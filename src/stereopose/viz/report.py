@@ -34,6 +34,7 @@ from stereopose.viz.report_tables import (
     CSS,
     cameras_html,
     check_summary,
+    incidents_html,
     people_html,
     summary_html,
 )
@@ -383,6 +384,9 @@ def build_report(run_dir: str | Path) -> str:
                          + "</p>")  # fmt: skip
         parts.append(fig.to_html(full_html=False, include_plotlyjs=False, div_id=div,
                                  auto_play=False))  # fmt: skip
+    incidents = incidents_html(events)
+    if incidents:
+        parts += ["<h2>Alarms by incident</h2>", incidents]
     behaviour = postures_html(poses) + behaviour_events_html(events)
     if behaviour:
         parts += ["<h2>Behaviour</h2>", behaviour]

@@ -157,3 +157,27 @@ table { border-collapse: collapse; margin: 0.5em 0; }
 td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: left; font-size: 0.9em; }
 pre { background: #f6f6f6; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
 """
+
+
+def incidents_html(events) -> str:
+    """The run's alarms grouped by incident (the book `serve` keeps, as `run` keeps it too):
+    per incident its priority, hazard, the worst and the latest of its event types, its first
+    and last time and its occurrences; "" when the run raised none."""
+    groups: dict[int, list] = {}
+    for e in events:
+        if getattr(e, "incident", None) is not None:
+            groups.setdefault(int(e.incident), []).append(e)
+    if not groups:
+        return ""
+    rows = []
+    for i, es in sorted(groups.items()):
+        es = sorted(es, key=lambda e: e.t)
+        worst = min(es, key=lambda e: (e.priority if e.priority is not None else 9, e.t))
+        hazard = " ".join(str(x) for x in (
+            f"person {es[0].person}" if es[0].person >= 0 else "", es[0].zone or "",
+            f"rule {es[0].rule}" if es[0].rule else "", es[0].camera or "") if x)  # fmt: skip
+        rows.append([f"incident {i}", f"P{worst.priority}" if worst.priority else "-", hazard,
+                     worst.type, es[-1].type, _fmt(es[0].t, " s", 2), _fmt(es[-1].t, " s", 2),
+                     len(es)])  # fmt: skip
+    return _table(rows, ["incident", "priority", "hazard", "worst", "latest", "first", "last",
+                         "occurrences"])  # fmt: skip
