@@ -65,3 +65,16 @@ def test_the_event_log_stores_no_cameras_password_and_masks_older_logs(tmp_path:
     assert len(sources) == 3 and all("admin:***@10.0.0.5" in s for s in sources)
     for f in tmp_path.iterdir():  # nor in the file's free pages or its write-ahead log
         assert SECRET.encode() not in f.read_bytes(), f.name
+
+
+def test_a_configuration_copy_keeps_no_secret():
+    from stereopose.secrets import masked_toml
+
+    text = (f'[mqtt]\nhost = "b"\npassword = "{SECRET}"  # the broker\'s\n'
+            f'[[cameras]]\nsource = "rtsp://admin:{SECRET}@10.0.0.5/s"\n'
+            f'[outputs]\nwebhook = "https://{SECRET}@hooks.example/x?y=1"\n')  # fmt: skip
+    masked = masked_toml(text)
+    assert SECRET not in masked
+    assert 'password = "<hidden>"' in masked and 'host = "b"' in masked
+    assert 'source = "rtsp://***@10.0.0.5/s"' in masked
+    assert 'webhook = "https://***@hooks.example/x?y=1"' in masked

@@ -31,9 +31,15 @@ def redact(url: str) -> str:
     return url[:start] + netloc + url[start + len(parts.netloc) :]
 
 
-def redact_all(text: str) -> str:
-    """Every URL in `text` (a list of sources joined by ", ", say) without its password."""
-    return re.sub(r"[A-Za-z][A-Za-z0-9+.-]*://[^\s,]+", lambda m: redact(m.group(0)), text)
+_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://[^\s,\"']+")
+
+
+def redact_all(text: str, logins: bool = False) -> str:
+    """Every URL in `text` (a list of sources joined by ", ", say) without its password;
+    logins: without any user part either (a token given as the user: token@host)."""
+    if logins:
+        return _URL.sub(lambda m: re.sub(r"//[^/@]*@", "//***@", m.group(0), count=1), text)
+    return _URL.sub(lambda m: redact(m.group(0)), text)
 
 
 def is_secret_key(key: str) -> bool:
@@ -52,3 +58,22 @@ def shown(key: str, value: object) -> str:
     if last in _URL_KEYS or "://" in text:
         return redact_all(text)
     return text
+
+
+_TOML_KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)(.*)$")
+
+
+def masked_toml(text: str) -> str:
+    """A configuration file's text as a copy of it may keep it: each secret key's value
+    replaced by "<hidden>", every URL without its login (user and password); the rest as
+    written."""
+    out = []
+    for line in text.splitlines(keepends=True):
+        m = _TOML_KEY.match(line.rstrip("\r\n"))
+        if m and is_secret_key(m.group(2)):
+            end = line[len(line.rstrip("\r\n")) :]
+            line = f'{m.group(1)}{m.group(2)}{m.group(3)}"{HIDDEN}"{end}'
+        else:
+            line = redact_all(line, logins=True)
+        out.append(line)
+    return "".join(out)

@@ -299,7 +299,8 @@ def test_one_address_holds_at_most_its_cap(peers, release):
         refused = Peer(port, "127.0.0.3")  # all four answering: no place for a fifth
         peers.append(refused)
         wait_until(refused.closed, "the fifth connection to be refused")
-        assert refused.received == b"" or refused.received.startswith(b"HTTP/1.1 503 ")
+        assert refused.received.startswith(b"HTTP/1.1 503 ")
+        assert b"retry-after: 1\r\n" in refused.received  # when to come back
         assert not any(p.closed() for p in busy)  # the streams go on
         assert health_served(server.url)  # another address is served
         release.set()
@@ -312,8 +313,9 @@ def test_answers_in_progress_are_bounded_and_health_keeps_its_places(peers, rele
         port = server.port
         assert port is not None
         peers += [holding(port, "127.0.0.2") for _ in range(4)]
-        status, _, body = get(server.url + "/openapi.json")
-        assert (status, body) == (503, b"Service Unavailable")  # a fifth answer: no place
+        status, headers, body = get(server.url + "/openapi.json")
+        assert status == 503 and b"try again" in body  # a fifth answer: no place
+        assert headers.get("retry-after") == "1"
         assert health_served(server.url)  # its places kept
         release.set()
         wait_until(lambda: all(got(p, b"released") for p in peers), "the streams to end")

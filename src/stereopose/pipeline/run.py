@@ -46,6 +46,7 @@ from stereopose.pipeline.paths import (
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.sources import Cameras, check_size
+from stereopose.secrets import masked_toml
 from stereopose.types import Event, Rig
 
 __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
@@ -130,9 +131,10 @@ def _credentials(url: str) -> bool:
 
 
 def copy_config(source: Path, target: Path, secret: bool) -> None:
-    """The configuration copied into the run folder (for `report`); readable by its owner
-    only when it holds a secret (an MQTT password, credentials in a URL)."""
-    text = source.read_text(encoding="utf-8")
+    """The configuration copied into the run folder (for `report`), its secrets masked (a
+    password's value hidden, URLs without their password: secrets.masked_toml); readable by
+    its owner only when the original held a secret."""
+    text = masked_toml(source.read_text(encoding="utf-8"))
     target.unlink(missing_ok=True)  # a new file, so the mode below is the one it gets
     fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if secret else 0o644)
     with os.fdopen(fd, "w", encoding="utf-8") as f:

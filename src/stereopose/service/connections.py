@@ -43,7 +43,6 @@ from typing import Any, ClassVar
 import h11
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from uvicorn.config import Config
-from uvicorn.protocols.http.flow_control import service_unavailable
 from uvicorn.protocols.http.h11_impl import H11Protocol
 from uvicorn.server import ServerState
 
@@ -183,12 +182,28 @@ class ConnectionTable:
             logger.warning("%s (%d so far)", what, self.counts[reason])
 
 
+RETRY_AFTER_S = 1  # a refused connection or request may come back this soon
+
+
 def _raw_answer(status: int, text: str) -> bytes:
-    """An answer written past h11 (which sends none before a request is whole)."""
+    """An answer written past h11 (which sends none before a request is whole); a 503 says
+    when to come back."""
     body, reason = text.encode(), HTTPStatus(status).phrase.encode()
-    return (b"HTTP/1.1 %d %s\r\ncontent-type: text/plain; charset=utf-8\r\n"
+    retry = b"retry-after: %d\r\n" % RETRY_AFTER_S if status == 503 else b""
+    return (b"HTTP/1.1 %d %s\r\ncontent-type: text/plain; charset=utf-8\r\n%s"
             b"content-length: %d\r\nconnection: close\r\n\r\n%s"
-            % (status, reason, len(body), body))  # fmt: skip
+            % (status, reason, retry, len(body), body))  # fmt: skip
+
+
+async def _busy(send: Send) -> None:
+    """503 with Retry-After: more answers in progress than the server takes."""
+    body = b"too many requests in progress; try again in a moment"
+    await send({"type": "http.response.start", "status": 503,
+                "headers": [(b"content-type", b"text/plain; charset=utf-8"),
+                            (b"content-length", b"%d" % len(body)),
+                            (b"retry-after", b"%d" % RETRY_AFTER_S),
+                            (b"connection", b"close")]})  # fmt: skip
+    await send({"type": "http.response.body", "body": body})
 
 
 class _Admission:
@@ -210,7 +225,7 @@ class _Admission:
             room += self.limits.health_reserve
         if len(self.tasks) > room:
             self.table.note("busy", f"more than {room} requests in progress: answered 503")
-            await service_unavailable(scope, receive, send)  # type: ignore[arg-type]
+            await _busy(send)
             return
 
         async def marking_send(message: Message) -> None:
