@@ -168,3 +168,40 @@ def test_a_picture_from_a_node_is_the_cameras_image_in_its_steps(rig):
         assert steps.got[1].images["cam01"].mean() < 100
     finally:
         steps.close()
+
+
+def test_a_nodes_broken_health_or_a_picture_bomb_is_refused_and_the_service_goes_on(rig):
+    import cv2
+
+    from stereopose.nodes.wire import WireError, decode_health, jpeg_size
+
+    topics = Topics.of("stereopose", "north")
+    inp = _input(rig)
+    steps = Steps(inp)
+    try:
+        # a camera's health that is not an object: refused, never kept for the rates
+        for cameras in ({"cam01": 5}, {"cam01": {"fps": "fast"}}, {"cam01": {"up": "yes"}},
+                        [1, 2]):  # fmt: skip
+            bad = health_message("b", "online", clock=time.time(), cameras=cameras)
+            with pytest.raises(WireError, match="cameras"):
+                decode_health(bad)
+            inp._message(topics.node("b"), bad, True)
+        _send(inp, "b", "cam01", time.time() - 1)
+        wait_until(lambda: steps.got, "a step from that node all the same")
+        assert inp.rates()["cam01"] == (None, None)  # nothing of the broken health kept
+        assert inp.report()["malformed"] >= 4
+        # a JPEG whose header says 16000 x 16000: refused before a pixel is decoded
+        _, small = cv2.imencode(".jpg", np.full((48, 64, 3), 90, np.uint8))
+        jpeg = bytearray(small.tobytes())
+        assert jpeg_size(bytes(jpeg)) == (64, 48)
+        sof = next(i for i in range(2, len(jpeg) - 1) if jpeg[i] == 0xFF and jpeg[i + 1] == 0xC0)
+        jpeg[sof + 5 : sof + 9] = (16000).to_bytes(2, "big") * 2
+        assert jpeg_size(bytes(jpeg)) == (16000, 16000)
+        before = inp.report()["malformed"]
+        inp._message(topics.picture("cam01"), encode_picture(time.time(), bytes(jpeg)), False)
+        assert inp.report()["malformed"] == before + 1
+        assert inp.report()["cameras"]["cam01"]["pictures"] == 0
+        with pytest.raises(WireError):
+            jpeg_size(b"\xff\xd8\xff\xe0\x00")  # cut short: no frame header
+    finally:
+        steps.close()

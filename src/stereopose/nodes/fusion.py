@@ -58,6 +58,7 @@ from stereopose.nodes.wire import (
     decode_health,
     decode_people,
     decode_picture,
+    jpeg_size,
 )
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import People2D, Rig
@@ -70,6 +71,7 @@ ACTIVE_STEPS = 4  # waited for, unless its node is known to be offline
 CLOCK_KEPT = 5
 WARN_S = 60.0  # the same kind of bad message logged at most this often
 MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
+MIN_PICTURE_PX = 2_000_000  # a picture may have 4x its camera's picture pixels, or this
 DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
 
 
@@ -287,10 +289,14 @@ class NodeInput:
 
     def _picture(self, name: str, payload: bytes) -> None:
         _, jpeg = decode_picture(payload)
+        w, h = self._sizes[name]
+        pw, ph = jpeg_size(jpeg)  # from its header: a picture bomb is never decoded
+        if pw * ph > max(4 * w * h, MIN_PICTURE_PX) or not (pw and ph):
+            raise WireError(f"a {pw}x{ph} picture: more pixels than a {w}x{h} camera "
+                            "picture may have")  # fmt: skip
         image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
         if image is None:
             raise WireError("its JPEG cannot be decoded")
-        w, h = self._sizes[name]
         if image.shape[:2] != (h, w):  # a node of another picture scale
             image = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
         with self._cond:

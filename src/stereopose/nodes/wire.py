@@ -38,6 +38,7 @@ VERSION = 1
 MAX_PEOPLE = 256  # more people in one camera-frame is not a real frame
 MAX_PAYLOAD = 256 * 1024  # bytes of a keypoints message
 MAX_PICTURE = 4 * 2**20  # bytes of a picture message
+MAX_CAMERAS = 256  # cameras in one node's health
 _STAMP = struct.Struct(">d")
 
 
@@ -198,6 +199,45 @@ def decode_picture(payload: bytes) -> tuple[float, bytes]:
     return t, payload[_STAMP.size :]
 
 
+def jpeg_size(jpeg: bytes) -> tuple[int, int]:
+    """(width, height) of a JPEG from its frame header, without decoding it; a WireError when
+    none is found (a picture is checked for its size before any pixel is decoded)."""
+    i, n = 2, len(jpeg)
+    while i + 4 <= n:
+        if jpeg[i] != 0xFF:
+            raise WireError("its JPEG is malformed")
+        marker = jpeg[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # no length
+            i += 2
+            continue
+        length = int.from_bytes(jpeg[i + 2 : i + 4], "big")
+        if length < 2:
+            raise WireError("its JPEG is malformed")
+        # a start of frame: SOF0..SOF15 but DHT (C4), JPG (C8) and DAC (CC)
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            if i + 9 > n:
+                break
+            h = int.from_bytes(jpeg[i + 5 : i + 7], "big")
+            w = int.from_bytes(jpeg[i + 7 : i + 9], "big")
+            return w, h
+        i += 2 + length
+    raise WireError("its JPEG has no frame header")
+
+
+def _camera_health(name: object, value: object) -> None:
+    if not isinstance(name, str) or not isinstance(value, dict):
+        raise WireError("cameras: each camera's health must be an object")
+    for key in ("fps", "detect_fps", "detect_ms"):
+        v = value.get(key)
+        if v is not None:
+            _number(v, f"cameras.{key}")
+    if "up" in value and not isinstance(value["up"], bool):
+        raise WireError("cameras.up: expected true or false")
+
+
 def health_message(node: str, state: str, **fields: object) -> bytes:
     return json.dumps({"v": VERSION, "node": node, "state": state, **fields},
                       separators=(",", ":"), allow_nan=False).encode()  # fmt: skip
@@ -217,6 +257,16 @@ def decode_health(payload: bytes) -> Mapping[str, object]:
         raise WireError("no node or state")
     if doc["state"] == "online":
         _number(doc.get("clock"), "clock")
-        if not isinstance(doc.get("cameras", {}), dict):
-            raise WireError("cameras: expected an object")
+        cameras = doc.get("cameras", {})
+        if not isinstance(cameras, dict) or len(cameras) > MAX_CAMERAS:
+            raise WireError("cameras: expected an object of at most "
+                            f"{MAX_CAMERAS} cameras")  # fmt: skip
+        for name, value in cameras.items():
+            _camera_health(name, value)
+        for key in ("detect_ms",):
+            if doc.get(key) is not None:
+                _number(doc[key], key)
+        for key in ("queue", "regions"):
+            if doc.get(key) is not None and not isinstance(doc[key], dict):
+                raise WireError(f"{key}: expected an object")
     return doc
