@@ -126,3 +126,48 @@ def test_a_pruned_event_sent_again_is_not_stored_again(broker, tmp_path):
         c.disconnect()
         ingest.close()
         store.close()
+
+
+def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(broker, tmp_path):
+    sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
+    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
+                    heartbeat_s=0.3)  # fmt: skip
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    c.connect("127.0.0.1", broker.port)
+    c.loop_start()
+    deep = b"[" * 20_000 + b"]" * 20_000
+    hostile = [
+        ("stereopose/%ZZ/log/events", b'{"id": 1, "prev": 0}'),  # a site part not valid
+        ("stereopose/x/plan", deep),  # nesting past any parser's stack
+        ("stereopose/x/log/events", deep),
+        ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "person": 18446744073709551616}'),
+        ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "t": Infinity}'),
+        ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "priority": 18446744073709551616}'),
+        ("stereopose/x/log/heartbeat", b'{"last_id": Infinity, "time": 1.0}'),
+        ("stereopose/x/log/heartbeat", b'{"last_id": 18446744073709551616, "time": 1.0}'),
+    ]
+    try:
+        wait_until(lambda: ingest.subscribed and c.is_connected(), "both connected")
+        for k in range(3):  # a real site writes before, between and after the attacks
+            _write(sink, 1 + 3 * k, 3)
+            for topic, payload in hostile:
+                c.publish(topic, payload, qos=1).wait_for_publish(5)
+        _write(sink, 10, 3)
+        # every real event stored exactly once, the attacks counted and refused
+        wait_until(lambda: store.marks().get("north") == 12, "the real site's events",
+                   timeout_s=30)  # fmt: skip
+        assert [e["id"] for e in store.events("north", 0, 100)] == list(range(1, 13))
+        wait_until(lambda: ingest.figures()["malformed"] >= 3 * (len(hostile) - 1),
+                   f"the attacks counted {ingest.figures()}")  # fmt: skip
+        assert all(e["site"] == "north" for e in store.events(None, 0, 100))
+        assert "x" not in ingest.known_sites()
+        assert ingest._thread.is_alive() and ingest.connected
+    finally:
+        c.loop_stop()
+        c.disconnect()
+        ingest.close()
+        box.close()
+        sink.close()
+        store.close()

@@ -200,3 +200,21 @@ def test_malformed_control_messages_are_counted_and_ignored(broker, log, closing
     c.disconnect()
     log.write(1)
     wait_until(lambda: box.figures()["published"] == 1, "sending still works")
+
+
+def test_deeply_nested_control_messages_never_stop_the_outbox(broker, log, closing):
+    box = LogOutbox(settings(broker.port), log.read)
+    closing(box)
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    c.connect("127.0.0.1", broker.port)
+    c.loop_start()
+    wait_until(lambda: box.figures()["subscribed"], "the outbox subscribed")
+    deep = b"[" * 20_000 + b"]" * 20_000
+    ack = box.topics["ack"].replace(SITE, "north%2Fyard")
+    for topic in (f"{BASE}/replay", f"{BASE}/confirmed", ack):
+        c.publish(topic, deep, qos=1).wait_for_publish(5)
+    wait_until(lambda: box.figures()["malformed"] == 3, f"each counted {box.figures()}")
+    c.loop_stop()
+    c.disconnect()
+    log.write(2)  # its MQTT thread alive: the site's events still leave
+    wait_until(lambda: box.figures()["published"] == 2, "sending still works")

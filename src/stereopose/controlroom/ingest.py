@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 import uuid
@@ -49,6 +50,8 @@ MAX_PLAN_BYTES = 1 << 20  # a plan or people message larger than this is ignored
 MAX_SITES = 100_000  # plans kept at most
 PRUNE_EVERY_S = 3600.0  # how often the store's old rows are pruned
 _MAX_ID = 2**63 - 1
+MAX_DEPTH = 8  # an outbox message nests no deeper (an event, an incident's record)
+WARN_EVERY_S = 60.0  # a kind of bad message logged at most this often
 
 
 class Ingest:
@@ -100,7 +103,8 @@ class Ingest:
         self.counts = {"messages": 0, "stored": 0, "duplicates": 0, "gaps": 0, "replays": 0,
                        "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0,
                        "incident_changes": 0, "commands_sent": 0, "commands_done": 0,
-                       "room_incidents": 0}  # fmt: skip
+                       "room_incidents": 0, "ingest_errors": 0}  # fmt: skip
+        self._warned_at: dict[str, float] = {}  # kind of bad message -> when last logged
         self._rate: deque[tuple[float, int]] = deque(maxlen=64)  # (time, messages) samples
         self.connected = False
         self.subscribed = False  # the broker confirmed the subscriptions of this connection
@@ -157,6 +161,22 @@ class Ingest:
                            self.settings.host, self.settings.port, reason)  # fmt: skip
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            self._message(msg)
+        except Exception as e:  # nothing one message holds may end paho's thread
+            with self._lock:
+                self.counts["malformed"] += 1
+            self._warn("message", f"control room: a message on {str(msg.topic)[:200]!r} "
+                       f"refused: {type(e).__name__}: {str(e)[:200]}")  # fmt: skip
+
+    def _warn(self, kind: str, text: str) -> None:
+        """Log `text` unless a message of this kind was logged within the last minute."""
+        now = time.monotonic()
+        if now - self._warned_at.get(kind, -WARN_EVERY_S) >= WARN_EVERY_S:
+            self._warned_at[kind] = now
+            logger.warning("%s", text)
+
+    def _message(self, msg: Any) -> None:
         rest = msg.topic[len(self.prefix) + 1 :].split("/")
         if not msg.topic.startswith(self.prefix + "/") or len(rest) < 2:
             return
@@ -177,7 +197,14 @@ class Ingest:
             try:
                 self._step()
             except Exception:  # a bug must not end the ingest: logged, the next batch
+                self.counts["ingest_errors"] += 1
                 logger.exception("control room: ingest failed; going on")
+                # the marks back to what the store committed: a batch that failed confirms
+                # nothing, and its sites send again what it held
+                try:
+                    self.marks, self.imarks = self.store.marks(), self.store.incident_marks()
+                except StoreError as e:
+                    logger.error("control room: %s", e)
 
     def _step(self) -> None:
         with self._lock:
@@ -332,7 +359,10 @@ class Ingest:
         try:
             beat = json.loads(payload)
             last, sent = int(beat["last_id"]), float(beat["time"])
-        except (ValueError, TypeError, KeyError, UnicodeDecodeError):
+            if not 0 <= last <= _MAX_ID or not math.isfinite(sent):
+                raise ValueError("out of range")
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError, OverflowError,
+                RecursionError):  # fmt: skip
             self.counts["malformed"] += 1
             return
         self.clock_offsets[site] = offset = round(sent - at, 3)
@@ -399,10 +429,10 @@ class Ingest:
             return
         try:
             doc = json.loads(payload) if payload else None
-        except (ValueError, UnicodeDecodeError):
+        except (ValueError, UnicodeDecodeError, RecursionError):
             doc = None
-        if doc is not None and not isinstance(doc, dict):
-            doc = None
+        if doc is not None and (not isinstance(doc, dict) or not _sane(doc, -MAX_DEPTH)):
+            doc = None  # a plan nests deeper than an event: zones, cameras, points
         with self._lock:
             if what == "plan":
                 if doc is None:
@@ -570,18 +600,40 @@ class Ingest:
 
 
 def _numbered(payload: bytes, key: str) -> dict | None:
-    """An outbox message with an int `key` and prev, or None."""
+    """An outbox message with an int `key` and prev, every number in it within what a store
+    holds (integers of 64 bits, finite floats), nested at most MAX_DEPTH deep; or None."""
     try:
         e = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return None
-    if not isinstance(e, dict):
+    if not isinstance(e, dict) or not _sane(e):
         return None
     for k in (key, "prev"):
         v = e.get(k)
         if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= _MAX_ID:
             return None
+    p = e.get("priority")
+    if p is not None and (isinstance(p, bool) or p not in (1, 2, 3, 4)):
+        return None
     return e
+
+
+def _sane(value: Any, depth: int = 0) -> bool:
+    """Whether every number in `value` fits a store (int64, finite) and it nests at most
+    MAX_DEPTH deep."""
+    if depth > MAX_DEPTH:
+        return False
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return True
+    if isinstance(value, int):
+        return -(2**63) <= value <= _MAX_ID
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, dict):
+        return all(_sane(v, depth + 1) for v in value.values())
+    if isinstance(value, list):
+        return all(_sane(v, depth + 1) for v in value)
+    return False
 
 
 def _incident_change(msg: dict) -> bool:

@@ -135,6 +135,7 @@ class LogOutbox:
         self._unacked: set[int] = set()  # paho message ids not yet acknowledged
         self._acked: set[int] = set()
         self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0}
+        self._warned_at = -60.0  # when a refused message was last logged
         self._last_problem: str | None = None
         self.client = self._make_client()
         self._thread = threading.Thread(target=self._run, name="log-outbox", daemon=True)
@@ -203,6 +204,18 @@ class LogOutbox:
         self._wake.set()
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            self._message(msg)
+        except Exception as e:  # nothing one message holds may end paho's thread
+            with self._lock:
+                self.counts["malformed"] += 1
+            now = time.monotonic()
+            if now - self._warned_at >= 60.0:  # logged at most once a minute
+                self._warned_at = now
+                logger.warning("event outbox: a message on %s refused: %s: %s",
+                               str(msg.topic)[:200], type(e).__name__, str(e)[:200])  # fmt: skip
+
+    def _message(self, msg: Any) -> None:
         if msg.topic == self.topics["ack"]:
             self._command(msg.payload)
             return
@@ -418,7 +431,7 @@ def _command_of(payload: bytes) -> tuple[str, int, str] | None:
     """(command id, incident id, "USER via WHERE") of an acknowledgement command, or None."""
     try:
         obj = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     if not isinstance(obj, dict):
         return None
@@ -435,7 +448,7 @@ def _id_of(payload: bytes, key: str) -> int | None:
     """The id under `key` of a JSON object payload, or None when malformed."""
     try:
         obj = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     value = obj.get(key) if isinstance(obj, dict) else None
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= _MAX_ID:
