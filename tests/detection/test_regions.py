@@ -113,3 +113,27 @@ def test_motion_finds_what_moves_and_ignores_noise_and_a_global_change():
     assert m.resets == 1
     with pytest.raises(ValueError, match=r"1\.\.255"):
         MotionDetector(0)
+
+
+def test_many_regions_at_once_are_merged_or_give_way_to_the_whole_frame():
+    from stereopose.detection.regional import MAX_REGIONS, RegionDetector
+
+    class Nobody:  # no inference needed to plan: the planner alone is looked at
+        name, imgsz, iou = "none", 640, 0.7
+
+        def detect(self, images, imgsz=None):
+            from stereopose.detection.base import Poses
+
+            return [Poses.empty() for _ in images]
+
+    regions = RegionDetector(Nobody())
+    frame = np.full((1080, 1920, 3), 100, np.uint8)
+    regions.detect({"c": frame}, 0.0)  # the first scan
+    # 40 people spread over the frame, held from the last step: far more than MAX_REGIONS
+    xs, ys = np.meshgrid(np.linspace(50, 1800, 8), np.linspace(50, 900, 5))
+    regions._state["c"].held = [(np.array([x, y, x + 40, y + 100]), 0.05)
+                                for x, y in zip(xs.ravel(), ys.ravel(), strict=True)]  # fmt: skip
+    regions.detect({"c": frame}, 0.1)
+    shown = regions.regions("c")
+    assert len(shown) <= MAX_REGIONS
+    assert regions.whole("c") or len(shown) >= 1

@@ -50,6 +50,7 @@ from stereopose.detection.regions import (
 logger = logging.getLogger(__name__)
 
 HELD_MAX = 64  # a camera's own people held for their regions, at most
+MAX_REGIONS = 8  # regions of one camera and step; more are merged, or the whole frame taken
 # people boxes in regions: they move on between steps, so a little more than motion's
 SEEN_MIN_SIDE = 0.5  # of imgsz: a region at most twice enlarged
 
@@ -220,6 +221,8 @@ class RegionDetector:
         motion = [m for m in squares(moving, size, "motion", s.imgsz)
                   if not any(_inside(m, r) for r in people)]  # fmt: skip
         regions = merge(people + motion, size, largest)
+        if len(regions) > MAX_REGIONS:  # many at once (a crowd, rain): merged however far apart
+            regions = merge(regions, size, largest, max_growth=float("inf"))
         if scan:
             # the whole frame (people of any size whole), and where it sees more coarsely than
             # a tile at half the camera's resolution, the next tile in turn (a scan costs about
@@ -236,6 +239,8 @@ class RegionDetector:
             return [*regions, grid[state.tile_turn]], True, True
         if not regions:
             return [], False, False
+        if len(regions) > MAX_REGIONS:  # still too many: the whole frame costs less
+            return [], False, True
         if any(max(r.side_w, r.side_h) > largest for r in regions):
             # someone too large for a region's detail: the whole frame, and the regions of
             # people it would see at less than half their region's detail (a distant worker
