@@ -47,7 +47,10 @@ def _config(folder: Path, cameras: list[tuple[str, Path, bool]], timeout_s: floa
                    for n, s, lp in cameras)  # fmt: skip
     path = folder / "serve.toml"
     path.write_text(f'calibration = "{calib}"\noutput = "{folder / "data"}"\n\n'
-                    "[detector]\nimgsz = 320\n\n[storage]\nclips = false\n\n"
+                    # whole frames: each step costs an inference, so a 250 fps file is
+                    # processed far under its rate (regions would find these empty
+                    # cameras idle and keep up)
+                    "[detector]\nimgsz = 320\nregions = false\n\n[storage]\nclips = false\n\n"
                     f"[serve]\nport = {free_port()}\ncamera_timeout_s = {timeout_s}\n"
                     f"status_interval_s = 0.5\n\n{cams}")  # fmt: skip
     return path
