@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from backends import joints_moved  # 3D joints matched per frame, as the backends compare them
+from backends import _f, joints_moved  # 3D joints matched per frame; a figure or -
 from common import machine, save
 from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.detection.models import demo_videos
@@ -315,10 +315,6 @@ def markdown(r: dict) -> list[str]:
             md.append(f"| {name.replace('_', ' ')} | {_f(x['first_output_s'], 2)} | "
                       f"{_f(x['kept_after_first'], 3)} |")  # fmt: skip
     return md
-
-
-def _f(x, nd: int) -> str:
-    return "-" if x is None else f"{x:.{nd}f}"
 
 
 if __name__ == "__main__":

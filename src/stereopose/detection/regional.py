@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from stereopose.detection.base import PoseDetector, Poses, letterbox_for
+from stereopose.detection.base import Letterbox, PoseDetector, Poses, letterbox_for
 from stereopose.detection.motion import MotionDetector
 from stereopose.detection.regions import (
     Region,
@@ -188,10 +188,10 @@ class RegionDetector:
             self.cameras[name] = CameraRegions()
 
     def _plan(
-        self, name: str, image: np.ndarray, t: float, hints: np.ndarray | None
+        self, name: str, image: np.ndarray, t: float, hints: np.ndarray | None, whole: Letterbox
     ) -> tuple[list[Region], bool, bool]:
         """A camera's regions at this step, whether it is a scan, and whether it is detected
-        whole instead."""
+        whole instead (whole: its frame letterboxed at the detector's imgsz)."""
         s = self.settings
         state = self._state[name]
         h, w = image.shape[:2]
@@ -203,7 +203,6 @@ class RegionDetector:
             gap = s.full_scan_s * state.first_gap
             state.first_gap = 1.0
             state.next_scan = max(state.next_scan + gap, t + 0.5 * gap)
-        whole = letterbox_for((h, w), self.whole_imgsz, 32, auto=True)
         whole_scale = min(whole.gain)
         # the largest region seen at least `detail` times as finely as in the whole frame
         largest = s.imgsz / (whole_scale * s.detail)
@@ -266,10 +265,10 @@ class RegionDetector:
         wholes: list[str] = []
         self._register(list(images), t)
         for name, image in images.items():
-            regions, scan, whole = self._plan(name, image, t, (hints or {}).get(name))
-            stats = self.cameras[name]
             h, w = image.shape[:2]
             lb = letterbox_for((h, w), self.whole_imgsz, 32, auto=True)
+            regions, scan, whole = self._plan(name, image, t, (hints or {}).get(name), lb)
+            stats = self.cameras[name]
             stats.steps += 1
             stats.frame_px += w * h
             stats.whole_input_px += lb.input_shape[0] * lb.input_shape[1]

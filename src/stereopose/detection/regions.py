@@ -33,10 +33,6 @@ class Region:
     why: frozenset[str]
 
     @property
-    def box(self) -> np.ndarray:
-        return np.array([self.x, self.y, self.x + self.side_w, self.y + self.side_h], float)
-
-    @property
     def area(self) -> int:
         return self.side_w * self.side_h
 

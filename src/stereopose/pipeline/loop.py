@@ -37,7 +37,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.types import Event, People2D, People3D, Rig
+from stereopose.types import Event, People2D, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -285,15 +285,7 @@ def run_incidents(site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor 
     from stereopose.pipeline.serve_incidents import IncidentStep
 
     db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
-    last_t = [0.0]
-
-    class _Rules:  # the behaviour rules, the step's time kept (the book's clock for acts)
-        def step(self, t: float, frame: int, people: People3D):
-            last_t[0] = float(t)
-            if behaviour is None:
-                return [], None
-            return behaviour.step(t, frame, people)
-
-    return IncidentStep(IncidentBook(AlarmSettings.from_site(site)), fences, _Rules(), fences,
+    # a run takes no operator's act and is not asked for its alarm figures: no clock to read
+    return IncidentStep(IncidentBook(AlarmSettings.from_site(site)), fences, behaviour, fences,
                         store=db.put_incidents if db is not None else None,
-                        clock=lambda: last_t[0])  # fmt: skip
+                        clock=lambda: 0.0)  # fmt: skip
