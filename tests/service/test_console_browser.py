@@ -308,9 +308,11 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
     seen_row = time.monotonic()
     alarm_id, zone, kind, incident = _alarm_rows(served, start)[0]
     assert incident is not None
-    item = f'{_line(incident)}[data-last-event="{alarm_id}"]'
+    # its line shows it, or a later occurrence of the same incident that came meanwhile
+    shown_js = ("([sel, id]) => +(document.querySelector(sel)?.dataset.lastEvent ?? 0) >= id")
     # a deadline, not a figure: the latency is printed (and measured under benchmarks/)
-    page.wait_for_selector(item, state="attached", timeout=30_000)
+    wait_until(lambda: page.evaluate(shown_js, [_line(incident), alarm_id]),
+               f"event {alarm_id} on its incident's line", timeout_s=30, poll_s=0.02)  # fmt: skip
     latency_s = time.monotonic() - seen_row
     print(f"alarm {alarm_id} on incident {incident}'s line {latency_s:.3f} s after its row")
     line = _line(incident)
@@ -379,15 +381,23 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     w = watched("olga")
     page = w.page
     busbar = '#feed li.incident[data-type="enter"], #feed li.incident[data-type="approach"]'
-    # not acknowledged (an acknowledged one closes when it clears: shelving is then over)
+    # open, those not acknowledged first: an acknowledged one closes when it clears (its
+    # shelving is then over), and an earlier test acknowledged the first ones; while a person
+    # comes back within the re-arm time, theirs stays acknowledged
     counted = ("(sel) => [...document.querySelectorAll(sel)].filter(li => +li.dataset.count >= 2"
-               " && ['active', 'cleared'].includes(li.dataset.state))"
+               " && ['active', 'cleared', 'acknowledged'].includes(li.dataset.state))"
+               ".sort((a, b) => (a.dataset.state === 'acknowledged')"
+               " - (b.dataset.state === 'acknowledged'))"
                ".map(li => +li.dataset.incidentId)")  # fmt: skip
     # (the demo's man returns to the busbar every minute or two; on a loaded machine the
     # served demo runs slower than real time)
-    wait_until(lambda: page.evaluate(counted, busbar),
-               "an unacknowledged incident with two occurrences", timeout_s=360,
-               poll_s=0.25)  # fmt: skip
+    try:
+        wait_until(lambda: page.evaluate(counted, busbar),
+                   "an open incident with two occurrences", timeout_s=360,
+                   poll_s=0.25)  # fmt: skip
+    except BaseException:
+        print("incidents:", served.rows("SELECT id, record FROM incidents ORDER BY id"))
+        raise
     incident = page.evaluate(counted, busbar)[0]
     line = _line(incident)
     count = int(page.get_attribute(line, "data-count"))
@@ -399,7 +409,7 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
         assert page.locator(f'#feed li[data-event-id="{e}"]').count() == 0
     # open incidents stay on top, those not acknowledged first, above the info history
     ranks = page.evaluate("[...document.querySelectorAll('#feed li')].map(li => +li.dataset.rank)")
-    assert ranks == sorted(ranks) and ranks[0] == 0, ranks
+    assert ranks == sorted(ranks) and ranks[0] in (0, 1), ranks
     # its line names its worst occurrence (an approach that became an entry: "entered")
     worst = _stored(served, incident).get("worst_type")
     assert worst and page.get_attribute(line, "data-worst") == worst
