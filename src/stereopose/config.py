@@ -392,8 +392,22 @@ class ControlRoomConfig:
     shared_group: str = ""
     # the store keeps events (and closed incidents, answered acknowledgements) this long
     retention_days: float = number(365.0, gt=0.0, le=36500.0)
+    # the sites that may report here (empty: any name, up to max_sites); a message from
+    # another is refused, counted, and raises one control-room incident
+    sites: tuple[str, ...] = ()
+    max_sites: int = number(1000, integer=True, ge=1, le=100_000)
+    # a site's outbox message (an event, an incident's change) larger than this is refused
+    max_event_bytes: int = number(65_536, integer=True, ge=1024, le=16 << 20)
+    # a heartbeat larger than this is refused (its summary: a few numbers and a status)
+    max_heartbeat_bytes: int = number(8192, integer=True, ge=512, le=1 << 20)
+    # an event id more than this beyond the last id its site announced is not taken as the
+    # site's new mark: refused, counted, and a control-room incident
+    ids_ahead: int = number(100_000, integer=True, ge=100, le=2**40)
 
     def _check(self) -> None:
+        for s in self.sites:
+            if not (0 < len(s) <= 200 and s.isprintable()):
+                raise ConfigError(f"control_room.sites: {s[:40]!r}: 1 to 200 printable characters")
         if not (0 < len(self.name) <= 64 and self.name.isprintable()):
             raise ConfigError("control_room.name: 1 to 64 printable characters")
         g = self.shared_group

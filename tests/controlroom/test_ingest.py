@@ -1,6 +1,8 @@
 """The control room's ingest in-process against a real mosquitto: a site's last events lost
 with nothing after them are found by its heartbeat; a quiet site stays live by it; the site's
-clock offset is kept; malformed messages are counted."""
+clock offset is kept; malformed messages are counted; hostile ones (a corpus below) never stop
+it nor cost a real site an event; names, sizes and forged ids are bounded; a thread that dies
+is started again."""
 
 from __future__ import annotations
 
@@ -167,6 +169,103 @@ def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(bro
     finally:
         c.loop_stop()
         c.disconnect()
+        ingest.close()
+        box.close()
+        sink.close()
+        store.close()
+
+
+def _room_kinds(store: ControlStore) -> dict[tuple[str, str], str]:
+    return {(i["site"], i["kind"]): i["state"] for i in store.incidents()
+            if i["source"] == "control_room"}  # fmt: skip
+
+
+def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(broker, tmp_path):
+    sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
+    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
+                    heartbeat_s=0.3)  # fmt: skip
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2, max_sites=3,
+                    max_event_bytes=4096, max_heartbeat_bytes=1024, ids_ahead=1000)  # fmt: skip
+    c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    c.connect("127.0.0.1", broker.port)
+    c.loop_start()
+
+    def send(topic: str, payload: bytes) -> None:
+        c.publish(topic, payload, qos=1).wait_for_publish(5)
+
+    try:
+        wait_until(lambda: ingest.subscribed and c.is_connected(), "both connected")
+        _write(sink, 1, 3)
+        wait_until(lambda: store.marks().get("north") == 3, "the real site's first events")
+        wait_until(lambda: "north" in ingest._announced, "the real site's heartbeat")
+        # a forged id far beyond what the site announced: refused, an incident, no new mark
+        send("stereopose/north/log/events", b'{"id": 9223372036854775807, "prev": 3}')
+        wait_until(lambda: ("north", "site_ids_ahead") in _room_kinds(store),
+                   "the forged id's incident")  # fmt: skip
+        assert ingest.figures()["ahead"] >= 1 and store.marks()["north"] == 3
+        # too large: an event, a heartbeat (its summary); a string past its bound
+        send("stereopose/north/log/events", b'{"id": 4, "prev": 3, "x": "%s"}' % (b"a" * 5000))
+        send("stereopose/north/log/heartbeat",
+             b'{"last_id": 3, "time": 1.0, "status": "%s"}' % (b"a" * 5_000_000))  # fmt: skip
+        send("stereopose/north/log/events",
+             b'{"id": 4, "prev": 3, "k": ["%s"]}' % (b"b" * 4000))  # fmt: skip
+        wait_until(lambda: ingest.figures()["oversize"] >= 2, "the large messages refused")
+        # a heartbeat's summary holds its fields, checked, and nothing else
+        send("stereopose/north/log/heartbeat",
+             b'{"last_id": 3, "time": 1.0, "status": "%s", "people": -1, "cameras": 4, '
+             b'"junk": [1, 2, 3]}' % (b"s" * 200))  # fmt: skip
+        wait_until(lambda: (store.sites(["north"])[0].health or {}).get("cameras") == 4,
+                   "the checked summary stored")  # fmt: skip
+        # names: at most 3 sites (north and two); the rest refused, one incident
+        for k in range(20):
+            send(f"stereopose/invented{k}/available", b"online")
+        wait_until(lambda: ("control-room", "sites_refused") in _room_kinds(store),
+                   "the refused names' incident")  # fmt: skip
+        assert len(store.sites()) <= 3 and ingest.figures()["refused_sites"] >= 18
+        # the real site goes on: every event stored once, none lost to the attacks
+        _write(sink, 4, 3)
+        wait_until(lambda: store.marks().get("north") == 6, "the real site's later events",
+                   timeout_s=30)  # fmt: skip
+        assert [e["id"] for e in store.events("north", 0, 100)] == list(range(1, 7))
+        health = store.sites(["north"])[0].health or {}
+        assert "status" not in health or len(health["status"]) <= 32
+        assert "junk" not in health and "people" not in health
+        assert ingest.figures()["running"]
+    finally:
+        c.loop_stop()
+        c.disconnect()
+        ingest.close()
+        box.close()
+        sink.close()
+        store.close()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(broker, tmp_path):
+    sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
+    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
+                    heartbeat_s=0.3)  # fmt: skip
+    store = ControlStore(tmp_path / "control.sqlite")
+    ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
+    step = ingest._step
+
+    def dies() -> None:  # what no `except Exception` catches
+        ingest._step = step
+        raise SystemExit("gone")
+
+    try:
+        wait_until(lambda: ingest.subscribed, "subscribed")
+        ingest._step = dies
+        wait_until(lambda: not ingest._thread.is_alive(), "the thread's end")
+        assert ingest.health()[0] is False and not ingest.figures()["running"]
+        _write(sink, 1, 3)
+        ingest.ensure_running()
+        assert ingest.figures()["restarts"] == 1
+        wait_until(lambda: store.marks().get("north") == 3, "the events after the restart",
+                   timeout_s=30)  # fmt: skip
+        assert ingest.health() == (True, "")
+    finally:
         ingest.close()
         box.close()
         sink.close()

@@ -1,17 +1,21 @@
 """The control room's HTTP API, with the site console's login, roles and hardening.
 
 - `GET /api/health` (open): `{"status", "broker", "sites": {state: n}, "ingest": {...}}`;
+  degraded while the broker or the store is out, or the ingest is down or stores nothing of
+  the events that come (`ingest.running`, `ingest.trouble`);
 - `GET /metrics` (open): `stereopose_controlroom_*` in Prometheus' text format;
 - `POST /api/login`, `POST /api/logout`, `GET /api/me`: the site console's (service.api.auth),
   over the control room's own `users.json` (`stereopose users add ... --config CONTROL.toml`);
 - `GET /api/sites` (viewer): `{"sites": [{"site", "state", "last_seen", "cameras",
   "cameras_up", "people", "open_incidents", "events", "mark"}]}`;
 - `GET /api/events?site=S&after_id=N&limit=L` (viewer): `{"events": [{"site", "id", ...}]}`
-  in (site, id) order, a page after `after_id`;
+  in (site, id) order, a page after `after_id`, `"more": true` when the page stopped at
+  MAX_PAGE_BYTES of rows before `limit` (ask again after its last id);
 - `GET /api/incidents?site=S&state=open|active|acknowledged|cleared|closed&limit=L`
   (viewer): `{"incidents": [...]}`: the sites' incidents (each its site's record with `site`,
   `seq`, `source: "site"` and `ack_pending`: acknowledgements asked and not yet answered),
-  then the control room's own (`source: "control_room"`: a site offline, a site's clock off);
+  then the control room's own (`source: "control_room"`: a site offline, a site's clock off,
+  a site's ids beyond what it announced, unknown sites refused); `more` as for events;
 - `POST /api/sites/{site}/incidents/{id}/ack` (operator): asks the site to acknowledge its
   incident as this user (`"USER via NAME"` at the site); 202 `{"command", "incident"}` (the
   site's answer comes back with the incident's record), 200 when it is acknowledged already,
@@ -31,6 +35,7 @@ the site service's are (service.limits, service.hosts, service.connections).
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterable
 from typing import Annotated, Literal
@@ -54,6 +59,7 @@ from stereopose.service.metrics import CONTENT_TYPE, exposition
 __all__ = ["create_control_app"]
 
 STATES = ("live", "offline", "degraded", "unknown")
+MAX_PAGE_BYTES = 4 << 20  # an events or incidents page stops at about this many bytes
 _I64 = 2**63 - 1
 
 router = APIRouter()
@@ -88,7 +94,7 @@ def health(request: Request, response: Response) -> dict:
         store_ok = True
     except StoreError:
         by_state, store_ok = {}, False
-    ok = f["connected"] and store_ok
+    ok = f["connected"] and store_ok and f["running"]
     response.headers["Cache-Control"] = "no-store"
     return {"status": "ok" if ok else "degraded", "broker": f["connected"], "store": store_ok,
             "sites": by_state, "ingest": f}  # fmt: skip
@@ -124,13 +130,12 @@ def events(request: Request, session: Viewer,
            after_id: Annotated[int, Query(ge=0, le=_I64)] = 0,
            limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> dict:  # fmt: skip
     try:
-        return {
-            "events": _room(request).store.events(
-                site, after_id, limit, sites=_allowed(request, session)
-            )
-        }
+        rows = _room(request).store.events(site, after_id, limit,
+                                           sites=_allowed(request, session))  # fmt: skip
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
+    kept = _within(rows)
+    return {"events": kept, "more": len(kept) < len(rows)}
 
 
 @router.get("/api/incidents")
@@ -143,7 +148,20 @@ def incidents(request: Request, session: Viewer,
         found = _room(request).store.incidents(site, state, _allowed(request, session), limit)
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
-    return JSONResponse({"incidents": found}, headers={"Cache-Control": "no-store"})
+    kept = _within(found)
+    return JSONResponse({"incidents": kept, "more": len(kept) < len(found)},
+                        headers={"Cache-Control": "no-store"})  # fmt: skip
+
+
+def _within(rows: list[dict], max_bytes: int = MAX_PAGE_BYTES) -> list[dict]:
+    """The first rows whose JSON together stays within max_bytes (at least one): a page's
+    size is bounded whatever the rows hold; `more` tells the client to ask on."""
+    total = 0
+    for i, r in enumerate(rows):
+        total += len(json.dumps(r, default=str)) + 1
+        if total > max_bytes and i > 0:
+            return rows[:i]
+    return rows
 
 
 @router.post("/api/sites/{site}/incidents/{incident_id}/ack", status_code=202,

@@ -18,6 +18,20 @@ the site's mark is stored and raises the mark; one beyond it is a gap: a replay 
 is asked for, at most once per `replay_every_s`), stores each site's batch and its new mark in
 one transaction, and then publishes the mark on the site's `log/confirmed` (retained). A site
 whose last message is older than `offline_after_s` is shown offline.
+
+What a peer sends is bounded before it is queued: the site names (`sites`, a list of those
+that may report, or at most `max_sites` names: a message from another is refused, counted,
+and raises one control-room incident), a message's bytes per topic (`max_event_bytes` for
+the outbox's events and incidents, `max_heartbeat_bytes`, small fixed ones for the rest), and
+then its content: every number within what a store holds, strings, keys and lists of bounded
+length, nesting at most MAX_DEPTH deep. An event id more than `ids_ahead` beyond the last id
+the site's heartbeat announced is not taken as the site's mark (a broken or compromised site
+would blind itself: every later real event would look like a resend): it is refused, counted
+and raises a control-room incident; a later heartbeat that announces it asks for it again.
+Every bad message is counted and logged at most once a minute a kind; none ends a thread.
+A thread that dies anyway is restarted by `ensure_running` (the service's loop calls it), and
+`health` says degraded while the ingest is down, or has stored nothing for STUCK_S while
+events kept coming.
 """
 
 from __future__ import annotations
@@ -42,7 +56,6 @@ logger = logging.getLogger(__name__)
 
 QUEUE = 100_000  # messages waiting for the ingest's thread at most
 CLOCK_WARN_S = 5.0  # a site's clock this far from ours is logged
-SUMMARY = ("status", "cameras", "cameras_up", "people")  # a heartbeat's summary of its site
 HOLD_S = 3.0  # a worker holds a message this long for the one before it (another worker's)
 MAX_HELD = 10_000  # messages held per site and stream at most
 WATCH_S = 15.0  # a site's people are followed this long after its page last looked
@@ -52,6 +65,16 @@ PRUNE_EVERY_S = 3600.0  # how often the store's old rows are pruned
 _MAX_ID = 2**63 - 1
 MAX_DEPTH = 8  # an outbox message nests no deeper (an event, an incident's record)
 WARN_EVERY_S = 60.0  # a kind of bad message logged at most this often
+MAX_TEXT = 4096  # characters of one string in an outbox message at most
+MAX_ITEMS = 256  # keys of one object, items of one list, at most
+# bytes of a message on these topics at most (the outbox's and heartbeat's come from settings)
+SMALL_TOPICS = {"available": 64, "commands/done": 1024}
+SUMMARY_COUNTS = ("cameras", "cameras_up", "people")  # a heartbeat's summary: these, status
+MAX_STATUS = 32  # characters of a heartbeat's status at most
+MAX_COUNT = 1_000_000  # a heartbeat's cameras, cameras_up, people at most
+STUCK_S = 120.0  # events coming this long with none stored: the ingest is degraded
+QUIET_S = 600.0  # a control-room incident about bad messages clears after this long without
+STALL_S = 30.0  # the ingest's thread silent this long: down
 
 
 class Ingest:
@@ -62,8 +85,23 @@ class Ingest:
                  offline_after_s: float = 90.0, batch_s: float = 0.1, replay_every_s: float = 2.0,
                  queue_size: int = QUEUE, clock_tolerance_s: float = 5.0,
                  name: str = "control-room", command_resend_s: float = 5.0,
-                 shared_group: str = "", retention_days: float | None = None) -> None:  # fmt: skip
+                 shared_group: str = "", retention_days: float | None = None,
+                 sites: tuple[str, ...] | list[str] = (), max_sites: int = 1000,
+                 max_event_bytes: int = 65_536, max_heartbeat_bytes: int = 8192,
+                 ids_ahead: int = 100_000) -> None:  # fmt: skip
         self.settings, self.store = settings, store
+        self.allowed_sites = frozenset(sites)  # empty: any name, up to max_sites
+        self.max_sites, self.ids_ahead = int(max_sites), int(ids_ahead)
+        self.max_bytes = {**SMALL_TOPICS, "log/events": int(max_event_bytes),
+                          "log/incidents": int(max_event_bytes),
+                          "log/heartbeat": int(max_heartbeat_bytes),
+                          "plan": MAX_PLAN_BYTES, "people": MAX_PLAN_BYTES}  # fmt: skip
+        # the site names admitted (those in the store, then each new one up to max_sites)
+        self._sites: set[str] = {r.site for r in store.sites()}
+        self._refused: list[str] = []  # site names refused since the ingest last looked
+        # (site, kind) -> when a bad message of that kind last came (the incident's clearing)
+        self._bad_at: dict[tuple[str, str], float] = {}
+        self._ahead: dict[tuple[str, bool], int] = {}  # the highest id refused as ahead
         self.retention_days = retention_days  # None: kept for ever
         self._pruned_at = -PRUNE_EVERY_S  # the first step prunes
         self.clock_tolerance_s, self.name = float(clock_tolerance_s), name
@@ -103,7 +141,10 @@ class Ingest:
         self.counts = {"messages": 0, "stored": 0, "duplicates": 0, "gaps": 0, "replays": 0,
                        "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0,
                        "incident_changes": 0, "commands_sent": 0, "commands_done": 0,
-                       "room_incidents": 0, "ingest_errors": 0}  # fmt: skip
+                       "room_incidents": 0, "ingest_errors": 0, "oversize": 0,
+                       "refused_sites": 0, "ahead": 0, "restarts": 0}  # fmt: skip
+        self._progress = time.monotonic()  # events stored, or none waiting to be
+        self._stepped = time.monotonic()  # the ingest's thread last went round
         self._warned_at: dict[str, float] = {}  # kind of bad message -> when last logged
         self._rate: deque[tuple[float, int]] = deque(maxlen=64)  # (time, messages) samples
         self.connected = False
@@ -181,6 +222,17 @@ class Ingest:
         if not msg.topic.startswith(self.prefix + "/") or len(rest) < 2:
             return
         site, what = topic_name(rest[0]), "/".join(rest[1:])
+        limit = self.max_bytes.get(what)
+        if limit is None:  # not a topic of the protocol (nor an answer to one)
+            return
+        if len(msg.payload) > limit:
+            with self._lock:
+                self.counts["oversize"] += 1
+            self._warn("oversize", f"control room: a {len(msg.payload)}-byte message on "
+                       f"{str(msg.topic)[:200]!r} refused (at most {limit})")  # fmt: skip
+            return
+        if not self._admit(site):
+            return
         if what in ("plan", "people"):  # the latest only, kept at once (bounded: one a site)
             self._latest(site, what, msg.payload)
             return
@@ -190,10 +242,66 @@ class Ingest:
                 return
             self._queue.append((site, what, msg.payload, time.time()))
 
+    def _admit(self, site: str) -> bool:
+        """Whether messages of `site` are taken: a name of the list, or (no list) one already
+        known or a new one while fewer than max_sites are."""
+        with self._lock:
+            if site in self._sites:
+                return True
+            ok = (site in self.allowed_sites if self.allowed_sites
+                  else len(self._sites) < self.max_sites)  # fmt: skip
+            ok = ok and 0 < len(site) <= 200 and site.isprintable()
+            if ok:
+                self._sites.add(site)
+                return True
+            self.counts["refused_sites"] += 1
+            if len(self._refused) < 10:
+                self._refused.append(site)
+        why = ("not in [control_room] sites" if self.allowed_sites
+               else f"already {self.max_sites} sites ([control_room] max_sites)")  # fmt: skip
+        self._warn("site", f"control room: a message of site {site[:80]!r} refused: {why}")
+        return False
+
+    def _room_incident(self, site: str, kind: str, detail: str, priority: int = 2) -> None:
+        """A control-room incident of `kind` about `site` (one while active), cleared once no
+        such thing came for QUIET_S."""
+        self._bad_at[(site, kind)] = time.monotonic()
+        try:
+            if self.store.raise_room_incident(site, kind, priority, detail[:500],
+                                              time.time()) is not None:  # fmt: skip
+                self.counts["room_incidents"] += 1
+        except StoreError as e:
+            self.counts["store_errors"] += 1
+            logger.error("control room: %s", e)
+
+    def _clear_quiet(self) -> None:
+        now = time.monotonic()
+        for (site, kind), at in list(self._bad_at.items()):
+            if now - at > QUIET_S:
+                try:
+                    self.store.clear_room_incidents(site, kind, time.time())
+                except StoreError as e:
+                    self.counts["store_errors"] += 1
+                    logger.error("control room: %s", e)
+                    continue
+                del self._bad_at[(site, kind)]
+
+    def _note_refused(self) -> None:
+        with self._lock:
+            names, self._refused = self._refused, []
+        if names:
+            shown = ", ".join(repr(n[:40]) for n in names)
+            why = ("not in [control_room] sites" if self.allowed_sites
+                   else f"beyond [control_room] max_sites = {self.max_sites}")  # fmt: skip
+            self._room_incident(
+                self.name, "sites_refused", f"messages of unknown sites refused ({why}): {shown}"
+            )
+
     # --- the ingest's thread -------------------------------------------------------------
 
     def _run(self) -> None:
         while not self._stop.wait(self.batch_s):
+            self._stepped = time.monotonic()
             try:
                 self._step()
             except Exception:  # a bug must not end the ingest: logged, the next batch
@@ -212,6 +320,9 @@ class Ingest:
             self._queue.clear()
         per_site: dict[str, list[dict]] = {}
         changes: dict[str, list[dict]] = {}
+        self._note_refused()
+        self._clear_quiet()
+        outbox = 0  # events and incident changes in this batch
         for site, what, payload, at in batch:
             self.counts["messages"] += 1
             self._seen[site] = max(self._seen.get(site, 0.0), at)
@@ -229,6 +340,7 @@ class Ingest:
             incidents = what == "log/incidents"
             if what != "log/events" and not incidents:
                 continue
+            outbox += 1
             msg = _numbered(payload, "seq" if incidents else "id")
             if msg is None or msg.get("site", site) != site or (
                     incidents and not _incident_change(msg)):  # fmt: skip
@@ -248,6 +360,8 @@ class Ingest:
                 self.counts["duplicates"] += sum(len(v) for v in per_site.values()) - new
                 self.counts["incident_changes"] += written
                 done = batch_sites
+                if new or written:
+                    self._progress = time.monotonic()
             except StoreError as e:  # then site by site: one site's fault stops only it
                 logger.warning("control room: %s; storing site by site", e)
                 done = self._put_each(per_site, changes, now)
@@ -255,6 +369,8 @@ class Ingest:
                 if self._available.get(site) != "offline":
                     self._set_state(site, "live")
                 self._confirm(site)
+        if not outbox:
+            self._progress = time.monotonic()  # nothing waited to be stored
         self._flush_summaries()
         self._send_commands()
         self._leave_unwatched()
@@ -278,6 +394,8 @@ class Ingest:
         if number <= mark:  # stored already (and perhaps pruned since): a resend
             self.counts["duplicates"] += 1
             return
+        if self._too_far(site, incidents, number, mark):
+            return
         if msg["prev"] > mark:
             now = time.monotonic()
             since = now if held_since is None else held_since
@@ -292,6 +410,26 @@ class Ingest:
             return
         (changes if incidents else per_site).setdefault(site, []).append(msg)
         marks[site] = number
+
+    def _too_far(self, site: str, incidents: bool, number: int, mark: int) -> bool:
+        """Whether `number` is further beyond what the site announced (or, before its first
+        heartbeat, beyond the mark) than `ids_ahead`: then it is not taken (counted; an
+        incident when the site had announced less; a heartbeat announcing it asks for it)."""
+        announced = (self._announced_i if incidents else self._announced).get(site)
+        if number - max(mark, announced or 0) <= self.ids_ahead:
+            return False
+        self.counts["ahead"] += 1
+        if announced is None:  # its first heartbeat will say (and a replay bring it)
+            return True
+        key = (site, incidents)
+        if number > self._ahead.get(key, 0):
+            self._ahead[key] = number
+        what = "incident change" if incidents else "event"
+        self._warn("ahead", f"control room: site {site}'s {what} {number} refused: more than "
+                   f"{self.ids_ahead} beyond the last it announced ({announced})")  # fmt: skip
+        self._room_incident(site, "site_ids_ahead", f"an {what} numbered {number} refused: "
+                            f"the site announced {announced} as its last")  # fmt: skip
+        return True
 
     def _release_held(self, per_site: dict, changes: dict) -> None:
         """The held messages again, in order, after the marks are read from the shared
@@ -358,8 +496,9 @@ class Ingest:
         and nothing later shows it) asks for a replay; its clock's offset is kept."""
         try:
             beat = json.loads(payload)
-            last, sent = int(beat["last_id"]), float(beat["time"])
-            if not 0 <= last <= _MAX_ID or not math.isfinite(sent):
+            last, sent = beat["last_id"], float(beat["time"])
+            if (isinstance(last, bool) or not isinstance(last, int) or not 0 <= last <= _MAX_ID
+                    or not math.isfinite(sent)):  # fmt: skip
                 raise ValueError("out of range")
         except (ValueError, TypeError, KeyError, UnicodeDecodeError, OverflowError,
                 RecursionError):  # fmt: skip
@@ -371,7 +510,7 @@ class Ingest:
             logger.warning("control room: site %s's clock is %+.1f s from this machine's",
                            site, offset)  # fmt: skip
         self._clock(site, offset)
-        summary = {k: beat[k] for k in SUMMARY if k in beat}
+        summary = _summary(beat)
         if summary:
             summary["clock_offset_s"] = round(offset, 1)  # in the store: every worker's
         if summary and self._summaries.get(site) != summary:
@@ -386,12 +525,18 @@ class Ingest:
             self._ask_replay(site, mark)
         self._announced[site] = last
         seq = beat.get("last_incident_seq")
-        if isinstance(seq, int) and not isinstance(seq, bool):
+        if isinstance(seq, int) and not isinstance(seq, bool) and 0 <= seq <= _MAX_ID:
             imark = self.imarks.get(site, 0)
             if imark < self._announced_i.get(site, 0):
                 self.counts["behind"] += 1
                 self._ask_replay(site, imark, incidents=True)
             self._announced_i[site] = seq
+        for incidents, now_last in ((False, last), (True, self._announced_i.get(site, 0))):
+            held = self._ahead.get((site, incidents))
+            if held is not None and now_last >= held:  # it was real: the replay brings it
+                del self._ahead[(site, incidents)]
+                marks = self.imarks if incidents else self.marks
+                self._ask_replay(site, marks.get(site, 0), incidents=incidents)
 
     def _clock(self, site: str, offset: float) -> None:
         """A control-room incident while the site's clock is off by more than the bound."""
@@ -573,10 +718,41 @@ class Ingest:
 
     # --- figures, close ------------------------------------------------------------------
 
+    def ensure_running(self) -> None:
+        """The ingest's thread and paho's started again where one died (counted, logged);
+        the service's loop calls this every half second."""
+        if self._stop.is_set():
+            return
+        if not self._thread.is_alive():
+            self.counts["restarts"] += 1
+            logger.error("control room: the ingest's thread ended; started again")
+            self._thread = threading.Thread(target=self._run, name="control-ingest",
+                                            daemon=True)  # fmt: skip
+            self._thread.start()
+        loop = getattr(self.client, "_thread", None)
+        if loop is not None and not loop.is_alive():
+            self.counts["restarts"] += 1
+            logger.error("control room: the MQTT client's thread ended; started again")
+            self.client.loop_stop()
+            self.client.loop_start()
+
+    def health(self) -> tuple[bool, str]:
+        """(ok, why not): down while a thread is, stuck while events come and none is stored."""
+        now = time.monotonic()
+        loop = getattr(self.client, "_thread", None)
+        if not self._thread.is_alive() or now - self._stepped > STALL_S:
+            return False, "the ingest is not running"
+        if loop is not None and not loop.is_alive():
+            return False, "the MQTT client is not running"
+        if now - self._progress > STUCK_S:
+            return False, f"events came and none was stored for {now - self._progress:.0f} s"
+        return True, ""
+
     def figures(self) -> dict:
         with self._lock:
             queued = len(self._queue)
         f = dict(self.counts, queued=queued, connected=self.connected, subscribed=self.subscribed)
+        f["running"], f["trouble"] = self.health()
         if len(self._rate) >= 2:
             (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
             f["messages_per_s"] = round((n1 - n0) / (t1 - t0), 2) if t1 > t0 else 0.0
@@ -619,21 +795,40 @@ def _numbered(payload: bytes, key: str) -> dict | None:
 
 
 def _sane(value: Any, depth: int = 0) -> bool:
-    """Whether every number in `value` fits a store (int64, finite) and it nests at most
-    MAX_DEPTH deep."""
+    """Whether every number in `value` fits a store (int64, finite), every string and key is
+    at most MAX_TEXT characters, every object and list at most MAX_ITEMS long, and it nests
+    at most MAX_DEPTH deep."""
     if depth > MAX_DEPTH:
         return False
-    if isinstance(value, bool) or value is None or isinstance(value, str):
+    if isinstance(value, bool) or value is None:
         return True
+    if isinstance(value, str):
+        return len(value) <= MAX_TEXT
     if isinstance(value, int):
         return -(2**63) <= value <= _MAX_ID
     if isinstance(value, float):
         return math.isfinite(value)
     if isinstance(value, dict):
-        return all(_sane(v, depth + 1) for v in value.values())
+        return len(value) <= MAX_ITEMS and all(
+            len(k) <= MAX_TEXT and _sane(v, depth + 1) for k, v in value.items()
+        )
     if isinstance(value, list):
-        return all(_sane(v, depth + 1) for v in value)
+        return len(value) <= MAX_ITEMS and all(_sane(v, depth + 1) for v in value)
     return False
+
+
+def _summary(beat: dict) -> dict:
+    """A heartbeat's summary of its site, each field checked: a short status, counts in
+    range; anything else left out."""
+    out: dict[str, Any] = {}
+    status = beat.get("status")
+    if isinstance(status, str) and 0 < len(status) <= MAX_STATUS and status.isprintable():
+        out["status"] = status
+    for k in SUMMARY_COUNTS:
+        v = beat.get(k)
+        if isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_COUNT:
+            out[k] = v
+    return out
 
 
 def _incident_change(msg: dict) -> bool:

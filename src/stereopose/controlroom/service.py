@@ -5,7 +5,8 @@ The configuration reads like a site's: `output` (the control room's folder: its 
 `control.sqlite`, its `users.json`), `[serve] host port certificate key allowed_hosts`,
 `[mqtt] host port username password(_file) tls ca_file topic_prefix` (the central broker),
 and `[control_room]` (`database`, `offline_after_s`, `clock_tolerance_s`, `name`,
-`command_resend_s`). Everything is checked before anything
+`command_resend_s`, `sites`, `max_sites`, `max_event_bytes`, `max_heartbeat_bytes`,
+`ids_ahead`). Everything is checked before anything
 starts; a bad value is exit 2 naming the file and the key.
 """
 
@@ -118,7 +119,10 @@ class ControlRoom:
                              clock_tolerance_s=cr.clock_tolerance_s, name=cr.name,
                              command_resend_s=cr.command_resend_s,
                              shared_group=cr.shared_group,
-                             retention_days=cr.retention_days)  # fmt: skip
+                             retention_days=cr.retention_days, sites=cr.sites,
+                             max_sites=cr.max_sites, max_event_bytes=cr.max_event_bytes,
+                             max_heartbeat_bytes=cr.max_heartbeat_bytes,
+                             ids_ahead=cr.ids_ahead)  # fmt: skip
 
     def close(self) -> None:
         if self.ingest is not None:
@@ -143,7 +147,8 @@ def run_control_room(config_path: str | Path, stop: threading.Event | None = Non
                 if on_ready is not None:
                     on_ready(room.url, plan)
                 while not stop.wait(0.5):
-                    pass
+                    if room.ingest is not None:
+                        room.ingest.ensure_running()
             except KeyboardInterrupt:
                 pass
             finally:
