@@ -439,6 +439,12 @@ class Iec104Config:
     time_tags: Literal["utc", "local"] = "utc"
     # point changes held at most for the outstation's thread (then counted as dropped)
     queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
+    # IEC 104's t3: a link silent this long is tested (TESTFR), and t1: a test or an I-frame
+    # unanswered this long closes it (a master's t2, its acknowledgement delay, must stay
+    # below t1: the standard's 10 s). A socket that does not speak IEC 104 holds a place for
+    # their sum at most (the standard's t3 of 20 s let idle sockets hold the places for 35 s)
+    test_after_s: int = number(3, integer=True, ge=1, le=255)
+    answer_within_s: int = number(15, integer=True, ge=2, le=255)
 
     def _check(self) -> None:
         import ipaddress

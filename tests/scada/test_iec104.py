@@ -467,6 +467,23 @@ def test_hostile_clients_leave_a_well_behaved_master_served(station, masters) ->
     assert out.health().ok
 
 
+def test_idle_sockets_cannot_lock_the_master_out(station, masters) -> None:
+    out, table = station(max_connections=2)
+    port = out.settings.port
+    # two sockets that never say a word take both places (the standard's timers let them
+    # hold for 35 s, again and again)
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(2)]
+    wait_until(lambda: out.figures()["connections"] == 2, "both places taken")
+    master = masters(port)
+    # each is tested, does not answer, and is closed within t3 + t1: the master gets in
+    master.wait_interrogated(len(table.monitored), timeout_s=60)
+    for s in idle:
+        s.settimeout(10)
+        assert s.recv(64).startswith(b"\x68\x04\x43")  # TESTFR act, then nothing more
+        s.close()
+    assert master.conn.is_connected
+
+
 def test_a_client_outside_the_allowed_addresses_is_refused(station, masters) -> None:
     out, _ = station(allowed_clients=("10.9.9.0/24",))
     master = masters(out.settings.port)

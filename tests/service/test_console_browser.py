@@ -309,7 +309,7 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
     alarm_id, zone, kind, incident = _alarm_rows(served, start)[0]
     assert incident is not None
     # its line shows it, or a later occurrence of the same incident that came meanwhile
-    shown_js = ("([sel, id]) => +(document.querySelector(sel)?.dataset.lastEvent ?? 0) >= id")
+    shown_js = "([sel, id]) => +(document.querySelector(sel)?.dataset.lastEvent ?? 0) >= id"
     # a deadline, not a figure: the latency is printed (and measured under benchmarks/)
     wait_until(lambda: page.evaluate(shown_js, [_line(incident), alarm_id]),
                f"event {alarm_id} on its incident's line", timeout_s=30, poll_s=0.02)  # fmt: skip

@@ -25,17 +25,19 @@ answer for `service degraded` once a second and hands the changes to c104, whose
 to the masters.
 
 Clients: a connection from an address outside `allowed_clients` is refused at once (counted,
-logged once per address); at most `max_connections` are open together (c104 refuses the
-rest). Whatever a client sends, lib60870 parses it: a malformed frame closes that client's
-connection only. Clock synchronisation (C_CS_NA_1): confirmed positively, as the standard
-asks of a controlled station, and never applied: the system clock is the machine's (NTP),
-never set by a master. The master's offset from it is kept (`figures()["clock_offset_s"]`) and
-logged as a warning when over CLOCK_WARN_S, since the time tags would disagree with the
-master's clock by that much. Commands (`commands = true`): a single command ON to a zone's or
-a priority's acknowledge point acknowledges each of its unacknowledged incidents (as an
-operator would, by "iec104 master <originator address>"); OFF is refused (negative
-confirmation). Without `commands` no command point exists and a command is answered with an
-unknown address.
+logged once per address); at most `max_connections` are open together (c104 refuses the rest).
+A link silent for `test_after_s` (t3) is sent a TESTFR and closed when it is not answered
+within `answer_within_s` (t1): a socket that does not speak IEC 104 leaves its place within
+their sum (18 s by default, against the standard's 35 s). Whatever a client sends, lib60870
+parses it: a malformed frame closes that client's connection only. Clock synchronisation
+(C_CS_NA_1): confirmed positively, as the standard asks of a controlled station, and never
+applied: the system clock is the machine's (NTP), never set by a master. The master's offset
+from it is kept (`figures()["clock_offset_s"]`) and logged as a warning when over
+CLOCK_WARN_S, since the time tags would disagree with the master's clock by that much.
+Commands (`commands = true`): a single command ON to a zone's or a priority's acknowledge
+point acknowledges each of its unacknowledged incidents (as an operator would, by "iec104
+master <originator address>"); OFF is refused (negative confirmation). Without `commands` no
+command point exists and a command is answered with an unknown address.
 """
 
 from __future__ import annotations
@@ -85,7 +87,7 @@ class Iec104Error(StereoposeError):
 class Iec104Settings:
     """What the outstation needs (config.Iec104Config, checked): host, port, common_address,
     allowed_clients (IPv4 networks), max_connections, commands, time_tags ("utc" or
-    "local"), queue_size."""
+    "local"), queue_size, test_after_s (t3), answer_within_s (t1)."""
 
     host: str = "127.0.0.1"
     port: int = 2404
@@ -95,13 +97,16 @@ class Iec104Settings:
     commands: bool = False
     time_tags: str = "utc"
     queue_size: int = 10_000
+    test_after_s: int = 3
+    answer_within_s: int = 15
 
     @classmethod
     def from_config(cls, cfg: Any) -> Iec104Settings:
         """From [iec104] (config.Iec104Config, whose construction checked every value)."""
         nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
         return cls(cfg.host, cfg.port, cfg.common_address, nets, cfg.max_connections,
-                   cfg.commands, cfg.time_tags, cfg.queue_size)  # fmt: skip
+                   cfg.commands, cfg.time_tags, cfg.queue_size, cfg.test_after_s,
+                   cfg.answer_within_s)  # fmt: skip
 
     def allows(self, ip: str) -> bool:
         """Whether a client at `ip` ("a.b.c.d", or "a.b.c.d:port") may connect."""
@@ -378,6 +383,13 @@ class Outstation(ClosesOnce):
         s = self.settings
         server = c104.Server(ip=s.host, port=s.port, tick_rate_ms=TICK_MS,
                              max_connections=s.max_connections)  # fmt: skip
+        # t3 and t1: a socket that never answers a TESTFR is closed within their sum, so
+        # idle sockets hold the master's places for less long (t1 stays above the masters'
+        # acknowledgement delay t2; ours, t2, below t1)
+        params = server.protocol_parameters
+        params.keep_alive_interval = s.test_after_s
+        params.message_timeout = s.answer_within_s
+        params.confirm_interval = min(params.confirm_interval, s.answer_within_s - 1)
 
         def on_connect(server, ip):
             if s.allows(ip):
