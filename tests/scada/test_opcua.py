@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -142,10 +143,12 @@ class Site:
 
 
 @contextlib.contextmanager
-def running(folder: Path, store: UserStore | None = None, db=None, **kw) -> Iterator[Site]:
-    """A started server; db: the event log the step stores its incidents in, as serve's."""
+def running(folder: Path, store: UserStore | None = None, db=None, limiter=None,
+            **kw) -> Iterator[Site]:  # fmt: skip
+    """A started server; db: the event log the step stores its incidents in, as serve's;
+    limiter: the console's login limiter, shared."""
     store = store or user_store(folder)
-    server = OpcuaServer(settings(folder, **kw), ZONES, CAMERAS, store)
+    server = OpcuaServer(settings(folder, **kw), ZONES, CAMERAS, store, limiter=limiter)
     server.wall_start = WALL_START
     script = Script()
     site = Site(server, None, script, store, db)  # type: ignore[arg-type]
@@ -529,6 +532,72 @@ def test_anonymous_wrong_password_and_unsecured_connections_are_refused(tmp_path
         asyncio.run(body(site))
     assert "login refused for 'otto'" in caplog.text
     assert "not-his-password" not in caplog.text  # never a password in the log
+
+
+def test_password_guesses_are_limited_as_the_consoles_and_with_its_limiter(tmp_path, pair):
+    from stereopose.service.login_limit import MAX_FAILURES, LoginLimiter
+
+    limiter = LoginLimiter()
+
+    async def body(site: Site) -> None:
+        denied = ua.StatusCodes.BadUserAccessDenied
+
+        async def refused(user: str, password: str) -> None:
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                c = await connect(site.url, pair, user, password)
+                await c.disconnect()
+            assert err.value.code == denied
+
+        for k in range(MAX_FAILURES):  # each checked, and failing
+            await refused("otto", f"guess-{k}-wrong")
+        assert limiter.checked == MAX_FAILURES and site.server.counts()["logins_limited"] == 0
+        # past the address's failures: refused unchecked, even the right password
+        await refused("otto", PASSWORDS["otto"])
+        await refused("vera", PASSWORDS["vera"])
+        assert limiter.checked == MAX_FAILURES and limiter.refused == 2
+        assert site.server.counts()["logins_limited"] == 2
+
+    with running(tmp_path, limiter=limiter) as site:
+        asyncio.run(body(site))
+
+
+def test_idle_sockets_cannot_lock_logins_out(tmp_path, pair):
+    import socket
+
+    async def body(site: Site) -> None:
+        port = site.server.settings.port
+        idle = []
+        for _ in range(16):  # more than its places: the rest refused at once
+            with contextlib.suppress(OSError):
+                idle.append(socket.create_connection(("127.0.0.1", port), timeout=10))
+
+        async def places_freed() -> bool:
+            return site.server.counts()["idle_closed"] >= 2
+
+        try:
+            await until(places_freed, "the oldest idle sockets closed")
+            for _ in range(8):  # the idle sockets come back as fast as places free
+                with contextlib.suppress(OSError):
+                    idle.append(socket.create_connection(("127.0.0.1", port), timeout=10))
+            # a client still gets in (as a client does, it retries a connection refused)
+            deadline = time.monotonic() + 20
+            while True:
+                try:
+                    client = await connect(site.url, pair, "vera")
+                    break
+                except (OSError, TimeoutError, ua.UaError):
+                    if time.monotonic() > deadline:
+                        raise
+                    await asyncio.sleep(0.2)
+            idx, _ = await site_node(client)
+            assert await client.get_node(ua.NodeId("site/Running", idx)).read_value() is True
+            await client.disconnect()
+        finally:
+            for s in idle:
+                s.close()
+
+    with running(tmp_path) as site:
+        asyncio.run(body(site))
 
 
 @pytest.mark.slow  # the half-sent messages are closed by the 10 s activation bound

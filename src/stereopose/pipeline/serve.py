@@ -204,7 +204,8 @@ class _Service:
 
         server = OpcuaServer(settings, site_zones(p.site, p.rig),
                              [CameraNode(n) for n in p.rig.names], self.console.users,
-                             status=lambda: self.state.snapshot().status)  # fmt: skip
+                             status=lambda: self.state.snapshot().status,
+                             limiter=self.console.limiter)  # fmt: skip
         server.start()
         self.opcua = server
         self.incident_outputs.append(server.write_changes)

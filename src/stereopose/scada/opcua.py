@@ -23,6 +23,12 @@ operator or admin, checked again at each call (a user removed, demoted or given 
 since the login is refused). An Acknowledge (OPC UA's method of the condition, with the event's
 EventId) acknowledges the incident in the book as the session's user, as the console's ack
 does; an ack made elsewhere (the console, the API) reaches the condition as the book's change.
+Logins count against the console's limits on password guesses (per address, per account).
+
+Connections: `max_connections` sessions, and SPARE_SOCKETS more sockets for clients still in
+their handshake. A socket that has not activated a session within ACTIVATE_S is closed, and
+while fewer than two places are free the oldest such socket (past MIN_IDLE_S) is closed at
+once: idle or unauthenticated sockets cannot keep a client out.
 """
 
 from __future__ import annotations
@@ -65,6 +71,10 @@ START_TIMEOUT_S = 60.0  # the standard address space takes seconds to load on a 
 STOP_TIMEOUT_S = 10.0
 STATUS_EVERY_S = 2.0  # the health status polled this often
 MAX_MESSAGE = 4 * 1024 * 1024  # bytes of one request at most
+SPARE_SOCKETS = 4  # sockets beyond max_connections, for handshakes
+ACTIVATE_S = 5.0  # a socket with no activated session is closed after this long
+MIN_IDLE_S = 1.0  # and before, when places run out, once it is this old
+SWEEP_S = 0.25  # how often the sockets are looked at
 _ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
 
 
@@ -72,14 +82,16 @@ class OpcuaServer(ClosesOnce):
     """See the module. zones, cameras: what the address space shows; users: the console's
     users (service.users.UserStore: verify(name, password) and get(name) give a user with
     name, role and stamp); status(): the service's health status (ok / degraded / down),
-    polled."""
+    polled; limiter: the console's login limiter (service.login_limit), so that guesses here
+    and there count together (None: one of its own)."""
 
     stage = "write"
 
     def __init__(self, settings: OpcuaSettings, zones: Sequence[ZoneNode],
                  cameras: Sequence[CameraNode], users, *,
-                 status=None) -> None:  # fmt: skip
+                 status=None, limiter=None) -> None:  # fmt: skip
         self.settings, self.users, self.status = settings, users, status
+        self.login_users = Users(users, settings.allow_anonymous, limiter)
         self.zones, self.cameras = list(zones), list(cameras)
         self.wall_start: float | None = None
         self.desk = None
@@ -96,6 +108,7 @@ class OpcuaServer(ClosesOnce):
         self._pending = False
         self.dropped = 0  # incident changes dropped (the queue full)
         self.acks = self.acks_refused = 0
+        self.evicted = 0  # sockets without a session closed to free a place
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
@@ -151,6 +164,7 @@ class OpcuaServer(ClosesOnce):
             raise StereoposeError(f"cannot listen: {e.strerror or e}") from None
         self._ready.set()
         poll = asyncio.create_task(self._poll_status())
+        sweep = asyncio.create_task(self._sweep(server))
         try:
             while not self._stop.is_set():
                 await self._wait()
@@ -160,6 +174,7 @@ class OpcuaServer(ClosesOnce):
                     logger.exception("OPC UA: updating the address space failed")
         finally:
             poll.cancel()
+            sweep.cancel()
             try:
                 if self.space is not None:
                     await self.space.write("site/Running", False, ua.VariantType.Boolean)
@@ -178,12 +193,12 @@ class OpcuaServer(ClosesOnce):
 
     async def _server(self) -> Server:
         s = self.settings
-        iserver = LoginServer(user_manager=Users(self.users, s.allow_anonymous))
+        iserver = LoginServer(user_manager=self.login_users)
         iserver.bind_condition_methods = True  # ConditionRefresh
-        iserver.max_connections = s.max_connections
+        iserver.max_connections = s.max_connections + SPARE_SOCKETS
         iserver.max_subscriptions = 4 * s.max_connections
         iserver.max_monitored_item_queue_size = 1000
-        iserver.max_pending_activation_seconds = 10.0
+        iserver.max_pending_activation_seconds = ACTIVATE_S
         server = Server(iserver=iserver)
         server.limits = TransportLimits(max_recv_buffer=65535, max_send_buffer=65535,
                                         max_chunk_count=MAX_MESSAGE // 65535 + 1,
@@ -318,6 +333,28 @@ class OpcuaServer(ClosesOnce):
             await self.space.drop(dataclasses.replace(rec, state=CLOSED), None, wall_start)
         await self.space.apply([(r, None, wall_start) for r in records])
 
+    async def _sweep(self, server: Server) -> None:
+        """While fewer than two places are free, the oldest socket without an activated
+        session (older than MIN_IDLE_S) is closed: a client that logs in finds a place."""
+        loop = asyncio.get_running_loop()
+        first_seen: dict[int, float] = {}
+        while True:
+            await asyncio.sleep(SWEEP_S)
+            try:
+                clients = list(getattr(server.bserver, "clients", []) or [])
+                now = loop.time()
+                first_seen = {id(c): first_seen.get(id(c), now) for c in clients}
+                free = server.iserver.max_connections - len(clients)
+                old = [c for c in clients if now - first_seen[id(c)] >= MIN_IDLE_S]
+                idle = sorted((first_seen[id(c)], id(c), c) for c in old if not _activated(c))
+                for _, _, c in idle[: max(0, 2 - free)]:
+                    transport = getattr(c, "transport", None)
+                    if transport is not None:
+                        transport.close()
+                        self.evicted += 1
+            except Exception:  # never ends the server
+                logger.exception("OPC UA: looking at the connections failed")
+
     async def _poll_status(self) -> None:
         if self.status is None:
             return
@@ -401,4 +438,15 @@ class OpcuaServer(ClosesOnce):
         space = self.space
         return {"queued": queued, "dropped": self.dropped, "acknowledged": self.acks,
                 "acknowledge_refused": self.acks_refused,
+                "logins_limited": self.login_users.limited, "idle_closed": self.evicted,
                 "conditions": len(space.conditions) if space is not None else 0}  # fmt: skip
+
+
+def _activated(protocol) -> bool:
+    """Whether an asyncua connection has an activated session."""
+    processor = getattr(protocol, "processor", None)
+    session = getattr(processor, "session", None)
+    try:
+        return session is not None and bool(session.is_activated())
+    except Exception:
+        return False

@@ -3,7 +3,9 @@
 Clients log in as the console's users (service.users: the same names, passwords and argon2
 hashes); anonymous clients only when [opcua] allow_anonymous. Every login may browse, read,
 subscribe and call methods (ConditionRefresh); nobody may write or change the address space
-(asyncua's Admin role is never given). Which user calls a method: `caller()`, set for the
+(asyncua's Admin role is never given). Password guesses are limited as the console's are, by
+the same limiter when serve gives it (service.login_limit: per client address, per account):
+a login past the limit is refused unchecked. Which user calls a method: `caller()`, set for the
 duration of each Call request of a session (asyncua gives a method callback no session).
 `trusted_clients(folder)`: only the client certificates in a folder may open a channel.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import logging
+import time
 from pathlib import Path
 
 from asyncua import ua
@@ -21,6 +24,7 @@ from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 
 from stereopose.errors import HashingBusyError, StereoposeError
+from stereopose.service.login_limit import LoginLimiter, TooManyAttemptsError
 
 __all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller",
            "trusted_clients"]  # fmt: skip
@@ -30,6 +34,8 @@ logger = logging.getLogger(__name__)
 # the console's roles (service.users) that may acknowledge, as its API lets them
 ACK_ROLES = ("operator", "admin")
 _CALLER: contextvars.ContextVar[User | None] = contextvars.ContextVar("opcua_caller", default=None)
+# the client address of the session being activated (asyncua gives get_user no peer)
+_PEER: contextvars.ContextVar[str] = contextvars.ContextVar("opcua_peer", default="?")
 
 
 @dataclasses.dataclass
@@ -49,6 +55,15 @@ class _CallerSession(InternalSession):
             return await super().call(params)
         finally:
             _CALLER.reset(token)
+
+    def activate_session(self, params, peer_certificate):
+        peer = self.name  # asyncua's: the transport's peer name, (host, port)
+        host = peer[0] if isinstance(peer, (tuple, list)) and peer else str(peer)
+        token = _PEER.set(str(host))
+        try:
+            return super().activate_session(params, peer_certificate)
+        finally:
+            _PEER.reset(token)
 
 
 class LoginServer(InternalServer):
@@ -74,26 +89,49 @@ class Permissions(PermissionRuleset):
 
 
 class Users:
-    """asyncua's user manager over the console's users (see the module)."""
+    """asyncua's user manager over the console's users (see the module); limiter: the
+    console's (a login here counts against the same address and account), or its own."""
 
-    def __init__(self, users, allow_anonymous: bool) -> None:
+    def __init__(self, users, allow_anonymous: bool, limiter: LoginLimiter | None = None) -> None:
         self.users, self.allow_anonymous = users, allow_anonymous
+        self.limiter = limiter if limiter is not None else LoginLimiter()
+        self.limited = 0  # logins refused unchecked by the limiter
+        self._warned_at = -1e9
 
     def get_user(self, iserver, username=None, password=None, certificate=None) -> User | None:
         if username is None:
             return Login(role=UserRole.Anonymous) if self.allow_anonymous else None
+        name, address = str(username)[:200], _PEER.get()
+        try:
+            attempt = self.limiter.begin(address, name)
+        except TooManyAttemptsError as e:
+            self.limited += 1
+            now = time.monotonic()
+            if now - self._warned_at >= 10.0:  # a guesser fills no log
+                self._warned_at = now
+                logger.warning("OPC UA: login of %r from %s refused unchecked: %s (%d so far)",
+                               name[:40], address, e.why, self.limited)  # fmt: skip
+            return None
+        user = None
+        try:
+            user = self._check(name, password)
+        finally:
+            self.limiter.end(attempt, user is not None)
+        return user
+
+    def _check(self, name: str, password) -> User | None:
         check = getattr(self.users, "verify_admitted", self.users.verify)
         try:
-            user = check(str(username), password if isinstance(password, str) else "")
+            user = check(name, password if isinstance(password, str) else "")
         except StereoposeError as e:  # the users file unreadable
             logger.error("OPC UA: cannot check a login: %s", e)
             return None
         except HashingBusyError:  # a flood of logins: refused unchecked, the server goes on
             logger.warning("OPC UA: login of %r refused: too many password checks at once",
-                           str(username)[:40])  # fmt: skip
+                           name[:40])  # fmt: skip
             return None
         if user is None:
-            logger.warning("OPC UA: login refused for %r", str(username)[:40])
+            logger.warning("OPC UA: login refused for %r", name[:40])
             return None
         logger.info("OPC UA: %s logged in (%s)", user.name, user.role)
         return Login(role=UserRole.User, name=user.name, stamp=user.stamp)
