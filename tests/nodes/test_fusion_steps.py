@@ -205,3 +205,38 @@ def test_a_nodes_broken_health_or_a_picture_bomb_is_refused_and_the_service_goes
             jpeg_size(b"\xff\xd8\xff\xe0\x00")  # cut short: no frame header
     finally:
         steps.close()
+
+
+def test_a_future_a_borrowed_camera_or_a_flood_never_makes_a_real_frame_late(rig, caplog):
+    inp = _input(rig)
+    steps = Steps(inp)
+    topic = Topics.of("stereopose", "north")
+    for node in ("a", "x", "y"):  # each node's clock measured right
+        inp._message(topic.node(node), health_message(node, "online", clock=time.time()), False)
+    try:
+        now = time.time()
+        real = [now - 4 + k * 0.5 for k in range(8)]  # node a's cameras on the 2-Hz grid
+        for t in real:
+            for cam in CAMS[:3]:
+                _send(inp, "a", cam, t)
+            for j in range(1, 10):  # a flood of cam01 between the grid's times
+                _send(inp, "a", "cam01", t + 0.02 * j)
+            _send(inp, "x", "cam02", time.time() + 0.2)  # node a's camera, from elsewhere
+            _send(inp, "y", "cam04", time.time() + 0.2)  # within the clock tolerance
+        wait_until(lambda: len(steps.got) >= len(real) - 1, "the real steps")
+        # every real frame in a step of its own time, none late, the rest refused or dropped
+        taken = [round(s.t + inp.clock.start_epoch - now, 3) for s in steps.got]
+        assert taken[: len(real) - 1] == [round(t - now, 3) for t in real[:-1]]
+        assert all(set(s.people2d) == set(CAMS[:3]) for s in steps.got)
+        figs = inp.figures
+        assert all(figs[c].late == 0 for c in CAMS)
+        assert figs["cam01"].flood == 9 * len(real)
+        assert figs["cam02"].refused == len(real) and figs["cam04"].refused == len(real)
+        assert inp.nodes["y"].future and not inp.nodes["a"].future
+        assert "keep coming from the future" in caplog.text and "which node a sends" in caplog.text
+        # node y on time again: taken once as many frames in a row are
+        for k in range(5):
+            _send(inp, "y", "cam04", time.time() - 0.5 + 0.1 * k)
+        assert not inp.nodes["y"].future
+    finally:
+        steps.close()

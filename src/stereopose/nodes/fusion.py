@@ -26,7 +26,14 @@ node_picture_scale), the one the console shows and the clips are made of.
 Each node's health (retained, with its last will) is followed: its clock's offset measured
 from its health messages (median of the last CLOCK_KEPT), and a node off by more than
 node_clock_tolerance_s is refused: its frames are dropped (counted) until its clock is right,
-and its cameras go down. Malformed messages are counted and logged once a minute per kind.
+and its cameras go down. A frame from the future is refused: captured after now by more than
+FUTURE_S once its node's measured clock offset is taken off (node_clock_tolerance_s while
+the offset is not known yet), and a node whose frames keep coming from the future (FUTURE_RUN
+in a row) is refused whole until as many in a row are on time. One node cannot push another's
+frames late: a camera's frames are taken from one node at a time (another node takes it over
+only once the first fell silent for ACTIVE_S), and at most one per half step period (the
+rest dropped and counted), so no camera makes more steps than the cameras' rate.
+Malformed messages are counted and logged once a minute per kind.
 A camera whose node stops sending is down after camera_timeout_s, through the camera watch as
 a local camera is. The broker away is retried for ever; its restart is survived (subscribed
 again on every connection).
@@ -73,6 +80,8 @@ WARN_S = 60.0  # the same kind of bad message logged at most this often
 MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
 MIN_PICTURE_PX = 2_000_000  # a picture may have 4x its camera's picture pixels, or this
 DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
+FUTURE_S = 0.05  # a frame captured this long after now (its node's clock offset taken off)
+FUTURE_RUN = 5  # frames from the future in a row refuse their node; as many on time take it
 
 
 @dataclass
@@ -83,7 +92,8 @@ class CameraFigures:
     used: int = 0  # in a step given to the loop
     late: int = 0
     dropped: int = 0  # waiting frames over PENDING
-    refused: int = 0  # from a node with its clock off
+    refused: int = 0  # from a node with its clock off, from the future, or not its node
+    flood: int = 0  # closer than half a step period to the camera's previous frame
     bytes: int = 0
     pictures: int = 0
     node: str | None = None
@@ -99,6 +109,8 @@ class NodeState:
     refused: bool = False
     last_mono: float | None = None
     health: dict = field(default_factory=dict)
+    future: bool = False  # refused: its frames keep coming from the future
+    run: int = 0  # frames in a row from the future (>0) or on time (<0)
 
     @property
     def offset(self) -> float | None:
@@ -147,6 +159,9 @@ class NodeInput:
         self._placeholders = {n: np.full((h, w, 3), 96, np.uint8)
                               for n, (w, h) in self._sizes.items()}  # fmt: skip
         self._given_end = -math.inf  # the capture time up to which steps were given
+        self._owner: dict[str, tuple[str, float]] = {}  # camera -> (its node, last frame)
+        self._last_t: dict[str, float] = {}  # camera -> capture time of its last frame taken
+        self.min_gap_s = 0.5 / self.fps  # a camera's frames at most twice the step rate
         self._cond = threading.Condition()
         self._closed = False
         self._warned: dict[str, float] = {}
@@ -310,18 +325,34 @@ class NodeInput:
             fig = self.figures[name]
             fig.frames += 1
             fig.bytes += len(payload)
-            fig.node = kp.node
+            owner = self._owner.get(name)
+            if owner is not None and owner[0] != kp.node and now - owner[1] <= self.active_s:
+                fig.refused += 1  # another node's camera, while that node sends it
+                self._warn(f"owner:{kp.node}:{name}", f"nodes: node {kp.node} sent camera "
+                           f"{name}, which node {owner[0]} sends: refused")  # fmt: skip
+                return
             node = self.nodes.get(kp.node)
-            if (node is not None and node.refused) or kp.t > wall + self.tolerance_s:
-                fig.refused += 1  # a node's clock off, or a frame from the future
-                if node is None or not node.refused:
-                    self._warn(f"future:{kp.node}", f"nodes: node {kp.node}: a frame of "
-                               f"camera {name} captured {kp.t - wall:+.3f} s from now")  # fmt: skip
+            if self._from_future(kp, node, name, wall) or (node is not None and node.refused):
+                fig.refused += 1  # a node's clock off, a frame from the future
                 return
+            if owner is not None and owner[0] != kp.node:
+                logger.warning("nodes: camera %s now comes from node %s (node %s fell silent)",
+                               name, kp.node, owner[0])  # fmt: skip
+                self._last_t.pop(name, None)
+            self._owner[name] = (kp.node, now)
+            fig.node = kp.node
             fig.last_mono = now
-            if kp.t <= self._given_end or kp.t < self.clock.start_epoch:
-                fig.late += 1
+            last = self._last_t.get(name)
+            if last is not None and last <= kp.t < last + self.min_gap_s:
+                fig.flood += 1  # faster than the steps: one step's worth taken
+                self._warn(f"flood:{name}", f"nodes: camera {name} from node {kp.node}: "
+                           f"frames closer than {self.min_gap_s:.3f} s dropped")  # fmt: skip
                 return
+            if (kp.t <= self._given_end or kp.t < self.clock.start_epoch
+                    or (last is not None and kp.t < last)):  # fmt: skip
+                fig.late += 1  # its step given, or behind its camera's newer frame
+                return
+            self._last_t[name] = kp.t
             q = self._pending[name]
             if len(q) >= PENDING:
                 q.popleft()
@@ -352,6 +383,31 @@ class NodeInput:
             self._pending[n].popleft()
         self._given_end = end
         return t0, {n: kp for n, (kp, _) in group.items()}
+
+    def _from_future(self, kp: Keypoints, node: NodeState | None, name: str,
+                     wall: float) -> bool:  # fmt: skip
+        """Whether the frame was captured after now (under the lock): by more than FUTURE_S
+        once its node's clock offset is taken off, or node_clock_tolerance_s while that is not
+        known; a node whose frames keep doing so is refused until as many come on time."""
+        offset = node.offset if node is not None else None
+        ahead = kp.t - wall - (offset or 0.0)
+        future = ahead > (FUTURE_S if offset is not None else self.tolerance_s)
+        if future:
+            self._warn(f"future:{kp.node}", f"nodes: node {kp.node}: a frame of camera "
+                       f"{name} captured {ahead:+.3f} s from now (its clock offset taken "
+                       "off)")  # fmt: skip
+        if node is None:
+            return future
+        node.run = max(node.run, 0) + 1 if future else min(node.run, 0) - 1
+        if future and not node.future and node.run >= FUTURE_RUN:
+            node.future = True
+            logger.error("nodes: node %s: its frames keep coming from the future (%d in a "
+                         "row): refused until its frames are on time", node.name,
+                         node.run)  # fmt: skip
+        elif node.future and node.run <= -FUTURE_RUN:
+            node.future = False
+            logger.warning("nodes: node %s: its frames are on time again: taken", node.name)
+        return future or node.future
 
     def _online(self, node: str | None) -> bool:
         """Whether a node is not known to be offline (its will or its goodbye)."""
@@ -410,12 +466,13 @@ class NodeInput:
         with self._cond:
             nodes = {
                 n.name: {"state": n.state, "clock_offset_s": _round(n.offset),
-                         "clock_refused": n.refused,
+                         "clock_refused": n.refused, "future_refused": n.future,
                          "seen_s_ago": None if n.last_mono is None
                          else round(now - n.last_mono, 1), **n.health}
                 for n in self.nodes.values()}  # fmt: skip
             cams = {name: {"node": f.node, "frames": f.frames, "used": f.used, "late": f.late,
-                           "dropped": f.dropped, "refused": f.refused, "bytes": f.bytes,
+                           "dropped": f.dropped, "refused": f.refused, "flood": f.flood,
+                           "bytes": f.bytes,
                            "pictures": f.pictures, "waiting": len(self._pending[name])}
                     for name, f in self.figures.items()}  # fmt: skip
         return {"connected": self.connected, "window_s": self.window_s, "steps": self.steps,
@@ -426,10 +483,10 @@ class NodeInput:
         return sum(len(q) for q in self._pending.values())
 
     def lost(self) -> int:
-        return sum(f.late + f.dropped + f.refused for f in self.figures.values())
+        return sum(f.late + f.dropped + f.refused + f.flood for f in self.figures.values())
 
     def finish(self, summary: RunSummary) -> None:
-        summary.sources = {n: {"frames": f.frames, "dropped": f.dropped + f.late,
+        summary.sources = {n: {"frames": f.frames, "dropped": f.dropped + f.late + f.flood,
                                "reconnects": 0} for n, f in self.figures.items()}  # fmt: skip
         summary.clock_start_epoch = self.clock.start_epoch
 
