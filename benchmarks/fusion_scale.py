@@ -15,8 +15,11 @@ Measured over --seconds after the service settled: the steps/s held (status.json
 steps), each process's CPU (serve, mosquitto, the replayer), the latency from capture to the
 step's people on the broker and to its zone events, what was lost (camera-frames late,
 over-full, refused, flooded; steps given without every camera; the loop's own drops), and each
-stage's mean time a step from /metrics (so the part that limits the service is named).
-Results in results/fusion_scale.{json,md}.
+stage's mean time a step from /metrics. Then the 3D stage alone, in this process on one
+thread with the same people and rigs (`Stage3D.step`, profiled): its ms a step and the share
+of its largest parts, so that the part that limits the service is named.
+Results in results/fusion_scale.{json,md}; --previous keeps the set-ups of an earlier run (its
+JSON lines) and measures the rest.
 """
 
 from __future__ import annotations
@@ -268,6 +271,60 @@ def run_setup(n: int, rate: float, seconds: float, people, pictures, mosquitto: 
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def stage_alone(n: int, people: list[list[People2D]], steps: int = 20) -> dict:
+    """The 3D stage alone at n cameras (the demo's repeated): ms a step, and the parts that
+    take the most of it (cProfile's cumulative time of the stereopose functions)."""
+    import cProfile
+    import dataclasses
+    import pstats
+
+    from stereopose.calibration.formats import load_calibration
+    from stereopose.pipeline.stage3d import Stage3D
+    from stereopose.types import Rig
+
+    calib = sorted(Path(demo_videos()[0]).parents[1].glob("calibration/Calib.qca.txt"))[0]
+    demo = load_calibration(calib)
+    rig = Rig([dataclasses.replace(demo[i % 4], name=f"c{i + 1:02d}") for i in range(n)])
+    stage = Stage3D(rig)
+    stage.load()
+
+    def step(k: int) -> None:
+        views = {}
+        for i in range(n):
+            p = people[i % 4][k % len(people[i % 4])]
+            views[f"c{i + 1:02d}"] = People2D(f"c{i + 1:02d}", k, p.keypoints, p.boxes,
+                                              p.scores)  # fmt: skip
+        stage.step(k, views, k / 25)
+
+    for k in range(3):  # warm
+        step(k)
+    prof = cProfile.Profile()
+    t0 = time.perf_counter()
+    prof.enable()
+    for k in range(3, 3 + steps):
+        step(k)
+    prof.disable()
+    ms = 1000 * (time.perf_counter() - t0) / steps
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+    parts = {f"{Path(f).stem}.{name}": round(1000 * ct / steps, 2)
+             for (f, _, name), (_, _, _, ct, _) in stats.items()
+             if "stereopose" in f and name in PARTS}  # fmt: skip
+    return {"cameras": n, "ms_per_step": round(ms, 2), "parts_ms": parts}
+
+
+# the 3D stage's parts reported (cumulative ms a step): association, triangulation, tracking
+PARTS = (
+    "epipolar_distances",
+    "claim",
+    "choose_views",
+    "select_views",
+    "triangulate_robust",
+    "_triangulate",
+    "update",
+    "reconstruct",
+)
+
+
 def report(head: dict, results: list[dict]) -> None:
     md = ["# The fusion service at 16, 32 and 64 cameras",
           "",
@@ -303,6 +360,22 @@ def report(head: dict, results: list[dict]) -> None:
             f"{r['people_latency_p50_s']} / {r['people_latency_p95_s']} | {ev} | "
             f"{c['serve']} / {c['mosquitto']} / {c['replayer']} | "
             f"{', '.join(f'{k} {v}' for k, v in top)} |")  # fmt: skip
+    alone = head.get("stage_alone") or []
+    if alone:
+        md += ["", "## The 3D stage alone", "",
+               "`Stage3D.step` in one process on one thread, the same people and rigs, nothing "
+               "else running (ms a step; its parts' cumulative ms a step):", "",
+               "| cameras | ms a step | steps/s on one core | association (epipolar "
+               "distances) | triangulation (of which choosing the views) | tracking |",
+               "|---|---|---|---|---|---|"]  # fmt: skip
+        for a in alone:
+            p = a["parts_ms"]
+            md.append(f"| {a['cameras']} | {a['ms_per_step']} | "
+                      f"{1000 / a['ms_per_step']:.0f} | "
+                      f"{p.get('affinity.epipolar_distances', '-')} | "
+                      f"{p.get('reconstructor._triangulate', '-')} "
+                      f"({p.get('_kernels.select_views', '-')}) | "
+                      f"{p.get('tracker.update', '-')} |")  # fmt: skip
     md += ["", *head.get("notes", [])]
     save("fusion_scale", {**head, "results": results}, md)
 
@@ -314,6 +387,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--frames", type=int, default=100, help="demo frames detected per camera")
     ap.add_argument("--note", action="append", default=[], help="a line for the report")
+    ap.add_argument("--previous", type=Path, help="an earlier run's JSON lines to keep")
     args = ap.parse_args()
     mosquitto = shutil.which("mosquitto", path=os.pathsep.join([os.environ["PATH"], "/usr/sbin"]))
     if mosquitto is None or not demo_videos():
@@ -322,13 +396,24 @@ def main() -> None:
     people, pictures = record(args.frames)
     print(f"recorded {sum(map(len, people))} camera-frames of the demo", flush=True)
     results = []
-    for n in (int(x) for x in args.cameras.split(",")):
+    if args.previous is not None:
+        for line in args.previous.read_text().splitlines():
+            if line.startswith('{"cameras"'):
+                results.append(json.loads(line))
+    done = {(r["cameras"], r["rate"]) for r in results}
+    sizes = [int(x) for x in args.cameras.split(",")]
+    for n in sizes:
         for rate in (float(x) for x in args.rates.split(",")):
+            if (n, rate) in done:
+                continue
             r = run_setup(n, rate, args.seconds, people, pictures, mosquitto)
             print(json.dumps(r), flush=True)
             results.append(r)
+    alone = [stage_alone(n, people) for n in sizes]
+    for a in alone:
+        print(json.dumps({"stage_alone": a}), flush=True)
     head = {"date": datetime.date.today().isoformat(), "machine": machine(),
-            "seconds": args.seconds, "notes": args.note,
+            "seconds": args.seconds, "notes": args.note, "stage_alone": alone,
             "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)]}  # fmt: skip
     report(head, results)
 

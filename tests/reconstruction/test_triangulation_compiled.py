@@ -76,3 +76,32 @@ def test_body_orientation_matches_numpy(hard):
     for a, b in zip(got, ref, strict=True):
         np.testing.assert_array_equal(a, b)
     assert got[0].any() and got[1].any() and not got[0].all()
+
+
+def test_with_many_views_the_pairs_come_from_the_most_confident_and_agree_with_all_pairs():
+    import dataclasses
+
+    from stereopose.reconstruction._kernels import MAX_SEEDS
+    from stereopose.sim.scene import make_rig
+    from stereopose.types import Rig
+
+    cams = [*make_rig(12, np.random.default_rng(1)), *make_rig(12, np.random.default_rng(2))]
+    rig = Rig([dataclasses.replace(c, name=f"v{i:02d}") for i, c in enumerate(cams)])
+    rec = Reconstructor(rig)
+    C = len(rig.names)
+    assert C > MAX_SEEDS
+    X0 = np.array([6.0, 4.0, 1.2, 1.0])
+    uvw = np.einsum("cij,j->ci", rec.P, X0)
+    xy = (uvw[:, :2] / uvw[:, 2:])[None, None].copy()  # (1, 1, C, 2)
+    w = np.full((1, 1, C), 0.9)
+    bad = np.arange(C) % 4 == 3  # a quarter of the views wrong, and less confident
+    xy[0, 0, bad] += 80.0 / rec.focal[bad, None]
+    w[0, 0, bad] = 0.4
+    thr = np.full((1, C), 10.0)
+    X_all = triangulate_dlt(xy, rec.P, w)
+    got = choose_views(xy, w, rec.P, rec.focal, thr, X_all)
+    ref = select_views_numpy(xy, w, rec.P, rec.focal, thr, X_all)
+    np.testing.assert_allclose(got[0], ref[0], atol=1e-9)
+    np.testing.assert_array_equal(got[1], ref[1])
+    np.testing.assert_array_equal(got[1][0, 0], ~bad)  # the wrong views left out
+    np.testing.assert_allclose(got[0][0, 0], X0[:3], atol=1e-6)

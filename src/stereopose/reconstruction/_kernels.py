@@ -27,22 +27,44 @@ from stereopose.skeleton import (
 )
 
 _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+# two-view solutions are tried between the most confident views of a joint, at most this many
+# (all pairs of 12 views: 66; of 64, 2,016 pairs each scored over 64 views), and scored over all
+MAX_SEEDS = 12
 
 
 @njit(**_JIT)
-def _best_pair(xy, w, has, P, focal, thr, inl, best_inl, Xk, e):
-    """Of every two-view solution of one joint (xy (C, 2), w (C,) among the views `has`), the
-    views agreeing (error < thr (C,)) with the one scored best by their confidence (ties to
-    the tighter fit), into best_inl (C,); false when no pair gives a point. inl, Xk, e:
-    scratch arrays (C,), (3,), (C,)."""
+def _seeds(w, has, k, seed):
+    """Into seed (C,): the views of `has`, or the k of them with the largest weights."""
+    C = w.shape[0]
+    n = 0
+    for c in range(C):
+        seed[c] = has[c]
+        n += has[c]
+    if n <= k:
+        return
+    order = np.argsort(-w)
+    taken = 0
+    for i in range(C):
+        c = order[i]
+        seed[c] = has[c] and taken < k
+        taken += seed[c]
+
+
+@njit(**_JIT)
+def _best_pair(xy, w, has, P, focal, thr, inl, best_inl, Xk, e, seed):
+    """Of every two-view solution of one joint (xy (C, 2), w (C,) among the views `has`, the
+    pairs of its MAX_SEEDS most confident), the views agreeing (error < thr (C,)) with the one
+    scored best by their confidence (ties to the tighter fit), into best_inl (C,); false when
+    no pair gives a point. inl, Xk, e, seed: scratch arrays (C,), (3,), (C,), (C,)."""
     C = xy.shape[0]
     best = -np.inf
     found = False
+    _seeds(w, has, MAX_SEEDS, seed)
     for a in range(C):
-        if not has[a]:
+        if not seed[a]:
             continue
         for b in range(a + 1, C):
-            if not has[b]:
+            if not seed[b]:
                 continue
             for c in range(C):
                 inl[c] = (c - a) * (c - b) == 0  # the pair itself
@@ -74,7 +96,8 @@ def select_views(xy, w, P, focal, thr, X_all):
     (ties to the tighter fit), and the point is the weighted DLT over the best one's agreeing
     views, which are kept where within 1.5 thr of it. Where fewer than two views are kept, all
     views and X_all are used. Returns X (G, J, 3), used (G, J, C) and the errors of every view
-    (G, J, C) in pixels.
+    (G, J, C) in pixels. With more than MAX_SEEDS views, the pairs are those of its most
+    confident MAX_SEEDS views (each still scored over every view).
     """
     G, J, C = w.shape
     X = X_all.copy()
@@ -87,6 +110,7 @@ def select_views(xy, w, P, focal, thr, X_all):
     has = np.empty(C, dtype=np.bool_)
     inl = np.empty(C, dtype=np.bool_)
     best_inl = np.empty(C, dtype=np.bool_)
+    seed = np.empty(C, dtype=np.bool_)
     for g in range(G):
         for j in range(J):
             seen = 0
@@ -102,7 +126,9 @@ def select_views(xy, w, P, focal, thr, X_all):
                 err[g, j, c] = e_all[c]
             finite = np.isfinite(X_all[g, j, 0])
             if seen > 2 and (n_used < seen or not finite):
-                found = _best_pair(xy[g, j], w[g, j], has, P, focal, thr[g], inl, best_inl, Xk, e)
+                found = _best_pair(
+                    xy[g, j], w[g, j], has, P, focal, thr[g], inl, best_inl, Xk, e, seed
+                )
                 if found:
                     dlt_point(xy[g, j], w[g, j], best_inl, P, Xr)
                     view_errors(Xr, xy[g, j], P, focal, e)
