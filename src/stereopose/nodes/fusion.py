@@ -27,12 +27,14 @@ Each node's health (retained, with its last will) is followed: its clock's offse
 from its health messages (median of the last CLOCK_KEPT), and a node off by more than
 node_clock_tolerance_s is refused: its frames are dropped (counted) until its clock is right,
 and its cameras go down. A frame from the future is refused: captured after now by more than
-FUTURE_S once its node's measured clock offset is taken off (node_clock_tolerance_s while
-the offset is not known yet), and a node whose frames keep coming from the future (FUTURE_RUN
-in a row) is refused whole until as many in a row are on time. One node cannot push another's
-frames late: a camera's frames are taken from one node at a time (another node takes it over
-only once the first fell silent for ACTIVE_S), and at most one per half step period (the
-rest dropped and counted), so no camera makes more steps than the cameras' rate.
+FUTURE_S once its node's measured clock offset is taken off (node_clock_tolerance_s while the
+offset is not known yet), and a node whose frames keep coming from the future (even the least
+early of its last LEADS_KEPT, at least FUTURE_RUN) is refused whole until one is on time. A
+slow service delays frames and health alike, so it never makes a node look early. One node
+cannot push another's frames late: a camera's frames are taken from one node at a time
+(another node takes it over only once the first fell silent for ACTIVE_S), and at most one per
+half step period (the rest dropped and counted), so no camera makes more steps than the
+cameras' rate.
 Malformed messages are counted and logged once a minute per kind.
 A camera whose node stops sending is down after camera_timeout_s, through the camera watch as
 a local camera is. The broker away is retried for ever; its restart is survived (subscribed
@@ -80,8 +82,9 @@ WARN_S = 60.0  # the same kind of bad message logged at most this often
 MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
 MIN_PICTURE_PX = 2_000_000  # a picture may have 4x its camera's picture pixels, or this
 DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
-FUTURE_S = 0.05  # a frame captured this long after now (its node's clock offset taken off)
-FUTURE_RUN = 5  # frames from the future in a row refuse their node; as many on time take it
+FUTURE_S = 0.1  # a frame captured this long after now (its node's clock offset taken off)
+FUTURE_RUN = 5  # frames at least before a node is refused as from the future
+LEADS_KEPT = 25  # a node's last frames whose least lead over this clock is judged
 
 
 @dataclass
@@ -110,7 +113,8 @@ class NodeState:
     last_mono: float | None = None
     health: dict = field(default_factory=dict)
     future: bool = False  # refused: its frames keep coming from the future
-    run: int = 0  # frames in a row from the future (>0) or on time (<0)
+    # its last frames' lead over this clock (capture time - arrival)
+    leads: deque = field(default_factory=lambda: deque(maxlen=LEADS_KEPT))
 
     @property
     def offset(self) -> float | None:
@@ -386,25 +390,31 @@ class NodeInput:
 
     def _from_future(self, kp: Keypoints, node: NodeState | None, name: str,
                      wall: float) -> bool:  # fmt: skip
-        """Whether the frame was captured after now (under the lock): by more than FUTURE_S
-        once its node's clock offset is taken off, or node_clock_tolerance_s while that is not
-        known; a node whose frames keep doing so is refused until as many come on time."""
-        offset = node.offset if node is not None else None
-        ahead = kp.t - wall - (offset or 0.0)
+        """Whether the frame is refused as from the future (under the lock): its lead over
+        this clock (capture time - now) beyond node_clock_tolerance_s, or beyond FUTURE_S
+        past its node's clock offset (the largest of its health's last: the least delayed);
+        and the whole node while even its frames' least lead of late is (a node whose frames
+        keep coming from the future). A slow service delays the frames as much as the health
+        messages, so their way here never makes a node look early."""
+        lead = kp.t - wall
+        offset = max(node.offsets) if node is not None and node.offsets else None
+        if node is not None:
+            node.leads.append(lead)
+        ahead = lead - (offset or 0.0)
         future = ahead > (FUTURE_S if offset is not None else self.tolerance_s)
         if future:
             self._warn(f"future:{kp.node}", f"nodes: node {kp.node}: a frame of camera "
                        f"{name} captured {ahead:+.3f} s from now (its clock offset taken "
                        "off)")  # fmt: skip
-        if node is None:
+        if node is None or offset is None:
             return future
-        node.run = max(node.run, 0) + 1 if future else min(node.run, 0) - 1
-        if future and not node.future and node.run >= FUTURE_RUN:
+        early = min(node.leads) - offset  # its frames' least lead of late, past its offset
+        if not node.future and len(node.leads) >= FUTURE_RUN and early > FUTURE_S:
             node.future = True
-            logger.error("nodes: node %s: its frames keep coming from the future (%d in a "
-                         "row): refused until its frames are on time", node.name,
-                         node.run)  # fmt: skip
-        elif node.future and node.run <= -FUTURE_RUN:
+            logger.error("nodes: node %s: its frames keep coming from the future (%+.3f s "
+                         "past its clock): refused until its frames are on time", node.name,
+                         early)  # fmt: skip
+        elif node.future and early <= FUTURE_S:
             node.future = False
             logger.warning("nodes: node %s: its frames are on time again: taken", node.name)
         return future or node.future
