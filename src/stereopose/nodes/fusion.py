@@ -24,17 +24,17 @@ moved later than its capture time. Each camera of a step carries the newest pict
 sent (or a grey one until the first; every picture of a camera at the size of
 node_picture_scale), the one the console shows and the clips are made of.
 Each node's health (retained, with its last will) is followed: its clock's offset measured
-from its health messages (median of the last CLOCK_KEPT), and a node off by more than
-node_clock_tolerance_s is refused: its frames are dropped (counted) until its clock is right,
-and its cameras go down. A frame from the future is refused: captured after now by more than
-FUTURE_S once its node's measured clock offset is taken off (node_clock_tolerance_s while the
-offset is not known yet), and a node whose frames keep coming from the future (even the least
-early of its last LEADS_KEPT, at least FUTURE_RUN) is refused whole until one is on time. A
-slow service delays frames and health alike, so it never makes a node look early. One node
-cannot push another's frames late: a camera's frames are taken from one node at a time
-(another node takes it over only once the first fell silent for ACTIVE_S), and at most one per
-half step period (the rest dropped and counted), so no camera makes more steps than the
-cameras' rate.
+from its health messages (the largest of the last CLOCK_KEPT: the least delayed), and a node
+off by more than node_clock_tolerance_s is refused: its frames are dropped (counted) until its
+clock is right, and its cameras go down. A frame from the future is refused: captured after
+now by more than FUTURE_S once its node's measured clock offset is taken off
+(node_clock_tolerance_s while the offset is not known yet), and a node whose frames keep
+coming from the future (even the least early of its last LEADS_KEPT, at least FUTURE_RUN) is
+refused whole until one is on time. A slow service delays frames and health alike, so it never
+makes a node look early. One node cannot push another's frames late: a camera's frames are
+taken from one node at a time (another node takes it over only once the first fell silent for
+ACTIVE_S), and at most one per half step period (the rest dropped and counted), so no camera
+makes more steps than the cameras' rate.
 Malformed messages are counted and logged once a minute per kind.
 A camera whose node stops sending is down after camera_timeout_s, through the camera watch as
 a local camera is. The broker away is retried for ever; its restart is survived (subscribed
@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import logging
 import math
-import statistics
 import threading
 import time
 import uuid
@@ -118,7 +117,9 @@ class NodeState:
 
     @property
     def offset(self) -> float | None:
-        return statistics.median(self.offsets) if self.offsets else None
+        """Its clock minus ours: the largest of the last offsets measured, the least delayed
+        (a message's way here only ever makes a node's clock look behind)."""
+        return max(self.offsets) if self.offsets else None
 
 
 class NodeInput:
@@ -397,7 +398,7 @@ class NodeInput:
         keep coming from the future). A slow service delays the frames as much as the health
         messages, so their way here never makes a node look early."""
         lead = kp.t - wall
-        offset = max(node.offsets) if node is not None and node.offsets else None
+        offset = node.offset if node is not None else None
         if node is not None:
             node.leads.append(lead)
         ahead = lead - (offset or 0.0)
