@@ -535,7 +535,7 @@ def test_anonymous_wrong_password_and_unsecured_connections_are_refused(tmp_path
 
 
 def test_password_guesses_are_limited_as_the_consoles_and_with_its_limiter(tmp_path, pair):
-    from stereopose.service.login_limit import MAX_FAILURES, LoginLimiter
+    from stereopose.login_limit import MAX_FAILURES, LoginLimiter
 
     limiter = LoginLimiter()
 

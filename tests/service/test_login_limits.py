@@ -14,8 +14,8 @@ import pytest
 from argon2 import PasswordHasher
 from consoled import PASSWORDS, console_server, fast_hasher
 
+from stereopose.login_limit import ACCOUNT_BURST, MAX_FAILURES
 from stereopose.service.connections import ConnectionLimits
-from stereopose.service.login_limit import ACCOUNT_BURST, MAX_FAILURES
 
 
 class CountingHasher(PasswordHasher):

@@ -13,8 +13,8 @@ import pytest
 from consoled import PASSWORDS, console_server
 
 from stereopose.errors import ConfigError
+from stereopose.login_limit import MAX_FAILURES
 from stereopose.service.connections import ConnectionLimits
-from stereopose.service.login_limit import MAX_FAILURES
 from stereopose.service.server import ServeSettings
 from waiting import wait_until
 

@@ -4,7 +4,7 @@ Clients log in as the console's users (service.users: the same names, passwords 
 hashes); anonymous clients only when [opcua] allow_anonymous. Every login may browse, read,
 subscribe and call methods (ConditionRefresh); nobody may write or change the address space
 (asyncua's Admin role is never given). Password guesses are limited as the console's are, by
-the same limiter when serve gives it (service.login_limit: per client address, per account):
+the same limiter when serve gives it (stereopose.login_limit: per client address, per account):
 a login past the limit is refused unchecked. Which user calls a method: `caller()`, set for the
 duration of each Call request of a session (asyncua gives a method callback no session).
 `trusted_clients(folder)`: only the client certificates in a folder may open a channel.
@@ -24,7 +24,7 @@ from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 
 from stereopose.errors import HashingBusyError, StereoposeError
-from stereopose.service.login_limit import LoginLimiter, TooManyAttemptsError
+from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
 
 __all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller",
            "trusted_clients"]  # fmt: skip

@@ -1,5 +1,5 @@
 """Who is asking: login sessions, bearer tokens, CSRF, role checks (the login rate limit is
-service.login_limit's).
+stereopose.login_limit's).
 
 - A login gives a random token (secrets.token_urlsafe) and a CSRF value. The server keeps
   only the token's SHA-256 (in memory, at most SESSIONS_PER_USER per user, their own oldest
@@ -12,7 +12,7 @@ service.login_limit's).
   value (403 otherwise): another site's page can make the browser send the cookie, never read
   the CSRF cookie. A bearer token is never sent by a browser on its own, so it needs none.
 - Password guesses are limited by client address first, then per account, each attempt
-  counted before its password is checked (service.login_limit.LoginLimiter).
+  counted before its password is checked (stereopose.login_limit.LoginLimiter).
 - Nothing secret is logged: neither passwords nor tokens (a session is named by its user).
 """
 
@@ -31,7 +31,7 @@ from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
-from stereopose.service.login_limit import LoginLimiter, TooManyAttemptsError
+from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
 from stereopose.service.users import ROLES, User, UserError, UserStore, role_at_least
 
 __all__ = ["LoginLimiter", "Session", "Sessions", "SessionsFullError", "TooManyAttemptsError",

@@ -4,7 +4,7 @@ A login answers the token (for `Authorization: Bearer`) and sets two cookies: th
 (HttpOnly, SameSite=Strict; Secure under TLS) and the CSRF value (readable by the page, which
 sends it back as X-CSRF-Token on state-changing requests). A wrong name and a wrong password
 get the same 401; too many failed attempts from one address, or for one name from an address
-that failed for it, 429 with Retry-After (service.login_limit). Every answer of these routes
+that failed for it, 429 with Retry-After (stereopose.login_limit). Every answer of these routes
 (and of the users' routes) carries `Cache-Control: no-store`: they hold users and sessions.
 """
 
