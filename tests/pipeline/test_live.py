@@ -157,7 +157,10 @@ class Process:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-            pytest.fail(f"still running {timeout_s} s after one Ctrl-C")
+            for r in self._readers:
+                r.join(timeout=5)
+            pytest.fail(f"still running {timeout_s} s after one Ctrl-C; it said:\n"
+                        f"{self.text()[-3000:]}")  # fmt: skip
         for r in self._readers:
             r.join(timeout=5)
         return code
