@@ -130,6 +130,9 @@ class Process:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "stereopose.cli", *args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
+            # Ctrl-C as at a terminal, whatever an earlier test left the test process's SIGINT
+            # at (an ignored signal is inherited, and Python then installs no handler)
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )  # fmt: skip
         self.out: list[str] = []
         self.err: list[str] = []
