@@ -30,7 +30,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -45,7 +44,17 @@ import paho.mqtt.client as paho
 import psutil
 
 from common import machine, save
-from nodes import SITE, Listener, cpu, free_port, q, status, wall_start, write_setup
+from nodes import (
+    SITE,
+    Listener,
+    cpu,
+    free_port,
+    q,
+    status,
+    stop_all,
+    wall_start,
+    write_setup,
+)
 from stereopose.detection.models import demo_videos
 from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
 from stereopose.types import People2D
@@ -259,16 +268,7 @@ def run_setup(n: int, rate: float, seconds: float, people, pictures, mosquitto: 
             listener.close()
         if replayer is not None:
             replayer.close()
-        for p in reversed(list(procs.values())):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(30)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-        for log in logs:
-            log.close()
-        shutil.rmtree(tmp, ignore_errors=True)
+        stop_all(procs, logs, tmp)
 
 
 def stage_alone(n: int, people: list[list[People2D]], steps: int = 20) -> dict:

@@ -189,6 +189,21 @@ def q(values: list[float], p: float) -> float | None:
     return round(float(np.quantile(values, p)), 3) if values else None
 
 
+def stop_all(procs: dict[str, subprocess.Popen], logs: list, tmp: Path) -> None:
+    """The set-up's processes stopped (SIGTERM, then killed after 30 s), last started first;
+    their logs closed and its folder removed."""
+    for p in reversed(list(procs.values())):
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    for log in logs:
+        log.close()
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
 def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
               mosquitto: str) -> dict:  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix=f"nodes-{n}-{mode.replace(' ', '')}-"))
@@ -292,16 +307,7 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
     finally:
         if listener is not None:
             listener.close()
-        for p in reversed(list(procs.values())):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(30)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-        for log in logs:
-            log.close()
-        shutil.rmtree(tmp, ignore_errors=True)
+        stop_all(procs, logs, tmp)
 
 
 def events(r: dict) -> str:
