@@ -445,6 +445,10 @@ class Iec104Config:
     # their sum at most (the standard's t3 of 20 s let idle sockets hold the places for 35 s)
     test_after_s: int = number(3, integer=True, ge=1, le=255)
     answer_within_s: int = number(15, integer=True, ge=2, le=255)
+    # a connection that has not started data transfer (STARTDT) this long after it opened is
+    # closed; and when every place is taken, a new master takes the place of the oldest
+    # connection not transferring data
+    start_within_s: float = number(5.0, gt=0, le=255)
 
     def _check(self) -> None:
         import ipaddress

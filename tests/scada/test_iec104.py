@@ -467,20 +467,44 @@ def test_hostile_clients_leave_a_well_behaved_master_served(station, masters) ->
 
 
 def test_idle_sockets_cannot_lock_the_master_out(station, masters) -> None:
-    out, table = station(max_connections=2)
+    out, table = station(max_connections=2, start_within_s=2.0)
     port = out.settings.port
     # two sockets that never say a word take both places (the standard's timers let them
     # hold for 35 s, again and again)
     idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(2)]
     wait_until(lambda: out.figures()["connections"] == 2, "both places taken")
+    # a master takes the place of the oldest one at once, and is served
     master = masters(port)
-    # each is tested, does not answer, and is closed within t3 + t1: the master gets in
-    master.wait_interrogated(len(table.monitored), timeout_s=60)
+    master.wait_interrogated(len(table.monitored), timeout_s=30)
+    assert out.figures()["evicted"] == 1
+    # the other is closed once it has not started data transfer within start_within_s
     for s in idle:
         s.settimeout(10)
-        assert s.recv(64).startswith(b"\x68\x04\x43")  # TESTFR act, then nothing more
+        with contextlib.suppress(ConnectionResetError):
+            while s.recv(64):  # (anything the outstation sent first), then the close
+                pass
         s.close()
+    wait_until(lambda: out.figures()["unstarted_closed"] >= 1, "the unstarted link closed")
+    # a socket that speaks IEC 104 (a TESTFR) but never starts data transfer leaves as well
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as talker:
+        talker.sendall(b"\x68\x04\x43\x00\x00\x00")  # TESTFR act
+        assert talker.recv(6) == b"\x68\x04\x83\x00\x00\x00"  # TESTFR con, from c104
+        with contextlib.suppress(ConnectionResetError):
+            while talker.recv(64):
+                pass
+    assert out.figures()["unstarted_closed"] >= 2
+    # a second master (started: data transfer asked for) is not evicted by newcomers; with
+    # both places started, a newcomer is refused
+    twin = masters(port)
+    wait_until(lambda: out.figures()["connections"] == 2, "the twin connected")
+    wait_until(lambda: twin.conn.is_connected, "the twin connected")
+    late = socket.create_connection(("127.0.0.1", port), timeout=10)
+    with late, contextlib.suppress(ConnectionResetError):
+        assert late.recv(64) == b""
+    assert out.figures()["full"] >= 1
     assert master.conn.is_connected
+    out.write(_frame(30.0, [_zone(30.0, "enter")]))
+    _spontaneous(master, table.get("zone_occupied", "panel A").ioa, True)
 
 
 def test_a_client_outside_the_allowed_addresses_is_refused(station, masters) -> None:

@@ -24,11 +24,13 @@ per burst); the outstation's own thread folds the queue into the points, polls t
 answer for `service degraded` once a second and hands the changes to c104, whose threads talk
 to the masters.
 
-Clients: a connection from an address outside `allowed_clients` is refused at once (counted,
-logged once per address); at most `max_connections` are open together (c104 refuses the rest).
-A link silent for `test_after_s` (t3) is sent a TESTFR and closed when it is not answered
-within `answer_within_s` (t1): a socket that does not speak IEC 104 leaves its place within
-their sum (18 s by default, against the standard's 35 s). Whatever a client sends, lib60870
+Clients come in through the guard (scada.iec104_guard), which listens on host:port and passes
+the bytes to c104's server on a loopback port: a connection from an address outside
+`allowed_clients` is refused (counted, logged once per address); one that has not started data
+transfer within `start_within_s` is closed; at most `max_connections` are open together, a
+newcomer taking the place of the oldest one not started (else refused). A link silent for
+`test_after_s` (t3) is sent a TESTFR and closed when it is not answered within
+`answer_within_s` (t1). Whatever a client sends, lib60870
 parses it: a malformed frame closes that client's connection only. Clock synchronisation
 (C_CS_NA_1): confirmed positively, as the standard asks of a controlled station, and never
 applied: the system clock is the machine's (NTP), never set by a master. The master's offset
@@ -45,6 +47,7 @@ from __future__ import annotations
 import datetime as dt
 import ipaddress
 import logging
+import socket
 import threading
 import time
 from collections import deque
@@ -56,6 +59,7 @@ from typing import Any
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
+from stereopose.scada.iec104_guard import Guard
 from stereopose.scada.points import COMMAND, Point, PointsTable
 
 __all__ = ["CLOCK_WARN_S", "Iec104Settings", "Outstation"]
@@ -65,11 +69,19 @@ logger = logging.getLogger(__name__)
 CLOCK_WARN_S = 1.0  # a master's clock this far from ours is worth a warning
 STATUS_INTERVAL_S = 1.0  # how often the health answer is read for `service degraded`
 TICK_MS = 50  # c104's server loop period (its smallest)
+GUARD_SPARE = 4  # c104's places beyond max_connections, for the links the guard is closing
 MAX_LOGGED_ADDRESSES = 100  # refused addresses logged one by one; beyond, only counted
 _UNACKED = ("active", "cleared")
 _SCALED_MAX = 32767  # a scaled value's largest (M_ME_TE_1 holds a 16-bit integer)
 FIGURES = ("queued_max", "dropped", "transmitted", "refused", "commands", "commands_refused",
            "clock_syncs")  # fmt: skip
+
+
+def _free_loopback_port() -> int:
+    """A TCP port free on 127.0.0.1 now (for c104's server, behind the guard)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def _typed(fn: Callable, *, ret: Any, **params: Any) -> Callable:
@@ -87,7 +99,7 @@ class Iec104Error(StereoposeError):
 class Iec104Settings:
     """What the outstation needs (config.Iec104Config, checked): host, port, common_address,
     allowed_clients (IPv4 networks), max_connections, commands, time_tags ("utc" or
-    "local"), queue_size, test_after_s (t3), answer_within_s (t1)."""
+    "local"), queue_size, test_after_s (t3), answer_within_s (t1), start_within_s."""
 
     host: str = "127.0.0.1"
     port: int = 2404
@@ -99,6 +111,7 @@ class Iec104Settings:
     queue_size: int = 10_000
     test_after_s: int = 3
     answer_within_s: int = 15
+    start_within_s: float = 5.0
 
     @classmethod
     def from_config(cls, cfg: Any) -> Iec104Settings:
@@ -106,7 +119,7 @@ class Iec104Settings:
         nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
         return cls(cfg.host, cfg.port, cfg.common_address, nets, cfg.max_connections,
                    cfg.commands, cfg.time_tags, cfg.queue_size, cfg.test_after_s,
-                   cfg.answer_within_s)  # fmt: skip
+                   cfg.answer_within_s, cfg.start_within_s)  # fmt: skip
 
     def allows(self, ip: str) -> bool:
         """Whether a client at `ip` ("a.b.c.d", or "a.b.c.d:port") may connect."""
@@ -179,14 +192,25 @@ class Outstation(ClosesOnce):
         self._figures = dict.fromkeys(FIGURES, 0)
         self._clock_offset_s: float | None = None
         self._refused_logged: set[str] = set()
-        self._server = self._make_server(c104)
+        upstream = _free_loopback_port()
+        self._server = self._make_server(c104, upstream)
         self._points = self._make_points(c104)
         self._set_all(time.time())
+        self._guard = Guard(settings.host, settings.port, upstream,
+                            max_connections=settings.max_connections,
+                            start_within_s=settings.start_within_s, allows=settings.allows,
+                            refused=self._refuse)  # fmt: skip
+        try:
+            self._guard.start()
+        except OSError as e:
+            raise Iec104Error(f"IEC 60870-5-104 on {settings.host}:{settings.port}: cannot "
+                              f"listen ({e.strerror or e})") from None  # fmt: skip
         try:
             self._server.start()
         except RuntimeError as e:
-            raise Iec104Error(f"IEC 60870-5-104 on {settings.host}:{settings.port}: cannot "
-                              f"listen ({e})") from None  # fmt: skip
+            self._guard.close()
+            raise Iec104Error(f"IEC 60870-5-104: the outstation cannot listen on loopback "
+                              f"port {upstream} ({e})") from None  # fmt: skip
         self._thread = threading.Thread(target=self._run, name="iec104", daemon=True)
         self._thread.start()
         logger.info("IEC 60870-5-104 outstation on %s:%d, common address %d, %d points",
@@ -379,10 +403,12 @@ class Outstation(ClosesOnce):
 
     # --- c104's side: the server, its callbacks (c104's threads) -----------------------------
 
-    def _make_server(self, c104: Any) -> Any:
+    def _make_server(self, c104: Any, port: int) -> Any:
         s = self.settings
-        server = c104.Server(ip=s.host, port=s.port, tick_rate_ms=TICK_MS,
-                             max_connections=s.max_connections)  # fmt: skip
+        # on loopback, behind the guard (which holds max_connections; a little room here for
+        # the links the guard is closing)
+        server = c104.Server(ip="127.0.0.1", port=port, tick_rate_ms=TICK_MS,
+                             max_connections=s.max_connections + GUARD_SPARE)  # fmt: skip
         # t3 and t1: a socket that never answers a TESTFR is closed within their sum, so
         # idle sockets hold the master's places for less long (t1 stays above the masters'
         # acknowledgement delay t2; ours, t2, below t1)
@@ -392,10 +418,7 @@ class Outstation(ClosesOnce):
         params.confirm_interval = min(params.confirm_interval, s.answer_within_s - 1)
 
         def on_connect(server, ip):
-            if s.allows(ip):
-                return True
-            self._refuse(ip)
-            return False
+            return ip.rsplit(":", 1)[0] == "127.0.0.1"  # the guard's links only
 
         def on_clock_sync(server, ip, date_time):
             self._clock_sync(ip, date_time)
@@ -485,8 +508,9 @@ class Outstation(ClosesOnce):
             queued = len(self._queue)
         f = dict(self._figures)
         f.update(queued=queued, clock_offset_s=self._clock_offset_s,
-                 connections=self._server.open_connection_count,
-                 active_connections=self._server.active_connection_count)  # fmt: skip
+                 connections=self._guard.connections(),
+                 active_connections=self._server.active_connection_count,
+                 **self._guard.counts)  # fmt: skip
         return f
 
     def queued(self) -> int:
@@ -502,7 +526,7 @@ class Outstation(ClosesOnce):
         changes not yet folded into the points (a master not connected is no fault here: the
         master connects to the outstation, and interrogates once it does)."""
         waiting = self.queued()
-        if not self._thread.is_alive() or not self._server.is_running:
+        if not self._thread.is_alive() or not self._server.is_running or not self._guard.running:
             return OutputHealth(False, waiting, "the IEC 60870-5-104 outstation stopped")
         return OutputHealth(True, waiting)
 
@@ -518,6 +542,7 @@ class Outstation(ClosesOnce):
             self._refresh(time.time())
             time.sleep(2 * TICK_MS / 1000)  # c104 sends on its next ticks
         self._server.stop()
+        self._guard.close()
         f = self.figures()
         logger.log(logging.WARNING if f["dropped"] else logging.INFO,
                    "IEC 60870-5-104 closed: %d points sent, %d dropped, %d refused connections, "
