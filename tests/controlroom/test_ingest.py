@@ -265,6 +265,22 @@ def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(brok
         wait_until(lambda: store.marks().get("north") == 3, "the events after the restart",
                    timeout_s=30)  # fmt: skip
         assert ingest.health() == (True, "")
+        # paho's thread ended the same way: health says so, and it is started again
+        message = ingest._message
+
+        def paho_dies(*_) -> None:
+            ingest._message = message
+            raise SystemExit("gone")
+
+        ingest._message = paho_dies
+        _write(sink, 4, 5)  # ids 4 to 8
+        wait_until(lambda: not ingest.health()[0], "health not ok while paho's thread is down")
+        assert "MQTT client" in ingest.health()[1]
+        ingest.ensure_running()
+        assert ingest.figures()["restarts"] == 2
+        wait_until(lambda: store.marks().get("north") == 8, "the events after paho's restart",
+                   timeout_s=30)  # fmt: skip
+        assert ingest.health() == (True, "")
     finally:
         ingest.close()
         box.close()

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
+import paho.mqtt.client as paho
 import pytest
 
+from brokers import Broker
 from stereopose.calibration import load_calibration
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.source import Clock
 from stereopose.nodes.fusion import NodeInput
 from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
+from stereopose.service.watchdog import Watchdog
 from stereopose.types import People2D
 from waiting import wait_until
 
@@ -240,3 +244,52 @@ def test_a_future_a_borrowed_camera_or_a_flood_never_makes_a_real_frame_late(rig
         assert not inp.nodes["y"].future
     finally:
         steps.close()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_the_mqtt_thread_that_dies_is_started_again_and_frames_come_again(rig, tmp_path):
+    broker = Broker(tmp_path / "broker").start()
+    settings = MqttSettings(host="127.0.0.1", port=broker.port, site="north",
+                            reconnect_min_s=0.05, reconnect_max_s=0.2)  # fmt: skip
+    inp = NodeInput(settings, rig.subset(list(CAMS)), fps=2.0,
+                    clock=Clock(time.monotonic() - 10, time.time() - 10))  # fmt: skip
+    dog = Watchdog(interval_s=3600)  # its rounds asked for by hand here
+    pub = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+    topic = Topics.of("stereopose", "north").keypoints("cam01")
+
+    def publish(t: float) -> None:
+        kp = np.zeros((1, 17, 3))
+        kp[..., 0], kp[..., 1], kp[..., 2] = 100.0, 200.0, 0.9
+        payload = encode_people("a", People2D("cam01", 0, kp), t, (1088, 1920))
+        pub.publish(topic, payload, qos=0).wait_for_publish(5)
+
+    try:
+        with inp:
+            dog.add("nodes", inp.ensure_running)
+            pub.connect("127.0.0.1", broker.port)
+            pub.loop_start()
+
+            def arrives(n: int) -> Callable[[], bool]:  # sent until the n-th one arrives
+                def sent() -> bool:
+                    publish(time.time() - 0.1)
+                    return inp.figures["cam01"].frames >= n
+
+                return sent
+
+            wait_until(arrives(1), "a first frame", poll_s=0.2)
+            message = inp._message
+
+            def dies(*_):  # what no `except Exception` catches: paho's thread ends
+                inp._message = message
+                raise SystemExit("gone")
+
+            inp._message = dies
+            n = inp.figures["cam01"].frames
+            publish(time.time() - 0.1)
+            wait_until(lambda: not inp.report()["running"], "paho's thread down")
+            dog.check()
+            assert inp.report()["restarts"] == 1 and inp.report()["running"]
+            wait_until(arrives(n + 1), "a frame after the restart", poll_s=0.2)
+    finally:
+        pub.loop_stop()
+        broker.stop()

@@ -15,6 +15,7 @@ from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.service.eventlog import EventLog
 from stereopose.service.outbox import LogOutbox
+from stereopose.service.watchdog import Watchdog
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -218,3 +219,45 @@ def test_deeply_nested_control_messages_never_stop_the_outbox(broker, log, closi
     c.disconnect()
     log.write(2)  # its MQTT thread alive: the site's events still leave
     wait_until(lambda: box.figures()["published"] == 2, "sending still works")
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_dead_threads_are_started_again_by_the_watchdog_and_health_says_so_meanwhile(
+    broker, log, closing
+):
+    rx = LogReceiver(broker.port)
+    closing(rx)
+    box = LogOutbox(settings(broker.port), log.read, resend_s=0.5)
+    closing(box)
+    dog = Watchdog(interval_s=3600)  # its rounds asked for by hand here
+    dog.add("outbox", box.ensure_running)
+    log.write(2)
+    wait_until(lambda: box.figures()["confirmed"] == 2, "the first events confirmed")
+    assert box.health().ok
+    message, send = box._message, box._send
+
+    def dies(*_):  # what no `except Exception` catches: paho's thread ends
+        box._message = message
+        raise SystemExit("gone")
+
+    def sender_dies():
+        box._send = send
+        raise SystemExit("gone")
+
+    box._message = dies
+    box.wake()
+    rx.client.publish(f"{BASE}/replay", b'{"after_id": 0}', qos=1)
+    wait_until(lambda: not box.health().ok, "health not ok while paho's thread is down")
+    assert "MQTT client" in box.health().reason
+    dog.check()
+    assert box.figures()["restarts"] == 1 and box.health().ok
+    box._send = sender_dies
+    box.wake()
+    wait_until(lambda: not box._thread.is_alive(), "the sending thread's end")
+    assert "sending thread" in box.health().reason
+    log.write(3)  # written while it is down: sent once it runs again
+    dog.check()
+    assert box.figures()["restarts"] == 2
+    wait_until(lambda: rx.ids() == log.ids(), "every event at the receiver after the restarts")
+    wait_until(lambda: box.figures()["confirmed"] == 5, "the later events confirmed")
+    assert box.health().ok

@@ -48,7 +48,14 @@ from typing import Any
 import paho.mqtt.client as paho
 
 from stereopose.controlroom.store import ControlStore, StoreError
-from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_name, topic_part
+from stereopose.io.sinks.mqtt_settings import (
+    MqttSettings,
+    loop_alive,
+    make_client,
+    restart_loop,  # fmt: skip
+    topic_name,
+    topic_part,
+)
 
 __all__ = ["Ingest"]
 
@@ -729,20 +736,16 @@ class Ingest:
             self._thread = threading.Thread(target=self._run, name="control-ingest",
                                             daemon=True)  # fmt: skip
             self._thread.start()
-        loop = getattr(self.client, "_thread", None)
-        if loop is not None and not loop.is_alive():
+        if restart_loop(self.client):
             self.counts["restarts"] += 1
             logger.error("control room: the MQTT client's thread ended; started again")
-            self.client.loop_stop()
-            self.client.loop_start()
 
     def health(self) -> tuple[bool, str]:
         """(ok, why not): down while a thread is, stuck while events come and none is stored."""
         now = time.monotonic()
-        loop = getattr(self.client, "_thread", None)
         if not self._thread.is_alive() or now - self._stepped > STALL_S:
             return False, "the ingest is not running"
-        if loop is not None and not loop.is_alive():
+        if not loop_alive(self.client):
             return False, "the MQTT client is not running"
         if now - self._progress > STUCK_S:
             return False, f"events came and none was stored for {now - self._progress:.0f} s"

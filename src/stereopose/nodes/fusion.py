@@ -56,7 +56,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
+from stereopose.io.sinks.mqtt_settings import MqttSettings, loop_alive, make_client, restart_loop
 from stereopose.io.source import Clock
 from stereopose.io.summary import CAMERA_STAGES, RunSummary
 from stereopose.nodes.wire import (
@@ -172,6 +172,7 @@ class NodeInput:
         self._warned: dict[str, float] = {}
         self._problem: str | None = None
         self.client = None
+        self.restarts = 0  # paho's thread started again by ensure_running
 
     # -- the broker ---------------------------------------------------------------------------
 
@@ -488,10 +489,19 @@ class NodeInput:
                     for name, f in self.figures.items()}  # fmt: skip
         return {"connected": self.connected, "window_s": self.window_s, "steps": self.steps,
                 "partial_steps": self.partial, "malformed": self.malformed,
-                "unknown_cameras": self.unknown, "nodes": nodes, "cameras": cams}  # fmt: skip
+                "unknown_cameras": self.unknown, "restarts": self.restarts,
+                "running": loop_alive(self.client), "nodes": nodes, "cameras": cams}  # fmt: skip
 
     def waiting(self) -> int:
         return sum(len(q) for q in self._pending.values())
+
+    def ensure_running(self) -> None:
+        """paho's thread started again where it died (counted in `restarts`, logged); the
+        service's watchdog calls this every half second. Meanwhile no frame comes, and the
+        cameras' health says so."""
+        if not self._closed and restart_loop(self.client):
+            self.restarts += 1
+            logger.error("detection from nodes: the MQTT client's thread ended; started again")
 
     def lost(self) -> int:
         return sum(f.late + f.dropped + f.refused + f.flood for f in self.figures.values())

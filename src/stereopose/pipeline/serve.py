@@ -99,6 +99,7 @@ from stereopose.service.server import Server
 from stereopose.service.state import ServiceState
 from stereopose.service.storage import StorageMaintainer
 from stereopose.service.watch import CameraWatch
+from stereopose.service.watchdog import Watchdog
 from stereopose.service.web import Console
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
@@ -162,6 +163,7 @@ class _Service:
         self.packets = _packet_rings(plan)
         self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
         self.opcua = None  # the OPC UA server, once started
+        self.watchdog = Watchdog()  # the receivers' threads started again where one died
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -284,6 +286,9 @@ class _Service:
                 self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
                                         summary=self._summary, plan=self._plan(cfg))  # fmt: skip
                 self.probes["outbox"] = self.outbox.figures
+                self.state.register_output("outbox", self.outbox.health)
+                self.watchdog.add("outbox", self.outbox.ensure_running)
+                self.watchdog.start()
         if cfg.iec104.enabled:
             sinks.append(self._iec104(cfg, guard, wall_start))
         return sinks
@@ -349,6 +354,8 @@ class _Service:
         (late, over-full and refused ones as its drops); the nodes' figures in status."""
         self.state.register_queue("nodes", nodes.waiting, nodes.lost)
         self.probes["nodes"] = nodes.report
+        self.watchdog.add("nodes", nodes.ensure_running)
+        self.watchdog.start()
 
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
         """The detection hand-over as a queue of the health state; its figures in status."""
@@ -383,6 +390,7 @@ class _Service:
 
     def close(self) -> None:
         """The maintainer, the console and the server, each within its bound."""
+        self.watchdog.stop()
         if self.opcua is not None:
             self.opcua.close()  # once (a sink of the loop closes it first)
         if self.outbox is not None:

@@ -63,7 +63,14 @@ from typing import Any
 import paho.mqtt.client as paho
 
 from stereopose.errors import ConfigError, StereoposeError
-from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_part
+from stereopose.io.sinks.health import OutputHealth
+from stereopose.io.sinks.mqtt_settings import (
+    MqttSettings,
+    loop_alive,
+    make_client,
+    restart_loop,  # fmt: skip
+    topic_part,
+)
 
 __all__ = ["LogOutbox"]
 
@@ -134,7 +141,8 @@ class LogOutbox:
         self._subscribed = False  # the broker confirmed this connection's subscriptions
         self._unacked: set[int] = set()  # paho message ids not yet acknowledged
         self._acked: set[int] = set()
-        self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0}
+        self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0,
+                       "restarts": 0}  # fmt: skip
         self._warned_at = -60.0  # when a refused message was last logged
         self._last_problem: str | None = None
         self.client = self._make_client()
@@ -391,6 +399,31 @@ class LogOutbox:
                               "cursor": st.cursor, "confirmed": st.confirmed,
                               "lag": _lag(st)}  # fmt: skip
         return f
+
+    def ensure_running(self) -> None:
+        """The sending thread and paho's started again where one died (counted, logged); the
+        service's watchdog calls this every half second."""
+        if self._stop.is_set():
+            return
+        if not self._thread.is_alive():
+            self.counts["restarts"] += 1
+            logger.error("event outbox: the sending thread ended; started again")
+            self._thread = threading.Thread(target=self._run, name="log-outbox", daemon=True)
+            self._thread.start()
+        if restart_loop(self.client):
+            self.counts["restarts"] += 1
+            logger.error("event outbox: the MQTT client's thread ended; started again")
+
+    def health(self) -> OutputHealth:
+        """Not ok while a thread is down (the broker's link is the MQTT output's health);
+        waiting: the events sent and not confirmed."""
+        with self._lock:
+            lag = _lag(self.streams[0]) or 0
+        if not self._thread.is_alive() and not self._stop.is_set():
+            return OutputHealth(False, lag, "the event outbox's sending thread is not running")
+        if not loop_alive(self.client):
+            return OutputHealth(False, lag, "the event outbox's MQTT client is not running")
+        return OutputHealth(True, lag)
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what the log holds beyond the cursors, waiting for the broker's

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from stereopose.errors import ConfigError
 
@@ -154,3 +155,28 @@ def _check_prefix(prefix: str) -> None:
             f"mqtt.topic_prefix: expected '/'-separated non-empty levels without + # % or "
             f"control characters, not starting with $, got {prefix!r}"
         )
+
+
+def loop_alive(client: Any) -> bool:
+    """Whether a started paho client's network thread (loop_start) runs; True for no client,
+    and for one whose loop was stopped (loop_stop). paho forgets its thread when the thread
+    ends, whatever ended it; loop_stop alone marks it terminated."""
+    if client is None:
+        return True
+    thread = getattr(client, "_thread", None)
+    if thread is not None:
+        return thread.is_alive()
+    return bool(getattr(client, "_thread_terminate", True))
+
+
+def restart_loop(client: Any) -> bool:
+    """paho's network thread started again when it died (an error no callback caught ends it):
+    True when it had to be. The connection is made anew (a thread that died mid-packet leaves
+    the link's state half read), and the client's on_connect subscribes again; what the
+    broker sent meanwhile is the sender's to send again."""
+    if client is None or loop_alive(client):
+        return False
+    client.loop_stop()
+    client.connect_async(client.host, client.port, keepalive=client.keepalive)
+    client.loop_start()
+    return True
