@@ -32,3 +32,12 @@ def real_demo_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("demo")
     assert main(["demo", "--out", str(out)]) == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def scene():
+    """A small simulated scene: 3 cameras, 2 workers, 30 frames (the frame loop's and the
+    service's tests)."""
+    from stereopose.sim import simulate
+
+    return simulate(num_cameras=3, num_people=2, num_frames=30, seed=2, difficulty="easy")

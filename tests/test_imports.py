@@ -248,3 +248,25 @@ def test_upward_imports_are_found(tmp_path: Path) -> None:
         "fake.late -> fake.viz",
         "fake.util.maths -> fake.pipeline",
     ]
+
+
+# Among the top packages, each imports only those before it here: the frame loop is shared by
+# the commands and the site service, the nodes feed the site service, the control room reuses
+# its HTTP layer, and the commands are above everything they run.
+TOP_ORDER = ("pipeline", "nodes", "service", "controlroom", "cli")
+
+
+def test_the_top_packages_import_down_their_order() -> None:
+    graph = import_graph()
+    rank = {f"{PACKAGE}.{t}": i for i, t in enumerate(TOP_ORDER)}
+
+    def rank_of(module: str) -> int | None:
+        return next((r for p, r in rank.items() if _within(module, p)), None)
+
+    upward = []
+    for m in sorted(graph):
+        for t in sorted(graph[m]):
+            a, b = rank_of(m), rank_of(t)
+            if a is not None and b is not None and b > a:
+                upward.append(f"{m} -> {t}")
+    assert not upward, "\n".join(upward)

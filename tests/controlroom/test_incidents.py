@@ -21,7 +21,7 @@ from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
-from stereopose.pipeline.serve_incidents import IncidentStep
+from stereopose.pipeline.incidents import IncidentStep
 from stereopose.service.eventlog import EventLog
 from stereopose.service.outbox import LogOutbox
 from stereopose.types import Event, People3D

@@ -38,7 +38,7 @@ from stereopose.alarms import IncidentBook  # noqa: E402
 from stereopose.config import load_config  # noqa: E402
 from stereopose.errors import ConfigError  # noqa: E402
 from stereopose.io.sinks import FrameResult  # noqa: E402
-from stereopose.pipeline.serve_incidents import IncidentStep  # noqa: E402
+from stereopose.pipeline.incidents import IncidentStep  # noqa: E402
 from stereopose.scada.opcua import CameraNode, OpcuaServer, ZoneNode  # noqa: E402
 from stereopose.scada.opcua_settings import (  # noqa: E402
     OpcuaSettings,

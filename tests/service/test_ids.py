@@ -253,8 +253,8 @@ def test_the_live_hub_pushes_new_rows_after_the_log_was_emptied(
     tmp_path: Path, shared_data_dir: Path
 ) -> None:
     from stereopose.calibration.formats import load_calibration
+    from stereopose.service.health.state import ServiceState
     from stereopose.service.live import LiveHub
-    from stereopose.service.state import ServiceState
 
     db = tmp_path / "events.sqlite"
     sink = SqliteSink(db)

@@ -14,8 +14,8 @@ from brokers import Broker, LogReceiver
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.service.eventlog import EventLog
+from stereopose.service.health.watchdog import Watchdog
 from stereopose.service.outbox import LogOutbox
-from stereopose.service.watchdog import Watchdog
 from stereopose.types import Event
 from waiting import wait_until
 

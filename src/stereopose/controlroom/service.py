@@ -40,8 +40,14 @@ class ControlPlan:
 
 
 def plan_control_room(config_path: str | Path) -> ControlPlan:
-    from stereopose.pipeline.serve_setup import _mqtt, _resolve, _settings, _tls, read_secret
-    from stereopose.service.server import ServeSettings
+    from stereopose.config_refs import (
+        mqtt_settings,
+        read_secret,
+        resolve,
+        section_settings,
+        tls_files,
+    )
+    from stereopose.service.http.server import ServeSettings
 
     path = Path(config_path)
     if not path.is_file():
@@ -50,9 +56,9 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
     base = path.resolve().parent
     if not cfg.mqtt.host:
         raise ConfigError(f"{path}: mqtt.host: the control room needs the central broker")
-    mqtt = _mqtt(path, base, cfg)
+    mqtt = mqtt_settings(path, base, cfg)
     db = cfg.control_room.database
-    out_dir = _resolve(base, cfg.output)
+    out_dir = resolve(base, cfg.output)
     database: Path | str
     if db.startswith(("postgresql:", "postgres:")):
         if not db.startswith(("postgresql://", "postgres://")):
@@ -72,7 +78,7 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
             if parts.password is not None:
                 raise ConfigError(f"{path}: control_room.database has a password and "
                                   "database_password_file gives one: give one of them")  # fmt: skip
-            word = quote(read_secret(_resolve(base, secret), "control_room.database_password_file",
+            word = quote(read_secret(resolve(base, secret), "control_room.database_password_file",
                                      path), safe="")  # fmt: skip
             user = quote(parts.username or "", safe="")
             host = parts.netloc.rpartition("@")[2]
@@ -82,9 +88,9 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
             raise ConfigError(f"{path}: control_room.shared_group: several workers share one "
                               "PostgreSQL store; give control_room.database = "
                               '"postgresql://..."')  # fmt: skip
-        database = _resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
-    certificate, key = _tls(path, base, cfg)
-    http = _settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
+        database = resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
+    certificate, key = tls_files(path, base, cfg)
+    http = section_settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
                      certificate=certificate, key=key,
                      trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
     return ControlPlan(path, cfg, out_dir, database, mqtt, http)
@@ -96,11 +102,11 @@ class ControlRoom:
     def __init__(self, plan: ControlPlan) -> None:
         from stereopose.controlroom.app import create_control_app
         from stereopose.io.writing import make_folder
-        from stereopose.service.auth import Sessions
-        from stereopose.service.hosts import allowed_hosts
-        from stereopose.service.server import Server
+        from stereopose.service.http.auth import Sessions
+        from stereopose.service.http.hosts import allowed_hosts
+        from stereopose.service.http.server import Server
+        from stereopose.service.http.web import Console
         from stereopose.service.users import UserStore
-        from stereopose.service.web import Console
 
         self.plan = plan
         make_folder(plan.out_dir)
@@ -134,7 +140,7 @@ class ControlRoom:
 def run_control_room(config_path: str | Path, stop: threading.Event | None = None,
                      on_ready=None) -> None:  # fmt: skip
     from stereopose.pipeline.private import private_files, tighten
-    from stereopose.pipeline.serve_parts import quiet_signals, stop_signals
+    from stereopose.service.parts import quiet_signals, stop_signals
 
     plan = plan_control_room(config_path)
     stop = stop or threading.Event()

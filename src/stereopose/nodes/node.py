@@ -39,6 +39,11 @@ from typing import Any
 import cv2
 
 from stereopose.config import Config, load_config
+from stereopose.config_refs import (
+    mqtt_settings,
+    resolve,
+    source_path,
+)
 from stereopose.detection import make_detector
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError
@@ -49,7 +54,6 @@ from stereopose.nodes.paced import PacedFiles
 from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.run import check_run_config, run_rig
-from stereopose.pipeline.serve_setup import _mqtt, _resolve, _source
 from stereopose.pipeline.sources import check_size, scale_people
 from stereopose.types import Rig
 
@@ -105,9 +109,9 @@ def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
     if len(set(cameras)) != len(cameras):
         raise ConfigError(f"{path}: a camera named twice in the node's cameras")
     base = path.resolve().parent
-    rig = run_rig(path, _resolve(base, cfg.calibration or ""), cfg).subset(list(cameras))
+    rig = run_rig(path, resolve(base, cfg.calibration or ""), cfg).subset(list(cameras))
     picked = [by_name[c][1] for c in cameras]
-    sources = tuple(_source(base, c.source) for c in picked)
+    sources = tuple(source_path(base, c.source) for c in picked)
     kinds = {is_stream(s) for s in sources}
     if len(kinds) > 1:
         raise ConfigError(f"{path}: a node's cameras are all live streams or all recorded "
@@ -115,14 +119,14 @@ def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
     for s, c in zip(sources, picked, strict=True):
         if not is_stream(s) and not Path(s).is_file():
             raise ConfigError(f"{path}: camera {c.name}: no such video file {s}")
-    settings = _mqtt(path, base, cfg)
+    settings = mqtt_settings(path, base, cfg)
     assert settings is not None
     node_name = name or f"{socket.gethostname()}-{'-'.join(cameras)}"
     return NodePlan(
         config_path=path, config=cfg, name=node_name, rig=rig, sources=sources,
-        detect_sources=tuple(_source(base, c.detect) for c in picked),
+        detect_sources=tuple(source_path(base, c.detect) for c in picked),
         loop=tuple(c.loop for c in picked), mqtt=settings,
-        model=_resolve(base, cfg.detector.model) if cfg.detector.model else None,
+        model=resolve(base, cfg.detector.model) if cfg.detector.model else None,
     )  # fmt: skip
 
 

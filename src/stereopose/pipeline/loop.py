@@ -276,13 +276,13 @@ def run_frames(
 
 def run_incidents(site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor | None,
                   sinks: Sequence[Sink]):  # fmt: skip
-    """The incident book of `serve` over a run's events (pipeline.serve_incidents): each
+    """The incident book of `serve` over a run's events (pipeline.incidents): each
     alarm-level event stamped with its incident's id and priority as the service would (ids
     from 1, the run's own), the incidents' records stored in the run's event log."""
     from stereopose.alarms import IncidentBook
     from stereopose.alarms.priority import AlarmSettings
     from stereopose.io.sinks import SqliteSink
-    from stereopose.pipeline.serve_incidents import IncidentStep
+    from stereopose.pipeline.incidents import IncidentStep
 
     db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
     # a run takes no operator's act and is not asked for its alarm figures: no clock to read

@@ -24,6 +24,7 @@ from urllib.parse import urlsplit
 
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig, load_config
+from stereopose.config_refs import resolve, source_path
 from stereopose.detection import make_detector
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
@@ -54,11 +55,6 @@ __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
 logger = logging.getLogger(__name__)
 
 STAGES = CAMERA_STAGES
-
-
-def _resolve(base: Path, value: str) -> Path:
-    p = Path(value).expanduser()
-    return p if p.is_absolute() else base / p
 
 
 def check_run_config(cfg: Config, path: Path) -> None:
@@ -99,11 +95,6 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
     copies = ("config.toml", "calib.toml", "site.toml") if site else ("config.toml", "calib.toml")
     return found + [Place(f"{n} in the output folder (a copy of the one used)", out_dir / n)
                     for n in copies]  # fmt: skip
-
-
-def _source(base: Path, value: str) -> str:
-    """A camera's source as written (a stream URL, or "" for none), a file resolved."""
-    return value if not value or is_stream(value) else str(_resolve(base, value))
 
 
 def _camera_source(
@@ -188,16 +179,16 @@ def run(
     cfg = load_config(config_path)
     check_run_config(cfg, config_path)
     base = config_path.resolve().parent
-    calib_path = _resolve(base, cfg.calibration)
+    calib_path = resolve(base, cfg.calibration)
     rig = run_rig(config_path, calib_path, cfg)
     names = [c.name for c in cfg.cameras]
-    site_path = _resolve(base, cfg.site) if cfg.site else None
+    site_path = resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
-    sources = [_source(base, c.source) for c in cfg.cameras]
-    substreams = [_source(base, c.detect) for c in cfg.cameras]
+    sources = [source_path(base, c.source) for c in cfg.cameras]
+    substreams = [source_path(base, c.detect) for c in cfg.cameras]
     det = cfg.detector
-    model = _resolve(base, det.model) if det.model else None
-    out_dir = _resolve(base, cfg.output)
+    model = resolve(base, det.model) if det.model else None
+    out_dir = resolve(base, cfg.output)
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
     inputs = _inputs(config_path, calib_path, site_path, sources, model)

@@ -267,7 +267,7 @@ class OpcuaServer(ClosesOnce):
         self._poke()
 
     def attach(self, desk) -> None:
-        """The incident step (pipeline.serve_incidents.IncidentStep): its `acknowledge` for
+        """The incident step (pipeline.incidents.IncidentStep): its `acknowledge` for
         the Acknowledge method, and its book's open incidents shown at once."""
         with self._lock:
             self.desk = desk

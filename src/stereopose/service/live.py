@@ -1,7 +1,7 @@
 """The console's live side: the latest people with their trails, the zones' state, the
 cameras' pictures and health, new events from the log, and the push channel to the pages.
 
-The frame loop only calls `LiveHub.on_frame` (through pipeline.serve's ConsoleSink): it keeps
+The frame loop only calls `LiveHub.on_frame` (through service.serve's ConsoleSink): it keeps
 a reference to the frame's people with their floor points and headings (computed with NumPy,
 no JSON), extends each person's trail, follows the zones' occupancy from the enter and exit
 events, and, a few times a second, hands the camera images to the snapshot encoder through a
@@ -15,7 +15,7 @@ for the web side.
   (at most max_clients): `people` (at most people_hz), `event` (each new row), `zones` (on a
   change and every ZONES_S), `cameras` (every CAMERAS_S), `ack` (when one is made).
   Each subscriber has a queue of client_queue messages; a slow one loses its oldest (counted).
-- The subscribers' places are shared fairly (service.places): at most per_user streams of one
+- The subscribers' places are shared fairly (service.http.places): at most per_user streams of one
   user (a newer one ends their own oldest), and max_clients // RESERVED_SHARE kept for
   operators and admins, whose alarm channel is always served: when every place is held, the
   oldest viewer's stream ends for them.
@@ -45,8 +45,8 @@ import numpy as np
 from stereopose.fence import Site, ZoneGeometry
 from stereopose.io.sinks.base import FrameResult
 from stereopose.service.eventlog import EventLog, LogError
-from stereopose.service.places import FairPlaces, Place
-from stereopose.service.state import ServiceState
+from stereopose.service.health.state import ServiceState
+from stereopose.service.http.places import FairPlaces, Place
 from stereopose.skeleton import floor_position, heading_deg
 from stereopose.types import Camera, Rig
 

@@ -1,0 +1,1 @@
+"""The site service's HTTP layer: the app, its API, logins and sessions, the server."""
