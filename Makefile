@@ -44,7 +44,7 @@ $(RT_STAMP): pyproject.toml Makefile $(SOURCES)
 		"'stereopose models export' where PyTorch is installed (make install)" >&2; exit 2; }
 	$(RT_BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
 	# the serve path loads here, without PyTorch
-	$(RT_BIN)/python -c "import stereopose.cli.serve, stereopose.service.serve, sys; \
+	$(RT_BIN)/python -c "import stereopose.cli.serve, stereopose.site.serve, sys; \
 		heavy = {'torch', 'ultralytics', 'triton'} & set(sys.modules); assert not heavy, heavy"
 	du -sh $(RUNTIME)
 	touch $(RT_STAMP)

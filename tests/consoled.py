@@ -13,14 +13,14 @@ from argon2 import PasswordHasher
 
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.pipeline.demo import write_serve_demo_config
-from stereopose.service.eventlog import EventLog
-from stereopose.service.health.state import ServiceState
-from stereopose.service.http.app import create_app
-from stereopose.service.http.server import Server, ServeSettings
-from stereopose.service.http.web import Console
-from stereopose.service.live import LiveHub
-from stereopose.service.plan import plan_serve
-from stereopose.service.users import UserStore
+from stereopose.site.eventlog import EventLog
+from stereopose.site.health.state import ServiceState
+from stereopose.site.http.app import create_app
+from stereopose.site.http.server import Server, ServeSettings
+from stereopose.site.http.web import Console
+from stereopose.site.live import LiveHub
+from stereopose.site.plan import plan_serve
+from stereopose.site.users import UserStore
 from stereopose.types import Event
 
 PASSWORDS = {"vera": "viewer-pass-1", "otto": "operator-pass-1", "ada": "admin-pass-1"}

@@ -11,9 +11,9 @@ from contextlib import contextmanager
 import numpy as np
 
 from stereopose.io.sinks import FrameResult
-from stereopose.service.health.state import ServiceState
-from stereopose.service.http.app import create_app
-from stereopose.service.http.server import Server, ServeSettings
+from stereopose.site.health.state import ServiceState
+from stereopose.site.http.app import create_app
+from stereopose.site.http.server import Server, ServeSettings
 from stereopose.types import Event, People3D
 
 

@@ -12,7 +12,7 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "stereopose"
 # the top of the data flow: these may import each other and everything below them
-TOP = ("pipeline", "cli", "service", "viz", "controlroom", "nodes")
+TOP = ("pipeline", "cli", "site", "viz", "controlroom", "nodes")
 
 
 def find_modules(src: Path, package: str) -> dict[str, Path]:
@@ -127,7 +127,7 @@ def cycle_report(graph: Mapping[str, Iterable[str]]) -> list[str]:
 
 def upward_imports(graph: Mapping[str, Iterable[str]], package: str = PACKAGE) -> list[str]:
     """``importer -> imported`` for each module below the top of the data flow that imports one
-    of the top (pipeline, cli, service, viz)."""
+    of the top (pipeline, cli, site, viz)."""
     top = tuple(f"{package}.{t}" for t in TOP)
     return [
         f"{m} -> {target}"
@@ -253,7 +253,7 @@ def test_upward_imports_are_found(tmp_path: Path) -> None:
 # Among the top packages, each imports only those before it here: the frame loop is shared by
 # the commands and the site service, the nodes feed the site service, the control room reuses
 # its HTTP layer, and the commands are above everything they run.
-TOP_ORDER = ("pipeline", "nodes", "service", "controlroom", "cli")
+TOP_ORDER = ("pipeline", "nodes", "site", "controlroom", "cli")
 
 
 def test_the_top_packages_import_down_their_order() -> None:

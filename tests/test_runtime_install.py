@@ -48,17 +48,18 @@ SERVE_MODULES = (
 )
 
 
-def _service_modules() -> tuple[str, ...]:
-    """Every module of stereopose.service (the site service, its HTTP layer and health), read
+def _site_modules() -> tuple[str, ...]:
+    """Every module of stereopose.site (the site service, its HTTP layer and health), read
     from the tree, whatever is added to it later."""
     names = []
-    for path in sorted((SRC / "stereopose" / "service").rglob("*.py")):
+    for path in sorted((SRC / "stereopose" / "site").rglob("*.py")):
         parts = path.relative_to(SRC).with_suffix("").parts
         names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    assert len(names) > 20, "stereopose.site: too few modules found (the package moved?)"
     return tuple(names)
 
 
-MODULES = SERVE_MODULES + _service_modules()
+MODULES = SERVE_MODULES + _site_modules()
 
 # Prepended to the child's code: the packages named in argv[1] are unimportable there, as in a
 # runtime install.

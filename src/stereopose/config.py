@@ -361,7 +361,7 @@ class MqttConfig:
     # messages held at most while the broker is away (then counted as dropped)
     queue_size: int = number(10_000, integer=True, ge=1, le=10_000_000)
     # the event log as an outbox: every stored event on <prefix>/<site>/log/events with its
-    # id, sent again until a receiver confirms it (service.outbox, docs/mqtt.md)
+    # id, sent again until a receiver confirms it (site.outbox, docs/mqtt.md)
     outbox: bool = True
     # the receiver's confirmed mark behind what was sent for this long: sent again (0: only on
     # a new connection)

@@ -8,8 +8,8 @@ from alarm_events import camera, rule, service, zone
 
 from stereopose.alarms.levels import BEHAVIOUR_ALARMS, BEHAVIOUR_ENDS, clears, hazard_key, level
 from stereopose.behaviour.definitions import ALARM_TYPES
-from stereopose.service import eventlog
-from stereopose.service.restart import ALARM_ENDS
+from stereopose.site import eventlog
+from stereopose.site.restart import ALARM_ENDS
 
 KINDS = ("energized", "restricted", "work_area", "behaviour", "camera", "service")
 TYPES = ("enter", "exit", "approach", "dwell", "left_work_area", "camera_down", "camera_up",

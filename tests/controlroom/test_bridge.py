@@ -20,8 +20,8 @@ from test_control_room import ENV, _add_user, _central, _client
 from brokers import Broker, free_port, make_certificate
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
-from stereopose.service.eventlog import EventLog
-from stereopose.service.outbox import LogOutbox
+from stereopose.site.eventlog import EventLog
+from stereopose.site.outbox import LogOutbox
 from stereopose.types import Event
 from waiting import wait_until
 

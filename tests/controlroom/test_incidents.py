@@ -22,8 +22,8 @@ from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.pipeline.incidents import IncidentStep
-from stereopose.service.eventlog import EventLog
-from stereopose.service.outbox import LogOutbox
+from stereopose.site.eventlog import EventLog
+from stereopose.site.outbox import LogOutbox
 from stereopose.types import Event, People3D
 from waiting import wait_until
 

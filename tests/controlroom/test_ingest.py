@@ -16,8 +16,8 @@ from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.events import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
-from stereopose.service.eventlog import EventLog
-from stereopose.service.outbox import LogOutbox
+from stereopose.site.eventlog import EventLog
+from stereopose.site.outbox import LogOutbox
 from stereopose.types import Event
 from waiting import wait_until
 

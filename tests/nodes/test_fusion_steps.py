@@ -17,7 +17,7 @@ from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.source import Clock
 from stereopose.nodes.fusion import NodeInput
 from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
-from stereopose.service.health.watchdog import Watchdog
+from stereopose.site.health.watchdog import Watchdog
 from stereopose.types import People2D
 from waiting import wait_until
 

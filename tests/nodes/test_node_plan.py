@@ -7,7 +7,7 @@ import pytest
 from stereopose.cli import main
 from stereopose.errors import ConfigError
 from stereopose.nodes.node import plan_node
-from stereopose.service.plan import plan_serve
+from stereopose.site.plan import plan_serve
 
 
 @pytest.fixture

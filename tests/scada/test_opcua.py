@@ -45,7 +45,7 @@ from stereopose.scada.opcua_settings import (  # noqa: E402
     application_certificate,
     opcua_settings,
 )
-from stereopose.service.users import UserStore  # noqa: E402
+from stereopose.site.users import UserStore  # noqa: E402
 from stereopose.types import Event, People3D  # noqa: E402
 
 PASSWORDS = {"vera": "viewer-pass-1", "otto": "operator-pass-1", "ada": "admin-pass-1"}

@@ -16,7 +16,7 @@ make its drifted calibration good again, so camera_up must not clear a calibrati
 
 The event types are written out here rather than imported (stereopose.behaviour imports this
 package for the site file's defaults); tests/alarms check that they agree with the modules
-that raise the events. service.eventlog.level gives the same levels and should call this one.
+that raise the events. site.eventlog.level gives the same levels and should call this one.
 """
 
 from __future__ import annotations

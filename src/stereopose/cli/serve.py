@@ -36,7 +36,7 @@ def _config_path(args: argparse.Namespace) -> Path:
 
 def _plan(path: Path, port: int | None):
     from stereopose.config import ServeConfig, load_config
-    from stereopose.service.plan import plan_serve
+    from stereopose.site.plan import plan_serve
 
     cfg = load_config(path)
     if port is not None:
@@ -47,7 +47,7 @@ def _plan(path: Path, port: int | None):
 
 def _console_line(url: str, config: Path, out_dir: Path) -> str:
     """Where the operator console is, and how to add its first user when it has none."""
-    from stereopose.service.users import UserStore
+    from stereopose.site.users import UserStore
 
     line = f"operator console: {url}/"
     try:
@@ -63,8 +63,8 @@ def _console_line(url: str, config: Path, out_dir: Path) -> str:
 def _serve(args: argparse.Namespace) -> int:
     path = _config_path(args)
     plan = _plan(path, args.port)
-    from stereopose.service.plan import interfaces
-    from stereopose.service.serve import serve
+    from stereopose.site.plan import interfaces
+    from stereopose.site.serve import serve
 
     def ready(url: str) -> None:
         out.print(f"serving: health {url}/api/health, metrics {url}/metrics; outputs in "

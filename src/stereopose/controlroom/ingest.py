@@ -1,5 +1,5 @@
 """The control room's MQTT side: every site's event log outbox in, each event stored once,
-the site's mark confirmed back (service.outbox's protocol, docs/mqtt.md#the-event-log-outbox),
+the site's mark confirmed back (site.outbox's protocol, docs/mqtt.md#the-event-log-outbox),
 and each site's state from its availability and its last message.
 
 Subscriptions under the central broker's `<prefix>/+/`: `log/events` and `log/incidents`

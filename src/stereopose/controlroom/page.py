@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse, Response
 
-from stereopose.service.http.api.page import CONSOLE_DIR, CONSOLE_URL, PAGE_HEADERS, _ConsoleFiles
+from stereopose.site.http.api.page import CONSOLE_DIR, CONSOLE_URL, PAGE_HEADERS, _ConsoleFiles
 
 __all__ = ["ROOM_DIR", "mount_page"]
 

@@ -47,7 +47,7 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
         section_settings,
         tls_files,
     )
-    from stereopose.service.http.server import ServeSettings
+    from stereopose.site.http.server import ServeSettings
 
     path = Path(config_path)
     if not path.is_file():
@@ -102,11 +102,11 @@ class ControlRoom:
     def __init__(self, plan: ControlPlan) -> None:
         from stereopose.controlroom.app import create_control_app
         from stereopose.io.writing import make_folder
-        from stereopose.service.http.auth import Sessions
-        from stereopose.service.http.hosts import allowed_hosts
-        from stereopose.service.http.server import Server
-        from stereopose.service.http.web import Console
-        from stereopose.service.users import UserStore
+        from stereopose.site.http.auth import Sessions
+        from stereopose.site.http.hosts import allowed_hosts
+        from stereopose.site.http.server import Server
+        from stereopose.site.http.web import Console
+        from stereopose.site.users import UserStore
 
         self.plan = plan
         make_folder(plan.out_dir)
@@ -140,7 +140,7 @@ class ControlRoom:
 def run_control_room(config_path: str | Path, stop: threading.Event | None = None,
                      on_ready=None) -> None:  # fmt: skip
     from stereopose.pipeline.private import private_files, tighten
-    from stereopose.service.parts import quiet_signals, stop_signals
+    from stereopose.site.parts import quiet_signals, stop_signals
 
     plan = plan_control_room(config_path)
     stop = stop or threading.Event()

@@ -8,7 +8,7 @@ reading connection, each reconnected when the server was away). The same tables 
 statements serve both (`_Dialect` turns the few words that differ). The events table's primary
 key is (site, id): an event sent twice (a QoS 1 resend, a replay, a bridge's duplicates) is
 stored once, and the duplicate counted. A site's mark (the highest id stored with nothing
-missing before it, service.outbox's protocol) is kept with the site, in the same transaction
+missing before it, site.outbox's protocol) is kept with the site, in the same transaction
 as the events that raise it, so a control room killed at any moment restarts with a mark
 that only names what it holds.
 """

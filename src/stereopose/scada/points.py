@@ -21,7 +21,7 @@ site file, or of the calibration's cameras as the configuration names them):
 
 A point's quality is invalid while one of `cameras` (those that see what it watches: a zone's
 cameras, a rule's zones' cameras, every camera for people on site and a rule watching the whole
-site) is down, or while the service is stalled (service.health.stall); a zone no camera sees is
+site) is down, or while the service is stalled (site.health.stall); a zone no camera sees is
 invalid always. Which cameras see a zone is computed from the calibration: a camera sees a
 zone when a point of the zone's prism (its corners, edge midpoints and centre at the bottom,
 middle and top of its height band) projects into its image in front of it, near enough that a

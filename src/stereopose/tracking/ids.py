@@ -2,7 +2,7 @@
 
 The tracker asks an `IdSource` for each new id (`take`). A plain count (`CountingIds`) gives
 every id asked for; a service gives them from ids reserved in its event log
-(service.person_ids), each committed before it is given, and may answer None when none is
+(site.person_ids), each committed before it is given, and may answer None when none is
 reserved: the track then stays tentative (no id, not output) and asks again next frame, so
 no id is ever seen anywhere that a restart could give again.
 """

@@ -1,6 +1,6 @@
 """One colour per person id, the same everywhere a person is drawn: the overlays, the console's
 camera pictures and alarm clips (viz.overlay), the report (viz.report), and the console's floor
-plan and 3D view (service/http/console/colours.js holds the same list; a test keeps them equal).
+plan and 3D view (site/http/console/colours.js holds the same list; a test keeps them equal).
 
 Tableau 10 without its red: red is the alarm's colour (a person inside an energized zone, an
 alarm), so no id is ever drawn in it.

@@ -10,7 +10,7 @@ write transaction that stores what it names, so the raised mark and the row comm
 and no id can be seen anywhere before its mark is durable; nothing ever lowers a mark (the
 retention deletes rows, never counters). So ids strictly increase for the life of the log,
 whatever was deleted and whenever a process was killed. Kinds: `events` (events.id),
-`persons` (person ids, reserved ahead by service.person_ids); further kinds (incidents) are
+`persons` (person ids, reserved ahead by site.person_ids); further kinds (incidents) are
 added the same way, with their seed in SEEDS.
 
 A log of an earlier version (no `counters`, or rows written by a version that did not raise

@@ -226,7 +226,7 @@ class SqliteSink(_EventSink):
     Person ids: with first_id, the sink records the ids its run gives in `id_reservations`,
     id_block at a time, extended when a frame's highest id comes within half a block of its
     end (a record beside the frames; a log read by an earlier version still sees them). What
-    keeps ids from being given twice is service.person_ids: serve's tracker takes each id from
+    keeps ids from being given twice is site.person_ids: serve's tracker takes each id from
     a block reserved on the log's `persons` mark before the id is given, so no frame (nor
     segment, MQTT message) can hold an id a restart would give again. A clean close records
     the run's end time. wall_start: the Unix time of t = 0, recorded in

@@ -5,7 +5,7 @@ event log; SCADA links later) has a `health()` method returning (ok, waiting, re
 False while it cannot deliver (the broker unreachable, the receiver failing, the log not
 writable), waiting the alarms and messages it holds that are not delivered yet, reason a
 short text for the health answer (None when ok). The service's health state collects them
-(service.health.state.ServiceState.register_output), so a new output reports by having the method.
+(site.health.state.ServiceState.register_output), so a new output reports by having the method.
 
 `health()` is called at each health or metrics read: it must be quick, must not block and
 must not raise. The reason is shown to anonymous clients: no path, host name or credential.

@@ -6,7 +6,7 @@ frame (`20240501-130000.jsonl.gz`; `_001`, `_002`, ... after it when that name i
 file is never overwritten). A frame's wall time is `wall_start + frame.t`: `wall_start` is the
 Unix time at which the source's clock read 0 (for live cameras, io.video's
 `clock.start_epoch`). Segments begin at whole multiples of `segment_s` of wall time (on the
-hour by default), so the maintainer (service.storage) can drop them by age.
+hour by default), so the maintainer (site.storage) can drop them by age.
 
 Lines are kept in memory for at most `segment_flush_s` of frame time (and 1 MiB), then
 appended as one complete gzip member: a writer killed at any moment leaves a file that

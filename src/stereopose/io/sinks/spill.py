@@ -6,7 +6,7 @@ a process killed then would lose the only record of an enter that the far side s
 next start could not close that zone. So the waiting events are appended, as they start to
 wait, to `<log>.pending.jsonl` (one JSON object a line: `{"run": N, "event": {...}}`, the
 event as the events contract writes it); the file is emptied once they are stored. The next
-start reads it as part of the log (service.restart: the zones and alarms it leaves open), and
+start reads it as part of the log (site.restart: the zones and alarms it leaves open), and
 the next SqliteSink stores its events in the log, each once, then removes the file.
 
 Incident records waiting with them (alarms: a change of an incident the other outputs have

@@ -1,0 +1,95 @@
+"""The service's HTTP app: `create_app(state, ...)` takes the running parts and mounts one
+router per resource (site.http.api): /api/health, /metrics and the offline OpenAPI page /docs
+(open), and the operator console: its page (/, /login, /console/...), /api/login and the
+routes behind the login (people, events, cameras, zones, clips, the live channel, users),
+over `console` (site.http.web.Console; without one, those routes answer 503).
+
+Every answer is JSON or the resource's own format, never a traceback page: debug is off, unknown
+paths are 404 and wrong methods 405 as {"detail": ...}, and an error inside a route is a 500
+{"detail": "internal error"} (its traceback goes to the log). No answer names a file of the
+server (site.http.error_answers): an error whose message holds a path is answered with a
+generic one, the message going to the log. With allowed_hosts, a request for another Host is
+refused (site.http.hosts).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+from prometheus_client import CollectorRegistry
+
+from stereopose import __version__
+from stereopose.site.health.metrics import make_registry
+from stereopose.site.health.state import ServiceState
+from stereopose.site.http import error_answers
+from stereopose.site.http.api import (
+    auth,
+    cameras,
+    clips,
+    docs,
+    events,
+    health,
+    live,
+    metrics,
+    page,
+    people,
+    users,
+    zones,
+)
+from stereopose.site.http.hosts import HostCheck
+from stereopose.site.http.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
+
+logger = logging.getLogger(__name__)
+
+
+async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
+    # answered outside the middleware (Starlette's outermost layer): its headers added here
+    headers = {k.decode(): v.decode() for k, v in EXTRA_HEADERS}
+    return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)
+
+
+def create_app(
+    state: ServiceState,
+    *,
+    registry: CollectorRegistry | None = None,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    lifespan: Callable[[FastAPI], Any] | None = None,
+    console: object | None = None,
+    allowed_hosts: Iterable[str] | None = None,
+) -> FastAPI:
+    """The app over `state`. registry: the metrics registry (None: one of its own over
+    `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
+    and stops with the server (the frame loop, the sinks); console: the console's parts
+    (site.http.web.Console); allowed_hosts: the Host names served
+    (site.http.hosts.allowed_hosts; None: any)."""
+    app = FastAPI(
+        title="stereopose",
+        version=__version__,  # shown only with a session (api.docs serves /openapi.json)
+        debug=False,
+        docs_url=None,  # served from the package's files instead (api.docs)
+        redoc_url=None,
+        openapi_url=None,
+        swagger_ui_oauth2_redirect_url=None,
+        lifespan=lifespan,
+    )
+    app.state.service = state
+    app.state.console = console
+    app.state.metrics_registry = registry if registry is not None else make_registry(state)
+    app.add_exception_handler(Exception, _internal_error)
+    error_answers.add_handlers(app)
+    if allowed_hosts is not None:  # inside RequestLimits: its refusals get the extra headers
+        app.add_middleware(HostCheck, allowed=tuple(allowed_hosts))
+    app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
+    app.include_router(health.router)
+    app.include_router(metrics.router)
+    from stereopose.site.http.api import incidents
+
+    for router in (auth, people, events, incidents, cameras, zones, clips, live, users):
+        app.include_router(router.router)
+    docs.mount_docs(app)
+    page.mount_page(app)
+    return app

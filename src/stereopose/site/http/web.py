@@ -1,0 +1,50 @@
+"""The console's running parts, as the routers get them (site.http.auth.console_parts).
+
+`Console.in_folder(out_dir, ...)` builds them over a service's output folder: the users
+(`users.json`), the sessions and the login limit (in memory), the event log and its
+acknowledgements (`events.sqlite`), the clips folder (`clips/`) and the live hub.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stereopose.site.acks import AckStore
+from stereopose.site.eventlog import EventLog
+from stereopose.site.http.auth import LoginLimiter, Sessions
+from stereopose.site.live import LiveHub
+from stereopose.site.users import UserStore
+
+EVENTS_DB = "events.sqlite"
+CLIPS_DIR = "clips"
+
+
+@dataclass
+class Console:
+    """users, sessions, limiter: who may log in; log, acks: the event log (None: none);
+    clips_dir: the only folder clips are read from (None: no clips); hub: the live side (None:
+    no live data: people, zones, cameras and the push channel answer 503)."""
+
+    users: UserStore
+    sessions: Sessions
+    limiter: LoginLimiter = field(default_factory=LoginLimiter)
+    log: EventLog | None = None
+    acks: AckStore | None = None
+    clips_dir: Path | None = None
+    hub: LiveHub | None = None
+
+    @classmethod
+    def in_folder(cls, out_dir: str | Path, hub: LiveHub | None = None,
+                  users: UserStore | None = None) -> Console:  # fmt: skip
+        out = Path(out_dir)
+        users = users or UserStore.in_folder(out)
+        clips = out / CLIPS_DIR
+        return cls(users=users, sessions=Sessions(users), log=EventLog(out / EVENTS_DB, clips),
+                   acks=AckStore(out / EVENTS_DB), clips_dir=clips, hub=hub)  # fmt: skip
+
+    def close(self) -> None:
+        if self.hub is not None:
+            self.hub.close()
+        if self.acks is not None:
+            self.acks.close()

@@ -1,0 +1,197 @@
+"""What `stereopose serve` reads from its configuration, checked before any work.
+
+`plan_serve(config_path)` loads the configuration and checks everything the service needs: the
+calibration and its cameras, the site, the model, every setting of [serve], [mqtt] and
+[storage] (each building block's own settings, so a bad value is a ConfigError naming the file
+and `section.key`), and that no output of the service's folder is one of its inputs. Nothing is
+written and nothing opened but the files read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from stereopose.config import Config, load_config
+from stereopose.config_refs import (
+    mqtt_settings,
+    resolve,
+    section_settings,
+    source_path,
+    tls_files,
+)
+from stereopose.errors import ConfigError
+from stereopose.fence import Site, load_site
+from stereopose.io.sinks.clips import CLIPS_DIR, ClipSettings
+from stereopose.io.sinks.mqtt_settings import MqttSettings
+from stereopose.io.sinks.segments import POSES_DIR, SegmentSettings
+from stereopose.io.video import is_stream
+from stereopose.pipeline.outputs import check_outputs
+from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
+from stereopose.pipeline.run import check_run_config, run_rig
+from stereopose.secrets import redact
+from stereopose.site.http.server import ServeSettings
+from stereopose.site.storage import RetentionSettings
+from stereopose.types import Rig
+
+EVENTS_DB = "events.sqlite"
+STATUS = "status.json"
+_GB = 10**9
+
+
+@dataclass(frozen=True)
+class ServePlan:
+    """The service's configuration, checked: paths resolved against the config file's folder
+    (sources: one per camera, URLs as written; detect_sources: the detection substreams, ""
+    where the main source is used), and the building blocks' settings (mqtt: None when off)."""
+
+    config_path: Path
+    config: Config
+    rig: Rig
+    calib_path: Path
+    site: Site | None
+    site_path: Path | None
+    sources: tuple[str, ...]
+    detect_sources: tuple[str, ...]
+    model: Path | None
+    out_dir: Path
+    http: ServeSettings
+    mqtt: MqttSettings | None
+    segments: SegmentSettings
+    clips: ClipSettings | None
+    retention: RetentionSettings
+
+    @property
+    def events_db(self) -> Path:
+        return self.out_dir / EVENTS_DB
+
+    @property
+    def status_path(self) -> Path:
+        return self.out_dir / STATUS
+
+
+def _storage(path: Path, cfg: Config) -> tuple[SegmentSettings, ClipSettings | None,
+                                                 RetentionSettings]:  # fmt: skip
+    s = cfg.storage
+    segments = section_settings(path, SegmentSettings, segment_s=s.segment_s)
+    clips = (
+        section_settings(path, ClipSettings, clip_pre_s=s.clip_pre_s, clip_post_s=s.clip_post_s)
+        if s.clips
+        else None
+    )
+    retention = section_settings(path, RetentionSettings, retention_days=s.retention_days,
+                          clip_retention_days=s.clip_retention_days,
+                          event_retention_days=s.event_retention_days,
+                          max_bytes=round(s.max_gb * _GB),
+                          interval_s=s.maintenance_interval_s)  # fmt: skip
+    return segments, clips, retention
+
+
+def _check_cameras(path: Path, cfg: Config) -> None:
+    """What the service adds to a run's cameras: loop only for a recorded file; a webhook URL
+    it can post to."""
+    for i, c in enumerate(cfg.cameras):
+        if c.loop and is_stream(c.source):
+            raise ConfigError(f"{path}: cameras[{i}].loop: only a recorded file can be looped, "
+                              f"got the stream {redact(c.source)!r}")  # fmt: skip
+    hook = cfg.outputs.webhook
+    if hook is not None:
+        parts = urlsplit(hook)
+        try:
+            ok = parts.scheme in ("http", "https") and bool(parts.hostname)
+            parts.port  # noqa: B018  # a port that is not a number raises
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ConfigError(f"{path}: outputs.webhook: expected an http:// or https:// URL, "
+                              f"got {hook!r}")  # fmt: skip
+
+
+def _check_places(plan: ServePlan) -> None:
+    """No output of the service's folder may be an input or lie in an input folder."""
+    inputs = places(("configuration", plan.config_path), ("calibration", plan.calib_path),
+                    ("site", plan.site_path), ("detector.model", plan.model))  # fmt: skip
+    for key, values in (("source", plan.sources), ("detect", plan.detect_sources)):
+        inputs += [Place(f"cameras[{i}].{key}", Path(s)) for i, s in enumerate(values)
+                   if s and not is_stream(s)]  # fmt: skip
+    out = plan.out_dir
+    outputs = [Place(f"{POSES_DIR}/ in the output folder", out / POSES_DIR, folder=True),
+               Place(f"{CLIPS_DIR}/ in the output folder", out / CLIPS_DIR, folder=True),
+               Place(f"{STATUS} in the output folder", plan.status_path)]  # fmt: skip
+    outputs += sqlite_places(f"{EVENTS_DB} in the output folder", plan.events_db)
+    hint = f'set `output` in {plan.config_path} to a folder of its own (such as "out/serve")'
+    check_places(inputs, outputs, hint)
+
+
+def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePlan:
+    """The checked plan of the configuration at `config_path` (config: already loaded from it,
+    as the demo does); a ConfigError (exit 2) naming the file and the key otherwise."""
+    path = Path(config_path)
+    cfg = config if config is not None else load_config(path)
+    check_run_config(cfg, path)
+    _check_cameras(path, cfg)
+    base = path.resolve().parent
+    calib_path = resolve(base, cfg.calibration or "")
+    rig = run_rig(path, calib_path, cfg)
+    site_path = resolve(base, cfg.site) if cfg.site else None
+    site = load_site(site_path) if site_path is not None else None
+    check_outputs(cfg, site, _NoTwoWay)
+    certificate, key = tls_files(path, base, cfg)
+    http = section_settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
+                     certificate=certificate, key=key,
+                     trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
+    segments, clips, retention = _storage(path, cfg)
+    if cfg.input.detection == "nodes" and not cfg.mqtt.host:
+        raise ConfigError(f"{path}: input.detection = \"nodes\": the nodes' people come over "
+                          "the site's broker; set [mqtt] host")  # fmt: skip
+    plan = ServePlan(
+        config_path=path, config=cfg, rig=rig, calib_path=calib_path, site=site,
+        site_path=site_path, sources=tuple(source_path(base, c.source) for c in cfg.cameras),
+        detect_sources=tuple(source_path(base, c.detect) for c in cfg.cameras),
+        model=resolve(base, cfg.detector.model) if cfg.detector.model else None,
+        out_dir=resolve(base, cfg.output), http=http, mqtt=mqtt_settings(path, base, cfg),
+        segments=segments, clips=clips, retention=retention,
+    )  # fmt: skip
+    _check_places(plan)
+    return plan
+
+
+class _NoTwoWay:
+    """check_outputs' view of the service's outputs: nothing smoothed both ways."""
+
+    two_way = False
+
+
+def interfaces(cfg: Config) -> list[str]:
+    """Which optional interface of the service is on, and where, for its first log line."""
+    shown = []
+    m = cfg.mqtt
+    shown.append(f"MQTT on {m.host}:{m.port} (site {m.site})" if m.host else "MQTT off")
+    shown.append("webhook on" if cfg.outputs.webhook else "webhook off")
+    i = cfg.iec104
+    shown.append(f"IEC 104 on {i.host}:{i.port}" if i.enabled else "IEC 104 off")
+    o = cfg.opcua
+    shown.append(f"OPC UA on opc.tcp://{o.host}:{o.port}{o.path}" if o.enabled else "OPC UA off")
+    return shown
+
+
+def disabled_settings(cfg: Config) -> list[str]:
+    """A warning for each interface left off whose section sets keys all the same: the
+    operator meant it on, most likely."""
+    out = []
+    for section, name in (("iec104", "the IEC 104 outstation"), ("opcua", "the OPC UA server")):
+        value = getattr(cfg, section)
+        if value.enabled:
+            continue
+        default = type(value)()
+        changed = [
+            f.name
+            for f in dataclasses.fields(value)
+            if f.name != "enabled" and getattr(value, f.name) != getattr(default, f.name)
+        ]
+        if changed:
+            out.append(f"[{section}] sets {', '.join(changed)} but not enabled = true: {name} is "
+                       f"off; set [{section}] enabled = true to turn it on")  # fmt: skip
+    return out

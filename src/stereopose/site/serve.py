@@ -1,0 +1,617 @@
+"""`stereopose serve`: the frame loop for ever, with bounded storage, alarms out and health.
+
+Once the configuration is checked (site.plan: exit 2 before any work), the service
+starts its HTTP server (site.http.app: /api/health, /metrics, the operator console over the
+users of `<output>/users.json`), opens the cameras and runs the
+frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
+
+- pose segments `poses/<UTC start>.jsonl.gz` (io.sinks.segments);
+- the event log `events.sqlite` (appended to across restarts), the webhook when
+  [outputs] webhook is set, MQTT when [mqtt] host is set, the IEC 60870-5-104 outstation
+  when [iec104] is enabled (scada.iec104; also an incident output);
+- event clips `clips/` (io.sinks.clips) unless [storage] clips = false;
+- the console's live hub (site.live: people, zones, camera pictures for the page);
+- the health state (site.health.state) and `status.json`, its snapshot every status_interval_s;
+  every alarm output (the event log, the webhook, MQTT; any later one with a `health()`, see
+  io.sinks.health) is registered with it, so health is degraded while one fails.
+
+The data folder is private: the service runs with a umask of 077 and takes group and other
+permissions off what an earlier run left (pipeline.private). Its HTTP server answers only
+the Host names of site.http.hosts.allowed_hosts ([serve] allowed_hosts adds some).
+
+With [opcua] enabled, the OPC UA server (scada.opcua: the site's zones, cameras and counts,
+each incident an alarm condition, logins as the console's users) listens from the start,
+before the cameras open; it is an incident output and a sink, closed with the event sinks.
+
+Recorded files are played as live cameras: every step, and so every event, is stamped with
+when its frames were read, seconds since the service's t = 0 (wall time = wall_start + t). A
+stall of the whole service (the machine overloaded or the process paused: every camera late at
+once) is one service_stalled / service_resumed pair, not a camera_down per camera, and ends no
+track (site.steps). Health is degraded while a camera is processed far under its
+nominal rate or drops most of its frames (site.health.state).
+
+One storage maintainer thread (site.storage) applies [storage]'s retention and cap. Events
+other than zone events (a camera down or up, the service stalled or resumed, calibration drift,
+a zone closed at restart) go through the same event sinks. A stop closes every output, each
+within its own bound, then the maintainer and the server; a second signal meanwhile is ignored.
+
+Nothing is kept per frame: the summary holds running aggregates, every queue is bounded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stereopose.alarms import AlarmSettings, IncidentBook
+from stereopose.config import Config
+from stereopose.detection import make_detector
+from stereopose.detection.regional import RegionDetector, region_detector
+from stereopose.errors import StereoposeError
+from stereopose.extras import require
+from stereopose.fence import FenceMonitor
+from stereopose.io.cameraset import CameraSet
+from stereopose.io.packets import PacketRing
+from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
+from stereopose.io.sinks.clips import ClipSettings
+from stereopose.io.sinks.incidents import IncidentIds
+from stereopose.io.source import shown_url
+from stereopose.io.summary import RunSummary
+from stereopose.io.video import is_stream
+from stereopose.io.writing import make_folder
+from stereopose.nodes.fusion import NodeInput
+from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
+from stereopose.pipeline.pipelined import PipelinedCameras
+from stereopose.pipeline.private import private_files, tighten
+from stereopose.pipeline.sources import Cameras, source_label
+from stereopose.pipeline.stage3d import Stage3D
+from stereopose.scada.opcua_settings import opcua_settings
+from stereopose.site.eventlog import EventLog
+from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.state import ServiceState
+from stereopose.site.health.watch import CameraWatch
+from stereopose.site.health.watchdog import Watchdog
+from stereopose.site.http.api.health import health_of
+from stereopose.site.http.app import create_app
+from stereopose.site.http.hosts import allowed_hosts
+from stereopose.site.http.server import Server
+from stereopose.site.http.web import Console
+from stereopose.site.live import ConsoleSink, LiveHub
+from stereopose.site.parts import (
+    ServeSource,
+    StateSink,
+    StatusSink,
+    output_health,
+    quiet_signals,
+    stop_signals,
+)
+from stereopose.site.plan import (
+    ServePlan,
+    disabled_settings,
+    interfaces,
+    plan_serve,
+)
+from stereopose.site.restart import Resume
+from stereopose.site.steps import HeldRules, HeldStage, ServeEvents
+from stereopose.site.storage import StorageMaintainer
+
+__all__ = ["ServeResult", "plan_serve", "serve"]
+
+logger = logging.getLogger(__name__)
+
+HEARTBEAT_S = 0.5  # the longest the loop goes without a step while no camera delivers
+
+
+@dataclass
+class ServeResult:
+    """What a service run did: its summary, the address it served on, the outputs closed and
+    those that failed on the way (each output that failed stops alone, the service goes on)."""
+
+    summary: RunSummary
+    url: str
+    outputs: list[Path] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+
+
+class _Closing(ClosesOnce):
+    """The first sink closed: from then on a signal no longer cuts the closing short."""
+
+    stage = "write"
+
+    def __init__(self) -> None:
+        self._quiet = quiet_signals()
+
+    def write(self, frame: FrameResult) -> None:
+        pass
+
+    def _close(self) -> list[Path]:
+        self._quiet.__enter__()  # left by serve once everything is closed
+        return []
+
+    def release(self) -> None:
+        if self._closed:
+            self._quiet.__exit__(None, None, None)
+
+
+class _Service:
+    """The running parts of one `serve`, built from a plan; `run()` once."""
+
+    def __init__(self, plan: ServePlan, stop: threading.Event, resume: Resume) -> None:
+        self.plan, self.stop, self.resume = plan, stop, resume
+        self.state = ServiceState(
+            plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
+        )
+        self.server: Server | None = None
+        self.app = None
+        self.db: SqliteSink | None = None
+        self.incident_outputs: list[Callable] = []  # each given every step's incident changes
+        self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
+        self.outbox = None  # the event log as an outbox over MQTT (site.outbox)
+        self.console: Console | None = None
+        self.maintainer: StorageMaintainer | None = None
+        self.status: StatusSink | None = None
+        self.failed: dict[str, str] = {}
+        self.probes: dict[str, Callable[[], dict]] = {}
+        self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
+        self.packets = _packet_rings(plan)
+        self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
+        self.opcua = None  # the OPC UA server, once started
+        self.watchdog = Watchdog()  # the receivers' threads started again where one died
+        if self.packets:
+            self.probes["full_streams"] = lambda: {
+                name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
+                for name, r in self.packets.items()
+            }
+
+    # -- starting -------------------------------------------------------------------------
+
+    def start_server(self) -> str:
+        p = self.plan
+        hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
+        self.console = Console.in_folder(p.out_dir, hub)
+        self.probes["console"] = hub.figures
+        self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
+        hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
+        app = create_app(self.state, console=self.console, allowed_hosts=hosts)
+        self.app = app  # its incidents (api.incidents) set once the frame loop has its book
+        hint = f"stereopose users add NAME --role admin --config {p.config_path}"
+        self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
+        self.server.start()
+        hub.start()
+        self.start_opcua()
+        return self.server.url
+
+    def start_maintainer(self) -> None:
+        p = self.plan
+        self.maintainer = StorageMaintainer(p.out_dir, event_log=p.events_db, settings=p.retention)
+        self.state.register_storage(self.maintainer.usage)
+        self.probes["storage"] = self.maintainer.health
+        self.maintainer.start()
+
+    def start_opcua(self) -> None:
+        """[opcua]: the OPC UA server (scada.opcua) listening, an incident output from now
+        on; its users are the console's. A StereoposeError when it cannot listen."""
+        settings, p = self.opcua_settings, self.plan
+        if settings is None or self.console is None:
+            return
+        from stereopose.scada.opcua import CameraNode, OpcuaServer
+        from stereopose.scada.opcua_space import site_zones
+
+        server = OpcuaServer(settings, site_zones(p.site, p.rig),
+                             [CameraNode(n) for n in p.rig.names], self.console.users,
+                             status=lambda: self.state.snapshot().status,
+                             limiter=self.console.limiter)  # fmt: skip
+        server.start()
+        self.opcua = server
+        self.incident_outputs.append(server.write_changes)
+        self.state.register_queue("opcua", lambda: server.counts()["queued"],
+                                  lambda: server.dropped)  # fmt: skip
+        self.probes["opcua"] = server.counts
+
+    def _opcua_sink(self, guard, wall_start: float) -> list[Sink]:
+        """The OPC UA server as a sink (zone, camera and service events, people), watched as
+        an alarm output."""
+        server = self.opcua
+        if server is None:
+            return []
+        server.wall_start = wall_start
+        return [self._alarm_output("opcua", guard(server, f"OPC UA {server.settings.endpoint}"))]
+
+    def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
+                   stats: Callable[[], dict], arrival: Callable[[float], float | None],
+                   rates: Callable[[], dict] | None = None) -> list[Sink]:  # fmt: skip
+        """Every sink, in closing order; if one cannot be opened, those open are closed."""
+        p, sinks = self.plan, []
+
+        def guard(sink: Sink, label: object) -> Sink:
+            return Guarded(sink, str(label), self.failed)
+
+        try:
+            from stereopose.io.sinks.segments import SegmentSink
+
+            sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
+                                           settings=p.segments), p.out_dir / "poses"))  # fmt: skip
+            sinks += self._event_sinks(cfg, guard, wall_start)
+            sinks += self._opcua_sink(guard, wall_start)
+            if p.clips is not None and p.site is not None:
+                sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
+            if self.console is not None and self.console.hub is not None:
+                sinks.append(ConsoleSink(self.console.hub, wall_start))
+            state = StateSink(self.state, summary, arrival=arrival, stats=stats,
+                              elsewhere=self.elsewhere, rates=rates)  # fmt: skip
+            sinks.append(guard(state, "the health state"))
+            self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
+            sinks.append(guard(self.status, p.status_path))
+        except BaseException:
+            close_all(sinks)
+            raise
+        return sinks
+
+    def _event_sinks(self, cfg: Config, guard, wall_start: float) -> list[Sink]:
+        p, sinks = self.plan, []
+        site = str(p.site.path or "") if p.site is not None else ""
+        db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
+                        first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
+        self.db = db
+        self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
+        sinks.append(self._alarm_output("events_db", guard(db, p.events_db)))
+        if cfg.outputs.webhook:
+            hook = WebhookSink(cfg.outputs.webhook)
+            self.incident_outputs.append(hook.write_changes)
+            self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
+            label = shown_url(cfg.outputs.webhook)
+            sinks.append(self._alarm_output("webhook", guard(hook, label)))
+        if p.mqtt is not None:
+            from stereopose.io.sinks.mqtt import MqttSink
+
+            zones = [z.name for z in p.site.zones] if p.site is not None else []
+            mqtt = MqttSink(p.mqtt, zones)
+            self.incident_outputs.append(mqtt.write_changes)
+            self.state.register_queue("mqtt", lambda: _queued(mqtt), lambda: _dropped(mqtt))
+            self.probes["mqtt"] = mqtt.counts
+            sinks.append(
+                self._alarm_output("mqtt", guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
+            )
+            if cfg.mqtt.outbox:
+                from stereopose.site.outbox import LogOutbox
+
+                log = EventLog(p.events_db, p.out_dir / "clips")
+                self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
+                                        summary=self._summary, plan=self._plan(cfg))  # fmt: skip
+                self.probes["outbox"] = self.outbox.figures
+                self.state.register_output("outbox", self.outbox.health)
+                self.watchdog.add("outbox", self.outbox.ensure_running)
+                self.watchdog.start()
+        if cfg.iec104.enabled:
+            sinks.append(self._iec104(cfg, guard, wall_start))
+        return sinks
+
+    def _plan(self, cfg: Config) -> dict:
+        """The site's zones and console address, for a control room's page of the site."""
+        site = self.plan.site
+        zones = [] if site is None else [
+            {"name": z.name, "kind": z.kind,
+             "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon]}
+            for z in site.zones]  # fmt: skip
+        return {"zones": zones, "console_url": cfg.serve.public_url or None}
+
+    def _summary(self) -> dict:
+        """The site at a glance, in the outbox's heartbeat (a control room's site list)."""
+        snap = self.state.snapshot()
+        return {
+            "status": snap.status,
+            "cameras": len(snap.cameras),
+            "cameras_up": sum(1 for c in snap.cameras if c.up),
+            "people": snap.people,
+        }
+
+    def _iec104(self, cfg: Config, guard, wall_start: float) -> Sink:
+        """The IEC 60870-5-104 outstation (scada.iec104): a sink for the zone, camera and
+        service events, an incident output, `service degraded` from the health answer."""
+        from stereopose.scada.iec104 import Iec104Settings, Outstation
+        from stereopose.scada.points import points_table
+
+        p, s = self.plan, Iec104Settings.from_config(cfg.iec104)
+        station = Outstation(s, points_table(p.site, p.rig, commands=s.commands),
+                             wall_start=wall_start,
+                             status=lambda: self.state.snapshot().status)  # fmt: skip
+        self.iec104 = station
+        self.incident_outputs.append(station.write_changes)
+        self.state.register_queue("iec104", station.queued, lambda: station.dropped)
+        self.probes["iec104"] = station.figures
+        return self._alarm_output("iec104", guard(station, f"IEC 60870-5-104 {s.host}:{s.port}"))
+
+    def _alarm_output(self, name: str, sink: Guarded) -> Guarded:
+        """`sink` watched by the health state as the alarm output `name` (io.sinks.health)."""
+        self.state.register_output(name, output_health(sink))
+        return sink
+
+    def _clips(self, cfg: Config, wall_start: float):
+        from stereopose.io.sinks.clips import ClipSink
+        from stereopose.viz.clips import clip_drawer
+
+        p = self.plan
+        clips = ClipSink(p.out_dir, p.rig.names, cfg.fps, wall_start=wall_start,
+                         draw=clip_drawer(p.rig), settings=p.clips,
+                         packets=self.packets)  # fmt: skip
+        self.state.register_queue("clips", clips._frames.qsize, lambda: clips.frames_dropped)
+        self.probes["clips"] = lambda: {"written": clips.clips_written,
+                                        "failed": clips.clips_failed,
+                                        "frames_dropped": clips.frames_dropped,
+                                        "full_copies_written": clips.copies_written,
+                                        "full_copies_failed": clips.copies_failed}  # fmt: skip
+        return clips
+
+    def watch_nodes(self, nodes) -> None:
+        """The nodes' camera-frames waiting for their step as a queue of the health state
+        (late, over-full and refused ones as its drops); the nodes' figures in status."""
+        self.state.register_queue("nodes", nodes.waiting, nodes.lost)
+        self.probes["nodes"] = nodes.report
+        self.watchdog.add("nodes", nodes.ensure_running)
+        self.watchdog.start()
+
+    def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
+        """The detection hand-over as a queue of the health state; its figures in status."""
+        stats = pipelined.stats
+        self.elsewhere = lambda: {"detect": stats.detect_s}
+        self.state.register_queue("detection", lambda: len(pipelined.handover),
+                                  lambda: pipelined.handover.dropped)  # fmt: skip
+        self.probes["pipeline"] = stats.figures
+
+    def watch_regions(self, regions: RegionDetector) -> None:
+        """Detection in regions' figures by camera in status, /metrics and the console."""
+        self.state.register_regions(regions.report)
+        self.probes["regions"] = regions.report
+        if self.console is not None and self.console.hub is not None:
+            self.console.hub.show_regions(regions.view)
+
+    # -- health -----------------------------------------------------------------------------
+
+    def snapshot(self) -> dict:
+        """status.json: the health answer, the outputs that failed, each part's figures."""
+        doc = health_of(self.state.snapshot()).model_dump()
+        doc["written_at"] = time.time()
+        doc["failed_outputs"] = dict(self.failed)
+        for name, probe in list(self.probes.items()):
+            try:
+                doc[name] = probe()
+            except Exception as e:  # a part's figures missing never stops the status
+                doc[name] = {"error": str(e)}
+        return doc
+
+    # -- stopping ---------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """The maintainer, the console and the server, each within its bound."""
+        self.watchdog.stop()
+        if self.opcua is not None:
+            self.opcua.close()  # once (a sink of the loop closes it first)
+        if self.outbox is not None:
+            self.outbox.close()
+        if self.maintainer is not None and not self.maintainer.stop(5.0):
+            logger.warning("storage: the maintainer did not stop within 5 s")
+        if self.console is not None:
+            self.console.close()  # its live streams end before the server stops
+        if self.server is not None:
+            self.server.stop()
+
+
+def _live_changes(hub: LiveHub, changes) -> None:
+    """Each incident change to the console's live channel, as an `incident` message."""
+    for c in changes:
+        hub.publish("incident", c.to_dict())
+
+
+def _queued(mqtt) -> int:
+    return sum(v["queued"] for v in mqtt.counts().values())
+
+
+def _dropped(mqtt) -> int:
+    return sum(v["dropped"] for v in mqtt.counts().values())
+
+
+def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
+    """Per live camera with a live detection substream, the ring its full stream is kept in
+    (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
+    clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
+    cfg = plan.config
+    if cfg.input.full_streams != "copy" or cfg.input.detection == "nodes":
+        return {}
+    s = plan.clips or ClipSettings()
+    keep_s = s.clip_pre_s + s.clip_post_s + 5.0
+    return {name: PacketRing(keep_s, s.clip_buffer_bytes)
+            for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources,
+                                      strict=True)
+            if sub and is_stream(str(src)) and is_stream(str(sub))}  # fmt: skip
+
+
+def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
+    """Per camera (the rate the service should process it at, its own rate): its frame rate,
+    or detect_fps when lower; None while not known (a live stream not yet connected)."""
+    out = {}
+    for s in cams.sources:
+        own = float(s.fps) if s.fps else None
+        nominal = min(own, cams.detect_fps) if own and cams.detect_fps else own
+        out[s.name] = (nominal, own)
+    return out
+
+
+def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet | NodeInput:
+    cfg = plan.config
+    if cfg.input.detection == "nodes":  # the cameras' people from the detection nodes
+        assert plan.mqtt is not None  # plan_serve: [mqtt] host is set
+        i = cfg.input
+        return NodeInput(plan.mqtt, plan.rig, fps=i.detect_fps or i.fps or cfg.fps,
+                         window_s=i.node_window_s, wait_s=i.node_wait_s,
+                         clock_tolerance_s=i.node_clock_tolerance_s,
+                         picture_scale=i.node_picture_scale)  # fmt: skip
+    # a service starts at once however long its cameras take: the loop goes on in heartbeats
+    # and the camera watch raises camera_down for each camera that has not delivered
+    return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
+                     None, open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
+                     loop=[c.loop for c in cfg.cameras],
+                     detect=[d or None for d in plan.detect_sources],
+                     detect_fps=cfg.input.detect_fps, wait_first_frame=False,
+                     packets=packets, wall_clock=True)  # fmt: skip
+
+
+def serve(
+    config_path: str | Path,
+    *,
+    plan: ServePlan | None = None,
+    stop: threading.Event | None = None,
+    on_ready: Callable[[str], None] | None = None,
+) -> ServeResult:
+    """Serve the configuration at `config_path` until `stop` is set, SIGINT or SIGTERM.
+
+    plan: already checked (plan_serve); on_ready(url): once the HTTP server answers. Returns
+    when every output is closed. A ConfigError (bad configuration) or a ServeError (the port
+    taken) comes before any output is written.
+    """
+    plan = plan or plan_serve(config_path)
+    with private_files():  # before any file of the service is made
+        tighten(plan.out_dir)
+        return _serve(plan, stop or threading.Event(), on_ready)
+
+
+def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], None] | None
+           ) -> ServeResult:  # fmt: skip
+    cfg = plan.config
+    if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
+        require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
+    logger.info("interfaces: %s", ", ".join(interfaces(cfg)))  # the command prints it too
+    for warning in disabled_settings(cfg):
+        logger.warning("%s: %s", plan.config_path, warning)
+    d = cfg.detector  # none in this process when the nodes detect
+    detector = (
+        None
+        if cfg.input.detection == "nodes"
+        else make_detector(
+            d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device, d.threads, d.precision
+        )
+    )
+    resume = Resume.from_log(plan.events_db)  # before any id is given or event written
+    if resume.occupied:
+        logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
+                       len(resume.occupied))  # fmt: skip
+    if resume.alarms:
+        logger.warning("restart: %d behaviour alarm(s) left open by the last run are ended",
+                       len(resume.alarms))  # fmt: skip
+    service = _Service(plan, stop, resume)
+    # [opcua] checked before any work: a ConfigError naming the file and the key
+    service.opcua_settings = opcua_settings(plan.config_path, cfg, plan.out_dir)
+    closing = _Closing()
+    with stop_signals():
+        try:
+            url = service.start_server()
+            if on_ready is not None:
+                on_ready(url)
+            try:
+                make_folder(plan.out_dir)
+            except OSError as e:
+                raise StereoposeError(f"{plan.out_dir}: cannot create the output folder: "
+                                      f"{e.strerror}") from None  # fmt: skip
+            service.start_maintainer()
+            with _open_cameras(plan, service.packets) as cams:
+                summary = _run_loop(plan, service, cams, detector, stop, closing)
+        finally:
+            with quiet_signals():
+                service.close()
+            closing.release()
+    return ServeResult(summary, url, summary.outputs, dict(service.failed))
+
+
+def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, detector, stop,
+              closing: _Closing) -> RunSummary:  # fmt: skip
+    cfg = dataclasses.replace(plan.config, fps=cams.fps)
+    rig = plan.rig
+    fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
+    timeout_s = cfg.serve.camera_timeout_s
+    watch = CameraWatch(rig.names, timeout_s, start=0.0)
+    calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
+
+    def now_t() -> float:  # the service's clock: the steps' and the events' t
+        return cams.clock.since(time.monotonic())
+
+    events = ServeEvents(fences, watch, calib, service.resume.closing_events,
+                         fresh=lambda name: cams.delivering(name, timeout_s), clock=now_t,
+                         on_stall=service.state.service_stall)  # fmt: skip
+    if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
+        pipelined, rates = cams, cams.rates
+        service.watch_nodes(cams)
+    else:  # detection on its own thread, always on the newest frames (recorded: every step)
+        regions = region_detector(detector, cfg.detector)
+        pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector, regions)), None
+        service.watch_pipeline(pipelined)
+        if regions is not None:
+            service.watch_regions(regions)
+    # an empty step's time: now, or for the nodes now less their frames' longest way here (a
+    # step's time is its capture time, and the steps' times only rise)
+    lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
+    source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
+                         on_step=events.step, on_detect=events.detected,
+                         clock=lambda: now_t() - lag_s)  # fmt: skip
+    # each person id reserved in the log before it is given (site.person_ids)
+    stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path),
+                    first_id=service.resume.person_ids(plan.events_db))  # fmt: skip
+    # a step the service was too late for is no observation; a stall's length not their age
+    stage, rules = HeldStage(stage, events), behaviour_monitor(plan.site, cfg)
+    summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,
+                         stage.tracking, live=source.live, fps_input=source.fps,
+                         out_dir=plan.out_dir, config_path=plan.config_path)  # fmt: skip
+    wall_start = cams.clock.start_epoch
+    start_mono = cams.clock.start
+
+    def arrival(t: float) -> float | None:
+        return start_mono + t if source.live or cams.wall_clock else None
+
+    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival,
+                               rates or (lambda: nominal_rates(cams)))  # fmt: skip
+    logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
+    ids = IncidentIds(plan.events_db)
+    try:
+        incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
+        if service.opcua is not None:  # its Acknowledge, and the restored incidents shown
+            service.opcua.attach(incidents)
+        loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=incidents,
+                         behaviour=incidents, stop=stop)  # fmt: skip
+        return loop.run()
+    finally:
+        ids.close()
+
+
+def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, fences,
+               ids: IncidentIds, wall_start: float, clock: Callable[[], float]
+               ) -> IncidentStep:  # fmt: skip
+    """The incident book over the step's events (pipeline.incidents): ids from the
+    log's mark, the incidents the last run left open restored (on this run's clock), its
+    changes stored with the step's events and given to every incident output; the HTTP API's
+    acts reach it through the app."""
+    settings = AlarmSettings.from_site(plan.site) if plan.site is not None else AlarmSettings()
+    book = IncidentBook(settings, next_id=ids)
+    restored = book.restore(service.resume.open_incidents(wall_start))
+    if restored:
+        logger.warning("restart: %d incident(s) left open by the last run are open again",
+                       restored)  # fmt: skip
+    db = service.db
+    step = IncidentStep(book, events, HeldRules(rules, events) if rules is not None else None,
+                        fences, store=db.put_incidents if db is not None else None,
+                        outputs=service.incident_outputs, clock=clock,
+                        wall_start=wall_start)  # fmt: skip
+    service.probes["alarms"] = step.figures
+    service.state.register_alarms(step.figures)  # in /metrics
+    if service.iec104 is not None:  # the restored incidents, and its commands' way in
+        service.iec104.incidents(book.incidents())
+        service.iec104.acknowledger = step.acknowledge
+    if service.outbox is not None:  # a control room's acknowledgements
+        service.outbox.acknowledger = step.acknowledge
+    if service.app is not None:
+        service.app.state.incidents = step
+    return step

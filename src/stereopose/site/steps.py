@@ -1,0 +1,214 @@
+"""The events of one service step beyond the cameras' images, and the people's time across a
+stall of the service.
+
+`ServeEvents.update(people3d)` (FrameLoop's `fences`) returns, in order: on the first step the
+exits that close the zones a killed run left occupied (site.restart), the zone events
+(fence), the service's own events (site.health.stall: service_stalled / service_resumed), the
+camera events (site.health.watch: camera_down / camera_up) and the calibration events
+(site.health.calib_health). The service's source tells it each step before the people's stages
+run (`step`: which cameras delivered, the loop's beat) and the step's 2D people (`detected`).
+
+A step with no frames (the source's heartbeat) is *held* when the service, not its cameras, is
+late: a stall is in progress, or a camera's reader still has frames to give (`fresh`; a
+recorded file always has). A held step is no observation: the people's stages skip it
+(`HeldStage` gives the last people again, flagged predicted; `HeldRules` nothing new), so a
+slow step does not make everybody vanish. After a stall, the people's stages see the time
+without the stall's length (StallWatch.held_s): tracks, zone occupancy and behaviour states go
+on; `to_wall` puts their events' times back on the service's clock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from stereopose.fence import FenceMonitor
+from stereopose.io.sinks.base import FrameResult
+from stereopose.pipeline.loop import SourceStep
+from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.stall import StallWatch
+from stereopose.site.health.watch import CameraWatch
+from stereopose.types import Event, People2D, People3D
+
+MAX_BREAKS = 64  # stalls remembered to put older onsets back on the clock (bounded)
+
+
+class ServeEvents:
+    """See the module. fences: None without a site; calib: None to leave the calibration
+    unwatched; opening(t, frame): the events of the first step (at its time and frame);
+    stall: the service's stall watch (default: on the watch's timeout); fresh(camera): whether
+    its reader still has frames to give (None: not known, only a stall holds steps); clock():
+    the service's time now, on the steps' clock (None: each step's t; a stopped process is seen
+    only with it); on_stall(reason or None): told when a stall begins and ends."""
+
+    def __init__(
+        self,
+        fences: FenceMonitor | None,
+        watch: CameraWatch,
+        calib: CalibrationHealth | None,
+        opening: Callable[[float, int], list[Event]] | None = None,
+        *,
+        stall: StallWatch | None = None,
+        fresh: Callable[[str], bool] | None = None,
+        clock: Callable[[], float] | None = None,
+        on_stall: Callable[[str | None], None] | None = None,
+    ) -> None:
+        self.fences, self.watch, self.calib = fences, watch, calib
+        self.opening = opening
+        self.stall = stall or StallWatch(watch.timeout_s)
+        self.fresh, self.clock, self.on_stall = fresh, clock, on_stall
+        self.held = False  # this step is no observation (see the module)
+        self._people2d: Mapping[str, People2D] = {}
+        self._opened = False
+        self._t = 0.0
+        self._delivered_t: float | None = None  # the last step with frames
+        self._people_t = -math.inf  # the people's time of the last step they saw
+        self._breaks: deque[tuple[float, float]] = deque(maxlen=MAX_BREAKS)
+
+    # -- the people's time ---------------------------------------------------------------------
+
+    @property
+    def held_s(self) -> float:
+        """Seconds the people's stages leave out so far (their time is t - held_s)."""
+        return self.stall.held_s
+
+    def to_wall(self, t_people: float) -> float:
+        """A time of the people's stages on the service's clock (before the stalls since)."""
+        held = 0.0
+        for start, total in self._breaks:  # (people's time where it began to hold, held since)
+            if t_people >= start:
+                held = total
+        return t_people + held
+
+    def restamp(self, events: list[Event]) -> list[Event]:
+        """Events of the people's stages with their times on the service's clock."""
+        if not self._breaks:
+            return events
+        return [dataclasses.replace(e, t=self.to_wall(e.t), onset_t=self.to_wall(e.onset_t))
+                for e in events]  # fmt: skip
+
+    # -- the step, before the people's stages ------------------------------------------------
+
+    def step(self, step: SourceStep) -> None:
+        """A step the source gives: each camera with an image delivered at its time."""
+        self._people2d = {}
+        t, self._t = float(step.t), float(step.t)
+        now = max(t, float(self.clock())) if self.clock is not None else t
+        delivered = [name for name, image in (step.images or {}).items()
+                     if image is not None and name in self.watch.cameras]  # fmt: skip
+        stall = self.stall
+        if stall.beat(now, step.frame):
+            self._began()
+        if not delivered and not stall.stalled and self._all_late(t):
+            stall.late(now, self._delivered_t if self._delivered_t is not None else 0.0)
+            self._began()
+        # the stall ends with frames read after it began (a step read before a pause is stale),
+        # or, timeout_s on, with no reader delivering: then it is the cameras'
+        fresh_frames = bool(delivered) and t > (stall.fresh_after or 0.0)
+        if stall.stalled and (fresh_frames or self._blind_after_stall(now)):
+            length = stall.resume(t, now, most=t - stall.held_s - self._people_t - 1e-3) or 0.0
+            self._breaks.append((t - stall.held_s, stall.held_s))
+            if delivered:  # the stall is not the cameras' silence
+                self.watch.shift(length)
+            if self.on_stall is not None:
+                self.on_stall(None)
+        for name in delivered:
+            self.watch.frame(name, t)
+        if delivered:
+            self._delivered_t = t
+        self.held = not delivered and (stall.stalled or self._any_fresh())
+        if not self.held:
+            self._people_t = t - stall.held_s
+
+    def _began(self) -> None:
+        if self.on_stall is not None:
+            self.on_stall(f"stalled since {self.stall.onset_t:.1f} s")
+
+    def _all_late(self, t: float) -> bool:
+        """Every camera not down is overdue at t, and their readers deliver (unknown: at
+        least two of them at once)."""
+        due, up = self.watch.overdue(t), self.watch.up()
+        if not due or set(due) != set(up):
+            return False
+        if self.fresh is None:
+            return len(due) >= 2
+        return all(self.fresh(name) for name in due)
+
+    def _blind_after_stall(self, now: float) -> bool:
+        """A stall that has lasted timeout_s more with no reader delivering is the cameras':
+        it ends, and the watch takes them down."""
+        declared = self.stall.declared_t
+        if declared is None or now - declared <= self.watch.timeout_s:
+            return False
+        return not self._any_fresh()
+
+    def _any_fresh(self) -> bool:
+        return self.fresh is not None and any(self.fresh(n) for n in self.watch.cameras)
+
+    def detected(self, people2d: Mapping[str, People2D]) -> None:
+        self._people2d = people2d
+
+    # -- the events, after the 3D stage --------------------------------------------------------
+
+    def update(self, people3d: People3D) -> list[Event]:
+        t, frame = self._t, int(people3d.frame)
+        events: list[Event] = []
+        if not self._opened:
+            self._opened = True
+            if self.opening is not None:
+                events += self.opening(float(people3d.t or 0.0), frame)
+        if self.fences is not None and not self.held:
+            events += self.restamp(self.fences.update(people3d.at(t - self.held_s)))
+        events += self.stall.events()
+        if not self.stall.stalled:
+            events += self.watch.poll(t, frame)
+        if self.calib is not None and not self.held and len(people3d):
+            events += self.calib.update(FrameResult(frame, t, self._people2d, people3d, []))
+        return events
+
+
+class HeldStage:
+    """The 3D stage (pipeline.stage3d.Stage3D) on the people's time of `events`: a held step
+    gives the last people again (flagged predicted, stamped with the step); others are
+    computed at t - held_s and stamped with t."""
+
+    def __init__(self, inner, events: ServeEvents) -> None:
+        self.inner, self.events = inner, events
+        self.tracking = inner.tracking
+        self._last: People3D | None = None
+
+    def load(self) -> float:
+        return self.inner.load()
+
+    def trajectories(self) -> list:
+        return self.inner.trajectories()
+
+    def step(self, frame: int, people2d, t: float | None = None) -> People3D:
+        t = float(frame / self.inner.fps if t is None else t)
+        last = self._last
+        if self.events.held and last is not None:
+            held = np.ones(len(last), dtype=bool)
+            return dataclasses.replace(last, frame=frame, predicted=held, t=t)
+        people = self.inner.step(frame, people2d, t - self.events.held_s).at(t)
+        self._last = people
+        return people
+
+
+class HeldRules:
+    """The behaviour rules (behaviour.rules.BehaviourMonitor) on the people's time of `events`:
+    a held step raises nothing and keeps the last postures."""
+
+    def __init__(self, inner, events: ServeEvents) -> None:
+        self.inner, self.events = inner, events
+        self._postures: dict = {}
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict]:
+        if self.events.held:
+            return [], self._postures
+        t_people = float(t) - self.events.held_s
+        found, self._postures = self.inner.step(t_people, frame, people.at(t_people))
+        return self.events.restamp(found), self._postures
