@@ -7,7 +7,7 @@ epipolar constraint (per camera pair, the mean symmetric point-to-epipolar-line 
 pixels over the joints confident in both; pairs merged greedily, cheapest first, never two
 people of one camera in a group), triangulate each joint with the all-view DLT (confidence-
 weighted least squares over every view of the group that sees it, 3x3 normal equations), and
-write the 3D poses as JSON lines (ARCHITECTURE.md). Ids are per frame.
+write the 3D poses as JSON lines (docs/formats.md). Ids are per frame.
 
 usage: python benchmarks/yardstick.py CALIB.toml POSE_DIR OUT.jsonl [--fps 25]
 """

@@ -1,6 +1,6 @@
 """Native calibration files (Pose2Sim's ``Calib.toml`` layout): read, validate, write.
 
-One table per camera (every top-level table with a ``matrix`` key), see ARCHITECTURE.md:
+One table per camera (every top-level table with a ``matrix`` key), see docs/formats.md:
 ``size`` (width, height) px, ``matrix`` (3, 3) K px, ``distortions`` (4,) or (5,) OpenCV order,
 ``rotation`` (3,) Rodrigues world -> camera (a (3, 3) matrix is also accepted when reading),
 ``translation`` (3,) metres world -> camera, ``fisheye`` bool.

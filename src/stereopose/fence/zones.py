@@ -1,6 +1,6 @@
 """Zones of the site plan (floor polygons with a height band) and the site file.
 
-Site file (TOML, the contract of ARCHITECTURE.md, extended with optional keys):
+Site file (TOML, the contract in docs/formats.md, extended with optional keys):
 
     fps = 25.0                          # optional: the cameras' frame rate
     [[zones]]

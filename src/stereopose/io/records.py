@@ -1,7 +1,7 @@
 """People3D and Event to and from their JSON records: the one place the file contracts are
 written and read (poses and events JSON lines, SQLite rows, the webhook body, the report).
 
-3D poses, one record per frame (ARCHITECTURE.md), frames with nobody included:
+3D poses, one record per frame (docs/formats.md), frames with nobody included:
 {"frame": 42, "t": 1.68, "people": [{"id": 3, "joints": [[x, y, z] or null, ...17],
  "conf": [...17], "position": [x, y], "velocity": [vx, vy], "speed": 0.8, "heading_deg": 91.5,
  "predicted": false, "views": [...17], "reprojection_px": 2.1, "posture": "standing",

@@ -1,4 +1,4 @@
-"""3D poses as JSON lines (the contract of ARCHITECTURE.md), written frame by frame.
+"""3D poses as JSON lines (the contract in docs/formats.md), written frame by frame.
 
 One line per frame, frames with nobody included; the record is built and parsed in
 `io.records` (see its docstring for the fields and their precision).
