@@ -350,7 +350,7 @@ def test_an_incident_is_an_alarm_condition_acknowledged_as_the_opcua_user(tmp_pa
 
     with running(tmp_path) as site:
         asyncio.run(body(site))
-        assert site.server.counts()["acknowledged"] == 1
+        assert site.server.figures()["acknowledged"] == 1
 
 
 async def _gone(client: Client, nodeid) -> bool:
@@ -401,7 +401,7 @@ def test_acknowledge_refused_for_a_viewer_an_unknown_event_and_a_stale_login(tmp
 
     with running(tmp_path) as site:
         asyncio.run(body(site))
-        assert site.server.counts()["acknowledge_refused"] == 3
+        assert site.server.figures()["acknowledge_refused"] == 3
 
 
 def _demote(store: UserStore, name: str) -> None:
@@ -442,7 +442,7 @@ def test_an_ack_elsewhere_reaches_the_condition_and_refresh_replays_the_retained
 
 def test_acks_both_ways_between_opcua_and_the_console(tmp_path, pair):
     """Served as serve does: the console's users and incident API over the same step."""
-    from service.consoled import console_server
+    from consoled import console_server
 
     async def body(site: Site, served) -> None:
         client = await connect(site.url, pair, "otto")
@@ -501,7 +501,7 @@ def test_changes_over_the_bound_are_dropped_counted_and_read_again_from_the_book
 
     with running(tmp_path, queue_size=2) as site:
         asyncio.run(body(site))
-        assert site.server.counts()["dropped"] == site.server.dropped
+        assert site.server.figures()["dropped"] == site.server.dropped
 
 
 # -- logins and security --------------------------------------------------------------------
@@ -550,12 +550,12 @@ def test_password_guesses_are_limited_as_the_consoles_and_with_its_limiter(tmp_p
 
         for k in range(MAX_FAILURES):  # each checked, and failing
             await refused("otto", f"guess-{k}-wrong")
-        assert limiter.checked == MAX_FAILURES and site.server.counts()["logins_limited"] == 0
+        assert limiter.checked == MAX_FAILURES and site.server.figures()["logins_limited"] == 0
         # past the address's failures: refused unchecked, even the right password
         await refused("otto", PASSWORDS["otto"])
         await refused("vera", PASSWORDS["vera"])
         assert limiter.checked == MAX_FAILURES and limiter.refused == 2
-        assert site.server.counts()["logins_limited"] == 2
+        assert site.server.figures()["logins_limited"] == 2
 
     with running(tmp_path, limiter=limiter) as site:
         asyncio.run(body(site))
@@ -572,7 +572,7 @@ def test_idle_sockets_cannot_lock_logins_out(tmp_path, pair):
                 idle.append(socket.create_connection(("127.0.0.1", port), timeout=10))
 
         async def places_freed() -> bool:
-            return site.server.counts()["idle_closed"] >= 2
+            return site.server.figures()["idle_closed"] >= 2
 
         try:
             await until(places_freed, "the oldest idle sockets closed")

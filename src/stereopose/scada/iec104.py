@@ -502,6 +502,12 @@ class Outstation(ClosesOnce):
 
     # --- reading, closing --------------------------------------------------------------------
 
+    output_name = "iec104"  # an alarm output (io.sinks.health.AlarmOutput)
+
+    @property
+    def label(self) -> str:
+        return f"IEC 60870-5-104 {self.settings.host}:{self.settings.port}"
+
     def figures(self) -> dict:
         """Connections open, refused, points sent, commands, clock syncs, the queue."""
         with self._cond:

@@ -432,7 +432,19 @@ class OpcuaServer(ClosesOnce):
             return OutputHealth(True, waiting)
         return OutputHealth(False, waiting, "the OPC UA server stopped")
 
-    def counts(self) -> dict:
+    output_name = "opcua"
+
+    @property
+    def label(self) -> str:
+        return f"OPC UA {self.settings.endpoint}"
+
+    def queued(self) -> int:
+        with self._lock:
+            return len(self._changes)
+
+    def figures(self) -> dict:
+        """status.json's `opcua`: changes queued and dropped, acknowledgements, logins limited,
+        idle connections closed, conditions shown."""
         with self._lock:
             queued = len(self._changes)
         space = self.space

@@ -44,7 +44,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,8 +60,8 @@ from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
 from stereopose.io.sinks.clips import ClipSettings
+from stereopose.io.sinks.health import AlarmOutput
 from stereopose.io.sinks.incidents import IncidentIds
-from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.video import is_stream
 from stereopose.io.writing import make_folder
@@ -150,7 +150,6 @@ class _Service:
         )
         self.server: Server | None = None
         self.app = None
-        self.db: SqliteSink | None = None
         self.incident_outputs: list[Callable] = []  # each given every step's incident changes
         self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
         self.outbox = None  # the event log as an outbox over MQTT (site.outbox)
@@ -209,20 +208,7 @@ class _Service:
                              status=lambda: self.state.snapshot().status,
                              limiter=self.console.limiter)  # fmt: skip
         server.start()
-        self.opcua = server
-        self.incident_outputs.append(server.write_changes)
-        self.state.register_queue("opcua", lambda: server.counts()["queued"],
-                                  lambda: server.dropped)  # fmt: skip
-        self.probes["opcua"] = server.counts
-
-    def _opcua_sink(self, guard, wall_start: float) -> list[Sink]:
-        """The OPC UA server as a sink (zone, camera and service events, people), watched as
-        an alarm output."""
-        server = self.opcua
-        if server is None:
-            return []
-        server.wall_start = wall_start
-        return [self._alarm_output("opcua", guard(server, f"OPC UA {server.settings.endpoint}"))]
+        self.opcua = server  # an alarm output once the frame loop opens its sinks
 
     def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
                    stats: Callable[[], dict], arrival: Callable[[float], float | None],
@@ -238,8 +224,10 @@ class _Service:
 
             sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
                                            settings=p.segments), p.out_dir / "poses"))  # fmt: skip
-            sinks += self._event_sinks(cfg, guard, wall_start)
-            sinks += self._opcua_sink(guard, wall_start)
+            for out in self._alarm_outputs(cfg, wall_start):  # each closed should a later fail
+                sinks.append(self._register(out, guard))
+            if p.mqtt is not None and cfg.mqtt.outbox:
+                self._start_outbox(cfg)
             if p.clips is not None and p.site is not None:
                 sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
             if self.console is not None and self.console.hub is not None:
@@ -254,44 +242,51 @@ class _Service:
             raise
         return sinks
 
-    def _event_sinks(self, cfg: Config, guard, wall_start: float) -> list[Sink]:
-        p, sinks = self.plan, []
+    def _alarm_outputs(self, cfg: Config, wall_start: float) -> Iterator[AlarmOutput]:
+        """Every alarm output of the configuration (io.sinks.health.AlarmOutput), each made
+        when the one before is registered: the event log, the webhook, MQTT, the IEC 104
+        outstation, the OPC UA server (started before the cameras opened)."""
+        p = self.plan
         site = str(p.site.path or "") if p.site is not None else ""
-        db = SqliteSink(p.events_db, site, source_label(list(p.sources)),
-                        first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
-        self.db = db
-        self.state.register_queue("events_db", lambda: len(db.pending), lambda: db.dropped)
-        sinks.append(self._alarm_output("events_db", guard(db, p.events_db)))
+        yield SqliteSink(p.events_db, site, source_label(list(p.sources)),
+                         first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
         if cfg.outputs.webhook:
-            hook = WebhookSink(cfg.outputs.webhook)
-            self.incident_outputs.append(hook.write_changes)
-            self.state.register_queue("webhook", hook.queue.qsize, lambda: hook.dropped)
-            label = shown_url(cfg.outputs.webhook)
-            sinks.append(self._alarm_output("webhook", guard(hook, label)))
+            yield WebhookSink(cfg.outputs.webhook)
         if p.mqtt is not None:
             from stereopose.io.sinks.mqtt import MqttSink
 
-            zones = [z.name for z in p.site.zones] if p.site is not None else []
-            mqtt = MqttSink(p.mqtt, zones)
-            self.incident_outputs.append(mqtt.write_changes)
-            self.state.register_queue("mqtt", lambda: _queued(mqtt), lambda: _dropped(mqtt))
-            self.probes["mqtt"] = mqtt.counts
-            sinks.append(
-                self._alarm_output("mqtt", guard(mqtt, f"MQTT {p.mqtt.host}:{p.mqtt.port}"))
-            )
-            if cfg.mqtt.outbox:
-                from stereopose.site.outbox import LogOutbox
-
-                log = EventLog(p.events_db, p.out_dir / "clips")
-                self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
-                                        summary=self._summary, plan=self._plan(cfg))  # fmt: skip
-                self.probes["outbox"] = self.outbox.figures
-                self.state.register_output("outbox", self.outbox.health)
-                self.watchdog.add("outbox", self.outbox.ensure_running)
-                self.watchdog.start()
+            yield MqttSink(p.mqtt, [z.name for z in p.site.zones] if p.site is not None else [])
         if cfg.iec104.enabled:
-            sinks.append(self._iec104(cfg, guard, wall_start))
-        return sinks
+            yield self._iec104(cfg, wall_start)
+        if self.opcua is not None:
+            self.opcua.wall_start = wall_start
+            yield self.opcua
+
+    def _register(self, out: AlarmOutput, guard: Callable[[Sink, object], Guarded]) -> Guarded:
+        """One alarm output in every place that watches it, under its output_name: the
+        incident changes, the health state's queues and outputs (so /api/health and /metrics),
+        `status.json`'s figures. The sink the frame loop writes is its Guarded wrapper (an
+        output that fails stops alone)."""
+        sink, name = guard(out, out.label), out.output_name
+        self.incident_outputs.append(out.write_changes)
+        self.state.register_queue(name, out.queued, lambda: out.dropped)
+        self.state.register_output(name, output_health(sink))
+        self.probes[name] = out.figures
+        return sink
+
+    def _start_outbox(self, cfg: Config) -> None:
+        """The event log sent over MQTT to a control room (site.outbox), watched by the
+        watchdog."""
+        from stereopose.site.outbox import LogOutbox
+
+        p = self.plan
+        log = EventLog(p.events_db, p.out_dir / "clips")
+        self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
+                                summary=self._summary, plan=self._plan(cfg))  # fmt: skip
+        self.probes["outbox"] = self.outbox.figures
+        self.state.register_output("outbox", self.outbox.health)
+        self.watchdog.add("outbox", self.outbox.ensure_running)
+        self.watchdog.start()
 
     def _plan(self, cfg: Config) -> dict:
         """The site's zones and console address, for a control room's page of the site."""
@@ -312,9 +307,9 @@ class _Service:
             "people": snap.people,
         }
 
-    def _iec104(self, cfg: Config, guard, wall_start: float) -> Sink:
-        """The IEC 60870-5-104 outstation (scada.iec104): a sink for the zone, camera and
-        service events, an incident output, `service degraded` from the health answer."""
+    def _iec104(self, cfg: Config, wall_start: float):
+        """The IEC 60870-5-104 outstation (scada.iec104): the zone, camera and service events
+        and the incident changes as points, `service degraded` from the health answer."""
         from stereopose.scada.iec104 import Iec104Settings, Outstation
         from stereopose.scada.points import points_table
 
@@ -323,15 +318,7 @@ class _Service:
                              wall_start=wall_start,
                              status=lambda: self.state.snapshot().status)  # fmt: skip
         self.iec104 = station
-        self.incident_outputs.append(station.write_changes)
-        self.state.register_queue("iec104", station.queued, lambda: station.dropped)
-        self.probes["iec104"] = station.figures
-        return self._alarm_output("iec104", guard(station, f"IEC 60870-5-104 {s.host}:{s.port}"))
-
-    def _alarm_output(self, name: str, sink: Guarded) -> Guarded:
-        """`sink` watched by the health state as the alarm output `name` (io.sinks.health)."""
-        self.state.register_output(name, output_health(sink))
-        return sink
+        return station
 
     def _clips(self, cfg: Config, wall_start: float):
         from stereopose.io.sinks.clips import ClipSink
@@ -341,12 +328,8 @@ class _Service:
         clips = ClipSink(p.out_dir, p.rig.names, cfg.fps, wall_start=wall_start,
                          draw=clip_drawer(p.rig), settings=p.clips,
                          packets=self.packets)  # fmt: skip
-        self.state.register_queue("clips", clips._frames.qsize, lambda: clips.frames_dropped)
-        self.probes["clips"] = lambda: {"written": clips.clips_written,
-                                        "failed": clips.clips_failed,
-                                        "frames_dropped": clips.frames_dropped,
-                                        "full_copies_written": clips.copies_written,
-                                        "full_copies_failed": clips.copies_failed}  # fmt: skip
+        self.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
+        self.probes["clips"] = clips.figures
         return clips
 
     def watch_nodes(self, nodes) -> None:
@@ -407,14 +390,6 @@ def _live_changes(hub: LiveHub, changes) -> None:
     """Each incident change to the console's live channel, as an `incident` message."""
     for c in changes:
         hub.publish("incident", c.to_dict())
-
-
-def _queued(mqtt) -> int:
-    return sum(v["queued"] for v in mqtt.counts().values())
-
-
-def _dropped(mqtt) -> int:
-    return sum(v["dropped"] for v in mqtt.counts().values())
 
 
 def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
@@ -600,10 +575,9 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
     if restored:
         logger.warning("restart: %d incident(s) left open by the last run are open again",
                        restored)  # fmt: skip
-    db = service.db
+    # the event log is an incident output (its records stored in the step's transaction)
     step = IncidentStep(book, events, HeldRules(rules, events) if rules is not None else None,
-                        fences, store=db.put_incidents if db is not None else None,
-                        outputs=service.incident_outputs, clock=clock,
+                        fences, outputs=service.incident_outputs, clock=clock,
                         wall_start=wall_start)  # fmt: skip
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics

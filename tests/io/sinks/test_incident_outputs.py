@@ -61,7 +61,7 @@ def test_incidents_topic_each_change_qos1_beside_the_events(broker, tmp_path) ->
     finally:
         sink.close()
         sub.close()
-    assert sink.counts()["incidents"]["published"] == len(changes)
+    assert sink.figures()["incidents"]["published"] == len(changes)
 
 
 def test_webhook_gets_incident_changes_marked_apart() -> None:

@@ -72,7 +72,7 @@ def frame(k: int, ids: list[int] = (), events: list[Event] = ()) -> FrameResult:
 
 
 def published(sink: MqttSink, kind: str) -> int:
-    return sink.counts()[kind]["published"]
+    return sink.figures()[kind]["published"]
 
 
 # --- settings and topic levels, no broker needed ---
@@ -155,7 +155,7 @@ def test_events_arrive_in_order_as_the_json_lines(broker, closing, tmp_path: Pat
     wait_until(lambda: len(sub.on(f"{BASE}/events")) >= len(lines), "every event")
     assert sub.on(f"{BASE}/events") == lines
     sink.close()
-    assert sink.counts()["events"] == {"published": 42, "queued": 0, "dropped": 0, "failed": 0}
+    assert sink.figures()["events"] == {"published": 42, "queued": 0, "dropped": 0, "failed": 0}
     assert sink.close() == []  # once
 
 
@@ -168,7 +168,7 @@ def test_zone_occupancy_is_retained(broker, closing) -> None:
          (3, "bench+#", "enter"), (3, "bench+#", "approach"), (4, "ladder", "enter")]
     ):  # fmt: skip
         sink.write(frame(k, [person], [event(k, person=person, zone=zone, type=kind)]))
-    wait_until(lambda: sink.counts()["zones"]["queued"] == 0, "the zone states sent")
+    wait_until(lambda: sink.figures()["zones"]["queued"] == 0, "the zone states sent")
     late = Subscriber(broker.port, f"{BASE}/zones/+")  # after the fact: retained states
     closing(late)
     wait_until(lambda: len({m.topic for m in late.messages}) == len(names) + 1, "all zones")
@@ -267,7 +267,7 @@ def test_broker_away_at_start_loses_nothing_within_the_bound(
             sink.write(frame(k, [1]))
         for k in range(6, 17):
             sink.write_events([event(k)])
-        c = sink.counts()
+        c = sink.figures()
         assert c["people"]["dropped"] == 6 and c["events"]["dropped"] == 1
         assert c["events"]["queued"] == 10 and c["people"]["queued"] == 0
         dropping = [r for r in caplog.records if "dropping the oldest" in r.getMessage()]
@@ -279,7 +279,7 @@ def test_broker_away_at_start_loses_nothing_within_the_bound(
         assert [json.loads(p)["frame"] for p in sub.on(f"{BASE}/events")] == list(range(7, 17))
         assert sub.on(f"{BASE}/people") == []
         wait_until(lambda: published(sink, "events") == 10, "the broker's acknowledgements")
-        c = sink.counts()
+        c = sink.figures()
         assert c["events"] == {"published": 10, "queued": 0, "dropped": 1, "failed": 0}
     finally:
         broker.stop()
@@ -325,7 +325,7 @@ def test_login_right_and_wrong(tmp_path: Path, closing, caplog) -> None:
         for k in range(5):  # the frame loop goes on
             bad.write(frame(k, [1], [event(k)]))
         bad.close()
-        assert bad.counts()["events"]["queued"] == 5 and bad.counts()["events"]["published"] == 0
+        assert bad.figures()["events"]["queued"] == 5 and bad.figures()["events"]["published"] == 0
         refusals = [r for r in caplog.records if "refused the connection" in r.getMessage()]
         assert len(refusals) == 1 and refusals[0].levelno == logging.ERROR  # once, not per try
         assert "wrong-pw" not in caplog.text and "s3cret-pw" not in caplog.text
@@ -351,7 +351,7 @@ def test_close_is_bounded_with_no_broker(closing) -> None:
     sink = MqttSink(settings(free_port(), close_timeout_s=0.1))
     sink.write(frame(0, [1], [event(0)]))
     sink.close()
-    assert sink.counts()["events"]["queued"] == 1
+    assert sink.figures()["events"]["queued"] == 1
 
 
 def test_a_hung_broker_blocks_neither_writes_nor_close(broker, closing) -> None:
@@ -368,7 +368,7 @@ def test_a_hung_broker_blocks_neither_writes_nor_close(broker, closing) -> None:
         finished.start()
         finished.join(timeout=10.0)
         assert not finished.is_alive(), "close blocked on a hung broker"
-        c = sink.counts()["events"]
+        c = sink.figures()["events"]
         assert c["published"] + c["queued"] == 60 and c["queued"] >= 40  # at most 20 in flight
     finally:
         broker.proc.send_signal(signal.SIGCONT)
@@ -387,6 +387,6 @@ def test_a_message_published_as_the_link_drops_is_counted_when_resent(closing) -
     with pytest.raises(RuntimeError):
         info.is_published()
     sink._inflight.append(("events", info))
-    assert sink.counts()["events"]["queued"] == 1  # waiting, and no exception
+    assert sink.figures()["events"]["queued"] == 1  # waiting, and no exception
     sink._on_publish(None, None, 7)  # paho resent it after reconnecting
-    assert published(sink, "events") == 1 and sink.counts()["events"]["queued"] == 0
+    assert published(sink, "events") == 1 and sink.figures()["events"]["queued"] == 0

@@ -88,7 +88,7 @@ def test_an_mqtt_broker_outage_is_degraded_with_the_alarms_waiting(tmp_path: Pat
             assert m[("stereopose_output_up", "mqtt")] == 0.0
             assert m[("stereopose_output_waiting", "mqtt")] >= 17
             broker.start()
-            wait_until(lambda: mqtt.counts()["events"]["published"] == 17,
+            wait_until(lambda: mqtt.figures()["events"]["published"] == 17,
                        "the broker's acknowledgements of the alarms")  # fmt: skip
             wait_until(lambda: _health(url)["status"] == "ok", "health ok once delivered")
             up = {"state": "up", "waiting": 0, "reason": None, "backlog_s": 0.0}

@@ -499,6 +499,17 @@ class ClipSink(ClosesOnce):
 
     # -- closing -----------------------------------------------------------------------------
 
+    def queued(self) -> int:
+        """Frames waiting for the buffer thread."""
+        return self._frames.qsize()
+
+    def figures(self) -> dict:
+        """status.json's `clips`."""
+        return {"written": self.clips_written, "failed": self.clips_failed,
+                "frames_dropped": self.frames_dropped,
+                "full_copies_written": self.copies_written,
+                "full_copies_failed": self.copies_failed}  # fmt: skip
+
     def _close(self) -> list[Path]:
         deadline = time.monotonic() + self.settings.clip_close_timeout_s
         with contextlib.suppress(queue.Full):  # the buffer thread is stuck: joins time out

@@ -27,7 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 from urllib.request import pathname2url
 
 import numpy as np
@@ -467,6 +467,27 @@ class SqliteSink(_EventSink):
             except OSError as e:
                 parts.append(f"and cannot be kept in {kept}: {e.strerror}")
         return "; ".join(parts)
+
+    # -- as an alarm output (io.sinks.health.AlarmOutput) ---------------------------------
+
+    output_name = "events_db"
+
+    @property
+    def label(self) -> str:
+        return str(self.path)
+
+    def write_changes(self, changes: Sequence[Any]) -> None:
+        """The incident book's changes: their records stored with the next events, in the
+        same transaction (as put_incidents)."""
+        self.put_incidents([c.incident for c in changes])
+
+    def queued(self) -> int:
+        return len(self.pending)
+
+    def figures(self) -> dict:
+        """status.json's `events_db`: events stored (committed), waiting, dropped."""
+        return {"committed": self.committed, "pending": len(self.pending),
+                "dropped": self.dropped}  # fmt: skip
 
     def health(self) -> tuple[bool, int, str | None]:
         """(ok, waiting, reason) for the service's health (io.sinks.health): not ok while the

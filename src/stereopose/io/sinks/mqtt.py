@@ -68,10 +68,11 @@ class _Counts:
 
 
 class MqttSink(ClosesOnce):
-    """A sink of the frame loop publishing events, zone occupancy and people over MQTT.
+    """A sink of the frame loop publishing events, zone occupancy and people over MQTT; an
+    alarm output (io.sinks.health.AlarmOutput).
 
     settings: the broker and topics. zone_names: the site's zones, published empty at start
-    (zones met only in events are added as they come). `counts()` gives, per kind (events,
+    (zones met only in events are added as they come). `figures()` gives, per kind (events,
     zones, people), how many were published (acknowledged for QoS 1), are still queued, were
     dropped (queue full) or failed (the client refused the message).
     """
@@ -339,7 +340,7 @@ class MqttSink(ClosesOnce):
 
     # --- close ---
 
-    def counts(self) -> dict[str, dict[str, int]]:
+    def figures(self) -> dict[str, dict[str, int]]:
         """Per kind: published, queued (waiting or not yet acknowledged), dropped, failed."""
         with self._lock:
             self._sweep()
@@ -355,10 +356,25 @@ class MqttSink(ClosesOnce):
                 for k in KINDS
             }  # fmt: skip
 
+    # --- as an alarm output (io.sinks.health.AlarmOutput) ---
+
+    output_name = "mqtt"
+
+    @property
+    def label(self) -> str:
+        return f"MQTT {self.settings.host}:{self.settings.port}"
+
+    def queued(self) -> int:
+        return sum(v["queued"] for v in self.figures().values())
+
+    @property
+    def dropped(self) -> int:
+        return sum(v["dropped"] for v in self.figures().values())
+
     def health(self) -> OutputHealth:
         """Not ok while not connected (the broker unreachable, the link lost, the login
         refused); waiting: the messages not yet acknowledged, of every kind."""
-        waiting = sum(v["queued"] for v in self.counts().values())
+        waiting = sum(v["queued"] for v in self.figures().values())
         with self._lock:
             connected, refused = self._connected, self._counts.refused
         if connected:
@@ -380,7 +396,7 @@ class MqttSink(ClosesOnce):
         return self._counts.refused
 
     def _drained(self) -> bool:
-        return all(v["queued"] == 0 for v in self.counts().values())
+        return all(v["queued"] == 0 for v in self.figures().values())
 
     def _close(self) -> list[Path]:
         deadline = time.monotonic() + self.settings.close_timeout_s
@@ -409,7 +425,7 @@ class MqttSink(ClosesOnce):
             logger.warning("MQTT: the network thread did not stop; left behind")
 
     def _report(self) -> None:
-        counts = self.counts()
+        counts = self.figures()
         text = "; ".join(f"{k} " + ", ".join(f"{n} {w}" for w, n in v.items()) for k, v in
                          counts.items())  # fmt: skip
         lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())

@@ -49,7 +49,8 @@ class _Item:
 
 
 class WebhookSink(ClosesOnce):
-    """POSTs events as JSON to a URL from a background thread, never blocking `write`.
+    """POSTs events as JSON to a URL from a background thread, never blocking `write`; an
+    alarm output (io.sinks.health.AlarmOutput).
 
     queue_size: events waiting at most; more are dropped. An event whose POST fails (no reply
     within timeout_s, a broken reply, a 5xx, 408, 425 or 429 status) is tried again `retries`
@@ -224,6 +225,20 @@ class WebhookSink(ClosesOnce):
             self._settle(item, outcome)
             with self._lock:
                 self._current = None
+
+    output_name = "webhook"
+
+    @property
+    def label(self) -> str:
+        return self.shown
+
+    def queued(self) -> int:
+        return self.queue.qsize()
+
+    def figures(self) -> dict:
+        """status.json's `webhook`: delivered, failed, dropped, retried, queued."""
+        return {"delivered": self.delivered, "failed": self.failed, "dropped": self.dropped,
+                "retried": self.retried, "queued": self.queued()}  # fmt: skip
 
     def health(self) -> OutputHealth:
         """Not ok from a failed try until the next delivery; waiting: queued and on the wire."""
