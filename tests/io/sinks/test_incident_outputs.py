@@ -7,9 +7,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from brokers import Broker, Subscriber
+from brokers import Broker, Subscriber, free_port
 from receivers import Receiver
 from stereopose.alarms import IncidentBook
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
@@ -82,3 +83,58 @@ def test_webhook_gets_incident_changes_marked_apart() -> None:
     assert {(b["type"], b["kind"]) for b in rest} == {("incident_change", "incident")}
     assert [b["change"] for b in rest] == [c.what for c in changes]
     assert rest[0]["incident"]["priority"] == 1
+
+
+def test_every_alarm_output_implements_the_one_interface_and_the_log_stores_changes(
+    broker, tmp_path
+) -> None:
+    """The event log, the webhook, MQTT and the IEC 104 outstation as AlarmOutput: the same
+    members, figures as a dict, and the event log's write_changes storing each incident."""
+    from stereopose.io.sinks import SqliteSink
+    from stereopose.io.sinks.health import AlarmOutput
+    from stereopose.site.eventlog import EventLog
+
+    rx = Receiver()
+    db = SqliteSink(tmp_path / "events.sqlite", "site.toml", "test", wall_start=1.8e9)
+    outs = [
+        db,
+        WebhookSink(rx.url),
+        MqttSink(MqttSettings(host="127.0.0.1", port=broker.port, site="yard"), ["panel"]),
+    ]
+    try:
+        import c104  # noqa: F401
+
+        from stereopose.config import Iec104Config
+        from stereopose.fence import Site, Zone
+        from stereopose.scada.iec104 import Iec104Settings, Outstation
+        from stereopose.scada.points import points_table
+        from stereopose.sim.scene import make_rig
+
+        rig = make_rig(2, np.random.default_rng(3), (12.0, 8.0, 4.0))
+        square = np.array([[5.5, 3.5], [6.5, 3.5], [6.5, 4.5], [5.5, 4.5]])
+        site = Site((Zone("panel", "energized", square, (0.0, 2.5)),), 25.0)
+        settings = Iec104Settings.from_config(Iec104Config(enabled=True, port=free_port()))
+        outs.append(Outstation(settings, points_table(site, rig), wall_start=1.8e9))
+    except ImportError:
+        pass
+    try:
+        names = set()
+        enter, changes = _changes()
+        for out in outs:
+            assert isinstance(out, AlarmOutput), out
+            names.add(out.output_name)
+            assert isinstance(out.label, str) and out.label
+            out.write_changes(changes)
+            assert isinstance(out.figures(), dict)
+            assert isinstance(out.queued(), int) and isinstance(out.dropped, int)
+            ok, waiting, _ = out.health()
+            assert isinstance(ok, bool) and isinstance(waiting, int)
+        assert {"events_db", "webhook", "mqtt"} <= names and len(names) == len(outs)
+        db.write_events(enter)  # the incident records go in with the events' transaction
+        stored = EventLog(tmp_path / "events.sqlite").incident_changes_after(0)
+        assert [c["incident"]["id"] for c in stored] == [1]
+        assert stored[-1]["incident"]["acked_by"] == "otto"
+    finally:
+        for out in outs:
+            out.close()
+        rx.close()
