@@ -149,11 +149,17 @@ class Master:
             return (f"master {self.conn.state.name}, {len(self.got)} points received, last "
                     f"messages {self.raw[-3:]}")  # fmt: skip
 
-    def interrogate(self, points: int) -> dict[int, Got]:
-        """A fresh general interrogation, answered by `points` points."""
+    def interrogate(self, points: int, timeout_s: float = 30.0) -> dict[int, Got]:
+        """A fresh general interrogation, answered by `points` points. Asked again, as a
+        master does, when it is not confirmed (the link was closed meanwhile: c104's Client
+        missed its start-up, and the outstation closes a link without STARTDT)."""
         with self.lock:
             self.got = [g for g in self.got if g.cot != "INTERROGATED_BY_STATION"]
-        assert self.conn.interrogation(common_address=CA)
+        deadline = time.monotonic() + timeout_s
+        while not self.conn.interrogation(common_address=CA):
+            if time.monotonic() > deadline:
+                pytest.fail(f"no interrogation confirmed within {timeout_s} s ({self})")
+            self.wait_open(timeout_s=max(0.1, deadline - time.monotonic()))
         wait_until(lambda: len(self.interrogated()) >= points, "the interrogation's answers")
         return self.interrogated()
 

@@ -20,7 +20,7 @@ from stereopose.errors import ConfigError, StereoposeError
 def users_file(config: Path) -> Path:
     """`<output>/users.json` of the configuration at `config` (output relative to its folder)."""
     from stereopose.config import load_config
-    from stereopose.site.users import USERS_FILE
+    from stereopose.io.datafolder import USERS_FILE
 
     if not config.exists():
         raise ConfigError(f"{config}: configuration file not found")

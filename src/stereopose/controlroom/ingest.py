@@ -52,7 +52,7 @@ from stereopose.io.sinks.mqtt_settings import (
     MqttSettings,
     loop_alive,
     make_client,
-    restart_loop,  # fmt: skip
+    restart_loop,
     topic_name,
     topic_part,
 )

@@ -18,6 +18,7 @@ from stereopose.config import Config, OutputConfig
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import Site
+from stereopose.io.datafolder import EVENTS_DB
 from stereopose.io.sinks import (
     CallbackSink,
     CameraStatsSink,
@@ -77,7 +78,7 @@ class Outputs:
         return cls(
             poses=out / "poses3d.jsonl" if o.poses else None,
             events=out / "events.jsonl" if events else None,
-            events_db=out / "events.sqlite" if events else None,
+            events_db=out / EVENTS_DB if events else None,
             webhook=o.webhook,
             trc_dir=out / "trc" if o.trc else None,
             csv=out / "joints.csv" if o.csv else None,

@@ -18,15 +18,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from stereopose.errors import StereoposeError
-from stereopose.io.sinks.eventdb import connect_writer, raise_marks
+from stereopose.io.sinks.eventdb import connect_writer, create_schema, raise_marks
 
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS acks (
-    event INTEGER PRIMARY KEY REFERENCES events(id),
-    by TEXT NOT NULL,
-    at REAL NOT NULL                 -- unix time
-);
-"""
 BUSY_MS = 500
 
 
@@ -53,7 +46,7 @@ class AckStore:
             # the writer's settings; the marks raised (above every id an ack names) before
             # the acks of events gone are deleted
             db = connect_writer(self.path, BUSY_MS / 1000)
-            db.executescript(SCHEMA)
+            create_schema(db)
             raise_marks(db)
             db.execute("DELETE FROM acks WHERE event NOT IN (SELECT id FROM events)")
         except sqlite3.Error as e:

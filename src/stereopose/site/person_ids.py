@@ -21,8 +21,7 @@ import sqlite3
 import time
 from pathlib import Path
 
-from stereopose.io.sinks.eventdb import connect_writer, raise_marks, take
-from stereopose.io.sinks.events import SCHEMA
+from stereopose.io.sinks.eventdb import connect_writer, create_schema, raise_marks, take
 
 __all__ = ["PersonIds"]
 
@@ -105,7 +104,7 @@ class PersonIds:
         """The first id of a block reserved and committed (at or above reserved_to)."""
         db = connect_writer(self.path, self.busy_s, create=True)
         try:
-            db.executescript(SCHEMA)  # a log not made yet: made as the event sink makes it
+            create_schema(db)  # a log not made yet: made as the event sink makes it
             raise_marks(db)
             db.execute("BEGIN IMMEDIATE")
             try:

@@ -24,9 +24,10 @@ from stereopose.config_refs import (
 )
 from stereopose.errors import ConfigError
 from stereopose.fence import Site, load_site
-from stereopose.io.sinks.clips import CLIPS_DIR, ClipSettings
+from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB, POSES_DIR, STATUS
+from stereopose.io.sinks.clips import ClipSettings
 from stereopose.io.sinks.mqtt_settings import MqttSettings
-from stereopose.io.sinks.segments import POSES_DIR, SegmentSettings
+from stereopose.io.sinks.segments import SegmentSettings
 from stereopose.io.video import is_stream
 from stereopose.pipeline.outputs import check_outputs
 from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
@@ -36,8 +37,6 @@ from stereopose.site.http.server import ServeSettings
 from stereopose.site.storage import RetentionSettings
 from stereopose.types import Rig
 
-EVENTS_DB = "events.sqlite"
-STATUS = "status.json"
 _GB = 10**9
 
 

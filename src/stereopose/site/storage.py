@@ -30,10 +30,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from stereopose.checks import DAY_S
+from stereopose.io.datafolder import CLIPS_DIR, POSES_DIR
 from stereopose.io.settings import check_settings, ranged
-from stereopose.io.sinks.clips import CLIP_SUFFIX, CLIPS_DIR, PART_SUFFIX
+from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX
 from stereopose.io.sinks.eventdb import connect_writer
-from stereopose.io.sinks.segments import POSES_DIR, SEGMENT_SUFFIX
+from stereopose.io.sinks.segments import SEGMENT_SUFFIX
 from stereopose.site.restart import open_rows
 
 __all__ = ["KINDS", "PassResult", "RetentionSettings", "StorageMaintainer"]

@@ -39,14 +39,14 @@ from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
 
 from stereopose.errors import HashingBusyError, StereoposeError
+from stereopose.io.datafolder import USERS_FILE
 
-__all__ = ["MIN_PASSWORD", "ROLES", "USERS_FILE", "User", "UserError", "UserStore",
+__all__ = ["MIN_PASSWORD", "ROLES", "User", "UserError", "UserStore",
            "check_name", "check_password", "check_site", "common_passwords",
            "role_at_least"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
-USERS_FILE = "users.json"
 ROLES = ("viewer", "operator", "admin")
 MIN_PASSWORD = 12
 MIN_DISTINCT = 5  # different characters in a password

@@ -44,6 +44,7 @@ import numpy as np
 
 from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
+from stereopose.io.datafolder import CLIPS_DIR
 from stereopose.io.mp4 import FrameWriter
 from stereopose.io.packets import PacketRing, StreamCopy
 from stereopose.io.settings import check_settings, ranged
@@ -51,12 +52,11 @@ from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.writing import make_folder, probe_folder, reason
 from stereopose.types import Event, People2D, People3D
 
-__all__ = ["CLIPS_DIR", "CLIP_SUFFIX", "FULL_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink",
+__all__ = ["CLIP_SUFFIX", "FULL_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink",
            "Draw", "clip_name", "is_alarm"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
-CLIPS_DIR = "clips"
 CLIP_SUFFIX = ".mp4"
 FULL_SUFFIX = ".full.mp4"  # a clip's full-stream copy, beside it
 PART_SUFFIX = ".part.mp4"  # a clip being written

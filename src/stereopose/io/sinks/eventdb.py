@@ -1,4 +1,5 @@
-"""The event log's SQLite file: one way to open it for writing, and its high-water marks.
+"""The event log's SQLite file: its whole schema (every table once, the upgrades of an earlier
+version's log: `create_schema`), one way to open it for writing, and its high-water marks.
 
 Every connection that writes `events.sqlite` (the event sink, the person-id reservations,
 the acknowledgements, retention) is opened by `connect_writer`, so they all agree: WAL
@@ -29,8 +30,9 @@ from pathlib import Path
 from typing import TypeVar
 from urllib.request import pathname2url
 
-__all__ = ["COUNTERS_SCHEMA", "SEEDS", "connect_writer", "raise_marks", "read_mark", "reading",
-           "take", "transient"]  # fmt: skip
+__all__ = ["COUNTERS_SCHEMA", "SCHEMA", "SEEDS", "connect_writer", "create_schema",
+           "raise_marks", "read_mark", "reading", "table_columns", "take",
+           "transient"]  # fmt: skip
 
 COUNTERS_SCHEMA = """
 CREATE TABLE IF NOT EXISTS counters (
@@ -38,6 +40,135 @@ CREATE TABLE IF NOT EXISTS counters (
     next INTEGER NOT NULL            -- the first id not given; every id given is below it
 );
 """
+
+# The whole schema of the log, every table once: the runs, the events, the person-id
+# reservations of earlier versions, the high-water marks (COUNTERS_SCHEMA), the incidents and
+# the acknowledgements. `create_schema` makes what is missing and brings an earlier version's
+# log up to date; every writer calls it at its open.
+EVENTS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY,
+    started REAL NOT NULL,           -- unix time
+    site TEXT,
+    source TEXT,
+    ended REAL,                      -- unix time of a clean close; NULL: still running or killed
+    wall_start REAL                  -- unix time of t = 0 (serve); NULL: not recorded
+);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY,
+    run INTEGER NOT NULL REFERENCES runs(id),
+    t REAL NOT NULL,
+    frame INTEGER NOT NULL,
+    person INTEGER NOT NULL,
+    zone TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    type TEXT NOT NULL,
+    onset_t REAL,
+    joint TEXT,
+    distance_m REAL,
+    duration_s REAL,
+    x REAL,
+    y REAL,
+    allowed INTEGER NOT NULL DEFAULT 0,
+    lost INTEGER NOT NULL DEFAULT 0,
+    restart INTEGER NOT NULL DEFAULT 0,
+    camera TEXT,
+    reprojection_px REAL,
+    baseline_px REAL,
+    rule TEXT,
+    posture TEXT,
+    nearest_m REAL,
+    facing_deg REAL,
+    failed TEXT,
+    height_m REAL,
+    speed_m_s REAL
+);
+CREATE TABLE IF NOT EXISTS id_reservations (
+    run INTEGER PRIMARY KEY REFERENCES runs(id),
+    upto INTEGER NOT NULL            -- every person id this run gave is below it
+);
+CREATE INDEX IF NOT EXISTS events_person ON events(person);
+CREATE INDEX IF NOT EXISTS events_zone ON events(zone);
+CREATE INDEX IF NOT EXISTS events_t ON events(t);
+"""
+INCIDENTS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS incidents (
+    id INTEGER PRIMARY KEY,
+    state TEXT NOT NULL,             -- active, acknowledged, cleared, closed
+    priority INTEGER NOT NULL,       -- 1 critical .. 4 low
+    occurrences INTEGER NOT NULL,
+    kind TEXT NOT NULL,              -- the hazard's kind: zone, rule, camera, ...
+    zone TEXT,
+    rule TEXT,
+    person INTEGER,
+    camera TEXT,
+    first_t REAL NOT NULL,           -- seconds on the clock of wall_start
+    last_t REAL NOT NULL,
+    wall_start REAL,                 -- Unix time of t = 0 of the record's times
+    record TEXT NOT NULL,            -- IncidentRecord.to_dict() as JSON
+    seq INTEGER                      -- the log's change number of the row's last write
+);
+CREATE INDEX IF NOT EXISTS incidents_state ON incidents(state);
+CREATE INDEX IF NOT EXISTS incidents_zone ON incidents(zone);
+CREATE INDEX IF NOT EXISTS incidents_person ON incidents(person);
+"""
+ACKS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS acks (
+    event INTEGER PRIMARY KEY REFERENCES events(id),
+    by TEXT NOT NULL,
+    at REAL NOT NULL                 -- unix time
+);
+"""
+SCHEMA = EVENTS_SCHEMA + COUNTERS_SCHEMA + INCIDENTS_SCHEMA + ACKS_SCHEMA
+# after the upgrade has added `seq` to an earlier version's incidents table
+INCIDENTS_SEQ_INDEX = "CREATE INDEX IF NOT EXISTS incidents_seq ON incidents(seq)"
+
+# columns later versions added, for a log an earlier version created (table, column, SQL type)
+ADDED_COLUMNS = (
+    ("runs", "ended", "REAL"),
+    ("runs", "wall_start", "REAL"),
+    ("events", "restart", "INTEGER NOT NULL DEFAULT 0"),
+    ("events", "camera", "TEXT"),
+    ("incidents", "seq", "INTEGER"),
+    ("events", "reprojection_px", "REAL"),
+    ("events", "baseline_px", "REAL"),
+    ("events", "rule", "TEXT"),
+    ("events", "posture", "TEXT"),
+    ("events", "nearest_m", "REAL"),
+    ("events", "facing_deg", "REAL"),
+    ("events", "failed", "TEXT"),
+    ("events", "height_m", "REAL"),
+    ("events", "speed_m_s", "REAL"),
+    ("events", "incident", "INTEGER"),
+    ("events", "priority", "INTEGER"),
+)
+
+
+def table_columns(db: sqlite3.Connection, table: str) -> set[str]:
+    """The column names of `table` (none: no such table)."""
+    return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+
+
+def _upgrade(db: sqlite3.Connection) -> None:
+    """Adds the columns a log written by an earlier version lacks (its rows keep their values;
+    the new columns read as NULL, or 0 for restart)."""
+    for table, column, decl in ADDED_COLUMNS:
+        if column in table_columns(db, table):
+            continue
+        try:
+            db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
+        except sqlite3.OperationalError as e:
+            if "duplicate column" not in str(e):  # another process added it first: fine
+                raise
+
+
+def create_schema(db: sqlite3.Connection) -> None:
+    """Every table and index of the log made where missing, and the columns a log of an
+    earlier version lacks added."""
+    db.executescript(SCHEMA)
+    _upgrade(db)
+    db.execute(INCIDENTS_SEQ_INDEX)
+
 
 # per kind, (table, SQL giving one above the largest id held by that table): the floor of
 # its mark at every writer's open; a table missing from a log is skipped

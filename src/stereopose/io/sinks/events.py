@@ -35,8 +35,15 @@ import numpy as np
 from stereopose.errors import OutputError, StereoposeError
 from stereopose.io.records import EVENT_COLUMNS, event_from_record, event_record, event_row
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
-from stereopose.io.sinks.eventdb import connect_writer, raise_marks, reading, take
-from stereopose.io.sinks.incidents import INCIDENTS_SCHEMA, INCIDENTS_SEQ_INDEX, upsert_incidents
+from stereopose.io.sinks.eventdb import (
+    connect_writer,
+    create_schema,
+    raise_marks,
+    reading,
+    table_columns,
+    take,
+)
+from stereopose.io.sinks.incidents import upsert_incidents
 from stereopose.io.sinks.spill import Spill, store_spill
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.io.writing import make_folder, open_output
@@ -49,94 +56,6 @@ __all__ = ["COLUMNS", "CallbackSink", "JsonlSink", "SqliteSink", "WebhookSink", 
 logger = logging.getLogger(__name__)
 
 COLUMNS = EVENT_COLUMNS
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS runs (
-    id INTEGER PRIMARY KEY,
-    started REAL NOT NULL,           -- unix time
-    site TEXT,
-    source TEXT,
-    ended REAL,                      -- unix time of a clean close; NULL: still running or killed
-    wall_start REAL                  -- unix time of t = 0 (serve); NULL: not recorded
-);
-CREATE TABLE IF NOT EXISTS events (
-    id INTEGER PRIMARY KEY,
-    run INTEGER NOT NULL REFERENCES runs(id),
-    t REAL NOT NULL,
-    frame INTEGER NOT NULL,
-    person INTEGER NOT NULL,
-    zone TEXT NOT NULL,
-    kind TEXT NOT NULL,
-    type TEXT NOT NULL,
-    onset_t REAL,
-    joint TEXT,
-    distance_m REAL,
-    duration_s REAL,
-    x REAL,
-    y REAL,
-    allowed INTEGER NOT NULL DEFAULT 0,
-    lost INTEGER NOT NULL DEFAULT 0,
-    restart INTEGER NOT NULL DEFAULT 0,
-    camera TEXT,
-    reprojection_px REAL,
-    baseline_px REAL,
-    rule TEXT,
-    posture TEXT,
-    nearest_m REAL,
-    facing_deg REAL,
-    failed TEXT,
-    height_m REAL,
-    speed_m_s REAL
-);
-CREATE TABLE IF NOT EXISTS id_reservations (
-    run INTEGER PRIMARY KEY REFERENCES runs(id),
-    upto INTEGER NOT NULL            -- every person id this run gave is below it
-);
-CREATE TABLE IF NOT EXISTS counters (
-    name TEXT PRIMARY KEY,
-    next INTEGER NOT NULL            -- high-water mark: every id of this kind is below it
-);
-CREATE INDEX IF NOT EXISTS events_person ON events(person);
-CREATE INDEX IF NOT EXISTS events_zone ON events(zone);
-CREATE INDEX IF NOT EXISTS events_t ON events(t);
-"""
-
-# columns later versions added, for a log an earlier version created (table, column, SQL type)
-ADDED_COLUMNS = (
-    ("runs", "ended", "REAL"),
-    ("runs", "wall_start", "REAL"),
-    ("events", "restart", "INTEGER NOT NULL DEFAULT 0"),
-    ("events", "camera", "TEXT"),
-    ("incidents", "seq", "INTEGER"),
-    ("events", "reprojection_px", "REAL"),
-    ("events", "baseline_px", "REAL"),
-    ("events", "rule", "TEXT"),
-    ("events", "posture", "TEXT"),
-    ("events", "nearest_m", "REAL"),
-    ("events", "facing_deg", "REAL"),
-    ("events", "failed", "TEXT"),
-    ("events", "height_m", "REAL"),
-    ("events", "speed_m_s", "REAL"),
-    ("events", "incident", "INTEGER"),
-    ("events", "priority", "INTEGER"),
-)
-
-
-def _columns(db: sqlite3.Connection, table: str) -> set[str]:
-    return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
-
-
-def _upgrade(db: sqlite3.Connection) -> None:
-    """Adds the columns a log written by an earlier version lacks (its rows keep their values;
-    the new columns read as NULL, or 0 for restart)."""
-    for table, column, decl in ADDED_COLUMNS:
-        if column in _columns(db, table):
-            continue
-        try:
-            db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
-        except sqlite3.OperationalError as e:
-            if "duplicate column" not in str(e):  # another process added it first: fine
-                raise
 
 
 def mask_sources(db: sqlite3.Connection) -> int:
@@ -264,9 +183,7 @@ class SqliteSink(_EventSink):
             ) from None
         try:
             self.db = connect_writer(self.path, open_timeout_s, create=True)
-            self.db.executescript(SCHEMA + INCIDENTS_SCHEMA)
-            _upgrade(self.db)
-            self.db.execute(INCIDENTS_SEQ_INDEX)
+            create_schema(self.db)
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             self.spill = Spill(self.path)
             self._old_spill = not self._store_spill()
@@ -553,7 +470,7 @@ def query_events(
 def _select(db: sqlite3.Connection) -> str:
     """COLUMNS as a select list; those a log of an earlier version lacks read as NULL (0 for
     restart), so old logs stay readable without being changed."""
-    have = _columns(db, "events")
+    have = table_columns(db, "events")
     if not have:
         raise sqlite3.DatabaseError("no events table")
     return ", ".join(c if c in have else ("0" if c == "restart" else "NULL") for c in COLUMNS)

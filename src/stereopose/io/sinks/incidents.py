@@ -29,33 +29,9 @@ from stereopose.alarms import IncidentRecord
 from stereopose.alarms.incident import IncidentError, with_wall_times
 from stereopose.io.sinks.eventdb import connect_writer, read_mark, reading, take
 
-__all__ = ["INCIDENTS_SCHEMA", "INCIDENTS_SEQ_INDEX", "IncidentFilters", "IncidentIds",
+__all__ = ["IncidentFilters", "IncidentIds",
            "changes_after", "incident_of_event", "last_change", "on_clock", "open_incidents",
            "query_incidents", "upsert_incidents"]  # fmt: skip
-
-INCIDENTS_SCHEMA = """
-CREATE TABLE IF NOT EXISTS incidents (
-    id INTEGER PRIMARY KEY,
-    state TEXT NOT NULL,             -- active, acknowledged, cleared, closed
-    priority INTEGER NOT NULL,       -- 1 critical .. 4 low
-    occurrences INTEGER NOT NULL,
-    kind TEXT NOT NULL,              -- the hazard's kind: zone, rule, camera, ...
-    zone TEXT,
-    rule TEXT,
-    person INTEGER,
-    camera TEXT,
-    first_t REAL NOT NULL,           -- seconds on the clock of wall_start
-    last_t REAL NOT NULL,
-    wall_start REAL,                 -- Unix time of t = 0 of the record's times
-    record TEXT NOT NULL,            -- IncidentRecord.to_dict() as JSON
-    seq INTEGER                      -- the log's change number of the row's last write
-);
-CREATE INDEX IF NOT EXISTS incidents_state ON incidents(state);
-CREATE INDEX IF NOT EXISTS incidents_zone ON incidents(zone);
-CREATE INDEX IF NOT EXISTS incidents_person ON incidents(person);
-"""
-# after the upgrade has added `seq` to an earlier version's table
-INCIDENTS_SEQ_INDEX = "CREATE INDEX IF NOT EXISTS incidents_seq ON incidents(seq)"
 
 
 _TIMES = ("first_t", "last_t", "active_since", "cleared_at", "closed_at", "acked_at",

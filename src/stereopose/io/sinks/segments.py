@@ -29,17 +29,17 @@ from pathlib import Path
 
 from stereopose.checks import DAY_S
 from stereopose.errors import StereoposeError
+from stereopose.io.datafolder import POSES_DIR
 from stereopose.io.records import frame_record
 from stereopose.io.results import SEGMENT_SUFFIX
 from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.writing import make_folder, probe_folder, reason
 
-__all__ = ["POSES_DIR", "SEGMENT_SUFFIX", "SegmentSettings", "SegmentSink", "segment_stem"]
+__all__ = ["SEGMENT_SUFFIX", "SegmentSettings", "SegmentSink", "segment_stem"]
 
 logger = logging.getLogger(__name__)
 
-POSES_DIR = "poses"
 _STAMP = "%Y%m%d-%H%M%S"
 _MAX_BUFFER_BYTES = 2**20
 _MAX_TWINS = 999  # names tried after a taken one

@@ -10,14 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB
 from stereopose.site.acks import AckStore
 from stereopose.site.eventlog import EventLog
 from stereopose.site.http.auth import LoginLimiter, Sessions
 from stereopose.site.live import LiveHub
 from stereopose.site.users import UserStore
-
-EVENTS_DB = "events.sqlite"
-CLIPS_DIR = "clips"
 
 
 @dataclass
