@@ -42,7 +42,7 @@ from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.summary import RunSummary
-from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.loop import FrameLoop, SiteRules
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
@@ -112,7 +112,7 @@ def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det,
             load_start = os.getloadavg()
             threading.Timer(seconds, stop.set).start()
             t0 = time.perf_counter()
-            FrameLoop(source, stage, [], summary, fences=fences, stop=stop).run()
+            FrameLoop(source, stage, [], summary, rules=SiteRules(fences), stop=stop).run()
             wall = time.perf_counter() - t0
             rss_end = proc.memory_info().rss
             per_camera = {n: dataclasses.asdict(s) for n, s in cams.stats().items()}

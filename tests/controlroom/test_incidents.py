@@ -68,7 +68,6 @@ class Site:
         p = People3D(frame=self.frame, joints=np.zeros((0, 17, 3)), conf=np.ones((0, 17)),
                      ids=np.arange(0), reprojection_px=np.zeros((0, 17)),
                      views=np.full((0, 17), 2), detections=np.zeros((0, 2), dtype=int))  # fmt: skip
-        self.step.update(p)
         out, _ = self.step.step(self.t, self.frame, p)
         self.sink.write_events(out)
         self.box.wake()

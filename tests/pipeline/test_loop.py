@@ -16,7 +16,7 @@ from stereopose.config import Config
 from stereopose.geometry.camera import project
 from stereopose.io.aggregates import RunningStats
 from stereopose.io.summary import FILE_STAGES, RunSummary
-from stereopose.pipeline.loop import FrameLoop, SourceStep
+from stereopose.pipeline.loop import FrameLoop, SiteRules, SourceStep
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.sim import simulate
 from stereopose.types import Event, People2D, People3D
@@ -130,7 +130,7 @@ def _loop(rig, tmp_path: Path, n: int, **kw):
 
     sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
                          site=Site(()), on_events=got.extend)  # fmt: skip
-    return FrameLoop(source, stage, sinks, summary, fences=EveryHundred(), **kw), got
+    return FrameLoop(source, stage, sinks, summary, rules=SiteRules(EveryHundred()), **kw), got
 
 
 def test_stages_are_timed_apart_and_progress_reported(rig, tmp_path: Path) -> None:
@@ -217,7 +217,7 @@ def test_each_steps_time_reaches_every_record(rig, tmp_path: Path) -> None:
                       csv=tmp_path / "j.csv")  # fmt: skip
     sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
                          site=site)  # fmt: skip
-    FrameLoop(source, stage, sinks, summary, fences=FenceMonitor(site, 25.0)).run()
+    FrameLoop(source, stage, sinks, summary, rules=SiteRules(FenceMonitor(site, 25.0))).run()
     assert [t for _, t, _ in read_poses(tmp_path / "p.jsonl")] == times
     csv_times = {float(r.split(",")[1]) for r in (tmp_path / "j.csv").read_text().splitlines()[1:]}
     assert csv_times == set(times)

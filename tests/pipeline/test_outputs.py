@@ -20,7 +20,7 @@ from stereopose.io.records import event_record
 from stereopose.io.results import read_poses
 from stereopose.io.sinks import PosesSink, read_events
 from stereopose.io.summary import RunSummary
-from stereopose.pipeline.loop import FrameLoop
+from stereopose.pipeline.loop import FrameLoop, SiteRules
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.stage3d import Stage3D
@@ -47,7 +47,7 @@ def _run(scene, out: Path, *, fail_at=None, error=RuntimeError, two_way=False, r
                          site=site, source="sim", on_events=got.extend)  # fmt: skip
     fences = FenceMonitor(site, cfg.fps)
     source = SceneSource(scene, fail_at, error)
-    loop = FrameLoop(source, stage, sinks, summary, fences=fences)
+    loop = FrameLoop(source, stage, sinks, summary, rules=SiteRules(fences))
     return loop, sinks, got, source
 
 
@@ -175,7 +175,8 @@ def _loop(scene, out: Path, outputs: Outputs):
     summary = RunSummary(scene.rig.names, SceneSource.stages, "robust", stage.tracking)
     sinks = open_outputs(outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage,
                          site=site, source="sim")  # fmt: skip
-    return FrameLoop(SceneSource(scene), stage, sinks, summary, fences=FenceMonitor(site, cfg.fps))
+    return FrameLoop(SceneSource(scene), stage, sinks, summary,
+                     rules=SiteRules(FenceMonitor(site, cfg.fps)))  # fmt: skip
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (ENOSPC on write)")

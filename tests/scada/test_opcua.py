@@ -134,7 +134,6 @@ class Site:
         self.t = max(self.t + 0.1, *(e.t for e in events)) if events else self.t + 0.1
         self.script.next = list(events)
         p = people(n_people, self.frame)
-        self.step.update(p)
         out, _ = self.step.step(self.t, self.frame, p)
         if self.db is not None:  # the step's incident records are stored with its events
             self.db.write_events(out)

@@ -1,18 +1,18 @@
 """The service's incidents: every step's events through the incident book before any sink.
 
-`IncidentStep` takes the frame loop's two event roles (FrameLoop's `fences` and `behaviour`):
-`update(people3d)` keeps the step's zone, camera and service events, `step(t, frame, people)`
-adds the behaviour events and hands them all, in order, to the book
+`IncidentStep` is a step's rules of the frame loop (pipeline.loop.StepRules): its
+`step(t, frame, people)` takes the step's zone, camera and service events (`fences.update`),
+then the behaviour events, and hands them all, in order, to the book
 (stereopose.alarms.IncidentBook), with the pairs the fence still holds (inside or at the
 margin). Each event reaches the sinks with its `incident` and `priority` (both None for an
 info-level event: it belongs to no incident, and its priority is not an alarm's).
 
 Each change of an incident (raised, occurrence, cleared, acknowledged, shelved, ...) is handed
-to the event log (SqliteSink.put_incidents: stored in the step's transaction) and to every
-`outputs` callable (MQTT, the webhook, the live channel) before the step's events reach the
-sinks. An operator's act (the HTTP API's thread) takes the lock around the book and answers at
-once with the record; its changes wait (bounded, counted when dropped) and go out with the
-next step, which comes within the loop's heartbeat.
+to `store` and to every `outputs` callable (the alarm outputs' write_changes: the event log,
+stored in the step's transaction, MQTT, the webhook, SCADA; the live channel) before the step's
+events reach the sinks. An operator's act (the HTTP API's thread) takes the lock around the book
+and answers at once with the record; its changes wait (bounded, counted when dropped) and go out
+with the next step, which comes within the loop's heartbeat.
 """
 
 from __future__ import annotations
@@ -53,16 +53,12 @@ class IncidentStep:
         self.lock = threading.Lock()
         self.waiting: deque[Change] = deque()
         self.dropped = 0  # operators' changes dropped (the queue full): counted, logged
-        self._events: list[Event] = []
 
-    # -- the frame loop's roles
-    def update(self, people3d: People3D) -> list[Event]:
-        self._events = list(self.fences.update(people3d))
-        return []  # given with the behaviour events, through the book (step)
-
+    # -- the frame loop's: a step's rules (pipeline.loop.StepRules)
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
-        events, postures = self._events, None
-        self._events = []
+        """The step's zone and service events, then its behaviour events, each alarm-level
+        one stamped with its incident; the postures."""
+        events, postures = list(self.fences.update(people)), None
         if self.rules is not None:
             more, postures = self.rules.step(t, frame, people)
             events = [*events, *more]

@@ -37,7 +37,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.types import Event, People2D, Rig
+from stereopose.types import Event, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -97,13 +97,36 @@ class Stage(Protocol):
     def trajectories(self) -> list: ...
 
 
+class StepRules(Protocol):
+    """A step's rules as the frame loop asks them: `step` returns the step's events (zones,
+    behaviour; with their incidents where the rules keep an incident book: IncidentStep) and
+    the people's postures (None: no posture rules), given to every sink in FrameResult."""
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]: ...
+
+
+class SiteRules:
+    """The site's fences and behaviour rules as one step's rules, without an incident book:
+    the zone events, then the behaviour events (either may be None: not applied)."""
+
+    def __init__(self, fences: FenceMonitor | None, behaviour: BehaviourMonitor | None = None):
+        self.fences, self.behaviour = fences, behaviour
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
+        events = list(self.fences.update(people)) if self.fences is not None else []
+        postures = None
+        if self.behaviour is not None:
+            more, postures = self.behaviour.step(t, frame, people)
+            events = [*events, *more]
+        return events, postures
+
+
 class FrameLoop:
     """One run's frame loop. `run()` once: it returns the summary, every sink closed.
 
     sinks: closed in their order at the end (pipeline.outputs.open_outputs puts the summary
-    and the report last). fences: zone events per frame (None: no site). behaviour: the
-    site's behaviour rules (their events follow the zones'; the postures go to every sink in
-    FrameResult.postures; None: no rules).
+    and the report last). rules: the step's rules (StepRules: SiteRules for the fences and
+    behaviour rules alone, IncidentStep with the incident book; None: no site).
     """
 
     def __init__(
@@ -113,13 +136,12 @@ class FrameLoop:
         sinks: Sequence[Sink],
         summary: RunSummary,
         *,
-        fences: FenceMonitor | None = None,
-        behaviour: BehaviourMonitor | None = None,
+        rules: StepRules | None = None,
         on_step: OnStep | None = None,
         stop: threading.Event | None = None,
     ) -> None:
         self.source, self.stage, self.sinks = source, stage, list(sinks)
-        self.summary, self.fences, self.behaviour = summary, fences, behaviour
+        self.summary, self.rules = summary, rules
         self.on_step = on_step
         self.stop = stop or threading.Event()
         self.interrupt = Interrupt(self.stop)
@@ -178,11 +200,9 @@ class FrameLoop:
                 tracked(people3d)
             t2 = time.perf_counter()
             sec["3d"] += t2 - t1
-            events = self.fences.update(people3d) if self.fences is not None else []
-            postures = None
-            if self.behaviour is not None:
-                more, postures = self.behaviour.step(step.t, step.frame, people3d)
-                events = [*events, *more]
+            events, postures = [], None
+            if self.rules is not None:
+                events, postures = self.rules.step(step.t, step.frame, people3d)
             t3 = time.perf_counter()
             sec["fences"] += t3 - t2
             result = FrameResult(
@@ -264,8 +284,8 @@ def run_frames(
     behaviour = behaviour_monitor(site, config)
     if fences is not None:  # the service's incidents: the same book, ids and priorities
         incidents = run_incidents(site, fences, behaviour, sinks)
-        loop = FrameLoop(source, stage, sinks, summary, fences=incidents,
-                         behaviour=incidents, on_step=on_step, stop=stop)  # fmt: skip
+        loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step,
+                         stop=stop)  # fmt: skip
     else:
         loop = FrameLoop(source, stage, sinks, summary, on_step=on_step, stop=stop)
     summary = loop.run()

@@ -555,8 +555,7 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
         if service.opcua is not None:  # its Acknowledge, and the restored incidents shown
             service.opcua.attach(incidents)
-        loop = FrameLoop(source, stage, [closing, *sinks], summary, fences=incidents,
-                         behaviour=incidents, stop=stop)  # fmt: skip
+        loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
         ids.close()

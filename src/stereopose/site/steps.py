@@ -1,12 +1,13 @@
 """The events of one service step beyond the cameras' images, and the people's time across a
 stall of the service.
 
-`ServeEvents.update(people3d)` (FrameLoop's `fences`) returns, in order: on the first step the
-exits that close the zones a killed run left occupied (site.restart), the zone events
-(fence), the service's own events (site.health.stall: service_stalled / service_resumed), the
-camera events (site.health.watch: camera_down / camera_up) and the calibration events
-(site.health.calib_health). The service's source tells it each step before the people's stages
-run (`step`: which cameras delivered, the loop's beat) and the step's 2D people (`detected`).
+`ServeEvents.update(people3d)` (the incident step's first events: IncidentStep.step) returns, in
+order: on the first step the exits that close the zones a killed run left occupied
+(site.restart), the zone events (fence), the service's own events (site.health.stall:
+service_stalled / service_resumed), the camera events (site.health.watch: camera_down /
+camera_up) and the calibration events (site.health.calib_health). The service's source tells it
+each step before the people's stages run (`step`: which cameras delivered, the loop's beat) and
+the step's 2D people (`detected`).
 
 A step with no frames (the source's heartbeat) is *held* when the service, not its cameras, is
 late: a stall is in progress, or a camera's reader still has frames to give (`fresh`; a
