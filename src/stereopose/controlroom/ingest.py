@@ -53,8 +53,24 @@ from stereopose.io.sinks.mqtt_settings import (
     loop_alive,
     make_client,
     restart_loop,
-    topic_name,
-    topic_part,
+)
+from stereopose.site.wire import (
+    AVAILABLE,
+    COMMAND_ACK,
+    COMMAND_DONE,
+    CONFIRMED,
+    EVENTS,
+    HEARTBEAT,
+    INCIDENTS,
+    PEOPLE,
+    PLAN,
+    REPLAY,
+    ack_body,
+    confirmed_body,
+    receiver_subscriptions,
+    replay_body,
+    site_topic,  # fmt: skip
+    split_topic,
 )
 
 __all__ = ["Ingest"]
@@ -75,7 +91,7 @@ WARN_EVERY_S = 60.0  # a kind of bad message logged at most this often
 MAX_TEXT = 4096  # characters of one string in an outbox message at most
 MAX_ITEMS = 256  # keys of one object, items of one list, at most
 # bytes of a message on these topics at most (the outbox's and heartbeat's come from settings)
-SMALL_TOPICS = {"available": 64, "commands/done": 1024}
+SMALL_TOPICS = {AVAILABLE: 64, COMMAND_DONE: 1024}
 SUMMARY_COUNTS = ("cameras", "cameras_up", "people")  # a heartbeat's summary: these, status
 MAX_STATUS = 32  # characters of a heartbeat's status at most
 MAX_COUNT = 1_000_000  # a heartbeat's cameras, cameras_up, people at most
@@ -99,10 +115,9 @@ class Ingest:
         self.settings, self.store = settings, store
         self.allowed_sites = frozenset(sites)  # empty: any name, up to max_sites
         self.max_sites, self.ids_ahead = int(max_sites), int(ids_ahead)
-        self.max_bytes = {**SMALL_TOPICS, "log/events": int(max_event_bytes),
-                          "log/incidents": int(max_event_bytes),
-                          "log/heartbeat": int(max_heartbeat_bytes),
-                          "plan": MAX_PLAN_BYTES, "people": MAX_PLAN_BYTES}  # fmt: skip
+        self.max_bytes = {**SMALL_TOPICS, EVENTS: int(max_event_bytes),
+                          INCIDENTS: int(max_event_bytes), HEARTBEAT: int(max_heartbeat_bytes),
+                          PLAN: MAX_PLAN_BYTES, PEOPLE: MAX_PLAN_BYTES}  # fmt: skip
         # the site names admitted (those in the store, then each new one up to max_sites)
         self._sites: set[str] = {r.site for r in store.sites()}
         self._refused: list[str] = []  # site names refused since the ingest last looked
@@ -182,20 +197,11 @@ class Ingest:
             return
         self.connected = True
         share = self.shared
-        client.subscribe(
-            [
-                (f"{share}{self.prefix}/+/log/events", 1),
-                (f"{share}{self.prefix}/+/available", 1),
-                (f"{share}{self.prefix}/+/log/heartbeat", 0),
-                (f"{share}{self.prefix}/+/log/incidents", 1),
-                (f"{share}{self.prefix}/+/commands/done", 1),
-                (f"{self.prefix}/+/plan", 1),
-            ]
-        )  # plan unshared: every worker's pages need every site's
+        client.subscribe(receiver_subscriptions(self.prefix, share))
         with self._lock:
             watched = list(self._watched)
         for site in watched:  # a new connection: the pages being looked at follow again
-            client.subscribe(f"{self.prefix}/{topic_part(site)}/people", 0)
+            client.subscribe(site_topic(self.prefix, site, PEOPLE), 0)
         with self._lock:  # the unanswered acknowledgements go again at once
             for c in self._commands.values():
                 c[3] = 0.0
@@ -225,10 +231,10 @@ class Ingest:
             logger.warning("%s", text)
 
     def _message(self, msg: Any) -> None:
-        rest = msg.topic[len(self.prefix) + 1 :].split("/")
-        if not msg.topic.startswith(self.prefix + "/") or len(rest) < 2:
+        parts = split_topic(self.prefix, msg.topic)
+        if parts is None:
             return
-        site, what = topic_name(rest[0]), "/".join(rest[1:])
+        site, what = parts
         limit = self.max_bytes.get(what)
         if limit is None:  # not a topic of the protocol (nor an answer to one)
             return
@@ -240,7 +246,7 @@ class Ingest:
             return
         if not self._admit(site):
             return
-        if what in ("plan", "people"):  # the latest only, kept at once (bounded: one a site)
+        if what in (PLAN, PEOPLE):  # the latest only, kept at once (bounded: one a site)
             self._latest(site, what, msg.payload)
             return
         with self._lock:
@@ -333,19 +339,19 @@ class Ingest:
         for site, what, payload, at in batch:
             self.counts["messages"] += 1
             self._seen[site] = max(self._seen.get(site, 0.0), at)
-            if what == "available":
+            if what == AVAILABLE:
                 text = payload.decode("utf-8", "replace").strip()
                 self._available[site] = text
                 self._set_state(site, "live" if text == "online" else "offline")
                 continue
-            if what == "log/heartbeat":
+            if what == HEARTBEAT:
                 self._beat(site, payload, at)
                 continue
-            if what == "commands/done":
+            if what == COMMAND_DONE:
                 self._done(site, payload)
                 continue
-            incidents = what == "log/incidents"
-            if what != "log/events" and not incidents:
+            incidents = what == INCIDENTS
+            if what != EVENTS and not incidents:
                 continue
             outbox += 1
             msg = _numbered(payload, "seq" if incidents else "id")
@@ -494,9 +500,8 @@ class Ingest:
 
     def _confirm(self, site: str) -> None:
         """The site's marks of both streams on its `log/confirmed` (retained: one message)."""
-        body = {"events": self.marks.get(site, 0), "incidents": self.imarks.get(site, 0)}
-        self.client.publish(f"{self.prefix}/{topic_part(site)}/log/confirmed", json.dumps(body),
-                            qos=1, retain=True)  # fmt: skip
+        body = confirmed_body(self.marks.get(site, 0), self.imarks.get(site, 0))
+        self.client.publish(site_topic(self.prefix, site, CONFIRMED), body, qos=1, retain=True)
 
     def _beat(self, site: str, payload: bytes, at: float) -> None:
         """A site's heartbeat: its log's last id beyond the mark (the last events were lost
@@ -586,7 +591,7 @@ class Ingest:
         if doc is not None and (not isinstance(doc, dict) or not _sane(doc, -MAX_DEPTH)):
             doc = None  # a plan nests deeper than an event: zones, cameras, points
         with self._lock:
-            if what == "plan":
+            if what == PLAN:
                 if doc is None:
                     self._plans.pop(site, None)
                 elif len(self._plans) < MAX_SITES or site in self._plans:
@@ -608,7 +613,7 @@ class Ingest:
             plan = self._plans.get(site)
             seen = self._people.get(site)
         if new:
-            self.client.subscribe(f"{self.prefix}/{topic_part(site)}/people", 0)
+            self.client.subscribe(site_topic(self.prefix, site, PEOPLE), 0)
         people = None
         if seen is not None:
             people = {**seen[1], "received_at": round(seen[0], 3)}
@@ -623,7 +628,7 @@ class Ingest:
                 del self._watched[s]
                 self._people.pop(s, None)
         for s in gone:
-            self.client.unsubscribe(f"{self.prefix}/{topic_part(s)}/people")
+            self.client.unsubscribe(site_topic(self.prefix, s, PEOPLE))
 
     # --- acknowledgements asked of sites -------------------------------------------------
 
@@ -653,9 +658,8 @@ class Ingest:
             for _, v in due:
                 v[3] = now
         for command, (site, incident, by, _) in due:
-            body = {"command": str(command), "incident": incident, "by": by, "from": self.name}
-            self.client.publish(f"{self.prefix}/{topic_part(site)}/commands/ack",
-                                json.dumps(body), qos=1)  # fmt: skip
+            body = ack_body(command, incident, by, self.name)
+            self.client.publish(site_topic(self.prefix, site, COMMAND_ACK), body, qos=1)
             self.counts["commands_sent"] += 1
 
     def _done(self, site: str, payload: bytes) -> None:
@@ -719,8 +723,7 @@ class Ingest:
             return
         self._asked[key] = now
         self.counts["replays"] += 1
-        body = {"incidents_after": mark} if incidents else {"after_id": mark}
-        self.client.publish(f"{self.prefix}/{topic_part(site)}/log/replay", json.dumps(body),
+        self.client.publish(site_topic(self.prefix, site, REPLAY), replay_body(mark, incidents),
                             qos=1)  # fmt: skip
 
     # --- figures, close ------------------------------------------------------------------

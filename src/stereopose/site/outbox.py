@@ -71,6 +71,7 @@ from stereopose.io.sinks.mqtt_settings import (
     restart_loop,
     topic_part,
 )
+from stereopose.site.wire import site_topics
 
 __all__ = ["LogOutbox"]
 
@@ -120,11 +121,7 @@ class LogOutbox:
         self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
         self.acknowledger, self.summary = acknowledger, summary
         self.plan = plan
-        site = f"{settings.topic_prefix}/{topic_part(settings.site)}"
-        self.topics = {k: f"{site}/log/{k}" for k in ("events", "incidents", "confirmed",
-                                                      "replay", "heartbeat")}  # fmt: skip
-        self.topics.update(ack=f"{site}/commands/ack", done=f"{site}/commands/done",
-                           plan=f"{site}/plan")  # fmt: skip
+        self.topics = site_topics(settings.topic_prefix, settings.site)  # site.wire
         self.streams = [_Stream("events", self.topics["events"], "id", "after_id",
                                 lambda n, k: log.after(n, limit=k), log.last_id)]  # fmt: skip
         if start_after is not None:
