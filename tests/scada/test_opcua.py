@@ -474,7 +474,7 @@ def test_acks_both_ways_between_opcua_and_the_console(tmp_path, pair):
 
     with (console_server(tmp_path / "out") as served,
           running(tmp_path, served.console.users, db=served.db) as site):  # fmt: skip
-        served.server.app.state.incidents = site.step
+        served.server.app.state.incidents.attach(site.step)
         asyncio.run(body(site, served))
 
 

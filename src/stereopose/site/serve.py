@@ -73,6 +73,7 @@ from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.sources import Cameras, source_label
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.scada.opcua_settings import opcua_settings
+from stereopose.site.desk import IncidentDesk
 from stereopose.site.eventlog import EventLog
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.state import ServiceState
@@ -163,6 +164,7 @@ class _Service:
         self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
         self.opcua = None  # the OPC UA server, once started
         self.watchdog = Watchdog()  # the receivers' threads started again where one died
+        self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -178,8 +180,9 @@ class _Service:
         self.probes["console"] = hub.figures
         self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
         hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
-        app = create_app(self.state, console=self.console, allowed_hosts=hosts)
-        self.app = app  # its incidents (api.incidents) set once the frame loop has its book
+        app = create_app(self.state, console=self.console, allowed_hosts=hosts,
+                         incidents=self.desk)  # fmt: skip
+        self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
@@ -585,6 +588,5 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
         service.iec104.acknowledger = step.acknowledge
     if service.outbox is not None:  # a control room's acknowledgements
         service.outbox.acknowledger = step.acknowledge
-    if service.app is not None:
-        service.app.state.incidents = step
+    service.desk.attach(step)  # the HTTP API's acts reach the book from now on
     return step

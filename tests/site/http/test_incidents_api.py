@@ -59,7 +59,7 @@ class Run:
         self.desk = IncidentStep(book, self.script, None, None, store=served.db.put_incidents,
                                  outputs=outputs, clock=lambda: self.t,
                                  wall_start=WALL_START)  # fmt: skip
-        served.server.app.state.incidents = self.desk
+        served.server.app.state.incidents.attach(self.desk)
         self.jsonl = JsonlSink(served.out / "events.jsonl")
 
     def step(self, events=(), t: float | None = None) -> list:

@@ -23,6 +23,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CollectorRegistry
 
 from stereopose import __version__
+from stereopose.site.desk import IncidentDesk
 from stereopose.site.health.metrics import make_registry
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http import error_answers
@@ -60,12 +61,14 @@ def create_app(
     lifespan: Callable[[FastAPI], Any] | None = None,
     console: object | None = None,
     allowed_hosts: Iterable[str] | None = None,
+    incidents: IncidentDesk | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
     and stops with the server (the frame loop, the sinks); console: the console's parts
     (site.http.web.Console); allowed_hosts: the Host names served
-    (site.http.hosts.allowed_hosts; None: any)."""
+    (site.http.hosts.allowed_hosts; None: any); incidents: the incident desk (site.desk: the
+    incident book once it runs; None: a desk of its own, never attached)."""
     app = FastAPI(
         title="stereopose",
         version=__version__,  # shown only with a session (api.docs serves /openapi.json)
@@ -78,6 +81,7 @@ def create_app(
     )
     app.state.service = state
     app.state.console = console
+    app.state.incidents = incidents if incidents is not None else IncidentDesk()
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     error_answers.add_handlers(app)

@@ -135,7 +135,7 @@ def ack(event_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator, reques
 
 def _ack_incident(request: Request, parts, event_id: int, by: str) -> dict | None:
     """The event's incident acknowledged in the running service's book (its record)."""
-    desk = getattr(request.app.state, "incidents", None)
+    desk = request.app.state.incidents.step
     log = getattr(parts, "log", None)
     if desk is None or log is None:
         return None

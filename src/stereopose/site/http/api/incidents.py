@@ -8,9 +8,10 @@ wall_start + t). Filters: state, priority, zone, person, since, until (Unix seco
 8601, on the wall times), limit (default 100, at most 1000).
 
 The acts (operator or admin; a viewer 403) reach the incident book of the running service
-(pipeline.incidents.IncidentStep, `app.state.incidents`) and answer with the resulting
-record; the change is stored and published with the next step. 404: no open incident with
-that id (never raised, or closed and forgotten); 422: a bad shelving (reason, duration).
+(pipeline.incidents.IncidentStep, through the app's incident desk: site.desk) and answer with
+the resulting record; the change is stored and published with the next step. 404: no open
+incident with that id (never raised, or closed and forgotten); 422: a bad shelving (reason,
+duration).
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def incidents(session: Viewer, f: Annotated[IncidentFilters, Depends(filters)],
 
 
 def _desk(request: Request):
-    desk = getattr(request.app.state, "incidents", None)
+    desk = request.app.state.incidents.step
     if desk is None:
         raise HTTPException(503, "the incident book is not running yet")
     return desk
@@ -108,6 +109,6 @@ def alarm_rates(session: Viewer, request: Request) -> JSONResponse:
     """The operator's alarm load now (alarms.rates): notifications in the last 10 minutes
     and hour against the flood line, chattering and standing incidents, the open incidents
     by priority and state; `running` false (and no figures) before the incident book runs."""
-    desk = getattr(request.app.state, "incidents", None)
+    desk = request.app.state.incidents.step
     body = {"running": False} if desk is None else {"running": True, **desk.figures()}
     return JSONResponse(body, headers={"Cache-Control": "no-store"})
