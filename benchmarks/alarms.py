@@ -84,8 +84,10 @@ def chattering(times: dict[object, list[float]]) -> int:
     n = 0
     for ts in times.values():
         ts = sorted(ts)
-        n += any(ts[i + CHATTER_COUNT - 1] - ts[i] <= CHATTER_S
-                 for i in range(len(ts) - CHATTER_COUNT + 1))  # fmt: skip
+        n += any(
+            ts[i + CHATTER_COUNT - 1] - ts[i] <= CHATTER_S
+            for i in range(len(ts) - CHATTER_COUNT + 1)
+        )
     return n
 
 
@@ -121,16 +123,25 @@ def run_scene(difficulty: str, seed: int, duration_s: float) -> dict:
             if inc is not None:
                 incidents.setdefault(key, set()).add(inc)
             if e.kind == "energized" and e.type == "enter":
-                entries.append((e.t, e.onset_t, e.zone, workers.get(e.person, -1),
-                                inc, raised_at.get(inc)))  # fmt: skip
+                entries.append(
+                    (e.t, e.onset_t, e.zone, workers.get(e.person, -1), inc, raised_at.get(inc))
+                )
     truth = [e for e in truth_events(scene, site) if e.kind == "energized" and e.type == "enter"]
-    pairs = greedy_pairs([(abs(r[1] - tr.onset_t), i, j) for i, r in enumerate(entries)
-                          for j, tr in enumerate(truth) if r[2] == tr.zone and r[3] == tr.person
-                          and abs(r[1] - tr.onset_t) <= WINDOW_S])  # fmt: skip
+    pairs = greedy_pairs(
+        [
+            (abs(r[1] - tr.onset_t), i, j)
+            for i, r in enumerate(entries)
+            for j, tr in enumerate(truth)
+            if r[2] == tr.zone and r[3] == tr.person and abs(r[1] - tr.onset_t) <= WINDOW_S
+        ]
+    )
     latency_today = [entries[i][0] - truth[j].onset_t for i, j in pairs]
     # notified before its own enter: by the approach that became this entry (within 10 s)
-    early = sum(1 for i, _ in pairs if entries[i][5] is not None
-                and entries[i][0] - 10.0 <= entries[i][5] < entries[i][0])  # fmt: skip
+    early = sum(
+        1
+        for i, _ in pairs
+        if entries[i][5] is not None and entries[i][0] - 10.0 <= entries[i][5] < entries[i][0]
+    )
     eps = episodes(site, truth_frames(scene), fps)
     by_worker = {}
     for (zone, track), ids_ in incidents.items():
@@ -138,17 +149,22 @@ def run_scene(difficulty: str, seed: int, duration_s: float) -> dict:
         by_worker.setdefault(key, set()).update(ids_)
     per_episode = [len(v) / eps[k] for k, v in by_worker.items() if k in eps]
     return {
-        "difficulty": difficulty, "seed": seed, "minutes": scene.num_frames / fps / 60.0,
+        "difficulty": difficulty,
+        "seed": seed,
+        "minutes": scene.num_frames / fps / 60.0,
         "alarm_events": sum(map(len, before.values())),
         "notifications": sum(map(len, after.values())),
         "episodes": sum(eps.values()),
         "incidents": sum(len(v) for v in incidents.values()),
         "incidents_per_episode_max": max(per_episode, default=0.0),
-        "chattering_before": chattering(before), "chattering_after": chattering(after),
-        "true_entries": len(truth), "matched_entries": len(pairs),
+        "chattering_before": chattering(before),
+        "chattering_after": chattering(after),
+        "true_entries": len(truth),
+        "matched_entries": len(pairs),
         "entries_with_incident": sum(1 for i, _ in pairs if entries[i][4] is not None),
-        "latency_s": latency_today, "notified_by_approach": early,
-    }  # fmt: skip
+        "latency_s": latency_today,
+        "notified_by_approach": early,
+    }
 
 
 def pooled(runs: list[dict]) -> dict:
@@ -156,13 +172,16 @@ def pooled(runs: list[dict]) -> dict:
     lat = [x for r in runs for x in r["latency_s"]]
     true = sum(r["true_entries"] for r in runs)
     return {
-        "scenes": len(runs), "minutes": round(minutes, 1),
+        "scenes": len(runs),
+        "minutes": round(minutes, 1),
         "alarms_per_10min_before": round(10 * sum(r["alarm_events"] for r in runs) / minutes, 1),
         "alarms_per_10min_after": round(10 * sum(r["notifications"] for r in runs) / minutes, 1),
-        "alarm_events_per_episode": round(sum(r["alarm_events"] for r in runs)
-                                          / max(1, sum(r["episodes"] for r in runs)), 2),
-        "incidents_per_episode": round(sum(r["incidents"] for r in runs)
-                                       / max(1, sum(r["episodes"] for r in runs)), 2),
+        "alarm_events_per_episode": round(
+            sum(r["alarm_events"] for r in runs) / max(1, sum(r["episodes"] for r in runs)), 2
+        ),
+        "incidents_per_episode": round(
+            sum(r["incidents"] for r in runs) / max(1, sum(r["episodes"] for r in runs)), 2
+        ),
         "incidents_per_episode_max": round(max(r["incidents_per_episode_max"] for r in runs), 2),
         "chattering_before": sum(r["chattering_before"] for r in runs),
         "chattering_after": sum(r["chattering_after"] for r in runs),
@@ -172,7 +191,7 @@ def pooled(runs: list[dict]) -> dict:
         "latency_mean_s": round(float(np.mean(lat)), 3) if lat else None,
         "latency_max_s": round(float(np.max(lat)), 3) if lat else None,
         "entries_notified_by_approach": sum(r["notified_by_approach"] for r in runs),
-    }  # fmt: skip
+    }
 
 
 def demo_log(path: Path) -> dict:
@@ -204,14 +223,16 @@ def demo_log(path: Path) -> dict:
         times.setdefault((r[6] or r[1], r[2]), []).append(r[0])  # a hazard: zone or rule, person
     pairs = {(r[6] or r[1], r[2]) for r in alarms if r[3] != "camera"}
     return {
-        "minutes": round(minutes, 1), "alarm_events": len(alarms),
+        "minutes": round(minutes, 1),
+        "alarm_events": len(alarms),
         "alarms_per_10min_before": round(10 * len(alarms) / max(minutes, 1e-9), 1),
         "incidents": len(firsts) if "incident" in cols else None,
-        "incidents_per_10min": (round(10 * len(firsts) / max(minutes, 1e-9), 1)
-                                if "incident" in cols else None),
+        "incidents_per_10min": (
+            round(10 * len(firsts) / max(minutes, 1e-9), 1) if "incident" in cols else None
+        ),
         "hazards": len(pairs),
         "chattering_after": chattering(times) if "incident" in cols else None,
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -222,9 +243,13 @@ def main() -> None:
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    results: dict = {"date": datetime.date.today().isoformat(), "machine": machine(),
-                     "seeds": args.seeds, "duration_s": args.duration_s,
-                     "simulated": {}}  # fmt: skip
+    results: dict = {
+        "date": datetime.date.today().isoformat(),
+        "machine": machine(),
+        "seeds": args.seeds,
+        "duration_s": args.duration_s,
+        "simulated": {},
+    }
     for difficulty in ("easy", "mid", "hard"):
         runs = [run_scene(difficulty, s, args.duration_s) for s in range(args.seeds)]
         results["simulated"][difficulty] = pooled(runs)
@@ -236,17 +261,20 @@ def main() -> None:
 
 
 def markdown(r: dict) -> list[str]:
-    md = ["# Alarms: incidents against one notification per alarm event", "",
-          f"{r['date']}, {r['machine']}; simulated work scenes (workers reaching into "
-          f"energized panels again and again), {r['seeds']} seeds x {r['duration_s']:g} s per "
-          "difficulty, the whole 3D back end on their simulated 2D detections. `before`: every "
-          "alarm event notifies (the service before incidents); `after`: a new incident does. "
-          "Aims: at most 1 incident per episode, no chattering, recall 1.0 at today's latency.",
-          "",
-          "| difficulty | minutes | alarms / 10 min before -> after | alarm events / episode | "
-          "incidents / episode (max) | chattering before -> after | energized entries | "
-          "recall | entry latency mean / max (s) | entries already notified by their approach |",
-          "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    md = [
+        "# Alarms: incidents against one notification per alarm event",
+        "",
+        f"{r['date']}, {r['machine']}; simulated work scenes (workers reaching into "
+        f"energized panels again and again), {r['seeds']} seeds x {r['duration_s']:g} s per "
+        "difficulty, the whole 3D back end on their simulated 2D detections. `before`: every "
+        "alarm event notifies (the service before incidents); `after`: a new incident does. "
+        "Aims: at most 1 incident per episode, no chattering, recall 1.0 at today's latency.",
+        "",
+        "| difficulty | minutes | alarms / 10 min before -> after | alarm events / episode | "
+        "incidents / episode (max) | chattering before -> after | energized entries | "
+        "recall | entry latency mean / max (s) | entries already notified by their approach |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, s in r["simulated"].items():
         md.append(
             f"| {name} | {s['minutes']} | {s['alarms_per_10min_before']} -> "

@@ -66,8 +66,14 @@ def agreement(ref_det, det, data: list[list[np.ndarray]]) -> dict:
         first = len(dists)
         for a, b in zip(ref_det.detect(step), det.detect(step), strict=True):
             scores += [float(s) for s in b.scores]
-            pairs = sorted(((_iou(a.boxes[i], b.boxes[j]), i, j) for i in range(len(a))
-                            for j in range(len(b))), reverse=True)  # fmt: skip
+            pairs = sorted(
+                (
+                    (_iou(a.boxes[i], b.boxes[j]), i, j)
+                    for i in range(len(a))
+                    for j in range(len(b))
+                ),
+                reverse=True,
+            )
             used_a, used_b = set(), set()
             for iou, i, j in pairs:
                 if iou < 0.5 or i in used_a or j in used_b:
@@ -105,9 +111,13 @@ def run_demo(backend: str, precision: str, work: Path) -> tuple[dict, Path]:
     from stereopose.pipeline.run import run
 
     config = write_demo_config(work)
-    config.write_text(config.read_text() + (
-        f'\n[detector]\nbackend = "{backend}"\nprecision = "{precision}"\n\n[outputs]\n'
-        "trc = false\ncsv = false\noverlays = false\nreport = false\n"))  # fmt: skip
+    config.write_text(
+        config.read_text()
+        + (
+            f'\n[detector]\nbackend = "{backend}"\nprecision = "{precision}"\n\n[outputs]\n'
+            "trc = false\ncsv = false\noverlays = false\nreport = false\n"
+        )
+    )
     t0 = time.perf_counter()
     summary = run(config)
     wall = time.perf_counter() - t0
@@ -209,8 +219,11 @@ def main() -> None:
             runs[name], poses[name] = run_demo(b, p, Path(tmp) / name)
             print(name, runs[name], flush=True)
         r["run"] = runs
-        r["joints_moved"] = {name: joints_moved(poses["onnxruntime_fp32"], poses[name])
-                             for name in VARIANTS if name != "onnxruntime_fp32"}  # fmt: skip
+        r["joints_moved"] = {
+            name: joints_moved(poses["onnxruntime_fp32"], poses[name])
+            for name in VARIANTS
+            if name != "onnxruntime_fp32"
+        }
     r["load_average_end"] = os.getloadavg()
     cpus = _earlier()
     cpus[_cpu(r["machine"])] = r
@@ -282,9 +295,11 @@ def section(r: dict) -> list[str]:
     ]
     for imgsz in IMGSZ:
         for n in (1, 2):
-            md.append(f"| imgsz {imgsz}, {n} thread{'s' if n > 1 else ''} | "
-                      + " | ".join(f"{ms[f'{v}_{imgsz}_{n}thread']:.1f}" for v in names)
-                      + " |")  # fmt: skip
+            md.append(
+                f"| imgsz {imgsz}, {n} thread{'s' if n > 1 else ''} | "
+                + " | ".join(f"{ms[f'{v}_{imgsz}_{n}thread']:.1f}" for v in names)
+                + " |"
+            )
     md += [
         "",
         "2D against ONNX Runtime fp32 (imgsz 640; joints both see with confidence >= 0.5):",
@@ -317,11 +332,17 @@ def section(r: dict) -> list[str]:
     for name in names:
         x = run[name]
         m = moved.get(name)
-        mv = (f"{_f(m['median_mm'], 2)} / {_f(m['p95_mm'], 1)} / {_f(m['max_mm'], 1)} "
-              f"({m['joints']} joints)" if m else "(the reference)")  # fmt: skip
-        md.append(f"| {name.replace('_', ' ')} | {_f(x['reprojection_median_px'], 3)} | "
-                  f"{_f(x['confident_reprojection_median_px'], 3)} | {x['tracks']} | "
-                  f"{x['wall_s']:.1f} | {mv} |")  # fmt: skip
+        mv = (
+            f"{_f(m['median_mm'], 2)} / {_f(m['p95_mm'], 1)} / {_f(m['max_mm'], 1)} "
+            f"({m['joints']} joints)"
+            if m
+            else "(the reference)"
+        )
+        md.append(
+            f"| {name.replace('_', ' ')} | {_f(x['reprojection_median_px'], 3)} | "
+            f"{_f(x['confident_reprojection_median_px'], 3)} | {x['tracks']} | "
+            f"{x['wall_s']:.1f} | {mv} |"
+        )
     return md
 
 

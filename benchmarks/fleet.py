@@ -51,8 +51,9 @@ class Site:
         self.changes: list[dict] = []
         self.people_sent = 0
         self.lock = threading.Lock()
-        self.c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311,
-                             client_id=f"fleet-{name}")  # fmt: skip
+        self.c = paho.Client(
+            paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311, client_id=f"fleet-{name}"
+        )
         self.c.will_set(f"{PREFIX}/{name}/available", "offline", qos=1, retain=True)
         self.c.on_connect = self._on_connect
         self.c.on_message = self._on_message
@@ -78,17 +79,34 @@ class Site:
     def event(self) -> None:
         with self.lock:
             prev = self.sent[-1]["id"] if self.sent else 0
-            e = {"site": self.name, "id": prev + 1, "prev": prev, "type": "enter",
-                 "zone": "busbar", "person": self.rng.randrange(5), "level": "alarm",
-                 "wall_t": time.time(), "sent": time.time()}  # fmt: skip
+            e = {
+                "site": self.name,
+                "id": prev + 1,
+                "prev": prev,
+                "type": "enter",
+                "zone": "busbar",
+                "person": self.rng.randrange(5),
+                "level": "alarm",
+                "wall_t": time.time(),
+                "sent": time.time(),
+            }
             self.sent.append(e)
             change = None
             if self.rng.random() < 0.25:
                 seq = len(self.changes) + 1
-                change = {"site": self.name, "seq": seq, "prev": seq - 1,
-                          "incident": {"id": 1 + seq // 3, "state": "active", "priority": 1,
-                                       "zone": "busbar", "occurrences": 1,
-                                       "last_wall_t": time.time()}}  # fmt: skip
+                change = {
+                    "site": self.name,
+                    "seq": seq,
+                    "prev": seq - 1,
+                    "incident": {
+                        "id": 1 + seq // 3,
+                        "state": "active",
+                        "priority": 1,
+                        "zone": "busbar",
+                        "occurrences": 1,
+                        "last_wall_t": time.time(),
+                    },
+                }
                 self.changes.append(change)
         self.c.publish(f"{PREFIX}/{self.name}/log/events", json.dumps(e), qos=1)
         if change is not None:
@@ -98,14 +116,25 @@ class Site:
         with self.lock:
             last = self.sent[-1]["id"] if self.sent else 0
             seq = len(self.changes)
-        body = {"last_id": last, "last_incident_seq": seq, "time": time.time(), "status": "ok",
-                "cameras": 4, "cameras_up": 4, "people": self.rng.randrange(4)}  # fmt: skip
+        body = {
+            "last_id": last,
+            "last_incident_seq": seq,
+            "time": time.time(),
+            "status": "ok",
+            "cameras": 4,
+            "cameras_up": 4,
+            "people": self.rng.randrange(4),
+        }
         self.c.publish(f"{PREFIX}/{self.name}/log/heartbeat", json.dumps(body), qos=0)
 
     def people(self) -> None:
         n = self.rng.randrange(4)
-        body = {"t": time.time(), "people": [{"id": i, "position": [1.0 * i, 2.0],
-                                              "heading_deg": 90.0} for i in range(n)]}  # fmt: skip
+        body = {
+            "t": time.time(),
+            "people": [
+                {"id": i, "position": [1.0 * i, 2.0], "heading_deg": 90.0} for i in range(n)
+            ],
+        }
         self.c.publish(f"{PREFIX}/{self.name}/people", json.dumps(body), qos=0)
         self.people_sent += 1
 
@@ -134,8 +163,16 @@ def _proc_figures(pid: int) -> tuple[float, float]:
 SITES_PER_PROCESS = 200
 
 
-def _simulate(names: list[str], port: int, begin: float, seconds: float, events_hz: float,
-              people_hz: float, out: str, stop_flag: str) -> None:  # fmt: skip
+def _simulate(
+    names: list[str],
+    port: int,
+    begin: float,
+    seconds: float,
+    events_hz: float,
+    people_hz: float,
+    out: str,
+    stop_flag: str,
+) -> None:
     """One process's sites: events, people and heartbeats from `begin` for `seconds`; then
     what each sent to `out`, and their heartbeats until `stop_flag` exists (at most 120 s)."""
     rng = random.Random(names[0])
@@ -158,9 +195,11 @@ def _simulate(names: list[str], port: int, begin: float, seconds: float, events_
                 s.heartbeat()
             next_beat += 10.0
         time.sleep(max(0.0, tick - (time.monotonic() - now)))
-    doc = {"sent": {s.name: [e["id"] for e in s.sent] for s in sites},
-           "changes": sum(len(s.changes) for s in sites),
-           "people": sum(s.people_sent for s in sites)}  # fmt: skip
+    doc = {
+        "sent": {s.name: [e["id"] for e in s.sent] for s in sites},
+        "changes": sum(len(s.changes) for s in sites),
+        "people": sum(s.people_sent for s in sites),
+    }
     Path(out).with_suffix(".tmp").write_text(json.dumps(doc))
     Path(out).with_suffix(".tmp").replace(out)
     deadline = time.monotonic() + 120
@@ -174,8 +213,15 @@ def _simulate(names: list[str], port: int, begin: float, seconds: float, events_
         s.close()
 
 
-def one(n_sites: int, seconds: float, events_hz: float, people_hz: float, work: Path,
-        database: str, workers: int = 1) -> dict:  # fmt: skip
+def one(
+    n_sites: int,
+    seconds: float,
+    events_hz: float,
+    people_hz: float,
+    work: Path,
+    database: str,
+    workers: int = 1,
+) -> dict:
     from brokers import Broker, free_port
     from stereopose.controlroom.store import ControlStore
 
@@ -200,8 +246,10 @@ def one(n_sites: int, seconds: float, events_hz: float, people_hz: float, work: 
         (room_dir / f"w{w}").mkdir()
         config = room_dir / f"w{w}" / "control.toml"
         ports.append(free_port())
-        config.write_text(f'output = "data"\n\n[serve]\nport = {ports[-1]}\n\n[mqtt]\n'
-                          f'host = "127.0.0.1"\nport = {broker.port}\n{extra}')  # fmt: skip
+        config.write_text(
+            f'output = "data"\n\n[serve]\nport = {ports[-1]}\n\n[mqtt]\n'
+            f'host = "127.0.0.1"\nport = {broker.port}\n{extra}'
+        )
         log = open(room_dir / f"w{w}" / "room.log", "ab")  # noqa: SIM115
         cmd = [sys.executable, "-m", "stereopose.cli", "control-room", str(config)]
         rooms.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env))
@@ -283,11 +331,19 @@ def one(n_sites: int, seconds: float, events_hz: float, people_hz: float, work: 
     for site, i, _, _ in rows:
         got.setdefault(site, []).append(i)
     lost = sum(len(ids - set(got.get(name, []))) for name, ids in by_site.items())
-    short = {name: (len(ids - set(got.get(name, []))), len(ids), len(got.get(name, [])))
-             for name, ids in by_site.items() if ids - set(got.get(name, []))}  # fmt: skip
+    short = {
+        name: (len(ids - set(got.get(name, []))), len(ids), len(got.get(name, [])))
+        for name, ids in by_site.items()
+        if ids - set(got.get(name, []))
+    }
     if short:
-        print("sites short of events (lost, sent, stored):", dict(list(short.items())[:10]),
-              len(short), "sites", flush=True)  # fmt: skip
+        print(
+            "sites short of events (lost, sent, stored):",
+            dict(list(short.items())[:10]),
+            len(short),
+            "sites",
+            flush=True,
+        )
     twice = sum(len(v) - len(set(v)) for v in got.values())
 
     def q(p: float) -> float | None:
@@ -324,9 +380,12 @@ def main() -> None:
     ap.add_argument("--events-hz", type=float, default=0.5, help="events per site per second")
     ap.add_argument("--people-hz", type=float, default=5.0)
     ap.add_argument("--database", default="sqlite,postgresql")
-    ap.add_argument("--second-worker", default="1000",
-                    help="site counts also run with two workers (PostgreSQL, a shared "
-                    "subscription); empty: none")  # fmt: skip
+    ap.add_argument(
+        "--second-worker",
+        default="1000",
+        help="site counts also run with two workers (PostgreSQL, a shared "
+        "subscription); empty: none",
+    )
     args = ap.parse_args()
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -337,14 +396,24 @@ def main() -> None:
                 runs.append(r)
         if "postgresql" in args.database.split(","):
             for n in [int(x) for x in args.second_worker.split(",") if x]:
-                r = one(n, args.seconds, args.events_hz, args.people_hz, Path(tmp),
-                        "postgresql", workers=2)  # fmt: skip
+                r = one(
+                    n,
+                    args.seconds,
+                    args.events_hz,
+                    args.people_hz,
+                    Path(tmp),
+                    "postgresql",
+                    workers=2,
+                )
                 print(r, flush=True)
                 runs.append(r)
-    results = {"date": dt.date.today().isoformat(),
-               "machine": machine().replace(", one thread", ""),
-               "events_hz_per_site": args.events_hz, "people_hz_per_site": args.people_hz,
-               "runs": runs}  # fmt: skip
+    results = {
+        "date": dt.date.today().isoformat(),
+        "machine": machine().replace(", one thread", ""),
+        "events_hz_per_site": args.events_hz,
+        "people_hz_per_site": args.people_hz,
+        "runs": runs,
+    }
     save("fleet", results, markdown(results))
 
 
@@ -370,13 +439,15 @@ def markdown(r: dict) -> list[str]:
     ]
     for x in r["runs"]:
         lat = x["latency_s"]
-        md.append(f"| {x['database']} | {x['workers']} | {x['sites']} | {x['events_per_s']} | "
-                  f"{x['people_msgs_per_s']} | "
-                  f"{x['events_stored']} / {x['events_sent']} | {x['lost']} | "
-                  f"{x['stored_twice']} | {lat['p50']} / {lat['p95']} / {lat['max']} | "
-                  f"{x['drain_after_end_s']} | {x['control_room_rss_mb']['start']} / "
-                  f"{x['control_room_rss_mb']['max']} | "
-                  f"{x['control_room_cpu_share']} |")  # fmt: skip
+        md.append(
+            f"| {x['database']} | {x['workers']} | {x['sites']} | {x['events_per_s']} | "
+            f"{x['people_msgs_per_s']} | "
+            f"{x['events_stored']} / {x['events_sent']} | {x['lost']} | "
+            f"{x['stored_twice']} | {lat['p50']} / {lat['p95']} / {lat['max']} | "
+            f"{x['drain_after_end_s']} | {x['control_room_rss_mb']['start']} / "
+            f"{x['control_room_rss_mb']['max']} | "
+            f"{x['control_room_cpu_share']} |"
+        )
     md += [
         "",
         "Two workers: two `stereopose control-room` processes on one PostgreSQL store "
@@ -391,14 +462,17 @@ def markdown(r: dict) -> list[str]:
         worst = max(x["latency_s"]["p95"] or 0 for x in one_worker)
         cpu = max(x["control_room_cpu_share"] for x in one_worker)
         offered = big["sites"] * r["events_hz_per_site"]
-        md += ["", f"Reading: every event of every run stored exactly once (lost "
-               f"{sum(x['lost'] for x in r['runs'])}, twice "
-               f"{sum(x['stored_twice'] for x in r['runs'])}); with one worker p95 at most "
-               f"{worst} s and at most {cpu} of a core. The control room did not saturate "
-               f"here: at {big['sites']} sites the simulated sites themselves (their "
-               f"processes on the same 2 cores) reached {big['events_per_s']} of the "
-               f"{offered:g} events/s offered, so its limit lies beyond what this machine "
-               "can offer it."]  # fmt: skip
+        md += [
+            "",
+            f"Reading: every event of every run stored exactly once (lost "
+            f"{sum(x['lost'] for x in r['runs'])}, twice "
+            f"{sum(x['stored_twice'] for x in r['runs'])}); with one worker p95 at most "
+            f"{worst} s and at most {cpu} of a core. The control room did not saturate "
+            f"here: at {big['sites']} sites the simulated sites themselves (their "
+            f"processes on the same 2 cores) reached {big['events_per_s']} of the "
+            f"{offered:g} events/s offered, so its limit lies beyond what this machine "
+            "can offer it.",
+        ]
     return md
 
 

@@ -91,8 +91,9 @@ def record(frames: int) -> tuple[list[list[People2D]], list[bytes]]:
 class Replayer:
     """NODES nodes' worth of keypoints, health and pictures on the broker (see the module)."""
 
-    def __init__(self, port: int, n: int, rate: float, people: list[list[People2D]],
-                 pictures: list[bytes]) -> None:  # fmt: skip
+    def __init__(
+        self, port: int, n: int, rate: float, people: list[list[People2D]], pictures: list[bytes]
+    ) -> None:
         self.n, self.rate, self.people, self.pictures = n, rate, people, pictures
         self.names = [f"c{i + 1:02d}" for i in range(n)]
         self.node_of = {name: f"node-{i * NODES // n + 1}" for i, name in enumerate(self.names)}
@@ -100,8 +101,11 @@ class Replayer:
         self.sent = 0
         self.behind = 0  # grid times the replayer itself was late for (sent late, counted)
         self._stop = threading.Event()
-        self.client = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311,
-                                  client_id=f"replayer-{os.getpid()}")  # fmt: skip
+        self.client = paho.Client(
+            paho.CallbackAPIVersion.VERSION2,
+            protocol=paho.MQTTv311,
+            client_id=f"replayer-{os.getpid()}",
+        )
         self.client.max_queued_messages_set(0)
         self.client.connect("127.0.0.1", port)
         self.client.loop_start()
@@ -110,12 +114,26 @@ class Replayer:
 
     def _health(self, frames: int) -> None:
         for node in sorted(set(self.node_of.values())):
-            cams = {c: {"fps": 25.0, "detect_fps": self.rate, "frames": frames, "dropped": 0,
-                        "up": True}
-                    for c, nd in self.node_of.items() if nd == node}  # fmt: skip
-            body = health_message(node, "online", clock=time.time(), cameras=cams,
-                                  detect_ms=2.0, queue={"queued": 0, "dropped": 0},
-                                  backend="replay")  # fmt: skip
+            cams = {
+                c: {
+                    "fps": 25.0,
+                    "detect_fps": self.rate,
+                    "frames": frames,
+                    "dropped": 0,
+                    "up": True,
+                }
+                for c, nd in self.node_of.items()
+                if nd == node
+            }
+            body = health_message(
+                node,
+                "online",
+                clock=time.time(),
+                cameras=cams,
+                detect_ms=2.0,
+                queue={"queued": 0, "dropped": 0},
+                backend="replay",
+            )
             self.client.publish(self.topics.node(node), body, qos=1, retain=True)
 
     def _run(self) -> None:
@@ -142,8 +160,9 @@ class Replayer:
                 self.sent += 1
             if now >= next_picture:
                 for i, name in enumerate(self.names):
-                    self.client.publish(self.topics.picture(name),
-                                        encode_picture(t, self.pictures[i % 4]), qos=0)  # fmt: skip
+                    self.client.publish(
+                        self.topics.picture(name), encode_picture(t, self.pictures[i % 4]), qos=0
+                    )
                 next_picture = now + PICTURE_EVERY_S
             k = max(k + 1, int(time.time() / period))  # a grid time passed over: as a node
 
@@ -151,8 +170,9 @@ class Replayer:
         self._stop.set()
         self.thread.join(5)
         for node in sorted(set(self.node_of.values())):
-            self.client.publish(self.topics.node(node), health_message(node, "offline"),
-                                qos=1, retain=True).wait_for_publish(5)  # fmt: skip
+            self.client.publish(
+                self.topics.node(node), health_message(node, "offline"), qos=1, retain=True
+            ).wait_for_publish(5)
         self.client.disconnect()
         self.client.loop_stop()
 
@@ -179,8 +199,9 @@ def stages(port: int) -> dict[str, tuple[float, float]]:
     except OSError:
         return {}
     out: dict[str, list[float]] = {}
-    for m in re.finditer(r'^stereopose_stage_seconds_(sum|count)\{stage="([^"]+)"\} (\S+)$',
-                         text, re.M):  # fmt: skip
+    for m in re.finditer(
+        r'^stereopose_stage_seconds_(sum|count)\{stage="([^"]+)"\} (\S+)$', text, re.M
+    ):
         out.setdefault(m[2], [0.0, 0.0])[0 if m[1] == "sum" else 1] = float(m[3])
     return {k: (v[0], v[1]) for k, v in out.items()}
 
@@ -188,9 +209,11 @@ def stages(port: int) -> dict[str, tuple[float, float]]:
 def run_setup(n: int, rate: float, seconds: float, people, pictures, mosquitto: str) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix=f"fusion-{n}-{rate:g}-"))
     broker_port, http = free_port(), free_port()
-    (tmp / "mosquitto.conf").write_text(f"listener {broker_port} 127.0.0.1\n"
-                                        "allow_anonymous true\npersistence false\n"
-                                        "max_queued_messages 100000\n")  # fmt: skip
+    (tmp / "mosquitto.conf").write_text(
+        f"listener {broker_port} 127.0.0.1\n"
+        "allow_anonymous true\npersistence false\n"
+        "max_queued_messages 100000\n"
+    )
     config = write_setup(tmp, n, "nodes", broker_port, http, rate, 640)
     procs: dict[str, subprocess.Popen] = {}
     logs = []
@@ -198,8 +221,9 @@ def run_setup(n: int, rate: float, seconds: float, people, pictures, mosquitto: 
     def start(name: str, args: list[str]) -> None:
         log = open(tmp / f"{name}.log", "wb")  # noqa: SIM115  # closed at the end
         logs.append(log)
-        procs[name] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                       env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+        procs[name] = subprocess.Popen(
+            args, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ, PYTHONUNBUFFERED="1")
+        )
 
     start("mosquitto", [mosquitto, "-c", str(tmp / "mosquitto.conf")])
     time.sleep(0.5)
@@ -238,31 +262,40 @@ def run_setup(n: int, rate: float, seconds: float, people, pictures, mosquitto: 
 
         def delta(key: str) -> int:
             return sum(c.get(key, 0) for c in r1["cameras"].values()) - sum(
-                c.get(key, 0) for c in r0["cameras"].values())  # fmt: skip
+                c.get(key, 0) for c in r0["cameras"].values()
+            )
 
-        per_stage = {k: round(1000 * (v[0] - g0.get(k, (0, 0))[0])
-                              / max(1.0, v[1] - g0.get(k, (0, 0))[1]), 2)
-                     for k, v in g1.items()}  # fmt: skip
+        per_stage = {
+            k: round(
+                1000 * (v[0] - g0.get(k, (0, 0))[0]) / max(1.0, v[1] - g0.get(k, (0, 0))[1]), 2
+            )
+            for k, v in g1.items()
+        }
         p0, p1 = s0.get("pipeline", {}), s1.get("pipeline", {})
-        return {"cameras": n, "camera_pairs": n * (n - 1) // 2, "rate": rate,
-                "seconds": round(span, 1), "steps": steps,
-                "steps_per_s": round(steps / span, 2),
-                "held": steps / span >= 0.95 * rate,
-                "camera_frames_sent": replayer.sent - sent0,
-                "camera_frames_used": delta("used"),
-                "lost": {k: delta(k) for k in ("late", "dropped", "refused", "flood")},
-                "partial_steps": r1.get("partial_steps", 0) - r0.get("partial_steps", 0),
-                "loop_dropped": p1.get("dropped", 0) - p0.get("dropped", 0),
-                "replayer_behind": replayer.behind,
-                "people_latency_p50_s": q(listener.people, 0.5),
-                "people_latency_p95_s": q(listener.people, 0.95),
-                "people_updates": len(listener.people),
-                "event_latency_p50_s": q(listener.events, 0.5),
-                "event_latency_p95_s": q(listener.events, 0.95),
-                "events": len(listener.events),
-                "cpu_cores": {k: round((c1[k] - c0[k]) / span, 2) for k in c0},
-                "stage_ms": per_stage,
-                "people_mean": health(http).get("people")}  # fmt: skip
+        return {
+            "cameras": n,
+            "camera_pairs": n * (n - 1) // 2,
+            "rate": rate,
+            "seconds": round(span, 1),
+            "steps": steps,
+            "steps_per_s": round(steps / span, 2),
+            "held": steps / span >= 0.95 * rate,
+            "camera_frames_sent": replayer.sent - sent0,
+            "camera_frames_used": delta("used"),
+            "lost": {k: delta(k) for k in ("late", "dropped", "refused", "flood")},
+            "partial_steps": r1.get("partial_steps", 0) - r0.get("partial_steps", 0),
+            "loop_dropped": p1.get("dropped", 0) - p0.get("dropped", 0),
+            "replayer_behind": replayer.behind,
+            "people_latency_p50_s": q(listener.people, 0.5),
+            "people_latency_p95_s": q(listener.people, 0.95),
+            "people_updates": len(listener.people),
+            "event_latency_p50_s": q(listener.events, 0.5),
+            "event_latency_p95_s": q(listener.events, 0.95),
+            "events": len(listener.events),
+            "cpu_cores": {k: round((c1[k] - c0[k]) / span, 2) for k in c0},
+            "stage_ms": per_stage,
+            "people_mean": health(http).get("people"),
+        }
     finally:
         if listener is not None:
             listener.close()
@@ -292,8 +325,7 @@ def stage_alone(n: int, people: list[list[People2D]], steps: int = 20) -> dict:
         views = {}
         for i in range(n):
             p = people[i % 4][k % len(people[i % 4])]
-            views[f"c{i + 1:02d}"] = People2D(f"c{i + 1:02d}", k, p.keypoints, p.boxes,
-                                              p.scores)  # fmt: skip
+            views[f"c{i + 1:02d}"] = People2D(f"c{i + 1:02d}", k, p.keypoints, p.boxes, p.scores)
         stage.step(k, views, k / 25)
 
     for k in range(3):  # warm
@@ -306,9 +338,11 @@ def stage_alone(n: int, people: list[list[People2D]], steps: int = 20) -> dict:
     prof.disable()
     ms = 1000 * (time.perf_counter() - t0) / steps
     stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
-    parts = {f"{Path(f).stem}.{name}": round(1000 * ct / steps, 2)
-             for (f, _, name), (_, _, _, ct, _) in stats.items()
-             if "stereopose" in f and name in PARTS}  # fmt: skip
+    parts = {
+        f"{Path(f).stem}.{name}": round(1000 * ct / steps, 2)
+        for (f, _, name), (_, _, _, ct, _) in stats.items()
+        if "stereopose" in f and name in PARTS
+    }
     return {"cameras": n, "ms_per_step": round(ms, 2), "parts_ms": parts}
 
 
@@ -326,32 +360,37 @@ PARTS = (
 
 
 def report(head: dict, results: list[dict]) -> None:
-    md = ["# The fusion service at 16, 32 and 64 cameras",
-          "",
-          f"`python benchmarks/fusion_scale.py`, {head['date']}, "
-          f"{head['machine'].replace(', one thread', '')}; mosquitto, `stereopose serve` "
-          "(fusion: [input] detection = \"nodes\") and the replayer on this one machine; "
-          f"{head['seconds']:.0f} s measured per set-up after warming; load average "
-          f"{head['load_average'][0]} at the start, {head['load_average'][1]} at the end. "
-          "The demo's 4 cameras' real detections (YOLO11n-pose, every frame) repeated to N "
-          f"cameras (each copy its original's calibration), played by {NODES} replayed nodes on "
-          "the wall clock's grid of the rate, with their health every second and each "
-          "camera's picture once a second. Latency: from capture to the step's people on the "
-          "broker, and to its zone events.",
-          "",
-          "| cameras (pairs) | rate | steps/s held | camera-frames used / sent | lost (late / "
-          "over-full / refused / flood), partial steps, loop drops | capture -> people p50 / "
-          "p95 s | -> zone event p50 / p95 s (n) | CPU cores (serve / mosquitto / replayer) "
-          "| the service's work, ms a step (the largest stages) |",
-          "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    md = [
+        "# The fusion service at 16, 32 and 64 cameras",
+        "",
+        f"`python benchmarks/fusion_scale.py`, {head['date']}, "
+        f"{head['machine'].replace(', one thread', '')}; mosquitto, `stereopose serve` "
+        '(fusion: [input] detection = "nodes") and the replayer on this one machine; '
+        f"{head['seconds']:.0f} s measured per set-up after warming; load average "
+        f"{head['load_average'][0]} at the start, {head['load_average'][1]} at the end. "
+        "The demo's 4 cameras' real detections (YOLO11n-pose, every frame) repeated to N "
+        f"cameras (each copy its original's calibration), played by {NODES} replayed nodes on "
+        "the wall clock's grid of the rate, with their health every second and each "
+        "camera's picture once a second. Latency: from capture to the step's people on the "
+        "broker, and to its zone events.",
+        "",
+        "| cameras (pairs) | rate | steps/s held | camera-frames used / sent | lost (late / "
+        "over-full / refused / flood), partial steps, loop drops | capture -> people p50 / "
+        "p95 s | -> zone event p50 / p95 s (n) | CPU cores (serve / mosquitto / replayer) "
+        "| the service's work, ms a step (the largest stages) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(results, key=lambda r: (r["cameras"], r["rate"])):
         lost = r["lost"]
         c = r["cpu_cores"]
         # "decode" is the wait for the nodes' frames (no decoding here), "detect" the nodes'
         work = {k: v for k, v in r["stage_ms"].items() if k not in ("decode", "detect")}
         top = sorted(work.items(), key=lambda kv: -kv[1])[:3]
-        ev = (f"{r['event_latency_p50_s']} / {r['event_latency_p95_s']} ({r['events']})"
-              if r["events"] else "-")  # fmt: skip
+        ev = (
+            f"{r['event_latency_p50_s']} / {r['event_latency_p95_s']} ({r['events']})"
+            if r["events"]
+            else "-"
+        )
         md.append(
             f"| {r['cameras']} ({r['camera_pairs']:,}) | {r['rate']:g} | {r['steps_per_s']}"
             f"{'' if r['held'] else ' (not held)'} | {r['camera_frames_used']:,} / "
@@ -359,23 +398,31 @@ def report(head: dict, results: list[dict]) -> None:
             f"{lost['refused']} / {lost['flood']}, {r['partial_steps']}, {r['loop_dropped']} | "
             f"{r['people_latency_p50_s']} / {r['people_latency_p95_s']} | {ev} | "
             f"{c['serve']} / {c['mosquitto']} / {c['replayer']} | "
-            f"{', '.join(f'{k} {v}' for k, v in top)} |")  # fmt: skip
+            f"{', '.join(f'{k} {v}' for k, v in top)} |"
+        )
     alone = head.get("stage_alone") or []
     if alone:
-        md += ["", "## The 3D stage alone", "",
-               "`Stage3D.step` in one process on one thread, the same people and rigs, nothing "
-               "else running (ms a step; its parts' cumulative ms a step):", "",
-               "| cameras | ms a step | steps/s on one core | association (epipolar "
-               "distances) | triangulation (of which choosing the views) | tracking |",
-               "|---|---|---|---|---|---|"]  # fmt: skip
+        md += [
+            "",
+            "## The 3D stage alone",
+            "",
+            "`Stage3D.step` in one process on one thread, the same people and rigs, nothing "
+            "else running (ms a step; its parts' cumulative ms a step):",
+            "",
+            "| cameras | ms a step | steps/s on one core | association (epipolar "
+            "distances) | triangulation (of which choosing the views) | tracking |",
+            "|---|---|---|---|---|---|",
+        ]
         for a in alone:
             p = a["parts_ms"]
-            md.append(f"| {a['cameras']} | {a['ms_per_step']} | "
-                      f"{1000 / a['ms_per_step']:.0f} | "
-                      f"{p.get('affinity.epipolar_distances', '-')} | "
-                      f"{p.get('reconstructor._triangulate', '-')} "
-                      f"({p.get('_kernels.select_views', '-')}) | "
-                      f"{p.get('tracker.update', '-')} |")  # fmt: skip
+            md.append(
+                f"| {a['cameras']} | {a['ms_per_step']} | "
+                f"{1000 / a['ms_per_step']:.0f} | "
+                f"{p.get('affinity.epipolar_distances', '-')} | "
+                f"{p.get('reconstructor._triangulate', '-')} "
+                f"({p.get('_kernels.select_views', '-')}) | "
+                f"{p.get('tracker.update', '-')} |"
+            )
     md += ["", *head.get("notes", [])]
     save("fusion_scale", {**head, "results": results}, md)
 
@@ -412,9 +459,14 @@ def main() -> None:
     alone = [stage_alone(n, people) for n in sizes]
     for a in alone:
         print(json.dumps({"stage_alone": a}), flush=True)
-    head = {"date": datetime.date.today().isoformat(), "machine": machine(),
-            "seconds": args.seconds, "notes": args.note, "stage_alone": alone,
-            "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)]}  # fmt: skip
+    head = {
+        "date": datetime.date.today().isoformat(),
+        "machine": machine(),
+        "seconds": args.seconds,
+        "notes": args.note,
+        "stage_alone": alone,
+        "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)],
+    }
     report(head, results)
 
 

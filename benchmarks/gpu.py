@@ -62,8 +62,11 @@ VARIANTS = {  # name: (device, precision)
     "tensorrt_fp16": ("tensorrt", "fp16"),
     "cpu_fp32": ("cpu", "fp32"),  # the dry run
 }
-PROVIDERS = {"cuda": ["cuda_fp32"], "tensorrt": ["tensorrt_fp32", "tensorrt_fp16"],
-             "cpu": ["cpu_fp32"]}  # fmt: skip
+PROVIDERS = {
+    "cuda": ["cuda_fp32"],
+    "tensorrt": ["tensorrt_fp32", "tensorrt_fp16"],
+    "cpu": ["cpu_fp32"],
+}
 BATCHES = (1, 2, 4, 8, 16, 32)
 FPS = 25
 FRAME_MS = 1000 / FPS
@@ -75,8 +78,12 @@ def gpu_info() -> dict:
         return {}
     q = "name,driver_version,memory.total,memory.used"
     try:
-        out = subprocess.run(["nvidia-smi", f"--query-gpu={q}", "--format=csv,noheader"],
-                             capture_output=True, text=True, timeout=20).stdout  # fmt: skip
+        out = subprocess.run(
+            ["nvidia-smi", f"--query-gpu={q}", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        ).stdout
     except (OSError, subprocess.SubprocessError):
         return {}
     first = out.strip().splitlines()[:1]
@@ -115,9 +122,12 @@ def time_batches(det, pool: list[np.ndarray], batches, repeats: int) -> dict:
             row[f"{name}_p95_ms"] = pct(ms, 0.95)
             row[f"{name}_frames_per_s"] = b * 1000 / statistics.median(ms)
         out[str(b)] = row
-        print(f"  batch {b:2d}: detect {row['detect_p50_ms']:7.1f} ms p50 "
-              f"{row['detect_p95_ms']:7.1f} p95, inference {row['inference_p50_ms']:7.1f} ms "
-              f"p50, {row['detect_frames_per_s']:6.0f} frames/s", flush=True)  # fmt: skip
+        print(
+            f"  batch {b:2d}: detect {row['detect_p50_ms']:7.1f} ms p50 "
+            f"{row['detect_p95_ms']:7.1f} p95, inference {row['inference_p50_ms']:7.1f} ms "
+            f"p50, {row['detect_frames_per_s']:6.0f} frames/s",
+            flush=True,
+        )
     return out
 
 
@@ -127,16 +137,19 @@ def cameras(rows: dict) -> dict:
     for name in ("detect", "inference"):
         best = max(r[f"{name}_frames_per_s"] for r in rows.values())
         within = [r["batch"] for r in rows.values() if r[f"{name}_p95_ms"] <= FRAME_MS]
-        out[name] = {"by_throughput": best / FPS, "largest_batch_within_40ms":
-                     max(within) if within else 0}  # fmt: skip
+        out[name] = {
+            "by_throughput": best / FPS,
+            "largest_batch_within_40ms": max(within) if within else 0,
+        }
     return out
 
 
 def make(model: Path, device: str, precision: str, imgsz: int, max_batch: int):
     from stereopose.detection.yolo_onnx import OnnxPoseDetector
 
-    return OnnxPoseDetector(model, imgsz=imgsz, device=device, precision=precision,
-                            max_batch=max_batch)  # fmt: skip
+    return OnnxPoseDetector(
+        model, imgsz=imgsz, device=device, precision=precision, max_batch=max_batch
+    )
 
 
 def main() -> int:
@@ -236,8 +249,12 @@ def variant(model, device, precision, args, batches, pool, data, ref) -> dict:
     det = make(model, device, precision, args.imgsz, max(batches))
     det.detect(pool[: max(batches)])  # TensorRT builds its engine by the first run
     first_s = time.perf_counter() - t0
-    v: dict = {"device": device, "precision": precision, "providers": det.providers,
-               "first_session_and_run_s": first_s}  # fmt: skip
+    v: dict = {
+        "device": device,
+        "precision": precision,
+        "providers": det.providers,
+        "first_session_and_run_s": first_s,
+    }
     if device == "tensorrt":  # a restart: the engine from the folder the first one wrote
         del det
         t0 = time.perf_counter()
@@ -252,8 +269,11 @@ def variant(model, device, precision, args, batches, pool, data, ref) -> dict:
 
 def markdown(r: dict) -> list[str]:
     gpu = r["gpu"]
-    where = (f"{gpu['name']} (driver {gpu['driver']}, {gpu['memory_total']})" if gpu
-             else "no GPU found by nvidia-smi")  # fmt: skip
+    where = (
+        f"{gpu['name']} (driver {gpu['driver']}, {gpu['memory_total']})"
+        if gpu
+        else "no GPU found by nvidia-smi"
+    )
     md = [
         "# YOLO11n-pose on a GPU: ONNX Runtime's CUDA and TensorRT providers",
         "",
@@ -267,20 +287,31 @@ def markdown(r: dict) -> list[str]:
         "",
     ]
     for name, v in r["variants"].items():
-        md += [f"## {name.replace('_', ' ')}", "",
-               f"Providers: {', '.join(v['providers'])}. First session and run "
-               f"{v['first_session_and_run_s']:.1f} s"
-               + (f" (TensorRT's engine built); from the engine cache "
-                  f"{v['cached_session_and_run_s']:.1f} s" if "cached_session_and_run_s" in v
-                  else "") + ".", "",
-               "| batch | input | detect p50 / p95 ms | inference p50 / p95 ms | frames/s detect | "
-               "frames/s inference |", "|---|---|---|---|---|---|"]  # fmt: skip
+        md += [
+            f"## {name.replace('_', ' ')}",
+            "",
+            f"Providers: {', '.join(v['providers'])}. First session and run "
+            f"{v['first_session_and_run_s']:.1f} s"
+            + (
+                f" (TensorRT's engine built); from the engine cache "
+                f"{v['cached_session_and_run_s']:.1f} s"
+                if "cached_session_and_run_s" in v
+                else ""
+            )
+            + ".",
+            "",
+            "| batch | input | detect p50 / p95 ms | inference p50 / p95 ms | frames/s detect | "
+            "frames/s inference |",
+            "|---|---|---|---|---|---|",
+        ]
         for row in v["batches"].values():
-            md.append(f"| {row['batch']} | {'x'.join(map(str, row['input'][2:]))} | "
-                      f"{row['detect_p50_ms']:.1f} / {row['detect_p95_ms']:.1f} | "
-                      f"{row['inference_p50_ms']:.1f} / {row['inference_p95_ms']:.1f} | "
-                      f"{row['detect_frames_per_s']:.0f} | {row['inference_frames_per_s']:.0f} "
-                      "|")  # fmt: skip
+            md.append(
+                f"| {row['batch']} | {'x'.join(map(str, row['input'][2:]))} | "
+                f"{row['detect_p50_ms']:.1f} / {row['detect_p95_ms']:.1f} | "
+                f"{row['inference_p50_ms']:.1f} / {row['inference_p95_ms']:.1f} | "
+                f"{row['detect_frames_per_s']:.0f} | {row['inference_frames_per_s']:.0f} "
+                "|"
+            )
         md.append("")
     md += [
         "## Cameras per GPU at 25 fps",
@@ -294,10 +325,12 @@ def markdown(r: dict) -> list[str]:
     ]
     for name, v in r["variants"].items():
         c = v["cameras_at_25fps"]
-        md.append(f"| {name.replace('_', ' ')} | {c['detect']['by_throughput']:.1f} | "
-                  f"{c['inference']['by_throughput']:.1f} | "
-                  f"{c['detect']['largest_batch_within_40ms']} | "
-                  f"{c['inference']['largest_batch_within_40ms']} |")  # fmt: skip
+        md.append(
+            f"| {name.replace('_', ' ')} | {c['detect']['by_throughput']:.1f} | "
+            f"{c['inference']['by_throughput']:.1f} | "
+            f"{c['detect']['largest_batch_within_40ms']} | "
+            f"{c['inference']['largest_batch_within_40ms']} |"
+        )
     md += [
         "",
         "## 2D against ONNX Runtime fp32 on the CPU",
@@ -308,11 +341,12 @@ def markdown(r: dict) -> list[str]:
     ]
     for name, v in r["variants"].items():
         a = v["agreement"]
-        md.append(f"| {name.replace('_', ' ')} | {a['people_matched']} / "
-                  f"{a['people_only_reference']} / {a['people_only_this']} | "
-                  f"{a['joints_compared']} | {_f(a['median_px'], 3)} | {_f(a['p95_px'], 2)} | "
-                  f"{_f(a['max_px'], 2)} | "
-                  + " / ".join(_f(a[f"pck_{t:g}px"], 3) for t in PCK_PX) + " |")  # fmt: skip
+        md.append(
+            f"| {name.replace('_', ' ')} | {a['people_matched']} / "
+            f"{a['people_only_reference']} / {a['people_only_this']} | "
+            f"{a['joints_compared']} | {_f(a['median_px'], 3)} | {_f(a['p95_px'], 2)} | "
+            f"{_f(a['max_px'], 2)} | " + " / ".join(_f(a[f"pck_{t:g}px"], 3) for t in PCK_PX) + " |"
+        )
     for name, why in r["skipped"].items():
         md += ["", f"{name.replace('_', ' ')}: not measured ({why})."]
     return md

@@ -70,8 +70,14 @@ def agreement(fp32: Path, int8: Path, data: list[list[np.ndarray]]) -> dict:
     only_fp32 = only_int8 = matched = 0
     for step in data:
         for a, b in zip(ref.detect(step), q.detect(step), strict=True):
-            pairs = sorted(((_iou(a.boxes[i], b.boxes[j]), i, j) for i in range(len(a))
-                            for j in range(len(b))), reverse=True)  # fmt: skip
+            pairs = sorted(
+                (
+                    (_iou(a.boxes[i], b.boxes[j]), i, j)
+                    for i in range(len(a))
+                    for j in range(len(b))
+                ),
+                reverse=True,
+            )
             used_a, used_b = set(), set()
             for iou, i, j in pairs:
                 if iou < 0.5 or i in used_a or j in used_b:
@@ -135,8 +141,11 @@ def main() -> None:
         "models": {"fp32": str(fp32), "int8": str(int8)},
         "model_bytes": {"fp32": fp32.stat().st_size, "int8": int8.stat().st_size},
     }
-    r["ms_per_frame"] = {f"{p}_{n}thread": speed(m, data, n) for p, m in
-                         (("fp32", fp32), ("int8", int8)) for n in (1, 2)}  # fmt: skip
+    r["ms_per_frame"] = {
+        f"{p}_{n}thread": speed(m, data, n)
+        for p, m in (("fp32", fp32), ("int8", int8))
+        for n in (1, 2)
+    }
     r["agreement"] = agreement(fp32, int8, data)
     with tempfile.TemporaryDirectory() as tmp:
         r["run"] = {p: run_demo(m, Path(tmp) / p) for p, m in (("fp32", fp32), ("int8", int8))}

@@ -59,17 +59,49 @@ def ffmpeg() -> str:
 def substream(video: Path, out: Path) -> Path:
     """`video` at SUB_SIZE, H.264, once (before any measurement)."""
     w, h = SUB_SIZE
-    cmd = [ffmpeg(), "-loglevel", "error", "-y", "-i", str(video), "-an", "-vf",
-           f"scale={w}:{h}", "-c:v", "libx264", "-preset", "veryfast", "-g", "30",
-           "-pix_fmt", "yuv420p", str(out)]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-y",
+        "-i",
+        str(video),
+        "-an",
+        "-vf",
+        f"scale={w}:{h}",
+        "-c:v",
+        "libx264",
+        "-preset",
+        "veryfast",
+        "-g",
+        "30",
+        "-pix_fmt",
+        "yuv420p",
+        str(out),
+    ]
     subprocess.run(cmd, check=True, timeout=120)
     return out
 
 
 def serve(video: Path, port: int, name: str) -> subprocess.Popen:
-    cmd = [ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(video),
-           "-an", "-c", "copy", "-f", "mpegts", "-listen", "1",
-           f"http://127.0.0.1:{port}/{name}.ts"]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-re",
+        "-stream_loop",
+        "-1",
+        "-i",
+        str(video),
+        "-an",
+        "-c",
+        "copy",
+        "-f",
+        "mpegts",
+        "-listen",
+        "1",
+        f"http://127.0.0.1:{port}/{name}.ts",
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -81,8 +113,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det,
-            packets: bool = False) -> dict:  # fmt: skip
+def measure(
+    videos: list[Path], subs: list[Path] | None, seconds: float, det, packets: bool = False
+) -> dict:
     names = [v.stem for v in videos]
     servers, urls, sub_urls = [], [], []
     for v in videos:
@@ -100,8 +133,9 @@ def measure(videos: list[Path], subs: list[Path] | None, seconds: float, det,
     proc = psutil.Process()
     rings = {n: PacketRing(20.0, 64 * 2**20) for n in names} if packets else None
     try:
-        with CameraSet(urls, names, detect=sub_urls or None, first_frame_timeout_s=30,
-                       packets=rings) as cams:  # fmt: skip
+        with CameraSet(
+            urls, names, detect=sub_urls or None, first_frame_timeout_s=30, packets=rings
+        ) as cams:
             cfg = dataclasses.replace(Config(), fps=cams.fps)
             source = PipelinedCameras(Cameras(cams, rig, det))
             stage = Stage3D(rig, cfg, calib_path=str(calib))
@@ -166,9 +200,11 @@ def main() -> None:
         for use_subs, packets in ((False, False), (True, False), (True, True)):
             run = measure(videos, subs if use_subs else None, args.seconds, det, packets)
             r["runs"].append(run)
-            print(f"substreams={use_subs} packets={packets}: {run['steps_per_s']:.2f} steps/s, "
-                  f"latency p50 {run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
-                  flush=True)  # fmt: skip
+            print(
+                f"substreams={use_subs} packets={packets}: {run['steps_per_s']:.2f} steps/s, "
+                f"latency p50 {run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
+                flush=True,
+            )
     save("keeping_up", r, markdown(r))
 
 
@@ -192,9 +228,11 @@ def markdown(r: dict) -> list[str]:
         decoded = sum(c["decoded"] for c in cams) / len(cams)
         what = "full streams only"
         if run["substreams"]:
-            what = ("full streams kept encoded (packets) + substreams (detect on the substream)"
-                    if run.get("full_streams") == "packets" else
-                    "full streams decoded + substreams (detect on the substream)")  # fmt: skip
+            what = (
+                "full streams kept encoded (packets) + substreams (detect on the substream)"
+                if run.get("full_streams") == "packets"
+                else "full streams decoded + substreams (detect on the substream)"
+            )
         md.append(
             f"| {what} | {run['steps_per_s']:.2f} | {run['detect_ms_per_step']:.0f} | "
             f"{run['loop_ms_per_step']:.0f} | {run['latency_p50_s']:.2f} / "

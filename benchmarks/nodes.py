@@ -68,8 +68,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_setup(folder: Path, n: int, mode: str, broker: int, http: int, grid: float | None,
-                imgsz: int) -> Path:  # fmt: skip
+def write_setup(
+    folder: Path, n: int, mode: str, broker: int, http: int, grid: float | None, imgsz: int
+) -> Path:
     """The rig of n cameras, the demo site and the service's configuration in `folder`."""
     folder.mkdir(parents=True, exist_ok=True)
     videos = demo_videos()
@@ -79,22 +80,48 @@ def write_setup(folder: Path, n: int, mode: str, broker: int, http: int, grid: f
     save_calibration(folder / "calib.toml", Rig(cams))
     site = resources.files("stereopose") / "data" / "demo_site.toml"
     (folder / "site.toml").write_text(site.read_text(encoding="utf-8"))
-    lines = ['calibration = "calib.toml"', 'site = "site.toml"', 'output = "data"', "",
-             "[detector]", f"imgsz = {imgsz}", "", "[input]"]  # fmt: skip
+    lines = [
+        'calibration = "calib.toml"',
+        'site = "site.toml"',
+        'output = "data"',
+        "",
+        "[detector]",
+        f"imgsz = {imgsz}",
+        "",
+        "[input]",
+    ]
     if mode != "single":
         lines.append('detection = "nodes"')
     if grid is not None and mode != "single":
         lines.append(f"detect_fps = {grid}")
     # a camera's frames come a step period and a node's detection late: at 16 cameras on this
     # machine over 4 s, more than serve's default timeout of 5 s
-    lines += ["", "[serve]", f"port = {http}", "status_interval_s = 1", "camera_timeout_s = 15",
-              "",
-              "[mqtt]", 'host = "127.0.0.1"', f"port = {broker}", f'site = "{SITE}"',
-              "people_hz = 1000", "outbox = false", "",
-              "[storage]", "clips = false", ""]  # fmt: skip
+    lines += [
+        "",
+        "[serve]",
+        f"port = {http}",
+        "status_interval_s = 1",
+        "camera_timeout_s = 15",
+        "",
+        "[mqtt]",
+        'host = "127.0.0.1"',
+        f"port = {broker}",
+        f'site = "{SITE}"',
+        "people_hz = 1000",
+        "outbox = false",
+        "",
+        "[storage]",
+        "clips = false",
+        "",
+    ]
     for i in range(n):
-        lines += ["[[cameras]]", f'name = "c{i + 1:02d}"',
-                  f'source = "{videos[i % 4]}"', "loop = true", ""]  # fmt: skip
+        lines += [
+            "[[cameras]]",
+            f'name = "c{i + 1:02d}"',
+            f'source = "{videos[i % 4]}"',
+            "loop = true",
+            "",
+        ]
     path = folder / "serve.toml"
     path.write_text("\n".join(lines))
     return path
@@ -204,12 +231,14 @@ def stop_all(procs: dict[str, subprocess.Popen], logs: list, tmp: Path) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
-              mosquitto: str) -> dict:  # fmt: skip
+def run_setup(
+    n: int, mode: str, grid: float | None, seconds: float, imgsz: int, mosquitto: str
+) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix=f"nodes-{n}-{mode.replace(' ', '')}-"))
     broker_port, http = free_port(), free_port()
-    (tmp / "mosquitto.conf").write_text(f"listener {broker_port} 127.0.0.1\nallow_anonymous true\n"
-                                        "persistence false\n")  # fmt: skip
+    (tmp / "mosquitto.conf").write_text(
+        f"listener {broker_port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
+    )
     config = write_setup(tmp, n, mode, broker_port, http, grid, imgsz)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     procs: dict[str, subprocess.Popen] = {}
@@ -218,8 +247,9 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
     def start(name: str, args: list[str], extra: dict | None = None) -> None:
         log = open(tmp / f"{name}.log", "wb")  # noqa: SIM115  # closed at the end
         logs.append(log)
-        procs[name] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                       env={**env, **(extra or {})})  # fmt: skip
+        procs[name] = subprocess.Popen(
+            args, stdout=log, stderr=subprocess.STDOUT, env={**env, **(extra or {})}
+        )
 
     cli = [sys.executable, "-m", "stereopose.cli"]
     start("mosquitto", [mosquitto, "-c", str(tmp / "mosquitto.conf")])
@@ -227,12 +257,25 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
     start("serve", [*cli, "serve", str(config)])
     names = [f"c{i + 1:02d}" for i in range(n)]
     if mode == "1 node":
-        start("node-1", [*cli, "detect-node", str(config), "--cameras", ",".join(names),
-                         "--name", "node-1"])  # fmt: skip
+        start(
+            "node-1",
+            [*cli, "detect-node", str(config), "--cameras", ",".join(names), "--name", "node-1"],
+        )
     elif mode == "2 nodes":
         for k, part in enumerate((names[: n // 2], names[n // 2 :]), 1):
-            start(f"node-{k}", [*cli, "detect-node", str(config), "--cameras", ",".join(part),
-                                "--name", f"node-{k}"], {"STEREOPOSE_THREADS": "1"})  # fmt: skip
+            start(
+                f"node-{k}",
+                [
+                    *cli,
+                    "detect-node",
+                    str(config),
+                    "--cameras",
+                    ",".join(part),
+                    "--name",
+                    f"node-{k}",
+                ],
+                {"STEREOPOSE_THREADS": "1"},
+            )
     listener = None
     try:
         deadline = time.monotonic() + 300
@@ -249,8 +292,7 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
             raise RuntimeError(f"{n} {mode}: the cameras did not come up")
         time.sleep(15)  # warm: the 3D stage compiled, the nodes' queues settled
         db = tmp / "data" / "events.sqlite"
-        listener = Listener(broker_port, lambda: wall_start(db),
-                            None if mode == "single" else grid)  # fmt: skip
+        listener = Listener(broker_port, lambda: wall_start(db), None if mode == "single" else grid)
         ps = {k: psutil.Process(p.pid) for k, p in procs.items() if k != "mosquitto"}
         ps["mosquitto"] = psutil.Process(procs["mosquitto"].pid)
         s0, c0, t0 = status(tmp), cpu(ps), time.monotonic()
@@ -263,17 +305,23 @@ def run_setup(n: int, mode: str, grid: float | None, seconds: float, imgsz: int,
             steps = s1["pipeline"]["delivered"] - s0["pipeline"]["delivered"]
         else:
             steps = s1["nodes"]["steps"] - s0["nodes"]["steps"]
-        out = {"cameras": n, "mode": mode, "detect_fps": grid if mode != "single" else None,
-               "seconds": round(span, 1), "steps": steps, "steps_per_s": round(steps / span, 2),
-               "people_latency_p50_s": q(listener.people, 0.5),
-               "people_latency_p95_s": q(listener.people, 0.95),
-               "people_updates": len(listener.people),
-               "event_latency_p50_s": q(listener.events, 0.5),
-               "event_latency_p95_s": q(listener.events, 0.95),
-               "events": len(listener.events),
-               "broker_bytes_per_s": {k: round(v / span) for k, v in listener.bytes.items()},
-               "cpu_cores": {k: round((c1[k] - c0[k]) / span, 2) for k in c0},
-               "people_mean": h1.get("people")}  # fmt: skip
+        out = {
+            "cameras": n,
+            "mode": mode,
+            "detect_fps": grid if mode != "single" else None,
+            "seconds": round(span, 1),
+            "steps": steps,
+            "steps_per_s": round(steps / span, 2),
+            "people_latency_p50_s": q(listener.people, 0.5),
+            "people_latency_p95_s": q(listener.people, 0.95),
+            "people_updates": len(listener.people),
+            "event_latency_p50_s": q(listener.events, 0.5),
+            "event_latency_p95_s": q(listener.events, 0.95),
+            "events": len(listener.events),
+            "broker_bytes_per_s": {k: round(v / span) for k, v in listener.bytes.items()},
+            "cpu_cores": {k: round((c1[k] - c0[k]) / span, 2) for k in c0},
+            "people_mean": h1.get("people"),
+        }
         if mode == "single":
             p0, p1 = s0.get("pipeline", {}), s1.get("pipeline", {})
             out["dropped_steps"] = p1.get("dropped", 0) - p0.get("dropped", 0)
@@ -362,26 +410,28 @@ def paper(results: list[dict]) -> list[str]:
 
 def report(head: dict, results: list[dict]) -> None:
     """results/nodes.{json,md}."""
-    md = ["# Detection over nodes against one process",
-          "",
-          f"`python benchmarks/nodes.py`, {head['date']}, "
-          f"{head['machine'].replace(', one thread', '')}; "
-          "every process (mosquitto, serve, the nodes) on this one machine; "
-          f"imgsz {head['imgsz']}, "
-          f"{head['seconds']:.0f} s measured per set-up after warming; load average "
-          f"{head['load_average'][0]} at the start, {head['load_average'][1]} at the end. The "
-          "demo's 4 cameras repeated to 8 and 16 (same videos, same calibration per copy). "
-          "The nodes detect on the wall clock's grid of detect_fps, the largest of "
-          f"{', '.join(f'{g:g}' for g in GRID)} at or under the single process's rate for "
-          "the same cameras. Latency: nodes, from capture to the step's people on the broker "
-          "and to its zone events; single, the pipeline's own, from the frames' read to the "
-          "end of the loop's work.",
-          "",
-          "| cameras | set-up | detect_fps | steps/s | capture -> people p50 / p95 s | "
-          "-> zone event p50 / p95 s | broker B/s (keypoints + pictures + health) | "
-          "B a camera-frame | lost (late / over-full / refused), partial steps | CPU cores "
-          "(serve / nodes / mosquitto) |",
-          "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    md = [
+        "# Detection over nodes against one process",
+        "",
+        f"`python benchmarks/nodes.py`, {head['date']}, "
+        f"{head['machine'].replace(', one thread', '')}; "
+        "every process (mosquitto, serve, the nodes) on this one machine; "
+        f"imgsz {head['imgsz']}, "
+        f"{head['seconds']:.0f} s measured per set-up after warming; load average "
+        f"{head['load_average'][0]} at the start, {head['load_average'][1]} at the end. The "
+        "demo's 4 cameras repeated to 8 and 16 (same videos, same calibration per copy). "
+        "The nodes detect on the wall clock's grid of detect_fps, the largest of "
+        f"{', '.join(f'{g:g}' for g in GRID)} at or under the single process's rate for "
+        "the same cameras. Latency: nodes, from capture to the step's people on the broker "
+        "and to its zone events; single, the pipeline's own, from the frames' read to the "
+        "end of the loop's work.",
+        "",
+        "| cameras | set-up | detect_fps | steps/s | capture -> people p50 / p95 s | "
+        "-> zone event p50 / p95 s | broker B/s (keypoints + pictures + health) | "
+        "B a camera-frame | lost (late / over-full / refused), partial steps | CPU cores "
+        "(serve / nodes / mosquitto) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(results, key=lambda r: (r["cameras"], r["mode"] != "single", r["mode"])):
         b = r["broker_bytes_per_s"]
         cores = r["cpu_cores"]
@@ -395,7 +445,8 @@ def report(head: dict, results: list[dict]) -> None:
             f"| {r['cameras']} | {r['mode']} | {r['detect_fps'] or '-'} | {r['steps_per_s']} | "
             f"{latency(r)} | {events(r)} | {sum(b.values()):,} | "
             f"{r.get('bytes_per_camera_frame') or '-'} | {lost} | "
-            f"{cores['serve']} / {nodes:.2f} / {cores['mosquitto']} |")  # fmt: skip
+            f"{cores['serve']} / {nodes:.2f} / {cores['mosquitto']} |"
+        )
     md += paper(results)
     save("nodes", {**head, "results": results}, md)
 
@@ -411,8 +462,11 @@ def main() -> None:
         type=Path,
         help="results of earlier set-ups (this script's JSON lines) to keep",
     )
-    ap.add_argument("--grid", type=float, help="the nodes' detect_fps (default: the single "
-                    "process's rate for the same cameras)")  # fmt: skip
+    ap.add_argument(
+        "--grid",
+        type=float,
+        help="the nodes' detect_fps (default: the single process's rate for the same cameras)",
+    )
     args = ap.parse_args()
     mosquitto = shutil.which("mosquitto", path=os.pathsep.join([os.environ["PATH"], "/usr/sbin"]))
     if mosquitto is None or not demo_videos():
@@ -424,18 +478,27 @@ def main() -> None:
                 results.append(json.loads(line))
                 print(line, flush=True)
     for n in (int(x) for x in args.cameras.split(",")):
-        grid = args.grid or next((max([g for g in GRID if g <= r["steps_per_s"]] or [GRID[0]])
-                                  for r in results if r["cameras"] == n
-                                  and r["mode"] == "single"), None)  # fmt: skip
+        grid = args.grid or next(
+            (
+                max([g for g in GRID if g <= r["steps_per_s"]] or [GRID[0]])
+                for r in results
+                if r["cameras"] == n and r["mode"] == "single"
+            ),
+            None,
+        )
         for mode in args.modes.split(","):
             r = run_setup(n, mode, grid, args.seconds, args.imgsz, mosquitto)
             if mode == "single":
                 grid = max([g for g in GRID if g <= r["steps_per_s"]] or [GRID[0]])
             print(json.dumps(r), flush=True)
             results.append(r)
-    head = {"date": datetime.date.today().isoformat(), "machine": machine(),
-            "imgsz": args.imgsz, "seconds": args.seconds,
-            "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)]}  # fmt: skip
+    head = {
+        "date": datetime.date.today().isoformat(),
+        "machine": machine(),
+        "imgsz": args.imgsz,
+        "seconds": args.seconds,
+        "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)],
+    }
     report(head, results)
 
 

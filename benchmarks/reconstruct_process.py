@@ -56,15 +56,22 @@ def commands(scene_dir: Path, out_dir: Path) -> dict[str, list[str]]:
     return {
         "stereopose reconstruct": [*rec, "--out", str(out_dir / "tracked.jsonl")],
         "stereopose reconstruct --no-tracking": [
-            *rec, "--out", str(out_dir / "frames.jsonl"), "--no-tracking"
+            *rec,
+            "--out",
+            str(out_dir / "frames.jsonl"),
+            "--no-tracking",
         ],
         "python benchmarks/yardstick.py": [
-            py, str(HERE / "yardstick.py"), calib, pose, str(out_dir / "yardstick.jsonl")
+            py,
+            str(HERE / "yardstick.py"),
+            calib,
+            pose,
+            str(out_dir / "yardstick.jsonl"),
         ],
         "stereopose --help": [*sp, "--help"],
         'python -c "import stereopose.cli"': [py, "-c", "import stereopose.cli"],
         'python -c "import stereopose.pipeline"': [py, "-c", "import stereopose.pipeline"],
-    }  # fmt: skip
+    }
 
 
 def timed(cmd: list[str], env: dict[str, str]) -> tuple[float, str]:

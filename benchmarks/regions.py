@@ -89,8 +89,9 @@ def scenes(work: Path, n: int) -> dict[str, tuple[Path, dict[str, Path], float]]
     """name -> (calibration, videos by camera, fps)."""
     demo_cfg = write_demo_config(work / "demo")
     lines = demo_cfg.read_text().splitlines()
-    calib = Path(next(ln.split("=", 1)[1].strip().strip('"') for ln in lines
-                      if ln.startswith("calibration")))  # fmt: skip
+    calib = Path(
+        next(ln.split("=", 1)[1].strip().strip('"') for ln in lines if ln.startswith("calibration"))
+    )
     rig = load_calibration(calib)
     real = _frames(n)
     out = {"full": (calib, dict(zip(CAMERAS, demo_videos(), strict=True)), 60.0)}
@@ -103,13 +104,17 @@ def scenes(work: Path, n: int) -> dict[str, tuple[Path, dict[str, Path], float]]
         out[f"far_{scale}"] = (path, _write(work / f"far_{scale}", frames, 60.0), 60.0)
     d = Distant(0.3)
     path = work / "far_0.3.toml"
-    empty = {c: [np.clip(d.empty() + rng.normal(0, 2, d.empty().shape), 0, 255).astype(np.uint8)
-                 for _ in range(n)] for c in CAMERAS}  # fmt: skip
+    empty = {
+        c: [
+            np.clip(d.empty() + rng.normal(0, 2, d.empty().shape), 0, 255).astype(np.uint8)
+            for _ in range(n)
+        ]
+        for c in CAMERAS
+    }
     # at 5 frames/s, a served camera's step rate: 100 frames hold several full scans
     out["empty"] = (path, _write(work / "empty", empty, EMPTY_FPS), EMPTY_FPS)
     first = round(NEWCOMER_AT_S * NEWCOMER_FPS)
-    newcomer = {c: [d.empty()] * first + [d.frame(real[c][0])] * max(n - first, 1)
-                for c in CAMERAS}  # fmt: skip
+    newcomer = {c: [d.empty()] * first + [d.frame(real[c][0])] * max(n - first, 1) for c in CAMERAS}
     out["newcomer"] = (path, _write(work / "newcomer", newcomer, NEWCOMER_FPS), NEWCOMER_FPS)
     return out
 
@@ -191,9 +196,12 @@ def main() -> None:
     args = ap.parse_args()
     if not demo_videos():
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
-    r: dict = {"date": datetime.date.today().isoformat(),
-               "machine": machine().replace("one thread", "all cores"), "frames": args.frames,
-               "scenes": {}}  # fmt: skip
+    r: dict = {
+        "date": datetime.date.today().isoformat(),
+        "machine": machine().replace("one thread", "all cores"),
+        "frames": args.frames,
+        "scenes": {},
+    }
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for scene, (calib, videos, fps) in scenes(work / "scenes", args.frames).items():
@@ -205,12 +213,14 @@ def main() -> None:
                 setups["regions_detail_0.5"] = "regions = true\nregion_detail = 0.5"
             for name, det in setups.items():
                 runs[name], poses[name] = one_run(work / scene / name, calib, videos, det)
-                print(scene, name, {k: v for k, v in runs[name].items() if k != "regions"},
-                      flush=True)  # fmt: skip
+                print(
+                    scene, name, {k: v for k, v in runs[name].items() if k != "regions"}, flush=True
+                )
             for name in setups:
                 if name != "whole_1280":
-                    runs[name]["joints_against_1280"] = joints_moved(poses["whole_1280"],
-                                                                     poses[name])  # fmt: skip
+                    runs[name]["joints_against_1280"] = joints_moved(
+                        poses["whole_1280"], poses[name]
+                    )
                 if scene == "newcomer":
                     runs[name]["first_output_s"] = first_output_s(poses[name], fps)
                     runs[name]["kept_after_first"] = kept_after_first(poses[name], fps)
@@ -251,9 +261,14 @@ def empty_camera(videos: list[Path], steps: int = 60) -> dict:
         det.detect([im])
     whole = (time.perf_counter() - t0) / 10
     c = regions.report()["cam"]
-    return {"steps": len(frames) - 1, "ms_per_step": 1000 * per_step,
-            "whole_640_ms": 1000 * whole, "share_of_whole": per_step / whole,
-            "full_scans": c["full_scans"] - 1, "idle_steps": c["idle_steps"]}  # fmt: skip
+    return {
+        "steps": len(frames) - 1,
+        "ms_per_step": 1000 * per_step,
+        "whole_640_ms": 1000 * whole,
+        "share_of_whole": per_step / whole,
+        "full_scans": c["full_scans"] - 1,
+        "idle_steps": c["idle_steps"],
+    }
 
 
 def capacity(step_ms: float, cameras: int = 4) -> float:
@@ -312,8 +327,10 @@ def markdown(r: dict) -> list[str]:
             "|---|---|---|",
         ]
         for name, x in nc["runs"].items():
-            md.append(f"| {name.replace('_', ' ')} | {_f(x['first_output_s'], 2)} | "
-                      f"{_f(x['kept_after_first'], 3)} |")  # fmt: skip
+            md.append(
+                f"| {name.replace('_', ' ')} | {_f(x['first_output_s'], 2)} | "
+                f"{_f(x['kept_after_first'], 3)} |"
+            )
     return md
 
 

@@ -78,23 +78,42 @@ class Master:
                     self.got.append((point.io_address, value, tag_s, message.cot.name, at))
                 return c104.ResponseState.SUCCESS
 
-            pt.on_receive(callable=_typed(receive, point=c104.Point,
-                                          previous_info=c104.Information,
-                                          message=c104.IncomingMessage,
-                                          ret=c104.ResponseState))  # fmt: skip
+            pt.on_receive(
+                callable=_typed(
+                    receive,
+                    point=c104.Point,
+                    previous_info=c104.Information,
+                    message=c104.IncomingMessage,
+                    ret=c104.ResponseState,
+                )
+            )
 
-        self.client.on_new_station(callable=_typed(on_station, client=c104.Client,
-                                                   connection=c104.Connection,
-                                                   common_address=int, ret=None))  # fmt: skip
-        self.client.on_new_point(callable=_typed(on_point, client=c104.Client,
-                                                 station=c104.Station, io_address=int,
-                                                 point_type=c104.Type, ret=None))  # fmt: skip
+        self.client.on_new_station(
+            callable=_typed(
+                on_station,
+                client=c104.Client,
+                connection=c104.Connection,
+                common_address=int,
+                ret=None,
+            )
+        )
+        self.client.on_new_point(
+            callable=_typed(
+                on_point,
+                client=c104.Client,
+                station=c104.Station,
+                io_address=int,
+                point_type=c104.Type,
+                ret=None,
+            )
+        )
         self.client.start()
 
     def spontaneous(self, ioa: int) -> list[tuple[object, float | None, float]]:
         with self.lock:
-            return [(v, tag, at) for i, v, tag, cot, at in self.got
-                    if i == ioa and cot == "SPONTANEOUS"]  # fmt: skip
+            return [
+                (v, tag, at) for i, v, tag, cot, at in self.got if i == ioa and cot == "SPONTANEOUS"
+            ]
 
     def interrogated(self) -> set[int]:
         with self.lock:
@@ -120,8 +139,10 @@ class Master:
             elif state == "CLOSED_AWAIT_OPEN":
                 self.conn.disconnect()
                 self.conn.connect()
-        raise SystemExit(f"still waiting for the interrogation after {timeout_s:.0f} s "
-                         f"(master {self.conn.state.name}, {len(self.got)} messages)")  # fmt: skip
+        raise SystemExit(
+            f"still waiting for the interrogation after {timeout_s:.0f} s "
+            f"(master {self.conn.state.name}, {len(self.got)} messages)"
+        )
 
     def close(self) -> None:
         self.client.stop()
@@ -180,15 +201,20 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="stereopose-scada-"))
     port = _free_port()
     config = write_serve_demo_config(tmp / "demo", tmp / "data", _free_port(), imgsz=args.imgsz)
-    config.write_text(config.read_text() + f"\n[iec104]\nenabled = true\nport = {port}\n"
-                      f"common_address = {CA}\n")  # fmt: skip
+    config.write_text(
+        config.read_text() + f"\n[iec104]\nenabled = true\nport = {port}\ncommon_address = {CA}\n"
+    )
     _, table = points_of(config)
     zones = {p.name: p.ioa for p in table if p.kind == "zone_occupied"}
     log = tmp / "serve.log"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     with open(log, "ab") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
     master = None
     try:
         import socket
@@ -206,8 +232,11 @@ def main() -> None:
         master.wait_interrogated(len(table.monitored), 60)
         interrogated_ok = master.interrogated() == {p.ioa for p in table.monitored}
         started = time.monotonic()
-        print(f"served, the master interrogated {len(master.interrogated())} points; "
-              f"{args.minutes} min ...", flush=True)  # fmt: skip
+        print(
+            f"served, the master interrogated {len(master.interrogated())} points; "
+            f"{args.minutes} min ...",
+            flush=True,
+        )
         while time.monotonic() - started < args.minutes * 60:
             time.sleep(5)
             if proc.poll() is not None:
@@ -232,8 +261,11 @@ def main() -> None:
             unchanged += 1
             continue
         want = type_ == "enter"
-        got = [(tag, at) for v, tag, at in master.spontaneous(zones[zone])
-               if v is want and tag is not None and abs(tag - wall) < 0.01]  # fmt: skip
+        got = [
+            (tag, at)
+            for v, tag, at in master.spontaneous(zones[zone])
+            if v is want and tag is not None and abs(tag - wall) < 0.01
+        ]
         if not got:
             missing += 1
             continue

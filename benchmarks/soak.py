@@ -69,11 +69,34 @@ def palindrome(video: Path, out: Path, scale: str | None = None) -> Path:
         return out
     out.parent.mkdir(parents=True, exist_ok=True)
     part = out.with_suffix(".part.mp4")
-    cmd = [ffmpeg(), "-loglevel", "error", "-y", "-i", str(video), "-filter_complex",
-           ("[0:v]" + (f"scale={scale}," if scale else "") +
-            "split[a][b];[b]reverse[r];[a][r]concat=n=2:v=1:a=0[v]"), "-map", "[v]",
-           "-c:v", "libx264", "-preset", "veryfast", "-crf", "20", "-g", "60",
-           "-pix_fmt", "yuv420p", "-an", str(part)]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-y",
+        "-i",
+        str(video),
+        "-filter_complex",
+        (
+            "[0:v]"
+            + (f"scale={scale}," if scale else "")
+            + "split[a][b];[b]reverse[r];[a][r]concat=n=2:v=1:a=0[v]"
+        ),
+        "-map",
+        "[v]",
+        "-c:v",
+        "libx264",
+        "-preset",
+        "veryfast",
+        "-crf",
+        "20",
+        "-g",
+        "60",
+        "-pix_fmt",
+        "yuv420p",
+        "-an",
+        str(part),
+    ]
     subprocess.run(cmd, check=True, timeout=600)
     os.replace(part, out)
     return out
@@ -97,8 +120,24 @@ class Camera:
         return self
 
     def _keep(self) -> None:
-        cmd = [ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(self.video),
-               "-an", "-c:v", "copy", "-f", "mpegts", "-listen", "1", self.url]  # fmt: skip
+        cmd = [
+            ffmpeg(),
+            "-loglevel",
+            "error",
+            "-re",
+            "-stream_loop",
+            "-1",
+            "-i",
+            str(self.video),
+            "-an",
+            "-c:v",
+            "copy",
+            "-f",
+            "mpegts",
+            "-listen",
+            "1",
+            self.url,
+        ]
         while not self._stop.is_set():
             with self._lock:
                 if self._stop.is_set():
@@ -124,12 +163,14 @@ class Camera:
         self._thread.join(timeout=5)
 
 
-def write_config(work: Path, cameras: list[Camera], port: int, args,
-                 subs: dict[str, Camera] | None = None) -> Path:  # fmt: skip
+def write_config(
+    work: Path, cameras: list[Camera], port: int, args, subs: dict[str, Camera] | None = None
+) -> Path:
     """The serve demo's configuration with the live cameras as sources (and their substreams
     as their `detect` sources) and the soak's storage settings."""
-    path = write_serve_demo_config(work / "config", work / "data", port, imgsz=args.imgsz,
-                                   detect_fps=args.detect_fps)  # fmt: skip
+    path = write_serve_demo_config(
+        work / "config", work / "data", port, imgsz=args.imgsz, detect_fps=args.detect_fps
+    )
     text = path.read_text(encoding="utf-8")
     for cam in cameras:
         pattern = rf'(name = "{cam.name}"\n)source = .*\nloop = true\n'
@@ -225,9 +266,14 @@ def sample(base: str, pid: int, data: Path, t0: float) -> dict:
     health = json.loads(body) if code in (200, 503) and body else None
     mcode, mbody = get(base + "/metrics")
     metrics = parse_metrics(mbody.decode()) if mcode == 200 else None
-    return {"t_s": round(time.monotonic() - t0, 1), "rss_mb": rss_mb(pid), "health": health,
-            "metrics": metrics, "disk_bytes": folder_bytes(data),
-            "clip_files": clip_files(data)}  # fmt: skip
+    return {
+        "t_s": round(time.monotonic() - t0, 1),
+        "rss_mb": rss_mb(pid),
+        "health": health,
+        "metrics": metrics,
+        "disk_bytes": folder_bytes(data),
+        "clip_files": clip_files(data),
+    }
 
 
 def median(xs: list[float]) -> float:
@@ -314,8 +360,12 @@ def _round(x: float | None, nd: int = 3) -> float | None:
 def start_serve(python: str, config: Path, log: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "wb") as f:
-        return subprocess.Popen([python, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        return subprocess.Popen(
+            [python, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
 
 
 def stop_serve(proc: subprocess.Popen, timeout_s: float = 60.0) -> tuple[int | None, float]:
@@ -337,11 +387,15 @@ def wait_for(predicate, what: str, timeout_s: float, proc: subprocess.Popen, log
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if proc.poll() is not None:
-            raise SystemExit(f"serve exited with {proc.returncode} while waiting for {what}:\n"
-                             + log.read_text(errors="replace")[-3000:])  # fmt: skip
+            raise SystemExit(
+                f"serve exited with {proc.returncode} while waiting for {what}:\n"
+                + log.read_text(errors="replace")[-3000:]
+            )
         if time.monotonic() > deadline:
-            raise SystemExit(f"no {what} within {timeout_s:.0f} s; serve log:\n"
-                             + log.read_text(errors="replace")[-3000:])  # fmt: skip
+            raise SystemExit(
+                f"no {what} within {timeout_s:.0f} s; serve log:\n"
+                + log.read_text(errors="replace")[-3000:]
+            )
         time.sleep(0.5)
 
 
@@ -376,8 +430,11 @@ def soak(args) -> dict:
         wait_for(lambda: get(base + "/api/health")[0] == 200, "health 200", 300, proc, log)
         startup_s = time.monotonic() - t_launch
         t0 = time.monotonic()
-        print(f"serving on {base}, {args.duration_s:.0f} s from now; sampling every "
-              f"{args.every_s:g} s", flush=True)  # fmt: skip
+        print(
+            f"serving on {base}, {args.duration_s:.0f} s from now; sampling every "
+            f"{args.every_s:g} s",
+            flush=True,
+        )
         while True:
             s = sample(base, proc.pid, data, t0)
             samples.append(s)
@@ -424,9 +481,11 @@ def compact(s: dict) -> dict:
 
 def _progress(s: dict) -> None:
     m, h = s["metrics"] or {}, s["health"] or {}
-    print(f"  t={s['t_s']:7.1f} s  rss={s['rss_mb'] or 0:7.1f} MB  steps={m.get('frames', 0):8.0f}"
-          f"  status={h.get('status', '-'):8s}  disk={s['disk_bytes'] / 1e6:8.1f} MB",
-          flush=True)  # fmt: skip
+    print(
+        f"  t={s['t_s']:7.1f} s  rss={s['rss_mb'] or 0:7.1f} MB  steps={m.get('frames', 0):8.0f}"
+        f"  status={h.get('status', '-'):8s}  disk={s['disk_bytes'] / 1e6:8.1f} MB",
+        flush=True,
+    )
 
 
 def report(args, result: dict) -> list[str]:
@@ -505,8 +564,10 @@ def report(args, result: dict) -> list[str]:
     samples = result["samples"]
     stride = max(1, len(samples) // 12)
     for x in samples[::stride] + ([samples[-1]] if (len(samples) - 1) % stride else []):
-        lines.append(f"| {x['t_s']:.0f} | {_fmt(x['rss_mb'], 1)} | {x['steps'] or 0:.0f} | "
-                     f"{x['status'] or '-'} | {x['disk_bytes'] / mb:.1f} |")  # fmt: skip
+        lines.append(
+            f"| {x['t_s']:.0f} | {_fmt(x['rss_mb'], 1)} | {x['steps'] or 0:.0f} | "
+            f"{x['status'] or '-'} | {x['disk_bytes'] / mb:.1f} |"
+        )
     return lines
 
 
@@ -566,7 +627,7 @@ def main() -> None:
     )
     ap.add_argument("--work", default=str(ROOT / "out" / "soak"), help="working folder")
     ap.add_argument("--name", default="soak", help="results/<name>.{md,json} (soak)")
-    args = ap.parse_args()  # fmt: skip
+    args = ap.parse_args()
     if args.duration_s < 30 or args.every_s <= 0:
         ap.error("--duration-s must be at least 30 and --every-s positive")
     result = soak(args)
@@ -575,10 +636,12 @@ def main() -> None:
     result["date"] = datetime.date.today().isoformat()
     save(args.name, result, report(args, result))
     s = result["summary"]
-    print(f"memory {s['rss_after_warmup_mb']} -> {s['rss_end_mb']} MB "
-          f"({s['rss_growth_pct']:+.2f} %), {s['steps_per_s']} steps/s, latency p50 "
-          f"{_fmt(s['latency_p50_s'])} s p95 {_fmt(s['latency_p95_s'])} s, SIGTERM exit "
-          f"{s['sigterm_exit_code']}")  # fmt: skip
+    print(
+        f"memory {s['rss_after_warmup_mb']} -> {s['rss_end_mb']} MB "
+        f"({s['rss_growth_pct']:+.2f} %), {s['steps_per_s']} steps/s, latency p50 "
+        f"{_fmt(s['latency_p50_s'])} s p95 {_fmt(s['latency_p95_s'])} s, SIGTERM exit "
+        f"{s['sigterm_exit_code']}"
+    )
 
 
 if __name__ == "__main__":

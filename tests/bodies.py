@@ -46,8 +46,9 @@ def standing(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0, **signal
     return pose(height, np.array([xy], dtype=float), np.array([heading]), **kw)[0]
 
 
-def _lowered(J: np.ndarray, hip_z: float, back_m: float = 0.0, heading: float = 0.0,
-             lean: float = 0.0) -> np.ndarray:  # fmt: skip
+def _lowered(
+    J: np.ndarray, hip_z: float, back_m: float = 0.0, heading: float = 0.0, lean: float = 0.0
+) -> np.ndarray:
     """The upper body (head to hips) lowered so the hips are at hip_z, moved back_m backwards,
     then leaned forward by `lean` rad about the hip centre."""
     out = J.copy()
@@ -66,15 +67,22 @@ def _leg(out: np.ndarray, knee_j: int, ankle_j: int, knee, ankle) -> None:
     out[knee_j], out[ankle_j] = knee, ankle
 
 
-def kneeling(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
-             one_knee: bool = False, lean: float = 0.0) -> np.ndarray:  # fmt: skip
+def kneeling(
+    height: float = 1.75,
+    xy=(0.0, 0.0),
+    heading: float = 0.0,
+    one_knee: bool = False,
+    lean: float = 0.0,
+) -> np.ndarray:
     """Kneeling upright (thighs vertical, knees and shins on the floor); one_knee: the right
     foot forward, its thigh level (a half kneel); lean: the torso forward, rad."""
     f, _ = _axes(heading)
     thigh, shin = THIGH * height, SHIN * height
     J = _lowered(standing(height, xy, heading), ANKLE_Z + thigh, heading=heading, lean=lean)
-    for hip_j, knee_j, ankle_j in ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
-                                   (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE)):  # fmt: skip
+    for hip_j, knee_j, ankle_j in (
+        (LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
+        (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE),
+    ):
         hip = J[hip_j]
         if one_knee and hip_j == RIGHT_HIP:
             knee = hip + thigh * f
@@ -88,8 +96,13 @@ def kneeling(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
     return J
 
 
-def squatting(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
-              lean: float = 0.4, hip_z: float | None = None) -> np.ndarray:  # fmt: skip
+def squatting(
+    height: float = 1.75,
+    xy=(0.0, 0.0),
+    heading: float = 0.0,
+    lean: float = 0.4,
+    hip_z: float | None = None,
+) -> np.ndarray:
     """A deep squat (or, given hip_z, a shallower one): hips low and back, knees forward, feet
     flat, torso leaning."""
     f, _ = _axes(heading)
@@ -98,8 +111,10 @@ def squatting(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
     ankles = {LEFT_ANKLE: base[LEFT_ANKLE].copy(), RIGHT_ANKLE: base[RIGHT_ANKLE].copy()}
     hip_z = ANKLE_Z + 0.35 * height * 0.55 if hip_z is None else hip_z
     J = _lowered(base, hip_z, back_m=0.25 * thigh, heading=heading, lean=lean)
-    for hip_j, knee_j, ankle_j in ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
-                                   (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE)):  # fmt: skip
+    for hip_j, knee_j, ankle_j in (
+        (LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
+        (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE),
+    ):
         ankle = ankles[ankle_j]
         ankle[2] = ANKLE_Z
         hip = J[hip_j]
@@ -120,8 +135,10 @@ def sitting_chair(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0) -> 
     f, _ = _axes(heading)
     thigh, shin = THIGH * height, SHIN * height
     J = _lowered(standing(height, xy, heading), ANKLE_Z + shin, heading=heading)
-    for hip_j, knee_j, ankle_j in ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
-                                   (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE)):  # fmt: skip
+    for hip_j, knee_j, ankle_j in (
+        (LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
+        (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE),
+    ):
         knee = J[hip_j] + thigh * f
         ankle = knee.copy()
         ankle[2] = ANKLE_Z
@@ -134,8 +151,10 @@ def sitting_floor(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0) -> 
     f, _ = _axes(heading)
     thigh, shin = THIGH * height, SHIN * height
     J = _lowered(standing(height, xy, heading), 0.1, heading=heading)
-    for hip_j, knee_j, ankle_j in ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
-                                   (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE)):  # fmt: skip
+    for hip_j, knee_j, ankle_j in (
+        (LEFT_HIP, LEFT_KNEE, LEFT_ANKLE),
+        (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE),
+    ):
         knee = J[hip_j] + thigh * f
         knee[2] = 0.1
         ankle = knee + shin * f
@@ -154,29 +173,43 @@ def tipped(J: np.ndarray, heading: float, angle: float, sideways: bool = False) 
     return rotate(J, pivot, axis, -angle if not sideways else angle)
 
 
-def lying(height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0,
-          sideways: bool = False) -> np.ndarray:  # fmt: skip
+def lying(
+    height: float = 1.75, xy=(0.0, 0.0), heading: float = 0.0, sideways: bool = False
+) -> np.ndarray:
     """Lying flat on the back (or on the side), feet at xy; the lowest joint on the floor."""
     J = tipped(standing(height, xy, heading), heading, np.pi / 2, sideways)
     J[:, 2] += 0.03 - J[:, 2].min()
     return J
 
 
-def people(frame: int, bodies: dict[int, np.ndarray], t: float | None = None,
-           predicted: dict[int, bool] | None = None) -> People3D:  # fmt: skip
+def people(
+    frame: int,
+    bodies: dict[int, np.ndarray],
+    t: float | None = None,
+    predicted: dict[int, bool] | None = None,
+) -> People3D:
     """People3D of one frame from {id: joints (17, 3)}."""
     ids = sorted(bodies)
     P = len(ids)
     J = np.array([bodies[i] for i in ids]).reshape(P, NUM_JOINTS, 3)
     conf = np.where(np.isfinite(J).all(-1), 0.9, 0.0)
     pred = np.array([bool((predicted or {}).get(i, False)) for i in ids], dtype=bool)
-    return People3D(frame, J, conf, np.array(ids, dtype=np.int64), np.full((P, NUM_JOINTS), 1.0),
-                    np.full((P, NUM_JOINTS), 3), np.zeros((P, 3), dtype=np.int64), predicted=pred,
-                    t=t)  # fmt: skip
+    return People3D(
+        frame,
+        J,
+        conf,
+        np.array(ids, dtype=np.int64),
+        np.full((P, NUM_JOINTS), 1.0),
+        np.full((P, NUM_JOINTS), 3),
+        np.zeros((P, 3), dtype=np.int64),
+        predicted=pred,
+        t=t,
+    )
 
 
-def noisy(J: np.ndarray, rng: np.random.Generator, sigma_m: float = 0.02,
-          missing: float = 0.0) -> np.ndarray:  # fmt: skip
+def noisy(
+    J: np.ndarray, rng: np.random.Generator, sigma_m: float = 0.02, missing: float = 0.0
+) -> np.ndarray:
     """Joints with Gaussian noise and a share of them missing (NaN)."""
     out = J + rng.normal(0.0, sigma_m, J.shape)
     out[rng.random(J.shape[0]) < missing] = np.nan

@@ -37,10 +37,26 @@ def make_certificate(folder: Path, name: str = "cert") -> tuple[Path, Path]:
     """A self-signed certificate for localhost and 127.0.0.1 and its key, in `folder`; skip
     where openssl cannot make one."""
     cert, key = folder / f"{name}.pem", folder / f"{name}-key.pem"
-    openssl = ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt",
-               "ec_paramgen_curve:prime256v1", "-nodes", "-days", "1", "-subj", "/CN=localhost",
-               "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
-               "-keyout", str(key), "-out", str(cert)]  # fmt: skip
+    openssl = [
+        "openssl",
+        "req",
+        "-x509",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+        "-days",
+        "1",
+        "-subj",
+        "/CN=localhost",
+        "-addext",
+        "subjectAltName=DNS:localhost,IP:127.0.0.1",
+        "-keyout",
+        str(key),
+        "-out",
+        str(cert),
+    ]
     try:
         subprocess.run(openssl, check=True, capture_output=True)
     except (OSError, subprocess.CalledProcessError) as e:
@@ -192,8 +208,13 @@ class LogReceiver:
     confirms the mark (retained), and asks for a replay after its mark when an event's prev
     lies beyond it. `lose(n)`: drop the next n events unseen, as a bridge cut would."""
 
-    def __init__(self, port: int, mark: int = 0, replay_on_start: bool = True,
-                 base: str = "stereopose/north%2Fyard/log") -> None:  # fmt: skip
+    def __init__(
+        self,
+        port: int,
+        mark: int = 0,
+        replay_on_start: bool = True,
+        base: str = "stereopose/north%2Fyard/log",
+    ) -> None:
         self.base = base
         self.stored: dict[int, dict] = {}
         self.received = 0
@@ -221,8 +242,9 @@ class LogReceiver:
             client.publish(f"{self.base}/replay", json.dumps({"after_id": self.mark}), qos=1)
 
     def _confirm(self) -> None:
-        self.client.publish(f"{self.base}/confirmed", json.dumps({"events": self.mark}), qos=1,
-                            retain=True)  # fmt: skip
+        self.client.publish(
+            f"{self.base}/confirmed", json.dumps({"events": self.mark}), qos=1, retain=True
+        )
 
     def _on_message(self, client, userdata, msg) -> None:
         e = json.loads(msg.payload)

@@ -38,10 +38,23 @@ def demo_plan(folder: Path):
     return plan_serve(write_serve_demo_config(folder / "demo", folder / "data", 0, imgsz=320))
 
 
-def zone_event(frame: int, type_: str = "enter", person: int = 7,
-               zone: str = "overhead_busbar", kind: str = "energized") -> Event:  # fmt: skip
-    return Event(t=frame / 30.0, frame=frame, person=person, zone=zone, kind=kind, type=type_,
-                 onset_t=frame / 30.0, position=(0.1, -0.2))  # fmt: skip
+def zone_event(
+    frame: int,
+    type_: str = "enter",
+    person: int = 7,
+    zone: str = "overhead_busbar",
+    kind: str = "energized",
+) -> Event:
+    return Event(
+        t=frame / 30.0,
+        frame=frame,
+        person=person,
+        zone=zone,
+        kind=kind,
+        type=type_,
+        onset_t=frame / 30.0,
+        position=(0.1, -0.2),
+    )
 
 
 @dataclass
@@ -92,8 +105,12 @@ def console_server(
     if plan is not None:
         hub = LiveHub(plan.rig, plan.site, state, EventLog(out / "events.sqlite", out / "clips"))
     console = Console.in_folder(out, hub, users=store)
-    server = Server(create_app(state, console=console), settings or ServeSettings(port=0),
-                    users=store.count, **server_kw)  # fmt: skip
+    server = Server(
+        create_app(state, console=console),
+        settings or ServeSettings(port=0),
+        users=store.count,
+        **server_kw,
+    )
     server.start()
     if hub is not None:
         hub.start()

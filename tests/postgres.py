@@ -53,8 +53,20 @@ class Postgres:
             shutil.chown(self.folder, "postgres", "postgres")
             shutil.chown(pwfile, "postgres", "postgres")
         self.port = free_port()
-        self._run([initdb, "-D", str(self.data), "-U", "stereopose", "--auth=scram-sha-256",
-                   f"--pwfile={pwfile}", "-E", "UTF8", "--no-instructions"])  # fmt: skip
+        self._run(
+            [
+                initdb,
+                "-D",
+                str(self.data),
+                "-U",
+                "stereopose",
+                "--auth=scram-sha-256",
+                f"--pwfile={pwfile}",
+                "-E",
+                "UTF8",
+                "--no-instructions",
+            ]
+        )
         self.start()
         self.url = f"postgresql://stereopose:{PASSWORD}@127.0.0.1:{self.port}/postgres"
 
@@ -67,10 +79,25 @@ class Postgres:
             raise RuntimeError(f"{' '.join(cmd)}: {r.stderr or r.stdout}")
 
     def start(self) -> Postgres:
-        opts = (f"-c listen_addresses=127.0.0.1 -c port={self.port} "
-                f"-c unix_socket_directories={self.folder} -c fsync=off")  # fmt: skip
-        self._run([self.pg_ctl, "-D", str(self.data), "-o", opts, "-l",
-                   str(self.folder / "server.log"), "-w", "-t", "60", "start"])  # fmt: skip
+        opts = (
+            f"-c listen_addresses=127.0.0.1 -c port={self.port} "
+            f"-c unix_socket_directories={self.folder} -c fsync=off"
+        )
+        self._run(
+            [
+                self.pg_ctl,
+                "-D",
+                str(self.data),
+                "-o",
+                opts,
+                "-l",
+                str(self.folder / "server.log"),
+                "-w",
+                "-t",
+                "60",
+                "start",
+            ]
+        )
         return self
 
     def stop(self, remove: bool = False) -> None:

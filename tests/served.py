@@ -43,8 +43,15 @@ def frame_result(frame: int, people: int) -> FrameResult:
 
 
 def event(kind: str = "enter", frame: int = 1) -> Event:
-    return Event(t=frame / 25.0, frame=frame, person=1, zone="panel_A", kind="energized",
-                 type=kind, onset_t=frame / 25.0)  # fmt: skip
+    return Event(
+        t=frame / 25.0,
+        frame=frame,
+        person=1,
+        zone="panel_A",
+        kind="energized",
+        type=kind,
+        onset_t=frame / 25.0,
+    )
 
 
 @contextmanager

@@ -45,10 +45,25 @@ def serve(
     """ffmpeg serving ``video`` in a loop, in real time, as MPEG-TS over HTTP to one client
     (codec mpeg4 for frame rates MPEG-1 does not have, such as 5 fps)."""
     cmd = [
-        ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(video),
-        "-an", "-c:v", codec, "-q:v", "4", "-f", "mpegts", "-listen", "1",
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-re",
+        "-stream_loop",
+        "-1",
+        "-i",
+        str(video),
+        "-an",
+        "-c:v",
+        codec,
+        "-q:v",
+        "4",
+        "-f",
+        "mpegts",
+        "-listen",
+        "1",
         f"http://127.0.0.1:{port}/{name}.ts",
-    ]  # fmt: skip
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -76,8 +91,22 @@ def _up(server: subprocess.Popen, port: int) -> bool:
 
 def transport_stream(video: Path, out: Path) -> bytes:
     """``video`` encoded as an MPEG-TS file (what an HTTP camera sends), its bytes."""
-    cmd = [ffmpeg(), "-loglevel", "error", "-y", "-i", str(video), "-an", "-c:v", "mpeg1video",
-           "-q:v", "4", "-f", "mpegts", str(out)]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-y",
+        "-i",
+        str(video),
+        "-an",
+        "-c:v",
+        "mpeg1video",
+        "-q:v",
+        "4",
+        "-f",
+        "mpegts",
+        str(out),
+    ]
     subprocess.run(cmd, check=True, timeout=60)
     return out.read_bytes()
 

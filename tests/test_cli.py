@@ -463,9 +463,17 @@ def test_detect_real_videos(pose2sim_dir: Path, tmp_path: Path, capsys) -> None:
     videos = pose2sim_dir / "Demo_MultiPerson" / "videos"
     out = tmp_path / "pose"
     rc = main(
-        ["detect", "--videos", str(videos / "cam01.mp4"), str(videos / "cam03.mp4"),
-         "--out", str(out), "--max-frames", "3"]
-    )  # fmt: skip
+        [
+            "detect",
+            "--videos",
+            str(videos / "cam01.mp4"),
+            str(videos / "cam03.mp4"),
+            "--out",
+            str(out),
+            "--max-frames",
+            "3",
+        ]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "cam01" in printed and "cam03" in printed and "ms per image" in printed
@@ -475,9 +483,22 @@ def test_detect_real_videos(pose2sim_dir: Path, tmp_path: Path, capsys) -> None:
     people = json.loads(files[0].read_text())["people"]
     assert len(people) >= 2 and {"pose_keypoints_2d", "box_xyxy", "score"} <= set(people[0])
     rc = main(
-        ["detect", "--videos", str(videos / "cam01.mp4"), "--names", "north",
-         "--out", str(out), "--max-frames", "1", "--backend", "ultralytics", "--imgsz", "320"]
-    )  # fmt: skip
+        [
+            "detect",
+            "--videos",
+            str(videos / "cam01.mp4"),
+            "--names",
+            "north",
+            "--out",
+            str(out),
+            "--max-frames",
+            "1",
+            "--backend",
+            "ultralytics",
+            "--imgsz",
+            "320",
+        ]
+    )
     assert rc == 0 and (out / "north_json" / "north_000000000000_keypoints.json").is_file()
 
 

@@ -38,8 +38,9 @@ def scene_dir(tmp_path_factory) -> Path:
 
 def snapshot(root: Path) -> dict[Path, tuple[bytes, int]]:
     """Every file under root (links followed) with its bytes and modification time."""
-    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(root.rglob("*"))
-            if p.is_file()}  # fmt: skip
+    return {
+        p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(root.rglob("*")) if p.is_file()
+    }
 
 
 def _refused(argv: list[str], capsys, *named: Path) -> str:
@@ -54,15 +55,24 @@ def _refused(argv: list[str], capsys, *named: Path) -> str:
 
 
 def _reconstruct(scene: Path, *extra: str | Path) -> list[str]:
-    return ["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
-            *map(str, extra)]  # fmt: skip
+    return [
+        "reconstruct",
+        "--calib",
+        str(scene / "calib.toml"),
+        "--pose",
+        str(scene / "pose"),
+        *map(str, extra),
+    ]
 
 
 def _links(scene: Path, tmp: Path) -> dict[str, Path]:
     """Other names of the scene's files: symbolic and hard links, a `..` spelling."""
     frame = next((scene / "pose" / "cam01_json").iterdir())
-    names = {"symlink": tmp / "calib_link.toml", "hardlink": tmp / "calib_hard.toml",
-             "frame_hardlink": tmp / "frame.json"}  # fmt: skip
+    names = {
+        "symlink": tmp / "calib_link.toml",
+        "hardlink": tmp / "calib_hard.toml",
+        "frame_hardlink": tmp / "frame.json",
+    }
     if not names["symlink"].exists():
         names["symlink"].symlink_to(scene / "calib.toml")
         os.link(scene / "calib.toml", names["hardlink"])
@@ -77,24 +87,45 @@ COLLISIONS = {
     "out through a hard link": (["--out", "T/calib_hard.toml"], ["S/calib.toml"]),
     "out through ..": (["--out", "S/pose/../calib.toml"], ["S/calib.toml"]),
     "out inside the keypoints folder": (
-        ["--out", "S/pose/cam01_json/cam01_000000000042_keypoints.json"], ["S/pose"]),
+        ["--out", "S/pose/cam01_json/cam01_000000000042_keypoints.json"],
+        ["S/pose"],
+    ),
     "out a hard link to a keypoint file": (["--out", "T/frame.json"], ["T/frame.json"]),
     "trc is the keypoints folder": (["--out", "T/p.jsonl", "--trc", "S/pose"], ["S/pose"]),
-    "csv is the site": (["--out", "T/p.jsonl", "--site", "S/site.toml", "--csv", "S/site.toml"],
-                        ["S/site.toml"]),
+    "csv is the site": (
+        ["--out", "T/p.jsonl", "--site", "S/site.toml", "--csv", "S/site.toml"],
+        ["S/site.toml"],
+    ),
     "tracks is the configuration": (
         ["--out", "T/p.jsonl", "--config", "S/config.toml", "--tracks", "S/config.toml"],
-        ["S/config.toml"]),
+        ["S/config.toml"],
+    ),
     "events is the poses file": (
-        ["--out", "T/p.jsonl", "--site", "S/site.toml", "--events", "T/p.jsonl"], ["T/p.jsonl"]),
+        ["--out", "T/p.jsonl", "--site", "S/site.toml", "--events", "T/p.jsonl"],
+        ["T/p.jsonl"],
+    ),
     "events-db is the poses file": (
-        ["--out", "T/p.db", "--site", "S/site.toml", "--events-db", "T/p.db"], ["T/p.db"]),
-    "csv inside the trc folder": (["--out", "T/p.jsonl", "--trc", "T/trc", "--csv",
-                                   "T/trc/person_1.trc"], ["T/trc"]),
+        ["--out", "T/p.db", "--site", "S/site.toml", "--events-db", "T/p.db"],
+        ["T/p.db"],
+    ),
+    "csv inside the trc folder": (
+        ["--out", "T/p.jsonl", "--trc", "T/trc", "--csv", "T/trc/person_1.trc"],
+        ["T/trc"],
+    ),
     "csv is the event log's journal": (
-        ["--out", "T/p.jsonl", "--site", "S/site.toml", "--events-db", "T/e.db", "--csv",
-         "T/e.db-wal"], ["T/e.db-wal"]),
-}  # fmt: skip
+        [
+            "--out",
+            "T/p.jsonl",
+            "--site",
+            "S/site.toml",
+            "--events-db",
+            "T/e.db",
+            "--csv",
+            "T/e.db-wal",
+        ],
+        ["T/e.db-wal"],
+    ),
+}
 
 
 @pytest.mark.parametrize("case", list(COLLISIONS))
@@ -188,12 +219,16 @@ def test_calibrate_never_writes_over_its_inputs(scene_dir: Path, tmp_path: Path,
     yml = tmp_path / "yml"
     yml.mkdir()
     (yml / "intri.yml").write_text("%YAML:1.0\n")
-    _refused([*ext, "--intrinsics", str(yml), "--out", str(yml / "extri.yml")], capsys,
-             yml / "intri.yml")  # fmt: skip
+    _refused(
+        [*ext, "--intrinsics", str(yml), "--out", str(yml / "extri.yml")], capsys, yml / "intri.yml"
+    )
     intr = ["calibrate", "intrinsics", "--images", str(photos), *board]
     _refused([*intr, "--out", str(photos / "cam01" / "calib.toml")], capsys, photos)
-    _refused([*intr, "--out", str(tmp_path / "c.toml"), "--report", str(photos / "report")],
-             capsys, photos)  # fmt: skip
+    _refused(
+        [*intr, "--out", str(tmp_path / "c.toml"), "--report", str(photos / "report")],
+        capsys,
+        photos,
+    )
     assert snapshot(tmp_path) == {**before, yml / "intri.yml": snapshot(yml)[yml / "intri.yml"]}
 
 
@@ -235,8 +270,11 @@ def _read_only_folder(path: Path):
     path.mkdir()
     if shutil.which("mount") is None or os.geteuid() != 0:
         pytest.skip("needs root and mount(8) to make a read-only file system")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(path)],
-                          capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(path)],
+        capture_output=True,
+        text=True,
+    )
     if done.returncode != 0:
         pytest.skip(f"mounting a read-only tmpfs is not permitted here: {done.stderr.strip()}")
     try:
@@ -255,8 +293,10 @@ def test_a_run_into_a_folder_on_a_read_only_file_system_is_exit_2_naming_it(
             cv2.imwrite(str(tmp_path / cam / f"{i:04d}.png"), np.zeros((48, 64, 3), np.uint8))
     cameras = "".join(f'[[cameras]]\nname = "{c}"\nsource = "{c}"\n' for c in ("cam01", "cam02"))
     config = tmp_path / "config.toml"
-    config.write_text(f'calibration = "calib.toml"\noutput = "out"\n{cameras}'
-                      "[detector]\nimgsz = 64\n[outputs]\nreport = false\n")  # fmt: skip
+    config.write_text(
+        f'calibration = "calib.toml"\noutput = "out"\n{cameras}'
+        "[detector]\nimgsz = 64\n[outputs]\nreport = false\n"
+    )
     with _read_only_folder(tmp_path / "out") as out:
         assert main(["run", str(config)]) == 2
         captured = capsys.readouterr()

@@ -41,13 +41,21 @@ def run_folder(tmp_path_factory) -> Path:
     run.mkdir()
     outputs = Outputs.from_keywords(run / "poses3d.jsonl", events_path=run / "events.jsonl")
     summary = reconstruct_files(
-        root / "scene" / "calib.toml", root / "scene" / "pose", None, Config(), outputs=outputs,
+        root / "scene" / "calib.toml",
+        root / "scene" / "pose",
+        None,
+        Config(),
+        outputs=outputs,
         site=site,
-    )  # fmt: skip
+    )
     write_reconstruction_report(
-        run, summary, root / "scene" / "calib.toml", site, run / "poses3d.jsonl",
+        run,
+        summary,
+        root / "scene" / "calib.toml",
+        site,
+        run / "poses3d.jsonl",
         run / "events.jsonl",
-    )  # fmt: skip
+    )
     (run / "config.toml").write_text("fps = 25.0\n")
     return run
 
@@ -141,12 +149,20 @@ def event_db(tmp_path: Path) -> Path:
     sink = SqliteSink(db)
     sink.write_events(
         [
-            Event(t=0.5, frame=12, person=3, zone="[/]", kind="work_area", type="enter",
-                  onset_t=0.4),
-            Event(t=0.9, frame=22, person=4, zone="[bold]x", kind="restricted", type="exit",
-                  onset_t=0.9),
+            Event(
+                t=0.5, frame=12, person=3, zone="[/]", kind="work_area", type="enter", onset_t=0.4
+            ),
+            Event(
+                t=0.9,
+                frame=22,
+                person=4,
+                zone="[bold]x",
+                kind="restricted",
+                type="exit",
+                onset_t=0.9,
+            ),
         ]
-    )  # fmt: skip
+    )
     sink.close()
     return db
 
@@ -206,9 +222,11 @@ def test_a_reader_that_stops_early_ends_the_listing_quietly(tmp_path: Path) -> N
     db = tmp_path / "many.sqlite"
     sink = SqliteSink(db)
     sink.write_events(
-        [Event(t=i / 25, frame=i, person=1, zone="z", kind="work_area", type="enter", onset_t=0)
-         for i in range(20000)]
-    )  # fmt: skip
+        [
+            Event(t=i / 25, frame=i, person=1, zone="z", kind="work_area", type="enter", onset_t=0)
+            for i in range(20000)
+        ]
+    )
     sink.close()
     cmd = [sys.executable, "-m", "stereopose.cli", "events", str(db), "--csv"]
     with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as p:

@@ -56,8 +56,12 @@ def outside(rng: Range) -> list[Any]:
     """The nearest values beyond each bound, plus NaN, infinities and a boolean."""
     bad: list[Any] = [math.nan, math.inf, -math.inf, True]
     whole = rng.integer or rng.multiple_of
-    for bound, down, closed in ((rng.ge, True, True), (rng.gt, True, False),
-                                (rng.le, False, True), (rng.lt, False, False)):  # fmt: skip
+    for bound, down, closed in (
+        (rng.ge, True, True),
+        (rng.gt, True, False),
+        (rng.le, False, True),
+        (rng.lt, False, False),
+    ):
         if bound is None:
             continue
         if whole:

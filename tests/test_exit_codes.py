@@ -31,8 +31,18 @@ def scene(tmp_path_factory) -> Path:
 
 
 def _reconstruct(scene: Path, out: str, *more: str) -> int:
-    return main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose",
-                 str(scene / "pose"), "--out", out, *more])  # fmt: skip
+    return main(
+        [
+            "reconstruct",
+            "--calib",
+            str(scene / "calib.toml"),
+            "--pose",
+            str(scene / "pose"),
+            "--out",
+            out,
+            *more,
+        ]
+    )
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (ENOSPC on write)")
@@ -40,8 +50,16 @@ def test_a_full_disk_under_one_output_is_exit_3_and_the_alarms_are_kept(
     scene: Path, tmp_path: Path, capsys
 ) -> None:
     db, events = tmp_path / "e.sqlite", tmp_path / "e.jsonl"
-    rc = _reconstruct(scene, "/dev/full", "--site", str(scene / "site.toml"),
-                      "--events-db", str(db), "--events", str(events))  # fmt: skip
+    rc = _reconstruct(
+        scene,
+        "/dev/full",
+        "--site",
+        str(scene / "site.toml"),
+        "--events-db",
+        str(db),
+        "--events",
+        str(events),
+    )
     printed = capsys.readouterr()
     err, out = printed.err, printed.out
     assert rc == 3
@@ -73,8 +91,16 @@ def test_an_output_that_cannot_be_created_is_exit_2_before_any_work(
 def test_calibrate_refuses_an_unwritable_output_before_the_work(tmp_path: Path, capsys) -> None:
     (tmp_path / "file").write_text("")
     (tmp_path / "photos").mkdir()
-    base = ["calibrate", "intrinsics", "--images", str(tmp_path / "photos"), "--board", "9x6",
-            "--square", "0.08"]  # fmt: skip
+    base = [
+        "calibrate",
+        "intrinsics",
+        "--images",
+        str(tmp_path / "photos"),
+        "--board",
+        "9x6",
+        "--square",
+        "0.08",
+    ]
     for out, more in (
         (tmp_path / "file" / "c.toml", ()),
         (tmp_path / "c.toml", ("--report", str(tmp_path / "file" / "pictures"))),

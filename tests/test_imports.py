@@ -213,22 +213,28 @@ def test_import_graph_of_a_small_package(tmp_path: Path) -> None:
             ["import cycle of 2 modules: fake.core, fake.late"],
         ),
         (  # a longer one, through relative imports
-            {"fake/errors.py": "def f():\n    from .late import x\n",
-             "fake/late.py": "from .util.maths import helper\n"},
+            {
+                "fake/errors.py": "def f():\n    from .late import x\n",
+                "fake/late.py": "from .util.maths import helper\n",
+            },
             ["import cycle of 3 modules: fake.errors, fake.late, fake.util.maths"],
         ),
         (  # two separate cycles, each listed
-            {"fake/late.py": "from fake.core import run\n",
-             "fake/util/maths.py": "from fake.util import helper\n"},
-            ["import cycle of 2 modules: fake.core, fake.late",
-             "import cycle of 2 modules: fake.util, fake.util.maths"],
+            {
+                "fake/late.py": "from fake.core import run\n",
+                "fake/util/maths.py": "from fake.util import helper\n",
+            },
+            [
+                "import cycle of 2 modules: fake.core, fake.late",
+                "import cycle of 2 modules: fake.util, fake.util.maths",
+            ],
         ),
         (
             {"fake/errors.py": "import fake.errors\n"},
             ["fake.errors imports itself"],
         ),
     ],
-)  # fmt: skip
+)
 def test_cycle_finder_finds_cycles(tmp_path: Path, changes, expected) -> None:
     _write_package(tmp_path, {**CLEAN, **changes})
     assert cycle_report(import_graph(tmp_path, "fake")) == expected

@@ -213,17 +213,48 @@ def test_serve_help_runs_without_torch_and_the_offline_extras() -> None:
     ("args", "missing", "extra"),
     [
         (["report", "RUN_DIR"], "plotly", "report"),
-        (["calibrate", "extrinsics", "--images", "IMAGES", "--intrinsics", "CALIB.toml",
-          "--board", "4x3", "--square", "0.1", "--out", "OUT.toml"], "scipy", "calibration"),
-        (["calibrate", "intrinsics", "--images", "IMAGES", "--board", "4x3", "--square", "0.1",
-          "--out", "OUT.toml", "--report", "PICTURES"], "matplotlib", "calibration"),
+        (
+            [
+                "calibrate",
+                "extrinsics",
+                "--images",
+                "IMAGES",
+                "--intrinsics",
+                "CALIB.toml",
+                "--board",
+                "4x3",
+                "--square",
+                "0.1",
+                "--out",
+                "OUT.toml",
+            ],
+            "scipy",
+            "calibration",
+        ),
+        (
+            [
+                "calibrate",
+                "intrinsics",
+                "--images",
+                "IMAGES",
+                "--board",
+                "4x3",
+                "--square",
+                "0.1",
+                "--out",
+                "OUT.toml",
+                "--report",
+                "PICTURES",
+            ],
+            "matplotlib",
+            "calibration",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_command_needing_a_missing_extra_says_which_to_install(
     tmp_path: Path, args: list[str], missing: str, extra: str
 ) -> None:
-    args = [str(tmp_path / a) if a.isupper() and a.replace(".", "").isalpha() else a
-            for a in args]  # fmt: skip
+    args = [str(tmp_path / a) if a.isupper() and a.replace(".", "").isalpha() else a for a in args]
     proc = _cli(args, HEAVY | {missing})
     assert proc.returncode == 2, proc.stdout + proc.stderr
     text = " ".join((proc.stdout + proc.stderr).split())
@@ -259,18 +290,32 @@ def test_the_runtime_venv_has_no_torch_and_loads_the_serve_path() -> None:
     """`make runtime`'s venv, where it was built: torch is not even installed there, and every
     serve module that venv's copy of the package holds imports."""
     proc = subprocess.run(
-        [str(RUNTIME_PYTHON), "-c", "import importlib.util as u, json; "
-         f"print(json.dumps([n for n in {sorted(HEAVY | EXTRAS_ONLY)!r} if u.find_spec(n)]))"],
-        capture_output=True, text=True, timeout=60, cwd="/",
-    )  # fmt: skip
+        [
+            str(RUNTIME_PYTHON),
+            "-c",
+            "import importlib.util as u, json; "
+            f"print(json.dumps([n for n in {sorted(HEAVY | EXTRAS_ONLY)!r} if u.find_spec(n)]))",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd="/",
+    )
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout) == []
     listed = subprocess.run(
-        [str(RUNTIME_PYTHON), "-c", "import importlib.util as u, json, sys; "
-         "print(json.dumps([m for m in json.loads(sys.argv[1]) if u.find_spec(m)]))",
-         json.dumps(list(MODULES))],
-        capture_output=True, text=True, timeout=60, cwd="/",
-    )  # fmt: skip
+        [
+            str(RUNTIME_PYTHON),
+            "-c",
+            "import importlib.util as u, json, sys; "
+            "print(json.dumps([m for m in json.loads(sys.argv[1]) if u.find_spec(m)]))",
+            json.dumps(list(MODULES)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd="/",
+    )
     assert listed.returncode == 0, listed.stderr
     have = json.loads(listed.stdout)
     assert "stereopose.detection.yolo_onnx" in have

@@ -19,15 +19,21 @@ SECRET = "s3cr3t-Passw0rd"
 
 @pytest.mark.parametrize(
     ("text", "key"),
-    [(f'[mqtt]\npassword = ["{SECRET}"]\n', "mqtt.password"),
-     (f'[mqtt]\npassword = {{ value = "{SECRET}" }}\n', "mqtt.password"),
-     (f'[mqtt]\npassword = 12{SECRET.count("s")}\n', "mqtt.password"),
-     (f'[outputs]\nwebhook = ["https://user:{SECRET}@hooks.example/x"]\n', "outputs.webhook"),
-     (f'[[cameras]]\nname = "a"\nsource = ["rtsp://admin:{SECRET}@10.0.0.5/s"]\n',
-      "cameras[0].source"),
-     (f'[control_room]\ndatabase = ["postgresql://sp:{SECRET}@db/fleet"]\n',
-      "control_room.database")],
-)  # fmt: skip
+    [
+        (f'[mqtt]\npassword = ["{SECRET}"]\n', "mqtt.password"),
+        (f'[mqtt]\npassword = {{ value = "{SECRET}" }}\n', "mqtt.password"),
+        (f"[mqtt]\npassword = 12{SECRET.count('s')}\n", "mqtt.password"),
+        (f'[outputs]\nwebhook = ["https://user:{SECRET}@hooks.example/x"]\n', "outputs.webhook"),
+        (
+            f'[[cameras]]\nname = "a"\nsource = ["rtsp://admin:{SECRET}@10.0.0.5/s"]\n',
+            "cameras[0].source",
+        ),
+        (
+            f'[control_room]\ndatabase = ["postgresql://sp:{SECRET}@db/fleet"]\n',
+            "control_room.database",
+        ),
+    ],
+)
 def test_a_configuration_error_never_prints_a_secret(tmp_path, text, key):
     path = tmp_path / "serve.toml"
     path.write_text(text)
@@ -57,8 +63,9 @@ def test_the_event_log_stores_no_cameras_password_and_masks_older_logs(tmp_path:
     SqliteSink(db, "site.toml", ", ".join(urls)).close()  # masked by the log itself too
     # a log an earlier version wrote: the URL as configured
     with sqlite3.connect(db) as c:
-        c.execute("INSERT INTO runs(started, site, source) VALUES (1.0, 'site', ?)",
-                  (", ".join(urls),))  # fmt: skip
+        c.execute(
+            "INSERT INTO runs(started, site, source) VALUES (1.0, 'site', ?)", (", ".join(urls),)
+        )
     SqliteSink(db, "site.toml", label).close()
     with sqlite3.connect(db) as c:
         sources = [r[0] for r in c.execute("SELECT source FROM runs ORDER BY id")]
@@ -70,9 +77,11 @@ def test_the_event_log_stores_no_cameras_password_and_masks_older_logs(tmp_path:
 def test_a_configuration_copy_keeps_no_secret():
     from stereopose.secrets import masked_toml
 
-    text = (f'[mqtt]\nhost = "b"\npassword = "{SECRET}"  # the broker\'s\n'
-            f'[[cameras]]\nsource = "rtsp://admin:{SECRET}@10.0.0.5/s"\n'
-            f'[outputs]\nwebhook = "https://{SECRET}@hooks.example/x?y=1"\n')  # fmt: skip
+    text = (
+        f'[mqtt]\nhost = "b"\npassword = "{SECRET}"  # the broker\'s\n'
+        f'[[cameras]]\nsource = "rtsp://admin:{SECRET}@10.0.0.5/s"\n'
+        f'[outputs]\nwebhook = "https://{SECRET}@hooks.example/x?y=1"\n'
+    )
     masked = masked_toml(text)
     assert SECRET not in masked
     assert 'password = "<hidden>"' in masked and 'host = "b"' in masked

@@ -88,8 +88,12 @@ def test_it_is_stopped_by_sigterm_within_a_bound(unit) -> None:
 
 def test_it_writes_only_its_own_folders_and_secrets_come_from_root_only_files(unit) -> None:
     s = unit["Service"]
-    for key, value in (("NoNewPrivileges", "yes"), ("ProtectSystem", "strict"),
-                       ("PrivateTmp", "yes"), ("ProtectHome", "yes")):  # fmt: skip
+    for key, value in (
+        ("NoNewPrivileges", "yes"),
+        ("ProtectSystem", "strict"),
+        ("PrivateTmp", "yes"),
+        ("ProtectHome", "yes"),
+    ):
         assert _one(unit, "Service", key) == value, key
     writable = " ".join(s["ReadWritePaths"]).split()
     assert _one(unit, "Service", "WorkingDirectory") in writable
@@ -133,8 +137,12 @@ def test_a_node_unit_runs_the_nodes_own_entry_and_is_always_restarted() -> None:
     assert _one(unit, "Unit", "StartLimitIntervalSec") == "0"
     assert _one(unit, "Service", "User") not in ("", "root", "0")
     assert _one(unit, "Service", "KillSignal") == "SIGTERM"
-    for key, value in (("NoNewPrivileges", "yes"), ("ProtectSystem", "strict"),
-                       ("PrivateTmp", "yes"), ("ProtectHome", "yes")):  # fmt: skip
+    for key, value in (
+        ("NoNewPrivileges", "yes"),
+        ("ProtectSystem", "strict"),
+        ("PrivateTmp", "yes"),
+        ("ProtectHome", "yes"),
+    ):
         assert _one(unit, "Service", key) == value, key
     assert "ReadWritePaths" not in unit["Service"]  # a node writes no file
     argv = shlex.split(_one(unit, "Service", "ExecStart").replace("%i", "node-a"))

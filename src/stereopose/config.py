@@ -412,8 +412,7 @@ class ControlRoomConfig:
             raise ConfigError("control_room.name: 1 to 64 printable characters")
         g = self.shared_group
         if g and not (len(g) <= 64 and g.isprintable() and not set(g) & set("/+#")):
-            raise ConfigError("control_room.shared_group: up to 64 printable characters, "
-                              "no / + #")  # fmt: skip
+            raise ConfigError("control_room.shared_group: up to 64 printable characters, no / + #")
 
 
 @_schema("iec104")
@@ -465,14 +464,20 @@ class Iec104Config:
             try:
                 ipaddress.IPv4Network(a, strict=False)
             except ValueError:
-                raise ConfigError(f"iec104.allowed_clients[{i}]: expected an IPv4 address or "
-                                  f"network (\"10.0.0.0/24\"), got {a!r}") from None  # fmt: skip
+                raise ConfigError(
+                    f"iec104.allowed_clients[{i}]: expected an IPv4 address or "
+                    f'network ("10.0.0.0/24"), got {a!r}'
+                ) from None
 
 
 OpcuaPolicy = Literal[
-    "Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "Aes128Sha256RsaOaep_SignAndEncrypt",
-    "Aes128Sha256RsaOaep_Sign", "Aes256Sha256RsaPss_SignAndEncrypt", "Aes256Sha256RsaPss_Sign",
-]  # fmt: skip
+    "Basic256Sha256_SignAndEncrypt",
+    "Basic256Sha256_Sign",
+    "Aes128Sha256RsaOaep_SignAndEncrypt",
+    "Aes128Sha256RsaOaep_Sign",
+    "Aes256Sha256RsaPss_SignAndEncrypt",
+    "Aes256Sha256RsaPss_Sign",
+]
 
 
 @_schema("opcua")
@@ -516,8 +521,9 @@ class OpcuaConfig:
                 f"opcua.host: expected an IP address to listen on, got {self.host!r}"
             ) from None
         if not re.fullmatch(r"(/[A-Za-z0-9._~-]+)*/?", self.path) or len(self.path) > 200:
-            raise ConfigError(f"opcua.path: expected a URL path such as \"/stereopose\", "
-                              f"got {self.path!r}")  # fmt: skip
+            raise ConfigError(
+                f'opcua.path: expected a URL path such as "/stereopose", got {self.path!r}'
+            )
         if not self.site or len(self.site) > 64 or not self.site.isprintable():
             raise ConfigError(f"opcua.site: 1 to 64 printable characters, got {self.site!r}")
         if bool(self.certificate) != bool(self.key):
@@ -526,8 +532,10 @@ class OpcuaConfig:
             raise ConfigError("opcua.security: empty, so no client could connect")
         for i, name in enumerate(self.security):
             if name not in get_args(OpcuaPolicy):
-                raise ConfigError(f"opcua.security[{i}]: expected one of "
-                                  f"{list(get_args(OpcuaPolicy))}, got {name!r}")  # fmt: skip
+                raise ConfigError(
+                    f"opcua.security[{i}]: expected one of "
+                    f"{list(get_args(OpcuaPolicy))}, got {name!r}"
+                )
 
 
 @_schema("storage")
@@ -587,8 +595,9 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
         return tuple(_check_value(v, item, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is Literal:
         if value not in get_args(tp):
-            raise ConfigError(f"{where}: expected one of {list(get_args(tp))}, got "
-                              f"{shown(where, value)}")  # fmt: skip
+            raise ConfigError(
+                f"{where}: expected one of {list(get_args(tp))}, got {shown(where, value)}"
+            )
         return value
     if tp is bool:
         if not isinstance(value, bool):

@@ -13,8 +13,14 @@ from stereopose.errors import ConfigError
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.video import is_stream
 
-__all__ = ["mqtt_settings", "read_secret", "resolve", "section_settings", "source_path",
-           "tls_files"]  # fmt: skip
+__all__ = [
+    "mqtt_settings",
+    "read_secret",
+    "resolve",
+    "section_settings",
+    "source_path",
+    "tls_files",
+]
 
 
 def resolve(base: Path, value: str) -> Path:
@@ -47,10 +53,20 @@ def mqtt_settings(path: Path, base: Path, cfg: Config) -> MqttSettings | None:
         if m.password:
             raise ConfigError(f"{path}: mqtt.password and mqtt.password_file: give one of them")
         password = read_secret(resolve(base, m.password_file), "mqtt.password_file", path)
-    return section_settings(path, MqttSettings, host=m.host, site=m.site, port=m.port,
-                     topic_prefix=m.topic_prefix, username=m.username, password=password,
-                     tls=m.tls, ca_file=ca, people_hz=m.people_hz,
-                     queue_size=m.queue_size)  # fmt: skip
+    return section_settings(
+        path,
+        MqttSettings,
+        host=m.host,
+        site=m.site,
+        port=m.port,
+        topic_prefix=m.topic_prefix,
+        username=m.username,
+        password=password,
+        tls=m.tls,
+        ca_file=ca,
+        people_hz=m.people_hz,
+        queue_size=m.queue_size,
+    )
 
 
 def tls_files(path: Path, base: Path, cfg: Config) -> tuple[str | None, str | None]:
@@ -72,15 +88,18 @@ def tls_files(path: Path, base: Path, cfg: Config) -> tuple[str | None, str | No
         if not stat.S_ISREG(st.st_mode):
             raise ConfigError(f"{path}: {name}: {file} is not a file")
         if name == "serve.key" and st.st_mode & 0o007:
-            raise ConfigError(f"{path}: serve.key: {file} is readable by every user; "
-                              "chmod o-rwx it")  # fmt: skip
+            raise ConfigError(
+                f"{path}: serve.key: {file} is readable by every user; chmod o-rwx it"
+            )
     import ssl
 
     try:
         ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, key)
     except (ssl.SSLError, OSError) as e:
-        raise ConfigError(f"{path}: serve.certificate {cert} and serve.key {key} are not a "
-                          f"PEM certificate and its key: {e}") from None  # fmt: skip
+        raise ConfigError(
+            f"{path}: serve.certificate {cert} and serve.key {key} are not a "
+            f"PEM certificate and its key: {e}"
+        ) from None
     return str(cert), str(key)
 
 

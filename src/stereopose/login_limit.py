@@ -62,10 +62,17 @@ class Attempt:
 class LoginLimiter:
     """See the module. clock: monotonic seconds."""
 
-    def __init__(self, *, window_s: float = WINDOW_S, max_failures: int = MAX_FAILURES,
-                 per_hour: float = ACCOUNT_PER_HOUR, burst: int = ACCOUNT_BURST,
-                 pair_s: float = PAIR_S, max_tracked: int = MAX_TRACKED,
-                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+    def __init__(
+        self,
+        *,
+        window_s: float = WINDOW_S,
+        max_failures: int = MAX_FAILURES,
+        per_hour: float = ACCOUNT_PER_HOUR,
+        burst: int = ACCOUNT_BURST,
+        pair_s: float = PAIR_S,
+        max_tracked: int = MAX_TRACKED,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.window_s, self.max_failures = window_s, max_failures
         self.rate, self.burst, self.pair_s = per_hour / 3600.0, float(burst), pair_s
         self.max_tracked = max_tracked

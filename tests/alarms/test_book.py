@@ -64,9 +64,11 @@ def test_a_repeated_reach_is_one_incident_with_a_count_and_one_notification() ->
     assert book.get(1).occurrences == 16 and book.get(1).last_t == 21.5
     # each exit clears it, each return makes it active again: the changes say so
     assert [w for u in ups[:4] for w in whats(u)] == [
-        ("raised", None, ACTIVE), ("occurrence", ACTIVE, ACTIVE),
-        ("cleared", ACTIVE, CLEARED), ("occurrence", CLEARED, ACTIVE),
-    ]  # fmt: skip
+        ("raised", None, ACTIVE),
+        ("occurrence", ACTIVE, ACTIVE),
+        ("cleared", ACTIVE, CLEARED),
+        ("occurrence", CLEARED, ACTIVE),
+    ]
 
 
 @pytest.mark.parametrize("acked", [False, True])
@@ -89,8 +91,9 @@ def test_the_rearm_window(acked: bool, gap: float, same: bool) -> None:
 
 
 def test_rearm_per_zone_and_rule_from_the_settings() -> None:
-    settings = AlarmSettings(zones={"panel": Tuning(None, 2.0)},
-                             rules={"man_down": Tuning(1, 100.0)})  # fmt: skip
+    settings = AlarmSettings(
+        zones={"panel": Tuning(None, 2.0)}, rules={"man_down": Tuning(1, 100.0)}
+    )
     book = IncidentBook(settings)
     step(book, [zone(0.0, "enter"), rule(0.0, "person_down")])
     step(book, [zone(1.0, "exit"), rule(1.0, "person_up")])
@@ -106,10 +109,14 @@ def test_a_zone_priority_replaces_the_defaults() -> None:
 
 def test_info_events_have_no_incident_and_warnings_do() -> None:
     book = IncidentBook()
-    events = [zone(0.0, "enter", kind="work_area"), zone(0.1, "exit", kind="work_area"),
-              zone(0.2, "enter", kind="restricted", zone_="door"),
-              zone(0.3, "dwell", kind="work_area", zone_="bench"),
-              camera(0.4, "camera_up"), rule(0.5, "person_up")]  # fmt: skip
+    events = [
+        zone(0.0, "enter", kind="work_area"),
+        zone(0.1, "exit", kind="work_area"),
+        zone(0.2, "enter", kind="restricted", zone_="door"),
+        zone(0.3, "dwell", kind="work_area", zone_="bench"),
+        camera(0.4, "camera_up"),
+        rule(0.5, "person_up"),
+    ]
     up = step(book, events)
     assert up.incidents == (None, None, 1, 2, None, None)
     assert [c.incident.priority for c in up.notifications] == [3, 3]
@@ -141,13 +148,20 @@ def test_a_camera_back_does_not_clear_its_calibration() -> None:
     step(book, [camera(0.0, "calibration_drift"), camera(1.0, "camera_down")])
     step(book, [camera(2.0, "camera_up")])
     assert [(r.key, r.state) for r in book.incidents()] == [
-        (("calibration", "cam1"), ACTIVE), (("camera", "cam1"), CLEARED)]  # fmt: skip
+        (("calibration", "cam1"), ACTIVE),
+        (("camera", "cam1"), CLEARED),
+    ]
 
 
 def test_people_zones_and_rules_are_separate_hazards() -> None:
     book = IncidentBook()
-    events = [zone(0.0, "enter", 1), zone(0.0, "enter", 2), zone(0.0, "enter", 1, "b"),
-              rule(0.0, "person_down", 1), rule(0.0, "person_down", 1, "other")]  # fmt: skip
+    events = [
+        zone(0.0, "enter", 1),
+        zone(0.0, "enter", 2),
+        zone(0.0, "enter", 1, "b"),
+        rule(0.0, "person_down", 1),
+        rule(0.0, "person_down", 1, "other"),
+    ]
     up = step(book, events)
     assert up.incidents == (1, 2, 3, 4, 5) and len(up.notifications) == 5
 
@@ -205,23 +219,34 @@ def test_operators_acts_through_the_book() -> None:
     assert whats(up) == [("unshelved", ACTIVE, ACTIVE)] and not book.get(1).shelved
     assert up.changes[0].by is None  # the time ran out
     (c,) = book.acknowledge(1, "bob", 602.0)
-    assert (c.what, c.before, c.incident.state, c.by) == ("acknowledged", ACTIVE, ACKNOWLEDGED,
-                                                          "bob")  # fmt: skip
+    assert (c.what, c.before, c.incident.state, c.by) == (
+        "acknowledged",
+        ACTIVE,
+        ACKNOWLEDGED,
+        "bob",
+    )
     assert book.acknowledge(1, "eve", 603.0) == []
     book.shelve(1, "ann", "again", 60.0, 604.0)
     assert [c.what for c in book.unshelve(1, "ann", 605.0)] == ["unshelved"]
     assert book.unshelve(1, "ann", 606.0) == []
     assert step(book, [], 700.0).changes == ()  # the old shelving time is stale
-    for act in (lambda: book.acknowledge(9, "a", 0), lambda: book.shelve(9, "a", "r", 1, 0),
-                lambda: book.unshelve(9, "a", 0), lambda: book.get(9)):  # fmt: skip
+    for act in (
+        lambda: book.acknowledge(9, "a", 0),
+        lambda: book.shelve(9, "a", "r", 1, 0),
+        lambda: book.unshelve(9, "a", 0),
+        lambda: book.get(9),
+    ):
         with pytest.raises(UnknownIncidentError, match="no open incident 9"):
             act()
 
 
 def test_ids_come_from_the_callers_allocator_and_event_ids_are_kept() -> None:
     book = IncidentBook(next_id=itertools.count(500).__next__)
-    up = step(book, [zone(0.0, "enter"), zone(0.1, "dwell"), camera(0.2, "camera_down")],
-              event_ids=[11, 12, 13])  # fmt: skip
+    up = step(
+        book,
+        [zone(0.0, "enter"), zone(0.1, "dwell"), camera(0.2, "camera_down")],
+        event_ids=[11, 12, 13],
+    )
     assert up.incidents == (500, 500, 501)
     assert (book.get(500).first_event, book.get(500).last_event) == (11, 12)
     with pytest.raises(ValueError, match="2 event ids for 1 events"):
@@ -285,7 +310,11 @@ def test_shelving_holds_for_the_hazard_until_it_runs_out() -> None:
         up = step(book, [camera(300.0 * k, "camera_down")])
         (c,) = up.changes
         assert (c.what, c.notify, c.incident.shelved, c.incident.shelved_until) == (
-            "raised", False, True, 3601.0)  # fmt: skip
+            "raised",
+            False,
+            True,
+            3601.0,
+        )
         assert c.incident.shelved_reason == "maintenance" and c.incident.shelved_by == "ann"
     assert len(book) <= 2  # the closed ones are forgotten all the same
     up = step(book, [], 3601.0)

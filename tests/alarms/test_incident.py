@@ -42,10 +42,18 @@ def test_a_new_incident_is_active_and_unacknowledged() -> None:
 
 
 OCCUR = {ACTIVE: ACTIVE, ACKNOWLEDGED: ACKNOWLEDGED, CLEARED: ACTIVE, CLOSED: ACKNOWLEDGED}
-CLEAR = {ACTIVE: (CLEARED, True), ACKNOWLEDGED: (CLOSED, True), CLEARED: (CLEARED, False),
-         CLOSED: (CLOSED, False)}  # fmt: skip
-ACK = {ACTIVE: (ACKNOWLEDGED, True), ACKNOWLEDGED: (ACKNOWLEDGED, False),
-       CLEARED: (CLOSED, True), CLOSED: (CLOSED, False)}  # fmt: skip
+CLEAR = {
+    ACTIVE: (CLEARED, True),
+    ACKNOWLEDGED: (CLOSED, True),
+    CLEARED: (CLEARED, False),
+    CLOSED: (CLOSED, False),
+}
+ACK = {
+    ACTIVE: (ACKNOWLEDGED, True),
+    ACKNOWLEDGED: (ACKNOWLEDGED, False),
+    CLEARED: (CLOSED, True),
+    CLOSED: (CLOSED, False),
+}
 
 
 @pytest.mark.parametrize("state", STATES)

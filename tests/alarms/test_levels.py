@@ -12,9 +12,21 @@ from stereopose.site import eventlog
 from stereopose.site.restart import ALARM_ENDS
 
 KINDS = ("energized", "restricted", "work_area", "behaviour", "camera", "service")
-TYPES = ("enter", "exit", "approach", "dwell", "left_work_area", "camera_down", "camera_up",
-         "calibration_drift", "calibration_recovered", "service_stalled", "service_resumed",
-         *BEHAVIOUR_ENDS, *BEHAVIOUR_ENDS.values())  # fmt: skip
+TYPES = (
+    "enter",
+    "exit",
+    "approach",
+    "dwell",
+    "left_work_area",
+    "camera_down",
+    "camera_up",
+    "calibration_drift",
+    "calibration_recovered",
+    "service_stalled",
+    "service_resumed",
+    *BEHAVIOUR_ENDS,
+    *BEHAVIOUR_ENDS.values(),
+)
 
 
 def test_the_tables_agree_with_the_modules_that_raise_the_events() -> None:

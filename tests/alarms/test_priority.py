@@ -24,10 +24,16 @@ from stereopose.fence import load_site
 TIERS = [
     [("energized", "enter"), ("behaviour", "person_down")],
     [("energized", "approach"), ("behaviour", "lone_worker")],
-    [("behaviour", "work_position"), ("behaviour", "immobile"), ("behaviour", "overreach"),
-     ("restricted", "enter"), ("work_area", "dwell"), ("work_area", "left_work_area")],
+    [
+        ("behaviour", "work_position"),
+        ("behaviour", "immobile"),
+        ("behaviour", "overreach"),
+        ("restricted", "enter"),
+        ("work_area", "dwell"),
+        ("work_area", "left_work_area"),
+    ],
     [("camera", "camera_down"), ("camera", "calibration_drift"), ("service", "service_stalled")],
-]  # fmt: skip
+]
 
 
 def test_four_levels_one_the_most_urgent() -> None:

@@ -20,13 +20,19 @@ FPS = 25.0
 DT = 1.0 / FPS
 # a panel along the wall x = 0 (energized), the work area in front of it, and a far corner
 ZONES = (
-    Zone("panel", "energized", np.array([[0.0, 2.0], [0.6, 2.0], [0.6, 4.0], [0.0, 4.0]]),
-         (0.0, 2.5)),
-    Zone("front", "work_area", np.array([[0.6, 2.0], [1.6, 2.0], [1.6, 4.0], [0.6, 4.0]]),
-         (0.0, 2.5)),
-    Zone("corner", "restricted", np.array([[8.0, 6.0], [9.0, 6.0], [9.0, 7.0], [8.0, 7.0]]),
-         (0.0, 2.5)),
-)  # fmt: skip
+    Zone(
+        "panel", "energized", np.array([[0.0, 2.0], [0.6, 2.0], [0.6, 4.0], [0.0, 4.0]]), (0.0, 2.5)
+    ),
+    Zone(
+        "front", "work_area", np.array([[0.6, 2.0], [1.6, 2.0], [1.6, 4.0], [0.6, 4.0]]), (0.0, 2.5)
+    ),
+    Zone(
+        "corner",
+        "restricted",
+        np.array([[8.0, 6.0], [9.0, 6.0], [9.0, 7.0], [8.0, 7.0]]),
+        (0.0, 2.5),
+    ),
+)
 FACING_PANEL = math.pi  # facing -x, toward the panel
 
 
@@ -37,8 +43,14 @@ def monitor(*rules: dict, lost_s: float = 3.0) -> BehaviourMonitor:
 Scene = Callable[[float], dict[int, np.ndarray]]
 
 
-def run(mon: BehaviourMonitor, scene: Scene, seconds: float, *, start: float = 0.0,
-        hidden: Callable[[float, int], bool] | None = None) -> list[Event]:  # fmt: skip
+def run(
+    mon: BehaviourMonitor,
+    scene: Scene,
+    seconds: float,
+    *,
+    start: float = 0.0,
+    hidden: Callable[[float, int], bool] | None = None,
+) -> list[Event]:
     """Steps the monitor through `scene(t)` ({id: joints}) at FPS; hidden(t, id): that person
     is predicted (not seen) at t."""
     events: list[Event] = []
@@ -57,8 +69,14 @@ def types(events: Sequence[Event]) -> list[str]:
     return [e.type for e in events]
 
 
-def fall(t0: float, fall_s: float = 0.7, heading: float = 0.0, xy=(3.0, 3.0),
-         up_at: float | None = None, missing: Sequence[int] = ()) -> Scene:  # fmt: skip
+def fall(
+    t0: float,
+    fall_s: float = 0.7,
+    heading: float = 0.0,
+    xy=(3.0, 3.0),
+    up_at: float | None = None,
+    missing: Sequence[int] = (),
+) -> Scene:
     """A worker standing at xy who falls backwards at t0 (rotating to the floor in fall_s) and
     lies there, getting up at up_at; the joints `missing` are not seen once on the floor."""
     body = b.standing(xy=xy, heading=heading)
@@ -227,8 +245,14 @@ def at(x: float, y: float, heading: float = FACING_PANEL, **kw) -> np.ndarray:
 
 
 def test_lone_worker_after_lone_s_and_its_end_when_a_buddy_comes() -> None:
-    rule = {"name": "two_man", "type": "lone_worker", "zones": ["panel"], "buddy_m": 3.0,
-            "lone_s": 5.0, "exit_s": 1.0}  # fmt: skip
+    rule = {
+        "name": "two_man",
+        "type": "lone_worker",
+        "zones": ["panel"],
+        "buddy_m": 3.0,
+        "lone_s": 5.0,
+        "exit_s": 1.0,
+    }
 
     def scene(t: float) -> dict[int, np.ndarray]:
         people = {1: at(1.0, 3.0)}  # 0.4 m from the panel
@@ -247,8 +271,14 @@ def test_lone_worker_after_lone_s_and_its_end_when_a_buddy_comes() -> None:
 
 
 def test_lone_worker_needs_company_within_buddy_m_and_being_near_the_zone() -> None:
-    rule = {"name": "l", "type": "lone_worker", "zones": ["panel"], "buddy_m": 3.0,
-            "lone_s": 2.0, "approach_m": 1.0}  # fmt: skip
+    rule = {
+        "name": "l",
+        "type": "lone_worker",
+        "zones": ["panel"],
+        "buddy_m": 3.0,
+        "lone_s": 2.0,
+        "approach_m": 1.0,
+    }
     # a buddy 2 m away all along: nothing
     assert run(monitor(rule), lambda t: {1: at(1.0, 3.0), 2: at(3.0, 3.0)}, 6.0) == []
     # a second person far away (5 m) is no company
@@ -294,8 +324,15 @@ def working(x: float, heading: float, y: float = 3.0, **kw) -> np.ndarray:
     return J
 
 
-WORK = {"name": "panel_A", "type": "work_position", "zone": "front", "facing_deg": 180.0,
-        "tolerance_deg": 30.0, "enter_s": 0.2, "exit_s": 0.4}  # fmt: skip
+WORK = {
+    "name": "panel_A",
+    "type": "work_position",
+    "zone": "front",
+    "facing_deg": 180.0,
+    "tolerance_deg": 30.0,
+    "enter_s": 0.2,
+    "exit_s": 0.4,
+}
 
 
 def test_work_position_held_raises_nothing() -> None:
@@ -324,8 +361,9 @@ def test_work_position_says_which_condition_failed(x: float, heading: float, fai
     e = events[0]
     assert e.failed == failed and e.zone == "panel" and e.joint == "right_wrist"
     assert e.onset_t == pytest.approx(1.0) and e.t == pytest.approx(1.2, abs=1e-9)
-    assert e.facing_deg == pytest.approx(math.degrees(heading) % 360 - (360 if math.degrees(
-        heading) % 360 > 180 else 0), abs=1.0)  # fmt: skip
+    assert e.facing_deg == pytest.approx(
+        math.degrees(heading) % 360 - (360 if math.degrees(heading) % 360 > 180 else 0), abs=1.0
+    )
 
 
 def test_work_position_postures_and_its_end() -> None:
@@ -400,8 +438,7 @@ def test_immobile_single_frame_glitches_do_not_restart_the_clock() -> None:
 
 
 def test_overreach_debounced_with_the_wrist_and_its_height() -> None:
-    rule = {"name": "over", "type": "overreach", "max_height_m": 1.9, "enter_s": 0.2,
-            "exit_s": 0.4}  # fmt: skip
+    rule = {"name": "over", "type": "overreach", "max_height_m": 1.9, "enter_s": 0.2, "exit_s": 0.4}
 
     def scene(t: float) -> dict[int, np.ndarray]:
         up = 1.0 <= t < 3.0 or 4.0 <= t < 4.12  # a 0.12 s spike later: too short
@@ -486,8 +523,13 @@ def test_a_fall_on_a_raised_platform_is_a_fall() -> None:
 
 
 def test_overreach_only_near_its_zones() -> None:
-    rule = {"name": "busbar", "type": "overreach", "max_height_m": 1.9, "zones": ["panel"],
-            "approach_m": 0.5}  # fmt: skip
+    rule = {
+        "name": "busbar",
+        "type": "overreach",
+        "max_height_m": 1.9,
+        "zones": ["panel"],
+        "approach_m": 0.5,
+    }
     far = lambda t: {1: at(3.0, 3.0, reach_left=1.0)}  # noqa: E731
     assert run(monitor(rule), far, 2.0) == []
     near = lambda t: {1: at(1.0, 3.0, reach_left=1.0)}  # noqa: E731

@@ -36,17 +36,43 @@ def test_reconstruct_with_rules_writes_postures_and_behaviour_events(
     tmp_path: Path, capsys
 ) -> None:
     scene = tmp_path / "scene"
-    args = ["--frames", "40", "--cameras", "3", "--people", "2", "--difficulty", "easy",
-            "--seed", "5"]  # fmt: skip
+    args = [
+        "--frames",
+        "40",
+        "--cameras",
+        "3",
+        "--people",
+        "2",
+        "--difficulty",
+        "easy",
+        "--seed",
+        "5",
+    ]
     assert main(["simulate", str(scene), *args]) == 0
     site = tmp_path / "site.toml"
     site.write_text(SITE)
     out, events, db = tmp_path / "poses.jsonl", tmp_path / "events.jsonl", tmp_path / "e.sqlite"
     receiver = Receiver()
     try:
-        rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose",
-                   str(scene / "pose"), "--out", str(out), "--site", str(site), "--events",
-                   str(events), "--events-db", str(db), "--webhook", receiver.url])  # fmt: skip
+        rc = main(
+            [
+                "reconstruct",
+                "--calib",
+                str(scene / "calib.toml"),
+                "--pose",
+                str(scene / "pose"),
+                "--out",
+                str(out),
+                "--site",
+                str(site),
+                "--events",
+                str(events),
+                "--events-db",
+                str(db),
+                "--webhook",
+                receiver.url,
+            ]
+        )
         assert rc == 0, capsys.readouterr().err
         frames = [json.loads(line) for line in out.read_text().splitlines()]
         people = [p for f in frames for p in f["people"]]

@@ -35,8 +35,9 @@ from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
 from waiting import wait_until
 
 FPS = 25.0
-PANEL = Zone("panel", "energized", np.array([[0.0, 2.0], [0.6, 2.0], [0.6, 4.0], [0.0, 4.0]]),
-             (0.0, 2.5))  # fmt: skip
+PANEL = Zone(
+    "panel", "energized", np.array([[0.0, 2.0], [0.6, 2.0], [0.6, 4.0], [0.0, 4.0]]), (0.0, 2.5)
+)
 RULES = [
     {"name": "man_down", "type": "person_down", "down_s": 2.0},
     {"name": "two_man", "type": "lone_worker", "zones": ["panel"], "lone_s": 1.0},
@@ -73,8 +74,11 @@ def all_events(run: list[FrameResult]) -> list[Event]:
 
 def test_the_scene_raises_the_expected_events(run) -> None:
     got = sorted((e.type, e.person, e.rule) for e in all_events(run))
-    assert got == [("lone_worker", 1, "two_man"), ("overreach", 2, "overhead"),
-                   ("person_down", 1, "man_down")]  # fmt: skip
+    assert got == [
+        ("lone_worker", 1, "two_man"),
+        ("overreach", 2, "overhead"),
+        ("person_down", 1, "man_down"),
+    ]
     assert all(is_alarm(e) for e in all_events(run))  # each starts an event clip
     line = describe(next(e for e in all_events(run) if e.type == "person_down"))
     assert "person_down" in line and "man_down" in line and "lying" in line
@@ -102,7 +106,8 @@ def test_behaviour_events_in_jsonl_and_sqlite(tmp_path: Path, run) -> None:
     assert [r["rule"] for r in rows] == [e.rule for e in events]
     assert [event_from_record(r) for r in rows] == events  # full precision
     assert query_events(tmp_path / "events.sqlite", event_type="person_down")[0]["posture"] == (
-        "lying")  # fmt: skip
+        "lying"
+    )
 
 
 def _rounded(events: list[Event]) -> list[Event]:
@@ -126,7 +131,7 @@ def test_an_event_log_of_an_earlier_version_gets_the_new_columns(tmp_path: Path,
         INSERT INTO runs(started) VALUES (1.0);
         INSERT INTO events(run, t, frame, person, zone, kind, type)
             VALUES (1, 0.5, 12, 4, 'panel', 'energized', 'enter');
-    """)  # fmt: skip
+    """)
     db.commit()
     db.close()
     rows = query_events(db_path)  # readable as it is
@@ -161,9 +166,14 @@ def test_behaviour_events_over_mqtt_leave_the_zone_occupancy_alone(tmp_path: Pat
     sub = None
     try:
         sub = Subscriber(broker.port, "stereopose/site/#")
-        settings = MqttSettings(host="127.0.0.1", port=broker.port, site="site",
-                                reconnect_min_s=0.05, reconnect_max_s=0.2,
-                                close_timeout_s=3.0)  # fmt: skip
+        settings = MqttSettings(
+            host="127.0.0.1",
+            port=broker.port,
+            site="site",
+            reconnect_min_s=0.05,
+            reconnect_max_s=0.2,
+            close_timeout_s=3.0,
+        )
         sink = MqttSink(settings, ["panel"])
         for f in run:
             sink.write(f)

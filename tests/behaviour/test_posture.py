@@ -126,9 +126,14 @@ def test_lying_half_outside_the_view() -> None:
 def test_noisy_bodies_with_missing_joints_keep_their_posture() -> None:
     """2 cm of noise and a fifth of the joints missing (as where few cameras see a body)."""
     rng = np.random.default_rng(4)
-    cases = [(b.standing, "standing"), (b.kneeling, "crouching"), (b.lying, "lying"),
-             (lambda: b.lying(sideways=True), "lying"), (lambda: b.standing(bend=1.1), "bending"),
-             (b.squatting, "crouching")]  # fmt: skip
+    cases = [
+        (b.standing, "standing"),
+        (b.kneeling, "crouching"),
+        (b.lying, "lying"),
+        (lambda: b.lying(sideways=True), "lying"),
+        (lambda: b.standing(bend=1.1), "bending"),
+        (b.squatting, "crouching"),
+    ]
     for make, expected in cases:
         got = [classify(b.noisy(make(), rng, 0.02, missing=0.2)).posture for _ in range(50)]
         assert sum(g == expected for g in got) >= 45, (expected, got)
@@ -209,8 +214,9 @@ def test_tracker_drop_speed_and_forgetting() -> None:
     fps = 25.0
     tracker = PostureTracker(fps, lost_s=1.0)
     seq = fall_sequence(fps)
-    drops = [tracker.update(k / fps, b.people(k, {3: J}, k / fps))[3].drop_m_s
-             for k, J in enumerate(seq)]  # fmt: skip
+    drops = [
+        tracker.update(k / fps, b.people(k, {3: J}, k / fps))[3].drop_m_s for k, J in enumerate(seq)
+    ]
     assert np.nanmax(drops) > 1.5  # a fall: the hips drop fast
     # predicted (unseen) frames keep the last posture
     last = tracker.update(len(seq) / fps, b.people(len(seq), {3: b.standing()}, None, {3: True}))
@@ -219,8 +225,14 @@ def test_tracker_drop_speed_and_forgetting() -> None:
     assert 3 not in tracker.people  # the track ended: forgotten
 
 
-def fall_sequence(fps: float, stand_s: float = 1.0, fall_s: float = 0.7, lie_s: float = 1.0,
-                  heading: float = 0.0, xy=(1.0, 1.0)) -> list[np.ndarray]:  # fmt: skip
+def fall_sequence(
+    fps: float,
+    stand_s: float = 1.0,
+    fall_s: float = 0.7,
+    lie_s: float = 1.0,
+    heading: float = 0.0,
+    xy=(1.0, 1.0),
+) -> list[np.ndarray]:
     """Standing, then rotating to the floor about the ankles (accelerating), then lying."""
     body = b.standing(xy=xy, heading=heading)
     frames = [body] * int(stand_s * fps)

@@ -80,13 +80,22 @@ def test_rules_are_read_with_their_parameters_and_defaults(tmp_path: Path) -> No
     assert down == PersonDownRule("man_down", down_s=3.0)
     assert down.up_s == 1.0 and down.fall_speed_m_s == 1.0  # the defaults
     assert lone == LoneWorkerRule("two_man", ("panel_A",), buddy_m=2.5, lone_s=10.0)
-    assert pos == WorkPositionRule("position_A", "front_A", 180.0, tolerance_deg=25.0,
-                                   postures=("standing", "crouching"))  # fmt: skip
+    assert pos == WorkPositionRule(
+        "position_A", "front_A", 180.0, tolerance_deg=25.0, postures=("standing", "crouching")
+    )
     assert still == ImmobileRule("still", 30.0)
-    assert over == OverreachRule("overhead", 2.1, joints=tuple(sorted(
-        JOINT_INDEX[j] for j in ("left_wrist", "right_wrist", "left_elbow"))))  # fmt: skip
+    assert over == OverreachRule(
+        "overhead",
+        2.1,
+        joints=tuple(sorted(JOINT_INDEX[j] for j in ("left_wrist", "right_wrist", "left_elbow"))),
+    )
     assert [r.type for r in site.rules] == [
-        "person_down", "lone_worker", "work_position", "immobile", "overreach"]  # fmt: skip
+        "person_down",
+        "lone_worker",
+        "work_position",
+        "immobile",
+        "overreach",
+    ]
 
 
 def test_a_site_without_rules_has_none(tmp_path: Path) -> None:
@@ -116,46 +125,95 @@ def _rule(**kw) -> str:
         (_rule(name='"x"'), "rule 'x': missing `type`"),
         (_rule(type='"immobile"', immobile_s=3), "rules[0]: missing `name`"),
         (_rule(name="3", type='"immobile"'), "rules[0]: name must be a non-empty string"),
-        (_rule(name='"x"', type='"person_down"', downs=3),
-         "rule 'x': unknown key(s) downs; person_down knows name, type, down_s"),
+        (
+            _rule(name='"x"', type='"person_down"', downs=3),
+            "rule 'x': unknown key(s) downs; person_down knows name, type, down_s",
+        ),
         (_rule(name='"x"', type='"immobile"'), "rule 'x': missing `immobile_s`"),
-        (_rule(name='"x"', type='"person_down"', down_s=-1),
-         "rule 'x': down_s: expected a finite number in (0, 86400], got -1"),
+        (
+            _rule(name='"x"', type='"person_down"', down_s=-1),
+            "rule 'x': down_s: expected a finite number in (0, 86400], got -1",
+        ),
         (_rule(name='"x"', type='"person_down"', down_s="nan"), "rule 'x': down_s: expected"),
         (_rule(name='"x"', type='"person_down"', down_s='"3"'), "rule 'x': down_s: expected"),
         (_rule(name='"x"', type='"person_down"', down_s="true"), "rule 'x': down_s: expected"),
-        (_rule(name='"x"', type='"lone_worker"', zones='["panel_B"]'),
-         "rule 'x': zones: no zone named 'panel_B'; zones: front_A, panel_A"),
-        (_rule(name='"x"', type='"lone_worker"', zones="[]"),
-         "rule 'x': zones must be a non-empty list of names"),
+        (
+            _rule(name='"x"', type='"lone_worker"', zones='["panel_B"]'),
+            "rule 'x': zones: no zone named 'panel_B'; zones: front_A, panel_A",
+        ),
+        (
+            _rule(name='"x"', type='"lone_worker"', zones="[]"),
+            "rule 'x': zones must be a non-empty list of names",
+        ),
         (_rule(name='"x"', type='"lone_worker"'), "rule 'x': missing `zones`"),
-        (_rule(name='"x"', type='"lone_worker"', zones='["panel_A"]', buddy_m=0),
-         "rule 'x': buddy_m: expected a finite number in (0, 10000], got 0"),
-        (_rule(name='"x"', type='"work_position"', zone='"panel_A"', facing_deg=0),
-         "rule 'x': zone: zone 'panel_A' is energized; expected a work_area zone"),
-        (_rule(name='"x"', type='"work_position"', zone='"front_A"'),
-         "rule 'x': missing `facing_deg`"),
-        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
-               tolerance_deg=200), "rule 'x': tolerance_deg: expected a finite number in (0, 180]"),
-        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
-               postures='["sitting"]'), "rule 'x': postures: unknown posture(s) 'sitting'"),
-        (_rule(name='"x"', type='"work_position"', zone='"front_A"', facing_deg=0,
-               energized='["front_A"]'), "rule 'x': energized: zone 'front_A' is work_area"),
-        (_rule(name='"x"', type='"overreach"', max_height_m=2, joints='["left_hand"]'),
-         "rule 'x': joints: unknown joint 'left_hand'"),
+        (
+            _rule(name='"x"', type='"lone_worker"', zones='["panel_A"]', buddy_m=0),
+            "rule 'x': buddy_m: expected a finite number in (0, 10000], got 0",
+        ),
+        (
+            _rule(name='"x"', type='"work_position"', zone='"panel_A"', facing_deg=0),
+            "rule 'x': zone: zone 'panel_A' is energized; expected a work_area zone",
+        ),
+        (
+            _rule(name='"x"', type='"work_position"', zone='"front_A"'),
+            "rule 'x': missing `facing_deg`",
+        ),
+        (
+            _rule(
+                name='"x"',
+                type='"work_position"',
+                zone='"front_A"',
+                facing_deg=0,
+                tolerance_deg=200,
+            ),
+            "rule 'x': tolerance_deg: expected a finite number in (0, 180]",
+        ),
+        (
+            _rule(
+                name='"x"',
+                type='"work_position"',
+                zone='"front_A"',
+                facing_deg=0,
+                postures='["sitting"]',
+            ),
+            "rule 'x': postures: unknown posture(s) 'sitting'",
+        ),
+        (
+            _rule(
+                name='"x"',
+                type='"work_position"',
+                zone='"front_A"',
+                facing_deg=0,
+                energized='["front_A"]',
+            ),
+            "rule 'x': energized: zone 'front_A' is work_area",
+        ),
+        (
+            _rule(name='"x"', type='"overreach"', max_height_m=2, joints='["left_hand"]'),
+            "rule 'x': joints: unknown joint 'left_hand'",
+        ),
         (_rule(name='"x"', type='"immobile"', immobile_s=1e400), "rule 'x': immobile_s: expected"),
-        (_rule(name='"x"', type='"person_down"', priority=0),
-         "rule 'x': priority: expected an integer in [1, 4] or one of critical, high, medium, low"),
+        (
+            _rule(name='"x"', type='"person_down"', priority=0),
+            "rule 'x': priority: expected an integer in [1, 4] or one of critical, high, "
+            "medium, low",
+        ),
         (_rule(name='"x"', type='"person_down"', priority='"top"'), "rule 'x': priority: expected"),
-        (_rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=-1),
-         "rule 'x': rearm_s: expected a finite number in [0, 86400], got -1"),
-        (_rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=1e6),
-         "rule 'x': rearm_s: expected"),
-        (_rule(name='"x"', type='"immobile"', immobile_s=5) + _rule(name='"x"', type='"immobile"',
-                                                                    immobile_s=6),
-         "rule 'x': the name is used twice"),
+        (
+            _rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=-1),
+            "rule 'x': rearm_s: expected a finite number in [0, 86400], got -1",
+        ),
+        (
+            _rule(name='"x"', type='"immobile"', immobile_s=5, rearm_s=1e6),
+            "rule 'x': rearm_s: expected",
+        ),
+        (
+            _rule(name='"x"', type='"immobile"', immobile_s=5)
+            + _rule(name='"x"', type='"immobile"', immobile_s=6),
+            "rule 'x': the name is used twice",
+        ),
     ],
-)  # fmt: skip
+)
 def test_bad_rule_definitions_name_the_file_and_the_rule(
     tmp_path: Path, rule: str, message: str
 ) -> None:
@@ -188,8 +246,19 @@ def test_a_bad_rule_is_exit_2_on_the_command_line(tmp_path: Path, capsys) -> Non
     assert main(["simulate", str(scene), "--frames", "3", "--cameras", "2", "--people", "1"]) == 0
     capsys.readouterr()
     site = write(tmp_path, ZONES + _rule(name='"down"', type='"person_down"', down_s=0))
-    rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
-               "--out", str(tmp_path / "p.jsonl"), "--site", str(site)])  # fmt: skip
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(scene / "calib.toml"),
+            "--pose",
+            str(scene / "pose"),
+            "--out",
+            str(tmp_path / "p.jsonl"),
+            "--site",
+            str(site),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2
     assert "site.toml: rule 'down': down_s: expected" in " ".join(err.split())
@@ -231,12 +300,18 @@ def test_the_run_applies_the_sites_rules_and_thresholds(tmp_path: Path) -> None:
 
     assert behaviour_monitor(None, Config()) is None
     assert behaviour_monitor(load_site(write(tmp_path, ZONES)), Config()) is None
-    only = behaviour_monitor(load_site(write(tmp_path, ZONES + "[postures]\nbend_deg = 35\n")),
-                             Config())  # fmt: skip
+    only = behaviour_monitor(
+        load_site(write(tmp_path, ZONES + "[postures]\nbend_deg = 35\n")), Config()
+    )
     assert only is not None and only.rules == () and only.tracker.settings.bend_deg == 35.0
     both = behaviour_monitor(load_site(write(tmp_path, ZONES + RULES)), Config())
-    assert [r.name for r in both.rules] == ["man_down", "two_man", "position_A", "still",
-                                            "overhead"]  # fmt: skip
+    assert [r.name for r in both.rules] == [
+        "man_down",
+        "two_man",
+        "position_A",
+        "still",
+        "overhead",
+    ]
     assert both.lost_s == Config().tracking.max_lost_s
 
 

@@ -147,8 +147,10 @@ def camera_tables(draw) -> dict[str, Any]:
 @FUZZ
 @given(tables=st.lists(camera_tables(), min_size=1, max_size=3))
 def test_native_files_load_plausibly_or_raise_calibration_error(tmp_path, tables) -> None:
-    tables = [t | {"name": f"cam_{k}"} if isinstance(t.get("name"), str) else t
-              for k, t in enumerate(tables)]  # fmt: skip
+    tables = [
+        t | {"name": f"cam_{k}"} if isinstance(t.get("name"), str) else t
+        for k, t in enumerate(tables)
+    ]
     path = native(tmp_path, *tables)
     try:
         rig = load_calibration(path, min_cameras=1)
@@ -221,8 +223,28 @@ def _load_yaml(folder: Path, intri: bytes, extri: bytes) -> None:
         assert str(e).startswith(str(folder)), str(e)
 
 
-INSERTS = [b"[", b"]", b"{", b"!!opencv-matrix", b".nan", b"1e999", b":", b"\n  ", b"- ", b"\x00",
-           b"'", b'"', b"%YAML:1.0\n", b"&a", b"*a", b"#", b"\t", b"\xff", b",", b"\n"]  # fmt: skip
+INSERTS = [
+    b"[",
+    b"]",
+    b"{",
+    b"!!opencv-matrix",
+    b".nan",
+    b"1e999",
+    b":",
+    b"\n  ",
+    b"- ",
+    b"\x00",
+    b"'",
+    b'"',
+    b"%YAML:1.0\n",
+    b"&a",
+    b"*a",
+    b"#",
+    b"\t",
+    b"\xff",
+    b",",
+    b"\n",
+]
 
 
 @FUZZ
@@ -290,6 +312,10 @@ W_1: -.inf
 """
     doc = parse_yaml(text, "x.yml")
     assert doc["names"] == ["1", "it's"]
-    assert doc["K_1"] == {"rows": "3", "cols": "3", "dt": "d",
-                          "data": ["1.", "0.", "2.", "0.", "1.", ".Nan"]}  # fmt: skip
+    assert doc["K_1"] == {
+        "rows": "3",
+        "cols": "3",
+        "dt": "d",
+        "data": ["1.", "0.", "2.", "0.", "1.", ".Nan"],
+    }
     assert doc["W_1"] == "-.inf"

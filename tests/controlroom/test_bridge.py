@@ -51,23 +51,27 @@ def _bridge(cert: Path, central_port: int, password: str) -> list[str]:
 
 def _brokers(tmp_path: Path, cert: Path, key: Path, users: dict[str, str]) -> tuple:
     """The central broker (TLS, logins, the shipped ACL) and the site's, bridged to it."""
-    central = Broker(tmp_path / "central", users=users, tls=(cert, key),
-                     extra=(f"acl_file {_acl(tmp_path)}",)).start()  # fmt: skip
+    central = Broker(
+        tmp_path / "central", users=users, tls=(cert, key), extra=(f"acl_file {_acl(tmp_path)}",)
+    ).start()
     site = Broker(tmp_path / "site", extra=tuple(_bridge(cert, central.port, "north-pw")))
     return central, site.start()
 
 
-def _room_config(room_dir: Path, central_port: int, cert: Path, http_port: int,
-                 extra: str = "") -> Path:  # fmt: skip
+def _room_config(
+    room_dir: Path, central_port: int, cert: Path, http_port: int, extra: str = ""
+) -> Path:
     """A control room's configuration on the central broker, its login in a secret file."""
     room_dir.mkdir()
     (room_dir / "mqtt.secret").write_text("room-pw\n")
     (room_dir / "mqtt.secret").chmod(0o600)
     config = room_dir / "control.toml"
-    config.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
-                      f'host = "localhost"\nport = {central_port}\ntls = true\n'
-                      f'ca_file = "{cert}"\nusername = "control-room"\n'
-                      f'password_file = "mqtt.secret"\n\n{extra}')  # fmt: skip
+    config.write_text(
+        f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
+        f'host = "localhost"\nport = {central_port}\ntls = true\n'
+        f'ca_file = "{cert}"\nusername = "control-room"\n'
+        f'password_file = "mqtt.secret"\n\n{extra}'
+    )
     return config
 
 
@@ -80,9 +84,17 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
     _add_user(config)
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     log = EventLog(tmp_path / "north.sqlite")
-    box = LogOutbox(MqttSettings(host="127.0.0.1", port=site_broker.port, site="north",
-                                 reconnect_min_s=0.05, reconnect_max_s=0.2), log,
-                    resend_s=2.0)  # fmt: skip
+    box = LogOutbox(
+        MqttSettings(
+            host="127.0.0.1",
+            port=site_broker.port,
+            site="north",
+            reconnect_min_s=0.05,
+            reconnect_max_s=0.2,
+        ),
+        log,
+        resend_s=2.0,
+    )
     k = 0
 
     def write(n: int) -> None:
@@ -90,8 +102,17 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
         evs = []
         for _ in range(n):
             k += 1
-            evs.append(Event(t=k / 25, frame=k, person=1, zone="bus", kind="energized",
-                             type="enter", onset_t=k / 25))  # fmt: skip
+            evs.append(
+                Event(
+                    t=k / 25,
+                    frame=k,
+                    person=1,
+                    zone="bus",
+                    kind="energized",
+                    type="enter",
+                    onset_t=k / 25,
+                )
+            )
         sink.write_events(evs)
 
     def ids() -> list[int]:
@@ -103,8 +124,11 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
     try:
         c = _client(http_port)
         write(10)
-        wait_until(lambda: _central(c, "north") == ids(), "the site's events through the bridge",
-                   timeout_s=60)  # fmt: skip
+        wait_until(
+            lambda: _central(c, "north") == ids(),
+            "the site's events through the bridge",
+            timeout_s=60,
+        )
         central.stop()  # the link is cut: the bridge and the control room lose the central side
         cut = time.monotonic()
         while time.monotonic() - cut < 5:
@@ -112,8 +136,7 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
             time.sleep(0.5)
         central.start()
         write(2)
-        wait_until(lambda: _central(c, "north") == ids(), "every event after the cut",
-                   timeout_s=60)  # fmt: skip
+        wait_until(lambda: _central(c, "north") == ids(), "every event after the cut", timeout_s=60)
         assert len(ids()) >= 40 and len(set(_central(c, "north"))) == len(ids())
         # the ACL: north's login cannot publish as south
         forger = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
@@ -152,8 +175,7 @@ def _ids(db: Path) -> list[int]:
 
 
 @pytest.mark.realdata
-def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_both_ways(
-        tmp_path):  # fmt: skip
+def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_both_ways(tmp_path):
     """The issue's whole scene: a site `serve` on the demo, its mosquitto bridged (the
     shipped configuration) to the central one, the control room on the central one. During a
     60-s cut of the central side the control room is killed and started again, an operator
@@ -179,11 +201,17 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
     )
     _add_user(config)
     _add(config, "olga", "operator")
-    site_config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", site_port,
-                                          imgsz=320)  # fmt: skip
-    site_config.write_text(site_config.read_text().replace(
-        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {site_broker.port}\nsite = "north"\n'
-        "outbox_resend_s = 5\n\n[serve]\n", 1))  # fmt: skip
+    site_config = write_serve_demo_config(
+        tmp_path / "demo", tmp_path / "data", site_port, imgsz=320
+    )
+    site_config.write_text(
+        site_config.read_text().replace(
+            "[serve]\n",
+            f'[mqtt]\nhost = "127.0.0.1"\nport = {site_broker.port}\nsite = "north"\n'
+            "outbox_resend_s = 5\n\n[serve]\n",
+            1,
+        )
+    )
     _add(site_config, "sam", "operator")
     db = tmp_path / "data" / "events.sqlite"
 
@@ -194,9 +222,12 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
 
     room = start_room()
     with open(tmp_path / "serve.log", "ab") as f:
-        serve = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve",
-                                  str(site_config)], stdout=f, stderr=subprocess.STDOUT,
-                                 env=ENV)  # fmt: skip
+        serve = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(site_config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+        )
     try:
         c = _client(http_port)
         olga = _login(http_port, "olga", "olga-password")
@@ -217,8 +248,12 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
         def unacked() -> list[int]:
             return sorted(i for i, r in central_incidents().items() if not r.get("acked_by"))
 
-        wait_until(lambda: len(unacked()) >= 2, "two incidents in the control room",
-                   timeout_s=180, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: len(unacked()) >= 2,
+            "two incidents in the control room",
+            timeout_s=180,
+            poll_s=0.5,
+        )
         first, second = unacked()[:2]
         central.stop()  # the cut: the bridge and the control room lose the central side
         cut = time.monotonic()
@@ -237,19 +272,34 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
             found = sam.get("/api/incidents", params={"limit": 1000}).json()["incidents"]
             return next(r for r in found if r["id"] == i)
 
-        wait_until(lambda: site_record(first).get("acked_by") == "olga via control-room",
-                   "the control room's ack at the site", timeout_s=60, poll_s=0.5)  # fmt: skip
-        wait_until(lambda: central_incidents()[second].get("acked_by") == "sam",
-                   "the site's ack in the control room", timeout_s=60, poll_s=0.5)  # fmt: skip
-        wait_until(lambda: central_incidents()[first].get("acked_by") == "olga via control-room",
-                   "the control room's ack back", timeout_s=60, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: site_record(first).get("acked_by") == "olga via control-room",
+            "the control room's ack at the site",
+            timeout_s=60,
+            poll_s=0.5,
+        )
+        wait_until(
+            lambda: central_incidents()[second].get("acked_by") == "sam",
+            "the site's ack in the control room",
+            timeout_s=60,
+            poll_s=0.5,
+        )
+        wait_until(
+            lambda: central_incidents()[first].get("acked_by") == "olga via control-room",
+            "the control room's ack back",
+            timeout_s=60,
+            poll_s=0.5,
+        )
         site = next(s for s in c.get("/api/sites").json()["sites"] if s["site"] == "north")
         assert site["state"] in ("live", "degraded") and site["cameras"] == 4
         # what the bridge dropped while cut is sent again from the site's log
         logged = _ids(db)
-        wait_until(lambda: set(logged) <= set(_central(c, "north")),
-                   "the events of the cut in the control room", timeout_s=60,
-                   poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: set(logged) <= set(_central(c, "north")),
+            "the events of the cut in the control room",
+            timeout_s=60,
+            poll_s=0.5,
+        )
         serve.send_signal(signal.SIGTERM)
         assert serve.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()[-3000:]
         stopped = time.monotonic()
@@ -257,19 +307,31 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
         def central_ids() -> list[int]:
             return _central(c, "north")
 
-        wait_until(lambda: central_ids() == _ids(db), "every event of the site, once",
-                   timeout_s=60, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: central_ids() == _ids(db),
+            "every event of the site, once",
+            timeout_s=60,
+            poll_s=0.5,
+        )
 
         def state() -> str:
-            return next(s for s in c.get("/api/sites").json()["sites"]
-                        if s["site"] == "north")["state"]  # fmt: skip
+            return next(s for s in c.get("/api/sites").json()["sites"] if s["site"] == "north")[
+                "state"
+            ]
 
         # offline within its allowance (offline_after_s 30) and the ingest's check, from the stop
         allowance = stopped + 30 + 15 - time.monotonic()
-        wait_until(lambda: state() == "offline", "the site offline within its allowance",
-                   timeout_s=max(allowance, 1.0), poll_s=0.5)  # fmt: skip
-        offline = [i for i in c.get("/api/incidents", params={"site": "north"}).json()["incidents"]
-                   if i.get("kind") == "site_offline"]  # fmt: skip
+        wait_until(
+            lambda: state() == "offline",
+            "the site offline within its allowance",
+            timeout_s=max(allowance, 1.0),
+            poll_s=0.5,
+        )
+        offline = [
+            i
+            for i in c.get("/api/incidents", params={"site": "north"}).json()["incidents"]
+            if i.get("kind") == "site_offline"
+        ]
         assert offline and offline[0]["state"] == "active"
     finally:
         if serve.poll() is None:

@@ -33,16 +33,29 @@ class Site:
         self.name, self.k = name, 0
         self.sink = SqliteSink(folder / f"{name}.sqlite", "site.toml", "test", wall_start=1.8e9)
         self.log = EventLog(folder / f"{name}.sqlite")
-        self.box = LogOutbox(MqttSettings(host="127.0.0.1", port=port, site=name,
-                                          reconnect_min_s=0.05, reconnect_max_s=0.2),
-                             self.log, resend_s=1.0)  # fmt: skip
+        self.box = LogOutbox(
+            MqttSettings(
+                host="127.0.0.1", port=port, site=name, reconnect_min_s=0.05, reconnect_max_s=0.2
+            ),
+            self.log,
+            resend_s=1.0,
+        )
 
     def write(self, n: int) -> None:
         evs = []
         for _ in range(n):
             self.k += 1
-            evs.append(Event(t=self.k / 25, frame=self.k, person=self.k % 2, zone="bus",
-                             kind="energized", type="enter", onset_t=self.k / 25))  # fmt: skip
+            evs.append(
+                Event(
+                    t=self.k / 25,
+                    frame=self.k,
+                    person=self.k % 2,
+                    zone="bus",
+                    kind="energized",
+                    type="enter",
+                    onset_t=self.k / 25,
+                )
+            )
         self.sink.write_events(evs)
 
     def ids(self) -> list[int]:
@@ -56,15 +69,33 @@ class Site:
 def _config(folder: Path, broker_port: int, http_port: int, extra: str = "") -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "control.toml"
-    path.write_text(f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
-                    f'host = "127.0.0.1"\nport = {broker_port}\n{extra}')  # fmt: skip
+    path.write_text(
+        f'output = "data"\n\n[serve]\nport = {http_port}\n\n[mqtt]\n'
+        f'host = "127.0.0.1"\nport = {broker_port}\n{extra}'
+    )
     return path
 
 
 def _add_user(config: Path) -> None:
-    add = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "add", "vera",
-                          "--role", "viewer", "--config", str(config)], input="vera-password\n",
-                         text=True, capture_output=True, env=ENV, timeout=60)  # fmt: skip
+    add = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereopose.cli",
+            "users",
+            "add",
+            "vera",
+            "--role",
+            "viewer",
+            "--config",
+            str(config),
+        ],
+        input="vera-password\n",
+        text=True,
+        capture_output=True,
+        env=ENV,
+        timeout=60,
+    )
     assert add.returncode == 0, add.stderr
 
 
@@ -104,8 +135,9 @@ def _central(c: httpx.Client, site: str) -> list[int]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("database", ["sqlite", "postgresql"])
-def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_path, request,
-                                                                         database):  # fmt: skip
+def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(
+    tmp_path, request, database
+):
     broker = Broker(tmp_path / "broker").start()
     http_port = free_port()
     extra, store_at = "", tmp_path / "room" / "data" / "control.sqlite"
@@ -141,8 +173,9 @@ def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_pa
         c = _client(http_port)
         a.write(3)
         wait_until(lambda: _central(c, "north") == a.ids(), "north after the kill", timeout_s=30)
-        wait_until(lambda: _central(c, "south/yard") == b.ids(), "south after the restart",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: _central(c, "south/yard") == b.ids(), "south after the restart", timeout_s=30
+        )
         sites = {s["site"]: s for s in c.get("/api/sites").json()["sites"]}
         assert set(sites) == {"north", "south/yard"}
         assert sites["north"]["events"] == len(a.ids()) == 38
@@ -172,24 +205,38 @@ def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(tmp_pa
 
 @pytest.mark.parametrize(
     ("extra", "message"),
-    [('[control_room]\ndatabase = "postgresql:fleet"\n', "a PostgreSQL URL reads"),
-     ('[control_room]\ndatabase = "postgresql://u:p@db/x"\ndatabase_password_file = "no"\n',
-      "give one of them"),
-     ("[control_room]\noffline_after_s = -1\n", "control_room.offline_after_s"),
-     ("[control_room]\nhost = 1\n", "unknown key")],
-)  # fmt: skip
+    [
+        ('[control_room]\ndatabase = "postgresql:fleet"\n', "a PostgreSQL URL reads"),
+        (
+            '[control_room]\ndatabase = "postgresql://u:p@db/x"\ndatabase_password_file = "no"\n',
+            "give one of them",
+        ),
+        ("[control_room]\noffline_after_s = -1\n", "control_room.offline_after_s"),
+        ("[control_room]\nhost = 1\n", "unknown key"),
+    ],
+)
 def test_a_bad_configuration_is_exit_2_naming_the_key(tmp_path, extra, message):
     config = _config(tmp_path, free_port(), free_port(), extra)
-    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
-                       capture_output=True, text=True, env=ENV, timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=60,
+    )
     assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_no_broker_configured_is_exit_2(tmp_path):
     config = tmp_path / "control.toml"
     config.write_text('output = "data"\n')
-    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
-                       capture_output=True, text=True, env=ENV, timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=60,
+    )
     assert r.returncode == 2 and "mqtt.host" in r.stderr, r.stderr
 
 
@@ -204,11 +251,16 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
     http_port = free_port()
     room_config = _config(tmp_path / "room", broker.port, http_port)
     _add_user(room_config)
-    site_config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
-                                          imgsz=320)  # fmt: skip
-    site_config.write_text(site_config.read_text().replace(
-        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n'
-        "[serve]\n", 1))  # fmt: skip
+    site_config = write_serve_demo_config(
+        tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320
+    )
+    site_config.write_text(
+        site_config.read_text().replace(
+            "[serve]\n",
+            f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n[serve]\n',
+            1,
+        )
+    )
     db = tmp_path / "data" / "events.sqlite"
 
     def site_ids() -> list[int]:
@@ -224,14 +276,20 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
 
     room = _start(room_config, tmp_path / "room.log")
     with open(tmp_path / "serve.log", "ab") as f:
-        serve = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve",
-                                  str(site_config)], stdout=f, stderr=subprocess.STDOUT,
-                                 env=ENV)  # fmt: skip
+        serve = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(site_config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+        )
     try:
         c = _client(http_port)
         wait_until(lambda: len(site_ids()) >= 3, "the site's events", timeout_s=120, poll_s=0.5)
-        wait_until(lambda: set(site_ids()[:3]) <= set(_central(c, "demo")),
-                   "them in the control room", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: set(site_ids()[:3]) <= set(_central(c, "demo")),
+            "them in the control room",
+            timeout_s=30,
+        )
         site = {s["site"]: s for s in c.get("/api/sites").json()["sites"]}["demo"]
         assert site["state"] in ("live", "degraded")  # degraded: its own health says so
         serve.send_signal(signal.SIGTERM)
@@ -242,8 +300,9 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
 
         wait_until(lambda: state() == "offline", "the site offline", timeout_s=30)
         # what the site stored, to its last event at the stop, is all there, each once
-        wait_until(lambda: _central(c, "demo") == site_ids(), "every event of the site",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: _central(c, "demo") == site_ids(), "every event of the site", timeout_s=30
+        )
     finally:
         if serve.poll() is None:
             serve.kill()
@@ -261,10 +320,26 @@ def _login(http_port: int, user: str, password: str) -> httpx.Client:
 
 
 def _add(config: Path, name: str, role: str, *more: str) -> None:
-    add = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "add", name,
-                          "--role", role, *more, "--config", str(config)],
-                         input=f"{name}-password\n", text=True, capture_output=True, env=ENV,
-                         timeout=60)  # fmt: skip
+    add = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereopose.cli",
+            "users",
+            "add",
+            name,
+            "--role",
+            role,
+            *more,
+            "--config",
+            str(config),
+        ],
+        input=f"{name}-password\n",
+        text=True,
+        capture_output=True,
+        env=ENV,
+        timeout=60,
+    )
     assert add.returncode == 0, add.stderr
 
 
@@ -274,17 +349,28 @@ def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
 
     broker = Broker(tmp_path / "broker").start()
     http_port = free_port()
-    config = _config(tmp_path / "room", broker.port, http_port,
-                     '[control_room]\nname = "utility-cr"\ncommand_resend_s = 0.5\n')  # fmt: skip
+    config = _config(
+        tmp_path / "room",
+        broker.port,
+        http_port,
+        '[control_room]\nname = "utility-cr"\ncommand_resend_s = 0.5\n',
+    )
     _add_user(config)  # vera, a viewer of every site
     _add(config, "olga", "operator", "--sites", "north")
-    listed = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "list",
-                             "--config", str(config)], capture_output=True, text=True, env=ENV,
-                            timeout=60)  # fmt: skip
+    listed = subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "users", "list", "--config", str(config)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=60,
+    )
     assert listed.stdout.split("\n")[0].split() == ["olga", "operator", "north"], listed.stdout
-    plan = {"zones": [{"name": "busbar", "kind": "energized",
-                       "polygon": [[0, 0], [2, 0], [2, 1], [0, 1]]}],
-            "console_url": "https://north.example.org:8787/"}  # fmt: skip
+    plan = {
+        "zones": [
+            {"name": "busbar", "kind": "energized", "polygon": [[0, 0], [2, 0], [2, 1], [0, 1]]}
+        ],
+        "console_url": "https://north.example.org:8787/",
+    }
     north = IncidentSite(tmp_path, broker.port, "north", plan=plan)
     south = IncidentSite(tmp_path, broker.port, "south")
     proc = _start(config, tmp_path / "room.log")
@@ -297,10 +383,17 @@ def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
             found = c.get("/api/incidents", params={"site": site}).json()["incidents"]
             return {i["id"]: i for i in found if i["source"] == "site"}
 
-        wait_until(lambda: n_inc in central(vera, "north") and s_inc in central(vera, "south"),
-                   "both sites' incidents", timeout_s=30)  # fmt: skip
-        wait_until(lambda: {s["site"] for s in vera.get("/api/sites").json()["sites"]}
-                   == {"north", "south"}, "both sites listed")  # fmt: skip
+        wait_until(
+            lambda: n_inc in central(vera, "north") and s_inc in central(vera, "south"),
+            "both sites' incidents",
+            timeout_s=30,
+        )
+        wait_until(
+            lambda: (
+                {s["site"] for s in vera.get("/api/sites").json()["sites"]} == {"north", "south"}
+            ),
+            "both sites listed",
+        )
         assert {s["site"] for s in olga.get("/api/sites").json()["sites"]} == {"north"}
         north_row = next(s for s in vera.get("/api/sites").json()["sites"] if s["site"] == "north")
         assert north_row["open_incidents"] == 1 and north_row["open_by_priority"] == {"1": 1}
@@ -313,25 +406,31 @@ def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
         assert olga.post("/api/sites/north/incidents/99999/ack").status_code == 404
         r = olga.post(f"/api/sites/north/incidents/{n_inc}/ack")
         assert r.status_code == 202 and r.json()["command"] is not None, r.text
-        wait_until(lambda: north.record(n_inc).acked_by == "olga via utility-cr",
-                   "the acknowledgement at the site", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: north.record(n_inc).acked_by == "olga via utility-cr",
+            "the acknowledgement at the site",
+            timeout_s=30,
+        )
         north.run()
-        wait_until(lambda: central(vera, "north")[n_inc].get("acked_by") == "olga via utility-cr",
-                   "the acknowledgement back", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: central(vera, "north")[n_inc].get("acked_by") == "olga via utility-cr",
+            "the acknowledgement back",
+            timeout_s=30,
+        )
         again = olga.post(f"/api/sites/north/incidents/{n_inc}/ack")
         assert again.status_code == 200 and again.json()["command"] is None
         # the site's page: its plan, its people followed while looked at, its console's link
         page = olga.get("/api/sites/north/plan").json()
-        wait_until(lambda: olga.get("/api/sites/north/plan").json()["plan"] == plan,
-                   "the site's plan")  # fmt: skip
+        wait_until(
+            lambda: olga.get("/api/sites/north/plan").json()["plan"] == plan, "the site's plan"
+        )
         assert page["site"] == "north"
         assert olga.get("/api/sites/north/plan").json()["console_url"] == plan["console_url"]
         # the console's page and its files, with the site console's headers
         root = httpx.get(f"http://127.0.0.1:{http_port}/")
         assert root.status_code == 200 and "control room" in root.text
         assert "default-src 'self'" in root.headers["content-security-policy"]
-        for path in ("/room/room.js", "/room/room.css", "/console/console.css",
-                     "/console/api.js"):  # fmt: skip
+        for path in ("/room/room.js", "/room/room.css", "/console/console.css", "/console/api.js"):
             assert httpx.get(f"http://127.0.0.1:{http_port}{path}").status_code == 200, path
         assert httpx.get(f"http://127.0.0.1:{http_port}/room/%2e%2e/page.py").status_code == 404
         metrics = vera.get("/metrics").text

@@ -31,8 +31,9 @@ WALL_START = 1.8e9
 
 
 def _settings(port: int, site: str = "north") -> MqttSettings:
-    return MqttSettings(host="127.0.0.1", port=port, site=site, reconnect_min_s=0.05,
-                        reconnect_max_s=0.2)  # fmt: skip
+    return MqttSettings(
+        host="127.0.0.1", port=port, site=site, reconnect_min_s=0.05, reconnect_max_s=0.2
+    )
 
 
 class _Script:
@@ -52,22 +53,40 @@ class Site:
 
     def __init__(self, folder: Path, port: int, name: str = "north", **box) -> None:
         self.t, self.frame = 0.0, 0
-        self.sink = SqliteSink(folder / f"{name}.sqlite", "site.toml", "test",
-                               wall_start=WALL_START)  # fmt: skip
+        self.sink = SqliteSink(
+            folder / f"{name}.sqlite", "site.toml", "test", wall_start=WALL_START
+        )
         self.script = _Script()
-        self.step = IncidentStep(IncidentBook(), self.script, None, None,
-                                 store=self.sink.put_incidents, outputs=[],
-                                 clock=lambda: self.t, wall_start=WALL_START)  # fmt: skip
-        self.box = LogOutbox(_settings(port, name), EventLog(folder / f"{name}.sqlite"),
-                             acknowledger=self.step.acknowledge, **box)  # fmt: skip
+        self.step = IncidentStep(
+            IncidentBook(),
+            self.script,
+            None,
+            None,
+            store=self.sink.put_incidents,
+            outputs=[],
+            clock=lambda: self.t,
+            wall_start=WALL_START,
+        )
+        self.box = LogOutbox(
+            _settings(port, name),
+            EventLog(folder / f"{name}.sqlite"),
+            acknowledger=self.step.acknowledge,
+            **box,
+        )
 
     def run(self, *events: Event) -> list[Event]:
         self.frame += 1
         self.t = max(self.t + 0.1, *(e.t for e in events)) if events else self.t + 0.1
         self.script.next = list(events)
-        p = People3D(frame=self.frame, joints=np.zeros((0, 17, 3)), conf=np.ones((0, 17)),
-                     ids=np.arange(0), reprojection_px=np.zeros((0, 17)),
-                     views=np.full((0, 17), 2), detections=np.zeros((0, 2), dtype=int))  # fmt: skip
+        p = People3D(
+            frame=self.frame,
+            joints=np.zeros((0, 17, 3)),
+            conf=np.ones((0, 17)),
+            ids=np.arange(0),
+            reprojection_px=np.zeros((0, 17)),
+            views=np.full((0, 17), 2),
+            detections=np.zeros((0, 2), dtype=int),
+        )
         out, _ = self.step.step(self.t, self.frame, p)
         self.sink.write_events(out)
         self.box.wake()
@@ -75,8 +94,17 @@ class Site:
 
     def enter(self, zone: str = "busbar", person: int = 7, type_: str = "enter") -> int:
         t = self.t + 0.1
-        out = self.run(Event(t=t, frame=self.frame + 1, person=person, zone=zone,
-                             kind="energized", type=type_, onset_t=t))  # fmt: skip
+        out = self.run(
+            Event(
+                t=t,
+                frame=self.frame + 1,
+                person=person,
+                zone=zone,
+                kind="energized",
+                type=type_,
+                onset_t=t,
+            )
+        )
         return out[0].incident
 
     def record(self, incident: int):
@@ -97,8 +125,13 @@ def broker(tmp_path: Path):
 @pytest.fixture
 def room(broker, tmp_path: Path):
     store = ControlStore(tmp_path / "control.sqlite")
-    ingest = Ingest(_settings(broker.port, "unused"), store, command_resend_s=0.5,
-                    replay_every_s=0.2, name="central")  # fmt: skip
+    ingest = Ingest(
+        _settings(broker.port, "unused"),
+        store,
+        command_resend_s=0.5,
+        replay_every_s=0.2,
+        name="central",
+    )
     wait_until(lambda: ingest.subscribed, "the control room subscribed")
     yield store, ingest
     ingest.close()
@@ -122,8 +155,10 @@ def test_a_sites_incidents_are_held_centrally_with_their_latest_state(broker, ro
         assert _central(store, "north", first)["state"] == "active"
         site.enter(type_="exit")
         site.enter()  # a re-entry: the same incident, one more occurrence
-        wait_until(lambda: (_central(store, "north", first) or {}).get("occurrences") == 2,
-                   "its second occurrence")  # fmt: skip
+        wait_until(
+            lambda: (_central(store, "north", first) or {}).get("occurrences") == 2,
+            "its second occurrence",
+        )
         other = site.enter(zone="feeder", person=3)
         assert other != first
         wait_until(lambda: _central(store, "north", other) is not None, "the second incident")
@@ -146,8 +181,10 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
         command = ingest.ask_ack("north", inc, "olga")
         wait_until(lambda: site.record(inc).acked_by == "olga via central", "the site's ack")
         site.run()  # the change is stored with the site's next step, as every change is
-        wait_until(lambda: (_central(store, "north", inc) or {}).get("acked_by")
-                   == "olga via central", "the ack back in the control room")  # fmt: skip
+        wait_until(
+            lambda: (_central(store, "north", inc) or {}).get("acked_by") == "olga via central",
+            "the ack back in the control room",
+        )
         assert _central(store, "north", inc)["state"] == "acknowledged"
         wait_until(lambda: not store.pending_commands(), "the command answered")
         assert ingest.figures()["commands_done"] == 1
@@ -158,7 +195,9 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
         with store._reading("read the commands") as run:
             results = dict(run("SELECT id, result FROM commands").fetchall())
         assert results[command] == "acknowledged" and sorted(results.values()) == [
-            "acknowledged", "already"]  # fmt: skip
+            "acknowledged",
+            "already",
+        ]
         # an incident the site does not hold: answered unknown, not asked for ever
         ingest.ask_ack("north", 10_000, "olga")
         wait_until(lambda: not store.pending_commands(), "the unknown one answered")
@@ -167,8 +206,10 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
         wait_until(lambda: _central(store, "north", other) is not None, "the second incident")
         site.step.acknowledge(other, "sam")
         site.run()  # the change is stored with the next step
-        wait_until(lambda: (_central(store, "north", other) or {}).get("acked_by") == "sam",
-                   "the site's ack in the control room")  # fmt: skip
+        wait_until(
+            lambda: (_central(store, "north", other) or {}).get("acked_by") == "sam",
+            "the site's ack in the control room",
+        )
     finally:
         site.close()
 
@@ -183,19 +224,22 @@ def test_an_ack_asked_while_the_broker_is_away_arrives_when_it_is_back(broker, r
         ingest.ask_ack("north", inc, "olga")  # stored; sent again until answered
         site.enter(zone="feeder", person=3)  # the site goes on meanwhile
         broker.start()
-        wait_until(lambda: site.record(inc).acked_by == "olga via central", "the site's ack",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: site.record(inc).acked_by == "olga via central", "the site's ack", timeout_s=30
+        )
         site.run()
-        wait_until(lambda: (_central(store, "north", inc) or {}).get("state") == "acknowledged",
-                   "the ack back", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: (_central(store, "north", inc) or {}).get("state") == "acknowledged",
+            "the ack back",
+            timeout_s=30,
+        )
         wait_until(lambda: not store.pending_commands(), "the command answered", timeout_s=30)
         assert len(store.incidents(site="north")) == 2
     finally:
         site.close()
 
 
-def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker, room,
-                                                                          tmp_path):  # fmt: skip
+def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker, room, tmp_path):
     store, _ingest = room
     site = Site(tmp_path, broker.port, heartbeat_s=0.2)
     try:
@@ -208,10 +252,13 @@ def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker
             beat = {"last_id": 0, "time": 0.0}
 
             def ahead() -> bool:
-                c.publish("stereopose/east/log/heartbeat",
-                          json.dumps({**beat, "time": time.time() + 60}))  # fmt: skip
-                return any(i["kind"] == "site_clock" and i["state"] == "active"
-                           for i in store.incidents(site="east"))  # fmt: skip
+                c.publish(
+                    "stereopose/east/log/heartbeat", json.dumps({**beat, "time": time.time() + 60})
+                )
+                return any(
+                    i["kind"] == "site_clock" and i["state"] == "active"
+                    for i in store.incidents(site="east")
+                )
 
             wait_until(ahead, "the clock incident", poll_s=0.3)
             clock = next(i for i in store.incidents(site="east") if i["kind"] == "site_clock")
@@ -219,29 +266,36 @@ def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker
             assert "+60" in clock["detail"]
 
             def right() -> bool:
-                c.publish("stereopose/east/log/heartbeat",
-                          json.dumps({**beat, "time": time.time()}))  # fmt: skip
+                c.publish(
+                    "stereopose/east/log/heartbeat", json.dumps({**beat, "time": time.time()})
+                )
                 return store.incidents(site="east")[0]["state"] == "cleared"
 
             wait_until(right, "the clock incident cleared", poll_s=0.3)
             # malformed commands at a site: counted, never acted on
             c.publish("stereopose/north/commands/ack", b"{not json", qos=1)
-            c.publish("stereopose/north/commands/ack",
-                      json.dumps({"command": "1", "incident": "x", "by": "a", "from": "b"}),
-                      qos=1)  # fmt: skip
+            c.publish(
+                "stereopose/north/commands/ack",
+                json.dumps({"command": "1", "incident": "x", "by": "a", "from": "b"}),
+                qos=1,
+            )
             wait_until(lambda: site.box.figures()["malformed"] == 2, "the bad commands counted")
             # the site's availability gone offline (its last will, or a clean stop): an
             # incident of the control room's, acknowledged there; back online: closed
             c.publish("stereopose/north/available", b"offline", qos=1, retain=True)
-            wait_until(lambda: _room_states(store, "north", "site_offline") == ["active"],
-                       "the offline incident")  # fmt: skip
+            wait_until(
+                lambda: _room_states(store, "north", "site_offline") == ["active"],
+                "the offline incident",
+            )
             offline = [i for i in store.incidents(site="north") if i.get("kind") == "site_offline"]
             acked = store.ack_room_incident(offline[0]["id"], "olga", 1.0)
             assert acked["state"] == "acknowledged" and acked["acked_by"] == "olga"
             assert store.open_counts()["north"]["2"] == 1
             c.publish("stereopose/north/available", b"online", qos=1, retain=True)
-            wait_until(lambda: _room_states(store, "north", "site_offline") == ["closed"],
-                       "the offline incident closed")  # fmt: skip
+            wait_until(
+                lambda: _room_states(store, "north", "site_offline") == ["closed"],
+                "the offline incident closed",
+            )
         finally:
             c.loop_stop()
             c.disconnect()

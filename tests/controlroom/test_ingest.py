@@ -23,8 +23,9 @@ from waiting import wait_until
 
 
 def _settings(port: int, site: str = "north") -> MqttSettings:
-    return MqttSettings(host="127.0.0.1", port=port, site=site, reconnect_min_s=0.05,
-                        reconnect_max_s=0.2)  # fmt: skip
+    return MqttSettings(
+        host="127.0.0.1", port=port, site=site, reconnect_min_s=0.05, reconnect_max_s=0.2
+    )
 
 
 @pytest.fixture
@@ -35,9 +36,20 @@ def broker(tmp_path: Path):
 
 
 def _write(sink: SqliteSink, start: int, n: int) -> None:
-    sink.write_events([Event(t=k / 25, frame=k, person=1, zone="bus", kind="energized",
-                             type="enter", onset_t=k / 25)
-                       for k in range(start, start + n)])  # fmt: skip
+    sink.write_events(
+        [
+            Event(
+                t=k / 25,
+                frame=k,
+                person=1,
+                zone="bus",
+                kind="energized",
+                type="enter",
+                onset_t=k / 25,
+            )
+            for k in range(start, start + n)
+        ]
+    )
 
 
 def test_the_last_events_lost_are_found_by_the_heartbeat(broker, tmp_path):
@@ -51,8 +63,10 @@ def test_the_last_events_lost_are_found_by_the_heartbeat(broker, tmp_path):
         wait_until(lambda: store.marks().get("north") == 3, "the first events")
         ingest.close()  # the control room away: the next two reach nobody
         _write(sink, 4, 2)
-        wait_until(lambda: box.figures()["cursor"] == 5 and box.figures()["unacknowledged"] == 0,
-                   "the broker taking them")  # fmt: skip
+        wait_until(
+            lambda: box.figures()["cursor"] == 5 and box.figures()["unacknowledged"] == 0,
+            "the broker taking them",
+        )
         ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
         wait_until(lambda: ingest.subscribed, "the control room back")
         # nothing later shows the gap, and the outbox does not resend (resend_s = 0): only
@@ -79,12 +93,14 @@ def test_malformed_events_and_heartbeats_are_counted_never_stored(broker, tmp_pa
     try:
         wait_until(lambda: ingest.subscribed, "the ingest subscribed")
         wait_until(lambda: c.is_connected(), "the client connected")
-        bad = [("stereopose/x/log/events", b"not json"),
-               ("stereopose/x/log/events", b'{"id": "1", "prev": 0}'),
-               ("stereopose/x/log/events", b'{"id": 1, "prev": -1}'),
-               ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "site": "y"}'),
-               ("stereopose/x/log/heartbeat", b'{"last_id": "many"}'),
-               ("stereopose/x/log/heartbeat", b"\xff")]  # fmt: skip
+        bad = [
+            ("stereopose/x/log/events", b"not json"),
+            ("stereopose/x/log/events", b'{"id": "1", "prev": 0}'),
+            ("stereopose/x/log/events", b'{"id": 1, "prev": -1}'),
+            ("stereopose/x/log/events", b'{"id": 1, "prev": 0, "site": "y"}'),
+            ("stereopose/x/log/heartbeat", b'{"last_id": "many"}'),
+            ("stereopose/x/log/heartbeat", b"\xff"),
+        ]
         for topic, payload in bad:
             c.publish(topic, payload, qos=1).wait_for_publish(5)
         wait_until(
@@ -132,8 +148,9 @@ def test_a_pruned_event_sent_again_is_not_stored_again(broker, tmp_path):
 
 def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
-    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
-                    heartbeat_s=0.3)  # fmt: skip
+    box = LogOutbox(
+        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+    )
     store = ControlStore(tmp_path / "control.sqlite")
     ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
@@ -158,11 +175,12 @@ def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(bro
                 c.publish(topic, payload, qos=1).wait_for_publish(5)
         _write(sink, 10, 3)
         # every real event stored exactly once, the attacks counted and refused
-        wait_until(lambda: store.marks().get("north") == 12, "the real site's events",
-                   timeout_s=30)  # fmt: skip
+        wait_until(lambda: store.marks().get("north") == 12, "the real site's events", timeout_s=30)
         assert [e["id"] for e in store.events("north", 0, 100)] == list(range(1, 13))
-        wait_until(lambda: ingest.figures()["malformed"] >= 3 * (len(hostile) - 1),
-                   f"the attacks counted {ingest.figures()}")  # fmt: skip
+        wait_until(
+            lambda: ingest.figures()["malformed"] >= 3 * (len(hostile) - 1),
+            f"the attacks counted {ingest.figures()}",
+        )
         assert all(e["site"] == "north" for e in store.events(None, 0, 100))
         assert "x" not in ingest.known_sites()
         assert ingest._thread.is_alive() and ingest.connected
@@ -176,17 +194,28 @@ def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(bro
 
 
 def _room_kinds(store: ControlStore) -> dict[tuple[str, str], str]:
-    return {(i["site"], i["kind"]): i["state"] for i in store.incidents()
-            if i["source"] == "control_room"}  # fmt: skip
+    return {
+        (i["site"], i["kind"]): i["state"]
+        for i in store.incidents()
+        if i["source"] == "control_room"
+    }
 
 
 def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
-    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
-                    heartbeat_s=0.3)  # fmt: skip
+    box = LogOutbox(
+        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+    )
     store = ControlStore(tmp_path / "control.sqlite")
-    ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2, max_sites=3,
-                    max_event_bytes=4096, max_heartbeat_bytes=1024, ids_ahead=1000)  # fmt: skip
+    ingest = Ingest(
+        _settings(broker.port, "unused"),
+        store,
+        replay_every_s=0.2,
+        max_sites=3,
+        max_event_bytes=4096,
+        max_heartbeat_bytes=1024,
+        ids_ahead=1000,
+    )
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     c.connect("127.0.0.1", broker.port)
     c.loop_start()
@@ -201,32 +230,41 @@ def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(br
         wait_until(lambda: "north" in ingest._announced, "the real site's heartbeat")
         # a forged id far beyond what the site announced: refused, an incident, no new mark
         send("stereopose/north/log/events", b'{"id": 9223372036854775807, "prev": 3}')
-        wait_until(lambda: ("north", "site_ids_ahead") in _room_kinds(store),
-                   "the forged id's incident")  # fmt: skip
+        wait_until(
+            lambda: ("north", "site_ids_ahead") in _room_kinds(store), "the forged id's incident"
+        )
         assert ingest.figures()["ahead"] >= 1 and store.marks()["north"] == 3
         # too large: an event, a heartbeat (its summary); a string past its bound
         send("stereopose/north/log/events", b'{"id": 4, "prev": 3, "x": "%s"}' % (b"a" * 5000))
-        send("stereopose/north/log/heartbeat",
-             b'{"last_id": 3, "time": 1.0, "status": "%s"}' % (b"a" * 5_000_000))  # fmt: skip
-        send("stereopose/north/log/events",
-             b'{"id": 4, "prev": 3, "k": ["%s"]}' % (b"b" * 4000))  # fmt: skip
+        send(
+            "stereopose/north/log/heartbeat",
+            b'{"last_id": 3, "time": 1.0, "status": "%s"}' % (b"a" * 5_000_000),
+        )
+        send("stereopose/north/log/events", b'{"id": 4, "prev": 3, "k": ["%s"]}' % (b"b" * 4000))
         wait_until(lambda: ingest.figures()["oversize"] >= 2, "the large messages refused")
         # a heartbeat's summary holds its fields, checked, and nothing else
-        send("stereopose/north/log/heartbeat",
-             b'{"last_id": 3, "time": 1.0, "status": "%s", "people": -1, "cameras": 4, '
-             b'"junk": [1, 2, 3]}' % (b"s" * 200))  # fmt: skip
-        wait_until(lambda: (store.sites(["north"])[0].health or {}).get("cameras") == 4,
-                   "the checked summary stored")  # fmt: skip
+        send(
+            "stereopose/north/log/heartbeat",
+            b'{"last_id": 3, "time": 1.0, "status": "%s", "people": -1, "cameras": 4, '
+            b'"junk": [1, 2, 3]}' % (b"s" * 200),
+        )
+        wait_until(
+            lambda: (store.sites(["north"])[0].health or {}).get("cameras") == 4,
+            "the checked summary stored",
+        )
         # names: at most 3 sites (north and two); the rest refused, one incident
         for k in range(20):
             send(f"stereopose/invented{k}/available", b"online")
-        wait_until(lambda: ("control-room", "sites_refused") in _room_kinds(store),
-                   "the refused names' incident")  # fmt: skip
+        wait_until(
+            lambda: ("control-room", "sites_refused") in _room_kinds(store),
+            "the refused names' incident",
+        )
         assert len(store.sites()) <= 3 and ingest.figures()["refused_sites"] >= 18
         # the real site goes on: every event stored once, none lost to the attacks
         _write(sink, 4, 3)
-        wait_until(lambda: store.marks().get("north") == 6, "the real site's later events",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: store.marks().get("north") == 6, "the real site's later events", timeout_s=30
+        )
         assert [e["id"] for e in store.events("north", 0, 100)] == list(range(1, 7))
         health = store.sites(["north"])[0].health or {}
         assert "status" not in health or len(health["status"]) <= 32
@@ -244,8 +282,9 @@ def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(br
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
 def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
-    box = LogOutbox(_settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5,
-                    heartbeat_s=0.3)  # fmt: skip
+    box = LogOutbox(
+        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+    )
     store = ControlStore(tmp_path / "control.sqlite")
     ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
     step = ingest._step
@@ -262,8 +301,9 @@ def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(brok
         _write(sink, 1, 3)
         ingest.ensure_running()
         assert ingest.figures()["restarts"] == 1
-        wait_until(lambda: store.marks().get("north") == 3, "the events after the restart",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: store.marks().get("north") == 3, "the events after the restart", timeout_s=30
+        )
         assert ingest.health() == (True, "")
         # paho's thread ended the same way: health says so, and it is started again
         message = ingest._message
@@ -278,8 +318,9 @@ def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(brok
         assert "MQTT client" in ingest.health()[1]
         ingest.ensure_running()
         assert ingest.figures()["restarts"] == 2
-        wait_until(lambda: store.marks().get("north") == 8, "the events after paho's restart",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: store.marks().get("north") == 8, "the events after paho's restart", timeout_s=30
+        )
         assert ingest.health() == (True, "")
     finally:
         ingest.close()

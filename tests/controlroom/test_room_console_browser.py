@@ -23,8 +23,15 @@ from waiting import wait_until
 pytestmark = pytest.mark.slow
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-sync",
-        "--disable-background-networking", "--disable-component-update"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-sync",
+    "--disable-background-networking",
+    "--disable-component-update",
+]
 
 
 @pytest.fixture(scope="module")
@@ -63,13 +70,17 @@ def _eval(page, script: str, arg=None):
 def test_the_control_rooms_console_in_a_browser(browser, tmp_path):
     broker = Broker(tmp_path / "broker").start()
     http_port = free_port()
-    config = _config(tmp_path / "room", broker.port, http_port,
-                     "[control_room]\ncommand_resend_s = 0.5\n")  # fmt: skip
+    config = _config(
+        tmp_path / "room", broker.port, http_port, "[control_room]\ncommand_resend_s = 0.5\n"
+    )
     _add_user(config)  # vera, a viewer
     _add(config, "olga", "operator")
-    plan = {"zones": [{"name": "busbar", "kind": "energized",
-                       "polygon": [[0, 0], [3, 0], [3, 1], [0, 1]]}],
-            "console_url": "http://127.0.0.1:1/"}  # fmt: skip
+    plan = {
+        "zones": [
+            {"name": "busbar", "kind": "energized", "polygon": [[0, 0], [3, 0], [3, 1], [0, 1]]}
+        ],
+        "console_url": "http://127.0.0.1:1/",
+    }
     north = Site(tmp_path, broker.port, "north", plan=plan)
     south = Site(tmp_path, broker.port, "south")
     proc = _start(config, tmp_path / "room.log")
@@ -77,37 +88,60 @@ def test_the_control_rooms_console_in_a_browser(browser, tmp_path):
     try:
         c = _client(http_port)
         n_inc, _ = north.enter(), south.enter()
-        wait_until(lambda: len(c.get("/api/incidents").json()["incidents"]) == 2,
-                   "both incidents in the control room", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: len(c.get("/api/incidents").json()["incidents"]) == 2,
+            "both incidents in the control room",
+            timeout_s=30,
+        )
         base = f"http://127.0.0.1:{http_port}"
         ctx, page = _login(browser, base, "olga", "olga-password", seen)
-        wait_until(lambda: _eval(page, "document.querySelectorAll('#sites-body tr').length") == 2,
-                   "both sites listed", timeout_s=20)  # fmt: skip
-        row = _eval(page, "[...document.querySelectorAll('#sites-body tr')].map(r => "
-                          "r.innerText)")  # fmt: skip
+        wait_until(
+            lambda: _eval(page, "document.querySelectorAll('#sites-body tr').length") == 2,
+            "both sites listed",
+            timeout_s=20,
+        )
+        row = _eval(page, "[...document.querySelectorAll('#sites-body tr')].map(r => r.innerText)")
         assert any("north" in r and "live" in r for r in row), row
         line = f'#room-feed li[data-site="north"][data-incident="{n_inc}"]'
-        wait_until(lambda: _eval(page, "(s) => !!document.querySelector(s + ' .ack-button')",
-                                 line), "north's incident with its Ack", timeout_s=20)  # fmt: skip
+        wait_until(
+            lambda: _eval(page, "(s) => !!document.querySelector(s + ' .ack-button')", line),
+            "north's incident with its Ack",
+            timeout_s=20,
+        )
         assert "north" in page.inner_text(line)
         assert _eval(page, "document.getElementById('alarm-count').textContent") == "2"
         page.click(f"{line} .ack-button")
-        wait_until(lambda: north.record(n_inc).acked_by == "olga via control-room",
-                   "the ack at the site", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: north.record(n_inc).acked_by == "olga via control-room",
+            "the ack at the site",
+            timeout_s=30,
+        )
         north.run()
-        wait_until(lambda: "acknowledged by olga via control-room" in page.inner_text(line),
-                   "the ack shown as the site recorded it", timeout_s=30)  # fmt: skip
-        wait_until(lambda: _eval(page, "document.getElementById('alarm-count').textContent")
-                   == "1", "one left unacknowledged", timeout_s=20)  # fmt: skip
+        wait_until(
+            lambda: "acknowledged by olga via control-room" in page.inner_text(line),
+            "the ack shown as the site recorded it",
+            timeout_s=30,
+        )
+        wait_until(
+            lambda: _eval(page, "document.getElementById('alarm-count').textContent") == "1",
+            "one left unacknowledged",
+            timeout_s=20,
+        )
         # the site's page: its zones, and a link to its console
         page.click('#sites-body tr[data-site="north"]')
-        wait_until(lambda: _eval(page, "document.querySelectorAll('#site-zones [data-zone]')"
-                                       ".length") == 1, "north's zones", timeout_s=20)  # fmt: skip
+        wait_until(
+            lambda: _eval(page, "document.querySelectorAll('#site-zones [data-zone]').length") == 1,
+            "north's zones",
+            timeout_s=20,
+        )
         assert _eval(page, "document.getElementById('site-console').href") == plan["console_url"]
         ctx.close()
         ctx, page = _login(browser, base, "vera", "vera-password", seen)
-        wait_until(lambda: _eval(page, "document.querySelectorAll('#room-feed li').length") == 2,
-                   "the viewer's feed", timeout_s=20)  # fmt: skip
+        wait_until(
+            lambda: _eval(page, "document.querySelectorAll('#room-feed li').length") == 2,
+            "the viewer's feed",
+            timeout_s=20,
+        )
         assert _eval(page, "document.querySelectorAll('#room-feed .ack-button').length") == 0
         ctx.close()
     finally:

@@ -25,15 +25,36 @@ def store(request, tmp_path):
 
 
 def _events(ids, site="north"):
-    return [{"id": i, "prev": i - 1, "site": site, "type": "enter", "zone": "bus",
-             "person": 2, "wall_t": 1.8e9 + i, "incident": 1, "priority": 1}
-            for i in ids]  # fmt: skip
+    return [
+        {
+            "id": i,
+            "prev": i - 1,
+            "site": site,
+            "type": "enter",
+            "zone": "bus",
+            "person": 2,
+            "wall_t": 1.8e9 + i,
+            "incident": 1,
+            "priority": 1,
+        }
+        for i in ids
+    ]
 
 
 def _change(seq, incident=1, state="active", acked_by=None):
-    return {"seq": seq, "incident": {"id": incident, "state": state, "priority": 1,
-                                     "zone": "bus", "person": 2, "last_wall_t": 1.8e9 + seq,
-                                     "acked_by": acked_by, "occurrences": seq}}  # fmt: skip
+    return {
+        "seq": seq,
+        "incident": {
+            "id": incident,
+            "state": state,
+            "priority": 1,
+            "zone": "bus",
+            "person": 2,
+            "last_wall_t": 1.8e9 + seq,
+            "acked_by": acked_by,
+            "occurrences": seq,
+        },
+    }
 
 
 def test_each_event_once_and_the_marks_only_rise(store):
@@ -111,14 +132,17 @@ def test_a_store_that_cannot_be_reached_is_a_clear_error_without_its_password(po
     with pytest.raises(StoreError) as e:
         ControlStore(url)
     assert "sekrit-word" not in str(e.value) and "cannot open the control room's store" in str(
-        e.value)  # fmt: skip
+        e.value
+    )
     assert shown_database(url) == f"postgresql://stereopose:***@127.0.0.1:{postgres.port + 1}/none"
 
 
 def test_many_sites_in_one_transaction(store):
     new, written = store.put_batch(
         {"north": (_events([1, 2]), 2), "south": (_events([1], "south"), 1)},
-        {"north": ([_change(1), _change(2, state="cleared")], 2)}, 10.0)  # fmt: skip
+        {"north": ([_change(1), _change(2, state="cleared")], 2)},
+        10.0,
+    )
     assert (new, written) == (3, 2)  # incident 1 written twice, its newer record last
     assert store.incident("north", 1)["state"] == "cleared"
     new, _ = store.put_batch({"north": (_events([2, 3]), 3)}, {}, 11.0)

@@ -26,8 +26,9 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
     url = postgres.database("workers")
     extra = f'[control_room]\ndatabase = "{url}"\nshared_group = "room"\ncommand_resend_s = 1\n'
     ports = [free_port(), free_port()]
-    configs = [_config(tmp_path / f"w{i}", broker.port, port, extra)
-               for i, port in enumerate(ports)]  # fmt: skip
+    configs = [
+        _config(tmp_path / f"w{i}", broker.port, port, extra) for i, port in enumerate(ports)
+    ]
     for config in configs:  # each worker's users (its folder); one store
         _add_user(config)
         _add(config, "olga", "operator")
@@ -46,8 +47,11 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
             name = s.box.settings.site
             ids = [e["id"] for e in s.box.log.after(0, limit=10_000)]
             for c in clients:  # either worker's API answers for every site
-                wait_until(lambda c=c, name=name, ids=ids: _central(c, name) == ids,
-                           f"{name}'s events once", timeout_s=60)  # fmt: skip
+                wait_until(
+                    lambda c=c, name=name, ids=ids: _central(c, name) == ids,
+                    f"{name}'s events once",
+                    timeout_s=60,
+                )
         figures = [c.get("/api/health").json()["ingest"] for c in clients]
         assert all(f["messages"] > 0 for f in figures), figures  # both took a share
         # an ack asked at the second worker: the site's answer may reach either
@@ -55,11 +59,17 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
         inc = incidents["north"]
         assert olga.post(f"/api/sites/north/incidents/{inc}/ack").status_code == 202
         north = sites[0]
-        wait_until(lambda: north.record(inc).acked_by == "olga via control-room",
-                   "the ack at the site", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: north.record(inc).acked_by == "olga via control-room",
+            "the ack at the site",
+            timeout_s=30,
+        )
         north.run()
-        wait_until(lambda: (store.incident("north", inc) or {}).get("acked_by")
-                   == "olga via control-room", "the ack in the store", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: (store.incident("north", inc) or {}).get("acked_by") == "olga via control-room",
+            "the ack in the store",
+            timeout_s=30,
+        )
         wait_until(lambda: store.pending_commands() == [], "the command answered", timeout_s=30)
         # one worker gone: the other takes every message
         procs[0].send_signal(signal.SIGKILL)
@@ -69,8 +79,11 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
         for s in sites:
             name = s.box.settings.site
             ids = [e["id"] for e in s.box.log.after(0, limit=10_000)]
-            wait_until(lambda name=name, ids=ids: _central(clients[1], name) == ids,
-                       f"{name} after a worker died", timeout_s=60)  # fmt: skip
+            wait_until(
+                lambda name=name, ids=ids: _central(clients[1], name) == ids,
+                f"{name} after a worker died",
+                timeout_s=60,
+            )
     finally:
         for p in procs:
             if p.poll() is None:
@@ -84,6 +97,11 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
 
 def test_a_shared_group_without_postgresql_is_exit_2(tmp_path):
     config = _config(tmp_path, free_port(), free_port(), '[control_room]\nshared_group = "g"\n')
-    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
-                       capture_output=True, text=True, env=ENV, timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "control-room", str(config)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=60,
+    )
     assert r.returncode == 2 and "control_room.shared_group" in r.stderr, r.stderr

@@ -29,10 +29,18 @@ ALL = [TENSORRT, CUDA, CPU]
 
 @pytest.mark.parametrize(
     ("device", "expected"),
-    [("cpu", ("cpu", 0)), ("auto", ("auto", 0)), ("cuda", ("cuda", 0)), ("gpu", ("cuda", 0)),
-     ("cuda:2", ("cuda", 2)), ("3", ("cuda", 3)), (" CUDA:1 ", ("cuda", 1)),
-     ("tensorrt", ("tensorrt", 0)), ("tensorrt:1", ("tensorrt", 1))],
-)  # fmt: skip
+    [
+        ("cpu", ("cpu", 0)),
+        ("auto", ("auto", 0)),
+        ("cuda", ("cuda", 0)),
+        ("gpu", ("cuda", 0)),
+        ("cuda:2", ("cuda", 2)),
+        ("3", ("cuda", 3)),
+        (" CUDA:1 ", ("cuda", 1)),
+        ("tensorrt", ("tensorrt", 0)),
+        ("tensorrt:1", ("tensorrt", 1)),
+    ],
+)
 def test_a_device_names_a_kind_and_a_gpu(device, expected):
     assert parse_device(device) == expected
 
@@ -74,11 +82,13 @@ def test_tensorrt_first_then_cuda_for_what_it_leaves_then_the_cpu(tmp_path):
 
 @pytest.mark.parametrize(
     ("device", "available", "message"),
-    [("cuda", [CPU], r"no CUDA provider \(available: CPUExecutionProvider\)"),
-     ("cuda:1", [], r"no CUDA provider \(available: none\)"),
-     ("tensorrt", [CUDA, CPU], r"no TensorRT provider \(available: CUDAExecutionProvider, CPU"),
-     ("tensorrt:0", [CPU], "no TensorRT or CUDA provider")],
-)  # fmt: skip
+    [
+        ("cuda", [CPU], r"no CUDA provider \(available: CPUExecutionProvider\)"),
+        ("cuda:1", [], r"no CUDA provider \(available: none\)"),
+        ("tensorrt", [CUDA, CPU], r"no TensorRT provider \(available: CUDAExecutionProvider, CPU"),
+        ("tensorrt:0", [CPU], "no TensorRT or CUDA provider"),
+    ],
+)
 def test_a_missing_provider_names_what_there_is_and_the_package(device, available, message):
     with pytest.raises(ModelError, match=message) as e:
         _providers(device, available)
@@ -87,9 +97,12 @@ def test_a_missing_provider_names_what_there_is_and_the_package(device, availabl
 
 @pytest.mark.parametrize(
     ("device", "precision", "message"),
-    [("cuda", "fp16", "fp16 runs on TensorRT"), ("cpu", "fp16", "fp16 runs on TensorRT"),
-     ("cpu", "bf16", "the onnx backend runs fp32, fp16, int8")],
-)  # fmt: skip
+    [
+        ("cuda", "fp16", "fp16 runs on TensorRT"),
+        ("cpu", "fp16", "fp16 runs on TensorRT"),
+        ("cpu", "bf16", "the onnx backend runs fp32, fp16, int8"),
+    ],
+)
 def test_a_precision_the_device_cannot_run_is_refused(device, precision, message):
     with pytest.raises(ModelError, match=message):
         _providers(device, ALL, precision)
@@ -210,8 +223,13 @@ GPU_BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "gpu.py"
 
 
 def _gpu_benchmark(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(GPU_BENCHMARK), *args], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, str(GPU_BENCHMARK), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+    )
 
 
 def test_the_gpu_benchmark_without_a_gpu_says_so_and_measures_nothing(tmp_path):
@@ -229,8 +247,19 @@ def test_the_gpu_benchmark_without_a_gpu_says_so_and_measures_nothing(tmp_path):
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_the_gpu_benchmark_runs_its_measures_on_the_cpu(model, step, tmp_path):
-    done = _gpu_benchmark("--providers", "cpu", "--batches", "1,2", "--repeats", "1", "--steps",
-                          "1", "--out", str(tmp_path), cwd=tmp_path)  # fmt: skip
+    done = _gpu_benchmark(
+        "--providers",
+        "cpu",
+        "--batches",
+        "1,2",
+        "--repeats",
+        "1",
+        "--steps",
+        "1",
+        "--out",
+        str(tmp_path),
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     r = json.loads((tmp_path / "gpu.json").read_text())
     v = r["variants"]["cpu_fp32"]

@@ -11,9 +11,11 @@ from stereopose.detection import ModelError, make_detector
 
 @pytest.mark.parametrize(
     ("backend", "precision", "message"),
-    [("onnx", "fp8", "precision must be one of fp32, bf16, int8, fp16"),
-     ("ultralytics", "int8", "int8 needs the onnx backend")],
-)  # fmt: skip
+    [
+        ("onnx", "fp8", "precision must be one of fp32, bf16, int8, fp16"),
+        ("ultralytics", "int8", "int8 needs the onnx backend"),
+    ],
+)
 def test_an_unknown_precision_or_backend_is_refused(backend, precision, message):
     with pytest.raises(ModelError, match=message):
         make_detector(backend, precision=precision)

@@ -69,8 +69,9 @@ def test_a_worker_who_stands_still_is_kept(detector, steps):
     for k in range(1, 25):  # 2.4 s standing still: no motion, no scan, his region kept
         found = regions.detect(still, k * STEP_S)
         assert [len(found[c]) for c in CAMS] == counts, k
-        assert all(regions.regions(c) and all(r.why & {"seen"} for r in regions.regions(c))
-                   for c in CAMS)  # fmt: skip
+        assert all(
+            regions.regions(c) and all(r.why & {"seen"} for r in regions.regions(c)) for c in CAMS
+        )
     report = regions.report()
     assert all(c["full_scans"] == 1 for c in report.values())
     # standing still costs regions, never the whole frame again
@@ -127,8 +128,13 @@ def test_a_person_at_the_frames_edge_and_in_overlapping_regions_is_found_once(de
     # the workers pasted against the canvas's left side, and three overlapping track regions
     edge = Distant(0.3, at=(0, 200))
     frames = _step([edge.frame(im) for im in steps[1]])
-    reference = dict(zip(CAMS, make_detector("onnx", threads=2, imgsz=1280).detect(
-        list(frames.values())), strict=True))  # fmt: skip
+    reference = dict(
+        zip(
+            CAMS,
+            make_detector("onnx", threads=2, imgsz=1280).detect(list(frames.values())),
+            strict=True,
+        )
+    )
     regions = RegionDetector(detector, RegionSettings(full_scan_s=60.0))
     regions.detect(frames, 0.0)  # the scan
     hints = {}

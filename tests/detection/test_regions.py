@@ -33,9 +33,14 @@ def test_a_box_gets_a_square_with_its_margin_inside_the_frame():
 
 @pytest.mark.parametrize(
     "boxes",
-    [np.zeros((0, 4)), np.array([[np.nan, 0, 10, 10]]), np.array([[5, 5, 5, 9]]),
-     np.array([[-50, -50, -10, -10]]), np.array([[2000, 10, 2100, 90]])],
-)  # fmt: skip
+    [
+        np.zeros((0, 4)),
+        np.array([[np.nan, 0, 10, 10]]),
+        np.array([[5, 5, 5, 9]]),
+        np.array([[-50, -50, -10, -10]]),
+        np.array([[2000, 10, 2100, 90]]),
+    ],
+)
 def test_empty_broken_or_outside_boxes_give_no_region(boxes):
     assert squares(boxes, SIZE, "track", 160) == []
 
@@ -85,8 +90,9 @@ def test_dedupe_keeps_one_person_of_overlapping_regions():
     cut_part = [100, 100, 200, 250]  # his upper half, cut by a third region's side
     other = [150, 120, 260, 420]  # someone half behind him, whole: kept
     boxes = np.array([cut_part, whole, again, other], float)
-    keep = dedupe(boxes, np.array([0.95, 0.9, 0.8, 0.85]), np.array([True, False, False, False]),
-                  iou=0.7)  # fmt: skip
+    keep = dedupe(
+        boxes, np.array([0.95, 0.9, 0.8, 0.85]), np.array([True, False, False, False]), iou=0.7
+    )
     assert sorted(keep.tolist()) == [1, 3]
     # a cut person no region holds whole is kept
     assert dedupe(boxes[:1], np.array([0.9]), np.array([True]), 0.7).tolist() == [0]
@@ -131,8 +137,10 @@ def test_many_regions_at_once_are_merged_or_give_way_to_the_whole_frame():
     regions.detect({"c": frame}, 0.0)  # the first scan
     # 40 people spread over the frame, held from the last step: far more than MAX_REGIONS
     xs, ys = np.meshgrid(np.linspace(50, 1800, 8), np.linspace(50, 900, 5))
-    regions._state["c"].held = [(np.array([x, y, x + 40, y + 100]), 0.05)
-                                for x, y in zip(xs.ravel(), ys.ravel(), strict=True)]  # fmt: skip
+    regions._state["c"].held = [
+        (np.array([x, y, x + 40, y + 100]), 0.05)
+        for x, y in zip(xs.ravel(), ys.ravel(), strict=True)
+    ]
     regions.detect({"c": frame}, 0.1)
     shown = regions.regions("c")
     assert len(shown) <= MAX_REGIONS

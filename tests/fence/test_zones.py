@@ -205,8 +205,19 @@ def test_a_bad_priority_is_exit_2_naming_file_zone_and_value(tmp_path: Path, cap
     assert main(["simulate", str(scene), "--frames", "3", "--cameras", "2", "--people", "1"]) == 0
     capsys.readouterr()
     site = write(tmp_path, ZONE + "priority = 7\n")
-    rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
-               "--out", str(tmp_path / "p.jsonl"), "--site", str(site)])  # fmt: skip
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(scene / "calib.toml"),
+            "--pose",
+            str(scene / "pose"),
+            "--out",
+            str(tmp_path / "p.jsonl"),
+            "--site",
+            str(site),
+        ]
+    )
     err = " ".join(capsys.readouterr().err.split())
     assert rc == 2
     assert "site.toml: zone 'panel': priority: expected an integer in [1, 4]" in err

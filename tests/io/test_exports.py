@@ -155,9 +155,17 @@ def test_trc_exporter_holds_nothing_per_frame(tmp_path: Path) -> None:
     one = people(0, [1, 2], rng)
     for f in range(2000):  # person 1 always there; person 2 leaves at 100; 3 comes at 1500
         ids = [1] + ([2] if f < 100 else []) + ([3] if f >= 1500 else [])
-        exp.add(People3D(f, one.joints[: len(ids)], one.conf[: len(ids)], np.array(ids),
-                         one.reprojection_px[: len(ids)], one.views[: len(ids)],
-                         one.detections[: len(ids)]))  # fmt: skip
+        exp.add(
+            People3D(
+                f,
+                one.joints[: len(ids)],
+                one.conf[: len(ids)],
+                np.array(ids),
+                one.reprojection_px[: len(ids)],
+                one.views[: len(ids)],
+                one.detections[: len(ids)],
+            )
+        )
         if f == 200:
             assert sorted(exp._open) == [1]  # person 2's file closed once idle
     assert sorted(exp._open) == [1, 3]

@@ -100,8 +100,13 @@ def test_substream_frames_come_with_the_cameras_own(tmp_path):
 
 def test_loop_on_a_live_stream_is_refused():
     with pytest.raises(VideoError, match="loop is for recorded files"):
-        CameraSet([f"http://127.0.0.1:{free_port()}/x.ts"], ["cam"], loop=True,
-                  open_timeout_s=0.5, first_frame_timeout_s=1.0)  # fmt: skip
+        CameraSet(
+            [f"http://127.0.0.1:{free_port()}/x.ts"],
+            ["cam"],
+            loop=True,
+            open_timeout_s=0.5,
+            first_frame_timeout_s=1.0,
+        )
 
 
 @pytest.mark.slow

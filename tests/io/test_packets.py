@@ -58,9 +58,25 @@ def test_bad_bounds_are_refused() -> None:
 
 
 def _encode(path: Path, codec: str, seconds: float = 3.0, size: str = "192x128") -> Path:
-    cmd = [ffmpeg(), "-loglevel", "error", "-y", "-f", "lavfi", "-i",
-           f"testsrc=size={size}:rate={FPS:g}", "-t", str(seconds), "-c:v", codec, "-g", "10",
-           "-f", "mpegts", str(path)]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-y",
+        "-f",
+        "lavfi",
+        "-i",
+        f"testsrc=size={size}:rate={FPS:g}",
+        "-t",
+        str(seconds),
+        "-c:v",
+        codec,
+        "-g",
+        "10",
+        "-f",
+        "mpegts",
+        str(path),
+    ]
     subprocess.run(cmd, check=True, timeout=60)
     return path
 
@@ -103,9 +119,24 @@ def test_a_copy_that_cannot_be_written_is_an_error_naming_it(tmp_path) -> None:
 
 
 def _serve_ts(path: Path, port: int, name: str) -> subprocess.Popen:
-    cmd = [ffmpeg(), "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(path), "-an",
-           "-c", "copy", "-f", "mpegts", "-listen", "1",
-           f"http://127.0.0.1:{port}/{name}.ts"]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-re",
+        "-stream_loop",
+        "-1",
+        "-i",
+        str(path),
+        "-an",
+        "-c",
+        "copy",
+        "-f",
+        "mpegts",
+        "-listen",
+        "1",
+        f"http://127.0.0.1:{port}/{name}.ts",
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -145,8 +176,15 @@ def test_an_alarm_clip_has_its_full_stream_copy_beside_it(tmp_path) -> None:
     rig = Rig((Camera(cam, (w, h), K, np.zeros(5), np.zeros(3), np.array([0, 0, 5.0])),))
     ring = _demuxed(_encode(tmp_path / "in.ts", "libx264", 6.0, f"{w}x{h}"))
     settings = ClipSettings(clip_pre_s=1.0, clip_post_s=1.0, clip_queue_frames=1000)
-    sink = ClipSink(tmp_path, [cam], FPS, wall_start=1.8e9, settings=settings,
-                    draw=clip_drawer(rig), packets={cam: ring})  # fmt: skip
+    sink = ClipSink(
+        tmp_path,
+        [cam],
+        FPS,
+        wall_start=1.8e9,
+        settings=settings,
+        draw=clip_drawer(rig),
+        packets={cam: ring},
+    )
     small = np.zeros((h // 4, w // 4, 3), np.uint8)
     for i in range(100):
         t = i / FPS
@@ -177,8 +215,7 @@ def test_a_clip_extended_by_later_alarms_has_all_of_its_full_stream(tmp_path) ->
     ring = PacketRing(2.0, 2**24)  # 2 s: far shorter than the clip
     ring.format = source.format
     settings = ClipSettings(clip_pre_s=1.0, clip_post_s=1.0, clip_queue_frames=1000)
-    sink = ClipSink(tmp_path, [cam], FPS, wall_start=1.8e9, settings=settings,
-                    packets={cam: ring})  # fmt: skip
+    sink = ClipSink(tmp_path, [cam], FPS, wall_start=1.8e9, settings=settings, packets={cam: ring})
     image = np.zeros((h, w, 3), np.uint8)
     keys = {i for i in range(len(packets)) if i % 10 == 0}
     for i in range(len(packets)):

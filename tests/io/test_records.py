@@ -71,8 +71,18 @@ def test_frame_record_fields() -> None:
     rec = frame_record(people, 25.0)
     assert rec["frame"] == 50 and rec["t"] == 2.0
     p = rec["people"][0]
-    assert set(p) == {"id", "joints", "conf", "position", "velocity", "speed", "heading_deg",
-                      "predicted", "views", "reprojection_px"}  # fmt: skip
+    assert set(p) == {
+        "id",
+        "joints",
+        "conf",
+        "position",
+        "velocity",
+        "speed",
+        "heading_deg",
+        "predicted",
+        "views",
+        "reprojection_px",
+    }
     assert len(p["joints"]) == 17 and all(j is None or len(j) == 3 for j in p["joints"])
     errs = people.reprojection_px[0]
     assert p["reprojection_px"] == pytest.approx(np.nanmean(errs), abs=0.005)
@@ -87,20 +97,52 @@ def test_minimal_frame_record_reads() -> None:
     back = people3d_from_record(frame, people)
     assert back.ids.tolist() == [7] and back.conf[0, 16] == 1.0 and back.conf[0, 0] == 0.0
     assert not back.predicted[0] and np.isnan(back.velocity).all()
-    for bad in ({"people": []}, {"frame": 1, "people": [{"joints": [None] * 17}]},
-                {"frame": 1, "people": [{"id": 1, "joints": [None] * 3}]}):  # fmt: skip
+    for bad in (
+        {"people": []},
+        {"frame": 1, "people": [{"joints": [None] * 17}]},
+        {"frame": 1, "people": [{"id": 1, "joints": [None] * 3}]},
+    ):
         with pytest.raises((KeyError, ValueError, TypeError)):
             parse_frame_record(bad)
 
 
 EVENTS = [
-    Event(t=2.12, frame=53, person=3, zone="work_area_1", kind="work_area", type="enter",
-          onset_t=2.04, joint="right_wrist", position=(1.2346, -0.5)),
-    Event(t=4.0, frame=100, person=1, zone="panel", kind="energized", type="approach",
-          onset_t=3.9, joint="left_wrist", distance_m=0.3125, position=(0.5, 0.25)),
-    Event(t=9.5, frame=237, person=2, zone="bench", kind="work_area", type="exit", onset_t=9.3,
-          duration_s=4.25, allowed=True, lost=True),
-]  # fmt: skip
+    Event(
+        t=2.12,
+        frame=53,
+        person=3,
+        zone="work_area_1",
+        kind="work_area",
+        type="enter",
+        onset_t=2.04,
+        joint="right_wrist",
+        position=(1.2346, -0.5),
+    ),
+    Event(
+        t=4.0,
+        frame=100,
+        person=1,
+        zone="panel",
+        kind="energized",
+        type="approach",
+        onset_t=3.9,
+        joint="left_wrist",
+        distance_m=0.3125,
+        position=(0.5, 0.25),
+    ),
+    Event(
+        t=9.5,
+        frame=237,
+        person=2,
+        zone="bench",
+        kind="work_area",
+        type="exit",
+        onset_t=9.3,
+        duration_s=4.25,
+        allowed=True,
+        lost=True,
+    ),
+]
 
 
 @pytest.mark.parametrize("event", EVENTS, ids=lambda e: e.type)
@@ -114,10 +156,19 @@ def test_event_round_trip(event: Event) -> None:
 
 def test_event_record_is_the_contract() -> None:
     rec = event_record(dataclasses.replace(EVENTS[0], position=(1.23456, -0.5)))
-    assert rec == {"t": 2.12, "frame": 53, "person": 3, "zone": "work_area_1",
-                   "kind": "work_area", "type": "enter", "onset_t": 2.04,
-                   "joint": "right_wrist", "position": [1.2346, -0.5],
-                   "incident": None, "priority": None}  # fmt: skip
+    assert rec == {
+        "t": 2.12,
+        "frame": 53,
+        "person": 3,
+        "zone": "work_area_1",
+        "kind": "work_area",
+        "type": "enter",
+        "onset_t": 2.04,
+        "joint": "right_wrist",
+        "position": [1.2346, -0.5],
+        "incident": None,
+        "priority": None,
+    }
     # every line carries its incident and priority (null: none), and reads back
     stamped = dataclasses.replace(EVENTS[0], incident=12, priority=1)
     assert event_record(stamped)["incident"] == 12 and event_record(stamped)["priority"] == 1

@@ -13,8 +13,9 @@ from stereopose.types import Event
 
 # a secret that is not a word the shown URL keeps anyway (its scheme, host, port, path)
 KEPT = "https rtsp cam.local:554/live/alarms?key=***"
-secret = st.text(st.characters(codec="ascii", categories=("L", "N")), min_size=6,
-                 max_size=12).filter(lambda s: s not in KEPT)  # fmt: skip
+secret = st.text(
+    st.characters(codec="ascii", categories=("L", "N")), min_size=6, max_size=12
+).filter(lambda s: s not in KEPT)
 
 
 @given(secret, secret, st.sampled_from(["http", "https", "rtsp"]))

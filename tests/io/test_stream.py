@@ -180,8 +180,13 @@ def test_any_stream_url_gets_a_name_and_a_label(rest: str, scheme: str) -> None:
     assert source_name(scheme + rest) and isinstance(redact(scheme + rest), str)
 
 
-@given(scheme=_SCHEMES, user=_WORD, password=st.text("abc019!$%;=~", min_size=1), host=_WORD,
-       path=st.text())  # fmt: skip
+@given(
+    scheme=_SCHEMES,
+    user=_WORD,
+    password=st.text("abc019!$%;=~", min_size=1),
+    host=_WORD,
+    path=st.text(),
+)
 def test_a_urls_password_is_never_shown(scheme, user, password, host, path) -> None:
     shown = redact(f"{scheme}{user}:{password}@{host}:554/{path}")
     assert shown.startswith(f"{scheme}{user}:***@{host}:554/")

@@ -207,10 +207,16 @@ def test_empty_or_malformed_frames_are_left_out_with_a_warning(caplog):
 
     good = np.zeros((4, 6, 3), np.uint8)
     step = FrameSet(
-        3, 0.1,
-        {"a": good, "b": None, "c": np.zeros((0, 6, 3), np.uint8), "d": np.zeros((4, 6), np.uint8),
-         "e": np.zeros((4, 6, 3), np.float32)},
-    )  # fmt: skip
+        3,
+        0.1,
+        {
+            "a": good,
+            "b": None,
+            "c": np.zeros((0, 6, 3), np.uint8),
+            "d": np.zeros((4, 6), np.uint8),
+            "e": np.zeros((4, 6, 3), np.float32),
+        },
+    )
     with caplog.at_level(logging.WARNING):
         assert [n for n, _ in usable_images(step)] == ["a"]
     assert "camera c: frame 3" in caplog.text and "camera e" in caplog.text

@@ -22,21 +22,32 @@ ENV = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1", STEREO
 def _config(tmp_path: Path, broker_port: int, http_port: int) -> Path:
     from stereopose.pipeline.demo import write_serve_demo_config
 
-    path = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", http_port,
-                                   detect_fps=2.0)  # fmt: skip
-    text = path.read_text().replace(
-        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker_port}\nsite = "north"\n\n'
-        "[serve]\n", 1).replace("[input]\n", '[input]\ndetection = "nodes"\n', 1)  # fmt: skip
-    text += ('[[nodes]]\nname = "node-a"\ncameras = ["cam01", "cam02"]\n\n'
-             '[[nodes]]\nname = "node-b"\ncameras = ["cam03", "cam04"]\n')  # fmt: skip
+    path = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", http_port, detect_fps=2.0)
+    text = (
+        path.read_text()
+        .replace(
+            "[serve]\n",
+            f'[mqtt]\nhost = "127.0.0.1"\nport = {broker_port}\nsite = "north"\n\n[serve]\n',
+            1,
+        )
+        .replace("[input]\n", '[input]\ndetection = "nodes"\n', 1)
+    )
+    text += (
+        '[[nodes]]\nname = "node-a"\ncameras = ["cam01", "cam02"]\n\n'
+        '[[nodes]]\nname = "node-b"\ncameras = ["cam03", "cam04"]\n'
+    )
     path.write_text(text)
     return path
 
 
 def _start(tmp_path: Path, name: str, *args: str) -> subprocess.Popen:
     with open(tmp_path / f"{name}.log", "ab") as f:
-        return subprocess.Popen([sys.executable, "-m", "stereopose.cli", *args], stdout=f,
-                                stderr=subprocess.STDOUT, env=ENV)  # fmt: skip
+        return subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", *args],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+        )
 
 
 def _stop(proc: subprocess.Popen) -> int | None:
@@ -83,21 +94,26 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         return health().get("cameras", {}).get(name, {}).get("frames", 0)
 
     serve = _start(tmp_path, "serve", "serve", str(config))
-    nodes = {n: _start(tmp_path, n, "detect-node", str(config), "--node", n)
-             for n in ("node-a", "node-b")}  # fmt: skip
+    nodes = {
+        n: _start(tmp_path, n, "detect-node", str(config), "--node", n)
+        for n in ("node-a", "node-b")
+    }
     watcher = Subscriber(broker.port, "stereopose/north/nodes/+")
     try:
         all_up = {f"cam0{i}": "up" for i in range(1, 5)}
         wait_until(lambda: states() == all_up, "the four cameras up in /api/health", 180, 0.5)
         wait_until(lambda: health().get("people", 0) >= 1, "people tracked", 60, 0.5)
-        wait_until(lambda: any(k == "energized" for k, _ in _kinds(db)), "a zone event", 120,
-                   0.5)  # fmt: skip
+        wait_until(lambda: any(k == "energized" for k, _ in _kinds(db)), "a zone event", 120, 0.5)
 
         def nodes_report() -> dict:  # status.json, written every status_interval_s
             return json.loads((tmp_path / "data" / "status.json").read_text())["nodes"]
 
-        wait_until(lambda: nodes_report()["cameras"]["cam04"]["node"] is not None,
-                   "the nodes in status.json", 30, 0.5)  # fmt: skip
+        wait_until(
+            lambda: nodes_report()["cameras"]["cam04"]["node"] is not None,
+            "the nodes in status.json",
+            30,
+            0.5,
+        )
         report = nodes_report()
         # the alarms' clips, made of the nodes' pictures
         clips = tmp_path / "data" / "clips"
@@ -110,24 +126,37 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         before = len(events("camera"))  # a node slower to start than the timeout: its own
         nodes["node-a"].send_signal(signal.SIGKILL)  # no goodbye: its will says offline
         nodes["node-a"].wait(10)
-        wait_until(lambda: states() == all_up | {"cam01": "down", "cam02": "down"},
-                   "node-a's two cameras down, node-b's up", 20, 0.2)  # fmt: skip
+        wait_until(
+            lambda: states() == all_up | {"cam01": "down", "cam02": "down"},
+            "node-a's two cameras down, node-b's up",
+            20,
+            0.2,
+        )
         # their events come with the service's next step, stored in its transaction
         down = [("camera_down", "cam01"), ("camera_down", "cam02")]
-        wait_until(lambda: sorted(events("camera")[before:]) == down,
-                   "node-a's two camera_down events in the log", 20, 0.2)  # fmt: skip
+        wait_until(
+            lambda: sorted(events("camera")[before:]) == down,
+            "node-a's two camera_down events in the log",
+            20,
+            0.2,
+        )
         assert any('"offline"' in p for p in watcher.on("stereopose/north/nodes/node-a"))
 
-        nodes["node-a"] = _start(tmp_path, "node-a", "detect-node", str(config), "--node",
-                                 "node-a")  # fmt: skip
+        nodes["node-a"] = _start(tmp_path, "node-a", "detect-node", str(config), "--node", "node-a")
         wait_until(lambda: states() == all_up, "node-a's cameras back up", 120, 0.5)
-        assert sorted(events("camera")[before + 2 :]) == [("camera_up", "cam01"),
-                                                          ("camera_up", "cam02")]  # fmt: skip
+        assert sorted(events("camera")[before + 2 :]) == [
+            ("camera_up", "cam01"),
+            ("camera_up", "cam02"),
+        ]
 
         broker.restart()  # both sides connect again by themselves
         seen = {n: frames(n) for n in all_up}
-        wait_until(lambda: all(frames(n) > seen[n] + 4 for n in all_up) and states() == all_up,
-                   "every camera delivering after the broker's restart", 90, 0.5)  # fmt: skip
+        wait_until(
+            lambda: all(frames(n) > seen[n] + 4 for n in all_up) and states() == all_up,
+            "every camera delivering after the broker's restart",
+            90,
+            0.5,
+        )
     finally:
         watcher.close()
         codes = {n: _stop(p) for n, p in nodes.items()}

@@ -32,8 +32,9 @@ def rig(pose2sim_dir):
 def _input(rig, **kw) -> NodeInput:
     settings = MqttSettings(host="127.0.0.1", site="north")
     start = time.time() - 10  # the service started 10 s ago
-    return NodeInput(settings, rig.subset(list(CAMS)), fps=2.0,
-                     clock=Clock(time.monotonic() - 10, start), **kw)  # fmt: skip
+    return NodeInput(
+        settings, rig.subset(list(CAMS)), fps=2.0, clock=Clock(time.monotonic() - 10, start), **kw
+    )
 
 
 def _send(inp: NodeInput, node: str, camera: str, t: float, people: int = 1) -> None:
@@ -153,16 +154,22 @@ def test_a_picture_from_a_node_is_the_cameras_image_in_its_steps(rig):
     try:
         image = np.full((480, 272, 3), 200, np.uint8)
         _, jpeg = cv2.imencode(".jpg", image)
-        inp._message(Topics.of("stereopose", "north").picture("cam01"),
-                     encode_picture(time.time(), jpeg.tobytes()), False)  # fmt: skip
+        inp._message(
+            Topics.of("stereopose", "north").picture("cam01"),
+            encode_picture(time.time(), jpeg.tobytes()),
+            False,
+        )
         _send(inp, "a", "cam01", time.time() - 1)
         wait_until(lambda: steps.got, "a step")
         assert steps.got[0].images["cam01"].shape == (480, 272, 3)
         assert inp.report()["cameras"]["cam01"]["pictures"] == 1
         # a node of another picture scale: its pictures at this camera's one size (a clip's)
         _, big = cv2.imencode(".jpg", np.full((960, 544, 3), 50, np.uint8))
-        inp._message(Topics.of("stereopose", "north").picture("cam01"),
-                     encode_picture(time.time(), big.tobytes()), False)  # fmt: skip
+        inp._message(
+            Topics.of("stereopose", "north").picture("cam01"),
+            encode_picture(time.time(), big.tobytes()),
+            False,
+        )
         t = time.time() - 0.5
         _send(inp, "a", "cam01", t)
         _send(inp, "a", "cam02", t)
@@ -184,8 +191,7 @@ def test_a_nodes_broken_health_or_a_picture_bomb_is_refused_and_the_service_goes
     steps = Steps(inp)
     try:
         # a camera's health that is not an object: refused, never kept for the rates
-        for cameras in ({"cam01": 5}, {"cam01": {"fps": "fast"}}, {"cam01": {"up": "yes"}},
-                        [1, 2]):  # fmt: skip
+        for cameras in ({"cam01": 5}, {"cam01": {"fps": "fast"}}, {"cam01": {"up": "yes"}}, [1, 2]):
             bad = health_message("b", "online", clock=time.time(), cameras=cameras)
             with pytest.raises(WireError, match="cameras"):
                 decode_health(bad)
@@ -249,10 +255,15 @@ def test_a_future_a_borrowed_camera_or_a_flood_never_makes_a_real_frame_late(rig
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
 def test_the_mqtt_thread_that_dies_is_started_again_and_frames_come_again(rig, tmp_path):
     broker = Broker(tmp_path / "broker").start()
-    settings = MqttSettings(host="127.0.0.1", port=broker.port, site="north",
-                            reconnect_min_s=0.05, reconnect_max_s=0.2)  # fmt: skip
-    inp = NodeInput(settings, rig.subset(list(CAMS)), fps=2.0,
-                    clock=Clock(time.monotonic() - 10, time.time() - 10))  # fmt: skip
+    settings = MqttSettings(
+        host="127.0.0.1", port=broker.port, site="north", reconnect_min_s=0.05, reconnect_max_s=0.2
+    )
+    inp = NodeInput(
+        settings,
+        rig.subset(list(CAMS)),
+        fps=2.0,
+        clock=Clock(time.monotonic() - 10, time.time() - 10),
+    )
     dog = Watchdog(interval_s=3600)  # its rounds asked for by hand here
     pub = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     topic = Topics.of("stereopose", "north").keypoints("cam01")

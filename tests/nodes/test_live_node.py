@@ -23,9 +23,25 @@ def test_a_node_publishes_a_live_cameras_people_in_calibrated_pixels(tmp_path, p
 
     demo = pose2sim_dir / "Demo_MultiPerson"
     small = tmp_path / "cam01-small.mp4"  # the camera's substream: a quarter of its size
-    subprocess.run([ffmpeg(), "-loglevel", "error", "-y", "-i", str(demo / "videos" / "cam01.mp4"),
-                    "-vf", "scale=272:480", "-an", "-c:v", "mpeg4", "-q:v", "3", str(small)],
-                   check=True)  # fmt: skip
+    subprocess.run(
+        [
+            ffmpeg(),
+            "-loglevel",
+            "error",
+            "-y",
+            "-i",
+            str(demo / "videos" / "cam01.mp4"),
+            "-vf",
+            "scale=272:480",
+            "-an",
+            "-c:v",
+            "mpeg4",
+            "-q:v",
+            "3",
+            str(small),
+        ],
+        check=True,
+    )
     broker = Broker(tmp_path / "broker").start()
     ports = [free_port(), free_port()]
     servers = [serve(small, ports[0], "main", "mpeg4"), serve(small, ports[1], "sub", "mpeg4")]
@@ -39,7 +55,7 @@ def test_a_node_publishes_a_live_cameras_people_in_calibrated_pixels(tmp_path, p
         f'[[cameras]]\nname = "cam01"\nsource = "http://127.0.0.1:{ports[0]}/main.ts"\n'
         f'detect = "http://127.0.0.1:{ports[1]}/sub.ts"\n\n'
         f'[[cameras]]\nname = "cam02"\nsource = "{demo / "videos" / "cam02.mp4"}"\n'
-    )  # fmt: skip
+    )
     sub = Subscriber(broker.port, "stereopose/north/keypoints/+", "stereopose/north/nodes/+")
     node = DetectNode(plan_node(config, ["cam01"], name="edge-1"))
     halt = threading.Event()
@@ -48,11 +64,17 @@ def test_a_node_publishes_a_live_cameras_people_in_calibrated_pixels(tmp_path, p
     try:
 
         def frames() -> list:
-            return [decode_people(p.encode(), "cam01")
-                    for p in sub.on("stereopose/north/keypoints/cam01")]  # fmt: skip
+            return [
+                decode_people(p.encode(), "cam01")
+                for p in sub.on("stereopose/north/keypoints/cam01")
+            ]
 
-        wait_until(lambda: sum(len(k.people.keypoints) for k in frames()) >= 3,
-                   "people of the live camera on the broker", 60, 0.1)  # fmt: skip
+        wait_until(
+            lambda: sum(len(k.people.keypoints) for k in frames()) >= 3,
+            "people of the live camera on the broker",
+            60,
+            0.1,
+        )
         got = frames()
         kp = np.concatenate([k.people.keypoints for k in got])
         seen = kp[..., 2] > 0.5
@@ -66,12 +88,20 @@ def test_a_node_publishes_a_live_cameras_people_in_calibrated_pixels(tmp_path, p
             msgs = sub.on("stereopose/north/nodes/edge-1")
             return dict(decode_health(msgs[-1].encode())) if msgs else {}
 
-        wait_until(lambda: health().get("cameras", {}).get("cam01", {}).get("up") is True,
-                   "the node's health: cam01 up", 20, 0.1)  # fmt: skip
+        wait_until(
+            lambda: health().get("cameras", {}).get("cam01", {}).get("up") is True,
+            "the node's health: cam01 up",
+            20,
+            0.1,
+        )
         assert health()["backend"] == "onnx" and health()["detect_ms"] > 0
         stop(servers)  # the camera goes away: the node says so, and goes on
-        wait_until(lambda: health().get("cameras", {}).get("cam01", {}).get("up") is False,
-                   "the node's health: cam01 down", 30, 0.1)  # fmt: skip
+        wait_until(
+            lambda: health().get("cameras", {}).get("cam01", {}).get("up") is False,
+            "the node's health: cam01 down",
+            30,
+            0.1,
+        )
     finally:
         halt.set()
         runner.join(30)

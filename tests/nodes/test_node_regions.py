@@ -56,7 +56,7 @@ def test_a_node_finds_distant_workers_in_regions(tmp_path, pose2sim_dir):
         f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "north"\n\n'
         f'[[cameras]]\nname = "cam04"\nsource = "{video}"\nloop = true\n\n'
         f'[[cameras]]\nname = "cam01"\nsource = "{video}"\nloop = true\n'
-    )  # fmt: skip
+    )
     sub = Subscriber(broker.port, "stereopose/north/keypoints/+", "stereopose/north/nodes/+")
     node = DetectNode(plan_node(config, ["cam04"], name="far-1"))
     assert node.regions is not None  # [detector] regions is the default
@@ -66,8 +66,10 @@ def test_a_node_finds_distant_workers_in_regions(tmp_path, pose2sim_dir):
     try:
 
         def frames() -> list:
-            return [decode_people(p.encode(), "cam04")
-                    for p in sub.on("stereopose/north/keypoints/cam04")]  # fmt: skip
+            return [
+                decode_people(p.encode(), "cam04")
+                for p in sub.on("stereopose/north/keypoints/cam04")
+            ]
 
         wait_until(lambda: len(frames()) >= 8, "eight camera-frames on the broker", 90, 0.1)
         people = [len(k.people.keypoints) for k in frames()]
@@ -83,14 +85,19 @@ def test_a_node_finds_distant_workers_in_regions(tmp_path, pose2sim_dir):
             msgs = sub.on("stereopose/north/nodes/far-1")
             return dict(decode_health(msgs[-1].encode())) if msgs else {}
 
-        wait_until(lambda: (health().get("regions") or {}).get("cam04"), "the node's regions",
-                   20, 0.1)  # fmt: skip
+        wait_until(
+            lambda: (health().get("regions") or {}).get("cam04"), "the node's regions", 20, 0.1
+        )
         regions = health()["regions"]["cam04"]
         assert regions["full_scans"] >= 1 and regions["regions"] >= 1
         # its first scan took the whole frame and every tile; then a region a step: the share
         # of whole frames' model input falls under one
-        wait_until(lambda: 0 < health()["regions"]["cam04"]["input_share"] < 1.0,
-                   "less model input than whole frames at 640", 60, 0.2)  # fmt: skip
+        wait_until(
+            lambda: 0 < health()["regions"]["cam04"]["input_share"] < 1.0,
+            "less model input than whole frames at 640",
+            60,
+            0.2,
+        )
     finally:
         halt.set()
         runner.join(30)

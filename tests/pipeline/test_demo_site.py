@@ -33,11 +33,28 @@ def test_the_demo_site_raises_a_work_position_and_a_lone_worker_alarm(shared_dat
     site.write_text((resources.files("stereopose") / "data" / "demo_site.toml").read_text())
     pose = _looped(shared_data_dir / "pose", tmp_path / "pose")
     events = tmp_path / "events.jsonl"
-    rc = main(["reconstruct", "--calib", str(shared_data_dir / "calib.toml"), "--pose", str(pose),
-               "--out", str(tmp_path / "poses.jsonl"), "--fps", "60", "--site", str(site),
-               "--events", str(events)])  # fmt: skip
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(shared_data_dir / "calib.toml"),
+            "--pose",
+            str(pose),
+            "--out",
+            str(tmp_path / "poses.jsonl"),
+            "--fps",
+            "60",
+            "--site",
+            str(site),
+            "--events",
+            str(events),
+        ]
+    )
     assert rc == 0
-    raised = {(e["rule"], e["type"]) for e in map(json.loads, events.read_text().splitlines())
-              if e["kind"] == "behaviour"}  # fmt: skip
+    raised = {
+        (e["rule"], e["type"])
+        for e in map(json.loads, events.read_text().splitlines())
+        if e["kind"] == "behaviour"
+    }
     assert ("reach_from_work_area", "work_position") in raised
     assert ("alone_at_busbar", "lone_worker") in raised

@@ -31,8 +31,17 @@ def scene_copy(scene_dir: Path, tmp_path: Path) -> Path:
 
 def reconstruct(scene: Path, capsys, caplog) -> tuple[int, str]:
     caplog.clear()
-    rc = main(["reconstruct", "--calib", str(scene / "calib.toml"), "--pose", str(scene / "pose"),
-               "--out", str(scene / "poses.jsonl")])  # fmt: skip
+    rc = main(
+        [
+            "reconstruct",
+            "--calib",
+            str(scene / "calib.toml"),
+            "--pose",
+            str(scene / "pose"),
+            "--out",
+            str(scene / "poses.jsonl"),
+        ]
+    )
     captured = capsys.readouterr()
     text = captured.out + captured.err + caplog.text
     assert "Traceback" not in text

@@ -54,8 +54,11 @@ def _calibration(path: Path) -> Path:
 
 
 def _config(tmp_path: Path, urls: dict[str, str], input_: str = "") -> Path:
-    lines = [f'calibration = "{_calibration(tmp_path / "calib.toml")}"',
-             f'output = "{tmp_path / "out"}"', ""]  # fmt: skip
+    lines = [
+        f'calibration = "{_calibration(tmp_path / "calib.toml")}"',
+        f'output = "{tmp_path / "out"}"',
+        "",
+    ]
     for name, url in urls.items():
         lines += ["[[cameras]]", f'name = "{name}"', f'source = "{url}"', ""]
     lines += ["[detector]", "imgsz = 320", "threads = 1", "", "[input]", input_, ""]
@@ -129,11 +132,14 @@ class Process:
         env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="200")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "stereopose.cli", *args],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            text=True,
             # Ctrl-C as at a terminal, whatever an earlier test left the test process's SIGINT
             # at (an ignored signal is inherited, and Python then installs no handler)
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )  # fmt: skip
+        )
         self.out: list[str] = []
         self.err: list[str] = []
         self._readers = [
@@ -162,8 +168,9 @@ class Process:
             self.proc.wait()
             for r in self._readers:
                 r.join(timeout=5)
-            pytest.fail(f"still running {timeout_s} s after one Ctrl-C; it said:\n"
-                        f"{self.text()[-3000:]}")  # fmt: skip
+            pytest.fail(
+                f"still running {timeout_s} s after one Ctrl-C; it said:\n{self.text()[-3000:]}"
+            )
         for r in self._readers:
             r.join(timeout=5)
         return code
@@ -186,8 +193,11 @@ def test_ctrl_c_ends_a_run_whose_cameras_hang_mid_stream(tmp_path: Path, ts_byte
         cfg = _config(tmp_path, _stalling_urls([a, b]), "open_timeout_s = 60.0")
         run = Process("run", str(cfg))
         poses = tmp_path / "out" / "poses3d.jsonl"
-        wait_until(lambda: run.proc.poll() is not None or (poses.is_file() and poses.read_text()),
-                   "a first time step written", timeout_s=120)  # fmt: skip
+        wait_until(
+            lambda: run.proc.poll() is not None or (poses.is_file() and poses.read_text()),
+            "a first time step written",
+            timeout_s=120,
+        )
         code = run.interrupt()
     assert code == 130, run.text()
     assert "Traceback" not in run.text() and "interrupted" in run.text()
@@ -198,8 +208,9 @@ def test_ctrl_c_ends_a_run_whose_cameras_hang_mid_stream(tmp_path: Path, ts_byte
 
 def test_ctrl_c_ends_detect_while_it_waits_for_a_first_frame(tmp_path: Path) -> None:
     with StallingServer() as silent:
-        detect = Process("detect", "--videos", silent.url("cam"), "--out", str(tmp_path / "kp"),
-                         "--imgsz", "320")  # fmt: skip
+        detect = Process(
+            "detect", "--videos", silent.url("cam"), "--out", str(tmp_path / "kp"), "--imgsz", "320"
+        )
         wait_until(lambda: detect.said("waiting for camera"), "the wait logged", timeout_s=120)
         code = detect.interrupt()
     assert code == 130, detect.text()
@@ -217,8 +228,9 @@ def test_detect_stops_after_the_step_in_progress_at_the_first_ctrl_c(tmp_path: P
             signal.raise_signal(signal.SIGINT)
 
     before = signal.getsignal(signal.SIGINT)
-    summary = detect_videos(videos, tmp_path / "kp", make_detector("onnx", imgsz=320),
-                            on_step=interrupt)  # fmt: skip
+    summary = detect_videos(
+        videos, tmp_path / "kp", make_detector("onnx", imgsz=320), on_step=interrupt
+    )
     assert summary.interrupted and summary.steps == 2 and signal.getsignal(signal.SIGINT) is before
     for cam in ("cam01", "cam02"):
         assert len(list((tmp_path / "kp" / f"{cam}_json").iterdir())) == 2

@@ -32,11 +32,21 @@ class Steps:
     def __init__(self, rig, n: int) -> None:
         self.rig, self.n = rig, n
         self.cameras = rig.names
-        joints = np.array([[[x + 0.1 * j, y, 1.0 + 0.05 * j] for j in range(17)]
-                           for x, y in ((5.0, 4.0), (7.0, 3.0))])  # fmt: skip
-        self.people3d = People3D(0, joints, np.full((2, 17), 0.9), np.array([1, 2]),
-                                 np.full((2, 17), 1.5), np.full((2, 17), 3),
-                                 np.tile([0, 1], (len(rig), 1)).T)  # fmt: skip
+        joints = np.array(
+            [
+                [[x + 0.1 * j, y, 1.0 + 0.05 * j] for j in range(17)]
+                for x, y in ((5.0, 4.0), (7.0, 3.0))
+            ]
+        )
+        self.people3d = People3D(
+            0,
+            joints,
+            np.full((2, 17), 0.9),
+            np.array([1, 2]),
+            np.full((2, 17), 1.5),
+            np.full((2, 17), 3),
+            np.tile([0, 1], (len(rig), 1)).T,
+        )
         self.people2d = {}
         for c in rig:
             uv = project(joints, c)
@@ -87,8 +97,9 @@ class EveryHundred:
     def update(self, people: People3D) -> list[Event]:
         if people.frame % 100:
             return []
-        return [Event(people.frame / 25, people.frame, 1, "z", "energized", "enter",
-                      people.frame / 25)]  # fmt: skip
+        return [
+            Event(people.frame / 25, people.frame, 1, "z", "energized", "enter", people.frame / 25)
+        ]
 
 
 def footprint(obj, seen=None) -> int:
@@ -122,14 +133,26 @@ def _loop(rig, tmp_path: Path, n: int, **kw):
     stage = SameStage(source.people3d)
     summary = RunSummary(rig.names, FILE_STAGES, "robust", True)
     got: list = []
-    outputs = Outputs(poses=tmp_path / "p.jsonl", events=tmp_path / "e.jsonl",
-                      events_db=tmp_path / "e.sqlite", trc_dir=tmp_path / "trc",
-                      csv=tmp_path / "j.csv", tracks=tmp_path / "tracks.json",
-                      summary=tmp_path / "summary.json")  # fmt: skip
+    outputs = Outputs(
+        poses=tmp_path / "p.jsonl",
+        events=tmp_path / "e.jsonl",
+        events_db=tmp_path / "e.sqlite",
+        trc_dir=tmp_path / "trc",
+        csv=tmp_path / "j.csv",
+        tracks=tmp_path / "tracks.json",
+        summary=tmp_path / "summary.json",
+    )
     from stereopose.fence import Site
 
-    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
-                         site=Site(()), on_events=got.extend)  # fmt: skip
+    sinks = open_outputs(
+        outputs,
+        rig=rig,
+        config=Config(),
+        summary=summary,
+        stage=stage,
+        site=Site(()),
+        on_events=got.extend,
+    )
     return FrameLoop(source, stage, sinks, summary, rules=SiteRules(EveryHundred()), **kw), got
 
 
@@ -210,13 +233,18 @@ def test_each_steps_time_reaches_every_record(rig, tmp_path: Path) -> None:
     source = TimedSteps(rig, times)
     stage = SameStage(source.people3d)
     summary = RunSummary(rig.names, FILE_STAGES, "robust", True)
-    zone = Zone("z", "restricted", np.array([[4.0, 3.0], [6.0, 3.0], [6.0, 5.0], [4.0, 5.0]]),
-                (0.0, 2.5), enter_s=0.3)  # fmt: skip
+    zone = Zone(
+        "z",
+        "restricted",
+        np.array([[4.0, 3.0], [6.0, 3.0], [6.0, 5.0], [4.0, 5.0]]),
+        (0.0, 2.5),
+        enter_s=0.3,
+    )
     site = Site((zone,))
-    outputs = Outputs(poses=tmp_path / "p.jsonl", events=tmp_path / "e.jsonl",
-                      csv=tmp_path / "j.csv")  # fmt: skip
-    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
-                         site=site)  # fmt: skip
+    outputs = Outputs(
+        poses=tmp_path / "p.jsonl", events=tmp_path / "e.jsonl", csv=tmp_path / "j.csv"
+    )
+    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage, site=site)
     FrameLoop(source, stage, sinks, summary, rules=SiteRules(FenceMonitor(site, 25.0))).run()
     assert [t for _, t, _ in read_poses(tmp_path / "p.jsonl")] == times
     csv_times = {float(r.split(",")[1]) for r in (tmp_path / "j.csv").read_text().splitlines()[1:]}
@@ -273,8 +301,7 @@ def test_ctrl_c_while_the_source_waits_ends_the_run_at_once(rig, tmp_path: Path)
     stage = SameStage(source.people3d)
     summary = RunSummary(rig.names, FILE_STAGES, "robust", True)
     outputs = Outputs(poses=tmp_path / "p.jsonl", summary=tmp_path / "summary.json")
-    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage,
-                         site=None)  # fmt: skip
+    sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage, site=None)
 
     def interrupt() -> None:
         if source.waiting.wait(20):

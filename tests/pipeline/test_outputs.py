@@ -26,10 +26,25 @@ from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim.events import make_zones
 
-OLD_SUMMARY_KEYS = {"config", "cameras", "live", "fps_input", "frames", "wall_s", "fps",
-                    "seconds_per_stage", "fps_per_stage", "people_per_frame", "people", "events",
-                    "reprojection_median_px", "per_camera", "sources", "interrupted",
-                    "outputs"}  # fmt: skip
+OLD_SUMMARY_KEYS = {
+    "config",
+    "cameras",
+    "live",
+    "fps_input",
+    "frames",
+    "wall_s",
+    "fps",
+    "seconds_per_stage",
+    "fps_per_stage",
+    "people_per_frame",
+    "people",
+    "events",
+    "reprojection_median_px",
+    "per_camera",
+    "sources",
+    "interrupted",
+    "outputs",
+}
 
 
 def _run(scene, out: Path, *, fail_at=None, error=RuntimeError, two_way=False, report=True):
@@ -43,8 +58,16 @@ def _run(scene, out: Path, *, fail_at=None, error=RuntimeError, two_way=False, r
     got: list = []
     out.mkdir(parents=True, exist_ok=True)
     save_inputs(out, scene.rig, site)
-    sinks = open_outputs(outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage,
-                         site=site, source="sim", on_events=got.extend)  # fmt: skip
+    sinks = open_outputs(
+        outputs,
+        rig=scene.rig,
+        config=cfg,
+        summary=summary,
+        stage=stage,
+        site=site,
+        source="sim",
+        on_events=got.extend,
+    )
     fences = FenceMonitor(site, cfg.fps)
     source = SceneSource(scene, fail_at, error)
     loop = FrameLoop(source, stage, sinks, summary, rules=SiteRules(fences))
@@ -84,8 +107,15 @@ def test_every_sink_writes_what_it_should(scene, tmp_path: Path) -> None:
     assert s["reprojection_median_px"] < 10 and s["people_histogram"]
     assert set(s["seconds_per_stage"]) == {"read", "3d", "fences", "write"}
     names = {Path(p).name for p in summary.outputs}
-    assert {"poses3d.jsonl", "events.jsonl", "events.sqlite", "joints.csv", "tracks.json",
-            "summary.json", "report.html"} <= names  # fmt: skip
+    assert {
+        "poses3d.jsonl",
+        "events.jsonl",
+        "events.sqlite",
+        "joints.csv",
+        "tracks.json",
+        "summary.json",
+        "report.html",
+    } <= names
     assert {f"person_{i}.trc" for i in ids} <= names
     assert "3D view" in (tmp_path / "report.html").read_text()
     assert source.finished and all(sink.close() == [] for sink in sinks)  # closed once
@@ -133,8 +163,12 @@ def test_outputs_of_a_run_folder_and_of_keywords(tmp_path: Path) -> None:
     assert o.poses == tmp_path / "poses3d.jsonl" and o.csv is None and o.events is None
     assert o.overlays_dir is None and o.report_dir == tmp_path
     k = Outputs.from_keywords("p.jsonl", trc_dir="trc", events_path="e.jsonl", webhook=None)
-    assert (k.poses, k.trc_dir, k.events, k.webhook) == (Path("p.jsonl"), Path("trc"),
-                                                         Path("e.jsonl"), None)  # fmt: skip
+    assert (k.poses, k.trc_dir, k.events, k.webhook) == (
+        Path("p.jsonl"),
+        Path("trc"),
+        Path("e.jsonl"),
+        None,
+    )
     with pytest.raises(TypeError, match=r"unknown output keyword.*trc_path"):
         Outputs.from_keywords("p.jsonl", trc_path="trc")
 
@@ -147,8 +181,9 @@ def test_an_output_that_cannot_be_opened_closes_the_others(scene, tmp_path, monk
     cfg = Config()
     stage = Stage3D(scene.rig, cfg)
     with pytest.raises(StereoposeError, match="cannot write CSV"):
-        open_outputs(outputs, rig=scene.rig, config=cfg, stage=stage,
-                     summary=RunSummary(scene.rig.names))  # fmt: skip
+        open_outputs(
+            outputs, rig=scene.rig, config=cfg, stage=stage, summary=RunSummary(scene.rig.names)
+        )
     assert len(closed) == 1
 
 
@@ -173,17 +208,23 @@ def _loop(scene, out: Path, outputs: Outputs):
     site = make_zones(scene, np.random.default_rng(4))
     stage = Stage3D(scene.rig, cfg)
     summary = RunSummary(scene.rig.names, SceneSource.stages, "robust", stage.tracking)
-    sinks = open_outputs(outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage,
-                         site=site, source="sim")  # fmt: skip
-    return FrameLoop(SceneSource(scene), stage, sinks, summary,
-                     rules=SiteRules(FenceMonitor(site, cfg.fps)))  # fmt: skip
+    sinks = open_outputs(
+        outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage, site=site, source="sim"
+    )
+    return FrameLoop(
+        SceneSource(scene), stage, sinks, summary, rules=SiteRules(FenceMonitor(site, cfg.fps))
+    )
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (ENOSPC on write)")
 def test_a_full_disk_stops_that_output_alone(scene, tmp_path: Path, caplog) -> None:
-    outputs = Outputs(poses=Path("/dev/full"), events=tmp_path / "events.jsonl",
-                      events_db=tmp_path / "events.sqlite", csv=tmp_path / "joints.csv",
-                      summary=tmp_path / "summary.json")  # fmt: skip
+    outputs = Outputs(
+        poses=Path("/dev/full"),
+        events=tmp_path / "events.jsonl",
+        events_db=tmp_path / "events.sqlite",
+        csv=tmp_path / "joints.csv",
+        summary=tmp_path / "summary.json",
+    )
     summary = _loop(scene, tmp_path, outputs).run()
     F = len(scene.detections)
     assert summary.frames == F  # every frame processed

@@ -64,8 +64,12 @@ def test_an_output_that_is_an_input_is_refused_however_it_is_spelled(tree: Path)
 
 
 def test_an_output_inside_an_input_folder_where_it_is_read_is_refused(tree: Path) -> None:
-    for inside in (tree / "pose" / "cam01_json" / "f_1.json", tree / "pose" / "new_1.JSON",
-                   tree / "pose" / "cam02_json" / "x.csv", tree / "pose"):  # fmt: skip
+    for inside in (
+        tree / "pose" / "cam01_json" / "f_1.json",
+        tree / "pose" / "new_1.JSON",
+        tree / "pose" / "cam02_json" / "x.csv",
+        tree / "pose",
+    ):
         message = _refused(tree, inside)
         assert f"inside the --pose folder {tree / 'pose'}, which is read as input" in message or (
             f"it is the --pose {tree / 'pose'}" in message
@@ -102,8 +106,10 @@ def test_two_outputs_at_one_path_are_refused(tree: Path) -> None:
 
 def test_a_file_inside_an_output_folder_is_refused(tree: Path) -> None:
     trc = Place("--trc", tree / "trc", folder=True)
-    for outputs in ([trc, Place("--csv", tree / "trc" / "person_1.trc")],
-                    [Place("--csv", tree / "trc" / "joints.csv"), trc]):  # fmt: skip
+    for outputs in (
+        [trc, Place("--csv", tree / "trc" / "person_1.trc")],
+        [Place("--csv", tree / "trc" / "joints.csv"), trc],
+    ):
         with pytest.raises(ConfigError, match=f"inside the --trc folder {tree / 'trc'}"):
             check_places(_inputs(tree), outputs)
 
@@ -147,8 +153,13 @@ def test_a_folder_with_a_previous_run_is_refused_and_replaced_only_with_overwrit
     tmp_path: Path,
 ) -> None:
     run = tmp_path / "out"
-    ours = [run / "poses3d.jsonl", run / "summary.json", run / "events.sqlite-wal",
-            run / "trc" / "person_3.trc", run / "overlays" / "cam01.mp4"]  # fmt: skip
+    ours = [
+        run / "poses3d.jsonl",
+        run / "summary.json",
+        run / "events.sqlite-wal",
+        run / "trc" / "person_3.trc",
+        run / "overlays" / "cam01.mp4",
+    ]
     mine = [run / "notes.txt", run / "trc" / "readme.md", run / "overlays" / "cam01.png"]
     _touch(*ours, *mine)
     before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in mine}

@@ -25,8 +25,18 @@ pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
 def test_demo_writes_every_output(real_demo_dir: Path) -> None:
-    names = ("poses3d.jsonl", "events.jsonl", "events.sqlite", "report.html", "summary.json",
-             "joints.csv", "tracks.json", "calib.toml", "site.toml", "config.toml")  # fmt: skip
+    names = (
+        "poses3d.jsonl",
+        "events.jsonl",
+        "events.sqlite",
+        "report.html",
+        "summary.json",
+        "joints.csv",
+        "tracks.json",
+        "calib.toml",
+        "site.toml",
+        "config.toml",
+    )
     for name in names:
         assert (real_demo_dir / name).is_file(), name
     for cam in ("cam01", "cam02", "cam03", "cam04"):
@@ -37,8 +47,14 @@ def test_demo_writes_every_output(real_demo_dir: Path) -> None:
     summary = json.loads((real_demo_dir / "summary.json").read_text())
     assert summary["frames"] == 100 and not summary["interrupted"] and summary["error"] is None
     assert summary["load_s_3d"] >= 0 and summary["fps_3d"] > 0
-    assert set(summary["fps_per_stage"]) == {"decode", "detect", "3d", "fences", "write",
-                                             "overlays"}  # fmt: skip
+    assert set(summary["fps_per_stage"]) == {
+        "decode",
+        "detect",
+        "3d",
+        "fences",
+        "write",
+        "overlays",
+    }
     for cam, stats in summary["per_camera"].items():
         assert stats["frames"] == 100 and stats["reprojection_median_px"] < 30, cam
     assert summary["reprojection_median_px"] < 15
@@ -52,9 +68,11 @@ def test_two_main_people_keep_one_id_each(real_demo_dir: Path) -> None:
     assert sorted(frames) == list(range(100))
     # the two main people stand within 2 m of the treadmill's corner (the world origin)
     near = {
-        pid for people in frames.values() for pid, p in people.items()
+        pid
+        for people in frames.values()
+        for pid, p in people.items()
         if p["position"] is not None and abs(p["position"][0]) < 2 and abs(p["position"][1]) < 2
-    }  # fmt: skip
+    }
     assert len(near) == 2, f"ids near the treadmill: {sorted(near)}"
     for pid in near:
         seen = [f for f, people in frames.items() if pid in people]
@@ -102,8 +120,11 @@ def test_sigint_during_a_run_leaves_valid_outputs(tmp_path: Path) -> None:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "stereopose.cli", "run", str(cfg)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+        text=True,
+    )
     poses = tmp_path / "out" / "poses3d.jsonl"
     wait_until(
         lambda: (
@@ -160,9 +181,12 @@ def test_bad_run_configurations_are_clear_errors(tmp_path: Path, capsys) -> None
     cfg = _config(tmp_path)
     cfg.write_text(cfg.read_text().replace(str(tmp_path / "out"), str(blocker / "out")))
     assert "cannot create the output folder" in error(cfg)
-    swapped = _config(tmp_path, sources={
-        "cam01": pose2sim_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
-    })  # fmt: skip
+    swapped = _config(
+        tmp_path,
+        sources={
+            "cam01": pose2sim_demo_dir() / "Demo_MultiPerson" / "videos" / "cam02.mp4",
+        },
+    )
     assert main(["run", str(swapped)]) == 0  # same size: fine (the names are the user's)
     capsys.readouterr()
 
@@ -193,10 +217,25 @@ def _serve_http(video: Path, port: int, name: str) -> subprocess.Popen:
     import imageio_ffmpeg
 
     cmd = [
-        imageio_ffmpeg.get_ffmpeg_exe(), "-loglevel", "error", "-re", "-stream_loop", "-1",
-        "-i", str(video), "-an", "-c:v", "mpeg1video", "-q:v", "3", "-f", "mpegts",
-        "-listen", "1", f"http://127.0.0.1:{port}/{name}.ts",
-    ]  # fmt: skip
+        imageio_ffmpeg.get_ffmpeg_exe(),
+        "-loglevel",
+        "error",
+        "-re",
+        "-stream_loop",
+        "-1",
+        "-i",
+        str(video),
+        "-an",
+        "-c:v",
+        "mpeg1video",
+        "-q:v",
+        "3",
+        "-f",
+        "mpegts",
+        "-listen",
+        "1",
+        f"http://127.0.0.1:{port}/{name}.ts",
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -214,8 +253,10 @@ def test_run_on_live_streams(tmp_path: Path) -> None:
     servers = [_serve_http(videos / f"{cam}.mp4", port, cam) for cam, port in ports.items()]
     try:
         for server, port in zip(servers, ports.values(), strict=True):
-            wait_until(lambda s=server, p=port: listening(p) or s.poll() is not None,
-                       f"ffmpeg to listen on port {port}")  # fmt: skip
+            wait_until(
+                lambda s=server, p=port: listening(p) or s.poll() is not None,
+                f"ffmpeg to listen on port {port}",
+            )
             assert server.poll() is None, f"ffmpeg exited with {server.returncode}"
         cfg = _config(
             tmp_path,

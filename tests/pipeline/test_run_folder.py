@@ -55,8 +55,9 @@ def _config(folder: Path, output: str, extra: str = "") -> Path:
 
 
 def snapshot(root: Path) -> dict[Path, tuple[bytes, int]]:
-    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(root.rglob("*"))
-            if p.is_file()}  # fmt: skip
+    return {
+        p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(root.rglob("*")) if p.is_file()
+    }
 
 
 def _error(argv: list[str], capsys) -> str:

@@ -69,8 +69,9 @@ class Master:
         self.got: list[Got] = []
         self.raw: list[str] = []
         self.client = c104.Client(tick_rate_ms=50, command_timeout_ms=5000)
-        self.conn = self.client.add_connection(ip="127.0.0.1", port=port,
-                                               init=init or c104.Init.ALL)  # fmt: skip
+        self.conn = self.client.add_connection(
+            ip="127.0.0.1", port=port, init=init or c104.Init.ALL
+        )
 
         def on_station(client, connection, common_address):
             connection.add_station(common_address=common_address)
@@ -81,24 +82,43 @@ class Master:
             def receive(point, previous_info, message):
                 return self._receive(point, message)
 
-            pt.on_receive(callable=_typed(receive, point=c104.Point,
-                                          previous_info=c104.Information,
-                                          message=c104.IncomingMessage,
-                                          ret=c104.ResponseState))  # fmt: skip
+            pt.on_receive(
+                callable=_typed(
+                    receive,
+                    point=c104.Point,
+                    previous_info=c104.Information,
+                    message=c104.IncomingMessage,
+                    ret=c104.ResponseState,
+                )
+            )
 
-        self.client.on_new_station(callable=_typed(on_station, client=c104.Client,
-                                                   connection=c104.Connection,
-                                                   common_address=int, ret=None))  # fmt: skip
-        self.client.on_new_point(callable=_typed(on_point, client=c104.Client,
-                                                 station=c104.Station, io_address=int,
-                                                 point_type=c104.Type, ret=None))  # fmt: skip
+        self.client.on_new_station(
+            callable=_typed(
+                on_station,
+                client=c104.Client,
+                connection=c104.Connection,
+                common_address=int,
+                ret=None,
+            )
+        )
+        self.client.on_new_point(
+            callable=_typed(
+                on_point,
+                client=c104.Client,
+                station=c104.Station,
+                io_address=int,
+                point_type=c104.Type,
+                ret=None,
+            )
+        )
 
         def on_raw(connection, data):
             with self.lock:
                 self.raw.append(c104.explain_bytes(apdu=data))
 
-        self.conn.on_receive_raw(callable=_typed(on_raw, connection=c104.Connection,
-                                                 data=bytes, ret=None))  # fmt: skip
+        self.conn.on_receive_raw(
+            callable=_typed(on_raw, connection=c104.Connection, data=bytes, ret=None)
+        )
         self.client.start()
 
     def answers(self, text: str) -> list[str]:
@@ -109,16 +129,26 @@ class Master:
     def _receive(self, point, message):
         value = point.value
         value = int(value) if isinstance(value, c104.Int16) else value
-        g = Got(point.io_address, message.cot.name, value, not point.quality.is_good(),
-                point.recorded_at, point.type.name, time.time())  # fmt: skip
+        g = Got(
+            point.io_address,
+            message.cot.name,
+            value,
+            not point.quality.is_good(),
+            point.recorded_at,
+            point.type.name,
+            time.time(),
+        )
         with self.lock:
             self.got.append(g)
         return c104.ResponseState.SUCCESS
 
     def messages(self, ioa: int | None = None, cot: str | None = None) -> list[Got]:
         with self.lock:
-            return [g for g in self.got if (ioa is None or g.ioa == ioa) and
-                    (cot is None or g.cot == cot)]  # fmt: skip
+            return [
+                g
+                for g in self.got
+                if (ioa is None or g.ioa == ioa) and (cot is None or g.cot == cot)
+            ]
 
     def latest(self, ioa: int) -> Got | None:
         m = self.messages(ioa)
@@ -138,16 +168,21 @@ class Master:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             with contextlib.suppress(pytest.fail.Exception):
-                wait_until(lambda: len(self.interrogated()) >= points, "the interrogation",
-                           timeout_s=min(3.0, max(0.1, deadline - time.monotonic())))  # fmt: skip
+                wait_until(
+                    lambda: len(self.interrogated()) >= points,
+                    "the interrogation",
+                    timeout_s=min(3.0, max(0.1, deadline - time.monotonic())),
+                )
                 return
             self._nudge(interrogate=True)
         pytest.fail(f"still waiting for the interrogation after {timeout_s} s ({self})")
 
     def __repr__(self) -> str:
         with self.lock:
-            return (f"master {self.conn.state.name}, {len(self.got)} points received, last "
-                    f"messages {self.raw[-3:]}")  # fmt: skip
+            return (
+                f"master {self.conn.state.name}, {len(self.got)} points received, last "
+                f"messages {self.raw[-3:]}"
+            )
 
     def interrogate(self, points: int, timeout_s: float = 30.0) -> dict[int, Got]:
         """A fresh general interrogation, answered by `points` points. Asked again, as a
@@ -166,8 +201,9 @@ class Master:
     def command(self, ioa: int, on: bool) -> bool:
         """A single command (C_SC_NA_1) to `ioa`: whether the outstation confirmed it."""
         station = self.conn.get_station(CA) or self.conn.add_station(common_address=CA)
-        point = station.get_point(ioa) or station.add_point(io_address=ioa,
-                                                            type=c104.Type.C_SC_NA_1)  # fmt: skip
+        point = station.get_point(ioa) or station.add_point(
+            io_address=ioa, type=c104.Type.C_SC_NA_1
+        )
         point.value = on
         return bool(point.transmit(cause=c104.Cot.ACTIVATION))
 
@@ -189,9 +225,11 @@ class Master:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             with contextlib.suppress(pytest.fail.Exception):
-                wait_until(lambda: self.conn.is_connected and self.conn.state.name == "OPEN",
-                           "the master's connection open",
-                           timeout_s=min(3.0, max(0.1, deadline - time.monotonic())))  # fmt: skip
+                wait_until(
+                    lambda: self.conn.is_connected and self.conn.state.name == "OPEN",
+                    "the master's connection open",
+                    timeout_s=min(3.0, max(0.1, deadline - time.monotonic())),
+                )
                 return
             self._nudge(interrogate=False)
         pytest.fail(f"still waiting for the master's connection open after {timeout_s} s ({self})")
@@ -204,8 +242,9 @@ class Master:
 
 
 def _square(x: float, y: float, half: float = 0.5) -> np.ndarray:
-    return np.array([[x - half, y - half], [x + half, y - half], [x + half, y + half],
-                     [x - half, y + half]])  # fmt: skip
+    return np.array(
+        [[x - half, y - half], [x + half, y - half], [x + half, y + half], [x - half, y + half]]
+    )
 
 
 @pytest.fixture(scope="module")
@@ -218,9 +257,12 @@ def _site(rig) -> Site:
     camera (which does not see it), and a behaviour rule."""
     cam = rig[0]
     back = cam.center - 2.0 * cam.R[2]
-    zones = (Zone("panel A", "energized", _square(6.0, 4.0), (0.0, 2.5)),
-             Zone("cabinet", "restricted", _square(back[0], back[1], 0.2),
-                  (back[2] - 0.1, back[2] + 0.1)))  # fmt: skip
+    zones = (
+        Zone("panel A", "energized", _square(6.0, 4.0), (0.0, 2.5)),
+        Zone(
+            "cabinet", "restricted", _square(back[0], back[1], 0.2), (back[2] - 0.1, back[2] + 0.1)
+        ),
+    )
     return Site(zones, 25.0)
 
 
@@ -234,8 +276,9 @@ def station(rig):
         settings = {"port": free_port(), "commands": True, **settings}
         cfg = Iec104Config(enabled=True, common_address=CA, **settings)
         table = points_table(site, rig, commands=cfg.commands)
-        out = Outstation(Iec104Settings.from_config(cfg), table, wall_start=WALL_START,
-                         status_interval_s=0.1)  # fmt: skip
+        out = Outstation(
+            Iec104Settings.from_config(cfg), table, wall_start=WALL_START, status_interval_s=0.1
+        )
         made.append(out)
         return out, table
 
@@ -259,26 +302,39 @@ def masters():
 
 
 def _frame(t: float, events=(), people: int = 0) -> FrameResult:
-    p3 = People3D(frame=int(t * 25), joints=np.zeros((people, 17, 3)),
-                  conf=np.ones((people, 17)), ids=np.arange(people),
-                  reprojection_px=np.zeros((people, 17)), views=np.full((people, 17), 2),
-                  detections=np.zeros((people, 2), dtype=int))  # fmt: skip
+    p3 = People3D(
+        frame=int(t * 25),
+        joints=np.zeros((people, 17, 3)),
+        conf=np.ones((people, 17)),
+        ids=np.arange(people),
+        reprojection_px=np.zeros((people, 17)),
+        views=np.full((people, 17), 2),
+        detections=np.zeros((people, 2), dtype=int),
+    )
     return FrameResult(int(t * 25), t, {}, p3, tuple(events))
 
 
 def _zone(t: float, type_: str, zone: str = "panel A", person: int = 3) -> Event:
-    return Event(t=t, frame=int(t * 25), person=person, zone=zone, kind="energized", type=type_,
-                 onset_t=t)  # fmt: skip
+    return Event(
+        t=t, frame=int(t * 25), person=person, zone=zone, kind="energized", type=type_, onset_t=t
+    )
 
 
 def _camera(t: float, type_: str, camera: str) -> Event:
-    return Event(t=t, frame=int(t * 25), person=-1, zone="", kind="camera", type=type_,
-                 onset_t=t, camera=camera)  # fmt: skip
+    return Event(
+        t=t,
+        frame=int(t * 25),
+        person=-1,
+        zone="",
+        kind="camera",
+        type=type_,
+        onset_t=t,
+        camera=camera,
+    )
 
 
 def _service(t: float, type_: str) -> Event:
-    return Event(t=t, frame=int(t * 25), person=-1, zone="", kind="service", type=type_,
-                 onset_t=t)  # fmt: skip
+    return Event(t=t, frame=int(t * 25), person=-1, zone="", kind="service", type=type_, onset_t=t)
 
 
 def _tag(t: float) -> dt.datetime:
@@ -309,8 +365,10 @@ def test_interrogation_returns_every_point_of_the_points_command(
     port = free_port()
     cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{n}.mp4"\n\n' for n in rig.names)
     config = tmp_path / "serve.toml"
-    config.write_text(f'calibration = "calib.toml"\nsite = "site.toml"\n\n{cams}[iec104]\n'
-                      f"enabled = true\nport = {port}\ncommon_address = {CA}\n")  # fmt: skip
+    config.write_text(
+        f'calibration = "calib.toml"\nsite = "site.toml"\n\n{cams}[iec104]\n'
+        f"enabled = true\nport = {port}\ncommon_address = {CA}\n"
+    )
     assert main(["points", str(config)]) == 0
     rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     cfg, table = points_of(config)
@@ -406,9 +464,13 @@ def test_a_stalled_service_is_not_running_and_its_readings_invalid(station, mast
     running = table.get("service_running").ioa
     out.write(_frame(4.0, [_service(4.0, "service_stalled")]))
     assert _spontaneous(master, running, False).recorded_at == _tag(4.0)
-    wait_until(lambda: master.latest(table.get("zone_occupied", "panel A").ioa) is not None
-               and master.latest(table.get("zone_occupied", "panel A").ioa).invalid,
-               "panel A invalid in the stall")  # fmt: skip
+    wait_until(
+        lambda: (
+            master.latest(table.get("zone_occupied", "panel A").ioa) is not None
+            and master.latest(table.get("zone_occupied", "panel A").ioa).invalid
+        ),
+        "panel A invalid in the stall",
+    )
     out.write(_frame(9.0, [_service(9.0, "service_resumed")]))
     assert _spontaneous(master, running, True).recorded_at == _tag(9.0)
     # the degraded point follows the health answer
@@ -567,11 +629,14 @@ def test_without_commands_a_command_is_refused(station, masters) -> None:
     master.wait_open()
     assert not any(p.command for p in table)
     master.command(10_019, True)  # where zone 1's acknowledge would be
-    wait_until(lambda: master.answers("C_SC_NA_1 | ACTIVATION_CON | NEGATIVE"),
-               "a negative confirmation")  # fmt: skip
+    wait_until(
+        lambda: master.answers("C_SC_NA_1 | ACTIVATION_CON | NEGATIVE"), "a negative confirmation"
+    )
     # the unknown address's answer is a message of its own, perhaps not here yet
-    wait_until(lambda: master.answers("C_SC_NA_1 | UNKNOWN_INFORMATION_OBJECT_ADDRESS"),
-               "the unknown address's answer")  # fmt: skip
+    wait_until(
+        lambda: master.answers("C_SC_NA_1 | UNKNOWN_INFORMATION_OBJECT_ADDRESS"),
+        "the unknown address's answer",
+    )
     assert out.figures()["commands"] == 0
 
 
@@ -624,20 +689,27 @@ def test_the_served_demos_zone_entry_reaches_the_master_time_tagged(tmp_path: Pa
     from stereopose.pipeline.demo import write_serve_demo_config
 
     port = free_port()
-    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
-                                     imgsz=320)  # fmt: skip
-    config.write_text(config.read_text() + f"\n[iec104]\nenabled = true\nport = {port}\n"
-                      f"common_address = {CA}\n")  # fmt: skip
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320)
+    config.write_text(
+        config.read_text() + f"\n[iec104]\nenabled = true\nport = {port}\ncommon_address = {CA}\n"
+    )
     _, table = points_of(config)
     busbar = table.get("zone_occupied", "overhead_busbar").ioa
     log = tmp_path / "serve.log"
     with open(log, "ab") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+        )
     master = None
     try:
-        wait_until(lambda: listening(port) or proc.poll() is not None,
-                   "the outstation listening", timeout_s=60, poll_s=0.05)  # fmt: skip
+        wait_until(
+            lambda: listening(port) or proc.poll() is not None,
+            "the outstation listening",
+            timeout_s=60,
+            poll_s=0.05,
+        )
         master = Master(port)
         master.wait_interrogated(len(table.monitored), timeout_s=60)
         assert set(master.interrogated()) == {p.ioa for p in table.monitored}

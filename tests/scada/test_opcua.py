@@ -54,8 +54,10 @@ WALL_START = 1_780_000_000.0
 CLIENT_URI = "urn:stereopose:test-client"
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
 REFRESH = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
-ZONES = [ZoneNode("overhead_busbar", "energized", ("cam01", "cam02")),
-         ZoneNode("walkway", "work_area", ())]  # fmt: skip
+ZONES = [
+    ZoneNode("overhead_busbar", "energized", ("cam01", "cam02")),
+    ZoneNode("walkway", "work_area", ()),
+]
 CAMERAS = [CameraNode("cam01"), CameraNode("cam02")]
 TIMEOUT_S = 20.0
 
@@ -65,9 +67,12 @@ def client_pair(folder: Path, uri: str = CLIENT_URI) -> tuple[Path, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     key = generate_private_key()
     cert = generate_self_signed_app_certificate(
-        key, uri, {}, [x509.UniformResourceIdentifier(uri), x509.DNSName("localhost")],
+        key,
+        uri,
+        {},
+        [x509.UniformResourceIdentifier(uri), x509.DNSName("localhost")],
         [ExtendedKeyUsageOID.CLIENT_AUTH],
-    )  # fmt: skip
+    )
     (folder / "client.der").write_bytes(cert.public_bytes(Encoding.DER))
     (folder / "client.pem").write_bytes(dump_private_key_as_pem(key))
     return folder / "client.der", folder / "client.pem"
@@ -80,18 +85,29 @@ def pair(tmp_path_factory) -> tuple[Path, Path]:
 
 def user_store(folder: Path) -> UserStore:
     """The three roles' users, hashed with a small argon2 cost (the same code path)."""
-    store = UserStore(folder / "users.json",
-                      PasswordHasher(time_cost=1, memory_cost=8 * 1024, parallelism=1))  # fmt: skip
+    store = UserStore(
+        folder / "users.json", PasswordHasher(time_cost=1, memory_cost=8 * 1024, parallelism=1)
+    )
     for name, role in ROLES.items():
         store.add(name, PASSWORDS[name], role)
     return store
 
 
 def settings(folder: Path, **kw) -> OpcuaSettings:
-    base = OpcuaSettings(host="127.0.0.1", port=free_port(), path="/stereopose", site="testsite",
-                         certificate=None, key=None, cert_dir=folder / "opcua",
-                         trusted_clients=None, security=("Basic256Sha256_SignAndEncrypt",),
-                         allow_anonymous=False, max_connections=8, queue_size=1000)  # fmt: skip
+    base = OpcuaSettings(
+        host="127.0.0.1",
+        port=free_port(),
+        path="/stereopose",
+        site="testsite",
+        certificate=None,
+        key=None,
+        cert_dir=folder / "opcua",
+        trusted_clients=None,
+        security=("Basic256Sha256_SignAndEncrypt",),
+        allow_anonymous=False,
+        max_connections=8,
+        queue_size=1000,
+    )
     return replace(base, **kw)
 
 
@@ -107,9 +123,15 @@ class Script:
 
 
 def people(n: int, frame: int) -> People3D:
-    return People3D(frame=frame, joints=np.zeros((n, 17, 3)), conf=np.ones((n, 17)),
-                    ids=np.arange(n), reprojection_px=np.zeros((n, 17)),
-                    views=np.full((n, 17), 2), detections=np.zeros((n, 2), dtype=int))  # fmt: skip
+    return People3D(
+        frame=frame,
+        joints=np.zeros((n, 17, 3)),
+        conf=np.ones((n, 17)),
+        ids=np.arange(n),
+        reprojection_px=np.zeros((n, 17)),
+        views=np.full((n, 17), 2),
+        detections=np.zeros((n, 2), dtype=int),
+    )
 
 
 @dataclass
@@ -142,8 +164,9 @@ class Site:
 
 
 @contextlib.contextmanager
-def running(folder: Path, store: UserStore | None = None, db=None, limiter=None,
-            **kw) -> Iterator[Site]:  # fmt: skip
+def running(
+    folder: Path, store: UserStore | None = None, db=None, limiter=None, **kw
+) -> Iterator[Site]:
     """A started server; db: the event log the step stores its incidents in, as serve's;
     limiter: the console's login limiter, shared."""
     store = store or user_store(folder)
@@ -152,9 +175,16 @@ def running(folder: Path, store: UserStore | None = None, db=None, limiter=None,
     script = Script()
     site = Site(server, None, script, store, db)  # type: ignore[arg-type]
     put = db.put_incidents if db is not None else None
-    site.step = IncidentStep(IncidentBook(), script, None, None, store=put,
-                             outputs=[server.write_changes], clock=lambda: site.t,
-                             wall_start=WALL_START)  # fmt: skip
+    site.step = IncidentStep(
+        IncidentBook(),
+        script,
+        None,
+        None,
+        store=put,
+        outputs=[server.write_changes],
+        clock=lambda: site.t,
+        wall_start=WALL_START,
+    )
     server.start()
     server.attach(site.step)
     try:
@@ -163,14 +193,23 @@ def running(folder: Path, store: UserStore | None = None, db=None, limiter=None,
         server.close()
 
 
-def enter(t: float, zone: str = "overhead_busbar", person: int = 7, type_: str = "enter",
-          kind: str = "energized") -> Event:  # fmt: skip
-    return Event(t=t, frame=int(t * 10), person=person, zone=zone, kind=kind, type=type_,
-                 onset_t=t)  # fmt: skip
+def enter(
+    t: float,
+    zone: str = "overhead_busbar",
+    person: int = 7,
+    type_: str = "enter",
+    kind: str = "energized",
+) -> Event:
+    return Event(t=t, frame=int(t * 10), person=person, zone=zone, kind=kind, type=type_, onset_t=t)
 
 
-async def connect(url: str, pair: tuple[Path, Path], user: str | None = "otto",
-                  password: str | None = None, mode: str = "SignAndEncrypt") -> Client:  # fmt: skip
+async def connect(
+    url: str,
+    pair: tuple[Path, Path],
+    user: str | None = "otto",
+    password: str | None = None,
+    mode: str = "SignAndEncrypt",
+) -> Client:
     c = Client(url, timeout=10)
     c.application_uri = CLIENT_URI
     await c.set_security_string(f"Basic256Sha256,{mode},{pair[0]},{pair[1]}")
@@ -250,11 +289,21 @@ def test_a_login_browses_the_site_and_sees_its_values_change(tmp_path, pair):
         try:
             idx, root = await site_node(client)
             names = {(await n.read_browse_name()).Name for n in await root.get_children()}
-            assert names == {"Running", "Status", "People", "ActiveIncidents", "Zones",
-                             "UnacknowledgedIncidents", "Cameras", "Incidents"}  # fmt: skip
+            assert names == {
+                "Running",
+                "Status",
+                "People",
+                "ActiveIncidents",
+                "Zones",
+                "UnacknowledgedIncidents",
+                "Cameras",
+                "Incidents",
+            }
             zones = await root.get_child([f"{idx}:Zones"])
             assert {(await n.read_browse_name()).Name for n in await zones.get_children()} == {
-                "overhead_busbar", "walkway"}  # fmt: skip
+                "overhead_busbar",
+                "walkway",
+            }
             busbar = client.get_node(ua.NodeId("zone/overhead_busbar", idx))
             kind = await busbar.get_child([f"{idx}:Kind"])
             assert await kind.read_value() == "energized"
@@ -276,8 +325,16 @@ def test_a_login_browses_the_site_and_sees_its_values_change(tmp_path, pair):
             alarm = client.get_node(ua.NodeId("zone/overhead_busbar/Alarm", idx))
             await until(alarm.read_value, "the busbar's alarm")
 
-            down = Event(t=2.0, frame=20, person=-1, zone="", kind="camera", type="camera_down",
-                         onset_t=2.0, camera="cam02")  # fmt: skip
+            down = Event(
+                t=2.0,
+                frame=20,
+                person=-1,
+                zone="",
+                kind="camera",
+                type="camera_down",
+                onset_t=2.0,
+                camera="cam02",
+            )
             await in_thread(site.run, [down])
             await until(lambda: _equals(up, False), "cam02 down")
             dv = await until(lambda: _uncertain(occupied), "the busbar uncertain")
@@ -326,8 +383,11 @@ def test_an_incident_is_an_alarm_condition_acknowledged_as_the_opcua_user(tmp_pa
             await until(lambda: _equals(unacked, 1), "1 incident unacknowledged")
 
             cond = client.get_node(e.NodeId)
-            await cond.call_method(ACK, ua.Variant(e.EventId, ua.VariantType.ByteString),
-                                   ua.LocalizedText("seen on the SCADA"))  # fmt: skip
+            await cond.call_method(
+                ACK,
+                ua.Variant(e.EventId, ua.VariantType.ByteString),
+                ua.LocalizedText("seen on the SCADA"),
+            )
             rec = site.step.book.get(incident)
             assert rec.state == "acknowledged" and rec.acked_by == "otto"
             e2 = await events.next(acked, "the condition acknowledged")
@@ -335,8 +395,9 @@ def test_an_incident_is_an_alarm_condition_acknowledged_as_the_opcua_user(tmp_pa
             assert e2.ClientUserId == "otto"
             await until(lambda: _equals(unacked, 0), "none unacknowledged")
             with pytest.raises(ua.UaStatusCodeError) as err:  # twice: already acknowledged
-                await cond.call_method(ACK, ua.Variant(e2.EventId, ua.VariantType.ByteString),
-                                       ua.LocalizedText(""))  # fmt: skip
+                await cond.call_method(
+                    ACK, ua.Variant(e2.EventId, ua.VariantType.ByteString), ua.LocalizedText("")
+                )
             assert err.value.code == ua.StatusCodes.BadConditionBranchAlreadyAcked
             # the change reaches the other outputs with the next step, by the same user
             await in_thread(site.run)
@@ -374,13 +435,16 @@ def test_acknowledge_refused_for_a_viewer_an_unknown_event_and_a_stale_login(tmp
             assert err.value.code == ua.StatusCodes.BadUserAccessDenied
             with pytest.raises(ua.UaStatusCodeError) as err:
                 await operator.get_node(e.NodeId).call_method(
-                    ACK, ua.Variant(b"not an event", ua.VariantType.ByteString),
-                    ua.LocalizedText("x"))  # fmt: skip
+                    ACK,
+                    ua.Variant(b"not an event", ua.VariantType.ByteString),
+                    ua.LocalizedText("x"),
+                )
             assert err.value.code == ua.StatusCodes.BadEventIdUnknown
             with pytest.raises(ua.UaStatusCodeError) as err:  # a viewer writes nothing
                 idx, _ = await site_node(viewer)
                 await viewer.get_node(ua.NodeId("site/People", idx)).write_value(
-                    ua.Variant(5, ua.VariantType.UInt32))  # fmt: skip
+                    ua.Variant(5, ua.VariantType.UInt32)
+                )
             assert err.value.code == ua.StatusCodes.BadUserAccessDenied
             # otto is made a viewer after logging in: his session may no longer acknowledge
             await in_thread(_demote, site.store, "otto")
@@ -412,8 +476,9 @@ def test_an_ack_elsewhere_reaches_the_condition_and_refresh_replays_the_retained
     async def body(site: Site) -> None:
         # raised before any client: a client learns of it by ConditionRefresh
         busbar = (await in_thread(site.run, [enter(1.0)]))[0].incident
-        walk = (await in_thread(site.run, [enter(1.5, "walkway", 8, "left_work_area",
-                                                 "work_area")]))[0].incident  # fmt: skip
+        walk = (
+            await in_thread(site.run, [enter(1.5, "walkway", 8, "left_work_area", "work_area")])
+        )[0].incident
         client = await connect(site.url, pair, "vera")
         events = Events()
         try:
@@ -466,14 +531,18 @@ def test_acks_both_ways_between_opcua_and_the_console(tmp_path, pair):
             r = served.client("ada").post(f"/api/incidents/{two}/ack")
             assert r.status_code == 200, r.text
             await in_thread(site.run)
-            e = await events.next(lambda ev: ev.NodeId.Identifier == f"incident/{two}"
-                                  and acked(ev), "the console's ack")  # fmt: skip
+            e = await events.next(
+                lambda ev: ev.NodeId.Identifier == f"incident/{two}" and acked(ev),
+                "the console's ack",
+            )
             assert e.ClientUserId == "ada"
         finally:
             await client.disconnect()
 
-    with (console_server(tmp_path / "out") as served,
-          running(tmp_path, served.console.users, db=served.db) as site):  # fmt: skip
+    with (
+        console_server(tmp_path / "out") as served,
+        running(tmp_path, served.console.users, db=served.db) as site,
+    ):
         served.server.app.state.incidents.attach(site.step)
         asyncio.run(body(site, served))
 
@@ -509,9 +578,11 @@ def test_changes_over_the_bound_are_dropped_counted_and_read_again_from_the_book
 def test_anonymous_wrong_password_and_unsecured_connections_are_refused(tmp_path, pair, caplog):
     async def body(site: Site) -> None:
         denied = ua.StatusCodes.BadUserAccessDenied
-        for user, password, code in ((None, None, ua.StatusCodes.BadIdentityTokenRejected),
-                                     ("otto", "not-his-password", denied),
-                                     ("nobody", "whatever-pass-1", denied)):  # fmt: skip
+        for user, password, code in (
+            (None, None, ua.StatusCodes.BadIdentityTokenRejected),
+            ("otto", "not-his-password", denied),
+            ("nobody", "whatever-pass-1", denied),
+        ):
             with pytest.raises(ua.UaStatusCodeError) as err:
                 c = await connect(site.url, pair, user, password)
                 await c.disconnect()
@@ -714,16 +785,18 @@ def test_a_port_taken_is_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize(
     ("body", "message"),
-    [('port = "4840"', "opcua.port: expected an integer"),
-     ("port = 0", "opcua.port"),
-     ('host = "opc.example.org"', "opcua.host: expected an IP address"),
-     ('security = ["None"]', "opcua.security[0]: expected one of"),
-     ("security = []", "opcua.security: empty"),
-     ('certificate = "server.der"', "opcua.certificate and opcua.key: give both"),
-     ('path = "no/leading/slash"', "opcua.path"),
-     ("allow_anonymous = 1", "opcua.allow_anonymous: expected true or false"),
-     ("anonymous = true", "opcua: unknown key(s) anonymous")],
-)  # fmt: skip
+    [
+        ('port = "4840"', "opcua.port: expected an integer"),
+        ("port = 0", "opcua.port"),
+        ('host = "opc.example.org"', "opcua.host: expected an IP address"),
+        ('security = ["None"]', "opcua.security[0]: expected one of"),
+        ("security = []", "opcua.security: empty"),
+        ('certificate = "server.der"', "opcua.certificate and opcua.key: give both"),
+        ('path = "no/leading/slash"', "opcua.path"),
+        ("allow_anonymous = 1", "opcua.allow_anonymous: expected true or false"),
+        ("anonymous = true", "opcua: unknown key(s) anonymous"),
+    ],
+)
 def test_a_malformed_opcua_section_is_an_error_naming_the_file(tmp_path, body, message):
     path = tmp_path / "service.toml"
     path.write_text(f"[opcua]\nenabled = true\n{body}\n")
@@ -739,8 +812,9 @@ def test_certificate_and_key_files_are_checked_before_any_work(tmp_path):
     path = tmp_path / "service.toml"
 
     def check(cert_name: str, key_name: str) -> str:
-        path.write_text(f'[opcua]\nenabled = true\ncertificate = "{cert_name}"\n'
-                        f'key = "{key_name}"\n')  # fmt: skip
+        path.write_text(
+            f'[opcua]\nenabled = true\ncertificate = "{cert_name}"\nkey = "{key_name}"\n'
+        )
         with pytest.raises(ConfigError) as err:
             opcua_settings(path, load_config(path), tmp_path / "out")
         assert str(path) in str(err.value)
@@ -757,8 +831,9 @@ def test_certificate_and_key_files_are_checked_before_any_work(tmp_path):
     other.write_bytes(dump_private_key_as_pem(key_of()))
     os.chmod(other, 0o600)
     assert "the key is not the certificate's" in check("pki/client.der", "pki/other.pem")
-    path.write_text('[opcua]\nenabled = true\ncertificate = "pki/client.der"\n'
-                    'key = "pki/client.pem"\n')  # fmt: skip
+    path.write_text(
+        '[opcua]\nenabled = true\ncertificate = "pki/client.der"\nkey = "pki/client.pem"\n'
+    )
     got = opcua_settings(path, load_config(path), tmp_path / "out")
     assert got is not None and got.certificate == cert and got.key == key
     path.write_text("[opcua]\nport = 4841\n")  # not enabled: off
@@ -784,8 +859,9 @@ def test_the_served_demos_incident_is_acknowledged_over_opcua_and_the_console_sh
 
     port, http_port = free_port(), free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", http_port, imgsz=320)
-    config.write_text(config.read_text() + f"\n[opcua]\nenabled = true\nport = {port}\n"
-                      'site = "testsite"\n')  # fmt: skip
+    config.write_text(
+        config.read_text() + f'\n[opcua]\nenabled = true\nport = {port}\nsite = "testsite"\n'
+    )
     user_store(tmp_path / "data")  # the console's users, before the service starts
     log = tmp_path / "serve.log"
     url = f"opc.tcp://127.0.0.1:{port}/stereopose"
@@ -807,8 +883,11 @@ def test_the_served_demos_incident_is_acknowledged_over_opcua_and_the_console_sh
             await client.disconnect()
 
     with open(log, "ab") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+        )
     try:
         incident = asyncio.run(body())
         http = httpx.Client(base_url=f"http://127.0.0.1:{http_port}", timeout=30)

@@ -52,8 +52,10 @@ def _square(x: float, y: float, half: float = 0.5) -> list[list[float]]:
 def _site(folder: Path, *, far: bool = False, names=("panel A", "work, area")) -> Site:
     """A site file in `folder` (zones in the room's middle; far: a third one no camera sees)
     with two rules, read back as serve reads it."""
-    zones = [Zone(names[0], "energized", np.array(_square(6.0, 4.0)), (0.0, 2.5)),
-             Zone(names[1], "work_area", np.array(_square(5.0, 3.0, 1.5)), (0.0, 2.5))]  # fmt: skip
+    zones = [
+        Zone(names[0], "energized", np.array(_square(6.0, 4.0)), (0.0, 2.5)),
+        Zone(names[1], "work_area", np.array(_square(5.0, 3.0, 1.5)), (0.0, 2.5)),
+    ]
     if far:
         zones.append(Zone("far away", "restricted", np.array(_square(900.0, 900.0)), (0.0, 2.0)))
     path = folder / "site.toml"
@@ -75,8 +77,9 @@ def test_addresses_come_in_blocks_and_follow_the_files_order(tmp_path: Path, rig
     table = points_table(site, rig)
     ioas = [p.ioa for p in table]
     assert ioas == sorted(ioas) and len(set(ioas)) == len(ioas)
-    assert [table.get("camera_up", n).ioa for n in rig.names] == [CAMERA_BASE + k for k in
-                                                                  range(1, 5)]  # fmt: skip
+    assert [table.get("camera_up", n).ioa for n in rig.names] == [
+        CAMERA_BASE + k for k in range(1, 5)
+    ]
     assert table.get("zone_occupied", "panel A").ioa == ZONE_BASE + 11
     assert table.get("zone_alarm", "panel A").ioa == ZONE_BASE + 12
     assert table.get("zone_occupied", "work, area").ioa == ZONE_BASE + 21
@@ -122,8 +125,12 @@ def test_a_zone_behind_a_camera_is_not_seen_by_it(rig) -> None:
     cam = rig[0]
     # a zone 2 m behind the first camera (opposite its optical axis), at its height
     back = cam.center - 2.0 * cam.R[2]
-    z = Zone("behind", "restricted", np.array(_square(back[0], back[1], 0.2)),
-             (back[2] - 0.1, back[2] + 0.1))  # fmt: skip
+    z = Zone(
+        "behind",
+        "restricted",
+        np.array(_square(back[0], back[1], 0.2)),
+        (back[2] - 0.1, back[2] + 0.1),
+    )
     assert cam.name not in cameras_seeing(z, rig)
 
 

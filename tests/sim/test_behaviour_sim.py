@@ -36,8 +36,13 @@ def work():
 
 
 def _one(shape: str, height: float, fall_dir: float = 0.0, heading: float = 0.3) -> np.ndarray:
-    return body(height, np.array([[5.0, 4.0]]), np.array([heading]), SHAPES[shape][None],
-                np.array([fall_dir]))[0]  # fmt: skip
+    return body(
+        height,
+        np.array([[5.0, 4.0]]),
+        np.array([heading]),
+        SHAPES[shape][None],
+        np.array([fall_dir]),
+    )[0]
 
 
 @pytest.mark.parametrize(
@@ -104,8 +109,14 @@ def test_a_fall_drops_the_hips_fast_and_a_get_up_is_slow() -> None:
 @pytest.mark.slow
 def test_postures_of_a_routine_scene_follow_the_script() -> None:
     bs = simulate_behaviour("routine", seed=4, difficulty="easy", duration_s=60.0)
-    expect = {"kneel": "crouching", "kneel2": "crouching", "squat": "crouching",
-              "sit": "crouching", "sit_floor": "crouching", "stoop": "bending"}  # fmt: skip
+    expect = {
+        "kneel": "crouching",
+        "kneel2": "crouching",
+        "squat": "crouching",
+        "sit": "crouching",
+        "sit_floor": "crouching",
+        "stoop": "bending",
+    }
     tracker = PostureTracker(FPS)
     hits, seen = 0, 0
     for f, people in enumerate(truth_frames(bs.scene)):

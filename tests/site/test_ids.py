@@ -34,8 +34,9 @@ DAY = 86400.0
 
 def passing(n: int, first_t: float = 1.0) -> list[Event]:
     """n events that leave nothing open (approaches: no zone occupied, no alarm)."""
-    return [Event(first_t + i, i, 1, "panel", "energized", "approach", first_t + i)
-            for i in range(n)]  # fmt: skip
+    return [
+        Event(first_t + i, i, 1, "panel", "energized", "approach", first_t + i) for i in range(n)
+    ]
 
 
 def ids(db: Path) -> list[int]:
@@ -153,8 +154,11 @@ def durable_exits(db: Path) -> set[tuple[str, int]]:
     """(zone, person) of the exits in the log or waiting beside it (not restart ones)."""
     if not db.exists():
         return set()
-    stored = {(r["zone"], r["person"]) for r in query_events(db)
-              if r["type"] == "exit" and not r["restart"]}  # fmt: skip
+    stored = {
+        (r["zone"], r["person"])
+        for r in query_events(db)
+        if r["type"] == "exit" and not r["restart"]
+    }
     return stored | {(e.zone, e.person) for _, e in read_spill(db) if e.type == "exit"}
 
 
@@ -175,8 +179,12 @@ def test_person_ids_are_never_below_the_reserved_range_after_kills(tmp_path: Pat
         resume = Resume.from_log(db)
         assert resume.next_id > max(given, default=0), "an id could name two people"
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-        proc = subprocess.Popen([sys.executable, str(WRITER), str(db), str(100 + round_)],
-                                stdout=subprocess.PIPE, text=True, env=env)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, str(WRITER), str(db), str(100 + round_)],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
         holder = None
         lines: list[list[str]] = []
         try:
@@ -278,8 +286,10 @@ def test_the_live_hub_pushes_new_rows_after_the_log_was_emptied(
             return pushed
 
         # the hub's first round (the zones sent again) has taken where the log ends
-        wait_until(lambda: events_pushed() == [] and kinds.count("event: zones") >= 2,
-                   "the live channel's first round")  # fmt: skip
+        wait_until(
+            lambda: events_pushed() == [] and kinds.count("event: zones") >= 2,
+            "the live channel's first round",
+        )
         sink.write_events(passing(1, 9.0))
         wait_until(lambda: len(events_pushed()) == 1, "the event stored after the start")
         assert prune_everything(tmp_path, db) == 6
@@ -363,7 +373,8 @@ def test_incidents_waiting_for_a_locked_log_are_kept_and_taken_back_at_the_next_
     first.db.close()  # gone without a word, its incident still waiting
     resumed = Resume.from_log(db)
     assert [(r.id, r.state, r.occurrences) for r, _ in resumed.incidents] == [
-        (up.incidents[0], "active", 2)]  # fmt: skip
+        (up.incidents[0], "active", 2)
+    ]
     assert [e.type for _, e in read_spill(db)] == ["enter"]  # the events read as before
     SqliteSink(db).close()
     stored = query_incidents(db, IncidentFilters())

@@ -39,8 +39,9 @@ def closing():
 
 
 def settings(port: int) -> MqttSettings:
-    return MqttSettings(host="127.0.0.1", port=port, site=SITE, reconnect_min_s=0.05,
-                        reconnect_max_s=0.2)  # fmt: skip
+    return MqttSettings(
+        host="127.0.0.1", port=port, site=SITE, reconnect_min_s=0.05, reconnect_max_s=0.2
+    )
 
 
 class Log:
@@ -56,8 +57,17 @@ class Log:
         for _ in range(n):
             self.k += 1
             kind = "enter" if self.k % 2 else "exit"
-            events.append(Event(t=self.k / 25, frame=self.k, person=self.k % 3, zone="panel",
-                                kind="energized", type=kind, onset_t=self.k / 25))  # fmt: skip
+            events.append(
+                Event(
+                    t=self.k / 25,
+                    frame=self.k,
+                    person=self.k % 3,
+                    zone="panel",
+                    kind="energized",
+                    type=kind,
+                    onset_t=self.k / 25,
+                )
+            )
         self.sink.write_events(events)
 
     def ids(self) -> list[int]:
@@ -191,8 +201,14 @@ def test_malformed_control_messages_are_counted_and_ignored(broker, log, closing
     c.connect("127.0.0.1", broker.port)
     c.loop_start()
     wait_until(lambda: box.figures()["subscribed"], "the outbox subscribed")
-    for payload in (b"not json", b'{"events": -1}', b'{"events": true}', b"\xff\xfe",
-                    b'{"after_id": "7"}', b"[1, 2]"):  # fmt: skip
+    for payload in (
+        b"not json",
+        b'{"events": -1}',
+        b'{"events": true}',
+        b"\xff\xfe",
+        b'{"after_id": "7"}',
+        b"[1, 2]",
+    ):
         c.publish(f"{BASE}/confirmed", payload, qos=1).wait_for_publish(5)
     c.publish(f"{BASE}/replay", b'{"after_id": 1e400}', qos=1).wait_for_publish(5)
     wait_until(lambda: box.figures()["malformed"] == 7, "every malformed message counted")

@@ -128,8 +128,9 @@ def test_a_clean_close_is_not_a_crash_and_closed_zones_stay_closed(tmp_path: Pat
 
 
 def behaviour(t: float, person: int, type_: str, rule: str) -> Event:
-    return Event(t, round(t * 25), person, "", "behaviour", type_, t, rule=rule,
-                 position=(1.0, 2.0))  # fmt: skip
+    return Event(
+        t, round(t * 25), person, "", "behaviour", type_, t, rule=rule, position=(1.0, 2.0)
+    )
 
 
 def test_behaviour_alarms_left_open_are_ended_at_the_restart(tmp_path: Path) -> None:

@@ -33,8 +33,12 @@ def _key(e: dict) -> tuple:
 def _start(config: Path, log: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "ab") as f:
-        return subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        return subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
 
 
 def _stop(proc: subprocess.Popen, log: Path) -> int:
@@ -53,10 +57,13 @@ def setup(tmp_path):
     port = free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
     text = config.read_text()
-    text = text.replace("[serve]\n", f'[outputs]\nwebhook = "{receiver.url}"\n\n'
-                        f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n'
-                        "[storage]\nsegment_s = 60\n\n[serve]\nstatus_interval_s = 1\n",
-                        1)  # fmt: skip
+    text = text.replace(
+        "[serve]\n",
+        f'[outputs]\nwebhook = "{receiver.url}"\n\n'
+        f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n'
+        "[storage]\nsegment_s = 60\n\n[serve]\nstatus_interval_s = 1\n",
+        1,
+    )
     config.write_text(text)
     sub = Subscriber(broker.port, "stereopose/demo/#")
     yield config, tmp_path / "data", port, sub, receiver, tmp_path / "serve.log"
@@ -72,8 +79,12 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
     try:
         wait_until(lambda: http_get(base + "/api/health")[0] == 200, "health 200", timeout_s=90)
         db = data / "events.sqlite"
-        wait_until(lambda: db.exists() and len(query_events(db)) >= 2, "events in the log",
-                   timeout_s=90, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: db.exists() and len(query_events(db)) >= 2,
+            "events in the log",
+            timeout_s=90,
+            poll_s=0.5,
+        )
         health = json.loads(http_get(base + "/api/health")[1])
         assert set(health["cameras"]) == {"cam01", "cam02", "cam03", "cam04"}
         assert all(c["state"] == "up" for c in health["cameras"].values())
@@ -85,8 +96,9 @@ def test_serve_events_agree_health_answers_and_sigterm_exits_0(setup):
         assert detect and float(detect.group(1)) > 0, metrics.decode()
         # detection in regions (the default): its figures per camera
         for cam in ("cam01", "cam02", "cam03", "cam04"):
-            steps = re.search(rb'stereopose_detection_steps_total\{camera="%s"\} (\S+)'
-                              % cam.encode(), metrics)  # fmt: skip
+            steps = re.search(
+                rb'stereopose_detection_steps_total\{camera="%s"\} (\S+)' % cam.encode(), metrics
+            )
             assert steps and float(steps.group(1)) > 0, metrics.decode()
         assert b"stereopose_detection_full_scans_total" in metrics
         wait_until(lambda: (data / "status.json").exists(), "status.json")
@@ -127,8 +139,12 @@ def test_kill_9_then_restart_keeps_events_and_never_reuses_an_id(setup):
     db = data / "events.sqlite"
     proc = _start(config, log)
     try:
-        wait_until(lambda: db.exists() and len(query_events(db)) >= 1, "events in the log",
-                   timeout_s=90, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: db.exists() and len(query_events(db)) >= 1,
+            "events in the log",
+            timeout_s=90,
+            poll_s=0.5,
+        )
     finally:
         proc.kill()
         proc.wait(timeout=10)
@@ -136,8 +152,12 @@ def test_kill_9_then_restart_keeps_events_and_never_reuses_an_id(setup):
     first_ids = {e["person"] for e in before if e["person"] >= 0}
     proc = _start(config, log)
     try:
-        wait_until(lambda: _fresh(query_events(db)[len(before) :]), "events of the new run",
-                   timeout_s=90, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: _fresh(query_events(db)[len(before) :]),
+            "events of the new run",
+            timeout_s=90,
+            poll_s=0.5,
+        )
     finally:
         rc = _stop(proc, log)
     assert rc == 0, log.read_text()

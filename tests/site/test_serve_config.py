@@ -62,8 +62,9 @@ def test_bad_setting_is_exit_2_naming_the_key(tmp_path, calib, capsys, extra, ke
 
 def test_a_stream_cannot_be_looped(tmp_path, calib, capsys):
     path = _config(tmp_path, calib, "", source="rtsp://10.0.0.5/cam")
-    text = path.read_text().replace('source = "rtsp://10.0.0.5/cam"\n',
-                                    'source = "rtsp://10.0.0.5/cam"\nloop = true\n', 1)  # fmt: skip
+    text = path.read_text().replace(
+        'source = "rtsp://10.0.0.5/cam"\n', 'source = "rtsp://10.0.0.5/cam"\nloop = true\n', 1
+    )
     path.write_text(text)
     assert main(["serve", str(path)]) == 2
     assert "cameras[0].loop" in capsys.readouterr().err
@@ -139,8 +140,9 @@ def test_demo_config_keeps_the_port_given(tmp_path):
     from stereopose.cli.serve import _config_path
 
     for port, want in ((19500, 19500), (None, 8787)):
-        args = argparse.Namespace(demo=True, config=None, out=tmp_path / str(port), data=None,
-                                  port=port)  # fmt: skip
+        args = argparse.Namespace(
+            demo=True, config=None, out=tmp_path / str(port), data=None, port=port
+        )
         text = _config_path(args).read_text()
         assert f'\n[serve]\nhost = "127.0.0.1"\nport = {want}\n' in text
 
@@ -150,9 +152,11 @@ def test_the_service_says_which_interfaces_are_on_and_warns_of_one_left_off(tmp_
     from stereopose.site.plan import disabled_settings, interfaces
 
     path = tmp_path / "serve.toml"
-    path.write_text('[mqtt]\nhost = "127.0.0.1"\nport = 1884\n\n'
-                    '[iec104]\nhost = "10.0.0.5"\nport = 2405\n\n'
-                    '[opcua]\nenabled = true\n')  # fmt: skip
+    path.write_text(
+        '[mqtt]\nhost = "127.0.0.1"\nport = 1884\n\n'
+        '[iec104]\nhost = "10.0.0.5"\nport = 2405\n\n'
+        "[opcua]\nenabled = true\n"
+    )
     cfg = load_config(path)
     assert interfaces(cfg) == [
         "MQTT on 127.0.0.1:1884 (site site)",

@@ -34,20 +34,43 @@ def test_serve_demo_through_the_console(tmp_path):
     port = free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1")
-    add = subprocess.run([sys.executable, "-m", "stereopose.cli", "users", "add", "olga",
-                          "--role", "operator", "--config", str(config)],
-                         input="olga-password\n", text=True, capture_output=True, env=env,
-                         timeout=60)  # fmt: skip
+    add = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereopose.cli",
+            "users",
+            "add",
+            "olga",
+            "--role",
+            "operator",
+            "--config",
+            str(config),
+        ],
+        input="olga-password\n",
+        text=True,
+        capture_output=True,
+        env=env,
+        timeout=60,
+    )
     assert add.returncode == 0, add.stderr
     log = tmp_path / "serve.log"
     with open(log, "wb") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
     base = f"http://127.0.0.1:{port}"
     try:
         c = httpx.Client(base_url=base, timeout=60)  # argon2 and a busy machine
-        wait_until(lambda: _ok(c, "/") and _ok(c, "/console/plotly.min.js"), "the page",
-                   timeout_s=90, poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: _ok(c, "/") and _ok(c, "/console/plotly.min.js"),
+            "the page",
+            timeout_s=90,
+            poll_s=0.2,
+        )
         assert c.get("/api/people").status_code == 401
         r = c.post("/api/login", json={"username": "olga", "password": "olga-password"})
         assert r.status_code == 200 and r.json()["role"] == "operator"
@@ -71,8 +94,9 @@ def test_serve_demo_through_the_console(tmp_path):
             picture = cv2.imdecode(np.frombuffer(shot.content, np.uint8), cv2.IMREAD_COLOR)
             assert picture is not None and picture.shape[0] > picture.shape[1] > 100
             assert picture.std() > 10  # the demo's picture, not a blank frame
-        wait_until(lambda: c.get("/api/events").json()["events"], "events", timeout_s=90,
-                   poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: c.get("/api/events").json()["events"], "events", timeout_s=90, poll_s=0.5
+        )
         events = c.get("/api/events").json()["events"]
         assert all(e["wall_t"] > time.time() - 3600 for e in events)
         started = c.get("/api/health").json()["uptime_s"]
@@ -95,8 +119,13 @@ def test_serve_on_every_interface_without_a_user_is_refused(tmp_path):
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", 0, imgsz=320)
     config.write_text(config.read_text().replace('host = "127.0.0.1"', 'host = "0.0.0.0"'))
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-    r = subprocess.run([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                       capture_output=True, text=True, timeout=120, env=env)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert r.returncode == 2, r.stdout + r.stderr
     message = " ".join(r.stderr.split())
     assert "serve.host '0.0.0.0' is reachable from other machines" in message

@@ -49,17 +49,23 @@ def _calibration(folder: Path) -> tuple[Path, list[str]]:
 def _config(folder: Path, calib: Path, cameras: dict[str, str], extra: str) -> Path:
     cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{s}"\n\n' for n, s in cameras.items())
     path = folder / "serve.toml"
-    path.write_text(f'calibration = "{calib}"\noutput = "{folder / "data"}"\n\n'
-                    "[detector]\nimgsz = 320\n\n[input]\ndetect_fps = 5\n\n"
-                    f"{extra}\n\n{cams}")  # fmt: skip
+    path.write_text(
+        f'calibration = "{calib}"\noutput = "{folder / "data"}"\n\n'
+        "[detector]\nimgsz = 320\n\n[input]\ndetect_fps = 5\n\n"
+        f"{extra}\n\n{cams}"
+    )
     return path
 
 
 def _start(config: Path, log: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "ab") as f:
-        return subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        return subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
 
 
 def _stop(proc: subprocess.Popen, log: Path, sig: int = signal.SIGINT) -> int:
@@ -94,28 +100,45 @@ def test_camera_killed_and_restored_broker_late_events_everywhere_sigint_exits_0
     broker.stop()  # down when the service starts; the subscriber's session is kept
     receiver = Receiver()
     urls = {n: f"http://127.0.0.1:{p}/{n}.ts" for n, p in zip(names, ports, strict=True)}
-    extra = (f'[outputs]\nwebhook = "{receiver.url}"\n\n[mqtt]\nhost = "127.0.0.1"\n'
-             f'port = {broker.port}\nsite = "t"\n\n[storage]\nclips = false\n\n'
-             f"[serve]\nport = {free_tcp_port()}\ncamera_timeout_s = 1\n"
-             "status_interval_s = 1\n")  # fmt: skip
+    extra = (
+        f'[outputs]\nwebhook = "{receiver.url}"\n\n[mqtt]\nhost = "127.0.0.1"\n'
+        f'port = {broker.port}\nsite = "t"\n\n[storage]\nclips = false\n\n'
+        f"[serve]\nport = {free_tcp_port()}\ncamera_timeout_s = 1\n"
+        "status_interval_s = 1\n"
+    )
     config = _config(tmp_path, calib, urls, extra)
     log, db = tmp_path / "serve.log", tmp_path / "data" / "events.sqlite"
     proc = _start(config, log)
     try:
         status = tmp_path / "data" / "status.json"
-        wait_until(lambda: status.exists() and all(
-            c["state"] == "up" for c in json.loads(status.read_text())["cameras"].values()),
-            "both cameras up", timeout_s=60, poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: (
+                status.exists()
+                and all(
+                    c["state"] == "up" for c in json.loads(status.read_text())["cameras"].values()
+                )
+            ),
+            "both cameras up",
+            timeout_s=60,
+            poll_s=0.2,
+        )
         stop_streams(servers[1:])
         down = [("camera_down", names[1])]
         wait_until(lambda: _camera_events(db) == down, "camera_down", timeout_s=30)
         servers[1] = serve_stream(video, ports[1], names[1])
-        wait_until(lambda: _camera_events(db) == [*down, ("camera_up", names[1])], "camera_up",
-                   timeout_s=60, poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: _camera_events(db) == [*down, ("camera_up", names[1])],
+            "camera_up",
+            timeout_s=60,
+            poll_s=0.2,
+        )
         broker.start()
         logged = _camera_events(db)
-        wait_until(lambda: _payloads(json.loads(p) for p in sub.on("stereopose/t/events"))
-                   == logged, "the events on MQTT", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: _payloads(json.loads(p) for p in sub.on("stereopose/t/events")) == logged,
+            "the events on MQTT",
+            timeout_s=30,
+        )
         wait_until(lambda: _payloads(receiver.bodies) == logged, "the events at the webhook")
     finally:
         rc = _stop(proc, log)
@@ -144,17 +167,21 @@ def test_blind_camera_reported_and_retention_keeps_the_newest(tmp_path):
     stale_segment = _old(data / "poses" / "20000101T000000Z.jsonl.gz", 10, 10 * day)
     stale_clip = _old(data / "clips" / "20000101-000000_cam_enter.mp4", 10, 3 * day)
     big_clip = _old(data / "clips" / "20000102-000000_cam_enter.mp4", 5000, 60.0)
-    extra = ("[storage]\nsegment_s = 1\nmax_gb = 0.0000002\nclip_retention_days = 1\n"
-             "maintenance_interval_s = 0.3\n\n"
-             f"[serve]\nport = {free_tcp_port()}\ncamera_timeout_s = 1\n"
-             "status_interval_s = 0.5\n")  # fmt: skip
+    extra = (
+        "[storage]\nsegment_s = 1\nmax_gb = 0.0000002\nclip_retention_days = 1\n"
+        "maintenance_interval_s = 0.3\n\n"
+        f"[serve]\nport = {free_tcp_port()}\ncamera_timeout_s = 1\n"
+        "status_interval_s = 0.5\n"
+    )
     # one camera a looped file, the other a port nothing answers on: live and recorded may
     # not be mixed, so both are live, the blind one refused
     port = free_tcp_port()
     server = serve_stream(video, port, names[0])
     wait_serving([server], [port])
-    urls = {names[0]: f"http://127.0.0.1:{port}/{names[0]}.ts",
-            names[1]: f"http://127.0.0.1:{free_tcp_port()}/{names[1]}.ts"}  # fmt: skip
+    urls = {
+        names[0]: f"http://127.0.0.1:{port}/{names[0]}.ts",
+        names[1]: f"http://127.0.0.1:{free_tcp_port()}/{names[1]}.ts",
+    }
     config = _config(tmp_path, calib, urls, extra)
     log, db = tmp_path / "serve.log", data / "events.sqlite"
     proc = _start(config, log)
@@ -166,10 +193,19 @@ def test_blind_camera_reported_and_retention_keeps_the_newest(tmp_path):
         return found
 
     try:
-        wait_until(lambda: ("camera_down", names[1]) in _camera_events(db), "the blind camera "
-                   "reported", timeout_s=60, poll_s=0.2)  # fmt: skip
-        wait_until(lambda: not stale_segment.exists() and not stale_clip.exists()
-                   and not big_clip.exists(), "old files deleted", timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: ("camera_down", names[1]) in _camera_events(db),
+            "the blind camera reported",
+            timeout_s=60,
+            poll_s=0.2,
+        )
+        wait_until(
+            lambda: (
+                not stale_segment.exists() and not stale_clip.exists() and not big_clip.exists()
+            ),
+            "old files deleted",
+            timeout_s=30,
+        )
 
         def capped() -> bool:
             kept = {p.name for p in segments()}
@@ -186,6 +222,8 @@ def test_blind_camera_reported_and_retention_keeps_the_newest(tmp_path):
     health = json.loads((data / "status.json").read_text())
     assert health["cameras"][names[1]]["state"] == "down"
     newest = sorted((data / "poses").glob("*.jsonl.gz"))[-1]
-    assert all("frame" in json.loads(line) for line in
-               gzip.decompress(newest.read_bytes()).decode().splitlines())  # fmt: skip
+    assert all(
+        "frame" in json.loads(line)
+        for line in gzip.decompress(newest.read_bytes()).decode().splitlines()
+    )
     assert "Traceback" not in log.read_text()

@@ -37,8 +37,10 @@ def setup(tmp_path):
     port = free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
     text = config.read_text().replace(
-        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n'
-        "[serve]\n", 1)  # fmt: skip
+        "[serve]\n",
+        f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n[serve]\n',
+        1,
+    )
     config.write_text(text)
     sub = Subscriber(broker.port, "stereopose/demo/incidents")
     yield config, tmp_path / "data" / "events.sqlite", sub, tmp_path / "serve.log"
@@ -50,10 +52,13 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     config, db, sub, log = setup
     proc = _start(config, log)
     try:
-        wait_until(lambda: _rows(db, "SELECT id FROM incidents"), "an incident in the log",
-                   timeout_s=120, poll_s=0.5)  # fmt: skip
-        wait_until(lambda: sub.on("stereopose/demo/incidents"), "the incidents topic",
-                   timeout_s=30)  # fmt: skip
+        wait_until(
+            lambda: _rows(db, "SELECT id FROM incidents"),
+            "an incident in the log",
+            timeout_s=120,
+            poll_s=0.5,
+        )
+        wait_until(lambda: sub.on("stereopose/demo/incidents"), "the incidents topic", timeout_s=30)
     finally:
         proc.kill()
         proc.wait(timeout=10)
@@ -67,9 +72,16 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     n_events = _rows(db, "SELECT MAX(id) FROM events")[0][0]
     proc = _start(config, log)
     try:
-        wait_until(lambda: _rows(db, f"SELECT id FROM events WHERE id > {n_events} "
-                                     "AND incident IS NOT NULL AND restart = 0"),
-                   "an alarm event of the new run", timeout_s=120, poll_s=0.5)  # fmt: skip
+        wait_until(
+            lambda: _rows(
+                db,
+                f"SELECT id FROM events WHERE id > {n_events} "
+                "AND incident IS NOT NULL AND restart = 0",
+            ),
+            "an alarm event of the new run",
+            timeout_s=120,
+            poll_s=0.5,
+        )
     finally:
         rc = _stop(proc, log)
     assert rc == 0, log.read_text()
@@ -85,6 +97,10 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     keys = [tuple(json.loads(r)["key"]) for _, s, r in after if s in ("active", "acknowledged")]
     assert len(keys) == len(set(keys))
     # every event of the new run names an incident the log holds
-    named = {i for (i,) in _rows(db, f"SELECT incident FROM events WHERE id > {n_events} "
-                                     "AND incident IS NOT NULL")}  # fmt: skip
+    named = {
+        i
+        for (i,) in _rows(
+            db, f"SELECT incident FROM events WHERE id > {n_events} AND incident IS NOT NULL"
+        )
+    }
     assert named <= set(ids)

@@ -32,20 +32,24 @@ def _ids(db) -> list[int]:
 
 def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
     broker = Broker(tmp_path / "broker").start()
-    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
-                                     imgsz=320)  # fmt: skip
-    config.write_text(config.read_text().replace(
-        "[serve]\n", f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n'
-        "outbox_resend_s = 2\n\n[serve]\n", 1))  # fmt: skip
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320)
+    config.write_text(
+        config.read_text().replace(
+            "[serve]\n",
+            f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n'
+            "outbox_resend_s = 2\n\n[serve]\n",
+            1,
+        )
+    )
     db, log = tmp_path / "data" / "events.sqlite", tmp_path / "serve.log"
     rx = LogReceiver(broker.port, base="stereopose/demo/log")
     try:
         proc = _start(config, log)
         try:
-            wait_until(lambda: len(_ids(db)) >= 3, "events in the log", timeout_s=120,
-                       poll_s=0.5)  # fmt: skip
-            wait_until(lambda: set(_ids(db)[:3]) <= set(rx.ids()), "them at the receiver",
-                       timeout_s=30)  # fmt: skip
+            wait_until(lambda: len(_ids(db)) >= 3, "events in the log", timeout_s=120, poll_s=0.5)
+            wait_until(
+                lambda: set(_ids(db)[:3]) <= set(rx.ids()), "them at the receiver", timeout_s=30
+            )
         finally:
             proc.kill()
             proc.wait(timeout=10)
@@ -53,8 +57,12 @@ def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
         received_before = rx.received
         proc = _start(config, log)
         try:
-            wait_until(lambda: len(_ids(db)) >= len(first_run) + 3, "events of the new run",
-                       timeout_s=120, poll_s=0.5)  # fmt: skip
+            wait_until(
+                lambda: len(_ids(db)) >= len(first_run) + 3,
+                "events of the new run",
+                timeout_s=120,
+                poll_s=0.5,
+            )
         finally:
             rc = _stop(proc, log)
         assert rc == 0, log.read_text()
@@ -62,8 +70,9 @@ def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
         # holds every event of the log, each once, as the log numbers them
         proc = _start(config, log)
         try:
-            wait_until(lambda: rx.ids() == _ids(db), "every event of the log at the receiver",
-                       timeout_s=60)  # fmt: skip
+            wait_until(
+                lambda: rx.ids() == _ids(db), "every event of the log at the receiver", timeout_s=60
+            )
         finally:
             _stop(proc, log)
         stored = rx.stored

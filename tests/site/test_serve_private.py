@@ -57,8 +57,11 @@ def _health(port: int, host: str | None = None) -> tuple[int, dict]:
 def _public(root: Path) -> list[str]:
     """Every file and folder under root (root too) that group or others may use."""
     paths = [root, *root.rglob("*")]
-    return [f"{p} {stat.filemode(p.lstat().st_mode)}" for p in paths
-            if not p.is_symlink() and p.lstat().st_mode & 0o077]  # fmt: skip
+    return [
+        f"{p} {stat.filemode(p.lstat().st_mode)}"
+        for p in paths
+        if not p.is_symlink() and p.lstat().st_mode & 0o077
+    ]
 
 
 def test_serve_by_hand_keeps_its_data_private_and_reports_the_broker_outage(tmp_path):
@@ -72,30 +75,36 @@ def test_serve_by_hand_keeps_its_data_private_and_reports_the_broker_outage(tmp_
     os.chmod(data / "poses", 0o755)
     broker = Broker(tmp_path / "broker")  # not started: the outage
     port = free_tcp_port()
-    cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{video}"\nloop = true\n\n'
-                   for n in names)  # fmt: skip
+    cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{video}"\nloop = true\n\n' for n in names)
     config = tmp_path / "serve.toml"
-    config.write_text(f'calibration = "{calib}"\noutput = "{data}"\n\n'
-                      "[detector]\nimgsz = 320\n\n[input]\ndetect_fps = 5\n\n"
-                      f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "t"\n'
-                      "\n"
-                      f'[serve]\nport = {port}\nstatus_interval_s = 0.5\n'
-                      'allowed_hosts = ["scada.example.org"]\n\n'
-                      f"{cams}")  # fmt: skip
+    config.write_text(
+        f'calibration = "{calib}"\noutput = "{data}"\n\n'
+        "[detector]\nimgsz = 320\n\n[input]\ndetect_fps = 5\n\n"
+        f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "t"\n'
+        "\n"
+        f"[serve]\nport = {port}\nstatus_interval_s = 0.5\n"
+        'allowed_hosts = ["scada.example.org"]\n\n'
+        f"{cams}"
+    )
     log = tmp_path / "serve.log"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "ab") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env,
-                                preexec_fn=lambda: os.umask(0o022))  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+            preexec_fn=lambda: os.umask(0o022),
+        )
     try:
 
         def outage() -> bool:
             if proc.poll() is not None:
                 pytest.fail(f"serve ended:\n{log.read_text()}")
             status, h = _health(port)
-            return status == 200 and any(p.startswith("output mqtt failing: broker")
-                                         for p in h.get("problems", ()))  # fmt: skip
+            return status == 200 and any(
+                p.startswith("output mqtt failing: broker") for p in h.get("problems", ())
+            )
 
         wait_until(outage, "health degraded by the broker outage", timeout_s=90, poll_s=0.2)
         h = _health(port)[1]
@@ -105,13 +114,24 @@ def test_serve_by_hand_keeps_its_data_private_and_reports_the_broker_outage(tmp_
         assert _health(port, f"scada.example.org:{port}")[0] == 200
         assert _health(port, f"localhost:{port}")[0] == 200
         broker.start()
-        wait_until(lambda: _health(port)[1].get("outputs", {}).get("mqtt", {}).get("state")
-                   == "up", "the broker's output up", timeout_s=30, poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: _health(port)[1].get("outputs", {}).get("mqtt", {}).get("state") == "up",
+            "the broker's output up",
+            timeout_s=30,
+            poll_s=0.2,
+        )
         h = _health(port)[1]
         assert not [p for p in h["problems"] if p.startswith("output")], h
-        wait_until(lambda: (data / "status.json").exists() and (data / "events.sqlite").exists()
-                   and any((data / "poses").glob("*.jsonl.gz")), "the service's files",
-                   timeout_s=30, poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: (
+                (data / "status.json").exists()
+                and (data / "events.sqlite").exists()
+                and any((data / "poses").glob("*.jsonl.gz"))
+            ),
+            "the service's files",
+            timeout_s=30,
+            poll_s=0.2,
+        )
         assert _public(data) == []  # while it runs: the log's -wal and -shm too
     finally:
         proc.send_signal(signal.SIGINT)

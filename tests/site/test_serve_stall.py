@@ -30,9 +30,12 @@ class Run:
         watch = CameraWatch(scene.rig.names, TIMEOUT_S, start=0.0)
         self.now = 0.0
         self.events = ServeEvents(
-            fences, watch, None, fresh=None if fresh is None else (lambda name: fresh),
+            fences,
+            watch,
+            None,
+            fresh=None if fresh is None else (lambda name: fresh),
             clock=lambda: self.now,
-        )  # fmt: skip
+        )
         self.stage = HeldStage(Stage3D(scene.rig, cfg), self.events)
         self.scene, self.frame = scene, 0
         self.ids: list[set[int]] = []
@@ -56,8 +59,7 @@ class Run:
         return [e.type for e in self.log]
 
 
-def _run(scene, fresh: bool | None, stall_s: float, heartbeats: bool, stale: bool = False
-         ) -> Run:  # fmt: skip
+def _run(scene, fresh: bool | None, stall_s: float, heartbeats: bool, stale: bool = False) -> Run:
     """The scene's first half, a stall of stall_s, its second half. stale: the first step
     after a pause holds frames read just before it."""
     run, dt = Run(scene, fresh), 1.0 / scene.fps

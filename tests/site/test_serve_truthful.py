@@ -43,24 +43,32 @@ def _calibration(folder: Path) -> tuple[Path, list[str]]:
 
 def _config(folder: Path, cameras: list[tuple[str, Path, bool]], timeout_s: float) -> Path:
     calib, _ = _calibration(folder)
-    cams = "".join(f'[[cameras]]\nname = "{n}"\nsource = "{s}"\nloop = {str(lp).lower()}\n\n'
-                   for n, s, lp in cameras)  # fmt: skip
+    cams = "".join(
+        f'[[cameras]]\nname = "{n}"\nsource = "{s}"\nloop = {str(lp).lower()}\n\n'
+        for n, s, lp in cameras
+    )
     path = folder / "serve.toml"
-    path.write_text(f'calibration = "{calib}"\noutput = "{folder / "data"}"\n\n'
-                    # whole frames: each step costs an inference, so a 250 fps file is
-                    # processed far under its rate (regions would find these empty
-                    # cameras idle and keep up)
-                    "[detector]\nimgsz = 320\nregions = false\n\n[storage]\nclips = false\n\n"
-                    f"[serve]\nport = {free_port()}\ncamera_timeout_s = {timeout_s}\n"
-                    f"status_interval_s = 0.5\n\n{cams}")  # fmt: skip
+    path.write_text(
+        f'calibration = "{calib}"\noutput = "{folder / "data"}"\n\n'
+        # whole frames: each step costs an inference, so a 250 fps file is
+        # processed far under its rate (regions would find these empty
+        # cameras idle and keep up)
+        "[detector]\nimgsz = 320\nregions = false\n\n[storage]\nclips = false\n\n"
+        f"[serve]\nport = {free_port()}\ncamera_timeout_s = {timeout_s}\n"
+        f"status_interval_s = 0.5\n\n{cams}"
+    )
     return path
 
 
 def _start(config: Path, log: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "ab") as f:
-        return subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        return subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
 
 
 def _stop(proc: subprocess.Popen, log: Path) -> int:
@@ -83,7 +91,8 @@ def _events(db: Path) -> list[dict]:
             rows = conn.execute(
                 "SELECT e.type, e.camera, e.person, e.zone, e.lost, e.t, e.onset_t, "
                 "e.duration_s, r.wall_start + e.t FROM events e JOIN runs r ON r.id = e.run "
-                "ORDER BY e.id").fetchall()  # fmt: skip
+                "ORDER BY e.id"
+            ).fetchall()
         finally:
             conn.close()
     except sqlite3.OperationalError:  # its tables not made yet
@@ -120,8 +129,10 @@ def test_file_cameras_events_on_the_wall_clock_and_a_slow_camera_degrades(tmp_pa
         assert seen["camera_down cam02"] - 3.0 < down["wall"] <= seen["camera_down cam02"] + 0.5
 
         def slow() -> bool:
-            return any(p.startswith("camera cam01: processed at")
-                       for p in _status(data).get("problems", []))  # fmt: skip
+            return any(
+                p.startswith("camera cam01: processed at")
+                for p in _status(data).get("problems", [])
+            )
 
         wait_until(slow, "health naming cam01 processed under its rate", timeout_s=60, poll_s=0.2)
         status = _status(data)
@@ -130,8 +141,11 @@ def test_file_cameras_events_on_the_wall_clock_and_a_slow_camera_degrades(tmp_pa
     finally:
         rc = _stop(proc, log)
     assert rc == 0, log.read_text()
-    summary = json.loads((data / "summary.json").read_text()) if (data / "summary.json").exists() \
-        else None  # fmt: skip
+    summary = (
+        json.loads((data / "summary.json").read_text())
+        if (data / "summary.json").exists()
+        else None
+    )
     if summary is not None:
         assert summary.get("clock_start_epoch")
     assert "Traceback" not in log.read_text()
@@ -146,8 +160,12 @@ def _stall(proc: subprocess.Popen, db: Path) -> tuple[float, float]:
     time.sleep(STOP_S)  # the stall itself: the whole process stopped this long
     resumed = time.time()
     proc.send_signal(signal.SIGCONT)
-    wait_until(lambda: any(e["type"] == "service_resumed" for e in _events(db)[before:]),
-               "service_resumed after the stall", timeout_s=60, poll_s=0.1)  # fmt: skip
+    wait_until(
+        lambda: any(e["type"] == "service_resumed" for e in _events(db)[before:]),
+        "service_resumed after the stall",
+        timeout_s=60,
+        poll_s=0.1,
+    )
     return stopped, resumed
 
 
@@ -158,8 +176,9 @@ def test_a_stopped_process_is_one_service_stall_not_a_camera_down_each(tmp_path)
     db = data / "events.sqlite"
     proc = _start(config, log)
     try:
-        wait_until(lambda: _status(data).get("status") == "ok", "both cameras up", timeout_s=90,
-                   poll_s=0.2)  # fmt: skip
+        wait_until(
+            lambda: _status(data).get("status") == "ok", "both cameras up", timeout_s=90, poll_s=0.2
+        )
         stopped, resumed = _stall(proc, db)
         seen = time.time()
     finally:
@@ -187,11 +206,14 @@ def _frames(data: Path) -> list[dict]:
 
 @pytest.mark.realdata
 def test_the_demo_stopped_keeps_its_tracks_and_raises_no_camera_down(tmp_path):
-    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(),
-                                     imgsz=320)  # fmt: skip
-    config.write_text(config.read_text().replace(
-        "[serve]\n", "[storage]\nclips = false\n\n[serve]\ncamera_timeout_s = 2\n"
-        "status_interval_s = 0.5\n", 1))  # fmt: skip
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320)
+    config.write_text(
+        config.read_text().replace(
+            "[serve]\n",
+            "[storage]\nclips = false\n\n[serve]\ncamera_timeout_s = 2\nstatus_interval_s = 0.5\n",
+            1,
+        )
+    )
     data, log = tmp_path / "data", tmp_path / "serve.log"
     db = data / "events.sqlite"
     proc = _start(config, log)

@@ -51,8 +51,10 @@ def test_files_past_their_retention_go_the_newest_segment_and_clips_being_writte
     os.symlink(poses / "notes.txt", poses / "20240101-000000.jsonl.gz")  # a link: not ours
     result = maintainer(tmp_path, retention_days=7, clip_retention_days=30).run_once()
     assert names(poses) == {"20250103-000000.jsonl.gz", "notes.txt", "20240101-000000.jsonl.gz"}
-    assert names(clips) == {"20250102-000000_3_panel_cam1.mp4",
-                            "20250103-000000_4_panel_cam1.part.mp4"}  # fmt: skip
+    assert names(clips) == {
+        "20250102-000000_3_panel_cam1.mp4",
+        "20250103-000000_4_panel_cam1.part.mp4",
+    }
     assert result.deleted == {"segments": 2, "clips": 2, "events": 0}
     assert result.freed_bytes["segments"] == 200 and result.usage["segments"] == 100
     assert result.usage["clips"] == 200 and result.errors == 0
@@ -84,9 +86,20 @@ def event_log(path: Path, times: list[float], started: float) -> Path:
     sink = SqliteSink(path)
     # in and out in turn: the last one an exit, so that no enter is kept as open
     n = len(times)
-    sink.write_events([Event(t, int(t * 10), 1, "panel", "energized",
-                             "exit" if (n - 1 - i) % 2 == 0 else "enter", t)
-                       for i, t in enumerate(times)])  # fmt: skip
+    sink.write_events(
+        [
+            Event(
+                t,
+                int(t * 10),
+                1,
+                "panel",
+                "energized",
+                "exit" if (n - 1 - i) % 2 == 0 else "enter",
+                t,
+            )
+            for i, t in enumerate(times)
+        ]
+    )
     sink.close()
     with sqlite3.connect(path) as db:  # the run started at `started` (Unix time)
         db.execute("UPDATE runs SET started = ?", (started,))
@@ -173,9 +186,16 @@ def test_the_thread_makes_passes_until_stopped(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("key", "value"),
-    [("retention_days", 0), ("clip_retention_days", float("inf")), ("max_bytes", -1),
-     ("max_bytes", 1.5), ("interval_s", 0), ("event_batch", 0), ("event_retention_days", True)],
-)  # fmt: skip
+    [
+        ("retention_days", 0),
+        ("clip_retention_days", float("inf")),
+        ("max_bytes", -1),
+        ("max_bytes", 1.5),
+        ("interval_s", 0),
+        ("event_batch", 0),
+        ("event_retention_days", True),
+    ],
+)
 def test_settings_name_their_key(key: str, value: object) -> None:
     with pytest.raises(ConfigError, match=rf"storage\.{key}: expected"):
         RetentionSettings(**{key: value})

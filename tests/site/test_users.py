@@ -76,9 +76,14 @@ def test_a_damaged_file_is_an_error_naming_it(store):
 
 def _users(config, *args, stdin: str = "") -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-    return subprocess.run([sys.executable, "-m", "stereopose.cli", "users", *args,
-                           "--config", str(config)], input=stdin, capture_output=True,
-                          text=True, timeout=60, env=env)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "stereopose.cli", "users", *args, "--config", str(config)],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
 
 
 @pytest.mark.slow
@@ -98,8 +103,9 @@ def test_the_users_command_as_a_process(tmp_path):
     assert r.returncode == 2 and "empty" in r.stderr
     r = _users(config, "add", "bob", stdin="bob-secret-1\n")
     assert r.returncode == 2 and "--role" in r.stderr
-    assert _users(config, "add", "bob", "--role", "operator",
-                  stdin="bob-secret-1\n").returncode == 0  # fmt: skip
+    assert (
+        _users(config, "add", "bob", "--role", "operator", stdin="bob-secret-1\n").returncode == 0
+    )
     r = _users(config, "list")
     assert r.returncode == 0 and r.stdout.split() == ["ann", "admin", "bob", "operator"]
     assert _users(config, "passwd", "bob", stdin="bob-secret-2\n").returncode == 0
@@ -120,14 +126,17 @@ def test_the_users_command_as_a_process(tmp_path):
 def test_the_users_command_refuses_weak_passwords_clearly(tmp_path):
     config = tmp_path / "serve.toml"
     config.write_text('output = "data"\n')
-    weak = [("eleven-char", "too short"), ("password1234", "too common"),
-            ("Dragon2024!!", "too common"), ("abababababab", "too simple")]  # fmt: skip
+    weak = [
+        ("eleven-char", "too short"),
+        ("password1234", "too common"),
+        ("Dragon2024!!", "too common"),
+        ("abababababab", "too simple"),
+    ]
     for password, why in weak:
         r = _users(config, "add", "bob", "--role", "viewer", stdin=password + "\n")
         assert r.returncode == 2 and why in r.stderr, (password, r.stderr)
         assert "Traceback" not in r.stderr and password not in r.stdout + r.stderr
-    assert _users(config, "add", "bob", "--role", "viewer",
-                  stdin="bob-secret-1\n").returncode == 0  # fmt: skip
+    assert _users(config, "add", "bob", "--role", "viewer", stdin="bob-secret-1\n").returncode == 0
     r = _users(config, "passwd", "bob", stdin="qwertyuiop12\n")
     assert r.returncode == 2 and "too common" in r.stderr and "Traceback" not in r.stderr
     assert UserStore(tmp_path / "data" / "users.json").verify("bob", "bob-secret-1")
@@ -138,8 +147,13 @@ def test_the_policy_length_common_list_and_variety():
 
     assert MIN_PASSWORD == 12 and len(common_passwords()) > 5000
     assert {"password", "123456", "qwertyuiopas", "1qaz2wsx3edc"} <= common_passwords()
-    for weak in ("Password!2024", "password12345", "1234567890123", "!!Football2023",
-                 "zzzzzzzzzzzz"):  # fmt: skip
+    for weak in (
+        "Password!2024",
+        "password12345",
+        "1234567890123",
+        "!!Football2023",
+        "zzzzzzzzzzzz",
+    ):
         with pytest.raises(UserError, match=r"too (common|simple)"):
             check_password(weak)
     assert check_password("vera's long passphrase") == "vera's long passphrase"

@@ -23,8 +23,16 @@ from stereopose.site.wire import (
 @pytest.mark.parametrize("site", ["north", "north/yard", "a+b#c", "100%", "", "站 1"])
 def test_a_sites_topics_name_it_back_whatever_its_name(site: str) -> None:
     topics = site_topics("stereopose", site)
-    assert set(topics) == {"events", "incidents", "confirmed", "replay", "heartbeat", "ack",
-                           "done", "plan"}  # fmt: skip
+    assert set(topics) == {
+        "events",
+        "incidents",
+        "confirmed",
+        "replay",
+        "heartbeat",
+        "ack",
+        "done",
+        "plan",
+    }
     for what_topic in topics.values():
         got = split_topic("stereopose", what_topic)
         assert got is not None and got[0] == site
@@ -32,8 +40,10 @@ def test_a_sites_topics_name_it_back_whatever_its_name(site: str) -> None:
     assert split_topic("stereopose", topics["events"]) == (site, EVENTS)
 
 
-@pytest.mark.parametrize("topic", ["other/north/log/events", "stereopose", "stereopose/north",
-                                   "stereoposeX/north/log/events"])  # fmt: skip
+@pytest.mark.parametrize(
+    "topic",
+    ["other/north/log/events", "stereopose", "stereopose/north", "stereoposeX/north/log/events"],
+)
 def test_a_topic_outside_the_prefix_or_without_a_part_is_none(topic: str) -> None:
     assert split_topic("stereopose", topic) is None
 

@@ -15,9 +15,14 @@ def _people(scene, frame: int, ids) -> People3D:
     joints = scene.truth[frame][: len(ids)]
     P = len(ids)
     return People3D(
-        frame, joints, np.ones((P, 17)), np.array(ids), np.zeros((P, 17)),
-        np.full((P, 17), 2), np.zeros((P, len(scene.rig)), int),
-    )  # fmt: skip
+        frame,
+        joints,
+        np.ones((P, 17)),
+        np.array(ids),
+        np.zeros((P, 17)),
+        np.full((P, 17), 2),
+        np.zeros((P, len(scene.rig)), int),
+    )
 
 
 def test_reprojected_joints_drawn_in_the_person_colour():

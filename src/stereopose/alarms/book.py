@@ -90,9 +90,15 @@ class Change:
 
     def to_dict(self) -> dict:
         wall = self.wall_start
-        d = {"change": self.what, "before": self.before, "state": self.incident.state,
-             "t": self.t, "notify": self.notify, "by": self.by,
-             "incident": self.incident.to_dict(wall)}  # fmt: skip
+        d = {
+            "change": self.what,
+            "before": self.before,
+            "state": self.incident.state,
+            "t": self.t,
+            "notify": self.notify,
+            "by": self.by,
+            "incident": self.incident.to_dict(wall),
+        }
         if wall is not None:
             d["wall_t"] = wall + self.t
         return d
@@ -260,8 +266,9 @@ class IncidentBook:
             changes.append(Change(CLEAR, before, inc.record(), t))
             heapq.heappush(self._forget, (t + inc.record().rearm_s, inc.id))
 
-    def _clear_not_holding(self, held: set[tuple[str, int]], now: float,
-                           changes: list[Change]) -> None:  # fmt: skip
+    def _clear_not_holding(
+        self, held: set[tuple[str, int]], now: float, changes: list[Change]
+    ) -> None:
         for i in list(self._zone_active):
             key = self._by_id[i].key
             if (str(key[1]), int(key[2])) not in held:
@@ -305,8 +312,7 @@ class IncidentBook:
             return
         # the oldest returned-to-normal first (only an acknowledgement is missing), then the
         # oldest of the rest
-        order = sorted(self._by_id.values(),
-                       key=lambda x: (x.state not in (CLEARED, CLOSED), x.id))  # fmt: skip
+        order = sorted(self._by_id.values(), key=lambda x: (x.state not in (CLEARED, CLOSED), x.id))
         for inc in order[:over]:
             self._drop(inc)
             self.dropped += 1
@@ -339,8 +345,9 @@ class IncidentBook:
             heapq.heappush(self._forget, ((r.cleared_at or now) + r.rearm_s, inc.id))
         return [Change(ACK, before, inc.record(), now, by=by)]
 
-    def shelve(self, incident_id: int, by: str, reason: str, duration_s: float,
-               now: float) -> list[Change]:  # fmt: skip
+    def shelve(
+        self, incident_id: int, by: str, reason: str, duration_s: float, now: float
+    ) -> list[Change]:
         """Shelved by `by` with a reason for duration_s (at most max_shelve_s); an
         IncidentError says what is wrong."""
         inc = self._find(incident_id)

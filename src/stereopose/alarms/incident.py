@@ -117,8 +117,13 @@ class IncidentRecord:
         time of t = 0) the wall times too (WALL_TIMES)."""
         d = asdict(self)
         d["key"] = list(self.key)
-        d.update(zone=self.zone, rule=self.rule, person=self.person, camera=self.camera,
-                 shelved=self.shelved)  # fmt: skip
+        d.update(
+            zone=self.zone,
+            rule=self.rule,
+            person=self.person,
+            camera=self.camera,
+            shelved=self.shelved,
+        )
         if wall_start is not None:
             with_wall_times(d, wall_start)
         return d
@@ -139,8 +144,12 @@ class IncidentRecord:
 
 
 # each wall time of a record's dict (Unix seconds) and the time on the events' clock it is of
-WALL_TIMES = (("first_wall_t", "first_t"), ("last_wall_t", "last_t"),
-              ("acked_wall_at", "acked_at"), ("shelved_wall_until", "shelved_until"))  # fmt: skip
+WALL_TIMES = (
+    ("first_wall_t", "first_t"),
+    ("last_wall_t", "last_t"),
+    ("acked_wall_at", "acked_at"),
+    ("shelved_wall_until", "shelved_until"),
+)
 
 
 def with_wall_times(d: dict[str, Any], wall_start: float | None) -> dict[str, Any]:
@@ -168,11 +177,24 @@ class Incident:
         event_id: int | None = None,
     ) -> Incident:
         """A new incident, active and unacknowledged, with its first occurrence at t."""
-        return cls(IncidentRecord(id=id_, key=key, state=ACTIVE, priority=priority,
-                                  type=type_, last_type=type_, worst_type=type_,
-                                  occurrences=1, first_t=t,
-                                  last_t=t, active_since=t, rearm_s=rearm_s,
-                                  first_event=event_id, last_event=event_id))  # fmt: skip
+        return cls(
+            IncidentRecord(
+                id=id_,
+                key=key,
+                state=ACTIVE,
+                priority=priority,
+                type=type_,
+                last_type=type_,
+                worst_type=type_,
+                occurrences=1,
+                first_t=t,
+                last_t=t,
+                active_since=t,
+                rearm_s=rearm_s,
+                first_event=event_id,
+                last_event=event_id,
+            )
+        )
 
     def record(self) -> IncidentRecord:
         return self._rec
@@ -211,10 +233,18 @@ class Incident:
             state = ACKNOWLEDGED
         last_event = event_id if event_id is not None else r.last_event
         worst = type_ if priority < r.priority else (r.worst_type or r.type)
-        self._set(state=state, occurrences=r.occurrences + 1, last_t=max(r.last_t, t),
-                  last_type=type_, worst_type=worst, priority=min(r.priority, priority),
-                  active_since=r.active_since if r.active else t, cleared_at=None,
-                  closed_at=None, last_event=last_event)  # fmt: skip
+        self._set(
+            state=state,
+            occurrences=r.occurrences + 1,
+            last_t=max(r.last_t, t),
+            last_type=type_,
+            worst_type=worst,
+            priority=min(r.priority, priority),
+            active_since=r.active_since if r.active else t,
+            cleared_at=None,
+            closed_at=None,
+            last_event=last_event,
+        )
         return True
 
     def clear(self, t: float) -> bool:
@@ -223,8 +253,12 @@ class Incident:
         if not r.active:
             return False
         closed = r.state == ACKNOWLEDGED
-        self._set(state=CLOSED if closed else CLEARED, cleared_at=t, active_since=None,
-                  closed_at=t if closed else None)  # fmt: skip
+        self._set(
+            state=CLOSED if closed else CLEARED,
+            cleared_at=t,
+            active_since=None,
+            closed_at=t if closed else None,
+        )
         return True
 
     def acknowledge(self, by: str, t: float) -> bool:
@@ -234,12 +268,14 @@ class Incident:
         if self.acknowledged:
             return False
         state = ACKNOWLEDGED if r.state == ACTIVE else CLOSED
-        self._set(state=state, acked_by=str(by), acked_at=t,
-                  closed_at=t if state == CLOSED else None)  # fmt: skip
+        self._set(
+            state=state, acked_by=str(by), acked_at=t, closed_at=t if state == CLOSED else None
+        )
         return True
 
-    def shelve(self, by: str, reason: str, duration_s: float, t: float,
-               max_shelve_s: float = MAX_SHELVE_S) -> bool:  # fmt: skip
+    def shelve(
+        self, by: str, reason: str, duration_s: float, t: float, max_shelve_s: float = MAX_SHELVE_S
+    ) -> bool:
         """Shelved by `by` at t for duration_s (0 < duration_s <= max_shelve_s) with a reason
         (non-empty); a shelved incident may be shelved again (the new time replaces the old)."""
         if self._rec.state == CLOSED:
@@ -252,14 +288,20 @@ class Incident:
             raise IncidentError(
                 f"shelving lasts more than 0 s and at most {max_shelve_s:g} s, got {duration_s!r}"
             )
-        self._set(shelved_until=t + float(duration_s), shelved_by=str(by),
-                  shelved_reason=text[:MAX_REASON])  # fmt: skip
+        self._set(
+            shelved_until=t + float(duration_s),
+            shelved_by=str(by),
+            shelved_reason=text[:MAX_REASON],
+        )
         return True
 
     def shelve_as(self, other: IncidentRecord) -> None:
         """Shelved as `other` is (a new incident of a hazard the operator has shelved)."""
-        self._set(shelved_until=other.shelved_until, shelved_by=other.shelved_by,
-                  shelved_reason=other.shelved_reason)  # fmt: skip
+        self._set(
+            shelved_until=other.shelved_until,
+            shelved_by=other.shelved_by,
+            shelved_reason=other.shelved_reason,
+        )
 
     def unshelve(self) -> bool:
         """Back in service (an operator's act, or the shelving's time ran out)."""

@@ -85,8 +85,9 @@ def parse_priority(value: Any, where: str) -> int:
     elif _PRIORITY.contains(value):
         return int(value)
     names = ", ".join(PRIORITY_NAMES.values())
-    raise ConfigError(f"{where}: priority: expected an integer in [1, 4] or one of {names}, "
-                      f"got {value!r}")  # fmt: skip
+    raise ConfigError(
+        f"{where}: priority: expected an integer in [1, 4] or one of {names}, got {value!r}"
+    )
 
 
 def parse_rearm(value: Any, where: str) -> float:
@@ -126,8 +127,11 @@ class AlarmSettings:
 
     def tuning(self, key: HazardKey) -> Tuning:
         """The settings of a hazard: its zone's, its rule's, or the defaults."""
-        where = self.zones if key[0] in ("zone", "left_work_area") else (
-            self.rules if key[0] == "rule" else None)  # fmt: skip
+        where = (
+            self.zones
+            if key[0] in ("zone", "left_work_area")
+            else (self.rules if key[0] == "rule" else None)
+        )
         found = where.get(str(key[1])) if where is not None else None
         return found if found is not None else Tuning(None, self.default_rearm_s)
 

@@ -34,8 +34,12 @@ HIPS = (LEFT_HIP, RIGHT_HIP)
 SHOULDERS = (LEFT_SHOULDER, RIGHT_SHOULDER)
 WRISTS = (LEFT_WRIST, RIGHT_WRIST)
 LEGS = ((LEFT_HIP, LEFT_KNEE, LEFT_ANKLE), (RIGHT_HIP, RIGHT_KNEE, RIGHT_ANKLE))
-LATERAL_PAIRS = ((LEFT_KNEE, RIGHT_KNEE), (LEFT_ANKLE, RIGHT_ANKLE), (LEFT_ELBOW, RIGHT_ELBOW),
-                  (LEFT_EAR, RIGHT_EAR))  # fmt: skip
+LATERAL_PAIRS = (
+    (LEFT_KNEE, RIGHT_KNEE),
+    (LEFT_ANKLE, RIGHT_ANKLE),
+    (LEFT_ELBOW, RIGHT_ELBOW),
+    (LEFT_EAR, RIGHT_EAR),
+)
 
 Point = tuple[float, float, float]
 
@@ -67,8 +71,7 @@ def centre(pts: list[Point | None], idx: tuple[int, ...]) -> Point | None:
     if not got:
         return None
     n = len(got)
-    return (sum(p[0] for p in got) / n, sum(p[1] for p in got) / n,
-            sum(p[2] for p in got) / n)  # fmt: skip
+    return (sum(p[0] for p in got) / n, sum(p[1] for p in got) / n, sum(p[2] for p in got) / n)
 
 
 def sub(a: Point, b: Point) -> Point:

@@ -396,6 +396,9 @@ def format_postures(settings: PostureSettings | None) -> list[str]:
     if settings is None:
         return []
     default = PostureSettings()
-    lines = [f"{f.name} = {getattr(settings, f.name)!r}" for f in fields(settings)
-             if getattr(settings, f.name) != getattr(default, f.name)]  # fmt: skip
+    lines = [
+        f"{f.name} = {getattr(settings, f.name)!r}"
+        for f in fields(settings)
+        if getattr(settings, f.name) != getattr(default, f.name)
+    ]
     return ["[postures]", *lines, ""] if lines else []

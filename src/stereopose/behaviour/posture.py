@@ -257,8 +257,9 @@ def _classify(
     trunk = hip_z if math.isfinite(hip_z) else shoulders
     feet = _feet_z(pts, trunk, s)
     hip = hip_z - feet
-    common = dict(hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s,
-                  drop_m_s=drop_m_s)  # fmt: skip
+    common = dict(
+        hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s, drop_m_s=drop_m_s
+    )
     if n_known < s.min_joints:
         return Posture(UNKNOWN, **common)
     torso = torso_angle(pts)

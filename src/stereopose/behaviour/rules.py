@@ -165,14 +165,31 @@ class BehaviourMonitor:
 
     # -- events ----------------------------------------------------------------------------
 
-    def _event(self, rule: Rule, pid: int, person: Tracked, type_: str, t: float, frame: int,
-               onset_t: float, **more) -> Event:  # fmt: skip
+    def _event(
+        self,
+        rule: Rule,
+        pid: int,
+        person: Tracked,
+        type_: str,
+        t: float,
+        frame: int,
+        onset_t: float,
+        **more,
+    ) -> Event:
         posture = person.posture.posture if person.posture is not None else None
         more.setdefault("posture", posture)
         return Event(
-            t=t, frame=frame, person=pid, zone=more.pop("zone", None) or "", kind=BEHAVIOUR_KIND,
-            type=type_, onset_t=float(onset_t), position=person.position, rule=rule.name, **more,
-        )  # fmt: skip
+            t=t,
+            frame=frame,
+            person=pid,
+            zone=more.pop("zone", None) or "",
+            kind=BEHAVIOUR_KIND,
+            type=type_,
+            onset_t=float(onset_t),
+            position=person.position,
+            rule=rule.name,
+            **more,
+        )
 
     # -- person_down -----------------------------------------------------------------------
 
@@ -206,10 +223,16 @@ class BehaviourMonitor:
                 if st.raised:
                     out.append(
                         self._event(
-                            rule, c.pid, person, "person_up", t, c.base["frame"],
-                            onset_t=st.up.onset, duration_s=float(st.up.onset - st.fall_t),
+                            rule,
+                            c.pid,
+                            person,
+                            "person_up",
+                            t,
+                            c.base["frame"],
+                            onset_t=st.up.onset,
+                            duration_s=float(st.up.onset - st.fall_t),
                         )
-                    )  # fmt: skip
+                    )
                 person.down[rule.name] = DownState()
                 return out
         out.extend(self._down_timer(rule, c.pid, person, t, c.base["frame"]))
@@ -250,12 +273,22 @@ class BehaviourMonitor:
             return []
         st.fall_t, st.down, st.raised = st.lying.began, True, True
         return [
-            self._event(rule, c.pid, c.person, "person_down", t, c.base["frame"],
-                        onset_t=st.fall_t, duration_s=float(t - st.fall_t), posture="lying")
-        ]  # fmt: skip
+            self._event(
+                rule,
+                c.pid,
+                c.person,
+                "person_down",
+                t,
+                c.base["frame"],
+                onset_t=st.fall_t,
+                duration_s=float(t - st.fall_t),
+                posture="lying",
+            )
+        ]
 
-    def _down_timer(self, rule: PersonDownRule, pid: int, person: Tracked, t: float,
-                    frame: int) -> list[Event]:  # fmt: skip
+    def _down_timer(
+        self, rule: PersonDownRule, pid: int, person: Tracked, t: float, frame: int
+    ) -> list[Event]:
         st = person.down.get(rule.name)
         if st is None or not st.down or st.raised or st.fall_t is None:
             return []
@@ -264,10 +297,19 @@ class BehaviourMonitor:
         st.raised = True
         person.detail[rule.name] = {}
         return [
-            self._event(rule, pid, person, "person_down", t, frame, onset_t=st.fall_t,
-                        duration_s=float(t - st.fall_t), speed_m_s=float(st.speed),
-                        posture="lying")
-        ]  # fmt: skip
+            self._event(
+                rule,
+                pid,
+                person,
+                "person_down",
+                t,
+                frame,
+                onset_t=st.fall_t,
+                duration_s=float(t - st.fall_t),
+                speed_m_s=float(st.speed),
+                posture="lying",
+            )
+        ]
 
     # -- lone_worker -----------------------------------------------------------------------
 
@@ -283,18 +325,35 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": zone}
             return [
-                self._event(rule, c.pid, person, "lone_worker", t, c.base["frame"],
-                            onset_t=latch.began, zone=zone, nearest_m=nearest_m,
-                            duration_s=float(t - latch.began))
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "lone_worker",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.began,
+                    zone=zone,
+                    nearest_m=nearest_m,
+                    duration_s=float(t - latch.began),
+                )
+            ]
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(rule, c.pid, person, "lone_worker_end", t, c.base["frame"],
-                            onset_t=latch.onset,
-                            zone=person.detail.pop(rule.name, {}).get("zone") or "",
-                            nearest_m=nearest_m, duration_s=float(t - began))
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "lone_worker_end",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.onset,
+                    zone=person.detail.pop(rule.name, {}).get("zone") or "",
+                    nearest_m=nearest_m,
+                    duration_s=float(t - began),
+                )
+            ]
         return []
 
     def _nearest_zone(self, names: Sequence[str], c: Seen) -> tuple[str | None, float]:
@@ -347,18 +406,36 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": hand_zone}
             return [
-                self._event(rule, c.pid, person, "work_position", t, c.base["frame"],
-                            onset_t=latch.began, zone=hand_zone, joint=JOINTS[hand],
-                            failed=",".join(failed), facing_deg=facing)
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "work_position",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.began,
+                    zone=hand_zone,
+                    joint=JOINTS[hand],
+                    failed=",".join(failed),
+                    facing_deg=facing,
+                )
+            ]
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(rule, c.pid, person, "work_position_end", t, c.base["frame"],
-                            onset_t=latch.onset,
-                            zone=person.detail.pop(rule.name, {}).get("zone") or "",
-                            facing_deg=facing, duration_s=float(t - began))
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "work_position_end",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.onset,
+                    zone=person.detail.pop(rule.name, {}).get("zone") or "",
+                    facing_deg=facing,
+                    duration_s=float(t - began),
+                )
+            ]
         return []
 
     # -- immobile --------------------------------------------------------------------------
@@ -385,10 +462,17 @@ class BehaviourMonitor:
             if t - st.moved_since >= rule.move_s - EPS:
                 if st.raised:
                     out.append(
-                        self._event(rule, c.pid, person, "immobile_end", t, c.base["frame"],
-                                    onset_t=st.moved_since,
-                                    duration_s=float(st.moved_since - st.since))
-                    )  # fmt: skip
+                        self._event(
+                            rule,
+                            c.pid,
+                            person,
+                            "immobile_end",
+                            t,
+                            c.base["frame"],
+                            onset_t=st.moved_since,
+                            duration_s=float(st.moved_since - st.since),
+                        )
+                    )
                 person.still[rule.name] = StillState(
                     np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
                 )
@@ -403,9 +487,17 @@ class BehaviourMonitor:
         if not st.raised and t - st.since >= rule.immobile_s - EPS:
             st.raised = True
             out.append(
-                self._event(rule, c.pid, person, "immobile", t, c.base["frame"], onset_t=st.since,
-                            duration_s=float(t - st.since))
-            )  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "immobile",
+                    t,
+                    c.base["frame"],
+                    onset_t=st.since,
+                    duration_s=float(t - st.since),
+                )
+            )
         return out
 
     # -- overreach -------------------------------------------------------------------------
@@ -425,17 +517,34 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": zone}
             return [
-                self._event(rule, c.pid, person, "overreach", t, c.base["frame"],
-                            onset_t=latch.began, joint=JOINTS[rule.joints[top]], height_m=height,
-                            zone=zone)
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "overreach",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.began,
+                    joint=JOINTS[rule.joints[top]],
+                    height_m=height,
+                    zone=zone,
+                )
+            ]
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(rule, c.pid, person, "overreach_end", t, c.base["frame"],
-                            onset_t=latch.onset, duration_s=float(t - began),
-                            zone=person.detail.pop(rule.name, {}).get("zone"))
-            ]  # fmt: skip
+                self._event(
+                    rule,
+                    c.pid,
+                    person,
+                    "overreach_end",
+                    t,
+                    c.base["frame"],
+                    onset_t=latch.onset,
+                    duration_s=float(t - began),
+                    zone=person.detail.pop(rule.name, {}).get("zone"),
+                )
+            ]
         return []
 
     # -- tracks that ended -----------------------------------------------------------------
@@ -444,8 +553,11 @@ class BehaviourMonitor:
         """End events, marked lost, for the open alarms of people whose track ended."""
         gone = [pid for pid, p in self.people.items() if t - p.last_seen > self.lost_s + EPS]
         out: list[Event] = []
-        ends = {"lone_worker": "lone_worker_end", "work_position": "work_position_end",
-                "overreach": "overreach_end"}  # fmt: skip
+        ends = {
+            "lone_worker": "lone_worker_end",
+            "work_position": "work_position_end",
+            "overreach": "overreach_end",
+        }
         for pid in gone:
             person = self.people.pop(pid)
             for rule in self.rules:
@@ -454,15 +566,32 @@ class BehaviourMonitor:
                 if end and latch is not None and latch.state:
                     detail = person.detail.get(rule.name, {})
                     out.append(
-                        self._event(rule, pid, person, end, t, frame, onset_t=person.last_seen,
-                                    zone=detail.get("zone") or "", lost=True,
-                                    duration_s=float(person.last_seen - (latch.began or t)))
-                    )  # fmt: skip
+                        self._event(
+                            rule,
+                            pid,
+                            person,
+                            end,
+                            t,
+                            frame,
+                            onset_t=person.last_seen,
+                            zone=detail.get("zone") or "",
+                            lost=True,
+                            duration_s=float(person.last_seen - (latch.began or t)),
+                        )
+                    )
                 st = person.still.get(rule.name)
                 if isinstance(rule, ImmobileRule) and st is not None and st.raised:
                     out.append(
-                        self._event(rule, pid, person, "immobile_end", t, frame,
-                                    onset_t=person.last_seen, lost=True,
-                                    duration_s=float(person.last_seen - st.since))
-                    )  # fmt: skip
+                        self._event(
+                            rule,
+                            pid,
+                            person,
+                            "immobile_end",
+                            t,
+                            frame,
+                            onset_t=person.last_seen,
+                            lost=True,
+                            duration_s=float(person.last_seen - st.since),
+                        )
+                    )
         return out

@@ -150,20 +150,40 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     dt.add_argument("--imgsz", type=int, default=640, help="model input size, long side (640)")
     dt.add_argument("--conf", type=float, default=0.25, help="person score threshold (0.25)")
     dt.add_argument("--iou", type=float, default=0.7, help="NMS overlap threshold (0.7)")
-    dt.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N, tensorrt, "
-                    "tensorrt:N or auto (cpu); openvino: cpu, gpu, gpu.N or auto")  # fmt: skip
+    dt.add_argument(
+        "--device",
+        default="cpu",
+        help="cpu, cuda, cuda:N, tensorrt, "
+        "tensorrt:N or auto (cpu); openvino: cpu, gpu, gpu.N or auto",
+    )
     dt.add_argument("--threads", type=int, help="inference threads (default: all cores)")
-    dt.add_argument("--precision", choices=("fp32", "bf16", "int8", "fp16"), default="fp32",
-                    help="fp32; int8: the INT8-quantised model (onnx); bf16: openvino on a CPU "
-                    "with bfloat16 instructions; fp16: onnx on --device tensorrt")  # fmt: skip
-    dt.add_argument("--regions", action=argparse.BooleanOptionalAction, default=True,
-                    help="detect where the people are (each camera's own people, motion, a "
-                    "full scan every --full-scan-s), at the camera's own resolution; "
-                    "--no-regions: every whole frame at --imgsz (default: regions)")  # fmt: skip
-    dt.add_argument("--region-imgsz", type=int, default=320,
-                    help="each region's model input side, a multiple of 32 (320)")  # fmt: skip
-    dt.add_argument("--full-scan-s", type=float, default=3.0,
-                    help="each camera's whole frame scanned this often, seconds (3)")  # fmt: skip
+    dt.add_argument(
+        "--precision",
+        choices=("fp32", "bf16", "int8", "fp16"),
+        default="fp32",
+        help="fp32; int8: the INT8-quantised model (onnx); bf16: openvino on a CPU "
+        "with bfloat16 instructions; fp16: onnx on --device tensorrt",
+    )
+    dt.add_argument(
+        "--regions",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="detect where the people are (each camera's own people, motion, a "
+        "full scan every --full-scan-s), at the camera's own resolution; "
+        "--no-regions: every whole frame at --imgsz (default: regions)",
+    )
+    dt.add_argument(
+        "--region-imgsz",
+        type=int,
+        default=320,
+        help="each region's model input side, a multiple of 32 (320)",
+    )
+    dt.add_argument(
+        "--full-scan-s",
+        type=float,
+        default=3.0,
+        help="each camera's whole frame scanned this often, seconds (3)",
+    )
     dt.add_argument(
         "--sync",
         choices=("index", "time"),
@@ -195,11 +215,16 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     )
     dn.add_argument("--cameras", metavar="A,B", help="the node's cameras, comma-separated")
     dn.add_argument("--node", metavar="NAME", help="the node's [[nodes]] entry (its cameras)")
-    dn.add_argument("--name", help="the node's name on the broker (default: its [[nodes]] "
-                    "name, or the host name and its cameras)")  # fmt: skip
+    dn.add_argument(
+        "--name",
+        help="the node's name on the broker (default: its [[nodes]] "
+        "name, or the host name and its cameras)",
+    )
     parsers["control-room"].add_argument(
-        "config", type=Path, help="the control room's configuration (output, [serve], [mqtt], "
-        "[control_room])")  # fmt: skip
+        "config",
+        type=Path,
+        help="the control room's configuration (output, [serve], [mqtt], [control_room])",
+    )
     _add_users(parsers["users"])
     it = parsers["init"]
     it.add_argument(

@@ -96,8 +96,14 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
 
     _needs(solver=True, pictures=args.report is not None)
     board = _board(args)
-    check_calibration_places(args.images, args.out, args.report, "extrinsics.png",
-                             args.intrinsics, args.intrinsics_images)  # fmt: skip
+    check_calibration_places(
+        args.images,
+        args.out,
+        args.report,
+        "extrinsics.png",
+        args.intrinsics,
+        args.intrinsics_images,
+    )
     with console.status("detecting the board") as status:
         run = calibrate_extrinsics_dir(
             args.images,

@@ -14,10 +14,13 @@ def _control_room(args: argparse.Namespace) -> int:
     def ready(url: str, plan) -> None:
         from stereopose.controlroom.store import shown_database
 
-        out.print(f"control room: {url}/api/sites, health {url}/api/health, metrics "
-                  f"{url}/metrics; store {shown_database(plan.database)}; broker {plan.mqtt.host}:"
-                  f"{plan.mqtt.port}; stop with Ctrl-C or SIGTERM", highlight=False,
-                  soft_wrap=True)  # fmt: skip
+        out.print(
+            f"control room: {url}/api/sites, health {url}/api/health, metrics "
+            f"{url}/metrics; store {shown_database(plan.database)}; broker {plan.mqtt.host}:"
+            f"{plan.mqtt.port}; stop with Ctrl-C or SIGTERM",
+            highlight=False,
+            soft_wrap=True,
+        )
 
     run_control_room(args.config, on_ready=ready)
     out.print("control room stopped", highlight=False)

@@ -18,13 +18,21 @@ def _detect_node(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    out.print(f"detection node {plan.name}: cameras {', '.join(plan.rig.names)} -> "
-              f"{plan.mqtt.host}:{plan.mqtt.port} {node.topics.base}/keypoints/; stop with "
-              "Ctrl-C or SIGTERM", highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"detection node {plan.name}: cameras {', '.join(plan.rig.names)} -> "
+        f"{plan.mqtt.host}:{plan.mqtt.port} {node.topics.base}/keypoints/; stop with "
+        "Ctrl-C or SIGTERM",
+        highlight=False,
+        soft_wrap=True,
+    )
     figures = node.run(stop)
     pub = node.publisher
     sent = pub.counts.published if pub is not None else 0
     dropped = pub.counts.dropped if pub is not None else 0
-    out.print(f"node {plan.name} stopped after {figures.steps} steps; {sent} messages sent, "
-              f"{dropped} dropped", highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"node {plan.name} stopped after {figures.steps} steps; {sent} messages sent, "
+        f"{dropped} dropped",
+        highlight=False,
+        soft_wrap=True,
+    )
     return 0

@@ -42,9 +42,13 @@ def _points(args: argparse.Namespace) -> int:
         raise ConfigError(f"{path}: configuration file not found")
     cfg, table = points_of(path)
     if not cfg.iec104.enabled:
-        console.print(f"note: [iec104] is not enabled in {path}: serve runs no outstation "
-                      "until `enabled = true`", markup=False, highlight=False,
-                      soft_wrap=True)  # fmt: skip
+        console.print(
+            f"note: [iec104] is not enabled in {path}: serve runs no outstation "
+            "until `enabled = true`",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     out.file.write(table.csv())
     out.file.flush()
     return 0

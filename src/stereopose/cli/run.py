@@ -25,8 +25,12 @@ def _demo(args: argparse.Namespace) -> int:
     )
     title = "Real demo: detection, 3D reconstruction, tracking, zone events"
     rc = _run_config(config, title, overwrite)
-    out.print(f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
-              f"{Path(args.out) / 'overlays'}", highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
+        f"{Path(args.out) / 'overlays'}",
+        highlight=False,
+        soft_wrap=True,
+    )
     return rc
 
 
@@ -188,16 +192,20 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
     d = summary.as_dict()
     table = Table(title=title, show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
-    table.add_row("frames", f"{summary.steps} ({'live' if summary.live else 'recorded'}, "
-                  f"{summary.fps_input:g} frames/s)")  # fmt: skip
+    table.add_row(
+        "frames",
+        f"{summary.steps} ({'live' if summary.live else 'recorded'}, "
+        f"{summary.fps_input:g} frames/s)",
+    )
     table.add_row("speed", f"{summary.fps:.1f} frames/s overall")
     table.add_row(
         "per stage, frames/s",
         ", ".join(f"{k} {v:.0f}" for k, v in summary.stage_fps().items() if v is not None),
     )
     table.add_row("compiled loops loaded", f"in {summary.load_s_3d:.2f} s (before the first frame)")
-    table.add_row("people", f"{len(summary.people)} tracked, {summary.people_per_frame:.2f} "
-                  "per frame")  # fmt: skip
+    table.add_row(
+        "people", f"{len(summary.people)} tracked, {summary.people_per_frame:.2f} per frame"
+    )
     events = ", ".join(f"{v} {k}" for k, v in sorted(summary.events.items()))
     table.add_row("zone events", events or "none")
     table.add_row(
@@ -217,8 +225,13 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
         for col in ("id", "first frame", "last frame", "time in view s", "path m"):
             people.add_column(col, justify="right")
         for p in summary.people:
-            people.add_row(str(p["id"]), str(p["first_frame"]), str(p["last_frame"]),
-                           f"{p['duration_s']:.2f}", f"{p['path_m']:.2f}")  # fmt: skip
+            people.add_row(
+                str(p["id"]),
+                str(p["first_frame"]),
+                str(p["last_frame"]),
+                f"{p['duration_s']:.2f}",
+                f"{p['path_m']:.2f}",
+            )
         out.print(people)
     out.print(f"outputs in {summary.out_dir}:", highlight=False)
     for path in summary.outputs:
@@ -250,8 +263,12 @@ def _init(args: argparse.Namespace) -> int:
     except OSError as e:
         raise StereoposeError(f"{path}: cannot write: {e.strerror}") from None
     command = "serve" if args.serve else "run"
-    out.print(f"wrote {path}: edit the calibration, cameras and outputs, then "
-              f"`stereopose {command} {path}`", highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"wrote {path}: edit the calibration, cameras and outputs, then "
+        f"`stereopose {command} {path}`",
+        highlight=False,
+        soft_wrap=True,
+    )
     return 0
 
 

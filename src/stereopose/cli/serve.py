@@ -55,8 +55,10 @@ def _console_line(url: str, config: Path, out_dir: Path) -> str:
     except StereoposeError as e:
         return f"{line} (its users cannot be read: {e})"
     if none:
-        line += (f"; no user yet: add one with `stereopose users add NAME --role admin "
-                 f"--config {config}` (the password is read from standard input)")  # fmt: skip
+        line += (
+            f"; no user yet: add one with `stereopose users add NAME --role admin "
+            f"--config {config}` (the password is read from standard input)"
+        )
     return line
 
 
@@ -67,20 +69,27 @@ def _serve(args: argparse.Namespace) -> int:
     from stereopose.site.serve import serve
 
     def ready(url: str) -> None:
-        out.print(f"serving: health {url}/api/health, metrics {url}/metrics; outputs in "
-                  f"{plan.out_dir}; stop with Ctrl-C or SIGTERM", highlight=False,
-                  soft_wrap=True)  # fmt: skip
+        out.print(
+            f"serving: health {url}/api/health, metrics {url}/metrics; outputs in "
+            f"{plan.out_dir}; stop with Ctrl-C or SIGTERM",
+            highlight=False,
+            soft_wrap=True,
+        )
         out.print(_console_line(url, path, plan.out_dir), highlight=False, soft_wrap=True)
-        out.print(f"interfaces: {', '.join(interfaces(plan.config))}", highlight=False,
-                  soft_wrap=True)  # fmt: skip
+        out.print(
+            f"interfaces: {', '.join(interfaces(plan.config))}", highlight=False, soft_wrap=True
+        )
 
     try:
         result = serve(path, plan=plan, on_ready=ready)
     except KeyboardInterrupt:  # stopped while the cameras were opened: everything is closed
         console.print("stopped")
         return 0
-    out.print(f"stopped after {result.summary.steps} steps; outputs in {plan.out_dir}",
-              highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"stopped after {result.summary.steps} steps; outputs in {plan.out_dir}",
+        highlight=False,
+        soft_wrap=True,
+    )
     if result.failed:
         raise IncompleteOutputError(result.failed, result.outputs, result.summary)
     return 0

@@ -161,6 +161,10 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
     report = write_reconstruction_report(
         out_dir, summary, scene_dir / "calib.toml", site, poses, events_path
     )
-    out.print(f"3D poses: {out_dir}/poses3d_*.jsonl; ground truth: {scene_dir}/truth.jsonl; "
-              f"report: {report}", highlight=False, soft_wrap=True)  # fmt: skip
+    out.print(
+        f"3D poses: {out_dir}/poses3d_*.jsonl; ground truth: {scene_dir}/truth.jsonl; "
+        f"report: {report}",
+        highlight=False,
+        soft_wrap=True,
+    )
     return 0

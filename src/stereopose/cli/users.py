@@ -64,8 +64,10 @@ def _users(args: argparse.Namespace) -> int:
         if args.role is None:
             raise StereoposeError("users add: give the role: --role viewer|operator|admin")
         if store.get(name) is not None:
-            raise StereoposeError(f"user {name!r} already exists in {store.path} "
-                                  "(`stereopose users passwd` changes a password)")  # fmt: skip
+            raise StereoposeError(
+                f"user {name!r} already exists in {store.path} "
+                "(`stereopose users passwd` changes a password)"
+            )
         sites = None
         if getattr(args, "sites", None):
             sites = tuple(x.strip() for x in args.sites.split(",") if x.strip())
@@ -73,8 +75,9 @@ def _users(args: argparse.Namespace) -> int:
                 raise StereoposeError("users add: --sites: give one site name or more")
         store.add(name, check_password(read_password()), args.role, sites)
         limit = f", sites {', '.join(sites)}" if sites else ""
-        out.print(f"added {name} ({args.role}{limit}) to {store.path}", highlight=False,
-                  soft_wrap=True)  # fmt: skip
+        out.print(
+            f"added {name} ({args.role}{limit}) to {store.path}", highlight=False, soft_wrap=True
+        )
     elif action == "passwd":
         if store.get(name) is None:
             raise StereoposeError(f"no user {name!r} in {store.path}")

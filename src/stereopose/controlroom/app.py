@@ -96,8 +96,13 @@ def health(request: Request, response: Response) -> dict:
         by_state, store_ok = {}, False
     ok = f["connected"] and store_ok and f["running"]
     response.headers["Cache-Control"] = "no-store"
-    return {"status": "ok" if ok else "degraded", "broker": f["connected"], "store": store_ok,
-            "sites": by_state, "ingest": f}  # fmt: skip
+    return {
+        "status": "ok" if ok else "degraded",
+        "broker": f["connected"],
+        "store": store_ok,
+        "sites": by_state,
+        "ingest": f,
+    }
 
 
 @router.get("/api/sites")
@@ -115,23 +120,35 @@ def sites(request: Request, session: Viewer) -> dict:
         if state == "live" and h.get("status") in ("degraded", "down"):
             state = "degraded"
         by = open_counts.get(r.site, {})
-        out.append({"site": r.site, "state": state, "last_seen": r.last_seen,
-                    "cameras": h.get("cameras"), "cameras_up": h.get("cameras_up"),
-                    "people": h.get("people"), "open_incidents": sum(by.values()),
-                    "open_by_priority": by, "status": h.get("status"),
-                    "events": r.events, "mark": r.mark,
-                    "clock_offset_s": offsets.get(r.site, h.get("clock_offset_s"))})  # fmt: skip
+        out.append(
+            {
+                "site": r.site,
+                "state": state,
+                "last_seen": r.last_seen,
+                "cameras": h.get("cameras"),
+                "cameras_up": h.get("cameras_up"),
+                "people": h.get("people"),
+                "open_incidents": sum(by.values()),
+                "open_by_priority": by,
+                "status": h.get("status"),
+                "events": r.events,
+                "mark": r.mark,
+                "clock_offset_s": offsets.get(r.site, h.get("clock_offset_s")),
+            }
+        )
     return {"sites": out}
 
 
 @router.get("/api/events")
-def events(request: Request, session: Viewer,
-           site: Annotated[str | None, Query(max_length=200)] = None,
-           after_id: Annotated[int, Query(ge=0, le=_I64)] = 0,
-           limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> dict:  # fmt: skip
+def events(
+    request: Request,
+    session: Viewer,
+    site: Annotated[str | None, Query(max_length=200)] = None,
+    after_id: Annotated[int, Query(ge=0, le=_I64)] = 0,
+    limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
+) -> dict:
     try:
-        rows = _room(request).store.events(site, after_id, limit,
-                                           sites=_allowed(request, session))  # fmt: skip
+        rows = _room(request).store.events(site, after_id, limit, sites=_allowed(request, session))
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
     kept = _within(rows)
@@ -139,18 +156,23 @@ def events(request: Request, session: Viewer,
 
 
 @router.get("/api/incidents")
-def incidents(request: Request, session: Viewer,
-              site: Annotated[str | None, Query(max_length=200)] = None,
-              state: Annotated[Literal["open", "active", "acknowledged", "cleared", "closed"]
-                               | None, Query()] = None,
-              limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100) -> JSONResponse:  # fmt: skip
+def incidents(
+    request: Request,
+    session: Viewer,
+    site: Annotated[str | None, Query(max_length=200)] = None,
+    state: Annotated[
+        Literal["open", "active", "acknowledged", "cleared", "closed"] | None, Query()
+    ] = None,
+    limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
+) -> JSONResponse:
     try:
         found = _room(request).store.incidents(site, state, _allowed(request, session), limit)
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
     kept = _within(found)
-    return JSONResponse({"incidents": kept, "more": len(kept) < len(found)},
-                        headers={"Cache-Control": "no-store"})  # fmt: skip
+    return JSONResponse(
+        {"incidents": kept, "more": len(kept) < len(found)}, headers={"Cache-Control": "no-store"}
+    )
 
 
 def _within(rows: list[dict], max_bytes: int = MAX_PAGE_BYTES) -> list[dict]:
@@ -164,11 +186,18 @@ def _within(rows: list[dict], max_bytes: int = MAX_PAGE_BYTES) -> list[dict]:
     return rows
 
 
-@router.post("/api/sites/{site}/incidents/{incident_id}/ack", status_code=202,
-             responses={200: {}, 403: {}, 404: {}})  # fmt: skip
-def ack(site: Annotated[str, Path(max_length=200)],
-        incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
-        request: Request, response: Response) -> dict:  # fmt: skip
+@router.post(
+    "/api/sites/{site}/incidents/{incident_id}/ack",
+    status_code=202,
+    responses={200: {}, 403: {}, 404: {}},
+)
+def ack(
+    site: Annotated[str, Path(max_length=200)],
+    incident_id: Annotated[int, Path(ge=0, le=_I64)],
+    session: Operator,
+    request: Request,
+    response: Response,
+) -> dict:
     """Ask the site to acknowledge its incident as this user (see the module)."""
     _check_site(request, session, site)
     room = _room(request)
@@ -186,8 +215,9 @@ def ack(site: Annotated[str, Path(max_length=200)],
 
 
 @router.post("/api/room-incidents/{incident_id}/ack", responses={403: {}, 404: {}})
-def ack_room(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
-             request: Request) -> dict:  # fmt: skip
+def ack_room(
+    incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator, request: Request
+) -> dict:
     """Acknowledge one of the control room's own incidents (a site offline, its clock off)."""
     room = _room(request)
     allowed = _allowed(request, session)
@@ -205,14 +235,16 @@ def ack_room(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator
 
 
 @router.get("/api/sites/{site}/plan")
-def plan(site: Annotated[str, Path(max_length=200)], session: Viewer,
-         request: Request) -> JSONResponse:  # fmt: skip
+def plan(
+    site: Annotated[str, Path(max_length=200)], session: Viewer, request: Request
+) -> JSONResponse:
     """The site's zones and people now (see the module)."""
     _check_site(request, session, site)
     room = _room(request)
     try:
         known = site in room.ingest.known_sites() or any(
-            r.site == site for r in room.store.sites([site]))  # fmt: skip
+            r.site == site for r in room.store.sites([site])
+        )
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
     if not known:
@@ -223,8 +255,11 @@ def plan(site: Annotated[str, Path(max_length=200)], session: Viewer,
 
 @router.get("/metrics", response_class=Response)
 def metrics(request: Request) -> Response:
-    return Response(exposition(request.app.state.metrics_registry), media_type=CONTENT_TYPE,
-                    headers={"Cache-Control": "no-store"})  # fmt: skip
+    return Response(
+        exposition(request.app.state.metrics_registry),
+        media_type=CONTENT_TYPE,
+        headers={"Cache-Control": "no-store"},
+    )
 
 
 class _Collector:
@@ -243,29 +278,41 @@ class _Collector:
         for s, n in counts.items():
             g.add_metric([s], n)
         yield g
-        yield GaugeMetricFamily("stereopose_controlroom_messages_per_second",
-                                "messages in per second (recent)",
-                                value=f["messages_per_s"])  # fmt: skip
-        for name, key, doc in (("events_stored", "stored", "events stored"),
-                               ("duplicates_dropped", "duplicates", "events received again and "
-                                "not stored twice"),
-                               ("gaps", "gaps", "events whose prev showed some lost on the way"),
-                               ("replays", "replays", "replays asked of sites"),
-                               ("malformed", "malformed", "messages that were not events"),
-                               ("dropped", "dropped", "messages dropped at the queue's bound "
-                                "(sent again by their sites)"),
-                               ("incident_changes", "incident_changes", "incident changes "
-                                "stored"),
-                               ("commands_sent", "commands_sent", "acknowledgements sent to "
-                                "sites (again until answered)"),
-                               ("commands_done", "commands_done", "acknowledgements "
-                                "answered by sites"),
-                               ("room_incidents", "room_incidents", "incidents raised by the "
-                                "control room (a site offline, its clock off)")):  # fmt: skip
+        yield GaugeMetricFamily(
+            "stereopose_controlroom_messages_per_second",
+            "messages in per second (recent)",
+            value=f["messages_per_s"],
+        )
+        for name, key, doc in (
+            ("events_stored", "stored", "events stored"),
+            ("duplicates_dropped", "duplicates", "events received again and not stored twice"),
+            ("gaps", "gaps", "events whose prev showed some lost on the way"),
+            ("replays", "replays", "replays asked of sites"),
+            ("malformed", "malformed", "messages that were not events"),
+            (
+                "dropped",
+                "dropped",
+                "messages dropped at the queue's bound (sent again by their sites)",
+            ),
+            ("incident_changes", "incident_changes", "incident changes stored"),
+            (
+                "commands_sent",
+                "commands_sent",
+                "acknowledgements sent to sites (again until answered)",
+            ),
+            ("commands_done", "commands_done", "acknowledgements answered by sites"),
+            (
+                "room_incidents",
+                "room_incidents",
+                "incidents raised by the control room (a site offline, its clock off)",
+            ),
+        ):
             yield CounterMetricFamily(f"stereopose_controlroom_{name}", doc, value=f[key])
-        lag = GaugeMetricFamily("stereopose_controlroom_lag_seconds",
-                                "seconds since each site's last message",
-                                labels=["site"])  # fmt: skip
+        lag = GaugeMetricFamily(
+            "stereopose_controlroom_lag_seconds",
+            "seconds since each site's last message",
+            labels=["site"],
+        )
         for site, s in self.room.ingest.lag_s().items():
             lag.add_metric([site], s)
         yield lag
@@ -274,13 +321,20 @@ class _Collector:
         return []
 
 
-def create_control_app(room, *, allowed_hosts: Iterable[str] | None = None,
-                       max_body_bytes: int = MAX_BODY_BYTES) -> FastAPI:  # fmt: skip
+def create_control_app(
+    room, *, allowed_hosts: Iterable[str] | None = None, max_body_bytes: int = MAX_BODY_BYTES
+) -> FastAPI:
     """The app over `room` (its `store`, `ingest` and `console`: site.http.web.Console for the
     login)."""
-    app = FastAPI(title="stereopose control room", version=__version__, debug=False,
-                  docs_url=None, redoc_url=None, openapi_url=None,
-                  swagger_ui_oauth2_redirect_url=None)  # fmt: skip
+    app = FastAPI(
+        title="stereopose control room",
+        version=__version__,
+        debug=False,
+        docs_url=None,
+        redoc_url=None,
+        openapi_url=None,
+        swagger_ui_oauth2_redirect_url=None,
+    )
     app.state.room = room
     app.state.console = room.console
     registry = CollectorRegistry(auto_describe=False)

@@ -69,7 +69,7 @@ from stereopose.site.wire import (
     confirmed_body,
     receiver_subscriptions,
     replay_body,
-    site_topic,  # fmt: skip
+    site_topic,
     split_topic,
 )
 
@@ -104,20 +104,37 @@ class Ingest:
     """See the module. settings: the central broker ([mqtt]; its site is unused); store: the
     ControlStore."""
 
-    def __init__(self, settings: MqttSettings, store: ControlStore, *,
-                 offline_after_s: float = 90.0, batch_s: float = 0.1, replay_every_s: float = 2.0,
-                 queue_size: int = QUEUE, clock_tolerance_s: float = 5.0,
-                 name: str = "control-room", command_resend_s: float = 5.0,
-                 shared_group: str = "", retention_days: float | None = None,
-                 sites: tuple[str, ...] | list[str] = (), max_sites: int = 1000,
-                 max_event_bytes: int = 65_536, max_heartbeat_bytes: int = 8192,
-                 ids_ahead: int = 100_000) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: MqttSettings,
+        store: ControlStore,
+        *,
+        offline_after_s: float = 90.0,
+        batch_s: float = 0.1,
+        replay_every_s: float = 2.0,
+        queue_size: int = QUEUE,
+        clock_tolerance_s: float = 5.0,
+        name: str = "control-room",
+        command_resend_s: float = 5.0,
+        shared_group: str = "",
+        retention_days: float | None = None,
+        sites: tuple[str, ...] | list[str] = (),
+        max_sites: int = 1000,
+        max_event_bytes: int = 65_536,
+        max_heartbeat_bytes: int = 8192,
+        ids_ahead: int = 100_000,
+    ) -> None:
         self.settings, self.store = settings, store
         self.allowed_sites = frozenset(sites)  # empty: any name, up to max_sites
         self.max_sites, self.ids_ahead = int(max_sites), int(ids_ahead)
-        self.max_bytes = {**SMALL_TOPICS, EVENTS: int(max_event_bytes),
-                          INCIDENTS: int(max_event_bytes), HEARTBEAT: int(max_heartbeat_bytes),
-                          PLAN: MAX_PLAN_BYTES, PEOPLE: MAX_PLAN_BYTES}  # fmt: skip
+        self.max_bytes = {
+            **SMALL_TOPICS,
+            EVENTS: int(max_event_bytes),
+            INCIDENTS: int(max_event_bytes),
+            HEARTBEAT: int(max_heartbeat_bytes),
+            PLAN: MAX_PLAN_BYTES,
+            PEOPLE: MAX_PLAN_BYTES,
+        }
         # the site names admitted (those in the store, then each new one up to max_sites)
         self._sites: set[str] = {r.site for r in store.sites()}
         self._refused: list[str] = []  # site names refused since the ingest last looked
@@ -160,11 +177,26 @@ class Ingest:
         self.clock_offsets: dict[str, float] = {}  # site -> its clock minus ours (s)
         self._clock_warned: set[str] = set()
         self._announced: dict[str, int] = {}  # site -> the last id its last heartbeat gave
-        self.counts = {"messages": 0, "stored": 0, "duplicates": 0, "gaps": 0, "replays": 0,
-                       "malformed": 0, "dropped": 0, "store_errors": 0, "behind": 0,
-                       "incident_changes": 0, "commands_sent": 0, "commands_done": 0,
-                       "room_incidents": 0, "ingest_errors": 0, "oversize": 0,
-                       "refused_sites": 0, "ahead": 0, "restarts": 0}  # fmt: skip
+        self.counts = {
+            "messages": 0,
+            "stored": 0,
+            "duplicates": 0,
+            "gaps": 0,
+            "replays": 0,
+            "malformed": 0,
+            "dropped": 0,
+            "store_errors": 0,
+            "behind": 0,
+            "incident_changes": 0,
+            "commands_sent": 0,
+            "commands_done": 0,
+            "room_incidents": 0,
+            "ingest_errors": 0,
+            "oversize": 0,
+            "refused_sites": 0,
+            "ahead": 0,
+            "restarts": 0,
+        }
         self._progress = time.monotonic()  # events stored, or none waiting to be
         self._stepped = time.monotonic()  # the ingest's thread last went round
         self._warned_at: dict[str, float] = {}  # kind of bad message -> when last logged
@@ -186,14 +218,17 @@ class Ingest:
         c.on_subscribe = self._on_subscribe
         return c
 
-    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any,
-                      props: Any) -> None:  # fmt: skip
+    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any, props: Any) -> None:
         self.subscribed = True
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
-            logger.error("control room: the broker %s:%d refused the connection: %s",
-                         self.settings.host, self.settings.port, reason)  # fmt: skip
+            logger.error(
+                "control room: the broker %s:%d refused the connection: %s",
+                self.settings.host,
+                self.settings.port,
+                reason,
+            )
             return
         self.connected = True
         share = self.shared
@@ -207,12 +242,17 @@ class Ingest:
                 c[3] = 0.0
         logger.info("control room: connected to %s:%d", self.settings.host, self.settings.port)
 
-    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
-                       props: Any) -> None:  # fmt: skip
+    def _on_disconnect(
+        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+    ) -> None:
         self.connected = self.subscribed = False
         if not self._stop.is_set():
-            logger.warning("control room: lost the broker %s:%d (%s); reconnecting",
-                           self.settings.host, self.settings.port, reason)  # fmt: skip
+            logger.warning(
+                "control room: lost the broker %s:%d (%s); reconnecting",
+                self.settings.host,
+                self.settings.port,
+                reason,
+            )
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         try:
@@ -220,8 +260,11 @@ class Ingest:
         except Exception as e:  # nothing one message holds may end paho's thread
             with self._lock:
                 self.counts["malformed"] += 1
-            self._warn("message", f"control room: a message on {str(msg.topic)[:200]!r} "
-                       f"refused: {type(e).__name__}: {str(e)[:200]}")  # fmt: skip
+            self._warn(
+                "message",
+                f"control room: a message on {str(msg.topic)[:200]!r} "
+                f"refused: {type(e).__name__}: {str(e)[:200]}",
+            )
 
     def _warn(self, kind: str, text: str) -> None:
         """Log `text` unless a message of this kind was logged within the last minute."""
@@ -241,8 +284,11 @@ class Ingest:
         if len(msg.payload) > limit:
             with self._lock:
                 self.counts["oversize"] += 1
-            self._warn("oversize", f"control room: a {len(msg.payload)}-byte message on "
-                       f"{str(msg.topic)[:200]!r} refused (at most {limit})")  # fmt: skip
+            self._warn(
+                "oversize",
+                f"control room: a {len(msg.payload)}-byte message on "
+                f"{str(msg.topic)[:200]!r} refused (at most {limit})",
+            )
             return
         if not self._admit(site):
             return
@@ -261,8 +307,11 @@ class Ingest:
         with self._lock:
             if site in self._sites:
                 return True
-            ok = (site in self.allowed_sites if self.allowed_sites
-                  else len(self._sites) < self.max_sites)  # fmt: skip
+            ok = (
+                site in self.allowed_sites
+                if self.allowed_sites
+                else len(self._sites) < self.max_sites
+            )
             ok = ok and 0 < len(site) <= 200 and site.isprintable()
             if ok:
                 self._sites.add(site)
@@ -270,8 +319,11 @@ class Ingest:
             self.counts["refused_sites"] += 1
             if len(self._refused) < 10:
                 self._refused.append(site)
-        why = ("not in [control_room] sites" if self.allowed_sites
-               else f"already {self.max_sites} sites ([control_room] max_sites)")  # fmt: skip
+        why = (
+            "not in [control_room] sites"
+            if self.allowed_sites
+            else f"already {self.max_sites} sites ([control_room] max_sites)"
+        )
         self._warn("site", f"control room: a message of site {site[:80]!r} refused: {why}")
         return False
 
@@ -280,8 +332,10 @@ class Ingest:
         such thing came for QUIET_S."""
         self._bad_at[(site, kind)] = time.monotonic()
         try:
-            if self.store.raise_room_incident(site, kind, priority, detail[:500],
-                                              time.time()) is not None:  # fmt: skip
+            if (
+                self.store.raise_room_incident(site, kind, priority, detail[:500], time.time())
+                is not None
+            ):
                 self.counts["room_incidents"] += 1
         except StoreError as e:
             self.counts["store_errors"] += 1
@@ -304,8 +358,11 @@ class Ingest:
             names, self._refused = self._refused, []
         if names:
             shown = ", ".join(repr(n[:40]) for n in names)
-            why = ("not in [control_room] sites" if self.allowed_sites
-                   else f"beyond [control_room] max_sites = {self.max_sites}")  # fmt: skip
+            why = (
+                "not in [control_room] sites"
+                if self.allowed_sites
+                else f"beyond [control_room] max_sites = {self.max_sites}"
+            )
             self._room_incident(
                 self.name, "sites_refused", f"messages of unknown sites refused ({why}): {shown}"
             )
@@ -355,8 +412,11 @@ class Ingest:
                 continue
             outbox += 1
             msg = _numbered(payload, "seq" if incidents else "id")
-            if msg is None or msg.get("site", site) != site or (
-                    incidents and not _incident_change(msg)):  # fmt: skip
+            if (
+                msg is None
+                or msg.get("site", site) != site
+                or (incidents and not _incident_change(msg))
+            ):
                 self.counts["malformed"] += 1
                 continue
             self._accept(site, incidents, msg, per_site, changes)
@@ -368,7 +428,9 @@ class Ingest:
             try:  # one transaction for the whole batch
                 new, written = self.store.put_batch(
                     {s: (v, self.marks[s]) for s, v in per_site.items()},
-                    {s: (v, self.imarks[s]) for s, v in changes.items()}, now)  # fmt: skip
+                    {s: (v, self.imarks[s]) for s, v in changes.items()},
+                    now,
+                )
                 self.counts["stored"] += new
                 self.counts["duplicates"] += sum(len(v) for v in per_site.values()) - new
                 self.counts["incident_changes"] += written
@@ -392,12 +454,18 @@ class Ingest:
         for site, seen in list(self._seen.items()):
             if now - seen > self.offline_after_s and self._available.get(site) != "offline":
                 self._available[site] = "offline"
-                logger.warning("control room: site %s silent for %.0f s: offline", site,
-                               now - seen)  # fmt: skip
+                logger.warning("control room: site %s silent for %.0f s: offline", site, now - seen)
                 self._set_state(site, "offline")
 
-    def _accept(self, site: str, incidents: bool, msg: dict, per_site: dict, changes: dict,
-                held_since: float | None = None) -> None:  # fmt: skip
+    def _accept(
+        self,
+        site: str,
+        incidents: bool,
+        msg: dict,
+        per_site: dict,
+        changes: dict,
+        held_since: float | None = None,
+    ) -> None:
         """An outbox message to store when nothing is missing before it; else a gap (one
         worker: a replay asked) or, sharing the sites with other workers, held a moment (the
         one before it may be another worker's, stored by it meanwhile)."""
@@ -438,10 +506,16 @@ class Ingest:
         if number > self._ahead.get(key, 0):
             self._ahead[key] = number
         what = "incident change" if incidents else "event"
-        self._warn("ahead", f"control room: site {site}'s {what} {number} refused: more than "
-                   f"{self.ids_ahead} beyond the last it announced ({announced})")  # fmt: skip
-        self._room_incident(site, "site_ids_ahead", f"an {what} numbered {number} refused: "
-                            f"the site announced {announced} as its last")  # fmt: skip
+        self._warn(
+            "ahead",
+            f"control room: site {site}'s {what} {number} refused: more than "
+            f"{self.ids_ahead} beyond the last it announced ({announced})",
+        )
+        self._room_incident(
+            site,
+            "site_ids_ahead",
+            f"an {what} numbered {number} refused: the site announced {announced} as its last",
+        )
         return True
 
     def _release_held(self, per_site: dict, changes: dict) -> None:
@@ -472,7 +546,8 @@ class Ingest:
                     self.counts["duplicates"] += len(events) - new
                 if site in changes:
                     self.counts["incident_changes"] += self.store.put_incidents(
-                        site, changes[site], self.imarks[site], now)  # fmt: skip
+                        site, changes[site], self.imarks[site], now
+                    )
             except StoreError as e:  # not confirmed: the site sends them again
                 self.counts["store_errors"] += 1
                 self.marks, self.imarks = self.store.marks(), self.store.incident_marks()
@@ -495,8 +570,9 @@ class Ingest:
             logger.error("control room: %s", e)
             return
         if gone:
-            logger.info("control room: %d row(s) older than %g days pruned", gone,
-                        self.retention_days)  # fmt: skip
+            logger.info(
+                "control room: %d row(s) older than %g days pruned", gone, self.retention_days
+            )
 
     def _confirm(self, site: str) -> None:
         """The site's marks of both streams on its `log/confirmed` (retained: one message)."""
@@ -509,18 +585,22 @@ class Ingest:
         try:
             beat = json.loads(payload)
             last, sent = beat["last_id"], float(beat["time"])
-            if (isinstance(last, bool) or not isinstance(last, int) or not 0 <= last <= _MAX_ID
-                    or not math.isfinite(sent)):  # fmt: skip
+            if (
+                isinstance(last, bool)
+                or not isinstance(last, int)
+                or not 0 <= last <= _MAX_ID
+                or not math.isfinite(sent)
+            ):
                 raise ValueError("out of range")
-        except (ValueError, TypeError, KeyError, UnicodeDecodeError, OverflowError,
-                RecursionError):  # fmt: skip
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError, OverflowError, RecursionError):
             self.counts["malformed"] += 1
             return
         self.clock_offsets[site] = offset = round(sent - at, 3)
         if abs(offset) > CLOCK_WARN_S and site not in self._clock_warned:
             self._clock_warned.add(site)
-            logger.warning("control room: site %s's clock is %+.1f s from this machine's",
-                           site, offset)  # fmt: skip
+            logger.warning(
+                "control room: site %s's clock is %+.1f s from this machine's", site, offset
+            )
         self._clock(site, offset)
         summary = _summary(beat)
         if summary:
@@ -556,9 +636,16 @@ class Ingest:
         try:
             if abs(offset) > self.clock_tolerance_s and site not in self._clock_off:
                 self._clock_off.add(site)
-                if self.store.raise_room_incident(site, "site_clock", 3, f"the site's clock "
-                                                  f"is {offset:+.1f} s from the control "
-                                                  "room's", now) is not None:  # fmt: skip
+                if (
+                    self.store.raise_room_incident(
+                        site,
+                        "site_clock",
+                        3,
+                        f"the site's clock is {offset:+.1f} s from the control room's",
+                        now,
+                    )
+                    is not None
+                ):
                     self.counts["room_incidents"] += 1
             elif abs(offset) <= self.clock_tolerance_s and site in self._clock_off:
                 self._clock_off.discard(site)
@@ -617,8 +704,7 @@ class Ingest:
         people = None
         if seen is not None:
             people = {**seen[1], "received_at": round(seen[0], 3)}
-        return {"plan": plan, "people": people,
-                "console_url": (plan or {}).get("console_url")}  # fmt: skip
+        return {"plan": plan, "people": people, "console_url": (plan or {}).get("console_url")}
 
     def _leave_unwatched(self) -> None:
         now = time.monotonic()
@@ -653,8 +739,7 @@ class Ingest:
                     for c in [c for c in self._commands if c not in open_]:
                         del self._commands[c]
         with self._lock:
-            due = [(c, v) for c, v in self._commands.items()
-                   if now - v[3] >= self.command_resend_s]  # fmt: skip
+            due = [(c, v) for c, v in self._commands.items() if now - v[3] >= self.command_resend_s]
             for _, v in due:
                 v[3] = now
         for command, (site, incident, by, _) in due:
@@ -689,8 +774,12 @@ class Ingest:
             logger.error("control room: %s", e)
         self.counts["commands_done"] += 1
         if result != "acknowledged":
-            logger.info("control room: site %s answered the acknowledgement of incident %s: "
-                        "%s", site, mine[1], result)  # fmt: skip
+            logger.info(
+                "control room: site %s answered the acknowledgement of incident %s: %s",
+                site,
+                mine[1],
+                result,
+            )
 
     def _set_state(self, site: str, state: str) -> None:
         """The site's state in the store, written only when it changes; offline raises a
@@ -723,8 +812,9 @@ class Ingest:
             return
         self._asked[key] = now
         self.counts["replays"] += 1
-        self.client.publish(site_topic(self.prefix, site, REPLAY), replay_body(mark, incidents),
-                            qos=1)  # fmt: skip
+        self.client.publish(
+            site_topic(self.prefix, site, REPLAY), replay_body(mark, incidents), qos=1
+        )
 
     # --- figures, close ------------------------------------------------------------------
 
@@ -736,8 +826,7 @@ class Ingest:
         if not self._thread.is_alive():
             self.counts["restarts"] += 1
             logger.error("control room: the ingest's thread ended; started again")
-            self._thread = threading.Thread(target=self._run, name="control-ingest",
-                                            daemon=True)  # fmt: skip
+            self._thread = threading.Thread(target=self._run, name="control-ingest", daemon=True)
             self._thread.start()
         if restart_loop(self.client):
             self.counts["restarts"] += 1

@@ -21,8 +21,9 @@ router = APIRouter(include_in_schema=False)
 
 
 def _index() -> Response:
-    return FileResponse(ROOM_DIR / "index.html", media_type="text/html; charset=utf-8",
-                        headers=PAGE_HEADERS)  # fmt: skip
+    return FileResponse(
+        ROOM_DIR / "index.html", media_type="text/html; charset=utf-8", headers=PAGE_HEADERS
+    )
 
 
 @router.get("/")
@@ -38,5 +39,6 @@ def login_page() -> Response:
 def mount_page(app: FastAPI) -> None:
     app.include_router(router)
     for url, folder, name in ((ROOM_URL, ROOM_DIR, "room"), (CONSOLE_URL, CONSOLE_DIR, "console")):
-        app.mount(url, _ConsoleFiles(directory=folder, check_dir=False, follow_symlink=False),
-                  name=name)  # fmt: skip
+        app.mount(
+            url, _ConsoleFiles(directory=folder, check_dir=False, follow_symlink=False), name=name
+        )

@@ -62,13 +62,17 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
     database: Path | str
     if db.startswith(("postgresql:", "postgres:")):
         if not db.startswith(("postgresql://", "postgres://")):
-            raise ConfigError(f"{path}: control_room.database: a PostgreSQL URL reads "
-                              "postgresql://USER:PASSWORD@HOST:PORT/DATABASE")  # fmt: skip
+            raise ConfigError(
+                f"{path}: control_room.database: a PostgreSQL URL reads "
+                "postgresql://USER:PASSWORD@HOST:PORT/DATABASE"
+            )
         try:
             import psycopg  # noqa: F401
         except ImportError:
-            raise ConfigError(f"{path}: control_room.database: PostgreSQL needs psycopg 3 "
-                              "(pip install 'stereopose[postgresql]')") from None  # fmt: skip
+            raise ConfigError(
+                f"{path}: control_room.database: PostgreSQL needs psycopg 3 "
+                "(pip install 'stereopose[postgresql]')"
+            ) from None
         database = db
         secret = cfg.control_room.database_password_file
         if secret:
@@ -76,23 +80,35 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
 
             parts = urlsplit(db)
             if parts.password is not None:
-                raise ConfigError(f"{path}: control_room.database has a password and "
-                                  "database_password_file gives one: give one of them")  # fmt: skip
-            word = quote(read_secret(resolve(base, secret), "control_room.database_password_file",
-                                     path), safe="")  # fmt: skip
+                raise ConfigError(
+                    f"{path}: control_room.database has a password and "
+                    "database_password_file gives one: give one of them"
+                )
+            word = quote(
+                read_secret(resolve(base, secret), "control_room.database_password_file", path),
+                safe="",
+            )
             user = quote(parts.username or "", safe="")
             host = parts.netloc.rpartition("@")[2]
             database = urlunsplit(parts._replace(netloc=f"{user}:{word}@{host}"))
     else:
         if cfg.control_room.shared_group:
-            raise ConfigError(f"{path}: control_room.shared_group: several workers share one "
-                              "PostgreSQL store; give control_room.database = "
-                              '"postgresql://..."')  # fmt: skip
+            raise ConfigError(
+                f"{path}: control_room.shared_group: several workers share one "
+                "PostgreSQL store; give control_room.database = "
+                '"postgresql://..."'
+            )
         database = resolve(out_dir, db.removeprefix("sqlite:///")) if db else out_dir / STORE
     certificate, key = tls_files(path, base, cfg)
-    http = section_settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
-                     certificate=certificate, key=key,
-                     trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
+    http = section_settings(
+        path,
+        ServeSettings,
+        host=cfg.serve.host,
+        port=cfg.serve.port,
+        certificate=certificate,
+        key=key,
+        trusted_proxies=cfg.serve.trusted_proxies,
+    )
     return ControlPlan(path, cfg, out_dir, database, mqtt, http)
 
 
@@ -121,14 +137,21 @@ class ControlRoom:
         self.server.start()
         self.url = self.server.url
         cr = plan.config.control_room
-        self.ingest = Ingest(plan.mqtt, self.store, offline_after_s=cr.offline_after_s,
-                             clock_tolerance_s=cr.clock_tolerance_s, name=cr.name,
-                             command_resend_s=cr.command_resend_s,
-                             shared_group=cr.shared_group,
-                             retention_days=cr.retention_days, sites=cr.sites,
-                             max_sites=cr.max_sites, max_event_bytes=cr.max_event_bytes,
-                             max_heartbeat_bytes=cr.max_heartbeat_bytes,
-                             ids_ahead=cr.ids_ahead)  # fmt: skip
+        self.ingest = Ingest(
+            plan.mqtt,
+            self.store,
+            offline_after_s=cr.offline_after_s,
+            clock_tolerance_s=cr.clock_tolerance_s,
+            name=cr.name,
+            command_resend_s=cr.command_resend_s,
+            shared_group=cr.shared_group,
+            retention_days=cr.retention_days,
+            sites=cr.sites,
+            max_sites=cr.max_sites,
+            max_event_bytes=cr.max_event_bytes,
+            max_heartbeat_bytes=cr.max_heartbeat_bytes,
+            ids_ahead=cr.ids_ahead,
+        )
 
     def close(self) -> None:
         if self.ingest is not None:
@@ -137,8 +160,9 @@ class ControlRoom:
         self.store.close()
 
 
-def run_control_room(config_path: str | Path, stop: threading.Event | None = None,
-                     on_ready=None) -> None:  # fmt: skip
+def run_control_room(
+    config_path: str | Path, stop: threading.Event | None = None, on_ready=None
+) -> None:
     from stereopose.pipeline.private import private_files, tighten
     from stereopose.site.parts import quiet_signals, stop_signals
 

@@ -156,8 +156,10 @@ class ControlStore:
             try:
                 import psycopg
             except ImportError:
-                raise StoreError(f"{self.name}: PostgreSQL needs psycopg 3 (pip install "
-                                 "'stereopose[postgresql]')") from None  # fmt: skip
+                raise StoreError(
+                    f"{self.name}: PostgreSQL needs psycopg 3 (pip install "
+                    "'stereopose[postgresql]')"
+                ) from None
             self._psycopg = psycopg
             self._errors = (psycopg.Error, OSError)
         self.db = None
@@ -173,8 +175,9 @@ class ControlStore:
             self.db.commit()
         except (*self._errors, OSError) as e:
             self._close_writer()
-            raise StoreError(f"{self.name}: cannot open the control room's store: "
-                             f"{_why(e)}") from None  # fmt: skip
+            raise StoreError(
+                f"{self.name}: cannot open the control room's store: {_why(e)}"
+            ) from None
         self.duplicates = 0
         self.stored = 0
 
@@ -187,8 +190,9 @@ class ControlStore:
                 db.read_only = True
             return db
         if read_only:
-            db = sqlite3.connect(f"file:{pathname2url(str(self.path.resolve()))}?mode=ro",
-                                 uri=True, timeout=2.0)  # fmt: skip
+            db = sqlite3.connect(
+                f"file:{pathname2url(str(self.path.resolve()))}?mode=ro", uri=True, timeout=2.0
+            )
             db.execute("PRAGMA busy_timeout = 2000")
             return db
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -213,8 +217,9 @@ class ControlStore:
 
     def _columns(self, table: str) -> set[str]:
         if self.postgres:
-            rows = self.db.execute("SELECT column_name FROM information_schema.columns WHERE "
-                                   "table_name = %s", (table,)).fetchall()  # fmt: skip
+            rows = self.db.execute(
+                "SELECT column_name FROM information_schema.columns WHERE table_name = %s", (table,)
+            ).fetchall()
             return {r[0] for r in rows}
         return {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
 
@@ -266,22 +271,25 @@ class ControlStore:
         self.duplicates += len(rows) - new
         return new
 
-    def put_batch(self, events: dict[str, tuple[Sequence[dict], int]],
-                  changes: dict[str, tuple[Sequence[dict], int]],
-                  now: float) -> tuple[int, int]:  # fmt: skip
+    def put_batch(
+        self,
+        events: dict[str, tuple[Sequence[dict], int]],
+        changes: dict[str, tuple[Sequence[dict], int]],
+        now: float,
+    ) -> tuple[int, int]:
         """Many sites' events and incident changes with their new marks ({site: (items,
         mark)}), in one transaction (one commit however many sites: what a fleet's store
         needs); (events newly stored, incident records written)."""
         ev_rows = [_event_row(site, e, now) for site, (items, _) in events.items() for e in items]
-        ch_rows = [_change_row(site, c, now) for site, (items, _) in changes.items()
-                   for c in items]  # fmt: skip
+        ch_rows = [_change_row(site, c, now) for site, (items, _) in changes.items() for c in items]
         what = f"store {len(ev_rows)} event(s) and {len(ch_rows)} incident change(s)"
         with self._writing(what) as run:
             new = run.many(_PUT_EVENT, ev_rows)
             written = run.many(_PUT_CHANGE, ch_rows)
             run.many(_RAISE_MARK, [(site, mark, now) for site, (_, mark) in events.items()])
-            run.many(_RAISE_INCIDENT_MARK,
-                     [(site, mark, now) for site, (_, mark) in changes.items()])  # fmt: skip
+            run.many(
+                _RAISE_INCIDENT_MARK, [(site, mark, now) for site, (_, mark) in changes.items()]
+            )
         self.stored += new
         self.duplicates += len(ev_rows) - new
         return new, written
@@ -299,13 +307,17 @@ class ControlStore:
     def add_command(self, site: str, incident: int, by: str, now: float) -> int:
         """An acknowledgement to ask of `site`; its command id."""
         with self._writing("store the acknowledgement") as run:
-            row = run("INSERT INTO commands(site, incident, asked_by, asked_at) VALUES "
-                      "(?, ?, ?, ?) RETURNING id", (site, incident, by, now))  # fmt: skip
+            row = run(
+                "INSERT INTO commands(site, incident, asked_by, asked_at) VALUES "
+                "(?, ?, ?, ?) RETURNING id",
+                (site, incident, by, now),
+            )
             row = row.fetchone()
         return int(row[0])
 
-    def finish_command(self, command: int, result: str, now: float,
-                       site: str | None = None) -> bool:  # fmt: skip
+    def finish_command(
+        self, command: int, result: str, now: float, site: str | None = None
+    ) -> bool:
         """The site's answer to `command` (of `site` when given); whether it was waiting."""
         sql = "UPDATE commands SET done_at = ?, result = ? WHERE id = ? AND done_at IS NULL"
         args: list = [now, result, command]
@@ -319,41 +331,55 @@ class ControlStore:
     def pending_commands(self) -> list[tuple[int, str, int, str]]:
         """(command, site, incident, by) not answered yet, oldest first."""
         with self._writing("read the acknowledgements") as run:
-            rows = run("SELECT id, site, incident, asked_by FROM commands WHERE done_at IS "
-                       "NULL ORDER BY id").fetchall()  # fmt: skip
+            rows = run(
+                "SELECT id, site, incident, asked_by FROM commands WHERE done_at IS "
+                "NULL ORDER BY id"
+            ).fetchall()
         return [tuple(r) for r in rows]
 
-    def raise_room_incident(self, site: str, kind: str, priority: int, detail: str,
-                            now: float) -> int | None:  # fmt: skip
+    def raise_room_incident(
+        self, site: str, kind: str, priority: int, detail: str, now: float
+    ) -> int | None:
         """A control-room incident of `kind` about `site`, unless one is active already; its
         id (None: one was)."""
         with self._writing("raise an incident") as run:
-            if run("SELECT 1 FROM room_incidents WHERE site = ? AND kind = ? AND state IN "
-                   "('active', 'acknowledged')", (site, kind)).fetchone():  # fmt: skip
+            if run(
+                "SELECT 1 FROM room_incidents WHERE site = ? AND kind = ? AND state IN "
+                "('active', 'acknowledged')",
+                (site, kind),
+            ).fetchone():
                 return None
-            row = run("INSERT INTO room_incidents(site, kind, priority, state, raised_at, "
-                      "detail) VALUES (?, ?, ?, 'active', ?, ?) RETURNING id",
-                      (site, kind, priority, now, detail)).fetchone()  # fmt: skip
+            row = run(
+                "INSERT INTO room_incidents(site, kind, priority, state, raised_at, "
+                "detail) VALUES (?, ?, ?, 'active', ?, ?) RETURNING id",
+                (site, kind, priority, now, detail),
+            ).fetchone()
         return int(row[0])
 
     def clear_room_incidents(self, site: str, kind: str, now: float) -> int:
         """The active incidents of `kind` about `site` cleared (closed when acknowledged)."""
         with self._writing("clear an incident") as run:
-            cur = run("UPDATE room_incidents SET cleared_at = ?, state = CASE state WHEN "
-                      "'acknowledged' THEN 'closed' ELSE 'cleared' END WHERE site = ? AND "
-                      "kind = ? AND state IN ('active', 'acknowledged')",
-                      (now, site, kind))  # fmt: skip
+            cur = run(
+                "UPDATE room_incidents SET cleared_at = ?, state = CASE state WHEN "
+                "'acknowledged' THEN 'closed' ELSE 'cleared' END WHERE site = ? AND "
+                "kind = ? AND state IN ('active', 'acknowledged')",
+                (now, site, kind),
+            )
         return cur.rowcount
 
     def ack_room_incident(self, incident: int, by: str, now: float) -> dict | None:
         """Acknowledge a control-room incident (a cleared one closes); its row, None when
         there is none with that id."""
         with self._writing("acknowledge an incident") as run:
-            run("UPDATE room_incidents SET acked_by = ?, acked_at = ?, state = CASE state "
+            run(
+                "UPDATE room_incidents SET acked_by = ?, acked_at = ?, state = CASE state "
                 "WHEN 'active' THEN 'acknowledged' WHEN 'cleared' THEN 'closed' ELSE state "
-                "END WHERE id = ? AND acked_by IS NULL", (by, now, incident))  # fmt: skip
-            row = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?",
-                      (incident,)).fetchone()  # fmt: skip
+                "END WHERE id = ? AND acked_by IS NULL",
+                (by, now, incident),
+            )
+            row = run(
+                f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
+            ).fetchone()
         return None if row is None else _room_incident(row)
 
     def prune(self, before: float) -> int:
@@ -362,32 +388,45 @@ class ControlStore:
         deleted. The sites and their marks stay, so nothing pruned is stored again."""
         n = 0
         with self._writing("prune the store") as run:
-            for sql in ("DELETE FROM events WHERE stored_at < ?",
-                        "DELETE FROM incidents WHERE state = 'closed' AND stored_at < ?",
-                        "DELETE FROM commands WHERE done_at IS NOT NULL AND done_at < ?",
-                        "DELETE FROM room_incidents WHERE state = 'closed' AND "
-                        "COALESCE(cleared_at, raised_at) < ?"):  # fmt: skip
+            for sql in (
+                "DELETE FROM events WHERE stored_at < ?",
+                "DELETE FROM incidents WHERE state = 'closed' AND stored_at < ?",
+                "DELETE FROM commands WHERE done_at IS NOT NULL AND done_at < ?",
+                "DELETE FROM room_incidents WHERE state = 'closed' AND "
+                "COALESCE(cleared_at, raised_at) < ?",
+            ):
                 n += max(0, run(sql, (before,)).rowcount)
         return n
 
-    def set_site(self, site: str, *, state: str | None = None, last_seen: float | None = None,
-                 health: dict | None = None) -> None:  # fmt: skip
+    def set_site(
+        self,
+        site: str,
+        *,
+        state: str | None = None,
+        last_seen: float | None = None,
+        health: dict | None = None,
+    ) -> None:
         with self._writing(f"update site {site!r}") as run:
             run("INSERT OR IGNORE INTO sites(site) VALUES (?)", (site,))
             if state is not None:
                 run("UPDATE sites SET state = ? WHERE site = ?", (state, site))
             if last_seen is not None:
-                run("UPDATE sites SET last_seen = GREATEST(COALESCE(last_seen, 0), ?) WHERE "
-                    "site = ?", (last_seen, site))  # fmt: skip
+                run(
+                    "UPDATE sites SET last_seen = GREATEST(COALESCE(last_seen, 0), ?) WHERE "
+                    "site = ?",
+                    (last_seen, site),
+                )
             if health is not None:
                 run("UPDATE sites SET health = ? WHERE site = ?", (json.dumps(health), site))
 
     def set_summaries(self, summaries: dict[str, dict]) -> None:
         """Each site's latest summary (its heartbeat's status, cameras, people), at once."""
         with self._writing("update the sites") as run:
-            run.many("INSERT INTO sites(site, health) VALUES (?, ?) ON CONFLICT(site) DO "
-                     "UPDATE SET health = excluded.health",
-                     [(site, json.dumps(v)) for site, v in summaries.items()])  # fmt: skip
+            run.many(
+                "INSERT INTO sites(site, health) VALUES (?, ?) ON CONFLICT(site) DO "
+                "UPDATE SET health = excluded.health",
+                [(site, json.dumps(v)) for site, v in summaries.items()],
+            )
 
     def marks(self) -> dict[str, int]:
         with self._writing("read the marks") as run:
@@ -401,15 +440,25 @@ class ControlStore:
 
     def sites(self, only: Iterable[str] | None = None) -> list[SiteRow]:
         with self._reading("read the sites") as run:
-            rows = run("SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
-                       "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
-                       "FROM sites s ORDER BY s.site").fetchall()  # fmt: skip
+            rows = run(
+                "SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
+                "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
+                "FROM sites s ORDER BY s.site"
+            ).fetchall()
         keep = None if only is None else set(only)
-        return [SiteRow(s, int(m), st, seen, json.loads(h) if h else None, int(n))
-                for s, m, st, seen, h, n in rows if keep is None or s in keep]  # fmt: skip
+        return [
+            SiteRow(s, int(m), st, seen, json.loads(h) if h else None, int(n))
+            for s, m, st, seen, h, n in rows
+            if keep is None or s in keep
+        ]
 
-    def events(self, site: str | None = None, after_id: int = 0, limit: int = 100,
-               sites: Iterable[str] | None = None) -> list[dict]:  # fmt: skip
+    def events(
+        self,
+        site: str | None = None,
+        after_id: int = 0,
+        limit: int = 100,
+        sites: Iterable[str] | None = None,
+    ) -> list[dict]:
         """Events in (site, id) order: of `site` after `after_id`, or of every site (of
         `sites` when given); at most `limit` (<= MAX_LIMIT)."""
         limit = max(1, min(int(limit), MAX_LIMIT))
@@ -417,12 +466,20 @@ class ControlStore:
         where.append("id > ?")
         args.append(int(after_id))
         with self._reading("read the events") as run:
-            rows = run(f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
-                       "ORDER BY site, id LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
+            rows = run(
+                f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
+                "ORDER BY site, id LIMIT ?",
+                [*args, limit],
+            ).fetchall()
         return [{**json.loads(rec), "site": s} for s, rec in rows]
 
-    def incidents(self, site: str | None = None, state: str | None = None,
-                  sites: Iterable[str] | None = None, limit: int = 100) -> list[dict]:  # fmt: skip
+    def incidents(
+        self,
+        site: str | None = None,
+        state: str | None = None,
+        sites: Iterable[str] | None = None,
+        limit: int = 100,
+    ) -> list[dict]:
         """The sites' incidents (newest change first) with the control room's own
         (`"source": "control_room"`): of `site`, in `state` ("open": not closed), of `sites`
         when given; at most `limit` of each kind. Each site incident carries the
@@ -436,31 +493,46 @@ class ControlStore:
             args.append(state)
         cond = f" WHERE {' AND '.join(where)}" if where else ""
         with self._reading("read the incidents") as run:
-            rows = run(f"SELECT site, seq, record FROM incidents{cond} ORDER BY stored_at "
-                       "DESC, site, id DESC LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
-            room = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id DESC "
-                       "LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
-            pending = run("SELECT site, incident, asked_by, asked_at FROM commands WHERE "
-                          "done_at IS NULL").fetchall()  # fmt: skip
+            rows = run(
+                f"SELECT site, seq, record FROM incidents{cond} ORDER BY stored_at "
+                "DESC, site, id DESC LIMIT ?",
+                [*args, limit],
+            ).fetchall()
+            room = run(
+                f"SELECT {_ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id DESC LIMIT ?",
+                [*args, limit],
+            ).fetchall()
+            pending = run(
+                "SELECT site, incident, asked_by, asked_at FROM commands WHERE done_at IS NULL"
+            ).fetchall()
         asked: dict[tuple[str, int], list[dict]] = {}
         for s, i, by, at in pending:
             asked.setdefault((s, int(i)), []).append({"by": by, "asked_at": at})
         out = []
         for s, seq, rec in rows:
             doc = json.loads(rec)
-            out.append({**doc, "site": s, "seq": int(seq), "source": "site",
-                        "ack_pending": asked.get((s, doc.get("id")), [])})  # fmt: skip
+            out.append(
+                {
+                    **doc,
+                    "site": s,
+                    "seq": int(seq),
+                    "source": "site",
+                    "ack_pending": asked.get((s, doc.get("id")), []),
+                }
+            )
         return out + [_room_incident(r) for r in room]
 
     def open_counts(self) -> dict[str, dict[str, int]]:
         """Per site, its open incidents (not closed) by priority ("1".."4"), the control
         room's own with them."""
         with self._reading("read the incidents") as run:
-            rows = run("SELECT site, priority, COUNT(*) FROM incidents WHERE state IN "
-                       "('active', 'acknowledged', 'cleared') GROUP BY site, priority "
-                       "UNION ALL SELECT site, priority, COUNT(*) FROM room_incidents "
-                       "WHERE state IN ('active', 'acknowledged', 'cleared') GROUP BY "
-                       "site, priority").fetchall()  # fmt: skip
+            rows = run(
+                "SELECT site, priority, COUNT(*) FROM incidents WHERE state IN "
+                "('active', 'acknowledged', 'cleared') GROUP BY site, priority "
+                "UNION ALL SELECT site, priority, COUNT(*) FROM room_incidents "
+                "WHERE state IN ('active', 'acknowledged', 'cleared') GROUP BY "
+                "site, priority"
+            ).fetchall()
         out: dict[str, dict[str, int]] = {}
         for site, priority, n in rows:
             by = out.setdefault(site, {})
@@ -470,15 +542,17 @@ class ControlStore:
     def room_incident(self, incident: int) -> dict | None:
         """A control-room incident, None when there is none with that id."""
         with self._reading("read the incidents") as run:
-            row = run(f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?",
-                      (incident,)).fetchone()  # fmt: skip
+            row = run(
+                f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
+            ).fetchone()
         return None if row is None else _room_incident(row)
 
     def incident(self, site: str, incident: int) -> dict | None:
         """A site's incident as stored, None when the control room has none by that id."""
         with self._reading("read the incidents") as run:
-            row = run("SELECT record FROM incidents WHERE site = ? AND id = ?",
-                      (site, incident)).fetchone()  # fmt: skip
+            row = run(
+                "SELECT record FROM incidents WHERE site = ? AND id = ?", (site, incident)
+            ).fetchone()
         return None if row is None else {**json.loads(row[0]), "site": site}
 
     def close(self) -> None:
@@ -557,16 +631,34 @@ def _of_sites(site: str | None, sites: Iterable[str] | None) -> tuple[list[str],
 
 
 def _event_row(site: str, e: dict, now: float) -> tuple:
-    return (site, int(e["id"]), _num(e.get("wall_t")), _text(e.get("type")),
-            _text(e.get("zone")), _int(e.get("person")), _int(e.get("incident")),
-            _int(e.get("priority")), now, json.dumps(e, separators=(",", ":")))  # fmt: skip
+    return (
+        site,
+        int(e["id"]),
+        _num(e.get("wall_t")),
+        _text(e.get("type")),
+        _text(e.get("zone")),
+        _int(e.get("person")),
+        _int(e.get("incident")),
+        _int(e.get("priority")),
+        now,
+        json.dumps(e, separators=(",", ":")),
+    )
 
 
 def _change_row(site: str, c: dict, now: float) -> tuple:
     rec = c["incident"]
-    return (site, int(rec["id"]), int(c["seq"]), _text(rec.get("state")),
-            _int(rec.get("priority")), _text(rec.get("zone")), _int(rec.get("person")),
-            _num(rec.get("last_wall_t")), now, json.dumps(rec, separators=(",", ":")))  # fmt: skip
+    return (
+        site,
+        int(rec["id"]),
+        int(c["seq"]),
+        _text(rec.get("state")),
+        _int(rec.get("priority")),
+        _text(rec.get("zone")),
+        _int(rec.get("person")),
+        _num(rec.get("last_wall_t")),
+        now,
+        json.dumps(rec, separators=(",", ":")),
+    )
 
 
 _ROOM_COLUMNS = "id, site, kind, priority, state, raised_at, cleared_at, acked_by, acked_at, detail"

@@ -56,8 +56,9 @@ def make_detector(
         raise ModelError(f"precision bf16 needs the openvino backend, not {backend!r}")
     if precision == "fp16" and backend != "onnx":
         # OpenVINO on an Intel GPU runs f16 by itself (device auto); fp16 is TensorRT's
-        raise ModelError(f"precision fp16 needs the onnx backend (device tensorrt), not "
-                         f"{backend!r}")  # fmt: skip
+        raise ModelError(
+            f"precision fp16 needs the onnx backend (device tensorrt), not {backend!r}"
+        )
     if not isinstance(imgsz, int) or imgsz < 32 or imgsz % 32:
         raise ModelError(f"imgsz must be a positive multiple of 32, got {imgsz}")
     if not 0 <= conf <= 1 or not 0 <= iou <= 1:

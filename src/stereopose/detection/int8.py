@@ -55,11 +55,17 @@ def quantize(src: Path, work: Path, frames: list[np.ndarray], imgsz: int = 640) 
     quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
     out = work / "int8.onnx"
     quantize_static(
-        str(pre), str(out), _Frames(name, frames, imgsz, int(meta.get("stride", 32))),
-        quant_format=QuantFormat.QDQ, per_channel=True, activation_type=QuantType.QUInt8,
-        weight_type=QuantType.QInt8, op_types_to_quantize=["Conv"],
-        calibrate_method=CalibrationMethod.MinMax, nodes_to_exclude=raw,
-    )  # fmt: skip
+        str(pre),
+        str(out),
+        _Frames(name, frames, imgsz, int(meta.get("stride", 32))),
+        quant_format=QuantFormat.QDQ,
+        per_channel=True,
+        activation_type=QuantType.QUInt8,
+        weight_type=QuantType.QInt8,
+        op_types_to_quantize=["Conv"],
+        calibrate_method=CalibrationMethod.MinMax,
+        nodes_to_exclude=raw,
+    )
     quantized = onnx.load(str(out))
     have = {p.key for p in quantized.metadata_props}
     for key, value in meta.items():  # kpt_shape, stride, names: the detector reads them

@@ -206,8 +206,12 @@ def quantize_int8(
         raise ModelError(f"{src}: INT8 quantisation needs an ONNX model (.onnx)")
     out = Path(out) if out is not None else src.with_name(f"{src.stem}{INT8_SUFFIX}.onnx")
     # a runtime install has no onnx: say so, and how to do without it
-    require("onnx", "int8", f"INT8 quantisation of {src.name}", f"or copy {out.name} from "
-            f"an install that has made it to {out}")  # fmt: skip
+    require(
+        "onnx",
+        "int8",
+        f"INT8 quantisation of {src.name}",
+        f"or copy {out.name} from an install that has made it to {out}",
+    )
     from stereopose.detection.int8 import quantize
 
     if frames is None:

@@ -148,9 +148,13 @@ def _far_joints_missing(path: Path, keypoints: np.ndarray) -> np.ndarray:
 
 def _kind(mode: int) -> str:
     """What a file that is not a regular file is, for messages."""
-    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"),
-                       (stat.S_ISBLK, "a device")):  # fmt: skip
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a named pipe"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a device"),
+        (stat.S_ISBLK, "a device"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -347,8 +351,10 @@ def _index_folder(folder: Path) -> tuple[dict[int, Path], list[tuple[Path, str]]
     Only regular files are taken (links to them included): a folder, named pipe, socket or
     device named ``*.json`` is left out, as is a frame number beyond MAX_FRAME."""
     try:
-        entries = sorted((e for e in os.scandir(folder) if e.name.lower().endswith(".json")),
-                         key=lambda e: e.name)  # fmt: skip
+        entries = sorted(
+            (e for e in os.scandir(folder) if e.name.lower().endswith(".json")),
+            key=lambda e: e.name,
+        )
     except OSError as e:
         return {}, [(folder, f"cannot list the folder: {e.strerror}")]
     per: dict[int, Path] = {}

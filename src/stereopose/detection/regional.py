@@ -72,8 +72,9 @@ class RegionSettings:
 
     def __post_init__(self) -> None:
         if not isinstance(self.imgsz, int) or self.imgsz < 64 or self.imgsz % 32:
-            raise ValueError(f"region imgsz must be a multiple of 32 of at least 64, "
-                             f"got {self.imgsz!r}")  # fmt: skip
+            raise ValueError(
+                f"region imgsz must be a multiple of 32 of at least 64, got {self.imgsz!r}"
+            )
         if not self.full_scan_s > 0:
             raise ValueError(f"full_scan_s must be positive, got {self.full_scan_s!r}")
         if not self.hold_s >= 0:
@@ -165,8 +166,11 @@ class RegionDetector:
             ]
             for r in list(state.last)
         ]
-        mode = ("whole+regions" if boxes else "whole") if state.whole else (
-            "regions" if boxes else "idle")  # fmt: skip
+        mode = (
+            ("whole+regions" if boxes else "whole")
+            if state.whole
+            else ("regions" if boxes else "idle")
+        )
         return {"mode": mode, "regions": boxes}
 
     def whole(self, camera: str) -> bool:
@@ -183,8 +187,11 @@ class RegionDetector:
         across the full_scan_s period ((k + 1) / n of it after this one: never longer)."""
         new = [n for n in names if n not in self._state]
         for k, name in enumerate(new):
-            self._state[name] = _Camera(MotionDetector(self.settings.motion_threshold),
-                                        next_scan=t, first_gap=(k + 1) / len(new))  # fmt: skip
+            self._state[name] = _Camera(
+                MotionDetector(self.settings.motion_threshold),
+                next_scan=t,
+                first_gap=(k + 1) / len(new),
+            )
             self.cameras[name] = CameraRegions()
 
     def _plan(
@@ -211,14 +218,20 @@ class RegionDetector:
         if hints is not None and len(hints):
             # a track's box mostly outside the view, or too large for a region, is no one this
             # camera sees well: his own detections (seen) or the whole frame's scan say more
-            people += [r for r in squares(_in_view(hints, size), size, "track", small)
-                       if max(r.side_w, r.side_h) <= largest]  # fmt: skip
+            people += [
+                r
+                for r in squares(_in_view(hints, size), size, "track", small)
+                if max(r.side_w, r.side_h) <= largest
+            ]
         if state.held:
             people += squares(np.array([b for b, _ in state.held]), size, "seen", small)
         # motion where nobody is known yet: a newcomer (a known person's moving limbs are in
         # his own region already)
-        motion = [m for m in squares(moving, size, "motion", s.imgsz)
-                  if not any(_inside(m, r) for r in people)]  # fmt: skip
+        motion = [
+            m
+            for m in squares(moving, size, "motion", s.imgsz)
+            if not any(_inside(m, r) for r in people)
+        ]
         regions = merge(people + motion, size, largest)
         if len(regions) > MAX_REGIONS:  # many at once (a crowd, rain): merged however far apart
             regions = merge(regions, size, largest, max_growth=float("inf"))
@@ -244,8 +257,11 @@ class RegionDetector:
             # someone too large for a region's detail: the whole frame, and the regions of
             # people it would see at less than half their region's detail (a distant worker
             # beside a near one)
-            finer = [r for r in regions if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale
-                     and r.why & {"track", "seen"}]  # fmt: skip
+            finer = [
+                r
+                for r in regions
+                if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale and r.why & {"track", "seen"}
+            ]
             return finer, False, True
         whole_px = whole.input_shape[0] * whole.input_shape[1]
         finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
@@ -292,12 +308,14 @@ class RegionDetector:
                 owners.append((name, r))
         found: dict[str, list[tuple[Poses, Region | None]]] = {n: [] for n in images}
         if crops:
-            for (name, r), poses in zip(owners, self.detector.detect(crops, imgsz=s.imgsz),
-                                        strict=True):  # fmt: skip
+            for (name, r), poses in zip(
+                owners, self.detector.detect(crops, imgsz=s.imgsz), strict=True
+            ):
                 found[name].append((poses, r))
         if wholes:
-            for name, poses in zip(wholes, self.detector.detect([images[n] for n in wholes]),
-                                   strict=True):  # fmt: skip
+            for name, poses in zip(
+                wholes, self.detector.detect([images[n] for n in wholes]), strict=True
+            ):
                 found[name].append((poses, None))
         out: dict[str, Poses] = {}
         for name, image in images.items():
@@ -305,8 +323,9 @@ class RegionDetector:
             out[name] = self._gather(name, found[name], (w, h), t)
         return out
 
-    def _gather(self, name: str, found: list[tuple[Poses, Region | None]],
-                size: tuple[int, int], t: float) -> Poses:  # fmt: skip
+    def _gather(
+        self, name: str, found: list[tuple[Poses, Region | None]], size: tuple[int, int], t: float
+    ) -> Poses:
         """One camera's people from its regions, in frame pixels, each person once; its held
         people and newcomer counts brought up to date."""
         kps, boxes, scores, cut, grown, why = [], [], [], [], [], []
@@ -350,8 +369,11 @@ class RegionDetector:
         state.held = [(b, seen) for b, seen in state.held if not _overlaps_any(b, new)]
         state.held = ([(b, t) for b in new] + state.held)[:HELD_MAX]
         stats.people += len(keep)
-        return Poses(np.array([kps[i] for i in keep]), np.array([boxes[i] for i in keep]),
-                     np.array([scores[i] for i in keep]))  # fmt: skip
+        return Poses(
+            np.array([kps[i] for i in keep]),
+            np.array([boxes[i] for i in keep]),
+            np.array([scores[i] for i in keep]),
+        )
 
 
 def _in_view(boxes: np.ndarray, size: tuple[int, int], share: float = 0.5) -> np.ndarray:
@@ -388,10 +410,15 @@ def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
     regions, region_imgsz, full_scan_s, motion_threshold); None with regions = false."""
     if not settings.regions:
         return None
-    return RegionDetector(detector, RegionSettings(
-        imgsz=settings.region_imgsz, full_scan_s=settings.full_scan_s,
-        motion_threshold=settings.motion_threshold, detail=settings.region_detail,
-    ))  # fmt: skip
+    return RegionDetector(
+        detector,
+        RegionSettings(
+            imgsz=settings.region_imgsz,
+            full_scan_s=settings.full_scan_s,
+            motion_threshold=settings.motion_threshold,
+            detail=settings.region_detail,
+        ),
+    )
 
 
 def describe(report: Mapping[str, Mapping[str, float | int]]) -> str:
@@ -408,5 +435,7 @@ def describe(report: Mapping[str, Mapping[str, float | int]]) -> str:
     motion = sum(c["found_by_motion"] for c in report.values())
     scanned = sum(c["found_by_scan"] for c in report.values())
     share = 100 * used / whole if whole else 0.0
-    return (f"regions: {share:.0f} % of whole frames' model input ({per}); {scans} full "
-            f"scans; newcomers found by motion {motion}, by a scan {scanned}")  # fmt: skip
+    return (
+        f"regions: {share:.0f} % of whole frames' model input ({per}); {scans} full "
+        f"scans; newcomers found by motion {motion}, by a scan {scanned}"
+    )

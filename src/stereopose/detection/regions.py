@@ -122,8 +122,11 @@ def tiles(size: tuple[int, int], tile: int, overlap: float = 0.25) -> list[Regio
         n = int(np.ceil((length - tile) / (tile * (1 - overlap)))) + 1
         return [round(k * (length - tile) / (n - 1)) for k in range(n)]
 
-    return [Region(x, y, min(tile, w), min(tile, h), frozenset({"scan"}))
-            for y in starts(h) for x in starts(w)]  # fmt: skip
+    return [
+        Region(x, y, min(tile, w), min(tile, h), frozenset({"scan"}))
+        for y in starts(h)
+        for x in starts(w)
+    ]
 
 
 def cut_sides(box: np.ndarray, region: Region, size: tuple[int, int]) -> tuple[bool, ...]:
@@ -146,8 +149,9 @@ def grow_cut(box: np.ndarray, sides: tuple[bool, ...]) -> np.ndarray:
     x1, y1, x2, y2 = (float(v) for v in box)
     w, h = x2 - x1, y2 - y1
     ext = 0.5 * max(w, h)
-    return np.array([x1 - ext * sides[0], y1 - ext * sides[1],
-                     x2 + ext * sides[2], y2 + ext * sides[3]])  # fmt: skip
+    return np.array(
+        [x1 - ext * sides[0], y1 - ext * sides[1], x2 + ext * sides[2], y2 + ext * sides[3]]
+    )
 
 
 def dedupe(

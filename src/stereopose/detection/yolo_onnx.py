@@ -31,14 +31,20 @@ CPU, CUDA, TENSORRT = "CPUExecutionProvider", "CUDAExecutionProvider", "Tensorrt
 MAX_BATCH = 32  # images per inference; a step of more cameras runs in chunks of this many
 PRECISIONS = ("fp32", "fp16", "int8")  # int8: the model file is the quantised one
 _NAMES = {CUDA: "CUDA", TENSORRT: "TensorRT"}
-_GPU_PACKAGE = ("GPU runs need ONNX Runtime's GPU package in place of the CPU one (pip uninstall "
-                "onnxruntime; pip install onnxruntime-gpu)")  # fmt: skip
-_GPU_LIBRARIES = ("it needs a GPU, its driver, and the CUDA and cuDNN libraries this onnxruntime-"
-                  "gpu is built for (pip install 'onnxruntime-gpu[cuda,cudnn]')")  # fmt: skip
-_TRT_LIBRARIES = ("TensorRT also needs its libraries, of the major version ONNX Runtime is built "
-                  "for (onnxruntime-gpu 1.31: TensorRT 10, pip install --extra-index-url "
-                  "https://pypi.nvidia.com 'tensorrt-cu13-libs==10.*'; or their folder in "
-                  "LD_LIBRARY_PATH)")  # fmt: skip
+_GPU_PACKAGE = (
+    "GPU runs need ONNX Runtime's GPU package in place of the CPU one (pip uninstall "
+    "onnxruntime; pip install onnxruntime-gpu)"
+)
+_GPU_LIBRARIES = (
+    "it needs a GPU, its driver, and the CUDA and cuDNN libraries this onnxruntime-"
+    "gpu is built for (pip install 'onnxruntime-gpu[cuda,cudnn]')"
+)
+_TRT_LIBRARIES = (
+    "TensorRT also needs its libraries, of the major version ONNX Runtime is built "
+    "for (onnxruntime-gpu 1.31: TensorRT 10, pip install --extra-index-url "
+    "https://pypi.nvidia.com 'tensorrt-cu13-libs==10.*'; or their folder in "
+    "LD_LIBRARY_PATH)"
+)
 
 Provider = tuple[str, dict[str, str]]
 
@@ -71,12 +77,13 @@ def _providers(
     folder TensorRT keeps its engines and timing cache in; profile: its trt_profile_* shapes.
     """
     if precision not in PRECISIONS:
-        raise ModelError(f"precision {precision!r}: the onnx backend runs "
-                         f"{', '.join(PRECISIONS)}")  # fmt: skip
+        raise ModelError(f"precision {precision!r}: the onnx backend runs {', '.join(PRECISIONS)}")
     kind, index = parse_device(device)
     if precision == "fp16" and kind != "tensorrt":
-        raise ModelError(f"precision fp16 runs on TensorRT (device tensorrt or tensorrt:N), "
-                         f"not on device {device!r}")  # fmt: skip
+        raise ModelError(
+            f"precision fp16 runs on TensorRT (device tensorrt or tensorrt:N), "
+            f"not on device {device!r}"
+        )
     cpu: Provider = (CPU, {})
     cuda: Provider = (CUDA, {"device_id": str(index)})
     if kind == "cpu":
@@ -237,14 +244,17 @@ class OnnxPoseDetector:
     def _session(self, ort, options, providers: list[Provider]):
         try:
             return ort.InferenceSession(
-                str(self.model), options, providers=[p for p, _ in providers],
+                str(self.model),
+                options,
+                providers=[p for p, _ in providers],
                 provider_options=[o for _, o in providers],
-            )  # fmt: skip
+            )
         except Exception as e:  # onnxruntime raises its own exception types on a bad file
             if providers[0][0] == CPU:
                 raise ModelError(f"{self.model}: not a readable ONNX model: {e}") from None
-            raise ModelError(f"{self.model}: ONNX Runtime cannot run it on "
-                             f"{_NAMES[providers[0][0]]}: {e}") from None  # fmt: skip
+            raise ModelError(
+                f"{self.model}: ONNX Runtime cannot run it on {_NAMES[providers[0][0]]}: {e}"
+            ) from None
 
     def _infer(self, blob: np.ndarray) -> np.ndarray:
         """(B, 3, H, W) -> (B, 56, N): in one run, or in runs of max_batch images (one each for
@@ -252,8 +262,12 @@ class OnnxPoseDetector:
         step = self.max_batch if self.batch_dynamic else 1
         if len(blob) <= step:
             return self.session.run(None, {self.input_name: blob})[0]
-        return np.concatenate([self.session.run(None, {self.input_name: blob[k : k + step]})[0]
-                               for k in range(0, len(blob), step)])  # fmt: skip
+        return np.concatenate(
+            [
+                self.session.run(None, {self.input_name: blob[k : k + step]})[0]
+                for k in range(0, len(blob), step)
+            ]
+        )
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         return detect_letterboxed(self, images, imgsz)

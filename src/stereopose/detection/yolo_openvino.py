@@ -59,26 +59,30 @@ class OpenVinoPoseDetector:
         if self.model.suffix != ".onnx":
             raise ModelError(f"{self.model}: the openvino backend needs an .onnx model")
         if precision not in _HINTS:
-            raise ModelError(f"precision {precision!r}: the openvino backend runs fp32 or "
-                             "bf16")  # fmt: skip
+            raise ModelError(f"precision {precision!r}: the openvino backend runs fp32 or bf16")
         try:
             import openvino as ov
         except ImportError:
-            raise ModelError("the openvino backend needs OpenVINO: "
-                             "pip install 'stereopose[openvino]'") from None  # fmt: skip
+            raise ModelError(
+                "the openvino backend needs OpenVINO: pip install 'stereopose[openvino]'"
+            ) from None
         self.device = ov_device(device)
         core = ov.Core()
         have = core.available_devices
         if self.device != "AUTO" and self.device.split(".")[0] not in {
             d.split(".")[0] for d in have
         }:
-            raise ModelError(f"device {device!r}: OpenVINO finds no such device here "
-                             f"(available: {', '.join(have) or 'none'})")  # fmt: skip
+            raise ModelError(
+                f"device {device!r}: OpenVINO finds no such device here "
+                f"(available: {', '.join(have) or 'none'})"
+            )
         if precision == "bf16" and self.device == "CPU":
             caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
             if "BF16" not in caps:
-                raise ModelError("precision bf16: this CPU has no bfloat16 instructions "
-                                 "(AVX512_BF16 or AMX); use fp32")  # fmt: skip
+                raise ModelError(
+                    "precision bf16: this CPU has no bfloat16 instructions "
+                    "(AVX512_BF16 or AMX); use fp32"
+                )
         try:
             net = core.read_model(str(self.model))
         except Exception as e:  # OpenVINO raises its own RuntimeError kinds on a bad file
@@ -99,15 +103,18 @@ class OpenVinoPoseDetector:
         if n and self.device == "CPU":
             config["INFERENCE_NUM_THREADS"] = str(n)
         if precision == "bf16" and self.device.startswith("GPU"):
-            raise ModelError("precision bf16 is for CPUs; an Intel GPU runs fp32 (or its own "
-                             "f16 with device auto)")  # fmt: skip
+            raise ModelError(
+                "precision bf16 is for CPUs; an Intel GPU runs fp32 (or its own "
+                "f16 with device auto)"
+            )
         if self.device != "AUTO":  # a GPU runs f16 unless told
             config["INFERENCE_PRECISION_HINT"] = _HINTS[precision]
         try:
             self.compiled = core.compile_model(net, self.device, config)
         except Exception as e:
-            raise ModelError(f"{self.model}: OpenVINO cannot compile it for {self.device}: "
-                             f"{e}") from None  # fmt: skip
+            raise ModelError(
+                f"{self.model}: OpenVINO cannot compile it for {self.device}: {e}"
+            ) from None
         self.request = self.compiled.create_infer_request()
         try:
             ran = self.compiled.get_property("INFERENCE_PRECISION_HINT").get_type_name()
@@ -118,8 +125,9 @@ class OpenVinoPoseDetector:
         self.imgsz = imgsz
         self.conf, self.iou, self.max_det = conf, iou, max_det
         self.providers = [f"OpenVINO {ov.__version__.split('-')[0]} {self.device} {ran}"]
-        logger.debug("openvino: %s on %s, inference precision %s", self.model.name,
-                     self.device, ran)  # fmt: skip
+        logger.debug(
+            "openvino: %s on %s, inference precision %s", self.model.name, self.device, ran
+        )
 
     def _infer(self, blob: np.ndarray) -> np.ndarray:
         if self.batch_dynamic or len(blob) == 1:

@@ -123,11 +123,25 @@ class CameraSet:
         self._ended: set[str] = set()
         self._ended_ids: set[int] = set()  # readers ended, substreams included
 
-    def _open(self, spec, name: str, fps: float | None, loop: bool, timeout: float,
-              packets: PacketRing | None = None) -> Source:  # fmt: skip
-        source = open_source(spec, name, fps, clock=self.clock, notify=self._fresh,
-                             open_timeout_s=timeout, loop=loop,
-                             packets=packets if is_stream(str(spec)) else None)  # fmt: skip
+    def _open(
+        self,
+        spec,
+        name: str,
+        fps: float | None,
+        loop: bool,
+        timeout: float,
+        packets: PacketRing | None = None,
+    ) -> Source:
+        source = open_source(
+            spec,
+            name,
+            fps,
+            clock=self.clock,
+            notify=self._fresh,
+            open_timeout_s=timeout,
+            loop=loop,
+            packets=packets if is_stream(str(spec)) else None,
+        )
         if loop and source.live:
             source.close()
             raise VideoError(f"camera {name}: loop is for recorded files, {spec} is a live stream")
@@ -180,8 +194,9 @@ class CameraSet:
         if self.sync == "index":
             n = math.ceil(max(counts) * self.rate / self.fps)
         else:
-            n = max(math.ceil(c / s.fps * self.rate) for c, s in zip(counts, self.sources,
-                                                                   strict=False))  # fmt: skip
+            n = max(
+                math.ceil(c / s.fps * self.rate) for c, s in zip(counts, self.sources, strict=False)
+            )
         return min(n, self.max_frames) if self.max_frames else n
 
     def __iter__(self) -> Iterator[FrameSet]:

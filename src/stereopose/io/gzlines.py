@@ -93,8 +93,10 @@ class GzipLines:
         del self._buf[keep:]
         logger.warning(
             "%s: cut off inside its last gzip member (its writer stopped mid-write); read to "
-            "its last complete line (%d byte(s) of a partial line dropped)", self.name, dropped,
-        )  # fmt: skip
+            "its last complete line (%d byte(s) of a partial line dropped)",
+            self.name,
+            dropped,
+        )
 
     def close(self) -> None:
         self._f.close()

@@ -59,8 +59,9 @@ class PacketRing:
 
     def __init__(self, keep_s: float, max_bytes: int) -> None:
         if not keep_s > 0 or not max_bytes > 0:
-            raise StereoposeError(f"packet ring: keep_s and max_bytes must be > 0, got "
-                                  f"{keep_s!r}, {max_bytes!r}")  # fmt: skip
+            raise StereoposeError(
+                f"packet ring: keep_s and max_bytes must be > 0, got {keep_s!r}, {max_bytes!r}"
+            )
         self.keep_s, self.max_bytes = float(keep_s), int(max_bytes)
         self.format: StreamFormat | None = None
         self.dropped_groups = 0  # whole groups dropped by the byte bound
@@ -120,8 +121,15 @@ class PacketRing:
             self._bytes = 0
 
 
-_MP4_TAGS = {"h264": "avc1", "avc1": "avc1", "x264": "avc1", "hevc": "hvc1", "hev1": "hvc1",
-             "hvc1": "hvc1", "h265": "hvc1"}  # fmt: skip
+_MP4_TAGS = {
+    "h264": "avc1",
+    "avc1": "avc1",
+    "x264": "avc1",
+    "hevc": "hvc1",
+    "hev1": "hvc1",
+    "hvc1": "hvc1",
+    "h265": "hvc1",
+}
 
 
 class StreamCopy:
@@ -135,9 +143,13 @@ class StreamCopy:
         self.packets = 0
         tag = _MP4_TAGS.get(fmt.fourcc.lower(), fmt.fourcc)
         self._writer: cv2.VideoWriter | None = cv2.VideoWriter(
-            str(self.path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*tag[:4].ljust(4)),
-            fmt.fps, fmt.size, [cv2.VIDEOWRITER_PROP_RAW_VIDEO, 1],
-        )  # fmt: skip
+            str(self.path),
+            cv2.CAP_FFMPEG,
+            cv2.VideoWriter_fourcc(*tag[:4].ljust(4)),
+            fmt.fps,
+            fmt.size,
+            [cv2.VIDEOWRITER_PROP_RAW_VIDEO, 1],
+        )
         if not self._writer.isOpened():
             self._writer = None
             raise StereoposeError(f"{self.path}: cannot write a stream copy of {fmt.fourcc} video")

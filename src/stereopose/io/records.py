@@ -42,13 +42,46 @@ __all__ = [
 ]
 
 # the SQLite event log's columns, in order (see io.sinks.events)
-EVENT_COLUMNS = ("run", "t", "frame", "person", "zone", "kind", "type", "onset_t", "joint",
-                 "distance_m", "duration_s", "x", "y", "allowed", "lost", "restart", "camera",
-                 "reprojection_px", "baseline_px", "rule", "posture", "nearest_m", "facing_deg",
-                 "failed", "height_m", "speed_m_s", "incident", "priority")  # fmt: skip
+EVENT_COLUMNS = (
+    "run",
+    "t",
+    "frame",
+    "person",
+    "zone",
+    "kind",
+    "type",
+    "onset_t",
+    "joint",
+    "distance_m",
+    "duration_s",
+    "x",
+    "y",
+    "allowed",
+    "lost",
+    "restart",
+    "camera",
+    "reprojection_px",
+    "baseline_px",
+    "rule",
+    "posture",
+    "nearest_m",
+    "facing_deg",
+    "failed",
+    "height_m",
+    "speed_m_s",
+    "incident",
+    "priority",
+)
 # the behaviour events' optional fields: (name, decimals; None for text)
-_BEHAVIOUR_FIELDS = (("rule", None), ("posture", None), ("nearest_m", 4), ("facing_deg", 1),
-                     ("failed", None), ("height_m", 4), ("speed_m_s", 3))  # fmt: skip
+_BEHAVIOUR_FIELDS = (
+    ("rule", None),
+    ("posture", None),
+    ("nearest_m", 4),
+    ("facing_deg", 1),
+    ("failed", None),
+    ("height_m", 4),
+    ("speed_m_s", 3),
+)
 
 
 def _round(x: float, nd: int) -> float | None:
@@ -61,9 +94,16 @@ def _pair(v: list[float], nd: int) -> list[float] | None:
 
 
 def _person_record(
-    pid: int, joints: list, conf: list, position: list, heading: float, velocity: list,
-    predicted: bool, views: list, reprojection_px: float,
-) -> dict:  # fmt: skip
+    pid: int,
+    joints: list,
+    conf: list,
+    position: list,
+    heading: float,
+    velocity: list,
+    predicted: bool,
+    views: list,
+    reprojection_px: float,
+) -> dict:
     """One person's record from plain Python values (NaN: unknown)."""
     vx, vy = velocity
     return {
@@ -97,11 +137,16 @@ def frame_record(people: People3D, fps: float, postures: Mapping[int, Any] | Non
         mean_err = np.divide(total, n, out=np.full(P, np.nan), where=n > 0)  # NaN: no view
         J = np.where(np.isfinite(people.joints).all(-1, keepdims=True), people.joints, np.nan)
         columns = (
-            people.ids.tolist(), J.tolist(), people.conf.tolist(),
-            floor_position(people.joints).tolist(), heading_deg(people.joints).tolist(),
-            people.velocity.tolist(), people.predicted.tolist(), people.views.tolist(),
+            people.ids.tolist(),
+            J.tolist(),
+            people.conf.tolist(),
+            floor_position(people.joints).tolist(),
+            heading_deg(people.joints).tolist(),
+            people.velocity.tolist(),
+            people.predicted.tolist(),
+            people.views.tolist(),
             mean_err.tolist(),
-        )  # fmt: skip
+        )
         out = [_person_record(*row) for row in zip(*columns, strict=True)]
         if postures:
             for rec in out:
@@ -245,8 +290,33 @@ def _optional_float(value: Any) -> float | None:
 def event_row(e: Event, run: int) -> tuple:
     """The SQLite row of an event (EVENT_COLUMNS order), full precision."""
     x, y = e.position if e.position else (None, None)
-    return (run, e.t, e.frame, e.person, e.zone, e.kind, e.type, e.onset_t, e.joint,
-            e.distance_m, e.duration_s, x, y, int(e.allowed), int(e.lost), int(e.restart),
-            e.camera, e.reprojection_px, e.baseline_px, e.rule, e.posture, e.nearest_m,
-            e.facing_deg, e.failed, e.height_m, e.speed_m_s, e.incident,
-            e.priority)  # fmt: skip
+    return (
+        run,
+        e.t,
+        e.frame,
+        e.person,
+        e.zone,
+        e.kind,
+        e.type,
+        e.onset_t,
+        e.joint,
+        e.distance_m,
+        e.duration_s,
+        x,
+        y,
+        int(e.allowed),
+        int(e.lost),
+        int(e.restart),
+        e.camera,
+        e.reprojection_px,
+        e.baseline_px,
+        e.rule,
+        e.posture,
+        e.nearest_m,
+        e.facing_deg,
+        e.failed,
+        e.height_m,
+        e.speed_m_s,
+        e.incident,
+        e.priority,
+    )

@@ -58,8 +58,12 @@ SEGMENT_SUFFIX = ".jsonl.gz"  # a 3D poses segment (io.sinks.segments)
 MAX_LINE_BYTES = 64 * 2**20
 _MAX_INT64 = 2**63 - 1
 # optional per-person fields the readers turn into arrays: (key, length, null allowed inside)
-_OPTIONAL = (("position", 2, False), ("velocity", 2, True), ("conf", NUM_JOINTS, False),
-             ("views", NUM_JOINTS, False))  # fmt: skip
+_OPTIONAL = (
+    ("position", 2, False),
+    ("velocity", 2, True),
+    ("conf", NUM_JOINTS, False),
+    ("views", NUM_JOINTS, False),
+)
 _MAX_VALUE = 1e15  # beyond any coordinate, speed or count; within 64-bit integers
 
 

@@ -181,8 +181,11 @@ class VideoFile:
         if self._play is not None and n < self._play.n:
             logger.warning(
                 "%s: decoding stopped at frame %d of %d (truncated or corrupt); looping %d frames",
-                self.path, n, self._play.n, max(n, 1),
-            )  # fmt: skip
+                self.path,
+                n,
+                self._play.n,
+                max(n, 1),
+            )
             self._play.shrink(n)
 
     def _end(self) -> None:
@@ -277,8 +280,10 @@ class ImageFolder:
 
 
 def _check_timeouts(open_timeout_s: float, first_frame_timeout_s: float | None) -> None:
-    for what, value in (("open_timeout_s", open_timeout_s),
-                        ("first_frame_timeout_s", first_frame_timeout_s)):  # fmt: skip
+    for what, value in (
+        ("open_timeout_s", open_timeout_s),
+        ("first_frame_timeout_s", first_frame_timeout_s),
+    ):
         if value is None and what == "first_frame_timeout_s":
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -317,8 +322,7 @@ def open_source(
     if is_stream(text):
         from stereopose.io.stream import LiveStream
 
-        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify,
-                          packets=packets)  # fmt: skip
+        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify, packets=packets)
     path = Path(text)
     if path.is_dir():
         return ImageFolder(path, name, fps, loop=loop)
@@ -356,8 +360,11 @@ def usable_images(step: FrameSet) -> list[tuple[str, np.ndarray]]:
         if image.ndim != 3 or image.shape[2] != 3 or image.size == 0 or image.dtype != np.uint8:
             logger.warning(
                 "camera %s: frame %d is not a BGR image (shape %s, %s); skipped",
-                name, step.index, image.shape, image.dtype,
-            )  # fmt: skip
+                name,
+                step.index,
+                image.shape,
+                image.dtype,
+            )
             continue
         usable.append((name, image))
     return usable

@@ -130,10 +130,18 @@ class NodeInput:
     live = True
     total = None
 
-    def __init__(self, settings: MqttSettings, rig: Rig, *, fps: float,
-                 window_s: float | None = None, wait_s: float = 0.5,
-                 clock_tolerance_s: float = 0.25, picture_scale: float = 0.25,
-                 clock: Clock | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: MqttSettings,
+        rig: Rig,
+        *,
+        fps: float,
+        window_s: float | None = None,
+        wait_s: float = 0.5,
+        clock_tolerance_s: float = 0.25,
+        picture_scale: float = 0.25,
+        clock: Clock | None = None,
+    ) -> None:
         self.settings, self.rig = settings, rig
         self.cameras = tuple(rig.names)
         self.names = list(rig.names)
@@ -157,12 +165,14 @@ class NodeInput:
         self.partial = 0  # steps given without every active camera (node_wait_s ran out)
         self.connected = False
         self._pending: dict[str, deque[tuple[Keypoints, float]]] = {
-            n: deque() for n in self.cameras}  # fmt: skip
+            n: deque() for n in self.cameras
+        }
         self._pictures: dict[str, np.ndarray] = {}
         # every picture of a camera has one size (a clip's frames must): the nodes' pictures'
         self._sizes = {n: _picture_size(rig[n].size, picture_scale) for n in self.cameras}
-        self._placeholders = {n: np.full((h, w, 3), 96, np.uint8)
-                              for n, (w, h) in self._sizes.items()}  # fmt: skip
+        self._placeholders = {
+            n: np.full((h, w, 3), 96, np.uint8) for n, (w, h) in self._sizes.items()
+        }
         self._given_end = -math.inf  # the capture time up to which steps were given
         self._owner: dict[str, tuple[str, float]] = {}  # camera -> (its node, last frame)
         self._last_t: dict[str, float] = {}  # camera -> capture time of its last frame taken
@@ -184,8 +194,13 @@ class NodeInput:
         self.client = c
         c.connect_async(s.host, s.port, keepalive=s.keepalive_s)
         c.loop_start()
-        logger.info("detection from nodes: %s under %s/ on %s:%d", ", ".join(self.cameras),
-                    self.topics.base, s.host, s.port)  # fmt: skip
+        logger.info(
+            "detection from nodes: %s under %s/ on %s:%d",
+            ", ".join(self.cameras),
+            self.topics.base,
+            s.host,
+            s.port,
+        )
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -204,19 +219,23 @@ class NodeInput:
             self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
             return
         base = self.topics.base
-        client.subscribe([(f"{base}/keypoints/+", 0), (f"{base}/pictures/+", 0),
-                          (f"{base}/nodes/+", 1)])  # fmt: skip
+        client.subscribe(
+            [(f"{base}/keypoints/+", 0), (f"{base}/pictures/+", 0), (f"{base}/nodes/+", 1)]
+        )
         self.connected = True
         if self._problem is not None:
             logger.info("MQTT %s:%d: connected", self.settings.host, self.settings.port)
         self._problem = None
 
-    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
-                       props: Any) -> None:  # fmt: skip
+    def _on_disconnect(
+        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+    ) -> None:
         was, self.connected = self.connected, False
         if was and not self._closed:
-            self._say(logging.WARNING, "connection lost: no camera-frames from the nodes "
-                      "meanwhile; retrying")  # fmt: skip
+            self._say(
+                logging.WARNING,
+                "connection lost: no camera-frames from the nodes meanwhile; retrying",
+            )
 
     def _on_connect_fail(self, client: Any, userdata: Any) -> None:
         self._say(logging.WARNING, "broker unreachable; retrying")
@@ -254,8 +273,11 @@ class NodeInput:
         fig = self.figures.get(name)
         if fig is None:
             self.unknown += 1
-            self._warn(f"unknown:{name}", f"nodes: camera {name!r} is not one of the "
-                       f"service's cameras ({', '.join(self.cameras)})")  # fmt: skip
+            self._warn(
+                f"unknown:{name}",
+                f"nodes: camera {name!r} is not one of the "
+                f"service's cameras ({', '.join(self.cameras)})",
+            )
             return
         try:
             if kind == "pictures":
@@ -285,8 +307,7 @@ class NodeInput:
             node.state = str(doc["state"])
             node.last_mono = time.monotonic()
             if node.state == "online":
-                node.health = {k: doc.get(k) for k in ("cameras", "detect_ms", "queue",
-                                                       "backend")}  # fmt: skip
+                node.health = {k: doc.get(k) for k in ("cameras", "detect_ms", "queue", "backend")}
                 if not retained:  # a retained one is old: its clock says nothing of now
                     node.offsets.append(float(doc["clock"]) - time.time())
                     self._judge_clock(node)
@@ -300,12 +321,18 @@ class NodeInput:
             return
         bad = abs(off) > self.tolerance_s
         if bad and not node.refused:
-            logger.error("node %s: its clock is off the service's by %+.3f s (more than "
-                         "input.node_clock_tolerance_s = %g s): its frames are refused until "
-                         "its clock is set right", node.name, off, self.tolerance_s)  # fmt: skip
+            logger.error(
+                "node %s: its clock is off the service's by %+.3f s (more than "
+                "input.node_clock_tolerance_s = %g s): its frames are refused until "
+                "its clock is set right",
+                node.name,
+                off,
+                self.tolerance_s,
+            )
         elif node.refused and not bad:
-            logger.warning("node %s: its clock is right again (%+.3f s): its frames are taken",
-                           node.name, off)  # fmt: skip
+            logger.warning(
+                "node %s: its clock is right again (%+.3f s): its frames are taken", node.name, off
+            )
         node.refused = bad
 
     def _picture(self, name: str, payload: bytes) -> None:
@@ -313,8 +340,9 @@ class NodeInput:
         w, h = self._sizes[name]
         pw, ph = jpeg_size(jpeg)  # from its header: a picture bomb is never decoded
         if pw * ph > max(4 * w * h, MIN_PICTURE_PX) or not (pw and ph):
-            raise WireError(f"a {pw}x{ph} picture: more pixels than a {w}x{h} camera "
-                            "picture may have")  # fmt: skip
+            raise WireError(
+                f"a {pw}x{ph} picture: more pixels than a {w}x{h} camera picture may have"
+            )
         image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
         if image is None:
             raise WireError("its JPEG cannot be decoded")
@@ -334,16 +362,23 @@ class NodeInput:
             owner = self._owner.get(name)
             if owner is not None and owner[0] != kp.node and now - owner[1] <= self.active_s:
                 fig.refused += 1  # another node's camera, while that node sends it
-                self._warn(f"owner:{kp.node}:{name}", f"nodes: node {kp.node} sent camera "
-                           f"{name}, which node {owner[0]} sends: refused")  # fmt: skip
+                self._warn(
+                    f"owner:{kp.node}:{name}",
+                    f"nodes: node {kp.node} sent camera "
+                    f"{name}, which node {owner[0]} sends: refused",
+                )
                 return
             node = self.nodes.get(kp.node)
             if self._from_future(kp, node, name, wall) or (node is not None and node.refused):
                 fig.refused += 1  # a node's clock off, a frame from the future
                 return
             if owner is not None and owner[0] != kp.node:
-                logger.warning("nodes: camera %s now comes from node %s (node %s fell silent)",
-                               name, kp.node, owner[0])  # fmt: skip
+                logger.warning(
+                    "nodes: camera %s now comes from node %s (node %s fell silent)",
+                    name,
+                    kp.node,
+                    owner[0],
+                )
                 self._last_t.pop(name, None)
             self._owner[name] = (kp.node, now)
             fig.node = kp.node
@@ -351,11 +386,17 @@ class NodeInput:
             last = self._last_t.get(name)
             if last is not None and last <= kp.t < last + self.min_gap_s:
                 fig.flood += 1  # faster than the steps: one step's worth taken
-                self._warn(f"flood:{name}", f"nodes: camera {name} from node {kp.node}: "
-                           f"frames closer than {self.min_gap_s:.3f} s dropped")  # fmt: skip
+                self._warn(
+                    f"flood:{name}",
+                    f"nodes: camera {name} from node {kp.node}: "
+                    f"frames closer than {self.min_gap_s:.3f} s dropped",
+                )
                 return
-            if (kp.t <= self._given_end or kp.t < self.clock.start_epoch
-                    or (last is not None and kp.t < last)):  # fmt: skip
+            if (
+                kp.t <= self._given_end
+                or kp.t < self.clock.start_epoch
+                or (last is not None and kp.t < last)
+            ):
                 fig.late += 1  # its step given, or behind its camera's newer frame
                 return
             self._last_t[name] = kp.t
@@ -377,9 +418,13 @@ class NodeInput:
         end = t0 + self.window_s
         group = {n: item for n, item in firsts.items() if item[0].t <= end}
         arrived = min(at for _, at in group.values())
-        active = {n for n, f in self.figures.items()
-                  if f.last_mono is not None and now - f.last_mono <= self.active_s
-                  and self._online(f.node)}  # fmt: skip
+        active = {
+            n
+            for n, f in self.figures.items()
+            if f.last_mono is not None
+            and now - f.last_mono <= self.active_s
+            and self._online(f.node)
+        }
         settled = set(firsts)  # in the step, or a newer frame waiting: nothing more to come
         if not active <= settled and now - arrived < self.wait_s:
             return None
@@ -390,8 +435,7 @@ class NodeInput:
         self._given_end = end
         return t0, {n: kp for n, (kp, _) in group.items()}
 
-    def _from_future(self, kp: Keypoints, node: NodeState | None, name: str,
-                     wall: float) -> bool:  # fmt: skip
+    def _from_future(self, kp: Keypoints, node: NodeState | None, name: str, wall: float) -> bool:
         """Whether the frame is refused as from the future (under the lock): its lead over
         this clock (capture time - now) beyond node_clock_tolerance_s, or beyond FUTURE_S
         past its node's clock offset (the largest of its health's last: the least delayed);
@@ -405,17 +449,23 @@ class NodeInput:
         ahead = lead - (offset or 0.0)
         future = ahead > (FUTURE_S if offset is not None else self.tolerance_s)
         if future:
-            self._warn(f"future:{kp.node}", f"nodes: node {kp.node}: a frame of camera "
-                       f"{name} captured {ahead:+.3f} s from now (its clock offset taken "
-                       "off)")  # fmt: skip
+            self._warn(
+                f"future:{kp.node}",
+                f"nodes: node {kp.node}: a frame of camera "
+                f"{name} captured {ahead:+.3f} s from now (its clock offset taken "
+                "off)",
+            )
         if node is None or offset is None:
             return future
         early = min(node.leads) - offset  # its frames' least lead of late, past its offset
         if not node.future and len(node.leads) >= FUTURE_RUN and early > FUTURE_S:
             node.future = True
-            logger.error("nodes: node %s: its frames keep coming from the future (%+.3f s "
-                         "past its clock): refused until its frames are on time", node.name,
-                         early)  # fmt: skip
+            logger.error(
+                "nodes: node %s: its frames keep coming from the future (%+.3f s "
+                "past its clock): refused until its frames are on time",
+                node.name,
+                early,
+            )
         elif node.future and early <= FUTURE_S:
             node.future = False
             logger.warning("nodes: node %s: its frames are on time again: taken", node.name)
@@ -443,8 +493,10 @@ class NodeInput:
                 for n in group:
                     self.figures[n].used += 1
                     images[n] = self._pictures.get(n, self._placeholders[n])
-            people = {n: People2D(n, step, kp.people.keypoints, kp.people.boxes,
-                                  kp.people.scores) for n, kp in group.items()}  # fmt: skip
+            people = {
+                n: People2D(n, step, kp.people.keypoints, kp.people.boxes, kp.people.scores)
+                for n, kp in group.items()
+            }
             yield SourceStep(step, t0 - self.clock.start_epoch, people, images)
 
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
@@ -477,20 +529,43 @@ class NodeInput:
         now = time.monotonic()
         with self._cond:
             nodes = {
-                n.name: {"state": n.state, "clock_offset_s": _round(n.offset),
-                         "clock_refused": n.refused, "future_refused": n.future,
-                         "seen_s_ago": None if n.last_mono is None
-                         else round(now - n.last_mono, 1), **n.health}
-                for n in self.nodes.values()}  # fmt: skip
-            cams = {name: {"node": f.node, "frames": f.frames, "used": f.used, "late": f.late,
-                           "dropped": f.dropped, "refused": f.refused, "flood": f.flood,
-                           "bytes": f.bytes,
-                           "pictures": f.pictures, "waiting": len(self._pending[name])}
-                    for name, f in self.figures.items()}  # fmt: skip
-        return {"connected": self.connected, "window_s": self.window_s, "steps": self.steps,
-                "partial_steps": self.partial, "malformed": self.malformed,
-                "unknown_cameras": self.unknown, "restarts": self.restarts,
-                "running": loop_alive(self.client), "nodes": nodes, "cameras": cams}  # fmt: skip
+                n.name: {
+                    "state": n.state,
+                    "clock_offset_s": _round(n.offset),
+                    "clock_refused": n.refused,
+                    "future_refused": n.future,
+                    "seen_s_ago": None if n.last_mono is None else round(now - n.last_mono, 1),
+                    **n.health,
+                }
+                for n in self.nodes.values()
+            }
+            cams = {
+                name: {
+                    "node": f.node,
+                    "frames": f.frames,
+                    "used": f.used,
+                    "late": f.late,
+                    "dropped": f.dropped,
+                    "refused": f.refused,
+                    "flood": f.flood,
+                    "bytes": f.bytes,
+                    "pictures": f.pictures,
+                    "waiting": len(self._pending[name]),
+                }
+                for name, f in self.figures.items()
+            }
+        return {
+            "connected": self.connected,
+            "window_s": self.window_s,
+            "steps": self.steps,
+            "partial_steps": self.partial,
+            "malformed": self.malformed,
+            "unknown_cameras": self.unknown,
+            "restarts": self.restarts,
+            "running": loop_alive(self.client),
+            "nodes": nodes,
+            "cameras": cams,
+        }
 
     def waiting(self) -> int:
         return sum(len(q) for q in self._pending.values())
@@ -507,8 +582,10 @@ class NodeInput:
         return sum(f.late + f.dropped + f.refused + f.flood for f in self.figures.values())
 
     def finish(self, summary: RunSummary) -> None:
-        summary.sources = {n: {"frames": f.frames, "dropped": f.dropped + f.late + f.flood,
-                               "reconnects": 0} for n, f in self.figures.items()}  # fmt: skip
+        summary.sources = {
+            n: {"frames": f.frames, "dropped": f.dropped + f.late + f.flood, "reconnects": 0}
+            for n, f in self.figures.items()
+        }
         summary.clock_start_epoch = self.clock.start_epoch
 
 

@@ -80,16 +80,21 @@ class NodePlan:
     model: Path | None
 
 
-def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
-              node: str | None = None, name: str | None = None) -> NodePlan:  # fmt: skip
+def plan_node(
+    config_path: str | Path,
+    cameras: Sequence[str] | None = None,
+    node: str | None = None,
+    name: str | None = None,
+) -> NodePlan:
     """The node of `config_path` with `cameras` (or those of its [[nodes]] entry `node`); a
     ConfigError naming the file and the problem."""
     path = Path(config_path)
     cfg = load_config(path)
     check_run_config(cfg, path)
     if cfg.mqtt.host == "":
-        raise ConfigError(f"{path}: mqtt.host: a detection node publishes on the site's broker; "
-                          "set [mqtt] host")  # fmt: skip
+        raise ConfigError(
+            f"{path}: mqtt.host: a detection node publishes on the site's broker; set [mqtt] host"
+        )
     if node is not None:
         entry = next((n for n in cfg.nodes if n.name == node), None)
         if entry is None:
@@ -99,13 +104,17 @@ def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
             raise ConfigError(f"{path}: give the node's --cameras or --node, not both")
         cameras, name = entry.cameras, name or entry.name
     if not cameras:
-        raise ConfigError(f"{path}: a detection node needs its cameras (--cameras A,B or "
-                          "--node NAME of a [[nodes]] entry)")  # fmt: skip
+        raise ConfigError(
+            f"{path}: a detection node needs its cameras (--cameras A,B or "
+            "--node NAME of a [[nodes]] entry)"
+        )
     by_name = {c.name: (i, c) for i, c in enumerate(cfg.cameras)}
     unknown = [c for c in cameras if c not in by_name]
     if unknown:
-        raise ConfigError(f"{path}: camera(s) {', '.join(unknown)} not among its [[cameras]] "
-                          f"({', '.join(by_name)})")  # fmt: skip
+        raise ConfigError(
+            f"{path}: camera(s) {', '.join(unknown)} not among its [[cameras]] "
+            f"({', '.join(by_name)})"
+        )
     if len(set(cameras)) != len(cameras):
         raise ConfigError(f"{path}: a camera named twice in the node's cameras")
     base = path.resolve().parent
@@ -114,8 +123,10 @@ def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
     sources = tuple(source_path(base, c.source) for c in picked)
     kinds = {is_stream(s) for s in sources}
     if len(kinds) > 1:
-        raise ConfigError(f"{path}: a node's cameras are all live streams or all recorded "
-                          f"files; {', '.join(cameras)} mix them: give them two nodes")  # fmt: skip
+        raise ConfigError(
+            f"{path}: a node's cameras are all live streams or all recorded "
+            f"files; {', '.join(cameras)} mix them: give them two nodes"
+        )
     for s, c in zip(sources, picked, strict=True):
         if not is_stream(s) and not Path(s).is_file():
             raise ConfigError(f"{path}: camera {c.name}: no such video file {s}")
@@ -123,11 +134,16 @@ def plan_node(config_path: str | Path, cameras: Sequence[str] | None = None,
     assert settings is not None
     node_name = name or f"{socket.gethostname()}-{'-'.join(cameras)}"
     return NodePlan(
-        config_path=path, config=cfg, name=node_name, rig=rig, sources=sources,
+        config_path=path,
+        config=cfg,
+        name=node_name,
+        rig=rig,
+        sources=sources,
         detect_sources=tuple(source_path(base, c.detect) for c in picked),
-        loop=tuple(c.loop for c in picked), mqtt=settings,
+        loop=tuple(c.loop for c in picked),
+        mqtt=settings,
         model=resolve(base, cfg.detector.model) if cfg.detector.model else None,
-    )  # fmt: skip
+    )
 
 
 @dataclass
@@ -142,8 +158,9 @@ class Publisher:
     """The node's link to the broker: a bounded queue of QoS 0 messages sent on a thread of
     its own while connected, the retained health with its last will."""
 
-    def __init__(self, settings: MqttSettings, topics: Topics, node: str,
-                 queue_size: int = QUEUE_SIZE) -> None:  # fmt: skip
+    def __init__(
+        self, settings: MqttSettings, topics: Topics, node: str, queue_size: int = QUEUE_SIZE
+    ) -> None:
         self.settings, self.topics, self.node = settings, topics, node
         self.counts = _Counts()
         self.connected = False
@@ -234,9 +251,12 @@ class Publisher:
             self._lock.notify_all()
         self._thread.join(timeout_s)
         if self.connected:
-            info = self.client.publish(self.topics.node(self.node),
-                                       health_message(self.node, "offline"), qos=1,
-                                       retain=True)  # fmt: skip
+            info = self.client.publish(
+                self.topics.node(self.node),
+                health_message(self.node, "offline"),
+                qos=1,
+                retain=True,
+            )
             with contextlib.suppress(RuntimeError, ValueError):  # the link went meanwhile
                 info.wait_for_publish(timeout_s)
         self.client.disconnect()
@@ -258,8 +278,9 @@ class DetectNode:
         self.plan = plan
         cfg = plan.config
         d = cfg.detector
-        self.detector = make_detector(d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device,
-                                      d.threads, d.precision)  # fmt: skip
+        self.detector = make_detector(
+            d.backend, plan.model, d.imgsz, d.conf, d.iou, d.device, d.threads, d.precision
+        )
         # regions from each camera's own people, motion and full scans (a node has no 3D)
         self.regions = region_detector(self.detector, d)
         self.topics = Topics.of(plan.mqtt.topic_prefix, plan.mqtt.site)
@@ -281,13 +302,20 @@ class DetectNode:
         self._subs = {n for n, d in zip(p.rig.names, p.detect_sources, strict=True) if d}
         sources = [d or s for s, d in zip(p.sources, p.detect_sources, strict=True)]
         if not is_stream(p.sources[0]):
-            spec = {n: (s, loop) for n, s, loop in zip(p.rig.names, sources, p.loop,
-                                                        strict=True)}  # fmt: skip
+            spec = {n: (s, loop) for n, s, loop in zip(p.rig.names, sources, p.loop, strict=True)}
             return PacedFiles(spec, cfg.input.detect_fps)
-        return CameraSet(sources, list(p.rig.names), cfg.input.sync, cfg.input.fps, None,
-                         open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
-                         detect_fps=cfg.input.detect_fps, wait_first_frame=False,
-                         wall_clock=True)  # fmt: skip
+        return CameraSet(
+            sources,
+            list(p.rig.names),
+            cfg.input.sync,
+            cfg.input.fps,
+            None,
+            open_timeout_s=cfg.input.open_timeout_s,
+            first_frame_timeout_s=None,
+            detect_fps=cfg.input.detect_fps,
+            wait_first_frame=False,
+            wall_clock=True,
+        )
 
     def _steps(self, source):
         """(capture time, seconds since 1970; the FrameSet) per step with a frame."""
@@ -306,15 +334,21 @@ class DetectNode:
             entry: dict = {"frames": self.figures.frames.get(name, 0)}
             if isinstance(src, PacedFiles):
                 cam = src.cameras[name]
-                entry |= {"fps": cam.fps, "detect_fps": src.rate,
-                          "dropped": src.stats[name].skipped, "up": True}  # fmt: skip
+                entry |= {
+                    "fps": cam.fps,
+                    "detect_fps": src.rate,
+                    "dropped": src.stats[name].skipped,
+                    "up": True,
+                }
             elif isinstance(src, CameraSet):
                 st = src.stats().get(name)
                 s = next((s for s in src.sources if s.name == name), None)
-                entry |= {"fps": float(s.fps) if s is not None and s.fps else None,
-                          "detect_fps": src.detect_fps,
-                          "dropped": getattr(st, "dropped", 0),
-                          "up": src.delivering(name, timeout_s)}  # fmt: skip
+                entry |= {
+                    "fps": float(s.fps) if s is not None and s.fps else None,
+                    "detect_fps": src.detect_fps,
+                    "dropped": getattr(st, "dropped", 0),
+                    "up": src.delivering(name, timeout_s),
+                }
             out[name] = entry
         return out
 
@@ -322,16 +356,23 @@ class DetectNode:
 
     def run(self, stop: threading.Event) -> NodeFigures:
         p = self.plan
-        self.publisher = pub = Publisher(p.mqtt, self.topics, p.name,
-                                         max(QUEUE_SIZE, 8 * len(p.rig.names)))  # fmt: skip
+        self.publisher = pub = Publisher(
+            p.mqtt, self.topics, p.name, max(QUEUE_SIZE, 8 * len(p.rig.names))
+        )
         pub.on_connect = lambda: pub.health(self._health())
         try:
             self._source = source = self._open()
-            logger.info("node %s: detecting %s; publishing on %s:%d under %s/", p.name,
-                        ", ".join(p.rig.names), p.mqtt.host, p.mqtt.port,
-                        self.topics.base)  # fmt: skip
-            threading.Thread(target=self._beats, args=(stop, source), name="node-health",
-                             daemon=True).start()  # fmt: skip
+            logger.info(
+                "node %s: detecting %s; publishing on %s:%d under %s/",
+                p.name,
+                ", ".join(p.rig.names),
+                p.mqtt.host,
+                p.mqtt.port,
+                self.topics.base,
+            )
+            threading.Thread(
+                target=self._beats, args=(stop, source), name="node-health", daemon=True
+            ).start()
             try:
                 for t, frames in self._steps(source):
                     if stop.is_set():
@@ -388,23 +429,34 @@ class DetectNode:
     def _health(self) -> bytes:
         pub = self.publisher
         return health_message(
-            self.plan.name, "online", clock=time.time(), cameras=self.camera_figures(),
-            detect_ms=None if self.figures.last_detect_ms is None
+            self.plan.name,
+            "online",
+            clock=time.time(),
+            cameras=self.camera_figures(),
+            detect_ms=None
+            if self.figures.last_detect_ms is None
             else round(self.figures.last_detect_ms, 1),
-            queue={"queued": pub.queued() if pub else 0,
-                   "dropped": pub.counts.dropped if pub else 0},
+            queue={
+                "queued": pub.queued() if pub else 0,
+                "dropped": pub.counts.dropped if pub else 0,
+            },
             backend=getattr(self.detector, "name", "?"),
             regions=self._region_figures(),
-        )  # fmt: skip
+        )
 
     def _region_figures(self) -> dict[str, dict[str, float]] | None:
         """Each camera's detection in regions, in brief: regions and full scans so far, the
         share of whole frames' model input used (None: whole frames)."""
         if self.regions is None:
             return None
-        return {cam: {"regions": c["regions"], "full_scans": c["full_scans"],
-                      "input_share": round(float(c["input_share"]), 3)}
-                for cam, c in self.regions.report().items()}  # fmt: skip
+        return {
+            cam: {
+                "regions": c["regions"],
+                "full_scans": c["full_scans"],
+                "input_share": round(float(c["input_share"]), 3),
+            }
+            for cam, c in self.regions.report().items()
+        }
 
     def _beats(self, stop: threading.Event, source) -> None:
         """The health every HEALTH_S whatever the cameras do; the source ended at the stop."""

@@ -81,9 +81,11 @@ class PacedCamera:
                 self.frames.append(jpeg.tobytes())
                 size += len(self.frames[-1])
                 if size > max_bytes:
-                    raise PacedError(f"camera {name}: {path} is too long to be played at a "
-                                     f"node (more than {max_bytes >> 20} MiB as JPEG after "
-                                     f"{len(self.frames)} frames); cut it")  # fmt: skip
+                    raise PacedError(
+                        f"camera {name}: {path} is too long to be played at a "
+                        f"node (more than {max_bytes >> 20} MiB as JPEG after "
+                        f"{len(self.frames)} frames); cut it"
+                    )
         finally:
             cap.release()
         if not self.frames:
@@ -112,10 +114,15 @@ class PacedFiles:
     the capture time, seconds since 1970. rate: grid times per second (default: the highest
     of the files' frame rates). end() stops an iteration waiting for its next grid time."""
 
-    def __init__(self, cameras: Mapping[str, tuple[str, bool]], rate: float | None = None,
-                 max_bytes: int = MAX_BYTES) -> None:  # fmt: skip
-        self.cameras = {name: PacedCamera(name, path, loop, max_bytes)
-                        for name, (path, loop) in cameras.items()}  # fmt: skip
+    def __init__(
+        self,
+        cameras: Mapping[str, tuple[str, bool]],
+        rate: float | None = None,
+        max_bytes: int = MAX_BYTES,
+    ) -> None:
+        self.cameras = {
+            name: PacedCamera(name, path, loop, max_bytes) for name, (path, loop) in cameras.items()
+        }
         own = max(c.fps for c in self.cameras.values())
         self.fps = own
         self.rate = min(float(rate), own) if rate else own

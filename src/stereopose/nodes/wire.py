@@ -103,9 +103,15 @@ def encode_people(node: str, people: People2D, t: float, size: tuple[float, floa
         if scores is not None and i < len(scores):
             p["s"] = _r(scores[i], 3)
         out.append(p)
-    doc = {"v": VERSION, "node": node, "camera": people.camera, "frame": int(people.frame),
-           "t": round(float(t), 6), "size": [_r(size[0], 1), _r(size[1], 1)],
-           "people": out}  # fmt: skip
+    doc = {
+        "v": VERSION,
+        "node": node,
+        "camera": people.camera,
+        "frame": int(people.frame),
+        "t": round(float(t), 6),
+        "size": [_r(size[0], 1), _r(size[1], 1)],
+        "people": out,
+    }
     return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
 
 
@@ -239,8 +245,11 @@ def _camera_health(name: object, value: object) -> None:
 
 
 def health_message(node: str, state: str, **fields: object) -> bytes:
-    return json.dumps({"v": VERSION, "node": node, "state": state, **fields},
-                      separators=(",", ":"), allow_nan=False).encode()  # fmt: skip
+    return json.dumps(
+        {"v": VERSION, "node": node, "state": state, **fields},
+        separators=(",", ":"),
+        allow_nan=False,
+    ).encode()
 
 
 def decode_health(payload: bytes) -> Mapping[str, object]:
@@ -259,8 +268,7 @@ def decode_health(payload: bytes) -> Mapping[str, object]:
         _number(doc.get("clock"), "clock")
         cameras = doc.get("cameras", {})
         if not isinstance(cameras, dict) or len(cameras) > MAX_CAMERAS:
-            raise WireError("cameras: expected an object of at most "
-                            f"{MAX_CAMERAS} cameras")  # fmt: skip
+            raise WireError(f"cameras: expected an object of at most {MAX_CAMERAS} cameras")
         for name, value in cameras.items():
             _camera_health(name, value)
         for key in ("detect_ms",):

@@ -230,6 +230,11 @@ def calibrate_extrinsics_dir(
         from stereopose.viz.calibration import extrinsics_png
 
         path = Path(report_dir) / "extrinsics.png"
-        _picture(run, path, lambda: extrinsics_png(path, result.rig, board, result.board_poses,
-                                                   result.residuals_px))  # fmt: skip
+        _picture(
+            run,
+            path,
+            lambda: extrinsics_png(
+                path, result.rig, board, result.board_poses, result.residuals_px
+            ),
+        )
     return run

@@ -72,8 +72,13 @@ def write_serve_demo_config(
         lines[-1:-1] = ["[input]", f"detect_fps = {float(detect_fps)!r}", ""]
     for name in CAMERAS:
         video = demo / "videos" / f"{name}.mp4"
-        lines += ["[[cameras]]", f'name = "{name}"', f"source = {_toml_str(str(video))}",
-                  "loop = true", ""]  # fmt: skip
+        lines += [
+            "[[cameras]]",
+            f'name = "{name}"',
+            f"source = {_toml_str(str(video))}",
+            "loop = true",
+            "",
+        ]
     path = out_dir / "serve.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

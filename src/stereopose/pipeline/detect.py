@@ -183,9 +183,15 @@ def detect_videos(
     # each camera's keypoints folder holds one run; other cameras' folders are not this run's
     own = [f"{glob.escape(p.path.name)}/*.json" for p in outputs[1:]]
     previous = previous_outputs(folder, pattern_products(own), overwrite, inputs)
-    with CameraSet(sources, names, sync=sync, fps=fps, max_frames=max_frames,
-                   open_timeout_s=open_timeout_s,
-                   first_frame_timeout_s=first_frame_timeout_s) as cams:  # fmt: skip
+    with CameraSet(
+        sources,
+        names,
+        sync=sync,
+        fps=fps,
+        max_frames=max_frames,
+        open_timeout_s=open_timeout_s,
+        first_frame_timeout_s=first_frame_timeout_s,
+    ) as cams:
         remove_outputs(previous)
         probe_folder(out_dir, "keypoint files")  # before any frame: exit 2, nothing detected
         summary = DetectionSummary(detector.name, tuple(cams.names))

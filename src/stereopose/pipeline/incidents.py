@@ -42,10 +42,18 @@ class IncidentStep:
     persists incident records; outputs: callables given each step's changes; clock(): the
     service's time now (the events' clock)."""
 
-    def __init__(self, book: IncidentBook, fences, rules, monitor, *,
-                 store: Callable[[Sequence[IncidentRecord]], None] | None = None,
-                 outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
-                 clock: Callable[[], float], wall_start: float | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        book: IncidentBook,
+        fences,
+        rules,
+        monitor,
+        *,
+        store: Callable[[Sequence[IncidentRecord]], None] | None = None,
+        outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
+        clock: Callable[[], float],
+        wall_start: float | None = None,
+    ) -> None:
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.store, self.outputs, self.clock = store, list(outputs), clock
@@ -121,8 +129,9 @@ class IncidentStep:
 
     def shelve(self, incident_id: int, by: str, reason: str, duration_s: float) -> IncidentRecord:
         """UnknownIncidentError for an unknown id, IncidentError for a bad shelving."""
-        return self._act(lambda now: self.book.shelve(incident_id, by, reason, duration_s, now),
-                         incident_id)  # fmt: skip
+        return self._act(
+            lambda now: self.book.shelve(incident_id, by, reason, duration_s, now), incident_id
+        )
 
     def figures(self) -> dict:
         """The alarm rates (alarms.rates) and the open incidents by priority and state."""

@@ -275,17 +275,29 @@ def run_frames(
     """
     stage = Stage3D(rig, config, record=outputs.two_way, calib_path=calib_path)
     summary = RunSummary(
-        rig.names, source.stages, config.reconstruction.triangulation.mode, stage.tracking,
-        live=source.live, fps_input=source.fps, **summary_fields,
-    )  # fmt: skip
+        rig.names,
+        source.stages,
+        config.reconstruction.triangulation.mode,
+        stage.tracking,
+        live=source.live,
+        fps_input=source.fps,
+        **summary_fields,
+    )
     fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
-    sinks = open_outputs(outputs, rig=rig, config=config, summary=summary, stage=stage,
-                         site=site, source=label, on_events=on_events)  # fmt: skip
+    sinks = open_outputs(
+        outputs,
+        rig=rig,
+        config=config,
+        summary=summary,
+        stage=stage,
+        site=site,
+        source=label,
+        on_events=on_events,
+    )
     behaviour = behaviour_monitor(site, config)
     if fences is not None:  # the service's incidents: the same book, ids and priorities
         incidents = run_incidents(site, fences, behaviour, sinks)
-        loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step,
-                         stop=stop)  # fmt: skip
+        loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step, stop=stop)
     else:
         loop = FrameLoop(source, stage, sinks, summary, on_step=on_step, stop=stop)
     summary = loop.run()
@@ -294,8 +306,9 @@ def run_frames(
     return summary
 
 
-def run_incidents(site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor | None,
-                  sinks: Sequence[Sink]):  # fmt: skip
+def run_incidents(
+    site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor | None, sinks: Sequence[Sink]
+):
     """The incident book of `serve` over a run's events (pipeline.incidents): each
     alarm-level event stamped with its incident's id and priority as the service would (ids
     from 1, the run's own), the incidents' records stored in the run's event log."""
@@ -306,6 +319,11 @@ def run_incidents(site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor 
 
     db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
     # a run takes no operator's act and is not asked for its alarm figures: no clock to read
-    return IncidentStep(IncidentBook(AlarmSettings.from_site(site)), fences, behaviour, fences,
-                        store=db.put_incidents if db is not None else None,
-                        clock=lambda: 0.0)  # fmt: skip
+    return IncidentStep(
+        IncidentBook(AlarmSettings.from_site(site)),
+        fences,
+        behaviour,
+        fences,
+        store=db.put_incidents if db is not None else None,
+        clock=lambda: 0.0,
+    )

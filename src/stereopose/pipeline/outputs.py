@@ -41,9 +41,15 @@ from stereopose.io.writing import probe_output
 from stereopose.types import Event, Rig
 
 # reconstruct_files' keyword names for the fields of Outputs
-KEYWORDS = {"trc_dir": "trc_dir", "csv_path": "csv", "tracks_path": "tracks",
-            "events_path": "events", "events_db": "events_db", "webhook": "webhook",
-            "two_way": "two_way"}  # fmt: skip
+KEYWORDS = {
+    "trc_dir": "trc_dir",
+    "csv_path": "csv",
+    "tracks_path": "tracks",
+    "events_path": "events",
+    "events_db": "events_db",
+    "webhook": "webhook",
+    "two_way": "two_way",
+}
 
 
 @dataclass(frozen=True)

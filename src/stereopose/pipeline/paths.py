@@ -25,9 +25,17 @@ logger = logging.getLogger(__name__)
 
 # what a run writes in its folder, whatever its configuration (see pipeline.run)
 RUN_FILES = (
-    "poses3d.jsonl", "events.jsonl", "events.sqlite", "joints.csv", "tracks.json",
-    "report.html", "summary.json", "config.toml", "calib.toml", "site.toml",
-)  # fmt: skip
+    "poses3d.jsonl",
+    "events.jsonl",
+    "events.sqlite",
+    "joints.csv",
+    "tracks.json",
+    "report.html",
+    "summary.json",
+    "config.toml",
+    "calib.toml",
+    "site.toml",
+)
 SQLITE_SIDECARS = ("-wal", "-shm", "-journal")
 RUN_PATTERNS = ("trc/person_*.trc", "overlays/*.mp4")
 TRC_PATTERNS = ("person_*.trc",)
@@ -242,8 +250,14 @@ def remove_outputs(paths: Sequence[Path]) -> None:
 
 
 # how reconstruct's options name each field of pipeline.outputs.Outputs
-FLAGS = {"poses": "--out", "events": "--events", "events_db": "--events-db", "trc_dir": "--trc",
-         "csv": "--csv", "tracks": "--tracks"}  # fmt: skip
+FLAGS = {
+    "poses": "--out",
+    "events": "--events",
+    "events_db": "--events-db",
+    "trc_dir": "--trc",
+    "csv": "--csv",
+    "tracks": "--tracks",
+}
 
 
 def output_places(outputs: Outputs, what: Callable[[str, Path], str]) -> list[Place]:

@@ -99,10 +99,15 @@ class PipelineStats:
         """The summary's `pipeline`: steps, drops, detection seconds, latency p50/p95 (s;
         None before any step)."""
         kept = bool(self.latency_s)
-        return {"detected": self.detected, "delivered": self.delivered, "dropped": self.dropped,
-                "detect_s": self.detect_s, "wait_s": self.wait_s,
-                "latency_p50_s": self.latency(0.5) if kept else None,
-                "latency_p95_s": self.latency(0.95) if kept else None}  # fmt: skip
+        return {
+            "detected": self.detected,
+            "delivered": self.delivered,
+            "dropped": self.dropped,
+            "detect_s": self.detect_s,
+            "wait_s": self.wait_s,
+            "latency_p50_s": self.latency(0.5) if kept else None,
+            "latency_p95_s": self.latency(0.95) if kept else None,
+        }
 
     def latency(self, q: float) -> float:
         """The q-quantile (0..1) of the kept latencies, seconds; NaN when none."""

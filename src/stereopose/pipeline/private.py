@@ -57,6 +57,7 @@ def tighten(folder: Path) -> int:
     if refused is not None:
         logger.warning("data folder %s: cannot make every file private (%s)", folder, refused)
     if changed:
-        logger.info("data folder %s: %d file(s) and folder(s) made private (0600/0700)",
-                    folder, changed)  # fmt: skip
+        logger.info(
+            "data folder %s: %d file(s) and folder(s) made private (0600/0700)", folder, changed
+        )
     return changed

@@ -74,8 +74,11 @@ def reconstruct_files(
         raise TypeError("give the outputs either as `outputs` or by keyword, not both")
     elif out_path is not None:
         outputs = dataclasses.replace(outputs, poses=Path(out_path))
-    inputs = places(("--calib", calib_path), ("--config", config_path),
-                    ("--site", site.path if site is not None else None))  # fmt: skip
+    inputs = places(
+        ("--calib", calib_path),
+        ("--config", config_path),
+        ("--site", site.path if site is not None else None),
+    )
     inputs.append(Place("--pose", Path(pose_dir), reads=POSE_READS))
     check_places(inputs, output_places(outputs, flag))
     rig = load_calibration(calib_path)
@@ -95,9 +98,17 @@ def reconstruct_files(
     source = KeypointFiles(seq, config.fps)
     on_step = None if on_frame is None else (lambda done, total, fps: on_frame(done, total))
     summary = run_frames(
-        rig, config, source, outputs, site, calib_path=str(calib_path), label=str(pose_dir),
-        on_events=on_events, stop=stop, on_step=on_step,
-    )  # fmt: skip
+        rig,
+        config,
+        source,
+        outputs,
+        site,
+        calib_path=str(calib_path),
+        label=str(pose_dir),
+        on_events=on_events,
+        stop=stop,
+        on_step=on_step,
+    )
     if summary.frames_read == 0:
         first = summary.skipped_files[0] if summary.skipped_files else ("", "")
         raise KeypointsError(

@@ -77,10 +77,15 @@ def _inputs(
     config_path: Path, calib: Path, site: Path | None, sources: list[str], model: Path | None
 ) -> list[Place]:
     """Every path a run reads, named by its configuration key."""
-    found = places(("configuration", config_path), ("calibration", calib), ("site", site),
-                   ("detector.model", model))  # fmt: skip
-    found += [Place(f"cameras[{i}].source", Path(s)) for i, s in enumerate(sources)
-              if not is_stream(s)]  # fmt: skip
+    found = places(
+        ("configuration", config_path),
+        ("calibration", calib),
+        ("site", site),
+        ("detector.model", model),
+    )
+    found += [
+        Place(f"cameras[{i}].source", Path(s)) for i, s in enumerate(sources) if not is_stream(s)
+    ]
     return found
 
 
@@ -90,11 +95,14 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
     # the overlay folder as its files: the run's other outputs are never inside it
     found = [p for p in output_places(outputs, in_run_folder) if p.path != outputs.overlays_dir]
     if outputs.overlays_dir is not None:
-        found += [Place(f"overlays/{n}.mp4 in the output folder", outputs.overlays_dir /
-                        f"{n}.mp4") for n in cameras]  # fmt: skip
+        found += [
+            Place(f"overlays/{n}.mp4 in the output folder", outputs.overlays_dir / f"{n}.mp4")
+            for n in cameras
+        ]
     copies = ("config.toml", "calib.toml", "site.toml") if site else ("config.toml", "calib.toml")
-    return found + [Place(f"{n} in the output folder (a copy of the one used)", out_dir / n)
-                    for n in copies]  # fmt: skip
+    return found + [
+        Place(f"{n} in the output folder (a copy of the one used)", out_dir / n) for n in copies
+    ]
 
 
 def _camera_source(
@@ -192,8 +200,11 @@ def run(
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
     inputs = _inputs(config_path, calib_path, site_path, sources, model)
-    inputs += [Place(f"cameras[{i}].detect", Path(d)) for i, d in enumerate(substreams)
-               if d and not is_stream(d)]  # fmt: skip
+    inputs += [
+        Place(f"cameras[{i}].detect", Path(d))
+        for i, d in enumerate(substreams)
+        if d and not is_stream(d)
+    ]
     hint = f'set `output` in {config_path} to a folder of its own (such as "out/run")'
     check_places(inputs, _outputs(outputs, out_dir, names, site is not None), hint)
     folder = Place(f"{config_path}: the output folder", out_dir)
@@ -206,17 +217,33 @@ def run(
     except OSError as e:
         raise StereoposeError(f"{out_dir}: cannot create the output folder: {e.strerror}") from None
     check_recorded_sizes(rig, names, sources)  # before any output: a wrong file writes nothing
-    with CameraSet(sources, names, cfg.input.sync, cfg.input.fps, cfg.input.max_frames,
-                   open_timeout_s=cfg.input.open_timeout_s,
-                   first_frame_timeout_s=cfg.input.first_frame_timeout_s,
-                   loop=[c.loop for c in cfg.cameras], detect=[d or None for d in substreams],
-                   detect_fps=cfg.input.detect_fps) as cams:  # fmt: skip
+    with CameraSet(
+        sources,
+        names,
+        cfg.input.sync,
+        cfg.input.fps,
+        cfg.input.max_frames,
+        open_timeout_s=cfg.input.open_timeout_s,
+        first_frame_timeout_s=cfg.input.first_frame_timeout_s,
+        loop=[c.loop for c in cfg.cameras],
+        detect=[d or None for d in substreams],
+        detect_fps=cfg.input.detect_fps,
+    ) as cams:
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
         copy_config(config_path, out_dir / "config.toml", secret=_holds_secrets(cfg))
         save_inputs(out_dir, rig, site)
         return run_frames(
-            rig, cfg, _camera_source(cams, rig, detector, det), outputs, site,
-            calib_path=cfg.calibration or "", label=", ".join(cams.names), on_events=on_events,
-            stop=stop, on_step=on_step, out_dir=out_dir, config_path=config_path,
-        )  # fmt: skip
+            rig,
+            cfg,
+            _camera_source(cams, rig, detector, det),
+            outputs,
+            site,
+            calib_path=cfg.calibration or "",
+            label=", ".join(cams.names),
+            on_events=on_events,
+            stop=stop,
+            on_step=on_step,
+            out_dir=out_dir,
+            config_path=config_path,
+        )

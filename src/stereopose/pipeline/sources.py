@@ -105,9 +105,12 @@ class Cameras:
     stages = CAMERA_STAGES
 
     def __init__(
-        self, cams: CameraSet, rig: Rig, detector: PoseDetector,
+        self,
+        cams: CameraSet,
+        rig: Rig,
+        detector: PoseDetector,
         regions: RegionDetector | None = None,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.cams, self.rig, self.detector = cams, rig, detector
         self.regions = regions
         self._tracked: People3D | None = None

@@ -316,9 +316,22 @@ def place_single_views(X, used, xy, w, centers, R, anchors):
 
 @njit(**_JIT)
 def plausible(
-    X, used, members, delivered, P, lo, hi, limb_a, limb_b, max_limb_m, min_joints,
-    floor_tolerance_m, max_height_m, min_view_fraction, in_view_joints,
-):  # fmt: skip
+    X,
+    used,
+    members,
+    delivered,
+    P,
+    lo,
+    hi,
+    limb_a,
+    limb_b,
+    max_limb_m,
+    min_joints,
+    floor_tolerance_m,
+    max_height_m,
+    min_view_fraction,
+    in_view_joints,
+):
     """(G,) which reconstructed people X (G, J, 3) are plausible; in place, the outer joint of
     each limb (limb_a -> limb_b, (L,)) longer than max_limb_m is dropped (NaN) and used
     (G, J, C) cleared for the joints not reconstructed. A person needs min_joints joints seen

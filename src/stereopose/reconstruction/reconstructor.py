@@ -285,10 +285,21 @@ class Reconstructor:
         # coincidence of false detections that happen to agree, not a person; joints placed
         # from one view do not count: they lean on the others
         keep = plausible(
-            X, used, np.ascontiguousarray(members), np.ascontiguousarray(delivered), self.P,
-            *self.bounds, _LIMB_A, _LIMB_B, pc.max_limb_m, pc.min_joints,
-            pc.floor_tolerance_m, pc.max_height_m, pc.min_view_fraction, 5,
-        )  # fmt: skip
+            X,
+            used,
+            np.ascontiguousarray(members),
+            np.ascontiguousarray(delivered),
+            self.P,
+            *self.bounds,
+            _LIMB_A,
+            _LIMB_B,
+            pc.max_limb_m,
+            pc.min_joints,
+            pc.floor_tolerance_m,
+            pc.max_height_m,
+            pc.min_view_fraction,
+            5,
+        )
         valid = np.isfinite(X).all(-1)
         views = members >= 0
         idx = np.flatnonzero(keep)

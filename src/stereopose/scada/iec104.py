@@ -73,8 +73,15 @@ GUARD_SPARE = 4  # c104's places beyond max_connections, for the links the guard
 MAX_LOGGED_ADDRESSES = 100  # refused addresses logged one by one; beyond, only counted
 _UNACKED = ("active", "cleared")
 _SCALED_MAX = 32767  # a scaled value's largest (M_ME_TE_1 holds a 16-bit integer)
-FIGURES = ("queued_max", "dropped", "transmitted", "refused", "commands", "commands_refused",
-           "clock_syncs")  # fmt: skip
+FIGURES = (
+    "queued_max",
+    "dropped",
+    "transmitted",
+    "refused",
+    "commands",
+    "commands_refused",
+    "clock_syncs",
+)
 
 
 def _free_loopback_port() -> int:
@@ -117,9 +124,19 @@ class Iec104Settings:
     def from_config(cls, cfg: Any) -> Iec104Settings:
         """From [iec104] (config.Iec104Config, whose construction checked every value)."""
         nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
-        return cls(cfg.host, cfg.port, cfg.common_address, nets, cfg.max_connections,
-                   cfg.commands, cfg.time_tags, cfg.queue_size, cfg.test_after_s,
-                   cfg.answer_within_s, cfg.start_within_s)  # fmt: skip
+        return cls(
+            cfg.host,
+            cfg.port,
+            cfg.common_address,
+            nets,
+            cfg.max_connections,
+            cfg.commands,
+            cfg.time_tags,
+            cfg.queue_size,
+            cfg.test_after_s,
+            cfg.answer_within_s,
+            cfg.start_within_s,
+        )
 
     def allows(self, ip: str) -> bool:
         """Whether a client at `ip` ("a.b.c.d", or "a.b.c.d:port") may connect."""
@@ -165,15 +182,23 @@ class Outstation(ClosesOnce):
 
     stage = "write"
 
-    def __init__(self, settings: Iec104Settings, table: PointsTable, *, wall_start: float,
-                 status: Callable[[], str] | None = None,
-                 acknowledger: Callable[[int, str], Any] | None = None,
-                 status_interval_s: float = STATUS_INTERVAL_S) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: Iec104Settings,
+        table: PointsTable,
+        *,
+        wall_start: float,
+        status: Callable[[], str] | None = None,
+        acknowledger: Callable[[int, str], Any] | None = None,
+        status_interval_s: float = STATUS_INTERVAL_S,
+    ) -> None:
         try:
             import c104
         except ImportError:
-            raise Iec104Error("the IEC 60870-5-104 outstation ([iec104]) needs c104: "
-                              "pip install 'stereopose[scada]'") from None  # fmt: skip
+            raise Iec104Error(
+                "the IEC 60870-5-104 outstation ([iec104]) needs c104: "
+                "pip install 'stereopose[scada]'"
+            ) from None
         self._c104 = c104
         self.settings, self.table, self.wall_start = settings, table, float(wall_start)
         self.status, self.acknowledger = status, acknowledger
@@ -196,26 +221,38 @@ class Outstation(ClosesOnce):
         self._server = self._make_server(c104, upstream)
         self._points = self._make_points(c104)
         self._set_all(time.time())
-        self._guard = Guard(settings.host, settings.port, upstream,
-                            max_connections=settings.max_connections,
-                            start_within_s=settings.start_within_s, allows=settings.allows,
-                            refused=self._refuse)  # fmt: skip
+        self._guard = Guard(
+            settings.host,
+            settings.port,
+            upstream,
+            max_connections=settings.max_connections,
+            start_within_s=settings.start_within_s,
+            allows=settings.allows,
+            refused=self._refuse,
+        )
         try:
             self._guard.start()
         except OSError as e:
-            raise Iec104Error(f"IEC 60870-5-104 on {settings.host}:{settings.port}: cannot "
-                              f"listen ({e.strerror or e})") from None  # fmt: skip
+            raise Iec104Error(
+                f"IEC 60870-5-104 on {settings.host}:{settings.port}: cannot "
+                f"listen ({e.strerror or e})"
+            ) from None
         try:
             self._server.start()
         except RuntimeError as e:
             self._guard.close()
-            raise Iec104Error(f"IEC 60870-5-104: the outstation cannot listen on loopback "
-                              f"port {upstream} ({e})") from None  # fmt: skip
+            raise Iec104Error(
+                f"IEC 60870-5-104: the outstation cannot listen on loopback port {upstream} ({e})"
+            ) from None
         self._thread = threading.Thread(target=self._run, name="iec104", daemon=True)
         self._thread.start()
-        logger.info("IEC 60870-5-104 outstation on %s:%d, common address %d, %d points",
-                    settings.host, settings.port, settings.common_address,
-                    len(table))  # fmt: skip
+        logger.info(
+            "IEC 60870-5-104 outstation on %s:%d, common address %d, %d points",
+            settings.host,
+            settings.port,
+            settings.common_address,
+            len(table),
+        )
 
     def __repr__(self) -> str:
         return f"Outstation({self.settings.host}:{self.settings.port})"
@@ -245,9 +282,11 @@ class Outstation(ClosesOnce):
             if len(self._queue) >= self.settings.queue_size:
                 self._figures["dropped"] += 1
                 if self._burst == 0:
-                    logger.warning("IEC 60870-5-104: %d changes waiting, the bound: dropping "
-                                   "new ones until the outstation catches up",
-                                   self.settings.queue_size)  # fmt: skip
+                    logger.warning(
+                        "IEC 60870-5-104: %d changes waiting, the bound: dropping "
+                        "new ones until the outstation catches up",
+                        self.settings.queue_size,
+                    )
                 self._burst += 1
                 return
             self._queue.append((kind, item))
@@ -266,8 +305,10 @@ class Outstation(ClosesOnce):
                 self._queue.clear()
                 stopping = self._stopping
                 if not items and self._burst:
-                    logger.warning("IEC 60870-5-104: %d changes were dropped while the queue "
-                                   "was full", self._burst)  # fmt: skip
+                    logger.warning(
+                        "IEC 60870-5-104: %d changes were dropped while the queue was full",
+                        self._burst,
+                    )
                     self._burst = 0
             for kind, item in items:
                 try:
@@ -407,8 +448,12 @@ class Outstation(ClosesOnce):
         s = self.settings
         # on loopback, behind the guard (which holds max_connections; a little room here for
         # the links the guard is closing)
-        server = c104.Server(ip="127.0.0.1", port=port, tick_rate_ms=TICK_MS,
-                             max_connections=s.max_connections + GUARD_SPARE)  # fmt: skip
+        server = c104.Server(
+            ip="127.0.0.1",
+            port=port,
+            tick_rate_ms=TICK_MS,
+            max_connections=s.max_connections + GUARD_SPARE,
+        )
         # t3 and t1: a socket that never answers a TESTFR is closed within their sum, so
         # idle sockets hold the master's places for less long (t1 stays above the masters'
         # acknowledgement delay t2; ours, t2, below t1)
@@ -425,15 +470,24 @@ class Outstation(ClosesOnce):
             return c104.ResponseState.SUCCESS
 
         server.on_connect(callable=_typed(on_connect, server=c104.Server, ip=str, ret=bool))
-        server.on_clock_sync(callable=_typed(on_clock_sync, server=c104.Server, ip=str,
-                                             date_time=dt.datetime,
-                                             ret=c104.ResponseState))  # fmt: skip
+        server.on_clock_sync(
+            callable=_typed(
+                on_clock_sync,
+                server=c104.Server,
+                ip=str,
+                date_time=dt.datetime,
+                ret=c104.ResponseState,
+            )
+        )
         return server
 
     def _make_points(self, c104: Any) -> dict[int, Any]:
         station = self._server.add_station(common_address=self.settings.common_address)
-        types = {"M_SP_TB_1": c104.Type.M_SP_TB_1, "M_ME_TE_1": c104.Type.M_ME_TE_1,
-                 "C_SC_NA_1": c104.Type.C_SC_NA_1}  # fmt: skip
+        types = {
+            "M_SP_TB_1": c104.Type.M_SP_TB_1,
+            "M_ME_TE_1": c104.Type.M_ME_TE_1,
+            "C_SC_NA_1": c104.Type.C_SC_NA_1,
+        }
         points = {}
         for p in self.table:
             point = station.add_point(io_address=p.ioa, type=types[p.type])
@@ -454,8 +508,13 @@ class Outstation(ClosesOnce):
             self._figures["commands" if ok else "commands_refused"] += 1
             return c104.ResponseState.SUCCESS if ok else c104.ResponseState.FAILURE
 
-        return _typed(on_command, point=c104.Point, previous_info=c104.Information,
-                      message=c104.IncomingMessage, ret=c104.ResponseState)  # fmt: skip
+        return _typed(
+            on_command,
+            point=c104.Point,
+            previous_info=c104.Information,
+            message=c104.IncomingMessage,
+            ret=c104.ResponseState,
+        )
 
     def _acknowledge(self, p: Point, originator: int) -> bool:
         """Acknowledge the unacknowledged incidents of the command's zone or priority."""
@@ -474,8 +533,9 @@ class Outstation(ClosesOnce):
                 ack(i, by)
             except StereoposeError as e:  # closed meanwhile: nothing left to acknowledge
                 logger.info("IEC 60870-5-104: incident %d: %s", i, e)
-        logger.info("IEC 60870-5-104: %s acknowledged %d incident(s) by point %d", by,
-                    len(ids), p.ioa)  # fmt: skip
+        logger.info(
+            "IEC 60870-5-104: %s acknowledged %d incident(s) by point %d", by, len(ids), p.ioa
+        )
         return True
 
     def _refuse(self, ip: str) -> None:
@@ -483,8 +543,9 @@ class Outstation(ClosesOnce):
         host = ip.rsplit(":", 1)[0]
         if host not in self._refused_logged and len(self._refused_logged) < MAX_LOGGED_ADDRESSES:
             self._refused_logged.add(host)
-            logger.warning("IEC 60870-5-104: connection from %s refused: not in "
-                           "iec104.allowed_clients", host)  # fmt: skip
+            logger.warning(
+                "IEC 60870-5-104: connection from %s refused: not in iec104.allowed_clients", host
+            )
 
     def _clock_sync(self, ip: str, fields: dt.datetime) -> None:
         try:
@@ -495,10 +556,13 @@ class Outstation(ClosesOnce):
         first = self._clock_offset_s is None
         self._clock_offset_s = offset
         if abs(offset) > CLOCK_WARN_S and (first or self._figures["clock_syncs"] % 100 == 1):
-            logger.warning("IEC 60870-5-104: the master at %s is %+.1f s from this machine's "
-                           "clock (not applied: the time tags keep this machine's clock; "
-                           "check NTP, and iec104.time_tags)", ip.rsplit(":", 1)[0],
-                           offset)  # fmt: skip
+            logger.warning(
+                "IEC 60870-5-104: the master at %s is %+.1f s from this machine's "
+                "clock (not applied: the time tags keep this machine's clock; "
+                "check NTP, and iec104.time_tags)",
+                ip.rsplit(":", 1)[0],
+                offset,
+            )
 
     # --- reading, closing --------------------------------------------------------------------
 
@@ -513,10 +577,13 @@ class Outstation(ClosesOnce):
         with self._cond:
             queued = len(self._queue)
         f = dict(self._figures)
-        f.update(queued=queued, clock_offset_s=self._clock_offset_s,
-                 connections=self._guard.connections(),
-                 active_connections=self._server.active_connection_count,
-                 **self._guard.counts)  # fmt: skip
+        f.update(
+            queued=queued,
+            clock_offset_s=self._clock_offset_s,
+            connections=self._guard.connections(),
+            active_connections=self._server.active_connection_count,
+            **self._guard.counts,
+        )
         return f
 
     def queued(self) -> int:
@@ -550,8 +617,13 @@ class Outstation(ClosesOnce):
         self._server.stop()
         self._guard.close()
         f = self.figures()
-        logger.log(logging.WARNING if f["dropped"] else logging.INFO,
-                   "IEC 60870-5-104 closed: %d points sent, %d dropped, %d refused connections, "
-                   "%d commands", f["transmitted"], f["dropped"], f["refused"],
-                   f["commands"])  # fmt: skip
+        logger.log(
+            logging.WARNING if f["dropped"] else logging.INFO,
+            "IEC 60870-5-104 closed: %d points sent, %d dropped, %d refused connections, "
+            "%d commands",
+            f["transmitted"],
+            f["dropped"],
+            f["refused"],
+            f["commands"],
+        )
         return []

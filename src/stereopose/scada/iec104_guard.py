@@ -80,9 +80,17 @@ class Guard:
     """See the module. allows(ip): whether an address may connect; refused(ip): told of each
     refused address (the outstation counts and logs)."""
 
-    def __init__(self, host: str, port: int, upstream_port: int, *, max_connections: int,
-                 start_within_s: float, allows: Callable[[str], bool],
-                 refused: Callable[[str], None]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        upstream_port: int,
+        *,
+        max_connections: int,
+        start_within_s: float,
+        allows: Callable[[str], bool],
+        refused: Callable[[str], None],
+    ) -> None:
         self.host, self.port, self.upstream_port = host, int(port), int(upstream_port)
         self.max_connections, self.start_within_s = int(max_connections), float(start_within_s)
         self.allows, self.refused = allows, refused
@@ -169,9 +177,11 @@ class Guard:
                 logger.error("IEC 60870-5-104: the outstation cannot be reached: %s", e)
                 return
             up_reader, up_writer = upstream
-            pumps = [asyncio.create_task(self._pump(reader, up_writer, link)),
-                     asyncio.create_task(self._pump(up_reader, writer, None)),
-                     asyncio.create_task(self._watch(link))]  # fmt: skip
+            pumps = [
+                asyncio.create_task(self._pump(reader, up_writer, link)),
+                asyncio.create_task(self._pump(up_reader, writer, None)),
+                asyncio.create_task(self._watch(link)),
+            ]
             try:
                 await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
             finally:
@@ -203,8 +213,11 @@ class Guard:
         self.links.discard(oldest)
         oldest.writer.close()
         self.counts["evicted"] += 1
-        logger.info("IEC 60870-5-104: a connection that had not started data transfer closed "
-                    "for a new one (max_connections = %d)", self.max_connections)  # fmt: skip
+        logger.info(
+            "IEC 60870-5-104: a connection that had not started data transfer closed "
+            "for a new one (max_connections = %d)",
+            self.max_connections,
+        )
         return True
 
     async def _watch(self, link: _Link) -> None:
@@ -212,14 +225,17 @@ class Guard:
         await asyncio.sleep(self.start_within_s)
         if not link.started:
             self.counts["unstarted_closed"] += 1
-            logger.info("IEC 60870-5-104: a connection closed: no STARTDT within %.0f s",
-                        self.start_within_s)  # fmt: skip
+            logger.info(
+                "IEC 60870-5-104: a connection closed: no STARTDT within %.0f s",
+                self.start_within_s,
+            )
             return
         await asyncio.Event().wait()  # started: the pumps end it
 
     @staticmethod
-    async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
-                    link: _Link | None) -> None:  # fmt: skip
+    async def _pump(
+        reader: asyncio.StreamReader, writer: asyncio.StreamWriter, link: _Link | None
+    ) -> None:
         with contextlib.suppress(OSError, asyncio.IncompleteReadError):
             while True:
                 data = await reader.read(CHUNK)

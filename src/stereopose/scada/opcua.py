@@ -87,9 +87,16 @@ class OpcuaServer(ClosesOnce):
 
     stage = "write"
 
-    def __init__(self, settings: OpcuaSettings, zones: Sequence[ZoneNode],
-                 cameras: Sequence[CameraNode], users, *,
-                 status=None, limiter=None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: OpcuaSettings,
+        zones: Sequence[ZoneNode],
+        cameras: Sequence[CameraNode],
+        users,
+        *,
+        status=None,
+        limiter=None,
+    ) -> None:
         self.settings, self.users, self.status = settings, users, status
         self.login_users = Users(users, settings.allow_anonymous, limiter)
         self.zones, self.cameras = list(zones), list(cameras)
@@ -126,8 +133,9 @@ class OpcuaServer(ClosesOnce):
         """Listening once this returns; a StereoposeError says why it cannot."""
         self._thread.start()
         if not self._ready.wait(timeout_s):
-            raise StereoposeError(f"OPC UA {self.settings.endpoint}: not started within "
-                                  f"{timeout_s:g} s")  # fmt: skip
+            raise StereoposeError(
+                f"OPC UA {self.settings.endpoint}: not started within {timeout_s:g} s"
+            )
         if self._error is not None:
             self._thread.join(STOP_TIMEOUT_S)
             raise StereoposeError(f"OPC UA {self.settings.endpoint}: cannot start: {self._error}")
@@ -200,9 +208,12 @@ class OpcuaServer(ClosesOnce):
         iserver.max_monitored_item_queue_size = 1000
         iserver.max_pending_activation_seconds = ACTIVATE_S
         server = Server(iserver=iserver)
-        server.limits = TransportLimits(max_recv_buffer=65535, max_send_buffer=65535,
-                                        max_chunk_count=MAX_MESSAGE // 65535 + 1,
-                                        max_message_size=MAX_MESSAGE)  # fmt: skip
+        server.limits = TransportLimits(
+            max_recv_buffer=65535,
+            max_send_buffer=65535,
+            max_chunk_count=MAX_MESSAGE // 65535 + 1,
+            max_message_size=MAX_MESSAGE,
+        )
         await server.init()
         app = application_certificate(s)
         self.certificate = app
@@ -259,9 +270,11 @@ class OpcuaServer(ClosesOnce):
                     self._changes.popleft()
                     self.dropped += 1
                     if not self._resync:
-                        logger.warning("OPC UA: %d incident changes waiting, the bound: dropping "
-                                       "the oldest (the conditions are read again from the book)",
-                                       self.settings.queue_size)  # fmt: skip
+                        logger.warning(
+                            "OPC UA: %d incident changes waiting, the bound: dropping "
+                            "the oldest (the conditions are read again from the book)",
+                            self.settings.queue_size,
+                        )
                     self._resync = True
                 self._changes.append((c.incident, c.what, wall, c.wall_start))
         self._poke()
@@ -383,16 +396,20 @@ class OpcuaServer(ClosesOnce):
         space, desk = self.space, self.desk
         name = getattr(caller, "name", None)
         if name is None or not self._may_acknowledge(caller):
-            logger.warning("OPC UA: acknowledge refused for %s",
-                           repr(name) if name else "an anonymous client")  # fmt: skip
+            logger.warning(
+                "OPC UA: acknowledge refused for %s", repr(name) if name else "an anonymous client"
+            )
             return ua.StatusCodes.BadUserAccessDenied
         incident = space.by_node.get(parent)
         if incident is None:
             return ua.StatusCodes.BadNodeIdUnknown
         cond = space.conditions[incident]
         if len(args) != 2:
-            return (ua.StatusCodes.BadArgumentsMissing if len(args) < 2
-                    else ua.StatusCodes.BadTooManyArguments)  # fmt: skip
+            return (
+                ua.StatusCodes.BadArgumentsMissing
+                if len(args) < 2
+                else ua.StatusCodes.BadTooManyArguments
+            )
         event_id = args[0].Value if isinstance(args[0], ua.Variant) else None
         if not isinstance(event_id, bytes) or event_id not in cond.event_ids:
             return ua.StatusCodes.BadEventIdUnknown
@@ -408,8 +425,12 @@ class OpcuaServer(ClosesOnce):
             )
         except UnknownIncidentError:
             return ua.StatusCodes.BadNodeIdUnknown
-        logger.info("OPC UA: incident %d acknowledged by %s%s", incident, name,
-                    f" ({text[:200]!r})" if text else "")  # fmt: skip
+        logger.info(
+            "OPC UA: incident %d acknowledged by %s%s",
+            incident,
+            name,
+            f" ({text[:200]!r})" if text else "",
+        )
         await space.apply([(rec, time.time(), getattr(desk, "wall_start", None))])
         return None
 
@@ -448,10 +469,15 @@ class OpcuaServer(ClosesOnce):
         with self._lock:
             queued = len(self._changes)
         space = self.space
-        return {"queued": queued, "dropped": self.dropped, "acknowledged": self.acks,
-                "acknowledge_refused": self.acks_refused,
-                "logins_limited": self.login_users.limited, "idle_closed": self.evicted,
-                "conditions": len(space.conditions) if space is not None else 0}  # fmt: skip
+        return {
+            "queued": queued,
+            "dropped": self.dropped,
+            "acknowledged": self.acks,
+            "acknowledge_refused": self.acks_refused,
+            "logins_limited": self.login_users.limited,
+            "idle_closed": self.evicted,
+            "conditions": len(space.conditions) if space is not None else 0,
+        }
 
 
 def _activated(protocol) -> bool:

@@ -26,8 +26,7 @@ from asyncua.server.internal_session import InternalSession
 from stereopose.errors import HashingBusyError, StereoposeError
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
 
-__all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller",
-           "trusted_clients"]  # fmt: skip
+__all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller", "trusted_clients"]
 
 logger = logging.getLogger(__name__)
 
@@ -69,10 +68,15 @@ class _CallerSession(InternalSession):
 class LoginServer(InternalServer):
     """asyncua's internal server whose sessions know the caller of their methods."""
 
-    def create_session(self, name: str, user: User = User(role=UserRole.Anonymous),  # noqa: B008
-                       external: bool = False) -> InternalSession:  # fmt: skip
-        return _CallerSession(self, self.aspace, self.subscription_service, name, user=user,
-                              external=external)  # fmt: skip
+    def create_session(
+        self,
+        name: str,
+        user: User = User(role=UserRole.Anonymous),  # noqa: B008
+        external: bool = False,
+    ) -> InternalSession:
+        return _CallerSession(
+            self, self.aspace, self.subscription_service, name, user=user, external=external
+        )
 
 
 class Permissions(PermissionRuleset):
@@ -109,8 +113,13 @@ class Users:
             now = time.monotonic()
             if now - self._warned_at >= 10.0:  # a guesser fills no log
                 self._warned_at = now
-                logger.warning("OPC UA: login of %r from %s refused unchecked: %s (%d so far)",
-                               name[:40], address, e.why, self.limited)  # fmt: skip
+                logger.warning(
+                    "OPC UA: login of %r from %s refused unchecked: %s (%d so far)",
+                    name[:40],
+                    address,
+                    e.why,
+                    self.limited,
+                )
             return None
         user = None
         try:
@@ -127,8 +136,9 @@ class Users:
             logger.error("OPC UA: cannot check a login: %s", e)
             return None
         except HashingBusyError:  # a flood of logins: refused unchecked, the server goes on
-            logger.warning("OPC UA: login of %r refused: too many password checks at once",
-                           name[:40])  # fmt: skip
+            logger.warning(
+                "OPC UA: login of %r refused: too many password checks at once", name[:40]
+            )
             return None
         if user is None:
             logger.warning("OPC UA: login refused for %r", name[:40])
@@ -149,6 +159,9 @@ async def trusted_clients(folder: Path):
 
     store = TrustStore([folder], [])
     await store.load()
-    opts = (CertificateValidatorOptions.BASIC_VALIDATION | CertificateValidatorOptions.TRUSTED
-            | CertificateValidatorOptions.PEER_CLIENT)  # fmt: skip
+    opts = (
+        CertificateValidatorOptions.BASIC_VALIDATION
+        | CertificateValidatorOptions.TRUSTED
+        | CertificateValidatorOptions.PEER_CLIENT
+    )
     return CertificateValidator(opts, store)

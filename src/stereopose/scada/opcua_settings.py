@@ -100,23 +100,39 @@ def opcua_settings(config_path: str | Path, config: Config, out_dir: Path) -> Op
     try:
         import asyncua  # noqa: F401
     except ImportError:
-        raise ConfigError(f"{path}: opcua.enabled: the OPC UA server needs the 'scada' extra "
-                          "(pip install 'stereopose[scada]': asyncua)") from None  # fmt: skip
+        raise ConfigError(
+            f"{path}: opcua.enabled: the OPC UA server needs the 'scada' extra "
+            "(pip install 'stereopose[scada]': asyncua)"
+        ) from None
     base = path.resolve().parent
     cert = key = trusted = None
     if o.certificate and o.key:
         cert, key = _resolve(base, o.certificate), _resolve(base, o.key)
-        _load_pair(path, _readable(path, cert, "opcua.certificate"),
-                   _readable(path, key, "opcua.key", private=True), cert, key)  # fmt: skip
+        _load_pair(
+            path,
+            _readable(path, cert, "opcua.certificate"),
+            _readable(path, key, "opcua.key", private=True),
+            cert,
+            key,
+        )
     if o.trusted_clients:
         trusted = _resolve(base, o.trusted_clients)
         if not trusted.is_dir():
             raise ConfigError(f"{path}: opcua.trusted_clients: {trusted} is not a folder")
-    return OpcuaSettings(host=o.host, port=o.port, path=o.path, site=o.site, certificate=cert,
-                         key=key, cert_dir=out_dir / CERT_DIR, trusted_clients=trusted,
-                         security=tuple(o.security), allow_anonymous=o.allow_anonymous,
-                         max_connections=o.max_connections,
-                         queue_size=o.queue_size)  # fmt: skip
+    return OpcuaSettings(
+        host=o.host,
+        port=o.port,
+        path=o.path,
+        site=o.site,
+        certificate=cert,
+        key=key,
+        cert_dir=out_dir / CERT_DIR,
+        trusted_clients=trusted,
+        security=tuple(o.security),
+        allow_anonymous=o.allow_anonymous,
+        max_connections=o.max_connections,
+        queue_size=o.queue_size,
+    )
 
 
 def _load_pair(path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Path, key: Path):
@@ -126,19 +142,25 @@ def _load_pair(path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Pat
 
     where = f"{path}: " if path is not None else ""
     try:
-        c = (x509.load_pem_x509_certificate(cert_bytes) if cert_bytes.lstrip().startswith(b"-----")
-             else x509.load_der_x509_certificate(cert_bytes))  # fmt: skip
+        c = (
+            x509.load_pem_x509_certificate(cert_bytes)
+            if cert_bytes.lstrip().startswith(b"-----")
+            else x509.load_der_x509_certificate(cert_bytes)
+        )
     except ValueError as e:
-        raise ConfigError(f"{where}opcua.certificate: {cert} is not a DER or PEM X.509 "
-                          f"certificate: {e}") from None  # fmt: skip
+        raise ConfigError(
+            f"{where}opcua.certificate: {cert} is not a DER or PEM X.509 certificate: {e}"
+        ) from None
     try:
         k = load_pem_private_key(key_bytes, password=None)
     except (ValueError, TypeError) as e:
-        raise ConfigError(f"{where}opcua.key: {key} is not an unencrypted PEM private key: "
-                          f"{e}") from None  # fmt: skip
+        raise ConfigError(
+            f"{where}opcua.key: {key} is not an unencrypted PEM private key: {e}"
+        ) from None
     if c.public_key().public_numbers() != k.public_key().public_numbers():
-        raise ConfigError(f"{where}opcua.certificate {cert} and opcua.key {key}: the key is not "
-                          "the certificate's")  # fmt: skip
+        raise ConfigError(
+            f"{where}opcua.certificate {cert} and opcua.key {key}: the key is not the certificate's"
+        )
     return c, k
 
 
@@ -164,8 +186,13 @@ def _uri(cert) -> str | None:
 def application_certificate(settings: OpcuaSettings) -> AppCertificate:
     """The certificate the server presents (see the module); logs its thumbprint."""
     if settings.certificate is not None and settings.key is not None:
-        c, k = _load_pair(None, settings.certificate.read_bytes(), settings.key.read_bytes(),
-                          settings.certificate, settings.key)  # fmt: skip
+        c, k = _load_pair(
+            None,
+            settings.certificate.read_bytes(),
+            settings.key.read_bytes(),
+            settings.certificate,
+            settings.key,
+        )
         uri = _uri(c) or _default_uri(settings.site)
         app = AppCertificate(c, k, settings.certificate, thumbprint(c), uri, generated=False)
         logger.info("OPC UA: certificate %s (SHA-1 thumbprint %s)", app.path, app.thumbprint)
@@ -183,19 +210,29 @@ def _generated(settings: OpcuaSettings) -> AppCertificate:
     cert_path, key_path = folder / CERT_FILE, folder / KEY_FILE
     if cert_path.is_file() and key_path.is_file():
         try:
-            c, k = _load_pair(None, cert_path.read_bytes(), key_path.read_bytes(), cert_path,
-                              key_path)  # fmt: skip
+            c, k = _load_pair(
+                None, cert_path.read_bytes(), key_path.read_bytes(), cert_path, key_path
+            )
         except (ConfigError, OSError) as e:
-            logger.warning("OPC UA: the generated certificate in %s cannot be used (%s): making "
-                           "a new one", folder, e)  # fmt: skip
+            logger.warning(
+                "OPC UA: the generated certificate in %s cannot be used (%s): making a new one",
+                folder,
+                e,
+            )
         else:
             if c.not_valid_after_utc > datetime.datetime.now(datetime.timezone.utc):
                 app = AppCertificate(c, k, cert_path, thumbprint(c), _uri(c) or "", True)
-                logger.info("OPC UA: self-signed certificate %s (SHA-1 thumbprint %s)",
-                            cert_path, app.thumbprint)  # fmt: skip
+                logger.info(
+                    "OPC UA: self-signed certificate %s (SHA-1 thumbprint %s)",
+                    cert_path,
+                    app.thumbprint,
+                )
                 return app
-            logger.warning("OPC UA: the generated certificate %s expired: making a new one "
-                           "(clients must trust the new thumbprint)", cert_path)  # fmt: skip
+            logger.warning(
+                "OPC UA: the generated certificate %s expired: making a new one "
+                "(clients must trust the new thumbprint)",
+                cert_path,
+            )
     return _make(settings, cert_path, key_path)
 
 
@@ -216,16 +253,23 @@ def _make(settings: OpcuaSettings, cert_path: Path, key_path: Path) -> AppCertif
         names.append(x509.DNSName("localhost"))
     key = generate_private_key()
     cert = generate_self_signed_app_certificate(
-        key, f"stereopose {settings.site}", {"organizationName": "stereopose"}, names,
-        [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH], days=CERT_DAYS,
-    )  # fmt: skip
+        key,
+        f"stereopose {settings.site}",
+        {"organizationName": "stereopose"},
+        names,
+        [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH],
+        days=CERT_DAYS,
+    )
     cert_path.parent.mkdir(parents=True, exist_ok=True)
     _write_private(key_path, dump_private_key_as_pem(key))
     _write_private(cert_path, cert.public_bytes(Encoding.DER))
     app = AppCertificate(cert, key, cert_path, thumbprint(cert), uri, generated=True)
-    logger.warning("OPC UA: made a self-signed certificate %s (SHA-1 thumbprint %s): clients "
-                   "must trust it; [opcua] certificate and key give your own", cert_path,
-                   app.thumbprint)  # fmt: skip
+    logger.warning(
+        "OPC UA: made a self-signed certificate %s (SHA-1 thumbprint %s): clients "
+        "must trust it; [opcua] certificate and key give your own",
+        cert_path,
+        app.thumbprint,
+    )
     return app
 
 

@@ -43,8 +43,15 @@ from asyncua.common import event_objects
 from stereopose.alarms.incident import ACKNOWLEDGED, ACTIVE, CLEARED, CLOSED, IncidentRecord
 from stereopose.alarms.priority import PRIORITY_NAMES
 
-__all__ = ["SEVERITY", "CameraNode", "Condition", "SiteSpace", "ZoneNode", "incident_message",
-           "site_zones"]  # fmt: skip
+__all__ = [
+    "SEVERITY",
+    "CameraNode",
+    "Condition",
+    "SiteSpace",
+    "ZoneNode",
+    "incident_message",
+    "site_zones",
+]
 
 # priority (1 critical ... 4 low) -> OPC UA severity (1-1000), one per band of OPC 10000-9
 # 5.3 (801-1000 high, 601-800 medium high, 401-600 medium, 1-200 low)
@@ -107,8 +114,9 @@ def incident_message(rec: IncidentRecord) -> str:
 
 
 def _utc(wall: float | None) -> datetime.datetime:
-    return datetime.datetime.fromtimestamp(time.time() if wall is None else wall,
-                                           datetime.timezone.utc)  # fmt: skip
+    return datetime.datetime.fromtimestamp(
+        time.time() if wall is None else wall, datetime.timezone.utc
+    )
 
 
 def _text(s: str) -> ua.LocalizedText:
@@ -119,8 +127,9 @@ class SiteSpace:
     """The site's nodes in `server` (see the module), updated from the server's event loop
     only. zones, cameras: what the address space shows; site: the site object's name."""
 
-    def __init__(self, server: Server, site: str, zones: Sequence[ZoneNode],
-                 cameras: Sequence[CameraNode]) -> None:  # fmt: skip
+    def __init__(
+        self, server: Server, site: str, zones: Sequence[ZoneNode], cameras: Sequence[CameraNode]
+    ) -> None:
         self.server, self.site = server, site
         self.zones = {z.name: z for z in zones}
         self.cameras = [c.name for c in cameras]
@@ -144,44 +153,64 @@ class SiteSpace:
         s = self.server
         self.idx = await s.register_namespace(f"urn:stereopose:{self.site}")
         site = await s.nodes.objects.add_object(self.nid("site"), self.qn(self.site))
-        for name, value, vt in (("Running", True, ua.VariantType.Boolean),
-                                ("Status", "ok", ua.VariantType.String),
-                                ("People", 0, ua.VariantType.UInt32),
-                                ("ActiveIncidents", 0, ua.VariantType.UInt32),
-                                ("UnacknowledgedIncidents", 0, ua.VariantType.UInt32)):  # fmt: skip
-            await site.add_variable(self.nid(f"site/{name}"), ua.QualifiedName(name, self.idx),
-                                    value, vt)  # fmt: skip
+        for name, value, vt in (
+            ("Running", True, ua.VariantType.Boolean),
+            ("Status", "ok", ua.VariantType.String),
+            ("People", 0, ua.VariantType.UInt32),
+            ("ActiveIncidents", 0, ua.VariantType.UInt32),
+            ("UnacknowledgedIncidents", 0, ua.VariantType.UInt32),
+        ):
+            await site.add_variable(
+                self.nid(f"site/{name}"), ua.QualifiedName(name, self.idx), value, vt
+            )
         zones = await site.add_folder(self.nid("site/Zones"), ua.QualifiedName("Zones", self.idx))
         for z in self.zones.values():
-            obj = await zones.add_object(self.nid(f"zone/{z.name}"),
-                                         ua.QualifiedName(z.name, self.idx))  # fmt: skip
-            await obj.add_property(self.nid(f"zone/{z.name}/Kind"),
-                                   ua.QualifiedName("Kind", self.idx), z.kind,
-                                   ua.VariantType.String)  # fmt: skip
-            for name, value, vt in (("Occupied", False, ua.VariantType.Boolean),
-                                    ("Occupants", 0, ua.VariantType.UInt32),
-                                    ("Alarm", False, ua.VariantType.Boolean)):  # fmt: skip
-                await obj.add_variable(self.nid(f"zone/{z.name}/{name}"),
-                                       ua.QualifiedName(name, self.idx), value, vt)  # fmt: skip
+            obj = await zones.add_object(
+                self.nid(f"zone/{z.name}"), ua.QualifiedName(z.name, self.idx)
+            )
+            await obj.add_property(
+                self.nid(f"zone/{z.name}/Kind"),
+                ua.QualifiedName("Kind", self.idx),
+                z.kind,
+                ua.VariantType.String,
+            )
+            for name, value, vt in (
+                ("Occupied", False, ua.VariantType.Boolean),
+                ("Occupants", 0, ua.VariantType.UInt32),
+                ("Alarm", False, ua.VariantType.Boolean),
+            ):
+                await obj.add_variable(
+                    self.nid(f"zone/{z.name}/{name}"), ua.QualifiedName(name, self.idx), value, vt
+                )
             self._zone_values[z.name] = (0, False)
             self._zone_t[z.name] = self._alarm_t[z.name] = None
         cams = await site.add_folder(self.nid("site/Cameras"), self.qn("Cameras"))
         for c in self.cameras:
             obj = await cams.add_object(self.nid(f"camera/{c}"), ua.QualifiedName(c, self.idx))
-            await obj.add_variable(self.nid(f"camera/{c}/Up"), ua.QualifiedName("Up", self.idx),
-                                   True, ua.VariantType.Boolean)  # fmt: skip
+            await obj.add_variable(
+                self.nid(f"camera/{c}/Up"),
+                ua.QualifiedName("Up", self.idx),
+                True,
+                ua.VariantType.Boolean,
+            )
         await site.add_folder(self.nid("site/Incidents"), ua.QualifiedName("Incidents", self.idx))
         for z in self.zones.values():  # a zone no camera sees is uncertain from the start
             await self._write_zone(z.name)
 
     # -- values ---------------------------------------------------------------------------
 
-    async def write(self, path: str, value, vt: ua.VariantType, wall: float | None = None,
-                    good: bool = True) -> None:  # fmt: skip
-        status = ua.StatusCode(ua.StatusCodes.Good if good
-                               else ua.StatusCodes.UncertainLastUsableValue)  # fmt: skip
-        dv = ua.DataValue(ua.Variant(value, vt), StatusCode=status, SourceTimestamp=_utc(wall),
-                          ServerTimestamp=_utc(None))  # fmt: skip
+    async def write(
+        self, path: str, value, vt: ua.VariantType, wall: float | None = None, good: bool = True
+    ) -> None:
+        status = ua.StatusCode(
+            ua.StatusCodes.Good if good else ua.StatusCodes.UncertainLastUsableValue
+        )
+        dv = ua.DataValue(
+            ua.Variant(value, vt),
+            StatusCode=status,
+            SourceTimestamp=_utc(wall),
+            ServerTimestamp=_utc(None),
+        )
         await self.server.write_attribute_value(self.nid(path), dv)
 
     async def set_zone(self, zone: str, occupants: int, wall: float | None) -> None:
@@ -196,17 +225,21 @@ class SiteSpace:
         the quality its cameras give now."""
         z = self.zones[zone]
         occupants, alarmed = self._zone_values[zone]
-        good = bool(z.cameras) and not self._stalled and all(self._camera_up.get(c, True)
-                                                             for c in z.cameras)  # fmt: skip
+        good = (
+            bool(z.cameras)
+            and not self._stalled
+            and all(self._camera_up.get(c, True) for c in z.cameras)
+        )
         if occupancy:
             when = self._zone_t[zone]
-            await self.write(f"zone/{zone}/Occupants", occupants, ua.VariantType.UInt32, when,
-                             good)  # fmt: skip
-            await self.write(f"zone/{zone}/Occupied", occupants > 0, ua.VariantType.Boolean,
-                             when, good)  # fmt: skip
+            await self.write(f"zone/{zone}/Occupants", occupants, ua.VariantType.UInt32, when, good)
+            await self.write(
+                f"zone/{zone}/Occupied", occupants > 0, ua.VariantType.Boolean, when, good
+            )
         if alarm:
-            await self.write(f"zone/{zone}/Alarm", alarmed, ua.VariantType.Boolean,
-                             self._alarm_t[zone], good)  # fmt: skip
+            await self.write(
+                f"zone/{zone}/Alarm", alarmed, ua.VariantType.Boolean, self._alarm_t[zone], good
+            )
 
     async def set_camera(self, camera: str, up: bool, wall: float | None) -> None:
         if camera not in self._camera_up:
@@ -225,8 +258,10 @@ class SiteSpace:
 
     # -- conditions -----------------------------------------------------------------------
 
-    async def apply(self, records: Iterable[tuple[IncidentRecord, float | None, float | None]],
-                    ) -> None:  # fmt: skip
+    async def apply(
+        self,
+        records: Iterable[tuple[IncidentRecord, float | None, float | None]],
+    ) -> None:
         """Each (record, wall time of the change, wall_start) as its condition's event, then
         the counts and the zones' alarms; a record equal to the one held is skipped."""
         touched: dict[str, float | None] = {}
@@ -261,8 +296,13 @@ class SiteSpace:
                 self._alarm_t[zone] = wall
                 await self._write_zone(zone, occupancy=False)
 
-    async def _emit(self, rec: IncidentRecord, wall: float | None, wall_start: float | None,
-                    retain: bool | None = None) -> None:  # fmt: skip
+    async def _emit(
+        self,
+        rec: IncidentRecord,
+        wall: float | None,
+        wall_start: float | None,
+        retain: bool | None = None,
+    ) -> None:
         cond = self.conditions.get(rec.id)
         if cond is None:
             cond = Condition(await self._add_node(rec.id), rec, SEVERITY.get(rec.priority, 500))
@@ -301,20 +341,27 @@ class SiteSpace:
     def _source(self, rec: IncidentRecord) -> tuple[ua.NodeId, str, ua.NodeId | None]:
         """(SourceNode, SourceName, InputNode) of an incident's events."""
         if rec.zone is not None and rec.zone in self.zones:
-            return (self.nid(f"zone/{rec.zone}"), rec.zone,
-                    self.nid(f"zone/{rec.zone}/Occupied"))  # fmt: skip
+            return (self.nid(f"zone/{rec.zone}"), rec.zone, self.nid(f"zone/{rec.zone}/Occupied"))
         if rec.camera is not None and rec.camera in self._camera_up:
             return self.nid(f"camera/{rec.camera}"), rec.camera, self.nid(f"camera/{rec.camera}/Up")
         return self.nid("site"), self.site, self.nid("site/Running")
 
-    def _event(self, cond: Condition, rec: IncidentRecord, wall: float | None,
-               wall_start: float | None, last_severity: int, retain: bool):  # fmt: skip
+    def _event(
+        self,
+        cond: Condition,
+        rec: IncidentRecord,
+        wall: float | None,
+        wall_start: float | None,
+        last_severity: int,
+        retain: bool,
+    ):
         def at(t: float | None) -> datetime.datetime | None:
             return None if t is None or wall_start is None else _utc(wall_start + t)
 
         source, source_name, input_node = self._source(rec)
-        ev = event_objects.OffNormalAlarm(sourcenode=source, message=incident_message(rec),
-                                          severity=cond.severity)  # fmt: skip
+        ev = event_objects.OffNormalAlarm(
+            sourcenode=source, message=incident_message(rec), severity=cond.severity
+        )
         ev.add_property("NodeId", cond.node, ua.VariantType.NodeId)  # the ConditionId
         ev.emitting_node = ua.NodeId(ua.ObjectIds.Server)
         ev.Message = _text(incident_message(rec))
@@ -339,9 +386,11 @@ class SiteSpace:
         setattr(ev, "ActiveState/Id", active)
         ev.ActiveState = _text("Active" if active else "Inactive")
         # the UtcTime properties: as DateTime (asyncua types them by a NodeId it cannot encode)
-        ev.add_property("ActiveState/TransitionTime",
-                        at(rec.active_since if active else rec.cleared_at),
-                        ua.VariantType.DateTime)  # fmt: skip
+        ev.add_property(
+            "ActiveState/TransitionTime",
+            at(rec.active_since if active else rec.cleared_at),
+            ua.VariantType.DateTime,
+        )
         setattr(ev, "AckedState/Id", acked)
         ev.AckedState = _text("Acknowledged" if acked else "Unacknowledged")
         ev.add_property("AckedState/TransitionTime", at(rec.acked_at), ua.VariantType.DateTime)

@@ -189,42 +189,99 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
         raise ValueError(f"{len(rig)} cameras; the points table holds at most {MAX_CAMERAS}")
     everyone = tuple(rig.names)
     pts = [
-        Point(SERVICE_RUNNING, SINGLE, "service: running", "on while serve's frame loop "
-              "steps; off at service_stalled and at a stop", "service_running"),
-        Point(SERVICE_DEGRADED, SINGLE, "service: degraded", "the health state: on while "
-              "/api/health is not ok (a camera down or slow, an output failing, a stall)",
-              "service_degraded"),
-        Point(PEOPLE, COUNT, "people on site", "people tracked in the latest step; "
-              + _quality(everyone, False), "people", cameras=everyone),
-        Point(UNACKNOWLEDGED, COUNT, "incidents unacknowledged", "the incident book: incidents "
-              "active or cleared and not yet acknowledged", "unacknowledged"),
-    ]  # fmt: skip
+        Point(
+            SERVICE_RUNNING,
+            SINGLE,
+            "service: running",
+            "on while serve's frame loop steps; off at service_stalled and at a stop",
+            "service_running",
+        ),
+        Point(
+            SERVICE_DEGRADED,
+            SINGLE,
+            "service: degraded",
+            "the health state: on while "
+            "/api/health is not ok (a camera down or slow, an output failing, a stall)",
+            "service_degraded",
+        ),
+        Point(
+            PEOPLE,
+            COUNT,
+            "people on site",
+            "people tracked in the latest step; " + _quality(everyone, False),
+            "people",
+            cameras=everyone,
+        ),
+        Point(
+            UNACKNOWLEDGED,
+            COUNT,
+            "incidents unacknowledged",
+            "the incident book: incidents active or cleared and not yet acknowledged",
+            "unacknowledged",
+        ),
+    ]
     if commands:
         for p, label in PRIORITIES.items():
-            pts.append(Point(PRIORITY_BASE + p, COMMAND, f"acknowledge priority {p} ({label})",
-                             f"command ON: acknowledges every unacknowledged incident of "
-                             f"priority {p}", "ack_priority", str(p)))  # fmt: skip
+            pts.append(
+                Point(
+                    PRIORITY_BASE + p,
+                    COMMAND,
+                    f"acknowledge priority {p} ({label})",
+                    f"command ON: acknowledges every unacknowledged incident of priority {p}",
+                    "ack_priority",
+                    str(p),
+                )
+            )
     for n, name in enumerate(everyone, start=1):
-        pts.append(Point(CAMERA_BASE + n, SINGLE, f"camera {name}: up",
-                         f"camera_down / camera_up events of camera {name}; invalid while the "
-                         "service stalled", "camera_up", name))  # fmt: skip
+        pts.append(
+            Point(
+                CAMERA_BASE + n,
+                SINGLE,
+                f"camera {name}: up",
+                f"camera_down / camera_up events of camera {name}; invalid while the "
+                "service stalled",
+                "camera_up",
+                name,
+            )
+        )
     zones = tuple(site.zones) if site is not None else ()
     seeing = {z.name: cameras_seeing(z, rig) for z in zones}
     for n, z in enumerate(zones, start=1):
         cams, base = seeing[z.name], ZONE_BASE + 10 * n
         q = _quality(cams, not cams)
         pts += [
-            Point(base + ZONE_OCCUPIED, SINGLE, f"zone {z.name} ({z.kind}): occupied",
-                  f"enter / exit events of zone {z.name}; {q}", "zone_occupied", z.name,
-                  cams, not cams),
-            Point(base + ZONE_ALARM, SINGLE, f"zone {z.name} ({z.kind}): alarm active",
-                  f"incidents of zone {z.name} active or acknowledged, not cleared; {q}",
-                  "zone_alarm", z.name, cams, not cams),
-        ]  # fmt: skip
+            Point(
+                base + ZONE_OCCUPIED,
+                SINGLE,
+                f"zone {z.name} ({z.kind}): occupied",
+                f"enter / exit events of zone {z.name}; {q}",
+                "zone_occupied",
+                z.name,
+                cams,
+                not cams,
+            ),
+            Point(
+                base + ZONE_ALARM,
+                SINGLE,
+                f"zone {z.name} ({z.kind}): alarm active",
+                f"incidents of zone {z.name} active or acknowledged, not cleared; {q}",
+                "zone_alarm",
+                z.name,
+                cams,
+                not cams,
+            ),
+        ]
         if commands:
-            pts.append(Point(base + ZONE_ACK, COMMAND, f"zone {z.name}: acknowledge",
-                             f"command ON: acknowledges every unacknowledged incident of zone "
-                             f"{z.name}", "ack_zone", z.name))  # fmt: skip
+            pts.append(
+                Point(
+                    base + ZONE_ACK,
+                    COMMAND,
+                    f"zone {z.name}: acknowledge",
+                    f"command ON: acknowledges every unacknowledged incident of zone {z.name}",
+                    "ack_zone",
+                    z.name,
+                )
+            )
     rules = tuple(site.rules) if site is not None else ()
     for n, r in enumerate(rules, start=1):
         watched = _rule_zones(r, zones)
@@ -233,9 +290,17 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
         else:
             cams = tuple(c for c in everyone if any(c in seeing.get(z, ()) for z in watched))
             unseen = not cams
-        pts.append(Point(RULE_BASE + 10 * n + RULE_ALARM, SINGLE,
-                         f"rule {r.name} ({r.type}): alarm active",
-                         f"incidents of behaviour rule {r.name} active or acknowledged, not "
-                         f"cleared; {_quality(cams, unseen)}", "rule_alarm", r.name, cams,
-                         unseen))  # fmt: skip
+        pts.append(
+            Point(
+                RULE_BASE + 10 * n + RULE_ALARM,
+                SINGLE,
+                f"rule {r.name} ({r.type}): alarm active",
+                f"incidents of behaviour rule {r.name} active or acknowledged, not "
+                f"cleared; {_quality(cams, unseen)}",
+                "rule_alarm",
+                r.name,
+                cams,
+                unseen,
+            )
+        )
     return PointsTable(pts)

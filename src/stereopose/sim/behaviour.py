@@ -56,8 +56,9 @@ class Panel:
 def _rect(p: np.ndarray, n: np.ndarray, c0: float, c1: float, half: float) -> np.ndarray:
     """Rectangle from c0 to c1 along the wall normal n from wall point p, half wide."""
     t = np.array([-n[1], n[0]])
-    return np.array([p + c0 * n - half * t, p + c0 * n + half * t, p + c1 * n + half * t,
-                     p + c1 * n - half * t])  # fmt: skip
+    return np.array(
+        [p + c0 * n - half * t, p + c0 * n + half * t, p + c1 * n + half * t, p + c1 * n - half * t]
+    )
 
 
 def make_panels(rng: np.random.Generator, room: tuple[float, float], count: int = 3):
@@ -74,9 +75,12 @@ def make_panels(rng: np.random.Generator, room: tuple[float, float], count: int 
             p = np.array([W if wall == 1 else 0.0, rng.uniform(lo, D - lo)])
             n = np.array([-1.0 if wall == 1 else 1.0, 0.0])
         energized = Zone(
-            f"panel_{k}", "energized", _rect(p, n, 0.0, PANEL_D, PANEL_W / 2), (0.0, 2.2),
+            f"panel_{k}",
+            "energized",
+            _rect(p, n, 0.0, PANEL_D, PANEL_W / 2),
+            (0.0, 2.2),
             margin_m=0.5,
-        )  # fmt: skip
+        )
         area = _rect(p, n, PANEL_D, PANEL_D + AREA_D, AREA_W / 2)
         out.append(
             Panel(
@@ -193,8 +197,14 @@ class _Script:
         heading = fall_dir + (0.0 if abs(rel) < np.pi / 2 else np.pi) + rng.uniform(-0.5, 0.5)
         t0 = self.t
         lie = (end_s - t0 + 5.0) if lie_s is None else dur + lie_s
-        self.add("fall", lie, ease_s=dur, fall_dir=fall_dir, heading=float(heading),
-                 reach=(float(rng.random() < 0.4),) * 2)  # fmt: skip
+        self.add(
+            "fall",
+            lie,
+            ease_s=dur,
+            fall_dir=fall_dir,
+            heading=float(heading),
+            reach=(float(rng.random() < 0.4),) * 2,
+        )
         if lie_s is None:
             return Fall(worker, t0, t0 + dur, None)
         # up slowly after a long time down; scrambling up after a stumble

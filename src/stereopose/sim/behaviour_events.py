@@ -31,8 +31,9 @@ from stereopose.types import Event, People3D
 def scene_rules(bs: BehaviourScene, **kw) -> tuple[Rule, ...]:
     """The benchmark's rules for this scene (sim.behaviour.site_rules), parsed as a site
     file's."""
-    return parse_rules(site_rules(bs.panels, down_s=bs.down_s, **kw), "simulated site",
-                       bs.site.zones)  # fmt: skip
+    return parse_rules(
+        site_rules(bs.panels, down_s=bs.down_s, **kw), "simulated site", bs.site.zones
+    )
 
 
 def monitor_events(

@@ -36,8 +36,10 @@ class Distant:
         x0, y0 = self.at
         cw, ch = self.canvas
         if x0 < 0 or y0 < 0 or x0 + sw > cw or y0 + sh > ch:
-            raise ValueError(f"a {w}x{h} frame at scale {self.scale} does not fit the {cw}x{ch} "
-                             f"canvas at {self.at}")  # fmt: skip
+            raise ValueError(
+                f"a {w}x{h} frame at scale {self.scale} does not fit the {cw}x{ch} "
+                f"canvas at {self.at}"
+            )
         out = np.full((ch, cw, 3), GREY, np.uint8)
         out[y0 : y0 + sh, x0 : x0 + sw] = cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA)
         return out
@@ -58,8 +60,15 @@ class Distant:
         K[0, 2] += self.at[0] + 0.5 * sx - 0.5
         K[1, 2] += self.at[1] + 0.5 * sy - 0.5
         K[2] = (0.0, 0.0, 1.0)
-        return Camera(camera.name, self.canvas, K, camera.distortions, camera.rotation,
-                      camera.translation, camera.fisheye)  # fmt: skip
+        return Camera(
+            camera.name,
+            self.canvas,
+            K,
+            camera.distortions,
+            camera.rotation,
+            camera.translation,
+            camera.fisheye,
+        )
 
     def rig(self, rig: Rig) -> Rig:
         return Rig(tuple(self.camera(c) for c in rig))

@@ -67,8 +67,27 @@ SHAPES: dict[str, np.ndarray] = {
 
 # How far above the floor each joint stays at least (metres; ankles: 0.045 body heights): the
 # joint centres lie inside the body, this far from the skin that touches the floor.
-_CLEARANCE_M = np.array([0.09, 0.09, 0.09, 0.09, 0.09, 0.07, 0.07, 0.04, 0.04, 0.03, 0.03,
-                         0.09, 0.09, 0.05, 0.05, 0.0, 0.0])  # fmt: skip
+_CLEARANCE_M = np.array(
+    [
+        0.09,
+        0.09,
+        0.09,
+        0.09,
+        0.09,
+        0.07,
+        0.07,
+        0.04,
+        0.04,
+        0.03,
+        0.03,
+        0.09,
+        0.09,
+        0.05,
+        0.05,
+        0.0,
+        0.0,
+    ]
+)
 _LEGS = (LEFT_KNEE, RIGHT_KNEE, LEFT_ANKLE, RIGHT_ANKLE)
 _UPPER = np.array([j for j in range(NUM_JOINTS) if j not in _LEGS])
 _UP = np.array([0.0, 0.0, 1.0])

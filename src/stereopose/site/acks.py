@@ -69,8 +69,10 @@ class AckStore:
                     if db.execute("SELECT 1 FROM events WHERE id = ?", (event,)).fetchone() is None:
                         db.execute("ROLLBACK")
                         return None
-                    cur = db.execute("INSERT OR IGNORE INTO acks(event, by, at) VALUES (?, ?, ?)",
-                                     (event, by, time.time()))  # fmt: skip
+                    cur = db.execute(
+                        "INSERT OR IGNORE INTO acks(event, by, at) VALUES (?, ?, ?)",
+                        (event, by, time.time()),
+                    )
                     made = cur.rowcount == 1
                     row = db.execute("SELECT by, at FROM acks WHERE event = ?", (event,)).fetchone()
                     db.execute("COMMIT")

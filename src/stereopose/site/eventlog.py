@@ -75,8 +75,9 @@ def parse_time(value: str, name: str) -> float:
         try:
             d = datetime.fromisoformat(text.replace("Z", "+00:00"))
         except ValueError:
-            raise ValueError(f"{name}: expected Unix seconds or an ISO 8601 time, "
-                             f"got {value!r}") from None  # fmt: skip
+            raise ValueError(
+                f"{name}: expected Unix seconds or an ISO 8601 time, got {value!r}"
+            ) from None
         if d.tzinfo is None:
             d = d.replace(tzinfo=timezone.utc)
         t = d.timestamp()
@@ -100,8 +101,9 @@ class EventLog:
         if not self.path.is_file():
             return None
         try:
-            db = sqlite3.connect(f"file:{pathname2url(str(self.path.resolve()))}?mode=ro",
-                                 uri=True, timeout=0.5)  # fmt: skip
+            db = sqlite3.connect(
+                f"file:{pathname2url(str(self.path.resolve()))}?mode=ro", uri=True, timeout=0.5
+            )
             db.execute("PRAGMA busy_timeout = 500")
             return db
         except sqlite3.Error as e:
@@ -111,10 +113,15 @@ class EventLog:
         """The events matching `f`, newest first (by id), at most f.limit."""
         where, args = [], []
         wall = "(COALESCE(r.wall_start, r.started) + e.t)"
-        for sql, value in (("e.person = ?", f.person), ("e.zone = ?", f.zone),
-                           ("e.type = ?", f.type), (f"{wall} >= ?", f.since),
-                           (f"{wall} <= ?", f.until), ("e.id < ?", f.before_id),
-                           ("e.id > ?", f.after_id)):  # fmt: skip
+        for sql, value in (
+            ("e.person = ?", f.person),
+            ("e.zone = ?", f.zone),
+            ("e.type = ?", f.type),
+            (f"{wall} >= ?", f.since),
+            (f"{wall} <= ?", f.until),
+            ("e.id < ?", f.before_id),
+            ("e.id > ?", f.after_id),
+        ):
             if value is not None:
                 where.append(sql)
                 args.append(value)
@@ -176,8 +183,7 @@ class EventLog:
         except sqlite3.DatabaseError as e:
             raise LogError(f"{self.path}: cannot read the event log: {e}") from None
 
-    def _select_once(self, where: list[str], args: list, tail: str, tail_args: list
-                     ) -> list[dict]:  # fmt: skip
+    def _select_once(self, where: list[str], args: list, tail: str, tail_args: list) -> list[dict]:
         db = self._connect()
         if db is None:
             return []
@@ -186,20 +192,27 @@ class EventLog:
             runs = {r[1] for r in db.execute("PRAGMA table_info(runs)")}
             if not have:
                 return []
-            cols = ", ".join(f"e.{c}" if c in have else ("0" if c == "restart" else "NULL")
-                             for c in EVENT_COLUMNS)  # fmt: skip
+            cols = ", ".join(
+                f"e.{c}" if c in have else ("0" if c == "restart" else "NULL")
+                for c in EVENT_COLUMNS
+            )
             start = "COALESCE(r.wall_start, r.started)" if "wall_start" in runs else "r.started"
-            acks = bool(db.execute(
-                "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'acks'"
-            ).fetchone())  # fmt: skip
+            acks = bool(
+                db.execute(
+                    "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'acks'"
+                ).fetchone()
+            )
             ack_cols = "a.by, a.at" if acks else "NULL, NULL"
             ack_join = "LEFT JOIN acks a ON a.event = e.id" if acks else ""
-            sql = (f"SELECT e.id, {start}, {cols}, {ack_cols} FROM events e "
-                   f"JOIN runs r ON r.id = e.run {ack_join}")  # fmt: skip
+            sql = (
+                f"SELECT e.id, {start}, {cols}, {ack_cols} FROM events e "
+                f"JOIN runs r ON r.id = e.run {ack_join}"
+            )
             if where:
-                sql += " WHERE " + " AND ".join(w.replace("r.wall_start", "r.started")
-                                                if "wall_start" not in runs else w
-                                                for w in where)  # fmt: skip
+                sql += " WHERE " + " AND ".join(
+                    w.replace("r.wall_start", "r.started") if "wall_start" not in runs else w
+                    for w in where
+                )
             rows = db.execute(f"{sql} {tail}", [*args, *tail_args]).fetchall()
         except sqlite3.DatabaseError as e:
             if transient(e):  # tried again by _select
@@ -214,12 +227,21 @@ class EventLog:
         rec = dict(zip(EVENT_COLUMNS, values[: len(EVENT_COLUMNS)], strict=True))
         by, at = values[len(EVENT_COLUMNS) :]
         wall_t = float(start or 0.0) + float(rec["t"])
-        item = {"id": event_id, "t": rec["t"], "wall_t": round(wall_t, 3),
-                "time": datetime.fromtimestamp(wall_t, timezone.utc).isoformat(
-                    timespec="milliseconds").replace("+00:00", "Z"),
-                "frame": rec["frame"], "person": rec["person"], "zone": rec["zone"],
-                "kind": rec["kind"], "type": rec["type"],
-                "level": level(rec["kind"], rec["type"]), "camera": rec["camera"]}  # fmt: skip
+        item = {
+            "id": event_id,
+            "t": rec["t"],
+            "wall_t": round(wall_t, 3),
+            "time": datetime.fromtimestamp(wall_t, timezone.utc)
+            .isoformat(timespec="milliseconds")
+            .replace("+00:00", "Z"),
+            "frame": rec["frame"],
+            "person": rec["person"],
+            "zone": rec["zone"],
+            "kind": rec["kind"],
+            "type": rec["type"],
+            "level": level(rec["kind"], rec["type"]),
+            "camera": rec["camera"],
+        }
         for key, value in rec.items():  # every other column of the log, as stored
             if key not in item and key != "run":
                 item[key] = bool(value) if key in ("allowed", "lost", "restart") else value

@@ -73,18 +73,22 @@ def camera_view(cam: Camera, range_m: float = FOV_RANGE_M) -> dict:
     yaw = math.degrees(math.atan2(axis[1], axis[0]))
     hfov = math.degrees(2 * math.atan2(w / 2, cam.matrix[0, 0]))
     n = 12
-    border = np.concatenate([
-        np.stack([np.linspace(0, w, n), np.zeros(n)], 1),
-        np.stack([np.full(n, w), np.linspace(0, h, n)], 1),
-        np.stack([np.linspace(w, 0, n), np.full(n, h)], 1),
-        np.stack([np.zeros(n), np.linspace(h, 0, n)], 1),
-    ])  # fmt: skip
+    border = np.concatenate(
+        [
+            np.stack([np.linspace(0, w, n), np.zeros(n)], 1),
+            np.stack([np.full(n, w), np.linspace(0, h, n)], 1),
+            np.stack([np.linspace(w, 0, n), np.full(n, h)], 1),
+            np.stack([np.zeros(n), np.linspace(h, 0, n)], 1),
+        ]
+    )
     if cam.fisheye:
-        rays = cv2.fisheye.undistortPoints(border[None].astype(np.float64), cam.matrix,
-                                           cam.distortions[:4])[0]  # fmt: skip
+        rays = cv2.fisheye.undistortPoints(
+            border[None].astype(np.float64), cam.matrix, cam.distortions[:4]
+        )[0]
     else:
-        rays = cv2.undistortPoints(border[None].astype(np.float64), cam.matrix,
-                                   cam.distortions)[:, 0]  # fmt: skip
+        rays = cv2.undistortPoints(border[None].astype(np.float64), cam.matrix, cam.distortions)[
+            :, 0
+        ]
     dirs = np.c_[rays, np.ones(len(rays))] @ cam.R  # camera -> world: R.T @ d
     poly = []
     for d in dirs:
@@ -178,9 +182,14 @@ class LiveHub:
 
         self._views = {c.name: camera_view(c) for c in rig}
         self.scene = SceneState(site)
-        self.pictures = PictureEncoder(self._views, draw, snapshot_hz=snapshot_hz,
-                                       snapshot_scale=snapshot_scale, jpeg_quality=jpeg_quality,
-                                       clock=clock)  # fmt: skip
+        self.pictures = PictureEncoder(
+            self._views,
+            draw,
+            snapshot_hz=snapshot_hz,
+            snapshot_scale=snapshot_scale,
+            jpeg_quality=jpeg_quality,
+            clock=clock,
+        )
         self._lock = threading.Lock()
         self._regions_view: Callable[[str], dict | None] | None = None
         self._subs: set[Subscriber] = set()
@@ -188,8 +197,9 @@ class LiveHub:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.closed = False
-        state.register_queue("console_snapshots", self.pictures.queue.qsize,
-                             lambda: self.pictures.snapshots_dropped)  # fmt: skip
+        state.register_queue(
+            "console_snapshots", self.pictures.queue.qsize, lambda: self.pictures.snapshots_dropped
+        )
         state.register_queue("console_clients", self._queued, None)
 
     # -- the frame loop's side -------------------------------------------------------------
@@ -231,8 +241,12 @@ class LiveHub:
                     continue
                 now = self.clock()
                 latest = self.scene.latest
-                if (self.people_hz > 0 and latest is not None and latest.frame != people_frame
-                        and now - people_at >= 1.0 / self.people_hz):  # fmt: skip
+                if (
+                    self.people_hz > 0
+                    and latest is not None
+                    and latest.frame != people_frame
+                    and now - people_at >= 1.0 / self.people_hz
+                ):
                     people_frame, people_at = latest.frame, now
                     self._broadcast(_sse("people", self.people()))
                 if self.scene.version != zones_version or now - zones_at >= ZONES_S:
@@ -277,8 +291,9 @@ class LiveHub:
     def max_clients(self, n: int) -> None:
         self._places.total, self._places.reserved = n, n // RESERVED_SHARE
 
-    def subscribe(self, loop: asyncio.AbstractEventLoop, user: str = "",
-                  privileged: bool = False) -> Subscriber | None:  # fmt: skip
+    def subscribe(
+        self, loop: asyncio.AbstractEventLoop, user: str = "", privileged: bool = False
+    ) -> Subscriber | None:
         """A new subscriber of `user` with the current people, zones and cameras queued; None
         when no place is free for them (see the module; privileged: an operator or admin).
         A stream ended to make room for this one has its `ended` set and is woken."""
@@ -290,8 +305,11 @@ class LiveHub:
             return None
         with self._lock:
             self._subs.add(sub)
-        for kind, body in (("people", self.people()), ("zones", self.zones()),
-                           ("cameras", self.cameras())):  # fmt: skip
+        for kind, body in (
+            ("people", self.people()),
+            ("zones", self.zones()),
+            ("cameras", self.cameras()),
+        ):
             sub.put(_sse(kind, body))
         return sub
 
@@ -352,13 +370,14 @@ class LiveHub:
             item = dict(view)
             item["health"] = {
                 "fps": round(c.fps, 2) if c else 0.0,
-                "last_frame_age_s": (round(c.last_frame_age_s, 3)
-                                     if c and c.last_frame_age_s is not None else None),
+                "last_frame_age_s": (
+                    round(c.last_frame_age_s, 3) if c and c.last_frame_age_s is not None else None
+                ),
                 "state": c.state if c else "down",
                 "reconnects": c.reconnects if c else 0,
                 "frames": c.frames if c else 0,
                 "dropped_frames": c.dropped_frames if c else 0,
-            }  # fmt: skip
+            }
             if self._regions_view is not None:
                 item["regions"] = self._regions_view(name)
             out.append(item)
@@ -378,10 +397,14 @@ class LiveHub:
         return self.pictures.snapshot(camera)
 
     def figures(self) -> Mapping[str, int]:
-        return {"clients": self.clients, "messages_dropped": self.messages_dropped,
-                "clients_replaced": self._places.replaced,
-                "clients_bumped": self._places.bumped, "clients_refused": self._places.refused,
-                **self.pictures.figures()}  # fmt: skip
+        return {
+            "clients": self.clients,
+            "messages_dropped": self.messages_dropped,
+            "clients_replaced": self._places.replaced,
+            "clients_bumped": self._places.bumped,
+            "clients_refused": self._places.refused,
+            **self.pictures.figures(),
+        }
 
 
 class ConsoleSink:

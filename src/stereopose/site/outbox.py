@@ -88,9 +88,15 @@ class _Stream:
     """One numbered stream of the log: its topic, the confirmation's and the replay's keys,
     and its reader (`after(n, limit)` -> rows carrying `key`, `last()` -> the last number)."""
 
-    def __init__(self, name: str, topic: str, key: str, replay_key: str,
-                 after: Callable[[int, int], list[dict]],
-                 last: Callable[[], int]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        name: str,
+        topic: str,
+        key: str,
+        replay_key: str,
+        after: Callable[[int, int], list[dict]],
+        last: Callable[[], int],
+    ) -> None:
         self.name, self.topic, self.key, self.replay_key = name, topic, key, replay_key
         self.after, self.last = after, last
         self.cursor = self.high = int(last())  # the last handed to paho; the highest ever sent
@@ -110,26 +116,49 @@ class LogOutbox:
     later: `acknowledger(incident_id, by)` (the incident book's acknowledge: the commands'
     way in; -> the incident's record) and `summary()` (-> a dict added to each heartbeat)."""
 
-    def __init__(self, settings: MqttSettings, log: Any, *, resend_s: float = 30.0,
-                 start_after: int | None = None, inflight: int = INFLIGHT,
-                 poll_s: float = POLL_S, heartbeat_s: float = HEARTBEAT_S,
-                 acknowledger: Callable[[int, str], Any] | None = None,
-                 summary: Callable[[], dict] | None = None,
-                 plan: dict | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: MqttSettings,
+        log: Any,
+        *,
+        resend_s: float = 30.0,
+        start_after: int | None = None,
+        inflight: int = INFLIGHT,
+        poll_s: float = POLL_S,
+        heartbeat_s: float = HEARTBEAT_S,
+        acknowledger: Callable[[int, str], Any] | None = None,
+        summary: Callable[[], dict] | None = None,
+        plan: dict | None = None,
+    ) -> None:
         self.heartbeat_s = float(heartbeat_s)
         self.settings, self.log = settings, log
         self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
         self.acknowledger, self.summary = acknowledger, summary
         self.plan = plan
         self.topics = site_topics(settings.topic_prefix, settings.site)  # site.wire
-        self.streams = [_Stream("events", self.topics["events"], "id", "after_id",
-                                lambda n, k: log.after(n, limit=k), log.last_id)]  # fmt: skip
+        self.streams = [
+            _Stream(
+                "events",
+                self.topics["events"],
+                "id",
+                "after_id",
+                lambda n, k: log.after(n, limit=k),
+                log.last_id,
+            )
+        ]
         if start_after is not None:
             self.streams[0].cursor = self.streams[0].high = int(start_after)
         if hasattr(log, "incident_changes_after"):
-            self.streams.append(_Stream("incidents", self.topics["incidents"], "seq",
-                                        "incidents_after", log.incident_changes_after,
-                                        log.last_incident_change))  # fmt: skip
+            self.streams.append(
+                _Stream(
+                    "incidents",
+                    self.topics["incidents"],
+                    "seq",
+                    "incidents_after",
+                    log.incident_changes_after,
+                    log.last_incident_change,
+                )
+            )
         self.start_after = self.streams[0].cursor
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -138,8 +167,7 @@ class LogOutbox:
         self._subscribed = False  # the broker confirmed this connection's subscriptions
         self._unacked: set[int] = set()  # paho message ids not yet acknowledged
         self._acked: set[int] = set()
-        self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0,
-                       "restarts": 0}  # fmt: skip
+        self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0, "restarts": 0}
         self._warned_at = -60.0  # when a refused message was last logged
         self._last_problem: str | None = None
         self.client = self._make_client()
@@ -147,8 +175,9 @@ class LogOutbox:
         try:
             self.client.connect_async(settings.host, settings.port, keepalive=settings.keepalive_s)
         except (OSError, ValueError) as e:
-            raise ConfigError(f"mqtt.host: cannot connect to {settings.host}:{settings.port}: "
-                              f"{e}") from None  # fmt: skip
+            raise ConfigError(
+                f"mqtt.host: cannot connect to {settings.host}:{settings.port}: {e}"
+            ) from None
         self.client.loop_start()
         self._thread.start()
 
@@ -169,8 +198,7 @@ class LogOutbox:
         c.on_subscribe = self._on_subscribe
         return c
 
-    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any,
-                      props: Any) -> None:  # fmt: skip
+    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any, props: Any) -> None:
         with self._lock:
             self._subscribed = True
 
@@ -178,8 +206,9 @@ class LogOutbox:
         if reason.is_failure:
             self._problem(logging.ERROR, f"the broker refused the connection: {reason}")
             return
-        client.subscribe([(self.topics["confirmed"], 1), (self.topics["replay"], 1),
-                          (self.topics["ack"], 1)])  # fmt: skip
+        client.subscribe(
+            [(self.topics["confirmed"], 1), (self.topics["replay"], 1), (self.topics["ack"], 1)]
+        )
         if self.plan is not None:  # retained: a control room's page of this site
             client.publish(self.topics["plan"], json.dumps(self.plan), qos=1, retain=True)
         with self._lock:
@@ -190,18 +219,23 @@ class LogOutbox:
                 st.restart_at = st.confirmed
                 st.confirmed_at = time.monotonic()
         if self._last_problem is not None:
-            logger.info("event outbox: connected to %s:%d again", self.settings.host,
-                        self.settings.port)  # fmt: skip
+            logger.info(
+                "event outbox: connected to %s:%d again", self.settings.host, self.settings.port
+            )
         self._last_problem = None
         self._wake.set()
 
-    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any,
-                       props: Any) -> None:  # fmt: skip
+    def _on_disconnect(
+        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+    ) -> None:
         with self._lock:
             self._connected = self._subscribed = False
         if not self._stop.is_set():
-            self._problem(logging.WARNING, f"the broker connection was lost ({reason}); "
-                          "the events not confirmed are sent again when it is back")  # fmt: skip
+            self._problem(
+                logging.WARNING,
+                f"the broker connection was lost ({reason}); "
+                "the events not confirmed are sent again when it is back",
+            )
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, *rest: Any) -> None:
         with self._lock:
@@ -217,22 +251,31 @@ class LogOutbox:
             now = time.monotonic()
             if now - self._warned_at >= 60.0:  # logged at most once a minute
                 self._warned_at = now
-                logger.warning("event outbox: a message on %s refused: %s: %s",
-                               str(msg.topic)[:200], type(e).__name__, str(e)[:200])  # fmt: skip
+                logger.warning(
+                    "event outbox: a message on %s refused: %s: %s",
+                    str(msg.topic)[:200],
+                    type(e).__name__,
+                    str(e)[:200],
+                )
 
     def _message(self, msg: Any) -> None:
         if msg.topic == self.topics["ack"]:
             self._command(msg.payload)
             return
         replay = msg.topic == self.topics["replay"]
-        keys = {st.name: _id_of(msg.payload, st.replay_key if replay else st.name)
-                for st in self.streams}  # fmt: skip
+        keys = {
+            st.name: _id_of(msg.payload, st.replay_key if replay else st.name)
+            for st in self.streams
+        }
         if all(v is None for v in keys.values()):
             with self._lock:
                 self.counts["malformed"] += 1
             want = "after_id" if replay else "events"
-            logger.warning("event outbox: ignored a malformed message on %s (expected "
-                           '{"%s": <id>})', msg.topic, want)  # fmt: skip
+            logger.warning(
+                'event outbox: ignored a malformed message on %s (expected {"%s": <id>})',
+                msg.topic,
+                want,
+            )
             return
         with self._lock:
             for st in self.streams:
@@ -241,10 +284,10 @@ class LogOutbox:
                     continue
                 if replay:
                     self.counts["replays"] += 1
-                    st.restart_at = value if st.restart_at is None else min(st.restart_at,
-                                                                            value)  # fmt: skip
-                    logger.info("event outbox: a replay of the %s after %d was asked for",
-                                st.name, value)  # fmt: skip
+                    st.restart_at = value if st.restart_at is None else min(st.restart_at, value)
+                    logger.info(
+                        "event outbox: a replay of the %s after %d was asked for", st.name, value
+                    )
                     continue
                 first = st.confirmed is None
                 if first or value != st.confirmed:
@@ -260,8 +303,11 @@ class LogOutbox:
         if cmd is None:
             with self._lock:
                 self.counts["malformed"] += 1
-            logger.warning("event outbox: ignored a malformed command on %s (expected %s)",
-                           self.topics["ack"], COMMAND_KEYS)  # fmt: skip
+            logger.warning(
+                "event outbox: ignored a malformed command on %s (expected %s)",
+                self.topics["ack"],
+                COMMAND_KEYS,
+            )
             return
         with self._lock:
             self.counts["commands"] += 1
@@ -286,8 +332,9 @@ class LogOutbox:
     def _problem(self, level: int, text: str) -> None:
         if text != self._last_problem:
             self._last_problem = text
-            logger.log(level, "event outbox, MQTT %s:%d: %s", self.settings.host,
-                       self.settings.port, text)  # fmt: skip
+            logger.log(
+                level, "event outbox, MQTT %s:%d: %s", self.settings.host, self.settings.port, text
+            )
 
     # --- the sending thread --------------------------------------------------------------
 
@@ -321,11 +368,20 @@ class LogOutbox:
             if st.restart_at is not None:
                 st.cursor = st.restart_at
                 st.restart_at = None
-            elif (self.resend_s > 0 and st.confirmed is not None and st.confirmed < st.cursor
-                  and time.monotonic() - st.confirmed_at > self.resend_s):  # fmt: skip
-                logger.info("event outbox: the receiver's mark of the %s stayed at %d (sent up "
-                            "to %d) for %.0f s; sending again after it", st.name, st.confirmed,
-                            st.cursor, self.resend_s)  # fmt: skip
+            elif (
+                self.resend_s > 0
+                and st.confirmed is not None
+                and st.confirmed < st.cursor
+                and time.monotonic() - st.confirmed_at > self.resend_s
+            ):
+                logger.info(
+                    "event outbox: the receiver's mark of the %s stayed at %d (sent up "
+                    "to %d) for %.0f s; sending again after it",
+                    st.name,
+                    st.confirmed,
+                    st.cursor,
+                    self.resend_s,
+                )
                 st.cursor = st.confirmed
                 st.confirmed_at = time.monotonic()
             room = self.inflight - len(self._unacked)
@@ -341,8 +397,11 @@ class LogOutbox:
             if not rows:
                 return True
             for row in rows:
-                payload = json.dumps({"site": self.settings.site, "prev": cursor, **row},
-                                     separators=(",", ":"), default=str)  # fmt: skip
+                payload = json.dumps(
+                    {"site": self.settings.site, "prev": cursor, **row},
+                    separators=(",", ":"),
+                    default=str,
+                )
                 info = self.client.publish(st.topic, payload, qos=1)
                 if info.rc != paho.MQTT_ERR_SUCCESS:  # the link went: from here next time
                     return False
@@ -387,14 +446,24 @@ class LogOutbox:
         with self._lock:
             ev = self.streams[0]
             f = dict(self.counts)
-            f.update(published=ev.published, resent=ev.resent, cursor=ev.cursor,
-                     confirmed=ev.confirmed, connected=self._connected,
-                     subscribed=self._subscribed,
-                     unacknowledged=len(self._unacked - self._acked), lag=_lag(ev))  # fmt: skip
+            f.update(
+                published=ev.published,
+                resent=ev.resent,
+                cursor=ev.cursor,
+                confirmed=ev.confirmed,
+                connected=self._connected,
+                subscribed=self._subscribed,
+                unacknowledged=len(self._unacked - self._acked),
+                lag=_lag(ev),
+            )
             for st in self.streams[1:]:
-                f[st.name] = {"published": st.published, "resent": st.resent,
-                              "cursor": st.cursor, "confirmed": st.confirmed,
-                              "lag": _lag(st)}  # fmt: skip
+                f[st.name] = {
+                    "published": st.published,
+                    "resent": st.resent,
+                    "cursor": st.cursor,
+                    "confirmed": st.confirmed,
+                    "lag": _lag(st),
+                }
         return f
 
     def ensure_running(self) -> None:
@@ -437,8 +506,9 @@ class LogOutbox:
                 with self._lock:
                     waiting = len(self._unacked - self._acked)
                     cursors = [st.cursor for st in self.streams]
-                if not waiting and all(c >= st.last() for c, st in zip(cursors, self.streams,
-                                                                       strict=True)):  # fmt: skip
+                if not waiting and all(
+                    c >= st.last() for c, st in zip(cursors, self.streams, strict=True)
+                ):
                     break
                 time.sleep(0.02)
         except StereoposeError as e:  # the log unreadable at the end: the next run sends it

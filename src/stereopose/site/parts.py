@@ -246,8 +246,12 @@ class StatusSink(ClosesOnce):
             with contextlib.suppress(OSError):
                 tmp.unlink()
             if not self._failing:
-                logger.error("%s: cannot write the status (%s); tried again every %g s",
-                             self.path, e.strerror or e, self.interval_s)  # fmt: skip
+                logger.error(
+                    "%s: cannot write the status (%s); tried again every %g s",
+                    self.path,
+                    e.strerror or e,
+                    self.interval_s,
+                )
             self._failing = True
             return False
         if self._failing:

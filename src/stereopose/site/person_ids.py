@@ -84,8 +84,11 @@ class PersonIds:
             if self.error is None:
                 logger.error(
                     "%s: cannot reserve person ids (%s); %d left, new people wait for an id "
-                    "once they are used", self.path, e, self.left,
-                )  # fmt: skip
+                    "once they are used",
+                    self.path,
+                    e,
+                    self.left,
+                )
             self.error = str(e)
             self._next_try = time.monotonic() + self._delay
             self._delay = min(2 * self._delay, 2.0)

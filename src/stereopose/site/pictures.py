@@ -24,8 +24,13 @@ import cv2
 
 from stereopose.io.sinks.base import FrameResult
 
-__all__ = ["IDLE_SNAPSHOT_HZ", "SNAPSHOT_MIN_SIDE", "SNAPSHOT_QUEUE", "PictureEncoder",
-           "picture_scale"]  # fmt: skip
+__all__ = [
+    "IDLE_SNAPSHOT_HZ",
+    "SNAPSHOT_MIN_SIDE",
+    "SNAPSHOT_QUEUE",
+    "PictureEncoder",
+    "picture_scale",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -46,9 +51,16 @@ class PictureEncoder:
     """See the module. cameras: the names drawn; draw(camera, image, people2d, people3d,
     scale, label) -> the picture; clock(): monotonic seconds (injectable)."""
 
-    def __init__(self, cameras: Iterable[str], draw: Callable, *, snapshot_hz: float = 3.0,
-                 snapshot_scale: float = 0.5, jpeg_quality: int = 75,
-                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+    def __init__(
+        self,
+        cameras: Iterable[str],
+        draw: Callable,
+        *,
+        snapshot_hz: float = 3.0,
+        snapshot_scale: float = 0.5,
+        jpeg_quality: int = 75,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.cameras = frozenset(cameras)
         self.draw, self.clock = draw, clock
         self.snapshot_hz, self.snapshot_scale = snapshot_hz, snapshot_scale
@@ -72,8 +84,12 @@ class PictureEncoder:
         if hz <= 0 or now - self._snap_at < 1.0 / hz:
             return
         self._snap_at = now
-        item = (wall_start + float(frame.t), dict(frame.images), dict(frame.people2d),
-                frame.people3d)  # fmt: skip
+        item = (
+            wall_start + float(frame.t),
+            dict(frame.images),
+            dict(frame.people2d),
+            frame.people3d,
+        )
         try:
             self.queue.put_nowait(item)
         except queue.Full:
@@ -109,8 +125,9 @@ class PictureEncoder:
                 continue
             try:
                 scale = picture_scale(image.shape, self.snapshot_scale)
-                picture = self.draw(camera, image, people2d.get(camera), people3d, scale,
-                                    f"{camera} {stamp}")  # fmt: skip
+                picture = self.draw(
+                    camera, image, people2d.get(camera), people3d, scale, f"{camera} {stamp}"
+                )
                 quality = [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality]
                 ok, buf = cv2.imencode(".jpg", picture, quality)
             except Exception:  # a bad frame must not stop the pictures
@@ -133,6 +150,8 @@ class PictureEncoder:
             return self._snapshots.get(camera)
 
     def figures(self) -> dict[str, int]:
-        return {"snapshots_made": self.snapshots_made,
-                "snapshots_dropped": self.snapshots_dropped,
-                "snapshot_errors": self.snapshot_errors}  # fmt: skip
+        return {
+            "snapshots_made": self.snapshots_made,
+            "snapshots_dropped": self.snapshots_dropped,
+            "snapshot_errors": self.snapshot_errors,
+        }

@@ -71,8 +71,9 @@ class ServePlan:
         return self.out_dir / STATUS
 
 
-def _storage(path: Path, cfg: Config) -> tuple[SegmentSettings, ClipSettings | None,
-                                                 RetentionSettings]:  # fmt: skip
+def _storage(
+    path: Path, cfg: Config
+) -> tuple[SegmentSettings, ClipSettings | None, RetentionSettings]:
     s = cfg.storage
     segments = section_settings(path, SegmentSettings, segment_s=s.segment_s)
     clips = (
@@ -80,11 +81,15 @@ def _storage(path: Path, cfg: Config) -> tuple[SegmentSettings, ClipSettings | N
         if s.clips
         else None
     )
-    retention = section_settings(path, RetentionSettings, retention_days=s.retention_days,
-                          clip_retention_days=s.clip_retention_days,
-                          event_retention_days=s.event_retention_days,
-                          max_bytes=round(s.max_gb * _GB),
-                          interval_s=s.maintenance_interval_s)  # fmt: skip
+    retention = section_settings(
+        path,
+        RetentionSettings,
+        retention_days=s.retention_days,
+        clip_retention_days=s.clip_retention_days,
+        event_retention_days=s.event_retention_days,
+        max_bytes=round(s.max_gb * _GB),
+        interval_s=s.maintenance_interval_s,
+    )
     return segments, clips, retention
 
 
@@ -93,8 +98,10 @@ def _check_cameras(path: Path, cfg: Config) -> None:
     it can post to."""
     for i, c in enumerate(cfg.cameras):
         if c.loop and is_stream(c.source):
-            raise ConfigError(f"{path}: cameras[{i}].loop: only a recorded file can be looped, "
-                              f"got the stream {redact(c.source)!r}")  # fmt: skip
+            raise ConfigError(
+                f"{path}: cameras[{i}].loop: only a recorded file can be looped, "
+                f"got the stream {redact(c.source)!r}"
+            )
     hook = cfg.outputs.webhook
     if hook is not None:
         parts = urlsplit(hook)
@@ -104,21 +111,31 @@ def _check_cameras(path: Path, cfg: Config) -> None:
         except ValueError:
             ok = False
         if not ok:
-            raise ConfigError(f"{path}: outputs.webhook: expected an http:// or https:// URL, "
-                              f"got {hook!r}")  # fmt: skip
+            raise ConfigError(
+                f"{path}: outputs.webhook: expected an http:// or https:// URL, got {hook!r}"
+            )
 
 
 def _check_places(plan: ServePlan) -> None:
     """No output of the service's folder may be an input or lie in an input folder."""
-    inputs = places(("configuration", plan.config_path), ("calibration", plan.calib_path),
-                    ("site", plan.site_path), ("detector.model", plan.model))  # fmt: skip
+    inputs = places(
+        ("configuration", plan.config_path),
+        ("calibration", plan.calib_path),
+        ("site", plan.site_path),
+        ("detector.model", plan.model),
+    )
     for key, values in (("source", plan.sources), ("detect", plan.detect_sources)):
-        inputs += [Place(f"cameras[{i}].{key}", Path(s)) for i, s in enumerate(values)
-                   if s and not is_stream(s)]  # fmt: skip
+        inputs += [
+            Place(f"cameras[{i}].{key}", Path(s))
+            for i, s in enumerate(values)
+            if s and not is_stream(s)
+        ]
     out = plan.out_dir
-    outputs = [Place(f"{POSES_DIR}/ in the output folder", out / POSES_DIR, folder=True),
-               Place(f"{CLIPS_DIR}/ in the output folder", out / CLIPS_DIR, folder=True),
-               Place(f"{STATUS} in the output folder", plan.status_path)]  # fmt: skip
+    outputs = [
+        Place(f"{POSES_DIR}/ in the output folder", out / POSES_DIR, folder=True),
+        Place(f"{CLIPS_DIR}/ in the output folder", out / CLIPS_DIR, folder=True),
+        Place(f"{STATUS} in the output folder", plan.status_path),
+    ]
     outputs += sqlite_places(f"{EVENTS_DB} in the output folder", plan.events_db)
     hint = f'set `output` in {plan.config_path} to a folder of its own (such as "out/serve")'
     check_places(inputs, outputs, hint)
@@ -138,21 +155,38 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     site = load_site(site_path) if site_path is not None else None
     check_outputs(cfg, site, _NoTwoWay)
     certificate, key = tls_files(path, base, cfg)
-    http = section_settings(path, ServeSettings, host=cfg.serve.host, port=cfg.serve.port,
-                     certificate=certificate, key=key,
-                     trusted_proxies=cfg.serve.trusted_proxies)  # fmt: skip
+    http = section_settings(
+        path,
+        ServeSettings,
+        host=cfg.serve.host,
+        port=cfg.serve.port,
+        certificate=certificate,
+        key=key,
+        trusted_proxies=cfg.serve.trusted_proxies,
+    )
     segments, clips, retention = _storage(path, cfg)
     if cfg.input.detection == "nodes" and not cfg.mqtt.host:
-        raise ConfigError(f"{path}: input.detection = \"nodes\": the nodes' people come over "
-                          "the site's broker; set [mqtt] host")  # fmt: skip
+        raise ConfigError(
+            f'{path}: input.detection = "nodes": the nodes\' people come over '
+            "the site's broker; set [mqtt] host"
+        )
     plan = ServePlan(
-        config_path=path, config=cfg, rig=rig, calib_path=calib_path, site=site,
-        site_path=site_path, sources=tuple(source_path(base, c.source) for c in cfg.cameras),
+        config_path=path,
+        config=cfg,
+        rig=rig,
+        calib_path=calib_path,
+        site=site,
+        site_path=site_path,
+        sources=tuple(source_path(base, c.source) for c in cfg.cameras),
         detect_sources=tuple(source_path(base, c.detect) for c in cfg.cameras),
         model=resolve(base, cfg.detector.model) if cfg.detector.model else None,
-        out_dir=resolve(base, cfg.output), http=http, mqtt=mqtt_settings(path, base, cfg),
-        segments=segments, clips=clips, retention=retention,
-    )  # fmt: skip
+        out_dir=resolve(base, cfg.output),
+        http=http,
+        mqtt=mqtt_settings(path, base, cfg),
+        segments=segments,
+        clips=clips,
+        retention=retention,
+    )
     _check_places(plan)
     return plan
 
@@ -191,6 +225,8 @@ def disabled_settings(cfg: Config) -> list[str]:
             if f.name != "enabled" and getattr(value, f.name) != getattr(default, f.name)
         ]
         if changed:
-            out.append(f"[{section}] sets {', '.join(changed)} but not enabled = true: {name} is "
-                       f"off; set [{section}] enabled = true to turn it on")  # fmt: skip
+            out.append(
+                f"[{section}] sets {', '.join(changed)} but not enabled = true: {name} is "
+                f"off; set [{section}] enabled = true to turn it on"
+            )
     return out

@@ -44,9 +44,13 @@ from stereopose.types import Event
 __all__ = ["Occupancy", "OpenAlarm", "Resume", "open_rows"]
 
 # how each behaviour alarm ends (stereopose.behaviour.rules)
-ALARM_ENDS = {"person_down": "person_up", "lone_worker": "lone_worker_end",
-              "work_position": "work_position_end", "immobile": "immobile_end",
-              "overreach": "overreach_end"}  # fmt: skip
+ALARM_ENDS = {
+    "person_down": "person_up",
+    "lone_worker": "lone_worker_end",
+    "work_position": "work_position_end",
+    "immobile": "immobile_end",
+    "overreach": "overreach_end",
+}
 
 logger = logging.getLogger(__name__)
 
@@ -79,13 +83,21 @@ def open_rows(db: sqlite3.Connection) -> set[int]:
     """The ids of the events that hold state open: each enter still the latest of its (zone,
     person), each behaviour alarm still the latest of its (rule, person). Retention keeps them
     (site.storage): deleted, the state they open could never be closed at a restart."""
-    found = {int(i) for (i,) in db.execute(
-        f"SELECT e.id FROM events AS e JOIN ({_LAST_ZONE_SQL}) AS last ON last.id = e.id "
-        "WHERE e.type = 'enter'")}  # fmt: skip
+    found = {
+        int(i)
+        for (i,) in db.execute(
+            f"SELECT e.id FROM events AS e JOIN ({_LAST_ZONE_SQL}) AS last ON last.id = e.id "
+            "WHERE e.type = 'enter'"
+        )
+    }
     if "rule" in {r[1] for r in db.execute("PRAGMA table_info(events)")}:
-        found |= {int(i) for (i,) in db.execute(
-            f"SELECT e.id FROM events AS e JOIN ({_LAST_ALARM_SQL}) AS last ON last.id = e.id "
-            f"WHERE e.type IN ({_ALARM_TYPES_SQL})")}  # fmt: skip
+        found |= {
+            int(i)
+            for (i,) in db.execute(
+                f"SELECT e.id FROM events AS e JOIN ({_LAST_ALARM_SQL}) AS last ON last.id = e.id "
+                f"WHERE e.type IN ({_ALARM_TYPES_SQL})"
+            )
+        }
     return found
 
 
@@ -152,8 +164,9 @@ class Resume:
             return cls()
 
         def read() -> Resume:
-            db = sqlite3.connect(f"file:{pathname2url(str(path.resolve()))}?mode=ro",
-                                 uri=True, timeout=5.0)  # fmt: skip
+            db = sqlite3.connect(
+                f"file:{pathname2url(str(path.resolve()))}?mode=ro", uri=True, timeout=5.0
+            )
             try:
                 db.execute("BEGIN")  # one snapshot: the ids and the open state agree
                 return cls._read(db)
@@ -161,8 +174,11 @@ class Resume:
                 db.close()
 
         try:
-            return reading(read).with_waiting(read_spill(path)).with_incidents(
-                read_spilled_incidents(path))  # fmt: skip
+            return (
+                reading(read)
+                .with_waiting(read_spill(path))
+                .with_incidents(read_spilled_incidents(path))
+            )
         except sqlite3.DatabaseError as e:
             raise StereoposeError(
                 f"{path}: cannot resume from the event log: {e}; move it away to start afresh"
@@ -237,18 +253,21 @@ class Resume:
         for run, e in waiting:
             next_id = max(next_id, e.person + 1)
             if e.type == "enter":
-                zones[(e.zone, e.person)] = Occupancy(e.zone, e.kind, e.person, e.t, run,
-                                                      e.position, e.allowed)  # fmt: skip
+                zones[(e.zone, e.person)] = Occupancy(
+                    e.zone, e.kind, e.person, e.t, run, e.position, e.allowed
+                )
             elif e.type == "exit":
                 zones.pop((e.zone, e.person), None)
             elif e.kind == "behaviour" and e.rule is not None:
                 if e.type in ALARM_ENDS:
-                    alarms[(e.rule, e.person)] = OpenAlarm(e.rule, e.type, e.person, e.zone, e.t,
-                                                           run, e.position)  # fmt: skip
+                    alarms[(e.rule, e.person)] = OpenAlarm(
+                        e.rule, e.type, e.person, e.zone, e.t, run, e.position
+                    )
                 else:
                     alarms.pop((e.rule, e.person), None)
-        return replace(self, next_id=next_id, occupied=tuple(zones.values()),
-                       alarms=tuple(alarms.values()))  # fmt: skip
+        return replace(
+            self, next_id=next_id, occupied=tuple(zones.values()), alarms=tuple(alarms.values())
+        )
 
     def with_incidents(self, spilled: dict) -> Resume:
         """This state with the incident records a run left waiting beside the log (id ->

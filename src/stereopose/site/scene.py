@@ -78,8 +78,16 @@ class SceneState:
         else:
             positions, headings = np.zeros((0, 2)), np.zeros(0)
         t = float(frame.t)
-        latest = Latest(int(frame.frame), t, wall_start + t, ids, joints, positions, headings,
-                        getattr(frame, "postures", None))  # fmt: skip
+        latest = Latest(
+            int(frame.frame),
+            t,
+            wall_start + t,
+            ids,
+            joints,
+            positions,
+            headings,
+            getattr(frame, "postures", None),
+        )
         touching = self._touching_now(joints, ids)
         with self._lock:
             self.latest = latest
@@ -158,21 +166,30 @@ class SceneState:
         for row, pid in enumerate(latest.ids.tolist()):
             posture = postures.get(pid)
             x, y = latest.positions[row].tolist()
-            joints = [[round(a, 3), round(b, 3), round(c, 3)]
-                      if math.isfinite(a) and math.isfinite(b) and math.isfinite(c) else None
-                      for a, b, c in latest.joints[row].tolist()]  # fmt: skip
-            people.append({
-                "id": int(pid),
-                "position": [_num(x), _num(y), 0.0] if math.isfinite(x + y) else None,
-                "heading_deg": _num(float(latest.headings[row]), 1),
-                "joints": joints,
-                "zones": sorted(z for z, ids in inside.items() if pid in ids),
-                "trail": [[round(px, 3), round(py, 3)] for _, px, py in trails.get(pid, [])],
-                "posture": getattr(posture, "posture", None),
-                "flags": [str(f) for f in getattr(posture, "flags", ())],
-            })  # fmt: skip
-        return {"frame": latest.frame, "t": round(latest.t, 3),
-                "wall_t": round(latest.wall_t, 3), "people": people}  # fmt: skip
+            joints = [
+                [round(a, 3), round(b, 3), round(c, 3)]
+                if math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
+                else None
+                for a, b, c in latest.joints[row].tolist()
+            ]
+            people.append(
+                {
+                    "id": int(pid),
+                    "position": [_num(x), _num(y), 0.0] if math.isfinite(x + y) else None,
+                    "heading_deg": _num(float(latest.headings[row]), 1),
+                    "joints": joints,
+                    "zones": sorted(z for z, ids in inside.items() if pid in ids),
+                    "trail": [[round(px, 3), round(py, 3)] for _, px, py in trails.get(pid, [])],
+                    "posture": getattr(posture, "posture", None),
+                    "flags": [str(f) for f in getattr(posture, "flags", ())],
+                }
+            )
+        return {
+            "frame": latest.frame,
+            "t": round(latest.t, 3),
+            "wall_t": round(latest.wall_t, 3),
+            "people": people,
+        }
 
     def _occupants(self) -> dict[str, set[int]]:
         """Zone -> who is inside: by its enter and exit events, and for an energized zone
@@ -193,10 +210,15 @@ class SceneState:
                 state = "alarm"
             else:
                 state = "occupied" if occupants else "free"
-            out.append({
-                "name": name, "kind": z.kind,
-                "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon],
-                "z": [float(z.z[0]), float(z.z[1])], "margin_m": float(z.margin_m),
-                "state": state, "occupants": occupants,
-            })  # fmt: skip
+            out.append(
+                {
+                    "name": name,
+                    "kind": z.kind,
+                    "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon],
+                    "z": [float(z.z[0]), float(z.z[1])],
+                    "margin_m": float(z.margin_m),
+                    "state": state,
+                    "occupants": occupants,
+                }
+            )
         return {"zones": out}

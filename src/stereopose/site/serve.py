@@ -180,8 +180,7 @@ class _Service:
         self.probes["console"] = hub.figures
         self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
         hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
-        app = create_app(self.state, console=self.console, allowed_hosts=hosts,
-                         incidents=self.desk)  # fmt: skip
+        app = create_app(self.state, console=self.console, allowed_hosts=hosts, incidents=self.desk)
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
@@ -206,16 +205,26 @@ class _Service:
         from stereopose.scada.opcua import CameraNode, OpcuaServer
         from stereopose.scada.opcua_space import site_zones
 
-        server = OpcuaServer(settings, site_zones(p.site, p.rig),
-                             [CameraNode(n) for n in p.rig.names], self.console.users,
-                             status=lambda: self.state.snapshot().status,
-                             limiter=self.console.limiter)  # fmt: skip
+        server = OpcuaServer(
+            settings,
+            site_zones(p.site, p.rig),
+            [CameraNode(n) for n in p.rig.names],
+            self.console.users,
+            status=lambda: self.state.snapshot().status,
+            limiter=self.console.limiter,
+        )
         server.start()
         self.opcua = server  # an alarm output once the frame loop opens its sinks
 
-    def open_sinks(self, cfg: Config, wall_start: float, summary: RunSummary,
-                   stats: Callable[[], dict], arrival: Callable[[float], float | None],
-                   rates: Callable[[], dict] | None = None) -> list[Sink]:  # fmt: skip
+    def open_sinks(
+        self,
+        cfg: Config,
+        wall_start: float,
+        summary: RunSummary,
+        stats: Callable[[], dict],
+        arrival: Callable[[float], float | None],
+        rates: Callable[[], dict] | None = None,
+    ) -> list[Sink]:
         """Every sink, in closing order; if one cannot be opened, those open are closed."""
         p, sinks = self.plan, []
 
@@ -225,8 +234,12 @@ class _Service:
         try:
             from stereopose.io.sinks.segments import SegmentSink
 
-            sinks.append(guard(SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start,
-                                           settings=p.segments), p.out_dir / "poses"))  # fmt: skip
+            sinks.append(
+                guard(
+                    SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start, settings=p.segments),
+                    p.out_dir / "poses",
+                )
+            )
             for out in self._alarm_outputs(cfg, wall_start):  # each closed should a later fail
                 sinks.append(self._register(out, guard))
             if p.mqtt is not None and cfg.mqtt.outbox:
@@ -235,8 +248,14 @@ class _Service:
                 sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
             if self.console is not None and self.console.hub is not None:
                 sinks.append(ConsoleSink(self.console.hub, wall_start))
-            state = StateSink(self.state, summary, arrival=arrival, stats=stats,
-                              elsewhere=self.elsewhere, rates=rates)  # fmt: skip
+            state = StateSink(
+                self.state,
+                summary,
+                arrival=arrival,
+                stats=stats,
+                elsewhere=self.elsewhere,
+                rates=rates,
+            )
             sinks.append(guard(state, "the health state"))
             self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
             sinks.append(guard(self.status, p.status_path))
@@ -251,8 +270,13 @@ class _Service:
         outstation, the OPC UA server (started before the cameras opened)."""
         p = self.plan
         site = str(p.site.path or "") if p.site is not None else ""
-        yield SqliteSink(p.events_db, site, source_label(list(p.sources)),
-                         first_id=self.resume.next_id, wall_start=wall_start)  # fmt: skip
+        yield SqliteSink(
+            p.events_db,
+            site,
+            source_label(list(p.sources)),
+            first_id=self.resume.next_id,
+            wall_start=wall_start,
+        )
         if cfg.outputs.webhook:
             yield WebhookSink(cfg.outputs.webhook)
         if p.mqtt is not None:
@@ -284,8 +308,13 @@ class _Service:
 
         p = self.plan
         log = EventLog(p.events_db, p.out_dir / "clips")
-        self.outbox = LogOutbox(p.mqtt, log, resend_s=cfg.mqtt.outbox_resend_s,
-                                summary=self._summary, plan=self._plan(cfg))  # fmt: skip
+        self.outbox = LogOutbox(
+            p.mqtt,
+            log,
+            resend_s=cfg.mqtt.outbox_resend_s,
+            summary=self._summary,
+            plan=self._plan(cfg),
+        )
         self.probes["outbox"] = self.outbox.figures
         self.state.register_output("outbox", self.outbox.health)
         self.watchdog.add("outbox", self.outbox.ensure_running)
@@ -294,10 +323,18 @@ class _Service:
     def _plan(self, cfg: Config) -> dict:
         """The site's zones and console address, for a control room's page of the site."""
         site = self.plan.site
-        zones = [] if site is None else [
-            {"name": z.name, "kind": z.kind,
-             "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon]}
-            for z in site.zones]  # fmt: skip
+        zones = (
+            []
+            if site is None
+            else [
+                {
+                    "name": z.name,
+                    "kind": z.kind,
+                    "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon],
+                }
+                for z in site.zones
+            ]
+        )
         return {"zones": zones, "console_url": cfg.serve.public_url or None}
 
     def _summary(self) -> dict:
@@ -317,9 +354,12 @@ class _Service:
         from stereopose.scada.points import points_table
 
         p, s = self.plan, Iec104Settings.from_config(cfg.iec104)
-        station = Outstation(s, points_table(p.site, p.rig, commands=s.commands),
-                             wall_start=wall_start,
-                             status=lambda: self.state.snapshot().status)  # fmt: skip
+        station = Outstation(
+            s,
+            points_table(p.site, p.rig, commands=s.commands),
+            wall_start=wall_start,
+            status=lambda: self.state.snapshot().status,
+        )
         self.iec104 = station
         return station
 
@@ -328,9 +368,15 @@ class _Service:
         from stereopose.viz.clips import clip_drawer
 
         p = self.plan
-        clips = ClipSink(p.out_dir, p.rig.names, cfg.fps, wall_start=wall_start,
-                         draw=clip_drawer(p.rig), settings=p.clips,
-                         packets=self.packets)  # fmt: skip
+        clips = ClipSink(
+            p.out_dir,
+            p.rig.names,
+            cfg.fps,
+            wall_start=wall_start,
+            draw=clip_drawer(p.rig),
+            settings=p.clips,
+            packets=self.packets,
+        )
         self.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
         self.probes["clips"] = clips.figures
         return clips
@@ -347,8 +393,9 @@ class _Service:
         """The detection hand-over as a queue of the health state; its figures in status."""
         stats = pipelined.stats
         self.elsewhere = lambda: {"detect": stats.detect_s}
-        self.state.register_queue("detection", lambda: len(pipelined.handover),
-                                  lambda: pipelined.handover.dropped)  # fmt: skip
+        self.state.register_queue(
+            "detection", lambda: len(pipelined.handover), lambda: pipelined.handover.dropped
+        )
         self.probes["pipeline"] = stats.figures
 
     def watch_regions(self, regions: RegionDetector) -> None:
@@ -404,10 +451,11 @@ def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
         return {}
     s = plan.clips or ClipSettings()
     keep_s = s.clip_pre_s + s.clip_post_s + 5.0
-    return {name: PacketRing(keep_s, s.clip_buffer_bytes)
-            for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources,
-                                      strict=True)
-            if sub and is_stream(str(src)) and is_stream(str(sub))}  # fmt: skip
+    return {
+        name: PacketRing(keep_s, s.clip_buffer_bytes)
+        for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources, strict=True)
+        if sub and is_stream(str(src)) and is_stream(str(sub))
+    }
 
 
 def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
@@ -426,18 +474,32 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet 
     if cfg.input.detection == "nodes":  # the cameras' people from the detection nodes
         assert plan.mqtt is not None  # plan_serve: [mqtt] host is set
         i = cfg.input
-        return NodeInput(plan.mqtt, plan.rig, fps=i.detect_fps or i.fps or cfg.fps,
-                         window_s=i.node_window_s, wait_s=i.node_wait_s,
-                         clock_tolerance_s=i.node_clock_tolerance_s,
-                         picture_scale=i.node_picture_scale)  # fmt: skip
+        return NodeInput(
+            plan.mqtt,
+            plan.rig,
+            fps=i.detect_fps or i.fps or cfg.fps,
+            window_s=i.node_window_s,
+            wait_s=i.node_wait_s,
+            clock_tolerance_s=i.node_clock_tolerance_s,
+            picture_scale=i.node_picture_scale,
+        )
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
     # and the camera watch raises camera_down for each camera that has not delivered
-    return CameraSet(list(plan.sources), list(plan.rig.names), cfg.input.sync, cfg.input.fps,
-                     None, open_timeout_s=cfg.input.open_timeout_s, first_frame_timeout_s=None,
-                     loop=[c.loop for c in cfg.cameras],
-                     detect=[d or None for d in plan.detect_sources],
-                     detect_fps=cfg.input.detect_fps, wait_first_frame=False,
-                     packets=packets, wall_clock=True)  # fmt: skip
+    return CameraSet(
+        list(plan.sources),
+        list(plan.rig.names),
+        cfg.input.sync,
+        cfg.input.fps,
+        None,
+        open_timeout_s=cfg.input.open_timeout_s,
+        first_frame_timeout_s=None,
+        loop=[c.loop for c in cfg.cameras],
+        detect=[d or None for d in plan.detect_sources],
+        detect_fps=cfg.input.detect_fps,
+        wait_first_frame=False,
+        packets=packets,
+        wall_clock=True,
+    )
 
 
 def serve(
@@ -459,8 +521,9 @@ def serve(
         return _serve(plan, stop or threading.Event(), on_ready)
 
 
-def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], None] | None
-           ) -> ServeResult:  # fmt: skip
+def _serve(
+    plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], None] | None
+) -> ServeResult:
     cfg = plan.config
     if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
         require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
@@ -477,11 +540,14 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
     )
     resume = Resume.from_log(plan.events_db)  # before any id is given or event written
     if resume.occupied:
-        logger.warning("restart: %d zone occupancy(ies) left open by the last run are closed",
-                       len(resume.occupied))  # fmt: skip
+        logger.warning(
+            "restart: %d zone occupancy(ies) left open by the last run are closed",
+            len(resume.occupied),
+        )
     if resume.alarms:
-        logger.warning("restart: %d behaviour alarm(s) left open by the last run are ended",
-                       len(resume.alarms))  # fmt: skip
+        logger.warning(
+            "restart: %d behaviour alarm(s) left open by the last run are ended", len(resume.alarms)
+        )
     service = _Service(plan, stop, resume)
     # [opcua] checked before any work: a ConfigError naming the file and the key
     service.opcua_settings = opcua_settings(plan.config_path, cfg, plan.out_dir)
@@ -494,8 +560,9 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
             try:
                 make_folder(plan.out_dir)
             except OSError as e:
-                raise StereoposeError(f"{plan.out_dir}: cannot create the output folder: "
-                                      f"{e.strerror}") from None  # fmt: skip
+                raise StereoposeError(
+                    f"{plan.out_dir}: cannot create the output folder: {e.strerror}"
+                ) from None
             service.start_maintainer()
             with _open_cameras(plan, service.packets) as cams:
                 summary = _run_loop(plan, service, cams, detector, stop, closing)
@@ -506,8 +573,14 @@ def _serve(plan: ServePlan, stop: threading.Event, on_ready: Callable[[str], Non
     return ServeResult(summary, url, summary.outputs, dict(service.failed))
 
 
-def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, detector, stop,
-              closing: _Closing) -> RunSummary:  # fmt: skip
+def _run_loop(
+    plan: ServePlan,
+    service: _Service,
+    cams: CameraSet | NodeInput,
+    detector,
+    stop,
+    closing: _Closing,
+) -> RunSummary:
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
     fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
@@ -518,9 +591,15 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
     def now_t() -> float:  # the service's clock: the steps' and the events' t
         return cams.clock.since(time.monotonic())
 
-    events = ServeEvents(fences, watch, calib, service.resume.closing_events,
-                         fresh=lambda name: cams.delivering(name, timeout_s), clock=now_t,
-                         on_stall=service.state.service_stall)  # fmt: skip
+    events = ServeEvents(
+        fences,
+        watch,
+        calib,
+        service.resume.closing_events,
+        fresh=lambda name: cams.delivering(name, timeout_s),
+        clock=now_t,
+        on_stall=service.state.service_stall,
+    )
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
@@ -533,25 +612,42 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
-    source = ServeSource(pipelined, stop=stop, heartbeat_s=HEARTBEAT_S,
-                         on_step=events.step, on_detect=events.detected,
-                         clock=lambda: now_t() - lag_s)  # fmt: skip
+    source = ServeSource(
+        pipelined,
+        stop=stop,
+        heartbeat_s=HEARTBEAT_S,
+        on_step=events.step,
+        on_detect=events.detected,
+        clock=lambda: now_t() - lag_s,
+    )
     # each person id reserved in the log before it is given (site.person_ids)
-    stage = Stage3D(rig, cfg, calib_path=str(plan.calib_path),
-                    first_id=service.resume.person_ids(plan.events_db))  # fmt: skip
+    stage = Stage3D(
+        rig,
+        cfg,
+        calib_path=str(plan.calib_path),
+        first_id=service.resume.person_ids(plan.events_db),
+    )
     # a step the service was too late for is no observation; a stall's length not their age
     stage, rules = HeldStage(stage, events), behaviour_monitor(plan.site, cfg)
-    summary = RunSummary(rig.names, source.stages, cfg.reconstruction.triangulation.mode,
-                         stage.tracking, live=source.live, fps_input=source.fps,
-                         out_dir=plan.out_dir, config_path=plan.config_path)  # fmt: skip
+    summary = RunSummary(
+        rig.names,
+        source.stages,
+        cfg.reconstruction.triangulation.mode,
+        stage.tracking,
+        live=source.live,
+        fps_input=source.fps,
+        out_dir=plan.out_dir,
+        config_path=plan.config_path,
+    )
     wall_start = cams.clock.start_epoch
     start_mono = cams.clock.start
 
     def arrival(t: float) -> float | None:
         return start_mono + t if source.live or cams.wall_clock else None
 
-    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival,
-                               rates or (lambda: nominal_rates(cams)))  # fmt: skip
+    sinks = service.open_sinks(
+        cfg, wall_start, summary, cams.stats, arrival, rates or (lambda: nominal_rates(cams))
+    )
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
@@ -564,9 +660,16 @@ def _run_loop(plan: ServePlan, service: _Service, cams: CameraSet | NodeInput, d
         ids.close()
 
 
-def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, fences,
-               ids: IncidentIds, wall_start: float, clock: Callable[[], float]
-               ) -> IncidentStep:  # fmt: skip
+def _incidents(
+    plan: ServePlan,
+    service: _Service,
+    events: ServeEvents,
+    rules,
+    fences,
+    ids: IncidentIds,
+    wall_start: float,
+    clock: Callable[[], float],
+) -> IncidentStep:
     """The incident book over the step's events (pipeline.incidents): ids from the
     log's mark, the incidents the last run left open restored (on this run's clock), its
     changes stored with the step's events and given to every incident output; the HTTP API's
@@ -575,12 +678,17 @@ def _incidents(plan: ServePlan, service: _Service, events: ServeEvents, rules, f
     book = IncidentBook(settings, next_id=ids)
     restored = book.restore(service.resume.open_incidents(wall_start))
     if restored:
-        logger.warning("restart: %d incident(s) left open by the last run are open again",
-                       restored)  # fmt: skip
+        logger.warning("restart: %d incident(s) left open by the last run are open again", restored)
     # the event log is an incident output (its records stored in the step's transaction)
-    step = IncidentStep(book, events, HeldRules(rules, events) if rules is not None else None,
-                        fences, outputs=service.incident_outputs, clock=clock,
-                        wall_start=wall_start)  # fmt: skip
+    step = IncidentStep(
+        book,
+        events,
+        HeldRules(rules, events) if rules is not None else None,
+        fences,
+        outputs=service.incident_outputs,
+        clock=clock,
+        wall_start=wall_start,
+    )
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics
     if service.iec104 is not None:  # the restored incidents, and its commands' way in

@@ -89,8 +89,10 @@ class ServeEvents:
         """Events of the people's stages with their times on the service's clock."""
         if not self._breaks:
             return events
-        return [dataclasses.replace(e, t=self.to_wall(e.t), onset_t=self.to_wall(e.onset_t))
-                for e in events]  # fmt: skip
+        return [
+            dataclasses.replace(e, t=self.to_wall(e.t), onset_t=self.to_wall(e.onset_t))
+            for e in events
+        ]
 
     # -- the step, before the people's stages ------------------------------------------------
 
@@ -99,8 +101,11 @@ class ServeEvents:
         self._people2d = {}
         t, self._t = float(step.t), float(step.t)
         now = max(t, float(self.clock())) if self.clock is not None else t
-        delivered = [name for name, image in (step.images or {}).items()
-                     if image is not None and name in self.watch.cameras]  # fmt: skip
+        delivered = [
+            name
+            for name, image in (step.images or {}).items()
+            if image is not None and name in self.watch.cameras
+        ]
         stall = self.stall
         if stall.beat(now, step.frame):
             self._began()

@@ -207,8 +207,10 @@ class StorageMaintainer:
 
     def _expire(self, files: list[_File], now: float, result: PassResult) -> list[_File]:
         """Delete what is past its retention; the files left."""
-        days = {"segments": self.settings.retention_days,
-                "clips": self.settings.clip_retention_days}  # fmt: skip
+        days = {
+            "segments": self.settings.retention_days,
+            "clips": self.settings.clip_retention_days,
+        }
         left = []
         for f in files:
             if not f.keep and f.mtime < now - days[f.kind] * DAY_S and self._delete(f, result):
@@ -270,11 +272,15 @@ class StorageMaintainer:
             self._failed(result, f"{path}: cannot open the event log: {e}")
             return
         try:
-            runs = db.execute("SELECT id, started FROM runs WHERE started < ?",
-                              (cutoff,)).fetchall()  # fmt: skip
+            runs = db.execute(
+                "SELECT id, started FROM runs WHERE started < ?", (cutoff,)
+            ).fetchall()
             keep = open_rows(db) if runs else set()
-            acks = bool(db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND "
-                                   "name = 'acks'").fetchone())  # fmt: skip
+            acks = bool(
+                db.execute(
+                    "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'acks'"
+                ).fetchone()
+            )
             for run, started in runs:
                 if not self._prune_run(db, run, cutoff - started, result, keep, acks):
                     break
@@ -285,8 +291,15 @@ class StorageMaintainer:
         finally:
             db.close()
 
-    def _prune_run(self, db: sqlite3.Connection, run: int, before_t: float, r: PassResult,
-                   keep: set[int], acks: bool) -> bool:  # fmt: skip
+    def _prune_run(
+        self,
+        db: sqlite3.Connection,
+        run: int,
+        before_t: float,
+        r: PassResult,
+        keep: set[int],
+        acks: bool,
+    ) -> bool:
         """Delete one run's events with t < before_t, batch by batch, their acknowledgements
         with them (an ack names one event for ever), but never `keep` (the rows that hold a
         zone occupied or an alarm open: a restart must still see them to close them); False
@@ -296,9 +309,13 @@ class StorageMaintainer:
             if r.deleted["events"] >= _MAX_BATCHES * batch:
                 return False
             db.execute("BEGIN IMMEDIATE")
-            found = [i for (i,) in db.execute(
-                "SELECT id FROM events WHERE run = ? AND t < ? AND id > ? ORDER BY id LIMIT ?",
-                (run, before_t, after, batch))]  # fmt: skip
+            found = [
+                i
+                for (i,) in db.execute(
+                    "SELECT id FROM events WHERE run = ? AND t < ? AND id > ? ORDER BY id LIMIT ?",
+                    (run, before_t, after, batch),
+                )
+            ]
             gone = [(i,) for i in found if i not in keep]
             db.executemany("DELETE FROM events WHERE id = ?", gone)
             if acks:
@@ -319,8 +336,9 @@ class StorageMaintainer:
         if "locked" in text or "busy" in text:
             result.events_locked = True
             self.events_locked += 1
-            logger.info("storage: %s is locked; its old events are pruned next pass",
-                        self.event_log)  # fmt: skip
+            logger.info(
+                "storage: %s is locked; its old events are pruned next pass", self.event_log
+            )
         else:
             self._failed(result, f"{self.event_log}: cannot prune events: {text}")
 
@@ -351,16 +369,22 @@ class StorageMaintainer:
             logger.info(
                 "storage: deleted %d segment(s) (%.1f MiB), %d clip(s) (%.1f MiB), %d event(s); "
                 "now %.1f MiB of segments, %.1f MiB of clips, %.1f MiB of events",
-                r.deleted["segments"], r.freed_bytes["segments"] / mib, r.deleted["clips"],
-                r.freed_bytes["clips"] / mib, r.deleted["events"], r.usage["segments"] / mib,
-                r.usage["clips"] / mib, r.usage["events"] / mib,
-            )  # fmt: skip
+                r.deleted["segments"],
+                r.freed_bytes["segments"] / mib,
+                r.deleted["clips"],
+                r.freed_bytes["clips"] / mib,
+                r.deleted["events"],
+                r.usage["segments"] / mib,
+                r.usage["clips"] / mib,
+                r.usage["events"] / mib,
+            )
         if r.over_cap:
             logger.warning(
                 "storage: %.1f MiB of segments and clips, above max_bytes (%.1f MiB): only "
-                "files being written are left", (r.usage["segments"] + r.usage["clips"]) / mib,
+                "files being written are left",
+                (r.usage["segments"] + r.usage["clips"]) / mib,
                 self.settings.max_bytes / mib,
-            )  # fmt: skip
+            )
 
     def usage(self) -> dict[str, int]:
         """Bytes per kind after the last pass (zeros before the first)."""

@@ -41,9 +41,18 @@ from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatc
 from stereopose.errors import HashingBusyError, StereoposeError
 from stereopose.io.datafolder import USERS_FILE
 
-__all__ = ["MIN_PASSWORD", "ROLES", "User", "UserError", "UserStore",
-           "check_name", "check_password", "check_site", "common_passwords",
-           "role_at_least"]  # fmt: skip
+__all__ = [
+    "MIN_PASSWORD",
+    "ROLES",
+    "User",
+    "UserError",
+    "UserStore",
+    "check_name",
+    "check_password",
+    "check_site",
+    "common_passwords",
+    "role_at_least",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -97,8 +106,11 @@ _AROUND = string.digits + string.punctuation + string.whitespace
 def common_passwords() -> frozenset[str]:
     """The common passwords shipped in the package (lower case); see the module."""
     text = resources.files("stereopose.site").joinpath(COMMON_PASSWORDS).read_text("utf-8")
-    return frozenset(line.strip().lower() for line in text.splitlines()
-                     if line.strip() and not line.startswith("# "))  # fmt: skip
+    return frozenset(
+        line.strip().lower()
+        for line in text.splitlines()
+        if line.strip() and not line.startswith("# ")
+    )
 
 
 def check_password(password: object) -> str:
@@ -113,11 +125,12 @@ def check_password(password: object) -> str:
     core = lower.strip(_AROUND)
     common = common_passwords()
     if lower in common or (len(core) >= 4 and core in common):
-        raise UserError("the password is too common (on the list of common passwords, perhaps "
-                        "with digits or punctuation around it): choose another")  # fmt: skip
+        raise UserError(
+            "the password is too common (on the list of common passwords, perhaps "
+            "with digits or punctuation around it): choose another"
+        )
     if len(set(password)) < MIN_DISTINCT:
-        raise UserError(f"the password is too simple: at least {MIN_DISTINCT} different "
-                        "characters")  # fmt: skip
+        raise UserError(f"the password is too simple: at least {MIN_DISTINCT} different characters")
     return password
 
 
@@ -152,8 +165,9 @@ class UserStore:
 
     def __init__(self, path: str | Path, hasher: PasswordHasher | None = None) -> None:
         self.path = Path(path)
-        self.hasher = hasher or PasswordHasher(time_cost=TIME_COST, memory_cost=MEMORY_KIB,
-                                               parallelism=PARALLELISM)  # fmt: skip
+        self.hasher = hasher or PasswordHasher(
+            time_cost=TIME_COST, memory_cost=MEMORY_KIB, parallelism=PARALLELISM
+        )
         self._lock = threading.Lock()
         self._seen: tuple[int, int, int] | None = None  # (inode, size, mtime_ns) read
         self._users: dict[str, dict] = {}
@@ -210,7 +224,7 @@ class UserStore:
                 if sites is not None and not (
                     isinstance(sites, list) and all(isinstance(x, str) for x in sites)
                 ):
-                    raise TypeError(f"{name}: sites is not a list of names")  # fmt: skip
+                    raise TypeError(f"{name}: sites is not a list of names")
         except (ValueError, KeyError, TypeError, UserError) as e:
             raise UserError(f"{self.path}: not a users file ({e})") from None
         return users
@@ -229,9 +243,14 @@ class UserStore:
     @staticmethod
     def _user(name: str, rec: dict) -> User:
         sites = rec.get("sites")
-        return User(name, rec["role"], float(rec.get("created", 0.0)),
-                    float(rec.get("changed", 0.0)), _stamp(rec),
-                    None if sites is None else tuple(sites))  # fmt: skip
+        return User(
+            name,
+            rec["role"],
+            float(rec.get("created", 0.0)),
+            float(rec.get("changed", 0.0)),
+            _stamp(rec),
+            None if sites is None else tuple(sites),
+        )
 
     def verify_admitted(self, name: str, password: str) -> User | None:
         """`verify` within the bound on password checks waiting at once (CHECKS_ADMITTED);
@@ -273,8 +292,9 @@ class UserStore:
 
     # -- changing --------------------------------------------------------------------------
 
-    def add(self, name: str, password: str, role: str,
-            sites: tuple[str, ...] | None = None) -> User:  # fmt: skip
+    def add(
+        self, name: str, password: str, role: str, sites: tuple[str, ...] | None = None
+    ) -> User:
         """sites: the only sites a control room shows this user (None: every site)."""
         check_name(name)
         if sites is not None:
@@ -284,8 +304,9 @@ class UserStore:
         hashed = self._hash(password)
         with self._changing() as users:
             if name in users:
-                raise UserError(f"user {name!r} already exists (`stereopose users passwd` "
-                                "changes a password)")  # fmt: skip
+                raise UserError(
+                    f"user {name!r} already exists (`stereopose users passwd` changes a password)"
+                )
             if len(users) >= MAX_USERS:
                 raise UserError(f"{self.path}: at most {MAX_USERS} users")
             now = time.time()

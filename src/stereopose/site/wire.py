@@ -15,10 +15,25 @@ import json
 
 from stereopose.io.sinks.mqtt_settings import topic_name, topic_part
 
-__all__ = ["AVAILABLE", "COMMAND_ACK", "COMMAND_DONE", "CONFIRMED", "EVENTS", "HEARTBEAT",
-           "INCIDENTS", "PEOPLE", "PLAN", "REPLAY", "ack_body", "confirmed_body",
-           "receiver_subscriptions", "replay_body", "site_topic", "site_topics",
-           "split_topic"]  # fmt: skip
+__all__ = [
+    "AVAILABLE",
+    "COMMAND_ACK",
+    "COMMAND_DONE",
+    "CONFIRMED",
+    "EVENTS",
+    "HEARTBEAT",
+    "INCIDENTS",
+    "PEOPLE",
+    "PLAN",
+    "REPLAY",
+    "ack_body",
+    "confirmed_body",
+    "receiver_subscriptions",
+    "replay_body",
+    "site_topic",
+    "site_topics",
+    "split_topic",
+]
 
 # what follows `<prefix>/<site>/` (the site's name as one topic level: io.sinks.mqtt_settings)
 EVENTS = "log/events"  # site -> receiver, QoS 1: each event of the log with its `prev`
@@ -32,9 +47,16 @@ PLAN = "plan"  # site -> receiver, retained: the zones and the console's address
 AVAILABLE = "available"  # site (the MQTT sink's will) -> receiver, retained: online/offline
 PEOPLE = "people"  # site (the MQTT sink) -> anyone: the people now
 
-_KEYS = {"events": EVENTS, "incidents": INCIDENTS, "confirmed": CONFIRMED, "replay": REPLAY,
-         "heartbeat": HEARTBEAT, "ack": COMMAND_ACK, "done": COMMAND_DONE,
-         "plan": PLAN}  # fmt: skip
+_KEYS = {
+    "events": EVENTS,
+    "incidents": INCIDENTS,
+    "confirmed": CONFIRMED,
+    "replay": REPLAY,
+    "heartbeat": HEARTBEAT,
+    "ack": COMMAND_ACK,
+    "done": COMMAND_DONE,
+    "plan": PLAN,
+}
 
 
 def site_topic(prefix: str, site: str, what: str) -> str:

@@ -98,8 +98,9 @@ class RecentPeople(NoMemory):
         return rec.people
 
 
-def make_memory(rig: Rig, config: Config, record: bool = False,
-                first_id: int | IdSource = 1) -> Memory:  # fmt: skip
+def make_memory(
+    rig: Rig, config: Config, record: bool = False, first_id: int | IdSource = 1
+) -> Memory:
     """The memory named by config.tracking.memory (`tracking.enabled = false` asks for
     `recent`, as before). record: the tracker keeps every measurement for two_way. first_id:
     the tracker's first id, or the IdSource it takes its ids from (tracking.ids); the other

@@ -63,9 +63,13 @@ def smooth_track(
     v0 = initial_speed_mps**2
     # forward pass: the online filter's steps again, filtered and predicted states kept
     x, v, P, xp, vp, Pp, start = kalman_replay(
-        np.ascontiguousarray(z), np.ascontiguousarray(code), np.ascontiguousarray(r2), t,
-        np.ascontiguousarray(q), v0,
-    )  # fmt: skip
+        np.ascontiguousarray(z),
+        np.ascontiguousarray(code),
+        np.ascontiguousarray(r2),
+        t,
+        np.ascontiguousarray(q),
+        v0,
+    )
     # the last measurement of each joint: beyond it there is nothing to smooth towards
     measured = code > NOT_USED
     last = np.where(measured.any(0), K - 1 - np.argmax(measured[::-1], axis=0), -1)

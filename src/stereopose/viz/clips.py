@@ -14,9 +14,13 @@ def clip_drawer(rig: Rig) -> Draw:
     """A ClipSink `draw` for the cameras of `rig`: draw_overlay at the clip's scale."""
 
     def draw(
-        camera: str, image: np.ndarray, people2d: People2D | None, people3d: People3D,
-        scale: float, label: str,
-    ) -> np.ndarray:  # fmt: skip
+        camera: str,
+        image: np.ndarray,
+        people2d: People2D | None,
+        people3d: People3D,
+        scale: float,
+        label: str,
+    ) -> np.ndarray:
         return draw_overlay(image, rig[camera], people2d, people3d, scale, label)
 
     return draw

@@ -10,8 +10,17 @@ from __future__ import annotations
 
 __all__ = ["ID_COLOURS", "id_colour", "id_colour_bgr"]
 
-ID_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf",
-              "#bcbd22", "#7f7f7f")  # fmt: skip
+ID_COLOURS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#17becf",
+    "#bcbd22",
+    "#7f7f7f",
+)
 
 
 def id_colour(person_id: int) -> str:

@@ -62,8 +62,9 @@ def draw_overlay(
             ok = np.isfinite(kp[:, 0]) & (kp[:, 2] >= min_conf)
             for a, b in LIMBS:
                 if ok[a] and ok[b]:
-                    cv2.line(out, _pt(kp[a], scale), _pt(kp[b], scale), (255, 255, 255), 1,
-                             cv2.LINE_AA)  # fmt: skip
+                    cv2.line(
+                        out, _pt(kp[a], scale), _pt(kp[b], scale), (255, 255, 255), 1, cv2.LINE_AA
+                    )
     if len(people3d):
         px = project(people3d.joints, camera)  # (P, 17, 2)
         for p in range(len(people3d)):
@@ -78,8 +79,7 @@ def draw_overlay(
                 continue
             for a, b in LIMBS:
                 if inside[a] and inside[b]:
-                    cv2.line(out, _pt(px[p, a], scale), _pt(px[p, b], scale), c, thick,
-                             cv2.LINE_AA)  # fmt: skip
+                    cv2.line(out, _pt(px[p, a], scale), _pt(px[p, b], scale), c, thick, cv2.LINE_AA)
             for j in np.flatnonzero(inside):
                 cv2.circle(out, _pt(px[p, j], scale), thick + 1, c, -1, cv2.LINE_AA)
             top = px[p, inside][np.argmin(px[p, inside, 1])]
@@ -89,14 +89,38 @@ def draw_overlay(
             (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, fs, 2)
             y = max(th + 4, y - 12)
             cv2.rectangle(out, (x - tw // 2 - 3, y - th - 4), (x + tw // 2 + 3, y + 4), c, -1)
-            cv2.putText(out, text, (x - tw // 2, y), cv2.FONT_HERSHEY_SIMPLEX, fs,
-                        (255, 255, 255), 2, cv2.LINE_AA)  # fmt: skip
+            cv2.putText(
+                out,
+                text,
+                (x - tw // 2, y),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                fs,
+                (255, 255, 255),
+                2,
+                cv2.LINE_AA,
+            )
     if label:
         fs = max(0.4, 1.0 * scale)
-        cv2.putText(out, label, (8, int(30 * max(scale, 0.5))), cv2.FONT_HERSHEY_SIMPLEX, fs,
-                    (0, 0, 0), 4, cv2.LINE_AA)  # fmt: skip
-        cv2.putText(out, label, (8, int(30 * max(scale, 0.5))), cv2.FONT_HERSHEY_SIMPLEX, fs,
-                    (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
+        cv2.putText(
+            out,
+            label,
+            (8, int(30 * max(scale, 0.5))),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            fs,
+            (0, 0, 0),
+            4,
+            cv2.LINE_AA,
+        )
+        cv2.putText(
+            out,
+            label,
+            (8, int(30 * max(scale, 0.5))),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            fs,
+            (255, 255, 255),
+            1,
+            cv2.LINE_AA,
+        )
     return out
 
 

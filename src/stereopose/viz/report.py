@@ -48,8 +48,13 @@ logger = logging.getLogger(__name__)
 
 MAX_3D_FRAMES = 150
 ZONE_COLOURS = {"energized": "#b30000", "restricted": "#e6ab02", "work_area": "#1b9e77"}
-EVENT_SYMBOLS = {"enter": "triangle-right", "exit": "triangle-left", "approach": "diamond",
-                 "dwell": "square", "left_work_area": "x"}  # fmt: skip
+EVENT_SYMBOLS = {
+    "enter": "triangle-right",
+    "exit": "triangle-left",
+    "approach": "diamond",
+    "dwell": "square",
+    "left_work_area": "x",
+}
 
 
 def colour(person_id: int) -> str:
@@ -147,9 +152,19 @@ def _zone_prism(zone, name: str) -> go.Mesh3d:
         j += [b, n + b]
         k += [n + a, n + a]
     return go.Mesh3d(
-        x=x, y=y, z=z, i=i, j=j, k=k, opacity=0.25, color=ZONE_COLOURS.get(zone.kind, "#888"),
-        name=f"{name} ({zone.kind})", hoverinfo="name", showlegend=True, flatshading=True,
-    )  # fmt: skip
+        x=x,
+        y=y,
+        z=z,
+        i=i,
+        j=j,
+        k=k,
+        opacity=0.25,
+        color=ZONE_COLOURS.get(zone.kind, "#888"),
+        name=f"{name} ({zone.kind})",
+        hoverinfo="name",
+        showlegend=True,
+        flatshading=True,
+    )
 
 
 def _skeleton_xyz(joints: np.ndarray) -> tuple[list, list, list]:
@@ -173,19 +188,33 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
     if site is not None:
         static += [_zone_prism(z, z.name) for z in site.zones]
     centres = np.array([c.center for c in rig])
-    static.append(go.Scatter3d(
-        x=centres[:, 0], y=centres[:, 1], z=centres[:, 2], mode="markers+text",
-        text=list(rig.names), marker={"size": 4, "color": "black", "symbol": "diamond"},
-        name="cameras", textposition="top center",
-    ))  # fmt: skip
+    static.append(
+        go.Scatter3d(
+            x=centres[:, 0],
+            y=centres[:, 1],
+            z=centres[:, 2],
+            mode="markers+text",
+            text=list(rig.names),
+            marker={"size": 4, "color": "black", "symbol": "diamond"},
+            name="cameras",
+            textposition="top center",
+        )
+    )
     pts = np.array([p["joints_array"] for _, _, people in poses for p in people]).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     lo = np.minimum(pts.min(0), centres.min(0)) if len(pts) else centres.min(0)
     hi = np.maximum(pts.max(0), centres.max(0)) if len(pts) else centres.max(0)
-    static.append(go.Scatter3d(
-        x=[lo[0], hi[0], hi[0], lo[0], lo[0]], y=[lo[1], lo[1], hi[1], hi[1], lo[1]], z=[0] * 5,
-        mode="lines", line={"color": "#bbbbbb"}, name="floor (z = 0)", hoverinfo="skip",
-    ))  # fmt: skip
+    static.append(
+        go.Scatter3d(
+            x=[lo[0], hi[0], hi[0], lo[0], lo[0]],
+            y=[lo[1], lo[1], hi[1], hi[1], lo[1]],
+            z=[0] * 5,
+            mode="lines",
+            line={"color": "#bbbbbb"},
+            name="floor (z = 0)",
+            hoverinfo="skip",
+        )
+    )
 
     def person_traces(people) -> list:
         by_id = {int(p["id"]): p for p in people}
@@ -193,10 +222,17 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
         for pid in ids:
             p = by_id.get(pid)
             xs, ys, zs = _skeleton_xyz(p["joints_array"]) if p is not None else ([], [], [])
-            traces.append(go.Scatter3d(
-                x=xs, y=ys, z=zs, mode="lines+markers", name=f"id {pid}",
-                line={"color": colour(pid), "width": 6}, marker={"size": 2, "color": colour(pid)},
-            ))  # fmt: skip
+            traces.append(
+                go.Scatter3d(
+                    x=xs,
+                    y=ys,
+                    z=zs,
+                    mode="lines+markers",
+                    name=f"id {pid}",
+                    line={"color": colour(pid), "width": 6},
+                    marker={"size": 2, "color": colour(pid)},
+                )
+            )
         return traces
 
     # open on the first shown frame with somebody in it
@@ -209,28 +245,65 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
         for frame, _, people in shown
     ]
     steps = [
-        {"method": "animate", "label": str(frame),
-         "args": [[str(frame)], {"mode": "immediate", "frame": {"duration": 0, "redraw": True},
-                                 "transition": {"duration": 0}}]}
+        {
+            "method": "animate",
+            "label": str(frame),
+            "args": [
+                [str(frame)],
+                {
+                    "mode": "immediate",
+                    "frame": {"duration": 0, "redraw": True},
+                    "transition": {"duration": 0},
+                },
+            ],
+        }
         for frame, _, _ in shown
-    ]  # fmt: skip
+    ]
     fig.update_layout(
         title="3D skeletons over time (drag to turn, slider for the frame)",
-        height=650, margin={"l": 0, "r": 0, "t": 40, "b": 0},
-        scene={"aspectmode": "data", "xaxis_title": "x (m)", "yaxis_title": "y (m)",
-               "zaxis_title": "z (m)"},
-        sliders=[{"steps": steps, "active": start, "currentvalue": {"prefix": "frame "},
-                  "pad": {"t": 30}}],
-        updatemenus=[{"type": "buttons", "showactive": False, "x": 0.0, "y": 1.0,
-                      "direction": "right", "xanchor": "left", "yanchor": "top",
-                      "buttons": [
-                          {"label": "play", "method": "animate",
-                           "args": [None, {"frame": {"duration": 80, "redraw": True},
-                                           "fromcurrent": True}]},
-                          {"label": "pause", "method": "animate",
-                           "args": [[None], {"mode": "immediate", "frame": {"duration": 0}}]},
-                      ]}],
-    )  # fmt: skip
+        height=650,
+        margin={"l": 0, "r": 0, "t": 40, "b": 0},
+        scene={
+            "aspectmode": "data",
+            "xaxis_title": "x (m)",
+            "yaxis_title": "y (m)",
+            "zaxis_title": "z (m)",
+        },
+        sliders=[
+            {
+                "steps": steps,
+                "active": start,
+                "currentvalue": {"prefix": "frame "},
+                "pad": {"t": 30},
+            }
+        ],
+        updatemenus=[
+            {
+                "type": "buttons",
+                "showactive": False,
+                "x": 0.0,
+                "y": 1.0,
+                "direction": "right",
+                "xanchor": "left",
+                "yanchor": "top",
+                "buttons": [
+                    {
+                        "label": "play",
+                        "method": "animate",
+                        "args": [
+                            None,
+                            {"frame": {"duration": 80, "redraw": True}, "fromcurrent": True},
+                        ],
+                    },
+                    {
+                        "label": "pause",
+                        "method": "animate",
+                        "args": [[None], {"mode": "immediate", "frame": {"duration": 0}}],
+                    },
+                ],
+            }
+        ],
+    )
     return fig
 
 
@@ -250,48 +323,83 @@ def figure_floor(tracks, rig: Rig, site: Site | None, events: list[Event]) -> go
     if site is not None:
         for z in site.zones:
             poly = np.vstack([z.polygon, z.polygon[:1]])
-            fig.add_trace(go.Scatter(
-                x=poly[:, 0], y=poly[:, 1], fill="toself", mode="lines",
-                line={"color": ZONE_COLOURS.get(z.kind, "#888")}, opacity=0.35,
-                name=f"{z.name} ({z.kind})",
-            ))  # fmt: skip
+            fig.add_trace(
+                go.Scatter(
+                    x=poly[:, 0],
+                    y=poly[:, 1],
+                    fill="toself",
+                    mode="lines",
+                    line={"color": ZONE_COLOURS.get(z.kind, "#888")},
+                    opacity=0.35,
+                    name=f"{z.name} ({z.kind})",
+                )
+            )
     for cam in rig:
         c = cam.center
         ahead = c + cam.R[2] * 0.6  # the optical axis, 0.6 m
-        fig.add_trace(go.Scatter(
-            x=[c[0], ahead[0]], y=[c[1], ahead[1]], mode="lines+markers+text",
-            text=[cam.name, ""], textposition="top center", line={"color": "black"},
-            marker={"size": [9, 0], "symbol": "square", "color": "black"}, showlegend=False,
-            hovertext=f"{cam.name}: height {c[2]:.2f} m", hoverinfo="text",
-        ))  # fmt: skip
+        fig.add_trace(
+            go.Scatter(
+                x=[c[0], ahead[0]],
+                y=[c[1], ahead[1]],
+                mode="lines+markers+text",
+                text=[cam.name, ""],
+                textposition="top center",
+                line={"color": "black"},
+                marker={"size": [9, 0], "symbol": "square", "color": "black"},
+                showlegend=False,
+                hovertext=f"{cam.name}: height {c[2]:.2f} m",
+                hoverinfo="text",
+            )
+        )
     for pid, tr in sorted(tracks.items()):
-        fig.add_trace(go.Scatter(
-            x=tr[:, 2], y=tr[:, 3], mode="lines", name=f"id {pid}",
-            line={"color": colour(pid), "width": 3},
-            hovertext=[f"id {pid}, frame {int(f)}, t={t:.2f}s" for f, t in tr[:, :2]],
-            hoverinfo="text",
-        ))  # fmt: skip
-        fig.add_trace(go.Scatter(
-            x=tr[[0, -1], 2], y=tr[[0, -1], 3], mode="markers", showlegend=False,
-            marker={"color": colour(pid), "size": 10, "symbol": ["circle-open", "circle"]},
-            hovertext=[f"id {pid} first seen", f"id {pid} last seen"], hoverinfo="text",
-        ))  # fmt: skip
+        fig.add_trace(
+            go.Scatter(
+                x=tr[:, 2],
+                y=tr[:, 3],
+                mode="lines",
+                name=f"id {pid}",
+                line={"color": colour(pid), "width": 3},
+                hovertext=[f"id {pid}, frame {int(f)}, t={t:.2f}s" for f, t in tr[:, :2]],
+                hoverinfo="text",
+            )
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=tr[[0, -1], 2],
+                y=tr[[0, -1], 3],
+                mode="markers",
+                showlegend=False,
+                marker={"color": colour(pid), "size": 10, "symbol": ["circle-open", "circle"]},
+                hovertext=[f"id {pid} first seen", f"id {pid} last seen"],
+                hoverinfo="text",
+            )
+        )
     located = [e for e in events if e.position is not None]
     if located:
-        fig.add_trace(go.Scatter(
-            x=[e.position[0] for e in located], y=[e.position[1] for e in located],
-            mode="markers", name="events",
-            marker={"symbol": [EVENT_SYMBOLS.get(e.type, "circle") for e in located],
-                    "size": 11, "color": [colour(e.person) for e in located],
-                    "line": {"color": "black", "width": 1}},
-            hovertext=[f"{e.type} {e.zone}, id {e.person}, t={e.t:.2f}s" for e in located],
-            hoverinfo="text",
-        ))  # fmt: skip
+        fig.add_trace(
+            go.Scatter(
+                x=[e.position[0] for e in located],
+                y=[e.position[1] for e in located],
+                mode="markers",
+                name="events",
+                marker={
+                    "symbol": [EVENT_SYMBOLS.get(e.type, "circle") for e in located],
+                    "size": 11,
+                    "color": [colour(e.person) for e in located],
+                    "line": {"color": "black", "width": 1},
+                },
+                hovertext=[f"{e.type} {e.zone}, id {e.person}, t={e.t:.2f}s" for e in located],
+                hoverinfo="text",
+            )
+        )
     fig.update_layout(
         title="Floor map: zones, cameras, trajectories (open circle: first seen)",
-        height=600, xaxis_title="x (m)", yaxis_title="y (m)",
-        yaxis={"scaleanchor": "x", "scaleratio": 1}, margin={"t": 40},
-    )  # fmt: skip
+        height=600,
+        xaxis_title="x (m)",
+        yaxis_title="y (m)",
+        yaxis={"scaleanchor": "x", "scaleratio": 1},
+        margin={"t": 40},
+    )
     return fig
 
 
@@ -299,10 +407,16 @@ def figure_timeline(poses, tracks, events: list[Event]) -> go.Figure:
     """Each person's time in view (thin bar), time inside each zone, and every event."""
     fig = go.Figure()
     for pid, tr in sorted(tracks.items()):
-        fig.add_trace(go.Scatter(
-            x=[tr[0, 1], tr[-1, 1]], y=[f"id {pid}"] * 2, mode="lines",
-            line={"color": colour(pid), "width": 3}, showlegend=False, hoverinfo="skip",
-        ))  # fmt: skip
+        fig.add_trace(
+            go.Scatter(
+                x=[tr[0, 1], tr[-1, 1]],
+                y=[f"id {pid}"] * 2,
+                mode="lines",
+                line={"color": colour(pid), "width": 3},
+                showlegend=False,
+                hoverinfo="skip",
+            )
+        )
     inside: dict[tuple[int, str], float] = {}
     end = max((t for _, t, _ in poses), default=0.0)
     for e in sorted(events, key=lambda e: e.t):
@@ -315,25 +429,43 @@ def figure_timeline(poses, tracks, events: list[Event]) -> go.Figure:
         _interval(fig, pid, zone, t0, end)
     for typ in sorted({e.type for e in events}):
         sel = [e for e in events if e.type == typ]
-        fig.add_trace(go.Scatter(
-            x=[e.t for e in sel], y=[f"id {e.person}" for e in sel], mode="markers", name=typ,
-            marker={"symbol": EVENT_SYMBOLS.get(typ, "circle"), "size": 13,
-                    "line": {"color": "black", "width": 1}},
-            hovertext=[_event_text(e) for e in sel], hoverinfo="text",
-        ))  # fmt: skip
+        fig.add_trace(
+            go.Scatter(
+                x=[e.t for e in sel],
+                y=[f"id {e.person}" for e in sel],
+                mode="markers",
+                name=typ,
+                marker={
+                    "symbol": EVENT_SYMBOLS.get(typ, "circle"),
+                    "size": 13,
+                    "line": {"color": "black", "width": 1},
+                },
+                hovertext=[_event_text(e) for e in sel],
+                hoverinfo="text",
+            )
+        )
     fig.update_layout(
-        title="Event timeline (thick bars: inside a zone)", xaxis_title="t (s)",
-        height=200 + 40 * len(tracks), margin={"t": 40},
-    )  # fmt: skip
+        title="Event timeline (thick bars: inside a zone)",
+        xaxis_title="t (s)",
+        height=200 + 40 * len(tracks),
+        margin={"t": 40},
+    )
     return fig
 
 
 def _interval(fig: go.Figure, pid: int, zone: str, t0: float, t1: float) -> None:
-    fig.add_trace(go.Scatter(
-        x=[t0, t1], y=[f"id {pid}"] * 2, mode="lines", line={"color": colour(pid), "width": 14},
-        opacity=0.5, showlegend=False, hovertext=f"id {pid} in {zone}: {t0:.2f}-{t1:.2f} s",
-        hoverinfo="text",
-    ))  # fmt: skip
+    fig.add_trace(
+        go.Scatter(
+            x=[t0, t1],
+            y=[f"id {pid}"] * 2,
+            mode="lines",
+            line={"color": colour(pid), "width": 14},
+            opacity=0.5,
+            showlegend=False,
+            hovertext=f"id {pid} in {zone}: {t0:.2f}-{t1:.2f} s",
+            hoverinfo="text",
+        )
+    )
 
 
 def _event_text(e: Event) -> str:
@@ -373,17 +505,21 @@ def build_report(run_dir: str | Path) -> str:
         f"<style>{CSS}</style>",
         f"<script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
         f"<h1>stereopose run <code>{html.escape(str(run_dir))}</code></h1>",
-        "<h2>Summary</h2>", summary_html(s),
+        "<h2>Summary</h2>",
+        summary_html(s),
         f"<p>{damaged} damaged line(s) of poses3d.jsonl skipped.</p>" if damaged else "",
-        "<h2>People</h2>", people_html(s),
-    ]  # fmt: skip
+        "<h2>People</h2>",
+        people_html(s),
+    ]
     for title, fig, div in figs:
         parts.append(f"<h2>{title}</h2>")
         if title == "Events" and not events:
-            parts.append("<p>No zone events" + (" (no site given)." if site is None else ".")
-                         + "</p>")  # fmt: skip
-        parts.append(fig.to_html(full_html=False, include_plotlyjs=False, div_id=div,
-                                 auto_play=False))  # fmt: skip
+            parts.append(
+                "<p>No zone events" + (" (no site given)." if site is None else ".") + "</p>"
+            )
+        parts.append(
+            fig.to_html(full_html=False, include_plotlyjs=False, div_id=div, auto_play=False)
+        )
     incidents = incidents_html(events)
     if incidents:
         parts += ["<h2>Alarms by incident</h2>", incidents]
@@ -391,10 +527,12 @@ def build_report(run_dir: str | Path) -> str:
     if behaviour:
         parts += ["<h2>Behaviour</h2>", behaviour]
     parts += [
-        "<h2>Cameras</h2>", cameras_html(s),
-        "<h2>Configuration used</h2>", f"<pre>{html.escape(config)}</pre>",
+        "<h2>Cameras</h2>",
+        cameras_html(s),
+        "<h2>Configuration used</h2>",
+        f"<pre>{html.escape(config)}</pre>",
         "</body></html>",
-    ]  # fmt: skip
+    ]
     return "\n".join(parts)
 
 

@@ -48,8 +48,11 @@ def postures_html(poses: Sequence[tuple[int, float, list[dict]]]) -> str:
     for pid in sorted(counts):
         c = counts[pid]
         cells = [c[k] * step for k in columns] + [c["flag:" + f] * step for f in FLAGS]
-        rows.append(f"<tr><td>{pid}</td>" + "".join(
-            f"<td>{v:.1f}</td>" if v else "<td>-</td>" for v in cells) + "</tr>")  # fmt: skip
+        rows.append(
+            f"<tr><td>{pid}</td>"
+            + "".join(f"<td>{v:.1f}</td>" if v else "<td>-</td>" for v in cells)
+            + "</tr>"
+        )
     return (
         "<p>Seconds in each posture, and with each flag, per person.</p>"
         f"<table><tr><th>id</th>{head}</tr>{''.join(rows)}</table>"
@@ -88,12 +91,22 @@ def behaviour_events_html(events: Sequence[Event]) -> str:
     body = []
     for e in rows[:MAX_ROWS]:
         cls = " class='alarm'" if e.type in ALARM_TYPES else ""
-        cells = (f"{e.t:.2f}", f"{e.onset_t:.2f}", str(e.person), e.type, e.rule or "",
-                 e.zone, e.posture or "", explain(e))  # fmt: skip
+        cells = (
+            f"{e.t:.2f}",
+            f"{e.onset_t:.2f}",
+            str(e.person),
+            e.type,
+            e.rule or "",
+            e.zone,
+            e.posture or "",
+            explain(e),
+        )
         body.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     more = f"<p>{len(rows) - MAX_ROWS} more not listed.</p>" if len(rows) > MAX_ROWS else ""
-    head = "".join(f"<th>{c}</th>" for c in ("t (s)", "since (s)", "id", "event", "rule", "zone",
-                                             "posture", "why"))  # fmt: skip
+    head = "".join(
+        f"<th>{c}</th>"
+        for c in ("t (s)", "since (s)", "id", "event", "rule", "zone", "posture", "why")
+    )
     style = "<style>tr.alarm td{color:#b00020}</style>"
     return f"{style}<p>Behaviour events (alarms in red).</p><table><tr>{head}</tr>" + (
         f"{''.join(body)}</table>{more}"

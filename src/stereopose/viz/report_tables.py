@@ -62,8 +62,11 @@ def check_summary(s: object) -> None:
     if not isinstance(cameras, list) or not all(isinstance(c, str) for c in cameras):
         raise ValueError(f"cameras: expected a list of names, got {_short(cameras)}")
     _mapping(s, "events")
-    for key, numbers in (("per_camera", _CAMERA_NUMBERS), ("sources", ()),
-                         ("regions", _REGION_NUMBERS)):  # fmt: skip
+    for key, numbers in (
+        ("per_camera", _CAMERA_NUMBERS),
+        ("sources", ()),
+        ("regions", _REGION_NUMBERS),
+    ):
         for name, c in _mapping(s, key).items():
             if not isinstance(c, dict):
                 raise ValueError(f"{key}.{name}: expected an object, got {_short(c)}")
@@ -116,38 +119,65 @@ def cameras_html(s: dict) -> str:
     rows = []
     for name, c in s.get("per_camera", {}).items():
         src = s.get("sources", {}).get(name, {})
-        rows.append([
-            name, c.get("frames"), _fmt(c.get("detections_per_frame"), "", 2),
-            _fmt(c.get("reprojection_median_px"), " px"),
-            _fmt(c.get("reprojection_mean_px"), " px"),
-            src.get("dropped", 0), src.get("failures", 0), src.get("reconnects", 0),
-        ])  # fmt: skip
-    head = ["camera", "frames", "detections/frame", "reprojection median", "reprojection mean",
-            "dropped", "failures", "reconnects"]  # fmt: skip
+        rows.append(
+            [
+                name,
+                c.get("frames"),
+                _fmt(c.get("detections_per_frame"), "", 2),
+                _fmt(c.get("reprojection_median_px"), " px"),
+                _fmt(c.get("reprojection_mean_px"), " px"),
+                src.get("dropped", 0),
+                src.get("failures", 0),
+                src.get("reconnects", 0),
+            ]
+        )
+    head = [
+        "camera",
+        "frames",
+        "detections/frame",
+        "reprojection median",
+        "reprojection mean",
+        "dropped",
+        "failures",
+        "reconnects",
+    ]
     regions = s.get("regions") or {}
     if regions:  # detection in regions: what each camera cost against whole frames
-        head += ["regions/step", "model input of whole frames'", "whole / idle steps",
-                 "full scans", "newcomers: motion / scan"]  # fmt: skip
+        head += [
+            "regions/step",
+            "model input of whole frames'",
+            "whole / idle steps",
+            "full scans",
+            "newcomers: motion / scan",
+        ]
         for row, name in zip(rows, s.get("per_camera", {}), strict=True):
             r = regions.get(name) or {}
             steps = r.get("steps") or 0
-            row += [_fmt(r.get("regions", 0) / steps if steps else None, "", 1),
-                    _fmt(100 * r["input_share"] if _is_number(r.get("input_share")) else None,
-                         " %", 0),
-                    f"{r.get('whole_frames', '-')} / {r.get('idle_steps', '-')}",
-                    r.get("full_scans", "-"),
-                    f"{r.get('found_by_motion', '-')} / {r.get('found_by_scan', '-')}"]  # fmt: skip
+            row += [
+                _fmt(r.get("regions", 0) / steps if steps else None, "", 1),
+                _fmt(100 * r["input_share"] if _is_number(r.get("input_share")) else None, " %", 0),
+                f"{r.get('whole_frames', '-')} / {r.get('idle_steps', '-')}",
+                r.get("full_scans", "-"),
+                f"{r.get('found_by_motion', '-')} / {r.get('found_by_scan', '-')}",
+            ]
     return _table(rows, head)
 
 
 def people_html(s: dict) -> str:
     rows = [
-        [f"id {p['id']}", p.get("first_frame"), p.get("last_frame"), _fmt(p.get("duration_s")),
-         p.get("frames_seen"), _fmt(p.get("path_m"), " m", 2)]
+        [
+            f"id {p['id']}",
+            p.get("first_frame"),
+            p.get("last_frame"),
+            _fmt(p.get("duration_s")),
+            p.get("frames_seen"),
+            _fmt(p.get("path_m"), " m", 2),
+        ]
         for p in s.get("people", [])
-    ]  # fmt: skip
-    return _table(rows, ["person", "first frame", "last frame", "time in view (s)", "frames seen",
-                         "path"])  # fmt: skip
+    ]
+    return _table(
+        rows, ["person", "first frame", "last frame", "time in view (s)", "frames seen", "path"]
+    )
 
 
 CSS = """
@@ -173,11 +203,28 @@ def incidents_html(events) -> str:
     for i, es in sorted(groups.items()):
         es = sorted(es, key=lambda e: e.t)
         worst = min(es, key=lambda e: (e.priority if e.priority is not None else 9, e.t))
-        hazard = " ".join(str(x) for x in (
-            f"person {es[0].person}" if es[0].person >= 0 else "", es[0].zone or "",
-            f"rule {es[0].rule}" if es[0].rule else "", es[0].camera or "") if x)  # fmt: skip
-        rows.append([f"incident {i}", f"P{worst.priority}" if worst.priority else "-", hazard,
-                     worst.type, es[-1].type, _fmt(es[0].t, " s", 2), _fmt(es[-1].t, " s", 2),
-                     len(es)])  # fmt: skip
-    return _table(rows, ["incident", "priority", "hazard", "worst", "latest", "first", "last",
-                         "occurrences"])  # fmt: skip
+        hazard = " ".join(
+            str(x)
+            for x in (
+                f"person {es[0].person}" if es[0].person >= 0 else "",
+                es[0].zone or "",
+                f"rule {es[0].rule}" if es[0].rule else "",
+                es[0].camera or "",
+            )
+            if x
+        )
+        rows.append(
+            [
+                f"incident {i}",
+                f"P{worst.priority}" if worst.priority else "-",
+                hazard,
+                worst.type,
+                es[-1].type,
+                _fmt(es[0].t, " s", 2),
+                _fmt(es[-1].t, " s", 2),
+                len(es),
+            ]
+        )
+    return _table(
+        rows, ["incident", "priority", "hazard", "worst", "latest", "first", "last", "occurrences"]
+    )

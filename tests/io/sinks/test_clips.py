@@ -25,8 +25,9 @@ WALL = datetime(2024, 5, 1, 13, 0, 0, tzinfo=timezone.utc).timestamp()
 def people(f: int, seen_by: list[int]) -> People3D:
     """Person 3, seen by the cameras of `seen_by` (indices into CAMERAS)."""
     det = [[0 if c in seen_by else -1 for c in range(len(CAMERAS))]]
-    return People3D(f, np.zeros((1, 17, 3)), np.ones((1, 17)), [3], np.zeros((1, 17)),
-                    np.full((1, 17), 2), det)  # fmt: skip
+    return People3D(
+        f, np.zeros((1, 17, 3)), np.ones((1, 17)), [3], np.zeros((1, 17)), np.full((1, 17), 2), det
+    )
 
 
 def alarm(f: int, zone: str = "panel_A", kind: str = "energized", type_: str = "enter") -> Event:
@@ -36,8 +37,9 @@ def alarm(f: int, zone: str = "panel_A", kind: str = "energized", type_: str = "
 def frame(f: int, events: tuple[Event, ...] = (), seen_by: list[int] | None = None) -> FrameResult:
     """160x120 frames showing the frame number: 8 columns, white for its bits that are set."""
     images = {c: numbered(f) for c in CAMERAS}
-    return FrameResult(f, f / FPS, {}, people(f, [0] if seen_by is None else seen_by), events,
-                       images)  # fmt: skip
+    return FrameResult(
+        f, f / FPS, {}, people(f, [0] if seen_by is None else seen_by), events, images
+    )
 
 
 def numbered(f: int) -> np.ndarray:
@@ -96,8 +98,10 @@ def test_an_alarm_makes_a_clip_from_pre_s_before_to_post_s_after(tmp_path: Path)
 def test_alarms_close_together_share_one_clip(tmp_path: Path) -> None:
     s = sink(tmp_path)
     paths = run(s, 80, {30: (alarm(30),), 35: (alarm(35, type_="approach"),), 60: (alarm(60),)})
-    assert [p.name for p in paths] == ["20240501-130003_3_panel_A_cam1.mp4",
-                                       "20240501-130006_3_panel_A_cam1.mp4"]  # fmt: skip
+    assert [p.name for p in paths] == [
+        "20240501-130003_3_panel_A_cam1.mp4",
+        "20240501-130006_3_panel_A_cam1.mp4",
+    ]
     assert levels(paths[0]) == list(range(20, 46))  # extended to 1 s after the second
     assert levels(paths[1]) == list(range(50, 71))
     assert s.frames_dropped == 0
@@ -203,8 +207,15 @@ def test_clip_drawer_draws_the_reprojected_people(tmp_path: Path) -> None:
     cam = scene.rig[0]
     w, h = (int(v) for v in cam.size)
     image = np.zeros((h, w, 3), np.uint8)
-    p3 = People3D(1, scene.truth[1][:1], np.ones((1, 17)), [5], np.zeros((1, 17)),
-                  np.full((1, 17), 2), np.zeros((1, 2), int))  # fmt: skip
+    p3 = People3D(
+        1,
+        scene.truth[1][:1],
+        np.ones((1, 17)),
+        [5],
+        np.zeros((1, 17)),
+        np.full((1, 17), 2),
+        np.zeros((1, 2), int),
+    )
     drawn = clip_drawer(scene.rig)(cam.name, image, None, p3, 0.25, "label")
     assert np.array_equal(drawn, draw_overlay(image, cam, None, p3, 0.25, "label"))
     assert drawn.shape == (round(h * 0.25), round(w * 0.25), 3) and drawn.max() > 0

@@ -229,8 +229,11 @@ def test_webhook_full_queue_drops_and_counts() -> None:
 
 def test_event_sinks_take_a_frame_and_close_once(tmp_path: Path) -> None:
     got: list[list[Event]] = []
-    sinks = [JsonlSink(tmp_path / "e.jsonl"), SqliteSink(tmp_path / "e.sqlite"),
-             CallbackSink(got.append)]  # fmt: skip
+    sinks = [
+        JsonlSink(tmp_path / "e.jsonl"),
+        SqliteSink(tmp_path / "e.sqlite"),
+        CallbackSink(got.append),
+    ]
     nobody = People3D.empty(0, 2)
     for k in range(4):
         evs = [event(k)] if k % 2 else []

@@ -17,8 +17,15 @@ from stereopose.types import People3D
 def frame(f: int, ids: list[int], shift: float = 0.0) -> FrameResult:
     P = len(ids)
     J = np.arange(P * 17 * 3, dtype=float).reshape(P, 17, 3) / 100 + f / 10 + shift
-    people = People3D(f, J, np.full((P, 17), 0.8), np.array(ids, dtype=np.int64),
-                      np.zeros((P, 17)), np.full((P, 17), 2), np.full((P, 2), -1))  # fmt: skip
+    people = People3D(
+        f,
+        J,
+        np.full((P, 17), 0.8),
+        np.array(ids, dtype=np.int64),
+        np.zeros((P, 17)),
+        np.full((P, 17), 2),
+        np.full((P, 2), -1),
+    )
     return FrameResult(f, f / 25, {}, people)
 
 
@@ -34,8 +41,7 @@ def test_file_sinks_write_every_frame(tmp_path: Path) -> None:
         for sink in sinks:
             sink.write(frame(f, ids))
     paths = [p for s in sinks for p in s.close()]
-    assert [p.name for p in paths] == ["p.jsonl", "j.csv", "person_1.trc", "person_2.trc",
-                                       "t.json"]  # fmt: skip
+    assert [p.name for p in paths] == ["p.jsonl", "j.csv", "person_1.trc", "person_2.trc", "t.json"]
     assert [s.close() for s in sinks] == [[], [], [], []]
     assert [f for f, _, _ in read_poses(tmp_path / "p.jsonl")] == [0, 1, 2, 3]
     assert len((tmp_path / "j.csv").read_text().splitlines()) == 1 + 4 * 17
@@ -45,8 +51,12 @@ def test_file_sinks_write_every_frame(tmp_path: Path) -> None:
 
 def test_two_way_hands_the_smoothed_frames_to_its_sinks_at_close(tmp_path: Path) -> None:
     def smooth(people: list[People3D]) -> list[People3D]:
-        return [People3D(p.frame, p.joints + 1.0, p.conf, p.ids, p.reprojection_px, p.views,
-                         p.detections) for p in people]  # fmt: skip
+        return [
+            People3D(
+                p.frame, p.joints + 1.0, p.conf, p.ids, p.reprojection_px, p.views, p.detections
+            )
+            for p in people
+        ]
 
     sink = TwoWaySink([TrcSink(tmp_path / "trc", 25.0)], smooth)
     for f in range(3):
@@ -55,8 +65,9 @@ def test_two_way_hands_the_smoothed_frames_to_its_sinks_at_close(tmp_path: Path)
     assert sink.frames_kept == 3 and not any((tmp_path / "trc").iterdir())
     assert [p.name for p in sink.close()] == ["person_5.trc"] and sink.frames_kept == 0
     _, _, J, _, _ = read_trc(tmp_path / "trc" / "person_5.trc")
-    np.testing.assert_allclose(J, np.stack([frame(f, [5], 1.0).people3d.joints[0]
-                                            for f in range(3)]), atol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(
+        J, np.stack([frame(f, [5], 1.0).people3d.joints[0] for f in range(3)]), atol=1e-5
+    )
 
 
 def test_two_way_writes_the_online_frames_if_smoothing_fails(tmp_path: Path, caplog) -> None:

@@ -31,9 +31,12 @@ def broker(tmp_path: Path):
 def _changes() -> tuple[list[Event], list]:
     """A reach into a panel twice, then the exit, and an operator's ack: its changes."""
     book = IncidentBook()
-    enter = [Event(t=float(k), frame=k, person=3, zone="panel", kind="energized", type=t,
-                   onset_t=float(k)) for k, t in ((1, "enter"), (2, "exit"), (3, "enter"),
-                                                   (4, "exit"))]  # fmt: skip
+    enter = [
+        Event(
+            t=float(k), frame=k, person=3, zone="panel", kind="energized", type=t, onset_t=float(k)
+        )
+        for k, t in ((1, "enter"), (2, "exit"), (3, "enter"), (4, "exit"))
+    ]
     changes = []
     for e in enter:
         changes += book.update([e], e.t).changes
@@ -43,8 +46,9 @@ def _changes() -> tuple[list[Event], list]:
 
 def test_incidents_topic_each_change_qos1_beside_the_events(broker, tmp_path) -> None:
     sub = Subscriber(broker.port, f"{BASE}/#")
-    sink = MqttSink(MqttSettings(host="127.0.0.1", port=broker.port, site="yard",
-                                 close_timeout_s=3.0))  # fmt: skip
+    sink = MqttSink(
+        MqttSettings(host="127.0.0.1", port=broker.port, site="yard", close_timeout_s=3.0)
+    )
     try:
         events, changes = _changes()
         sink.write_events(events)
@@ -53,8 +57,13 @@ def test_incidents_topic_each_change_qos1_beside_the_events(broker, tmp_path) ->
         wait_until(lambda: len(sub.on(topic)) >= len(changes), "every incident change")
         got = [json.loads(p) for p in sub.on(topic)]
         assert [g["change"] for g in got] == [c.what for c in changes]
-        assert [g["change"] for g in got] == ["raised", "cleared", "occurrence", "cleared",
-                                              "acknowledged"]  # fmt: skip
+        assert [g["change"] for g in got] == [
+            "raised",
+            "cleared",
+            "occurrence",
+            "cleared",
+            "acknowledged",
+        ]
         assert {g["incident"]["id"] for g in got} == {1}
         assert got[-1]["state"] == "closed" and got[-1]["by"] == "otto"
         assert got[-1]["incident"]["occurrences"] == 2

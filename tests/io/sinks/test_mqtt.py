@@ -48,14 +48,29 @@ def closing():
 
 
 def settings(port: int, **kw) -> MqttSettings:
-    base = dict(host="127.0.0.1", port=port, site=SITE, reconnect_min_s=0.05,
-                reconnect_max_s=0.2, close_timeout_s=3.0)  # fmt: skip
+    base = dict(
+        host="127.0.0.1",
+        port=port,
+        site=SITE,
+        reconnect_min_s=0.05,
+        reconnect_max_s=0.2,
+        close_timeout_s=3.0,
+    )
     return MqttSettings(**{**base, **kw})
 
 
 def event(k: int, person: int = 1, zone: str = "panel", type: str = "enter") -> Event:
-    return Event(t=k / FPS, frame=k, person=person, zone=zone, kind="energized", type=type,
-                 onset_t=(k - 2) / FPS, joint="right_wrist", position=(1.0, 2.0))  # fmt: skip
+    return Event(
+        t=k / FPS,
+        frame=k,
+        person=person,
+        zone=zone,
+        kind="energized",
+        type=type,
+        onset_t=(k - 2) / FPS,
+        joint="right_wrist",
+        position=(1.0, 2.0),
+    )
 
 
 def people(frame: int, ids: list[int]) -> People3D:
@@ -63,8 +78,15 @@ def people(frame: int, ids: list[int]) -> People3D:
     J = np.zeros((P, 17, 3))
     J[..., 0] = np.arange(P)[:, None] + 0.5
     J[:, 5, 1], J[:, 6, 1] = 0.2, -0.2  # shoulders: facing +x
-    return People3D(frame, J, np.ones((P, 17)), np.array(ids), np.full((P, 17), np.nan),
-                    np.full((P, 17), 2), np.full((P, 1), -1))  # fmt: skip
+    return People3D(
+        frame,
+        J,
+        np.ones((P, 17)),
+        np.array(ids),
+        np.full((P, 17), np.nan),
+        np.full((P, 17), 2),
+        np.full((P, 1), -1),
+    )
 
 
 def frame(k: int, ids: list[int] = (), events: list[Event] = ()) -> FrameResult:
@@ -144,8 +166,9 @@ def test_events_arrive_in_order_as_the_json_lines(broker, closing, tmp_path: Pat
     closing(sub)
     sink = MqttSink(settings(broker.port))
     jsonl = JsonlSink(tmp_path / "events.jsonl")
-    frames = [frame(k, [1], [event(k, person=k % 3, type=("enter", "exit")[k % 2])])
-              for k in range(40)]  # fmt: skip
+    frames = [
+        frame(k, [1], [event(k, person=k % 3, type=("enter", "exit")[k % 2])]) for k in range(40)
+    ]
     frames.append(frame(40, [1], [event(40, zone="bench"), event(40, zone="panel", person=7)]))
     for f in frames:
         sink.write(f)
@@ -164,9 +187,15 @@ def test_zone_occupancy_is_retained(broker, closing) -> None:
     sink = MqttSink(settings(broker.port), zone_names=names)
     closing(sink)
     for k, (person, zone, kind) in enumerate(
-        [(1, "panel A/1", "enter"), (2, "panel A/1", "enter"), (1, "panel A/1", "exit"),
-         (3, "bench+#", "enter"), (3, "bench+#", "approach"), (4, "ladder", "enter")]
-    ):  # fmt: skip
+        [
+            (1, "panel A/1", "enter"),
+            (2, "panel A/1", "enter"),
+            (1, "panel A/1", "exit"),
+            (3, "bench+#", "enter"),
+            (3, "bench+#", "approach"),
+            (4, "ladder", "enter"),
+        ]
+    ):
         sink.write(frame(k, [person], [event(k, person=person, zone=zone, type=kind)]))
     wait_until(lambda: sink.figures()["zones"]["queued"] == 0, "the zone states sent")
     late = Subscriber(broker.port, f"{BASE}/zones/+")  # after the fact: retained states
@@ -178,8 +207,14 @@ def test_zone_occupancy_is_retained(broker, closing) -> None:
         body = json.loads(m.payload)
         assert topic_name(m.topic.rsplit("/", 1)[1]) == body["zone"]
         state[body["zone"]] = body["people"]
-    assert state == {"panel A/1": [2], "bench+#": [3], "tab\there": [], "nul\x00": [], "": [],
-                     "ladder": [4]}  # fmt: skip
+    assert state == {
+        "panel A/1": [2],
+        "bench+#": [3],
+        "tab\there": [],
+        "nul\x00": [],
+        "": [],
+        "ladder": [4],
+    }
 
 
 def test_people_are_rate_limited_by_frame_time(broker, closing) -> None:
@@ -196,8 +231,10 @@ def test_people_are_rate_limited_by_frame_time(broker, closing) -> None:
     got = [json.loads(p) for p in sub.on(f"{BASE}/people")]
     assert [g["frame"] for g in got] == [*range(0, 100, 5), 100]
     assert got[0]["t"] == 0.0 and got[1]["t"] == 0.2
-    assert got[0]["people"] == [{"id": 3, "position": [0.5, 0.0], "heading_deg": 0.0},
-                                {"id": 8, "position": [1.5, 0.0], "heading_deg": 0.0}]  # fmt: skip
+    assert got[0]["people"] == [
+        {"id": 3, "position": [0.5, 0.0], "heading_deg": 0.0},
+        {"id": 8, "position": [1.5, 0.0], "heading_deg": 0.0},
+    ]
     assert got[-1]["people"] == []
 
 
@@ -212,8 +249,13 @@ def test_people_carry_their_posture_where_the_behaviour_rules_give_one(broker, c
     sink.write(FrameResult(0, 0.0, {}, people(0, [3, 8]), [], postures=postures))
     wait_until(lambda: len(sub.on(f"{BASE}/people")) == 1, "the update")
     got = json.loads(sub.on(f"{BASE}/people")[0])["people"]
-    assert got[0] == {"id": 3, "position": [0.5, 0.0], "heading_deg": 0.0,
-                      "posture": "crouching", "flags": ["reaching"]}  # fmt: skip
+    assert got[0] == {
+        "id": 3,
+        "position": [0.5, 0.0],
+        "heading_deg": 0.0,
+        "posture": "crouching",
+        "flags": ["reaching"],
+    }
     assert got[1] == {"id": 8, "position": [1.5, 0.0], "heading_deg": 0.0}
 
 
@@ -241,8 +283,9 @@ time.sleep(60)
 def test_offline_by_the_last_will_when_the_process_dies(broker, closing) -> None:
     sub = Subscriber(broker.port, f"{BASE}/available")
     closing(sub)
-    proc = subprocess.Popen([sys.executable, "-c", KILLED, str(broker.port), SITE],
-                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", KILLED, str(broker.port), SITE], stdout=subprocess.PIPE, text=True
+    )
     try:
         wait_until(lambda: sub.on(f"{BASE}/available") == ["online"], "online")
     finally:
@@ -300,8 +343,10 @@ def test_broker_restarted_mid_run(tmp_path: Path, closing, caplog) -> None:
         for k in range(20, 40):
             sink.write_events([event(k)])
         wait_until(lambda: published(sink, "events") == 40, "the events after the restart")
-        wait_until(lambda: len({json.loads(p)["frame"] for p in sub.on(f"{BASE}/events")}) == 40,
-                   "every event received")  # fmt: skip
+        wait_until(
+            lambda: len({json.loads(p)["frame"] for p in sub.on(f"{BASE}/events")}) == 40,
+            "every event received",
+        )
         frames = [json.loads(p)["frame"] for p in sub.on(f"{BASE}/events")]
         assert list(dict.fromkeys(frames)) == list(range(40))  # at least once, in order
         assert sub.on(f"{BASE}/available").count("online") >= 2  # announced again
@@ -319,8 +364,9 @@ def test_login_right_and_wrong(tmp_path: Path, closing, caplog) -> None:
         closing(good)
         good.write(frame(0, [1], [event(0)]))
         wait_until(lambda: len(sub.on(f"{BASE}/events")) == 1, "the event")
-        bad = MqttSink(settings(broker.port, username="ops", password="wrong-pw",
-                                close_timeout_s=0.2))  # fmt: skip
+        bad = MqttSink(
+            settings(broker.port, username="ops", password="wrong-pw", close_timeout_s=0.2)
+        )
         wait_until(lambda: bad.refused >= 2, "two refusals (it retries)")
         for k in range(5):  # the frame loop goes on
             bad.write(frame(k, [1], [event(k)]))

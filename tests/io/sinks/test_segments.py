@@ -30,8 +30,15 @@ WALL = datetime(2024, 5, 1, 12, 59, 55, tzinfo=timezone.utc).timestamp()
 def frame(f: int, fps: float = 5.0, ids: tuple[int, ...] = (1, 2)) -> FrameResult:
     P = len(ids)
     J = np.arange(P * 17 * 3, dtype=float).reshape(P, 17, 3) / 100 + f / 10
-    people = People3D(f, J, np.full((P, 17), 0.8), np.array(ids, dtype=np.int64),
-                      np.zeros((P, 17)), np.full((P, 17), 2), np.full((P, 2), -1))  # fmt: skip
+    people = People3D(
+        f,
+        J,
+        np.full((P, 17), 0.8),
+        np.array(ids, dtype=np.int64),
+        np.zeros((P, 17)),
+        np.full((P, 17), 2),
+        np.full((P, 2), -1),
+    )
     return FrameResult(f, f / fps, {}, people)
 
 
@@ -241,9 +248,11 @@ print(json.dumps({"paths": [str(p) for p in paths], "frames": sink.frames, "sent
 @pytest.mark.slow
 def test_a_full_disk_loses_frames_counted_and_writing_comes_back(tmp_path: Path) -> None:
     done = subprocess.run(
-        [sys.executable, "-c", FULL_DISK, str(tmp_path)], capture_output=True, text=True,
+        [sys.executable, "-c", FULL_DISK, str(tmp_path)],
+        capture_output=True,
+        text=True,
         timeout=60,
-    )  # fmt: skip
+    )
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     sent, kept = result["sent"], result["frames"]

@@ -16,9 +16,14 @@ from waiting import wait_until
 
 def event(k: int) -> Event:
     return Event(
-        t=k / 25, frame=k, person=1 + k % 2, zone="panel", kind="energized", type="enter",
+        t=k / 25,
+        frame=k,
+        person=1 + k % 2,
+        zone="panel",
+        kind="energized",
+        type="enter",
         onset_t=k / 25,
-    )  # fmt: skip
+    )
 
 
 class Lock:

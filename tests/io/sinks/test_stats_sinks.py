@@ -64,8 +64,15 @@ def test_camera_and_summary_sinks(tmp_path: Path) -> None:
     scene = simulate(num_cameras=3, num_people=1, num_frames=1, seed=1)
     rig = scene.rig
     J = scene.truth[0, :1]
-    people = People3D(7, J, np.full((1, 17), 0.9), np.array([3]), np.full((1, 17), 1.0),
-                      np.full((1, 17), 3), np.zeros((1, 3), int))  # fmt: skip
+    people = People3D(
+        7,
+        J,
+        np.full((1, 17), 0.9),
+        np.array([3]),
+        np.full((1, 17), 1.0),
+        np.full((1, 17), 3),
+        np.zeros((1, 3), int),
+    )
     p2 = {}
     for c in rig.cameras[:2]:  # the third camera has no frame here
         kp = np.concatenate([project(J, c) + np.array([3.0, 4.0]), np.full((1, 17, 1), 0.9)], -1)

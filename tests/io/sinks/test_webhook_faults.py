@@ -158,9 +158,13 @@ def test_retries_carry_an_event_over_every_fault(receiver) -> None:
     faults = [f for f, outcome in OUTCOMES if outcome == "failed" and f != "404"]
     server = receiver(faults)
     sink = WebhookSink(
-        server.url, retries=len(faults), backoff_s=0.001, max_backoff_s=0.002, timeout_s=0.5,
+        server.url,
+        retries=len(faults),
+        backoff_s=0.001,
+        max_backoff_s=0.002,
+        timeout_s=0.5,
         drain_timeout_s=30,
-    )  # fmt: skip
+    )
     sink.write_events([event(0), event(1)])
     sink.close()
     assert (sink.delivered, sink.failed, sink.dropped) == (2, 0, 0)

@@ -59,15 +59,22 @@ def _outputs_metrics(url: str) -> dict[tuple[str, str], float]:
 
 def _degraded_by(url: str, output: str) -> bool:
     h = _health(url)
-    return h["status"] == "degraded" and any(p.startswith(f"output {output} failing")
-                                             for p in h["problems"])  # fmt: skip
+    return h["status"] == "degraded" and any(
+        p.startswith(f"output {output} failing") for p in h["problems"]
+    )
 
 
 def test_an_mqtt_broker_outage_is_degraded_with_the_alarms_waiting(tmp_path: Path) -> None:
     broker = Broker(tmp_path / "broker").start()
     state, failures = _state(), {}
-    settings = MqttSettings(host="127.0.0.1", port=broker.port, site="s", reconnect_min_s=0.05,
-                            reconnect_max_s=0.2, close_timeout_s=2.0)  # fmt: skip
+    settings = MqttSettings(
+        host="127.0.0.1",
+        port=broker.port,
+        site="s",
+        reconnect_min_s=0.05,
+        reconnect_max_s=0.2,
+        close_timeout_s=2.0,
+    )
     mqtt = _watch(state, "mqtt", MqttSink(settings), failures)
     try:
         with serving(state) as server:
@@ -88,8 +95,10 @@ def test_an_mqtt_broker_outage_is_degraded_with_the_alarms_waiting(tmp_path: Pat
             assert m[("stereopose_output_up", "mqtt")] == 0.0
             assert m[("stereopose_output_waiting", "mqtt")] >= 17
             broker.start()
-            wait_until(lambda: mqtt.figures()["events"]["published"] == 17,
-                       "the broker's acknowledgements of the alarms")  # fmt: skip
+            wait_until(
+                lambda: mqtt.figures()["events"]["published"] == 17,
+                "the broker's acknowledgements of the alarms",
+            )
             wait_until(lambda: _health(url)["status"] == "ok", "health ok once delivered")
             up = {"state": "up", "waiting": 0, "reason": None, "backlog_s": 0.0}
             assert _health(url)["outputs"]["mqtt"] == up
@@ -134,8 +143,12 @@ class _FlakyReceiver:
 def test_a_failing_webhook_is_degraded_until_it_delivers_again() -> None:
     receiver = _FlakyReceiver()
     state, failures = _state(), {}
-    hook = _watch(state, "webhook", WebhookSink(receiver.url, retries=1000, backoff_s=0.05,
-                                                max_backoff_s=0.1), failures)  # fmt: skip
+    hook = _watch(
+        state,
+        "webhook",
+        WebhookSink(receiver.url, retries=1000, backoff_s=0.05, max_backoff_s=0.1),
+        failures,
+    )
     try:
         with serving(state) as server:
             url = server.url
@@ -181,8 +194,10 @@ def test_an_event_log_locked_by_another_connection_is_degraded_then_ok(tmp_path:
             assert str(tmp_path) not in str(h)
             assert _outputs_metrics(url)[("stereopose_output_up", "events_db")] == 0.0
             other.execute("COMMIT")
-            wait_until(lambda: db.write_events([]) or _health(url)["status"] == "ok",
-                       "health ok once the events are stored")  # fmt: skip
+            wait_until(
+                lambda: db.write_events([]) or _health(url)["status"] == "ok",
+                "health ok once the events are stored",
+            )
             assert _outputs_metrics(url)[("stereopose_output_waiting", "events_db")] == 0.0
     finally:
         other.close()
@@ -194,8 +209,11 @@ def _small_tmpfs(path: Path, size: str):
     path.mkdir()
     if shutil.which("mount") is None or os.geteuid() != 0:
         pytest.skip("needs root and mount(8) to make a small file system to fill")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
-                          capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+        capture_output=True,
+        text=True,
+    )
     if done.returncode != 0:
         pytest.skip(f"mounting a tmpfs is not permitted here: {done.stderr.strip()}")
     try:
@@ -207,8 +225,7 @@ def _small_tmpfs(path: Path, size: str):
 def test_an_event_log_on_a_full_disk_is_degraded_until_there_is_room(tmp_path: Path) -> None:
     with _small_tmpfs(tmp_path / "disk", "1m") as disk:
         state, failures = _state(), {}
-        db = _watch(state, "events_db", SqliteSink(disk / "events.sqlite", retry_s=0.01),
-                    failures)  # fmt: skip
+        db = _watch(state, "events_db", SqliteSink(disk / "events.sqlite", retry_s=0.01), failures)
         filler = disk / "filler"
         try:
             with serving(state) as server:
@@ -230,7 +247,9 @@ def test_an_event_log_on_a_full_disk_is_degraded_until_there_is_room(tmp_path: P
                 assert "full" in out["reason"] or "disk" in out["reason"], out
                 assert str(disk) not in str(h)
                 filler.unlink()
-                wait_until(lambda: db.write_events([]) or _health(url)["status"] == "ok",
-                           "health ok once there is room")  # fmt: skip
+                wait_until(
+                    lambda: db.write_events([]) or _health(url)["status"] == "ok",
+                    "health ok once there is room",
+                )
         finally:
             db.close()

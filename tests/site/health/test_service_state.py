@@ -118,8 +118,11 @@ def test_failing_probes_are_reported_never_raised(caplog):
     assert [q.size for q in snap.queues] == [None, None]
     assert snap.storage == {"clips": 10}
     assert snap.status == "degraded"
-    assert set(snap.problems) == {"queue broken: size unknown", "queue wrong: size unknown",
-                                  "storage: some sizes unknown"}  # fmt: skip
+    assert set(snap.problems) == {
+        "queue broken: size unknown",
+        "queue wrong: size unknown",
+        "storage: some sizes unknown",
+    }
     assert "gone" in caplog.text
 
 
@@ -133,8 +136,12 @@ def test_an_alarm_output_down_degrades_with_its_reason_until_it_recovers():
     assert snap.status == "degraded"
     assert snap.problems == ("output mqtt failing: broker unreachable (17 waiting)",)
     (out,) = snap.outputs
-    assert (out.name, out.state, out.waiting, out.reason) == ("mqtt", "down", 17,
-                                                              "broker unreachable")  # fmt: skip
+    assert (out.name, out.state, out.waiting, out.reason) == (
+        "mqtt",
+        "down",
+        17,
+        "broker unreachable",
+    )
     health[0] = (True, 0, None)
     snap = s.snapshot()
     assert snap.status == "ok" and snap.problems == ()
@@ -175,8 +182,10 @@ def test_an_output_probe_that_fails_or_answers_nonsense_is_down(caplog):
     s.register_output("silent", lambda: (False, -1, None))
     snap = s.snapshot()
     assert [(o.name, o.up, o.waiting, o.reason) for o in snap.outputs] == [
-        ("broken", False, None, "its health is unknown"), ("truthy", False, 0, "not delivering"),
-        ("silent", False, None, "not delivering")]  # fmt: skip
+        ("broken", False, None, "its health is unknown"),
+        ("truthy", False, 0, "not delivering"),
+        ("silent", False, None, "not delivering"),
+    ]
     assert snap.status == "degraded" and len(snap.problems) == 3
     assert "probe bug" in caplog.text
 
@@ -209,9 +218,12 @@ def test_names_beyond_the_cap_are_not_reported(caplog):
 
 
 values = st.one_of(
-    st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True, allow_infinity=True),
+    st.none(),
+    st.booleans(),
+    st.integers(),
+    st.floats(allow_nan=True, allow_infinity=True),
     st.text(max_size=3),
-)  # fmt: skip
+)
 
 
 @settings(max_examples=150, deadline=None)

@@ -23,7 +23,11 @@ def test_a_loop_that_did_not_run_past_the_timeout_is_one_stall() -> None:
     assert stall.resume(9.05, 9.1) == pytest.approx(7.15)
     stalled, resumed = stall.events()
     assert (stalled.type, stalled.kind, stalled.zone, stalled.person) == (
-        "service_stalled", "service", "", -1)  # fmt: skip
+        "service_stalled",
+        "service",
+        "",
+        -1,
+    )
     assert stalled.onset_t == pytest.approx(1.9) and stalled.t == pytest.approx(8.9)
     assert stalled.duration_s == pytest.approx(7.0)
     assert resumed.type == "service_resumed" and resumed.duration_s == pytest.approx(7.15)

@@ -65,8 +65,14 @@ def test_health_reports_the_state(fed):
     assert h["uptime_s"] == pytest.approx(1.0) and h["outputs"] == {}
     assert (h["frames"], h["people"]) == (2, 3)
     cam1, cam2 = h["cameras"]["cam_01"], h["cameras"]["cam_02"]
-    assert cam1 == {"fps": pytest.approx(10.0), "last_frame_age_s": 0.0, "state": "up",
-                    "frames": 11, "reconnects": 0, "dropped_frames": 0}  # fmt: skip
+    assert cam1 == {
+        "fps": pytest.approx(10.0),
+        "last_frame_age_s": 0.0,
+        "state": "up",
+        "frames": 11,
+        "reconnects": 0,
+        "dropped_frames": 0,
+    }
     assert (cam2["frames"], cam2["reconnects"], cam2["dropped_frames"]) == (12, 1, 2)
     assert h["queues"] == {"mqtt": 4}
     assert h["storage"] == {"clips": 1234, "events_db": 56}
@@ -105,7 +111,9 @@ def test_metrics_names_and_values(fed):
         m = metrics_of(server.url)
     assert m["stereopose_frames_total"] == {(): 2.0}
     assert m["stereopose_frames_dropped_total"] == {
-        (("camera", "cam_01"),): 0.0, (("camera", "cam_02"),): 2.0}  # fmt: skip
+        (("camera", "cam_01"),): 0.0,
+        (("camera", "cam_02"),): 2.0,
+    }
     assert m["stereopose_camera_reconnects_total"][(("camera", "cam_02"),)] == 1.0
     assert m["stereopose_camera_fps"][(("camera", "cam_01"),)] == pytest.approx(10.0)
     assert m["stereopose_people"] == {(): 3.0}
@@ -113,7 +121,9 @@ def test_metrics_names_and_values(fed):
     assert m["stereopose_queue_size"] == {(("queue", "mqtt"),): 4.0}
     assert m["stereopose_queue_dropped_total"] == {(("queue", "mqtt"),): 0.0}
     assert m["stereopose_storage_bytes"] == {
-        (("kind", "clips"),): 1234.0, (("kind", "events_db"),): 56.0}  # fmt: skip
+        (("kind", "clips"),): 1234.0,
+        (("kind", "events_db"),): 56.0,
+    }
     assert m["stereopose_info"] == {(("version", ""),): 1.0}  # anonymous: no version
     assert m["stereopose_uptime_seconds"][()] == pytest.approx(1.0)
     detect = (("stage", "detect"),)
@@ -204,13 +214,16 @@ def test_huge_headers_bodies_and_garbage_are_refused_and_the_server_goes_on():
         announced = b"content-length: %d\r\n" % (MAX_BODY_BYTES + 1)
         answer = raw(port, b"POST /api/echo HTTP/1.1\r\nhost: x\r\n" + announced + b"\r\n")
         assert answer.startswith(b"HTTP/1.1 413")
-        status, _, body = get(server.url + "/api/echo", "POST", b'{"a": 1}',
-                              {"content-type": "application/json"})  # fmt: skip
+        status, _, body = get(
+            server.url + "/api/echo", "POST", b'{"a": 1}', {"content-type": "application/json"}
+        )
         assert (status, json.loads(body)) == (200, {"keys": 1})
         piece = b"%x\r\n%s\r\n" % (65536, b"a" * 65536)
         chunked = piece * (MAX_BODY_BYTES // 65536 + 2) + b"0\r\n\r\n"
-        head = (b"POST /api/echo HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n"
-                b"transfer-encoding: chunked\r\n\r\n")  # fmt: skip
+        head = (
+            b"POST /api/echo HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n"
+            b"transfer-encoding: chunked\r\n\r\n"
+        )
         answer = raw(port, head + chunked)
         assert answer.startswith(b"HTTP/1.1 413")
         assert get(server.url + "/api/health")[0] == 503  # still serving

@@ -72,16 +72,28 @@ def test_a_foreign_host_is_refused_and_the_server_s_names_are_served() -> None:
     app = create_app(state, allowed_hosts=allowed_hosts("127.0.0.1", ["scada.example.org"]))
     with Server(app, ServeSettings(port=0)) as server:
         port = server.port
-        for host in ("attacker.example.com", f"attacker.example.com:{port}", "127.0.0.2",
-                     "scada.example.org.evil", "localhost.attacker.example"):  # fmt: skip
+        for host in (
+            "attacker.example.com",
+            f"attacker.example.com:{port}",
+            "127.0.0.2",
+            "scada.example.org.evil",
+            "localhost.attacker.example",
+        ):
             status, body = _get(port, host)
             assert status == 421, host
             assert json.loads(body) == {"detail": "unknown host: not a name of this server"}
             assert _get(port, host, path="/metrics")[0] == 421
         # two Host headers: refused (by the HTTP parser itself, or here)
         assert _get(port, "127.0.0.1", "attacker.example.com")[0] in (400, 421)
-        served = (f"127.0.0.1:{port}", "127.0.0.1", f"localhost:{port}", "LOCALHOST.",
-                  f"[::1]:{port}", "scada.example.org", f"Scada.Example.Org:{port}")  # fmt: skip
+        served = (
+            f"127.0.0.1:{port}",
+            "127.0.0.1",
+            f"localhost:{port}",
+            "LOCALHOST.",
+            f"[::1]:{port}",
+            "scada.example.org",
+            f"Scada.Example.Org:{port}",
+        )
         for host in served:
             assert _get(port, host)[0] == 503, host  # served: down, no camera yet
         status, body = _get(port, f"127.0.0.1:{port}", path="/metrics")
@@ -115,8 +127,11 @@ def test_error_answers_name_no_file_of_the_server(tmp_path: Path, caplog) -> Non
     caplog.set_level(logging.WARNING)
     with console_server(data, events=False) as served:
         operator = served.client("otto")
-        answers = [operator.get("/api/events"), operator.get("/api/events.csv"),
-                   operator.post("/api/events/1/ack")]  # fmt: skip
+        answers = [
+            operator.get("/api/events"),
+            operator.get("/api/events.csv"),
+            operator.post("/api/events/1/ack"),
+        ]
         operator.close()
     for r in answers:
         assert r.status_code == 503, r.text
@@ -140,14 +155,17 @@ def test_a_library_error_no_route_caught_is_a_503_without_its_message(caplog) ->
     assert "/var/lib/stereopose/events.sqlite: disk I/O error" in caplog.text
 
 
-@pytest.mark.parametrize("text, path", [
-    ("/srv/data/events.sqlite: cannot read the event log: file is not a database", True),
-    ("C:\\stereopose\\users.json: cannot read the users", True),
-    ("'~/data/users.json': gone", True),
-    ("this needs the admin role (or your own name)", False),
-    ("10 clips are playing; try again when one ends", False),
-    ("Method Not Allowed", False),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text, path",
+    [
+        ("/srv/data/events.sqlite: cannot read the event log: file is not a database", True),
+        ("C:\\stereopose\\users.json: cannot read the users", True),
+        ("'~/data/users.json': gone", True),
+        ("this needs the admin role (or your own name)", False),
+        ("10 clips are playing; try again when one ends", False),
+        ("Method Not Allowed", False),
+    ],
+)
 def test_what_counts_as_a_path(text: str, path: bool) -> None:
     from stereopose.site.http.error_answers import names_a_path
 

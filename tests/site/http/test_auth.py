@@ -45,8 +45,11 @@ def test_login_gives_a_token_and_two_strict_cookies(served):
         assert "samesite=strict" in session.lower() and "Path=/" in session
         assert "Secure" not in session  # plain HTTP here; see the HTTPS test
         assert body["csrf"] in csrf and "HttpOnly" not in csrf
-        assert c.get("/api/me").json() == {"username": "otto", "role": "operator",
-                                           "expires_at": body["expires_at"]}  # fmt: skip
+        assert c.get("/api/me").json() == {
+            "username": "otto",
+            "role": "operator",
+            "expires_at": body["expires_at"],
+        }
         assert r.headers["cache-control"] == "no-store"
 
 
@@ -72,8 +75,9 @@ def test_five_failures_from_one_address_then_429_with_retry_after(served):
 
 def test_the_limiter_throttles_addresses_then_accounts_and_forgets_after_its_window():
     now = [0.0]
-    limiter = LoginLimiter(window_s=60, max_failures=5, per_hour=60, burst=8, pair_s=600,
-                           clock=lambda: now[0])  # fmt: skip
+    limiter = LoginLimiter(
+        window_s=60, max_failures=5, per_hour=60, burst=8, pair_s=600, clock=lambda: now[0]
+    )
     for _ in range(5):
         limiter.end(limiter.begin("a", "ann"), ok=False)
     with pytest.raises(TooManyAttemptsError, match="address") as refused:
@@ -110,16 +114,29 @@ def _routes(app) -> list[tuple[str, str]]:
 
 def test_every_route_but_the_open_ones_is_401_without_a_session(served):
     routes = [(m, p) for m, p in _routes(served.server.app) if p not in OPEN]
-    assert {p for _, p in routes} >= {"/api/people", "/api/events", "/api/events.csv",
-                                      "/api/events/1/ack", "/api/cameras", "/api/zones",
-                                      "/api/cameras/1/snapshot.jpg", "/api/clips/1",
-                                      "/api/live", "/api/users", "/api/users/1",
-                                      "/api/users/1/password", "/api/me",
-                                      "/api/logout"}  # fmt: skip
+    assert {p for _, p in routes} >= {
+        "/api/people",
+        "/api/events",
+        "/api/events.csv",
+        "/api/events/1/ack",
+        "/api/cameras",
+        "/api/zones",
+        "/api/cameras/1/snapshot.jpg",
+        "/api/clips/1",
+        "/api/live",
+        "/api/users",
+        "/api/users/1",
+        "/api/users/1/password",
+        "/api/me",
+        "/api/logout",
+    }
     with httpx.Client(base_url=served.url, timeout=30) as c:
         for method, path in routes:
-            for headers in ({}, {"Authorization": "Bearer not-a-token"},
-                            {"Cookie": "stereopose_session=not-a-token"}):  # fmt: skip
+            for headers in (
+                {},
+                {"Authorization": "Bearer not-a-token"},
+                {"Cookie": "stereopose_session=not-a-token"},
+            ):
                 r = c.request(method, path, headers=headers, json={})
                 assert r.status_code == 401, (method, path, headers, r.text)
         for path in ("/api/health", "/metrics", "/", "/login", "/docs", "/openapi.json"):
@@ -163,14 +180,17 @@ def test_roles_viewer_reads_operator_acks_admin_manages_users(served):
             assert c.post("/api/users", json=new).status_code == 403
             assert c.delete("/api/users/vera").status_code == 403
         assert [u["username"] for u in admin.get("/api/users").json()] == ["ada", "otto", "vera"]
-        r = admin.post("/api/users", json={"username": "eve", "password": "eve-pass-123",
-                                           "role": "viewer"})  # fmt: skip
+        r = admin.post(
+            "/api/users", json={"username": "eve", "password": "eve-pass-123", "role": "viewer"}
+        )
         assert r.status_code == 201 and r.json()["role"] == "viewer"
-        dup = admin.post("/api/users", json={"username": "eve", "password": "eve-pass-123",
-                                             "role": "viewer"})  # fmt: skip
+        dup = admin.post(
+            "/api/users", json={"username": "eve", "password": "eve-pass-123", "role": "viewer"}
+        )
         assert dup.status_code == 409
-        short = admin.post("/api/users", json={"username": "sam", "password": "short",
-                                               "role": "viewer"})  # fmt: skip
+        short = admin.post(
+            "/api/users", json={"username": "sam", "password": "short", "role": "viewer"}
+        )
         assert short.status_code == 422 and "too short" in short.text
         assert admin.delete("/api/users/eve").status_code == 204
         assert admin.delete("/api/users/eve").status_code == 404
@@ -186,8 +206,9 @@ def test_logout_ends_the_session_and_clears_the_cookies(served):
         token = c.cookies["stereopose_session"]
         r = c.post("/api/logout")
         assert r.status_code == 204
-        assert all("Max-Age=0" in h or "expires" in h.lower()
-                   for h in r.headers.get_list("set-cookie"))  # fmt: skip
+        assert all(
+            "Max-Age=0" in h or "expires" in h.lower() for h in r.headers.get_list("set-cookie")
+        )
         bearer = {"Authorization": f"Bearer {token}"}
         assert httpx.get(served.url + "/api/me", headers=bearer).status_code == 401
     finally:
@@ -290,10 +311,28 @@ def test_the_page_carries_its_security_headers(served):
 
 def _self_signed(folder) -> tuple[str, str]:
     cert, key = folder / "cert.pem", folder / "key.pem"
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
-                    "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
-                    "-keyout", str(key), "-out", str(cert)], check=True,
-                   capture_output=True)  # fmt: skip
+    subprocess.run(
+        [
+            "openssl",
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-days",
+            "2",
+            "-subj",
+            "/CN=127.0.0.1",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1",
+            "-keyout",
+            str(key),
+            "-out",
+            str(cert),
+        ],
+        check=True,
+        capture_output=True,
+    )
     key.chmod(0o600)
     return str(cert), str(key)
 
@@ -343,17 +382,19 @@ def test_the_configuration_checks_certificate_and_key(tmp_path):
 
 
 def test_no_listening_beyond_this_machine_without_a_user(tmp_path):
-    with pytest.raises(
-        ServeError, match=r"serve\.host '0\.0\.0\.0'.*no user.*stereopose users add"
-    ), console_server(tmp_path / "a", users=False,
-                        settings=ServeSettings(host="0.0.0.0", port=0)):  # fmt: skip
+    with (
+        pytest.raises(ServeError, match=r"serve\.host '0\.0\.0\.0'.*no user.*stereopose users add"),
+        console_server(tmp_path / "a", users=False, settings=ServeSettings(host="0.0.0.0", port=0)),
+    ):
         pass
     with console_server(tmp_path / "b", users=False) as s:  # loopback: allowed, nobody can log in
         assert httpx.get(s.url + "/api/health").status_code == 503
     with console_server(tmp_path / "c", settings=ServeSettings(host="0.0.0.0", port=0)) as s:
         port = s.server.port
-        r = httpx.post(f"http://127.0.0.1:{port}/api/login",
-                       json={"username": "ada", "password": PASSWORDS["ada"]})  # fmt: skip
+        r = httpx.post(
+            f"http://127.0.0.1:{port}/api/login",
+            json={"username": "ada", "password": PASSWORDS["ada"]},
+        )
         assert r.status_code == 200
 
 

@@ -113,11 +113,17 @@ def test_limits_are_checked():
         ConnectionLimits(max_connections=72)
 
 
-@pytest.mark.parametrize(("host", "key"), [
-    ("127.0.0.2", "127.0.0.2"), ("::1", "::1"), ("::ffff:10.0.0.7", "10.0.0.7"),
-    ("2001:db8:1:2:aaaa::1", "2001:db8:1:2::/64"), ("2001:db8:1:2:bbbb::9", "2001:db8:1:2::/64"),
-    ("", ""),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("host", "key"),
+    [
+        ("127.0.0.2", "127.0.0.2"),
+        ("::1", "::1"),
+        ("::ffff:10.0.0.7", "10.0.0.7"),
+        ("2001:db8:1:2:aaaa::1", "2001:db8:1:2::/64"),
+        ("2001:db8:1:2:bbbb::9", "2001:db8:1:2::/64"),
+        ("", ""),
+    ],
+)
 def test_a_client_address_is_an_ipv4_address_or_an_ipv6_64(host: str, key: str):
     assert client_key(host) == key
 
@@ -223,9 +229,10 @@ def test_a_request_framed_both_ways_is_refused_and_its_connection_closed():
         assert port is not None
         hidden = b"GET /api/seen HTTP/1.1\r\nhost: x\r\n\r\n"
         body = b"0\r\n\r\n" + hidden  # chunked: empty; by length: a second request follows
-        smuggled = (b"POST /api/seen HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n"
-                    b"content-length: %d\r\ntransfer-encoding: chunked\r\n\r\n" % len(body)
-                    + body)  # fmt: skip
+        smuggled = (
+            b"POST /api/seen HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n"
+            b"content-length: %d\r\ntransfer-encoding: chunked\r\n\r\n" % len(body) + body
+        )
         answer = answer_of(port, smuggled)
         assert answer.startswith(b"HTTP/1.1 400 "), answer[:80]
         assert answer.count(b"HTTP/1.1") == 1  # the hidden request is never answered
@@ -323,8 +330,9 @@ def test_answers_in_progress_are_bounded_and_health_keeps_its_places(peers, rele
 
 
 def test_a_full_table_gives_way_to_health(peers):
-    limits = ConnectionLimits(max_connections=12, max_requests=4, health_reserve=2,
-                              idle_s=60, request_s=60)  # fmt: skip
+    limits = ConnectionLimits(
+        max_connections=12, max_requests=4, health_reserve=2, idle_s=60, request_s=60
+    )
     with serving(healthy_state(), limits=limits) as server:
         assert server.port is not None
         peers += [Peer(server.port, a) for a in sources(12, 4)]
@@ -363,7 +371,8 @@ def test_streams_and_keep_alive_clients_outlive_the_timeouts(release):
         stream.request("GET", "/api/ticks")
         answer = stream.getresponse()
         assert answer.status == 200 and answer.headers["content-type"].startswith(
-            "text/event-stream")  # fmt: skip
+            "text/event-stream"
+        )
         data = [line for line in answer.read().split(b"\n") if line.startswith(b"data: ")]
         assert data == [b"data: %d" % i for i in range(30)]  # 3 s of messages, all of them
         stream.close()
@@ -372,8 +381,9 @@ def test_streams_and_keep_alive_clients_outlive_the_timeouts(release):
         client.connect()
         sock = client.sock
         for i in range(30):  # one connection, kept alive, request after request
-            client.request("POST", "/api/echo", json.dumps({"i": i}),
-                           {"content-type": "application/json"})  # fmt: skip
+            client.request(
+                "POST", "/api/echo", json.dumps({"i": i}), {"content-type": "application/json"}
+            )
             r = client.getresponse()
             assert (r.status, json.loads(r.read())) == (200, {"i": i})
         assert client.sock is sock

@@ -28,12 +28,25 @@ from waiting import wait_until
 pytestmark = pytest.mark.realdata  # the real demo's calibration and site
 
 # a real person of the demo (served, frame 3): joints in metres, COCO order
-REAL_JOINTS = [[0.02, -0.405, 1.262], [0.03, -0.437, 1.287], [0.034, -0.381, 1.29],
-               [0.169, -0.447, 1.258], [0.087, -0.339, 1.266], [0.249, -0.478, 1.114],
-               [0.134, -0.281, 1.109], [0.29, -0.573, 0.918], [0.169, -0.2, 0.905],
-               [0.307, -0.554, 0.748], [0.186, -0.193, 0.753], [0.269, -0.453, 0.719],
-               [0.243, -0.299, 0.708], [0.25, -0.468, 0.405], [0.259, -0.282, 0.417],
-               [0.272, -0.508, 0.081], [0.231, -0.353, 0.064]]  # fmt: skip
+REAL_JOINTS = [
+    [0.02, -0.405, 1.262],
+    [0.03, -0.437, 1.287],
+    [0.034, -0.381, 1.29],
+    [0.169, -0.447, 1.258],
+    [0.087, -0.339, 1.266],
+    [0.249, -0.478, 1.114],
+    [0.134, -0.281, 1.109],
+    [0.29, -0.573, 0.918],
+    [0.169, -0.2, 0.905],
+    [0.307, -0.554, 0.748],
+    [0.186, -0.193, 0.753],
+    [0.269, -0.453, 0.719],
+    [0.243, -0.299, 0.708],
+    [0.25, -0.468, 0.405],
+    [0.259, -0.282, 0.417],
+    [0.272, -0.508, 0.081],
+    [0.231, -0.353, 0.064],
+]
 
 
 @pytest.fixture(scope="module")
@@ -56,11 +69,22 @@ def _rows(served, sql: str, args=()) -> list[tuple]:
 
 
 def _log(served) -> list[Event]:
-    events = [zone_event(30, "enter"), zone_event(60, "enter", 8, "work_area", "work_area"),
-              zone_event(90, "dwell", 8, "work_area", "work_area"),
-              Event(t=4.0, frame=120, person=-1, zone="", kind="camera", type="camera_down",
-                    onset_t=4.0, camera="cam02"),
-              zone_event(150, "exit")]  # fmt: skip
+    events = [
+        zone_event(30, "enter"),
+        zone_event(60, "enter", 8, "work_area", "work_area"),
+        zone_event(90, "dwell", 8, "work_area", "work_area"),
+        Event(
+            t=4.0,
+            frame=120,
+            person=-1,
+            zone="",
+            kind="camera",
+            type="camera_down",
+            onset_t=4.0,
+            camera="cam02",
+        ),
+        zone_event(150, "exit"),
+    ]
     for e in events:
         served.db.write_events([e])
     assert served.db.committed == len(events)
@@ -77,7 +101,11 @@ def test_events_newest_first_with_wall_time_level_and_filters(served):
         first = events[-1]
         assert first["wall_t"] == pytest.approx(WALL_START + 1.0)
         assert (first["person"], first["zone"], first["type"], first["ack"]) == (
-            7, "overhead_busbar", "enter", None)  # fmt: skip
+            7,
+            "overhead_busbar",
+            "enter",
+            None,
+        )
         assert events[1]["camera"] == "cam02" and events[1]["type"] == "camera_down"
 
         def ids(**params) -> list[int]:
@@ -96,8 +124,13 @@ def test_events_newest_first_with_wall_time_level_and_filters(served):
         assert ids(limit=2) == [5, 4]
         assert ids(limit=2, before_id=4) == [3, 2]
         assert ids(after_id=3) == [5, 4]
-        for bad in ({"since": "yesterday"}, {"limit": 0}, {"limit": 5000}, {"person": "x"},
-                    {"before_id": -1}):  # fmt: skip
+        for bad in (
+            {"since": "yesterday"},
+            {"limit": 0},
+            {"limit": 5000},
+            {"person": "x"},
+            {"before_id": -1},
+        ):
             r = c.get("/api/events", params=bad)
             assert r.status_code == 422, bad
             assert r.json()["detail"]
@@ -193,28 +226,52 @@ def test_clips_are_listed_served_with_range_and_nothing_else(served, tmp_path):
         c.close()
     auth = {"Authorization": f"Bearer {token}"}
     assert _raw(served.url, f"/api/clips/{name}", auth) == 200
-    for path in ("/api/clips/../events.sqlite", "/api/clips/..%2Fevents.sqlite",
-                 "/api/clips/%2e%2e%2fevents.sqlite", "/api/clips/%2E%2E/users.json",
-                 "/api/clips/..%2f..%2f..%2fetc%2fpasswd", "/api/clips/%2Fetc%2Fpasswd",
-                 "/api/clips//etc/passwd", "/api/clips/sub/a.mp4", "/api/clips/sub%2Fa.mp4",
-                 "/api/clips/link.mp4", "/api/clips/.hidden.mp4", "/api/clips/partial.part.mp4",
-                 "/api/clips/..mp4", "/api/clips/events.sqlite", "/api/clips/users.json",
-                 "/api/clips/missing.mp4", "/api/clips/%00.mp4",
-                 "/api/clips/" + "a" * 300 + ".mp4"):  # fmt: skip
+    for path in (
+        "/api/clips/../events.sqlite",
+        "/api/clips/..%2Fevents.sqlite",
+        "/api/clips/%2e%2e%2fevents.sqlite",
+        "/api/clips/%2E%2E/users.json",
+        "/api/clips/..%2f..%2f..%2fetc%2fpasswd",
+        "/api/clips/%2Fetc%2Fpasswd",
+        "/api/clips//etc/passwd",
+        "/api/clips/sub/a.mp4",
+        "/api/clips/sub%2Fa.mp4",
+        "/api/clips/link.mp4",
+        "/api/clips/.hidden.mp4",
+        "/api/clips/partial.part.mp4",
+        "/api/clips/..mp4",
+        "/api/clips/events.sqlite",
+        "/api/clips/users.json",
+        "/api/clips/missing.mp4",
+        "/api/clips/%00.mp4",
+        "/api/clips/" + "a" * 300 + ".mp4",
+    ):
         status = _raw(served.url, path, auth)
         assert 400 <= status < 500, (path, status)
-    for path in ("/console/../users.json", "/console/%2e%2e/%2e%2e/web.py",
-                 "/console/..%2f..%2fweb.py", "/console/%2e%2e%2fauth.py", "/console//etc/passwd",
-                 "/console/../../../../etc/passwd", "/console/%2Fetc%2Fpasswd"):  # fmt: skip
+    for path in (
+        "/console/../users.json",
+        "/console/%2e%2e/%2e%2e/web.py",
+        "/console/..%2f..%2fweb.py",
+        "/console/%2e%2e%2fauth.py",
+        "/console//etc/passwd",
+        "/console/../../../../etc/passwd",
+        "/console/%2Fetc%2Fpasswd",
+    ):
         status = _raw(served.url, path, {})
         assert 400 <= status < 500, (path, status)
 
 
 def _frame(frame: int, shift: float, events=(), images=None) -> FrameResult:
     joints = np.asarray(REAL_JOINTS)[None] + [shift, 0.0, 0.0]
-    people = People3D(frame=frame, joints=joints, conf=np.ones((1, 17)), ids=np.array([7]),
-                      reprojection_px=np.zeros((1, 17)), views=np.full((1, 17), 4),
-                      detections=np.zeros((1, 4), dtype=int))  # fmt: skip
+    people = People3D(
+        frame=frame,
+        joints=joints,
+        conf=np.ones((1, 17)),
+        ids=np.array([7]),
+        reprojection_px=np.zeros((1, 17)),
+        views=np.full((1, 17), 4),
+        detections=np.zeros((1, 4), dtype=int),
+    )
     return FrameResult(frame, frame / 30.0, {}, people, tuple(events), images)
 
 
@@ -222,8 +279,12 @@ def test_people_zones_and_trails_from_the_frames(served):
     hub = served.console.hub
     c = served.client("vera")
     try:
-        assert c.get("/api/people").json() == {"frame": None, "t": None, "wall_t": None,
-                                               "people": []}  # fmt: skip
+        assert c.get("/api/people").json() == {
+            "frame": None,
+            "t": None,
+            "wall_t": None,
+            "people": [],
+        }
         zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
         assert set(zones) == {"overhead_busbar", "work_area"}
         assert zones["overhead_busbar"]["state"] == "free"
@@ -267,8 +328,11 @@ def test_cameras_their_view_health_and_snapshots(served, plan):
         image = np.zeros((1920, 1088, 3), np.uint8)
         image[500:900, 300:700] = (0, 128, 255)
         hub.on_frame(_frame(1, 0.0, images={"cam01": image, "cam02": None}), WALL_START)
-        wait_until(lambda: c.get("/api/cameras/cam01/snapshot.jpg").status_code == 200,
-                   "the first snapshot (its drawing compiled at first)", timeout_s=90)  # fmt: skip
+        wait_until(
+            lambda: c.get("/api/cameras/cam01/snapshot.jpg").status_code == 200,
+            "the first snapshot (its drawing compiled at first)",
+            timeout_s=90,
+        )
         r = c.get("/api/cameras/cam01/snapshot.jpg")
         assert (
             r.headers["content-type"] == "image/jpeg" and r.headers["cache-control"] == "no-store"
@@ -421,8 +485,18 @@ def test_people_carry_their_posture_when_the_behaviour_rules_give_one(served):
 
 
 def test_behaviour_alarms_are_alarms_and_every_column_is_listed(served):
-    down = Event(t=2.0, frame=60, person=7, zone="", kind="behaviour", type="person_down",
-                 onset_t=1.5, rule="down", posture="lying", height_m=0.2)  # fmt: skip
+    down = Event(
+        t=2.0,
+        frame=60,
+        person=7,
+        zone="",
+        kind="behaviour",
+        type="person_down",
+        onset_t=1.5,
+        rule="down",
+        posture="lying",
+        height_m=0.2,
+    )
     served.db.write_events([down])
     c = served.client("vera")
     try:

@@ -42,9 +42,16 @@ from waiting import http_get, wait_until
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-sync",
-        "--disable-background-networking", "--disable-component-update",
-        "--autoplay-policy=no-user-gesture-required"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-sync",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--autoplay-policy=no-user-gesture-required",
+]
 ROOT = Path(__file__).resolve().parents[2]
 SHOTS = Path(os.environ.get("STEREOPOSE_SCREENSHOTS", ROOT / "out" / "console-screenshots"))
 VIEWPORT = {"width": 1600, "height": 1000}
@@ -70,8 +77,10 @@ class Served:
         """The camera's two streams served again on their ports (it reconnects by itself)."""
         for n in (name, name + "_sub"):
             self.streams[n] = serve(self.sources[n], self.ports[n], n, codec="copy")
-        wait_serving([self.streams[name], self.streams[name + "_sub"]],
-                     [self.ports[name], self.ports[name + "_sub"]])  # fmt: skip
+        wait_serving(
+            [self.streams[name], self.streams[name + "_sub"]],
+            [self.ports[name], self.ports[name + "_sub"]],
+        )
 
     @property
     def db(self) -> Path:
@@ -107,17 +116,44 @@ def _post(url: str, body: dict | None, token: str | None = None) -> dict:
 
 
 def _add_user(config: Path, name: str, role: str, password: str) -> None:
-    cmd = [sys.executable, "-m", "stereopose.cli", "users", "add", name, "--role", role,
-           "--config", str(config)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereopose.cli",
+        "users",
+        "add",
+        name,
+        "--role",
+        role,
+        "--config",
+        str(config),
+    ]
     done = subprocess.run(cmd, input=password + "\n", capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stdout + done.stderr
 
 
 def _substream(video: Path, out: Path) -> Path:
     """`video` at a quarter of its size (272x480), H.264: the camera's detection substream."""
-    cmd = [ffmpeg(), "-loglevel", "error", "-y", "-i", str(video), "-an", "-vf",
-           "scale=272:480", "-c:v", "libx264", "-preset", "veryfast", "-g", "30", "-pix_fmt",
-           "yuv420p", str(out)]  # fmt: skip
+    cmd = [
+        ffmpeg(),
+        "-loglevel",
+        "error",
+        "-y",
+        "-i",
+        str(video),
+        "-an",
+        "-vf",
+        "scale=272:480",
+        "-c:v",
+        "libx264",
+        "-preset",
+        "veryfast",
+        "-g",
+        "30",
+        "-pix_fmt",
+        "yuv420p",
+        str(out),
+    ]
     subprocess.run(cmd, check=True, timeout=120)
     return out
 
@@ -147,20 +183,32 @@ def served(tmp_path_factory) -> Served:
         if line != "loop = true":  # live cameras are not looped by the service
             lines.append(line)
     text = "\n".join(lines) + "\n"
-    text = text.replace("[serve]\n", "[storage]\nclip_pre_s = 1\nclip_post_s = 1\n\n"
-                        "[serve]\ncamera_timeout_s = 3\nstatus_interval_s = 1\n", 1)  # fmt: skip
+    text = text.replace(
+        "[serve]\n",
+        "[storage]\nclip_pre_s = 1\nclip_post_s = 1\n\n"
+        "[serve]\ncamera_timeout_s = 3\nstatus_interval_s = 1\n",
+        1,
+    )
     config.write_text(text)
     for name, (role, password) in USERS.items():
         _add_user(config, name, role, password)
     log = tmp / "serve.log"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with open(log, "ab") as f:
-        proc = subprocess.Popen([sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-                                stdout=f, stderr=subprocess.STDOUT, env=env)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
     s = Served(f"http://127.0.0.1:{port}", tmp / "data", log, proc, streams, sources, ports)
     try:
-        wait_until(lambda: proc.poll() is not None or _cameras_up(s.base), "the cameras up",
-                   timeout_s=120, poll_s=0.25)  # fmt: skip
+        wait_until(
+            lambda: proc.poll() is not None or _cameras_up(s.base),
+            "the cameras up",
+            timeout_s=120,
+            poll_s=0.25,
+        )
         assert proc.poll() is None, log.read_text()
         yield s
     finally:
@@ -197,8 +245,14 @@ class Watched:
         self.page = self.context.new_page()
         self.problems: list[str] = []
         self.requests: list[str] = []
-        self.page.on("console", lambda m: self.problems.append(f"{m.text} ({m.location['url']})")
-                     if m.type == "error" else None)  # fmt: skip
+        self.page.on(
+            "console",
+            lambda m: (
+                self.problems.append(f"{m.text} ({m.location['url']})")
+                if m.type == "error"
+                else None
+            ),
+        )
         self.page.on("pageerror", lambda e: self.problems.append(f"page error: {e}"))
         self.page.on("request", lambda r: self.requests.append(r.url))
         self.page.goto(served.base + "/")
@@ -210,10 +264,13 @@ class Watched:
         assert self.page.inner_text("#user") == f"{user} ({USERS[user][0]})"
 
     def people(self) -> dict[str, tuple[float, float]]:
-        return {k: tuple(v) for k, v in self.page.evaluate(
-            "Object.fromEntries([...document.querySelectorAll('#floor-people [data-person]"
-            ":not(.lost)')].map(g => [g.dataset.person, [+g.dataset.x, +g.dataset.y]]))"
-        ).items()}  # fmt: skip
+        return {
+            k: tuple(v)
+            for k, v in self.page.evaluate(
+                "Object.fromEntries([...document.querySelectorAll('#floor-people [data-person]"
+                ":not(.lost)')].map(g => [g.dataset.person, [+g.dataset.x, +g.dataset.y]]))"
+            ).items()
+        }
 
     def close(self) -> None:
         self.context.close()
@@ -239,9 +296,11 @@ def watched(browser, served):
 
 
 def _alarm_rows(served: Served, after_id: int) -> list[tuple]:
-    return served.rows("SELECT id, zone, type, incident FROM events WHERE id > ? AND "
-                       "kind = 'energized' AND type IN ('enter', 'approach') ORDER BY id",
-                       (after_id,))  # fmt: skip
+    return served.rows(
+        "SELECT id, zone, type, incident FROM events WHERE id > ? AND "
+        "kind = 'energized' AND type IN ('enter', 'approach') ORDER BY id",
+        (after_id,),
+    )
 
 
 def _last_id(served: Served) -> int:
@@ -254,8 +313,9 @@ def _line(incident: int) -> str:
 
 
 def _state(page, incident: int) -> str | None:
-    return page.evaluate("(sel) => document.querySelector(sel)?.dataset.state ?? null",
-                         _line(incident))  # fmt: skip
+    return page.evaluate(
+        "(sel) => document.querySelector(sel)?.dataset.state ?? null", _line(incident)
+    )
 
 
 def _stored(served: Served, incident: int) -> dict:
@@ -297,22 +357,32 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
 
     def moved() -> bool:
         now = w.people()
-        return any(abs(now[k][0] - first[k][0]) + abs(now[k][1] - first[k][1]) > 0.05
-                   for k in now.keys() & first.keys())  # fmt: skip
+        return any(
+            abs(now[k][0] - first[k][0]) + abs(now[k][1] - first[k][1]) > 0.05
+            for k in now.keys() & first.keys()
+        )
 
     wait_until(moved, "a person's marker to move", timeout_s=30, poll_s=0.1)
     # an energized-zone alarm on its incident's line within a second of its row in SQLite
     start = _last_id(served)
-    wait_until(lambda: _alarm_rows(served, start), "an energized-zone alarm in SQLite",
-               timeout_s=120, poll_s=0.02)  # fmt: skip
+    wait_until(
+        lambda: _alarm_rows(served, start),
+        "an energized-zone alarm in SQLite",
+        timeout_s=120,
+        poll_s=0.02,
+    )
     seen_row = time.monotonic()
     alarm_id, zone, kind, incident = _alarm_rows(served, start)[0]
     assert incident is not None
     # its line shows it, or a later occurrence of the same incident that came meanwhile
     shown_js = "([sel, id]) => +(document.querySelector(sel)?.dataset.lastEvent ?? 0) >= id"
     # a deadline, not a figure: the latency is printed (and measured under benchmarks/)
-    wait_until(lambda: page.evaluate(shown_js, [_line(incident), alarm_id]),
-               f"event {alarm_id} on its incident's line", timeout_s=30, poll_s=0.02)  # fmt: skip
+    wait_until(
+        lambda: page.evaluate(shown_js, [_line(incident), alarm_id]),
+        f"event {alarm_id} on its incident's line",
+        timeout_s=30,
+        poll_s=0.02,
+    )
     latency_s = time.monotonic() - seen_row
     print(f"alarm {alarm_id} on incident {incident}'s line {latency_s:.3f} s after its row")
     line = _line(incident)
@@ -326,22 +396,31 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
     # acknowledged from the feed: who in SQLite and on the page; the banner lets it go
     if page.get_attribute(line, "data-state") in ("active", "cleared"):
         page.click(f"{line} .ack-button")
-    page.wait_for_selector(f'{line}:is([data-state="acknowledged"], [data-state="closed"])',
-                           timeout=30_000)  # fmt: skip
+    page.wait_for_selector(
+        f'{line}:is([data-state="acknowledged"], [data-state="closed"])', timeout=30_000
+    )
     assert "olga" in page.inner_text(f"{line} .ack-state")
-    wait_until(lambda: _stored(served, incident).get("acked_by") == "olga",
-               "the acknowledgement in SQLite")  # fmt: skip
+    wait_until(
+        lambda: _stored(served, incident).get("acked_by") == "olga", "the acknowledgement in SQLite"
+    )
     assert page.get_attribute("#alarm-banner", "data-incident-id") != str(incident) or (
-        page.is_hidden("#alarm-banner"))  # fmt: skip
+        page.is_hidden("#alarm-banner")
+    )
     # the newest incident acknowledged elsewhere (a script with a bearer token) shows so
     token = _post(served.base + "/api/login", {"username": "olga", "password": USERS["olga"][1]})
     other = '#feed li.incident:is([data-state="active"], [data-state="cleared"])'
-    wait_until(lambda: page.locator(other).count() > 0, "another unacknowledged incident",
-               timeout_s=120, poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: page.locator(other).count() > 0,
+        "another unacknowledged incident",
+        timeout_s=120,
+        poll_s=0.2,
+    )
     other_id = page.get_attribute(other, "data-incident-id")
     _post(f"{served.base}/api/incidents/{other_id}/ack", None, token["token"])
-    page.wait_for_selector(f'{_line(int(other_id))}:is([data-state="acknowledged"], '
-                           f'[data-state="closed"])', timeout=30_000)  # fmt: skip
+    page.wait_for_selector(
+        f'{_line(int(other_id))}:is([data-state="acknowledged"], [data-state="closed"])',
+        timeout=30_000,
+    )
     # each camera's picture is an image
     for name in CAMERAS:
         js = f"document.querySelector('img[data-camera=\"{name}\"]')?.naturalWidth > 0"
@@ -349,8 +428,10 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
     # the 3D view: skeletons, zones and cameras drawn by plotly
     page.click('[data-tab="view3d"]')
     page.wait_for_selector("#view3d .main-svg", timeout=60_000)
-    skeletons = ("(document.getElementById('view3d').data || [])"
-                 ".filter(t => t.name.startsWith('id ') && t.x.length > 0).length")  # fmt: skip
+    skeletons = (
+        "(document.getElementById('view3d').data || [])"
+        ".filter(t => t.name.startsWith('id ') && t.x.length > 0).length"
+    )
     wait_until(lambda: page.evaluate(skeletons) >= 1, "a skeleton in the 3D view", poll_s=0.1)
     names = page.evaluate("document.getElementById('view3d').data.map(t => t.name)")
     assert "cameras" in names and any(n.startswith(zone) for n in names)
@@ -361,11 +442,17 @@ def test_an_operator_sees_people_incidents_cameras_3d_and_history(watched, serve
     page.select_option("#h-type", kind)
     page.click("#h-search")
     row = f'#h-rows tr[data-event-id="{alarm_id}"]'
-    shown = ("[...document.querySelectorAll('#h-rows tr')]"
-             ".map(r => [r.cells[3].textContent, r.dataset.type])")  # fmt: skip
+    shown = (
+        "[...document.querySelectorAll('#h-rows tr')]"
+        ".map(r => [r.cells[3].textContent, r.dataset.type])"
+    )
     # the tab's own search (every event) may answer before the filtered one: its rows go then
-    wait_until(lambda: {tuple(r) for r in page.evaluate(shown)} == {(zone, kind)},
-               "only the filtered events in the history", timeout_s=20, poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: {tuple(r) for r in page.evaluate(shown)} == {(zone, kind)},
+        "only the filtered events in the history",
+        timeout_s=20,
+        poll_s=0.2,
+    )
     page.wait_for_selector(row, timeout=20_000)
     csv_url = page.get_attribute("#h-csv", "href")
     assert csv_url.startswith("/api/events.csv?") and f"zone={zone}" in csv_url
@@ -384,11 +471,13 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     # open, those not acknowledged first: an acknowledged one closes when it clears (its
     # shelving is then over), and an earlier test acknowledged the first ones; while a person
     # comes back within the re-arm time, theirs stays acknowledged
-    counted = ("(sel) => [...document.querySelectorAll(sel)].filter(li => +li.dataset.count >= 2"
-               " && ['active', 'cleared', 'acknowledged'].includes(li.dataset.state))"
-               ".sort((a, b) => (a.dataset.state === 'acknowledged')"
-               " - (b.dataset.state === 'acknowledged'))"
-               ".map(li => +li.dataset.incidentId)")  # fmt: skip
+    counted = (
+        "(sel) => [...document.querySelectorAll(sel)].filter(li => +li.dataset.count >= 2"
+        " && ['active', 'cleared', 'acknowledged'].includes(li.dataset.state))"
+        ".sort((a, b) => (a.dataset.state === 'acknowledged')"
+        " - (b.dataset.state === 'acknowledged'))"
+        ".map(li => +li.dataset.incidentId)"
+    )
     # (the demo's man returns to the busbar every minute or two; on a loaded machine the
     # served demo runs slower than real time)
     found: list[int] = []
@@ -398,8 +487,9 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
         return bool(found)
 
     try:
-        wait_until(two_occurrences, "an open incident with two occurrences", timeout_s=360,
-                   poll_s=0.25)  # fmt: skip
+        wait_until(
+            two_occurrences, "an open incident with two occurrences", timeout_s=360, poll_s=0.25
+        )
     except BaseException:
         print("incidents:", served.rows("SELECT id, record FROM incidents ORDER BY id"))
         raise
@@ -434,13 +524,20 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     assert "shelved until" in page.inner_text(f"{line} .shelved-label")
     assert page.locator(f"{line} .shelve-button").count() == 0
     assert page.get_attribute("#alarm-banner", "data-incident-id") != str(incident) or (
-        page.is_hidden("#alarm-banner"))  # fmt: skip
-    wait_until(lambda: _stored(served, incident).get("shelved_reason") ==
-               "busbar isolated for the work", "the shelving stored")  # fmt: skip
+        page.is_hidden("#alarm-banner")
+    )
+    wait_until(
+        lambda: _stored(served, incident).get("shelved_reason") == "busbar isolated for the work",
+        "the shelving stored",
+    )
     stored = _stored(served, incident)
     assert stored["shelved_by"] == "olga"
-    wait_until(lambda: page.inner_text("#rate-shelved") not in ("-", "0"),
-               "the shelved count in the alarm-rate panel", timeout_s=30, poll_s=0.5)  # fmt: skip
+    wait_until(
+        lambda: page.inner_text("#rate-shelved") not in ("-", "0"),
+        "the shelved count in the alarm-rate panel",
+        timeout_s=30,
+        poll_s=0.5,
+    )
     assert int(page.inner_text("#rate-10min")) >= 1
     page.screenshot(path=str(SHOTS / "incident-shelved.png"))
 
@@ -501,9 +598,11 @@ def test_a_camera_picture_opens_large(watched, served):
     page.wait_for_selector(f'#camera-view[open][data-camera="{name}"]', timeout=5_000)
     painted = "+(document.getElementById('camera-view-picture').dataset.painted || 0)"
     wait_until(lambda: page.evaluate(painted) >= 2, "the large picture refreshed", poll_s=0.1)
-    size = page.evaluate("(() => { const c = document.getElementById('camera-view-picture');"
-                         " const r = c.getBoundingClientRect();"
-                         " return [c.width, c.height, r.width, r.height]; })()")  # fmt: skip
+    size = page.evaluate(
+        "(() => { const c = document.getElementById('camera-view-picture');"
+        " const r = c.getBoundingClientRect();"
+        " return [c.width, c.height, r.width, r.height]; })()"
+    )
     assert max(size[0], size[1]) >= 480  # the substream's own size: ids readable
     assert max(size[2], size[3]) >= 400  # shown large
     # beside the floor plan, never over it: the plan (the person drawn red on it) stays seen
@@ -521,8 +620,12 @@ def test_the_regions_toggle_shows_where_detection_looked(watched, served):
     page = w.page
     card = f'figure.camera-card[data-camera="{CAMERAS[0]}"]'
     # the cameras' health comes every few seconds with what detection looked at
-    wait_until(lambda: page.evaluate(f"document.querySelector('{card}')?.dataset.detection"),
-               "the first camera's detection mode", timeout_s=30, poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: page.evaluate(f"document.querySelector('{card}')?.dataset.detection"),
+        "the first camera's detection mode",
+        timeout_s=30,
+        poll_s=0.2,
+    )
     mode = page.get_attribute(card, "data-detection")
     assert mode in ("regions", "whole", "whole+regions", "idle")
     assert not page.is_visible(f"{card} .regions")
@@ -530,8 +633,12 @@ def test_the_regions_toggle_shows_where_detection_looked(watched, served):
     assert page.get_attribute("#regions-toggle", "aria-pressed") == "true"
     assert page.is_visible(f"{card} .regions")
     # the served demo's people fill the frames: someone is looked at in some camera
-    wait_until(lambda: page.locator("figure.camera-card .region").count() > 0,
-               "a region drawn", timeout_s=30, poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: page.locator("figure.camera-card .region").count() > 0,
+        "a region drawn",
+        timeout_s=30,
+        poll_s=0.2,
+    )
     box = page.locator("figure.camera-card .region").first.bounding_box()
     frame = page.locator("figure.camera-card .snapshot").first.bounding_box()
     assert box and frame and box["width"] > 0 and box["width"] <= frame["width"] + 1
@@ -544,9 +651,13 @@ def _clipped(w: Watched, served: Served) -> dict | None:
     answer = w.page.request.get(f"{served.base}/api/events?limit=1000")
     assert answer.status == 200
     # both kinds: a camera's full-stream copy is finished just after its drawn clip
-    both = (e for e in answer.json()["events"] if e["level"] == "alarm"
-            and any(c.endswith(".full.mp4") for c in e["clips"])
-            and any(not c.endswith(".full.mp4") for c in e["clips"]))  # fmt: skip
+    both = (
+        e
+        for e in answer.json()["events"]
+        if e["level"] == "alarm"
+        and any(c.endswith(".full.mp4") for c in e["clips"])
+        and any(not c.endswith(".full.mp4") for c in e["clips"])
+    )
     return next(both, None)
 
 
@@ -597,8 +708,10 @@ _OPENED_FOR = """([name, incident]) => {
 
 
 def _camera_incident(served: Served, camera: str, after_id: int) -> int | None:
-    sql = ("SELECT incident FROM events WHERE type = 'camera_down' AND camera = ? AND id > ? "
-           "ORDER BY id")  # fmt: skip
+    sql = (
+        "SELECT incident FROM events WHERE type = 'camera_down' AND camera = ? AND id > ? "
+        "ORDER BY id"
+    )
     rows = served.rows(sql, (camera, after_id))
     return rows[0][0] if rows else None
 
@@ -630,11 +743,15 @@ def test_camera_incidents_go_through_every_state_on_the_page(watched, served):
         start = _last_id(served)
         served.kill_camera(name)
         killed = time.monotonic()
-        wait_until(lambda n=name: page.evaluate(shown, n), f"{name} shown down", timeout_s=15,
-                   poll_s=0.1)  # fmt: skip
+        wait_until(
+            lambda n=name: page.evaluate(shown, n), f"{name} shown down", timeout_s=15, poll_s=0.1
+        )
         print(f"{name} shown down {time.monotonic() - killed:.1f} s after its streams were killed")
-        wait_until(lambda n=name, s=start: _camera_incident(served, n, s),
-                   f"{name}'s camera_down", timeout_s=20)  # fmt: skip
+        wait_until(
+            lambda n=name, s=start: _camera_incident(served, n, s),
+            f"{name}'s camera_down",
+            timeout_s=20,
+        )
         incident = _camera_incident(served, name, start)
         line = _line(incident)
         page.wait_for_selector(f'{line}[data-camera="{name}"]', timeout=5_000)
@@ -643,8 +760,12 @@ def test_camera_incidents_go_through_every_state_on_the_page(watched, served):
         assert page.get_attribute(line, "data-priority") == "4"  # a diagnostic
         assert page.get_attribute("#alarm-banner", "data-state") in ("active", "cleared")
         # its camera opened large, unless a more urgent incident raised since holds the view
-        wait_until(lambda n=name, i=incident: page.evaluate(_OPENED_FOR, [n, i]),
-                   f"{name} opened large", timeout_s=5, poll_s=0.05)  # fmt: skip
+        wait_until(
+            lambda n=name, i=incident: page.evaluate(_OPENED_FOR, [n, i]),
+            f"{name} opened large",
+            timeout_s=5,
+            poll_s=0.05,
+        )
         if ack_while_down:
             page.click(f"{line} .ack-button")
             page.wait_for_selector(f'{line}[data-state="acknowledged"]', timeout=30_000)
@@ -652,21 +773,32 @@ def test_camera_incidents_go_through_every_state_on_the_page(watched, served):
         page.locator(card).screenshot(path=str(SHOTS / f"camera-down-{name}.png"))
         served.restore_camera(name)
         final = "closed" if ack_while_down else "cleared"
-        wait_until(lambda i=incident, f=final: watch(i) == f,
-                   f"{name}'s incident {final}", timeout_s=90, poll_s=0.1)  # fmt: skip
+        wait_until(
+            lambda i=incident, f=final: watch(i) == f,
+            f"{name}'s incident {final}",
+            timeout_s=90,
+            poll_s=0.1,
+        )
         if not ack_while_down:
             cls = page.get_attribute(line, "class")
             assert "state-cleared" in cls and "acked" not in cls
-            decoration = page.evaluate("(sel) => getComputedStyle(document.querySelector(sel))"
-                                       ".textDecorationLine", f"{line} .what")  # fmt: skip
+            decoration = page.evaluate(
+                "(sel) => getComputedStyle(document.querySelector(sel)).textDecorationLine",
+                f"{line} .what",
+            )
             assert "line-through" in decoration  # it looks cleared
             page.screenshot(path=str(SHOTS / "incident-cleared.png"))
             page.click(f"{line} .ack-button")
             page.wait_for_selector(f'{line}[data-state="closed"]', timeout=30_000)
             watch(incident)
-        expected = (["active", "acknowledged", "closed"] if ack_while_down
-                    else ["active", "cleared", "closed"])  # fmt: skip
+        expected = (
+            ["active", "acknowledged", "closed"]
+            if ack_while_down
+            else ["active", "cleared", "closed"]
+        )
         assert seen[incident] == expected
-        wait_until(lambda i=incident: _stored(served, i).get("state") == "closed",
-                   "the closed incident stored")  # fmt: skip
+        wait_until(
+            lambda i=incident: _stored(served, i).get("state") == "closed",
+            "the closed incident stored",
+        )
         assert _stored(served, incident)["acked_by"] == "olga"

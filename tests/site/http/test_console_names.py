@@ -33,25 +33,49 @@ from waiting import wait_until
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync",
-        "--disable-background-networking", "--disable-component-update"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--no-first-run",
+    "--disable-sync",
+    "--disable-background-networking",
+    "--disable-component-update",
+]
 ROOT = Path(__file__).resolve().parents[2]
 SHOTS = Path(os.environ.get("STEREOPOSE_SCREENSHOTS", ROOT / "out" / "console-screenshots"))
 
-ZONES = ["<b>bold</b>", '<a href="http://x/">link</a>', "<img src=x onerror=alert(1)>",
-         "\"quoted' &amp;", '<span style="font-size:40px">big</span>']  # fmt: skip
+ZONES = [
+    "<b>bold</b>",
+    '<a href="http://x/">link</a>',
+    "<img src=x onerror=alert(1)>",
+    "\"quoted' &amp;",
+    '<span style="font-size:40px">big</span>',
+]
 CAMERAS = ["cam?01&x=%41", "cam#02", "cam/03", "<i>cam04</i>"]
 RULE = "<b>fall rule</b>"
 ODD_TYPE = "<i>odd</i>"
 USER = "otto"  # an operator (consoled.ROLES)
 
 # a real person of the demo (served, frame 3): joints in metres, COCO order
-JOINTS = [[0.02, -0.405, 1.262], [0.03, -0.437, 1.287], [0.034, -0.381, 1.29],
-          [0.169, -0.447, 1.258], [0.087, -0.339, 1.266], [0.249, -0.478, 1.114],
-          [0.134, -0.281, 1.109], [0.29, -0.573, 0.918], [0.169, -0.2, 0.905],
-          [0.307, -0.554, 0.748], [0.186, -0.193, 0.753], [0.269, -0.453, 0.719],
-          [0.243, -0.299, 0.708], [0.25, -0.468, 0.405], [0.259, -0.282, 0.417],
-          [0.272, -0.508, 0.081], [0.231, -0.353, 0.064]]  # fmt: skip
+JOINTS = [
+    [0.02, -0.405, 1.262],
+    [0.03, -0.437, 1.287],
+    [0.034, -0.381, 1.29],
+    [0.169, -0.447, 1.258],
+    [0.087, -0.339, 1.266],
+    [0.249, -0.478, 1.114],
+    [0.134, -0.281, 1.109],
+    [0.29, -0.573, 0.918],
+    [0.169, -0.2, 0.905],
+    [0.307, -0.554, 0.748],
+    [0.186, -0.193, 0.753],
+    [0.269, -0.453, 0.719],
+    [0.243, -0.299, 0.708],
+    [0.25, -0.468, 0.405],
+    [0.259, -0.282, 0.417],
+    [0.272, -0.508, 0.081],
+    [0.231, -0.353, 0.064],
+]
 
 # what the page saw: set before any of its scripts runs (Playwright's init script is not
 # subject to the page's CSP); a violation's report is kept with what it was about
@@ -85,8 +109,7 @@ def hostile_plan(folder: Path) -> SimpleNamespace:
     """The demo's rig and site, each camera and zone renamed (the geometry unchanged; the
     zones beyond the demo's two are its zones moved along x)."""
     plan = demo_plan(folder)
-    rig = Rig(tuple(dataclasses.replace(c, name=n) for c, n in zip(plan.rig, CAMERAS,
-                                                                   strict=True)))  # fmt: skip
+    rig = Rig(tuple(dataclasses.replace(c, name=n) for c, n in zip(plan.rig, CAMERAS, strict=True)))
     demo = plan.site.zones
     zones = []
     for i, name in enumerate(ZONES):
@@ -98,9 +121,15 @@ def hostile_plan(folder: Path) -> SimpleNamespace:
 
 def _frame(frame: int, events=(), images=None) -> FrameResult:
     joints = np.asarray(JOINTS)[None] + [-0.5, 0.0, 0.0]
-    people = People3D(frame=frame, joints=joints, conf=np.ones((1, 17)), ids=np.array([7]),
-                      reprojection_px=np.zeros((1, 17)), views=np.full((1, 17), 4),
-                      detections=np.zeros((1, 4), dtype=int))  # fmt: skip
+    people = People3D(
+        frame=frame,
+        joints=joints,
+        conf=np.ones((1, 17)),
+        ids=np.array([7]),
+        reprojection_px=np.zeros((1, 17)),
+        views=np.full((1, 17), 4),
+        detections=np.zeros((1, 4), dtype=int),
+    )
     return FrameResult(frame, frame / 30.0, {}, people, tuple(events), images)
 
 
@@ -110,15 +139,55 @@ def _events() -> list[Event]:
     out = []
     for i, zone in enumerate(ZONES):
         kind = "energized" if i % 2 == 0 else "work_area"
-        out.append(Event(t=1.0 + i, frame=30 + 30 * i, person=7, zone=zone, kind=kind,
-                         type="enter", onset_t=1.0 + i, position=(0.1, -0.2)))  # fmt: skip
+        out.append(
+            Event(
+                t=1.0 + i,
+                frame=30 + 30 * i,
+                person=7,
+                zone=zone,
+                kind=kind,
+                type="enter",
+                onset_t=1.0 + i,
+                position=(0.1, -0.2),
+            )
+        )
     for i, camera in enumerate(CAMERAS):
-        out.append(Event(t=10.0 + i, frame=300 + 30 * i, person=-1, zone="", kind="camera",
-                         type="camera_down", onset_t=10.0 + i, camera=camera))  # fmt: skip
-    out.append(Event(t=20.0, frame=600, person=7, zone="", kind="behaviour", type="person_down",
-                     onset_t=20.0, rule=RULE, posture="lying"))  # fmt: skip
-    out.append(Event(t=21.0, frame=630, person=7, zone=ZONES[1], kind="work_area",
-                     type=ODD_TYPE, onset_t=21.0))  # fmt: skip
+        out.append(
+            Event(
+                t=10.0 + i,
+                frame=300 + 30 * i,
+                person=-1,
+                zone="",
+                kind="camera",
+                type="camera_down",
+                onset_t=10.0 + i,
+                camera=camera,
+            )
+        )
+    out.append(
+        Event(
+            t=20.0,
+            frame=600,
+            person=7,
+            zone="",
+            kind="behaviour",
+            type="person_down",
+            onset_t=20.0,
+            rule=RULE,
+            posture="lying",
+        )
+    )
+    out.append(
+        Event(
+            t=21.0,
+            frame=630,
+            person=7,
+            zone=ZONES[1],
+            kind="work_area",
+            type=ODD_TYPE,
+            onset_t=21.0,
+        )
+    )
     return out
 
 
@@ -134,9 +203,22 @@ def _frames(served, plan) -> Iterator[None]:
     def feed() -> None:
         frame = 0
         while not stop.is_set():
-            enter = [Event(t=frame / 30.0, frame=frame, person=7, zone=z.name, kind=z.kind,
-                           type="enter", onset_t=frame / 30.0)
-                     for z in plan.site.zones] if frame == 0 else []  # fmt: skip
+            enter = (
+                [
+                    Event(
+                        t=frame / 30.0,
+                        frame=frame,
+                        person=7,
+                        zone=z.name,
+                        kind=z.kind,
+                        type="enter",
+                        onset_t=frame / 30.0,
+                    )
+                    for z in plan.site.zones
+                ]
+                if frame == 0
+                else []
+            )
             for c in plan.rig:
                 served.state.camera_frame(c.name)
             hub.on_frame(_frame(frame, enter, images), WALL_START)
@@ -178,8 +260,10 @@ def page(served):
         page.problems = []
         page.on("dialog", lambda d: (page.problems.append(f"dialog: {d.message}"), d.dismiss()))
         page.on("pageerror", lambda e: page.problems.append(f"page error: {e}"))
-        page.on("console", lambda m: page.problems.append(f"console: {m.text}")
-                if m.type == "error" else None)  # fmt: skip
+        page.on(
+            "console",
+            lambda m: page.problems.append(f"console: {m.text}") if m.type == "error" else None,
+        )
         page.goto(served.url + "/")
         page.wait_for_selector("#login-form", state="visible", timeout=20_000)
         page.fill("#login-user", USER)
@@ -208,8 +292,11 @@ def _texts(page, selector: str) -> list[str]:
 
 def test_hostile_names_are_text_in_every_tab(page, served):
     # live: the floor plan (SVG), the feed, the camera strip with every picture
-    wait_until(lambda: len(_texts(page, "#floor-zones .zone-label")) == len(ZONES),
-               "the zones on the floor plan", poll_s=0.1)  # fmt: skip
+    wait_until(
+        lambda: len(_texts(page, "#floor-zones .zone-label")) == len(ZONES),
+        "the zones on the floor plan",
+        poll_s=0.1,
+    )
     labels = page.evaluate(
         "[...document.querySelectorAll('#floor-zones g[data-zone]')]"
         ".map(g => [g.dataset.zone, g.querySelector('text').textContent])"
@@ -224,30 +311,34 @@ def test_hostile_names_are_text_in_every_tab(page, served):
     assert sorted(_texts(page, "#cameras .camera-name")) == sorted(CAMERAS)
     for name in CAMERAS:
         js = f"document.querySelector('#cameras img[data-camera={_css(name)}]')?.naturalWidth > 0"
-        wait_until(lambda js=js: page.evaluate(js), f"{name}'s picture", timeout_s=90,
-                   poll_s=0.2)  # fmt: skip
+        wait_until(lambda js=js: page.evaluate(js), f"{name}'s picture", timeout_s=90, poll_s=0.2)
     page.screenshot(path=str(_shots() / "hostile-live.png"))
     _clean(page, "live")
 
     # 3D: plotly's legend (zones) and labels (cameras) as text
     page.click('[data-tab="view3d"]')
     page.wait_for_selector("#view3d .main-svg", timeout=60_000)
-    wanted = sorted(f"{z} (alarm)" if i % 2 == 0 else f"{z} (occupied)"
-                    for i, z in enumerate(ZONES))  # fmt: skip
+    wanted = sorted(
+        f"{z} (alarm)" if i % 2 == 0 else f"{z} (occupied)" for i, z in enumerate(ZONES)
+    )
 
     def legend() -> list[str]:
         return sorted(t for t in _texts(page, "#view3d .legendtext") if t.endswith(")"))
 
     wait_until(lambda: legend() == wanted, f"the zones {wanted} in the 3D legend", poll_s=0.2)
-    wait_until(lambda: sorted(_texts(page, "#view3d .annotation-text")) == sorted(CAMERAS),
-               "the cameras' labels in the 3D view", poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: sorted(_texts(page, "#view3d .annotation-text")) == sorted(CAMERAS),
+        "the cameras' labels in the 3D view",
+        poll_s=0.2,
+    )
     page.screenshot(path=str(_shots() / "hostile-view3d.png"))
     _clean(page, "3D")
 
     # history: the table's cells, each row's title, the zone filter's options
     page.click('[data-tab="history"]')
-    wait_until(lambda: len(_texts(page, "#h-rows tr")) == len(_events()), "the history rows",
-               poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: len(_texts(page, "#h-rows tr")) == len(_events()), "the history rows", poll_s=0.2
+    )
     zones = _texts(page, "#h-rows tr td:nth-child(4)")
     cameras = _texts(page, "#h-rows tr td:nth-child(6)")
     assert set(ZONES) <= set(zones) and set(CAMERAS) <= set(cameras)
@@ -258,8 +349,11 @@ def test_hostile_names_are_text_in_every_tab(page, served):
     # a filter by a hostile zone finds its rows, through an escaped query string
     page.select_option("#h-zone", ZONES[3])
     page.click("#h-search")
-    wait_until(lambda: set(_texts(page, "#h-rows tr td:nth-child(4)")) == {ZONES[3]},
-               "only the filtered zone's rows", poll_s=0.2)  # fmt: skip
+    wait_until(
+        lambda: set(_texts(page, "#h-rows tr td:nth-child(4)")) == {ZONES[3]},
+        "only the filtered zone's rows",
+        poll_s=0.2,
+    )
     page.screenshot(path=str(_shots() / "hostile-history.png"))
     _clean(page, "history")
 

@@ -81,7 +81,10 @@ def test_the_plotly_bundle_adds_no_inline_style_the_page_does_not_turn_off():
     link = next(a for t, a in page.tags if a.get("id") == "plotly.js-style-global")
     assert link.get("class") == "no-inline-styles" and link.get("href") == "/console/plotly.css"
     # every other inline <style> the bundle makes is guarded by an element id the page has
-    guards = re.findall(r'getElementById\("([0-9a-f]{64})"\)\)\{var \w=document\.createElement\('
-                        r'"style"\)', text)  # fmt: skip
+    guards = re.findall(
+        r'getElementById\("([0-9a-f]{64})"\)\)\{var \w=document\.createElement\('
+        r'"style"\)',
+        text,
+    )
     assert guards and set(guards) <= ids, f"plotly's style ids {guards} not in the page"
     assert Path(CONSOLE_DIR / "plotly.css").read_text().count(".js-plotly-plot") > 20

@@ -61,8 +61,10 @@ def test_a_thousand_logins_of_a_viewer_leave_the_operators_session(tmp_path):
             assert otto.get("/api/me").json()["username"] == "otto"  # still logged in
             sessions = served.console.sessions
             assert sessions.count("vera") == 10 and sessions.count("otto") == 1
-            me = [vera.get("/api/me", headers={"Authorization": f"Bearer {t}"}).status_code
-                  for t in (tokens[0], tokens[989], tokens[990], tokens[-1])]  # fmt: skip
+            me = [
+                vera.get("/api/me", headers={"Authorization": f"Bearer {t}"}).status_code
+                for t in (tokens[0], tokens[989], tokens[990], tokens[-1])
+            ]
             assert me == [401, 401, 200, 200]  # her own oldest went, nobody else's
         finally:
             otto.close()
@@ -116,8 +118,10 @@ def test_a_viewer_holding_many_streams_never_keeps_an_operators_alarm_channel_aw
     with console_server(tmp_path / "out", demo_plan(tmp_path)) as served:
         _add_users(served, "olav", *(f"v{i}" for i in range(6)))
         hub = served.console.hub
-        clients = {u: _client(served, u) for u in ("vera", "otto", "ada", "olav",
-                                                   *(f"v{i}" for i in range(6)))}  # fmt: skip
+        clients = {
+            u: _client(served, u)
+            for u in ("vera", "otto", "ada", "olav", *(f"v{i}" for i in range(6)))
+        }
         try:
             vera = [_Live(clients["vera"]) for _ in range(32)]
             assert all(s.status == 200 for s in vera)  # each newer one ends her own oldest

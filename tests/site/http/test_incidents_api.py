@@ -56,9 +56,16 @@ class Run:
         outputs = [self.changes.extend]
         if live:  # as serve wires the console's live channel
             outputs.append(lambda changes: _live_changes(served.console.hub, changes))
-        self.desk = IncidentStep(book, self.script, None, None, store=served.db.put_incidents,
-                                 outputs=outputs, clock=lambda: self.t,
-                                 wall_start=WALL_START)  # fmt: skip
+        self.desk = IncidentStep(
+            book,
+            self.script,
+            None,
+            None,
+            store=served.db.put_incidents,
+            outputs=outputs,
+            clock=lambda: self.t,
+            wall_start=WALL_START,
+        )
         served.server.app.state.incidents.attach(self.desk)
         self.jsonl = JsonlSink(served.out / "events.jsonl")
 
@@ -90,8 +97,20 @@ def _reaches(run: Run) -> None:
     for frame in (30, 60, 90):
         run.step([zone_event(frame, "enter")])
         run.step([zone_event(frame + 10, "exit")])
-    run.step([Event(t=200 / 30, frame=200, person=-1, zone="", kind="camera",
-                    type="camera_down", onset_t=200 / 30, camera="cam02")])  # fmt: skip
+    run.step(
+        [
+            Event(
+                t=200 / 30,
+                frame=200,
+                person=-1,
+                zone="",
+                kind="camera",
+                type="camera_down",
+                onset_t=200 / 30,
+                camera="cam02",
+            )
+        ]
+    )
 
 
 def test_repeated_entries_one_incident_with_count_carried_by_events(tmp_path, plan):
@@ -158,8 +177,11 @@ def test_ack_and_shelve_reach_the_book_and_the_store(tmp_path, plan):
         assert r.status_code == 200, r.text
         assert r.json()["incident"]["state"] == "closed"  # cleared, now acknowledged
         assert run.desk.book.get(busbar).acked_by == "otto"
-        bad = [{"reason": "", "duration_s": 60}, {"reason": "x", "duration_s": 0},
-               {"reason": "x", "duration_s": 10 * 3600}]  # fmt: skip
+        bad = [
+            {"reason": "", "duration_s": 60},
+            {"reason": "x", "duration_s": 0},
+            {"reason": "x", "duration_s": 10 * 3600},
+        ]
         for body in bad:
             got = operator.post(f"/api/incidents/{work}/shelve", json=body)
             assert got.status_code == 422, (body, got.text)
@@ -169,8 +191,9 @@ def test_ack_and_shelve_reach_the_book_and_the_store(tmp_path, plan):
             ).status_code
             == 403
         )
-        r = operator.post(f"/api/incidents/{work}/shelve",
-                          json={"reason": "maintenance", "duration_s": 600})  # fmt: skip
+        r = operator.post(
+            f"/api/incidents/{work}/shelve", json={"reason": "maintenance", "duration_s": 600}
+        )
         assert r.status_code == 200, r.text
         assert r.json()["incident"]["shelved_by"] == "otto"
         assert run.desk.book.get(work).shelved
@@ -194,8 +217,13 @@ def test_event_ack_acknowledges_its_incident(tmp_path, plan):
         assert r.json()["incident"]["id"] == incident
         assert run.desk.book.get(incident).state == "acknowledged"
         run.step()
-        wait_until(lambda: _rows(served, "SELECT state FROM incidents WHERE id = ?",
-                                 (incident,)) == [("acknowledged",)], "the ack stored")  # fmt: skip
+        wait_until(
+            lambda: (
+                _rows(served, "SELECT state FROM incidents WHERE id = ?", (incident,))
+                == [("acknowledged",)]
+            ),
+            "the ack stored",
+        )
         run.close()
 
 
@@ -236,7 +264,9 @@ def test_alarm_rates_in_metrics(tmp_path, plan):
         assert 'stereopose_incidents_open{priority="4",state="active"} 1.0' in text
         figures = run.desk.figures()
         assert figures["notifications_10min"] == 2 and figures["open"] == {
-            "p1_cleared": 1, "p4_active": 1}  # fmt: skip
+            "p1_cleared": 1,
+            "p4_active": 1,
+        }
         # the console's alarm-rate panel: the same figures, for a logged-in user only
         assert served.client().get("/api/alarm-rates").status_code == 401
         rates = served.client("vera").get("/api/alarm-rates").json()
@@ -246,8 +276,9 @@ def test_alarm_rates_in_metrics(tmp_path, plan):
         health = served.client("vera").get("/api/health").json()
         assert health["alarms"]["notifications_1h"] == 2
         camera = next(i.id for i in run.desk.book.incidents() if i.camera)
-        served.client("otto").post(f"/api/incidents/{camera}/shelve",
-                                   json={"reason": "lens cleaned", "duration_s": 60})  # fmt: skip
+        served.client("otto").post(
+            f"/api/incidents/{camera}/shelve", json={"reason": "lens cleaned", "duration_s": 60}
+        )
         assert served.client("vera").get("/api/alarm-rates").json()["shelved"] == 1
         assert "stereopose_alarm_shelved 1.0" in served.client().get("/metrics").text
         run.close()

@@ -45,8 +45,7 @@ def _from(served, n: int, **kw) -> httpx.Client:
 
 
 def _login(c: httpx.Client, user: str, password: str | None = None) -> httpx.Response:
-    return c.post("/api/login", json={"username": user,
-                                      "password": password or PASSWORDS[user]})  # fmt: skip
+    return c.post("/api/login", json={"username": user, "password": password or PASSWORDS[user]})
 
 
 def test_failures_from_one_address_throttle_it_not_the_operator_elsewhere(served):
@@ -132,9 +131,12 @@ def test_the_own_password_change_is_limited_like_a_login(served):
 def test_weak_passwords_are_refused_and_an_old_weak_one_still_logs_in(served):
     with _from(served, 2) as admin:
         admin.headers["X-CSRF-Token"] = _login(admin, "ada").json()["csrf"]
-        for password, why in (("short-pw-1", "too short"), ("password1234", "too common"),
-                              ("Qwerty123456!", "too common"),
-                              ("aaaabbbbaaaa", "too simple")):  # fmt: skip
+        for password, why in (
+            ("short-pw-1", "too short"),
+            ("password1234", "too common"),
+            ("Qwerty123456!", "too common"),
+            ("aaaabbbbaaaa", "too simple"),
+        ):
             new = {"username": "sam", "password": password, "role": "viewer"}
             r = admin.post("/api/users", json=new)
             assert r.status_code == 422 and why in r.json()["detail"], (password, r.text)
@@ -147,8 +149,12 @@ def test_weak_passwords_are_refused_and_an_old_weak_one_still_logs_in(served):
         assert r.status_code == 422 and "too common" in r.json()["detail"]
         assert vera.get("/api/me").status_code == 200  # nothing changed
     users = json.loads(served.console.users.path.read_text())
-    users["users"]["old"] = {"role": "viewer", "hash": fast_hasher().hash("password"),
-                             "created": 0.0, "changed": 0.0}  # set before the policy  # fmt: skip
+    users["users"]["old"] = {
+        "role": "viewer",
+        "hash": fast_hasher().hash("password"),
+        "created": 0.0,
+        "changed": 0.0,
+    }  # set before the policy
     served.console.users.path.write_text(json.dumps(users))
     with _from(served, 4) as old:
         assert _login(old, "old", "password").status_code == 200
@@ -172,8 +178,19 @@ def test_answers_carrying_users_or_sessions_are_no_store(served):
             c.post("/api/logout"),
             c.get("/api/me"),  # 401 now
         ]
-    assert [r.status_code for r in answers] == [401, 200, 200, 200, 201, 204, 422, 204, 404,
-                                                204, 401]  # fmt: skip
+    assert [r.status_code for r in answers] == [
+        401,
+        200,
+        200,
+        200,
+        201,
+        204,
+        422,
+        204,
+        404,
+        204,
+        401,
+    ]
     for r in answers:
         assert r.headers.get("cache-control") == "no-store", (r.request.url, r.status_code)
 

@@ -23,15 +23,24 @@ class Raw:
     """One keep-alive HTTP/1.1 connection from a loopback `source` address."""
 
     def __init__(self, port: int, source: str) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=10,
-                                             source_address=(source, 0))  # fmt: skip
+        self.sock = socket.create_connection(
+            ("127.0.0.1", port), timeout=10, source_address=(source, 0)
+        )
         self.port = port
 
-    def ask(self, method: str, path: str, body: dict | None = None,
-            headers: dict[str, str] | None = None) -> tuple[int, dict, bytes]:  # fmt: skip
+    def ask(
+        self,
+        method: str,
+        path: str,
+        body: dict | None = None,
+        headers: dict[str, str] | None = None,
+    ) -> tuple[int, dict, bytes]:
         data = json.dumps(body).encode() if body is not None else b""
-        head = [f"{method} {path} HTTP/1.1", f"host: 127.0.0.1:{self.port}",
-                f"content-length: {len(data)}"]  # fmt: skip
+        head = [
+            f"{method} {path} HTTP/1.1",
+            f"host: 127.0.0.1:{self.port}",
+            f"content-length: {len(data)}",
+        ]
         if body is not None:
             head.append("content-type: application/json")
         head += [f"{k}: {v}" for k, v in (headers or {}).items()]
@@ -88,8 +97,10 @@ def test_a_logged_in_console_keeps_its_connection_behind_a_shared_address(tmp_pa
         # the place of an idle anonymous connection, never the console's
         others = [_idle(s.server.port, "127.0.0.5") for _ in range(12)]
         try:
-            wait_until(lambda: sum(_closed(o) for o in others) >= 12 - 4,
-                       "the anonymous connections over the cap closed")  # fmt: skip
+            wait_until(
+                lambda: sum(_closed(o) for o in others) >= 12 - 4,
+                "the anonymous connections over the cap closed",
+            )
             status, _, body = console.ask("GET", "/api/me", headers={"cookie": cookie})
             assert status == 200 and json.loads(body)["username"] == "otto"  # the same socket
         finally:

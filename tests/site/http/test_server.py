@@ -89,11 +89,20 @@ def test_local_only_refuses_an_address_others_can_reach():
         assert get(f"http://127.0.0.1:{server.port}/metrics")[0] == 200
 
 
-@pytest.mark.parametrize(("host", "loopback"), [
-    ("127.0.0.1", True), ("127.1.2.3", True), ("::1", True), ("localhost", True),
-    ("LOCALHOST.", True), ("0.0.0.0", False), ("::", False), ("10.0.0.5", False),
-    ("example.org", False),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("host", "loopback"),
+    [
+        ("127.0.0.1", True),
+        ("127.1.2.3", True),
+        ("::1", True),
+        ("localhost", True),
+        ("LOCALHOST.", True),
+        ("0.0.0.0", False),
+        ("::", False),
+        ("10.0.0.5", False),
+        ("example.org", False),
+    ],
+)
 def test_is_loopback(host: str, loopback: bool):
     assert is_loopback(host) is loopback
 
@@ -144,18 +153,32 @@ def test_a_failing_startup_is_an_error_and_frees_the_port():
     assert server.port is not None and refused(server.port)
 
 
-@pytest.mark.parametrize(("field", "value"), [
-    ("port", -1), ("port", 65536), ("port", 8080.0), ("port", "8080"), ("port", True),
-    ("host", ""), ("host", "a b"), ("host", "-bad.example"), ("host", "x" * 300),
-    ("host", "exa_mple"), ("host", None), ("host", "http://127.0.0.1"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("port", -1),
+        ("port", 65536),
+        ("port", 8080.0),
+        ("port", "8080"),
+        ("port", True),
+        ("host", ""),
+        ("host", "a b"),
+        ("host", "-bad.example"),
+        ("host", "x" * 300),
+        ("host", "exa_mple"),
+        ("host", None),
+        ("host", "http://127.0.0.1"),
+    ],
+)
 def test_bad_settings_name_serve_key_and_value(field: str, value: object):
     with pytest.raises(ConfigError, match=rf"serve\.{field} .*got {re.escape(repr(value))}"):
         ServeSettings(**{field: value})  # type: ignore[arg-type]
 
 
-@given(port=st.one_of(st.integers(), st.floats(), st.text(max_size=6), st.none()),
-       host=st.one_of(st.text(max_size=20), st.ip_addresses().map(str)))  # fmt: skip
+@given(
+    port=st.one_of(st.integers(), st.floats(), st.text(max_size=6), st.none()),
+    host=st.one_of(st.text(max_size=20), st.ip_addresses().map(str)),
+)
 def test_settings_are_valid_or_a_config_error(port: object, host: str):
     try:
         s = ServeSettings(host=host, port=port)  # type: ignore[arg-type]

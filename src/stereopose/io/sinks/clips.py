@@ -52,8 +52,16 @@ from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.writing import make_folder, probe_folder, reason
 from stereopose.types import Event, People2D, People3D
 
-__all__ = ["CLIP_SUFFIX", "FULL_SUFFIX", "PART_SUFFIX", "ClipSettings", "ClipSink",
-           "Draw", "clip_name", "is_alarm"]  # fmt: skip
+__all__ = [
+    "CLIP_SUFFIX",
+    "FULL_SUFFIX",
+    "PART_SUFFIX",
+    "ClipSettings",
+    "ClipSink",
+    "Draw",
+    "clip_name",
+    "is_alarm",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -78,8 +86,11 @@ def is_alarm(e: Event) -> bool:
 
 def _plain(image: np.ndarray, scale: float) -> np.ndarray:
     h, w = image.shape[:2]
-    return image if scale == 1.0 else cv2.resize(image, (max(1, round(w * scale)),
-                                                         max(1, round(h * scale))))  # fmt: skip
+    return (
+        image
+        if scale == 1.0
+        else cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))))
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -240,8 +251,10 @@ class ClipSink(ClosesOnce):
             self.frames_dropped += 1
             self._late.extend(alarms)
             if not self._dropping:
-                logger.warning("event clips: the buffer thread is behind; frames dropped "
-                               "(%d so far)", self.frames_dropped)  # fmt: skip
+                logger.warning(
+                    "event clips: the buffer thread is behind; frames dropped (%d so far)",
+                    self.frames_dropped,
+                )
             self._dropping = True
             return
         self._dropping = False
@@ -266,8 +279,14 @@ class ClipSink(ClosesOnce):
             self._finish(clip)
         self._jobs.put(None)
 
-    def _take(self, t: float, images: Mapping[str, np.ndarray], people2d: Mapping[str, People2D],
-              people3d: People3D, alarms: Sequence[Event]) -> None:  # fmt: skip
+    def _take(
+        self,
+        t: float,
+        images: Mapping[str, np.ndarray],
+        people2d: Mapping[str, People2D],
+        people3d: People3D,
+        alarms: Sequence[Event],
+    ) -> None:
         stamp = datetime.fromtimestamp(self.wall_start + t, timezone.utc).strftime("%H:%M:%S")
         for camera, image in images.items():
             ring = self._rings.get(camera)
@@ -287,8 +306,9 @@ class ClipSink(ClosesOnce):
             if t >= clip.end_t - _EPS:
                 self._finish(clip)
 
-    def _encode(self, camera: str, image: np.ndarray, p2: People2D | None, p3: People3D,
-                label: str) -> bytes | None:  # fmt: skip
+    def _encode(
+        self, camera: str, image: np.ndarray, p2: People2D | None, p3: People3D, label: str
+    ) -> bytes | None:
         try:
             picture = self.draw(camera, image, p2, p3, self.settings.clip_scale, label)
             ok, buf = cv2.imencode(
@@ -324,8 +344,11 @@ class ClipSink(ClosesOnce):
         if clip is not None:
             self._finish(clip)
         done = self._done_t.get(camera, -math.inf)  # frames up to it are in an earlier clip
-        frames = [f for f in self._rings[camera].since(e.t - s.clip_pre_s)
-                  if done + _EPS < f[0] <= t + _EPS]  # fmt: skip
+        frames = [
+            f
+            for f in self._rings[camera].since(e.t - s.clip_pre_s)
+            if done + _EPS < f[0] <= t + _EPS
+        ]
         start = frames[0][0] if frames else max(e.t - s.clip_pre_s, done)
         name = clip_name(self.wall_start + e.t, e.person, e.zone, camera)
         limit = start + s.clip_max_s
@@ -493,8 +516,11 @@ class ClipSink(ClosesOnce):
         self.clips_failed += 1
         self.last_error = reason(e)
         if not self._failing:
-            logger.error("event clips: %s: not written (%s); counted, later clips tried again",
-                         clip.name, self.last_error)  # fmt: skip
+            logger.error(
+                "event clips: %s: not written (%s); counted, later clips tried again",
+                clip.name,
+                self.last_error,
+            )
         self._failing = True
 
     # -- closing -----------------------------------------------------------------------------
@@ -505,10 +531,13 @@ class ClipSink(ClosesOnce):
 
     def figures(self) -> dict:
         """status.json's `clips`."""
-        return {"written": self.clips_written, "failed": self.clips_failed,
-                "frames_dropped": self.frames_dropped,
-                "full_copies_written": self.copies_written,
-                "full_copies_failed": self.copies_failed}  # fmt: skip
+        return {
+            "written": self.clips_written,
+            "failed": self.clips_failed,
+            "frames_dropped": self.frames_dropped,
+            "full_copies_written": self.copies_written,
+            "full_copies_failed": self.copies_failed,
+        }
 
     def _close(self) -> list[Path]:
         deadline = time.monotonic() + self.settings.clip_close_timeout_s

@@ -30,9 +30,19 @@ from pathlib import Path
 from typing import TypeVar
 from urllib.request import pathname2url
 
-__all__ = ["COUNTERS_SCHEMA", "SCHEMA", "SEEDS", "connect_writer", "create_schema",
-           "raise_marks", "read_mark", "reading", "table_columns", "take",
-           "transient"]  # fmt: skip
+__all__ = [
+    "COUNTERS_SCHEMA",
+    "SCHEMA",
+    "SEEDS",
+    "connect_writer",
+    "create_schema",
+    "raise_marks",
+    "read_mark",
+    "reading",
+    "table_columns",
+    "take",
+    "transient",
+]
 
 COUNTERS_SCHEMA = """
 CREATE TABLE IF NOT EXISTS counters (
@@ -173,14 +183,16 @@ def create_schema(db: sqlite3.Connection) -> None:
 # per kind, (table, SQL giving one above the largest id held by that table): the floor of
 # its mark at every writer's open; a table missing from a log is skipped
 SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
-    "events": (("events", "SELECT MAX(id) + 1 FROM events"),
-               ("acks", "SELECT MAX(event) + 1 FROM acks")),
+    "events": (
+        ("events", "SELECT MAX(id) + 1 FROM events"),
+        ("acks", "SELECT MAX(event) + 1 FROM acks"),
+    ),
     "persons": (("events", "SELECT MAX(person) + 1 FROM events"),),
     # an incident's id is in the incidents table before any event names it (io.sinks.incidents)
     "incidents": (("incidents", "SELECT MAX(id) + 1 FROM incidents"),),
     # the change number of an incident row's last write (io.sinks.incidents.upsert_incidents)
     "incident_changes": (("incidents", "SELECT MAX(seq) + 1 FROM incidents"),),
-}  # fmt: skip
+}
 # the same, only as the mark is made (an earlier version's reservations; SqliteSink still
 # records its own there, below the mark, which must not push the mark a block up each run)
 FIRST_SEEDS: dict[str, tuple[tuple[str, str], ...]] = {
@@ -223,8 +235,9 @@ def connect_writer(path: str | Path, busy_s: float, *, create: bool = False) -> 
     target: str | Path = Path(path)
     if not create:  # an existing file only: never an empty log made beside a moved one
         target = f"file:{pathname2url(str(Path(path).resolve()))}?mode=rw"
-    db = sqlite3.connect(target, uri=not create, isolation_level=None, timeout=busy_s,
-                         check_same_thread=False)  # fmt: skip
+    db = sqlite3.connect(
+        target, uri=not create, isolation_level=None, timeout=busy_s, check_same_thread=False
+    )
     try:
         db.execute(f"PRAGMA busy_timeout = {max(0, int(1000 * busy_s))}")
         if db.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
@@ -280,8 +293,11 @@ def raise_marks(db: sqlite3.Connection) -> None:
     try:
         db.execute(COUNTERS_SCHEMA.strip().rstrip(";"))
         for name, floor in _floors(db).items():  # again, under the write lock
-            db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
-                       "UPDATE SET next = MAX(next, excluded.next)", (name, floor))  # fmt: skip
+            db.execute(
+                "INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
+                "UPDATE SET next = MAX(next, excluded.next)",
+                (name, floor),
+            )
         db.execute("COMMIT")
     except BaseException:
         if db.in_transaction:
@@ -303,6 +319,9 @@ def take(db: sqlite3.Connection, name: str, n: int, floor: int = 1) -> int:
     least first id the caller may take (its own earlier ones, rows of another writer)."""
     row = db.execute("SELECT next FROM counters WHERE name = ?", (name,)).fetchone()
     first = max(floor, int(row[0]) if row is not None else 1)
-    db.execute("INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
-               "UPDATE SET next = MAX(next, excluded.next)", (name, first + n))  # fmt: skip
+    db.execute(
+        "INSERT INTO counters(name, next) VALUES (?, ?) ON CONFLICT(name) DO "
+        "UPDATE SET next = MAX(next, excluded.next)",
+        (name, first + n),
+    )
     return first

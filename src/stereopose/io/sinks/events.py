@@ -50,8 +50,16 @@ from stereopose.io.writing import make_folder, open_output
 from stereopose.secrets import redact_all
 from stereopose.types import Event
 
-__all__ = ["COLUMNS", "CallbackSink", "JsonlSink", "SqliteSink", "WebhookSink", "describe",
-           "query_events", "read_events"]  # fmt: skip
+__all__ = [
+    "COLUMNS",
+    "CallbackSink",
+    "JsonlSink",
+    "SqliteSink",
+    "WebhookSink",
+    "describe",
+    "query_events",
+    "read_events",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -69,8 +77,9 @@ def mask_sources(db: sqlite3.Connection) -> int:
         with db:
             db.executemany("UPDATE runs SET source = ? WHERE id = ?", changed)
         db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        logger.warning("%d run(s) of the event log named a camera URL with its password: masked",
-                       len(changed))  # fmt: skip
+        logger.warning(
+            "%d run(s) of the event log named a camera URL with its password: masked", len(changed)
+        )
     return len(changed)
 
 
@@ -223,8 +232,9 @@ class SqliteSink(_EventSink):
         try:
             store_spill(self.db, self.path)
         except sqlite3.Error as e:
-            logger.warning("%s: cannot store the events an earlier run left waiting now: %s",
-                           self.path, e)  # fmt: skip
+            logger.warning(
+                "%s: cannot store the events an earlier run left waiting now: %s", self.path, e
+            )
             return False
         return True
 
@@ -255,8 +265,11 @@ class SqliteSink(_EventSink):
                 self.dropped += len(events) - max(room, 0)
                 logger.error(
                     "%s: %d event(s) waiting to be stored; %d dropped (%d so far)",
-                    self.path, len(self.pending), len(events) - max(room, 0), self.dropped,
-                )  # fmt: skip
+                    self.path,
+                    len(self.pending),
+                    len(events) - max(room, 0),
+                    self.dropped,
+                )
                 events = events[: max(room, 0)]
             self.pending.extend(events)
         if (self.pending or self._want is not None or self.incidents) and (
@@ -273,8 +286,11 @@ class SqliteSink(_EventSink):
             self.run, list(self.pending)[self._spilled :]
         ):
             self._spilled = len(self.pending)
-        fresh = {i: held for i, held in self.incidents.items()
-                 if self._incidents_spilled.get(i) is not held}  # fmt: skip
+        fresh = {
+            i: held
+            for i, held in self.incidents.items()
+            if self._incidents_spilled.get(i) is not held
+        }
         if fresh and self.spill.add_incidents(self.run, list(fresh.values())):
             self._incidents_spilled.update(fresh)
 
@@ -331,9 +347,10 @@ class SqliteSink(_EventSink):
             pass
         if self._error is None:  # once per spell, not once per frame
             logger.warning(
-                "%s: cannot store events now (%s); they are kept and tried again on later "
-                "frames", self.path, e,
-            )  # fmt: skip
+                "%s: cannot store events now (%s); they are kept and tried again on later frames",
+                self.path,
+                e,
+            )
         self._error = str(e)
         self._next_try = time.monotonic() + self._delay
         self._delay = min(2 * self._delay, 2.0)
@@ -403,8 +420,7 @@ class SqliteSink(_EventSink):
 
     def figures(self) -> dict:
         """status.json's `events_db`: events stored (committed), waiting, dropped."""
-        return {"committed": self.committed, "pending": len(self.pending),
-                "dropped": self.dropped}  # fmt: skip
+        return {"committed": self.committed, "pending": len(self.pending), "dropped": self.dropped}
 
     def health(self) -> tuple[bool, int, str | None]:
         """(ok, waiting, reason) for the service's health (io.sinks.health): not ok while the

@@ -29,20 +29,36 @@ from stereopose.alarms import IncidentRecord
 from stereopose.alarms.incident import IncidentError, with_wall_times
 from stereopose.io.sinks.eventdb import connect_writer, read_mark, reading, take
 
-__all__ = ["IncidentFilters", "IncidentIds",
-           "changes_after", "incident_of_event", "last_change", "on_clock", "open_incidents",
-           "query_incidents", "upsert_incidents"]  # fmt: skip
+__all__ = [
+    "IncidentFilters",
+    "IncidentIds",
+    "changes_after",
+    "incident_of_event",
+    "last_change",
+    "on_clock",
+    "open_incidents",
+    "query_incidents",
+    "upsert_incidents",
+]
 
 
-_TIMES = ("first_t", "last_t", "active_since", "cleared_at", "closed_at", "acked_at",
-          "shelved_until")  # fmt: skip
+_TIMES = (
+    "first_t",
+    "last_t",
+    "active_since",
+    "cleared_at",
+    "closed_at",
+    "acked_at",
+    "shelved_until",
+)
 MAX_LIMIT = 1000
 
 logger = logging.getLogger(__name__)
 
 
-def upsert_incidents(db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord, float | None]]
-                     ) -> None:  # fmt: skip
+def upsert_incidents(
+    db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord, float | None]]
+) -> None:
     """Each (record, wall_start) as its incident's row, inside the caller's write
     transaction; each row written gets the next change number (`seq`, from the log's
     `incident_changes` mark: only grows, never given twice), so a reader that has every
@@ -59,30 +75,51 @@ def upsert_incidents(db: sqlite3.Connection, held: Iterable[tuple[IncidentRecord
         "occurrences = excluded.occurrences, "
         "first_t = excluded.first_t, last_t = excluded.last_t, "
         "wall_start = excluded.wall_start, record = excluded.record, seq = excluded.seq",
-        [(r.id, r.state, r.priority, r.occurrences, str(r.key[0]), r.zone, r.rule, r.person,
-          r.camera, r.first_t, r.last_t, wall, json.dumps(r.to_dict()), first + i)
-         for i, (r, wall) in enumerate(held)],
-    )  # fmt: skip
+        [
+            (
+                r.id,
+                r.state,
+                r.priority,
+                r.occurrences,
+                str(r.key[0]),
+                r.zone,
+                r.rule,
+                r.person,
+                r.camera,
+                r.first_t,
+                r.last_t,
+                wall,
+                json.dumps(r.to_dict()),
+                first + i,
+            )
+            for i, (r, wall) in enumerate(held)
+        ],
+    )
 
 
-def on_clock(rec: IncidentRecord, wall_from: float | None, wall_to: float | None
-             ) -> IncidentRecord:  # fmt: skip
+def on_clock(rec: IncidentRecord, wall_from: float | None, wall_to: float | None) -> IncidentRecord:
     """The record's times moved from the clock starting at wall_from to that at wall_to."""
     if wall_from is None or wall_to is None:
         return rec
     shift = float(wall_from) - float(wall_to)
-    return dataclasses.replace(rec, **{k: getattr(rec, k) + shift for k in _TIMES
-                                       if getattr(rec, k) is not None})  # fmt: skip
+    return dataclasses.replace(
+        rec, **{k: getattr(rec, k) + shift for k in _TIMES if getattr(rec, k) is not None}
+    )
 
 
 def _ro(path: Path) -> sqlite3.Connection:
-    return sqlite3.connect(f"file:{pathname2url(str(path.resolve()))}?mode=ro", uri=True,
-                           timeout=5.0)  # fmt: skip
+    return sqlite3.connect(
+        f"file:{pathname2url(str(path.resolve()))}?mode=ro", uri=True, timeout=5.0
+    )
 
 
 def _has_table(db: sqlite3.Connection) -> bool:
-    return db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'incidents'"
-                      ).fetchone() is not None  # fmt: skip
+    return (
+        db.execute(
+            "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'incidents'"
+        ).fetchone()
+        is not None
+    )
 
 
 def open_incidents(db: sqlite3.Connection) -> list[tuple[IncidentRecord, float | None]]:
@@ -122,8 +159,12 @@ def query_incidents(path: str | Path, f: IncidentFilters) -> list[dict]:
     if not path.is_file():
         return []
     where, args = [], []
-    for col, value in (("state", f.state), ("priority", f.priority), ("zone", f.zone),
-                       ("person", f.person)):  # fmt: skip
+    for col, value in (
+        ("state", f.state),
+        ("priority", f.priority),
+        ("zone", f.zone),
+        ("person", f.person),
+    ):
         if value is not None:
             where.append(f"{col} = ?")
             args.append(value)
@@ -172,8 +213,10 @@ def changes_after(path: str | Path, seq: int, limit: int = 200) -> list[dict]:
         finally:
             db.close()
 
-    return [{"seq": int(n), "incident": with_wall_times(json.loads(text), wall)}
-            for n, text, wall in reading(read)]  # fmt: skip
+    return [
+        {"seq": int(n), "incident": with_wall_times(json.loads(text), wall)}
+        for n, text, wall in reading(read)
+    ]
 
 
 def last_change(path: str | Path) -> int:
@@ -255,8 +298,9 @@ class IncidentIds:
         except sqlite3.Error as e:
             self.failed += 1
             if self.failed == 1:
-                logger.warning("%s: cannot reserve incident ids now (%s); tried again",
-                               self.path, e)  # fmt: skip
+                logger.warning(
+                    "%s: cannot reserve incident ids now (%s); tried again", self.path, e
+                )
 
     def _reserve(self, busy_s: float) -> None:
         if self._db is None:

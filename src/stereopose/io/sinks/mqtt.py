@@ -185,8 +185,10 @@ class MqttSink(ClosesOnce):
                 logger.warning(
                     "MQTT %s:%d: %d messages waiting, the bound: dropping the oldest "
                     "(people updates first) until the broker takes them",
-                    self.settings.host, self.settings.port, self.settings.queue_size,
-                )  # fmt: skip
+                    self.settings.host,
+                    self.settings.port,
+                    self.settings.queue_size,
+                )
             self._counts.burst += 1
         self._seq += 1
         queues[msg.kind].append((self._seq, msg))
@@ -276,8 +278,9 @@ class MqttSink(ClosesOnce):
 
     def _end_burst(self) -> None:
         if self._counts.burst:
-            logger.warning("MQTT: %d messages were dropped while the queue was full",
-                           self._counts.burst)  # fmt: skip
+            logger.warning(
+                "MQTT: %d messages were dropped while the queue was full", self._counts.burst
+            )
             self._counts.burst = 0
 
     # --- paho's network thread ---
@@ -316,8 +319,12 @@ class MqttSink(ClosesOnce):
             self._dirty.update(self._zones)  # the broker may have lost its retained states
             waiting = sum(len(q) for q in self._queues.values())
         if self._last_problem is not None:
-            logger.info("MQTT %s:%d: connected; %d messages waiting", self.settings.host,
-                        self.settings.port, waiting)  # fmt: skip
+            logger.info(
+                "MQTT %s:%d: connected; %d messages waiting",
+                self.settings.host,
+                self.settings.port,
+                waiting,
+            )
         self._last_problem = None
         self._wake.set()
 
@@ -351,10 +358,14 @@ class MqttSink(ClosesOnce):
                     queued[kind] += 1
             queued["zones"] += len(self._dirty)
             return {
-                k: {"published": c.published[k], "queued": queued[k], "dropped": c.dropped[k],
-                    "failed": c.failed[k]}
+                k: {
+                    "published": c.published[k],
+                    "queued": queued[k],
+                    "dropped": c.dropped[k],
+                    "failed": c.failed[k],
+                }
                 for k in KINDS
-            }  # fmt: skip
+            }
 
     # --- as an alarm output (io.sinks.health.AlarmOutput) ---
 
@@ -426,11 +437,17 @@ class MqttSink(ClosesOnce):
 
     def _report(self) -> None:
         counts = self.figures()
-        text = "; ".join(f"{k} " + ", ".join(f"{n} {w}" for w, n in v.items()) for k, v in
-                         counts.items())  # fmt: skip
+        text = "; ".join(
+            f"{k} " + ", ".join(f"{n} {w}" for w, n in v.items()) for k, v in counts.items()
+        )
         lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())
-        logger.log(logging.WARNING if lost else logging.INFO, "MQTT %s:%d closed: %s",
-                   self.settings.host, self.settings.port, text)  # fmt: skip
+        logger.log(
+            logging.WARNING if lost else logging.INFO,
+            "MQTT %s:%d closed: %s",
+            self.settings.host,
+            self.settings.port,
+            text,
+        )
 
 
 def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None = None) -> dict:

@@ -145,8 +145,9 @@ class SegmentSink(ClosesOnce):
             return
         self.frames += n
         if self._error is not None:
-            logger.warning("%s: 3D poses written again (%d frame(s) lost)", self.path,
-                           self.frames_lost)  # fmt: skip
+            logger.warning(
+                "%s: 3D poses written again (%d frame(s) lost)", self.path, self.frames_lost
+            )
             self._error = None
 
     def _open(self, wall: float) -> None:
@@ -184,8 +185,10 @@ class SegmentSink(ClosesOnce):
         if self._error is None:
             logger.error(
                 "%s: cannot write 3D poses (%s); %d frame(s) lost, later frames tried again",
-                self.path or self.folder, reason(e), n,
-            )  # fmt: skip
+                self.path or self.folder,
+                reason(e),
+                n,
+            )
         self._error = self.last_error = reason(e)
 
     def _drop_file(self) -> None:

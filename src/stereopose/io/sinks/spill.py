@@ -59,31 +59,39 @@ class Spill:
             return True
         try:
             with self.path.open("a", encoding="utf-8") as f:
-                f.write("".join(json.dumps({"run": run, "event": event_record(e)}) + "\n"
-                                for e in events))  # fmt: skip
+                f.write(
+                    "".join(
+                        json.dumps({"run": run, "event": event_record(e)}) + "\n" for e in events
+                    )
+                )
         except OSError as e:
             if self.error is None:
-                logger.error("%s: cannot keep the events waiting for the log: %s", self.path,
-                             e.strerror)  # fmt: skip
+                logger.error(
+                    "%s: cannot keep the events waiting for the log: %s", self.path, e.strerror
+                )
             self.error = e.strerror or str(e)
             return False
         self._written, self.error = True, None
         return True
 
-    def add_incidents(self, run: int, held: Sequence[tuple[IncidentRecord, float | None]]
-                      ) -> bool:  # fmt: skip
+    def add_incidents(self, run: int, held: Sequence[tuple[IncidentRecord, float | None]]) -> bool:
         """Appends incident records, each (record, wall_start), flushed; whether they are kept."""
         if not held:
             return True
         try:
             with self.path.open("a", encoding="utf-8") as f:
-                f.write("".join(json.dumps({"run": run, "incident": rec.to_dict(),
-                                            "wall_start": wall}) + "\n"
-                                for rec, wall in held))  # fmt: skip
+                f.write(
+                    "".join(
+                        json.dumps({"run": run, "incident": rec.to_dict(), "wall_start": wall})
+                        + "\n"
+                        for rec, wall in held
+                    )
+                )
         except OSError as e:
             if self.error is None:
-                logger.error("%s: cannot keep the incidents waiting for the log: %s",
-                             self.path, e.strerror)  # fmt: skip
+                logger.error(
+                    "%s: cannot keep the incidents waiting for the log: %s", self.path, e.strerror
+                )
             self.error = e.strerror or str(e)
             return False
         self._written, self.error = True, None
@@ -141,8 +149,15 @@ def read_spilled_incidents(log: str | Path) -> dict[int, tuple[IncidentRecord, f
             rec = IncidentRecord.from_dict(doc["incident"])
             wall = doc.get("wall_start")
             out[int(rec.id)] = (rec, None if wall is None else float(wall))
-        except (IncidentError, ValueError, KeyError, TypeError, IndexError, OverflowError,
-                RecursionError):  # fmt: skip
+        except (
+            IncidentError,
+            ValueError,
+            KeyError,
+            TypeError,
+            IndexError,
+            OverflowError,
+            RecursionError,
+        ):
             logger.warning("%s:%d: not an incident waiting for the log; skipped", path, n)
     return out
 
@@ -164,13 +179,17 @@ def store_spill(db: sqlite3.Connection, log: str | Path) -> int:
         for run, e in waiting:
             row = event_row(e, run)
             same = (run, e.frame, e.person, e.zone, e.type, e.t)
-            if run not in runs or db.execute(f"SELECT 1 FROM events WHERE {_SAME}",
-                                             same).fetchone():  # fmt: skip
+            if (
+                run not in runs
+                or db.execute(f"SELECT 1 FROM events WHERE {_SAME}", same).fetchone()
+            ):
                 continue
             top = db.execute("SELECT MAX(id) FROM events").fetchone()[0]
             first = take(db, "events", 1, floor=int(top or 0) + 1)
-            db.execute(f"INSERT INTO events(id, {', '.join(EVENT_COLUMNS)}) "
-                       f"VALUES ({placeholders})", (first, *row))  # fmt: skip
+            db.execute(
+                f"INSERT INTO events(id, {', '.join(EVENT_COLUMNS)}) VALUES ({placeholders})",
+                (first, *row),
+            )
             stored += 1
         if incidents:
             upsert_incidents(db, incidents.values())
@@ -181,6 +200,11 @@ def store_spill(db: sqlite3.Connection, log: str | Path) -> int:
         raise
     spill_path(log).unlink(missing_ok=True)
     if stored or incidents:
-        logger.warning("%s: %d event(s) and %d incident record(s) an earlier run could not "
-                       "store are stored now", log, stored, len(incidents))  # fmt: skip
+        logger.warning(
+            "%s: %d event(s) and %d incident record(s) an earlier run could not "
+            "store are stored now",
+            log,
+            stored,
+            len(incidents),
+        )
     return stored

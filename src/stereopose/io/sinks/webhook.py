@@ -75,13 +75,15 @@ class WebhookSink(ClosesOnce):
     ) -> None:
         parts = urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
-            raise StereoposeError(f"webhook URL must start with http:// or https://, got "
-                                 f"{shown_url(url)!r}")  # fmt: skip
+            raise StereoposeError(
+                f"webhook URL must start with http:// or https://, got {shown_url(url)!r}"
+            )
         try:
             self._port = parts.port
         except ValueError:
-            raise StereoposeError(f"webhook URL {shown_url(url)!r}: the port is not a "
-                                 "number") from None  # fmt: skip
+            raise StereoposeError(
+                f"webhook URL {shown_url(url)!r}: the port is not a number"
+            ) from None
         self.url = url
         self.shown = shown_url(url)  # for messages: no credentials, no query
         self._https, self._host = parts.scheme == "https", parts.hostname
@@ -123,8 +125,12 @@ class WebhookSink(ClosesOnce):
         it does not know (never a body without `type`). Queued, counted and dropped like the
         events."""
         for c in changes:
-            body = {"incident_change": True, "type": "incident_change", "kind": "incident",
-                    **c.to_dict()}  # fmt: skip
+            body = {
+                "incident_change": True,
+                "type": "incident_change",
+                "kind": "incident",
+                **c.to_dict(),
+            }
             try:
                 self.queue.put_nowait(_Item(None, change=body))
             except queue.Full:
@@ -204,10 +210,19 @@ class WebhookSink(ClosesOnce):
 
     def _log_failure(self, item: _Item, tries: int, why: str) -> None:
         log = logger.debug if self._failing else logger.warning
-        what = (f"event of frame {item.event.frame}" if item.event is not None
-                else f"change of incident {item.change['incident']['id']}")  # fmt: skip
-        log("webhook %s: %s not delivered after %d tr%s: %s", self.shown, what, tries,
-            "y" if tries == 1 else "ies", why)  # fmt: skip
+        what = (
+            f"event of frame {item.event.frame}"
+            if item.event is not None
+            else f"change of incident {item.change['incident']['id']}"
+        )
+        log(
+            "webhook %s: %s not delivered after %d tr%s: %s",
+            self.shown,
+            what,
+            tries,
+            "y" if tries == 1 else "ies",
+            why,
+        )
         self._failing = True
 
     def _run(self) -> None:
@@ -237,8 +252,13 @@ class WebhookSink(ClosesOnce):
 
     def figures(self) -> dict:
         """status.json's `webhook`: delivered, failed, dropped, retried, queued."""
-        return {"delivered": self.delivered, "failed": self.failed, "dropped": self.dropped,
-                "retried": self.retried, "queued": self.queued()}  # fmt: skip
+        return {
+            "delivered": self.delivered,
+            "failed": self.failed,
+            "dropped": self.dropped,
+            "retried": self.retried,
+            "queued": self.queued(),
+        }
 
     def health(self) -> OutputHealth:
         """Not ok from a failed try until the next delivery; waiting: queued and on the wire."""
@@ -273,8 +293,10 @@ class WebhookSink(ClosesOnce):
             current = self._current
         if current is not None:  # still on the wire: given up, counted once all the same
             self._settle(current, "dropped")
-        counts = (f"{self.delivered} delivered, {self.failed} failed, {self.dropped} dropped "
-                  "(queue full or closing)")  # fmt: skip
+        counts = (
+            f"{self.delivered} delivered, {self.failed} failed, {self.dropped} dropped "
+            "(queue full or closing)"
+        )
         if self.failed or self.dropped:
             self.incomplete = f"{self.failed + self.dropped} event(s) not delivered: {counts}"
             logger.warning("webhook %s: %s", self.shown, counts)

@@ -43,8 +43,10 @@ class OutputSnapshot:
         if not self.up:
             return f"output {self.name} failing: {self.reason}{waiting}"
         if self.backlog_s >= BACKLOG_S:
-            return (f"output {self.name} falling behind: {self.waiting} waiting for "
-                    f"{self.backlog_s:.0f} s")  # fmt: skip
+            return (
+                f"output {self.name} falling behind: {self.waiting} waiting for "
+                f"{self.backlog_s:.0f} s"
+            )
         return None
 
 
@@ -82,5 +84,6 @@ class OutputWatch:
         else:
             self.waiting_since = None
         backlog = 0.0 if self.waiting_since is None else max(now - self.waiting_since, 0.0)
-        return OutputSnapshot(name, ok, waiting, None if ok else reason or "not delivering",
-                              backlog)  # fmt: skip
+        return OutputSnapshot(
+            name, ok, waiting, None if ok else reason or "not delivering", backlog
+        )

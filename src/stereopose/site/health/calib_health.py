@@ -51,8 +51,12 @@ def _person_errors(px: np.ndarray, conf: np.ndarray, kp: np.ndarray) -> np.ndarr
     kps = np.tile(kp, (P, 1, 1))
     d, ok = reprojection_errors(pxs, confs, kps)
     n = ok.sum(-1)
-    med = np.array([np.median(row[m]) if k >= MIN_JOINTS else np.inf
-                    for row, m, k in zip(d, ok, n, strict=True)])  # fmt: skip
+    med = np.array(
+        [
+            np.median(row[m]) if k >= MIN_JOINTS else np.inf
+            for row, m, k in zip(d, ok, n, strict=True)
+        ]
+    )
     return med.reshape(P, D).min(axis=1)
 
 
@@ -152,8 +156,11 @@ class CalibrationHealth:
             cam.drifting = True
             logger.error(
                 "camera %s: reprojection error %.1f px against its baseline %.1f px: moved or "
-                "knocked out of place?", name, running, base,
-            )  # fmt: skip
+                "knocked out of place?",
+                name,
+                running,
+                base,
+            )
             return [camera_event("calibration_drift", name, t, frame, t, **fields)]
         if cam.drifting and running < 0.5 * (base + threshold):
             cam.drifting = False

@@ -56,14 +56,30 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
     yield _gauge("info", "Version of the running service.", "version", {version: 1})
     yield _gauge("uptime_seconds", "Seconds since the service started.", None, {"": s.uptime_s})
     yield _counter("frames", "Frames processed.", None, {"": s.frames})
-    yield _counter("frames_dropped", "Frames dropped per camera.", "camera",
-                   {c.name: c.dropped_frames for c in cams})  # fmt: skip
-    yield _counter("camera_reconnects", "Stream reconnects per camera.", "camera",
-                   {c.name: c.reconnects for c in cams})  # fmt: skip
-    yield _gauge("camera_up", "1 while the camera delivers frames within its timeout.", "camera",
-                 {c.name: float(c.up) for c in cams})  # fmt: skip
-    yield _gauge("camera_fps", "Frames per second over the camera's recent frames.", "camera",
-                 {c.name: c.fps for c in cams})  # fmt: skip
+    yield _counter(
+        "frames_dropped",
+        "Frames dropped per camera.",
+        "camera",
+        {c.name: c.dropped_frames for c in cams},
+    )
+    yield _counter(
+        "camera_reconnects",
+        "Stream reconnects per camera.",
+        "camera",
+        {c.name: c.reconnects for c in cams},
+    )
+    yield _gauge(
+        "camera_up",
+        "1 while the camera delivers frames within its timeout.",
+        "camera",
+        {c.name: float(c.up) for c in cams},
+    )
+    yield _gauge(
+        "camera_fps",
+        "Frames per second over the camera's recent frames.",
+        "camera",
+        {c.name: c.fps for c in cams},
+    )
     stages = HistogramMetricFamily(
         PREFIX + "stage_seconds", "Seconds per frame spent in each stage.", labels=["stage"]
     )
@@ -76,20 +92,41 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
     e2e.add_metric([], _buckets(s.end_to_end), s.end_to_end.sum_s)
     yield e2e
     yield _gauge("people", "People in the last frame.", None, {"": s.people})
-    yield _counter("events", "Events by type: zone, behaviour, camera, calibration and service "
-                   "events.", "type", dict(s.events))  # fmt: skip
-    yield _gauge("queue_size", "Messages waiting per queue.", "queue",
-                 {q.name: q.size for q in s.queues if q.size is not None})  # fmt: skip
-    yield _counter("queue_dropped", "Messages dropped per queue.", "queue",
-                   {q.name: q.dropped for q in s.queues if q.dropped is not None})  # fmt: skip
+    yield _counter(
+        "events",
+        "Events by type: zone, behaviour, camera, calibration and service events.",
+        "type",
+        dict(s.events),
+    )
+    yield _gauge(
+        "queue_size",
+        "Messages waiting per queue.",
+        "queue",
+        {q.name: q.size for q in s.queues if q.size is not None},
+    )
+    yield _counter(
+        "queue_dropped",
+        "Messages dropped per queue.",
+        "queue",
+        {q.name: q.dropped for q in s.queues if q.dropped is not None},
+    )
     yield _gauge("storage_bytes", "Bytes stored per kind.", "kind", dict(s.storage))
-    yield _gauge("output_up", "1 while the alarm output delivers.", "output",
-                 {o.name: float(o.up) for o in s.outputs})  # fmt: skip
+    yield _gauge(
+        "output_up",
+        "1 while the alarm output delivers.",
+        "output",
+        {o.name: float(o.up) for o in s.outputs},
+    )
     waiting = {o.name: o.waiting for o in s.outputs if o.waiting is not None}
-    yield _gauge("output_waiting", "Messages the alarm output holds, not delivered yet.",
-                 "output", waiting)  # fmt: skip
-    yield _gauge("output_backlog_seconds", "Seconds the alarm output has had messages waiting.",
-                 "output", {o.name: o.backlog_s for o in s.outputs})  # fmt: skip
+    yield _gauge(
+        "output_waiting", "Messages the alarm output holds, not delivered yet.", "output", waiting
+    )
+    yield _gauge(
+        "output_backlog_seconds",
+        "Seconds the alarm output has had messages waiting.",
+        "output",
+        {o.name: o.backlog_s for o in s.outputs},
+    )
     if s.alarms:
         yield from _alarm_families(s.alarms)
     if s.regions:
@@ -100,46 +137,84 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
 _REGIONS = (
     ("detection_steps", "steps", "Steps detected per camera."),
     ("detection_regions", "regions", "Regions cut and detected per camera."),
-    ("detection_whole_frames", "whole_frames", "Steps a camera was detected in its whole frame "
-     "(a scan, or regions that would cost more and see no finer)."),
-    ("detection_idle_steps", "idle_steps", "Steps a camera needed no inference: nobody tracked "
-     "or seen, no motion, no scan due."),
+    (
+        "detection_whole_frames",
+        "whole_frames",
+        "Steps a camera was detected in its whole frame "
+        "(a scan, or regions that would cost more and see no finer).",
+    ),
+    (
+        "detection_idle_steps",
+        "idle_steps",
+        "Steps a camera needed no inference: nobody tracked or seen, no motion, no scan due.",
+    ),
     ("detection_full_scans", "full_scans", "Full scans of the camera's frame."),
     ("detection_input_pixels", "input_px", "Model input pixels detected per camera."),
-    ("detection_whole_input_pixels", "whole_input_px", "Model input pixels whole frames at the "
-     "detector's imgsz would have taken, per camera."),
-    ("detection_newcomers_by_motion", "found_by_motion", "People found in a motion region "
-     "where no track or earlier person was, per camera."),
-    ("detection_newcomers_by_scan", "found_by_scan", "People found by a full scan where no "
-     "track or earlier person was, per camera."),
-)  # fmt: skip
+    (
+        "detection_whole_input_pixels",
+        "whole_input_px",
+        "Model input pixels whole frames at the detector's imgsz would have taken, per camera.",
+    ),
+    (
+        "detection_newcomers_by_motion",
+        "found_by_motion",
+        "People found in a motion region where no track or earlier person was, per camera.",
+    ),
+    (
+        "detection_newcomers_by_scan",
+        "found_by_scan",
+        "People found by a full scan where no track or earlier person was, per camera.",
+    ),
+)
 
 
 def _region_families(regions) -> Iterator[Metric]:
     """Detection in regions by camera: what it detected, against whole frames."""
     for name, key, doc in _REGIONS:
-        yield _counter(name, doc, "camera", {cam: float(c.get(key, 0)) for cam, c in
-                                             regions.items()})  # fmt: skip
+        yield _counter(
+            name, doc, "camera", {cam: float(c.get(key, 0)) for cam, c in regions.items()}
+        )
 
 
 def _alarm_families(a) -> Iterator[Metric]:
     """The alarm rates (alarms.rates, ISA-18.2's figures) and the open incidents by priority
     and state (at most 4 x 3 label pairs)."""
-    yield _gauge("alarm_notifications", "Alarm notifications (new incidents not shelved) in the "
-                 "last window (10m, 1h); the flood line is 10 per 10 minutes.", "window",
-                 {"10m": float(a.get("notifications_10min", 0)),
-                  "1h": float(a.get("notifications_1h", 0))})  # fmt: skip
-    yield _gauge("alarm_flood", "1 while notifications in the last 10 minutes exceed the "
-                 "flood line.", None, {"": float(bool(a.get("flood")))})  # fmt: skip
-    yield _gauge("alarm_chattering", "Hazards notified 3 or more times in the last 60 s.", None,
-                 {"": float(a.get("chattering", 0))})  # fmt: skip
-    yield _gauge("alarm_standing", "Incidents active for more than 24 h.", None,
-                 {"": float(a.get("standing", 0))})  # fmt: skip
-    yield _gauge("alarm_shelved", "Open incidents shelved by an operator.", None,
-                 {"": float(a.get("shelved", 0))})  # fmt: skip
-    family = GaugeMetricFamily(PREFIX + "incidents_open", "Incidents not closed, by priority "
-                               "(1 critical .. 4 low) and state.",
-                               labels=["priority", "state"])  # fmt: skip
+    yield _gauge(
+        "alarm_notifications",
+        "Alarm notifications (new incidents not shelved) in the "
+        "last window (10m, 1h); the flood line is 10 per 10 minutes.",
+        "window",
+        {"10m": float(a.get("notifications_10min", 0)), "1h": float(a.get("notifications_1h", 0))},
+    )
+    yield _gauge(
+        "alarm_flood",
+        "1 while notifications in the last 10 minutes exceed the flood line.",
+        None,
+        {"": float(bool(a.get("flood")))},
+    )
+    yield _gauge(
+        "alarm_chattering",
+        "Hazards notified 3 or more times in the last 60 s.",
+        None,
+        {"": float(a.get("chattering", 0))},
+    )
+    yield _gauge(
+        "alarm_standing",
+        "Incidents active for more than 24 h.",
+        None,
+        {"": float(a.get("standing", 0))},
+    )
+    yield _gauge(
+        "alarm_shelved",
+        "Open incidents shelved by an operator.",
+        None,
+        {"": float(a.get("shelved", 0))},
+    )
+    family = GaugeMetricFamily(
+        PREFIX + "incidents_open",
+        "Incidents not closed, by priority (1 critical .. 4 low) and state.",
+        labels=["priority", "state"],
+    )
     opened = a.get("open") or {}
     for key, n in sorted(opened.items()):
         priority, _, state = str(key).removeprefix("p").partition("_")

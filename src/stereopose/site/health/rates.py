@@ -61,8 +61,11 @@ class RateWindow:
         """The counts within the window ending at now."""
         newest = self._slot(now)
         oldest = newest - len(self._counts) + 1
-        return sum(c for c, s in zip(self._counts, self._slots, strict=True)
-                   if s is not None and oldest <= s <= newest)  # fmt: skip
+        return sum(
+            c
+            for c, s in zip(self._counts, self._slots, strict=True)
+            if s is not None and oldest <= s <= newest
+        )
 
     def covered(self, now: float) -> float:
         """Seconds of the window that have passed since the first count (0 before it)."""
@@ -103,12 +106,17 @@ class CameraRates:
         share = dropped / (kept + dropped) if kept + dropped else 0.0
         nominal = self.nominal_fps
         if processed is not None and nominal and processed < SLOW_SHARE * nominal:
-            why = (f"processed at {processed:.2g} frames/s, under {SLOW_SHARE:.0%} of its "
-                   f"nominal {nominal:g}/s over the last {RATE_WINDOW_S:g} s")  # fmt: skip
+            why = (
+                f"processed at {processed:.2g} frames/s, under {SLOW_SHARE:.0%} of its "
+                f"nominal {nominal:g}/s over the last {RATE_WINDOW_S:g} s"
+            )
             return processed, share, why
         # the share beyond what the nominal rate passes over on purpose
         beyond = 1.0 - (1.0 - share) / self.kept_share if self.kept_share > 0 else 0.0
         if beyond > DROP_SHARE:
-            return processed, share, f"{share:.0%} of its frames dropped over the last " \
-                f"{RATE_WINDOW_S:g} s"  # fmt: skip
+            return (
+                processed,
+                share,
+                f"{share:.0%} of its frames dropped over the last {RATE_WINDOW_S:g} s",
+            )
         return processed, share, None

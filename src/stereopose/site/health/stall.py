@@ -39,8 +39,16 @@ KEPT_S = 1.0  # of a stall, the seconds the people's ageing still counts (predic
 
 def service_event(kind_of_event: str, t: float, frame: int, onset_t: float, **fields) -> Event:
     """An event about the service itself (kind "service", zone "", person -1)."""
-    return Event(t=t, frame=frame, person=-1, zone="", kind=SERVICE_KIND, type=kind_of_event,
-                 onset_t=onset_t, **fields)  # fmt: skip
+    return Event(
+        t=t,
+        frame=frame,
+        person=-1,
+        zone="",
+        kind=SERVICE_KIND,
+        type=kind_of_event,
+        onset_t=onset_t,
+        **fields,
+    )
 
 
 class StallWatch:
@@ -74,8 +82,12 @@ class StallWatch:
         if self.stalled or onset is None or now - onset <= self.timeout_s:
             return False
         # frames read before the pause may still come after it: the fresh ones are nearer its end
-        self._declare(now, onset, f"the frame loop did not run for {now - onset:.1f} s",
-                      fresh_after=(onset + now) / 2)  # fmt: skip
+        self._declare(
+            now,
+            onset,
+            f"the frame loop did not run for {now - onset:.1f} s",
+            fresh_after=(onset + now) / 2,
+        )
         return True
 
     def late(self, now: float, onset_t: float) -> bool:
@@ -96,8 +108,9 @@ class StallWatch:
         length = max(0.0, float(t) - self.onset_t)
         held = max(0.0, length - self.kept_s)
         self.held_s += held if most is None else min(held, max(0.0, most))
-        self._events.append(service_event("service_resumed", now, self._frame, self.onset_t,
-                                          duration_s=length))  # fmt: skip
+        self._events.append(
+            service_event("service_resumed", now, self._frame, self.onset_t, duration_s=length)
+        )
         logger.warning("service: resumed after a stall of %.1f s", length)
         self.onset_t = None
         return length
@@ -107,12 +120,20 @@ class StallWatch:
         out, self._events = self._events, []
         return out
 
-    def _declare(self, now: float, onset_t: float, why: str,
-                 fresh_after: float | None = None) -> None:  # fmt: skip
+    def _declare(
+        self, now: float, onset_t: float, why: str, fresh_after: float | None = None
+    ) -> None:
         self.onset_t = float(onset_t)
         self.declared_t = float(now)
         self.fresh_after = self.onset_t if fresh_after is None else float(fresh_after)
         self.stalls += 1
-        self._events.append(service_event("service_stalled", now, self._frame, self.onset_t,
-                                          duration_s=max(0.0, now - self.onset_t)))  # fmt: skip
+        self._events.append(
+            service_event(
+                "service_stalled",
+                now,
+                self._frame,
+                self.onset_t,
+                duration_s=max(0.0, now - self.onset_t),
+            )
+        )
         logger.error("service stalled: %s (the machine is overloaded or was paused)", why)

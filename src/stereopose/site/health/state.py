@@ -437,8 +437,9 @@ class ServiceState:
             return True
         if kind not in self._refused:
             self._refused.add(kind)
-            logger.warning("more than %d %s names; %r and later ones not reported", MAX_NAMES,
-                           kind, name)  # fmt: skip
+            logger.warning(
+                "more than %d %s names; %r and later ones not reported", MAX_NAMES, kind, name
+            )
         return False
 
     def _camera(self, name: str) -> _Camera | None:
@@ -460,9 +461,20 @@ class ServiceState:
         span = cam.arrivals[-1] - cam.arrivals[0] if len(cam.arrivals) > 1 else 0.0
         fps = (len(cam.arrivals) - 1) / span if up and span > 0 else 0.0
         processed, share, slow = cam.rates.judge(now)
-        return CameraSnapshot(name, fps, age, up, cam.frames, cam.reconnects, cam.dropped,
-                              cam.timeout_s, cam.rates.nominal_fps, processed, share,
-                              slow)  # fmt: skip
+        return CameraSnapshot(
+            name,
+            fps,
+            age,
+            up,
+            cam.frames,
+            cam.reconnects,
+            cam.dropped,
+            cam.timeout_s,
+            cam.rates.nominal_fps,
+            processed,
+            share,
+            slow,
+        )
 
     def _queue_snapshot(
         self, name: str, size: int | None, dropped: int | None, now: float

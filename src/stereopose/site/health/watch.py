@@ -37,9 +37,16 @@ def camera_event(
 ) -> Event:
     """An event about a camera (kind "camera", zone "", person -1)."""
     return Event(
-        t=t, frame=frame, person=NO_PERSON, zone="", kind=CAMERA_KIND, type=kind_of_event,
-        onset_t=onset_t, camera=camera, **fields,
-    )  # fmt: skip
+        t=t,
+        frame=frame,
+        person=NO_PERSON,
+        zone="",
+        kind=CAMERA_KIND,
+        type=kind_of_event,
+        onset_t=onset_t,
+        camera=camera,
+        **fields,
+    )
 
 
 @dataclass

@@ -34,8 +34,17 @@ from fastapi import Depends, HTTPException, Request
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
 from stereopose.site.users import ROLES, User, UserError, UserStore, role_at_least
 
-__all__ = ["LoginLimiter", "Session", "Sessions", "SessionsFullError", "TooManyAttemptsError",
-           "authenticated", "console_parts", "request_token", "require"]  # fmt: skip
+__all__ = [
+    "LoginLimiter",
+    "Session",
+    "Sessions",
+    "SessionsFullError",
+    "TooManyAttemptsError",
+    "authenticated",
+    "console_parts",
+    "request_token",
+    "require",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -85,10 +94,16 @@ class Sessions:
     oldest, a viewer's before an operator's or admin's, and a viewer's login never ends an
     operator's or an admin's session (SessionsFullError instead)."""
 
-    def __init__(self, users: UserStore, *, lifetime_s: float = LIFETIME_S,
-                 idle_s: float = IDLE_S, max_sessions: int = MAX_SESSIONS,
-                 per_user: int = SESSIONS_PER_USER,
-                 clock: Callable[[], float] = time.time) -> None:  # fmt: skip
+    def __init__(
+        self,
+        users: UserStore,
+        *,
+        lifetime_s: float = LIFETIME_S,
+        idle_s: float = IDLE_S,
+        max_sessions: int = MAX_SESSIONS,
+        per_user: int = SESSIONS_PER_USER,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
         self.users = users
         self.lifetime_s, self.idle_s, self.max_sessions = lifetime_s, idle_s, max_sessions
         self.per_user = max(1, per_user)
@@ -104,8 +119,15 @@ class Sessions:
         room for it (see the class)."""
         token = secrets.token_urlsafe(32)
         now = self.clock()
-        session = Session(user.name, user.role, user.stamp, secrets.token_urlsafe(24), now,
-                          now + self.lifetime_s, now)  # fmt: skip
+        session = Session(
+            user.name,
+            user.role,
+            user.stamp,
+            secrets.token_urlsafe(24),
+            now,
+            now + self.lifetime_s,
+            now,
+        )
         key = _digest(token)
         with self._lock:
             own = self._by_user.get(user.name)
@@ -126,9 +148,11 @@ class Sessions:
         if len(self._by_digest) < self.max_sessions:
             return
         # (their role, how many they hold, their name, their oldest session's key)
-        holders = [(_privileged(self._by_digest[oldest].role), -len(keys), name, oldest)
-                   for name, keys in self._by_user.items()
-                   for oldest in [next(iter(keys))]]  # fmt: skip
+        holders = [
+            (_privileged(self._by_digest[oldest].role), -len(keys), name, oldest)
+            for name, keys in self._by_user.items()
+            for oldest in [next(iter(keys))]
+        ]
         holders = [h for h in holders if privileged or not h[0]]
         if not holders:
             self.refused += 1

@@ -75,12 +75,18 @@ class ConnectionLimits:
         for name in ("max_connections", "max_per_address", "max_requests", "max_header_bytes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"connection limits: {name} must be an integer >= 1, "
-                                  f"got {value!r}")  # fmt: skip
-        if isinstance(self.health_reserve, bool) or not isinstance(self.health_reserve, int) \
-                or self.health_reserve < 0:  # fmt: skip
-            raise ConfigError(f"connection limits: health_reserve must be an integer >= 0, "
-                              f"got {self.health_reserve!r}")  # fmt: skip
+                raise ConfigError(
+                    f"connection limits: {name} must be an integer >= 1, got {value!r}"
+                )
+        if (
+            isinstance(self.health_reserve, bool)
+            or not isinstance(self.health_reserve, int)
+            or self.health_reserve < 0
+        ):
+            raise ConfigError(
+                f"connection limits: health_reserve must be an integer >= 0, "
+                f"got {self.health_reserve!r}"
+            )
         if self.max_connections <= self.max_requests + self.health_reserve:
             raise ConfigError(  # a place for health always: busy connections are at most these
                 "connection limits: max_connections must be above max_requests + "
@@ -90,14 +96,15 @@ class ConnectionLimits:
         try:
             nets = tuple(ipaddress.ip_network(p, strict=False) for p in self.trusted_proxies)
         except (TypeError, ValueError):
-            raise ConfigError(f"connection limits: trusted_proxies must be IP addresses or "
-                              f"networks, got {self.trusted_proxies!r}") from None  # fmt: skip
+            raise ConfigError(
+                f"connection limits: trusted_proxies must be IP addresses or "
+                f"networks, got {self.trusted_proxies!r}"
+            ) from None
         object.__setattr__(self, "_proxies", nets)
         for name in ("idle_s", "request_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
-                raise ConfigError(f"connection limits: {name} must be a number > 0, "
-                                  f"got {value!r}")  # fmt: skip
+                raise ConfigError(f"connection limits: {name} must be a number > 0, got {value!r}")
 
 
 def is_trusted_proxy(limits: ConnectionLimits, host: str) -> bool:
@@ -169,8 +176,11 @@ class ConnectionTable:
     def longest_waiting(self, address: str | None = None) -> GuardedH11Protocol | None:
         """The connection (of `address`, or any) waiting longest with no answer in progress,
         of those without a session: a logged-in console is never closed for a newcomer."""
-        waiting = [c for c, a in self.open.items() if (address is None or a == address)
-                   and c not in self.sessions and c.waiting()]  # fmt: skip
+        waiting = [
+            c
+            for c, a in self.open.items()
+            if (address is None or a == address) and c not in self.sessions and c.waiting()
+        ]
         return min(waiting, key=lambda c: c.waiting_since, default=None)
 
     def note(self, reason: str, what: str) -> None:
@@ -190,19 +200,28 @@ def _raw_answer(status: int, text: str) -> bytes:
     when to come back."""
     body, reason = text.encode(), HTTPStatus(status).phrase.encode()
     retry = b"retry-after: %d\r\n" % RETRY_AFTER_S if status == 503 else b""
-    return (b"HTTP/1.1 %d %s\r\ncontent-type: text/plain; charset=utf-8\r\n%s"
-            b"content-length: %d\r\nconnection: close\r\n\r\n%s"
-            % (status, reason, retry, len(body), body))  # fmt: skip
+    return (
+        b"HTTP/1.1 %d %s\r\ncontent-type: text/plain; charset=utf-8\r\n%s"
+        b"content-length: %d\r\nconnection: close\r\n\r\n%s"
+        % (status, reason, retry, len(body), body)
+    )
 
 
 async def _busy(send: Send) -> None:
     """503 with Retry-After: more answers in progress than the server takes."""
     body = b"too many requests in progress; try again in a moment"
-    await send({"type": "http.response.start", "status": 503,
-                "headers": [(b"content-type", b"text/plain; charset=utf-8"),
-                            (b"content-length", b"%d" % len(body)),
-                            (b"retry-after", b"%d" % RETRY_AFTER_S),
-                            (b"connection", b"close")]})  # fmt: skip
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 503,
+            "headers": [
+                (b"content-type", b"text/plain; charset=utf-8"),
+                (b"content-length", b"%d" % len(body)),
+                (b"retry-after", b"%d" % RETRY_AFTER_S),
+                (b"connection", b"close"),
+            ],
+        }
+    )
     await send({"type": "http.response.body", "body": body})
 
 
@@ -211,8 +230,14 @@ class _Admission:
     request the app found logged in (its scope's state holds a session, site.http.auth) gives
     its connection a place of its own (ConnectionTable.logged_in)."""
 
-    def __init__(self, app: ASGIApp, tasks: set[Any], limits: ConnectionLimits,
-                 table: ConnectionTable, conn: GuardedH11Protocol) -> None:  # fmt: skip
+    def __init__(
+        self,
+        app: ASGIApp,
+        tasks: set[Any],
+        limits: ConnectionLimits,
+        table: ConnectionTable,
+        conn: GuardedH11Protocol,
+    ) -> None:
         self.app, self.tasks, self.limits, self.table = app, tasks, limits, table
         self.conn = conn
 
@@ -245,8 +270,13 @@ class GuardedH11Protocol(H11Protocol):
     limits: ClassVar[ConnectionLimits] = ConnectionLimits()
     table: ClassVar[ConnectionTable] = ConnectionTable()
 
-    def __init__(self, config: Config, server_state: ServerState, app_state: dict[str, Any],
-                 _loop: asyncio.AbstractEventLoop | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        config: Config,
+        server_state: ServerState,
+        app_state: dict[str, Any],
+        _loop: asyncio.AbstractEventLoop | None = None,
+    ) -> None:
         super().__init__(config, server_state, app_state, _loop)
         self.app = _Admission(self.app, server_state.tasks, self.limits, self.table, self)
         self.waiting_since = time.monotonic()  # since when no answer is in progress
@@ -273,14 +303,22 @@ class GuardedH11Protocol(H11Protocol):
                 address, f"more than {limits.max_per_address} connections from {address}"
             )
         ):
-            self._refuse(503, "too many connections from this address", "address",
-                         f"{address}: every connection of it busy, one refused")  # fmt: skip
+            self._refuse(
+                503,
+                "too many connections from this address",
+                "address",
+                f"{address}: every connection of it busy, one refused",
+            )
             return
         if len(table.open) >= limits.max_connections and not self._take_place(
             None, f"more than {limits.max_connections} connections"
         ):
-            self._refuse(503, "too many connections", "full",
-                         f"all {limits.max_connections} connections busy, one refused")  # fmt: skip
+            self._refuse(
+                503,
+                "too many connections",
+                "full",
+                f"all {limits.max_connections} connections busy, one refused",
+            )
             return
         table.add(self, address)
         # nothing sent within idle_s: closed; the first request whole within request_s
@@ -349,16 +387,26 @@ class GuardedH11Protocol(H11Protocol):
             return False
         limit = self.limits.max_header_bytes
         if end.end() > limit:
-            self._refuse(431, f"request line and headers over {limit} bytes", "header",
-                         f"a request head of {end.end()} bytes (over {limit}) refused")  # fmt: skip
+            self._refuse(
+                431,
+                f"request line and headers over {limit} bytes",
+                "header",
+                f"a request head of {end.end()} bytes (over {limit}) refused",
+            )
             return True
-        names = {line.split(b":", 1)[0].strip().lower()
-                 for line in pending[: end.start()].split(b"\n")[1:]}  # fmt: skip
+        names = {
+            line.split(b":", 1)[0].strip().lower()
+            for line in pending[: end.start()].split(b"\n")[1:]
+        }
         if b"content-length" in names and b"transfer-encoding" in names:
             # RFC 9112 6.1: a request framed both ways may smuggle a second one in its body
-            self._refuse(400, "Content-Length and Transfer-Encoding together", "smuggling",
-                         "a request with both Content-Length and Transfer-Encoding refused, "
-                         "its connection closed")  # fmt: skip
+            self._refuse(
+                400,
+                "Content-Length and Transfer-Encoding together",
+                "smuggling",
+                "a request with both Content-Length and Transfer-Encoding refused, "
+                "its connection closed",
+            )
             return True
         return False
 
@@ -382,11 +430,16 @@ class GuardedH11Protocol(H11Protocol):
             self._close()
         elif self.conn.their_state is h11.IDLE:  # its head incomplete: nothing answered yet
             within = f"{self.limits.request_s:g} s"
-            self._refuse(408, "request not received in time", "slow",
-                         f"a request not whole within {within}: closed")  # fmt: skip
+            self._refuse(
+                408,
+                "request not received in time",
+                "slow",
+                f"a request not whole within {within}: closed",
+            )
         else:  # its body too slow: an answer may be under way, none can be written now
-            self.table.note("slow", f"a request body not whole within "
-                                    f"{self.limits.request_s:g} s: closed")  # fmt: skip
+            self.table.note(
+                "slow", f"a request body not whole within {self.limits.request_s:g} s: closed"
+            )
             self._close()
 
     def _refuse(self, status: int, text: str, kind: str, what: str) -> None:
@@ -405,5 +458,6 @@ class GuardedH11Protocol(H11Protocol):
 
 def guarded_protocol(limits: ConnectionLimits) -> type[GuardedH11Protocol]:
     """A protocol class for one server: `limits`, and a table of its own connections."""
-    return type("GuardedH11Protocol", (GuardedH11Protocol,),
-                {"limits": limits, "table": ConnectionTable()})  # fmt: skip
+    return type(
+        "GuardedH11Protocol", (GuardedH11Protocol,), {"limits": limits, "table": ConnectionTable()}
+    )

@@ -41,8 +41,13 @@ async def _http_error(request: Request, exc: Exception) -> Response:
     assert isinstance(exc, HTTPException)
     detail = exc.detail
     if isinstance(detail, str) and names_a_path(detail):
-        logger.warning("%s %s: answered %d without its detail: %s", request.method,
-                       request.url.path, exc.status_code, detail)  # fmt: skip
+        logger.warning(
+            "%s %s: answered %d without its detail: %s",
+            request.method,
+            request.url.path,
+            exc.status_code,
+            detail,
+        )
         exc = HTTPException(exc.status_code, _generic(exc.status_code), headers=exc.headers)
     return await http_exception_handler(request, exc)
 

@@ -125,8 +125,7 @@ class HostCheck:
             return
         if host not in self._warned and len(self._warned) < 64:  # once per name, bounded
             self._warned.add(host)
-            logger.warning("refused a request for host %r (not in serve.allowed_hosts)",
-                           host[:100])  # fmt: skip
+            logger.warning("refused a request for host %r (not in serve.allowed_hosts)", host[:100])
         if scope["type"] == "websocket":
             await send({"type": "websocket.close", "code": 1008})
             return

@@ -51,8 +51,9 @@ class FairPlaces:
         self._seq = itertools.count()
         self.replaced = self.bumped = self.refused = 0
 
-    def take(self, user: str, privileged: bool,
-             on_end: Callable[[str], None] | None = None) -> Place | None:  # fmt: skip
+    def take(
+        self, user: str, privileged: bool, on_end: Callable[[str], None] | None = None
+    ) -> Place | None:
         """A place for `user`, or None (see the module); on_end(why) is called if it is
         later ended for another."""
         ended: list[Place] = []

@@ -90,8 +90,9 @@ class ServeSettings:
             try:
                 ipaddress.ip_network(proxy, strict=False)
             except ValueError:
-                raise ConfigError(f"serve.trusted_proxies: expected an IP address or network, "
-                                  f"got {proxy!r}") from None  # fmt: skip
+                raise ConfigError(
+                    f"serve.trusted_proxies: expected an IP address or network, got {proxy!r}"
+                ) from None
 
     @property
     def tls(self) -> bool:
@@ -131,8 +132,9 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
             f"allowed here, got {where}"
         )
     try:
-        candidates = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
-                                        flags=socket.AI_PASSIVE)  # fmt: skip
+        candidates = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )
     except (socket.gaierror, UnicodeError) as e:
         raise ServeError(f"cannot listen on {where}: the host is not known ({e})") from None
     first: OSError | None = None
@@ -152,11 +154,15 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
 
 
 def uvicorn_config(
-    app: object, host: str, port: int, graceful_s: float = GRACEFUL_S,
-    certificate: str | None = None, key: str | None = None,
+    app: object,
+    host: str,
+    port: int,
+    graceful_s: float = GRACEFUL_S,
+    certificate: str | None = None,
+    key: str | None = None,
     limits: ConnectionLimits | None = None,
     trusted_proxies: tuple[str, ...] = (),
-) -> uvicorn.Config:  # fmt: skip
+) -> uvicorn.Config:
     """uvicorn's settings for the service (see the module docstring); trusted_proxies: the
     only peers whose X-Forwarded-For and X-Forwarded-Proto are believed."""
     limits = limits or ConnectionLimits()
@@ -237,14 +243,23 @@ class Server:
         where = _where(self.settings.host, self.port)
         s = self.settings
         try:
-            config = uvicorn_config(self.app, s.host, self.port, self.graceful_s,
-                                    s.certificate, s.key, self.limits,
-                                    s.trusted_proxies)  # fmt: skip
+            config = uvicorn_config(
+                self.app,
+                s.host,
+                self.port,
+                self.graceful_s,
+                s.certificate,
+                s.key,
+                self.limits,
+                s.trusted_proxies,
+            )
             config.load()  # the certificate and key read now: a bad one is a ServeError
         except (OSError, ssl.SSLError) as e:
             self._close_socket()
-            raise ServeError(f"cannot serve HTTPS on {where} with serve.certificate "
-                             f"{s.certificate} and serve.key {s.key}: {e}") from None  # fmt: skip
+            raise ServeError(
+                f"cannot serve HTTPS on {where} with serve.certificate "
+                f"{s.certificate} and serve.key {s.key}: {e}"
+            ) from None
         self._server = uvicorn.Server(config)
         self._thread = threading.Thread(target=self._serve, name=f"http {where}", daemon=True)
         self._thread.start()
@@ -256,8 +271,9 @@ class Server:
                 raise ServeError(f"the HTTP server on {where} stopped while starting{why}")
             if time.monotonic() > deadline:
                 self.stop()
-                raise ServeError(f"the HTTP server on {where} did not start within "
-                                 f"{self.start_timeout_s:g} s")  # fmt: skip
+                raise ServeError(
+                    f"the HTTP server on {where} did not start within {self.start_timeout_s:g} s"
+                )
             time.sleep(0.01)
         logger.info("HTTP server listening on %s", self.url)
         return self.port
@@ -287,8 +303,9 @@ class Server:
         server.should_exit = True
         thread.join(self.shutdown_timeout_s)
         if thread.is_alive():
-            logger.warning("the HTTP server did not stop within %g s; forcing it",
-                           self.shutdown_timeout_s)  # fmt: skip
+            logger.warning(
+                "the HTTP server did not stop within %g s; forcing it", self.shutdown_timeout_s
+            )
             server.force_exit = True
             thread.join(1.0)
         self._close_socket()

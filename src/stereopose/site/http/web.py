@@ -33,13 +33,20 @@ class Console:
     hub: LiveHub | None = None
 
     @classmethod
-    def in_folder(cls, out_dir: str | Path, hub: LiveHub | None = None,
-                  users: UserStore | None = None) -> Console:  # fmt: skip
+    def in_folder(
+        cls, out_dir: str | Path, hub: LiveHub | None = None, users: UserStore | None = None
+    ) -> Console:
         out = Path(out_dir)
         users = users or UserStore.in_folder(out)
         clips = out / CLIPS_DIR
-        return cls(users=users, sessions=Sessions(users), log=EventLog(out / EVENTS_DB, clips),
-                   acks=AckStore(out / EVENTS_DB), clips_dir=clips, hub=hub)  # fmt: skip
+        return cls(
+            users=users,
+            sessions=Sessions(users),
+            log=EventLog(out / EVENTS_DB, clips),
+            acks=AckStore(out / EVENTS_DB),
+            clips_dir=clips,
+            hub=hub,
+        )
 
     def close(self) -> None:
         if self.hub is not None:

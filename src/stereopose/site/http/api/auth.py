@@ -84,16 +84,34 @@ def client_address(request: Request) -> str:
 def _set_cookies(response: Response, request: Request, token: str, session: Session) -> None:
     secure = request.url.scheme == "https"
     max_age = max(1, int(session.expires_at - session.created))
-    response.set_cookie(SESSION_COOKIE, token, max_age=max_age, path="/", secure=secure,
-                        httponly=True, samesite="strict")  # fmt: skip
-    response.set_cookie(CSRF_COOKIE, session.csrf, max_age=max_age, path="/", secure=secure,
-                        httponly=False, samesite="strict")  # fmt: skip
+    response.set_cookie(
+        SESSION_COOKIE,
+        token,
+        max_age=max_age,
+        path="/",
+        secure=secure,
+        httponly=True,
+        samesite="strict",
+    )
+    response.set_cookie(
+        CSRF_COOKIE,
+        session.csrf,
+        max_age=max_age,
+        path="/",
+        secure=secure,
+        httponly=False,
+        samesite="strict",
+    )
 
 
-_LOGIN_ERRORS = {401: {"description": "wrong name or password"},
-                 429: {"description": "too many failed logins; see Retry-After"},
-                 503: {"description": "no session place, too many logins under way (see "
-                              "Retry-After), or the users unreadable"}}  # fmt: skip
+_LOGIN_ERRORS = {
+    401: {"description": "wrong name or password"},
+    429: {"description": "too many failed logins; see Retry-After"},
+    503: {
+        "description": "no session place, too many logins under way (see "
+        "Retry-After), or the users unreadable"
+    },
+}
 
 
 def checked_password(parts, request: Request, name: str, password: str) -> User | None:
@@ -102,16 +120,18 @@ def checked_password(parts, request: Request, name: str, password: str) -> User 
     try:
         attempt = parts.limiter.begin(f"address:{client_address(request)}", name)
     except TooManyAttemptsError as e:
-        raise HTTPException(429, f"{e.why}; try again later",
-                            headers={"Retry-After": str(e.retry_after)}) from None  # fmt: skip
+        raise HTTPException(
+            429, f"{e.why}; try again later", headers={"Retry-After": str(e.retry_after)}
+        ) from None
     not_failed = False
     try:
         user = parts.users.verify_admitted(name, password)
         not_failed = user is not None
     except HashingBusyError:
         not_failed = True  # nothing was checked: no failure counted against anyone
-        raise HTTPException(503, "too many logins under way; try again in a moment",
-                            headers={"Retry-After": "2"}) from None  # fmt: skip
+        raise HTTPException(
+            503, "too many logins under way; try again in a moment", headers={"Retry-After": "2"}
+        ) from None
     except UserError as e:
         not_failed = True  # the users cannot be read: no password was tried
         logger.error("console: %s", e)
@@ -122,8 +142,12 @@ def checked_password(parts, request: Request, name: str, password: str) -> User 
 
 
 @router.post("/api/login", response_model=LoginAnswer, responses=_LOGIN_ERRORS)
-def login(body: Login, request: Request, response: Response,
-          parts=Depends(console_parts)) -> LoginAnswer:  # noqa: B008  # fmt: skip
+def login(
+    body: Login,
+    request: Request,
+    response: Response,
+    parts=Depends(console_parts),  # noqa: B008
+) -> LoginAnswer:
     """Log in (sync: the password hash runs in the thread pool)."""
     user = checked_password(parts, request, body.username, body.password)
     if user is None:
@@ -132,25 +156,38 @@ def login(body: Login, request: Request, response: Response,
         token, session = parts.sessions.create(user)
     except SessionsFullError as e:
         logger.warning("console: %s not logged in: %s", user.name, e)
-        raise HTTPException(503, "no session place is free now; try again later",
-                            headers={"Retry-After": "60"}) from None  # fmt: skip
+        raise HTTPException(
+            503, "no session place is free now; try again later", headers={"Retry-After": "60"}
+        ) from None
     _set_cookies(response, request, token, session)
-    return LoginAnswer(token=token, username=user.name, role=user.role,
-                       expires_at=session.expires_at, csrf=session.csrf)  # fmt: skip
+    return LoginAnswer(
+        token=token,
+        username=user.name,
+        role=user.role,
+        expires_at=session.expires_at,
+        csrf=session.csrf,
+    )
 
 
 @router.post("/api/logout", status_code=204, response_class=Response)
-def logout(request: Request, session: Annotated[Session, Depends(authenticated)],
-           parts=Depends(console_parts)) -> Response:  # noqa: B008  # fmt: skip
+def logout(
+    request: Request,
+    session: Annotated[Session, Depends(authenticated)],
+    parts=Depends(console_parts),  # noqa: B008
+) -> Response:
     """End this session; its cookies are cleared."""
     token, _ = request_token(request)
     if token:
         parts.sessions.end(token)
     response = Response(status_code=204)
     for name in (SESSION_COOKIE, CSRF_COOKIE):
-        response.delete_cookie(name, path="/", samesite="strict",
-                               secure=request.url.scheme == "https",
-                               httponly=name == SESSION_COOKIE)  # fmt: skip
+        response.delete_cookie(
+            name,
+            path="/",
+            samesite="strict",
+            secure=request.url.scheme == "https",
+            httponly=name == SESSION_COOKIE,
+        )
     return response
 
 

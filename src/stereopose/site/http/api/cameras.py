@@ -19,10 +19,12 @@ def cameras(session: Viewer, parts=Depends(console_parts)) -> JSONResponse:  # n
     return JSONResponse(hub_of(parts).cameras(), headers={"Cache-Control": "no-store"})
 
 
-@router.get("/api/cameras/{name:path}/snapshot.jpg", response_class=Response,
-            responses={200: {"content": {"image/jpeg": {}}}, 404: {}, 503: {}})  # fmt: skip
-async def snapshot(name: str, session: Viewer,
-                   parts=Depends(console_parts)) -> Response:  # noqa: B008  # fmt: skip
+@router.get(
+    "/api/cameras/{name:path}/snapshot.jpg",
+    response_class=Response,
+    responses={200: {"content": {"image/jpeg": {}}}, 404: {}, 503: {}},
+)
+async def snapshot(name: str, session: Viewer, parts=Depends(console_parts)) -> Response:  # noqa: B008
     """The camera's newest picture (JPEG); 404 for an unknown camera, 503 before a frame. The
     name is one percent-encoded segment; `{name:path}`, since a name may hold a `/`."""
     hub = hub_of(parts)

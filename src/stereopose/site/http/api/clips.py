@@ -63,25 +63,42 @@ def _clip_path(file: str, parts) -> tuple[Path, os.stat_result]:
     return path, st
 
 
-@router.get("/api/clips/{file}", response_class=FileResponse,
-            responses={200: {"content": {"video/mp4": {}}}, 400: {}, 404: {}})  # fmt: skip
+@router.get(
+    "/api/clips/{file}",
+    response_class=FileResponse,
+    responses={200: {"content": {"video/mp4": {}}}, 400: {}, 404: {}},
+)
 def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileResponse:  # noqa: B008
     """The clip (video/mp4)."""
     path, st = _clip_path(file, parts)
-    return FileResponse(path, media_type="video/mp4", stat_result=st,
-                        headers={"Cache-Control": "private, max-age=3600"})  # fmt: skip
+    return FileResponse(
+        path,
+        media_type="video/mp4",
+        stat_result=st,
+        headers={"Cache-Control": "private, max-age=3600"},
+    )
 
 
-@router.get("/api/clips/{file}/play", response_class=StreamingResponse,
-            responses={200: {"content": {f"multipart/x-mixed-replace; boundary={_BOUNDARY}": {}}},
-                       400: {}, 404: {}, 503: {}})  # fmt: skip
+@router.get(
+    "/api/clips/{file}/play",
+    response_class=StreamingResponse,
+    responses={
+        200: {"content": {f"multipart/x-mixed-replace; boundary={_BOUNDARY}": {}}},
+        400: {},
+        404: {},
+        503: {},
+    },
+)
 def play(file: str, session: Viewer, parts=Depends(console_parts)) -> StreamingResponse:  # noqa: B008
     """The clip played as Motion JPEG at its frame rate, for an <img> (any browser)."""
     path, _ = _clip_path(file, parts)
     place = players.take(session.username, privileged=False)
     if place is None:
-        raise HTTPException(503, f"{PLAYERS} clips are playing; try again when one ends",
-                            headers={"Retry-After": "5"})  # fmt: skip
+        raise HTTPException(
+            503,
+            f"{PLAYERS} clips are playing; try again when one ends",
+            headers={"Retry-After": "5"},
+        )
     player = _Player(path, place)  # gives its place back when it ends, is closed or dropped
     if not player.opened:
         player.close()

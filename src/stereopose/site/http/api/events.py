@@ -26,9 +26,30 @@ from stereopose.site.http.auth import Operator, Viewer, console_parts
 router = APIRouter(tags=["events"])
 
 _I64 = 2**63 - 1
-CSV_COLUMNS = ("id", "time", "wall_t", "t", "frame", "person", "zone", "kind", "type", "level",
-               "camera", "joint", "distance_m", "duration_s", "x", "y", "allowed", "lost",
-               "restart", "ack_by", "ack_at", "clips")  # fmt: skip
+CSV_COLUMNS = (
+    "id",
+    "time",
+    "wall_t",
+    "t",
+    "frame",
+    "person",
+    "zone",
+    "kind",
+    "type",
+    "level",
+    "camera",
+    "joint",
+    "distance_m",
+    "duration_s",
+    "x",
+    "y",
+    "allowed",
+    "lost",
+    "restart",
+    "ack_by",
+    "ack_at",
+    "clips",
+)
 
 
 _TIME = Query(max_length=64, description="Unix seconds or ISO 8601")
@@ -55,11 +76,18 @@ def filters(
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
     before_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
     after_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
-) -> Filters:  # fmt: skip
+) -> Filters:
     times = query_times(since, until)
-    return Filters(since=times.get("since"), until=times.get("until"), person=person,
-                   zone=zone or None, type=type or None, limit=limit, before_id=before_id,
-                   after_id=after_id)  # fmt: skip
+    return Filters(
+        since=times.get("since"),
+        until=times.get("until"),
+        person=person,
+        zone=zone or None,
+        type=type or None,
+        limit=limit,
+        before_id=before_id,
+        after_id=after_id,
+    )
 
 
 def _query(parts, f: Filters) -> list[dict]:
@@ -72,8 +100,11 @@ def _query(parts, f: Filters) -> list[dict]:
 
 
 @router.get("/api/events")
-def events(session: Viewer, f: Annotated[Filters, Depends(filters)],
-           parts=Depends(console_parts)) -> JSONResponse:  # noqa: B008  # fmt: skip
+def events(
+    session: Viewer,
+    f: Annotated[Filters, Depends(filters)],
+    parts=Depends(console_parts),  # noqa: B008
+) -> JSONResponse:
     """{"events": [...]}, newest first: each with id, t, wall_t, frame, person, zone, kind,
     type, level (alarm, warning, info), camera, ack ({"by", "at"} or null) and clips."""
     return JSONResponse({"events": _query(parts, f)}, headers={"Cache-Control": "no-store"})
@@ -89,28 +120,45 @@ def _cell(value: object) -> object:
     return value
 
 
-@router.get("/api/events.csv", response_class=Response,
-            responses={200: {"content": {"text/csv": {}}}})  # fmt: skip
-def events_csv(session: Viewer, f: Annotated[Filters, Depends(filters)],
-               parts=Depends(console_parts)) -> Response:  # noqa: B008  # fmt: skip
+@router.get(
+    "/api/events.csv", response_class=Response, responses={200: {"content": {"text/csv": {}}}}
+)
+def events_csv(
+    session: Viewer,
+    f: Annotated[Filters, Depends(filters)],
+    parts=Depends(console_parts),  # noqa: B008
+) -> Response:
     """The same events as CSV (an attachment)."""
     out = io.StringIO()
     writer = csv.writer(out)
     writer.writerow(CSV_COLUMNS)
     for e in _query(parts, f):
         ack = e.get("ack") or {}
-        row = {**e, "ack_by": ack.get("by"), "ack_at": ack.get("at"),
-               "clips": " ".join(e.get("clips", []))}  # fmt: skip
+        row = {
+            **e,
+            "ack_by": ack.get("by"),
+            "ack_at": ack.get("at"),
+            "clips": " ".join(e.get("clips", [])),
+        }
         writer.writerow([_cell(row.get(c)) for c in CSV_COLUMNS])
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-    return Response(out.getvalue(), media_type="text/csv; charset=utf-8",
-                    headers={"Content-Disposition": f'attachment; filename="events-{stamp}.csv"',
-                             "Cache-Control": "no-store"})  # fmt: skip
+    return Response(
+        out.getvalue(),
+        media_type="text/csv; charset=utf-8",
+        headers={
+            "Content-Disposition": f'attachment; filename="events-{stamp}.csv"',
+            "Cache-Control": "no-store",
+        },
+    )
 
 
 @router.post("/api/events/{event_id}/ack", responses={403: {}, 404: {}})
-def ack(event_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator, request: Request,
-        parts=Depends(console_parts)) -> dict:  # noqa: B008  # fmt: skip
+def ack(
+    event_id: Annotated[int, Path(ge=0, le=_I64)],
+    session: Operator,
+    request: Request,
+    parts=Depends(console_parts),  # noqa: B008
+) -> dict:
     """Acknowledge the event as this user (operator or admin); an event acknowledged before
     answers with its first acknowledgement. Its incident is acknowledged too (`incident`: its
     record; null when the event has none or it is no longer open)."""

@@ -94,8 +94,9 @@ def health_of(s: Snapshot, *, show_version: bool = True) -> Health:
 
 
 @router.get("/api/health", response_model=Health, responses={503: {"model": Health}})
-def health(request: Request, response: Response,
-           state: Annotated[ServiceState, Depends(service_state)]) -> Health:  # fmt: skip
+def health(
+    request: Request, response: Response, state: Annotated[ServiceState, Depends(service_state)]
+) -> Health:
     """The service's health (sync: its probes run in the thread pool, off the event loop)."""
     answer = health_of(state.snapshot(), show_version=has_session(request))
     response.status_code = 503 if answer.status == "down" else 200

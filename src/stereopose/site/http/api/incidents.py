@@ -41,24 +41,32 @@ class Shelving(BaseModel):
 
 
 def filters(
-    state: Annotated[Literal["active", "acknowledged", "cleared", "closed"] | None,
-                     Query()] = None,
+    state: Annotated[Literal["active", "acknowledged", "cleared", "closed"] | None, Query()] = None,
     priority: Annotated[int | None, Query(ge=1, le=4)] = None,
     zone: Annotated[str | None, Query(max_length=200)] = None,
     person: Annotated[int | None, Query(ge=-_I64, le=_I64)] = None,
     since: Annotated[str | None, _TIME] = None,
     until: Annotated[str | None, _TIME] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
-) -> IncidentFilters:  # fmt: skip
+) -> IncidentFilters:
     times = query_times(since, until)
-    return IncidentFilters(state=state, priority=priority, zone=zone or None, person=person,
-                           since=times.get("since"), until=times.get("until"),
-                           limit=limit)  # fmt: skip
+    return IncidentFilters(
+        state=state,
+        priority=priority,
+        zone=zone or None,
+        person=person,
+        since=times.get("since"),
+        until=times.get("until"),
+        limit=limit,
+    )
 
 
 @router.get("/api/incidents")
-def incidents(session: Viewer, f: Annotated[IncidentFilters, Depends(filters)],
-              parts=Depends(console_parts)) -> JSONResponse:  # noqa: B008  # fmt: skip
+def incidents(
+    session: Viewer,
+    f: Annotated[IncidentFilters, Depends(filters)],
+    parts=Depends(console_parts),  # noqa: B008
+) -> JSONResponse:
     """{"incidents": [...]}, newest first (see the module)."""
     log = getattr(parts, "log", None)
     found: list[dict] = []
@@ -88,20 +96,26 @@ def _answer(desk, act) -> dict:
 
 
 @router.post("/api/incidents/{incident_id}/ack", responses={403: {}, 404: {}})
-def ack(incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator,
-        request: Request) -> dict:  # fmt: skip
+def ack(
+    incident_id: Annotated[int, Path(ge=0, le=_I64)], session: Operator, request: Request
+) -> dict:
     """Acknowledge the incident as this user; {"incident": its record}."""
     desk = _desk(request)
     return _answer(desk, lambda: desk.acknowledge(incident_id, session.username))
 
 
 @router.post("/api/incidents/{incident_id}/shelve", responses={403: {}, 404: {}, 422: {}})
-def shelve(incident_id: Annotated[int, Path(ge=0, le=_I64)], body: Shelving,
-           session: Operator, request: Request) -> dict:  # fmt: skip
+def shelve(
+    incident_id: Annotated[int, Path(ge=0, le=_I64)],
+    body: Shelving,
+    session: Operator,
+    request: Request,
+) -> dict:
     """Shelve the incident's hazard for duration_s (at most 8 h) with a reason."""
     desk = _desk(request)
-    return _answer(desk, lambda: desk.shelve(incident_id, session.username, body.reason,
-                                       body.duration_s))  # fmt: skip
+    return _answer(
+        desk, lambda: desk.shelve(incident_id, session.username, body.reason, body.duration_s)
+    )
 
 
 @router.get("/api/alarm-rates")

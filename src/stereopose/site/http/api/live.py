@@ -30,10 +30,16 @@ SESSION_CHECK_S = 5.0
 ENDED_RETRY_MS = 30_000
 
 
-@router.get("/api/live", response_class=StreamingResponse,
-            responses={200: {"content": {"text/event-stream": {}}}, 503: {}})  # fmt: skip
-async def live(request: Request, session: Viewer,
-               parts=Depends(console_parts)) -> StreamingResponse:  # noqa: B008  # fmt: skip
+@router.get(
+    "/api/live",
+    response_class=StreamingResponse,
+    responses={200: {"content": {"text/event-stream": {}}}, 503: {}},
+)
+async def live(
+    request: Request,
+    session: Viewer,
+    parts=Depends(console_parts),  # noqa: B008
+) -> StreamingResponse:
     """event: people | event | zones | cameras | ack, each with its JSON as data."""
     hub = hub_of(parts)
     privileged = role_at_least(session.role, "operator")

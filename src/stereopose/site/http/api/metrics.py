@@ -26,5 +26,4 @@ def metrics(
         text = exposition(registry)
     finally:
         VERSION_SHOWN.reset(shown)
-    return Response(text, media_type=CONTENT_TYPE,
-                    headers={"Cache-Control": "no-store"})  # fmt: skip
+    return Response(text, media_type=CONTENT_TYPE, headers={"Cache-Control": "no-store"})

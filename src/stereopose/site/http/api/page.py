@@ -18,12 +18,17 @@ from starlette.types import Receive, Scope, Send
 
 CONSOLE_DIR = Path(__file__).resolve().parent.parent / "console"
 CONSOLE_URL = "/console"
-CSP = ("default-src 'self'; img-src 'self' data: blob:; media-src 'self' blob:; "
-       "style-src 'self'; script-src 'self'; connect-src 'self'; object-src 'none'; "
-       "frame-ancestors 'none'; base-uri 'none'; form-action 'self'")  # fmt: skip
+CSP = (
+    "default-src 'self'; img-src 'self' data: blob:; media-src 'self' blob:; "
+    "style-src 'self'; script-src 'self'; connect-src 'self'; object-src 'none'; "
+    "frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
+)
 # Referrer-Policy and nosniff: on every answer (site.http.limits)
-PAGE_HEADERS = {"Content-Security-Policy": CSP, "X-Frame-Options": "DENY",
-                "Cache-Control": "no-cache"}  # fmt: skip
+PAGE_HEADERS = {
+    "Content-Security-Policy": CSP,
+    "X-Frame-Options": "DENY",
+    "Cache-Control": "no-cache",
+}
 
 PLACEHOLDER = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>stereopose console</title></head>
@@ -65,8 +70,11 @@ def plotly_min_js() -> Response:
     path = plotly_js()
     if path is None:
         raise HTTPException(404, "plotly is not installed")
-    return FileResponse(path, media_type="text/javascript; charset=utf-8",
-                        headers={**PAGE_HEADERS, "Cache-Control": "max-age=86400"})  # fmt: skip
+    return FileResponse(
+        path,
+        media_type="text/javascript; charset=utf-8",
+        headers={**PAGE_HEADERS, "Cache-Control": "max-age=86400"},
+    )
 
 
 class _ConsoleFiles(StaticFiles):
@@ -84,5 +92,8 @@ class _ConsoleFiles(StaticFiles):
 
 def mount_page(app: FastAPI) -> None:
     app.include_router(router)
-    app.mount(CONSOLE_URL, _ConsoleFiles(directory=CONSOLE_DIR, check_dir=False,
-                                         follow_symlink=False), name="console")  # fmt: skip
+    app.mount(
+        CONSOLE_URL,
+        _ConsoleFiles(directory=CONSOLE_DIR, check_dir=False, follow_symlink=False),
+        name="console",
+    )

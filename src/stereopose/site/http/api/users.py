@@ -47,8 +47,7 @@ def list_users(session: Admin, parts=Depends(console_parts)) -> list[UserOut]:  
     return [_out(u) for u in parts.users.users()]
 
 
-@router.post("/api/users", response_model=UserOut, status_code=201,
-             responses={409: {}, 422: {}})  # fmt: skip
+@router.post("/api/users", response_model=UserOut, status_code=201, responses={409: {}, 422: {}})
 def add_user(body: NewUser, session: Admin, parts=Depends(console_parts)) -> UserOut:  # noqa: B008
     if parts.users.get(body.username) is not None:
         raise HTTPException(409, f"user {body.username!r} already exists")
@@ -58,8 +57,9 @@ def add_user(body: NewUser, session: Admin, parts=Depends(console_parts)) -> Use
         raise HTTPException(422, str(e)) from None
 
 
-@router.delete("/api/users/{name}", status_code=204, response_class=Response,
-               responses={404: {}, 409: {}})  # fmt: skip
+@router.delete(
+    "/api/users/{name}", status_code=204, response_class=Response, responses={404: {}, 409: {}}
+)
 def remove_user(name: str, session: Admin, parts=Depends(console_parts)) -> Response:  # noqa: B008
     if parts.users.get(name) is None:
         raise HTTPException(404, "no such user")
@@ -74,10 +74,19 @@ def remove_user(name: str, session: Admin, parts=Depends(console_parts)) -> Resp
     return Response(status_code=204)
 
 
-@router.post("/api/users/{name}/password", status_code=204, response_class=Response,
-             responses={403: {}, 404: {}, 422: {}, 429: {}})  # fmt: skip
-def change_password(name: str, body: NewPassword, session: Viewer, request: Request,
-                    parts=Depends(console_parts)) -> Response:  # noqa: B008  # fmt: skip
+@router.post(
+    "/api/users/{name}/password",
+    status_code=204,
+    response_class=Response,
+    responses={403: {}, 404: {}, 422: {}, 429: {}},
+)
+def change_password(
+    name: str,
+    body: NewPassword,
+    session: Viewer,
+    request: Request,
+    parts=Depends(console_parts),  # noqa: B008
+) -> Response:
     """An admin sets anyone's password; a user sets their own, giving the old one."""
     me: Session = session
     if not role_at_least(me.role, "admin"):
