@@ -2,7 +2,7 @@
 
 A Range is an interval (open or closed at each end) of finite numbers, optionally of integers or
 of multiples of a step. Every numeric field of the configuration schema carries one (see
-`number` in config.py); calibration and site files are checked against the bounds below.
+`number` in config.fields); calibration and site files are checked against the bounds below.
 """
 
 from __future__ import annotations
