@@ -132,8 +132,34 @@ def _add_reconstruct(r: argparse.ArgumentParser, e: argparse.ArgumentParser) -> 
 
 
 def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
-    """`detect`, `run`, `init`, `report`, `models` and `demo`."""
-    dt = parsers["detect"]
+    """`detect`, `run`, `serve`, `points`, `detect-node`, `control-room`, `users`, `init`,
+    `report`, `models` and `demo`."""
+    _add_detect(parsers["detect"])
+    parsers["run"].add_argument(
+        "config", type=Path, metavar="CONFIG.toml", help="run configuration"
+    )
+    parsers["run"].add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the outputs of a previous run in the output folder",
+    )
+    _add_serve(parsers["serve"])
+    _add_points(parsers["points"])
+    _add_detect_node(parsers["detect-node"])
+    parsers["control-room"].add_argument(
+        "config",
+        type=Path,
+        help="the control room's configuration (output, [serve], [mqtt], [control_room])",
+    )
+    _add_users(parsers["users"])
+    _add_init(parsers["init"])
+    parsers["report"].add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    _add_models(parsers["models"])
+    _add_demo(parsers["demo"])
+
+
+def _add_detect(dt: argparse.ArgumentParser) -> None:
+    """`detect`."""
     dt.add_argument(
         "--videos",
         required=True,
@@ -196,17 +222,9 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         "--overwrite", action="store_true", help="replace the keypoint files of a previous run"
     )
 
-    parsers["run"].add_argument(
-        "config", type=Path, metavar="CONFIG.toml", help="run configuration"
-    )
-    parsers["run"].add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace the outputs of a previous run in the output folder",
-    )
-    _add_serve(parsers["serve"])
-    _add_points(parsers["points"])
-    dn = parsers["detect-node"]
+
+def _add_detect_node(dn: argparse.ArgumentParser) -> None:
+    """`detect-node`."""
     dn.add_argument(
         "config",
         type=Path,
@@ -220,13 +238,10 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         help="the node's name on the broker (default: its [[nodes]] "
         "name, or the host name and its cameras)",
     )
-    parsers["control-room"].add_argument(
-        "config",
-        type=Path,
-        help="the control room's configuration (output, [serve], [mqtt], [control_room])",
-    )
-    _add_users(parsers["users"])
-    it = parsers["init"]
+
+
+def _add_init(it: argparse.ArgumentParser) -> None:
+    """`init`."""
     it.add_argument(
         "path",
         nargs="?",
@@ -239,9 +254,10 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         help="write the example service configuration (`stereopose serve`)",
     )
     it.add_argument("--force", action="store_true", help="overwrite an existing file")
-    parsers["report"].add_argument("run_dir", type=Path, metavar="RUN_DIR")
 
-    mo = parsers["models"]
+
+def _add_models(mo: argparse.ArgumentParser) -> None:
+    """`models`."""
     mo.add_argument("action", choices=("list", "fetch", "export"), nargs="?", default="list")
     mo.add_argument("weights", type=Path, nargs="?", help="export: a YOLO pose .pt file")
     mo.add_argument("--out", type=Path, help="export: the .onnx file to write")
@@ -253,7 +269,9 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         '"int8"), from the .onnx or .pt given or the default model',
     )
 
-    d = parsers["demo"]
+
+def _add_demo(d: argparse.ArgumentParser) -> None:
+    """`demo`."""
     d.add_argument("--out", type=Path, default=Path("out/demo"))
     d.add_argument(
         "--overwrite",
