@@ -188,6 +188,17 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
     if len(rig) > MAX_CAMERAS:
         raise ValueError(f"{len(rig)} cameras; the points table holds at most {MAX_CAMERAS}")
     everyone = tuple(rig.names)
+    zones = tuple(site.zones) if site is not None else ()
+    seeing = {z.name: cameras_seeing(z, rig) for z in zones}
+    rules = tuple(site.rules) if site is not None else ()
+    pts = _service_points(everyone, commands)
+    pts += _zone_points(zones, seeing, commands)
+    pts += _rule_points(rules, zones, seeing, everyone)
+    return PointsTable(pts)
+
+
+def _service_points(everyone: tuple[str, ...], commands: bool) -> list[Point]:
+    """The service's, the priorities' commands and the cameras' points."""
     pts = [
         Point(
             SERVICE_RUNNING,
@@ -244,8 +255,12 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
                 name,
             )
         )
-    zones = tuple(site.zones) if site is not None else ()
-    seeing = {z.name: cameras_seeing(z, rig) for z in zones}
+    return pts
+
+
+def _zone_points(zones: tuple, seeing: dict, commands: bool) -> list[Point]:
+    """Each zone's points (occupied, alarm; its acknowledge command)."""
+    pts: list[Point] = []
     for n, z in enumerate(zones, start=1):
         cams, base = seeing[z.name], ZONE_BASE + 10 * n
         q = _quality(cams, not cams)
@@ -282,7 +297,14 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
                     z.name,
                 )
             )
-    rules = tuple(site.rules) if site is not None else ()
+    return pts
+
+
+def _rule_points(
+    rules: tuple, zones: tuple, seeing: dict, everyone: tuple[str, ...]
+) -> list[Point]:
+    """Each behaviour rule's alarm point, its quality from the cameras of its zones."""
+    pts: list[Point] = []
     for n, r in enumerate(rules, start=1):
         watched = _rule_zones(r, zones)
         if watched is None:
@@ -303,4 +325,4 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
                 unseen,
             )
         )
-    return PointsTable(pts)
+    return pts
