@@ -1,4 +1,4 @@
-"""packaging/stereopose.site: a unit systemd accepts, that keeps serve running, stops it
+"""packaging/stereopose.service: a unit systemd accepts, that keeps serve running, stops it
 with SIGTERM and confines it to its own folders."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-UNIT = Path(__file__).resolve().parents[1] / "packaging" / "stereopose.site"
+UNIT = Path(__file__).resolve().parents[1] / "packaging" / "stereopose.service"
 
 
 def parse_unit(text: str) -> dict[str, dict[str, list[str]]]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from stereopose.viz import colours, overlay, report
 
-CONSOLE = Path(colours.__file__).resolve().parents[1] / "service" / "console"
+CONSOLE = Path(colours.__file__).resolve().parents[1] / "site" / "http" / "console"
 
 
 def _js_list(name: str) -> list[str]:
