@@ -184,6 +184,22 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
     ids = sorted({int(p["id"]) for _, _, people in poses for p in people})
     stride = max(1, int(np.ceil(len(poses) / MAX_3D_FRAMES)))
     shown = poses[::stride]
+    static = _static_3d(poses, rig, site)
+    # open on the first shown frame with somebody in it
+    start = next((i for i, (_, _, people) in enumerate(shown) if people), 0)
+    first = shown[start][2] if shown else []
+    fig = go.Figure(data=static + _person_traces(first, ids))
+    moving = list(range(len(static), len(static) + len(ids)))
+    fig.frames = [
+        go.Frame(data=_person_traces(people, ids), traces=moving, name=str(frame))
+        for frame, _, people in shown
+    ]
+    _animate(fig, shown, start)
+    return fig
+
+
+def _static_3d(poses, rig: Rig, site: Site | None) -> list:
+    """The zones' prisms, the cameras and the floor under everything shown."""
     static: list = []
     if site is not None:
         static += [_zone_prism(z, z.name) for z in site.zones]
@@ -216,34 +232,32 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
         )
     )
 
-    def person_traces(people) -> list:
-        by_id = {int(p["id"]): p for p in people}
-        traces = []
-        for pid in ids:
-            p = by_id.get(pid)
-            xs, ys, zs = _skeleton_xyz(p["joints_array"]) if p is not None else ([], [], [])
-            traces.append(
-                go.Scatter3d(
-                    x=xs,
-                    y=ys,
-                    z=zs,
-                    mode="lines+markers",
-                    name=f"id {pid}",
-                    line={"color": colour(pid), "width": 6},
-                    marker={"size": 2, "color": colour(pid)},
-                )
-            )
-        return traces
+    return static
 
-    # open on the first shown frame with somebody in it
-    start = next((i for i, (_, _, people) in enumerate(shown) if people), 0)
-    first = shown[start][2] if shown else []
-    fig = go.Figure(data=static + person_traces(first))
-    moving = list(range(len(static), len(static) + len(ids)))
-    fig.frames = [
-        go.Frame(data=person_traces(people), traces=moving, name=str(frame))
-        for frame, _, people in shown
-    ]
+
+def _person_traces(people, ids: list[int]) -> list:
+    """One skeleton trace per id (empty for an id not in `people`)."""
+    by_id = {int(p["id"]): p for p in people}
+    traces = []
+    for pid in ids:
+        p = by_id.get(pid)
+        xs, ys, zs = _skeleton_xyz(p["joints_array"]) if p is not None else ([], [], [])
+        traces.append(
+            go.Scatter3d(
+                x=xs,
+                y=ys,
+                z=zs,
+                mode="lines+markers",
+                name=f"id {pid}",
+                line={"color": colour(pid), "width": 6},
+                marker={"size": 2, "color": colour(pid)},
+            )
+        )
+    return traces
+
+
+def _animate(fig: go.Figure, shown, start: int) -> None:
+    """The frame slider (at `start`) and the play and pause buttons."""
     steps = [
         {
             "method": "animate",
@@ -304,7 +318,6 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
             }
         ],
     )
-    return fig
 
 
 def _trajectories(poses) -> dict[int, np.ndarray]:
