@@ -97,6 +97,26 @@ MAX_STATUS = 32  # characters of a heartbeat's status at most
 MAX_COUNT = 1_000_000  # a heartbeat's cameras, cameras_up, people at most
 STUCK_S = 120.0  # events coming this long with none stored: the ingest is degraded
 QUIET_S = 600.0  # a control-room incident about bad messages clears after this long without
+COUNTS = (
+    "messages",
+    "stored",
+    "duplicates",
+    "gaps",
+    "replays",
+    "malformed",
+    "dropped",
+    "store_errors",
+    "behind",
+    "incident_changes",
+    "commands_sent",
+    "commands_done",
+    "room_incidents",
+    "ingest_errors",
+    "oversize",
+    "refused_sites",
+    "ahead",
+    "restarts",
+)  # figures()
 STALL_S = 30.0  # the ingest's thread silent this long: down
 
 
@@ -177,26 +197,7 @@ class Ingest:
         self.clock_offsets: dict[str, float] = {}  # site -> its clock minus ours (s)
         self._clock_warned: set[str] = set()
         self._announced: dict[str, int] = {}  # site -> the last id its last heartbeat gave
-        self.counts = {
-            "messages": 0,
-            "stored": 0,
-            "duplicates": 0,
-            "gaps": 0,
-            "replays": 0,
-            "malformed": 0,
-            "dropped": 0,
-            "store_errors": 0,
-            "behind": 0,
-            "incident_changes": 0,
-            "commands_sent": 0,
-            "commands_done": 0,
-            "room_incidents": 0,
-            "ingest_errors": 0,
-            "oversize": 0,
-            "refused_sites": 0,
-            "ahead": 0,
-            "restarts": 0,
-        }
+        self.counts = dict.fromkeys(COUNTS, 0)
         self._progress = time.monotonic()  # events stored, or none waiting to be
         self._stepped = time.monotonic()  # the ingest's thread last went round
         self._warned_at: dict[str, float] = {}  # kind of bad message -> when last logged
