@@ -44,52 +44,34 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from stereopose.alarms import AlarmSettings, IncidentBook
-from stereopose.config import Config
 from stereopose.detection import make_detector
-from stereopose.detection.regional import RegionDetector, region_detector
+from stereopose.detection.regional import region_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import FenceMonitor
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
-from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
-from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded, Sink
-from stereopose.io.sinks.clips import ClipSettings
-from stereopose.io.sinks.health import AlarmOutput
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
-from stereopose.io.video import is_stream
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.sources import Cameras, source_label
+from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.scada.opcua_settings import opcua_settings
-from stereopose.site.desk import IncidentDesk
-from stereopose.site.eventlog import EventLog
 from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watch import CameraWatch
-from stereopose.site.health.watchdog import Watchdog
-from stereopose.site.http.api.health import health_of
-from stereopose.site.http.app import create_app
-from stereopose.site.http.hosts import allowed_hosts
-from stereopose.site.http.server import Server
-from stereopose.site.http.web import Console
-from stereopose.site.live import ConsoleSink, LiveHub
 from stereopose.site.parts import (
     ServeSource,
-    StateSink,
-    StatusSink,
-    output_health,
     quiet_signals,
     stop_signals,
 )
@@ -100,8 +82,8 @@ from stereopose.site.plan import (
     plan_serve,
 )
 from stereopose.site.restart import Resume
+from stereopose.site.service import SiteService
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents
-from stereopose.site.storage import StorageMaintainer
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -139,323 +121,6 @@ class _Closing(ClosesOnce):
     def release(self) -> None:
         if self._closed:
             self._quiet.__exit__(None, None, None)
-
-
-class _Service:
-    """The running parts of one `serve`, built from a plan; `run()` once."""
-
-    def __init__(self, plan: ServePlan, stop: threading.Event, resume: Resume) -> None:
-        self.plan, self.stop, self.resume = plan, stop, resume
-        self.state = ServiceState(
-            plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
-        )
-        self.server: Server | None = None
-        self.app = None
-        self.incident_outputs: list[Callable] = []  # each given every step's incident changes
-        self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
-        self.outbox = None  # the event log as an outbox over MQTT (site.outbox)
-        self.console: Console | None = None
-        self.maintainer: StorageMaintainer | None = None
-        self.status: StatusSink | None = None
-        self.failed: dict[str, str] = {}
-        self.probes: dict[str, Callable[[], dict]] = {}
-        self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
-        self.packets = _packet_rings(plan)
-        self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
-        self.opcua = None  # the OPC UA server, once started
-        self.watchdog = Watchdog()  # the receivers' threads started again where one died
-        self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
-        if self.packets:
-            self.probes["full_streams"] = lambda: {
-                name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
-                for name, r in self.packets.items()
-            }
-
-    # -- starting -------------------------------------------------------------------------
-
-    def start_server(self) -> str:
-        p = self.plan
-        hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
-        self.console = Console.in_folder(p.out_dir, hub)
-        self.probes["console"] = hub.figures
-        self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
-        hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
-        app = create_app(self.state, console=self.console, allowed_hosts=hosts, incidents=self.desk)
-        self.app = app
-        hint = f"stereopose users add NAME --role admin --config {p.config_path}"
-        self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
-        self.server.start()
-        hub.start()
-        self.start_opcua()
-        return self.server.url
-
-    def start_maintainer(self) -> None:
-        p = self.plan
-        self.maintainer = StorageMaintainer(p.out_dir, event_log=p.events_db, settings=p.retention)
-        self.state.register_storage(self.maintainer.usage)
-        self.probes["storage"] = self.maintainer.health
-        self.maintainer.start()
-
-    def start_opcua(self) -> None:
-        """[opcua]: the OPC UA server (scada.opcua) listening, an incident output from now
-        on; its users are the console's. A StereoposeError when it cannot listen."""
-        settings, p = self.opcua_settings, self.plan
-        if settings is None or self.console is None:
-            return
-        from stereopose.scada.opcua import CameraNode, OpcuaServer
-        from stereopose.scada.opcua_space import site_zones
-
-        server = OpcuaServer(
-            settings,
-            site_zones(p.site, p.rig),
-            [CameraNode(n) for n in p.rig.names],
-            self.console.users,
-            status=lambda: self.state.snapshot().status,
-            limiter=self.console.limiter,
-        )
-        server.start()
-        self.opcua = server  # an alarm output once the frame loop opens its sinks
-
-    def open_sinks(
-        self,
-        cfg: Config,
-        wall_start: float,
-        summary: RunSummary,
-        stats: Callable[[], dict],
-        arrival: Callable[[float], float | None],
-        rates: Callable[[], dict] | None = None,
-    ) -> list[Sink]:
-        """Every sink, in closing order; if one cannot be opened, those open are closed."""
-        p, sinks = self.plan, []
-
-        def guard(sink: Sink, label: object) -> Sink:
-            return Guarded(sink, str(label), self.failed)
-
-        try:
-            from stereopose.io.sinks.segments import SegmentSink
-
-            sinks.append(
-                guard(
-                    SegmentSink(p.out_dir, cfg.fps, wall_start=wall_start, settings=p.segments),
-                    p.out_dir / "poses",
-                )
-            )
-            for out in self._alarm_outputs(cfg, wall_start):  # each closed should a later fail
-                sinks.append(self._register(out, guard))
-            if p.mqtt is not None and cfg.mqtt.outbox:
-                self._start_outbox(cfg)
-            if p.clips is not None and p.site is not None:
-                sinks.append(guard(self._clips(cfg, wall_start), p.out_dir / "clips"))
-            if self.console is not None and self.console.hub is not None:
-                sinks.append(ConsoleSink(self.console.hub, wall_start))
-            state = StateSink(
-                self.state,
-                summary,
-                arrival=arrival,
-                stats=stats,
-                elsewhere=self.elsewhere,
-                rates=rates,
-            )
-            sinks.append(guard(state, "the health state"))
-            self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
-            sinks.append(guard(self.status, p.status_path))
-        except BaseException:
-            close_all(sinks)
-            raise
-        return sinks
-
-    def _alarm_outputs(self, cfg: Config, wall_start: float) -> Iterator[AlarmOutput]:
-        """Every alarm output of the configuration (io.sinks.health.AlarmOutput), each made
-        when the one before is registered: the event log, the webhook, MQTT, the IEC 104
-        outstation, the OPC UA server (started before the cameras opened)."""
-        p = self.plan
-        site = str(p.site.path or "") if p.site is not None else ""
-        yield SqliteSink(
-            p.events_db,
-            site,
-            source_label(list(p.sources)),
-            first_id=self.resume.next_id,
-            wall_start=wall_start,
-        )
-        if cfg.outputs.webhook:
-            yield WebhookSink(cfg.outputs.webhook)
-        if p.mqtt is not None:
-            from stereopose.io.sinks.mqtt import MqttSink
-
-            yield MqttSink(p.mqtt, [z.name for z in p.site.zones] if p.site is not None else [])
-        if cfg.iec104.enabled:
-            yield self._iec104(cfg, wall_start)
-        if self.opcua is not None:
-            self.opcua.wall_start = wall_start
-            yield self.opcua
-
-    def _register(self, out: AlarmOutput, guard: Callable[[Sink, object], Guarded]) -> Guarded:
-        """One alarm output in every place that watches it, under its output_name: the
-        incident changes, the health state's queues and outputs (so /api/health and /metrics),
-        `status.json`'s figures. The sink the frame loop writes is its Guarded wrapper (an
-        output that fails stops alone)."""
-        sink, name = guard(out, out.label), out.output_name
-        self.incident_outputs.append(out.write_changes)
-        self.state.register_queue(name, out.queued, lambda: out.dropped)
-        self.state.register_output(name, output_health(sink))
-        self.probes[name] = out.figures
-        return sink
-
-    def _start_outbox(self, cfg: Config) -> None:
-        """The event log sent over MQTT to a control room (site.outbox), watched by the
-        watchdog."""
-        from stereopose.site.outbox import LogOutbox
-
-        p = self.plan
-        log = EventLog(p.events_db, p.out_dir / "clips")
-        self.outbox = LogOutbox(
-            p.mqtt,
-            log,
-            resend_s=cfg.mqtt.outbox_resend_s,
-            summary=self._summary,
-            plan=self._plan(cfg),
-        )
-        self.probes["outbox"] = self.outbox.figures
-        self.state.register_output("outbox", self.outbox.health)
-        self.watchdog.add("outbox", self.outbox.ensure_running)
-        self.watchdog.start()
-
-    def _plan(self, cfg: Config) -> dict:
-        """The site's zones and console address, for a control room's page of the site."""
-        site = self.plan.site
-        zones = (
-            []
-            if site is None
-            else [
-                {
-                    "name": z.name,
-                    "kind": z.kind,
-                    "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon],
-                }
-                for z in site.zones
-            ]
-        )
-        return {"zones": zones, "console_url": cfg.serve.public_url or None}
-
-    def _summary(self) -> dict:
-        """The site at a glance, in the outbox's heartbeat (a control room's site list)."""
-        snap = self.state.snapshot()
-        return {
-            "status": snap.status,
-            "cameras": len(snap.cameras),
-            "cameras_up": sum(1 for c in snap.cameras if c.up),
-            "people": snap.people,
-        }
-
-    def _iec104(self, cfg: Config, wall_start: float):
-        """The IEC 60870-5-104 outstation (scada.iec104): the zone, camera and service events
-        and the incident changes as points, `service degraded` from the health answer."""
-        from stereopose.scada.iec104 import Iec104Settings, Outstation
-        from stereopose.scada.points import points_table
-
-        p, s = self.plan, Iec104Settings.from_config(cfg.iec104)
-        station = Outstation(
-            s,
-            points_table(p.site, p.rig, commands=s.commands),
-            wall_start=wall_start,
-            status=lambda: self.state.snapshot().status,
-        )
-        self.iec104 = station
-        return station
-
-    def _clips(self, cfg: Config, wall_start: float):
-        from stereopose.io.sinks.clips import ClipSink
-        from stereopose.viz.clips import clip_drawer
-
-        p = self.plan
-        clips = ClipSink(
-            p.out_dir,
-            p.rig.names,
-            cfg.fps,
-            wall_start=wall_start,
-            draw=clip_drawer(p.rig),
-            settings=p.clips,
-            packets=self.packets,
-        )
-        self.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
-        self.probes["clips"] = clips.figures
-        return clips
-
-    def watch_nodes(self, nodes) -> None:
-        """The nodes' camera-frames waiting for their step as a queue of the health state
-        (late, over-full and refused ones as its drops); the nodes' figures in status."""
-        self.state.register_queue("nodes", nodes.waiting, nodes.lost)
-        self.probes["nodes"] = nodes.report
-        self.watchdog.add("nodes", nodes.ensure_running)
-        self.watchdog.start()
-
-    def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
-        """The detection hand-over as a queue of the health state; its figures in status."""
-        stats = pipelined.stats
-        self.elsewhere = lambda: {"detect": stats.detect_s}
-        self.state.register_queue(
-            "detection", lambda: len(pipelined.handover), lambda: pipelined.handover.dropped
-        )
-        self.probes["pipeline"] = stats.figures
-
-    def watch_regions(self, regions: RegionDetector) -> None:
-        """Detection in regions' figures by camera in status, /metrics and the console."""
-        self.state.register_regions(regions.report)
-        self.probes["regions"] = regions.report
-        if self.console is not None and self.console.hub is not None:
-            self.console.hub.show_regions(regions.view)
-
-    # -- health -----------------------------------------------------------------------------
-
-    def snapshot(self) -> dict:
-        """status.json: the health answer, the outputs that failed, each part's figures."""
-        doc = health_of(self.state.snapshot()).model_dump()
-        doc["written_at"] = time.time()
-        doc["failed_outputs"] = dict(self.failed)
-        for name, probe in list(self.probes.items()):
-            try:
-                doc[name] = probe()
-            except Exception as e:  # a part's figures missing never stops the status
-                doc[name] = {"error": str(e)}
-        return doc
-
-    # -- stopping ---------------------------------------------------------------------------
-
-    def close(self) -> None:
-        """The maintainer, the console and the server, each within its bound."""
-        self.watchdog.stop()
-        if self.opcua is not None:
-            self.opcua.close()  # once (a sink of the loop closes it first)
-        if self.outbox is not None:
-            self.outbox.close()
-        if self.maintainer is not None and not self.maintainer.stop(5.0):
-            logger.warning("storage: the maintainer did not stop within 5 s")
-        if self.console is not None:
-            self.console.close()  # its live streams end before the server stops
-        if self.server is not None:
-            self.server.stop()
-
-
-def _live_changes(hub: LiveHub, changes) -> None:
-    """Each incident change to the console's live channel, as an `incident` message."""
-    for c in changes:
-        hub.publish("incident", c.to_dict())
-
-
-def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
-    """Per live camera with a live detection substream, the ring its full stream is kept in
-    (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
-    clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
-    cfg = plan.config
-    if cfg.input.full_streams != "copy" or cfg.input.detection == "nodes":
-        return {}
-    s = plan.clips or ClipSettings()
-    keep_s = s.clip_pre_s + s.clip_post_s + 5.0
-    return {
-        name: PacketRing(keep_s, s.clip_buffer_bytes)
-        for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources, strict=True)
-        if sub and is_stream(str(src)) and is_stream(str(sub))
-    }
 
 
 def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
@@ -548,7 +213,7 @@ def _serve(
         logger.warning(
             "restart: %d behaviour alarm(s) left open by the last run are ended", len(resume.alarms)
         )
-    service = _Service(plan, stop, resume)
+    service = SiteService(plan, stop, resume)
     # [opcua] checked before any work: a ConfigError naming the file and the key
     service.opcua_settings = opcua_settings(plan.config_path, cfg, plan.out_dir)
     closing = _Closing()
@@ -575,7 +240,7 @@ def _serve(
 
 def _run_loop(
     plan: ServePlan,
-    service: _Service,
+    service: SiteService,
     cams: CameraSet | NodeInput,
     detector,
     stop,
@@ -662,7 +327,7 @@ def _run_loop(
 
 def _incidents(
     plan: ServePlan,
-    service: _Service,
+    service: SiteService,
     events: ServeEvents,
     rules,
     fences,

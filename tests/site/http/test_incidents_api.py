@@ -20,7 +20,7 @@ from stereopose.io.sinks.events import JsonlSink
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.site.restart import Resume
-from stereopose.site.serve import _live_changes
+from stereopose.site.service import _live_changes
 from stereopose.types import Event
 from waiting import wait_until
 
