@@ -12,6 +12,8 @@ from stereopose.site.wire import (
     PLAN,
     ack_body,
     confirmed_body,
+    id_of,
+    parse_ack,
     receiver_subscriptions,
     replay_body,
     site_topic,
@@ -62,3 +64,20 @@ def test_the_control_bodies() -> None:
     ack = {"command": "c1", "incident": 4, "by": "otto", "from": "room"}
     assert json.loads(ack_body("c1", 4, "otto", "room")) == ack
     assert site_topic("p", "a/b", CONFIRMED) == "p/a%2Fb/log/confirmed"
+
+
+def test_an_acknowledgement_command_is_read_back_or_refused() -> None:
+    assert parse_ack(ack_body("c1", 4, "otto", "room").encode()) == ("c1", 4, "otto via room")
+    for bad in (
+        b"not json",
+        b"[1]",
+        b'{"command": "c", "incident": -1, "by": "a", "from": "b"}',
+        b'{"command": "c", "incident": true, "by": "a", "from": "b"}',
+        b'{"command": "c", "incident": 1, "by": "", "from": "b"}',
+        b'{"command": "c", "incident": 1, "by": "a\\n", "from": "b"}',
+        b"[" * 20_000,
+    ):
+        assert parse_ack(bad) is None, bad[:40]
+    assert id_of(b'{"after_id": 7}', "after_id") == 7
+    assert id_of(b'{"after_id": 1e400}', "after_id") is None
+    assert id_of(b'{"after_id": 9223372036854775808}', "after_id") is None

@@ -2,43 +2,8 @@
 over MQTT with its log number, again and again until a receiver (a control room) confirms it
 stored it; and the receiver's acknowledgements of incidents taken in.
 
-Topics under ``<prefix>/<site>/`` (docs/mqtt.md#the-event-log-outbox):
-
-- ``log/events`` (the site publishes, QoS 1): each event of the event log as ``/api/events``
-  answers it, plus ``site`` and ``prev``: the id of the event published before it in this
-  stream (0 at the log's start). (site, id) names an event everywhere; ids only grow, and an
-  id is never given again.
-- ``log/incidents`` (the site publishes, QoS 1): ``{"site", "seq", "prev", "incident"}``: an
-  incident's record (as ``/api/incidents`` answers it) after its last change, numbered by the
-  log's change number ``seq`` (each write of an incident row takes the next one), ``prev`` the
-  change published before it. An incident changed again is sent again with its new number;
-  its older numbers are gone from the log, so the stream carries each incident's latest
-  record, never a change lost between.
-- ``log/confirmed`` (a receiver publishes, retained, QoS 1): ``{"events": N, "incidents": S}``,
-  the highest event id and change number it has stored with nothing missing before them.
-- ``log/replay`` (a receiver publishes, QoS 1): ``{"after_id": N}`` and/or
-  ``{"incidents_after": S}``: send every stored event after id N (every incident changed
-  after S) again.
-- ``log/heartbeat`` (the site publishes every `heartbeat_s`, QoS 0): ``{"last_id": N,
-  "last_incident_seq": S, "time": T, ...}``: the log's last numbers and the site's clock, so
-  a receiver knows the site is there while nothing happens, sees the last events were lost
-  when no later one shows it, and can tell how far the site's clock is from its own; with the
-  site's summary (status, cameras, cameras_up, people, open_incidents) when the service
-  gives one.
-- ``commands/ack`` (a receiver publishes, QoS 1): ``{"command": C, "incident": I, "by": USER,
-  "from": WHERE}``: acknowledge incident I as USER of WHERE (the site's book records
-  ``"USER via WHERE"``); answered on ``commands/done`` (the site publishes, QoS 1) with
-  ``{"command": C, "incident": I, "result": "acknowledged" | "already" | "unknown" |
-  "unavailable"}``. Sent again until answered, a command acts at most once: an incident
-  acknowledged stays so.
-- ``plan`` (the site publishes at each connection, retained, QoS 1): ``{"zones": [{"name",
-  "kind", "polygon"}], "console_url"}``: the site's zones (floor polygons, metres) and its own
-  console's address (``[serve] public_url``), for a control room's page of the site.
-
-A receiver stores a message whose ``prev`` is at most its own mark of that stream (nothing is
-missing before it; a duplicate is dropped by its number) and raises its mark to the message's
-number; one whose ``prev`` is beyond its mark means some were lost on the way (a bridge that
-drops while cut, a broker restarted without them): it asks for a replay after its mark.
+The protocol (its topics, who sends each, the bodies, how a receiver keeps its marks) is
+described and built in site.wire, shared with the control room's ingest.
 
 The site's side (this module) keeps nothing per event: per stream one cursor (the last number
 handed to the broker), the receiver's confirmed mark, and counts. On each connection it starts
@@ -71,7 +36,7 @@ from stereopose.io.sinks.mqtt_settings import (
     restart_loop,
     topic_part,
 )
-from stereopose.site.wire import site_topics
+from stereopose.site.wire import COMMAND_KEYS, id_of, parse_ack, site_topics
 
 __all__ = ["LogOutbox"]
 
@@ -81,7 +46,6 @@ INFLIGHT = 50  # messages handed to paho and not yet acknowledged
 PAGE = 200  # events read from the log at once at most
 POLL_S = 0.25  # how often the log is read for new events when nothing wakes the thread
 HEARTBEAT_S = 10.0  # how often the log's last id and the clock are published
-_MAX_ID = 2**63 - 1
 
 
 class _Stream:
@@ -264,8 +228,7 @@ class LogOutbox:
             return
         replay = msg.topic == self.topics["replay"]
         keys = {
-            st.name: _id_of(msg.payload, st.replay_key if replay else st.name)
-            for st in self.streams
+            st.name: id_of(msg.payload, st.replay_key if replay else st.name) for st in self.streams
         }
         if all(v is None for v in keys.values()):
             with self._lock:
@@ -299,7 +262,7 @@ class LogOutbox:
 
     def _command(self, payload: bytes) -> None:
         """An acknowledgement asked by the receiver (paho's thread: the book's act is short)."""
-        cmd = _command_of(payload)
+        cmd = parse_ack(payload)
         if cmd is None:
             with self._lock:
                 self.counts["malformed"] += 1
@@ -521,36 +484,3 @@ class LogOutbox:
 
 def _lag(st: _Stream) -> int | None:
     return None if st.confirmed is None else max(0, st.high - st.confirmed)
-
-
-COMMAND_KEYS = '{"command", "incident", "by", "from"}'
-_NAME = 64  # the longest user or place name a command may carry
-
-
-def _command_of(payload: bytes) -> tuple[str, int, str] | None:
-    """(command id, incident id, "USER via WHERE") of an acknowledgement command, or None."""
-    try:
-        obj = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
-    if not isinstance(obj, dict):
-        return None
-    command, incident, by, where = (obj.get(k) for k in ("command", "incident", "by", "from"))
-    if isinstance(incident, bool) or not isinstance(incident, int) or not 0 <= incident <= _MAX_ID:
-        return None
-    names = (command, by, where)
-    if not all(isinstance(n, str) and 0 < len(n) <= _NAME and n.isprintable() for n in names):
-        return None
-    return command, incident, f"{by} via {where}"
-
-
-def _id_of(payload: bytes, key: str) -> int | None:
-    """The id under `key` of a JSON object payload, or None when malformed."""
-    try:
-        obj = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
-    value = obj.get(key) if isinstance(obj, dict) else None
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= _MAX_ID:
-        return None
-    return value
