@@ -586,7 +586,7 @@ def test_a_client_outside_the_allowed_addresses_is_refused(station, masters) -> 
 
 def test_the_frame_loop_never_waits_and_drops_are_counted(station) -> None:
     out, _ = station(queue_size=5)
-    with out._records_lock:  # the outstation's thread held up inside a refresh
+    with out._state.lock:  # the outstation's thread held up inside a refresh
         out.write(_frame(1.0, [_zone(1.0, "enter")]))
         wait_until(lambda: out.queued() == 0, "the first change taken")
         for k in range(20):

@@ -45,14 +45,11 @@ command point exists and a command is answered with an unknown address.
 from __future__ import annotations
 
 import datetime as dt
-import ipaddress
 import logging
-import socket
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +57,13 @@ from stereopose.errors import StereoposeError
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
 from stereopose.scada.iec104_guard import Guard
+from stereopose.scada.iec104_settings import (
+    Iec104Error,
+    Iec104Settings,
+    _free_loopback_port,
+    _typed,
+)
+from stereopose.scada.iec104_state import UNACKED, PointState
 from stereopose.scada.points import COMMAND, Point, PointsTable
 
 __all__ = ["CLOCK_WARN_S", "Iec104Settings", "Outstation"]
@@ -71,7 +75,6 @@ STATUS_INTERVAL_S = 1.0  # how often the health answer is read for `service degr
 TICK_MS = 50  # c104's server loop period (its smallest)
 GUARD_SPARE = 4  # c104's places beyond max_connections, for the links the guard is closing
 MAX_LOGGED_ADDRESSES = 100  # refused addresses logged one by one; beyond, only counted
-_UNACKED = ("active", "cleared")
 _SCALED_MAX = 32767  # a scaled value's largest (M_ME_TE_1 holds a 16-bit integer)
 FIGURES = (
     "queued_max",
@@ -82,95 +85,6 @@ FIGURES = (
     "commands_refused",
     "clock_syncs",
 )
-
-
-def _free_loopback_port() -> int:
-    """A TCP port free on 127.0.0.1 now (for c104's server, behind the guard)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _typed(fn: Callable, *, ret: Any, **params: Any) -> Callable:
-    """`fn` with the annotations c104 checks a callback's signature against (as objects: this
-    module's postponed annotations would be strings)."""
-    fn.__annotations__ = {**params, "return": ret}
-    return fn
-
-
-class Iec104Error(StereoposeError):
-    """The outstation cannot start (its port taken, c104 missing)."""
-
-
-@dataclass(frozen=True)
-class Iec104Settings:
-    """What the outstation needs (config.Iec104Config, checked): host, port, common_address,
-    allowed_clients (IPv4 networks), max_connections, commands, time_tags ("utc" or
-    "local"), queue_size, test_after_s (t3), answer_within_s (t1), start_within_s."""
-
-    host: str = "127.0.0.1"
-    port: int = 2404
-    common_address: int = 1
-    allowed_clients: tuple[ipaddress.IPv4Network, ...] = (ipaddress.IPv4Network("127.0.0.1"),)
-    max_connections: int = 2
-    commands: bool = False
-    time_tags: str = "utc"
-    queue_size: int = 10_000
-    test_after_s: int = 3
-    answer_within_s: int = 15
-    start_within_s: float = 5.0
-
-    @classmethod
-    def from_config(cls, cfg: Any) -> Iec104Settings:
-        """From [iec104] (config.Iec104Config, whose construction checked every value)."""
-        nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
-        return cls(
-            cfg.host,
-            cfg.port,
-            cfg.common_address,
-            nets,
-            cfg.max_connections,
-            cfg.commands,
-            cfg.time_tags,
-            cfg.queue_size,
-            cfg.test_after_s,
-            cfg.answer_within_s,
-            cfg.start_within_s,
-        )
-
-    def allows(self, ip: str) -> bool:
-        """Whether a client at `ip` ("a.b.c.d", or "a.b.c.d:port") may connect."""
-        try:
-            addr = ipaddress.IPv4Address(ip.rsplit(":", 1)[0] if ip.count(":") == 1 else ip)
-        except ValueError:
-            return False
-        return any(addr in net for net in self.allowed_clients)
-
-    def stamp(self, wall_t: float) -> dt.datetime:
-        """A time tag (CP56Time2a: c104 writes the datetime's fields) of a Unix time."""
-        if self.time_tags == "local":
-            return dt.datetime.fromtimestamp(wall_t)
-        return dt.datetime.fromtimestamp(wall_t, dt.timezone.utc)
-
-    def unix(self, fields: dt.datetime) -> float:
-        """A master's time (CP56Time2a fields, no zone) as a Unix time, read as time_tags."""
-        if fields.tzinfo is not None:
-            return fields.timestamp()
-        if self.time_tags == "local":
-            return fields.timestamp()
-        return fields.replace(tzinfo=dt.timezone.utc).timestamp()
-
-
-@dataclass
-class _State:
-    """What the points are computed from (the outstation's thread only)."""
-
-    inside: dict[str, set[int]]
-    camera_up: dict[str, bool]
-    stalled: bool = False
-    running: bool = True
-    degraded: bool = False
-    people: int = 0
 
 
 class Outstation(ClosesOnce):
@@ -205,9 +119,7 @@ class Outstation(ClosesOnce):
         self.status_interval_s = float(status_interval_s)
         cams = {p.name: True for p in table if p.kind == "camera_up"}
         zones = {p.name: set() for p in table if p.kind == "zone_occupied"}
-        self._state = _State(zones, cams)  # type: ignore[arg-type]
-        self._records: dict[int, Any] = {}  # open incidents by id (IncidentRecord)
-        self._records_lock = threading.Lock()  # the worker writes, a command reads
+        self._state = PointState(zones, cams)  # type: ignore[arg-type]
         self._queue: deque[tuple[str, Any]] = deque()
         self._cond = threading.Condition()
         self._stopping = False
@@ -325,44 +237,19 @@ class Outstation(ClosesOnce):
         s = self._state
         if kind == "events":
             for e in item:
-                self._event(e)
+                s.event(e)
                 self._refresh(self.wall_start + float(e.t))
         elif kind == "people":
             wall, s.people = item
             self._refresh(wall)
         elif kind == "changes":
             for c in item:
-                self._record(c.incident)
+                s.record(c.incident)
                 self._refresh(self.wall_start + float(c.t))
         elif kind == "records":
             for r in item:
-                self._record(r)
+                s.record(r)
             self._refresh(time.time())
-
-    def _event(self, e: Any) -> None:
-        s = self._state
-        if e.kind == "camera" and e.camera in s.camera_up:
-            if e.type == "camera_down":
-                s.camera_up[e.camera] = False
-            elif e.type == "camera_up":
-                s.camera_up[e.camera] = True
-        elif e.kind == "service":
-            if e.type == "service_stalled":
-                s.stalled = True
-            elif e.type == "service_resumed":
-                s.stalled = False
-        elif e.zone in s.inside:
-            if e.type == "enter":
-                s.inside[e.zone].add(int(e.person))
-            elif e.type == "exit":
-                s.inside[e.zone].discard(int(e.person))
-
-    def _record(self, r: Any) -> None:
-        with self._records_lock:
-            if r.state == "closed":
-                self._records.pop(r.id, None)
-            else:
-                self._records[r.id] = r
 
     def _poll_status(self) -> None:
         if self.status is None:
@@ -378,45 +265,10 @@ class Outstation(ClosesOnce):
 
     # --- points ------------------------------------------------------------------------------
 
-    def _values(self) -> dict[int, tuple[Any, bool]]:
-        """ioa -> (value, invalid) of every monitoring point now."""
-        s = self._state
-        with self._records_lock:
-            records = list(self._records.values())
-        zone_alarm = {r.zone for r in records if r.active and r.zone is not None}
-        rule_alarm = {r.rule for r in records if r.active and r.rule is not None}
-        unacked = sum(r.state in _UNACKED for r in records)
-        now = {
-            "service_running": s.running and not s.stalled,
-            "service_degraded": s.degraded,
-            "people": s.people,
-            "unacknowledged": unacked,
-        }
-        out = {}
-        for p in self.table.monitored:
-            if p.kind in now:
-                value = now[p.kind]
-            elif p.kind == "camera_up":
-                value = s.camera_up.get(p.name, True)
-            elif p.kind == "zone_occupied":
-                value = bool(s.inside.get(p.name))
-            else:  # zone_alarm, rule_alarm
-                value = p.name in (zone_alarm if p.kind == "zone_alarm" else rule_alarm)
-            out[p.ioa] = (value, self._invalid(p))
-        return out
-
-    def _invalid(self, p: Point) -> bool:
-        s = self._state
-        if p.unseen:
-            return True
-        if p.kind in ("service_running", "service_degraded", "unacknowledged"):
-            return False
-        return s.stalled or any(not s.camera_up.get(c, True) for c in p.cameras)
-
     def _refresh(self, wall_t: float) -> None:
         """Set and send spontaneously every point whose value or quality changed, tagged at
         wall_t (the time of what changed it)."""
-        for ioa, vq in self._values().items():
+        for ioa, vq in self._state.values(self.table).items():
             if self._sent.get(ioa) != vq:
                 self._set(ioa, vq, wall_t)
                 try:
@@ -426,7 +278,7 @@ class Outstation(ClosesOnce):
                 self._figures["transmitted"] += 1
 
     def _set_all(self, wall_t: float) -> None:
-        for ioa, vq in self._values().items():
+        for ioa, vq in self._state.values(self.table).items():
             self._set(ioa, vq, wall_t)
 
     def _set(self, ioa: int, vq: tuple[Any, bool], wall_t: float) -> None:
@@ -521,12 +373,11 @@ class Outstation(ClosesOnce):
         ack = self.acknowledger
         if ack is None:
             return False
-        with self._records_lock:
-            records = list(self._records.values())
+        records = self._state.open_records()
         if p.kind == "ack_zone":
-            ids = [r.id for r in records if r.state in _UNACKED and r.zone == p.name]
+            ids = [r.id for r in records if r.state in UNACKED and r.zone == p.name]
         else:
-            ids = [r.id for r in records if r.state in _UNACKED and str(r.priority) == p.name]
+            ids = [r.id for r in records if r.state in UNACKED and str(r.priority) == p.name]
         by = f"iec104 master {originator}"
         for i in ids:
             try:
