@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 from argon2 import PasswordHasher
 
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.pipeline.demo import write_serve_demo_config
 from stereopose.site.eventlog import EventLog
 from stereopose.site.health.state import ServiceState

@@ -10,7 +10,7 @@ import pytest
 
 from stereopose.cli import main
 from stereopose.config import Config
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.types import Event
 
 SITE = """

@@ -10,7 +10,7 @@ import pytest
 
 from stereopose.config import load_config
 from stereopose.errors import ConfigError
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.pipeline.sources import source_label
 from stereopose.secrets import HIDDEN, is_secret_key, redact_all, shown
 

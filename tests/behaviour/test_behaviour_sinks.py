@@ -22,12 +22,12 @@ from stereopose.io.sinks import FrameResult
 from stereopose.io.sinks.clips import is_alarm
 from stereopose.io.sinks.events import (
     JsonlSink,
-    SqliteSink,
     WebhookSink,
     describe,
     query_events,
     read_events,
 )
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.files import PosesSink
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
 from stereopose.types import Event

@@ -18,7 +18,7 @@ import pytest
 from test_control_room import ENV, _add_user, _central, _client
 
 from brokers import Broker, free_port, make_certificate
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
 from stereopose.site.outbox import LogOutbox

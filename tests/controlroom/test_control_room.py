@@ -16,7 +16,7 @@ import pytest
 
 from brokers import Broker, free_port
 from stereopose.controlroom.store import ControlStore
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
 from stereopose.site.outbox import LogOutbox

@@ -19,7 +19,7 @@ from brokers import Broker
 from stereopose.alarms import IncidentBook
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.site.eventlog import EventLog

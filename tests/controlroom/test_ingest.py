@@ -14,7 +14,7 @@ import pytest
 from brokers import Broker
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
 from stereopose.site.outbox import LogOutbox

@@ -20,7 +20,7 @@ import sys
 import numpy as np
 
 from stereopose.io.sinks.base import FrameResult
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.site.restart import Resume
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import Event, People3D

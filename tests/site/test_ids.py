@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 from test_restart import WRITER, run_writer_until_killed
 
-from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.io.sinks.events import query_events
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.spill import read_spill, spill_path
 from stereopose.site.acks import AckStore
 from stereopose.site.eventlog import EventLog, Filters

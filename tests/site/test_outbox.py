@@ -11,7 +11,7 @@ import paho.mqtt.client as paho
 import pytest
 
 from brokers import Broker, LogReceiver
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
 from stereopose.site.health.watchdog import Watchdog

@@ -17,7 +17,8 @@ import pytest
 from stereopose.config import Config
 from stereopose.errors import StereoposeError
 from stereopose.io.records import event_from_record
-from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.io.sinks.events import query_events
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.site.restart import Resume
 from stereopose.tracking.memory import make_memory
 from stereopose.tracking.tracker import Tracker

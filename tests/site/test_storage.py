@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from stereopose.errors import ConfigError
-from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.io.sinks.events import query_events
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.site.storage import RetentionSettings, StorageMaintainer
 from stereopose.types import Event
 from waiting import wait_until

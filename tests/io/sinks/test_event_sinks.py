@@ -21,12 +21,12 @@ from stereopose.io.sinks import FrameResult
 from stereopose.io.sinks.events import (
     CallbackSink,
     JsonlSink,
-    SqliteSink,
     WebhookSink,
     describe,
     query_events,
     read_events,
 )
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.types import Event, People3D
 from waiting import wait_until
 
@@ -106,7 +106,7 @@ def test_sqlite_errors_name_the_file(tmp_path: Path) -> None:
 
 WRITER = """
 import sys, time
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.types import Event
 sink = SqliteSink(sys.argv[1])
 k = 0

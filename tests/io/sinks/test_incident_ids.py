@@ -7,7 +7,7 @@ from __future__ import annotations
 import sqlite3
 
 from stereopose.io.sinks.eventdb import read_mark
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.incidents import IncidentIds
 
 

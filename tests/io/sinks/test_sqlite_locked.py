@@ -9,7 +9,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from stereopose.io.records import event_record
-from stereopose.io.sinks.events import SqliteSink, query_events, read_events
+from stereopose.io.sinks.events import query_events, read_events
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.types import Event
 from waiting import wait_until
 

@@ -21,7 +21,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from brokers import Broker
 from served import event, get, get_json, serving
 from stereopose.io.sinks.base import Guarded
-from stereopose.io.sinks.events import SqliteSink
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.site.health.state import ServiceState

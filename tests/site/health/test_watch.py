@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stereopose.io.records import event_from_record, event_record
-from stereopose.io.sinks.events import SqliteSink, query_events
+from stereopose.io.sinks.events import query_events
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.site.health.watch import CameraWatch
 
 

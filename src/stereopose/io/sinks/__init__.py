@@ -12,12 +12,12 @@ from stereopose.io.sinks.base import FrameResult, Sink, close_all
 from stereopose.io.sinks.events import (
     CallbackSink,
     JsonlSink,
-    SqliteSink,
     WebhookSink,
     describe,
     query_events,
     read_events,
 )
+from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.files import (
     CsvSink,
     PosesSink,

@@ -3,7 +3,7 @@ record, its ids, and reading them back.
 
 One row per incident (stereopose.alarms.IncidentRecord): the indexed columns a reader filters
 on (state, priority, zone, person, times) and the whole record as JSON (`record`). A row is
-upserted by the event sink (io.sinks.events.SqliteSink) in the transaction that stores the
+upserted by the event sink (io.sinks.eventwriter.SqliteSink) in the transaction that stores the
 step's events, so the log's incidents and events always agree, whatever moment a process is
 killed. `wall_start` is the Unix time of t = 0 of the clock the record's times are on (the run
 that last changed it): a wall time is wall_start + t, and a restart puts the record on its own
