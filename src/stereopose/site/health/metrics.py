@@ -22,7 +22,8 @@ from prometheus_client.metrics_core import (
 )
 from prometheus_client.registry import Collector
 
-from stereopose.site.health.state import HistogramSnapshot, ServiceState, Snapshot
+from stereopose.site.health.snapshots import HistogramSnapshot, Snapshot
+from stereopose.site.health.state import ServiceState
 
 PREFIX = "stereopose_"
 CONTENT_TYPE = CONTENT_TYPE_LATEST

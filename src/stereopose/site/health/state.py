@@ -33,8 +33,14 @@ from dataclasses import dataclass, field, replace
 from itertools import pairwise
 
 from stereopose import __version__
-from stereopose.site.health.alarm_outputs import OutputProbe, OutputSnapshot, OutputWatch
+from stereopose.site.health.alarm_outputs import OutputProbe, OutputWatch
 from stereopose.site.health.rates import CameraRates
+from stereopose.site.health.snapshots import (
+    CameraSnapshot,
+    HistogramSnapshot,
+    QueueSnapshot,
+    Snapshot,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -46,87 +52,6 @@ DROP_WINDOW_S = 60.0  # a queue that dropped within this long makes the service 
 
 QueueProbe = Callable[[], int]
 StorageProbe = Callable[[], Mapping[str, int]]
-
-
-@dataclass(frozen=True)
-class HistogramSnapshot:
-    """A latency histogram: cumulative counts per upper bound (the last bound is +inf)."""
-
-    bounds: tuple[float, ...]
-    cumulative: tuple[int, ...]
-    sum_s: float
-    count: int
-
-
-@dataclass(frozen=True)
-class CameraSnapshot:
-    """One camera: fps over its recent frames (0 while down), the age of its last frame in
-    seconds (None: none yet), up when that age is within its timeout; nominal_fps: the rate it
-    should be processed at (None: not known); processed_fps and dropped_share: over the last
-    minute (None until judged: site.health.rates); slow: why it is processed badly (None: it
-    is not)."""
-
-    name: str
-    fps: float
-    last_frame_age_s: float | None
-    up: bool
-    frames: int
-    reconnects: int
-    dropped_frames: int
-    timeout_s: float
-    nominal_fps: float | None = None
-    processed_fps: float | None = None
-    dropped_share: float | None = None
-    slow: str | None = None
-
-    @property
-    def state(self) -> str:
-        return "up" if self.up else "down"
-
-
-@dataclass(frozen=True)
-class QueueSnapshot:
-    """One registered queue: its size now (None: its probe failed), messages dropped so far
-    (None: not known), and whether it dropped within the last DROP_WINDOW_S."""
-
-    name: str
-    size: int | None
-    dropped: int | None
-    dropping: bool
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """The whole state at one moment; see ServiceState."""
-
-    version: str
-    uptime_s: float
-    frames: int
-    people: int
-    cameras: tuple[CameraSnapshot, ...]
-    stages: Mapping[str, HistogramSnapshot]
-    end_to_end: HistogramSnapshot
-    events: Mapping[str, int]
-    queues: tuple[QueueSnapshot, ...]
-    storage: Mapping[str, int]
-    problems: tuple[str, ...] = field(default=())
-    outputs: tuple[OutputSnapshot, ...] = field(default=())
-    # the alarm rates and open incidents (pipeline.incidents.IncidentStep.figures);
-    # empty without an incident book
-    alarms: Mapping[str, object] = field(default_factory=dict)
-    # detection in regions by camera (detection.regional.CameraRegions.as_dict); empty: whole
-    # frames, or the nodes detect
-    regions: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
-
-    @property
-    def status(self) -> str:
-        """down: no camera delivering; degraded: a camera down or processed badly (far
-        under its nominal rate, most of its frames dropped), the service stalled, a queue
-        dropping, an alarm output failing or falling behind, or a probe failing; ok
-        otherwise."""
-        if not any(c.up for c in self.cameras):
-            return "down"
-        return "degraded" if self.problems else "ok"
 
 
 class _Histogram:

@@ -14,7 +14,9 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel
 
-from stereopose.site.health.state import OutputSnapshot, ServiceState, Snapshot
+from stereopose.site.health.alarm_outputs import OutputSnapshot
+from stereopose.site.health.snapshots import Snapshot
+from stereopose.site.health.state import ServiceState
 from stereopose.site.http.api.deps import service_state
 from stereopose.site.http.api.visitor import has_session
 
