@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from stereopose.viz import colours, overlay, report
+from stereopose.viz import colours, overlay, report_figures
 
 CONSOLE = Path(colours.__file__).resolve().parents[1] / "site" / "http" / "console"
 
@@ -22,7 +22,7 @@ def test_the_console_draws_each_id_in_the_pictures_colour():
     assert _js_list("ID_COLOURS") == list(colours.ID_COLOURS)
     for pid in (0, 1, 2, 7, 8, 9, 123):
         b, g, r = overlay.colour(pid)
-        assert f"#{r:02x}{g:02x}{b:02x}" == colours.id_colour(pid) == report.colour(pid)
+        assert f"#{r:02x}{g:02x}{b:02x}" == colours.id_colour(pid) == report_figures.colour(pid)
 
 
 def test_ids_never_take_the_alarm_colour():
