@@ -26,7 +26,7 @@ from stereopose.alarms.levels import level as alarm_level
 from stereopose.behaviour.definitions import ALARM_TYPES as BEHAVIOUR_ALARMS
 from stereopose.errors import StereoposeError
 from stereopose.io.records import EVENT_COLUMNS
-from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX, _part
+from stereopose.io.sinks.clip_parts import CLIP_SUFFIX, PART_SUFFIX, part_name
 from stereopose.io.sinks.eventdb import reading, transient
 from stereopose.io.sinks.incidents import changes_after, last_change
 
@@ -260,7 +260,7 @@ class EventLog:
         index = self._clip_index()
         if not index:
             return []
-        who = f"_{_part(str(person))}_{_part(zone)}_"
+        who = f"_{part_name(str(person))}_{part_name(zone)}_"
         for dt in (0, -1, 1):
             stamp = datetime.fromtimestamp(math.floor(wall_t) + dt, timezone.utc)
             prefix = stamp.strftime("%Y%m%d-%H%M%S") + who

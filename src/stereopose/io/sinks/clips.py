@@ -30,25 +30,35 @@ import logging
 import math
 import os
 import queue
-import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.errors import StereoposeError
 from stereopose.io.datafolder import CLIPS_DIR
 from stereopose.io.mp4 import FrameWriter
 from stereopose.io.packets import PacketRing, StreamCopy
-from stereopose.io.settings import check_settings, ranged
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.clip_parts import (
+    CLIP_SUFFIX,
+    EPS,
+    FULL_SUFFIX,
+    MAX_TWINS,
+    PART_SUFFIX,
+    ClipSettings,
+    Draw,
+    FrameRing,
+    OpenClip,
+    clip_name,
+    is_alarm,
+    plain_picture,
+)
 from stereopose.io.writing import make_folder, probe_folder, reason
 from stereopose.types import Event, People2D, People3D
 
@@ -64,115 +74,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-CLIP_SUFFIX = ".mp4"
-FULL_SUFFIX = ".full.mp4"  # a clip's full-stream copy, beside it
-PART_SUFFIX = ".part.mp4"  # a clip being written
-_EPS = 1e-9  # frame times compared with some slack
-_MAX_TWINS = 999
-
-# (camera, image (H, W, 3) BGR, its 2D people or None, the 3D people, scale, label) -> the
-# picture to keep, about `scale` times the image's size
-Draw = Callable[[str, np.ndarray, "People2D | None", People3D, float, str], np.ndarray]
-
-
-def is_alarm(e: Event) -> bool:
-    """The default alarm: entering or approaching an energized zone, or a behaviour alarm
-    (person_down, lone_worker, work_position, immobile, overreach)."""
-    if e.kind == BEHAVIOUR_KIND:
-        return e.type in ALARM_TYPES
-    return e.kind == "energized" and e.type in ("enter", "approach")
-
-
-def _plain(image: np.ndarray, scale: float) -> np.ndarray:
-    h, w = image.shape[:2]
-    return (
-        image
-        if scale == 1.0
-        else cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))))
-    )
-
-
-@dataclass(frozen=True, kw_only=True)
-class ClipSettings:
-    """Keys of the `[storage]` section. clip_pre_s, clip_post_s: seconds before and after an
-    alarm; clip_max_s: the longest clip (alarms that keep coming start a new one);
-    clip_buffer_frames, clip_buffer_bytes: the most each camera's buffer holds;
-    clip_queue_frames: frames waiting for the buffer thread; clip_jpeg_quality; clip_scale:
-    the clips' size relative to the camera images; clip_close_timeout_s: how long `close`
-    waits for the clips under way."""
-
-    clip_pre_s: float = ranged(5.0, ge=0.0, le=60.0)
-    clip_post_s: float = ranged(10.0, ge=0.0, le=600.0)
-    clip_max_s: float = ranged(120.0, gt=0.0, le=3600.0)
-    clip_buffer_frames: int = ranged(600, ge=1, le=100_000, integer=True)
-    clip_buffer_bytes: int = ranged(64 * 2**20, ge=2**16, le=2**36, integer=True)
-    clip_queue_frames: int = ranged(64, ge=1, le=10_000, integer=True)
-    clip_jpeg_quality: int = ranged(85, ge=10, le=100, integer=True)
-    clip_scale: float = ranged(0.5, gt=0.0, le=1.0)
-    clip_close_timeout_s: float = ranged(10.0, ge=0.0, le=600.0)
-
-    def __post_init__(self) -> None:
-        check_settings(self, "storage")
-
-
-_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
-
-
-def _part(text: str, limit: int = 48) -> str:
-    """One part of a file name from any text: letters, digits, '_', '.', '-' kept (the rest
-    as '-'), no leading dot, at most `limit` characters, never empty."""
-    safe = _UNSAFE.sub("-", text).lstrip(".-")[:limit].rstrip(".-")
-    return safe or "x"
-
-
-def clip_name(wall_t: float, person: int, zone: str, camera: str) -> str:
-    """`<UTC time>_<person>_<zone>_<camera>` (no suffix), every part safe in a file name."""
-    stamp = datetime.fromtimestamp(wall_t, timezone.utc).strftime("%Y%m%d-%H%M%S")
-    return f"{stamp}_{_part(str(person))}_{_part(zone)}_{_part(camera)}"
-
-
-class _Ring:
-    """One camera's last frames as (t, JPEG bytes), bounded by age, count and bytes."""
-
-    def __init__(self, keep_s: float, max_frames: int, max_bytes: int) -> None:
-        self.keep_s, self.max_frames, self.max_bytes = keep_s, max_frames, max_bytes
-        self.frames: deque[tuple[float, bytes]] = deque()
-        self.bytes = 0
-        self.dropped = 0  # by the count or byte bound, not by age
-
-    def push(self, t: float, jpeg: bytes) -> None:
-        self.frames.append((t, jpeg))
-        self.bytes += len(jpeg)
-        while self.frames and self.frames[0][0] < t - self.keep_s - _EPS:
-            self._pop()
-        while len(self.frames) > self.max_frames or self.bytes > self.max_bytes:
-            self._pop()
-            self.dropped += 1
-
-    def _pop(self) -> None:
-        self.bytes -= len(self.frames.popleft()[1])
-
-    def since(self, t0: float) -> list[tuple[float, bytes]]:
-        return [f for f in self.frames if f[0] >= t0 - _EPS]
-
-
-@dataclass(eq=False)
-class _Clip:
-    camera: str
-    name: str
-    start_t: float
-    end_t: float
-    limit_t: float
-    last_t: float = -math.inf
-    frames: int = 0
-    part: Path | None = None
-    writer: FrameWriter | None = None
-    copy: StreamCopy | None = None  # the full stream's copy under way
-    copy_t: float = -math.inf  # the time of its last packet written
-    copy_failed: bool = False
-    failed: bool = False
-    events: list[Event] = field(default_factory=list)
 
 
 class ClipSink(ClosesOnce):
@@ -210,7 +111,7 @@ class ClipSink(ClosesOnce):
         self.folder = Path(out_dir) / CLIPS_DIR
         probe_folder(self.folder, "event clips")
         self.cameras, self.fps, self.wall_start = list(cameras), float(fps), float(wall_start)
-        self.draw = draw or (lambda cam, image, p2, p3, scale, label: _plain(image, scale))
+        self.draw = draw or (lambda cam, image, p2, p3, scale, label: plain_picture(image, scale))
         self.alarm = alarm
         self.frames_dropped = self.clips_written = self.clips_failed = self.errors = 0
         self.packets = dict(packets or {})
@@ -219,8 +120,10 @@ class ClipSink(ClosesOnce):
         self.incomplete: str | None = None
         self.written: list[Path] = []
         keep = s.clip_pre_s
-        self._rings = {c: _Ring(keep, s.clip_buffer_frames, s.clip_buffer_bytes) for c in cameras}
-        self._open: dict[str, _Clip] = {}  # camera -> its clip under way (buffer thread)
+        self._rings = {
+            c: FrameRing(keep, s.clip_buffer_frames, s.clip_buffer_bytes) for c in cameras
+        }
+        self._open: dict[str, OpenClip] = {}  # camera -> its clip under way (buffer thread)
         self._done_t: dict[str, float] = {}  # camera -> time of the last frame in a clip
         self._frames: queue.Queue = queue.Queue(s.clip_queue_frames)
         self._late: deque[Event] = deque(maxlen=10_000)  # alarms of dropped frames
@@ -301,9 +204,9 @@ class ClipSink(ClosesOnce):
                 self._alarm(camera, e, t)
         for camera, clip in list(self._open.items()):
             ring = self._rings[camera]
-            if ring.frames and ring.frames[-1][0] == t and t > clip.last_t + _EPS:
+            if ring.frames and ring.frames[-1][0] == t and t > clip.last_t + EPS:
                 self._send(clip, [ring.frames[-1]])
-            if t >= clip.end_t - _EPS:
+            if t >= clip.end_t - EPS:
                 self._finish(clip)
 
     def _encode(
@@ -337,7 +240,7 @@ class ClipSink(ClosesOnce):
         """Extend the camera's open clip, or open one from what its buffer holds."""
         s = self.settings
         clip = self._open.get(camera)
-        if clip is not None and e.t <= clip.end_t + _EPS:
+        if clip is not None and e.t <= clip.end_t + EPS:
             clip.end_t = min(max(clip.end_t, e.t + s.clip_post_s), clip.limit_t)
             clip.events.append(e)
             return
@@ -345,25 +248,23 @@ class ClipSink(ClosesOnce):
             self._finish(clip)
         done = self._done_t.get(camera, -math.inf)  # frames up to it are in an earlier clip
         frames = [
-            f
-            for f in self._rings[camera].since(e.t - s.clip_pre_s)
-            if done + _EPS < f[0] <= t + _EPS
+            f for f in self._rings[camera].since(e.t - s.clip_pre_s) if done + EPS < f[0] <= t + EPS
         ]
         start = frames[0][0] if frames else max(e.t - s.clip_pre_s, done)
         name = clip_name(self.wall_start + e.t, e.person, e.zone, camera)
         limit = start + s.clip_max_s
-        clip = _Clip(camera, name, start, min(e.t + s.clip_post_s, limit), limit, events=[e])
+        clip = OpenClip(camera, name, start, min(e.t + s.clip_post_s, limit), limit, events=[e])
         self._open[camera] = clip
         self._jobs.put(("open", clip))
         if frames:
             self._send(clip, frames)
 
-    def _send(self, clip: _Clip, frames: list[tuple[float, bytes]]) -> None:
+    def _send(self, clip: OpenClip, frames: list[tuple[float, bytes]]) -> None:
         clip.last_t = frames[-1][0]
         self._done_t[clip.camera] = clip.last_t
         self._jobs.put(("frames", clip, [jpeg for _, jpeg in frames], clip.last_t))
 
-    def _finish(self, clip: _Clip) -> None:
+    def _finish(self, clip: OpenClip) -> None:
         self._open.pop(clip.camera, None)
         self._jobs.put(("close", clip))
 
@@ -388,9 +289,9 @@ class ClipSink(ClosesOnce):
                 logger.exception("event clips: %s failed", clip.name)
                 self._clip_failed(clip, e)
 
-    def _start(self, clip: _Clip) -> None:
+    def _start(self, clip: OpenClip) -> None:
         make_folder(self.folder)
-        for n in range(_MAX_TWINS + 1):
+        for n in range(MAX_TWINS + 1):
             stem = f"{clip.name}_{n:03d}" if n else clip.name
             part = self.folder / (stem + PART_SUFFIX)
             if (self.folder / (stem + CLIP_SUFFIX)).exists():
@@ -403,7 +304,7 @@ class ClipSink(ClosesOnce):
             return
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
 
-    def _write_frames(self, clip: _Clip, frames: list[bytes]) -> None:
+    def _write_frames(self, clip: OpenClip, frames: list[bytes]) -> None:
         for jpeg in frames:
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
             if image is None:
@@ -413,7 +314,7 @@ class ClipSink(ClosesOnce):
             clip.writer.write(image)
             clip.frames += 1
 
-    def _end(self, clip: _Clip) -> None:
+    def _end(self, clip: OpenClip) -> None:
         if clip.writer is None:  # no frame came: nothing to keep
             clip.part.unlink(missing_ok=True)
             return
@@ -437,9 +338,9 @@ class ClipSink(ClosesOnce):
             logger.warning("event clips written again (%d failed)", self.clips_failed)
             self._failing = False
 
-    def _publish(self, clip: _Clip) -> Path:
+    def _publish(self, clip: OpenClip) -> Path:
         """The finished part renamed to its clip name, never over another file."""
-        for n in range(_MAX_TWINS + 1):
+        for n in range(MAX_TWINS + 1):
             final = self.folder / ((f"{clip.name}_{n:03d}" if n else clip.name) + CLIP_SUFFIX)
             try:
                 os.link(clip.part, final)
@@ -449,10 +350,10 @@ class ClipSink(ClosesOnce):
             return final
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
 
-    def _copy_part(self, clip: _Clip) -> Path:
+    def _copy_part(self, clip: OpenClip) -> Path:
         return self.folder / (clip.name + ".full" + PART_SUFFIX)
 
-    def _copy_more(self, clip: _Clip, t: float) -> None:
+    def _copy_more(self, clip: OpenClip, t: float) -> None:
         """The clip's full-stream copy brought up to `t`: opened on the first call, from the
         keyframe before the clip's start; then the packets since the last call."""
         ring = self.packets.get(clip.camera)
@@ -472,7 +373,7 @@ class ClipSink(ClosesOnce):
         except (OSError, cv2.error, StereoposeError) as e:
             self._copy_failed(clip, e)
 
-    def _finish_copy(self, clip: _Clip, drawn: Path) -> None:
+    def _finish_copy(self, clip: OpenClip, drawn: Path) -> None:
         """The copy closed, checked and named after the drawn clip `drawn`."""
         part = self._copy_part(clip)
         final = self.folder / (drawn.name[: -len(CLIP_SUFFIX)] + FULL_SUFFIX)
@@ -488,7 +389,7 @@ class ClipSink(ClosesOnce):
             self.written.append(final)
             self.copies_written += 1
 
-    def _copy_failed(self, clip: _Clip, e: BaseException) -> None:
+    def _copy_failed(self, clip: OpenClip, e: BaseException) -> None:
         clip.copy_failed = True
         if clip.copy is not None:
             clip.copy.release()
@@ -498,7 +399,7 @@ class ClipSink(ClosesOnce):
         self.copies_failed += 1
         logger.warning("event clips: %s: full-stream copy not written (%s)", clip.name, reason(e))
 
-    def _clip_failed(self, clip: _Clip, e: BaseException) -> None:
+    def _clip_failed(self, clip: OpenClip, e: BaseException) -> None:
         clip.failed = True
         if clip.writer is not None:
             clip.writer.close()
