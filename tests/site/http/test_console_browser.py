@@ -514,7 +514,23 @@ def test_repeated_entries_stay_one_line_with_a_count_and_a_shelved_one_says_so(w
     assert shown.startswith("×") and int(shown[1:]) >= count, shown
     assert _stored(served, incident)["occurrences"] >= count
     page.screenshot(path=str(SHOTS / "incident-count.png"))
-    # shelved from its line: a reason and a duration; then shown shelved, out of the banner
+    # shelved from its line: a reason and a duration; then shown shelved, out of the banner. An
+    # incident not acknowledged is shelved (an acknowledged one closes by itself once it
+    # clears, and a closed one has nothing to shelve)
+    unacked = (
+        "(sel) => [...document.querySelectorAll(sel)]"
+        ".filter(li => ['active', 'cleared'].includes(li.dataset.state)"
+        " && li.dataset.shelved !== 'true')"
+        ".map(li => +li.dataset.incidentId)"
+    )
+
+    def not_acknowledged() -> bool:
+        found[:] = page.evaluate(unacked, "#feed li.incident")
+        return bool(found)
+
+    wait_until(not_acknowledged, "an incident not acknowledged", timeout_s=360, poll_s=0.25)
+    incident = found[0]
+    line = _line(incident)
     page.click(f"{line} .shelve-button")
     page.wait_for_selector("#shelve-dialog[open]", timeout=5_000)
     page.fill("#shelve-reason", "busbar isolated for the work")
