@@ -62,8 +62,7 @@ class Site:
             self.script,
             None,
             None,
-            store=self.sink.put_incidents,
-            outputs=[],
+            outputs=[self.sink.write_changes],
             clock=lambda: self.t,
             wall_start=WALL_START,
         )

@@ -174,14 +174,12 @@ def running(
     server.wall_start = WALL_START
     script = Script()
     site = Site(server, None, script, store, db)  # type: ignore[arg-type]
-    put = db.put_incidents if db is not None else None
     site.step = IncidentStep(
         IncidentBook(),
         script,
         None,
         None,
-        store=put,
-        outputs=[server.write_changes],
+        outputs=[*([db.write_changes] if db is not None else []), server.write_changes],
         clock=lambda: site.t,
         wall_start=WALL_START,
     )

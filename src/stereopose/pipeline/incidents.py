@@ -8,11 +8,11 @@ margin). Each event reaches the sinks with its `incident` and `priority` (both N
 info-level event: it belongs to no incident, and its priority is not an alarm's).
 
 Each change of an incident (raised, occurrence, cleared, acknowledged, shelved, ...) is handed
-to `store` and to every `outputs` callable (the alarm outputs' write_changes: the event log,
-stored in the step's transaction, MQTT, the webhook, SCADA; the live channel) before the step's
-events reach the sinks. An operator's act (the HTTP API's thread) takes the lock around the book
-and answers at once with the record; its changes wait (bounded, counted when dropped) and go out
-with the next step, which comes within the loop's heartbeat.
+to every `outputs` callable (the alarm outputs' write_changes: the event log, stored in the
+step's transaction, MQTT, the webhook, SCADA; the live channel) before the step's events reach
+the sinks. An operator's act (the HTTP API's thread) takes the lock around the book and answers
+at once with the record; its changes wait (bounded, counted when dropped) and go out with the
+next step, which comes within the loop's heartbeat.
 """
 
 from __future__ import annotations
@@ -38,9 +38,10 @@ MAX_WAITING = 10_000  # operators' changes waiting for the next step
 
 class IncidentStep:
     """See the module. fences: the service's events (ServeEvents); rules: the behaviour
-    rules (HeldRules) or None; monitor: the fence monitor (for `holding`) or None; store(records):
-    persists incident records; outputs: callables given each step's changes; clock(): the
-    service's time now (the events' clock)."""
+    rules (HeldRules) or None; monitor: the fence monitor (for `holding`) or None; outputs:
+    callables given each step's changes, in order (the event log's write_changes first: its
+    records stored in the step's transaction); clock(): the service's time now (the events'
+    clock)."""
 
     def __init__(
         self,
@@ -49,14 +50,13 @@ class IncidentStep:
         rules,
         monitor,
         *,
-        store: Callable[[Sequence[IncidentRecord]], None] | None = None,
         outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
         clock: Callable[[], float],
         wall_start: float | None = None,
     ) -> None:
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
-        self.store, self.outputs, self.clock = store, list(outputs), clock
+        self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
         self.lock = threading.Lock()
         self.waiting: deque[Change] = deque()
@@ -104,8 +104,6 @@ class IncidentStep:
         if self.wall_start is not None:
             changes = [dataclasses.replace(c, wall_start=self.wall_start) for c in changes]
         self.rates.observe(changes)
-        if self.store is not None:
-            self.store([c.incident for c in changes])
         for out in self.outputs:
             try:
                 out(changes)

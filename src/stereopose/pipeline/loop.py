@@ -324,6 +324,6 @@ def run_incidents(
         fences,
         behaviour,
         fences,
-        store=db.put_incidents if db is not None else None,
+        outputs=[db.write_changes] if db is not None else [],
         clock=lambda: 0.0,
     )

@@ -47,7 +47,6 @@ class _Link:
 
     writer: asyncio.StreamWriter
     since: float
-    spoke: bool = False  # sent one whole IEC 104 frame
     started: bool = False  # STARTDT, and no STOPDT since
     buffer: bytearray = field(default_factory=bytearray)
     parsing: bool = True  # False once it sent what is not IEC 104 (passed on, not read)
@@ -68,7 +67,6 @@ class _Link:
             frame, self.buffer = bytes(self.buffer[: n + 2]), self.buffer[n + 2 :]
             if n < 4:
                 continue
-            self.spoke = True
             control = frame[2]
             if control & 0x01 == 0 or control == STARTDT_ACT:  # an I-frame, or STARTDT
                 self.started = True

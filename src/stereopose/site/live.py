@@ -54,10 +54,6 @@ STREAMS_PER_USER = 4
 RESERVED_SHARE = 4  # max_clients // RESERVED_SHARE places kept for operators and admins
 
 
-def _num(x: float, nd: int = 3) -> float | None:
-    return round(float(x), nd) if math.isfinite(x) else None
-
-
 def _sse(kind: str, body: object) -> bytes:
     data = json.dumps(body, separators=(",", ":"), allow_nan=False)
     return f"event: {kind}\ndata: {data}\n\n".encode()

@@ -23,7 +23,7 @@ from stereopose.fence import Site, ZoneGeometry
 from stereopose.io.sinks.base import FrameResult
 from stereopose.skeleton import floor_position, heading_deg
 
-__all__ = ["ALARM_HOLD_S", "MAX_TRAILS", "TRAIL_POINTS", "TRAIL_S", "SceneState"]
+__all__ = ["ALARM_HOLD_S", "MAX_TRAILS", "TRAIL_POINTS", "TRAIL_S", "SceneState", "rounded"]
 
 TRAIL_S = 5.0
 TRAIL_POINTS = 50
@@ -45,8 +45,9 @@ class Latest:
     postures: Mapping[int, object] | None = None  # id -> behaviour.posture.Posture
 
 
-def _num(x: float, nd: int = 3) -> float | None:
-    return round(x, nd) if math.isfinite(x) else None
+def rounded(x: float, nd: int = 3) -> float | None:
+    """x rounded to nd decimals for JSON; None when not finite."""
+    return round(float(x), nd) if math.isfinite(x) else None
 
 
 class SceneState:
@@ -175,8 +176,8 @@ class SceneState:
             people.append(
                 {
                     "id": int(pid),
-                    "position": [_num(x), _num(y), 0.0] if math.isfinite(x + y) else None,
-                    "heading_deg": _num(float(latest.headings[row]), 1),
+                    "position": [rounded(x), rounded(y), 0.0] if math.isfinite(x + y) else None,
+                    "heading_deg": rounded(float(latest.headings[row]), 1),
                     "joints": joints,
                     "zones": sorted(z for z, ids in inside.items() if pid in ids),
                     "trail": [[round(px, 3), round(py, 3)] for _, px, py in trails.get(pid, [])],

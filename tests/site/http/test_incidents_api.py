@@ -53,7 +53,7 @@ class Run:
         if resume is not None:
             book.restore(resume.open_incidents(WALL_START))
         self.changes: list = []
-        outputs = [self.changes.extend]
+        outputs = [served.db.write_changes, self.changes.extend]
         if live:  # as serve wires the console's live channel
             outputs.append(lambda changes: _live_changes(served.console.hub, changes))
         self.desk = IncidentStep(
@@ -61,7 +61,6 @@ class Run:
             self.script,
             None,
             None,
-            store=served.db.put_incidents,
             outputs=outputs,
             clock=lambda: self.t,
             wall_start=WALL_START,
