@@ -227,7 +227,7 @@ def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(br
         wait_until(lambda: ingest.subscribed and c.is_connected(), "both connected")
         _write(sink, 1, 3)
         wait_until(lambda: store.marks().get("north") == 3, "the real site's first events")
-        wait_until(lambda: "north" in ingest._announced, "the real site's heartbeat")
+        wait_until(lambda: "north" in ingest.order.announced, "the real site's heartbeat")
         # a forged id far beyond what the site announced: refused, an incident, no new mark
         send("stereopose/north/log/events", b'{"id": 9223372036854775807, "prev": 3}')
         wait_until(

@@ -5,7 +5,7 @@ SQLite by default (WAL, one writer: the ingest's thread; readers open their own 
 connections) in the control room's output folder (`control.sqlite`), or PostgreSQL for a
 fleet (`[control_room] database = "postgresql://..."`, psycopg 3: one writing connection, one
 reading connection, each reconnected when the server was away). The same tables and
-statements serve both (`_Dialect` turns the few words that differ). The events table's primary
+statements serve both (`Dialect` turns the few words that differ). The events table's primary
 key is (site, id): an event sent twice (a QoS 1 resend, a replay, a bridge's duplicates) is
 stored once, and the duplicate counted. A site's mark (the highest id stored with nothing
 missing before it, site.outbox's protocol) is kept with the site, in the same transaction
@@ -25,75 +25,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.request import pathname2url
 
+from stereopose.controlroom.schema import (
+    ADDED,
+    PUT_CHANGE,
+    PUT_EVENT,
+    RAISE_INCIDENT_MARK,
+    RAISE_MARK,
+    ROOM_COLUMNS,
+    SCHEMA_LOCK,
+    Dialect,
+    Run,
+    change_row,
+    event_row,
+    of_sites,
+    room_record,
+)
 from stereopose.errors import StereoposeError
 
 __all__ = ["ControlStore", "SiteRow", "StoreError", "shown_database"]
 
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS sites (
-    site TEXT PRIMARY KEY,
-    mark INTEGER NOT NULL DEFAULT 0,   -- events stored with nothing missing up to this id
-    state TEXT NOT NULL DEFAULT 'unknown',  -- live, offline, degraded, unknown
-    last_seen REAL,                    -- Unix time of its last message
-    health TEXT,                       -- its latest summary (JSON, from its heartbeat)
-    incident_mark INTEGER NOT NULL DEFAULT 0  -- incident changes stored up to this number
-);
-CREATE TABLE IF NOT EXISTS events (
-    site TEXT NOT NULL,
-    id INTEGER NOT NULL,               -- the site's event log id
-    wall_t REAL,
-    type TEXT,
-    zone TEXT,
-    person INTEGER,
-    incident INTEGER,
-    priority INTEGER,
-    stored_at REAL NOT NULL,
-    record TEXT NOT NULL,              -- the event as the site sent it (JSON)
-    PRIMARY KEY (site, id)
-) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS incidents (
-    site TEXT NOT NULL,
-    id INTEGER NOT NULL,               -- the site's incident id
-    seq INTEGER NOT NULL,              -- the site's change number of this record
-    state TEXT,                        -- active, acknowledged, cleared, closed
-    priority INTEGER,
-    zone TEXT,
-    person INTEGER,
-    last_wall_t REAL,
-    stored_at REAL NOT NULL,
-    record TEXT NOT NULL,              -- the incident's record as the site sent it (JSON)
-    PRIMARY KEY (site, id)
-) WITHOUT ROWID;
-CREATE INDEX IF NOT EXISTS incidents_state ON incidents(state);
-CREATE TABLE IF NOT EXISTS commands (  -- acknowledgements asked of sites
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    site TEXT NOT NULL,
-    incident INTEGER NOT NULL,
-    asked_by TEXT NOT NULL,            -- the control room's user
-    asked_at REAL NOT NULL,
-    done_at REAL,                      -- when the site answered
-    result TEXT                        -- acknowledged, already, unknown, unavailable
-);
-CREATE INDEX IF NOT EXISTS commands_pending ON commands(done_at);
-CREATE TABLE IF NOT EXISTS room_incidents (  -- raised by the control room about a site
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    site TEXT NOT NULL,
-    kind TEXT NOT NULL,                -- site_offline, site_clock
-    priority INTEGER NOT NULL,
-    state TEXT NOT NULL,               -- active, acknowledged, cleared, closed
-    raised_at REAL NOT NULL,
-    cleared_at REAL,
-    acked_by TEXT,
-    acked_at REAL,
-    detail TEXT
-);
-CREATE INDEX IF NOT EXISTS room_incidents_open ON room_incidents(site, kind, state);
-"""
-# columns an earlier version's store lacks: (table, column, declaration)
-ADDED = (("sites", "incident_mark", "INTEGER NOT NULL DEFAULT 0"),)
 OPEN_STATES = ("active", "acknowledged", "cleared")
 MAX_LIMIT = 1000
-SCHEMA_LOCK = 0x5354_4552_4551  # PostgreSQL advisory lock held while the tables are made
 
 
 class StoreError(StereoposeError):
@@ -110,31 +62,6 @@ class SiteRow:
     events: int = 0  # events stored
 
 
-class _Dialect:
-    """The statements as written here (SQLite's `?` and `INSERT OR IGNORE`, `GREATEST` for the
-    larger of two values) in the store's own words."""
-
-    def __init__(self, postgres: bool) -> None:
-        self.postgres = postgres
-
-    def q(self, sql: str) -> str:
-        if not self.postgres:
-            return sql.replace("GREATEST(", "MAX(")
-        if sql.startswith("INSERT OR IGNORE INTO"):
-            sql = sql.replace("INSERT OR IGNORE INTO", "INSERT INTO", 1) + " ON CONFLICT DO NOTHING"
-        return sql.replace("?", "%s")
-
-    def schema(self) -> list[str]:
-        text = SCHEMA
-        if self.postgres:
-            text = text.replace("INTEGER PRIMARY KEY AUTOINCREMENT", "BIGSERIAL PRIMARY KEY")
-            text = re.sub(r"\bINTEGER\b", "BIGINT", text)
-            text = re.sub(r"\bREAL\b", "DOUBLE PRECISION", text)
-            text = text.replace(" WITHOUT ROWID", "")
-        text = re.sub(r"--[^\n]*", "", text)
-        return [st.strip() for st in text.split(";") if st.strip()]
-
-
 class ControlStore:
     """The store at `database`: a postgresql:// (or postgres://) URL, else an SQLite file's
     path (the tables made when missing). Writes come
@@ -144,7 +71,7 @@ class ControlStore:
     def __init__(self, database: str | Path) -> None:
         text = str(database)
         self.postgres = text.startswith(("postgresql://", "postgres://"))
-        self.dialect = _Dialect(self.postgres)
+        self.dialect = Dialect(self.postgres)
         self.url = text if self.postgres else None
         self.path = Path(text) if not self.postgres else None
         self.name = shown_database(text) if self.postgres else str(self.path)
@@ -230,7 +157,7 @@ class ControlStore:
         with self._lock:
             try:
                 db = self._writer()
-                yield _Run(db, self.dialect)
+                yield Run(db, self.dialect)
                 db.commit()
             except self._errors as e:
                 if self.db is not None:
@@ -247,14 +174,14 @@ class ControlStore:
             if not self.postgres:
                 db = self._connect(read_only=True)
                 try:
-                    yield _Run(db, self.dialect)
+                    yield Run(db, self.dialect)
                 finally:
                     db.close()
                 return
             with self._read_lock:
                 if self._reader_db is None or self._reader_db.closed or self._reader_db.broken:
                     self._reader_db = self._connect(read_only=True)
-                yield _Run(self._reader_db, self.dialect)
+                yield Run(self._reader_db, self.dialect)
         except self._errors as e:
             raise StoreError(f"{self.name}: cannot {what}: {_why(e)}") from None
 
@@ -263,10 +190,10 @@ class ControlStore:
     def put_events(self, site: str, events: Sequence[dict], mark: int, now: float) -> int:
         """Store a site's events (each (site, id) once) and its new mark, in one transaction;
         the number newly stored."""
-        rows = [_event_row(site, e, now) for e in events]
+        rows = [event_row(site, e, now) for e in events]
         with self._writing(f"store {len(rows)} event(s) of site {site!r}") as run:
-            new = run.many(_PUT_EVENT, rows)
-            run(_RAISE_MARK, (site, mark, now))
+            new = run.many(PUT_EVENT, rows)
+            run(RAISE_MARK, (site, mark, now))
         self.stored += new
         self.duplicates += len(rows) - new
         return new
@@ -280,15 +207,15 @@ class ControlStore:
         """Many sites' events and incident changes with their new marks ({site: (items,
         mark)}), in one transaction (one commit however many sites: what a fleet's store
         needs); (events newly stored, incident records written)."""
-        ev_rows = [_event_row(site, e, now) for site, (items, _) in events.items() for e in items]
-        ch_rows = [_change_row(site, c, now) for site, (items, _) in changes.items() for c in items]
+        ev_rows = [event_row(site, e, now) for site, (items, _) in events.items() for e in items]
+        ch_rows = [change_row(site, c, now) for site, (items, _) in changes.items() for c in items]
         what = f"store {len(ev_rows)} event(s) and {len(ch_rows)} incident change(s)"
         with self._writing(what) as run:
-            new = run.many(_PUT_EVENT, ev_rows)
-            written = run.many(_PUT_CHANGE, ch_rows)
-            run.many(_RAISE_MARK, [(site, mark, now) for site, (_, mark) in events.items()])
+            new = run.many(PUT_EVENT, ev_rows)
+            written = run.many(PUT_CHANGE, ch_rows)
+            run.many(RAISE_MARK, [(site, mark, now) for site, (_, mark) in events.items()])
             run.many(
-                _RAISE_INCIDENT_MARK, [(site, mark, now) for site, (_, mark) in changes.items()]
+                RAISE_INCIDENT_MARK, [(site, mark, now) for site, (_, mark) in changes.items()]
             )
         self.stored += new
         self.duplicates += len(ev_rows) - new
@@ -298,10 +225,10 @@ class ControlStore:
         """Store a site's incident changes ({"seq", "incident": record}; a record replaces the
         stored one only when its seq is newer) and its new incidents mark, in one
         transaction; the number of records written."""
-        rows = [_change_row(site, c, now) for c in changes]
+        rows = [change_row(site, c, now) for c in changes]
         with self._writing(f"store {len(rows)} incident change(s) of site {site!r}") as run:
-            new = run.many(_PUT_CHANGE, rows)
-            run(_RAISE_INCIDENT_MARK, (site, mark, now))
+            new = run.many(PUT_CHANGE, rows)
+            run(RAISE_INCIDENT_MARK, (site, mark, now))
         return new
 
     def add_command(self, site: str, incident: int, by: str, now: float) -> int:
@@ -378,9 +305,9 @@ class ControlStore:
                 (by, now, incident),
             )
             row = run(
-                f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
+                f"SELECT {ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
             ).fetchone()
-        return None if row is None else _room_incident(row)
+        return None if row is None else room_record(row)
 
     def prune(self, before: float) -> int:
         """The events stored before `before` (Unix time), and the closed incidents, answered
@@ -462,7 +389,7 @@ class ControlStore:
         """Events in (site, id) order: of `site` after `after_id`, or of every site (of
         `sites` when given); at most `limit` (<= MAX_LIMIT)."""
         limit = max(1, min(int(limit), MAX_LIMIT))
-        where, args = _of_sites(site, sites)
+        where, args = of_sites(site, sites)
         where.append("id > ?")
         args.append(int(after_id))
         with self._reading("read the events") as run:
@@ -485,7 +412,7 @@ class ControlStore:
         when given; at most `limit` of each kind. Each site incident carries the
         acknowledgements asked of its site and not answered yet (`ack_pending`)."""
         limit = max(1, min(int(limit), MAX_LIMIT))
-        where, args = _of_sites(site, sites)
+        where, args = of_sites(site, sites)
         if state == "open":
             where.append("state IN ('active', 'acknowledged', 'cleared')")
         elif state is not None:
@@ -499,7 +426,7 @@ class ControlStore:
                 [*args, limit],
             ).fetchall()
             room = run(
-                f"SELECT {_ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id DESC LIMIT ?",
+                f"SELECT {ROOM_COLUMNS} FROM room_incidents{cond} ORDER BY id DESC LIMIT ?",
                 [*args, limit],
             ).fetchall()
             pending = run(
@@ -520,7 +447,7 @@ class ControlStore:
                     "ack_pending": asked.get((s, doc.get("id")), []),
                 }
             )
-        return out + [_room_incident(r) for r in room]
+        return out + [room_record(r) for r in room]
 
     def open_counts(self) -> dict[str, dict[str, int]]:
         """Per site, its open incidents (not closed) by priority ("1".."4"), the control
@@ -543,9 +470,9 @@ class ControlStore:
         """A control-room incident, None when there is none with that id."""
         with self._reading("read the incidents") as run:
             row = run(
-                f"SELECT {_ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
+                f"SELECT {ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
             ).fetchone()
-        return None if row is None else _room_incident(row)
+        return None if row is None else room_record(row)
 
     def incident(self, site: str, incident: int) -> dict | None:
         """A site's incident as stored, None when the control room has none by that id."""
@@ -565,24 +492,6 @@ class ControlStore:
                 self._reader_db = None
 
 
-class _Run:
-    """Statements on one connection in the store's dialect: run(sql, args) -> cursor,
-    run.many(sql, rows) -> the rows changed."""
-
-    def __init__(self, db, dialect: _Dialect) -> None:
-        self.db, self.dialect = db, dialect
-
-    def __call__(self, sql: str, args: Sequence = ()):
-        return self.db.execute(self.dialect.q(sql), args)
-
-    def many(self, sql: str, rows: Sequence[Sequence]) -> int:
-        if not rows:
-            return 0
-        cur = self.db.cursor()
-        cur.executemany(self.dialect.q(sql), rows)
-        return max(0, cur.rowcount)
-
-
 def shown_database(database: str | Path) -> str:
     """A store's name as it may be shown: a URL without its password."""
     return re.sub(r"(://[^:/@]*):[^@]*@", r"\1:***@", str(database))
@@ -590,106 +499,3 @@ def shown_database(database: str | Path) -> str:
 
 def _why(e: BaseException) -> str:
     return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-
-
-_PUT_EVENT = (
-    "INSERT OR IGNORE INTO events(site, id, wall_t, type, zone, person, incident, "
-    "priority, stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?)"
-)
-_PUT_CHANGE = (
-    "INSERT INTO incidents(site, id, seq, state, priority, zone, person, last_wall_t, "
-    "stored_at, record) VALUES (?,?,?,?,?,?,?,?,?,?) ON CONFLICT(site, id) DO UPDATE "
-    "SET seq = excluded.seq, state = excluded.state, priority = excluded.priority, "
-    "zone = excluded.zone, person = excluded.person, last_wall_t = "
-    "excluded.last_wall_t, stored_at = excluded.stored_at, record = excluded.record "
-    "WHERE excluded.seq > incidents.seq"
-)
-_RAISE_MARK = (
-    "INSERT INTO sites(site, mark, last_seen) VALUES (?, ?, ?) ON CONFLICT(site) DO "
-    "UPDATE SET mark = GREATEST(sites.mark, excluded.mark), last_seen = "
-    "excluded.last_seen"
-)
-_RAISE_INCIDENT_MARK = (
-    "INSERT INTO sites(site, incident_mark, last_seen) VALUES (?, ?, ?) ON "
-    "CONFLICT(site) DO UPDATE SET incident_mark = GREATEST("
-    "sites.incident_mark, excluded.incident_mark), last_seen = "
-    "excluded.last_seen"
-)
-
-
-def _of_sites(site: str | None, sites: Iterable[str] | None) -> tuple[list[str], list]:
-    """The conditions (and their values) for rows of `site`, and of `sites` when given."""
-    where, args = [], []
-    if site is not None:
-        where.append("site = ?")
-        args.append(site)
-    if sites is not None:
-        allowed = sorted(set(sites))
-        where.append(f"site IN ({','.join('?' * len(allowed))})" if allowed else "FALSE")
-        args += allowed
-    return where, args
-
-
-def _event_row(site: str, e: dict, now: float) -> tuple:
-    return (
-        site,
-        int(e["id"]),
-        _num(e.get("wall_t")),
-        _text(e.get("type")),
-        _text(e.get("zone")),
-        _int(e.get("person")),
-        _int(e.get("incident")),
-        _int(e.get("priority")),
-        now,
-        json.dumps(e, separators=(",", ":")),
-    )
-
-
-def _change_row(site: str, c: dict, now: float) -> tuple:
-    rec = c["incident"]
-    return (
-        site,
-        int(rec["id"]),
-        int(c["seq"]),
-        _text(rec.get("state")),
-        _int(rec.get("priority")),
-        _text(rec.get("zone")),
-        _int(rec.get("person")),
-        _num(rec.get("last_wall_t")),
-        now,
-        json.dumps(rec, separators=(",", ":")),
-    )
-
-
-_ROOM_COLUMNS = "id, site, kind, priority, state, raised_at, cleared_at, acked_by, acked_at, detail"
-
-
-def _room_incident(row: tuple) -> dict:
-    i, site, kind, priority, state, raised, cleared, by, at, detail = row
-    return {
-        "source": "control_room",
-        "site": site,
-        "id": i,
-        "kind": kind,
-        "priority": priority,
-        "state": state,
-        "first_wall_t": raised,
-        "last_wall_t": cleared or raised,
-        "cleared_wall_at": cleared,
-        "acked_by": by,
-        "acked_wall_at": at,
-        "detail": detail,
-        "occurrences": 1,
-    }
-
-
-def _num(v: object) -> float | None:
-    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
-
-
-def _int(v: object) -> int | None:
-    return int(v) if isinstance(v, int) and not isinstance(v, bool) else None
-
-
-def _text(v: object) -> str | None:
-    return v if isinstance(v, str) else None
