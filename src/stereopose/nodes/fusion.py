@@ -50,7 +50,6 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -59,6 +58,14 @@ import numpy as np
 from stereopose.io.sinks.mqtt_settings import MqttSettings, loop_alive, make_client, restart_loop
 from stereopose.io.source import Clock
 from stereopose.io.summary import CAMERA_STAGES, RunSummary
+from stereopose.nodes.node_state import (
+    CameraFigures,
+    NodeState,
+    from_future,
+    judge_clock,
+    positive_rate,
+    rounded,
+)
 from stereopose.nodes.wire import (
     Keypoints,
     Topics,
@@ -67,6 +74,7 @@ from stereopose.nodes.wire import (
     decode_people,
     decode_picture,
     jpeg_size,
+    picture_size,
 )
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import People2D, Rig
@@ -76,50 +84,10 @@ logger = logging.getLogger(__name__)
 PENDING = 32  # camera-frames waiting per camera
 ACTIVE_S = 1.0  # a camera heard from within this long (or ACTIVE_STEPS step periods) is
 ACTIVE_STEPS = 4  # waited for, unless its node is known to be offline
-CLOCK_KEPT = 5
 WARN_S = 60.0  # the same kind of bad message logged at most this often
 MAX_NODES = 256  # nodes followed at most (names come from whoever publishes)
 MIN_PICTURE_PX = 2_000_000  # a picture may have 4x its camera's picture pixels, or this
 DETECT_ALLOWANCE_S = 1.0  # a node's detection of one step, at most, for the empty steps' time
-FUTURE_S = 0.1  # a frame captured this long after now (its node's clock offset taken off)
-FUTURE_RUN = 5  # frames at least before a node is refused as from the future
-LEADS_KEPT = 25  # a node's last frames whose least lead over this clock is judged
-
-
-@dataclass
-class CameraFigures:
-    """One camera as the fusion service receives it."""
-
-    frames: int = 0  # camera-frames received
-    used: int = 0  # in a step given to the loop
-    late: int = 0
-    dropped: int = 0  # waiting frames over PENDING
-    refused: int = 0  # from a node with its clock off, from the future, or not its node
-    flood: int = 0  # closer than half a step period to the camera's previous frame
-    bytes: int = 0
-    pictures: int = 0
-    node: str | None = None
-    last_mono: float | None = None
-    reconnects: int = 0  # the readers' figure, for the health state (a node's link: none)
-
-
-@dataclass
-class NodeState:
-    name: str
-    state: str = "online"
-    offsets: deque = field(default_factory=lambda: deque(maxlen=CLOCK_KEPT))
-    refused: bool = False
-    last_mono: float | None = None
-    health: dict = field(default_factory=dict)
-    future: bool = False  # refused: its frames keep coming from the future
-    # its last frames' lead over this clock (capture time - arrival)
-    leads: deque = field(default_factory=lambda: deque(maxlen=LEADS_KEPT))
-
-    @property
-    def offset(self) -> float | None:
-        """Its clock minus ours: the largest of the last offsets measured, the least delayed
-        (a message's way here only ever makes a node's clock look behind)."""
-        return max(self.offsets) if self.offsets else None
 
 
 class NodeInput:
@@ -169,7 +137,7 @@ class NodeInput:
         }
         self._pictures: dict[str, np.ndarray] = {}
         # every picture of a camera has one size (a clip's frames must): the nodes' pictures'
-        self._sizes = {n: _picture_size(rig[n].size, picture_scale) for n in self.cameras}
+        self._sizes = {n: picture_size(rig[n].size, picture_scale) for n in self.cameras}
         self._placeholders = {
             n: np.full((h, w, 3), 96, np.uint8) for n, (w, h) in self._sizes.items()
         }
@@ -310,30 +278,10 @@ class NodeInput:
                 node.health = {k: doc.get(k) for k in ("cameras", "detect_ms", "queue", "backend")}
                 if not retained:  # a retained one is old: its clock says nothing of now
                     node.offsets.append(float(doc["clock"]) - time.time())
-                    self._judge_clock(node)
+                    judge_clock(node, self.tolerance_s)
         if was != node.state:
             log = logger.warning if node.state == "offline" else logger.info
             log("node %s is %s", name, node.state)
-
-    def _judge_clock(self, node: NodeState) -> None:
-        off = node.offset
-        if off is None:
-            return
-        bad = abs(off) > self.tolerance_s
-        if bad and not node.refused:
-            logger.error(
-                "node %s: its clock is off the service's by %+.3f s (more than "
-                "input.node_clock_tolerance_s = %g s): its frames are refused until "
-                "its clock is set right",
-                node.name,
-                off,
-                self.tolerance_s,
-            )
-        elif node.refused and not bad:
-            logger.warning(
-                "node %s: its clock is right again (%+.3f s): its frames are taken", node.name, off
-            )
-        node.refused = bad
 
     def _picture(self, name: str, payload: bytes) -> None:
         _, jpeg = decode_picture(payload)
@@ -369,7 +317,9 @@ class NodeInput:
                 )
                 return
             node = self.nodes.get(kp.node)
-            if self._from_future(kp, node, name, wall) or (node is not None and node.refused):
+            if from_future(kp, node, name, wall, self.tolerance_s, self._warn) or (
+                node is not None and node.refused
+            ):
                 fig.refused += 1  # a node's clock off, a frame from the future
                 return
             if owner is not None and owner[0] != kp.node:
@@ -435,42 +385,6 @@ class NodeInput:
         self._given_end = end
         return t0, {n: kp for n, (kp, _) in group.items()}
 
-    def _from_future(self, kp: Keypoints, node: NodeState | None, name: str, wall: float) -> bool:
-        """Whether the frame is refused as from the future (under the lock): its lead over
-        this clock (capture time - now) beyond node_clock_tolerance_s, or beyond FUTURE_S
-        past its node's clock offset (the largest of its health's last: the least delayed);
-        and the whole node while even its frames' least lead of late is (a node whose frames
-        keep coming from the future). A slow service delays the frames as much as the health
-        messages, so their way here never makes a node look early."""
-        lead = kp.t - wall
-        offset = node.offset if node is not None else None
-        if node is not None:
-            node.leads.append(lead)
-        ahead = lead - (offset or 0.0)
-        future = ahead > (FUTURE_S if offset is not None else self.tolerance_s)
-        if future:
-            self._warn(
-                f"future:{kp.node}",
-                f"nodes: node {kp.node}: a frame of camera "
-                f"{name} captured {ahead:+.3f} s from now (its clock offset taken "
-                "off)",
-            )
-        if node is None or offset is None:
-            return future
-        early = min(node.leads) - offset  # its frames' least lead of late, past its offset
-        if not node.future and len(node.leads) >= FUTURE_RUN and early > FUTURE_S:
-            node.future = True
-            logger.error(
-                "nodes: node %s: its frames keep coming from the future (%+.3f s "
-                "past its clock): refused until its frames are on time",
-                node.name,
-                early,
-            )
-        elif node.future and early <= FUTURE_S:
-            node.future = False
-            logger.warning("nodes: node %s: its frames are on time again: taken", node.name)
-        return future or node.future
-
     def _online(self, node: str | None) -> bool:
         """Whether a node is not known to be offline (its will or its goodbye)."""
         state = self.nodes.get(node or "")
@@ -520,7 +434,7 @@ class NodeInput:
             for name, fig in self.figures.items():
                 node = self.nodes.get(fig.node or "")
                 cam = ((node.health.get("cameras") or {}).get(name) if node else None) or {}
-                own, det = _rate(cam.get("fps")), _rate(cam.get("detect_fps"))
+                own, det = positive_rate(cam.get("fps")), positive_rate(cam.get("detect_fps"))
                 out[name] = (min(own, det) if own and det else own or det, own)
         return out
 
@@ -531,7 +445,7 @@ class NodeInput:
             nodes = {
                 n.name: {
                     "state": n.state,
-                    "clock_offset_s": _round(n.offset),
+                    "clock_offset_s": rounded(n.offset),
                     "clock_refused": n.refused,
                     "future_refused": n.future,
                     "seen_s_ago": None if n.last_mono is None else round(now - n.last_mono, 1),
@@ -539,21 +453,7 @@ class NodeInput:
                 }
                 for n in self.nodes.values()
             }
-            cams = {
-                name: {
-                    "node": f.node,
-                    "frames": f.frames,
-                    "used": f.used,
-                    "late": f.late,
-                    "dropped": f.dropped,
-                    "refused": f.refused,
-                    "flood": f.flood,
-                    "bytes": f.bytes,
-                    "pictures": f.pictures,
-                    "waiting": len(self._pending[name]),
-                }
-                for name, f in self.figures.items()
-            }
+            cams = {n: f.report(len(self._pending[n])) for n, f in self.figures.items()}
         return {
             "connected": self.connected,
             "window_s": self.window_s,
@@ -587,16 +487,3 @@ class NodeInput:
             for n, f in self.figures.items()
         }
         summary.clock_start_epoch = self.clock.start_epoch
-
-
-def _picture_size(size: tuple[float, float], scale: float) -> tuple[int, int]:
-    """(width, height) of a camera's pictures from its node (nodes.node's rounding)."""
-    return max(16, round(size[0] * scale)), max(16, round(size[1] * scale))
-
-
-def _rate(v: object) -> float | None:
-    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) and v > 0 else None
-
-
-def _round(v: float | None) -> float | None:
-    return None if v is None else round(v, 4)

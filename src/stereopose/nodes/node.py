@@ -51,7 +51,13 @@ from stereopose.io.cameraset import CameraSet
 from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
 from stereopose.io.video import FrameSet, is_stream
 from stereopose.nodes.paced import PacedFiles
-from stereopose.nodes.wire import Topics, encode_people, encode_picture, health_message
+from stereopose.nodes.wire import (
+    Topics,
+    encode_people,
+    encode_picture,
+    health_message,
+    picture_size,
+)
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.pipeline.sources import check_size, scale_people
@@ -418,8 +424,7 @@ class DetectNode:
             return
         self._pictured[name] = now
         cam = self.plan.rig[name]
-        w = max(16, round(cam.size[0] * self.picture_scale))
-        h = max(16, round(cam.size[1] * self.picture_scale))
+        w, h = picture_size(cam.size, self.picture_scale)
         small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
         ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if ok and self.publisher is not None:

@@ -278,3 +278,9 @@ def decode_health(payload: bytes) -> Mapping[str, object]:
             if doc.get(key) is not None and not isinstance(doc[key], dict):
                 raise WireError(f"{key}: expected an object")
     return doc
+
+
+def picture_size(size: tuple[float, float], scale: float) -> tuple[int, int]:
+    """(width, height) of a camera's pictures sent by its node: its size at `scale`
+    (node_picture_scale), at least 16 px each way."""
+    return max(16, round(size[0] * scale)), max(16, round(size[1] * scale))
