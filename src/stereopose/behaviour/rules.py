@@ -25,7 +25,6 @@ from collections.abc import Sequence
 import numpy as np
 
 from stereopose.behaviour.definitions import (
-    BEHAVIOUR_KIND,
     ImmobileRule,
     LoneWorkerRule,
     OverreachRule,
@@ -34,6 +33,7 @@ from stereopose.behaviour.definitions import (
     WorkPositionRule,
     parse_rules,
 )
+from stereopose.behaviour.falls import HANDOVER_S, Falls, rule_event
 from stereopose.behaviour.posture import (
     DEFAULT_SETTINGS,
     Posture,
@@ -42,7 +42,6 @@ from stereopose.behaviour.posture import (
 )
 from stereopose.behaviour.state import (
     EPS,
-    DownState,
     Latch,
     Seen,
     StillState,
@@ -54,12 +53,8 @@ from stereopose.fence.zones import Zone, ZoneGeometry
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, floor_position, heading_deg
 from stereopose.types import Event, People3D
 
-__all__ = ["BehaviourMonitor", "Rule", "parse_rules"]
+__all__ = ["HANDOVER_S", "BehaviourMonitor", "Rule", "parse_rules"]
 
-# a track that dropped fast and vanished, and a new one on the floor within HANDOVER_M of it
-# within HANDOVER_S: the same body, its id changed by the fall
-HANDOVER_S = 1.5
-HANDOVER_M = 1.5
 _WRISTS = (LEFT_WRIST, RIGHT_WRIST)
 
 
@@ -93,10 +88,7 @@ class BehaviourMonitor:
             if isinstance(r, WorkPositionRule)
         }
         self.people: dict[int, Tracked] = {}
-        downs = [r.fall_speed_m_s for r in self.rules if isinstance(r, PersonDownRule)]
-        self._fall_speed = min(downs) if downs else None
-        self._drops: dict[int, tuple[float, float, float, float]] = {}  # pid: t, x, y, m/s
-        self._seen_now: set[int] = set()
+        self.falls = Falls(self.people, self.rules)
 
     def step(
         self, t: float, frame: int, people: People3D
@@ -124,8 +116,8 @@ class BehaviourMonitor:
             person.position = (float(xy[0]), float(xy[1])) if np.isfinite(xy).all() else None
             person.posture = postures.get(pid)
             seen.append((p, pid, person))
-        self._seen_now = {pid for p, pid, _ in seen if not people.predicted[p]}
-        self._note_drops(t, seen)
+        self.falls.seen_now = {pid for p, pid, _ in seen if not people.predicted[p]}
+        self.falls.note_drops(t, seen)
         base = dict(frame=frame, t=t)
         for rule in self.rules:
             for p, pid, person in seen:
@@ -137,24 +129,13 @@ class BehaviourMonitor:
                 shown = {pid for _, pid, _ in seen}
                 for pid, person in self.people.items():
                     if pid not in shown:
-                        events.extend(self._down_timer(rule, pid, person, t, frame))
+                        events.extend(self.falls.down_timer(rule, pid, person, t, frame))
         events.extend(self._lost(t, frame))
         return events, postures
 
-    def _note_drops(self, t: float, seen: list) -> None:
-        """Who dropped fast lately, and where (for a fall whose track breaks: _handover)."""
-        if not self._fall_speed:
-            return
-        for pid, person in ((pid, person) for _, pid, person in seen if pid in self._seen_now):
-            pos = person.posture
-            if pos is not None and person.position is not None and pos.drop_m_s >= self._fall_speed:
-                self._drops[pid] = (t, *person.position, pos.drop_m_s)
-        for pid in [p for p, d in self._drops.items() if t - d[0] > HANDOVER_S + EPS]:
-            del self._drops[pid]
-
     def _apply(self, rule: Rule, ctx: Seen) -> list[Event]:
         if isinstance(rule, PersonDownRule):
-            return self._person_down(rule, ctx)
+            return self.falls.person_down(rule, ctx)
         if isinstance(rule, LoneWorkerRule):
             return self._lone_worker(rule, ctx)
         if isinstance(rule, WorkPositionRule):
@@ -162,154 +143,6 @@ class BehaviourMonitor:
         if isinstance(rule, ImmobileRule):
             return self._immobile(rule, ctx)
         return self._overreach(rule, ctx)
-
-    # -- events ----------------------------------------------------------------------------
-
-    def _event(
-        self,
-        rule: Rule,
-        pid: int,
-        person: Tracked,
-        type_: str,
-        t: float,
-        frame: int,
-        onset_t: float,
-        **more,
-    ) -> Event:
-        posture = person.posture.posture if person.posture is not None else None
-        more.setdefault("posture", posture)
-        return Event(
-            t=t,
-            frame=frame,
-            person=pid,
-            zone=more.pop("zone", None) or "",
-            kind=BEHAVIOUR_KIND,
-            type=type_,
-            onset_t=float(onset_t),
-            position=person.position,
-            rule=rule.name,
-            **more,
-        )
-
-    # -- person_down -----------------------------------------------------------------------
-
-    def _person_down(self, rule: PersonDownRule, c: Seen) -> list[Event]:
-        person, t = c.person, c.base["t"]
-        st = person.down.setdefault(rule.name, DownState())
-        pos = person.posture
-        if pos is None or c.people.predicted[c.p]:
-            return self._down_timer(rule, c.pid, person, t, c.base["frame"])
-        out: list[Event] = []
-        if st.fall_t is None:
-            fast = math.isfinite(pos.drop_m_s) and pos.drop_m_s >= rule.fall_speed_m_s
-            low = math.isfinite(pos.trunk_m) and pos.trunk_m - pos.ground_m <= rule.floor_m
-            if fast and low:
-                st.fall_t, st.speed = t, pos.drop_m_s
-            elif low and t - person.first_seen <= HANDOVER_S + EPS:
-                st = self._handover(rule, c.pid, person, t) or st
-            if st.fall_t is None and rule.lying_s is not None:
-                return self._found_lying(rule, c, st)
-        if st.fall_t is None:
-            return out
-        if not st.down:
-            if pos.posture == "lying":
-                st.down = True
-            elif t - st.fall_t > rule.settle_s + EPS:  # not a fall: they never lay
-                person.down[rule.name] = DownState()
-                return out
-        if st.down:
-            change = st.up.step(pos.upright, t, rule.up_s, 0.0)
-            if change == "rose":  # up again
-                if st.raised:
-                    out.append(
-                        self._event(
-                            rule,
-                            c.pid,
-                            person,
-                            "person_up",
-                            t,
-                            c.base["frame"],
-                            onset_t=st.up.onset,
-                            duration_s=float(st.up.onset - st.fall_t),
-                        )
-                    )
-                person.down[rule.name] = DownState()
-                return out
-        out.extend(self._down_timer(rule, c.pid, person, t, c.base["frame"]))
-        return out
-
-    def _handover(
-        self, rule: PersonDownRule, pid: int, person: Tracked, t: float
-    ) -> DownState | None:
-        """A person first seen on the floor where another track, not seen now, had just
-        dropped fast: the tracker lost the body as it fell and gave it a new id. The fall (and
-        the old track's down state, if it had one) goes to the new id."""
-        if person.position is None:
-            return None
-        x, y = person.position
-        best = None
-        for other, (t0, ox, oy, speed) in self._drops.items():
-            if other == pid or other in self._seen_now or t - t0 > HANDOVER_S + EPS:
-                continue
-            d = math.hypot(ox - x, oy - y)
-            if d <= HANDOVER_M and speed >= rule.fall_speed_m_s and (best is None or d < best[0]):
-                best = (d, other, t0, speed)
-        if best is None:
-            return None
-        _, other, t0, speed = best
-        old = self.people.get(other)
-        st = old.down.pop(rule.name, None) if old is not None else None
-        if st is None or st.fall_t is None:
-            st = DownState(fall_t=t0, speed=speed)
-        person.down[rule.name] = st
-        return st
-
-    def _found_lying(self, rule: PersonDownRule, c: Seen, st: DownState) -> list[Event]:
-        """lying_s: a person lying that long without a fall seen (it happened out of view, or
-        before the start) is down as well."""
-        t = c.base["t"]
-        lying = c.person.posture is not None and c.person.posture.posture == "lying"
-        if st.lying.step(lying, t, rule.lying_s, 0.0) != "rose":
-            return []
-        st.fall_t, st.down, st.raised = st.lying.began, True, True
-        return [
-            self._event(
-                rule,
-                c.pid,
-                c.person,
-                "person_down",
-                t,
-                c.base["frame"],
-                onset_t=st.fall_t,
-                duration_s=float(t - st.fall_t),
-                posture="lying",
-            )
-        ]
-
-    def _down_timer(
-        self, rule: PersonDownRule, pid: int, person: Tracked, t: float, frame: int
-    ) -> list[Event]:
-        st = person.down.get(rule.name)
-        if st is None or not st.down or st.raised or st.fall_t is None:
-            return []
-        if t - st.fall_t < rule.down_s - EPS:
-            return []
-        st.raised = True
-        person.detail[rule.name] = {}
-        return [
-            self._event(
-                rule,
-                pid,
-                person,
-                "person_down",
-                t,
-                frame,
-                onset_t=st.fall_t,
-                duration_s=float(t - st.fall_t),
-                speed_m_s=float(st.speed),
-                posture="lying",
-            )
-        ]
 
     # -- lone_worker -----------------------------------------------------------------------
 
@@ -325,7 +158,7 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": zone}
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -341,7 +174,7 @@ class BehaviourMonitor:
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -406,7 +239,7 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": hand_zone}
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -423,7 +256,7 @@ class BehaviourMonitor:
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -462,7 +295,7 @@ class BehaviourMonitor:
             if t - st.moved_since >= rule.move_s - EPS:
                 if st.raised:
                     out.append(
-                        self._event(
+                        rule_event(
                             rule,
                             c.pid,
                             person,
@@ -487,7 +320,7 @@ class BehaviourMonitor:
         if not st.raised and t - st.since >= rule.immobile_s - EPS:
             st.raised = True
             out.append(
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -517,7 +350,7 @@ class BehaviourMonitor:
         if change == "rose":
             person.detail[rule.name] = {"zone": zone}
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -533,7 +366,7 @@ class BehaviourMonitor:
         if change == "fell":
             began = latch.began if latch.began is not None else t
             return [
-                self._event(
+                rule_event(
                     rule,
                     c.pid,
                     person,
@@ -566,7 +399,7 @@ class BehaviourMonitor:
                 if end and latch is not None and latch.state:
                     detail = person.detail.get(rule.name, {})
                     out.append(
-                        self._event(
+                        rule_event(
                             rule,
                             pid,
                             person,
@@ -582,7 +415,7 @@ class BehaviourMonitor:
                 st = person.still.get(rule.name)
                 if isinstance(rule, ImmobileRule) and st is not None and st.raised:
                     out.append(
-                        self._event(
+                        rule_event(
                             rule,
                             pid,
                             person,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sites (
@@ -70,6 +71,16 @@ CREATE INDEX IF NOT EXISTS room_incidents_open ON room_incidents(site, kind, sta
 # columns an earlier version's store lacks: (table, column, declaration)
 ADDED = (("sites", "incident_mark", "INTEGER NOT NULL DEFAULT 0"),)
 SCHEMA_LOCK = 0x5354_4552_4551  # PostgreSQL advisory lock held while the tables are made
+
+
+@dataclass(frozen=True)
+class SiteRow:
+    site: str
+    mark: int
+    state: str
+    last_seen: float | None
+    health: dict | None
+    events: int = 0  # events stored
 
 
 class Dialect:

@@ -3,14 +3,14 @@ incidents, the acknowledgements asked of them and the control room's own inciden
 
 SQLite by default (WAL, one writer: the ingest's thread; readers open their own read-only
 connections) in the control room's output folder (`control.sqlite`), or PostgreSQL for a
-fleet (`[control_room] database = "postgresql://..."`, psycopg 3: one writing connection, one
-reading connection, each reconnected when the server was away). The same tables and
-statements serve both (`Dialect` turns the few words that differ). The events table's primary
-key is (site, id): an event sent twice (a QoS 1 resend, a replay, a bridge's duplicates) is
-stored once, and the duplicate counted. A site's mark (the highest id stored with nothing
-missing before it, site.outbox's protocol) is kept with the site, in the same transaction
-as the events that raise it, so a control room killed at any moment restarts with a mark
-that only names what it holds.
+fleet (`[control_room] database = "postgresql://..."`, psycopg 3: one writing connection,
+one reading connection, each reconnected when the server was away): the tables and
+statements of controlroom.schema serve both. The events table's primary key is (site, id):
+an event sent twice (a QoS 1 resend, a replay, a bridge's duplicates) is stored once, and
+the duplicate counted. A site's mark (the highest id stored with nothing missing before it,
+site.outbox's protocol) is kept with the site, in the same transaction as the events that
+raise it, so a control room killed at any moment restarts with a mark that only names what
+it holds.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ import re
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from urllib.request import pathname2url
 
@@ -35,6 +34,7 @@ from stereopose.controlroom.schema import (
     SCHEMA_LOCK,
     Dialect,
     Run,
+    SiteRow,
     change_row,
     event_row,
     of_sites,
@@ -50,16 +50,6 @@ MAX_LIMIT = 1000
 
 class StoreError(StereoposeError):
     """The control room's store cannot be opened, read or written."""
-
-
-@dataclass(frozen=True)
-class SiteRow:
-    site: str
-    mark: int
-    state: str
-    last_seen: float | None
-    health: dict | None
-    events: int = 0  # events stored
 
 
 class ControlStore:
