@@ -345,8 +345,12 @@ class Event:
     person's `posture`, `nearest_m` (the nearest other person, lone_worker), `facing_deg` (the
     direction faced, degrees counter-clockwise from world +x) and `failed` (the conditions that
     failed, comma-separated: work_position), `height_m` (the wrist's height, overreach) and
-    `speed_m_s` (how fast the hips dropped, person_down). Its JSON record (the events contract)
-    is io.records.event_record.
+    `speed_m_s` (how fast the hips dropped, person_down). Ticket events (kind "ticket",
+    stereopose.tickets: step_done, step_out_of_order, step_wrong_position, step_timeout,
+    supervisor_absent, supervisor_back, lone_in_room, lone_in_room_end, ticket_started,
+    ticket_completed) name their `ticket` and `step`; a zone event in a zone an active ticket
+    isolated has kind "isolated" and the ticket's id. Its JSON record (the events contract) is
+    io.records.event_record.
     """
 
     t: float
@@ -377,3 +381,8 @@ class Event:
     # and that incident's priority (1 critical .. 4 low; None for info events)
     incident: int | None = None
     priority: int | None = None
+    # ticket events (kind "ticket", stereopose.tickets) and zone events in a zone a ticket
+    # isolated (kind "isolated"): the ticket's id, the step's name, and ticket_completed's result
+    ticket: str | None = None
+    step: str | None = None
+    result: dict | None = None

@@ -255,6 +255,10 @@ class IncidentBook:
         self._burst = (t, inc.id)
 
     def _clear(self, key: HazardKey, t: float, changes: list[Change]) -> None:
+        if key[0] == "ticket" and len(key) == 2:  # every hazard of the ticket
+            for k in [k for k in self._by_key if k[:2] == key and len(k) > 2]:
+                self._clear(k, t, changes)
+            return
         i = self._by_key.get(key)
         inc = self._by_id.get(i) if i is not None else None
         if inc is None:

@@ -10,6 +10,13 @@ hazard an event concerns is its key (`hazard_key`):
     ("camera", camera)                camera_down / camera_up
     ("calibration", camera)           calibration_drift / calibration_recovered
     ("service",)                      service_stalled / service_resumed
+    ("ticket", ticket, step)          a step's deviation (out of order, wrong position,
+                                      timeout), cleared when the step is done
+    ("ticket", ticket, "supervisor")  supervisor_absent / supervisor_back
+    ("ticket", ticket, "lone")        lone_in_room / lone_in_room_end
+
+ticket_completed clears every open incident of its ticket (the key ("ticket", ticket) stands
+for all of them).
 
 A camera's picture and its calibration are two hazards: a camera that comes back does not
 make its drifted calibration good again, so camera_up must not clear a calibration incident.
@@ -30,6 +37,7 @@ __all__ = [
     "BEHAVIOUR_ALARMS",
     "BEHAVIOUR_ENDS",
     "INFO",
+    "TICKET_ALARMS",
     "WARNING",
     "HazardKey",
     "clears",
@@ -57,7 +65,11 @@ DIAGNOSTIC_ENDS = {
     "calibration_drift": "calibration_recovered",
     "service_stalled": "service_resumed",
 }
-_ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS
+# a ticket's deviations (stereopose.tickets.monitor); the supervisor's and the lone worker's end
+TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
+TICKET_STEP_ALARMS = frozenset({"step_out_of_order", "step_wrong_position", "step_timeout"})
+TICKET_ALARMS = TICKET_STEP_ALARMS | frozenset(TICKET_ENDS)
+_ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS | TICKET_ALARMS
 _WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
 _ENDS = frozenset(BEHAVIOUR_ENDS.values()) | frozenset(DIAGNOSTIC_ENDS.values())
 
@@ -79,6 +91,8 @@ def hazard_key(event: Event) -> HazardKey | None:
     one; None for an event that concerns no hazard (an enter of a work area is no hazard, but
     it ends a left_work_area: see `clears`)."""
     t = event.type
+    if event.kind == "ticket":
+        return _ticket_key(event)
     if t == "left_work_area":
         return ("left_work_area", event.zone, event.person)
     if t in BEHAVIOUR_ALARMS or (event.rule is not None and t in _ENDS):
@@ -94,6 +108,17 @@ def hazard_key(event: Event) -> HazardKey | None:
     return None
 
 
+def _ticket_key(event: Event) -> HazardKey | None:
+    t, ticket = event.type, event.ticket or ""
+    if t in TICKET_STEP_ALARMS or t == "step_done":
+        return ("ticket", ticket, event.step or "")
+    if t in ("supervisor_absent", "supervisor_back"):
+        return ("ticket", ticket, "supervisor")
+    if t in ("lone_in_room", "lone_in_room_end"):
+        return ("ticket", ticket, "lone")
+    return None
+
+
 def raises(event: Event) -> bool:
     """Whether the event activates its hazard's incident (an alarm or a warning)."""
     return level(event.kind, event.type) != INFO
@@ -105,6 +130,11 @@ def clears(event: Event) -> list[HazardKey]:
     an absence from it (left_work_area), `<type>_end` / person_up / camera_up /
     calibration_recovered / service_resumed end theirs."""
     t = event.type
+    if event.kind == "ticket":
+        if t == "ticket_completed":
+            return [("ticket", event.ticket or "")]
+        key = _ticket_key(event)
+        return [key] if key is not None and t not in TICKET_ALARMS else []
     if t == "exit" and event.zone:
         return [("zone", event.zone, event.person)]
     if t == "enter" and event.zone:

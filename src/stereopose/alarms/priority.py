@@ -70,6 +70,8 @@ def default_priority(kind: str, type_: str) -> int:
         return HIGH
     if type_ in _RULE_PRIORITY:
         return _RULE_PRIORITY[type_]
+    if type_ in ("supervisor_absent", "lone_in_room"):
+        return HIGH
     if kind in ("camera", "service") or type_ in ("camera_down", "calibration_drift"):
         return LOW
     return MEDIUM  # restricted entries, dwells, leaving a work area

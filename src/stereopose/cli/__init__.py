@@ -50,6 +50,12 @@ def _add_reconstruct(r: argparse.ArgumentParser, e: argparse.ArgumentParser) -> 
     )
     r.add_argument("--webhook", metavar="URL", help="POST each zone event as JSON to this URL")
     r.add_argument(
+        "--ticket",
+        type=Path,
+        metavar="TICKET.toml",
+        help="a work or operation ticket, active from the first frame to the last (needs --site)",
+    )
+    r.add_argument(
         "--overwrite",
         action="store_true",
         help="replace the person files a previous run left in the --trc folder",
@@ -79,6 +85,12 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         "--overwrite",
         action="store_true",
         help="replace the outputs of a previous run in the output folder",
+    )
+    parsers["run"].add_argument(
+        "--ticket",
+        type=Path,
+        metavar="TICKET.toml",
+        help="a work or operation ticket, active from the first frame to the last",
     )
     _add_serve(parsers["serve"])
     _add_points(parsers["points"])

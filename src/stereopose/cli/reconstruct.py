@@ -36,10 +36,14 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from stereopose.fence import load_site
     from stereopose.io.sinks import describe
     from stereopose.pipeline import Outputs, reconstruct_files
+    from stereopose.tickets import load_ticket
 
     site = load_site(args.site) if args.site else None
-    if site is None and (args.events or args.events_db or args.webhook):
-        raise StereoposeError("--events, --events-db and --webhook need a site file (--site)")
+    ticket = load_ticket(args.ticket) if args.ticket else None
+    if site is None and (args.events or args.events_db or args.webhook or ticket):
+        raise StereoposeError(
+            "--events, --events-db, --webhook and --ticket need a site file (--site)"
+        )
     if site is not None and site.fps and args.fps is None:
         cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
@@ -72,6 +76,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
                 on_events=show if site is not None else None,
                 config_path=args.config,
                 overwrite=args.overwrite,
+                ticket=ticket,
             )
         except IncompleteOutputError as e:  # the work is done: its table first, then exit 3
             incomplete, summary = e, e.summary

@@ -163,11 +163,16 @@ def _export_int8(models, args: argparse.Namespace) -> Path:
     return models.quantize_int8(src, target)
 
 
-def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
+def _run_config(
+    config_path: Path, title: str, overwrite: bool = False, ticket_path: Path | None = None
+) -> int:
     if not Path(config_path).exists():  # at once, before the pipeline is imported
         raise ConfigError(f"{config_path}: configuration file not found")
     from stereopose.io.sinks import describe
     from stereopose.pipeline.run import run
+    from stereopose.tickets import load_ticket
+
+    ticket = load_ticket(ticket_path) if ticket_path is not None else None
 
     progress = rate_progress("running")
     with progress:
@@ -186,6 +191,7 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
                 ),
                 on_events=show,
                 overwrite=overwrite,
+                ticket=ticket,
             )
         except IncompleteOutputError as e:  # the run is done: its table first, then exit 3
             incomplete, summary = e, e.summary
@@ -246,7 +252,7 @@ def _run_config(config_path: Path, title: str, overwrite: bool = False) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    return _run_config(args.config, f"run {args.config}", args.overwrite)
+    return _run_config(args.config, f"run {args.config}", args.overwrite, args.ticket)
 
 
 def _init(args: argparse.Namespace) -> int:

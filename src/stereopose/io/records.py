@@ -22,6 +22,7 @@ Behaviour events (kind "behaviour") add `rule` and, where they apply, `posture`,
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -71,6 +72,9 @@ EVENT_COLUMNS = (
     "speed_m_s",
     "incident",
     "priority",
+    "ticket",
+    "step",
+    "result",
 )
 # the behaviour events' optional fields: (name, decimals; None for text)
 _BEHAVIOUR_FIELDS = (
@@ -244,6 +248,12 @@ def event_record(e: Event) -> dict:
             d[key] = value if nd is None else _round(value, nd)
     d["incident"] = e.incident  # always there: null for info events (or no incident book)
     d["priority"] = e.priority
+    if e.ticket is not None:
+        d["ticket"] = e.ticket
+    if e.step is not None:
+        d["step"] = e.step
+    if e.result is not None:
+        d["result"] = e.result
     return d
 
 
@@ -280,7 +290,20 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
         },
         incident=None if d.get("incident") is None else int(d["incident"]),
         priority=None if d.get("priority") is None else int(d["priority"]),
+        ticket=None if d.get("ticket") is None else str(d["ticket"]),
+        step=None if d.get("step") is None else str(d["step"]),
+        result=_result(d.get("result")),
     )
+
+
+def _result(value: Any) -> dict | None:
+    """ticket_completed's result: a dict, or its JSON text (an SQLite row's)."""
+    if value is None or isinstance(value, dict):
+        return value
+    doc = json.loads(str(value))
+    if not isinstance(doc, dict):
+        raise ValueError(f"a ticket's result is an object, got {type(doc).__name__}")
+    return doc
 
 
 def _optional_float(value: Any) -> float | None:
@@ -319,4 +342,7 @@ def event_row(e: Event, run: int) -> tuple:
         e.speed_m_s,
         e.incident,
         e.priority,
+        e.ticket,
+        e.step,
+        None if e.result is None else json.dumps(e.result, separators=(",", ":")),
     )

@@ -27,6 +27,7 @@ import numpy as np
 
 from stereopose.alarms import AlarmRates, Change, IncidentBook, IncidentRecord
 from stereopose.alarms.incident import IncidentError
+from stereopose.tickets import TicketDesk
 from stereopose.types import Event, People3D
 
 __all__ = ["IncidentStep"]
@@ -53,8 +54,10 @@ class IncidentStep:
         outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
         clock: Callable[[], float],
         wall_start: float | None = None,
+        tickets: TicketDesk | None = None,
     ) -> None:
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
+        self.tickets = tickets
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
@@ -70,6 +73,26 @@ class IncidentStep:
         if self.rules is not None:
             more, postures = self.rules.step(t, frame, people)
             events = [*events, *more]
+        if self.tickets is not None:  # the tickets' step, then their isolated zones' entries
+            mine = self.tickets.step(t, frame, people, postures)  # made info
+            events = [*self.tickets.relabel(events), *mine]
+        return self._book(t, events), postures
+
+    def finish(self, t: float, frame: int) -> list[Event]:
+        """The events of the input's end at its last step (every active ticket completed),
+        through the book like a step's."""
+        if self.tickets is None:
+            return []
+        events = self.tickets.finish(t, frame)
+        return self._book(t, events) if events else []
+
+    @property
+    def ends_with_source(self) -> bool:
+        """Whether the end of the input ends something (a ticket active to the last frame)."""
+        return self.tickets is not None and bool(self.tickets.active_or_starting())
+
+    def _book(self, t: float, events: list[Event]) -> list[Event]:
+        """The events through the book, each alarm-level one stamped with its incident."""
         top_up = getattr(self.book.next_id, "top_up", None)
         if top_up is not None:  # ids reserved ahead: the book never waits for the log's lock
             top_up()
@@ -80,7 +103,7 @@ class IncidentStep:
             self.waiting.clear()
             out = [self._stamped(e, i) for e, i in zip(events, up.incidents, strict=True)]
         self._publish(changes)
-        return out, postures
+        return out
 
     def _stamped(self, e: Event, incident: int | None) -> Event:
         if incident is None:

@@ -37,6 +37,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.tickets.ticket import Ticket
 from stereopose.types import Event, People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
@@ -103,6 +104,15 @@ class StepRules(Protocol):
     the people's postures (None: no posture rules), given to every sink in FrameResult."""
 
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]: ...
+
+
+class EndingRules(StepRules, Protocol):
+    """Rules the input's end ends something of (`ends_with_source`: a ticket active to the
+    last frame): `finish` gives the events of the end, at the last step."""
+
+    ends_with_source: bool
+
+    def finish(self, t: float, frame: int) -> list[Event]: ...
 
 
 class SiteRules:
@@ -181,11 +191,16 @@ class FrameLoop:
         total = self.source.total
         it = iter(self.source)
         tracked = getattr(self.source, "tracked", None)
+        # the input's end ends something (a ticket active to the last frame): each step is
+        # read one ahead, so the last one is known as it is processed
+        ahead = bool(getattr(self.rules, "ends_with_source", False))
+        upcoming = None
         done = 0
         while not self.stop.is_set():
             t0 = time.perf_counter()
             with self.interrupt.wait():
-                step = next(it, None)
+                step = next(it, None) if upcoming is None else upcoming
+                upcoming = next(it, None) if ahead and step is not None else None
             t1 = time.perf_counter()
             sec[first] += t1 - t0
             if step is None:
@@ -203,6 +218,8 @@ class FrameLoop:
             events, postures = [], None
             if self.rules is not None:
                 events, postures = self.rules.step(step.t, step.frame, people3d)
+                if ahead and upcoming is None:  # the last step
+                    events = [*events, *self.rules.finish(step.t, step.frame)]
             t3 = time.perf_counter()
             sec["fences"] += t3 - t2
             result = FrameResult(
@@ -262,6 +279,7 @@ def run_frames(
     on_events: Callable[[list[Event]], None] | None = None,
     stop: threading.Event | None = None,
     on_step: Callable[[int, int | None, float], None] | None = None,
+    ticket: Ticket | None = None,
     **summary_fields: object,
 ) -> RunSummary:
     """A whole run: the 3D stage (its compiled loops loaded first), the fences of `site` and
@@ -296,7 +314,7 @@ def run_frames(
     )
     behaviour = behaviour_monitor(site, config)
     if fences is not None:  # the service's incidents: the same book, ids and priorities
-        incidents = run_incidents(site, fences, behaviour, sinks)
+        incidents = run_incidents(site, fences, behaviour, sinks, ticket)
         loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step, stop=stop)
     else:
         loop = FrameLoop(source, stage, sinks, summary, on_step=on_step, stop=stop)
@@ -307,17 +325,28 @@ def run_frames(
 
 
 def run_incidents(
-    site: Site, fences: FenceMonitor, behaviour: BehaviourMonitor | None, sinks: Sequence[Sink]
+    site: Site,
+    fences: FenceMonitor,
+    behaviour: BehaviourMonitor | None,
+    sinks: Sequence[Sink],
+    ticket: Ticket | None = None,
 ):
     """The incident book of `serve` over a run's events (pipeline.incidents): each
     alarm-level event stamped with its incident's id and priority as the service would (ids
-    from 1, the run's own), the incidents' records stored in the run's event log."""
+    from 1, the run's own), the incidents' records stored in the run's event log. ticket:
+    active from the first step to the last (its ticket_completed at the last)."""
     from stereopose.alarms import IncidentBook
     from stereopose.alarms.priority import AlarmSettings
     from stereopose.io.sinks import SqliteSink
     from stereopose.pipeline.incidents import IncidentStep
+    from stereopose.tickets import TicketDesk
 
     db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
+    desk = None
+    if ticket is not None:
+        desk = TicketDesk(site.zones)
+        desk.add(ticket)
+        desk.start(ticket.id, "run")
     # a run takes no operator's act and is not asked for its alarm figures: no clock to read
     return IncidentStep(
         IncidentBook(AlarmSettings.from_site(site)),
@@ -326,4 +355,5 @@ def run_incidents(
         fences,
         outputs=[db.write_changes] if db is not None else [],
         clock=lambda: 0.0,
+        tickets=desk,
     )

@@ -32,6 +32,7 @@ from stereopose.pipeline.paths import (
 )
 from stereopose.pipeline.sources import KeypointFiles
 from stereopose.sim import Metrics, Scene, evaluate
+from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
 
 logger = logging.getLogger(__name__)
@@ -50,6 +51,7 @@ def reconstruct_files(
     stop: threading.Event | None = None,
     config_path: str | Path | None = None,
     overwrite: bool = False,
+    ticket: Ticket | None = None,
     **files: object,
 ) -> RunSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
@@ -92,6 +94,7 @@ def reconstruct_files(
         raise KeypointsError(f"{pose_dir}: no keypoint files (*.json) in the camera folders")
     rig = rig.subset(seq.cameras)
     check_outputs(config, site, outputs)
+    check_ticket_site(ticket, site)
     if outputs.trc_dir is not None:
         trc = Place("--trc folder", outputs.trc_dir)
         remove_outputs(previous_outputs(trc, pattern_products(TRC_PATTERNS), overwrite, inputs))
@@ -108,6 +111,7 @@ def reconstruct_files(
         on_events=on_events,
         stop=stop,
         on_step=on_step,
+        ticket=ticket,
     )
     if summary.frames_read == 0:
         first = summary.skipped_files[0] if summary.skipped_files else ("", "")

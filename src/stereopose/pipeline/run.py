@@ -48,6 +48,7 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.sources import Cameras, check_size
 from stereopose.secrets import masked_toml
+from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
 
 __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
@@ -175,6 +176,7 @@ def run(
     on_events: Callable[[list[Event]], None] | None = None,
     stop: threading.Event | None = None,
     overwrite: bool = False,
+    ticket: Ticket | None = None,
 ) -> RunSummary:
     """Run the configuration at ``config_path`` end to end; returns what it did.
 
@@ -199,6 +201,7 @@ def run(
     out_dir = resolve(base, cfg.output)
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
+    check_ticket_site(ticket, site)
     inputs = _inputs(config_path, calib_path, site_path, sources, model)
     inputs += [
         Place(f"cameras[{i}].detect", Path(d))
@@ -246,4 +249,5 @@ def run(
             on_step=on_step,
             out_dir=out_dir,
             config_path=config_path,
+            ticket=ticket,
         )

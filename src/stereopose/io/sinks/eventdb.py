@@ -151,6 +151,9 @@ ADDED_COLUMNS = (
     ("events", "speed_m_s", "REAL"),
     ("events", "incident", "INTEGER"),
     ("events", "priority", "INTEGER"),
+    ("events", "ticket", "TEXT"),
+    ("events", "step", "TEXT"),
+    ("events", "result", "TEXT"),
 )
 
 
