@@ -87,11 +87,12 @@ def console_server(
     users: bool = True,
     events: bool = True,
     settings: ServeSettings | None = None,
+    app_kw: dict | None = None,
     **server_kw,
 ) -> Iterator[Served]:
     """A real server over `out` with the console; users: the three of ROLES added; events:
     an event log opened by the real sink (its wall_start WALL_START); plan: the demo's plan
-    (its rig and site feed a live hub; None: no hub)."""
+    (its rig and site feed a live hub; None: no hub); app_kw: more of create_app's keywords."""
     out.mkdir(parents=True, exist_ok=True)
     store = UserStore.in_folder(out, hasher=fast_hasher())
     if users:
@@ -106,7 +107,7 @@ def console_server(
         hub = LiveHub(plan.rig, plan.site, state, EventLog(out / "events.sqlite", out / "clips"))
     console = Console.in_folder(out, hub, users=store)
     server = Server(
-        create_app(state, console=console),
+        create_app(state, console=console, **(app_kw or {})),
         settings or ServeSettings(port=0),
         users=store.count,
         **server_kw,

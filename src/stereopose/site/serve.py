@@ -353,6 +353,7 @@ def _incidents(
         outputs=service.incident_outputs,
         clock=clock,
         wall_start=wall_start,
+        tickets=service.tickets,
     )
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics

@@ -42,6 +42,7 @@ from stereopose.site.plan import (
 )
 from stereopose.site.restart import Resume
 from stereopose.site.storage import StorageMaintainer
+from stereopose.tickets import TicketDesk
 
 __all__ = ["SiteService"]
 
@@ -72,6 +73,8 @@ class SiteService:
         self.opcua = None  # the OPC UA server, once started
         self.watchdog = Watchdog()  # the receivers' threads started again where one died
         self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
+        # the site's tickets (none without a site: no zones to name)
+        self.tickets = TicketDesk(plan.site.zones) if plan.site is not None else None
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -87,7 +90,13 @@ class SiteService:
         self.probes["console"] = hub.figures
         self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
         hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
-        app = create_app(self.state, console=self.console, allowed_hosts=hosts, incidents=self.desk)
+        app = create_app(
+            self.state,
+            console=self.console,
+            allowed_hosts=hosts,
+            incidents=self.desk,
+            tickets=self.tickets,
+        )
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)

@@ -107,12 +107,12 @@ class Ticket:
             "isolated": list(self.isolated),
             "supervise_m": self.supervise_m,
             "absent_s": self.absent_s,
-            "lone_s": self.lone_s,
+            "lone_s": self.lone_s if self.lone_s is not None else False,
             "roles": roles,
             "steps": [
                 {
                     k: (list(v) if isinstance(v, tuple) else v)
-                    for k, v in vars(s).items()
+                    for k, v in {**vars(s), "max_s": s.max_s or False}.items()
                     if v is not None
                 }
                 for s in self.steps
@@ -176,7 +176,7 @@ def parse_ticket(doc: Any, where: str = "the ticket") -> Ticket:
         ),
         supervise_m=_number(doc.get("supervise_m", 3.0), f"{where}: supervise_m", 0.1, 100.0),
         absent_s=_number(doc.get("absent_s", 10.0), f"{where}: absent_s", 0.0, 86400.0),
-        lone_s=None if lone is False else _number(lone, f"{where}: lone_s", 0.0, 86400.0),
+        lone_s=None if lone in (None, False) else _number(lone, f"{where}: lone_s", 0.0, 86400.0),
         path=where if where != "the ticket" else "",
     )
 

@@ -43,6 +43,7 @@ from stereopose.site.http.api import (
 )
 from stereopose.site.http.hosts import HostCheck
 from stereopose.site.http.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
+from stereopose.tickets import TicketDesk
 
 logger = logging.getLogger(__name__)
 
@@ -62,13 +63,15 @@ def create_app(
     console: object | None = None,
     allowed_hosts: Iterable[str] | None = None,
     incidents: IncidentDesk | None = None,
+    tickets: TicketDesk | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
     and stops with the server (the frame loop, the sinks); console: the console's parts
     (site.http.web.Console); allowed_hosts: the Host names served
     (site.http.hosts.allowed_hosts; None: any); incidents: the incident desk (site.desk: the
-    incident book once it runs; None: a desk of its own, never attached)."""
+    incident book once it runs; None: a desk of its own, never attached); tickets: the site's
+    tickets (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503)."""
     app = FastAPI(
         title="stereopose",
         version=__version__,  # shown only with a session (api.docs serves /openapi.json)
@@ -82,6 +85,7 @@ def create_app(
     app.state.service = state
     app.state.console = console
     app.state.incidents = incidents if incidents is not None else IncidentDesk()
+    app.state.tickets = tickets
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     error_answers.add_handlers(app)
@@ -90,9 +94,9 @@ def create_app(
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
-    from stereopose.site.http.api import incidents
+    from stereopose.site.http.api import incidents, tickets
 
-    for router in (auth, people, events, incidents, cameras, zones, clips, live, users):
+    for router in (auth, people, events, incidents, tickets, cameras, zones, clips, live, users):
         app.include_router(router.router)
     docs.mount_docs(app)
     page.mount_page(app)
