@@ -6,8 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tests.consoled import console_server
-
+from consoled import console_server
 from stereopose.alarms import IncidentBook
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.fence import FenceMonitor
