@@ -101,18 +101,11 @@ class Stage(Protocol):
 class StepRules(Protocol):
     """A step's rules as the frame loop asks them: `step` returns the step's events (zones,
     behaviour; with their incidents where the rules keep an incident book: IncidentStep) and
-    the people's postures (None: no posture rules), given to every sink in FrameResult."""
+    the people's postures (None: no posture rules), given to every sink in FrameResult.
+    Rules whose `ends_with_source` is true (a ticket active to the last frame) also have
+    `finish(t, frame)`: the events of the input's end, added to the last step's."""
 
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]: ...
-
-
-class EndingRules(StepRules, Protocol):
-    """Rules the input's end ends something of (`ends_with_source`: a ticket active to the
-    last frame): `finish` gives the events of the end, at the last step."""
-
-    ends_with_source: bool
-
-    def finish(self, t: float, frame: int) -> list[Event]: ...
 
 
 class SiteRules:

@@ -23,6 +23,7 @@ applies. The ground truth of the rules is the same monitor on the true joints (t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -318,6 +319,45 @@ def _work(rng, panels, duration_s, num_people):
     return scripts
 
 
+def acted_scene(
+    actors: Sequence[Actor],
+    rig,
+    noise: DetectorNoise,
+    fps: float,
+    num_frames: int,
+    room: tuple[float, float, float],
+    detect_rng: np.random.Generator,
+    difficulty: str,
+    seed: int,
+) -> Scene:
+    """The scene of scripted workers: their joints per frame (kept MIN_APART_M apart) and the
+    detector's view of them in every camera of `rig`."""
+    T, N, floor = num_frames, len(actors), room[:2]
+    truth = np.full((T, N, NUM_JOINTS, 3), np.nan)
+    present = np.zeros((T, N), dtype=bool)
+    xy = np.zeros((N, T, 2))
+    for n, a in enumerate(actors):
+        sig = a.signals(T, fps)
+        xy[n] = np.column_stack([sig["x"], sig["y"]])
+        present[:, n] = sig["present"]
+    xy = keep_apart(xy, present.T, MIN_APART_M, fps, floor)
+    for n, a in enumerate(actors):
+        truth[:, n], _ = a.track(T, fps, xy[n])
+    detections, labels = detect(truth, rig, noise, detect_rng, floor)
+    return Scene(
+        rig=rig,
+        fps=float(fps),
+        truth=truth,
+        present=present,
+        ids=np.arange(1, N + 1, dtype=np.int64),
+        detections=detections,
+        detection_truth=labels,
+        difficulty=difficulty,
+        seed=int(seed),
+        room=room,
+    )
+
+
 def simulate_behaviour(
     kind: str = "falls",
     seed: int = 0,
@@ -374,28 +414,8 @@ def simulate_behaviour(
             )
         )
         falls += script_falls[n]
-    truth = np.full((T, N, NUM_JOINTS, 3), np.nan)
-    present = np.zeros((T, N), dtype=bool)
-    xy = np.zeros((N, T, 2))
-    for n, a in enumerate(actors):
-        sig = a.signals(T, fps)
-        xy[n] = np.column_stack([sig["x"], sig["y"]])
-        present[:, n] = sig["present"]
-    xy = keep_apart(xy, present.T, MIN_APART_M, fps, floor)
-    for n, a in enumerate(actors):
-        truth[:, n], _ = a.track(T, fps, xy[n])
-    detections, labels = detect(truth, rig, noise, np.random.default_rng([seed, 2]), floor)
-    scene = Scene(
-        rig=rig,
-        fps=float(fps),
-        truth=truth,
-        present=present,
-        ids=np.arange(1, N + 1, dtype=np.int64),
-        detections=detections,
-        detection_truth=labels,
-        difficulty=difficulty,
-        seed=int(seed),
-        room=room,
+    scene = acted_scene(
+        actors, rig, noise, fps, T, room, np.random.default_rng([seed, 2]), difficulty, seed
     )
     zones = tuple(z for p in panels for z in (p.energized, p.work_area))
     return BehaviourScene(

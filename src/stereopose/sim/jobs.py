@@ -25,12 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.fence import Site, Zone
-from stereopose.sim.behaviour import _Script
-from stereopose.sim.detections import DetectorNoise, detect
-from stereopose.sim.motion import keep_apart
+from stereopose.sim.behaviour import _Script, acted_scene
+from stereopose.sim.detections import DetectorNoise
 from stereopose.sim.postures import Actor
-from stereopose.sim.scene import MIN_APART_M, Scene, ScenePreset, make_rig
-from stereopose.skeleton import NUM_JOINTS
+from stereopose.sim.scene import Scene, ScenePreset, make_rig
 from stereopose.tickets.ticket import Ticket, TicketStep
 
 __all__ = ["VARIANTS", "JobScene", "job_site", "simulate_job"]
@@ -255,29 +253,9 @@ def simulate_job(
                 seed=int(wrng.integers(2**31)),
             )
         )
-    T, N = round(duration_s * fps), len(actors)
-    truth = np.full((T, N, NUM_JOINTS, 3), np.nan)
-    present = np.zeros((T, N), dtype=bool)
-    xy = np.zeros((N, T, 2))
-    for n, a in enumerate(actors):
-        sig = a.signals(T, fps)
-        xy[n] = np.column_stack([sig["x"], sig["y"]])
-        present[:, n] = sig["present"]
-    xy = keep_apart(xy, present.T, MIN_APART_M, fps, floor)
-    for n, a in enumerate(actors):
-        truth[:, n], _ = a.track(T, fps, xy[n])
-    detections, labels = detect(truth, rig, noise, np.random.default_rng([seed, 9]), floor)
-    scene = Scene(
-        rig=rig,
-        fps=float(fps),
-        truth=truth,
-        present=present,
-        ids=np.arange(1, N + 1, dtype=np.int64),
-        detections=detections,
-        detection_truth=labels,
-        difficulty=difficulty,
-        seed=int(seed),
-        room=ROOM,
+    rng = np.random.default_rng([seed, 9])
+    scene = acted_scene(
+        actors, rig, noise, fps, round(duration_s * fps), ROOM, rng, difficulty, seed
     )
     ticket = work_ticket() if variant == "neighbour_live" else operation_ticket()
     return JobScene(

@@ -208,13 +208,13 @@ class TicketDesk:
             "ended_by": e.ended_by,
             "steps_total": len(e.ticket.steps),
             "steps_done": sum(1 for s in m.steps if s.done_t is not None),
-            "deviations": len(m.deviations),
+            "deviations": sum(m.deviation_counts.values()),
         }
         if steps:
             out["steps"] = m.progress()
             out["ticket"] = e.ticket.to_dict()
             out["result"] = m.result() if e.state in (COMPLETED, ABORTED) else None
-            out["deviation_list"] = list(m.deviations[-100:])
+            out["deviation_list"] = list(m.deviations)
         return out
 
 

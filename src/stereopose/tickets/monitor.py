@@ -27,6 +27,7 @@ concerns one, and the operator as its person (-1 before one is bound).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +42,7 @@ __all__ = ["TICKET_KIND", "TicketMonitor"]
 TICKET_KIND = "ticket"
 GAP_S = 0.4  # a hand out of the target this long at most does not break its hold
 REBIND_S = 5.0  # an "auto" role's person unseen this long is let go
+MAX_DEVIATIONS = 100  # the latest deviations listed (all counted)
 EPS = 1e-6
 
 
@@ -85,7 +87,8 @@ class TicketMonitor:
         self.absent = False
         self.lone_since: float | None = None
         self.lone = False
-        self.deviations: list[dict] = []
+        self.deviations: deque[dict] = deque(maxlen=MAX_DEVIATIONS)  # the latest
+        self.deviation_counts: dict[str, int] = {}  # every one, by type
 
     # -- the frame's -----------------------------------------------------------------------
 
@@ -136,15 +139,13 @@ class TicketMonitor:
             for s, x in zip(st, self.steps, strict=True)
             if x.done_t is not None and x.in_order and not x.failed
         ]
-        counts: dict[str, int] = {}
-        for d in self.deviations:
-            counts[d["type"]] = counts.get(d["type"], 0) + 1
+        counts = dict(self.deviation_counts)
         return {
             "steps": len(st),
             "done": done,
             "done_in_order": in_order,
             "missed": missed,
-            "deviations": len(self.deviations),
+            "deviations": sum(counts.values()),
             "by_type": counts,
             "operator": self.operator,
             "supervisor": self.supervisor,
@@ -338,7 +339,7 @@ class TicketMonitor:
             self.absent_since = None
             if self.absent:
                 self.absent = False
-                return [self._event("supervisor_back", t, frame, t, role_person=sup)]
+                return [self._event("supervisor_back", t, frame, t)]
             return []
         if self.absent_since is None:
             self.absent_since = t
@@ -391,6 +392,7 @@ class TicketMonitor:
         self, type_: str, t: float, frame: int, onset: float, s: TicketStep | None, **more
     ) -> Event:
         self.deviations.append({"type": type_, "t": t, "step": s.name if s else None})
+        self.deviation_counts[type_] = self.deviation_counts.get(type_, 0) + 1
         if s is not None:
             more.setdefault("step", s.name)
             more.setdefault("zone", s.position)
@@ -398,7 +400,6 @@ class TicketMonitor:
 
     def _event(self, type_: str, t: float, frame: int, onset: float, **more) -> Event:
         person = more.pop("person", None)
-        more.pop("role_person", None)
         if person is None:
             person = self.operator if self.operator is not None else -1
         return Event(
