@@ -58,3 +58,32 @@ def test_the_demo_site_raises_a_work_position_and_a_lone_worker_alarm(shared_dat
     }
     assert ("reach_from_work_area", "work_position") in raised
     assert ("alone_at_busbar", "lone_worker") in raised
+
+
+@pytest.mark.parametrize("rounds", [1, 5])
+def test_the_demo_recording_follows_the_demo_ticket(shared_data_dir, tmp_path, rounds):
+    """The walker opens QS1 then closes QE1 from their front, the man on the treadmill beside
+    him: both steps done in order, no deviation, played once (`make demo`) or looped (`serve
+    --demo`)."""
+    data = resources.files("stereopose") / "data"
+    site = tmp_path / "demo_site.toml"
+    site.write_text((data / "demo_site.toml").read_text())
+    ticket = tmp_path / "demo_ticket.toml"
+    ticket.write_text((data / "demo_ticket.toml").read_text())
+    pose = _looped(shared_data_dir / "pose", tmp_path / "pose", rounds)
+    events = tmp_path / "events.jsonl"
+    argv = ["reconstruct", "--calib", str(shared_data_dir / "calib.toml"), "--pose", str(pose)]
+    argv += ["--out", str(tmp_path / "poses.jsonl"), "--fps", "60", "--site", str(site)]
+    argv += ["--events", str(events), "--ticket", str(ticket)]
+    assert main(argv) == 0
+    ticket_events = [
+        e for e in map(json.loads, events.read_text().splitlines()) if e["kind"] == "ticket"
+    ]
+    done = [e["step"] for e in ticket_events if e["type"] == "step_done"]
+    assert done == ["open isolator QS1", "close earthing switch QE1"]
+    deviations = {"step_out_of_order", "step_wrong_position", "step_timeout"}
+    assert not [e for e in ticket_events if e["type"] in deviations | {"supervisor_absent"}]
+    (completed,) = [e for e in ticket_events if e["type"] == "ticket_completed"]
+    result = completed["result"]
+    assert result["done_in_order"] == done and result["missed"] == [] and result["deviations"] == 0
+    assert result["operator"] != result["supervisor"] and result["supervisor"] is not None

@@ -15,19 +15,19 @@ from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeErro
 def _demo(args: argparse.Namespace) -> int:
     if args.synthetic:
         return _demo_synthetic(args)
-    from stereopose.pipeline.demo import write_demo_config
+    from stereopose.pipeline.demo import TICKET, write_demo_config
 
     config = write_demo_config(args.out)
     overwrite = args.overwrite or _previous_demo(Path(args.out), config)
     out.print(
         "[bold]Real demo[/]: Pose2Sim's multi-person recording, 4 cameras (1088x1920, 60 fps), "
-        f"its Qualisys calibration and a demo site -> {config}"
+        f"its Qualisys calibration, a demo site and an operation ticket -> {config}"
     )
-    title = "Real demo: detection, 3D reconstruction, tracking, zone events"
-    rc = _run_config(config, title, overwrite)
+    title = "Real demo: detection, 3D reconstruction, tracking, zone and ticket events"
+    rc = _run_config(config, title, overwrite, Path(args.out) / TICKET)
     out.print(
-        f"open {Path(args.out) / 'report.html'} in a browser; overlay videos in "
-        f"{Path(args.out) / 'overlays'}",
+        f"open {Path(args.out) / 'report.html'} in a browser (the ticket followed: "
+        f"{Path(args.out) / 'ticket.html'}); overlay videos in {Path(args.out) / 'overlays'}",
         highlight=False,
         soft_wrap=True,
     )

@@ -44,6 +44,9 @@ class ServeConfig:
     # client address they forward (X-Forwarded-For) counts for the login limits instead of
     # theirs; anyone else's X-Forwarded-For is ignored
     trusted_proxies: tuple[str, ...] = ()
+    # work and operation tickets (files, relative to the config file) on the ticket desk from
+    # the start, planned: started from the console or over the API (docs/formats.md#tickets)
+    tickets: tuple[str, ...] = ()
 
 
 @_schema("mqtt")

@@ -8,6 +8,7 @@ from pathlib import Path
 from stereopose.io.pose2sim_data import pose2sim_demo_dir
 
 CAMERAS = ("cam01", "cam02", "cam03", "cam04")
+TICKET = "demo_ticket.toml"
 
 
 def _toml_str(s: str) -> str:
@@ -15,12 +16,15 @@ def _toml_str(s: str) -> str:
 
 
 def write_demo_config(out_dir: str | Path) -> Path:
-    """Fetch the demo files (once) and write ``<out_dir>/demo.toml`` and ``demo_site.toml``."""
+    """Fetch the demo files (once) and write ``<out_dir>/demo.toml``, ``demo_site.toml`` and
+    the demo's operation ticket ``demo_ticket.toml``, which its recording follows."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     demo = pose2sim_demo_dir() / "Demo_MultiPerson"
     site = resources.files("stereopose") / "data" / "demo_site.toml"
     (out_dir / "demo_site.toml").write_text(site.read_text(encoding="utf-8"), encoding="utf-8")
+    ticket = resources.files("stereopose") / "data" / TICKET
+    (out_dir / TICKET).write_text(ticket.read_text(encoding="utf-8"), encoding="utf-8")
     lines = [
         "# The real demo: Pose2Sim's multi-person recording (4 cameras, 1088x1920, 60 fps) with",
         "# its Qualisys calibration, through YOLO11n-pose, 3D reconstruction, tracking and fences.",
@@ -66,6 +70,7 @@ def write_serve_demo_config(
         "[serve]",
         'host = "127.0.0.1"',
         f"port = {int(port)}",
+        f"tickets = [{_toml_str(TICKET)}]  # planned: started from the console",
         "",
     ]
     if detect_fps is not None:

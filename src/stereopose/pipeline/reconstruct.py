@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import shutil
 import threading
@@ -12,7 +13,7 @@ from pathlib import Path
 from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.config import Config
 from stereopose.detection.openpose import read_pose_dir
-from stereopose.errors import KeypointsError
+from stereopose.errors import KeypointsError, StereoposeError
 from stereopose.fence import Site, save_site
 from stereopose.io.results import load_people3d
 from stereopose.io.summary import RunSummary, write_summary
@@ -32,7 +33,7 @@ from stereopose.pipeline.paths import (
 )
 from stereopose.pipeline.sources import KeypointFiles
 from stereopose.sim import Metrics, Scene, evaluate
-from stereopose.tickets.ticket import Ticket, check_ticket_site
+from stereopose.tickets.ticket import TICKET_JSON, Ticket, check_ticket_site
 from stereopose.types import Event, Rig
 
 logger = logging.getLogger(__name__)
@@ -122,11 +123,20 @@ def reconstruct_files(
     return summary
 
 
-def save_inputs(out_dir: Path, rig: Rig, site: Site | None) -> None:
-    """The calibration and site a run used, which the report is rebuilt from."""
+def save_inputs(out_dir: Path, rig: Rig, site: Site | None, ticket: Ticket | None = None) -> None:
+    """The calibration, site and ticket a run used, which the reports are rebuilt from (a
+    ticket of an earlier run in the folder removed)."""
     save_calibration(out_dir / "calib.toml", rig)
     if site is not None:
         save_site(out_dir / "site.toml", site)
+    path = out_dir / TICKET_JSON
+    if ticket is None:
+        path.unlink(missing_ok=True)
+        return
+    try:
+        path.write_text(json.dumps(ticket.to_dict(), indent=1), encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot write the ticket: {e.strerror}") from None
 
 
 def write_reconstruction_report(
@@ -136,6 +146,7 @@ def write_reconstruction_report(
     site: Site | None,
     poses_path: Path,
     events_path: Path | None = None,
+    ticket: Ticket | None = None,
 ) -> Path:
     """A run folder and its report for a reconstruction from keypoint files (no cameras)."""
     from stereopose.viz.report import write_report
@@ -144,7 +155,7 @@ def write_reconstruction_report(
     for src, name in ((poses_path, "poses3d.jsonl"), (events_path, "events.jsonl")):
         if src is not None and Path(src).resolve() != (out_dir / name).resolve():
             shutil.copyfile(src, out_dir / name)
-    save_inputs(out_dir, load_calibration(calib_path), site)
+    save_inputs(out_dir, load_calibration(calib_path), site, ticket)
     write_summary(out_dir / "summary.json", summary)
     return write_report(out_dir)
 

@@ -235,7 +235,7 @@ def run(
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
         copy_config(config_path, out_dir / "config.toml", secret=_holds_secrets(cfg))
-        save_inputs(out_dir, rig, site)
+        save_inputs(out_dir, rig, site, ticket)
         return run_frames(
             rig,
             cfg,

@@ -35,6 +35,7 @@ from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.secrets import redact
 from stereopose.site.http.server import ServeSettings
 from stereopose.site.storage import RetentionSettings
+from stereopose.tickets.ticket import Ticket, check_ticket_site, load_ticket
 from stereopose.types import Rig
 
 _GB = 10**9
@@ -61,6 +62,7 @@ class ServePlan:
     segments: SegmentSettings
     clips: ClipSettings | None
     retention: RetentionSettings
+    tickets: tuple[Ticket, ...] = ()
 
     @property
     def events_db(self) -> Path:
@@ -186,9 +188,26 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
         segments=segments,
         clips=clips,
         retention=retention,
+        tickets=_tickets(path, base, cfg, site),
     )
     _check_places(plan)
     return plan
+
+
+def _tickets(path: Path, base: Path, cfg: Config, site: Site | None) -> tuple[Ticket, ...]:
+    """`[serve] tickets`: each file loaded and checked against the site; ids unique."""
+    out: list[Ticket] = []
+    for i, name in enumerate(cfg.serve.tickets):
+        if site is None:
+            raise ConfigError(f"{path}: serve.tickets[{i}]: tickets need a site file (`site`)")
+        ticket = load_ticket(resolve(base, name))
+        check_ticket_site(ticket, site)
+        if any(t.id == ticket.id for t in out):
+            raise ConfigError(
+                f"{path}: serve.tickets[{i}]: {ticket.path}: ticket id {ticket.id!r} is taken"
+            )
+        out.append(ticket)
+    return tuple(out)
 
 
 class _NoTwoWay:

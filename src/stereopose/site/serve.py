@@ -305,6 +305,8 @@ def _run_loop(
         config_path=plan.config_path,
     )
     wall_start = cams.clock.start_epoch
+    if service.tickets is not None:
+        service.tickets.wall_start = wall_start  # the tickets' times shown as wall times too
     start_mono = cams.clock.start
 
     def arrival(t: float) -> float | None:

@@ -75,6 +75,8 @@ class SiteService:
         self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
         # the site's tickets (none without a site: no zones to name)
         self.tickets = TicketDesk(plan.site.zones) if plan.site is not None else None
+        for ticket in plan.tickets:
+            self.tickets.add(ticket)  # planned: started from the console or the API
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}

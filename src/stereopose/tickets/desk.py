@@ -57,6 +57,7 @@ class TicketDesk:
         self._entries: dict[str, _Entry] = {}
         self._isolating: dict[str, str] = {}  # zone -> the active ticket isolating it
         self.forgotten = 0
+        self.wall_start: float | None = None  # the Unix time of t = 0 (serve's), if any
 
     # -- the API's --------------------------------------------------------------------------
 
@@ -210,12 +211,23 @@ class TicketDesk:
             "steps_done": sum(1 for s in m.steps if s.done_t is not None),
             "deviations": sum(m.deviation_counts.values()),
         }
+        wall = self._wall
+        out["started_wall"], out["ended_wall"] = wall(e.started_t), wall(e.ended_t)
         if steps:
-            out["steps"] = m.progress()
+            out["steps"] = [
+                {**s, "done_wall": wall(s["done_t"]), "onset_wall": wall(s["onset_t"])}
+                for s in m.progress()
+            ]
             out["ticket"] = e.ticket.to_dict()
             out["result"] = m.result() if e.state in (COMPLETED, ABORTED) else None
-            out["deviation_list"] = list(m.deviations)
+            out["deviation_list"] = [{**d, "wall_t": wall(d["t"])} for d in m.deviations]
         return out
+
+    def _wall(self, t: float | None) -> float | None:
+        """A ticket time (the loop's t) as Unix time, where the desk knows its clock."""
+        if t is None or self.wall_start is None:
+            return None
+        return round(self.wall_start + t, 3)
 
 
 def _info(ticket: Ticket, type_: str, t: float, frame: int) -> Event:

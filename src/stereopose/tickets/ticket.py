@@ -17,6 +17,8 @@ from stereopose.errors import ConfigError
 
 __all__ = [
     "KINDS",
+    "TICKET_HTML",
+    "TICKET_JSON",
     "Ticket",
     "TicketStep",
     "check_ticket_site",
@@ -26,6 +28,8 @@ __all__ = [
 ]
 
 KINDS = ("operation", "work")
+TICKET_JSON = "ticket.json"  # the ticket a run followed, in its folder (the report's)
+TICKET_HTML = "ticket.html"  # that ticket's report
 POSTURES = ("standing", "walking", "bending", "crouching", "lying")  # behaviour.posture's
 MAX_STEPS = 200
 MAX_TEXT = 200

@@ -26,6 +26,7 @@ from stereopose.extras import require
 from stereopose.fence import load_site
 from stereopose.io.results import read_poses
 from stereopose.io.sinks.events import read_events
+from stereopose.tickets.ticket import TICKET_HTML, TICKET_JSON
 from stereopose.types import Event
 from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
 from stereopose.viz.report_figures import (
@@ -46,6 +47,8 @@ from stereopose.viz.report_tables import (
 # a runtime install has no plotly: say which extra to install, not an ImportError
 require("plotly", "report", "the HTML report (report.html)")
 from plotly.offline import get_plotlyjs  # noqa: E402
+
+from stereopose.viz.report_ticket import ticket_report, view_from_events  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
@@ -179,11 +182,53 @@ def build_report(run_dir: str | Path) -> str:
 
 
 def write_report(run_dir: str | Path) -> Path:
-    """Write ``<run_dir>/report.html``; returns its path."""
+    """Write ``<run_dir>/report.html`` (and ``ticket.html`` when the run followed a ticket,
+    ``ticket.json``); returns the report's path."""
     path = Path(run_dir) / "report.html"
     text = build_report(run_dir)
     try:
         path.write_text(text, encoding="utf-8")
     except OSError as e:
         raise StereoposeError(f"{path}: cannot write the report: {e.strerror}") from None
+    write_ticket_report(run_dir)
+    return path
+
+
+def write_ticket_report(run_dir: str | Path) -> Path | None:
+    """``<run_dir>/ticket.html`` from the run's ticket.json, events and 3D poses; None (and
+    an old ticket.html removed) when the run followed no ticket."""
+    run_dir = Path(run_dir)
+    path, saved = run_dir / TICKET_HTML, run_dir / TICKET_JSON
+    if not saved.is_file():
+        path.unlink(missing_ok=True)
+        return None
+    try:
+        ticket = json.loads(_read_text(saved, "the run's ticket"))
+        if not isinstance(ticket, dict) or not isinstance(ticket.get("steps"), list):
+            raise ValueError("not a ticket")
+    except ValueError as e:
+        raise StereoposeError(f"{saved}: not a ticket: {e}") from None
+    records = []
+    events_path = run_dir / "events.jsonl"
+    if events_path.is_file():
+        for line in _read_text(events_path, "the events").splitlines():
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue  # a damaged line: build_report has said so
+            if isinstance(rec, dict):
+                records.append(rec)
+    site = load_site(run_dir / "site.toml") if (run_dir / "site.toml").is_file() else None
+    poses, _ = _load_poses(run_dir / "poses3d.jsonl")
+    frames = [
+        {"t": t, "people": [{"id": p["id"], "joints": p["joints"]} for p in people]}
+        for _, t, people in poses
+    ]
+    text = ticket_report(
+        view_from_events(ticket, records), site.zones if site is not None else (), frames
+    )
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise StereoposeError(f"{path}: cannot write the ticket's report: {e.strerror}") from None
     return path

@@ -64,7 +64,8 @@ def test_segments_start_on_whole_multiples_of_wall_time(tmp_path: Path) -> None:
     assert sink.close() == []
 
 
-def test_segment_lines_are_the_poses_lines(tmp_path: Path) -> None:
+def test_segment_lines_are_the_poses_lines_with_their_wall_time(tmp_path: Path) -> None:
+    """Each line is the poses3d.jsonl line, its keys in order, with `wall_t` after `t`."""
     plain = PosesSink(tmp_path / "poses3d.jsonl", 5.0)
     segments = SegmentSink(tmp_path, 5.0, wall_start=WALL)
     for f in range(12):
@@ -72,7 +73,14 @@ def test_segment_lines_are_the_poses_lines(tmp_path: Path) -> None:
         segments.write(frame(f))
     plain.close()
     (path,) = segments.close()
-    assert gzip.decompress(path.read_bytes()) == (tmp_path / "poses3d.jsonl").read_bytes()
+    lines = gzip.decompress(path.read_bytes()).decode().splitlines()
+    expected = (tmp_path / "poses3d.jsonl").read_text().splitlines()
+    assert len(lines) == len(expected) == 12
+    for line, want in zip(lines, expected, strict=True):
+        rec = json.loads(line)
+        assert rec.pop("wall_t") == round(WALL + rec["t"], 3)
+        assert list(rec) == list(json.loads(want)) and rec == json.loads(want)
+        assert line.startswith(f'{{"frame":{rec["frame"]},"t":')
 
 
 def test_flushed_frames_are_on_disk_before_close(tmp_path: Path) -> None:

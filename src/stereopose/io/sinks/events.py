@@ -201,8 +201,20 @@ def describe(e: Event) -> str:
             extra.append(f"nearest {e.nearest_m:.1f} m")
         if e.height_m is not None:
             extra.append(f"at {e.height_m:.2f} m")
+    if e.ticket is not None:  # a ticket's event: which ticket, which step, what went wrong
+        if e.rule is None and e.failed:
+            extra.append(f"failed: {e.failed}")
+        if e.result is not None and "done" in e.result:
+            extra.append(
+                f"{len(e.result['done'])}/{e.result.get('steps', '?')} steps done, "
+                f"{e.result.get('deviations', 0)} deviations"
+            )
     more = f" ({', '.join(extra)})" if extra else ""
     where = f"{e.rule}{' ' + e.zone if e.zone else ''}" if e.rule is not None else e.zone
+    if e.ticket is not None:
+        where = (
+            f"{e.ticket}{': ' + repr(e.step) if e.step else ''}{' at ' + e.zone if e.zone else ''}"
+        )
     return (
         f"t={e.t:8.2f}s frame {e.frame:6d}  person {e.person:3d}  {e.type:14s} "
         f"{where} [{e.kind}]{more}"

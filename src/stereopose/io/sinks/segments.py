@@ -1,12 +1,12 @@
 """3D poses in time segments for a service that runs for weeks: `poses/<start>.jsonl.gz`.
 
-Each segment holds the lines of poses3d.jsonl (io.records.frame_record, the same contract)
-for `segment_s` seconds, gzip-compressed, and is named from the UTC wall time of its first
-frame (`20240501-130000.jsonl.gz`; `_001`, `_002`, ... after it when that name is taken: a
-file is never overwritten). A frame's wall time is `wall_start + frame.t`: `wall_start` is the
-Unix time at which the source's clock read 0 (for live cameras, io.video's
-`clock.start_epoch`). Segments begin at whole multiples of `segment_s` of wall time (on the
-hour by default), so the maintainer (site.storage) can drop them by age.
+Each segment holds the lines of poses3d.jsonl (io.records.frame_record, the same contract, plus
+each frame's Unix time `wall_t` after its `t`) for `segment_s` seconds, gzip-compressed, and is
+named from the UTC wall time of its first frame (`20240501-130000.jsonl.gz`; `_001`, `_002`, ...
+after it when that name is taken: a file is never overwritten). A frame's wall time is
+`wall_start + frame.t`: `wall_start` is the Unix time at which the source's clock read 0 (for
+live cameras, io.video's `clock.start_epoch`). Segments begin at whole multiples of `segment_s`
+of wall time (on the hour by default), so the maintainer (site.storage) can drop them by age.
 
 Lines are kept in memory for at most `segment_flush_s` of frame time (and 1 MiB), then
 appended as one complete gzip member: a writer killed at any moment leaves a file that
@@ -115,7 +115,10 @@ class SegmentSink(ClosesOnce):
         if self._buf_wall is None:
             self._buf_wall = wall
             self._flush_t = t + self.settings.segment_flush_s
-        record = frame_record(frame.people3d, self.fps, frame.postures)
+        rec = frame_record(frame.people3d, self.fps, frame.postures)
+        # the frame's Unix time after its t, near the line's start: the replay (site.replay)
+        # finds a time window without parsing the lines before it
+        record = {"frame": rec["frame"], "t": rec["t"], "wall_t": round(wall, 3), **rec}
         self._buf += (json.dumps(record, separators=(",", ":")) + "\n").encode()
         self._buffered += 1
         self._t = t

@@ -94,9 +94,10 @@ def create_app(
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
-    from stereopose.site.http.api import incidents, tickets
+    from stereopose.site.http.api import incidents, replay, tickets
 
-    for router in (auth, people, events, incidents, tickets, cameras, zones, clips, live, users):
+    routers = (auth, people, events, incidents, tickets, replay, cameras, zones, clips, live, users)
+    for router in routers:
         app.include_router(router.router)
     docs.mount_docs(app)
     page.mount_page(app)

@@ -2,7 +2,8 @@
 
 `Console.in_folder(out_dir, ...)` builds them over a service's output folder: the users
 (`users.json`), the sessions and the login limit (in memory), the event log and its
-acknowledgements (`events.sqlite`), the clips folder (`clips/`) and the live hub.
+acknowledgements (`events.sqlite`), the clips folder (`clips/`), the pose segments (`poses/`,
+for the 3D replay) and the live hub.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB
+from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB, POSES_DIR
 from stereopose.site.acks import AckStore
 from stereopose.site.eventlog import EventLog
 from stereopose.site.http.auth import LoginLimiter, Sessions
@@ -31,6 +32,7 @@ class Console:
     acks: AckStore | None = None
     clips_dir: Path | None = None
     hub: LiveHub | None = None
+    poses_dir: Path | None = None  # the pose segments the 3D replay reads (None: no replay)
 
     @classmethod
     def in_folder(
@@ -46,6 +48,7 @@ class Console:
             acks=AckStore(out / EVENTS_DB),
             clips_dir=clips,
             hub=hub,
+            poses_dir=out / POSES_DIR,
         )
 
     def close(self) -> None:

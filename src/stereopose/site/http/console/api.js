@@ -44,15 +44,17 @@ async function detailOf(response) {
   }
 }
 
-/** `method` `path` with an optional JSON body; the parsed JSON answer (null for 204). */
-export async function call(path, { method = "GET", body } = {}) {
+/** `method` `path` with an optional JSON body (or `text` of the media `type`); the parsed JSON
+ * answer (null for 204). */
+export async function call(path, { method = "GET", body, text, type } = {}) {
   const headers = { Accept: "application/json" };
   if (method !== "GET" && method !== "HEAD") headers["X-CSRF-Token"] = csrf() || "";
   if (body !== undefined) headers["Content-Type"] = "application/json";
+  if (text !== undefined) headers["Content-Type"] = type;
   const response = await fetch(path, {
     method,
     headers,
-    body: body === undefined ? undefined : JSON.stringify(body),
+    body: text !== undefined ? text : body === undefined ? undefined : JSON.stringify(body),
     credentials: "same-origin",
     cache: "no-store",
   });
@@ -102,6 +104,14 @@ export function query(filters) {
 
 export const events = (filters = {}) => call(`/api/events${query(filters)}`);
 export const incidents = (filters = {}) => call(`/api/incidents${query(filters)}`);
+export const poses = (filters) => call(`/api/poses${query(filters)}`);
+export const tickets = () => call("/api/tickets");
+export const ticket = (id) => call(`/api/tickets/${encodeURIComponent(id)}`);
+export const addTicket = (toml) => call("/api/tickets", { method: "POST", text: toml, type: "application/toml" });
+export const ticketAct = (id, act, body) => call(
+  `/api/tickets/${encodeURIComponent(id)}/${act}`, { method: "POST", body },
+);
+export const ticketReportUrl = (id) => `/api/tickets/${encodeURIComponent(id)}/report`;
 export const eventsCsvUrl = (filters = {}) => `/api/events.csv${query(filters)}`;
 
 /**

@@ -6,6 +6,8 @@ import { CameraStrip } from "./cameras.js";
 import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
+import { Replay } from "./replay.js";
+import { Tickets } from "./tickets.js";
 import { View3D } from "./view3d.js";
 
 const byId = (id) => document.getElementById(id);
@@ -38,7 +40,9 @@ class Console {
       this.strip.showRegions(on);
     });
     this.view3d = new View3D(byId("view3d"), byId("view3d-info"));
-    this.history = new History();
+    this.replay = new Replay();
+    this.history = new History(this.replay);
+    this.tickets = new Tickets(this.replay);
     this.feed = new Feed({
       list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
       bannerAck: byId("alarm-ack"), bannerAckAll: byId("alarm-ack-all"), counter: byId("alarm-count"), mute: byId("mute"),
@@ -94,6 +98,8 @@ class Console {
     this.strip.show(false);
     this.strip.closeLarge();
     this.view3d.show(false);
+    this.tickets.show(false);
+    this.replay.close();
     this.feed.sound.sounding(false);
     this.user = null;
     byId("console").hidden = true;
@@ -143,6 +149,7 @@ class Console {
     byId("user").textContent = `${user.username} (${user.role})`;
     document.body.dataset.role = user.role;
     this.feed.setRole(user.role);
+    this.tickets.setRole(user.role);
     byId("login").hidden = true;
     byId("console").hidden = false;
     this.live.start();
@@ -173,6 +180,7 @@ class Console {
    * drawing never queues up ahead of an alarm. */
   onPeople(body) {
     this.view3d.setPeople(body.people || []);
+    this.tickets.setPeople(body.people || []);
     const pending = this.pendingPeople;
     this.pendingPeople = body;
     if (pending) return;
@@ -189,6 +197,8 @@ class Console {
     this.floor.setZones(zones);
     this.view3d.setZones(zones);
     this.history.setZones(zones);
+    this.tickets.setZones(zones);
+    this.replay.setZones(zones);
   }
 
   /** All of /api/cameras at the start; later the live channel's health (maybe only that). */
@@ -328,6 +338,7 @@ class Console {
     }
     this.strip.show(name === "live");
     this.view3d.show(name === "view3d");
+    this.tickets.show(name === "tickets" && !!this.user);
     if (name === "history" && this.user) this.history.search();
   }
 }

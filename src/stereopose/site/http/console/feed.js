@@ -58,6 +58,8 @@ export function describe(e) {
   if (e.zone) parts.push(e.zone);
   if (e.kind && e.zone && e.kind !== e.zone) parts.push(`(${e.kind})`);
   if (e.rule) parts.push(`(rule ${e.rule})`);
+  if (e.ticket) parts.push(`(ticket ${e.ticket}${e.step ? `, step ${e.step}` : ""})`);
+  if (e.failed && e.ticket) parts.push(`· wrong: ${e.failed}`);
   if (e.camera && !String(e.type).startsWith("camera")) parts.push(`· ${e.camera}`);
   else if (e.camera && !e.zone) parts.push(e.camera);
   return parts.join(" ");
@@ -79,6 +81,7 @@ export function describeIncident(rec, zoneKinds = new Map()) {
   if (rec.rule) parts.push(`(rule ${rec.rule})`);
   if (rec.camera && !rec.zone) parts.push(rec.camera);
   if (rec.key && rec.key[0] === "service") parts.push("(the service)");
+  if (rec.key && rec.key[0] === "ticket") parts.push(`(ticket ${rec.key[1]}, ${rec.key[2]})`);
   if (rec.last_type && rec.last_type !== worst) parts.push(`· now ${typeText(rec.last_type)}`);
   return parts.join(" ");
 }

@@ -50,7 +50,8 @@ function clipFile(url) {
 const clipUrl = (url) => `/api/clips/${encodeURIComponent(clipFile(url))}`;
 
 export class History {
-  constructor() {
+  constructor(replay) {
+    this.replay = replay;
     this.form = byId("history-form");
     this.rows = byId("h-rows");
     this.more = byId("h-more");
@@ -85,6 +86,7 @@ export class History {
     });
     this.form.addEventListener("input", () => this.updateCsv());
     this.more.addEventListener("click", () => this.search(true));
+    byId("h-replay").addEventListener("click", () => this.replayWindow());
     this.updateCsv();
   }
 
@@ -106,6 +108,22 @@ export class History {
       zone: this.zoneSelect.value,
       type: this.typeSelect.value,
     };
+  }
+
+  /** The 3D replay of the From..To window (an open end: the last 10 minutes up to To, or
+   * from From). */
+  replayWindow() {
+    const f = this.filters();
+    const now = Date.now() / 1000;
+    let until = f.until ? Number(f.until) : now;
+    let since = f.since ? Number(f.since) : until - 600;
+    if (f.since && !f.until) until = Math.min(now, since + 600);
+    if (until <= since) {
+      this.info.textContent = "the replay's To must be after its From";
+      return;
+    }
+    since = Math.max(since, until - 3 * 3600);
+    this.replay.open({ since, until, title: "History in 3D" });
   }
 
   updateCsv() {

@@ -7,7 +7,7 @@ import { inDanger } from "./floorplan.js";
 
 const PERIOD_MS = 500;
 // COCO-17 limbs (joint indices)
-const LIMBS = [
+export const LIMBS = [
   [0, 1], [0, 2], [1, 3], [2, 4], [5, 6], [5, 7], [7, 9], [6, 8], [8, 10], [5, 11], [6, 12],
   [11, 12], [11, 13], [13, 15], [12, 14], [14, 16],
 ];
@@ -15,7 +15,7 @@ const ZONE_COLOURS = { free: "#4caf50", occupied: "#ffb020", alarm: "#ff3b3b" };
 
 let loading = null;
 
-function loadPlotly() {
+export function loadPlotly() {
   if (window.Plotly) return Promise.resolve(window.Plotly);
   if (!loading) {
     loading = new Promise((resolve, reject) => {
@@ -69,8 +69,9 @@ function heads(people, zones) {
   };
 }
 
-/** A zone's prism: its floor polygon at the bottom and top of its height band, as edges. */
-function prism(zone) {
+/** A zone's prism: its floor polygon at the bottom and top of its height band, as edges
+ * (coloured by its state; `highlight`: drawn thick, a ticket step's target or position). */
+export function prism(zone, highlight = false) {
   const [lo, hi] = zone.z || [0, 2];
   const poly = zone.polygon || [];
   const x = [];
@@ -94,7 +95,8 @@ function prism(zone) {
   const state = zone.state || "free";
   return {
     type: "scatter3d", mode: "lines", name: `${plain(zone.name)} (${plain(state)})`, x, y, z,
-    line: { color: ZONE_COLOURS[state] || "#999999", width: state === "alarm" ? 7 : 3 },
+    line: { color: highlight ? "#79c0ff" : (ZONE_COLOURS[state] || "#999999"),
+      width: highlight || state === "alarm" ? 7 : 3 },
     hoverinfo: "name",
   };
 }
@@ -156,7 +158,7 @@ export class View3D {
     this.dirty = false;
     this.drawing = true;
     const traces = [
-      ...this.zones.map(prism),
+      ...this.zones.map((z) => prism(z)),
       cameraMarkers(this.cameras),
       ...this.people.map((p) => skeleton(p, this.zones)),
       heads(this.people, this.zones),
