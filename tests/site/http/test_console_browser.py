@@ -29,6 +29,7 @@ import time
 import urllib.error
 import urllib.request
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -660,6 +661,162 @@ def test_the_regions_toggle_shows_where_detection_looked(watched, served):
     assert box and frame and box["width"] > 0 and box["width"] <= frame["width"] + 1
     page.click("#regions-toggle")
     assert not page.is_visible(f"{card} .regions")
+
+
+_FACING = """id = "OT-FACING"
+title = "The demo's steps, facing +y"
+kind = "operation"
+[roles]
+operator = "auto"
+[[steps]]
+name = "open isolator QS1 facing +y"
+position = "qs1_front"
+target = "qs1_handle"
+hold_s = 0.1
+facing_deg = 90.0
+tolerance_deg = 10.0
+"""
+
+_STEPS = """() => [...document.querySelectorAll('#t-steps li.t-step')].map(
+    (li) => [li.dataset.step, li.dataset.state])"""
+_DEMO_STEPS = ["open isolator QS1", "close earthing switch QE1"]
+
+
+def _steps(page) -> list[list[str]]:
+    return page.evaluate(_STEPS)
+
+
+def _walker_x(page, base: str) -> float | None:
+    """The walker's floor x (the one person standing between the treadmill and the
+    bystander), from /api/people."""
+    people = page.request.get(base + "/api/people").json().get("people", [])
+    xs = [
+        p["position"][0]
+        for p in people
+        if p.get("position") and -1.8 < p["position"][0] < -0.4 and -0.5 < p["position"][1] < 0.4
+    ]
+    return xs[0] if len(xs) == 1 else None
+
+
+def _start_at_the_recordings_start(page, base: str) -> None:
+    """Start the chosen ticket as the looped recording begins again (the walker back at his
+    start, about 0.25 s before his first step's action): started at any other moment, the
+    loop would show him doing the second step first."""
+    previous = None
+
+    def restarted() -> bool:
+        nonlocal previous
+        x = _walker_x(page, base)
+        back = previous is not None and x is not None and previous > -1.0 and x < -1.25
+        previous = x if x is not None else previous
+        return back
+
+    wait_until(restarted, "the recording's loop starting again", timeout_s=60, poll_s=0.02)
+    page.click("#t-start")
+
+
+def _ticks_in_order(page, base: str, tid: str) -> bool:
+    """Start `tid` (chosen) at the loop's start and watch its steps tick: True when both
+    ticked in order, False when the second came first (the start was late: ended)."""
+    page.wait_for_selector(f'#t-title:has-text("{tid}")', timeout=10_000)
+    page.wait_for_selector("#t-start:visible", timeout=10_000)
+    _start_at_the_recordings_start(page, base)
+    page.wait_for_selector('#t-state[data-state="active"]', timeout=30_000)
+    seen: list[list[list[str]]] = []
+
+    def ticked() -> bool:
+        now = _steps(page)
+        if not seen or seen[-1] != now:
+            seen.append(now)
+        return all(state == "done" for _, state in now)
+
+    wait_until(ticked, f"both steps of {tid} done", timeout_s=120, poll_s=0.05)
+    assert [name for name, _ in seen[-1]] == _DEMO_STEPS
+    if any(first == "open" and second == "done" for (_, first), (_, second) in seen):
+        assert page.locator("#t-steps li.t-out-of-order").count() == 1
+        page.click("#t-end")
+        return False
+    assert page.locator("#t-steps li.t-out-of-order").count() == 0
+    return True
+
+
+def test_a_ticket_started_in_the_console_ticks_its_steps_and_replays_one(watched, served):
+    """The demo's operation ticket, planned by the service's configuration, started from the
+    Tickets tab: its two steps tick in order as the walker does them (started as the looped
+    recording begins again; a start too late for the first step is ended, and a copy started
+    at the next loop); a ticket added in the page (its TOML) that wants him facing +y raises
+    a deviation, an incident in the feed; the first step opens in the 3D replay, drawn from
+    the stored poses, and scrubs."""
+    w = watched("olga")
+    page = w.page
+    page.click('.tab[data-tab="tickets"]')
+    row = '#t-rows tr[data-ticket="OT-DEMO"]'
+    page.wait_for_selector(f'{row}[data-state="planned"]', timeout=30_000)
+    # a ticket of the page's own, posted as its file, started at once
+    page.fill("#t-new-text", _FACING)
+    page.click("#t-new-submit")
+    page.wait_for_selector('#t-rows tr[data-ticket="OT-FACING"]', timeout=10_000)
+    page.wait_for_selector('#t-title:has-text("OT-FACING")', timeout=10_000)
+    page.click("#t-start")
+    page.wait_for_selector('#t-state[data-state="active"]', timeout=30_000)
+    page.click(row)
+    demo = (resources.files("stereopose") / "data" / "demo_ticket.toml").read_text()
+    tid = "OT-DEMO"
+    for attempt in range(2, 6):
+        if _ticks_in_order(page, served.base, tid):
+            break
+        tid = f"OT-DEMO-{attempt}"
+        page.fill("#t-new-text", demo.replace('id = "OT-DEMO"', f'id = "{tid}"'))
+        page.click("#t-new-submit")
+    else:
+        pytest.fail("the demo ticket's steps never ticked in order in 5 loops")
+    page.screenshot(path=str(SHOTS / "ticket-steps.png"))
+    # the deviation: OT-FACING's step done facing away, an incident of the feed
+    wait_until(
+        lambda: served.rows(
+            "SELECT incident FROM events WHERE ticket = 'OT-FACING' "
+            "AND type = 'step_wrong_position' AND incident IS NOT NULL"
+        ),
+        "OT-FACING's step_wrong_position stored with its incident",
+        timeout_s=180,
+    )
+    ((incident,),) = served.rows(
+        "SELECT incident FROM events WHERE ticket = 'OT-FACING' "
+        "AND type = 'step_wrong_position' AND incident IS NOT NULL LIMIT 1"
+    )
+    page.click('.tab[data-tab="live"]')
+    page.wait_for_selector(_line(incident), timeout=10_000)
+    assert "OT-FACING" in page.inner_text(_line(incident))
+    page.click('.tab[data-tab="tickets"]')
+    page.wait_for_selector(f'#t-title:has-text("{tid}")', timeout=10_000)
+    # the first step's 3D replay, from the stored poses
+    page.click('#t-steps li[data-index="0"] .t-replay-step')
+    page.wait_for_selector("#replay[open]", timeout=10_000)
+    wait_until(
+        lambda: page.evaluate("document.getElementById('replay-view').dataset.drawn") is not None,
+        "the step's replay drawn",
+        timeout_s=60,
+    )
+    frames = int(page.get_attribute("#replay-view", "data-frames"))
+    drawn = page.evaluate(
+        "[...document.getElementById('replay-view').data].filter((t) => t.meta && "
+        "t.meta.person !== undefined).length"
+    )
+    assert frames > 1 and drawn >= 1
+    page.evaluate(
+        "(v) => { const s = document.getElementById('replay-slider'); s.value = v; "
+        "s.dispatchEvent(new Event('input')); }",
+        str(frames - 1),
+    )
+    wait_until(
+        lambda: page.get_attribute("#replay-view", "data-drawn") == str(frames - 1),
+        "the replay scrubbed to its last frame",
+        timeout_s=20,
+    )
+    page.screenshot(path=str(SHOTS / "ticket-replay.png"))
+    page.click("#replay-close")
+    report = page.request.get(f"{served.base}/api/tickets/{tid}/report")
+    assert report.status == 200 and "close earthing switch QE1" in report.text()
 
 
 def _clipped(w: Watched, served: Served) -> dict | None:
