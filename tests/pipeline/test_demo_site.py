@@ -80,7 +80,7 @@ def test_the_demo_recording_follows_the_demo_ticket(shared_data_dir, tmp_path, r
         e for e in map(json.loads, events.read_text().splitlines()) if e["kind"] == "ticket"
     ]
     done = [e["step"] for e in ticket_events if e["type"] == "step_done"]
-    assert done == ["open isolator QS1", "close earthing switch QE1"]
+    assert done == ["open isolator QS1", "test busbar dead"]
     deviations = {"step_out_of_order", "step_wrong_position", "step_timeout"}
     assert not [e for e in ticket_events if e["type"] in deviations | {"supervisor_absent"}]
     (completed,) = [e for e in ticket_events if e["type"] == "ticket_completed"]

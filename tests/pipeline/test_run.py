@@ -101,7 +101,7 @@ def test_the_demo_follows_its_ticket_and_reports_it(real_demo_dir: Path) -> None
     from their position, the man beside him supervising; ticket.html reports it."""
     events = [e for e in read_events(real_demo_dir / "events.jsonl") if e.ticket == "OT-DEMO"]
     done = [e.step for e in events if e.type == "step_done"]
-    assert done == ["open isolator QS1", "close earthing switch QE1"]
+    assert done == ["open isolator QS1", "test busbar dead"]
     (end,) = [e for e in events if e.type == "ticket_completed"]
     assert end.result["done_in_order"] == done and end.result["deviations"] == 0
     page = (real_demo_dir / "ticket.html").read_text()

@@ -433,6 +433,55 @@ def test_incidents_set_the_alarm_points_and_the_unacknowledged_count(station, ma
     assert _spontaneous(master, alarm, False).recorded_at == _tag(9.0)
 
 
+def _ticket(t: float, type_: str, tid: str, step: str | None = None, person: int = 3) -> Event:
+    return Event(
+        t=t,
+        frame=int(t * 25),
+        person=person,
+        zone="panel A" if step else "",
+        kind="ticket",
+        type=type_,
+        onset_t=t,
+        ticket=tid,
+        step=step,
+    )
+
+
+def test_tickets_take_slots_with_their_deviation_and_steps_points(station, masters) -> None:
+    """A ticket started takes the lowest free slot (active on), its steps done counted, a
+    deviation's incident sets the slot's deviation point; at its end the slot is free again
+    and the next ticket takes it."""
+    out, table = station()
+    master = masters(out.settings.port)
+    master.wait_open()
+    book = IncidentBook()
+    active = [table.get("ticket_active", str(s)).ioa for s in (1, 2)]
+    deviation = table.get("ticket_deviation", "1").ioa
+    steps = table.get("ticket_steps", "1").ioa
+    out.write(_frame(1.0, [_ticket(1.0, "ticket_started", "OT-1", person=-1)]))
+    assert _spontaneous(master, active[0], True).recorded_at == _tag(1.0)
+    out.write(_frame(2.0, [_ticket(2.0, "ticket_started", "OT-2", person=-1)]))
+    assert _spontaneous(master, active[1], True).recorded_at == _tag(2.0)
+    wrong = [_ticket(3.0, "step_out_of_order", "OT-1", "b"), _ticket(3.0, "step_done", "OT-1", "b")]
+    up = book.update(wrong, 3.0)
+    out.write(_frame(3.0, wrong))
+    out.write_changes(up.changes)
+    assert _spontaneous(master, deviation, True).recorded_at == _tag(3.0)
+    assert _spontaneous(master, steps, 1).recorded_at == _tag(3.0)
+    assert master.latest(table.get("ticket_deviation", "2").ioa).value is False
+    end = [_ticket(5.0, "ticket_completed", "OT-1", person=-1)]
+    up = book.update(end, 5.0)  # the ticket's end clears its incidents
+    out.write(_frame(5.0, end))
+    out.write_changes(up.changes)
+    assert _spontaneous(master, active[0], False).recorded_at == _tag(5.0)
+    assert _spontaneous(master, deviation, False).recorded_at == _tag(5.0)
+    assert _spontaneous(master, steps, 0).recorded_at == _tag(5.0)
+    assert master.latest(active[1]).value is True  # OT-2 keeps its slot
+    out.write(_frame(6.0, [_ticket(6.0, "ticket_started", "OT-3", person=-1)]))
+    assert _spontaneous(master, active[0], True).recorded_at == _tag(6.0)
+    assert master.interrogate(len(table.monitored))[active[1]].value is True
+
+
 def test_a_camera_down_makes_the_points_of_its_zones_invalid(station, masters, rig) -> None:
     out, table = station()
     master = masters(out.settings.port)

@@ -21,6 +21,7 @@ from stereopose.scada.points import (
     HEADER,
     RULE_BASE,
     SINGLE,
+    TICKET_SLOTS,
     ZONE_BASE,
     cameras_seeing,
     points_table,
@@ -88,8 +89,10 @@ def test_addresses_come_in_blocks_and_follow_the_files_order(tmp_path: Path, rig
     assert table.get("people").type == COUNT and table.get("unacknowledged").type == COUNT
     assert table.get("service_running").type == table.get("service_degraded").type == SINGLE
     assert not any(p.command for p in table)  # commands off by default
-    # 2 service + 2 counts + 4 cameras + 2 per zone + 1 per rule
-    assert len(table) == 4 + 4 + 2 * 2 + 2
+    # 2 service + 2 counts + 4 cameras + 2 per zone + 1 per rule + 3 per ticket slot
+    assert len(table) == 4 + 4 + 2 * 2 + 2 + 3 * TICKET_SLOTS
+    assert table.get("ticket_active", "1").ioa == 40_011
+    assert table.get("ticket_steps", str(TICKET_SLOTS)).type == COUNT
     # each point names its zone, rule or camera
     for p in table:
         if p.name is not None:

@@ -18,6 +18,14 @@ site file, or of the calibration's cameras as the configuration names them):
     10000 + 10 n + 2  zone n alarm active    M_SP_TB_1  an incident of the zone active
     10000 + 10 n + 9  acknowledge zone n     C_SC_NA_1  (commands on)
     30000 + 10 n + 2  rule n alarm active    M_SP_TB_1  an incident of the behaviour rule active
+    40000 + 10 s + 1  ticket slot s active   M_SP_TB_1  s = 1 .. 8 (below)
+    40000 + 10 s + 2  ticket slot s deviation M_SP_TB_1 an incident of that ticket not closed
+    40000 + 10 s + 3  ticket slot s steps    M_ME_TE_1  its steps done
+
+A ticket (stereopose.tickets) takes the lowest free slot when it starts and frees it when it
+ends (its ticket_completed), so the SCADA sees up to TICKET_SLOTS tickets at once; the console
+and /api/tickets show each active ticket's slot. The ticket points' quality is invalid only
+while the service is stalled.
 
 A point's quality is invalid while one of `cameras` (those that see what it watches: a zone's
 cameras, a rule's zones' cameras, every camera for people on site and a rule watching the whole
@@ -41,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.geometry.camera import distort, normalized_to_pixels, world_to_camera
+from stereopose.tickets.ticket import TICKET_SLOTS
 from stereopose.types import Camera, Rig
 
 __all__ = [
@@ -48,6 +57,7 @@ __all__ = [
     "COUNT",
     "HEADER",
     "SINGLE",
+    "TICKET_SLOTS",
     "Point",
     "PointsTable",
     "cameras_seeing",
@@ -60,6 +70,8 @@ PRIORITIES = {1: "critical", 2: "high", 3: "medium", 4: "low"}  # alarms.priorit
 
 SERVICE_RUNNING, SERVICE_DEGRADED, PEOPLE, UNACKNOWLEDGED = 1, 2, 11, 12
 PRIORITY_BASE, CAMERA_BASE, ZONE_BASE, RULE_BASE = 20, 1000, 10_000, 30_000
+TICKET_BASE = 40_000
+TICKET_ACTIVE, TICKET_DEVIATION, TICKET_STEPS = 1, 2, 3
 ZONE_OCCUPIED, ZONE_ALARM, ZONE_ACK, RULE_ALARM = 1, 2, 9, 2
 MAX_CAMERAS = 8999  # camera addresses end below the zones' block
 PERSON_M, MIN_PERSON_PX = 1.7, 32.0  # a person this tall is seen when this many pixels tall
@@ -194,7 +206,45 @@ def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
     pts = _service_points(everyone, commands)
     pts += _zone_points(zones, seeing, commands)
     pts += _rule_points(rules, zones, seeing, everyone)
+    if site is not None:
+        pts += _ticket_points()
     return PointsTable(pts)
+
+
+def _ticket_points() -> list[Point]:
+    """Each ticket slot's points: active, a deviation's incident active, its steps done."""
+    pts: list[Point] = []
+    for s in range(1, TICKET_SLOTS + 1):
+        base, slot = TICKET_BASE + 10 * s, str(s)
+        pts += [
+            Point(
+                base + TICKET_ACTIVE,
+                SINGLE,
+                f"ticket slot {s}: active",
+                f"a work or operation ticket active in slot {s} (its id: /api/tickets)",
+                "ticket_active",
+                slot,
+            ),
+            Point(
+                base + TICKET_DEVIATION,
+                SINGLE,
+                f"ticket slot {s}: deviation",
+                f"an incident of the ticket in slot {s} not closed: active, or not yet "
+                "acknowledged (a step out of order, in the wrong position or timed out, the "
+                "supervisor absent, someone alone in the room)",
+                "ticket_deviation",
+                slot,
+            ),
+            Point(
+                base + TICKET_STEPS,
+                COUNT,
+                f"ticket slot {s}: steps done",
+                f"the steps done of the ticket in slot {s}",
+                "ticket_steps",
+                slot,
+            ),
+        ]
+    return pts
 
 
 def _service_points(everyone: tuple[str, ...], commands: bool) -> list[Point]:

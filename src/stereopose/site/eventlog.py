@@ -61,6 +61,7 @@ class Filters:
     person: int | None = None
     zone: str | None = None
     type: str | None = None
+    ticket: str | None = None
     limit: int = DEFAULT_LIMIT
     before_id: int | None = None
     after_id: int | None = None
@@ -117,6 +118,7 @@ class EventLog:
             ("e.person = ?", f.person),
             ("e.zone = ?", f.zone),
             ("e.type = ?", f.type),
+            ("e.ticket = ?", f.ticket),
             (f"{wall} >= ?", f.since),
             (f"{wall} <= ?", f.until),
             ("e.id < ?", f.before_id),
@@ -190,8 +192,8 @@ class EventLog:
         try:
             have = {r[1] for r in db.execute("PRAGMA table_info(events)")}
             runs = {r[1] for r in db.execute("PRAGMA table_info(runs)")}
-            if not have:
-                return []
+            if not have or ("ticket" not in have and any("e.ticket" in w for w in where)):
+                return []  # no events; or a log older than tickets: none of a ticket
             cols = ", ".join(
                 f"e.{c}" if c in have else ("0" if c == "restart" else "NULL")
                 for c in EVENT_COLUMNS

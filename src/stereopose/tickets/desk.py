@@ -18,7 +18,7 @@ from dataclasses import replace
 from stereopose.errors import StereoposeError
 from stereopose.fence.zones import Zone
 from stereopose.tickets.monitor import TICKET_KIND, TicketMonitor
-from stereopose.tickets.ticket import Ticket, check_zones
+from stereopose.tickets.ticket import TICKET_SLOTS, Ticket, check_zones
 from stereopose.types import Event, People3D
 
 __all__ = ["MAX_KEPT", "TicketDesk", "TicketError"]
@@ -45,6 +45,7 @@ class _Entry:
         self.started_by = self.ended_by = None
         self.started_t: float | None = None
         self.ended_t: float | None = None
+        self.slot: int | None = None  # its IEC 104 slot while active (scada.points)
 
 
 class TicketDesk:
@@ -133,6 +134,7 @@ class TicketDesk:
             for e in list(self._entries.values()):
                 if e.start_asked is not None and e.state == PLANNED:
                     e.state, e.started_by, e.started_t = ACTIVE, e.start_asked, t
+                    e.slot = self._free_slot()
                     e.start_asked = None
                     e.monitor.start(t)
                     out.append(_info(e.ticket, "ticket_started", t, frame))
@@ -142,7 +144,7 @@ class TicketDesk:
                     by, aborted = e.end_asked
                     out += e.monitor.end(t, frame, aborted)
                     e.state, e.ended_by, e.ended_t = (ABORTED if aborted else COMPLETED), by, t
-                    e.end_asked = None
+                    e.end_asked, e.slot = None, None
             self._isolating = {
                 z: tid
                 for tid, e in self._entries.items()
@@ -172,11 +174,16 @@ class TicketDesk:
             for e in self._entries.values():
                 if e.state == ACTIVE:
                     out += e.monitor.end(t, frame)
-                    e.state, e.ended_t = COMPLETED, t
+                    e.state, e.ended_t, e.slot = COMPLETED, t, None
             self._isolating = {}
         return out
 
     # -- parts ------------------------------------------------------------------------------
+
+    def _free_slot(self) -> int | None:
+        """The lowest slot no active ticket holds (as the outstation gives them), or None."""
+        taken = {e.slot for e in self._entries.values() if e.slot is not None}
+        return next((s for s in range(1, TICKET_SLOTS + 1) if s not in taken), None)
 
     def _get(self, tid: str) -> _Entry:
         e = self._entries.get(tid)
@@ -210,6 +217,7 @@ class TicketDesk:
             "steps_total": len(e.ticket.steps),
             "steps_done": sum(1 for s in m.steps if s.done_t is not None),
             "deviations": sum(m.deviation_counts.values()),
+            "slot": e.slot,
         }
         wall = self._wall
         out["started_wall"], out["ended_wall"] = wall(e.started_t), wall(e.ended_t)

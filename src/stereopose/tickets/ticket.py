@@ -19,6 +19,7 @@ __all__ = [
     "KINDS",
     "TICKET_HTML",
     "TICKET_JSON",
+    "TICKET_SLOTS",
     "Ticket",
     "TicketStep",
     "check_ticket_site",
@@ -30,6 +31,7 @@ __all__ = [
 KINDS = ("operation", "work")
 TICKET_JSON = "ticket.json"  # the ticket a run followed, in its folder (the report's)
 TICKET_HTML = "ticket.html"  # that ticket's report
+TICKET_SLOTS = 8  # active tickets the SCADA sees at once (scada.points: a slot's points each)
 POSTURES = ("standing", "walking", "bending", "crouching", "lying")  # behaviour.posture's
 MAX_STEPS = 200
 MAX_TEXT = 200

@@ -679,7 +679,7 @@ tolerance_deg = 10.0
 
 _STEPS = """() => [...document.querySelectorAll('#t-steps li.t-step')].map(
     (li) => [li.dataset.step, li.dataset.state])"""
-_DEMO_STEPS = ["open isolator QS1", "close earthing switch QE1"]
+_DEMO_STEPS = ["open isolator QS1", "test busbar dead"]
 
 
 def _steps(page) -> list[list[str]]:
@@ -815,8 +815,12 @@ def test_a_ticket_started_in_the_console_ticks_its_steps_and_replays_one(watched
     )
     page.screenshot(path=str(SHOTS / "ticket-replay.png"))
     page.click("#replay-close")
+    # the step's clips (one per camera that saw the operator), as the event log lists them
+    page.wait_for_selector('#t-steps li[data-index="0"] .t-clip', timeout=60_000)
+    clip = page.get_attribute('#t-steps li[data-index="0"] .t-clip', "href")
+    assert page.request.get(served.base + clip).status == 200
     report = page.request.get(f"{served.base}/api/tickets/{tid}/report")
-    assert report.status == 200 and "close earthing switch QE1" in report.text()
+    assert report.status == 200 and "test busbar dead" in report.text()
 
 
 def _clipped(w: Watched, served: Served) -> dict | None:

@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereopose.alarms.levels import TICKET_ALARMS
 from stereopose.behaviour.definitions import ALARM_TYPES, BEHAVIOUR_KIND
 from stereopose.io.mp4 import FrameWriter
 from stereopose.io.packets import StreamCopy
@@ -44,11 +45,18 @@ MAX_TWINS = 999
 Draw = Callable[[str, np.ndarray, "People2D | None", People3D, float, str], np.ndarray]
 
 
+TICKET_KIND = "ticket"  # tickets.monitor's
+TICKET_CLIPPED = TICKET_ALARMS | {"step_done"}
+
+
 def is_alarm(e: Event) -> bool:
-    """The default alarm: entering or approaching an energized zone, or a behaviour alarm
-    (person_down, lone_worker, work_position, immobile, overreach)."""
+    """The default alarm: entering or approaching an energized zone, a behaviour alarm
+    (person_down, lone_worker, work_position, immobile, overreach), or a ticket's step done or
+    deviation by a person (the clips of each step and deviation)."""
     if e.kind == BEHAVIOUR_KIND:
         return e.type in ALARM_TYPES
+    if e.kind == TICKET_KIND:
+        return e.type in TICKET_CLIPPED and e.person >= 0
     return e.kind == "energized" and e.type in ("enter", "approach")
 
 

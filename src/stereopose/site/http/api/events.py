@@ -76,6 +76,7 @@ def filters(
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
     before_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
     after_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
+    ticket: Annotated[str | None, Query(max_length=200)] = None,
 ) -> Filters:
     times = query_times(since, until)
     return Filters(
@@ -84,6 +85,7 @@ def filters(
         person=person,
         zone=zone or None,
         type=type or None,
+        ticket=ticket or None,
         limit=limit,
         before_id=before_id,
         after_id=after_id,

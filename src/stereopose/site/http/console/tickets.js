@@ -12,6 +12,7 @@ const PERIOD_MS = 1000;
 const BEFORE_S = 3; // a step's replay starts this long before its action
 const AFTER_S = 2; // ... and ends this long after it
 const STATE_TEXT = { done: "done", open: "open", timed_out: "timed out" };
+const CLIPS_MS = 5000; // the ticket's events (their clips) asked again at most this often
 
 function text(tag, content, className = "") {
   const el = document.createElement(tag);
@@ -47,6 +48,7 @@ export class Tickets {
     this.current = null;
     this.timer = null;
     this.asked = 0;
+    this.clips = { ticket: null, at: 0, steps: new Map(), deviations: new Map() };
     this.rows = byId("t-rows");
     this.info = byId("t-info");
     this.newText = byId("t-new-text");
@@ -106,6 +108,7 @@ export class Tickets {
       }
       this.renderDetail(detail ? detail.ticket : null);
       this.info.textContent = "";
+      if (detail) this.fetchClips(detail.ticket);
     } catch (error) {
       if (asked !== this.asked || (error instanceof api.ApiError && error.status === 401)) return;
       this.info.textContent = `not loaded: ${error.detail || error.message}`;
@@ -196,6 +199,8 @@ export class Tickets {
       if (s.in_order === false) facts.push("out of order");
       if (s.failed) facts.push(`wrong: ${s.failed}`);
       body.appendChild(text("div", facts.join(" · "), "t-facts"));
+      const clips = this.clips.ticket === t.id ? this.clips.steps.get(s.name) : null;
+      if (clips) body.appendChild(this.clipLinks(clips));
       li.appendChild(body);
       const replay = text("button", "Replay", "t-replay-step");
       replay.type = "button";
@@ -210,11 +215,54 @@ export class Tickets {
     const list = byId("t-deviations");
     list.replaceChildren();
     for (const d of [...(t.deviation_list || [])].reverse()) {
-      const li = text("li", `${dateTime(d.wall_t)} ${typeText(d.type)}${d.step ? `: ${d.step}` : ""}`);
+      const li = text("li", `${dateTime(d.wall_t)} ${typeText(d.type)}${d.step ? `: ${d.step}` : ""} `);
       li.dataset.type = d.type;
+      const clips = this.clips.ticket === t.id ? this.clips.deviations.get(`${d.type}|${d.step || ""}`) : null;
+      if (clips) li.appendChild(this.clipLinks(clips));
       list.appendChild(li);
     }
     byId("t-no-deviations").hidden = (t.deviation_list || []).length > 0;
+  }
+
+  /** The clips of the ticket's events (each step done, each deviation), from the event log;
+   * at most every CLIPS_MS, and whenever another ticket is chosen. */
+  async fetchClips(t) {
+    const now = Date.now();
+    if (this.clips.ticket === t.id && now - this.clips.at < CLIPS_MS) return;
+    this.clips.ticket = t.id;
+    this.clips.at = now;
+    let answer;
+    try {
+      answer = await api.events({ ticket: t.id, limit: 1000 });
+    } catch {
+      return; // tried again later
+    }
+    const steps = new Map();
+    const deviations = new Map();
+    for (const e of answer.events || []) {
+      if (!(e.clips || []).length) continue;
+      if (e.type === "step_done" && e.step) steps.set(e.step, e.clips);
+      else deviations.set(`${e.type}|${e.step || ""}`, [...(deviations.get(`${e.type}|${e.step || ""}`) || []), ...e.clips]);
+    }
+    this.clips = { ticket: t.id, at: now, steps, deviations };
+    if (this.current && this.current.id === t.id) {
+      this.renderSteps(this.current);
+      this.renderDeviations(this.current);
+    }
+  }
+
+  clipLinks(urls) {
+    const box = document.createElement("span");
+    box.className = "t-clips";
+    for (const url of urls || []) {
+      const name = String(url).split("/").pop();
+      const a = text("a", name.replace(/^.*_/, "").replace(/\.mp4$/, ""), "button t-clip");
+      a.href = `/api/clips/${encodeURIComponent(decodeURIComponent(name))}`;
+      a.download = "";
+      a.title = `download ${name}`;
+      box.appendChild(a);
+    }
+    return box;
   }
 
   renderPeople() {
