@@ -699,19 +699,16 @@ def _walker_x(page, base: str) -> float | None:
 
 
 def _start_at_the_recordings_start(page, base: str) -> None:
-    """Start the chosen ticket as the looped recording begins again (the walker back at his
-    start, about 0.25 s before his first step's action): started at any other moment, the
-    loop would show him doing the second step first."""
-    previous = None
-
-    def restarted() -> bool:
-        nonlocal previous
-        x = _walker_x(page, base)
-        back = previous is not None and x is not None and previous > -1.0 and x < -1.25
-        previous = x if x is not None else previous
-        return back
-
-    wait_until(restarted, "the recording's loop starting again", timeout_s=60, poll_s=0.02)
+    """Start the chosen ticket as the looped recording ends (the walker at the end of his
+    walk, his reach into the busbar over), so that it is active from the loop's next start,
+    before his first step's action: started at another moment, the loop could show him doing
+    the second step first."""
+    wait_until(
+        lambda: (_walker_x(page, base) or -9.0) > -0.72,
+        "the walker at the end of the recording",
+        timeout_s=60,
+        poll_s=0.02,
+    )
     page.click("#t-start")
 
 
@@ -821,6 +818,19 @@ def test_a_ticket_started_in_the_console_ticks_its_steps_and_replays_one(watched
     assert page.request.get(served.base + clip).status == 200
     report = page.request.get(f"{served.base}/api/tickets/{tid}/report")
     assert report.status == 200 and "test busbar dead" in report.text()
+    # History replays any window the same way (no From or To: the last 10 minutes)
+    page.click('.tab[data-tab="history"]')
+    page.click("#h-replay")
+    page.wait_for_selector("#replay[open]", timeout=10_000)
+    wait_until(
+        lambda: (
+            int(page.get_attribute("#replay-view", "data-frames") or 0) > 10
+            and page.get_attribute("#replay-view", "data-drawn") is not None
+        ),
+        "the last 10 minutes replayed",
+        timeout_s=60,
+    )
+    page.click("#replay-close")
 
 
 def _clipped(w: Watched, served: Served) -> dict | None:

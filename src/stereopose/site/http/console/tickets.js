@@ -13,6 +13,9 @@ const BEFORE_S = 3; // a step's replay starts this long before its action
 const AFTER_S = 2; // ... and ends this long after it
 const STATE_TEXT = { done: "done", open: "open", timed_out: "timed out" };
 const CLIPS_MS = 5000; // the ticket's events (their clips) asked again at most this often
+// Events close together share one clip per camera, named after the first: a step's action
+// that fell inside another alarm's clip is shown by that clip (begun at most this long before)
+const SHARED_CLIP_S = 10;
 
 function text(tag, content, className = "") {
   const el = document.createElement(tag);
@@ -232,17 +235,35 @@ export class Tickets {
     this.clips.ticket = t.id;
     this.clips.at = now;
     let answer;
+    let around;
+    const since = typeof t.started_wall === "number" ? t.started_wall - SHARED_CLIP_S : null;
+    const until = typeof t.ended_wall === "number" ? t.ended_wall : now / 1000;
     try {
-      answer = await api.events({ ticket: t.id, limit: 1000 });
+      [answer, around] = await Promise.all([
+        api.events({ ticket: t.id, limit: 1000 }),
+        since === null ? { events: [] } : api.events({ since: since.toFixed(3), until: until.toFixed(3), limit: 1000 }),
+      ]);
     } catch {
       return; // tried again later
     }
+    // the clips begun in the job, oldest first: [wall_t, clips]
+    const shared = (around.events || []).filter((e) => (e.clips || []).length)
+      .map((e) => [e.wall_t, e.clips]).sort((a, b) => a[0] - b[0]);
+    const covering = (wall) => {
+      let found = null;
+      for (const [at, clips] of shared) if (at <= wall + 1 && at >= wall - SHARED_CLIP_S) found = clips;
+      return found;
+    };
     const steps = new Map();
     const deviations = new Map();
     for (const e of answer.events || []) {
-      if (!(e.clips || []).length) continue;
-      if (e.type === "step_done" && e.step) steps.set(e.step, e.clips);
-      else deviations.set(`${e.type}|${e.step || ""}`, [...(deviations.get(`${e.type}|${e.step || ""}`) || []), ...e.clips]);
+      const clips = (e.clips || []).length ? e.clips : covering(e.wall_t);
+      if (!clips) continue;
+      const key = `${e.type}|${e.step || ""}`;
+      if (e.type === "step_done" && e.step) steps.set(e.step, clips);
+      else if (e.type !== "ticket_started" && e.type !== "ticket_completed") {
+        deviations.set(key, [...new Set([...(deviations.get(key) || []), ...clips])]);
+      }
     }
     this.clips = { ticket: t.id, at: now, steps, deviations };
     if (this.current && this.current.id === t.id) {
