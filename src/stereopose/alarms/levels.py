@@ -37,6 +37,7 @@ __all__ = [
     "BEHAVIOUR_ALARMS",
     "BEHAVIOUR_ENDS",
     "INFO",
+    "POWER_TYPES",
     "TICKET_ALARMS",
     "WARNING",
     "HazardKey",
@@ -69,7 +70,12 @@ DIAGNOSTIC_ENDS = {
 TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
 TICKET_STEP_ALARMS = frozenset({"step_out_of_order", "step_wrong_position", "step_timeout"})
 TICKET_ALARMS = TICKET_STEP_ALARMS | frozenset(TICKET_ENDS)
-_ALARM_TYPES = frozenset({"camera_down", "service_stalled"}) | BEHAVIOUR_ALARMS | TICKET_ALARMS
+# an energized zone's state from its breakers (fence.power_state): unknown (a diagnostic: the
+# zone counts as live) until it is known again, live or dead
+POWER_TYPES = frozenset({"zone_unknown", "zone_live", "zone_dead"})
+_ALARM_TYPES = (
+    frozenset({"camera_down", "service_stalled", "zone_unknown"}) | BEHAVIOUR_ALARMS | TICKET_ALARMS
+)
 _WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
 _ENDS = frozenset(BEHAVIOUR_ENDS.values()) | frozenset(DIAGNOSTIC_ENDS.values())
 
@@ -103,6 +109,8 @@ def hazard_key(event: Event) -> HazardKey | None:
         return ("calibration", event.camera or "")
     if t in ("service_stalled", "service_resumed"):
         return ("service",)
+    if t in POWER_TYPES:
+        return ("power", event.zone)
     if t in ("enter", "approach", "dwell", "exit") and event.zone:
         return ("zone", event.zone, event.person)
     return None
@@ -135,6 +143,8 @@ def clears(event: Event) -> list[HazardKey]:
             return [("ticket", event.ticket or "")]
         key = _ticket_key(event)
         return [key] if key is not None and t not in TICKET_ALARMS else []
+    if t in ("zone_live", "zone_dead"):
+        return [("power", event.zone)]
     if t == "exit" and event.zone:
         return [("zone", event.zone, event.person)]
     if t == "enter" and event.zone:

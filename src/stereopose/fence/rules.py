@@ -128,6 +128,19 @@ class FenceMonitor:
         self._last_ids = (ids.copy(), rows)
         return rows
 
+    def occupants(self, zone: str) -> tuple[list, list]:
+        """([(person id, floor point)] inside `zone` now, [...] within its approach margin and
+        not inside), as the debounced states hold them."""
+        k = next((i for i, z in enumerate(self.zones) if z.name == zone), None)
+        if k is None or not len(self.ids):
+            return [], []
+        inside = self.inside.state[:, k]
+        near = self.near.state[:, k] & ~inside
+        return (
+            [(int(self.ids[r]), self.last_pos[r]) for r in np.flatnonzero(inside)],
+            [(int(self.ids[r]), self.last_pos[r]) for r in np.flatnonzero(near)],
+        )
+
     def update(self, people: People3D) -> list[Event]:
         """Events raised at this frame (usually none), at its time (People3D.time: live
         cameras stamp their arrival time; frame / fps otherwise)."""

@@ -17,6 +17,9 @@ Site file (TOML, the contract in docs/formats.md, extended with optional keys):
     expected = [1]                      # optional (work_area): persons expected to stay in it
     priority = 1                        # optional: its incidents' priority, 1-4 or a name
     rearm_s = 30.0                      # optional: a return within this long is the same incident
+    voltage_kv = 10.0                   # optional (energized): margin_m from distance_table
+    distance_table = "gb26860"          # optional: gb26860 (default), en50110, osha
+    state = { iec104 = { ... } }        # optional (energized): live or dead (fence.power)
     [[rules]]                           # optional: behaviour rules (stereopose.behaviour)
     name = "man_down"
     type = "person_down"
@@ -57,7 +60,9 @@ from stereopose.checks import (
 )
 from stereopose.config import read_toml
 from stereopose.errors import ConfigError
+from stereopose.fence.distances import DEFAULT_TABLE, approach_distance
 from stereopose.fence.polygons import polygon_area, self_intersection
+from stereopose.fence.power import PowerSpec, parse_power
 from stereopose.skeleton import JOINTS, joint_index
 
 KINDS = ("energized", "restricted", "work_area")
@@ -77,6 +82,9 @@ _ZONE_KEYS = {
     "expected",
     "priority",
     "rearm_s",
+    "voltage_kv",
+    "distance_table",
+    "state",
 }
 # the ranges of a zone's numbers beside their meaning: metres of approach, seconds of debounce
 _ZONE_RANGES = {
@@ -110,6 +118,9 @@ class Zone:
     expected: frozenset[int] = frozenset()
     priority: int | None = None
     rearm_s: float = DEFAULT_REARM_S
+    voltage_kv: float | None = None  # its nominal voltage (the approach margin's table row)
+    distance_table: str | None = None  # fence.distances' table (None: the default)
+    power: PowerSpec | None = None  # where its live or dead state comes from (fence.power)
 
     def __post_init__(self) -> None:
         where = f"zone {self.name!r}"
@@ -188,6 +199,19 @@ def _toml_str(text: str) -> str:
     return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
+def _inline(value: Any) -> str:
+    """A value as TOML (inline tables)."""
+    if isinstance(value, dict):
+        return (
+            "{ " + ", ".join(f"{_toml_str(str(k))} = {_inline(v)}" for k, v in value.items()) + " }"
+        )
+    if isinstance(value, str):
+        return _toml_str(value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
 def format_site(site: Site) -> str:
     """The site file's TOML text (defaults left out)."""
     lines = [f"fps = {site.fps!r}", ""] if site.fps else []
@@ -209,6 +233,7 @@ def format_site(site: Site) -> str:
             ("exit_s", DEFAULT_EXIT_S),
             ("priority", None),
             ("rearm_s", DEFAULT_REARM_S),
+            ("voltage_kv", None),
         ):
             v = getattr(z, key)
             if v != default:
@@ -217,6 +242,10 @@ def format_site(site: Site) -> str:
             ids = sorted(getattr(z, key))
             if ids:
                 lines.append(f"{key} = {ids}")
+        if z.distance_table is not None:
+            lines.append(f"distance_table = {_toml_str(z.distance_table)}")
+        if z.power is not None:
+            lines.append(f"state = {_inline(z.power.to_toml())}")
         lines.append("")
     lines += format_rules(site.rules)
     lines += format_postures(site.postures)
@@ -321,6 +350,7 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
                 kwargs[key] = _number(z[key], f"{where}: {key}")
         if "priority" in z:
             kwargs["priority"] = parse_priority(z["priority"], where)
+        kwargs |= _power(z, where)
         for key in ("allowed", "expected"):
             if key in z:
                 kwargs[key] = _ids(z[key], f"{where}: {key}")
@@ -334,6 +364,27 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
             )
         )
     return tuple(zones)
+
+
+def _power(z: dict[str, Any], where: str) -> dict[str, Any]:
+    """An energized zone's voltage (its margin from the distance table, unless margin_m is
+    given) and state source."""
+    out: dict[str, Any] = {}
+    keys = [k for k in ("voltage_kv", "distance_table", "state") if k in z]
+    if keys and z["kind"] != "energized":
+        raise ConfigError(f"{where}: {', '.join(keys)} only for an energized zone")
+    if "distance_table" in z and "voltage_kv" not in z:
+        raise ConfigError(f"{where}: distance_table needs voltage_kv")
+    if "voltage_kv" in z:
+        table = z.get("distance_table", DEFAULT_TABLE)
+        margin = approach_distance(z["voltage_kv"], table, where)
+        out["voltage_kv"] = float(z["voltage_kv"])
+        out["distance_table"] = table if "distance_table" in z else None
+        if "margin_m" not in z:
+            out["margin_m"] = margin
+    if "state" in z:
+        out["power"] = parse_power(z["state"], where)
+    return out
 
 
 class ZoneGeometry:

@@ -75,6 +75,7 @@ EVENT_COLUMNS = (
     "ticket",
     "step",
     "result",
+    "source",
 )
 # the behaviour events' optional fields: (name, decimals; None for text)
 _BEHAVIOUR_FIELDS = (
@@ -254,6 +255,8 @@ def event_record(e: Event) -> dict:
         d["step"] = e.step
     if e.result is not None:
         d["result"] = e.result
+    if e.source is not None:
+        d["source"] = e.source
     return d
 
 
@@ -293,6 +296,7 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
         ticket=None if d.get("ticket") is None else str(d["ticket"]),
         step=None if d.get("step") is None else str(d["step"]),
         result=_result(d.get("result")),
+        source=None if d.get("source") is None else str(d["source"]),
     )
 
 
@@ -345,4 +349,5 @@ def event_row(e: Event, run: int) -> tuple:
         e.ticket,
         e.step,
         None if e.result is None else json.dumps(e.result, separators=(",", ":")),
+        e.source,
     )

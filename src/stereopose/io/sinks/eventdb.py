@@ -154,6 +154,7 @@ ADDED_COLUMNS = (
     ("events", "ticket", "TEXT"),
     ("events", "step", "TEXT"),
     ("events", "result", "TEXT"),
+    ("events", "source", "TEXT"),
 )
 
 
