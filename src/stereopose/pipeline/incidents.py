@@ -55,9 +55,11 @@ class IncidentStep:
         clock: Callable[[], float],
         wall_start: float | None = None,
         tickets: TicketDesk | None = None,
+        power=None,
     ) -> None:
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
         self.tickets = tickets
+        self.power = power  # the zones' live or dead state (fence.power_state.ZoneStates)
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
@@ -73,6 +75,9 @@ class IncidentStep:
         if self.rules is not None:
             more, postures = self.rules.step(t, frame, people)
             events = [*events, *more]
+        if self.power is not None:  # the zones' states; a dead zone's entries made info
+            mine = self.power.step(t, frame, self.monitor)
+            events = [*self.power.relabel(events), *mine]
         if self.tickets is not None:  # the tickets' step, then their isolated zones' entries
             mine = self.tickets.step(t, frame, people, postures)  # made info
             events = [*self.tickets.relabel(events), *mine]

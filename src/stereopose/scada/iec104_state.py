@@ -29,6 +29,7 @@ class PointState:
     records: dict[int, Any] = field(default_factory=dict)  # open incidents by id
     # the ticket in each slot (1 .. TICKET_SLOTS; None: free) and each one's steps done
     slots: list[str | None] = field(default_factory=lambda: [None] * TICKET_SLOTS)
+    power: dict[str, str] = field(default_factory=dict)  # zone -> live, dead, unknown
     steps_done: dict[str, int] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -41,6 +42,8 @@ class PointState:
                 self.camera_up[e.camera] = True
         elif e.kind == "ticket":
             self._ticket(e)
+        elif e.type in ("zone_live", "zone_dead", "zone_unknown"):
+            self.power[e.zone] = e.type[5:]
         elif e.kind == "service":
             if e.type == "service_stalled":
                 self.stalled = True
@@ -99,6 +102,8 @@ class PointState:
                 value = self.camera_up.get(p.name, True)
             elif p.kind == "zone_occupied":
                 value = bool(self.inside.get(p.name))
+            elif p.kind == "zone_live":
+                value = self.power.get(p.name, "unknown") != "dead"
             elif p.kind.startswith("ticket_"):
                 tid = self.slots[int(p.name) - 1]
                 if p.kind == "ticket_steps":
@@ -119,4 +124,6 @@ class PointState:
             return False
         if p.kind.startswith("ticket_"):
             return self.stalled
+        if p.kind == "zone_live":
+            return self.stalled or self.power.get(p.name, "unknown") == "unknown"
         return self.stalled or any(not self.camera_up.get(c, True) for c in p.cameras)

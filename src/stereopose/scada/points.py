@@ -16,6 +16,8 @@ site file, or of the calibration's cameras as the configuration names them):
     1000 + n          camera n up            M_SP_TB_1
     10000 + 10 n + 1  zone n occupied        M_SP_TB_1  someone inside (its enter/exit events)
     10000 + 10 n + 2  zone n alarm active    M_SP_TB_1  an incident of the zone active
+    10000 + 10 n + 3  zone n live            M_SP_TB_1  (a zone with a state source) on: live,
+                                                        off: dead; invalid while unknown
     10000 + 10 n + 9  acknowledge zone n     C_SC_NA_1  (commands on)
     30000 + 10 n + 2  rule n alarm active    M_SP_TB_1  an incident of the behaviour rule active
     40000 + 10 s + 1  ticket slot s active   M_SP_TB_1  s = 1 .. 8 (below)
@@ -72,7 +74,7 @@ SERVICE_RUNNING, SERVICE_DEGRADED, PEOPLE, UNACKNOWLEDGED = 1, 2, 11, 12
 PRIORITY_BASE, CAMERA_BASE, ZONE_BASE, RULE_BASE = 20, 1000, 10_000, 30_000
 TICKET_BASE = 40_000
 TICKET_ACTIVE, TICKET_DEVIATION, TICKET_STEPS = 1, 2, 3
-ZONE_OCCUPIED, ZONE_ALARM, ZONE_ACK, RULE_ALARM = 1, 2, 9, 2
+ZONE_OCCUPIED, ZONE_ALARM, ZONE_LIVE, ZONE_ACK, RULE_ALARM = 1, 2, 3, 9, 2
 MAX_CAMERAS = 8999  # camera addresses end below the zones' block
 PERSON_M, MIN_PERSON_PX = 1.7, 32.0  # a person this tall is seen when this many pixels tall
 _MAX_COORD = 3.0  # |x|, |y| normalised: beyond this a lens model folds back (about 72 degrees)
@@ -336,6 +338,18 @@ def _zone_points(zones: tuple, seeing: dict, commands: bool) -> list[Point]:
                 not cams,
             ),
         ]
+        if z.power is not None:
+            pts.append(
+                Point(
+                    base + ZONE_LIVE,
+                    SINGLE,
+                    f"zone {z.name} ({z.kind}): live",
+                    f"the state stereopose holds of zone {z.name} from its breakers and "
+                    "earthing switches: on live, off dead; invalid while unknown (counted live)",
+                    "zone_live",
+                    z.name,
+                )
+            )
         if commands:
             pts.append(
                 Point(

@@ -167,6 +167,16 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
         trusted_proxies=cfg.serve.trusted_proxies,
     )
     segments, clips, retention = _storage(path, cfg)
+    mqtt_points = [
+        z.name
+        for z in (site.zones if site is not None else ())
+        if z.power is not None and any(pt.protocol == "mqtt" for pt in z.power.points)
+    ]
+    if mqtt_points and not cfg.mqtt.host:
+        raise ConfigError(
+            f"{path}: zone {mqtt_points[0]!r} of {site_path} takes its state over MQTT: set "
+            "[mqtt] host (the site's broker)"
+        )
     if cfg.input.detection == "nodes" and not cfg.mqtt.host:
         raise ConfigError(
             f'{path}: input.detection = "nodes": the nodes\' people come over '

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +56,8 @@ class SceneState:
     def __init__(self, site: Site | None) -> None:
         zones = site.zones if site is not None else ()
         self.zones_by_name = {z.name: z for z in zones}
+        # the energized zones' states from their breakers (fence.power_state's snapshot)
+        self.power: Callable[[], dict] | None = None
         self._lock = threading.Lock()
         self.latest: Latest | None = None
         self._trails: dict[int, deque[tuple[float, float, float]]] = {}
@@ -203,11 +205,13 @@ class SceneState:
             inside = {z: sorted(ids) for z, ids in self._occupants().items()}
             approach = dict(self._approach)
             now_t = self.latest.t if self.latest is not None else 0.0
+        power = self.power() if self.power is not None else {}
         out = []
         for name, z in self.zones_by_name.items():
             occupants = inside.get(name, [])
             recent = now_t - approach.get(name, -math.inf) <= ALARM_HOLD_S
-            if z.kind == "energized" and (occupants or recent):
+            dead = power.get(name, {}).get("state") == "dead"
+            if z.kind == "energized" and (occupants or recent) and not dead:
                 state = "alarm"
             else:
                 state = "occupied" if occupants else "free"
@@ -220,6 +224,9 @@ class SceneState:
                     "margin_m": float(z.margin_m),
                     "state": state,
                     "occupants": occupants,
+                    # live, dead or unknown, its source and since when (null: no source)
+                    "power": power.get(name),
+                    "voltage_kv": z.voltage_kv,
                 }
             )
         return {"zones": out}

@@ -229,6 +229,7 @@ def _serve(
                     f"{plan.out_dir}: cannot create the output folder: {e.strerror}"
                 ) from None
             service.start_maintainer()
+            service.start_power()  # the zones' breakers and earthing switches read
             with _open_cameras(plan, service.packets) as cams:
                 summary = _run_loop(plan, service, cams, detector, stop, closing)
         finally:
@@ -356,6 +357,7 @@ def _incidents(
         clock=clock,
         wall_start=wall_start,
         tickets=service.tickets,
+        power=service.power,
     )
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics

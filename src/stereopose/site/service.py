@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 
 from stereopose.config import Config
 from stereopose.detection.regional import RegionDetector
+from stereopose.fence.power_state import PowerBoard, ZoneStates
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import Guarded, Sink
@@ -77,6 +78,11 @@ class SiteService:
         self.tickets = TicketDesk(plan.site.zones) if plan.site is not None else None
         for ticket in plan.tickets:
             self.tickets.add(ticket)  # planned: started from the console or the API
+        # the energized zones' live or dead state from the utility (fence.power_state)
+        zones = plan.site.zones if plan.site is not None else ()
+        self.power_board = PowerBoard() if any(z.power for z in zones) else None
+        self.power = ZoneStates(zones, self.power_board) if self.power_board else None
+        self.power_sources = None
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -339,9 +345,30 @@ class SiteService:
 
     # -- stopping ---------------------------------------------------------------------------
 
+    def start_power(self) -> None:
+        """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
+        each on its own thread; the console's zones and the status show their states."""
+        if self.power is None:
+            return
+        from stereopose.fence.power_sources import start_sources
+
+        p = self.plan
+        self.power_sources = start_sources(
+            p.site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
+        )
+        sources, states = self.power_sources, self.power
+        self.probes["zone_state"] = lambda: {
+            "zones": states.snapshot(),
+            "sources": dict(sources.figures),
+        }
+        if self.console is not None and self.console.hub is not None:
+            self.console.hub.scene.power = states.snapshot
+
     def close(self) -> None:
         """The maintainer, the console and the server, each within its bound."""
         self.watchdog.stop()
+        if self.power_sources is not None:
+            self.power_sources.stop()
         if self.opcua is not None:
             self.opcua.close()  # once (a sink of the loop closes it first)
         if self.outbox is not None:

@@ -89,14 +89,24 @@ export class FloorPlan {
         el("text", { class: "zone-label" }, g);
       }
       const state = zone.state || "free";
-      g.setAttribute("class", `zone zone-${state} kind-${zone.kind || "zone"}`);
+      const power = zone.power && zone.power.state; // live, dead, unknown (from its breakers)
+      g.setAttribute("class", `zone zone-${state} kind-${zone.kind || "zone"}${power ? ` power-${power}` : ""}`);
       g.dataset.state = state;
+      if (power) g.dataset.power = power;
+      else delete g.dataset.power;
       g.dataset.occupants = (zone.occupants || []).join(",");
       const shape = g.querySelector("polygon");
       shape.setAttribute("points", points(zone.polygon));
       const label = g.querySelector("text");
       const who = (zone.occupants || []).length ? ` (${zone.occupants.join(", ")})` : "";
-      label.textContent = `${zone.name}${who}`;
+      const since = zone.power && zone.power.since ? ` since ${new Date(zone.power.since * 1000).toLocaleTimeString([], { hour12: false })}` : "";
+      label.textContent = `${zone.name}${power && power !== "live" ? ` [${power}]` : ""}${who}`;
+      shape.replaceChildren();
+      if (power) {
+        const title = document.createElementNS("http://www.w3.org/2000/svg", "title");
+        title.textContent = `${power}${since}: ${zone.power.source || ""}${zone.power.reason ? ` (${zone.power.reason})` : ""}`;
+        shape.appendChild(title);
+      }
       // the label inside the zone's top edge (a zone within another keeps its label apart),
       // or below its bottom edge when the zone is narrower than its label
       const [cx] = centroid(zone.polygon);
