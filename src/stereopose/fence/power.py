@@ -288,9 +288,9 @@ def _compare(op: ast.cmpop, a: Any, b: Any) -> bool:
     try:
         a, b = float(a), float(b)
     except (TypeError, ValueError):
-        return False  # an order between texts never holds
+        raise ValueError(f"cannot order {a!r} and {b!r}") from None  # the zone: unknown
     if not (math.isfinite(a) and math.isfinite(b)):
-        return False
+        raise ValueError(f"cannot order {a!r} and {b!r}")
     return {ast.Lt: a < b, ast.LtE: a <= b, ast.Gt: a > b, ast.GtE: a >= b}[type(op)]
 
 
