@@ -63,7 +63,7 @@ TABLES: dict[str, tuple[str, float, tuple[tuple[float, float], ...]]] = {
             (275.0, 4.00),
             (380.0, 4.00),
             (480.0, 6.10),
-            (700.0, 7.90),
+            (700.0, 8.40),
         ),
     ),
     "osha": (
