@@ -3,6 +3,7 @@ people, availability and its last will, a broker away at start or restarted, log
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -215,6 +216,22 @@ def test_zone_occupancy_is_retained(broker, closing) -> None:
         "": [],
         "ladder": [4],
     }
+
+
+def test_a_zones_state_from_its_breakers_is_in_its_retained_message(broker, closing) -> None:
+    sink = MqttSink(settings(broker.port), zone_names=["bay2", "bench"])
+    closing(sink)
+    dead = dataclasses.replace(event(1, person=-1, zone="bay2", type="zone_dead"), source="rtu")
+    sink.write(frame(1, [], [dead]))
+    sink.write(frame(2, [3], [event(2, person=3, zone="bay2")]))
+    wait_until(lambda: sink.figures()["zones"]["queued"] == 0, "the zone states sent")
+    late = Subscriber(broker.port, f"{BASE}/zones/+")
+    closing(late)
+    wait_until(lambda: len({m.topic for m in late.messages}) == 2, "both zones")
+    bodies = {json.loads(m.payload)["zone"]: json.loads(m.payload) for m in late.messages}
+    assert bodies["bay2"]["power"] == "dead" and bodies["bay2"]["power_source"] == "rtu"
+    assert bodies["bay2"]["people"] == [3]
+    assert "power" not in bodies["bench"]  # no state source
 
 
 def test_people_are_rate_limited_by_frame_time(broker, closing) -> None:

@@ -4,7 +4,8 @@ Topics under ``<prefix>/<site>/`` (see docs/mqtt.md):
 
 - ``events``: each zone event as the events JSON lines write it (io.records), QoS 1.
 - ``zones/<zone>``: who is inside each zone, retained, QoS 1; derived from the zone's enter and
-  exit events; every known zone is published (empty at first) on each connect.
+  exit events; every known zone is published (empty at first) on each connect; a zone with a
+  state source also says `power` (live, dead, unknown) and `power_source`.
 - ``people``: the current people (id, floor position, heading), at most ``people_hz`` per second
   of the frames' own clock, QoS 0.
 - ``available``: ``online`` retained on connect; ``offline`` retained at a clean close and as
@@ -97,6 +98,7 @@ class MqttSink(ClosesOnce):
             z: (set(), None, None) for z in zone_names
         }
         self._dirty: set[str] = set(self._zones)
+        self._power: dict[str, tuple[str, str | None]] = {}  # zone -> its state, source
         self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
         # message ids paho says are sent (QoS 0) or acknowledged (QoS 1): a message published
         # while the link was down keeps that error in its info even once paho has resent it
@@ -144,6 +146,11 @@ class MqttSink(ClosesOnce):
 
     def _occupy(self, e: Event) -> None:
         if not e.zone:  # a camera's event: no zone's occupancy changes
+            return
+        if e.type in ("zone_live", "zone_dead", "zone_unknown"):  # its state from its breakers
+            self._power[e.zone] = (e.type[5:], e.source)
+            if e.zone in self._zones:
+                self._dirty.add(e.zone)
             return
         inside, _, _ = self._zones.get(e.zone, (set(), None, None))
         if e.type == "enter":
@@ -229,6 +236,8 @@ class MqttSink(ClosesOnce):
         inside, t, frame = self._zones[zone]
         people = sorted(inside)
         body = {"zone": zone, "people": people, "count": len(people), "t": t, "frame": frame}
+        if zone in self._power:  # a zone with a state source: live, dead or unknown, and why
+            body["power"], body["power_source"] = self._power[zone]
         return _Message("zones", self._zone_base + topic_part(zone), _dumps(body), 1, True)
 
     def _publish(self, msg: _Message) -> None:
