@@ -55,7 +55,7 @@ CLIENT_URI = "urn:stereopose:test-client"
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
 REFRESH = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
 ZONES = [
-    ZoneNode("overhead_busbar", "energized", ("cam01", "cam02")),
+    ZoneNode("overhead_busbar", "energized", ("cam01", "cam02"), powered=True),
     ZoneNode("walkway", "work_area", ()),
 ]
 CAMERAS = [CameraNode("cam01"), CameraNode("cam02")]
@@ -339,6 +339,23 @@ def test_a_login_browses_the_site_and_sees_its_values_change(tmp_path, pair):
             assert dv.Value.Value is True  # the last usable value kept
             await in_thread(site.run, [enter(3.0, type_="exit")])
             await until(lambda: _equals(occupied, False), "the busbar empty")
+            # its state from its breakers: unknown (uncertain) until known, then dead
+            power = client.get_node(ua.NodeId("zone/overhead_busbar/Power", idx))
+            assert await _uncertain(power) and await _equals(power, "unknown")
+            dead = Event(
+                t=4.0,
+                frame=40,
+                person=-1,
+                zone="overhead_busbar",
+                kind="energized",
+                type="zone_dead",
+                onset_t=4.0,
+                source="iec104 rtu ioa 1",
+            )
+            await in_thread(site.run, [dead])
+            await until(lambda: _equals(power, "dead"), "the busbar dead")
+            dv = await power.read_data_value(raise_on_bad_status=False)
+            assert dv.StatusCode.is_good()
         finally:
             await client.disconnect()
 

@@ -107,6 +107,7 @@ class OpcuaServer(ClosesOnce):
         self._changes: deque[tuple[IncidentRecord, str, float | None, float | None]] = deque()
         self._occupants: dict[str, set[int]] = {z.name: set() for z in self.zones}
         self._dirty_zones: dict[str, float | None] = {}
+        self._dirty_power: dict[str, tuple[str, float | None]] = {}  # zone -> state, when
         self._dirty_cameras: dict[str, tuple[bool, float | None]] = {}
         self._stall: bool | None = None
         self._people: int | None = None
@@ -253,6 +254,8 @@ class OpcuaServer(ClosesOnce):
                     inside = self._occupants[e.zone]
                     (inside.add if e.type == "enter" else inside.discard)(e.person)
                     self._dirty_zones[e.zone] = wall
+                elif e.type in ("zone_live", "zone_dead", "zone_unknown"):
+                    self._dirty_power[e.zone] = (e.type[5:], wall)
                 elif e.type in ("camera_down", "camera_up") and e.camera:
                     self._dirty_cameras[e.camera] = (e.type == "camera_up", wall)
                 elif e.type in ("service_stalled", "service_resumed"):
@@ -308,6 +311,8 @@ class OpcuaServer(ClosesOnce):
             self._changes.clear()
             zones = {z: (len(self._occupants[z]), w) for z, w in self._dirty_zones.items()}
             cameras, stall = dict(self._dirty_cameras), self._stall
+            power = dict(self._dirty_power)
+            self._dirty_power.clear()
             self._dirty_zones.clear()
             self._dirty_cameras.clear()
             people, resync, desk = self._people, self._resync, self.desk
@@ -318,6 +323,8 @@ class OpcuaServer(ClosesOnce):
             await space.set_camera(name, up, wall)
         for name, (n, wall) in zones.items():
             await space.set_zone(name, n, wall)
+        for name, (state, wall) in power.items():
+            await space.set_power(name, state, wall)
         if people is not None and people != self._people_sent:
             self._people_sent = people
             await space.write("site/People", people, ua.VariantType.UInt32)

@@ -11,6 +11,7 @@ restarts (a SCADA configuration refers to them), `<site>` standing for [opcua] s
         UnacknowledgedIncidents UInt32   s=site/UnacknowledgedIncidents
         Zones/<zone>                     s=zone/<zone>
             Kind String, Occupied Boolean, Occupants UInt32, Alarm Boolean  s=zone/<zone>/<name>
+            Power String (a zone with a state source: live, dead, unknown uncertain)
         Cameras/<camera>                 s=camera/<camera>
             Up Boolean                   s=camera/<camera>/Up
         Incidents/Incident <id>          s=incident/<id>   one per open incident: its condition
@@ -68,6 +69,7 @@ class ZoneNode:
     name: str
     kind: str
     cameras: tuple[str, ...]
+    powered: bool = False  # a state source (fence.power): its Power variable
 
 
 @dataclass(frozen=True)
@@ -182,6 +184,13 @@ class SiteSpace:
                 await obj.add_variable(
                     self.nid(f"zone/{z.name}/{name}"), ua.QualifiedName(name, self.idx), value, vt
                 )
+            if z.powered:  # live, dead or unknown (uncertain), from its breakers
+                await obj.add_variable(
+                    self.nid(f"zone/{z.name}/Power"),
+                    ua.QualifiedName("Power", self.idx),
+                    "unknown",
+                    ua.VariantType.String,
+                )
             self._zone_values[z.name] = (0, False)
             self._zone_t[z.name] = self._alarm_t[z.name] = None
         cams = await site.add_folder(self.nid("site/Cameras"), self.qn("Cameras"))
@@ -196,6 +205,7 @@ class SiteSpace:
         await site.add_folder(self.nid("site/Incidents"), ua.QualifiedName("Incidents", self.idx))
         for z in self.zones.values():  # a zone no camera sees is uncertain from the start
             await self._write_zone(z.name)
+            await self.set_power(z.name, "unknown", None)  # uncertain until its state is known
 
     # -- values ---------------------------------------------------------------------------
 
@@ -240,6 +250,14 @@ class SiteSpace:
             await self.write(
                 f"zone/{zone}/Alarm", alarmed, ua.VariantType.Boolean, self._alarm_t[zone], good
             )
+
+    async def set_power(self, zone: str, state: str, wall: float | None) -> None:
+        """A zone's state from its breakers (good quality when known)."""
+        z = self.zones.get(zone)
+        if z is None or not z.powered:
+            return
+        path = f"zone/{zone}/Power"
+        await self.write(path, state, ua.VariantType.String, wall, state != "unknown")
 
     async def set_camera(self, camera: str, up: bool, wall: float | None) -> None:
         if camera not in self._camera_up:
@@ -404,4 +422,6 @@ def site_zones(site, rig) -> list[ZoneNode]:
 
     if site is None:
         return []
-    return [ZoneNode(z.name, z.kind, cameras_seeing(z, rig)) for z in site.zones]
+    return [
+        ZoneNode(z.name, z.kind, cameras_seeing(z, rig), z.power is not None) for z in site.zones
+    ]
