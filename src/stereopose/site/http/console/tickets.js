@@ -162,6 +162,7 @@ export class Tickets {
     if (t.started_wall) times.push(`started ${dateTime(t.started_wall)}${t.started_by ? ` by ${t.started_by}` : ""}`);
     if (t.ended_wall) times.push(`ended ${dateTime(t.ended_wall)}${t.ended_by ? ` by ${t.ended_by}` : ""}`);
     if ((t.isolated || []).length) times.push(`isolated: ${t.isolated.join(", ")}`);
+    if (typeof t.slot === "number") times.push(`SCADA slot ${t.slot}`);
     byId("t-times").textContent = times.join(" · ");
     byId("t-operator").textContent = who(t.operator);
     const required = !t.ticket || !t.ticket.roles || "supervisor" in t.ticket.roles;
