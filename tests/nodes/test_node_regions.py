@@ -73,8 +73,9 @@ def test_a_node_finds_distant_workers_in_regions(tmp_path, pose2sim_dir):
 
         wait_until(lambda: len(frames()) >= 8, "eight camera-frames on the broker", 90, 0.1)
         people = [len(k.people.keypoints) for k in frames()]
-        # the two workers in (almost) every frame; the bystander comes and goes
-        assert sum(n >= 2 for n in people) >= 0.9 * len(people), people
+        # the two workers in (almost) every frame after the first (the node's first step, its
+        # regions not yet on them); the bystander comes and goes
+        assert sum(n >= 2 for n in people[1:]) >= 0.9 * len(people[1:]), people
         kp = np.concatenate([k.people.keypoints for k in frames()])
         seen = kp[..., 2] > 0.5
         x, y = kp[seen][:, 0], kp[seen][:, 1]  # in the canvas, where the frames were pasted
