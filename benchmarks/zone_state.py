@@ -45,7 +45,7 @@ from stereopose.fence.power_sources import start_sources
 from stereopose.fence.power_state import UNKNOWN, PowerBoard, ZoneStates
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.sim.jobs import simulate_job
+from stereopose.sim.jobs import job_site, simulate_job
 
 
 def free_port() -> int:
@@ -192,9 +192,8 @@ def latency(toggles: int) -> dict:
 
 
 def simulate_zone():
-    return next(
-        z for z in simulate_job("neighbour_live", seed=0).site.zones if z.name == "bay2_panel"
-    )
+    """Bay 2's panel of the jobs' site (its geometry; the state source is set per case)."""
+    return next(z for z in job_site().zones if z.name == "bay2_panel")
 
 
 def stale(stale_s: float = 3.0) -> dict:

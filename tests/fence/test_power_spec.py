@@ -151,3 +151,11 @@ def test_the_rules_read_the_points() -> None:
     assert one.is_dead({"state": "off"}) and not one.is_dead({"state": "on"})
     assert one.stale_after(one.points[0]) == 90.0  # 1.5 interrogation periods
     assert set(TABLES) == {"gb26860", "en50110", "osha"}
+
+
+def test_an_endpoints_login_is_never_in_a_source_label() -> None:
+    spec = parse_power(
+        {"opcua": {"endpoint": "opc.tcp://scada:hunter2@10.0.0.6:4840", "node_id": "ns=2;s=QF"}},
+        "zone 'z'",
+    )
+    assert "hunter2" not in spec.points[0].label and "10.0.0.6:4840" in spec.points[0].label

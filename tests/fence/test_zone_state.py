@@ -186,7 +186,6 @@ def test_a_zone_state_over_mqtt_and_its_broker_lost(tmp_path: Path) -> None:
     import paho.mqtt.client as paho
 
     broker = Broker(tmp_path / "broker").start()
-    state = '[zones.state]\nmqtt = { topic = "scada/bay2/qf2", energized_when = "closed" }\n'
     state = 'state = { mqtt = { topic = "scada/bay2/qf2", energized_when = "closed" } }'
     site = load_site(_site(tmp_path, state))
     board = PowerBoard()

@@ -28,9 +28,11 @@ import ast
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 from stereopose.errors import ConfigError
+from stereopose.secrets import redact
 
 __all__ = ["PROTOCOLS", "PointSource", "PowerSpec", "parse_power"]
 
@@ -69,7 +71,7 @@ class PointSource:
                 f"iec104 {p['host']}:{p.get('port', 2404)} ca {p['common_address']} ioa {p['ioa']}"
             )
         if self.protocol == "opcua":
-            return f"opcua {p['endpoint']} {p['node_id']}"
+            return f"opcua {redact(p['endpoint'])} {p['node_id']}"
         return f"mqtt {p['topic']}"
 
     @property
@@ -93,9 +95,14 @@ class PowerSpec:
             return self.stale_s if self.stale_s > 0 else None
         return None if point.protocol == "mqtt" else 1.5 * point.interrogation_s
 
+    @cached_property
+    def _tree(self) -> ast.AST:
+        """The rule parsed once (checked at load): judged at every step of the service."""
+        return ast.parse(self.expression, mode="eval").body
+
     def is_dead(self, values: Mapping[str, Any]) -> bool:
         """Whether the zone is dead with these point values (every point known)."""
-        result = _evaluate(ast.parse(self.expression, mode="eval").body, values)
+        result = _evaluate(self._tree, values)
         return bool(result) if self.dead else not bool(result)
 
     def to_toml(self) -> dict:

@@ -35,6 +35,7 @@ from stereopose.fence.power import DOUBLE, PointSource
 from stereopose.fence.power_state import PowerBoard
 from stereopose.fence.zones import Zone
 from stereopose.scada.iec104_settings import _typed
+from stereopose.secrets import redact
 
 __all__ = ["PowerSources", "start_sources"]
 
@@ -254,7 +255,7 @@ class OpcuaWatcher:
         self._thread = threading.Thread(target=self._run, name="zone-state-opcua", daemon=True)
 
     def __repr__(self) -> str:
-        return f"OPC UA client of {self.endpoint}"
+        return f"OPC UA client of {redact(self.endpoint)}"
 
     def start(self) -> None:
         self._thread.start()
@@ -277,8 +278,9 @@ class OpcuaWatcher:
                 attempt = 0
             except Exception as e:  # any failure: unknown, then connect again
                 self.figures["opcua_link_lost"] += 1
-                self.board.lost(self.keys, f"OPC UA {self.endpoint}: {type(e).__name__}")
-                logger.info("zone state: OPC UA %s: %s; connecting again", self.endpoint, e)
+                where = redact(self.endpoint)
+                self.board.lost(self.keys, f"OPC UA {where}: {type(e).__name__}")
+                logger.info("zone state: OPC UA %s: %s; connecting again", where, e)
             wait = BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)]
             attempt += 1
             with contextlib.suppress(TimeoutError):
@@ -328,7 +330,8 @@ class _Changes:
         self.watcher._take(label, val, getattr(status, "StatusCode", None))
 
     def status_change_notification(self, status) -> None:
-        self.watcher.board.lost(self.watcher.keys, f"OPC UA {self.watcher.endpoint}: {status}")
+        where = redact(self.watcher.endpoint)
+        self.watcher.board.lost(self.watcher.keys, f"OPC UA {where}: {status}")
 
 
 # -- MQTT --------------------------------------------------------------------------------------

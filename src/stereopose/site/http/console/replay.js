@@ -5,42 +5,11 @@
 import { poses } from "./api.js";
 import { idColour } from "./colours.js";
 import { dateTime } from "./feed.js";
-import { LIMBS, loadPlotly, plain, prism } from "./view3d.js";
+import { headsTrace, loadPlotly, prism, sceneLayout, skeletonTrace } from "./view3d.js";
 
 const byId = (id) => document.getElementById(id);
 const MAX_FRAMES = 900;
 const PLAY_MS = 100; // a drawn frame at most every 0.1 s
-
-function skeleton(person) {
-  const x = [];
-  const y = [];
-  const z = [];
-  const joints = person.joints || [];
-  for (const [a, b] of LIMBS) {
-    const p = joints[a];
-    const q = joints[b];
-    if (!p || !q) continue;
-    x.push(p[0], q[0], null);
-    y.push(p[1], q[1], null);
-    z.push(p[2], q[2], null);
-  }
-  return {
-    type: "scatter3d", mode: "lines", name: `id ${plain(person.id)}`, x, y, z,
-    line: { color: idColour(person.id), width: 6 }, hoverinfo: "name",
-    meta: { person: person.id },
-  };
-}
-
-function heads(people) {
-  const shown = people.filter((p) => p.joints && p.joints[0]);
-  return {
-    type: "scatter3d", mode: "text+markers", name: "ids", showlegend: false,
-    x: shown.map((p) => p.joints[0][0]), y: shown.map((p) => p.joints[0][1]),
-    z: shown.map((p) => p.joints[0][2] + 0.25), text: shown.map((p) => String(p.id)),
-    marker: { size: 3, color: shown.map((p) => idColour(p.id)) },
-    textfont: { color: "#ffffff", size: 14 }, hoverinfo: "skip",
-  };
-}
 
 export class Replay {
   constructor() {
@@ -155,21 +124,10 @@ export class Replay {
     const people = frame.people || [];
     const traces = [
       ...this.zones.map((z) => prism({ ...z, state: "free" }, this.highlight.has(z.name))),
-      ...people.map(skeleton),
-      heads(people),
+      ...people.map((p) => skeletonTrace(p, idColour(p.id))),
+      headsTrace(people, (p) => idColour(p.id)),
     ];
-    const layout = {
-      uirevision: "keep",
-      paper_bgcolor: "#0d1117", plot_bgcolor: "#0d1117", font: { color: "#c8d3e0" },
-      margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: true,
-      legend: { bgcolor: "rgba(0,0,0,0)", x: 0, y: 1 },
-      scene: {
-        aspectmode: "data", bgcolor: "#0d1117",
-        xaxis: { title: { text: "x (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-        yaxis: { title: { text: "y (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-        zaxis: { title: { text: "z (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-      },
-    };
+    const layout = sceneLayout();
     try {
       await window.Plotly.react(this.root, traces, layout, { displayModeBar: false, responsive: true });
       this.root.dataset.drawn = String(this.index);

@@ -7,7 +7,7 @@ import { inDanger } from "./floorplan.js";
 
 const PERIOD_MS = 500;
 // COCO-17 limbs (joint indices)
-export const LIMBS = [
+const LIMBS = [
   [0, 1], [0, 2], [1, 3], [2, 4], [5, 6], [5, 7], [7, 9], [6, 8], [8, 10], [5, 11], [6, 12],
   [11, 12], [11, 13], [13, 15], [12, 14], [14, 16],
 ];
@@ -38,7 +38,8 @@ const colour = (person, zones) => (inDanger(person, zones) ? ALARM_COLOUR : idCo
 export const plain = (value) => String(value ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;")
   .replace(/>/g, "&gt;");
 
-function skeleton(person, zones) {
+/** A person's skeleton as one trace of line segments (the live view's and the replay's). */
+export function skeletonTrace(person, color, width = 6, meta = {}) {
   const x = [];
   const y = [];
   const z = [];
@@ -53,20 +54,41 @@ function skeleton(person, zones) {
   }
   return {
     type: "scatter3d", mode: "lines", name: `id ${plain(person.id)}`, x, y, z,
-    line: { color: colour(person, zones), width: inDanger(person, zones) ? 10 : 6 },
-    hoverinfo: "name", meta: { person: person.id, danger: inDanger(person, zones) },
+    line: { color, width }, hoverinfo: "name", meta: { person: person.id, ...meta },
   };
 }
 
-function heads(people, zones) {
+/** Each person's id above the head, in its colour (`colourOf(person)`). */
+export function headsTrace(people, colourOf) {
   const shown = people.filter((p) => p.joints && p.joints[0]);
   return {
     type: "scatter3d", mode: "text+markers", name: "ids", showlegend: false,
     x: shown.map((p) => p.joints[0][0]), y: shown.map((p) => p.joints[0][1]),
     z: shown.map((p) => p.joints[0][2] + 0.25), text: shown.map((p) => String(p.id)), // WebGL text: numbers only
-    marker: { size: 3, color: shown.map((p) => colour(p, zones)) },
+    marker: { size: 3, color: shown.map(colourOf) },
     textfont: { color: "#ffffff", size: 14 }, hoverinfo: "skip",
   };
+}
+
+/** The dark 3D layout both views draw in (the operator's camera angle kept across updates). */
+export function sceneLayout(annotations = []) {
+  return {
+    uirevision: "keep",
+    paper_bgcolor: "#0d1117", plot_bgcolor: "#0d1117", font: { color: "#c8d3e0" },
+    margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: true,
+    legend: { bgcolor: "rgba(0,0,0,0)", x: 0, y: 1 },
+    scene: {
+      aspectmode: "data", bgcolor: "#0d1117", annotations,
+      xaxis: { title: { text: "x (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
+      yaxis: { title: { text: "y (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
+      zaxis: { title: { text: "z (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
+    },
+  };
+}
+
+function skeleton(person, zones) {
+  const danger = inDanger(person, zones);
+  return skeletonTrace(person, colour(person, zones), danger ? 10 : 6, { danger });
 }
 
 /** A zone's prism: its floor polygon at the bottom and top of its height band, as edges
@@ -161,20 +183,9 @@ export class View3D {
       ...this.zones.map((z) => prism(z)),
       cameraMarkers(this.cameras),
       ...this.people.map((p) => skeleton(p, this.zones)),
-      heads(this.people, this.zones),
+      headsTrace(this.people, (p) => colour(p, this.zones)),
     ];
-    const layout = {
-      uirevision: "keep", // the operator's camera angle stays across updates
-      paper_bgcolor: "#0d1117", plot_bgcolor: "#0d1117", font: { color: "#c8d3e0" },
-      margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: true,
-      legend: { bgcolor: "rgba(0,0,0,0)", x: 0, y: 1 },
-      scene: {
-        aspectmode: "data", bgcolor: "#0d1117", annotations: cameraLabels(this.cameras),
-        xaxis: { title: { text: "x (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-        yaxis: { title: { text: "y (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-        zaxis: { title: { text: "z (m)" }, gridcolor: "#2a3340", zerolinecolor: "#4a5668" },
-      },
-    };
+    const layout = sceneLayout(cameraLabels(this.cameras));
     try {
       await window.Plotly.react(this.root, traces, layout, { displayModeBar: false, responsive: true });
       this.info.textContent = `${this.people.length} people`;
