@@ -609,16 +609,21 @@ def test_idle_sockets_cannot_lock_the_master_out(station, masters) -> None:
         with contextlib.suppress(ConnectionResetError):
             while talker.recv(64):
                 pass
-    assert out.figures()["unstarted_closed"] >= 2
+    wait_until(lambda: out.figures()["unstarted_closed"] >= 2, "the talker's link closed")
     # a second master (started: data transfer asked for) is not evicted by newcomers; with
     # both places started, a newcomer is refused
     twin = masters(port)
-    wait_until(lambda: out.figures()["connections"] == 2, "the twin connected")
     wait_until(lambda: twin.conn.is_connected, "the twin connected")
+    # connected is not started: until the guard has seen the twin's STARTDT, a newcomer
+    # would rightly take its place
+    wait_until(lambda: out.figures()["started_connections"] == 2, "the twin started")
+    evicted = out.figures()["evicted"]
     late = socket.create_connection(("127.0.0.1", port), timeout=10)
     with late, contextlib.suppress(ConnectionResetError):
         assert late.recv(64) == b""
-    assert out.figures()["full"] >= 1
+    # counted before its socket is closed; waited for all the same (the guard's own thread)
+    wait_until(lambda: out.figures()["full"] >= 1, "the refused newcomer counted")
+    assert out.figures()["evicted"] == evicted and out.figures()["started_connections"] == 2
     assert master.conn.is_connected
     out.write(_frame(30.0, [_zone(30.0, "enter")]))
     _spontaneous(master, table.get("zone_occupied", "panel A").ioa, True)

@@ -132,7 +132,7 @@ def test_a_receiver_away_gets_what_it_missed_from_the_log(broker, log, closing):
     again.stored.update(kept)
     closing(again)
     wait_until(lambda: again.ids() == log.ids(), "the missed events after the restart")
-    assert box.figures()["replays"] >= 1
+    wait_until(lambda: box.figures()["replays"] >= 1, "the replay counted")
 
 
 def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
@@ -148,7 +148,8 @@ def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
     wait_until(lambda: box.figures()["cursor"] == log.ids()[-1], "the outbox sending on")
     # no further event shows the gap: the site's resend after resend_s fills it
     wait_until(lambda: rx.ids() == log.ids(), "the lost events sent again")
-    assert box.figures()["resent"] >= 4
+    # (counted just after paho takes each: the receiver may have them first)
+    wait_until(lambda: box.figures()["resent"] >= 4, "the resends counted")
 
 
 def test_a_gap_seen_by_the_receiver_is_filled_by_a_replay(broker, log, closing):

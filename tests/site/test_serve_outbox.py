@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import time
 
 import pytest
 from test_serve import _start, _stop  # the same serve process and stop
@@ -28,6 +29,19 @@ def _ids(db) -> list[int]:
         return []
     finally:
         con.close()
+
+
+def _status(tmp_path) -> dict:
+    return json.loads((tmp_path / "data" / "status.json").read_text())
+
+
+def _outbox_up(tmp_path, since: float) -> bool:
+    """Whether a status.json written after `since` (wall time) says the outbox is connected."""
+    try:
+        status = _status(tmp_path)
+    except (OSError, ValueError):
+        return False
+    return status["written_at"] > since and bool(status.get("outbox", {}).get("connected"))
 
 
 def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
@@ -66,20 +80,33 @@ def test_every_served_event_reaches_the_receiver_once_across_a_kill_9(tmp_path):
         finally:
             rc = _stop(proc, log)
         assert rc == 0, log.read_text()
-        # the stop sent what the log held; a kill left nothing unsent for ever: the receiver
-        # holds every event of the log, each once, as the log numbers them
+        # the stop sent what the log held: the run's last status (written once the outbox
+        # closed) counts each event the run stored published once (the first run's leftovers
+        # are sent again, not published anew)
+        second_run = _ids(db)
+        outbox = _status(tmp_path)["outbox"]
+        assert outbox["published"] == len(second_run) - len(first_run) > 0, outbox
+        assert outbox["cursor"] == second_run[-1] and outbox["malformed"] == 0, outbox
+        # a kill left nothing unsent for ever: the receiver holds every event of the log, each
+        # once, as the log numbers them
+        started = time.time()
         proc = _start(config, log)
-        try:
+        try:  # (this run's outbox connected: a stop before it would test nothing)
+            wait_until(lambda: _outbox_up(tmp_path, started), "the outbox connected", timeout_s=120)
             wait_until(
                 lambda: rx.ids() == _ids(db), "every event of the log at the receiver", timeout_s=60
             )
         finally:
-            _stop(proc, log)
+            rc = _stop(proc, log)
+        assert rc == 0, log.read_text()
         stored = rx.stored
         assert all(stored[i]["site"] == "demo" and stored[i]["id"] == i for i in stored)
         assert len(_ids(db)) > len(first_run) > 0 and rx.received > received_before
-        status = json.loads((tmp_path / "data" / "status.json").read_text())
-        assert status["outbox"]["published"] >= 1 and status["outbox"]["malformed"] == 0
+        # the third run published its own events only (none, if the loop stored none before
+        # the stop), each once
+        third_run, outbox = _ids(db), _status(tmp_path)["outbox"]
+        assert outbox["published"] == len(third_run) - len(second_run), outbox
+        assert outbox["cursor"] == third_run[-1] and outbox["malformed"] == 0, outbox
     finally:
         rx.close()
         broker.stop()

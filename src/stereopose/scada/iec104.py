@@ -424,7 +424,8 @@ class Outstation(ClosesOnce):
         return f"IEC 60870-5-104 {self.settings.host}:{self.settings.port}"
 
     def figures(self) -> dict:
-        """Connections open, refused, points sent, commands, clock syncs, the queue."""
+        """Connections open (and of them started), refused, points sent, commands, clock
+        syncs, the queue."""
         with self._cond:
             queued = len(self._queue)
         f = dict(self._figures)
@@ -432,6 +433,7 @@ class Outstation(ClosesOnce):
             queued=queued,
             clock_offset_s=self._clock_offset_s,
             connections=self._guard.connections(),
+            started_connections=self._guard.started(),
             active_connections=self._server.active_connection_count,
             **self._guard.counts,
         )

@@ -135,6 +135,11 @@ class Guard:
     def connections(self) -> int:
         return len(self.links)
 
+    def started(self) -> int:
+        """Connections that have started data transfer (STARTDT, no STOPDT since): these are
+        never evicted for a newcomer."""
+        return sum(1 for link in list(self.links) if link.started)
+
     def close(self) -> None:
         loop = self._loop
         if loop is None or not self.running:

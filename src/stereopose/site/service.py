@@ -365,14 +365,17 @@ class SiteService:
             self.console.hub.scene.power = states.snapshot
 
     def close(self) -> None:
-        """The maintainer, the console and the server, each within its bound."""
+        """The maintainer, the console and the server, each within its bound; status.json
+        written again once the outbox has sent the stop's last events."""
         self.watchdog.stop()
         if self.power_sources is not None:
             self.power_sources.stop()
         if self.opcua is not None:
             self.opcua.close()  # once (a sink of the loop closes it first)
         if self.outbox is not None:
-            self.outbox.close()
+            self.outbox.close()  # sends what the log holds: status.json counts it
+            if self.status is not None:
+                self.status.write_now()
         if self.maintainer is not None and not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
         if self.console is not None:
