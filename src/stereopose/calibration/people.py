@@ -1,0 +1,248 @@
+"""The rig from the people who walk through the site: no board, no overlap needed between
+every pair of cameras, only people seen by cameras two at a time.
+
+1. People matched across views without a calibration (calibration.people_match): relative
+   poses per camera pair, and groups (one person at one frame, seen by several cameras).
+2. Incremental, as COLMAP's mapper: the pair with most agreeing joints and a wide enough
+   angle starts; each next camera is placed by PnP (RANSAC) on the joints already
+   triangulated; the joints are triangulated again with every camera placed.
+3. One bundle adjustment of every camera and joint (robust loss); detections left/right
+   swapped are turned back, observations that stand out are dropped, then a second one.
+4. Scale and world: scale from two cameras' measured distance, the walkers' height or the
+   surveyed points; z up and z = 0 on the floor under the feet (the ankles' plane, less the
+   ankle's height above the floor); x along the first camera's view on the floor, the origin
+   under it. With surveyed points, the points' own frame instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from stereopose.calibration.bundle import Bundle, adjust, camera_with_pose, intrinsics_row
+from stereopose.calibration.people_match import (
+    MIN_CONF,
+    PairMatch,
+    Views,
+    collect_views,
+    group_detections,
+    match_pair,
+)
+from stereopose.calibration.people_world import coverage_advice, to_world
+from stereopose.errors import CalibrationError
+from stereopose.geometry.triangulation import triangulate_dlt
+from stereopose.skeleton import SWAP
+from stereopose.types import Camera, People2D, Rig
+
+__all__ = ["PeopleResult", "calibrate_people"]
+
+logger = logging.getLogger(__name__)
+
+MIN_PNP = 30  # 2D-3D correspondences to place a camera
+
+
+@dataclass
+class PeopleResult:
+    """The rig; per camera its RMS reprojection error (px), joints and frames used, the part
+    of its view the walkers covered (0-1) and advice where too thin; the scale's source."""
+
+    rig: Rig
+    camera_rms_px: dict[str, float]
+    joints_used: dict[str, int]
+    frames_used: dict[str, int]
+    coverage: dict[str, float]
+    advice: list[str]
+    scale_from: str
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+
+
+def _triangulate(views: Views, groups, poses: np.ndarray, placed: np.ndarray) -> np.ndarray:
+    """(G, 17, 3) joints of every group from its placed cameras (NaN: fewer than two)."""
+    X = np.full((len(groups), 17, 3), np.nan)
+    for g, members in enumerate(groups):
+        cams = [c for c in members if placed[c]]
+        if len(cams) < 2:
+            continue
+        P = np.stack([np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in cams])
+        xy = np.stack([views.det[members[c]][3] for c in cams], axis=1)  # (17, V, 2)
+        w = np.stack([views.det[members[c]][2][:, 2] for c in cams], axis=1)
+        w = np.where(np.isfinite(xy[..., 0]), w, 0.0)
+        X[g] = triangulate_dlt(np.nan_to_num(xy), P, w)
+    return X
+
+
+def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int] | None:
+    """Camera c's pose (6,) by PnP RANSAC on the joints triangulated, and its inliers."""
+    obj, img = [], []
+    for g, members in enumerate(groups):
+        if c in members:
+            xy = views.det[members[c]][3]
+            ok = np.isfinite(X[g, :, 0]) & np.isfinite(xy[:, 0])
+            obj.append(X[g, ok])
+            img.append(xy[ok])
+    if not obj or sum(len(o) for o in obj) < MIN_PNP:
+        return None
+    obj, img = np.concatenate(obj), np.concatenate(img)
+    ok, r, t, inl = cv2.solvePnPRansac(
+        obj, img, np.eye(3), None, reprojectionError=thr, iterationsCount=5000, confidence=0.9999,
+        flags=cv2.SOLVEPNP_SQPNP,
+    )
+    if not ok or inl is None or len(inl) < MIN_PNP:
+        return None
+    keep = inl.ravel()
+    r, t = cv2.solvePnPRefineLM(obj[keep], img[keep], np.eye(3), None, r, t)
+    return np.concatenate([r.ravel(), t.ravel()]), len(keep)
+
+
+def _observations(views: Views, groups, X, placed, drop: set) -> tuple:
+    """The bundle's points ((group, joint) with two placed views or more) and observations."""
+    pid = -np.ones((len(groups), 17), dtype=int)
+    cam, pt, uv, w, src = [], [], [], [], []
+    n = 0
+    for g, members in enumerate(groups):
+        for j in range(17):
+            if not np.isfinite(X[g, j, 0]):
+                continue
+            seen = [
+                (c, k)
+                for c, k in members.items()
+                if placed[c] and views.det[k][2][j, 2] >= MIN_CONF and (k, j) not in drop
+            ]
+            if len(seen) < 2:
+                continue
+            pid[g, j] = n
+            for c, k in seen:
+                cam.append(c)
+                pt.append(n)
+                uv.append(views.det[k][2][j, :2])
+                w.append(views.det[k][2][j, 2])
+                src.append((k, j))
+            n += 1
+    return pid, np.array(cam), np.array(pt), np.array(uv).reshape(-1, 2), np.array(w), src
+
+
+def _unswap(views: Views, groups, poses, intr) -> int:
+    """Detections whose joints fit the others' person better left/right swapped are swapped
+    (in views); how many."""
+    from stereopose.calibration.bundle import project_px
+
+    X = _triangulate(views, groups, poses, np.ones(len(poses), dtype=bool))
+    turned = 0
+    for g, members in enumerate(groups):
+        if len(members) < 3 or not np.isfinite(X[g]).any():
+            continue
+        for c, k in members.items():
+            kp = views.det[k][2]
+            ok = np.isfinite(X[g, :, 0])
+            uv, _ = project_px(np.repeat(poses[c : c + 1], 17, 0), np.repeat(intr[c : c + 1], 17, 0), np.nan_to_num(X[g]))
+            e0 = np.nanmedian(np.where(ok & (kp[:, 2] >= MIN_CONF), np.linalg.norm(uv - kp[:, :2], axis=1), np.nan))
+            sw = kp[SWAP]
+            e1 = np.nanmedian(np.where(ok & (sw[:, 2] >= MIN_CONF), np.linalg.norm(uv - sw[:, :2], axis=1), np.nan))
+            if np.isfinite(e0) and np.isfinite(e1) and e1 < 0.5 * e0 and e0 > 6.0:
+                views.det[k] = (views.det[k][0], c, sw.copy(), views.det[k][3][SWAP].copy())
+                turned += 1
+    return turned
+
+
+def _start(matches: list[PairMatch]) -> PairMatch:
+    return max(matches, key=lambda m: m.inliers * min(m.angle_deg / 8.0, 1.0))
+
+
+def calibrate_people(
+    frames: list[tuple[int, dict[str, People2D]]],
+    intrinsics: Rig,
+    *,
+    distance: tuple[str, str, float] | None = None,
+    height_m: float | None = None,
+    survey=None,
+    ankle_m: float = 0.08,
+    seed: int = 0,
+) -> PeopleResult:
+    """The rig of `intrinsics`' cameras from the people of `frames` (frame number, camera ->
+    People2D; synchronised). Exactly one of distance (camera, camera, metres), height_m (the
+    walkers' standing height) or survey (calibration.surveyed.Survey) gives the scale."""
+    t0 = time.perf_counter()
+    if sum(x is not None for x in (distance, height_m, survey)) != 1:
+        raise CalibrationError("give exactly one scale: a distance, a height or surveyed points")
+    cams = {c.name: c for c in intrinsics}
+    names = list(cams)
+    if distance is not None:
+        for n in distance[:2]:
+            if n not in cams:
+                raise CalibrationError(f"--distance: no camera {n!r} (cameras: {', '.join(names)})")
+    views = collect_views(frames, cams)
+    if not views.det:
+        raise CalibrationError(
+            f"no person with {8} or more confident joints in {len(frames)} frame(s)"
+        )
+    rng = np.random.default_rng(seed)
+    focal = float(np.median([c.focal for c in intrinsics]))
+    thr = 3.0 / focal
+    C = len(names)
+    matches = [m for a in range(C) for b in range(a + 1, C) if (m := match_pair(views, a, b, thr, rng))]
+    linked = {c for m in matches for c in (m.a, m.b)}
+    alone = [names[c] for c in range(C) if c not in linked]
+    if alone:
+        raise CalibrationError(
+            f"camera(s) {', '.join(alone)} share no walker with any other camera "
+            f"({len(views.det)} people seen in {len(frames)} frames); walk where they and "
+            "another camera both see"
+        )
+    groups = group_detections(views, matches)
+    first = _start(matches)
+    poses = np.zeros((C, 6))
+    poses[first.b] = np.concatenate([cv2.Rodrigues(first.R)[0].ravel(), first.t])
+    placed = np.zeros(C, dtype=bool)
+    placed[[first.a, first.b]] = True
+    X = _triangulate(views, groups, poses, placed)
+    while not placed.all():
+        tries = {c: _place(views, groups, X, c, 2 * thr) for c in np.flatnonzero(~placed)}
+        tries = {c: r for c, r in tries.items() if r is not None}
+        if not tries:
+            left = [names[c] for c in np.flatnonzero(~placed)]
+            raise CalibrationError(
+                f"camera(s) {', '.join(left)}: too few joints shared with the cameras placed "
+                f"({', '.join(names[c] for c in np.flatnonzero(placed))}); walk where they see"
+            )
+        c = max(tries, key=lambda c: tries[c][1])
+        poses[c], placed[c] = tries[c][0], True
+        X = _triangulate(views, groups, poses, placed)
+    intr = np.stack([intrinsics_row(cams[n]) for n in names])
+    base = (first.a, first.b, float(np.linalg.norm(first.t)))
+    drop: set = set()
+    for round_ in range(2):
+        pid, cam, pt, uv, w, src = _observations(views, groups, X, placed, drop)
+        free_cams = np.ones(C, dtype=bool)
+        free_cams[first.a] = False
+        pts = np.array([X[g, j] for g, j in zip(*np.nonzero(pid >= 0), strict=True)])
+        sol = adjust(
+            Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, np.ones(len(pts), dtype=bool), baseline=base),
+            f_scale_px=3.0,
+            max_nfev=40 if round_ == 0 else 60,
+        )
+        poses = sol.poses
+        if round_ == 0:
+            turned = _unswap(views, groups, poses, intr)
+            limit = max(8.0, 4.0 * float(np.median(sol.residual_px)))
+            drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
+            logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
+            X = _triangulate(views, groups, poses, placed)
+    X = np.full((len(groups), 17, 3), np.nan)
+    for g, j in zip(*np.nonzero(pid >= 0), strict=True):
+        X[g, j] = sol.points[pid[g, j]]
+    rig = Rig(tuple(camera_with_pose(cams[n], poses[c]) for c, n in enumerate(names)))
+    rig, scale_from = to_world(rig, X, distance=distance, height_m=height_m, survey=survey, ankle_m=ankle_m)
+    err = sol.residual_px
+    rms = {n: float(np.sqrt(np.mean(err[cam == c] ** 2))) if np.any(cam == c) else float("nan") for c, n in enumerate(names)}
+    used = {n: int(np.sum(cam == c)) for c, n in enumerate(names)}
+    frames_used = {
+        n: len({views.det[g[c]][0] for g in groups if c in g}) for c, n in enumerate(names)
+    }
+    cover, advice = coverage_advice(rig, {n: uv[cam == c] for c, n in enumerate(names)})
+    warnings = [f"camera {n}: reprojection error {e:.2f} px is high" for n, e in rms.items() if e > 5]
+    return PeopleResult(rig, rms, used, frames_used, cover, advice, scale_from, time.perf_counter() - t0, warnings)

@@ -1,0 +1,259 @@
+"""The rig from surveyed points: each camera placed by robust PnP on the points it sees, then
+one adjustment of every camera together (the points held near their surveyed positions).
+
+The points file (TOML) gives the points' site coordinates in metres and, per camera, where it
+sees them in pixels of its own (distorted) image:
+
+    [points]
+    P1 = [28.94, 9.19, 0.0]
+    [cameras.cam01]
+    P1 = [1238.9, 348.4]
+
+The world frame is the points' own: zones drawn from the same drawings land on the equipment.
+A click whose residual stands out is left out and named; a camera left with fewer than
+`min_points` good points is an error naming it and the points it has.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereopose.calibration.bundle import (
+    Bundle,
+    adjust,
+    camera_with_pose,
+    intrinsics_row,
+    project_px,
+)
+from stereopose.checks import read_limited
+from stereopose.errors import CalibrationError
+from stereopose.types import Camera, Rig
+
+__all__ = ["PointsResult", "Survey", "calibrate_points", "read_survey"]
+
+MIN_POINTS = 6  # per camera, after the clicks left out (10 or more advised)
+RANSAC_PX = 12.0  # PnP's inlier bound on a click's residual
+MAX_POINTS = 10_000
+COORD_LIMIT_M = 1e5
+PIXEL_LIMIT = 1e5
+
+
+@dataclass(frozen=True)
+class Survey:
+    """world: point name -> (3,) metres; clicks: camera -> point name -> (2,) pixels."""
+
+    path: Path
+    world: dict[str, np.ndarray]
+    clicks: dict[str, dict[str, np.ndarray]]
+
+
+def _vector(path: Path, where: str, value: object, n: int, limit: float) -> np.ndarray:
+    unit = "metres" if n == 3 else "pixels"
+    if (
+        not isinstance(value, list)
+        or len(value) != n
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        raise CalibrationError(f"{path}: {where}: expected {n} numbers ({unit}), got {value!r:.80}")
+    a = np.array(value, dtype=np.float64)
+    if not np.all(np.isfinite(a)) or np.any(np.abs(a) > limit):
+        raise CalibrationError(f"{path}: {where}: not a finite number within {limit:g}: {value}")
+    return a
+
+
+def read_survey(path: str | Path) -> Survey:
+    """Read and check a points file (see the module); CalibrationError naming the file, the
+    key and the problem."""
+    path = Path(path)
+    raw = read_limited(path, "points file", CalibrationError)
+    try:
+        doc = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f"{path}: not UTF-8 text (byte {e.start}); expected TOML") from None
+    except (ValueError, RecursionError) as e:
+        raise CalibrationError(f"{path}: not valid TOML: {e}") from None
+    unknown = sorted(set(doc) - {"points", "cameras"})
+    if unknown:
+        raise CalibrationError(
+            f"{path}: unknown table(s) {', '.join(unknown)}; expected [points] and "
+            "[cameras.<name>]"
+        )
+    pts, cams = doc.get("points"), doc.get("cameras")
+    if not isinstance(pts, dict) or not pts:
+        raise CalibrationError(f"{path}: no [points] table: name = [x, y, z] in metres")
+    if not isinstance(cams, dict) or not cams:
+        raise CalibrationError(f"{path}: no [cameras.<name>] table: point = [u, v] in pixels")
+    if len(pts) > MAX_POINTS:
+        raise CalibrationError(f"{path}: {len(pts)} points; at most {MAX_POINTS}")
+    world = {str(k): _vector(path, f"points.{k}", v, 3, COORD_LIMIT_M) for k, v in pts.items()}
+    clicks: dict[str, dict[str, np.ndarray]] = {}
+    for cam, table in cams.items():
+        if not isinstance(table, dict):
+            raise CalibrationError(f"{path}: cameras.{cam}: expected a table of point = [u, v]")
+        seen = {}
+        for k, v in table.items():
+            if k not in world:
+                raise CalibrationError(
+                    f"{path}: cameras.{cam}.{k}: no point {k!r} in [points]"
+                    f" (points: {', '.join(sorted(world)[:20])})"
+                )
+            seen[str(k)] = _vector(path, f"cameras.{cam}.{k}", v, 2, PIXEL_LIMIT)
+        clicks[str(cam)] = seen
+    return Survey(path, world, clicks)
+
+
+@dataclass
+class PointsResult:
+    """The rig (cameras in the intrinsics' order), each camera's RMS over its good clicks,
+    every click's residual (camera -> point -> pixels), the clicks left out (camera, point,
+    pixels), the points' adjusted positions and warnings."""
+
+    rig: Rig
+    camera_rms_px: dict[str, float]
+    residuals_px: dict[str, dict[str, float]]
+    left_out: list[tuple[str, str, float]]
+    points: dict[str, np.ndarray]
+    warnings: list[str] = field(default_factory=list)
+
+
+def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray, names: list[str]) -> np.ndarray:
+    """(6,) pose of one camera from its clicks; CalibrationError when it has too few."""
+    if len(names) < MIN_POINTS:
+        raise CalibrationError(
+            f"camera {cam.name}: {len(names)} surveyed point(s) clicked "
+            f"({', '.join(names) or 'none'}); at least {MIN_POINTS} are needed, 10 or more advised"
+        )
+    ok, r, t, inliers = cv2.solvePnPRansac(
+        obj,
+        img,
+        cam.matrix,
+        cam.distortions,
+        reprojectionError=RANSAC_PX,
+        iterationsCount=2000,
+        confidence=0.9999,
+        flags=cv2.SOLVEPNP_SQPNP,
+    )
+    if not ok or inliers is None or len(inliers) < MIN_POINTS:
+        found = 0 if inliers is None else len(inliers)
+        raise CalibrationError(
+            f"camera {cam.name}: no pose agrees with {MIN_POINTS} or more of its points "
+            f"({found} of {len(names)} agree within {RANSAC_PX:g} px: {', '.join(names)}); "
+            "check the clicks and the points' coordinates"
+        )
+    keep = inliers.ravel()
+    r, t = cv2.solvePnPRefineLM(obj[keep], img[keep], cam.matrix, cam.distortions, r, t)
+    return np.concatenate([r.ravel(), t.ravel()])
+
+
+def _outliers(err: np.ndarray, cam_of: np.ndarray, floor_px: float) -> np.ndarray:
+    """Observations whose residual stands out from their camera's (a robust spread)."""
+    bad = np.zeros(err.shape, dtype=bool)
+    for c in np.unique(cam_of):
+        e = err[cam_of == c]
+        spread = 1.4826 * np.median(e)
+        bad[cam_of == c] = e > max(floor_px, 3.0 * np.median(e) + 4.0 * spread)
+    return bad
+
+
+def calibrate_points(
+    intrinsics: Rig,
+    survey: Survey,
+    *,
+    outlier_px: float = 5.0,
+    survey_sigma_m: float = 0.02,
+) -> PointsResult:
+    """The rig of the surveyed cameras (see the module).
+
+    intrinsics: cameras with their intrinsics (their poses ignored); every camera of the survey
+    must be there. outlier_px: a click is never left out under this residual. survey_sigma_m:
+    how far a surveyed position may be off (the adjustment moves the points that much)."""
+    missing = sorted(set(survey.clicks) - set(intrinsics.names))
+    if missing:
+        raise CalibrationError(
+            f"{survey.path}: camera(s) {', '.join(missing)} have no intrinsics "
+            f"(cameras there: {', '.join(intrinsics.names)})"
+        )
+    names = [n for n in intrinsics.names if n in survey.clicks]
+    unplaced = [n for n in intrinsics.names if n not in survey.clicks]
+    cams = {c.name: c for c in intrinsics}
+    point_names = sorted(survey.world)
+    pi = {p: i for i, p in enumerate(point_names)}
+    obs = [(ci, pi[p], uv) for ci, c in enumerate(names) for p, uv in survey.clicks[c].items()]
+    cam_of = np.array([o[0] for o in obs])
+    pt_of = np.array([o[1] for o in obs])
+    uv = np.array([o[2] for o in obs]).reshape(-1, 2)
+    world = np.array([survey.world[p] for p in point_names])
+    poses = np.zeros((len(names), 6))
+    for ci, c in enumerate(names):
+        sel = cam_of == ci
+        poses[ci] = _pnp(cams[c], world[pt_of[sel]], uv[sel], [point_names[i] for i in pt_of[sel]])
+    keep = np.ones(len(obs), dtype=bool)
+    for _ in range(3):  # adjust, leave the worst click out, again
+        sol = adjust(
+            Bundle(
+                poses,
+                np.stack([intrinsics_row(cams[c]) for c in names]),
+                world.copy(),
+                cam_of[keep],
+                pt_of[keep],
+                uv[keep],
+                np.ones(int(keep.sum())),
+                np.ones(len(names), dtype=bool),
+                np.ones(len(world), dtype=bool),
+                prior=world,
+                prior_sigma_m=survey_sigma_m,
+            ),
+            f_scale_px=2.0,
+            max_nfev=200,
+        )
+        poses = sol.poses
+        all_uv, depth = project_px(
+            poses[cam_of], np.stack([intrinsics_row(cams[c]) for c in names])[cam_of], sol.points[pt_of]
+        )
+        err = np.where(depth > 0, np.linalg.norm(all_uv - uv, axis=1), np.inf)
+        bad = _outliers(err, cam_of, outlier_px)
+        if np.array_equal(~bad, keep):
+            break
+        keep = ~bad
+        for ci, c in enumerate(names):  # enough left to place every camera
+            sel = keep & (cam_of == ci)
+            if sel.sum() < MIN_POINTS:
+                good = [point_names[i] for i in pt_of[sel]]
+                raise CalibrationError(
+                    f"camera {c}: {int(sel.sum())} good point(s) left ({', '.join(good) or 'none'})"
+                    f" after leaving out the clicks that disagree; at least {MIN_POINTS} are "
+                    "needed"
+                )
+    residuals: dict[str, dict[str, float]] = {c: {} for c in names}
+    left_out = []
+    for k in range(len(obs)):
+        c, p = names[cam_of[k]], point_names[pt_of[k]]
+        residuals[c][p] = float(err[k])
+        if not keep[k]:
+            left_out.append((c, p, float(err[k])))
+    rms = {
+        c: float(math.sqrt(np.mean(err[keep & (cam_of == ci)] ** 2))) for ci, c in enumerate(names)
+    }
+    warnings = [f"camera {c}: no clicks in {survey.path}: not placed" for c in unplaced]
+    warnings += [f"camera {c}: reprojection error {e:.2f} px is high" for c, e in rms.items() if e > 3]
+    moved = np.linalg.norm(sol.points - world, axis=1)
+    for i in np.flatnonzero(moved > 3 * survey_sigma_m):
+        warnings.append(
+            f"point {point_names[i]}: the cameras put it {moved[i]:.3f} m from its surveyed "
+            "position; check its coordinates"
+        )
+    rig = Rig(tuple(camera_with_pose(cams[c], poses[ci]) for ci, c in enumerate(names)))
+    return PointsResult(
+        rig,
+        rms,
+        residuals,
+        sorted(left_out, key=lambda x: -x[2]),
+        {p: sol.points[i] for i, p in enumerate(point_names)},
+        warnings,
+    )
