@@ -36,7 +36,7 @@ from stereopose.calibration.people_world import coverage_advice, to_world
 from stereopose.errors import CalibrationError
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.skeleton import SWAP
-from stereopose.types import Camera, People2D, Rig
+from stereopose.types import People2D, Rig
 
 __all__ = ["PeopleResult", "calibrate_people"]
 
@@ -68,7 +68,9 @@ def _triangulate(views: Views, groups, poses: np.ndarray, placed: np.ndarray) ->
         cams = [c for c in members if placed[c]]
         if len(cams) < 2:
             continue
-        P = np.stack([np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in cams])
+        P = np.stack(
+            [np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in cams]
+        )
         xy = np.stack([views.det[members[c]][3] for c in cams], axis=1)  # (17, V, 2)
         w = np.stack([views.det[members[c]][2][:, 2] for c in cams], axis=1)
         w = np.where(np.isfinite(xy[..., 0]), w, 0.0)
@@ -89,7 +91,13 @@ def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int
         return None
     obj, img = np.concatenate(obj), np.concatenate(img)
     ok, r, t, inl = cv2.solvePnPRansac(
-        obj, img, np.eye(3), None, reprojectionError=thr, iterationsCount=5000, confidence=0.9999,
+        obj,
+        img,
+        np.eye(3),
+        None,
+        reprojectionError=thr,
+        iterationsCount=5000,
+        confidence=0.9999,
         flags=cv2.SOLVEPNP_SQPNP,
     )
     if not ok or inl is None or len(inl) < MIN_PNP:
@@ -139,10 +147,22 @@ def _unswap(views: Views, groups, poses, intr) -> int:
         for c, k in members.items():
             kp = views.det[k][2]
             ok = np.isfinite(X[g, :, 0])
-            uv, _ = project_px(np.repeat(poses[c : c + 1], 17, 0), np.repeat(intr[c : c + 1], 17, 0), np.nan_to_num(X[g]))
-            e0 = np.nanmedian(np.where(ok & (kp[:, 2] >= MIN_CONF), np.linalg.norm(uv - kp[:, :2], axis=1), np.nan))
+            uv, _ = project_px(
+                np.repeat(poses[c : c + 1], 17, 0),
+                np.repeat(intr[c : c + 1], 17, 0),
+                np.nan_to_num(X[g]),
+            )
+            e0 = np.nanmedian(
+                np.where(
+                    ok & (kp[:, 2] >= MIN_CONF), np.linalg.norm(uv - kp[:, :2], axis=1), np.nan
+                )
+            )
             sw = kp[SWAP]
-            e1 = np.nanmedian(np.where(ok & (sw[:, 2] >= MIN_CONF), np.linalg.norm(uv - sw[:, :2], axis=1), np.nan))
+            e1 = np.nanmedian(
+                np.where(
+                    ok & (sw[:, 2] >= MIN_CONF), np.linalg.norm(uv - sw[:, :2], axis=1), np.nan
+                )
+            )
             if np.isfinite(e0) and np.isfinite(e1) and e1 < 0.5 * e0 and e0 > 6.0:
                 views.det[k] = (views.det[k][0], c, sw.copy(), views.det[k][3][SWAP].copy())
                 turned += 1
@@ -184,7 +204,9 @@ def calibrate_people(
     focal = float(np.median([c.focal for c in intrinsics]))
     thr = 3.0 / focal
     C = len(names)
-    matches = [m for a in range(C) for b in range(a + 1, C) if (m := match_pair(views, a, b, thr, rng))]
+    matches = [
+        m for a in range(C) for b in range(a + 1, C) if (m := match_pair(views, a, b, thr, rng))
+    ]
     linked = {c for m in matches for c in (m.a, m.b)}
     alone = [names[c] for c in range(C) if c not in linked]
     if alone:
@@ -221,7 +243,18 @@ def calibrate_people(
         free_cams[first.a] = False
         pts = np.array([X[g, j] for g, j in zip(*np.nonzero(pid >= 0), strict=True)])
         sol = adjust(
-            Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, np.ones(len(pts), dtype=bool), baseline=base),
+            Bundle(
+                poses,
+                intr,
+                pts,
+                cam,
+                pt,
+                uv,
+                w,
+                free_cams,
+                np.ones(len(pts), dtype=bool),
+                baseline=base,
+            ),
             f_scale_px=3.0,
             max_nfev=40 if round_ == 0 else 60,
         )
@@ -236,13 +269,22 @@ def calibrate_people(
     for g, j in zip(*np.nonzero(pid >= 0), strict=True):
         X[g, j] = sol.points[pid[g, j]]
     rig = Rig(tuple(camera_with_pose(cams[n], poses[c]) for c, n in enumerate(names)))
-    rig, scale_from = to_world(rig, X, distance=distance, height_m=height_m, survey=survey, ankle_m=ankle_m)
+    rig, scale_from = to_world(
+        rig, X, distance=distance, height_m=height_m, survey=survey, ankle_m=ankle_m
+    )
     err = sol.residual_px
-    rms = {n: float(np.sqrt(np.mean(err[cam == c] ** 2))) if np.any(cam == c) else float("nan") for c, n in enumerate(names)}
+    rms = {
+        n: float(np.sqrt(np.mean(err[cam == c] ** 2))) if np.any(cam == c) else float("nan")
+        for c, n in enumerate(names)
+    }
     used = {n: int(np.sum(cam == c)) for c, n in enumerate(names)}
     frames_used = {
         n: len({views.det[g[c]][0] for g in groups if c in g}) for c, n in enumerate(names)
     }
     cover, advice = coverage_advice(rig, {n: uv[cam == c] for c, n in enumerate(names)})
-    warnings = [f"camera {n}: reprojection error {e:.2f} px is high" for n, e in rms.items() if e > 5]
-    return PeopleResult(rig, rms, used, frames_used, cover, advice, scale_from, time.perf_counter() - t0, warnings)
+    warnings = [
+        f"camera {n}: reprojection error {e:.2f} px is high" for n, e in rms.items() if e > 5
+    ]
+    return PeopleResult(
+        rig, rms, used, frames_used, cover, advice, scale_from, time.perf_counter() - t0, warnings
+    )

@@ -117,7 +117,7 @@ def match_pair(
     sample = np.arange(len(xa))
     if len(sample) > MAX_CANDIDATES:
         sample = np.sort(rng.choice(len(xa), MAX_CANDIDATES, replace=False))
-    E, mask = cv2.findEssentialMat(
+    E, _mask = cv2.findEssentialMat(
         xa[sample],
         xb[sample],
         np.eye(3),
@@ -145,7 +145,7 @@ def match_pair(
     if len(taken) < MIN_PAIRINGS:
         return None
     sel = np.isin(pid, taken) & inl
-    n, R, t, _ = cv2.recoverPose(E, xa[sel], xb[sel], np.eye(3))
+    _n, R, t, _ = cv2.recoverPose(E, xa[sel], xb[sel], np.eye(3))
     angle = _ray_angles(xa[sel], xb[sel], R)
     return PairMatch(
         a, b, R, t.ravel(), [pairs[k] for k in taken], int(sel.sum()), float(np.median(angle))

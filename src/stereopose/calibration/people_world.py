@@ -16,6 +16,7 @@ direction on the floor and the origin is the floor under that camera.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from stereopose.calibration.bundle import camera_with_pose
@@ -37,8 +38,6 @@ def _moved(rig: Rig, s: float, Q: np.ndarray, u: np.ndarray) -> Rig:
     for c in rig:
         R = c.R @ Q.T
         t = s * c.translation - R @ u
-        import cv2
-
         out.append(camera_with_pose(c, np.concatenate([cv2.Rodrigues(R)[0].ravel(), t])))
     return Rig(tuple(out))
 
@@ -70,7 +69,9 @@ def _survey_frame(rig: Rig, survey) -> tuple[Rig, str]:
     names = rig.names
     src, dst, used = [], [], []
     for p, xyz in survey.world.items():
-        seen = [(i, survey.clicks[n][p]) for i, n in enumerate(names) if p in survey.clicks.get(n, {})]
+        seen = [
+            (i, survey.clicks[n][p]) for i, n in enumerate(names) if p in survey.clicks.get(n, {})
+        ]
         if len(seen) < 2:
             continue
         xy = np.stack([undistort_normalized(uv[None], rig[i])[0] for i, uv in seen])
@@ -109,8 +110,12 @@ def to_world(
     if np.mean(centres @ n) < np.median(ankles @ n):
         n = -n
     h = X[:, ANKLES] @ n  # (G, 2)
-    lower = np.where(np.isnan(h[:, 0]), h[:, 1], np.where(np.isnan(h[:, 1]), h[:, 0], np.fmin(h[:, 0], h[:, 1])))
-    low = np.take_along_axis(X[:, ANKLES], np.nanargmin(np.where(np.isfinite(h), h, np.inf), 1)[:, None, None], 1)[:, 0]
+    lower = np.where(
+        np.isnan(h[:, 0]), h[:, 1], np.where(np.isnan(h[:, 1]), h[:, 0], np.fmin(h[:, 0], h[:, 1]))
+    )
+    low = np.take_along_axis(
+        X[:, ANKLES], np.nanargmin(np.where(np.isfinite(h), h, np.inf), 1)[:, None, None], 1
+    )[:, 0]
     ok = np.isfinite(low).all(1)
     n2, d = _plane(low[ok])
     n = n2 if n2 @ n > 0 else -n2
@@ -120,11 +125,13 @@ def to_world(
         s = metres / float(np.linalg.norm(rig[a].center - rig[b].center))
         scale_from = f"the distance {a}-{b} ({metres:g} m)"
     else:
-        eyes = np.nanmean(X[:, EYES], axis=1) @ n
+        eyes = 0.5 * (X[:, EYES[0]] + X[:, EYES[1]]) @ n  # NaN unless both eyes
         rise = eyes - lower
         rise = rise[np.isfinite(rise)]
         if len(rise) < 10:
-            raise CalibrationError(f"{len(rise)} people seen with eyes and ankles: too few for --height")
+            raise CalibrationError(
+                f"{len(rise)} people seen with eyes and ankles: too few for --height"
+            )
         s = (EYE_FRACTION * height_m - ankle_m) / float(np.median(rise))
         scale_from = f"the walkers' height ({height_m:g} m)"
     c0 = rig[0].center

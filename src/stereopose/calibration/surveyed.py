@@ -17,12 +17,12 @@ A click whose residual stands out is left out and named; a camera left with fewe
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+import tomllib
 
 from stereopose.calibration.bundle import (
     Bundle,
@@ -81,8 +81,7 @@ def read_survey(path: str | Path) -> Survey:
     unknown = sorted(set(doc) - {"points", "cameras"})
     if unknown:
         raise CalibrationError(
-            f"{path}: unknown table(s) {', '.join(unknown)}; expected [points] and "
-            "[cameras.<name>]"
+            f"{path}: unknown table(s) {', '.join(unknown)}; expected [points] and [cameras.<name>]"
         )
     pts, cams = doc.get("points"), doc.get("cameras")
     if not isinstance(pts, dict) or not pts:
@@ -214,7 +213,9 @@ def calibrate_points(
         )
         poses = sol.poses
         all_uv, depth = project_px(
-            poses[cam_of], np.stack([intrinsics_row(cams[c]) for c in names])[cam_of], sol.points[pt_of]
+            poses[cam_of],
+            np.stack([intrinsics_row(cams[c]) for c in names])[cam_of],
+            sol.points[pt_of],
         )
         err = np.where(depth > 0, np.linalg.norm(all_uv - uv, axis=1), np.inf)
         bad = _outliers(err, cam_of, outlier_px)
@@ -241,7 +242,9 @@ def calibrate_points(
         c: float(math.sqrt(np.mean(err[keep & (cam_of == ci)] ** 2))) for ci, c in enumerate(names)
     }
     warnings = [f"camera {c}: no clicks in {survey.path}: not placed" for c in unplaced]
-    warnings += [f"camera {c}: reprojection error {e:.2f} px is high" for c, e in rms.items() if e > 3]
+    warnings += [
+        f"camera {c}: reprojection error {e:.2f} px is high" for c, e in rms.items() if e > 3
+    ]
     moved = np.linalg.norm(sol.points - world, axis=1)
     for i in np.flatnonzero(moved > 3 * survey_sigma_m):
         warnings.append(

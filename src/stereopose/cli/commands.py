@@ -46,7 +46,7 @@ COMMANDS: dict[str, tuple[str, str | None]] = {
         "list, fetch or export the pose models in the cache",
         "stereopose.cli.run:_models",
     ),
-    "calibrate": ("camera calibration from checkerboard photos", None),
+    "calibrate": ("camera calibration: a checkerboard, surveyed points or walking people", None),
     "events": ("list the events of an SQLite event log", "stereopose.cli.reconstruct:_events"),
     "simulate": (
         "write a simulated substation scene with ground truth",
@@ -65,5 +65,17 @@ CALIBRATE_STEPS: dict[str, tuple[str, str]] = {
     "extrinsics": (
         "every camera's pose in one world frame",
         "stereopose.cli.calibrate:_calibrate_extrinsics",
+    ),
+    "points": (
+        "every camera's pose from surveyed points clicked in its view",
+        "stereopose.cli.calibrate_site:_calibrate_points",
+    ),
+    "people": (
+        "every camera's pose from people walking through the site",
+        "stereopose.cli.calibrate_site:_calibrate_people",
+    ),
+    "refine": (
+        "place some cameras again from the people the others see",
+        "stereopose.cli.calibrate_site:_calibrate_refine",
     ),
 }

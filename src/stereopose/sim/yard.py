@@ -56,13 +56,14 @@ def yard_rig(rng: np.random.Generator, num_cameras: int = 6, yard=YARD) -> Rig:
 @dataclass(frozen=True, eq=False)
 class Yard:
     """rig: the true cameras; truth (T, N, 17, 3) metres (NaN: absent); detections[t][camera]:
-    People2D; fps; yard (width, depth)."""
+    People2D; fps; yard (width, depth); heights (N,) the walkers' standing heights, metres."""
 
     rig: Rig
     truth: np.ndarray
     detections: list[dict[str, People2D]]
     fps: float
     yard: tuple[float, float]
+    heights: tuple[float, ...] = ()
 
 
 def yard_noise() -> DetectorNoise:
@@ -93,7 +94,7 @@ def yard_scene(
     """Workers walking through the yard for `duration_s`, seen by the rig (default: a new one
     from the seed) through the detector model `noise` (default: yard_noise())."""
     rig = rig if rig is not None else yard_rig(np.random.default_rng(seed), num_cameras, yard)
-    T = int(round(duration_s * fps))
+    T = round(duration_s * fps)
     truth = np.full((T, walkers, NUM_JOINTS, 3), np.nan)
     xy = np.zeros((walkers, T, 2))
     present = np.ones((walkers, T), dtype=bool)
@@ -108,7 +109,14 @@ def yard_scene(
     for n, w in enumerate(workers):
         truth[:, n], _ = w.track(T, fps, xy[n])
     dets, _ = detect(truth, rig, noise or yard_noise(), np.random.default_rng([seed, 6]), yard)
-    return Yard(rig, truth, dets, float(fps), tuple(float(v) for v in yard))
+    return Yard(
+        rig,
+        truth,
+        dets,
+        float(fps),
+        tuple(float(v) for v in yard),
+        tuple(float(w.height) for w in workers),
+    )
 
 
 def survey(
@@ -138,9 +146,7 @@ def survey(
         raise RuntimeError("no set of surveyed points is seen well enough by every camera")
     world = {f"P{i + 1}": pts[i] for i in range(count)}
     clicks = {
-        cam.name: {
-            f"P{i + 1}": uv[i] + rng.normal(0.0, click_px, 2) for i in np.flatnonzero(ok)
-        }
+        cam.name: {f"P{i + 1}": uv[i] + rng.normal(0.0, click_px, 2) for i in np.flatnonzero(ok)}
         for cam, (uv, ok) in zip(rig, seen, strict=True)
     }
     return world, clicks
