@@ -217,54 +217,9 @@ def calibrate_people(
         )
     groups = group_detections(views, matches)
     first = _start(matches)
-    poses = np.zeros((C, 6))
-    poses[first.b] = np.concatenate([cv2.Rodrigues(first.R)[0].ravel(), first.t])
-    placed = np.zeros(C, dtype=bool)
-    placed[[first.a, first.b]] = True
-    X = _triangulate(views, groups, poses, placed)
-    while not placed.all():
-        tries = {c: _place(views, groups, X, c, 2 * thr) for c in np.flatnonzero(~placed)}
-        tries = {c: r for c, r in tries.items() if r is not None}
-        if not tries:
-            left = [names[c] for c in np.flatnonzero(~placed)]
-            raise CalibrationError(
-                f"camera(s) {', '.join(left)}: too few joints shared with the cameras placed "
-                f"({', '.join(names[c] for c in np.flatnonzero(placed))}); walk where they see"
-            )
-        c = max(tries, key=lambda c: tries[c][1])
-        poses[c], placed[c] = tries[c][0], True
-        X = _triangulate(views, groups, poses, placed)
+    poses, X = _place_all(views, groups, first, names, thr)
     intr = np.stack([intrinsics_row(cams[n]) for n in names])
-    base = (first.a, first.b, float(np.linalg.norm(first.t)))
-    drop: set = set()
-    for round_ in range(2):
-        pid, cam, pt, uv, w, src = _observations(views, groups, X, placed, drop)
-        free_cams = np.ones(C, dtype=bool)
-        free_cams[first.a] = False
-        pts = np.array([X[g, j] for g, j in zip(*np.nonzero(pid >= 0), strict=True)])
-        sol = adjust(
-            Bundle(
-                poses,
-                intr,
-                pts,
-                cam,
-                pt,
-                uv,
-                w,
-                free_cams,
-                np.ones(len(pts), dtype=bool),
-                baseline=base,
-            ),
-            f_scale_px=3.0,
-            max_nfev=40 if round_ == 0 else 60,
-        )
-        poses = sol.poses
-        if round_ == 0:
-            turned = _unswap(views, groups, poses, intr)
-            limit = max(8.0, 4.0 * float(np.median(sol.residual_px)))
-            drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
-            logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
-            X = _triangulate(views, groups, poses, placed)
+    poses, sol, pid, cam, uv = _adjust_all(views, groups, poses, X, intr, first)
     X = np.full((len(groups), 17, 3), np.nan)
     for g, j in zip(*np.nonzero(pid >= 0), strict=True):
         X[g, j] = sol.points[pid[g, j]]
@@ -288,3 +243,52 @@ def calibrate_people(
     return PeopleResult(
         rig, rms, used, frames_used, cover, advice, scale_from, time.perf_counter() - t0, warnings
     )
+
+
+def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: float):
+    """Every camera's pose (C, 6) in the first pair's frame and the groups' joints."""
+    C = len(names)
+    poses = np.zeros((C, 6))
+    poses[first.b] = np.concatenate([cv2.Rodrigues(first.R)[0].ravel(), first.t])
+    placed = np.zeros(C, dtype=bool)
+    placed[[first.a, first.b]] = True
+    X = _triangulate(views, groups, poses, placed)
+    while not placed.all():
+        tries = {c: _place(views, groups, X, c, 2 * thr) for c in np.flatnonzero(~placed)}
+        tries = {c: r for c, r in tries.items() if r is not None}
+        if not tries:
+            left = [names[c] for c in np.flatnonzero(~placed)]
+            raise CalibrationError(
+                f"camera(s) {', '.join(left)}: too few joints shared with the cameras placed "
+                f"({', '.join(names[c] for c in np.flatnonzero(placed))}); walk where they see"
+            )
+        c = max(tries, key=lambda c: tries[c][1])
+        poses[c], placed[c] = tries[c][0], True
+        X = _triangulate(views, groups, poses, placed)
+    return poses, X
+
+
+def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
+    """Two bundle adjustments, swapped detections turned back and outlying joints dropped
+    between them: (poses, the solution, point of each (group, joint), observations' cameras
+    and pixels)."""
+    C = len(poses)
+    placed = np.ones(C, dtype=bool)
+    base = (first.a, first.b, float(np.linalg.norm(first.t)))
+    drop: set = set()
+    for round_ in range(2):
+        pid, cam, pt, uv, w, src = _observations(views, groups, X, placed, drop)
+        free_cams = np.ones(C, dtype=bool)
+        free_cams[first.a] = False
+        pts = np.array([X[g, j] for g, j in zip(*np.nonzero(pid >= 0), strict=True)])
+        problem = Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, np.ones(len(pts), dtype=bool))
+        problem.baseline = base
+        sol = adjust(problem, f_scale_px=3.0, max_nfev=40 if round_ == 0 else 60)
+        poses = sol.poses
+        if round_ == 0:
+            turned = _unswap(views, groups, poses, intr)
+            limit = max(8.0, 4.0 * float(np.median(sol.residual_px)))
+            drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
+            logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
+            X = _triangulate(views, groups, poses, placed)
+    return poses, sol, pid, cam, uv
