@@ -741,11 +741,13 @@ def _ticks_in_order(page, base: str, tid: str) -> bool:
 
     wait_until(ticked, f"both steps of {tid} done", timeout_s=120, poll_s=0.05)
     assert [name for name, _ in seen[-1]] == _DEMO_STEPS
+    marked = page.locator("#t-steps li.t-out-of-order").count()
     if any(first == "open" and second == "done" for (_, first), (_, second) in seen):
-        assert page.locator("#t-steps li.t-out-of-order").count() == 1
+        assert marked == 1  # the second seen done first: marked out of order
+    if marked:  # (under load both may tick between two looks: the mark tells)
+        assert marked == 1
         page.click("#t-end")
         return False
-    assert page.locator("#t-steps li.t-out-of-order").count() == 0
     return True
 
 
