@@ -17,7 +17,7 @@ from stereopose.sim.scene import IMAGE_SIZE, _distortion_ok, look_at
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import Camera, People2D, Rig
 
-__all__ = ["Yard", "bump", "survey", "yard_rig", "yard_scene"]
+__all__ = ["Yard", "aligned", "bump", "rig_errors", "survey", "yard_rig", "yard_scene"]
 
 YARD = (40.0, 25.0)
 # the poles: the four corners and the middle of the long sides, 1 m outside the fence line
@@ -167,6 +167,31 @@ def bump(cam: Camera, rng: np.random.Generator, degrees: float, metres: float) -
     return Camera(cam.name, cam.size, cam.matrix, cam.distortions, R, -R @ centre)
 
 
+def _yaw_fit(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The turn about z (3, 3) and shift (3,) on the floor best taking centres a onto b."""
+    ca, cb = a[:, :2].mean(0), b[:, :2].mean(0)
+    U, _, Vt = np.linalg.svd((a[:, :2] - ca).T @ (b[:, :2] - cb))
+    Z = Vt.T @ U.T
+    if np.linalg.det(Z) < 0:
+        Z = Vt.T @ np.diag([1.0, -1.0]) @ U.T
+    Q = np.eye(3)
+    Q[:2, :2] = Z
+    return Q, np.append(cb - Z @ ca, 0.0)
+
+
+def aligned(est: Rig, truth: Rig) -> Rig:
+    """`est` turned about z and shifted on the floor onto `truth` (its own yaw and origin
+    taken out; its scale, floor and tilt kept)."""
+    a = np.stack([est[n].center for n in truth.names])
+    b = np.stack([truth[n].center for n in truth.names])
+    Q, shift = _yaw_fit(a, b)
+    cams = []
+    for c in est:
+        R = c.R @ Q.T
+        cams.append(Camera(c.name, c.size, c.matrix, c.distortions, R, -R @ (Q @ c.center + shift)))
+    return Rig(tuple(cams))
+
+
 def rig_errors(est: Rig, truth: Rig) -> dict:
     """How far a rig in a world frame of its own choosing (z up, floor at z = 0, any yaw and
     origin on the floor) is from the true one: the yaw and floor shift that fit the camera
@@ -178,15 +203,7 @@ def rig_errors(est: Rig, truth: Rig) -> dict:
     names = truth.names
     a = np.stack([est[n].center for n in names])
     b = np.stack([truth[n].center for n in names])
-    ca, cb = a[:, :2].mean(0), b[:, :2].mean(0)
-    H = (a[:, :2] - ca).T @ (b[:, :2] - cb)
-    U, _, Vt = np.linalg.svd(H)
-    Z = Vt.T @ U.T
-    if np.linalg.det(Z) < 0:
-        Z = Vt.T @ np.diag([1.0, -1.0]) @ U.T
-    Q = np.eye(3)
-    Q[:2, :2] = Z
-    shift = np.append(cb - Z @ ca, 0.0)
+    Q, shift = _yaw_fit(a, b)
     moved = a @ Q.T + shift
     rot, pos, ups = {}, {}, []
     for i, n in enumerate(names):
