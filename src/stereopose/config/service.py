@@ -29,6 +29,11 @@ class ServeConfig:
     camera_timeout_s: float = number(5.0, gt=0.0, le=DAY_S)
     # a camera's reprojection error above this many times its baseline: calibration_drift
     calib_warn_factor: float = number(2.0, gt=1.0, le=1000.0)
+    # a drifted camera placed again from the people the others see is applied at once (false:
+    # proposed, for an admin to accept: POST /api/calibration/<camera>/accept)
+    calibration_auto: bool = True
+    # steps with people sampled before a drifted camera is placed again
+    calibration_samples: int = number(150, integer=True, ge=10, le=10_000)
     # how often status.json (the health snapshot) is rewritten
     status_interval_s: float = number(10.0, gt=0.0, le=DAY_S)
     # HTTPS: a PEM certificate (chain) and its private key (relative to the config file; both

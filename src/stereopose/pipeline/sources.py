@@ -121,6 +121,10 @@ class Cameras:
         self._steps: dict[int, FrameSet] = {}  # the substream frames of the steps given
         self._arrived: dict[int, float] = {}  # monotonic arrival of each step given out
 
+    def set_rig(self, rig: Rig) -> None:
+        """The rig from the next step on (a camera placed again while serving)."""
+        self.rig = rig
+
     @property
     def total(self) -> int | None:
         return self.cams.count

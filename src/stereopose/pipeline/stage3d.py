@@ -52,6 +52,10 @@ class Stage3D:
         self._warm = (config.reconstruction, config.tracking, record)
         self.load_s: float | None = None  # time the compiled loops took to load, once
 
+    def set_rig(self, rig: Rig) -> None:
+        """The rig from the next frame on (a camera placed again); the tracks go on."""
+        self.reconstructor = Reconstructor(rig, self._warm[0])
+
     def load(self) -> float:
         """Load (or compile) the compiled loops once, before the first frame; returns the
         seconds it took, which the stage's frames/s leave out."""

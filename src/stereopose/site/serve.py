@@ -69,6 +69,7 @@ from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.calib_keeper import CalibrationKeeper
 from stereopose.site.health.watch import CameraWatch
 from stereopose.site.parts import (
     ServeSource,
@@ -253,6 +254,15 @@ def _run_loop(
     timeout_s = cfg.serve.camera_timeout_s
     watch = CameraWatch(rig.names, timeout_s, start=0.0)
     calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
+    keeper = CalibrationKeeper(
+        rig,
+        plan.calib_path,
+        calib,
+        auto=cfg.serve.calibration_auto,
+        out_dir=plan.out_dir,
+        samples=cfg.serve.calibration_samples,
+    )
+    service.keep_calibration(keeper)
 
     def now_t() -> float:  # the service's clock: the steps' and the events' t
         return cams.clock.since(time.monotonic())
@@ -265,13 +275,16 @@ def _run_loop(
         fresh=lambda name: cams.delivering(name, timeout_s),
         clock=now_t,
         on_stall=service.state.service_stall,
+        keeper=keeper,
     )
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         regions = region_detector(detector, cfg.detector)
-        pipelined, rates = PipelinedCameras(Cameras(cams, rig, detector, regions)), None
+        cameras = Cameras(cams, rig, detector, regions)
+        keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views
+        pipelined, rates = PipelinedCameras(cameras), None
         service.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
@@ -294,6 +307,7 @@ def _run_loop(
         first_id=service.resume.person_ids(plan.events_db),
     )
     # a step the service was too late for is no observation; a stall's length not their age
+    keeper.apply_to.append(stage.set_rig)  # a camera placed again: from the next step
     stage, rules = HeldStage(stage, events), behaviour_monitor(plan.site, cfg)
     summary = RunSummary(
         rig.names,

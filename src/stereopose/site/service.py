@@ -83,6 +83,7 @@ class SiteService:
         self.power_board = PowerBoard() if any(z.power for z in zones) else None
         self.power = ZoneStates(zones, self.power_board) if self.power_board else None
         self.power_sources = None
+        self.keeper = None  # site.health.calib_keeper, once the frame loop starts
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -305,6 +306,11 @@ class SiteService:
         self.probes["clips"] = clips.figures
         return clips
 
+    def keep_calibration(self, keeper) -> None:
+        """The calibration keeper's figures in status.json; closed with the service."""
+        self.keeper = keeper
+        self.probes["calibration"] = keeper.figures
+
     def watch_nodes(self, nodes) -> None:
         """The nodes' camera-frames waiting for their step as a queue of the health state
         (late, over-full and refused ones as its drops); the nodes' figures in status."""
@@ -368,6 +374,8 @@ class SiteService:
         """The maintainer, the console and the server, each within its bound; status.json
         written again once the outbox has sent the stop's last events."""
         self.watchdog.stop()
+        if self.keeper is not None:
+            self.keeper.close()
         if self.power_sources is not None:
             self.power_sources.stop()
         if self.opcua is not None:

@@ -42,7 +42,8 @@ class ServeEvents:
     """See the module. fences: None without a site; calib: None to leave the calibration
     unwatched; opening(t, frame): the events of the first step (at its time and frame);
     stall: the service's stall watch (default: on the watch's timeout); fresh(camera): whether
-    its reader still has frames to give (None: not known, only a stall holds steps); clock():
+    its reader still has frames to give (None: not known, only a stall holds steps); keeper:
+    the calibration keeper (site.health.calib_keeper; None: drift only flagged); clock():
     the service's time now, on the steps' clock (None: each step's t; a stopped process is seen
     only with it); on_stall(reason or None): told when a stall begins and ends."""
 
@@ -57,8 +58,10 @@ class ServeEvents:
         fresh: Callable[[str], bool] | None = None,
         clock: Callable[[], float] | None = None,
         on_stall: Callable[[str | None], None] | None = None,
+        keeper=None,
     ) -> None:
         self.fences, self.watch, self.calib = fences, watch, calib
+        self.keeper = keeper  # site.health.calib_keeper: a drifted camera placed again
         self.opening = opening
         self.stall = stall or StallWatch(watch.timeout_s)
         self.fresh, self.clock, self.on_stall = fresh, clock, on_stall
@@ -173,7 +176,12 @@ class ServeEvents:
         if not self.stall.stalled:
             events += self.watch.poll(t, frame)
         if self.calib is not None and not self.held and len(people3d):
-            events += self.calib.update(FrameResult(frame, t, self._people2d, people3d, []))
+            drift = self.calib.update(FrameResult(frame, t, self._people2d, people3d, []))
+            events += drift
+        else:
+            drift = []
+        if self.keeper is not None and not self.held:
+            events += self.keeper.update(frame, t, self._people2d, drift)
         return events
 
 

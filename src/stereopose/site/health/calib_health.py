@@ -168,6 +168,12 @@ class CalibrationHealth:
             return [camera_event("calibration_recovered", name, t, frame, t, **fields)]
         return []
 
+    def set_camera(self, rig: Rig, name: str) -> None:
+        """The rig with camera `name` placed again: its running window starts afresh (its
+        baseline kept), so `calibration_recovered` follows once its error is back."""
+        self.rig = rig
+        self.cameras[name].recent.clear()
+
     def figures(self) -> dict[str, dict[str, float | bool | None]]:
         """Per camera its baseline and running error (pixels) and whether it drifts (health)."""
         return {

@@ -1,0 +1,290 @@
+"""The rig kept calibrated while the service runs: a camera that drifted (calibration_drift) is
+placed again from the people the other cameras see, and the new pose applied at a step
+boundary.
+
+    keeper = CalibrationKeeper(rig, calib_path, health, apply=[stage.set_rig, ...])
+    events += keeper.update(frame, t, people2d, events)   # after the calibration health's
+
+From a camera's `calibration_drift` on, each step with people gives one sample: the people the
+other cameras reconstruct (3D) and the camera's own detections (a bounded buffer of `samples`
+steps). When it is full, the camera's pose is estimated again (calibration.refine) on a worker
+thread, so the frame loop never waits. The new pose is accepted when its reprojection error is
+back near the camera's baseline (at most `accept_factor` times it, or the baseline + 2 px) over
+joints that cover at least `min_coverage` of its view; then, with `auto`, it is applied at
+once (every part given the new rig), a `calibration_corrected` event says the turn and shift,
+and the corrected calibration is written beside the original (`<name>.corrected.toml`, never
+over it) with a line in its history (`<name>.corrections.jsonl`). Without `auto` it is proposed
+(`proposals()`) for an admin to accept (`accept(camera)`). A camera that cannot be corrected
+stays flagged with the reason (`figures()`), and is tried again with fresh samples.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import logging
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereopose.errors import CalibrationError
+from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.watch import camera_event
+from stereopose.types import Event, People2D, Rig
+
+__all__ = ["CalibrationKeeper"]
+
+logger = logging.getLogger(__name__)
+
+SAMPLES = 150  # steps with people sampled before a camera is placed again
+MIN_COVERAGE = 0.25  # share of its view the agreeing joints must cover
+ACCEPT_FACTOR = 1.5  # the new error at most this many times the baseline (or baseline + 2 px)
+STILL_DEG, STILL_M = 0.1, 0.05  # a pose found this close to the old one is left alone
+MAX_TRIES = 20  # attempts per drift (each on fresh samples), then the camera stays flagged
+
+
+@dataclass
+class _Case:
+    """One drifted camera: its samples, the attempt under way, the outcome."""
+
+    samples: deque
+    others: object  # a Reconstructor of the other cameras
+    job: concurrent.futures.Future | None = None
+    tries: int = 0
+    reason: str | None = None
+    proposal: object = None  # a calibration.refine.Refined awaiting an admin
+
+
+class CalibrationKeeper:
+    """See the module. apply: callables given the new rig when a pose is applied; out_dir:
+    where the files go when the original's folder cannot be written."""
+
+    def __init__(
+        self,
+        rig: Rig,
+        calib_path: str | Path,
+        health: CalibrationHealth,
+        *,
+        apply: Sequence[Callable[[Rig], None]] = (),
+        auto: bool = True,
+        samples: int = SAMPLES,
+        min_coverage: float = MIN_COVERAGE,
+        accept_factor: float = ACCEPT_FACTOR,
+        out_dir: str | Path | None = None,
+        wall_start: float | None = None,
+    ) -> None:
+        self.rig, self.calib_path, self.health = rig, Path(calib_path), health
+        self.apply_to = list(apply)
+        self.auto, self.samples = bool(auto), int(samples)
+        self.min_coverage, self.accept_factor = float(min_coverage), float(accept_factor)
+        self.out_dir = None if out_dir is None else Path(out_dir)
+        self.wall_start = wall_start
+        self.cases: dict[str, _Case] = {}
+        self.corrected: dict[str, int] = {}
+        self.written: Path | None = None
+        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="calib-keeper")
+
+    # -- the frame loop's side ---------------------------------------------------------------
+
+    def update(
+        self, frame: int, t: float, people2d: Mapping[str, People2D], events: Sequence[Event]
+    ) -> list[Event]:
+        """The step's samples taken, attempts finished; the events it raises."""
+        for e in events:
+            if e.type == "calibration_drift" and e.camera in self.rig.names:
+                self._open(e.camera)
+            elif e.type == "calibration_recovered" and e.camera in self.cases:
+                case = self.cases[e.camera]
+                if case.proposal is None:  # it came back by itself: nothing to do
+                    self._close(e.camera)
+        out: list[Event] = []
+        for name in list(self.cases):
+            case = self.cases[name]
+            if case.job is not None:
+                if case.job.done():
+                    out += self._judge(name, case, t, frame)
+                continue
+            if case.proposal is not None or case.reason == "gave up":
+                continue
+            self._sample(name, case, frame, people2d)
+            if len(case.samples) >= self.samples:
+                from stereopose.calibration.refine import refine_camera
+
+                case.tries += 1
+                case.job = self._pool.submit(refine_camera, self.rig[name], list(case.samples))
+                case.samples.clear()
+        return out
+
+    def _open(self, name: str) -> None:
+        from stereopose.reconstruction import Reconstructor
+
+        if name in self.cases:  # already under way (or proposed): kept
+            return
+        others = [n for n in self.rig.names if n != name]
+        if len(others) < 2:
+            logger.warning("camera %s drifted: too few other cameras to place it again", name)
+            return
+        rec = Reconstructor(self.rig.subset(others))
+        self.cases[name] = _Case(deque(maxlen=self.samples), rec)
+        logger.warning("camera %s drifted: placing it again from the people the others see", name)
+
+    def _close(self, name: str) -> None:
+        self.cases.pop(name, None)
+
+    def _sample(self, name: str, case: _Case, frame: int, people2d) -> None:
+        own = people2d.get(name)
+        if own is None or not len(own.keypoints):
+            return
+        others = {k: v for k, v in people2d.items() if k != name}
+        p3 = case.others(frame, others)
+        keep = p3.views.max(axis=1, initial=0) >= 2 if len(p3.joints) else []
+        if len(p3.joints) and np.any(keep):
+            case.samples.append((p3.joints[keep], np.asarray(own.keypoints)))
+
+    def _judge(self, name: str, case: _Case, t: float, frame: int) -> list[Event]:
+        job, case.job = case.job, None
+        try:
+            r = job.result()
+        except CalibrationError as e:
+            return self._fail(name, case, str(e))
+        except Exception as e:  # a failing attempt never stops the service
+            logger.exception("camera %s: placing it again failed", name)
+            return self._fail(name, case, f"{type(e).__name__}: {e}")
+        base = self.health.cameras[name].baseline or self.health.floor_px
+        bound = max(self.accept_factor * base, base + 2.0)
+        if r.rms_px > bound:
+            return self._fail(
+                name, case, f"the new pose's error {r.rms_px:.1f} px is above {bound:.1f} px"
+            )
+        if r.coverage < self.min_coverage:
+            return self._fail(
+                name,
+                case,
+                f"the people covered {100 * r.coverage:.0f}% of its view (at least "
+                f"{100 * self.min_coverage:.0f}% needed)",
+            )
+        if r.turned_deg < STILL_DEG and r.moved_m < STILL_M:  # where it was: a false alarm
+            logger.info("camera %s: the others place it where it is; nothing to correct", name)
+            self._close(name)
+            return []
+        if not self.auto:
+            case.proposal, case.reason = r, None
+            logger.warning(
+                "camera %s: a new pose is proposed (turned %.2f deg, moved %.2f m, %.1f px): "
+                "an admin accepts it in the console",
+                name,
+                r.turned_deg,
+                r.moved_m,
+                r.rms_px,
+            )
+            return [self._event("calibration_proposed", name, r, base, t, frame)]
+        event = self._event("calibration_corrected", name, r, base, t, frame)
+        self._apply(name, r)
+        return [event]
+
+    def _fail(self, name: str, case: _Case, reason: str) -> list[Event]:
+        case.reason = reason if case.tries < MAX_TRIES else "gave up"
+        logger.warning("camera %s: not corrected: %s", name, reason)
+        return []
+
+    def _event(self, type_: str, name: str, r, base: float, t: float, frame: int) -> Event:
+        old = self.rig[name]
+        turn = cv2.Rodrigues(r.camera.R @ old.R.T)[0].ravel()
+        result = {
+            "turned_deg": round(r.turned_deg, 4),
+            "rotation": [round(float(v), 6) for v in turn],  # world frame, Rodrigues
+            "moved_m": round(r.moved_m, 4),
+            "shift_m": [round(float(v), 4) for v in r.camera.center - old.center],
+            "joints": int(r.joints),
+            "coverage": round(r.coverage, 3),
+        }
+        return camera_event(
+            type_, name, t, frame, t, reprojection_px=r.rms_px, baseline_px=base, result=result
+        )
+
+    # -- applying ------------------------------------------------------------------------------
+
+    def _apply(self, name: str, r) -> None:
+        old = self.rig
+        self.rig = Rig(tuple(r.camera if c.name == name else c for c in old))
+        for fn in self.apply_to:
+            fn(self.rig)
+        self.health.set_camera(self.rig, name)
+        self.corrected[name] = self.corrected.get(name, 0) + 1
+        self._close(name)
+        self._write(name, old[name], r)
+
+    def accept(self, name: str) -> bool:
+        """An admin's acceptance of a proposed pose; False when none is proposed."""
+        case = self.cases.get(name)
+        if case is None or case.proposal is None:
+            return False
+        self._apply(name, case.proposal)
+        return True
+
+    def proposals(self) -> dict[str, dict]:
+        return {
+            n: {"turned_deg": c.proposal.turned_deg, "moved_m": c.proposal.moved_m}
+            for n, c in self.cases.items()
+            if c.proposal is not None
+        }
+
+    def _write(self, name: str, old, r) -> None:
+        """The corrected calibration beside the original (or in out_dir) and its history."""
+        from stereopose.calibration.formats import save_calibration
+
+        stem = self.calib_path.name.split(".")[0] or "calibration"
+        places = [self.calib_path.parent] + ([self.out_dir] if self.out_dir is not None else [])
+        line = {
+            "wall_time": time.time(),
+            "camera": name,
+            "turned_deg": r.turned_deg,
+            "moved_m": r.moved_m,
+            "reprojection_px": r.rms_px,
+            "from": {"rotation": old.rotation.tolist(), "translation": old.translation.tolist()},
+            "to": {
+                "rotation": r.camera.rotation.tolist(),
+                "translation": r.camera.translation.tolist(),
+            },
+        }
+        for folder in places:
+            path = folder / f"{stem}.corrected.toml"
+            try:
+                meta = {"corrected_from": str(self.calib_path), "camera": name}
+                save_calibration(path, self.rig, meta)
+                with open(folder / f"{stem}.corrections.jsonl", "a", encoding="utf-8") as f:
+                    f.write(json.dumps({**line, "file": str(path)}) + "\n")
+            except OSError as e:
+                logger.error("%s: cannot write the corrected calibration: %s", path, e.strerror)
+                continue
+            self.written = path
+            logger.warning("camera %s corrected: the calibration is written to %s", name, path)
+            return
+
+    # -- health, close -------------------------------------------------------------------------
+
+    def figures(self) -> dict:
+        """Per camera being placed again: samples, attempts, the reason it is not corrected,
+        a proposal waiting; the corrections made; the corrected file."""
+        return {
+            "cameras": {
+                n: {
+                    "samples": len(c.samples),
+                    "tries": c.tries,
+                    "working": c.job is not None,
+                    "reason": c.reason,
+                    "proposed": c.proposal is not None,
+                }
+                for n, c in self.cases.items()
+            },
+            "corrected": dict(self.corrected),
+            "file": None if self.written is None else str(self.written),
+        }
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,144 @@
+"""The rig kept calibrated: a camera knocked out of place mid-run (its detections from then on
+those of a camera turned 1.5 degrees and moved 0.3 m) drifts, is placed again from the people
+the other cameras see, applied, reported and written beside the original."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from stereopose.calibration.formats import load_calibration, save_calibration
+from stereopose.config import Config
+from stereopose.io.sinks.base import FrameResult
+from stereopose.pipeline.stage3d import Stage3D
+from stereopose.sim.yard import bump, yard_scene
+from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.calib_keeper import CalibrationKeeper
+from stereopose.types import Rig
+
+pytestmark = pytest.mark.slow
+
+KNOCKED_AT = 600  # frame (step 300)
+
+
+@pytest.fixture(scope="module")
+def knocked():
+    """(the rig as calibrated, the camera as it is after the knock, the steps' people2d)."""
+    before = yard_scene(seed=3, walkers=2, duration_s=60.0)
+    rig = before.rig
+    moved = bump(rig["cam02"], np.random.default_rng(4), 1.5, 0.3)
+    after = yard_scene(
+        seed=3,
+        walkers=2,
+        duration_s=60.0,
+        rig=Rig(tuple(moved if c.name == "cam02" else c for c in rig)),
+    )
+    steps = [
+        before.detections[t] if t < KNOCKED_AT else after.detections[t] for t in range(0, 1500, 2)
+    ]
+    return rig, moved, steps
+
+
+def _run(rig, steps, tmp_path, auto: bool):
+    save_calibration(tmp_path / "calib.toml", rig)
+    stage = Stage3D(rig, Config())
+    health = CalibrationHealth(rig, 2.0, baseline_samples=60, window=30)
+    applied = []
+    keeper = CalibrationKeeper(
+        rig,
+        tmp_path / "calib.toml",
+        health,
+        apply=[stage.set_rig, applied.append],
+        auto=auto,
+        samples=60,
+    )
+    events = []
+    for k, people2d in enumerate(steps):
+        t = k * 0.08
+        p3 = stage.step(k, people2d, t)
+        drift = health.update(FrameResult(k, t, people2d, p3, []))
+        events += drift
+        events += keeper.update(k, t, people2d, drift)
+        if keeper.figures()["cameras"].get("cam02", {}).get("working"):
+            deadline = time.monotonic() + 60  # (the worker's attempt, then the next step)
+            while (
+                keeper.figures()["cameras"].get("cam02", {}).get("working")
+                and not keeper.cases["cam02"].job.done()
+            ):
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+    keeper.close()
+    return keeper, events, applied
+
+
+def test_a_knocked_camera_is_corrected_and_written_beside_the_original(knocked, tmp_path) -> None:
+    rig, moved, steps = knocked
+    _keeper, events, applied = _run(rig, steps, tmp_path, auto=True)
+    types = [(e.type, e.camera) for e in events]
+    assert ("calibration_drift", "cam02") in types
+    assert ("calibration_corrected", "cam02") in types
+    assert types.index(("calibration_drift", "cam02")) < types.index(
+        ("calibration_corrected", "cam02")
+    )
+    fix = next(e for e in events if e.type == "calibration_corrected")
+    assert 1.3 < fix.result["turned_deg"] < 1.7 and 0.2 < fix.result["moved_m"] < 0.4
+    turn = np.degrees(np.linalg.norm(fix.result["rotation"]))
+    assert abs(turn - fix.result["turned_deg"]) < 1e-3
+    assert abs(np.linalg.norm(fix.result["shift_m"]) - fix.result["moved_m"]) < 1e-3
+    assert fix.reprojection_px < 2 * fix.baseline_px + 2
+    new = applied[-1]["cam02"]
+    assert np.degrees(np.linalg.norm(cv2.Rodrigues(new.R @ moved.R.T)[0])) < 0.1
+    assert all(applied[-1][n] is rig[n] for n in rig.names if n != "cam02")
+    # beside the original, which is untouched; its history says what was done
+    assert (
+        load_calibration(tmp_path / "calib.toml")["cam02"].rotation.tolist()
+        == rig["cam02"].rotation.tolist()
+    )
+    written = load_calibration(tmp_path / "calib.corrected.toml")
+    assert np.allclose(written["cam02"].translation, new.translation)
+    history = [
+        json.loads(x) for x in (tmp_path / "calib.corrections.jsonl").read_text().splitlines()
+    ]
+    assert history[-1]["camera"] == "cam02" and history[-1]["file"].endswith("calib.corrected.toml")
+    # once corrected, the camera's error comes back: the drift ends
+    assert ("calibration_recovered", "cam02") in types[
+        types.index(("calibration_corrected", "cam02")) :
+    ]
+
+
+def test_without_auto_the_pose_is_proposed_and_applied_when_accepted(knocked, tmp_path) -> None:
+    rig, _moved, steps = knocked
+    keeper, events, applied = _run(rig, steps[:520], tmp_path, auto=False)
+    assert [
+        e.type for e in events if e.camera == "cam02" and e.type.startswith("calibration_p")
+    ] == ["calibration_proposed"]
+    assert not applied and "cam02" in keeper.proposals()
+    assert not (tmp_path / "calib.corrected.toml").exists()
+    assert keeper.accept("cam02") and applied and not keeper.proposals()
+    assert (tmp_path / "calib.corrected.toml").is_file()
+    assert not keeper.accept("cam02")  # nothing proposed any more
+
+
+def test_a_camera_that_cannot_be_corrected_stays_flagged_with_the_reason(knocked, tmp_path) -> None:
+    rig, _, steps = knocked
+    save_calibration(tmp_path / "calib.toml", rig)
+    health = CalibrationHealth(rig, 2.0, baseline_samples=60, window=30)
+    keeper = CalibrationKeeper(rig, tmp_path / "calib.toml", health, samples=10, min_coverage=1.01)
+    stage = Stage3D(rig, Config())
+    events = []
+    for k, people2d in enumerate(steps):
+        p3 = stage.step(k, people2d, k * 0.08)
+        drift = health.update(FrameResult(k, k * 0.08, people2d, p3, []))
+        events += keeper.update(k, k * 0.08, people2d, drift)
+        case = keeper.cases.get("cam02")
+        if case is not None and case.job is not None:
+            case.job.result(timeout=60)
+        if keeper.figures()["cameras"].get("cam02", {}).get("reason"):
+            break
+    keeper.close()
+    assert "of its view" in keeper.figures()["cameras"]["cam02"]["reason"]
+    assert not any(e.type == "calibration_corrected" for e in events)
