@@ -25,6 +25,7 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import source_label
 from stereopose.site.desk import IncidentDesk
 from stereopose.site.eventlog import EventLog
+from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watchdog import Watchdog
 from stereopose.site.http.api.health import health_of
@@ -84,6 +85,7 @@ class SiteService:
         self.power = ZoneStates(zones, self.power_board) if self.power_board else None
         self.power_sources = None
         self.keeper = None  # site.health.calib_keeper, once the frame loop starts
+        self.calibration_desk = KeeperDesk()  # the API's way to it
         if self.packets:
             self.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
@@ -105,6 +107,7 @@ class SiteService:
             allowed_hosts=hosts,
             incidents=self.desk,
             tickets=self.tickets,
+            calibration=self.calibration_desk,
         )
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
@@ -309,6 +312,7 @@ class SiteService:
     def keep_calibration(self, keeper) -> None:
         """The calibration keeper's figures in status.json; closed with the service."""
         self.keeper = keeper
+        self.calibration_desk.keeper = keeper
         self.probes["calibration"] = keeper.figures
 
     def watch_nodes(self, nodes) -> None:

@@ -5,79 +5,30 @@ the other cameras see, applied, reported and written beside the original."""
 from __future__ import annotations
 
 import json
-import time
 
 import cv2
 import numpy as np
 import pytest
 
+from knocked import knocked_yard, run_keeper
 from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.config import Config
 from stereopose.io.sinks.base import FrameResult
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.sim.yard import bump, yard_scene
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper
-from stereopose.types import Rig
 
 pytestmark = pytest.mark.slow
-
-KNOCKED_AT = 600  # frame (step 300)
 
 
 @pytest.fixture(scope="module")
 def knocked():
-    """(the rig as calibrated, the camera as it is after the knock, the steps' people2d)."""
-    before = yard_scene(seed=3, walkers=2, duration_s=60.0)
-    rig = before.rig
-    moved = bump(rig["cam02"], np.random.default_rng(4), 1.5, 0.3)
-    after = yard_scene(
-        seed=3,
-        walkers=2,
-        duration_s=60.0,
-        rig=Rig(tuple(moved if c.name == "cam02" else c for c in rig)),
-    )
-    steps = [
-        before.detections[t] if t < KNOCKED_AT else after.detections[t] for t in range(0, 1500, 2)
-    ]
-    return rig, moved, steps
-
-
-def _run(rig, steps, tmp_path, auto: bool):
-    save_calibration(tmp_path / "calib.toml", rig)
-    stage = Stage3D(rig, Config())
-    health = CalibrationHealth(rig, 2.0, baseline_samples=60, window=30)
-    applied = []
-    keeper = CalibrationKeeper(
-        rig,
-        tmp_path / "calib.toml",
-        health,
-        apply=[stage.set_rig, applied.append],
-        auto=auto,
-        samples=60,
-    )
-    events = []
-    for k, people2d in enumerate(steps):
-        t = k * 0.08
-        p3 = stage.step(k, people2d, t)
-        drift = health.update(FrameResult(k, t, people2d, p3, []))
-        events += drift
-        events += keeper.update(k, t, people2d, drift)
-        if keeper.figures()["cameras"].get("cam02", {}).get("working"):
-            deadline = time.monotonic() + 60  # (the worker's attempt, then the next step)
-            while (
-                keeper.figures()["cameras"].get("cam02", {}).get("working")
-                and not keeper.cases["cam02"].job.done()
-            ):
-                assert time.monotonic() < deadline
-                time.sleep(0.01)
-    keeper.close()
-    return keeper, events, applied
+    return knocked_yard()
 
 
 def test_a_knocked_camera_is_corrected_and_written_beside_the_original(knocked, tmp_path) -> None:
     rig, moved, steps = knocked
-    _keeper, events, applied = _run(rig, steps, tmp_path, auto=True)
+    _keeper, events, applied = run_keeper(rig, steps, tmp_path, auto=True)
     types = [(e.type, e.camera) for e in events]
     assert ("calibration_drift", "cam02") in types
     assert ("calibration_corrected", "cam02") in types
@@ -112,13 +63,17 @@ def test_a_knocked_camera_is_corrected_and_written_beside_the_original(knocked, 
 
 def test_without_auto_the_pose_is_proposed_and_applied_when_accepted(knocked, tmp_path) -> None:
     rig, _moved, steps = knocked
-    keeper, events, applied = _run(rig, steps[:520], tmp_path, auto=False)
+    keeper, events, applied = run_keeper(rig, steps[:520], tmp_path, auto=False)
     assert [
         e.type for e in events if e.camera == "cam02" and e.type.startswith("calibration_p")
     ] == ["calibration_proposed"]
     assert not applied and "cam02" in keeper.proposals()
     assert not (tmp_path / "calib.corrected.toml").exists()
-    assert keeper.accept("cam02") and applied and not keeper.proposals()
+    assert keeper.accept("cam02", "ada") and not applied  # at the next step, not at once
+    assert keeper.proposals()["cam02"]["accepted_by"] == "ada"
+    later = keeper.update(520, 41.6, steps[520], [])
+    assert [e.type for e in later] == ["calibration_corrected"] and applied
+    assert later[0].result["accepted_by"] == "ada" and not keeper.proposals()
     assert (tmp_path / "calib.corrected.toml").is_file()
     assert not keeper.accept("cam02")  # nothing proposed any more
 

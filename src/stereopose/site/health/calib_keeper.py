@@ -23,6 +23,7 @@ from __future__ import annotations
 import concurrent.futures
 import json
 import logging
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -37,7 +38,7 @@ from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
 
-__all__ = ["CalibrationKeeper"]
+__all__ = ["CalibrationKeeper", "KeeperDesk"]
 
 logger = logging.getLogger(__name__)
 
@@ -58,6 +59,7 @@ class _Case:
     tries: int = 0
     reason: str | None = None
     proposal: object = None  # a calibration.refine.Refined awaiting an admin
+    accepted_by: str | None = None  # an admin accepted it: applied at the next step
 
 
 class CalibrationKeeper:
@@ -85,6 +87,7 @@ class CalibrationKeeper:
         self.out_dir = None if out_dir is None else Path(out_dir)
         self.wall_start = wall_start
         self.cases: dict[str, _Case] = {}
+        self._lock = threading.Lock()  # the cases, against the API's threads
         self.corrected: dict[str, int] = {}
         self.written: Path | None = None
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="calib-keeper")
@@ -105,6 +108,15 @@ class CalibrationKeeper:
         out: list[Event] = []
         for name in list(self.cases):
             case = self.cases[name]
+            with self._lock:
+                by = case.accepted_by if case.proposal is not None else None
+            if by is not None:  # an admin's acceptance, applied here: at a step boundary
+                base = self.health.cameras[name].baseline or self.health.floor_px
+                event = self._event("calibration_corrected", name, case.proposal, base, t, frame)
+                event.result["accepted_by"] = by
+                self._apply(name, case.proposal)
+                out.append(event)
+                continue
             if case.job is not None:
                 if case.job.done():
                     out += self._judge(name, case, t, frame)
@@ -130,11 +142,13 @@ class CalibrationKeeper:
             logger.warning("camera %s drifted: too few other cameras to place it again", name)
             return
         rec = Reconstructor(self.rig.subset(others))
-        self.cases[name] = _Case(deque(maxlen=self.samples), rec)
+        with self._lock:
+            self.cases[name] = _Case(deque(maxlen=self.samples), rec)
         logger.warning("camera %s drifted: placing it again from the people the others see", name)
 
     def _close(self, name: str) -> None:
-        self.cases.pop(name, None)
+        with self._lock:
+            self.cases.pop(name, None)
 
     def _sample(self, name: str, case: _Case, frame: int, people2d) -> None:
         own = people2d.get(name)
@@ -219,18 +233,28 @@ class CalibrationKeeper:
         self._close(name)
         self._write(name, old[name], r)
 
-    def accept(self, name: str) -> bool:
-        """An admin's acceptance of a proposed pose; False when none is proposed."""
-        case = self.cases.get(name)
-        if case is None or case.proposal is None:
-            return False
-        self._apply(name, case.proposal)
-        return True
+    def accept(self, name: str, by: str = "admin") -> bool:
+        """An admin's acceptance of a proposed pose (any thread): applied at the next step;
+        False when none is proposed."""
+        with self._lock:
+            case = self.cases.get(name)
+            if case is None or case.proposal is None:
+                return False
+            case.accepted_by = by
+            return True
 
     def proposals(self) -> dict[str, dict]:
+        """Per camera with a pose waiting for an admin: its turn, shift and error."""
+        with self._lock:
+            cases = list(self.cases.items())
         return {
-            n: {"turned_deg": c.proposal.turned_deg, "moved_m": c.proposal.moved_m}
-            for n, c in self.cases.items()
+            n: {
+                "turned_deg": c.proposal.turned_deg,
+                "moved_m": c.proposal.moved_m,
+                "reprojection_px": c.proposal.rms_px,
+                "accepted_by": c.accepted_by,
+            }
+            for n, c in cases
             if c.proposal is not None
         }
 
@@ -271,7 +295,10 @@ class CalibrationKeeper:
     def figures(self) -> dict:
         """Per camera being placed again: samples, attempts, the reason it is not corrected,
         a proposal waiting; the corrections made; the corrected file."""
+        with self._lock:
+            cases = list(self.cases.items())
         return {
+            "auto": self.auto,
             "cameras": {
                 n: {
                     "samples": len(c.samples),
@@ -280,7 +307,7 @@ class CalibrationKeeper:
                     "reason": c.reason,
                     "proposed": c.proposal is not None,
                 }
-                for n, c in self.cases.items()
+                for n, c in cases
             },
             "corrected": dict(self.corrected),
             "file": None if self.written is None else str(self.written),
@@ -288,3 +315,11 @@ class CalibrationKeeper:
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+class KeeperDesk:
+    """How the HTTP API reaches the keeper: made with the app, the keeper attached once the
+    frame loop runs (None until then: the API answers 503)."""
+
+    def __init__(self) -> None:
+        self.keeper: CalibrationKeeper | None = None

@@ -64,6 +64,7 @@ def create_app(
     allowed_hosts: Iterable[str] | None = None,
     incidents: IncidentDesk | None = None,
     tickets: TicketDesk | None = None,
+    calibration: object | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
@@ -71,7 +72,9 @@ def create_app(
     (site.http.web.Console); allowed_hosts: the Host names served
     (site.http.hosts.allowed_hosts; None: any); incidents: the incident desk (site.desk: the
     incident book once it runs; None: a desk of its own, never attached); tickets: the site's
-    tickets (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503)."""
+    tickets (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503);
+    calibration: the calibration keeper's desk (site.health.calib_keeper.KeeperDesk; None:
+    the calibration API answers that it is not running)."""
     app = FastAPI(
         title="stereopose",
         version=__version__,  # shown only with a session (api.docs serves /openapi.json)
@@ -86,6 +89,7 @@ def create_app(
     app.state.console = console
     app.state.incidents = incidents if incidents is not None else IncidentDesk()
     app.state.tickets = tickets
+    app.state.calibration = calibration
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     error_answers.add_handlers(app)
@@ -94,9 +98,23 @@ def create_app(
     app.add_middleware(RequestLimits, max_body_bytes=max_body_bytes)
     app.include_router(health.router)
     app.include_router(metrics.router)
+    from stereopose.site.http.api import calibration as calib_api
     from stereopose.site.http.api import incidents, replay, tickets
 
-    routers = (auth, people, events, incidents, tickets, replay, cameras, zones, clips, live, users)
+    routers = (
+        auth,
+        people,
+        events,
+        incidents,
+        tickets,
+        replay,
+        cameras,
+        zones,
+        clips,
+        live,
+        users,
+        calib_api,
+    )
     for router in routers:
         app.include_router(router.router)
     docs.mount_docs(app)
