@@ -103,7 +103,7 @@ class Loop:
         self.events += events
         return events
 
-    def until(self, what, condition, inside: bool = False, timeout_s: float = 10.0) -> list:
+    def until(self, what, condition, inside: bool = False, timeout_s: float = 20.0) -> list:
         got: list = []
 
         def check() -> bool:
@@ -137,7 +137,12 @@ qe = {{ iec104 = {{ {rtu_link}, ioa = 2002 }} }}
     sources = start_sources(site.zones, board)
     loop = Loop(site, board)
     try:
-        got = loop.until("the zone live from the interrogation", lambda g: "zone_live" in _types(g))
+        # (the master's first connection and interrogation: slow on a loaded machine)
+        got = loop.until(
+            "the zone live from the interrogation",
+            lambda g: "zone_live" in _types(g),
+            timeout_s=45,
+        )
         assert loop.states.snapshot()["bay2_panel"]["state"] == LIVE
         # switched out and earthed: dead; the worker's touch is info, never an alarm
         rtu.set("qf", "open")
