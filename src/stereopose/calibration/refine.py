@@ -90,11 +90,13 @@ def refine_camera(
         )
     obj, img, tag = np.concatenate(obj), np.concatenate(img), np.concatenate(tag)
     best = None
-    for start in (_from_scratch(cam, obj, img), _from_old_pose(cam, pairs)):
+    # from its old pose first (a nudged camera); a pose found from scratch replaces it only
+    # when clearly more joints agree (people near the cameras have mirror-like poses too)
+    for start, favour in ((_from_old_pose(cam, pairs), 1.0), (_from_scratch(cam, obj, img), 1.3)):
         if start is None:
             continue
         r, t, keep, err = _settle(cam, obj, img, *start)
-        if best is None or len(keep) > len(best[2]):
+        if best is None or len(keep) > favour * len(best[2]):
             best = (r, t, keep, err)
     if best is None or len(best[2]) < MIN_JOINTS:
         raise CalibrationError(
