@@ -83,3 +83,22 @@ def test_exactly_one_scale() -> None:
         calibrate_people(
             _frames(yard, 1), _bare(yard.rig), height_m=1.7, distance=("cam01", "cam02", 3.0)
         )
+
+
+def test_surveyed_points_give_the_scale_and_the_site_frame() -> None:
+    from pathlib import Path
+
+    from stereopose.calibration.surveyed import Survey
+    from stereopose.sim.yard import survey
+
+    yard = yard_scene(seed=1, walkers=1, duration_s=60.0)
+    world, clicks = survey(yard.rig, np.random.default_rng(2))
+    r = calibrate_people(
+        _frames(yard, 4), _bare(yard.rig), survey=Survey(Path("points.toml"), world, clicks)
+    )
+    assert r.scale_from == "surveyed points (12)"
+    for cam in yard.rig:  # the points' own frame: no alignment
+        new = r.rig[cam.name]
+        turn = np.degrees(np.arccos(np.clip((np.trace(new.R.T @ cam.R) - 1) / 2, -1, 1)))
+        assert turn < 0.1, (cam.name, turn)
+        assert np.linalg.norm(new.center - cam.center) < 0.1, cam.name
