@@ -279,7 +279,8 @@ def output_health(sink) -> Callable[[], tuple[bool, int, str | None]]:
 
 @contextlib.contextmanager
 def stop_signals() -> Iterator[None]:
-    """SIGTERM handled as SIGINT is at that moment (main thread only)."""
+    """SIGTERM handled as SIGINT is at that moment (main thread only); on leaving, SIGINT and
+    SIGTERM as they were on entering."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -292,10 +293,15 @@ def stop_signals() -> Iterator[None]:
             raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, as_sigint)
+    previous_int = signal.getsignal(signal.SIGINT)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        # the frame loop's Ctrl-C handler and the closing's quiet one are undone in the order
+        # the closing needs, not the order they were made: SIGINT is put back as it was here
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 @contextlib.contextmanager
