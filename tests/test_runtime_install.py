@@ -45,6 +45,7 @@ SERVE_MODULES = (
     "stereopose.io.sinks.clips",
     "stereopose.viz.clips",
     "stereopose.detection.yolo_onnx",
+    "stereopose.calibration.refine",  # a drifted camera placed again (site.health.calib_keeper)
 )
 
 

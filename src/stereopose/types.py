@@ -383,6 +383,8 @@ class Event:
     priority: int | None = None
     # ticket events (kind "ticket", stereopose.tickets) and zone events in a zone a ticket
     # isolated (kind "isolated"): the ticket's id, the step's name, and ticket_completed's result
+    # (calibration_corrected / calibration_proposed: the turn and shift of the camera placed
+    # again, docs/formats.md)
     ticket: str | None = None
     step: str | None = None
     result: dict | None = None

@@ -18,29 +18,8 @@ from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 
 from stereopose.calibration.extrinsics import rodrigues
-from stereopose.types import Camera
 
-__all__ = [
-    "Bundle",
-    "Solution",
-    "adjust",
-    "camera_with_pose",
-    "intrinsics_row",
-    "pose_row",
-    "project_px",
-]
-
-
-def intrinsics_row(cam: Camera) -> np.ndarray:
-    """(8,) fx, fy, cx, cy, k1, k2, p1, p2 of a camera (a k3 is not used by this model)."""
-    K, d = cam.matrix, np.zeros(4)
-    d[: min(4, cam.distortions.size)] = cam.distortions[:4]
-    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d])
-
-
-def pose_row(cam: Camera) -> np.ndarray:
-    """(6,) Rodrigues vector and translation of a camera, world -> camera."""
-    return np.concatenate([cam.rotation, cam.translation]).astype(np.float64)
+__all__ = ["Bundle", "Solution", "adjust", "project_px"]
 
 
 def project_px(pose: np.ndarray, intr: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,9 +188,3 @@ def adjust(
     uv, _ = project_px(poses[b.cam], b.intr[b.cam], pts[b.point])
     err = np.linalg.norm(uv - b.uv, axis=1)
     return Solution(poses, pts, lengths, err, float(sol.cost))
-
-
-def camera_with_pose(cam: Camera, pose: np.ndarray) -> Camera:
-    """The camera with the pose (6,) (Rodrigues vector, translation; world -> camera)."""
-    pose = np.asarray(pose, dtype=np.float64)
-    return Camera(cam.name, cam.size, cam.matrix, cam.distortions, pose[:3], pose[3:], cam.fisheye)

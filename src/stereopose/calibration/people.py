@@ -23,9 +23,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from stereopose.calibration.bundle import Bundle, adjust, camera_with_pose, intrinsics_row
+from stereopose.calibration.bundle import Bundle, adjust, project_px
 from stereopose.calibration.people_match import (
     MIN_CONF,
+    MIN_JOINTS,
     PairMatch,
     Views,
     collect_views,
@@ -33,6 +34,7 @@ from stereopose.calibration.people_match import (
     match_pair,
 )
 from stereopose.calibration.people_world import coverage_advice, to_world
+from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.errors import CalibrationError
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.skeleton import SWAP
@@ -90,20 +92,10 @@ def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int
     if not obj or sum(len(o) for o in obj) < MIN_PNP:
         return None
     obj, img = np.concatenate(obj), np.concatenate(img)
-    ok, r, t, inl = cv2.solvePnPRansac(
-        obj,
-        img,
-        np.eye(3),
-        None,
-        reprojectionError=thr,
-        iterationsCount=5000,
-        confidence=0.9999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    if not ok or inl is None or len(inl) < MIN_PNP:
+    found = robust_pnp(obj, img, np.eye(3), None, thr, 5000)
+    if found is None or len(found[2]) < MIN_PNP:
         return None
-    keep = inl.ravel()
-    r, t = cv2.solvePnPRefineLM(obj[keep], img[keep], np.eye(3), None, r, t)
+    r, t, keep = found
     return np.concatenate([r.ravel(), t.ravel()]), len(keep)
 
 
@@ -134,37 +126,28 @@ def _observations(views: Views, groups, X, placed, drop: set) -> tuple:
     return pid, np.array(cam), np.array(pt), np.array(uv).reshape(-1, 2), np.array(w), src
 
 
+def _median_error(uv: np.ndarray, kp: np.ndarray, ok: np.ndarray) -> float:
+    """Median pixel distance of the confident joints of kp (17, 3) to uv (17, 2) where ok."""
+    d = np.linalg.norm(uv - kp[:, :2], axis=1)
+    return float(np.nanmedian(np.where(ok & (kp[:, 2] >= MIN_CONF), d, np.nan)))
+
+
 def _unswap(views: Views, groups, poses, intr) -> int:
     """Detections whose joints fit the others' person better left/right swapped are swapped
     (in views); how many."""
-    from stereopose.calibration.bundle import project_px
-
     X = _triangulate(views, groups, poses, np.ones(len(poses), dtype=bool))
     turned = 0
     for g, members in enumerate(groups):
-        if len(members) < 3 or not np.isfinite(X[g]).any():
+        ok = np.isfinite(X[g, :, 0])
+        if len(members) < 3 or not ok.any():
             continue
         for c, k in members.items():
             kp = views.det[k][2]
-            ok = np.isfinite(X[g, :, 0])
-            uv, _ = project_px(
-                np.repeat(poses[c : c + 1], 17, 0),
-                np.repeat(intr[c : c + 1], 17, 0),
-                np.nan_to_num(X[g]),
-            )
-            e0 = np.nanmedian(
-                np.where(
-                    ok & (kp[:, 2] >= MIN_CONF), np.linalg.norm(uv - kp[:, :2], axis=1), np.nan
-                )
-            )
-            sw = kp[SWAP]
-            e1 = np.nanmedian(
-                np.where(
-                    ok & (sw[:, 2] >= MIN_CONF), np.linalg.norm(uv - sw[:, :2], axis=1), np.nan
-                )
-            )
+            at = np.repeat(poses[c : c + 1], 17, 0), np.repeat(intr[c : c + 1], 17, 0)
+            uv, _ = project_px(*at, np.nan_to_num(X[g]))
+            e0, e1 = _median_error(uv, kp, ok), _median_error(uv, kp[SWAP], ok)
             if np.isfinite(e0) and np.isfinite(e1) and e1 < 0.5 * e0 and e0 > 6.0:
-                views.det[k] = (views.det[k][0], c, sw.copy(), views.det[k][3][SWAP].copy())
+                views.det[k] = (views.det[k][0], c, kp[SWAP].copy(), views.det[k][3][SWAP].copy())
                 turned += 1
     return turned
 
@@ -198,7 +181,7 @@ def calibrate_people(
     views = collect_views(frames, cams)
     if not views.det:
         raise CalibrationError(
-            f"no person with {8} or more confident joints in {len(frames)} frame(s)"
+            f"no person with {MIN_JOINTS} or more confident joints in {len(frames)} frame(s)"
         )
     rng = np.random.default_rng(seed)
     focal = float(np.median([c.focal for c in intrinsics]))
@@ -281,8 +264,8 @@ def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
         free_cams = np.ones(C, dtype=bool)
         free_cams[first.a] = False
         pts = np.array([X[g, j] for g, j in zip(*np.nonzero(pid >= 0), strict=True)])
-        problem = Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, np.ones(len(pts), dtype=bool))
-        problem.baseline = base
+        every = np.ones(len(pts), dtype=bool)
+        problem = Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, every, baseline=base)
         sol = adjust(problem, f_scale_px=3.0, max_nfev=40 if round_ == 0 else 60)
         poses = sol.poses
         if round_ == 0:

@@ -85,7 +85,7 @@ class PairMatch:
     angle_deg: float
 
 
-def _candidates(views: Views, a: int, b: int, rng: np.random.Generator):
+def _candidates(views: Views, a: int, b: int):
     """Joint correspondences of every same-frame pairing: (xa (N, 2), xb (N, 2), pairing id
     (N,)), and the pairings (detection of a, detection of b)."""
     xa, xb, pid, pairs = [], [], [], []
@@ -110,7 +110,7 @@ def match_pair(
 ) -> PairMatch | None:
     """The relative pose of cameras a and b and the pairings that agree with it; None when they
     share too few people."""
-    cand = _candidates(views, a, b, rng)
+    cand = _candidates(views, a, b)
     if cand is None:
         return None
     xa, xb, pid, pairs = cand

@@ -19,7 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereopose.calibration.bundle import camera_with_pose
+from stereopose.calibration.poses import camera_with_pose
 from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import undistort_normalized
 from stereopose.geometry.triangulation import triangulate_dlt
@@ -42,16 +42,20 @@ def _moved(rig: Rig, s: float, Q: np.ndarray, u: np.ndarray) -> Rig:
     return Rig(tuple(out))
 
 
-def _plane(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Unit normal n and offset d (n . x = d) of the points' plane, the worst fifth trimmed
-    twice."""
+def _normal(points: np.ndarray) -> np.ndarray:
+    """Unit normal of the points' plane, the worst fifth trimmed twice."""
     keep = np.ones(len(points), dtype=bool)
     for _ in range(3):
         c = points[keep].mean(axis=0)
         n = np.linalg.svd(points[keep] - c)[2][2]
         dist = np.abs((points - c) @ n)
         keep = dist <= np.quantile(dist, 0.8)
-    return n, float(n @ c)
+    return n
+
+
+def _heights(X: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(G, 2) each person's ankles along n (inf where missing)."""
+    return np.where(np.isfinite(X[:, ANKLES, 0]), X[:, ANKLES] @ n, np.inf)
 
 
 def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -105,28 +109,23 @@ def to_world(
     ankles = ankles[np.isfinite(ankles).all(1)]
     if len(ankles) < 20:
         raise CalibrationError(f"{len(ankles)} ankles reconstructed: too few to find the floor")
-    n, _ = _plane(ankles)
+    n = _normal(ankles)
     centres = np.stack([c.center for c in rig])
     if np.mean(centres @ n) < np.median(ankles @ n):
         n = -n
-    h = X[:, ANKLES] @ n  # (G, 2)
-    lower = np.where(
-        np.isnan(h[:, 0]), h[:, 1], np.where(np.isnan(h[:, 1]), h[:, 0], np.fmin(h[:, 0], h[:, 1]))
-    )
-    low = np.take_along_axis(
-        X[:, ANKLES], np.nanargmin(np.where(np.isfinite(h), h, np.inf), 1)[:, None, None], 1
-    )[:, 0]
-    ok = np.isfinite(low).all(1)
-    n2, d = _plane(low[ok])
+    # each person's lower ankle (the foot on the floor), then the plane of those
+    low = np.take_along_axis(X[:, ANKLES], np.argmin(_heights(X, n), 1)[:, None, None], 1)[:, 0]
+    low = low[np.isfinite(low).all(1)]
+    n2 = _normal(low)
     n = n2 if n2 @ n > 0 else -n2
-    d = float(np.median(low[ok] @ n))
+    d = float(np.median(low @ n))
     if distance is not None:
         a, b, metres = distance
         s = metres / float(np.linalg.norm(rig[a].center - rig[b].center))
         scale_from = f"the distance {a}-{b} ({metres:g} m)"
     else:
         eyes = 0.5 * (X[:, EYES[0]] + X[:, EYES[1]]) @ n  # NaN unless both eyes
-        rise = eyes - lower
+        rise = eyes - _heights(X, n).min(axis=1)
         rise = rise[np.isfinite(rise)]
         if len(rise) < 10:
             raise CalibrationError(

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereopose.calibration.bundle import camera_with_pose
+from stereopose.calibration.poses import camera_with_pose, robust_pnp
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction.reconstructor import Reconstructor
 from stereopose.types import Camera, People2D, Rig
@@ -69,12 +69,9 @@ def joints_of_others(
     return out
 
 
-def refine_camera(
-    cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator | None = None
-) -> Refined:
+def refine_camera(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Refined:
     """The camera's pose from (people in 3D, its detections) per frame (joints_of_others);
     CalibrationError when too few joints agree."""
-    rng = rng or np.random.default_rng(0)
     obj, img, tag = [], [], []
     for f, (X, D) in enumerate(pairs):
         for p in range(len(X)):
@@ -122,17 +119,8 @@ def refine_camera(
 
 def _from_scratch(cam: Camera, obj: np.ndarray, img: np.ndarray):
     """(rvec, tvec) from every pairing's joints by RANSAC, or None."""
-    ok, r, t, inl = cv2.solvePnPRansac(
-        obj,
-        img,
-        cam.matrix,
-        cam.distortions,
-        reprojectionError=RANSAC_PX,
-        iterationsCount=10_000,
-        confidence=0.9999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    return (r, t) if ok and inl is not None and len(inl) >= 6 else None
+    found = robust_pnp(obj, img, cam.matrix, cam.distortions, RANSAC_PX, 10_000)
+    return None if found is None or len(found[2]) < 6 else found[:2]
 
 
 def _from_old_pose(cam: Camera, pairs):

@@ -20,17 +20,11 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import tomllib
 
-from stereopose.calibration.bundle import (
-    Bundle,
-    adjust,
-    camera_with_pose,
-    intrinsics_row,
-    project_px,
-)
+from stereopose.calibration.bundle import Bundle, adjust, project_px
+from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
@@ -128,25 +122,15 @@ def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray, names: list[str]) -> np.
             f"camera {cam.name}: {len(names)} surveyed point(s) clicked "
             f"({', '.join(names) or 'none'}); at least {MIN_POINTS} are needed, 10 or more advised"
         )
-    ok, r, t, inliers = cv2.solvePnPRansac(
-        obj,
-        img,
-        cam.matrix,
-        cam.distortions,
-        reprojectionError=RANSAC_PX,
-        iterationsCount=2000,
-        confidence=0.9999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    if not ok or inliers is None or len(inliers) < MIN_POINTS:
-        found = 0 if inliers is None else len(inliers)
+    found = robust_pnp(obj, img, cam.matrix, cam.distortions, RANSAC_PX, 2000)
+    if found is None or len(found[2]) < MIN_POINTS:
+        agree = 0 if found is None else len(found[2])
         raise CalibrationError(
             f"camera {cam.name}: no pose agrees with {MIN_POINTS} or more of its points "
-            f"({found} of {len(names)} agree within {RANSAC_PX:g} px: {', '.join(names)}); "
+            f"({agree} of {len(names)} agree within {RANSAC_PX:g} px: {', '.join(names)}); "
             "check the clicks and the points' coordinates"
         )
-    keep = inliers.ravel()
-    r, t = cv2.solvePnPRefineLM(obj[keep], img[keep], cam.matrix, cam.distortions, r, t)
+    r, t, _ = found
     return np.concatenate([r.ravel(), t.ravel()])
 
 
@@ -192,12 +176,13 @@ def calibrate_points(
     for ci, c in enumerate(names):
         sel = cam_of == ci
         poses[ci] = _pnp(cams[c], world[pt_of[sel]], uv[sel], [point_names[i] for i in pt_of[sel]])
+    intr = np.stack([intrinsics_row(cams[c]) for c in names])
     keep = np.ones(len(obs), dtype=bool)
     for _ in range(3):  # adjust, leave the worst click out, again
         sol = adjust(
             Bundle(
                 poses,
-                np.stack([intrinsics_row(cams[c]) for c in names]),
+                intr,
                 world.copy(),
                 cam_of[keep],
                 pt_of[keep],
@@ -212,11 +197,7 @@ def calibrate_points(
             max_nfev=200,
         )
         poses = sol.poses
-        all_uv, depth = project_px(
-            poses[cam_of],
-            np.stack([intrinsics_row(cams[c]) for c in names])[cam_of],
-            sol.points[pt_of],
-        )
+        all_uv, depth = project_px(poses[cam_of], intr[cam_of], sol.points[pt_of])
         err = np.where(depth > 0, np.linalg.norm(all_uv - uv, axis=1), np.inf)
         bad = _outliers(err, cam_of, outlier_px)
         if np.array_equal(~bad, keep):

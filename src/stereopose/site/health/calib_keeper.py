@@ -33,7 +33,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereopose.calibration.formats import save_calibration
+from stereopose.calibration.refine import refine_camera
 from stereopose.errors import CalibrationError
+from stereopose.reconstruction import Reconstructor
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
@@ -125,16 +128,12 @@ class CalibrationKeeper:
                 continue
             self._sample(name, case, frame, people2d)
             if len(case.samples) >= self.samples:
-                from stereopose.calibration.refine import refine_camera
-
                 case.tries += 1
                 case.job = self._pool.submit(refine_camera, self.rig[name], list(case.samples))
                 case.samples.clear()
         return out
 
     def _open(self, name: str) -> None:
-        from stereopose.reconstruction import Reconstructor
-
         if name in self.cases:  # already under way (or proposed): kept
             return
         others = [n for n in self.rig.names if n != name]
@@ -156,9 +155,9 @@ class CalibrationKeeper:
             return
         others = {k: v for k, v in people2d.items() if k != name}
         p3 = case.others(frame, others)
-        keep = p3.views.max(axis=1, initial=0) >= 2 if len(p3.joints) else []
-        if len(p3.joints) and np.any(keep):
-            case.samples.append((p3.joints[keep], np.asarray(own.keypoints)))
+        seen = p3.views.max(axis=1, initial=0) >= 2  # (not the people placed from one view)
+        if seen.any():
+            case.samples.append((p3.joints[seen], np.asarray(own.keypoints)))
 
     def _judge(self, name: str, case: _Case, t: float, frame: int) -> list[Event]:
         job, case.job = case.job, None
@@ -260,8 +259,6 @@ class CalibrationKeeper:
 
     def _write(self, name: str, old, r) -> None:
         """The corrected calibration beside the original (or in out_dir) and its history."""
-        from stereopose.calibration.formats import save_calibration
-
         stem = self.calib_path.name.split(".")[0] or "calibration"
         places = [self.calib_path.parent] + ([self.out_dir] if self.out_dir is not None else [])
         line = {
