@@ -163,3 +163,8 @@ def test_a_bad_scale_is_exit_2(site, tmp_path, capsys) -> None:
     assert _people(root, tmp_path, root / "pose", "--distance", "cam01", "cam99", "3") == 2
     assert "no camera 'cam99'" in capsys.readouterr().err
     assert _people(root, tmp_path, root / "pose", "--height", "7") == 2
+    assert _people(root, tmp_path, root / "pose", "--height", "1.7", "--max-frames", "-3") == 2
+    assert "--max-frames: -3" in capsys.readouterr().err
+    args = ("--height", "1.7", "--ankle-height", "nan")
+    assert _people(root, tmp_path, root / "pose", *args) == 2
+    assert "--ankle-height: nan" in capsys.readouterr().err

@@ -29,6 +29,8 @@ def _frames(pose_dir: Path, rig, max_frames: int) -> list:
     for folders that share too few frame numbers (not synchronised) or hold nobody."""
     from stereopose.detection.openpose import read_pose_dir
 
+    if not 10 <= max_frames <= 100_000:
+        raise StereoposeError(f"--max-frames: {max_frames} is not between 10 and 100000")
     seq = read_pose_dir(pose_dir, rig.names)
     numbers = {c: set(seq.files(c)) for c in seq.cameras}
     for c, mine in numbers.items():
@@ -145,6 +147,8 @@ def _calibrate_people(args: argparse.Namespace) -> int:
 
     require("scipy", "calibration", "calibrate people (the bundle adjustment)")
     scale = _scale(args)
+    if not 0.0 <= args.ankle_height <= 0.3:
+        raise StereoposeError(f"--ankle-height: {args.ankle_height} m is not an ankle's height")
     intrinsics = _intrinsics(args.intrinsics)
     frames = _frames(args.pose, intrinsics, args.max_frames)
     with console.status(f"calibrating {len(intrinsics)} cameras from {len(frames)} frames"):
