@@ -86,7 +86,7 @@ def stop(servers: list[subprocess.Popen]) -> None:
 
 
 def _up(server: subprocess.Popen, port: int) -> bool:
-    return listening(port) or server.poll() is not None
+    return listening(port, taken=True) or server.poll() is not None
 
 
 def transport_stream(video: Path, out: Path) -> bytes:

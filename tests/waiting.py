@@ -22,9 +22,14 @@ def wait_until(
         time.sleep(poll_s)
 
 
-def listening(port: int) -> bool:
+def listening(port: int, taken: bool = False) -> bool:
     """Whether a socket listens on TCP ``port``, seen without connecting: ffmpeg ``-listen 1``
-    takes the first client that connects as its only one, so a probe would use it up."""
+    takes the first client that connects as its only one, so a probe would use it up.
+
+    taken: also true when the port holds an established connection, for a server such as
+    ffmpeg ``-listen 1`` that stops listening once its one client came (a client that
+    reconnects by itself can come between two looks)."""
+    states = ("0A", "01") if taken else ("0A",)  # LISTEN, ESTABLISHED
     tables = [Path("/proc/net/tcp"), Path("/proc/net/tcp6")]
     if not tables[0].exists():
         pytest.skip("needs /proc/net/tcp to see that ffmpeg listens")
@@ -32,7 +37,7 @@ def listening(port: int) -> bool:
         rows = table.read_text().splitlines()[1:] if table.exists() else []
         for row in rows:
             local, state = row.split()[1], row.split()[3]
-            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:  # 0A: LISTEN
+            if state in states and int(local.rsplit(":", 1)[1], 16) == port:
                 return True
     return False
 

@@ -187,6 +187,45 @@ qe = {{ iec104 = {{ {rtu_link}, ioa = 2002 }} }}
         rtu.stop()
 
 
+def test_a_link_left_muted_is_started_again(tmp_path: Path) -> None:
+    """c104's Client can miss a connection's start-up: the link stays open and muted, and the
+    RTU sends nothing. The master sees it muted over a period and sends STARTDT again (counted),
+    and the zone follows its breaker once more."""
+    rtu = Rtu(qf="closed", qe="open")
+    link = (
+        f'host = "127.0.0.1", port = {rtu.port}, common_address = 7, type = "double", '
+        "interrogation_s = 1"
+    )
+    state = f"""
+[zones.state]
+dead_when = "qf == 'open' and qe == 'closed'"
+[zones.state.points]
+qf = {{ iec104 = {{ {link}, ioa = 2001 }} }}
+qe = {{ iec104 = {{ {link}, ioa = 2002 }} }}
+"""
+    site = load_site(_site(tmp_path, state))
+    board = PowerBoard()
+    sources = start_sources(site.zones, board)
+    loop = Loop(site, board)
+    try:
+        loop.until("live", lambda g: "zone_live" in _types(g), timeout_s=45)
+        master = sources.parts[0]
+        wait_until(lambda: master.connection.mute(), "STOPDT confirmed", timeout_s=10)
+        wait_until(
+            lambda: master.connection.state == c104.ConnectionState.OPEN_MUTED, "the link muted"
+        )
+        rtu.set("qf", "open")  # sent to no one: the link is muted
+        rtu.set("qe", "closed")
+        got = loop.until("dead once unmuted", lambda g: "zone_dead" in _types(g), timeout_s=30)
+        assert sources.figures["iec104_unmuted"] >= 1
+        assert master.connection.state == c104.ConnectionState.OPEN
+        assert sources.figures["iec104_link_lost"] == 0
+        assert "ioa 2001" in next(e for e in got if e.type == "zone_dead").source
+    finally:
+        sources.stop()
+        rtu.stop()
+
+
 def test_a_zone_state_over_mqtt_and_its_broker_lost(tmp_path: Path) -> None:
     import paho.mqtt.client as paho
 

@@ -3,7 +3,9 @@ onto a PowerBoard (fence.power_state), each on its own thread, never in the fram
 
 - **IEC 60870-5-104**: a master (c104's Client) per RTU (host, port): a general interrogation
   when the link opens and every `interrogation_s` after, spontaneous changes as they come,
-  reconnection by itself when the link drops (c104's, every few seconds). A lost link makes
+  reconnection by itself when the link drops (c104's, every few seconds); a link whose start-up
+  c104 missed (left muted, or awaiting its opening, over a period) is unmuted or reconnected
+  (figures `iec104_unmuted`, `iec104_reconnected`). A lost link makes
   its points unknown at once; a point with invalid quality (or a double point indeterminate)
   is unknown. Points are M_SP_TB_1 / M_DP_TB_1 (`time_tag = false`: M_SP_NA_1 / M_DP_NA_1),
   as the RTU sends them.
@@ -170,15 +172,47 @@ class Iec104Master:
         self._thread.join(timeout=5.0)
 
     def _interrogate(self) -> None:
-        """A general interrogation every interrogation_s while the link is open."""
+        """A general interrogation every interrogation_s while the link is open.
+
+        c104's Client can miss its own start-up of a connection: the socket then stays open
+        and muted (no STARTDT: the RTU sends nothing), or stays awaiting its opening. A link
+        seen so at two looks in a row is started again: unmuted, or reconnected (counted)."""
+        c104, stuck = self.c104, None
         while not self._stop.wait(self.interrogation_s):
-            if self.connection.state != self.c104.ConnectionState.OPEN:
+            state = self.connection.state
+            if state in (c104.ConnectionState.OPEN_MUTED, c104.ConnectionState.CLOSED_AWAIT_OPEN):
+                if stuck == state:
+                    self._restart(state)
+                    state = None
+                stuck = state
+                continue
+            stuck = None
+            if state != c104.ConnectionState.OPEN:
                 continue
             for ca in self.stations:
                 try:
                     self.connection.interrogation(common_address=ca, wait_for_response=False)
                 except Exception as e:  # a refused command: the next period tries again
                     logger.debug("IEC 104 %s:%d: interrogation: %s", self.host, self.port, e)
+
+    def _restart(self, state) -> None:
+        muted = state == self.c104.ConnectionState.OPEN_MUTED
+        self.figures["iec104_unmuted" if muted else "iec104_reconnected"] += 1
+        logger.info(
+            "IEC 104 %s:%d: link %s over a period, %s",
+            self.host,
+            self.port,
+            "muted" if muted else "still opening",
+            "STARTDT again" if muted else "connecting again",
+        )
+        try:
+            if muted:
+                self.connection.unmute()
+            else:
+                self.connection.disconnect()
+                self.connection.connect()
+        except Exception as e:  # the next period tries again
+            logger.debug("IEC 104 %s:%d: restarting the link: %s", self.host, self.port, e)
 
     def _on_state(self, connection, state) -> None:  # c104's thread
         c104 = self.c104
