@@ -44,7 +44,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _typed(fn, *, ret, **params):
+def typed_callback(fn, *, ret, **params):
     fn.__annotations__ = {**params, "return": ret}
     return fn
 
@@ -79,7 +79,7 @@ class Master:
                 return c104.ResponseState.SUCCESS
 
             pt.on_receive(
-                callable=_typed(
+                callable=typed_callback(
                     receive,
                     point=c104.Point,
                     previous_info=c104.Information,
@@ -89,7 +89,7 @@ class Master:
             )
 
         self.client.on_new_station(
-            callable=_typed(
+            callable=typed_callback(
                 on_station,
                 client=c104.Client,
                 connection=c104.Connection,
@@ -98,7 +98,7 @@ class Master:
             )
         )
         self.client.on_new_point(
-            callable=_typed(
+            callable=typed_callback(
                 on_point,
                 client=c104.Client,
                 station=c104.Station,

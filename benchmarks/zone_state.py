@@ -1,4 +1,4 @@
-"""Zone state from breakers and earthing switches (fence.power_state): energized alarms on a
+"""Zone state from breakers and earthing switches (zones.power_state): energized alarms on a
 maintenance job with static zones against zone state from a real c104 outstation, the latency
 from a breaker change at that outstation to the zone's state in stereopose, and how a lost
 link and a stale point make the zone live.
@@ -40,12 +40,12 @@ from stereopose.alarms import IncidentBook
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
 from stereopose.fence import FenceMonitor
-from stereopose.fence.power import parse_power
-from stereopose.fence.power_sources import start_sources
-from stereopose.fence.power_state import UNKNOWN, PowerBoard, ZoneStates
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim.jobs import job_site, simulate_job
+from stereopose.site.zone_sources import start_sources
+from stereopose.zones.power import parse_power
+from stereopose.zones.power_state import UNKNOWN, PowerBoard, ZoneStates
 
 
 def free_port() -> int:

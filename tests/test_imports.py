@@ -276,3 +276,77 @@ def test_the_top_packages_import_down_their_order() -> None:
             if a is not None and b is not None and b > a:
                 upward.append(f"{m} -> {t}")
     assert not upward, "\n".join(upward)
+
+
+# -- the layers' rules -------------------------------------------------------------------------
+
+# what the zones (low in the stack: fences, behaviour, tickets and zone state use them) may use
+ZONES_USE = ("alarms.priority", "alarms.levels", "checks", "errors", "secrets", "skeleton", "types")
+# network clients belong where their protocols live (scada/, io/), never among the fences or zones
+NETWORK = (
+    "c104",
+    "asyncua",
+    "paho",
+    "socket",
+    "http",
+    "urllib",
+    "requests",
+    "aiohttp",
+    "websockets",
+)
+
+
+def package_of(module: str, package: str = PACKAGE) -> str:
+    """``stereopose.a.b`` -> ``a``; the package itself is itself."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == package else module
+
+
+def mutual_packages(graph: Mapping[str, Iterable[str]], package: str = PACKAGE) -> list[str]:
+    """``a <-> b`` for each pair of sub-packages that import each other (through any modules)."""
+    edges = {
+        (package_of(m, package), package_of(t, package))
+        for m, targets in graph.items()
+        for t in targets
+    }
+    return sorted(f"{a} <-> {b}" for a, b in edges if a < b and (b, a) in edges)
+
+
+def outside_imports(package: str, sub: str) -> set[str]:
+    """Every top-level name that the modules of ``package.sub`` import from outside ``package``."""
+    found = set()
+    for path in (SRC / package / sub).rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                found.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                found.add(node.module.split(".")[0])
+    return found - {package}
+
+
+def test_no_two_packages_import_each_other() -> None:
+    mutual = mutual_packages(import_graph())
+    assert not mutual, "packages that import each other:\n" + "\n".join(mutual)
+
+
+def test_mutual_packages_are_found() -> None:
+    graph = {"p.a.x": {"p.b.y"}, "p.b.y": set(), "p.b.z": {"p.a"}, "p.c": {"p.a.x"}}
+    assert mutual_packages(graph, "p") == ["a <-> b"]
+
+
+def test_the_zones_import_nothing_above_them() -> None:
+    allowed = tuple(f"{PACKAGE}.{m}" for m in (*ZONES_USE, "zones"))
+    above = sorted(
+        f"{m} -> {t}"
+        for m, targets in import_graph().items()
+        if _within(m, f"{PACKAGE}.zones")
+        for t in targets
+        if not any(_within(t, a) for a in allowed)
+    )
+    assert not above, "the zones import from above them:\n" + "\n".join(above)
+
+
+@pytest.mark.parametrize("sub", ["fence", "zones", "behaviour", "tickets"])
+def test_no_network_client_among_the_fences_zones_behaviour_and_tickets(sub: str) -> None:
+    clients = sorted(outside_imports(PACKAGE, sub) & set(NETWORK))
+    assert not clients, f"{PACKAGE}/{sub} imports network clients: {clients}"

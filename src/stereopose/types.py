@@ -388,7 +388,7 @@ class Event:
     ticket: str | None = None
     step: str | None = None
     result: dict | None = None
-    # an energized zone's state (fence.power_state: zone_live, zone_dead, zone_unknown; a
+    # an energized zone's state (zones.power_state: zone_live, zone_dead, zone_unknown; a
     # dead zone's entries have kind "dead"): the breakers or switches it comes from, and for
     # zone_unknown why it is unknown
     source: str | None = None

@@ -12,9 +12,9 @@ import pytest
 import bodies as b
 from stereopose.behaviour import parse_rules
 from stereopose.behaviour.rules import HANDOVER_S, BehaviourMonitor
-from stereopose.fence.zones import Zone
 from stereopose.skeleton import RIGHT_SHOULDER, RIGHT_WRIST
 from stereopose.types import Event
+from stereopose.zones import Zone
 
 FPS = 25.0
 DT = 1.0 / FPS

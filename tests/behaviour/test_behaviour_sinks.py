@@ -15,7 +15,6 @@ from brokers import Broker, Subscriber
 from receivers import Receiver
 from stereopose.behaviour import parse_rules
 from stereopose.behaviour.rules import BehaviourMonitor
-from stereopose.fence.zones import Zone
 from stereopose.io.records import event_from_record
 from stereopose.io.results import read_poses
 from stereopose.io.sinks import FrameResult
@@ -32,6 +31,7 @@ from stereopose.io.sinks.files import PosesSink
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
 from stereopose.types import Event
 from stereopose.viz.report_behaviour import behaviour_events_html, postures_html
+from stereopose.zones import Zone
 from waiting import wait_until
 
 FPS = 25.0

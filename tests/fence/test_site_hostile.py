@@ -16,7 +16,9 @@ from hypothesis import strategies as st
 from hostile import numbers, toml_text, values
 from stereopose.checks import FPS_MAX, FPS_MIN, MAX_ZONE_VERTICES, SITE_LIMIT_M
 from stereopose.errors import ConfigError
-from stereopose.fence.zones import Site, Zone, load_site, save_site, self_intersection
+from stereopose.fence.site import Site, load_site, save_site
+from stereopose.zones import Zone
+from stereopose.zones.polygons import self_intersection
 
 FUZZ = settings(
     max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from stereopose.errors import ConfigError
-from stereopose.fence.zones import Zone, ZoneGeometry, load_site
+from stereopose.fence.site import load_site
+from stereopose.zones import Zone, ZoneGeometry
 
 SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
 PANEL = "[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]"

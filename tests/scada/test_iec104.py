@@ -42,7 +42,7 @@ WALL_START = 1_780_000_000.0  # 2026-05-28T20:26:40Z
 CA = 7
 
 
-def _typed(fn, *, ret, **params):
+def typed_callback(fn, *, ret, **params):
     fn.__annotations__ = {**params, "return": ret}
     return fn
 
@@ -83,7 +83,7 @@ class Master:
                 return self._receive(point, message)
 
             pt.on_receive(
-                callable=_typed(
+                callable=typed_callback(
                     receive,
                     point=c104.Point,
                     previous_info=c104.Information,
@@ -93,7 +93,7 @@ class Master:
             )
 
         self.client.on_new_station(
-            callable=_typed(
+            callable=typed_callback(
                 on_station,
                 client=c104.Client,
                 connection=c104.Connection,
@@ -102,7 +102,7 @@ class Master:
             )
         )
         self.client.on_new_point(
-            callable=_typed(
+            callable=typed_callback(
                 on_point,
                 client=c104.Client,
                 station=c104.Station,
@@ -117,7 +117,7 @@ class Master:
                 self.raw.append(c104.explain_bytes(apdu=data))
 
         self.conn.on_receive_raw(
-            callable=_typed(on_raw, connection=c104.Connection, data=bytes, ret=None)
+            callable=typed_callback(on_raw, connection=c104.Connection, data=bytes, ret=None)
         )
         self.client.start()
 

@@ -10,11 +10,11 @@ import pytest
 
 from stereopose.config import Config
 from stereopose.fence import FenceMonitor, Site
-from stereopose.fence.zones import Zone
 from stereopose.pipeline.loop import SourceStep
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.site.health.watch import CameraWatch
 from stereopose.site.steps import HeldStage, ServeEvents
+from stereopose.zones import Zone
 
 TIMEOUT_S = 2.0
 FLOOR = np.array([[-50.0, -50.0], [50.0, -50.0], [50.0, 50.0], [-50.0, 50.0]])

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from stereopose.cli import main
-from stereopose.fence.zones import save_site
+from stereopose.fence.site import save_site
 from stereopose.sim.io import write_scene
 from stereopose.sim.jobs import VARIANTS, simulate_job
 

@@ -70,7 +70,7 @@ DIAGNOSTIC_ENDS = {
 TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
 TICKET_STEP_ALARMS = frozenset({"step_out_of_order", "step_wrong_position", "step_timeout"})
 TICKET_ALARMS = TICKET_STEP_ALARMS | frozenset(TICKET_ENDS)
-# an energized zone's state from its breakers (fence.power_state): unknown (a diagnostic: the
+# an energized zone's state from its breakers (zones.power_state): unknown (a diagnostic: the
 # zone counts as live) until it is known again, live or dead
 POWER_TYPES = frozenset({"zone_unknown", "zone_live", "zone_dead"})
 _ALARM_TYPES = (

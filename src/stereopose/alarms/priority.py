@@ -117,7 +117,7 @@ class AlarmSettings:
     @classmethod
     def from_site(cls, site: Any, default_rearm_s: float = DEFAULT_REARM_S) -> AlarmSettings:
         """From anything with `zones` and `rules` whose items have `name`, `priority` and
-        `rearm_s` (fence.zones.Site; read by attribute so this package imports no fence)."""
+        `rearm_s` (fence.site.Site; read by attribute so this package imports no fence)."""
 
         def table(items: Iterable[Any]) -> dict[str, Tuning]:
             return {

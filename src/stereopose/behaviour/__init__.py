@@ -2,7 +2,7 @@
 lone worker, work position, immobile, overreach), which raise events beside the zones'.
 
 The monitor that applies the rules is behaviour.rules.BehaviourMonitor (imported from there:
-it needs the zones' geometry, and fence.zones reads the rules' definitions from here).
+it needs the zones' geometry, and fence.site reads the rules' definitions from here).
 """
 
 from stereopose.behaviour.definitions import (

@@ -9,7 +9,7 @@
 
 Every rule has a unique `name` and a `type`; each type has its own keys, and a key the type does
 not know, a missing required key, a number out of its range or a zone the site does not have is a
-ConfigError naming the rule (and, through fence.zones.load_site, the file).
+ConfigError naming the rule (and, through fence.site.load_site, the file).
 
 The rules are frozen dataclasses, one per type; `Rule` is any of them. The monitor that applies
 them is behaviour.rules.BehaviourMonitor.
@@ -30,7 +30,7 @@ from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, joint_index
 
 
 class Zone(Protocol):
-    """What the rules need of a zone (fence.zones.Zone, which reads the site file and
+    """What the rules need of a zone (zones.Zone, which reads the site file and
     imports this module)."""
 
     name: str

@@ -49,9 +49,9 @@ from stereopose.behaviour.state import (
     angle_diff,
     on_floor_of,
 )
-from stereopose.fence.zones import Zone, ZoneGeometry
 from stereopose.skeleton import JOINTS, LEFT_WRIST, RIGHT_WRIST, floor_position, heading_deg
 from stereopose.types import Event, People3D
+from stereopose.zones import Zone, ZoneGeometry
 
 __all__ = ["HANDOVER_S", "BehaviourMonitor", "Rule", "parse_rules"]
 

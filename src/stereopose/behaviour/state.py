@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereopose.behaviour.posture import Posture
-from stereopose.fence.zones import ZoneGeometry
 from stereopose.types import People3D
+from stereopose.zones import ZoneGeometry
 
 EPS = 1e-9  # times compared with this slack (frame times are sums of float steps)
 

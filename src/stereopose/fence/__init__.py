@@ -1,7 +1,8 @@
-"""Electronic fences: zones on the site plan and the rules that raise events (the events go to
-the sinks of io.sinks.events)."""
+"""Electronic fences: the site file and the rules that raise events when someone enters or nears
+a zone (the zones themselves: stereopose.zones; the events go to the sinks of io.sinks.events)."""
 
 from stereopose.fence.rules import FenceMonitor
-from stereopose.fence.zones import KINDS, Site, Zone, ZoneGeometry, load_site, save_site
+from stereopose.fence.site import Site, load_site, save_site
+from stereopose.zones import KINDS, Zone, ZoneGeometry
 
 __all__ = ["KINDS", "FenceMonitor", "Site", "Zone", "ZoneGeometry", "load_site", "save_site"]

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereopose.fence.zones import Site, ZoneGeometry
+from stereopose.fence.site import Site
 from stereopose.skeleton import JOINTS, NUM_JOINTS, floor_position
 from stereopose.types import Event, People3D
+from stereopose.zones import ZoneGeometry
 
 _EPS = 1e-9
 

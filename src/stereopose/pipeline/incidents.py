@@ -59,7 +59,7 @@ class IncidentStep:
     ) -> None:
         self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
         self.tickets = tickets
-        self.power = power  # the zones' live or dead state (fence.power_state.ZoneStates)
+        self.power = power  # the zones' live or dead state (zones.power_state.ZoneStates)
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()

@@ -61,7 +61,7 @@ from stereopose.scada.iec104_settings import (
     Iec104Error,
     Iec104Settings,
     _free_loopback_port,
-    _typed,
+    typed_callback,
 )
 from stereopose.scada.iec104_state import UNACKED, PointState
 from stereopose.scada.points import COMMAND, Point, PointsTable
@@ -321,9 +321,9 @@ class Outstation(ClosesOnce):
             self._clock_sync(ip, date_time)
             return c104.ResponseState.SUCCESS
 
-        server.on_connect(callable=_typed(on_connect, server=c104.Server, ip=str, ret=bool))
+        server.on_connect(callable=typed_callback(on_connect, server=c104.Server, ip=str, ret=bool))
         server.on_clock_sync(
-            callable=_typed(
+            callable=typed_callback(
                 on_clock_sync,
                 server=c104.Server,
                 ip=str,
@@ -360,7 +360,7 @@ class Outstation(ClosesOnce):
             self._figures["commands" if ok else "commands_refused"] += 1
             return c104.ResponseState.SUCCESS if ok else c104.ResponseState.FAILURE
 
-        return _typed(
+        return typed_callback(
             on_command,
             point=c104.Point,
             previous_info=c104.Information,

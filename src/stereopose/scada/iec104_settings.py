@@ -22,7 +22,7 @@ def _free_loopback_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _typed(fn: Callable, *, ret: Any, **params: Any) -> Callable:
+def typed_callback(fn: Callable, *, ret: Any, **params: Any) -> Callable:
     """`fn` with the annotations c104 checks a callback's signature against (as objects: this
     module's postponed annotations would be strings)."""
     fn.__annotations__ = {**params, "return": ret}

@@ -69,7 +69,7 @@ class ZoneNode:
     name: str
     kind: str
     cameras: tuple[str, ...]
-    powered: bool = False  # a state source (fence.power): its Power variable
+    powered: bool = False  # a state source (zones.power): its Power variable
 
 
 @dataclass(frozen=True)

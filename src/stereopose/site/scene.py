@@ -56,7 +56,7 @@ class SceneState:
     def __init__(self, site: Site | None) -> None:
         zones = site.zones if site is not None else ()
         self.zones_by_name = {z.name: z for z in zones}
-        # the energized zones' states from their breakers (fence.power_state's snapshot)
+        # the energized zones' states from their breakers (zones.power_state's snapshot)
         self.power: Callable[[], dict] | None = None
         self._lock = threading.Lock()
         self.latest: Latest | None = None

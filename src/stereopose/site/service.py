@@ -13,7 +13,6 @@ from collections.abc import Callable, Iterator
 
 from stereopose.config import Config
 from stereopose.detection.regional import RegionDetector
-from stereopose.fence.power_state import PowerBoard, ZoneStates
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import Guarded, Sink
@@ -45,6 +44,7 @@ from stereopose.site.plan import (
 from stereopose.site.restart import Resume
 from stereopose.site.storage import StorageMaintainer
 from stereopose.tickets import TicketDesk
+from stereopose.zones.power_state import PowerBoard, ZoneStates
 
 __all__ = ["SiteService"]
 
@@ -79,7 +79,7 @@ class SiteService:
         self.tickets = TicketDesk(plan.site.zones) if plan.site is not None else None
         for ticket in plan.tickets:
             self.tickets.add(ticket)  # planned: started from the console or the API
-        # the energized zones' live or dead state from the utility (fence.power_state)
+        # the energized zones' live or dead state from the utility (zones.power_state)
         zones = plan.site.zones if plan.site is not None else ()
         self.power_board = PowerBoard() if any(z.power for z in zones) else None
         self.power = ZoneStates(zones, self.power_board) if self.power_board else None
@@ -360,7 +360,7 @@ class SiteService:
         each on its own thread; the console's zones and the status show their states."""
         if self.power is None:
             return
-        from stereopose.fence.power_sources import start_sources
+        from stereopose.site.zone_sources import start_sources
 
         p = self.plan
         self.power_sources = start_sources(

@@ -16,10 +16,10 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 from stereopose.errors import StereoposeError
-from stereopose.fence.zones import Zone
 from stereopose.tickets.monitor import TICKET_KIND, TicketMonitor
 from stereopose.tickets.ticket import TICKET_SLOTS, Ticket, check_zones
 from stereopose.types import Event, People3D
+from stereopose.zones import Zone
 
 __all__ = ["MAX_KEPT", "TicketDesk", "TicketError"]
 

@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stereopose.fence.zones import Zone, ZoneGeometry
 from stereopose.skeleton import LEFT_WRIST, RIGHT_WRIST, floor_position, heading_deg
 from stereopose.tickets.ticket import Ticket, TicketStep
 from stereopose.types import Event, People3D
+from stereopose.zones import Zone, ZoneGeometry
 
 __all__ = ["TICKET_KIND", "TicketMonitor"]
 

@@ -308,3 +308,13 @@ def _same(a: Any, b: Any) -> bool:
         return float(a) == float(b)
     except (TypeError, ValueError):
         return str(a).strip().lower() == str(b).strip().lower()
+
+
+def reading(value: Any) -> Any:
+    """A point's value as the expressions read it: a boolean as "on" / "off", a number or text
+    as it is, anything else as its text."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, (int, float, str)):
+        return value
+    return str(value)

@@ -1,7 +1,7 @@
-"""Each energized zone's state from its breakers and earthing switches (fence.power): live,
+"""Each energized zone's state from its breakers and earthing switches (zones.power): live,
 dead or unknown, fail safe.
 
-The sources (fence.power_sources) put each point's latest reading on a `PowerBoard`: its value,
+The sources (site.zone_sources) put each point's latest reading on a `PowerBoard`: its value,
 whether its quality is good, and when it came. Once per step `ZoneStates.step` judges every
 zone with a state source:
 
@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from stereopose.fence.zones import Zone
 from stereopose.types import Event
+from stereopose.zones.zone import Zone
 
 __all__ = ["DEAD", "LIVE", "UNKNOWN", "PowerBoard", "Reading", "ZoneStates"]
 

@@ -20,10 +20,10 @@ from brokers import Broker, free_port
 from stereopose.alarms import IncidentBook
 from stereopose.alarms.levels import level
 from stereopose.fence import FenceMonitor, load_site
-from stereopose.fence.power_sources import start_sources
-from stereopose.fence.power_state import DEAD, LIVE, UNKNOWN, PowerBoard, ZoneStates
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.sim.motion import pose
+from stereopose.site.zone_sources import start_sources
+from stereopose.zones.power_state import DEAD, LIVE, UNKNOWN, PowerBoard, ZoneStates
 from waiting import wait_until
 
 c104 = pytest.importorskip("c104")

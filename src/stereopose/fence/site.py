@@ -1,4 +1,4 @@
-"""Zones of the site plan (floor polygons with a height band) and the site file.
+"""The site file: its zones (stereopose.zones), behaviour rules and posture thresholds.
 
 Site file (TOML, the contract in docs/formats.md, extended with optional keys):
 
@@ -19,7 +19,7 @@ Site file (TOML, the contract in docs/formats.md, extended with optional keys):
     rearm_s = 30.0                      # optional: a return within this long is the same incident
     voltage_kv = 10.0                   # optional (energized): margin_m from distance_table
     distance_table = "gb26860"          # optional: gb26860 (default), en50110, osha
-    state = { iec104 = { ... } }        # optional (energized): live or dead (fence.power)
+    state = { iec104 = { ... } }        # optional (energized): live or dead (zones.power)
     [[rules]]                           # optional: behaviour rules (stereopose.behaviour)
     name = "man_down"
     type = "person_down"
@@ -27,7 +27,8 @@ Site file (TOML, the contract in docs/formats.md, extended with optional keys):
     [postures]                          # optional: posture thresholds (PostureSettings)
     bend_deg = 35.0
 
-All geometry here is vectorised over every joint of every person and every zone at once.
+`load_site` reads and checks it (a ConfigError naming the file and the value), `save_site` and
+`format_site` write it back.
 """
 
 from __future__ import annotations
@@ -37,9 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from stereopose.alarms.priority import DEFAULT_REARM_S, REARM, parse_priority
+from stereopose.alarms.priority import DEFAULT_REARM_S, parse_priority
 from stereopose.behaviour.definitions import (
     Rule,
     format_postures,
@@ -48,26 +47,14 @@ from stereopose.behaviour.definitions import (
     parse_rules,
 )
 from stereopose.behaviour.posture import PostureSettings
-from stereopose.checks import (
-    DAY_S,
-    FPS,
-    MAX_ZONE_VERTICES,
-    MAX_ZONES,
-    SITE_COORD,
-    SITE_LIMIT_M,
-    Range,
-    named_tables,
-)
+from stereopose.checks import FPS, MAX_ZONES, named_tables
 from stereopose.config import read_toml
 from stereopose.errors import ConfigError
-from stereopose.fence.distances import DEFAULT_TABLE, approach_distance
-from stereopose.fence.polygons import polygon_area, self_intersection
-from stereopose.fence.power import PowerSpec, parse_power
 from stereopose.skeleton import JOINTS, joint_index
+from stereopose.zones.distances import DEFAULT_TABLE, approach_distance
+from stereopose.zones.power import parse_power
+from stereopose.zones.zone import DEFAULT_ENTER_S, DEFAULT_EXIT_S, KINDS, PERSON_ID, Zone
 
-KINDS = ("energized", "restricted", "work_area")
-DEFAULT_ENTER_S = 0.08
-DEFAULT_EXIT_S = 0.2
 _ZONE_KEYS = {
     "name",
     "kind",
@@ -86,74 +73,6 @@ _ZONE_KEYS = {
     "distance_table",
     "state",
 }
-# the ranges of a zone's numbers beside their meaning: metres of approach, seconds of debounce
-_ZONE_RANGES = {
-    "margin_m": Range(ge=0.0, le=SITE_COORD.le),
-    "enter_s": Range(ge=0.0, le=DAY_S),
-    "exit_s": Range(ge=0.0, le=DAY_S),
-    "dwell_s": Range(gt=0.0, le=DAY_S),
-    "rearm_s": REARM,
-}
-_PERSON_ID = Range(integer=True, ge=0, lt=2**63)
-
-
-@dataclass(frozen=True, eq=False)
-class Zone:
-    """A prism over a floor polygon: polygon (V, 2) metres (world x-y, either orientation),
-    z = (bottom, top) metres; joints: indices of the triggering joints (all 17 by default);
-    priority: its incidents' (1 critical ... 4 low; None: alarms.priority's defaults by kind
-    and event), rearm_s: seconds after its incident cleared within which a return is the same
-    incident."""
-
-    name: str
-    kind: str
-    polygon: np.ndarray
-    z: tuple[float, float]
-    joints: tuple[int, ...] = tuple(range(len(JOINTS)))
-    margin_m: float = 0.0
-    dwell_s: float | None = None
-    enter_s: float = DEFAULT_ENTER_S
-    exit_s: float = DEFAULT_EXIT_S
-    allowed: frozenset[int] = frozenset()
-    expected: frozenset[int] = frozenset()
-    priority: int | None = None
-    rearm_s: float = DEFAULT_REARM_S
-    voltage_kv: float | None = None  # its nominal voltage (the approach margin's table row)
-    distance_table: str | None = None  # fence.distances' table (None: the default)
-    power: PowerSpec | None = None  # where its live or dead state comes from (fence.power)
-
-    def __post_init__(self) -> None:
-        where = f"zone {self.name!r}"
-        if self.priority is not None:
-            object.__setattr__(self, "priority", parse_priority(self.priority, where))
-        if self.kind not in KINDS:
-            raise ConfigError(f"{where}: unknown kind {self.kind!r}; expected one of {KINDS}")
-        poly = _polygon(self.polygon, where)
-        if np.allclose(poly[0], poly[-1]) and poly.shape[0] > 3:
-            poly = poly[:-1]  # a closed ring repeats its first point
-        bad = self_intersection(poly)
-        if bad is not None:
-            raise ConfigError(f"{where}: polygon intersects itself (edges {bad[0]} and {bad[1]})")
-        if abs(polygon_area(poly)) < 1e-6:
-            raise ConfigError(f"{where}: polygon is degenerate (zero area)")
-        band = tuple(self.z)
-        if len(band) != 2:
-            raise ConfigError(f"{where}: z must be [bottom, top], got {band!r}")
-        z0, z1 = (float(SITE_COORD.check(v, f"{where}: z")) for v in band)
-        if z0 >= z1:
-            raise ConfigError(f"{where}: height band z = [{z0}, {z1}] must have bottom < top")
-        for key, rng in _ZONE_RANGES.items():
-            v = getattr(self, key)
-            if v is not None:
-                object.__setattr__(self, key, float(rng.check(v, f"{where}: {key}")))
-        for key in ("allowed", "expected"):
-            for pid in getattr(self, key):
-                _PERSON_ID.check(pid, f"{where}: {key}")
-        if self.expected and self.kind != "work_area":
-            raise ConfigError(f"{where}: `expected` persons only make sense for a work_area")
-        poly.setflags(write=False)
-        object.__setattr__(self, "polygon", poly)
-        object.__setattr__(self, "z", (z0, z1))
 
 
 @dataclass(frozen=True)
@@ -170,28 +89,6 @@ class Site:
             raise ConfigError(f"{len(self.zones)} zones; a site holds at most {MAX_ZONES}")
         if self.fps is not None:
             object.__setattr__(self, "fps", float(FPS.check(self.fps, "fps")))
-
-
-def _polygon(value: object, where: str) -> np.ndarray:
-    """(V, 2) finite floats within SITE_COORD, 3 <= V <= MAX_ZONE_VERTICES."""
-    try:
-        poly = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise ConfigError(f"{where}: polygon must be a list of [x, y] points") from None
-    if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3:
-        raise ConfigError(f"{where}: polygon needs at least 3 [x, y] points, got {poly.shape}")
-    if poly.shape[0] > MAX_ZONE_VERTICES:
-        raise ConfigError(
-            f"{where}: polygon has {poly.shape[0]} points; at most {MAX_ZONE_VERTICES} allowed"
-        )
-    bad = ~(np.isfinite(poly) & (np.abs(poly) <= SITE_LIMIT_M))
-    if bad.any():
-        k, c = np.argwhere(bad)[0]
-        raise ConfigError(
-            f"{where}: polygon[{k}][{c}]: expected {SITE_COORD.describe()} (metres), "
-            f"got {float(poly[k, c])!r}"
-        )
-    return poly
 
 
 def _toml_str(text: str) -> str:
@@ -296,7 +193,7 @@ def _number(value: Any, what: str) -> float:
 
 
 def _ids(value: Any, what: str) -> frozenset[int]:
-    if not isinstance(value, list) or not all(_PERSON_ID.contains(v) for v in value):
+    if not isinstance(value, list) or not all(PERSON_ID.contains(v) for v in value):
         raise ConfigError(f"{what}: expected a list of person ids (integers >= 0), got {value!r}")
     return frozenset(value)
 
@@ -385,97 +282,3 @@ def _power(z: dict[str, Any], where: str) -> dict[str, Any]:
     if "state" in z:
         out["power"] = parse_power(z["state"], where)
     return out
-
-
-class ZoneGeometry:
-    """All zones' edges in padded arrays, for vectorised tests of many points.
-
-    test(points, zones) -> inside, distance: for points (K, J, 3) each tested against one zone
-    zones[k]: (K, J) inside the prism (edges and faces count as inside) and distance to it in
-    metres (0 inside); NaN points are inside nothing and infinitely far.
-    inside(points) / distance(points): (N, 3) points against every zone, (N, Z).
-    near(boxes, reach): which people's boxes come near which zones' boxes.
-    """
-
-    def __init__(self, zones: tuple[Zone, ...]) -> None:
-        self.zones = zones
-        V = max(z.polygon.shape[0] for z in zones)
-        # edges (Z, V, 2) from a to b; missing edges of smaller polygons are NaN (they never
-        # straddle a point and have no distance)
-        self.a = np.full((len(zones), V, 2), np.nan)
-        self.b = np.full((len(zones), V, 2), np.nan)
-        for k, zone in enumerate(zones):
-            p = zone.polygon
-            self.a[k, : len(p)] = p
-            self.b[k, : len(p)] = np.roll(p, -1, axis=0)
-        self.ab = self.b - self.a
-        self.len2 = np.maximum((self.ab**2).sum(-1), 1e-18)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            slope = self.ab[..., 0] / self.ab[..., 1]  # dx/dy, inf for horizontal edges
-        # one table gathered per test: (Z, V, 7) ax, ay, by, abx, aby, 1/len2, dx/dy
-        self.table = np.stack(
-            [
-                self.a[..., 0],
-                self.a[..., 1],
-                self.b[..., 1],
-                self.ab[..., 0],
-                self.ab[..., 1],
-                1.0 / self.len2,
-                slope,
-            ],
-            axis=-1,
-        )
-        self.zlo = np.array([z.z[0] for z in zones])
-        self.zhi = np.array([z.z[1] for z in zones])
-        self.lo = np.array([z.polygon.min(0) for z in zones])  # floor boxes (Z, 2)
-        self.hi = np.array([z.polygon.max(0) for z in zones])
-
-    def test(
-        self, points: np.ndarray, zones: np.ndarray, tol: float = 1e-9
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Points (K, J, 3), each row against zone zones[k] -> inside (K, J), distance (K, J)."""
-        px, py, pz = points[..., 0:1], points[..., 1:2], points[..., 2]  # (K, J, 1)
-        tab = self.table[zones][:, None]  # (K, 1, V, 7)
-        ax, ay, by, abx, aby = tab[..., 0], tab[..., 1], tab[..., 2], tab[..., 3], tab[..., 4]
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            # crossing number (padding edges are NaN: they never straddle), NaN points cross
-            # nothing and lie at NaN distance, turned to inf below
-            dy = py - ay
-            crossing = ((ay > py) != (by > py)) & (px < ax + dy * tab[..., 6])
-            odd = np.logical_xor.reduce(crossing, axis=-1)
-            dx = px - ax
-            t = np.clip((dx * abx + dy * aby) * tab[..., 5], 0.0, 1.0)
-            ex, ey = t * abx - dx, t * aby - dy
-            edge_d = np.sqrt(np.fmin.reduce(ex * ex + ey * ey, axis=-1))
-            floor = odd | (edge_d <= tol)
-            dz = np.maximum(
-                np.maximum(self.zlo[zones][:, None] - pz, pz - self.zhi[zones][:, None]), 0.0
-            )
-            inside = floor & (dz == 0.0)
-            dist = np.hypot(np.where(floor, 0.0, edge_d), dz)
-        return inside, np.where(dist == dist, dist, np.inf)
-
-    def distance(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) points against every zone -> inside (N, Z), distance (N, Z)."""
-        Z = len(self.zones)
-        inside, dist = self.test(np.broadcast_to(points[None], (Z, *points.shape)), np.arange(Z))
-        return inside.T, dist.T
-
-    def inside(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) points against every zone -> (N, Z) inside."""
-        return self.distance(points)[0]
-
-    def near(self, boxes: np.ndarray, reach: np.ndarray) -> np.ndarray:
-        """(P, Z) whether boxes (P, 2, 3) [min, max] come within reach (Z,) metres of each
-        zone's bounding box: only those pairs can be inside or near each other."""
-        lo, hi = boxes[:, 0], boxes[:, 1]
-        r = reach[None]
-        with np.errstate(invalid="ignore"):
-            return (
-                (lo[:, None, 0] <= self.hi[None, :, 0] + r)
-                & (hi[:, None, 0] >= self.lo[None, :, 0] - r)
-                & (lo[:, None, 1] <= self.hi[None, :, 1] + r)
-                & (hi[:, None, 1] >= self.lo[None, :, 1] - r)
-                & (lo[:, None, 2] <= self.zhi[None] + r)
-                & (hi[:, None, 2] >= self.zlo[None] - r)
-            )

@@ -10,8 +10,8 @@ import pytest
 from stereopose.cli import main
 from stereopose.errors import ConfigError
 from stereopose.fence import load_site, save_site
-from stereopose.fence.distances import TABLES, approach_distance
-from stereopose.fence.power import parse_power
+from stereopose.zones.distances import TABLES, approach_distance
+from stereopose.zones.power import parse_power
 
 ZONE = """
 [[zones]]

@@ -1,0 +1,82 @@
+"""The zones' live or dead state read from the utility: a source per RTU (scada.iec104_master),
+OPC UA endpoint (scada.opcua_watcher) and the site's broker (io.mqtt_watcher), each on its own
+thread, onto one PowerBoard (zones.power_state) that the zone-state step reads.
+
+`start_sources(zones, board, mqtt=..., base=...)` starts them; `.stop()` ends them.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from stereopose.errors import ConfigError
+from stereopose.io.mqtt_watcher import MqttWatcher
+from stereopose.scada.iec104_master import Iec104Master
+from stereopose.scada.opcua_watcher import OpcuaWatcher
+from stereopose.zones.power import PointSource
+from stereopose.zones.power_state import PowerBoard
+from stereopose.zones.zone import Zone
+
+__all__ = ["PowerSources", "start_sources"]
+
+logger = logging.getLogger(__name__)
+
+
+def _points(zones: Sequence[Zone]) -> list[PointSource]:
+    seen: dict[str, PointSource] = {}
+    for z in zones:
+        if z.power is not None:
+            for p in z.power.points:
+                seen.setdefault(p.label, p)
+    return list(seen.values())
+
+
+class PowerSources:
+    """The running sources (see the module); figures: messages taken and refused by source."""
+
+    def __init__(self) -> None:
+        self.parts: list[Any] = []
+        self.figures: dict[str, int] = defaultdict(int)
+
+    def stop(self) -> None:
+        for part in self.parts:
+            try:
+                part.stop()
+            except Exception as e:  # stopping one never keeps the others running
+                logger.warning("zone state: stopping %s: %s", part, e)
+
+
+def start_sources(
+    zones: Sequence[Zone], board: PowerBoard, *, mqtt: Any = None, base: Path | None = None
+) -> PowerSources:
+    """Start a source per RTU, OPC UA endpoint and the site's broker for the zones' points;
+    a ConfigError when an MQTT point has no broker or a password file cannot be read."""
+    out = PowerSources()
+    points = _points(zones)
+    by_kind: dict[str, dict[Any, list[PointSource]]] = defaultdict(lambda: defaultdict(list))
+    for p in points:
+        if p.protocol == "iec104":
+            by_kind["iec104"][(p.get("host"), p.get("port"))].append(p)
+        elif p.protocol == "opcua":
+            by_kind["opcua"][p.get("endpoint")].append(p)
+        else:
+            by_kind["mqtt"][None].append(p)
+    if by_kind["mqtt"] and mqtt is None:
+        raise ConfigError("a zone's state comes over MQTT: set [mqtt] host (the site's broker)")
+    try:
+        for (host, port), ps in by_kind["iec104"].items():
+            out.parts.append(Iec104Master(host, port, ps, board, out.figures))
+        for endpoint, ps in by_kind["opcua"].items():
+            out.parts.append(OpcuaWatcher(endpoint, ps, board, out.figures, base))
+        if by_kind["mqtt"]:
+            out.parts.append(MqttWatcher(mqtt, by_kind["mqtt"][None], board, out.figures))
+        for part in out.parts:
+            part.start()
+    except BaseException:
+        out.stop()
+        raise
+    return out
