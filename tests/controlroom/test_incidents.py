@@ -22,6 +22,7 @@ from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.eventlog import EventLog
 from stereopose.site.outbox import LogOutbox
 from stereopose.types import Event, People3D
@@ -59,9 +60,7 @@ class Site:
         self.script = _Script()
         self.step = IncidentStep(
             IncidentBook(),
-            self.script,
-            None,
-            None,
+            step_chain(self.script),
             outputs=[self.sink.write_changes],
             clock=lambda: self.t,
             wall_start=WALL_START,

@@ -35,5 +35,8 @@ class SceneSource:
     def detect(self, step):
         raise TypeError
 
+    def tracked(self, people) -> None:
+        pass
+
     def finish(self, summary: RunSummary) -> None:
         self.finished = True

@@ -16,8 +16,9 @@ from stereopose.config import Config
 from stereopose.geometry.camera import project
 from stereopose.io.aggregates import RunningStats
 from stereopose.io.summary import FILE_STAGES, RunSummary
-from stereopose.pipeline.loop import FrameLoop, SiteRules, SourceStep
+from stereopose.pipeline.loop import FrameLoop, SourceStep
 from stereopose.pipeline.outputs import Outputs, open_outputs
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim import simulate
 from stereopose.types import Event, People2D, People3D
 
@@ -63,6 +64,9 @@ class Steps:
 
     def detect(self, step):
         raise TypeError
+
+    def tracked(self, people) -> None:
+        pass
 
     def finish(self, summary) -> None:
         pass
@@ -153,7 +157,7 @@ def _loop(rig, tmp_path: Path, n: int, **kw):
         site=Site(()),
         on_events=got.extend,
     )
-    return FrameLoop(source, stage, sinks, summary, rules=SiteRules(EveryHundred()), **kw), got
+    return FrameLoop(source, stage, sinks, summary, rules=step_chain(EveryHundred()), **kw), got
 
 
 def test_stages_are_timed_apart_and_progress_reported(rig, tmp_path: Path) -> None:
@@ -245,7 +249,7 @@ def test_each_steps_time_reaches_every_record(rig, tmp_path: Path) -> None:
         poses=tmp_path / "p.jsonl", events=tmp_path / "e.jsonl", csv=tmp_path / "j.csv"
     )
     sinks = open_outputs(outputs, rig=rig, config=Config(), summary=summary, stage=stage, site=site)
-    FrameLoop(source, stage, sinks, summary, rules=SiteRules(FenceMonitor(site, 25.0))).run()
+    FrameLoop(source, stage, sinks, summary, rules=step_chain(FenceMonitor(site, 25.0))).run()
     assert [t for _, t, _ in read_poses(tmp_path / "p.jsonl")] == times
     csv_times = {float(r.split(",")[1]) for r in (tmp_path / "j.csv").read_text().splitlines()[1:]}
     assert csv_times == set(times)

@@ -20,10 +20,11 @@ from stereopose.io.records import event_record
 from stereopose.io.results import read_poses
 from stereopose.io.sinks import PosesSink, read_events
 from stereopose.io.summary import RunSummary
-from stereopose.pipeline.loop import FrameLoop, SiteRules
+from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim.events import make_zones
 
 OLD_SUMMARY_KEYS = {
@@ -70,7 +71,7 @@ def _run(scene, out: Path, *, fail_at=None, error=RuntimeError, two_way=False, r
     )
     fences = FenceMonitor(site, cfg.fps)
     source = SceneSource(scene, fail_at, error)
-    loop = FrameLoop(source, stage, sinks, summary, rules=SiteRules(fences))
+    loop = FrameLoop(source, stage, sinks, summary, rules=step_chain(fences))
     return loop, sinks, got, source
 
 
@@ -212,7 +213,7 @@ def _loop(scene, out: Path, outputs: Outputs):
         outputs, rig=scene.rig, config=cfg, summary=summary, stage=stage, site=site, source="sim"
     )
     return FrameLoop(
-        SceneSource(scene), stage, sinks, summary, rules=SiteRules(FenceMonitor(site, cfg.fps))
+        SceneSource(scene), stage, sinks, summary, rules=step_chain(FenceMonitor(site, cfg.fps))
     )
 
 

@@ -39,6 +39,7 @@ from stereopose.config import load_config  # noqa: E402
 from stereopose.errors import ConfigError  # noqa: E402
 from stereopose.io.sinks import FrameResult  # noqa: E402
 from stereopose.pipeline.incidents import IncidentStep  # noqa: E402
+from stereopose.pipeline.step_rules import step_chain  # noqa: E402
 from stereopose.scada.opcua import CameraNode, OpcuaServer, ZoneNode  # noqa: E402
 from stereopose.scada.opcua_settings import (  # noqa: E402
     OpcuaSettings,
@@ -176,9 +177,7 @@ def running(
     site = Site(server, None, script, store, db)  # type: ignore[arg-type]
     site.step = IncidentStep(
         IncidentBook(),
-        script,
-        None,
-        None,
+        step_chain(script),
         outputs=[*([db.write_changes] if db is not None else []), server.write_changes],
         clock=lambda: site.t,
         wall_start=WALL_START,

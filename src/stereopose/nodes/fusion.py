@@ -77,7 +77,7 @@ from stereopose.nodes.wire import (
     picture_size,
 )
 from stereopose.pipeline.loop import SourceStep
-from stereopose.types import People2D, Rig
+from stereopose.types import People2D, People3D, Rig
 
 logger = logging.getLogger(__name__)
 
@@ -415,6 +415,9 @@ class NodeInput:
 
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
         raise TypeError("the nodes' steps carry their people")
+
+    def tracked(self, people: People3D) -> None:
+        """Nothing: the nodes choose their regions from the tracks they are sent."""
 
     # -- health ----------------------------------------------------------------------------------
 

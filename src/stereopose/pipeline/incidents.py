@@ -1,8 +1,9 @@
 """The service's incidents: every step's events through the incident book before any sink.
 
 `IncidentStep` is a step's rules of the frame loop (pipeline.loop.StepRules): its
-`step(t, frame, people)` takes the step's zone, camera and service events (`fences.update`),
-then the behaviour events, and hands them all, in order, to the book
+`step(t, frame, people)` takes the events of the step's rules (pipeline.step_rules.StepChain:
+the zone, camera and service events, the behaviour's, the zones' states', the tickets'), and
+hands them all, in order, to the book
 (stereopose.alarms.IncidentBook), with the pairs the fence still holds (inside or at the
 margin). Each event reaches the sinks with its `incident` and `priority` (both None for an
 info-level event: it belongs to no incident, and its priority is not an alarm's).
@@ -27,7 +28,8 @@ import numpy as np
 
 from stereopose.alarms import AlarmRates, Change, IncidentBook, IncidentRecord
 from stereopose.alarms.incident import IncidentError
-from stereopose.tickets import TicketDesk
+from stereopose.fence.rules import FenceMonitor
+from stereopose.pipeline.step_rules import StepChain
 from stereopose.types import Event, People3D
 
 __all__ = ["IncidentStep"]
@@ -38,28 +40,23 @@ MAX_WAITING = 10_000  # operators' changes waiting for the next step
 
 
 class IncidentStep:
-    """See the module. fences: the service's events (ServeEvents); rules: the behaviour
-    rules (HeldRules) or None; monitor: the fence monitor (for `holding`) or None; outputs:
-    callables given each step's changes, in order (the event log's write_changes first: its
-    records stored in the step's transaction); clock(): the service's time now (the events'
-    clock)."""
+    """See the module. chain: the step's rules (pipeline.step_rules.StepChain: fences,
+    behaviour, zone state, tickets); holding: the fence monitor that says which (zone, person)
+    pairs still hold, or None; outputs: callables given each step's changes, in order (the
+    event log's write_changes first: its records stored in the step's transaction); clock():
+    the service's time now (the events' clock)."""
 
     def __init__(
         self,
         book: IncidentBook,
-        fences,
-        rules,
-        monitor,
+        chain: StepChain,
         *,
+        holding: FenceMonitor | None = None,
         outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
         clock: Callable[[], float],
         wall_start: float | None = None,
-        tickets: TicketDesk | None = None,
-        power=None,
     ) -> None:
-        self.book, self.fences, self.rules, self.monitor = book, fences, rules, monitor
-        self.tickets = tickets
-        self.power = power  # the zones' live or dead state (zones.power_state.ZoneStates)
+        self.book, self.chain, self.monitor = book, chain, holding
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
@@ -69,32 +66,20 @@ class IncidentStep:
 
     # -- the frame loop's: a step's rules (pipeline.loop.StepRules)
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
-        """The step's zone and service events, then its behaviour events, each alarm-level
-        one stamped with its incident; the postures."""
-        events, postures = list(self.fences.update(people)), None
-        if self.rules is not None:
-            more, postures = self.rules.step(t, frame, people)
-            events = [*events, *more]
-        if self.power is not None:  # the zones' states; a dead zone's entries made info
-            mine = self.power.step(t, frame, self.monitor)
-            events = [*self.power.relabel(events), *mine]
-        if self.tickets is not None:  # the tickets' step, then their isolated zones' entries
-            mine = self.tickets.step(t, frame, people, postures)  # made info
-            events = [*self.tickets.relabel(events), *mine]
+        """The chain's events, each alarm-level one stamped with its incident; the postures."""
+        events, postures = self.chain.step(t, frame, people)
         return self._book(t, events), postures
 
     def finish(self, t: float, frame: int) -> list[Event]:
         """The events of the input's end at its last step (every active ticket completed),
         through the book like a step's."""
-        if self.tickets is None:
-            return []
-        events = self.tickets.finish(t, frame)
+        events = self.chain.finish(t, frame)
         return self._book(t, events) if events else []
 
     @property
     def ends_with_source(self) -> bool:
         """Whether the end of the input ends something (a ticket active to the last frame)."""
-        return self.tickets is not None and bool(self.tickets.active_or_starting())
+        return self.chain.ends_with_source
 
     def _book(self, t: float, events: list[Event]) -> list[Event]:
         """The events through the book, each alarm-level one stamped with its incident."""
@@ -121,7 +106,7 @@ class IncidentStep:
 
     def _holding(self) -> set[tuple[str, int]] | None:
         mon = self.monitor
-        if mon is None or getattr(mon, "inside", None) is None:
+        if mon is None:
             return None
         rows, ks = np.nonzero(mon.inside.state | mon.near.state)
         return {(mon.zones[k].name, int(mon.ids[r])) for r, k in zip(rows, ks, strict=True)}

@@ -81,8 +81,9 @@ class Source(Protocol):
         """What the source knows of the run, into the summary (camera statistics, files
         skipped)."""
 
-    # A source that detects in regions also has `tracked(people3d)`: the frame loop gives it
-    # each step's 3D people, where it looks next (pipeline.sources.Cameras).
+    def tracked(self, people: People3D) -> None:
+        """Each step's 3D people, given back: a source that detects in regions looks next
+        where they are (pipeline.sources.Cameras); others do nothing."""
 
 
 class Stage(Protocol):
@@ -102,34 +103,23 @@ class StepRules(Protocol):
     """A step's rules as the frame loop asks them: `step` returns the step's events (zones,
     behaviour; with their incidents where the rules keep an incident book: IncidentStep) and
     the people's postures (None: no posture rules), given to every sink in FrameResult.
-    Rules whose `ends_with_source` is true (a ticket active to the last frame) also have
-    `finish(t, frame)`: the events of the input's end, added to the last step's."""
+    When `ends_with_source` is true (a ticket active to the last frame), `finish(t, frame)`
+    gives the events of the input's end, added to the last step's."""
 
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]: ...
 
+    @property
+    def ends_with_source(self) -> bool: ...
 
-class SiteRules:
-    """The site's fences and behaviour rules as one step's rules, without an incident book:
-    the zone events, then the behaviour events (either may be None: not applied)."""
-
-    def __init__(self, fences: FenceMonitor | None, behaviour: BehaviourMonitor | None = None):
-        self.fences, self.behaviour = fences, behaviour
-
-    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
-        events = list(self.fences.update(people)) if self.fences is not None else []
-        postures = None
-        if self.behaviour is not None:
-            more, postures = self.behaviour.step(t, frame, people)
-            events = [*events, *more]
-        return events, postures
+    def finish(self, t: float, frame: int) -> list[Event]: ...
 
 
 class FrameLoop:
     """One run's frame loop. `run()` once: it returns the summary, every sink closed.
 
     sinks: closed in their order at the end (pipeline.outputs.open_outputs puts the summary
-    and the report last). rules: the step's rules (StepRules: SiteRules for the fences and
-    behaviour rules alone, IncidentStep with the incident book; None: no site).
+    and the report last). rules: the step's rules (StepRules: a pipeline.step_rules.StepChain
+    alone, or an IncidentStep with the incident book; None: no site).
     """
 
     def __init__(
@@ -183,10 +173,9 @@ class FrameLoop:
         first = self.source.stages[0]
         total = self.source.total
         it = iter(self.source)
-        tracked = getattr(self.source, "tracked", None)
         # the input's end ends something (a ticket active to the last frame): each step is
         # read one ahead, so the last one is known as it is processed
-        ahead = bool(getattr(self.rules, "ends_with_source", False))
+        ahead = self.rules is not None and self.rules.ends_with_source
         upcoming = None
         done = 0
         while not self.stop.is_set():
@@ -204,8 +193,7 @@ class FrameLoop:
                 t0, t1 = t1, time.perf_counter()
                 sec["detect"] += t1 - t0
             people3d = self.stage.step(step.frame, people2d, step.t)
-            if tracked is not None:  # the tracks back to detection: the next steps' regions
-                tracked(people3d)
+            self.source.tracked(people3d)  # the tracks back to detection: the next regions
             t2 = time.perf_counter()
             sec["3d"] += t2 - t1
             events, postures = [], None
@@ -332,6 +320,7 @@ def run_incidents(
     from stereopose.alarms.priority import AlarmSettings
     from stereopose.io.sinks import SqliteSink
     from stereopose.pipeline.incidents import IncidentStep
+    from stereopose.pipeline.step_rules import step_chain
     from stereopose.tickets import TicketDesk
 
     db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
@@ -343,10 +332,8 @@ def run_incidents(
     # a run takes no operator's act and is not asked for its alarm figures: no clock to read
     return IncidentStep(
         IncidentBook(AlarmSettings.from_site(site)),
-        fences,
-        behaviour,
-        fences,
+        step_chain(fences, behaviour=behaviour, tickets=desk),
+        holding=fences,
         outputs=[db.write_changes] if db is not None else [],
         clock=lambda: 0.0,
-        tickets=desk,
     )

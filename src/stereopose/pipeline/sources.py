@@ -54,6 +54,9 @@ class KeypointFiles:
     def detect(self, step: SourceStep) -> Mapping[str, People2D]:
         raise TypeError("keypoint files carry their 2D people")
 
+    def tracked(self, people: People3D) -> None:
+        """Nothing: keypoint files are detected already."""
+
     def finish(self, summary: RunSummary) -> None:
         summary.frames_read = self.frames_read
         summary.skipped_files = [(str(p), why) for p, why in self.seq.skipped]

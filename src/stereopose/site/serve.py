@@ -67,6 +67,7 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper
@@ -362,16 +363,20 @@ def _incidents(
     if restored:
         logger.warning("restart: %d incident(s) left open by the last run are open again", restored)
     # the event log is an incident output (its records stored in the step's transaction)
+    chain = step_chain(
+        events,
+        behaviour=HeldRules(rules, events) if rules is not None else None,
+        zone_state=service.power,
+        monitor=fences,
+        tickets=service.tickets,
+    )
     step = IncidentStep(
         book,
-        events,
-        HeldRules(rules, events) if rules is not None else None,
-        fences,
+        chain,
+        holding=fences,
         outputs=service.incident_outputs,
         clock=clock,
         wall_start=wall_start,
-        tickets=service.tickets,
-        power=service.power,
     )
     service.probes["alarms"] = step.figures
     service.state.register_alarms(step.figures)  # in /metrics

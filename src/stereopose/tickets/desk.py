@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
-from dataclasses import replace
 
 from stereopose.errors import StereoposeError
 from stereopose.tickets.monitor import TICKET_KIND, TicketMonitor
 from stereopose.tickets.ticket import TICKET_SLOTS, Ticket, check_zones
 from stereopose.types import Event, People3D
 from stereopose.zones import Zone
+from stereopose.zones.safe import Safe, made_safe
 
 __all__ = ["MAX_KEPT", "TicketDesk", "TicketError"]
 
@@ -154,18 +154,14 @@ class TicketDesk:
             self._forget()
         return out
 
+    def safe_now(self) -> dict[str, Safe]:
+        """The zones an active ticket isolates (zones.safe): each with the ticket's id."""
+        return {zone: Safe.isolated(ticket) for zone, ticket in self._isolating.items()}
+
     def relabel(self, events: Sequence[Event]) -> list[Event]:
         """The events, those of an energized zone an active ticket isolated as info (kind
         "isolated", the ticket's id)."""
-        iso = self._isolating
-        if not iso:
-            return list(events)
-        return [
-            replace(e, kind="isolated", ticket=iso[e.zone])
-            if e.kind == "energized" and e.zone in iso
-            else e
-            for e in events
-        ]
+        return made_safe(events, [self.safe_now()])
 
     def finish(self, t: float, frame: int) -> list[Event]:
         """Every active ticket ended now (the end of a run's input): its ticket_completed."""

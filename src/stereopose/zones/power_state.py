@@ -25,19 +25,19 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from stereopose.types import Event
+from stereopose.zones.safe import Safe, made_safe
 from stereopose.zones.zone import Zone
 
 __all__ = ["DEAD", "LIVE", "UNKNOWN", "PowerBoard", "Reading", "ZoneStates"]
 
 LIVE, DEAD, UNKNOWN = "live", "dead", "unknown"
 START_S = 10.0
-_ZONE_EVENTS = ("enter", "approach", "dwell", "exit")
 
 
 @dataclass(frozen=True)
@@ -156,17 +156,13 @@ class ZoneStates:
             self._dead = {n: s.source for n, s in self._states.items() if s.state == DEAD}
         return out
 
+    def safe_now(self) -> dict[str, Safe]:
+        """The dead zones (zones.safe): each with its state's source."""
+        return {zone: Safe.dead(source) for zone, source in self._dead.items()}
+
     def relabel(self, events: Sequence[Event]) -> list[Event]:
         """The events, a dead zone's entries as kind "dead" (info) with the state's source."""
-        dead = self._dead
-        if not dead:
-            return list(events)
-        return [
-            replace(e, kind=DEAD, source=dead[e.zone])
-            if e.kind == "energized" and e.type in _ZONE_EVENTS and e.zone in dead
-            else e
-            for e in events
-        ]
+        return made_safe(events, [self.safe_now()])
 
     def snapshot(self) -> dict[str, dict]:
         """zone -> {"state", "source", "reason", "since"} (since: Unix time)."""

@@ -1,0 +1,173 @@
+"""One chain of step rules, built alike by `run` and `serve`: at each step the fences, the
+behaviour rules, the zones' live or dead state and the work tickets, in that order, each a
+`StepRule` with one typed interface. Each adds its events to the step's; those that know a zone
+safe now (dead by its breakers, isolated by a ticket) say so, and the chain makes that zone's
+events information in one place (zones.safe), before the incident book sees them
+(pipeline.incidents).
+
+A chain is a step's rules of the frame loop on its own (pipeline.loop.StepRules: no incident
+book), or the first half of an IncidentStep. Its rules are a list: a new site is swapped in at a
+step boundary by building the chain again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from stereopose.fence.rules import FenceMonitor
+from stereopose.tickets import TicketDesk
+from stereopose.types import Event, People3D
+from stereopose.zones.power_state import ZoneStates
+from stereopose.zones.safe import Safe, made_safe
+
+__all__ = [
+    "BehaviourRule",
+    "FenceRule",
+    "StepChain",
+    "StepContext",
+    "StepRule",
+    "TicketRule",
+    "ZoneStateRule",
+    "step_chain",
+]
+
+
+@dataclass
+class StepContext:
+    """What a step's rules share: its time, frame and people; the postures once the behaviour
+    rule has classified them (None: no posture rules)."""
+
+    t: float
+    frame: int
+    people: People3D
+    postures: dict | None = None
+
+
+class StepRule(Protocol):
+    """One rule of the step: `step(ctx)` returns its events (it may fill ctx for the rules after
+    it)."""
+
+    def step(self, ctx: StepContext) -> list[Event]: ...
+
+
+@runtime_checkable
+class SafetyRule(Protocol):
+    """A rule that knows which zones are safe now (zone -> Safe), after its step."""
+
+    def safe_now(self) -> Mapping[str, Safe]: ...
+
+
+class ZoneEvents(Protocol):
+    """The fences' events of a step: FenceMonitor, or the service's (site.steps.ServeEvents:
+    the zone events with the cameras' and the service's)."""
+
+    def update(self, people: People3D) -> Sequence[Event]: ...
+
+
+class Behaviour(Protocol):
+    """behaviour.rules.BehaviourMonitor, or the service's held one (site.steps.HeldRules)."""
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict]: ...
+
+
+class FenceRule:
+    """The zones' events (enter, approach, dwell, exit), with whatever else `events` adds."""
+
+    def __init__(self, events: ZoneEvents) -> None:
+        self.events = events
+
+    def step(self, ctx: StepContext) -> list[Event]:
+        return list(self.events.update(ctx.people))
+
+
+class BehaviourRule:
+    """The behaviour rules' events; the postures for the rules after it and the sinks."""
+
+    def __init__(self, behaviour: Behaviour) -> None:
+        self.behaviour = behaviour
+
+    def step(self, ctx: StepContext) -> list[Event]:
+        events, ctx.postures = self.behaviour.step(ctx.t, ctx.frame, ctx.people)
+        return list(events)
+
+
+class ZoneStateRule:
+    """The energized zones' states from their breakers (zone_live, zone_dead, zone_unknown);
+    someone inside a zone that turns live (the fence monitor's) is an alarm at once."""
+
+    def __init__(self, states: ZoneStates, monitor: FenceMonitor | None) -> None:
+        self.states, self.monitor = states, monitor
+
+    def step(self, ctx: StepContext) -> list[Event]:
+        return list(self.states.step(ctx.t, ctx.frame, self.monitor))
+
+    def safe_now(self) -> Mapping[str, Safe]:
+        return self.states.safe_now()
+
+
+class TicketRule:
+    """The active work tickets' events (their steps, supervisor, lone worker)."""
+
+    def __init__(self, desk: TicketDesk) -> None:
+        self.desk = desk
+
+    def step(self, ctx: StepContext) -> list[Event]:
+        return list(self.desk.step(ctx.t, ctx.frame, ctx.people, ctx.postures))
+
+    def safe_now(self) -> Mapping[str, Safe]:
+        return self.desk.safe_now()
+
+    def finish(self, t: float, frame: int) -> list[Event]:
+        return self.desk.finish(t, frame)
+
+    @property
+    def ends_with_source(self) -> bool:
+        return bool(self.desk.active_or_starting())
+
+
+class StepChain:
+    """The step's rules in order (see the module); a step's rules of the frame loop."""
+
+    def __init__(self, rules: Sequence[StepRule]) -> None:
+        self.rules = list(rules)
+
+    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
+        """The step's events, every rule's in order, each safe zone's made information; the
+        postures."""
+        ctx = StepContext(float(t), int(frame), people)
+        events: list[Event] = []
+        for rule in self.rules:
+            events += rule.step(ctx)
+        safe = [r.safe_now() for r in self.rules if isinstance(r, SafetyRule)]
+        return made_safe(events, safe), ctx.postures
+
+    def finish(self, t: float, frame: int) -> list[Event]:
+        """The events of the input's end at its last step (every active ticket completed)."""
+        return [e for r in self.rules if isinstance(r, TicketRule) for e in r.finish(t, frame)]
+
+    @property
+    def ends_with_source(self) -> bool:
+        """Whether the end of the input ends something (a ticket active to the last frame)."""
+        return any(isinstance(r, TicketRule) and r.ends_with_source for r in self.rules)
+
+
+def step_chain(
+    events: ZoneEvents | None,
+    *,
+    behaviour: Behaviour | None = None,
+    zone_state: ZoneStates | None = None,
+    monitor: FenceMonitor | None = None,
+    tickets: TicketDesk | None = None,
+) -> StepChain:
+    """The chain `run` and `serve` build: the fences' events, the behaviour rules, the zones'
+    states (with the fence `monitor` that says who is inside), the tickets; each left out when
+    None."""
+    parts: list[tuple[object | None, Callable[[], StepRule]]] = [
+        (events, lambda: FenceRule(events)),
+        (behaviour, lambda: BehaviourRule(behaviour)),
+        (zone_state, lambda: ZoneStateRule(zone_state, monitor)),
+        (tickets, lambda: TicketRule(tickets)),
+    ]
+    return StepChain([make() for given, make in parts if given is not None])
