@@ -22,7 +22,7 @@ from waiting import wait_until
 class CentreDetector:
     """One person whose every joint is at the image's centre; counts its calls."""
 
-    name = "centre"
+    name, imgsz, iou = "centre", 640, 0.7
 
     def __init__(self, fail_at: int | None = None) -> None:
         self.calls, self.fail_at = 0, fail_at

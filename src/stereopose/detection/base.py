@@ -42,9 +42,12 @@ class Poses:
 
 @runtime_checkable
 class PoseDetector(Protocol):
-    """Anything that finds people and their 17 joints in images."""
+    """Anything that finds people and their 17 joints in images: its name, its own input side
+    (imgsz: whole frames, long side) and the IoU of its non-maximum suppression."""
 
     name: str
+    imgsz: int
+    iou: float
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         """One Poses per image, in order; images of one time step are batched where possible.

@@ -39,6 +39,7 @@ from stereopose.detection.base import Letterbox, PoseDetector, Poses, letterbox_
 from stereopose.detection.motion import MotionDetector
 from stereopose.detection.regions import (
     Region,
+    Why,
     cut_sides,
     dedupe,
     grow_cut,
@@ -53,6 +54,9 @@ HELD_MAX = 64  # a camera's own people held for their regions, at most
 MAX_REGIONS = 8  # regions of one camera and step; more are merged, or the whole frame taken
 # people boxes in regions: they move on between steps, so a little more than motion's
 SEEN_MIN_SIDE = 0.5  # of imgsz: a region at most twice enlarged
+
+# the reasons that say a person is there (a track, a detection at the last step)
+_PEOPLE = frozenset({Why.TRACK, Why.SEEN})
 
 
 @dataclass(frozen=True)
@@ -136,8 +140,8 @@ class RegionDetector:
         self.detector = detector
         self.name = detector.name
         self.settings = settings or RegionSettings()
-        self.whole_imgsz = int(getattr(detector, "imgsz", 640))
-        self.iou = float(getattr(detector, "iou", 0.7))
+        self.whole_imgsz = int(detector.imgsz)
+        self.iou = float(detector.iou)
         self.cameras: dict[str, CameraRegions] = {}
         self._state: dict[str, _Camera] = {}
 
@@ -220,16 +224,16 @@ class RegionDetector:
             # camera sees well: his own detections (seen) or the whole frame's scan say more
             people += [
                 r
-                for r in squares(_in_view(hints, size), size, "track", small)
+                for r in squares(_in_view(hints, size), size, Why.TRACK, small)
                 if max(r.side_w, r.side_h) <= largest
             ]
         if state.held:
-            people += squares(np.array([b for b, _ in state.held]), size, "seen", small)
+            people += squares(np.array([b for b, _ in state.held]), size, Why.SEEN, small)
         # motion where nobody is known yet: a newcomer (a known person's moving limbs are in
         # his own region already)
         motion = [
             m
-            for m in squares(moving, size, "motion", s.imgsz)
+            for m in squares(moving, size, Why.MOTION, s.imgsz)
             if not any(_inside(m, r) for r in people)
         ]
         regions = merge(people + motion, size, largest)
@@ -260,7 +264,7 @@ class RegionDetector:
             finer = [
                 r
                 for r in regions
-                if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale and r.why & {"track", "seen"}
+                if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale and r.why & _PEOPLE
             ]
             return finer, False, True
         whole_px = whole.input_shape[0] * whole.input_shape[1]
@@ -329,7 +333,7 @@ class RegionDetector:
         """One camera's people from its regions, in frame pixels, each person once; its held
         people and newcomer counts brought up to date."""
         kps, boxes, scores, cut, grown, why = [], [], [], [], [], []
-        whole_why = frozenset({"whole", "scan"} if self._state[name].scanned else {"whole"})
+        whole_why = frozenset({Why.WHOLE, Why.SCAN} if self._state[name].scanned else {Why.WHOLE})
         for poses, r in found:
             if not len(poses):
                 continue
@@ -350,20 +354,20 @@ class RegionDetector:
         stats, state = self.cameras[name], self._state[name]
         if not kps:
             return Poses.empty()
-        whole = np.array(["whole" in w for w in why])
+        whole = np.array([Why.WHOLE in w for w in why])
         keep = dedupe(np.array(boxes), np.array(scores), np.array(cut), self.iou, whole)
         known = [b for b, _ in state.held]
         for i in keep:
             cx, cy = (boxes[i][0] + boxes[i][2]) / 2, (boxes[i][1] + boxes[i][3]) / 2
             if (
-                "track" in why[i]
-                or "seen" in why[i]
+                Why.TRACK in why[i]
+                or Why.SEEN in why[i]
                 or any(b[0] <= cx <= b[2] and b[1] <= cy <= b[3] for b in known)
             ):
                 continue
-            if "motion" in why[i]:
+            if Why.MOTION in why[i]:
                 stats.found_by_motion += 1
-            elif "scan" in why[i]:
+            elif Why.SCAN in why[i]:
                 stats.found_by_scan += 1
         new = [grown[i] for i in keep]
         state.held = [(b, seen) for b, seen in state.held if not _overlaps_any(b, new)]

@@ -11,6 +11,7 @@ worker seen at the camera's full detail) and a larger one shrunk.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -21,16 +22,27 @@ MARGIN = 0.2
 EDGE_PX = 4.0
 
 
+class Why(StrEnum):
+    """Why a camera's frame is looked at where it is: the region reasons (and the whole
+    frame's), shown to the console joined by "+"."""
+
+    TRACK = "track"  # a tracked person's 3D joints projected
+    SEEN = "seen"  # a person detected there at the last step
+    MOTION = "motion"  # something moved there
+    SCAN = "scan"  # the periodic scan of the whole frame, in tiles or whole
+    WHOLE = "whole"  # the whole frame
+
+
 @dataclass(frozen=True)
 class Region:
     """A square of a frame: its top-left corner (x, y) and side, pixels; why it was made
-    ("track", "seen", "motion", "scan"), the reasons merged into it."""
+    (Why: track, seen, motion, scan), the reasons merged into it."""
 
     x: int
     y: int
     side_w: int  # the square's width as cut (the side, or the frame's width if smaller)
     side_h: int
-    why: frozenset[str]
+    why: frozenset[Why]
 
     @property
     def area(self) -> int:
@@ -60,7 +72,7 @@ def place(cx: float, cy: float, side: float, size: tuple[int, int], why: frozens
 
 
 def squares(
-    boxes: np.ndarray, size: tuple[int, int], why: str, min_side: float, margin: float = MARGIN
+    boxes: np.ndarray, size: tuple[int, int], why: Why, min_side: float, margin: float = MARGIN
 ) -> list[Region]:
     """One region per box (N, 4): a square of the box's longer side plus `margin` of it on each
     side, at least `min_side`, centred on the box and moved inside the frame. Boxes wholly
@@ -123,7 +135,7 @@ def tiles(size: tuple[int, int], tile: int, overlap: float = 0.25) -> list[Regio
         return [round(k * (length - tile) / (n - 1)) for k in range(n)]
 
     return [
-        Region(x, y, min(tile, w), min(tile, h), frozenset({"scan"}))
+        Region(x, y, min(tile, w), min(tile, h), frozenset({Why.SCAN}))
         for y in starts(h)
         for x in starts(w)
     ]
