@@ -30,6 +30,7 @@ from stereopose.config import Config
 from stereopose.fence import FenceMonitor
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim.behaviour_events import truth_frames
 from stereopose.sim.jobs import VARIANTS, simulate_job
 from stereopose.tickets import TicketDesk
@@ -53,11 +54,9 @@ def through_step(js, frames, ticket: bool) -> list:
         desk.start(js.ticket.id, "benchmark")
     step = IncidentStep(
         IncidentBook(AlarmSettings.from_site(site)),
-        fences,
-        None,
-        fences,
+        step_chain(fences, tickets=desk),
+        holding=fences,
         clock=lambda: 0.0,
-        tickets=desk,
     )
     out = []
     for p in frames:

@@ -42,6 +42,7 @@ from stereopose.config import Config
 from stereopose.fence import FenceMonitor
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim.jobs import job_site, simulate_job
 from stereopose.site.zone_sources import start_sources
 from stereopose.zones.power import parse_power
@@ -122,11 +123,9 @@ def alarms(seeds: int, difficulties: list[str]) -> list[dict]:
                     fences = FenceMonitor(site, js.scene.fps)
                     step = IncidentStep(
                         IncidentBook(AlarmSettings.from_site(site)),
-                        fences,
-                        None,
-                        fences,
+                        step_chain(fences, zone_state=power, monitor=fences),
+                        holding=fences,
                         clock=lambda: 0.0,
-                        power=power,
                     )
                     events = []
                     for p in frames:

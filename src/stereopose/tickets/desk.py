@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
+from enum import StrEnum
 
 from stereopose.errors import StereoposeError
 from stereopose.tickets.monitor import TICKET_KIND, TicketMonitor
@@ -25,7 +26,18 @@ __all__ = ["MAX_KEPT", "TicketDesk", "TicketError"]
 
 MAX_KEPT = 200  # ended tickets kept
 MAX_TICKETS = 1000  # tickets known at most (planned and active included)
-PLANNED, ACTIVE, COMPLETED, ABORTED = "planned", "active", "completed", "aborted"
+
+
+class TicketState(StrEnum):
+    """A ticket's state on the desk (as the API and the event log write it)."""
+
+    PLANNED = "planned"
+    ACTIVE = "active"
+    COMPLETED = "completed"
+    ABORTED = "aborted"
+
+
+PLANNED, ACTIVE, COMPLETED, ABORTED = TicketState
 
 
 class TicketError(StereoposeError):
@@ -39,7 +51,7 @@ class TicketError(StereoposeError):
 class _Entry:
     def __init__(self, ticket: Ticket, monitor: TicketMonitor) -> None:
         self.ticket, self.monitor = ticket, monitor
-        self.state = PLANNED
+        self.state: TicketState = PLANNED
         self.start_asked: str | None = None  # by whom (the loop starts it)
         self.end_asked: tuple[str, bool] | None = None  # by whom, aborted
         self.started_by = self.ended_by = None

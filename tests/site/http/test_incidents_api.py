@@ -19,6 +19,7 @@ from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.io.sinks.events import JsonlSink
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.restart import Resume
 from stereopose.site.service import _live_changes
 from stereopose.types import Event
@@ -58,9 +59,7 @@ class Run:
             outputs.append(lambda changes: _live_changes(served.console.hub, changes))
         self.desk = IncidentStep(
             book,
-            self.script,
-            None,
-            None,
+            step_chain(self.script),
             outputs=outputs,
             clock=lambda: self.t,
             wall_start=WALL_START,

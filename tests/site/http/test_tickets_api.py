@@ -15,6 +15,7 @@ from stereopose.fence import FenceMonitor
 from stereopose.io.sinks.base import FrameResult
 from stereopose.io.sinks.segments import SegmentSink
 from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim.behaviour_events import truth_frames
 from stereopose.sim.jobs import simulate_job
 from stereopose.site.desk import IncidentDesk
@@ -29,11 +30,9 @@ def test_a_ticket_started_over_the_api_is_followed_step_by_step(tmp_path: Path) 
     now = [0.0]
     step = IncidentStep(
         IncidentBook(AlarmSettings.from_site(site)),
-        fences,
-        None,
-        fences,
+        step_chain(fences, tickets=desk),
+        holding=fences,
         clock=lambda: now[0],
-        tickets=desk,
     )
     incidents.attach(step)
     desk.wall_start = WALL_START
