@@ -42,10 +42,11 @@ from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.summary import RunSummary
-from stereopose.pipeline.loop import FrameLoop, SiteRules
+from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.pipeline.step_rules import step_chain
 
 SUB_SIZE = (272, 480)  # the substreams' width, height
 
@@ -146,7 +147,7 @@ def measure(
             load_start = os.getloadavg()
             threading.Timer(seconds, stop.set).start()
             t0 = time.perf_counter()
-            FrameLoop(source, stage, [], summary, rules=SiteRules(fences), stop=stop).run()
+            FrameLoop(source, stage, [], summary, rules=step_chain(fences), stop=stop).run()
             wall = time.perf_counter() - t0
             rss_end = proc.memory_info().rss
             per_camera = {n: dataclasses.asdict(s) for n, s in cams.stats().items()}
