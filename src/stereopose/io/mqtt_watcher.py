@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import json
 import uuid
+from collections.abc import MutableMapping
 from typing import Any
 
-from stereopose.zones.power import PointSource, reading
+from stereopose.io.sinks.mqtt_settings import MqttSettings
+from stereopose.zones.power import MqttPoint, reading
+from stereopose.zones.power_state import PowerBoard
 
 __all__ = ["MqttWatcher"]
 
@@ -40,11 +43,17 @@ def _payload(raw: bytes) -> Any:
 class MqttWatcher:
     """A subscriber on the site's broker (paho's thread reconnects with backoff)."""
 
-    def __init__(self, settings: Any, points: list[PointSource], board, figures) -> None:
-        from stereopose.io.sinks.mqtt_settings import make_client
+    def __init__(
+        self,
+        settings: MqttSettings,
+        points: list[MqttPoint],
+        board: PowerBoard,
+        figures: MutableMapping[str, int],
+    ) -> None:
+        from stereopose.io.sinks.mqtt_settings import make_client  # paho, loaded here
 
         self.settings, self.board, self.figures = settings, board, figures
-        self.topics = {p.get("topic"): p.label for p in points}
+        self.topics = {p.topic: p.label for p in points}
         self.client = make_client(settings, f"stereopose-state-{uuid.uuid4().hex[:8]}")
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect

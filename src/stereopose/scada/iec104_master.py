@@ -20,7 +20,7 @@ from typing import Any
 
 from stereopose.errors import ConfigError
 from stereopose.scada.iec104_settings import typed_callback
-from stereopose.zones.power import DOUBLE, PointSource
+from stereopose.zones.power import Iec104Point
 from stereopose.zones.power_state import PowerBoard
 
 __all__ = ["Iec104Master"]
@@ -35,7 +35,7 @@ class Iec104Master:
         self,
         host: str,
         port: int,
-        points: list[PointSource],
+        points: list[Iec104Point],
         board: PowerBoard,
         figures: MutableMapping[str, int],
     ) -> None:
@@ -68,9 +68,9 @@ class Iec104Master:
             ret=c104.ResponseState,
         )
         self.stations: dict[int, Any] = {}
-        self._by_point: dict[tuple[int, int], PointSource] = {}
+        self._by_point: dict[tuple[int, int], Iec104Point] = {}
         for p in points:
-            ca = int(p.get("common_address"))
+            ca = p.common_address
             station = self.stations.get(ca) or self.connection.add_station(common_address=ca)
             self.stations[ca] = station
             kind = {
@@ -78,10 +78,10 @@ class Iec104Master:
                 (False, False): c104.Type.M_SP_NA_1,
                 (True, True): c104.Type.M_DP_TB_1,
                 (True, False): c104.Type.M_DP_NA_1,
-            }[(p.get("type") == DOUBLE, bool(p.get("time_tag", True)))]
-            point = station.add_point(io_address=int(p.get("ioa")), type=kind)
+            }[(p.double, p.time_tag)]
+            point = station.add_point(io_address=p.ioa, type=kind)
             point.on_receive(callable=on_receive)
-            self._by_point[(ca, int(p.get("ioa")))] = p
+            self._by_point[(ca, p.ioa)] = p
         self._open = False
         self._stop = threading.Event()
         self._thread = threading.Thread(

@@ -11,12 +11,14 @@ import asyncio
 import contextlib
 import logging
 import threading
+from collections.abc import MutableMapping
 from pathlib import Path
 from typing import Any
 
 from stereopose.errors import ConfigError
 from stereopose.secrets import redact
-from stereopose.zones.power import PointSource, reading
+from stereopose.zones.power import OpcuaPoint, reading
+from stereopose.zones.power_state import PowerBoard
 
 __all__ = ["OpcuaWatcher"]
 
@@ -25,8 +27,8 @@ logger = logging.getLogger(__name__)
 BACKOFF_S = (1.0, 2.0, 4.0, 8.0, 15.0, 30.0)
 
 
-def _password(p: PointSource, base: Path | None) -> str | None:
-    name = p.get("password_file")
+def _password(p: OpcuaPoint, base: Path | None) -> str | None:
+    name = p.password_file
     if name is None:
         return None
     path = Path(name) if base is None or Path(name).is_absolute() else base / name
@@ -39,11 +41,18 @@ def _password(p: PointSource, base: Path | None) -> str | None:
 class OpcuaWatcher:
     """An asyncua client of one endpoint, on a thread with its own event loop."""
 
-    def __init__(self, endpoint: str, points, board, figures, base: Path | None) -> None:
+    def __init__(
+        self,
+        endpoint: str,
+        points: list[OpcuaPoint],
+        board: PowerBoard,
+        figures: MutableMapping[str, int],
+        base: Path | None,
+    ) -> None:
         self.endpoint, self.points, self.board, self.figures = endpoint, points, board, figures
         self.keys = [p.label for p in points]
-        self.user = next((p.get("username") for p in points if p.get("username")), None)
-        self.password = next((_password(p, base) for p in points if p.get("password_file")), None)
+        self.user = next((p.username for p in points if p.username), None)
+        self.password = next((_password(p, base) for p in points if p.password_file), None)
         self.interrogation_s = min(p.interrogation_s for p in points)
         self._loop = asyncio.new_event_loop()
         self._stopping: asyncio.Event | None = None
@@ -90,7 +99,7 @@ class OpcuaWatcher:
         if self.password:
             client.set_password(self.password)
         async with client:
-            nodes = {p.label: client.get_node(p.get("node_id")) for p in self.points}
+            nodes = {p.label: client.get_node(p.node_id) for p in self.points}
             handler = _Changes(self)
             sub = await client.create_subscription(200, handler)
             handler.labels = {n.nodeid: label for label, n in nodes.items()}

@@ -15,9 +15,10 @@ from typing import Any
 
 from stereopose.errors import ConfigError
 from stereopose.io.mqtt_watcher import MqttWatcher
+from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.scada.iec104_master import Iec104Master
 from stereopose.scada.opcua_watcher import OpcuaWatcher
-from stereopose.zones.power import PointSource
+from stereopose.zones.power import Iec104Point, MqttPoint, OpcuaPoint, PointSource
 from stereopose.zones.power_state import PowerBoard
 from stereopose.zones.zone import Zone
 
@@ -51,32 +52,42 @@ class PowerSources:
 
 
 def start_sources(
-    zones: Sequence[Zone], board: PowerBoard, *, mqtt: Any = None, base: Path | None = None
+    zones: Sequence[Zone],
+    board: PowerBoard,
+    *,
+    mqtt: MqttSettings | None = None,
+    base: Path | None = None,
 ) -> PowerSources:
     """Start a source per RTU, OPC UA endpoint and the site's broker for the zones' points;
     a ConfigError when an MQTT point has no broker or a password file cannot be read."""
     out = PowerSources()
-    points = _points(zones)
-    by_kind: dict[str, dict[Any, list[PointSource]]] = defaultdict(lambda: defaultdict(list))
-    for p in points:
-        if p.protocol == "iec104":
-            by_kind["iec104"][(p.get("host"), p.get("port"))].append(p)
-        elif p.protocol == "opcua":
-            by_kind["opcua"][p.get("endpoint")].append(p)
-        else:
-            by_kind["mqtt"][None].append(p)
-    if by_kind["mqtt"] and mqtt is None:
+    links: dict[tuple[str, ...], list[PointSource]] = defaultdict(list)
+    for p in _points(zones):
+        links[p.link].append(p)
+    if any(isinstance(ps[0], MqttPoint) for ps in links.values()) and mqtt is None:
         raise ConfigError("a zone's state comes over MQTT: set [mqtt] host (the site's broker)")
     try:
-        for (host, port), ps in by_kind["iec104"].items():
-            out.parts.append(Iec104Master(host, port, ps, board, out.figures))
-        for endpoint, ps in by_kind["opcua"].items():
-            out.parts.append(OpcuaWatcher(endpoint, ps, board, out.figures, base))
-        if by_kind["mqtt"]:
-            out.parts.append(MqttWatcher(mqtt, by_kind["mqtt"][None], board, out.figures))
+        for ps in links.values():
+            out.parts.append(_source(ps, board, out.figures, mqtt, base))
         for part in out.parts:
             part.start()
     except BaseException:
         out.stop()
         raise
     return out
+
+
+def _source(
+    points: list[PointSource],
+    board: PowerBoard,
+    figures: dict[str, int],
+    mqtt: MqttSettings | None,
+    base: Path | None,
+) -> Iec104Master | OpcuaWatcher | MqttWatcher:
+    """The client of one link's points."""
+    first = points[0]
+    if isinstance(first, Iec104Point):
+        return Iec104Master(first.host, first.port, points, board, figures)
+    if isinstance(first, OpcuaPoint):
+        return OpcuaWatcher(first.endpoint, points, board, figures, base)
+    return MqttWatcher(mqtt, points, board, figures)

@@ -34,7 +34,15 @@ from typing import Any
 from stereopose.errors import ConfigError
 from stereopose.secrets import redact
 
-__all__ = ["PROTOCOLS", "PointSource", "PowerSpec", "parse_power"]
+__all__ = [
+    "PROTOCOLS",
+    "Iec104Point",
+    "MqttPoint",
+    "OpcuaPoint",
+    "PointSource",
+    "PowerSpec",
+    "parse_power",
+]
 
 PROTOCOLS = ("iec104", "opcua", "mqtt")
 SINGLE, DOUBLE = "single", "double"
@@ -53,7 +61,9 @@ _COMPARE = (ast.Eq, ast.NotEq, ast.Lt, ast.LtE, ast.Gt, ast.GtE)
 @dataclass(frozen=True)
 class PointSource:
     """One breaker's or switch's position: `name` in the expression, its protocol and its
-    parameters (key, value pairs: the table given in the site file, checked)."""
+    parameters (key, value pairs: the table given in the site file, checked). Made by
+    `PointSource.of` as the point of its protocol (Iec104Point, OpcuaPoint, MqttPoint), each
+    with its parameters typed, its label and its link."""
 
     name: str
     protocol: str
@@ -65,18 +75,102 @@ class PointSource:
     @property
     def label(self) -> str:
         """What names the source in events and messages (never a credential)."""
-        p = dict(self.params)
-        if self.protocol == "iec104":
-            return (
-                f"iec104 {p['host']}:{p.get('port', 2404)} ca {p['common_address']} ioa {p['ioa']}"
-            )
-        if self.protocol == "opcua":
-            return f"opcua {redact(p['endpoint'])} {p['node_id']}"
-        return f"mqtt {p['topic']}"
+        raise NotImplementedError  # each protocol's point names itself
+
+    @property
+    def link(self) -> tuple[str, ...]:
+        """The connection it is read over: points of one link share one client."""
+        raise NotImplementedError
 
     @property
     def interrogation_s(self) -> float:
         return float(self.get("interrogation_s", DEFAULT_INTERROGATION_S))
+
+    @staticmethod
+    def of(name: str, protocol: str, params: Mapping[str, Any]) -> PointSource:
+        """The point of `protocol` (iec104, opcua, mqtt) with these checked parameters."""
+        kind = {"iec104": Iec104Point, "opcua": OpcuaPoint, "mqtt": MqttPoint}[protocol]
+        return kind(name, protocol, tuple(params.items()))
+
+
+class Iec104Point(PointSource):
+    """A point of an RTU over IEC 60870-5-104."""
+
+    @property
+    def host(self) -> str:
+        return str(self.get("host"))
+
+    @property
+    def port(self) -> int:
+        return int(self.get("port", 2404))
+
+    @property
+    def common_address(self) -> int:
+        return int(self.get("common_address"))
+
+    @property
+    def ioa(self) -> int:
+        return int(self.get("ioa"))
+
+    @property
+    def double(self) -> bool:
+        return self.get("type") == DOUBLE
+
+    @property
+    def time_tag(self) -> bool:
+        return bool(self.get("time_tag", True))
+
+    @property
+    def label(self) -> str:
+        return f"iec104 {self.host}:{self.port} ca {self.common_address} ioa {self.ioa}"
+
+    @property
+    def link(self) -> tuple[str, ...]:
+        return ("iec104", self.host, str(self.port))
+
+
+class OpcuaPoint(PointSource):
+    """A node of an OPC UA server."""
+
+    @property
+    def endpoint(self) -> str:
+        return str(self.get("endpoint"))
+
+    @property
+    def node_id(self) -> str:
+        return str(self.get("node_id"))
+
+    @property
+    def username(self) -> str | None:
+        return self.get("username")
+
+    @property
+    def password_file(self) -> str | None:
+        return self.get("password_file")
+
+    @property
+    def label(self) -> str:
+        return f"opcua {redact(self.endpoint)} {self.node_id}"
+
+    @property
+    def link(self) -> tuple[str, ...]:
+        return ("opcua", self.endpoint)
+
+
+class MqttPoint(PointSource):
+    """A topic of the site's broker."""
+
+    @property
+    def topic(self) -> str:
+        return str(self.get("topic"))
+
+    @property
+    def label(self) -> str:
+        return f"mqtt {self.topic}"
+
+    @property
+    def link(self) -> tuple[str, ...]:
+        return ("mqtt",)
 
 
 @dataclass(frozen=True)
@@ -93,7 +187,7 @@ class PowerSpec:
         """Seconds without an update after which `point` is stale (None: never: MQTT)."""
         if self.stale_s is not None:
             return self.stale_s if self.stale_s > 0 else None
-        return None if point.protocol == "mqtt" else 1.5 * point.interrogation_s
+        return None if isinstance(point, MqttPoint) else 1.5 * point.interrogation_s
 
     @cached_property
     def _tree(self) -> ast.AST:
@@ -127,7 +221,7 @@ def parse_power(doc: Any, where: str) -> PowerSpec:
         point = _point("state", {protocol: table}, where)
         params = dict(point.params)
         when = params.pop("energized_when", None)
-        point = PointSource("state", point.protocol, tuple(params.items()))
+        point = PointSource.of("state", point.protocol, params)
         if when is None:
             when = "closed" if params.get("type") == DOUBLE else "on"
         if not isinstance(when, (str, bool, int, float)):
@@ -212,7 +306,7 @@ def _point(name: str, doc: Any, where: str) -> PointSource:
         v = p["interrogation_s"]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 1 <= v <= 86400:
             raise ConfigError(f"{w}: interrogation_s: expected 1 to 86400 seconds, got {v!r}")
-    return PointSource(name, protocol, tuple(p.items()))
+    return PointSource.of(name, protocol, p)
 
 
 def _text(p: dict, key: str, where: str) -> None:
