@@ -152,6 +152,23 @@ def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
     wait_until(lambda: box.figures()["resent"] >= 4, "the resends counted")
 
 
+def test_the_last_events_at_the_close_reach_a_receiver_that_lost_them(broker, log, closing):
+    """A service's stop: its last events stored, the outbox closed at once. Where a receiver
+    confirms, the close waits for its mark (bounded) and sends again what it lost: nothing after
+    them would show the gap, and no next resend comes from a stopped site."""
+    box = LogOutbox(settings(broker.port), log.read, resend_s=0)  # no resend while running
+    rx = LogReceiver(broker.port, replay_on_start=False)
+    closing(rx)
+    log.write(3)
+    wait_until(lambda: box.figures()["confirmed"] == log.ids()[-1], "the first confirmation")
+    rx.lose(2)  # the stop's last two events never arrive the first time
+    log.write(2)
+    box.close(timeout_s=10.0)
+    assert rx.ids() == log.ids()
+    f = box.figures()
+    assert f["confirmed"] == log.ids()[-1] and f["resent"] >= 2
+
+
 def test_a_gap_seen_by_the_receiver_is_filled_by_a_replay(broker, log, closing):
     rx = LogReceiver(broker.port, replay_on_start=False)  # no replay but the gap's
     closing(rx)

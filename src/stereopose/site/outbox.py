@@ -45,6 +45,7 @@ logger = logging.getLogger(__name__)
 INFLIGHT = 50  # messages handed to paho and not yet acknowledged
 PAGE = 200  # events read from the log at once at most
 POLL_S = 0.25  # how often the log is read for new events when nothing wakes the thread
+CLOSE_RESEND_S = 1.0  # at the close, a receiver's mark behind this long: sent again
 HEARTBEAT_S = 10.0  # how often the log's last id and the clock are published
 
 
@@ -454,11 +455,25 @@ class LogOutbox:
             return OutputHealth(False, lag, "the event outbox's MQTT client is not running")
         return OutputHealth(True, lag)
 
+    def _confirmed_or_resent(self) -> bool:
+        """At the close, everything sent: whether each stream a receiver confirms is confirmed
+        up to its cursor; a mark behind it for CLOSE_RESEND_S is sent again after the mark."""
+        now, done = time.monotonic(), True
+        with self._lock:
+            for st in self.streams:
+                if st.confirmed is None or st.confirmed >= st.cursor:
+                    continue
+                done = False
+                if now - st.confirmed_at > CLOSE_RESEND_S:
+                    st.restart_at, st.confirmed_at = st.confirmed, now
+        return done
+
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what the log holds beyond the cursors, waiting for the broker's
-        acknowledgement at most `timeout_s` (a service closes this after its last events are
-        stored), then disconnect; what is left is sent by the next run, after the confirmed
-        marks."""
+        acknowledgement and, where a receiver has confirmed before, for its mark to reach the
+        cursor (sent again after the mark when it stays behind for CLOSE_RESEND_S) at most
+        `timeout_s` in all (a service closes this after its last events are stored), then
+        disconnect; what is left is sent by the next run, after the confirmed marks."""
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout_s)
@@ -469,9 +484,10 @@ class LogOutbox:
                 with self._lock:
                     waiting = len(self._unacked - self._acked)
                     cursors = [st.cursor for st in self.streams]
-                if not waiting and all(
+                sent = not waiting and all(
                     c >= st.last() for c, st in zip(cursors, self.streams, strict=True)
-                ):
+                )
+                if sent and self._confirmed_or_resent():
                     break
                 time.sleep(0.02)
         except StereoposeError as e:  # the log unreadable at the end: the next run sends it

@@ -215,9 +215,10 @@ def _serve(
         logger.warning(
             "restart: %d behaviour alarm(s) left open by the last run are ended", len(resume.alarms)
         )
-    service = SiteService(plan, stop, resume)
     # [opcua] checked before any work: a ConfigError naming the file and the key
-    service.opcua_settings = opcua_settings(plan.config_path, cfg, plan.out_dir)
+    service = SiteService(
+        plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
+    )
     closing = _Closing()
     with stop_signals():
         try:
@@ -321,8 +322,6 @@ def _run_loop(
         config_path=plan.config_path,
     )
     wall_start = cams.clock.start_epoch
-    if service.tickets is not None:
-        service.tickets.wall_start = wall_start  # the tickets' times shown as wall times too
     start_mono = cams.clock.start
 
     def arrival(t: float) -> float | None:
@@ -335,8 +334,6 @@ def _run_loop(
     ids = IncidentIds(plan.events_db)
     try:
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
-        if service.opcua is not None:  # its Acknowledge, and the restored incidents shown
-            service.opcua.attach(incidents)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -378,12 +375,5 @@ def _incidents(
         clock=clock,
         wall_start=wall_start,
     )
-    service.probes["alarms"] = step.figures
-    service.state.register_alarms(step.figures)  # in /metrics
-    if service.iec104 is not None:  # the restored incidents, and its commands' way in
-        service.iec104.incidents(book.incidents())
-        service.iec104.acknowledger = step.acknowledge
-    if service.outbox is not None:  # a control room's acknowledgements
-        service.outbox.acknowledger = step.acknowledge
-    service.desk.attach(step)  # the HTTP API's acts reach the book from now on
+    service.attach_incidents(step, book.incidents())  # the API, SCADA, control room: its acts
     return step

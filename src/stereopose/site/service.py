@@ -10,6 +10,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from stereopose.config import Config
 from stereopose.detection.regional import RegionDetector
@@ -46,6 +47,12 @@ from stereopose.site.storage import StorageMaintainer
 from stereopose.tickets import TicketDesk
 from stereopose.zones.power_state import PowerBoard, ZoneStates
 
+if TYPE_CHECKING:
+    from stereopose.alarms import IncidentRecord
+    from stereopose.pipeline.incidents import IncidentStep
+    from stereopose.scada.opcua_settings import OpcuaSettings
+    from stereopose.site.health.calib_keeper import CalibrationKeeper
+
 __all__ = ["SiteService"]
 
 logger = logging.getLogger(__name__)
@@ -54,8 +61,17 @@ logger = logging.getLogger(__name__)
 class SiteService:
     """The running parts of one `serve`, built from a plan; `run()` once."""
 
-    def __init__(self, plan: ServePlan, stop: threading.Event, resume: Resume) -> None:
+    def __init__(
+        self,
+        plan: ServePlan,
+        stop: threading.Event,
+        resume: Resume,
+        opcua: OpcuaSettings | None = None,
+    ) -> None:
+        """opcua: [opcua] checked (scada.opcua_settings; None: off)."""
         self.plan, self.stop, self.resume = plan, stop, resume
+        # the parts started, in order (name, its close): closed in reverse (`close`)
+        self.parts: list[tuple[str, Callable[[], None]]] = []
         self.state = ServiceState(
             plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
         )
@@ -71,7 +87,7 @@ class SiteService:
         self.probes: dict[str, Callable[[], dict]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
         self.packets = _packet_rings(plan)
-        self.opcua_settings = None  # [opcua] checked (scada.opcua_settings); None: off
+        self.opcua_settings = opcua
         self.opcua = None  # the OPC UA server, once started
         self.watchdog = Watchdog()  # the receivers' threads started again where one died
         self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
@@ -113,7 +129,9 @@ class SiteService:
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
         self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
         self.server.start()
+        self._started("the HTTP server", self.server.stop)
         hub.start()
+        self._started("the console", self.console.close)  # its live streams end first
         self.start_opcua()
         return self.server.url
 
@@ -123,6 +141,7 @@ class SiteService:
         self.state.register_storage(self.maintainer.usage)
         self.probes["storage"] = self.maintainer.health
         self.maintainer.start()
+        self._started("the storage maintainer", self._stop_maintainer)
 
     def start_opcua(self) -> None:
         """[opcua]: the OPC UA server (scada.opcua) listening, an incident output from now
@@ -143,6 +162,7 @@ class SiteService:
         )
         server.start()
         self.opcua = server  # an alarm output once the frame loop opens its sinks
+        self._started("the OPC UA server", server.close)  # once: a sink of the loop closes it
 
     def open_sinks(
         self,
@@ -155,6 +175,8 @@ class SiteService:
     ) -> list[Sink]:
         """Every sink, in closing order; if one cannot be opened, those open are closed."""
         p, sinks = self.plan, []
+        if self.tickets is not None:
+            self.tickets.wall_start = wall_start  # the tickets' times shown as wall times too
 
         def guard(sink: Sink, label: object) -> Sink:
             return Guarded(sink, str(label), self.failed)
@@ -245,8 +267,8 @@ class SiteService:
         )
         self.probes["outbox"] = self.outbox.figures
         self.state.register_output("outbox", self.outbox.health)
-        self.watchdog.add("outbox", self.outbox.ensure_running)
-        self.watchdog.start()
+        self._started("the outbox", self._close_outbox)
+        self._watch("outbox", self.outbox.ensure_running)
 
     def _plan(self, cfg: Config) -> dict:
         """The site's zones and console address, for a control room's page of the site."""
@@ -309,19 +331,34 @@ class SiteService:
         self.probes["clips"] = clips.figures
         return clips
 
-    def keep_calibration(self, keeper) -> None:
+    def keep_calibration(self, keeper: CalibrationKeeper) -> None:
         """The calibration keeper's figures in status.json; closed with the service."""
         self.keeper = keeper
         self.calibration_desk.keeper = keeper
         self.probes["calibration"] = keeper.figures
+        self._started("the calibration keeper", keeper.close)
+
+    def attach_incidents(self, step: IncidentStep, restored: list[IncidentRecord]) -> None:
+        """The frame loop's incident step, once it runs: its figures in status.json and
+        /metrics, the acts of the HTTP API, the IEC 104 outstation's commands (with the
+        incidents restored) and a control room's acknowledgements reach its book."""
+        self.probes["alarms"] = step.figures
+        self.state.register_alarms(step.figures)  # in /metrics
+        if self.iec104 is not None:
+            self.iec104.incidents(restored)
+            self.iec104.acknowledger = step.acknowledge
+        if self.outbox is not None:
+            self.outbox.acknowledger = step.acknowledge
+        if self.opcua is not None:  # its Acknowledge, and the restored incidents shown
+            self.opcua.attach(step)
+        self.desk.attach(step)
 
     def watch_nodes(self, nodes) -> None:
         """The nodes' camera-frames waiting for their step as a queue of the health state
         (late, over-full and refused ones as its drops); the nodes' figures in status."""
         self.state.register_queue("nodes", nodes.waiting, nodes.lost)
         self.probes["nodes"] = nodes.report
-        self.watchdog.add("nodes", nodes.ensure_running)
-        self.watchdog.start()
+        self._watch("nodes", nodes.ensure_running)
 
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
         """The detection hand-over as a queue of the health state; its figures in status."""
@@ -339,6 +376,26 @@ class SiteService:
         if self.console is not None and self.console.hub is not None:
             self.console.hub.show_regions(regions.view)
 
+    def start_power(self) -> None:
+        """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
+        each on its own thread; the console's zones and the status show their states."""
+        if self.power is None:
+            return
+        from stereopose.site.zone_sources import start_sources
+
+        p = self.plan
+        self.power_sources = start_sources(
+            p.site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
+        )
+        self._started("the zone state's sources", self.power_sources.stop)
+        sources, states = self.power_sources, self.power
+        self.probes["zone_state"] = lambda: {
+            "zones": states.snapshot(),
+            "sources": dict(sources.figures),
+        }
+        if self.console is not None and self.console.hub is not None:
+            self.console.hub.scene.power = states.snapshot
+
     # -- health -----------------------------------------------------------------------------
 
     def snapshot(self) -> dict:
@@ -355,45 +412,36 @@ class SiteService:
 
     # -- stopping ---------------------------------------------------------------------------
 
-    def start_power(self) -> None:
-        """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
-        each on its own thread; the console's zones and the status show their states."""
-        if self.power is None:
-            return
-        from stereopose.site.zone_sources import start_sources
-
-        p = self.plan
-        self.power_sources = start_sources(
-            p.site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
-        )
-        sources, states = self.power_sources, self.power
-        self.probes["zone_state"] = lambda: {
-            "zones": states.snapshot(),
-            "sources": dict(sources.figures),
-        }
-        if self.console is not None and self.console.hub is not None:
-            self.console.hub.scene.power = states.snapshot
-
     def close(self) -> None:
-        """The maintainer, the console and the server, each within its bound; status.json
-        written again once the outbox has sent the stop's last events."""
-        self.watchdog.stop()
-        if self.keeper is not None:
-            self.keeper.close()
-        if self.power_sources is not None:
-            self.power_sources.stop()
-        if self.opcua is not None:
-            self.opcua.close()  # once (a sink of the loop closes it first)
-        if self.outbox is not None:
-            self.outbox.close()  # sends what the log holds: status.json counts it
-            if self.status is not None:
-                self.status.write_now()
+        """Every part started, in reverse: the last started first, the HTTP server last;
+        status.json written again once the outbox has sent the stop's last events. A part
+        that fails to close is logged and the others still close."""
+        while self.parts:
+            name, close = self.parts.pop()
+            try:
+                close()
+            except Exception as e:  # one part never keeps the others open
+                logger.warning("closing %s: %s", name, e)
+
+    def _started(self, name: str, close: Callable[[], None]) -> None:
+        self.parts.append((name, close))
+
+    def _watch(self, name: str, ensure_running: Callable[[], None]) -> None:
+        """A receiver's thread watched (started again should it die); the watchdog started
+        with the first, stopped before the parts it watches."""
+        self.watchdog.add(name, ensure_running)
+        if not any(n == "the watchdog" for n, _ in self.parts):
+            self.watchdog.start()
+            self._started("the watchdog", self.watchdog.stop)
+
+    def _stop_maintainer(self) -> None:
         if self.maintainer is not None and not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
-        if self.console is not None:
-            self.console.close()  # its live streams end before the server stops
-        if self.server is not None:
-            self.server.stop()
+
+    def _close_outbox(self) -> None:
+        self.outbox.close()  # sends what the log holds: status.json counts it
+        if self.status is not None:
+            self.status.write_now()
 
 
 def _live_changes(hub: LiveHub, changes) -> None:
