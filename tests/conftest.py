@@ -1,7 +1,9 @@
-"""Shared fixtures: the real-data folders beside the repository."""
+"""Shared fixtures: the real-data folders beside the repository; every test leaves the
+process's signal handlers as it found them."""
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import pytest
@@ -41,3 +43,22 @@ def scene():
     from stereopose.sim import simulate
 
     return simulate(num_cameras=3, num_people=2, num_frames=30, seed=2, difficulty="easy")
+
+
+# what a test (or the service it runs in-process) may set and must put back: a handler left
+# behind changes what every later test's Ctrl-C or SIGTERM does
+WATCHED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2)
+
+
+@pytest.fixture(autouse=True)
+def signals_left_as_found(request):
+    """Fail the test that leaves a signal handler changed (and put the handler back, so that
+    the tests after it run as they would alone)."""
+    before = {s: signal.getsignal(s) for s in WATCHED_SIGNALS}
+    yield
+    changed = [s for s, h in before.items() if signal.getsignal(s) is not h]
+    for s in changed:
+        signal.signal(s, before[s])
+    if changed:
+        names = ", ".join(signal.Signals(s).name for s in changed)
+        pytest.fail(f"{request.node.nodeid} left the handler of {names} changed")
