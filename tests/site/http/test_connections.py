@@ -388,3 +388,42 @@ def test_streams_and_keep_alive_clients_outlive_the_timeouts(release):
             assert (r.status, json.loads(r.read())) == (200, {"i": i})
         assert client.sock is sock
         client.close()
+
+
+def _ask(port: int, source: str, path: str) -> int | str:
+    """One request with http.client from `source`: its status, or the error's name."""
+    c = http.client.HTTPConnection("127.0.0.1", port, timeout=20, source_address=(source, 0))
+    try:
+        c.request("GET", path)
+        return c.getresponse().status
+    except OSError as e:
+        return type(e).__name__
+    finally:
+        c.close()
+
+
+def _burst(port: int, source: str, n: int, path: str) -> list[str]:
+    answers: list[int | str] = []
+    threads = [
+        threading.Thread(target=lambda: answers.append(_ask(port, source, path))) for _ in range(n)
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    return sorted(map(str, answers))
+
+
+def test_connections_past_the_cap_get_an_answer_never_a_reset(peers, release):
+    """Forty requests at once from one address over its cap: each gets an HTTP answer (200,
+    or 503 with Retry-After), never a TCP reset; with every place busy too."""
+    limits = ConnectionLimits(max_per_address=4, idle_s=60, request_s=60)
+    with Server(holding_app(release), ServeSettings(port=0), limits=limits) as server:
+        port = server.port
+        assert port is not None
+        answers = _burst(port, "127.0.0.5", 40, "/metrics")
+        assert set(answers) <= {"200", "503"} and len(answers) == 40, answers
+        assert "200" in answers
+        peers += [holding(port, "127.0.0.4") for _ in range(4)]
+        assert _burst(port, "127.0.0.4", 40, "/metrics") == ["503"] * 40
+        release.set()

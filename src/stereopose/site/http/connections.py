@@ -15,8 +15,10 @@ gives the protocol class (`uvicorn.Config(http=...)`) that closes these, per ser
   anything parses it;
 - at most `max_per_address` connections from one client address (an IPv6 one: its /64)
   and `max_connections` in all: a new one beyond either takes the place of the
-  longest-waiting connection with no answer in progress (of that address, or of any), and
-  is refused (503, closed) only when every place is busy answering; an answer being
+  longest-waiting connection with no answer in progress (of that address, or of any: it is
+  answered 503), and is refused (503) only when every place is busy answering; a connection
+  turned away is answered, half-closed and read (what comes dropped) for LINGER_S before it
+  closes, so its client reads the answer and never meets a TCP reset; an answer being
   streamed (live channel, clip player) is never closed for it, nor a connection that has
   carried a logged-in request (it has a place of its own, outside its address's cap:
   operators behind one NAT share an address); a trusted reverse proxy's address
@@ -193,6 +195,10 @@ class ConnectionTable:
 
 
 RETRY_AFTER_S = 1  # a refused connection or request may come back this soon
+# a connection turned away stays open this long after its answer, reading (and dropping) what
+# its client still sends: closed at once, the request arriving after the close would make the
+# kernel reset it, and the client would lose the answer
+LINGER_S = 2.0
 
 
 def _raw_answer(status: int, text: str) -> bytes:
@@ -283,11 +289,14 @@ class GuardedH11Protocol(H11Protocol):
         self._timer: asyncio.TimerHandle | None = None
         self._reading = False  # a request's first byte came, the request is not whole yet
         self._deadline = 0.0  # loop time by which the request being read must be whole
+        self._lingering = False  # answered and turned away: what comes is dropped until closed
 
     def waiting(self) -> bool:
         """No answer in progress: idle, or reading a request."""
-        return not self.transport.is_closing() and (
-            self.cycle is None or self.cycle.response_complete
+        return (
+            not self.transport.is_closing()
+            and not self._lingering
+            and (self.cycle is None or self.cycle.response_complete)
         )
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -331,7 +340,7 @@ class GuardedH11Protocol(H11Protocol):
         if oldest is None:
             return False
         self.table.note("evicted", f"{why}: the longest waiting closed for a new one")
-        oldest._close()
+        oldest._turn_away(503, "too many connections from this client; try again in a moment")
         self.table.remove(oldest)  # its place is free now, before its connection_lost
         return True
 
@@ -341,7 +350,7 @@ class GuardedH11Protocol(H11Protocol):
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        if self.transport.is_closing():
+        if self.transport.is_closing() or self._lingering:
             return
         if self.conn.their_state is h11.IDLE:  # a request's line and headers
             if not self._reading:
@@ -445,8 +454,21 @@ class GuardedH11Protocol(H11Protocol):
     def _refuse(self, status: int, text: str, kind: str, what: str) -> None:
         """Answer `status` (connection: close) and close; counted as `kind`."""
         self.table.note(kind, what)
-        self.transport.write(_raw_answer(status, text))
-        self._close()
+        self._turn_away(status, text)
+
+    def _turn_away(self, status: int, text: str) -> None:
+        """Answer `status` (connection: close, a 503 with Retry-After), end the sending side
+        and close after LINGER_S or when the client closes, dropping what it still sends: the
+        client reads the answer, never a reset."""
+        self._cancel()
+        self._reading, self._lingering = False, True
+        if self.cycle is not None and not self.cycle.response_complete:
+            self.cycle.keep_alive = False
+        transport = self.transport
+        transport.write(_raw_answer(status, text))
+        if transport.can_write_eof():  # (TLS cannot half-close: its client closes, told to)
+            transport.write_eof()
+        self._timer = self.loop.call_later(LINGER_S, transport.close)
 
     def _close(self) -> None:
         self._cancel()
