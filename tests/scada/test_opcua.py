@@ -295,6 +295,7 @@ def test_a_login_browses_the_site_and_sees_its_values_change(tmp_path, pair):
                 "UnacknowledgedIncidents",
                 "Cameras",
                 "Incidents",
+                "Tickets",
             }
             zones = await root.get_child([f"{idx}:Zones"])
             assert {(await n.read_browse_name()).Name for n in await zones.get_children()} == {
@@ -355,6 +356,61 @@ def test_a_login_browses_the_site_and_sees_its_values_change(tmp_path, pair):
             await until(lambda: _equals(power, "dead"), "the busbar dead")
             dv = await power.read_data_value(raise_on_bad_status=False)
             assert dv.StatusCode.is_good()
+        finally:
+            await client.disconnect()
+
+    with running(tmp_path) as site:
+        asyncio.run(body(site))
+
+
+def ticket_event(t: float, type_: str, ticket: str = "OT-7", step: str | None = None) -> Event:
+    return Event(
+        t=t,
+        frame=int(t * 10),
+        person=-1 if type_.startswith("ticket_") else 7,
+        zone="",
+        kind="ticket",
+        type=type_,
+        onset_t=t,
+        ticket=ticket,
+        step=step,
+    )
+
+
+def test_tickets_are_slots_beside_the_incidents(tmp_path, pair):
+    """Each active ticket in the lowest free slot (as IEC 104's), its steps done, its deviation
+    while an incident of it is not closed, the slot free again when it ends."""
+
+    async def body(site: Site) -> None:
+        client = await connect(site.url, pair, "vera")
+        try:
+            idx, root = await site_node(client)
+            tickets = await root.get_child([f"{idx}:Tickets"])
+            slots = {(await n.read_browse_name()).Name for n in await tickets.get_children()}
+            assert slots == {f"Slot{k}" for k in range(1, 9)}
+
+            def node(k: int, name: str):
+                return client.get_node(ua.NodeId(f"ticket/{k}/{name}", idx))
+
+            assert await _equals(node(1, "Ticket"), "") and await _equals(node(1, "Active"), False)
+            await in_thread(site.run, [ticket_event(1.0, "ticket_started", "OT-7")])
+            await in_thread(site.run, [ticket_event(1.1, "ticket_started", "OT-8")])
+            await until(lambda: _equals(node(2, "Ticket"), "OT-8"), "OT-8 in slot 2")
+            assert await _equals(node(1, "Ticket"), "OT-7") and await _equals(
+                node(1, "Active"), True
+            )
+            await in_thread(site.run, [ticket_event(2.0, "step_done", "OT-7", "open QS1")])
+            await until(lambda: _equals(node(1, "StepsDone"), 1), "OT-7's step done")
+            wrong = ticket_event(3.0, "step_out_of_order", "OT-7", "test dead")
+            out = await in_thread(site.run, [wrong])
+            assert out[0].incident is not None  # a deviation: an incident of the ticket
+            await until(lambda: _equals(node(1, "Deviation"), True), "OT-7 deviating")
+            assert await _equals(node(2, "Deviation"), False)
+            await in_thread(site.run, [ticket_event(4.0, "ticket_completed", "OT-7")])
+            await until(lambda: _equals(node(1, "Ticket"), ""), "slot 1 free again")
+            assert await _equals(node(1, "Active"), False)
+            assert await _equals(node(1, "StepsDone"), 0)
+            assert await _equals(node(2, "Active"), True)
         finally:
             await client.disconnect()
 

@@ -9,7 +9,8 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from stereopose.scada.points import TICKET_SLOTS, Point, PointsTable
+from stereopose.scada.points import Point, PointsTable
+from stereopose.scada.ticket_slots import TicketSlots, deviating
 
 __all__ = ["UNACKED", "PointState"]
 
@@ -27,10 +28,8 @@ class PointState:
     degraded: bool = False
     people: int = 0
     records: dict[int, Any] = field(default_factory=dict)  # open incidents by id
-    # the ticket in each slot (1 .. TICKET_SLOTS; None: free) and each one's steps done
-    slots: list[str | None] = field(default_factory=lambda: [None] * TICKET_SLOTS)
+    tickets: TicketSlots = field(default_factory=TicketSlots)  # the active tickets' slots
     power: dict[str, str] = field(default_factory=dict)  # zone -> live, dead, unknown
-    steps_done: dict[str, int] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def event(self, e: Any) -> None:
@@ -41,7 +40,7 @@ class PointState:
             elif e.type == "camera_up":
                 self.camera_up[e.camera] = True
         elif e.kind == "ticket":
-            self._ticket(e)
+            self.tickets.event(e)
         elif e.type in ("zone_live", "zone_dead", "zone_unknown"):
             self.power[e.zone] = e.type[5:]
         elif e.kind == "service":
@@ -54,18 +53,6 @@ class PointState:
                 self.inside[e.zone].add(int(e.person))
             elif e.type == "exit":
                 self.inside[e.zone].discard(int(e.person))
-
-    def _ticket(self, e: Any) -> None:
-        """A ticket's event: started, it takes the lowest free slot; ended, frees it."""
-        tid = e.ticket
-        if e.type == "ticket_started" and tid not in self.slots and None in self.slots:
-            self.slots[self.slots.index(None)] = tid
-            self.steps_done[tid] = 0
-        elif e.type == "step_done" and tid in self.steps_done:
-            self.steps_done[tid] += 1
-        elif e.type == "ticket_completed" and tid in self.slots:
-            self.slots[self.slots.index(tid)] = None
-            self.steps_done.pop(tid, None)
 
     def record(self, r: Any) -> None:
         """An incident's record (alarms.IncidentRecord) kept while open, forgotten closed."""
@@ -85,9 +72,7 @@ class PointState:
         zone_alarm = {r.zone for r in records if r.active and r.zone is not None}
         rule_alarm = {r.rule for r in records if r.active and r.rule is not None}
         unacked = sum(r.state in UNACKED for r in records)
-        # a ticket's deviation stays on until its incident is over and acknowledged (closed):
-        # a step's incident clears as soon as the step is done, often in the same step
-        deviating = {r.key[1] for r in records if r.key and r.key[0] == "ticket"}
+        slots = self.tickets.rows(deviating(records))  # (the closed ones are not held)
         now = {
             "service_running": self.running and not self.stalled,
             "service_degraded": self.degraded,
@@ -105,11 +90,12 @@ class PointState:
             elif p.kind == "zone_live":
                 value = self.power.get(p.name, "unknown") != "dead"
             elif p.kind.startswith("ticket_"):
-                tid = self.slots[int(p.name) - 1]
-                if p.kind == "ticket_steps":
-                    value = self.steps_done.get(tid, 0) if tid is not None else 0
-                else:
-                    value = tid is not None and (p.kind == "ticket_active" or tid in deviating)
+                row = slots[int(p.name) - 1]
+                value = {
+                    "ticket_steps": row.steps_done,
+                    "ticket_active": row.active,
+                    "ticket_deviation": row.deviation,
+                }[p.kind]
             else:  # zone_alarm, rule_alarm
                 value = p.name in (zone_alarm if p.kind == "zone_alarm" else rule_alarm)
             out[p.ioa] = (value, self.invalid(p))

@@ -62,6 +62,7 @@ from stereopose.scada.opcua_security import (
 )
 from stereopose.scada.opcua_settings import OpcuaSettings, application_certificate
 from stereopose.scada.opcua_space import CameraNode, SiteSpace, ZoneNode
+from stereopose.scada.ticket_slots import TicketSlots
 
 __all__ = ["CameraNode", "OpcuaServer", "ZoneNode"]
 
@@ -112,6 +113,8 @@ class OpcuaServer(ClosesOnce):
         self._stall: bool | None = None
         self._people: int | None = None
         self._people_sent: int | None = None
+        self._tickets = TicketSlots()  # the active tickets' slots, as IEC 104 has them
+        self._tickets_dirty = True  # (written once at the start: every slot free)
         self._resync = False
         self._pending = False
         self.dropped = 0  # incident changes dropped (the queue full)
@@ -250,7 +253,9 @@ class OpcuaServer(ClosesOnce):
             self._people = people
             for e in frame.events:
                 wall = None if wall0 is None else wall0 + e.t
-                if e.type in ("enter", "exit") and e.zone in self._occupants:
+                if e.kind == "ticket":
+                    self._tickets_dirty |= self._tickets.event(e)
+                elif e.type in ("enter", "exit") and e.zone in self._occupants:
                     inside = self._occupants[e.zone]
                     (inside.add if e.type == "enter" else inside.discard)(e.person)
                     self._dirty_zones[e.zone] = wall
@@ -317,6 +322,8 @@ class OpcuaServer(ClosesOnce):
             self._dirty_cameras.clear()
             people, resync, desk = self._people, self._resync, self.desk
             self._resync = False
+            tickets = TicketSlots(list(self._tickets.slots), dict(self._tickets.steps_done))
+            tickets_dirty, self._tickets_dirty = self._tickets_dirty, False
         if stall is not None:
             await space.set_stalled(stall)
         for name, (up, wall) in cameras.items():
@@ -337,6 +344,8 @@ class OpcuaServer(ClosesOnce):
         await space.apply(records)
         if resync and desk is not None:
             await self._resync_from(desk)
+        if tickets_dirty or changes or resync:  # a slot, or a ticket's incident, changed
+            await space.set_tickets(tickets)
 
     async def _resync_from(self, desk) -> None:
         """The book's incidents as the conditions (after drops, or when attached)."""

@@ -15,6 +15,9 @@ restarts (a SCADA configuration refers to them), `<site>` standing for [opcua] s
         Cameras/<camera>                 s=camera/<camera>
             Up Boolean                   s=camera/<camera>/Up
         Incidents/Incident <id>          s=incident/<id>   one per open incident: its condition
+        Tickets/Slot<n>                  s=ticket/<n>      n = 1 .. 8, as IEC 104's ticket slots
+            Ticket String (its id, "" free), Active Boolean, Deviation Boolean (an incident of
+            it not closed), StepsDone UInt32                    s=ticket/<n>/<name>
 
 A zone's values are Uncertain_LastUsableValue while a camera that sees it is down or the
 service is stalled, and always for a zone no camera sees (scada.points.cameras_seeing).
@@ -43,6 +46,8 @@ from asyncua.common import event_objects
 
 from stereopose.alarms.incident import ACKNOWLEDGED, ACTIVE, CLEARED, CLOSED, IncidentRecord
 from stereopose.alarms.priority import PRIORITY_NAMES
+from stereopose.scada.ticket_slots import SlotRow, TicketSlots, deviating
+from stereopose.tickets.ticket import TICKET_SLOTS
 
 __all__ = [
     "SEVERITY",
@@ -60,6 +65,12 @@ SEVERITY = {1: 900, 2: 700, 3: 500, 4: 200}
 EVENT_IDS_KEPT = 16  # a condition's latest events an Acknowledge may name
 _VERBS = {"enter": "entered", "approach": "approaching", "dwell": "dwelling in"}
 _SAFETY, _SYSTEM = ua.ObjectIds.SafetyConditionClassType, ua.ObjectIds.SystemConditionClassType
+_SLOT_VARIABLES = (
+    ("Ticket", "", ua.VariantType.String),
+    ("Active", False, ua.VariantType.Boolean),
+    ("Deviation", False, ua.VariantType.Boolean),
+    ("StepsDone", 0, ua.VariantType.UInt32),
+)
 
 
 @dataclass(frozen=True)
@@ -144,6 +155,7 @@ class SiteSpace:
         # per zone, the wall times of its occupancy's and its alarm's last change
         self._zone_t: dict[str, float | None] = {}
         self._alarm_t: dict[str, float | None] = {}
+        self._slots: dict[int, SlotRow] = {}  # each ticket slot as last written
 
     def nid(self, path: str) -> ua.NodeId:
         return ua.NodeId(path, self.idx)
@@ -203,9 +215,35 @@ class SiteSpace:
                 ua.VariantType.Boolean,
             )
         await site.add_folder(self.nid("site/Incidents"), ua.QualifiedName("Incidents", self.idx))
+        await self._build_tickets(site)
         for z in self.zones.values():  # a zone no camera sees is uncertain from the start
             await self._write_zone(z.name)
             await self.set_power(z.name, "unknown", None)  # uncertain until its state is known
+
+    async def _build_tickets(self, site) -> None:
+        """Tickets/Slot<n> (n = 1 .. TICKET_SLOTS, as IEC 104's ticket points): Ticket (its
+        id, "" when free), Active, Deviation (an incident of it not closed), StepsDone."""
+        folder = await site.add_folder(self.nid("site/Tickets"), self.qn("Tickets"))
+        for k in range(1, TICKET_SLOTS + 1):
+            obj = await folder.add_object(self.nid(f"ticket/{k}"), self.qn(f"Slot{k}"))
+            for name, value, vt in _SLOT_VARIABLES:
+                await obj.add_variable(self.nid(f"ticket/{k}/{name}"), self.qn(name), value, vt)
+
+    async def set_tickets(self, tickets: TicketSlots) -> None:
+        """Each slot's ticket, whether it deviates (from the conditions held), its steps done:
+        the slots that changed written."""
+        open_records = [c.record for c in self.conditions.values()]
+        for row in tickets.rows(deviating(open_records)):
+            if self._slots.get(row.slot) == row:
+                continue
+            self._slots[row.slot] = row
+            for name, value, vt in (
+                ("Ticket", row.ticket or "", ua.VariantType.String),
+                ("Active", row.active, ua.VariantType.Boolean),
+                ("Deviation", row.deviation, ua.VariantType.Boolean),
+                ("StepsDone", row.steps_done, ua.VariantType.UInt32),
+            ):
+                await self.write(f"ticket/{row.slot}/{name}", value, vt)
 
     # -- values ---------------------------------------------------------------------------
 
