@@ -56,6 +56,12 @@ def _add_reconstruct(r: argparse.ArgumentParser, e: argparse.ArgumentParser) -> 
         help="a work or operation ticket, active from the first frame to the last (needs --site)",
     )
     r.add_argument(
+        "--zone-states",
+        type=Path,
+        metavar="FILE.csv",
+        help="a switching log (time,zone,state) the energized zones are judged with (needs --site)",
+    )
+    r.add_argument(
         "--overwrite",
         action="store_true",
         help="replace the person files a previous run left in the --trc folder",
@@ -91,6 +97,12 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
         type=Path,
         metavar="TICKET.toml",
         help="a work or operation ticket, active from the first frame to the last",
+    )
+    parsers["run"].add_argument(
+        "--zone-states",
+        type=Path,
+        metavar="FILE.csv",
+        help="a switching log (time,zone,state) the energized zones are judged with",
     )
     _add_serve(parsers["serve"])
     _add_points(parsers["points"])

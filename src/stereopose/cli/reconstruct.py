@@ -37,13 +37,17 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from stereopose.io.sinks import describe
     from stereopose.pipeline import Outputs, reconstruct_files
     from stereopose.tickets import load_ticket
+    from stereopose.zones.state_log import StateLogFile
 
     site = load_site(args.site) if args.site else None
     ticket = load_ticket(args.ticket) if args.ticket else None
-    if site is None and (args.events or args.events_db or args.webhook or ticket):
+    if site is None and (
+        args.events or args.events_db or args.webhook or ticket or args.zone_states
+    ):
         raise StereoposeError(
-            "--events, --events-db, --webhook and --ticket need a site file (--site)"
+            "--events, --events-db, --webhook, --ticket and --zone-states need a site file (--site)"
         )
+    states = StateLogFile.read(args.zone_states, site.zones) if args.zone_states else None
     if site is not None and site.fps and args.fps is None:
         cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
@@ -77,6 +81,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
                 config_path=args.config,
                 overwrite=args.overwrite,
                 ticket=ticket,
+                zone_states=states,
             )
         except IncompleteOutputError as e:  # the work is done: its table first, then exit 3
             incomplete, summary = e, e.summary

@@ -164,7 +164,11 @@ def _export_int8(models, args: argparse.Namespace) -> Path:
 
 
 def _run_config(
-    config_path: Path, title: str, overwrite: bool = False, ticket_path: Path | None = None
+    config_path: Path,
+    title: str,
+    overwrite: bool = False,
+    ticket_path: Path | None = None,
+    zone_states: Path | None = None,
 ) -> int:
     if not Path(config_path).exists():  # at once, before the pipeline is imported
         raise ConfigError(f"{config_path}: configuration file not found")
@@ -192,6 +196,7 @@ def _run_config(
                 on_events=show,
                 overwrite=overwrite,
                 ticket=ticket,
+                zone_states=zone_states,
             )
         except IncompleteOutputError as e:  # the run is done: its table first, then exit 3
             incomplete, summary = e, e.summary
@@ -252,7 +257,9 @@ def _run_config(
 
 
 def _run(args: argparse.Namespace) -> int:
-    return _run_config(args.config, f"run {args.config}", args.overwrite, args.ticket)
+    return _run_config(
+        args.config, f"run {args.config}", args.overwrite, args.ticket, args.zone_states
+    )
 
 
 def _init(args: argparse.Namespace) -> int:

@@ -39,6 +39,7 @@ from stereopose.pipeline.outputs import Outputs, open_outputs
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.tickets.ticket import Ticket
 from stereopose.types import Event, People2D, People3D, Rig
+from stereopose.zones.state_log import StateLogFile
 
 logger = logging.getLogger(__name__)
 
@@ -261,6 +262,7 @@ def run_frames(
     stop: threading.Event | None = None,
     on_step: Callable[[int, int | None, float], None] | None = None,
     ticket: Ticket | None = None,
+    zone_states: StateLogFile | None = None,
     **summary_fields: object,
 ) -> RunSummary:
     """A whole run: the 3D stage (its compiled loops loaded first), the fences of `site` and
@@ -295,7 +297,7 @@ def run_frames(
     )
     behaviour = behaviour_monitor(site, config)
     if fences is not None:  # the service's incidents: the same book, ids and priorities
-        incidents = run_incidents(site, fences, behaviour, sinks, ticket)
+        incidents = run_incidents(site, fences, behaviour, sinks, ticket, zone_states)
         loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step, stop=stop)
     else:
         loop = FrameLoop(source, stage, sinks, summary, on_step=on_step, stop=stop)
@@ -311,11 +313,13 @@ def run_incidents(
     behaviour: BehaviourMonitor | None,
     sinks: Sequence[Sink],
     ticket: Ticket | None = None,
+    zone_states: StateLogFile | None = None,
 ):
     """The incident book of `serve` over a run's events (pipeline.incidents): each
     alarm-level event stamped with its incident's id and priority as the service would (ids
     from 1, the run's own), the incidents' records stored in the run's event log. ticket:
-    active from the first step to the last (its ticket_completed at the last)."""
+    active from the first step to the last (its ticket_completed at the last); zone_states:
+    the recorded job's switching log (zones.state_log; None: every zone live)."""
     from stereopose.alarms import IncidentBook
     from stereopose.alarms.priority import AlarmSettings
     from stereopose.io.sinks import SqliteSink
@@ -332,7 +336,12 @@ def run_incidents(
     # a run takes no operator's act and is not asked for its alarm figures: no clock to read
     return IncidentStep(
         IncidentBook(AlarmSettings.from_site(site)),
-        step_chain(fences, behaviour=behaviour, tickets=desk),
+        step_chain(
+            fences,
+            behaviour=behaviour,
+            tickets=desk,
+            zone_log=zone_states.rule(site.zones, fences) if zone_states is not None else None,
+        ),
         holding=fences,
         outputs=[db.write_changes] if db is not None else [],
         clock=lambda: 0.0,

@@ -35,6 +35,7 @@ from stereopose.pipeline.sources import KeypointFiles
 from stereopose.sim import Metrics, Scene, evaluate
 from stereopose.tickets.ticket import TICKET_JSON, Ticket, check_ticket_site
 from stereopose.types import Event, Rig
+from stereopose.zones.state_log import StateLogFile
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +54,7 @@ def reconstruct_files(
     config_path: str | Path | None = None,
     overwrite: bool = False,
     ticket: Ticket | None = None,
+    zone_states: StateLogFile | None = None,
     **files: object,
 ) -> RunSummary:
     """Calibration + 2D keypoint folders -> 3D poses JSONL (and TRC, CSV, trajectories).
@@ -61,7 +63,8 @@ def reconstruct_files(
     pipeline.outputs.Outputs), or, as before, `files` by keyword: trc_dir, csv_path,
     tracks_path, events_path, events_db, webhook, two_way. With tracking on
     (config.tracking.enabled) ids persist over time and joints are smoothed online. With a
-    site, each frame's zone events go to the event outputs and on_events. on_frame(done,
+    site, each frame's zone events go to the event outputs and on_events; zone_states: the
+    recording's switching log (zones.state_log; None: every energized zone live). on_frame(done,
     total) after each frame (progress display); `stop` ends the run after the current frame.
     Every output is closed properly when the run stops early (an error, Ctrl-C): what was
     written stays readable.
@@ -113,6 +116,7 @@ def reconstruct_files(
         stop=stop,
         on_step=on_step,
         ticket=ticket,
+        zone_states=zone_states,
     )
     if summary.frames_read == 0:
         first = summary.skipped_files[0] if summary.skipped_files else ("", "")

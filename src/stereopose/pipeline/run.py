@@ -50,6 +50,7 @@ from stereopose.pipeline.sources import Cameras, check_size
 from stereopose.secrets import masked_toml
 from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
+from stereopose.zones.state_log import StateLogFile
 
 __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
 
@@ -177,8 +178,12 @@ def run(
     stop: threading.Event | None = None,
     overwrite: bool = False,
     ticket: Ticket | None = None,
+    zone_states: str | Path | None = None,
 ) -> RunSummary:
     """Run the configuration at ``config_path`` end to end; returns what it did.
+
+    zone_states: a switching log (zones.state_log) the recording's energized zones are judged
+    with (None: every zone live); it needs the configuration's site.
 
     on_step(done, total, fps) after each time step; on_events(events) for each step's zone
     events; ``stop`` (or SIGINT) ends the run after the current step. No output may be an
@@ -202,6 +207,11 @@ def run(
     outputs = Outputs.run_folder(out_dir, cfg.outputs, site)
     check_outputs(cfg, site, outputs)
     check_ticket_site(ticket, site)
+    states = None
+    if zone_states is not None:
+        if site is None:
+            raise ConfigError(f"{config_path}: --zone-states needs a site (`site` in the file)")
+        states = StateLogFile.read(zone_states, site.zones)
     inputs = _inputs(config_path, calib_path, site_path, sources, model)
     inputs += [
         Place(f"cameras[{i}].detect", Path(d))
@@ -250,4 +260,5 @@ def run(
             out_dir=out_dir,
             config_path=config_path,
             ticket=ticket,
+            zone_states=states,
         )

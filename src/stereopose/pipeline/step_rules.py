@@ -21,6 +21,7 @@ from stereopose.tickets import TicketDesk
 from stereopose.types import Event, People3D
 from stereopose.zones.power_state import ZoneStates
 from stereopose.zones.safe import Safe, made_safe
+from stereopose.zones.state_log import ZoneStateLog
 
 __all__ = [
     "BehaviourRule",
@@ -160,14 +161,16 @@ def step_chain(
     zone_state: ZoneStates | None = None,
     monitor: FenceMonitor | None = None,
     tickets: TicketDesk | None = None,
+    zone_log: ZoneStateLog | None = None,
 ) -> StepChain:
     """The chain `run` and `serve` build: the fences' events, the behaviour rules, the zones'
-    states (with the fence `monitor` that says who is inside), the tickets; each left out when
-    None."""
+    states (read live, with the fence `monitor` that says who is inside; or a recorded job's
+    switching log, zones.state_log), the tickets; each left out when None."""
     parts: list[tuple[object | None, Callable[[], StepRule]]] = [
         (events, lambda: FenceRule(events)),
         (behaviour, lambda: BehaviourRule(behaviour)),
         (zone_state, lambda: ZoneStateRule(zone_state, monitor)),
+        (zone_log, lambda: zone_log),
         (tickets, lambda: TicketRule(tickets)),
     ]
     return StepChain([make() for given, make in parts if given is not None])

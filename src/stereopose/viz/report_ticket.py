@@ -45,6 +45,7 @@ def view_from_events(ticket: Mapping[str, Any], events: Iterable[Mapping[str, An
     """A ticket's view (as TicketDesk.ticket gives it) from its events (event records, as in
     events.jsonl): the steps done, the deviations and the result."""
     tid = ticket["id"]
+    events = list(events)
     mine = [e for e in events if e.get("ticket") == tid]
     steps = {
         s["name"]: {
@@ -98,6 +99,11 @@ def view_from_events(ticket: Mapping[str, Any], events: Iterable[Mapping[str, An
         if kind in _DEVIATIONS:
             view["deviation_list"].append({"type": kind, "t": e.get("t"), "step": e.get("step")})
     view["steps"] = list(steps.values())
+    view["zone_states"] = [  # the energized zones' states the job was judged with
+        {"t": e.get("t"), "zone": e.get("zone"), "state": e["type"][5:], "source": e.get("source")}
+        for e in events
+        if e.get("type") in ("zone_live", "zone_dead", "zone_unknown")
+    ]
     return view
 
 
@@ -200,6 +206,17 @@ def _figure(frames: Sequence[Mapping[str, Any]], zones, marked: set[str]) -> go.
     return fig
 
 
+def _states_used(changes: Sequence[Mapping[str, Any]]) -> str:
+    """Which energized zones' states the job was judged with, in one line."""
+    if not changes:
+        return "none known: every energized zone taken as live"
+    return "; ".join(
+        f"{c.get('zone')} {c.get('state')} at {float(c.get('t') or 0.0):.1f} s"
+        + (f" ({c['source']})" if c.get("source") else "")
+        for c in changes
+    )
+
+
 def ticket_report(
     view: Mapping[str, Any],
     zones: Sequence[Any],
@@ -227,6 +244,7 @@ def ticket_report(
             f"id {view['supervisor']}" if view.get("supervisor") is not None else "unbound",
         ),
         ("isolated", ", ".join(view.get("isolated") or []) or "none"),
+        ("zone states", _states_used(view.get("zone_states") or [])),
     ]
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",

@@ -34,7 +34,16 @@ from stereopose.types import Event
 from stereopose.zones.safe import Safe, made_safe
 from stereopose.zones.zone import Zone
 
-__all__ = ["DEAD", "LIVE", "UNKNOWN", "PowerBoard", "Reading", "ZoneStates"]
+__all__ = [
+    "DEAD",
+    "LIVE",
+    "UNKNOWN",
+    "PowerBoard",
+    "Reading",
+    "ZoneStates",
+    "entries",
+    "state_event",
+]
 
 LIVE, DEAD, UNKNOWN = "live", "dead", "unknown"
 START_S = 10.0
@@ -150,9 +159,9 @@ class ZoneStates:
                     continue  # still unknown, for another reason: said once
                 s.said = True
                 text = f"{source}: {reason}" if reason else source
-                out.append(_event(t, frame, z, f"zone_{state}", text))
+                out.append(state_event(t, frame, z, f"zone_{state}", text))
                 if was == DEAD and state != DEAD and fences is not None:
-                    out += _entries(t, frame, z, fences, text)
+                    out += entries(t, frame, z, fences, text)
             self._dead = {n: s.source for n, s in self._states.items() if s.state == DEAD}
         return out
 
@@ -178,7 +187,7 @@ class ZoneStates:
             }
 
 
-def _event(t: float, frame: int, zone: Zone, type_: str, source: str) -> Event:
+def state_event(t: float, frame: int, zone: Zone, type_: str, source: str) -> Event:
     return Event(
         t=t,
         frame=frame,
@@ -191,7 +200,7 @@ def _event(t: float, frame: int, zone: Zone, type_: str, source: str) -> Event:
     )
 
 
-def _entries(t: float, frame: int, zone: Zone, fences: Any, source: str) -> list[Event]:
+def entries(t: float, frame: int, zone: Zone, fences: Any, source: str) -> list[Event]:
     """An enter for each person inside the zone now turned live, an approach for each one
     within its margin: alarms at once."""
     inside, near = fences.occupants(zone.name)
