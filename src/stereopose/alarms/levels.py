@@ -65,6 +65,7 @@ DIAGNOSTIC_ENDS = {
     "camera_down": "camera_up",
     "calibration_drift": "calibration_recovered",
     "service_stalled": "service_resumed",
+    "site_invalid": "site_valid",  # the site file (SIGHUP) does not load; loads again
 }
 # a ticket's deviations (stereopose.tickets.monitor); the supervisor's and the lone worker's end
 TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
@@ -74,7 +75,9 @@ TICKET_ALARMS = TICKET_STEP_ALARMS | frozenset(TICKET_ENDS)
 # zone counts as live) until it is known again, live or dead
 POWER_TYPES = frozenset({"zone_unknown", "zone_live", "zone_dead"})
 _ALARM_TYPES = (
-    frozenset({"camera_down", "service_stalled", "zone_unknown"}) | BEHAVIOUR_ALARMS | TICKET_ALARMS
+    frozenset({"camera_down", "service_stalled", "zone_unknown", "site_invalid"})
+    | BEHAVIOUR_ALARMS
+    | TICKET_ALARMS
 )
 _WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
 _ENDS = frozenset(BEHAVIOUR_ENDS.values()) | frozenset(DIAGNOSTIC_ENDS.values())
@@ -109,6 +112,8 @@ def hazard_key(event: Event) -> HazardKey | None:
         return ("calibration", event.camera or "")
     if t in ("service_stalled", "service_resumed"):
         return ("service",)
+    if t in ("site_invalid", "site_valid"):
+        return ("site",)
     if t in POWER_TYPES:
         return ("power", event.zone)
     if t in ("enter", "approach", "dwell", "exit") and event.zone:

@@ -110,6 +110,29 @@ class FenceMonitor:
         self.last_seen = np.zeros(0)
         self.last_pos = np.zeros((0, 2))
 
+    def carry(self, old: FenceMonitor) -> None:
+        """A new site's monitor (none of its people seen yet) given what `old` knew: every
+        person, and who is inside, near or dwelling in each zone kept as it was (the same
+        name, kind, prism, joints, margin and debounce), so that a site change raises no
+        event of its own for them."""
+        n = len(old.ids)
+        self.ids, self.row_of = old.ids.copy(), dict(old.row_of)
+        self.last_seen, self.last_pos = old.last_seen.copy(), old.last_pos.copy()
+        self.inside.add_rows(n)
+        self.near.add_rows(n)
+        self.dwelt = np.zeros((n, len(self.zones)), dtype=bool)
+        before = {z.name: j for j, z in enumerate(old.zones)}
+        for k, z in enumerate(self.zones):
+            j = before.get(z.name)
+            if j is None or not _same_zone(z, old.zones[j]):
+                continue
+            for mine, theirs in ((self.inside, old.inside), (self.near, old.near)):
+                mine.state[:, k] = theirs.state[:, j]
+                mine.since[:, k] = theirs.since[:, j]
+                mine.began[:, k] = theirs.began[:, j]
+            self.dwelt[:, k] = old.dwelt[:, j]
+        self._last_ids = None
+
     def _rows(self, ids: np.ndarray) -> np.ndarray:
         """State rows of people `ids`, new people added."""
         if self._last_ids is not None and np.array_equal(ids, self._last_ids[0]):
@@ -290,3 +313,16 @@ class FenceMonitor:
         self.row_of = {int(i): r for r, i in enumerate(self.ids)}
         self._last_ids = None
         return out
+
+
+def _same_zone(a, b) -> bool:
+    """Whether two zones test people alike (their events may differ: priority, allowed)."""
+    return (
+        a.kind == b.kind
+        and a.polygon.shape == b.polygon.shape
+        and bool(np.array_equal(a.polygon, b.polygon))
+        and tuple(a.z) == tuple(b.z)
+        and a.joints == b.joints
+        and a.margin_m == b.margin_m
+        and (a.enter_s, a.exit_s, a.dwell_s) == (b.enter_s, b.exit_s, b.dwell_s)
+    )

@@ -33,6 +33,7 @@ Site file (TOML, the contract in docs/formats.md, extended with optional keys):
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,7 +49,7 @@ from stereopose.behaviour.definitions import (
 )
 from stereopose.behaviour.posture import PostureSettings
 from stereopose.checks import FPS, MAX_ZONES, named_tables
-from stereopose.config import read_toml
+from stereopose.config import parse_toml, read_toml
 from stereopose.errors import ConfigError
 from stereopose.skeleton import JOINTS, joint_index
 from stereopose.zones.distances import DEFAULT_TABLE, approach_distance
@@ -163,13 +164,33 @@ def load_site(path: str | Path) -> Site:
     path = Path(path)
     data = read_toml(path, "site file")
     try:
-        fps = _fps(data)
-        zones = _zones(data)
-        rules = parse_rules(data.get("rules"), "", zones)
-        postures = parse_postures(data.get("postures"), "")
-        return Site(zones, fps, path, rules=rules, postures=postures)
+        return parse_site(data, path)
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
+
+
+def parse_site(data: Any, path: Path | None = None) -> Site:
+    """A site from the site file's keys (as TOML reads them, or as JSON gives them: the API's
+    `site`), checked as load_site checks a file; a ConfigError naming the zone and the key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"a site is a table of fps, zones, rules and postures, got {data!r}")
+    fps = _fps(data)
+    zones = _zones(data)
+    rules = parse_rules(data.get("rules"), "", zones)
+    postures = parse_postures(data.get("postures"), "")
+    return Site(zones, fps, path, rules=rules, postures=postures)
+
+
+def site_doc(site: Site) -> dict[str, Any]:
+    """The site file's keys of `site` (defaults left out) as plain values: what the API gives
+    and takes, and what parse_site reads back to the same site."""
+    return parse_toml(format_site(site), "the site")
+
+
+def site_version(site: Site) -> str:
+    """A short digest of the site as its file would hold it: the same site, the same
+    version, whatever its comments or key order."""
+    return hashlib.sha256(format_site(site).encode("utf-8")).hexdigest()[:16]
 
 
 def _fps(data: dict[str, Any]) -> float | None:

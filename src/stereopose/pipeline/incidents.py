@@ -57,6 +57,8 @@ class IncidentStep:
         wall_start: float | None = None,
     ) -> None:
         self.book, self.chain, self.monitor = book, chain, holding
+        # at a step's start, before the chain: a new site taken (site.site_switch), its events
+        self.switch: Callable[[IncidentStep, float, int], list[Event]] | None = None
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
@@ -67,8 +69,9 @@ class IncidentStep:
     # -- the frame loop's: a step's rules (pipeline.loop.StepRules)
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
         """The chain's events, each alarm-level one stamped with its incident; the postures."""
+        first = self.switch(self, t, frame) if self.switch is not None else []
         events, postures = self.chain.step(t, frame, people)
-        return self._book(t, events), postures
+        return self._book(t, [*first, *events]), postures
 
     def finish(self, t: float, frame: int) -> list[Event]:
         """The events of the input's end at its last step (every active ticket completed),

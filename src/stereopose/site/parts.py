@@ -305,6 +305,24 @@ def stop_signals() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def reload_signal(reload: Callable[[], object] | None) -> Iterator[None]:
+    """SIGHUP calls `reload` on a thread of its own (the site file read again: systemctl
+    reload); on leaving, SIGHUP as it was (main thread only; nothing without `reload`)."""
+    if reload is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def hup(signum: int, frame: object) -> None:
+        threading.Thread(target=reload, name="site-reload", daemon=True).start()
+
+    previous = signal.signal(signal.SIGHUP, hup)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
+@contextlib.contextmanager
 def quiet_signals() -> Iterator[None]:
     """SIGINT and SIGTERM logged and otherwise ignored (main thread only): the outputs are
     closing, each within its own bound."""

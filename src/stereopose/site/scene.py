@@ -69,6 +69,19 @@ class SceneState:
         self._approach: dict[str, float] = {}  # zone -> service time of its last approach
         self.version = 0  # raised at each change of a zone's occupants or alarm
 
+    def set_site(self, site: Site | None) -> None:
+        """A new site's zones (the frame loop's thread, at a step's start): who is inside a
+        zone kept stays; the zones are sent again."""
+        zones = site.zones if site is not None else ()
+        energized = tuple(z for z in zones if z.kind == "energized")
+        with self._lock:
+            self.zones_by_name = {z.name: z for z in zones}
+            self._inside = {z.name: self._inside.get(z.name, set()) for z in zones}
+            self._energized = energized
+            self._geometry = ZoneGeometry(energized) if energized else None
+            self._touching = {}
+            self.version += 1
+
     # -- the frame loop's side ------------------------------------------------------------
 
     def update(self, frame: FrameResult, wall_start: float) -> None:

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from stereopose.alarms import AlarmSettings, IncidentBook
+from stereopose.config import Config
 from stereopose.detection import make_detector
 from stereopose.detection.regional import region_detector
 from stereopose.errors import StereoposeError
@@ -75,6 +76,7 @@ from stereopose.site.health.watch import CameraWatch
 from stereopose.site.parts import (
     ServeSource,
     quiet_signals,
+    reload_signal,
     stop_signals,
 )
 from stereopose.site.plan import (
@@ -85,6 +87,7 @@ from stereopose.site.plan import (
 )
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
+from stereopose.site.site_switch import SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
@@ -220,7 +223,8 @@ def _serve(
         plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
     )
     closing = _Closing()
-    with stop_signals():
+    reload = service.site_desk.reload if service.site_desk is not None else None
+    with stop_signals(), reload_signal(reload):
         try:
             url = service.start_server()
             if on_ready is not None:
@@ -334,6 +338,8 @@ def _run_loop(
     ids = IncidentIds(plan.events_db)
     try:
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
+        if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
+            incidents.switch = _site_switch(service, events, cfg)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -377,3 +383,17 @@ def _incidents(
     )
     service.attach_incidents(step, book.incidents())  # the API, SCADA, control room: its acts
     return step
+
+
+def _site_switch(service: SiteService, events: ServeEvents, cfg: Config) -> SiteSwitch:
+    """What takes a new site at a step's start (site.site_switch), on the run's settings."""
+    hub = service.console.hub if service.console is not None else None
+    return SiteSwitch(
+        service.site_desk,
+        events,
+        cfg,
+        tickets=service.tickets,
+        zone_state=service.power,
+        restart_power=service.restart_power,
+        scene=hub.scene if hub is not None else None,
+    )

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from stereopose.config import Config
 from stereopose.detection.regional import RegionDetector
+from stereopose.fence import Site
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import Guarded, Sink
@@ -43,6 +44,7 @@ from stereopose.site.plan import (
     ServePlan,
 )
 from stereopose.site.restart import Resume
+from stereopose.site.site_desk import SiteDesk
 from stereopose.site.storage import StorageMaintainer
 from stereopose.tickets import TicketDesk
 from stereopose.zones.power_state import PowerBoard, ZoneStates
@@ -100,6 +102,12 @@ class SiteService:
         self.power_board = PowerBoard() if any(z.power for z in zones) else None
         self.power = ZoneStates(zones, self.power_board) if self.power_board else None
         self.power_sources = None
+        # the site edited while serving (GET/PUT /api/site, SIGHUP): taken at a step's start
+        self.site_desk = (
+            SiteDesk(plan.site.path, plan.site, plan.out_dir / "site-history", self._check_site)
+            if plan.site is not None and plan.site.path is not None
+            else None
+        )
         self.keeper = None  # site.health.calib_keeper, once the frame loop starts
         self.calibration_desk = KeeperDesk()  # the API's way to it
         if self.packets:
@@ -124,6 +132,7 @@ class SiteService:
             incidents=self.desk,
             tickets=self.tickets,
             calibration=self.calibration_desk,
+            site=self.site_desk,
         )
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
@@ -379,13 +388,15 @@ class SiteService:
     def start_power(self) -> None:
         """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
         each on its own thread; the console's zones and the status show their states."""
-        if self.power is None:
-            return
+        if self.power is not None:
+            self._start_sources(self.plan.site)
+
+    def _start_sources(self, site: Site) -> None:
         from stereopose.site.zone_sources import start_sources
 
         p = self.plan
         self.power_sources = start_sources(
-            p.site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
+            site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
         )
         self._started("the zone state's sources", self.power_sources.stop)
         sources, states = self.power_sources, self.power
@@ -395,6 +406,28 @@ class SiteService:
         }
         if self.console is not None and self.console.hub is not None:
             self.console.hub.scene.power = states.snapshot
+
+    def _check_site(self, site: Site) -> None:
+        """ConfigError when the running service cannot take `site`: a ticket not yet ended
+        names a zone it lacks."""
+        if self.tickets is not None:
+            self.tickets.check_site(site.zones)
+
+    def restart_power(self, site: Site) -> ZoneStates | None:
+        """The zones' state sources made `site`'s (the frame loop's thread, at a site change):
+        the old ones stopped, new ones started; the new ZoneStates (None: none has a source)."""
+        if self.power_sources is not None:
+            self.power_sources.stop()
+            self.parts = [(n, c) for n, c in self.parts if c != self.power_sources.stop]
+            self.power_sources = None
+        self.power_board = PowerBoard() if any(z.power for z in site.zones) else None
+        self.power = ZoneStates(site.zones, self.power_board) if self.power_board else None
+        self.probes.pop("zone_state", None)
+        if self.console is not None and self.console.hub is not None:
+            self.console.hub.scene.power = None
+        if self.power is not None:
+            self._start_sources(site)
+        return self.power
 
     # -- health -----------------------------------------------------------------------------
 

@@ -114,6 +114,22 @@ class TicketDesk:
             setattr(e.monitor, role, int(person))
             return self._view(e)
 
+    def check_site(self, zones: Sequence[Zone]) -> None:
+        """ConfigError when a ticket not yet ended names a zone `zones` lacks (or isolates one
+        no longer energized): a new site must keep them."""
+        kinds = {z.name: z.kind for z in zones}
+        with self._lock:
+            for e in self._entries.values():
+                if e.state in (PLANNED, ACTIVE):
+                    check_zones(e.ticket, kinds, f"ticket {e.ticket.id} ({e.state})")
+
+    def set_zones(self, zones: Sequence[Zone]) -> None:
+        """A new site's zones, for the tickets added or started from now on (an active ticket
+        is followed with the zones it started with to its end)."""
+        with self._lock:
+            self.zones = tuple(zones)
+            self._kinds = {z.name: z.kind for z in self.zones}
+
     def tickets(self) -> list[dict]:
         with self._lock:
             return [self._view(e, steps=False) for e in self._entries.values()]
@@ -145,6 +161,8 @@ class TicketDesk:
         with self._lock:
             for e in list(self._entries.values()):
                 if e.start_asked is not None and e.state == PLANNED:
+                    if e.monitor.zones is not self.zones:  # the site changed since it was added
+                        e.monitor = TicketMonitor(e.ticket, self.zones)
                     e.state, e.started_by, e.started_t = ACTIVE, e.start_asked, t
                     e.slot = self._free_slot()
                     e.start_asked = None

@@ -72,7 +72,7 @@ class TicketMonitor:
     """See the module. zones: the site's zones (every one the ticket names among them)."""
 
     def __init__(self, ticket: Ticket, zones: tuple[Zone, ...]) -> None:
-        self.ticket = ticket
+        self.ticket, self.zones = ticket, zones  # (the site's, as the desk had them)
         by_name = {z.name: z for z in zones}
         names = sorted(ticket.zones())
         self.geometry = ZoneGeometry(tuple(by_name[n] for n in names))

@@ -65,6 +65,7 @@ def create_app(
     incidents: IncidentDesk | None = None,
     tickets: TicketDesk | None = None,
     calibration: object | None = None,
+    site: object | None = None,
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
@@ -74,7 +75,8 @@ def create_app(
     incident book once it runs; None: a desk of its own, never attached); tickets: the site's
     tickets (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503);
     calibration: the calibration keeper's desk (site.health.calib_keeper.KeeperDesk; None:
-    the calibration API answers that it is not running)."""
+    the calibration API answers that it is not running); site: the running site's desk
+    (site.site_desk.SiteDesk; None: the site API answers 503)."""
     app = FastAPI(
         title="stereopose",
         version=__version__,  # shown only with a session (api.docs serves /openapi.json)
@@ -90,6 +92,7 @@ def create_app(
     app.state.incidents = incidents if incidents is not None else IncidentDesk()
     app.state.tickets = tickets
     app.state.calibration = calibration
+    app.state.site = site
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     error_answers.add_handlers(app)
@@ -100,6 +103,7 @@ def create_app(
     app.include_router(metrics.router)
     from stereopose.site.http.api import calibration as calib_api
     from stereopose.site.http.api import incidents, replay, tickets
+    from stereopose.site.http.api import site as site_api
 
     routers = (
         auth,
@@ -114,6 +118,7 @@ def create_app(
         live,
         users,
         calib_api,
+        site_api,
     )
     for router in routers:
         app.include_router(router.router)

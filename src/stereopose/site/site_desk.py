@@ -1,0 +1,266 @@
+"""The running site, edited while the service runs: `GET /api/site` and `PUT /api/site`
+(site.http.api.site), SIGHUP (the file edited by hand).
+
+A new site is checked as `load_site` checks a file (and against the tickets, which name zones),
+then written over the site file atomically (a temporary file renamed over it), keeping its
+comments where its tables stay (tomlkit: a zone's table kept and its keys changed in place; a new
+zone appended; a removed one taken out), and handed to the frame loop, which takes it at its next
+step (`take`): no restart, no camera reconnected, no track lost. Every version is kept in
+`<data>/site-history/` (its TOML text, who made it and when; the latest MAX_HISTORY kept), so an
+earlier one can be read and restored. A PUT names the version it edits: another admin's change
+since is a conflict (409), never overwritten. Nothing is half-applied: a site that does not
+check, or a file that cannot be written, leaves the running site, the file and the version as
+they were.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stereopose.errors import ConfigError, StereoposeError
+from stereopose.fence.site import Site, format_site, load_site, parse_site, site_doc, site_version
+
+__all__ = ["SiteChange", "SiteConflictError", "SiteDesk"]
+
+logger = logging.getLogger(__name__)
+
+MAX_HISTORY = 200  # versions kept in the history folder
+INDEX = "index.jsonl"
+
+
+class SiteConflictError(StereoposeError):
+    """The version edited is not the current one (another change came first)."""
+
+
+@dataclass(frozen=True)
+class SiteChange:
+    """A new site for the frame loop: the one it replaces, who made it and its version."""
+
+    old: Site
+    new: Site
+    by: str
+    version: str
+
+
+class SiteDesk:
+    """See the module. check(site): a ConfigError when the running service cannot take
+    `site` (a ticket naming a zone it removes); None: nothing more to check."""
+
+    def __init__(
+        self,
+        path: Path,
+        site: Site,
+        history_dir: Path,
+        check: Callable[[Site], None] | None = None,
+    ) -> None:
+        self.path, self.history_dir, self.check = Path(path), Path(history_dir), check
+        self.site, self.version = site, site_version(site)
+        self._lock = threading.Lock()
+        self._pending: SiteChange | None = None
+        self._notes: list[tuple[str, str]] = []  # (event type, text) for the next step
+        self._broken = False  # the file did not load at the last reload
+        self.changes = 0  # sites taken since the start
+        self._remember(self.version, self.path.read_text(encoding="utf-8"), "the site file")
+
+    # -- reading -----------------------------------------------------------------------------
+
+    def current(self) -> dict[str, Any]:
+        with self._lock:
+            return {"version": self.version, "site": site_doc(self.site)}
+
+    def history(self) -> list[dict[str, Any]]:
+        """The versions kept, newest first: {"version", "by", "at"} (at: Unix time)."""
+        return list(reversed(self._index()))
+
+    def at_version(self, version: str) -> dict[str, Any] | None:
+        """A version kept: {"version", "by", "at", "site"}; None when not kept."""
+        row = next((r for r in self._index() if r["version"] == version), None)
+        path = self.history_dir / f"{version}.toml"
+        if row is None or not path.is_file():
+            return None
+        try:
+            site = load_site(path)
+        except ConfigError as e:  # a kept file damaged: as if not kept, and said
+            logger.warning("site: version %s unreadable: %s", version, e)
+            return None
+        return {**row, "site": site_doc(site)}
+
+    # -- changing ----------------------------------------------------------------------------
+
+    def put(self, doc: Any, version: str, by: str) -> str:
+        """The new site `doc` (the site file's keys), edited from `version`: its version once
+        written and handed to the frame loop. SiteConflictError when `version` is not the current
+        one; ConfigError naming the key when it does not check."""
+        with self._lock:
+            if version != self.version:
+                raise SiteConflictError(
+                    f"the site changed since version {version} (now {self.version}): reload it"
+                )
+            new = parse_site(doc, self.path)
+            return self._apply(new, _merged(self.path, site_doc(new)), by)
+
+    def reload(self, by: str = "the site file (SIGHUP)") -> str | None:
+        """The site file read again (edited by hand): its version, or None when unchanged or
+        when it does not load: then the running site stays, and the next step raises
+        `site_invalid` naming the file and the error (`site_valid` once it loads again)."""
+        with self._lock:
+            try:
+                new = load_site(self.path)
+                version = None if site_version(new) == self.version else self._apply(new, None, by)
+            except ConfigError as e:
+                logger.error("site: %s; the running site kept (version %s)", e, self.version)
+                self._notes.append(("site_invalid", str(e)))
+                self._broken = True
+                return None
+            if self._broken:
+                self._broken = False
+                self._notes.append(("site_valid", f"{self.path}: loads again"))
+            return version
+
+    def take_notes(self) -> list[tuple[str, str]]:
+        """(event type, text) of the reloads since the last step (the frame loop's thread)."""
+        with self._lock:
+            notes, self._notes = self._notes, []
+            return notes
+
+    def take(self) -> SiteChange | None:
+        """The change waiting for the frame loop, once (the frame loop's thread)."""
+        with self._lock:
+            change, self._pending = self._pending, None
+            return change
+
+    def _apply(self, new: Site, text: str | None, by: str) -> str:
+        """(under the lock) `new` checked against the service, written (text: the file's new
+        text; None: the file already holds it), remembered, and waiting for the frame loop."""
+        if self.check is not None:
+            self.check(new)
+        version = site_version(new)
+        if version == self.version:
+            return version
+        if text is not None:
+            _write_atomic(self.path, text)
+        else:
+            text = self.path.read_text(encoding="utf-8")
+        new = Site(new.zones, new.fps, self.path, rules=new.rules, postures=new.postures)
+        old = self._pending.old if self._pending is not None else self.site
+        self.site, self.version = new, version
+        self._pending = SiteChange(old, new, by, version)
+        self.changes += 1
+        self._remember(version, text, by)
+        logger.info("site: version %s by %s, taken at the next step", version, by)
+        return version
+
+    # -- history -----------------------------------------------------------------------------
+
+    def _index(self) -> list[dict[str, Any]]:
+        path = self.history_dir / INDEX
+        try:
+            lines = path.read_text(encoding="utf-8").splitlines()
+        except OSError:
+            return []
+        rows = []
+        for line in lines:
+            try:
+                row = json.loads(line)
+            except ValueError:
+                continue  # a line cut by a crash: the others stand
+            if isinstance(row, dict) and isinstance(row.get("version"), str):
+                rows.append(row)
+        return rows
+
+    def _remember(self, version: str, text: str, by: str) -> None:
+        """The version's text and who made it, kept (the oldest beyond MAX_HISTORY pruned);
+        a history that cannot be written is logged, never stops the change."""
+        try:
+            self.history_dir.mkdir(parents=True, exist_ok=True)
+            rows = [r for r in self._index() if r["version"] != version]
+            rows.append({"version": version, "by": by, "at": time.time()})
+            for gone in rows[:-MAX_HISTORY]:
+                (self.history_dir / f"{gone['version']}.toml").unlink(missing_ok=True)
+            rows = rows[-MAX_HISTORY:]
+            _write_atomic(self.history_dir / f"{version}.toml", text)
+            _write_atomic(self.history_dir / INDEX, "".join(json.dumps(r) + "\n" for r in rows))
+        except OSError as e:
+            logger.warning("site: the history in %s not written: %s", self.history_dir, e)
+
+
+def _merged(path: Path, doc: dict[str, Any]) -> str:
+    """The site file's text with `doc`'s keys, its comments kept where its tables stay; the
+    plain text of the site (format_site) when the file cannot be merged into."""
+    import tomlkit
+
+    try:
+        old = tomlkit.parse(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        logger.warning("site: %s rewritten without its comments: %s", path, e)
+        return format_site(parse_site(doc, path))
+    for key in list(old):
+        if key not in doc:
+            del old[key]
+    for key, value in doc.items():
+        if key in ("zones", "rules") and isinstance(old.get(key), list):
+            _merge_tables(old[key], value)
+        else:
+            old[key] = value
+    text = tomlkit.dumps(old)
+    try:  # what was merged must read back as the site: else the plain text
+        if site_version(parse_site(tomlkit.parse(text).unwrap(), path)) == site_version(
+            parse_site(doc, path)
+        ):
+            return text
+    except (ConfigError, ValueError) as e:
+        logger.warning("site: %s merged wrongly (%s); written without its comments", path, e)
+    return format_site(parse_site(doc, path))
+
+
+def _merge_tables(tables: Any, items: list[dict[str, Any]]) -> None:
+    """The file's zone (or rule) tables made `items`: one of the same name kept (its keys
+    changed in place, their comments with them), a new one appended, a removed one taken out,
+    in `items`' order."""
+    import tomlkit
+
+    by_name = {str(t.get("name")): t for t in tables}
+    kept = []
+    for item in items:
+        table = by_name.get(str(item.get("name")))
+        fresh = table is None
+        if table is None:
+            table = tomlkit.table()
+        for key in list(table):
+            if key not in item:
+                del table[key]
+        for key, value in item.items():
+            if table.get(key) != value:
+                table[key] = value
+        if fresh:
+            table.add(tomlkit.nl())
+        kept.append(table)
+    while len(tables):
+        tables.pop()
+    for table in kept:
+        tables.append(table)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """`text` into `path` by a temporary file beside it renamed over it (its mode kept)."""
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

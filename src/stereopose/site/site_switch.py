@@ -1,0 +1,148 @@
+"""A new site taken by the running service at a step's start (site.site_desk's change): the
+fences, the behaviour rules, the zones' states, the tickets' zones, the incidents' priorities
+and the console's scene all on the new site from this step, the chain of step rules built again
+(pipeline.step_rules), the people's tracks untouched (the 3D stage never sees a site).
+
+Who is inside or near a zone kept as it was stays so (no event of the change's own); a person
+inside a removed zone gets an `exit` (source "site changed"), which ends its incident; a
+`site_changed` event (kind "service", information) says who changed the site and what: the
+zones added, removed and changed, and the new version. The zones' state sources are started
+again only when a zone's state source changed.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from stereopose.alarms.priority import AlarmSettings
+from stereopose.config import Config
+from stereopose.fence import FenceMonitor, Site
+from stereopose.fence.site import format_site
+from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.loop import behaviour_monitor
+from stereopose.pipeline.step_rules import step_chain
+from stereopose.site.site_desk import SiteChange, SiteDesk
+from stereopose.site.steps import HeldRules, ServeEvents
+from stereopose.types import Event
+
+__all__ = ["SiteSwitch", "site_changes"]
+
+logger = logging.getLogger(__name__)
+
+
+def site_changes(old: Site, new: Site) -> tuple[list[str], list[str], list[str]]:
+    """(added, removed, changed) zone names from `old` to `new`."""
+    before = {z.name: z for z in old.zones}
+    after = {z.name: z for z in new.zones}
+    added = [n for n in after if n not in before]
+    removed = [n for n in before if n not in after]
+    changed = [n for n in after if n in before and _zone_text(after[n]) != _zone_text(before[n])]
+    return added, removed, changed
+
+
+def _zone_text(zone: Any) -> str:
+    return format_site(Site((zone,), None, None))
+
+
+class SiteSwitch:
+    """See the module. restart_power(site): the service's zone-state sources made the new
+    site's; returns its ZoneStates (None: no zone with a state source)."""
+
+    def __init__(
+        self,
+        desk: SiteDesk,
+        events: ServeEvents,
+        config: Config,
+        *,
+        tickets: Any = None,
+        zone_state: Any = None,
+        restart_power: Callable[[Site], Any] | None = None,
+        scene: Any = None,
+    ) -> None:
+        self.desk, self.events, self.config = desk, events, config
+        self.tickets, self.zone_state = tickets, zone_state
+        self.restart_power, self.scene = restart_power, scene
+
+    def __call__(self, step: IncidentStep, t: float, frame: int) -> list[Event]:
+        """The events of a change taken at this step (none without one)."""
+        notes = [_service_event(t, frame, kind, text) for kind, text in self.desk.take_notes()]
+        change = self.desk.take()
+        if change is None:
+            return notes
+        try:
+            return [*notes, *self._switch(step, change, t, frame)]
+        except Exception:  # a change half-taken would leave the site unwatched: said loudly
+            logger.exception("site: version %s could not be taken", change.version)
+            raise
+
+    def _switch(self, step: IncidentStep, change: SiteChange, t: float, frame: int) -> list[Event]:
+        cfg, old_mon = self.config, self.events.fences
+        new_mon = FenceMonitor(change.new, cfg.fps, cfg.tracking.max_lost_s)
+        out: list[Event] = []
+        added, removed, changed = site_changes(change.old, change.new)
+        if old_mon is not None:
+            new_mon.carry(old_mon)
+            out += _exits(old_mon, removed, t, frame)
+        self.events.fences = new_mon
+        if self.tickets is not None:
+            self.tickets.set_zones(change.new.zones)
+        if self.restart_power is not None and _power_changed(change.old, change.new):
+            self.zone_state = self.restart_power(change.new)
+        behaviour = behaviour_monitor(change.new, cfg)
+        step.chain = step_chain(
+            self.events,
+            behaviour=HeldRules(behaviour, self.events) if behaviour is not None else None,
+            zone_state=self.zone_state,
+            monitor=new_mon,
+            tickets=self.tickets,
+        )
+        step.monitor = new_mon
+        step.book.settings = AlarmSettings.from_site(change.new)
+        if self.scene is not None:
+            self.scene.set_site(change.new)
+        said = "; ".join(
+            f"{what} {', '.join(names)}"
+            for what, names in (("added", added), ("removed", removed), ("changed", changed))
+            if names
+        )
+        text = f"{change.by}: version {change.version}" + (f"; zones {said}" if said else "")
+        logger.info("site: taken at frame %d (%s)", frame, text)
+        out.append(_service_event(t, frame, "site_changed", text))
+        return out
+
+
+def _service_event(t: float, frame: int, type_: str, text: str) -> Event:
+    return Event(
+        t=t, frame=frame, person=-1, zone="", kind="service", type=type_, onset_t=t, source=text
+    )
+
+
+def _exits(old: FenceMonitor, removed: list[str], t: float, frame: int) -> list[Event]:
+    """An exit for each person inside a removed zone: its incident ends."""
+    out = []
+    kinds = {z.name: z.kind for z in old.zones}
+    for name in removed:
+        inside, _ = old.occupants(name)
+        for pid, _ in inside:
+            out.append(
+                Event(
+                    t=t,
+                    frame=frame,
+                    person=int(pid),
+                    zone=name,
+                    kind=kinds[name],
+                    type="exit",
+                    onset_t=t,
+                    source="site changed: zone removed",
+                )
+            )
+    return out
+
+
+def _power_changed(old: Site, new: Site) -> bool:
+    def sources(site: Site) -> dict[str, Any]:
+        return {z.name: z.power.to_toml() for z in site.zones if z.power is not None}
+
+    return sources(old) != sources(new)

@@ -1,0 +1,125 @@
+"""GET/PUT /api/site and its history on a real server, over a real site file (the demo's):
+every role reads it; an admin's change is written (its comments kept), versioned, kept in the
+history and handed to the frame loop; 400 naming the key with nothing changed, 403 for
+operators and viewers and for a cookie without its CSRF header, 409 for a stale version."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import httpx
+import pytest
+
+from consoled import console_server
+from stereopose.fence import load_site
+from stereopose.fence.site import site_version
+from stereopose.site.site_desk import SiteDesk
+
+DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
+
+
+@pytest.fixture
+def desk(tmp_path) -> SiteDesk:
+    path = tmp_path / "site.toml"
+    shutil.copy(DEMO_SITE, path)
+    return SiteDesk(path, load_site(path), tmp_path / "history")
+
+
+def _busbar_wider(doc: dict) -> dict:
+    zones = [dict(z) for z in doc["zones"]]
+    zones[0] = {**zones[0], "margin_m": 0.9}
+    return {**doc, "zones": zones}
+
+
+def test_every_role_reads_the_site_and_only_an_admin_changes_it(desk, tmp_path) -> None:
+    before = desk.path.read_text()
+    with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
+        for name in ("vera", "otto"):
+            with contextlib.closing(s.client(name)) as c:
+                got = c.get("/api/site").json()
+                assert got["version"] == desk.version
+                names = [z["name"] for z in got["site"]["zones"]]
+                assert names[:2] == ["overhead_busbar", "work_area"] and len(names) == 4
+                r = c.put("/api/site", json={"version": got["version"], "site": got["site"]})
+                assert r.status_code == 403
+        with httpx.Client(base_url=s.url, timeout=30) as anonymous:
+            assert anonymous.get("/api/site").status_code == 401
+        with contextlib.closing(s.client("ada")) as c:
+            got = c.get("/api/site").json()
+            del c.headers["X-CSRF-Token"]  # a cookie session without its CSRF header
+            body = {"version": got["version"], "site": _busbar_wider(got["site"])}
+            assert c.put("/api/site", json=body).status_code == 403
+        assert desk.path.read_text() == before and desk.take() is None
+        with contextlib.closing(s.client("ada")) as c:
+            r = c.put("/api/site", json=body)
+            assert r.status_code == 200, r.text
+            version = r.json()["version"]
+            assert version == desk.version != got["version"]
+            assert c.get("/api/site").json()["site"]["zones"][0]["margin_m"] == 0.9
+            history = c.get("/api/site/history").json()["versions"]
+            assert [h["version"] for h in history] == [version, got["version"]]
+            assert history[0]["by"] == "ada"
+            old = c.get(f"/api/site/history/{got['version']}").json()
+            assert old["site"]["zones"][0]["margin_m"] == 0.3
+            assert c.get("/api/site/history/00ff").status_code == 404
+            assert c.get("/api/site/history/not-hex").status_code == 422
+            # the same edit again: the version it names is not the current one
+            assert c.put("/api/site", json=body).status_code == 409
+            # restored: the earlier version's site put over the current one
+            r = c.put("/api/site", json={"version": version, "site": old["site"]})
+            assert r.status_code == 200 and r.json()["version"] == got["version"]
+    text = desk.path.read_text()
+    assert "# recording looped as `serve --demo` plays it" in text  # its comments kept
+    assert site_version(load_site(desk.path)) == got["version"]
+    change = desk.take()
+    assert change is not None and change.by == "ada" and change.version == got["version"]
+    assert change.old.zones[0].margin_m == 0.3  # what the frame loop still runs
+    assert desk.take() is None
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: {**d, "zones": [{**d["zones"][0], "polygon": [[0, 0], [1, 1]]}]}, "polygon"),
+        (lambda d: {**d, "zones": [{**d["zones"][0], "kind": "lava"}]}, "kind"),
+        (lambda d: {**d, "zones": [{**d["zones"][0], "voltage_kv": -3}]}, "voltage_kv"),
+        (lambda d: {**d, "speed": 3}, "speed"),
+        (lambda d: {**d, "zones": d["zones"][1:]}, "reach_from_work_area"),  # a rule needs it
+        (lambda d: {**d, "zones": "everywhere"}, "zones"),
+    ],
+)
+def test_a_bad_site_is_400_naming_the_key_and_changes_nothing(desk, tmp_path, edit, message):
+    before, version = desk.path.read_text(), desk.version
+    with (
+        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        contextlib.closing(s.client("ada")) as c,
+    ):
+        got = c.get("/api/site").json()
+        r = c.put("/api/site", json={"version": got["version"], "site": edit(got["site"])})
+        assert r.status_code == 400, r.text
+        assert message in r.json()["detail"]
+    assert desk.path.read_text() == before and desk.version == version and desk.take() is None
+    assert [h["version"] for h in desk.history()] == [version]
+
+
+def test_without_a_site_file_the_api_says_so(tmp_path) -> None:
+    with console_server(tmp_path / "out") as s, contextlib.closing(s.client("vera")) as c:
+        assert c.get("/api/site").status_code == 503
+
+
+def test_a_hand_edit_is_taken_and_a_broken_file_keeps_the_running_site(desk) -> None:
+    text = desk.path.read_text()
+    desk.path.write_text(text.replace("margin_m = 0.3", "margin_m = 0.5"))
+    version = desk.reload()
+    assert version is not None and desk.take().new.zones[0].margin_m == 0.5
+    assert desk.take_notes() == []
+    desk.path.write_text(text.replace("margin_m = 0.3", "margin_m = -1"))
+    assert desk.reload() is None and desk.version == version and desk.take() is None
+    [(kind, why)] = desk.take_notes()
+    assert kind == "site_invalid" and str(desk.path) in why and "margin_m" in why
+    desk.path.write_text(text.replace("margin_m = 0.3", "margin_m = 0.5"))
+    assert desk.reload() is None  # the same site as running: nothing to take
+    assert desk.take_notes() == [("site_valid", f"{desk.path}: loads again")]
