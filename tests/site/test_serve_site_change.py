@@ -1,0 +1,129 @@
+"""`stereopose serve` on the real demo takes a new site while it runs: an admin's PUT adds a
+zone whose events start within seconds, with no restart and the people's ids going on; a hand
+edit and SIGHUP remove it again (its occupants exit); a broken file on SIGHUP keeps the running
+site and raises a diagnostic incident naming the file."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from brokers import free_port
+from stereopose.pipeline.demo import write_serve_demo_config
+from waiting import wait_until
+
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]
+
+FLOOR = {
+    "name": "whole_floor",
+    "kind": "restricted",
+    "polygon": [[-6.0, -6.0], [6.0, -6.0], [6.0, 6.0], [-6.0, 6.0]],
+    "z": [0.0, 2.5],
+}
+
+
+def _rows(db: Path, sql: str) -> list[tuple]:
+    if not db.exists():
+        return []
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)) as c:
+            return c.execute(sql).fetchall()
+    except sqlite3.OperationalError:
+        return []
+
+
+def _changes(db: Path) -> list[tuple]:
+    return _rows(
+        db,
+        "SELECT id, type, source, incident FROM events WHERE type IN "
+        "('site_changed', 'site_invalid', 'site_valid') ORDER BY id",
+    )
+
+
+def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
+    port = free_port()
+    config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
+    site = tmp_path / "demo" / "demo_site.toml"
+    db = tmp_path / "data" / "events.sqlite"
+    add = [sys.executable, "-m", "stereopose.cli", "users", "add", "ada", "--role", "admin"]
+    subprocess.run([*add, "--config", str(config)], input=b"ada's passphrase\n", check=True)
+    with open(tmp_path / "serve.log", "ab") as f:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        base = f"http://127.0.0.1:{port}"
+
+        def up() -> bool:
+            try:
+                return httpx.get(f"{base}/api/health", timeout=5).status_code < 500
+            except httpx.HTTPError:
+                return proc.poll() is not None
+
+        wait_until(up, "the service's API", timeout_s=120, poll_s=0.5)
+        assert proc.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
+        c = httpx.Client(base_url=base, timeout=30)
+        r = c.post("/api/login", json={"username": "ada", "password": "ada's passphrase"})
+        c.headers["X-CSRF-Token"] = r.json()["csrf"]
+        wait_until(
+            lambda: _rows(db, "SELECT 1 FROM events WHERE person >= 0 LIMIT 1"),
+            "the first people's events",
+            timeout_s=120,
+            poll_s=0.5,
+        )
+        ids_before = {p for (p,) in _rows(db, "SELECT DISTINCT person FROM events")}
+        got = c.get("/api/site").json()
+        new = {**got["site"], "zones": [*got["site"]["zones"], FLOOR]}
+        saved = time.monotonic()
+        r = c.put("/api/site", json={"version": got["version"], "site": new})
+        assert r.status_code == 200, r.text
+        wait_until(
+            lambda: _rows(db, "SELECT 1 FROM events WHERE zone = 'whole_floor' AND type = 'enter'"),
+            "an entry of the new zone",
+            timeout_s=30,
+            poll_s=0.1,
+        )
+        print(f"the new zone's first entry {time.monotonic() - saved:.1f} s after the save")
+        [(_, kind, text, incident)] = _changes(db)
+        assert kind == "site_changed" and incident is None
+        assert text.startswith("ada: version ") and "zones added whole_floor" in text
+        assert "whole_floor" in site.read_text() and "# recording looped" in site.read_text()
+        # the people's ids go on: the tracks were not started again
+        ids_after = {
+            p for (p,) in _rows(db, "SELECT DISTINCT person FROM events WHERE zone = 'whole_floor'")
+        }
+        assert ids_after & ids_before
+
+        # a hand edit, then SIGHUP: the zone removed, its occupants exit
+        site.write_text(site.read_text().replace('name = "whole_floor"', 'name = "floor_b"'))
+        proc.send_signal(signal.SIGHUP)
+        wait_until(lambda: len(_changes(db)) == 2, "the hand edit taken", timeout_s=30)
+        text = _changes(db)[1][2]
+        assert "SIGHUP" in text and "added floor_b" in text and "removed whole_floor" in text
+        exits = _rows(db, "SELECT source FROM events WHERE zone = 'whole_floor' AND type = 'exit' ")
+        assert ("site changed: zone removed",) in exits
+
+        # a broken file: the running site kept, a diagnostic incident naming the file
+        site.write_text(site.read_text().replace('kind = "restricted"', 'kind = "lava"'))
+        proc.send_signal(signal.SIGHUP)
+        wait_until(lambda: len(_changes(db)) == 3, "the broken file said", timeout_s=30)
+        _, kind, text, incident = _changes(db)[2]
+        assert kind == "site_invalid" and str(site) in text and incident is not None
+        assert c.get("/api/site").json()["site"]["zones"][-1]["name"] == "floor_b"
+        assert proc.poll() is None
+        # no camera reconnected for it (the demo's files are read on, never reopened)
+        cams = c.get("/api/health").json()["cameras"]
+        assert len(cams) == 4 and all(cam["reconnects"] == 0 for cam in cams.values()), cams
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()[-3000:]
