@@ -7,6 +7,7 @@ import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
 import { Replay } from "./replay.js";
+import { SiteEditor } from "./site.js";
 import { Tickets } from "./tickets.js";
 import { View3D } from "./view3d.js";
 
@@ -43,6 +44,7 @@ class Console {
     this.replay = new Replay();
     this.history = new History(this.replay);
     this.tickets = new Tickets(this.replay);
+    this.site = new SiteEditor();
     this.feed = new Feed({
       list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
       bannerAck: byId("alarm-ack"), bannerAckAll: byId("alarm-ack-all"), counter: byId("alarm-count"), mute: byId("mute"),
@@ -150,6 +152,7 @@ class Console {
     document.body.dataset.role = user.role;
     this.feed.setRole(user.role);
     this.tickets.setRole(user.role);
+    this.site.setRole(user.role);
     byId("login").hidden = true;
     byId("console").hidden = false;
     this.live.start();
@@ -340,6 +343,7 @@ class Console {
     this.view3d.show(name === "view3d");
     this.tickets.show(name === "tickets" && !!this.user);
     if (name === "history" && this.user) this.history.search();
+    if (name === "site" && this.user) this.site.show(true);
   }
 }
 

@@ -1,0 +1,306 @@
+// The Site tab: the running site's zones on a plan in metres (world x right, y up), and for an
+// admin its editor. A zone is chosen on the plan or in the list; its corners are dragged (they
+// snap to a 0.05 m grid and to other zones' corners within 0.15 m); a new zone is drawn by
+// clicking its corners; its name, kind, height band, margin or voltage are set in the form.
+// Save sends PUT /api/site with the version it was edited from: the service takes it at its
+// next step. An error names the zone and key; another admin's change first is a conflict.
+// The history lists the versions kept; an earlier one is restored by saving it again.
+// Everyone sees the tab; only an admin edits (the API refuses the others anyway).
+
+import * as api from "./api.js";
+
+const SVG = "http://www.w3.org/2000/svg";
+const GRID_M = 0.05;
+const SNAP_M = 0.15;
+const KINDS = ["energized", "restricted", "work_area"];
+const byId = (id) => document.getElementById(id);
+
+function el(name, attrs = {}, parent = null) {
+  const node = document.createElementNS(SVG, name);
+  for (const [key, value] of Object.entries(attrs)) node.setAttribute(key, String(value));
+  if (parent) parent.appendChild(node);
+  return node;
+}
+
+function text(tag, content, className = "") {
+  const node = document.createElement(tag);
+  node.textContent = content;
+  if (className) node.className = className;
+  return node;
+}
+
+const round = (v) => Math.round(v / GRID_M) * GRID_M;
+const pts = (polygon) => polygon.map(([x, y]) => `${x.toFixed(3)},${(-y).toFixed(3)}`).join(" ");
+
+export class SiteEditor {
+  constructor() {
+    this.svg = byId("site-plan");
+    this.version = null;
+    this.site = null;
+    this.selected = -1;
+    this.drawing = null; // the corners of a zone being drawn
+    this.admin = false;
+    this.dirty = false;
+    this.drag = null;
+    byId("site-new").addEventListener("click", () => this.startDrawing());
+    byId("site-finish").addEventListener("click", () => this.finishDrawing());
+    byId("site-delete").addEventListener("click", () => this.deleteZone());
+    byId("site-save").addEventListener("click", () => this.save());
+    byId("site-reload").addEventListener("click", () => this.load());
+    byId("site-form").addEventListener("input", () => this.fromForm());
+    this.svg.addEventListener("pointerdown", (e) => this.onDown(e));
+    this.svg.addEventListener("pointermove", (e) => this.onMove(e));
+    this.svg.addEventListener("pointerup", () => { this.drag = null; });
+  }
+
+  setRole(role) {
+    this.admin = role === "admin";
+    for (const node of document.querySelectorAll(".site-admin")) node.hidden = !this.admin;
+  }
+
+  async show(on) {
+    if (on && !this.dirty) await this.load();
+  }
+
+  async load() {
+    const info = byId("site-info");
+    try {
+      const got = await api.call("/api/site");
+      this.version = got.version;
+      this.site = got.site;
+      this.dirty = false;
+      this.selected = Math.min(this.selected, this.zones().length - 1);
+      info.textContent = `version ${this.version}`;
+      byId("site-error").textContent = "";
+    } catch (error) {
+      this.site = null;
+      info.textContent = error.status === 503 ? "this service has no site file" : `${error.detail || error.message}`;
+    }
+    this.render();
+    this.loadHistory();
+  }
+
+  zones() {
+    return this.site && Array.isArray(this.site.zones) ? this.site.zones : [];
+  }
+
+  // -- drawing ------------------------------------------------------------------------------
+
+  render() {
+    const zones = this.zones();
+    this.svg.replaceChildren();
+    const all = zones.flatMap((z) => z.polygon || []).concat(this.drawing || []);
+    const xs = all.map((p) => p[0]);
+    const ys = all.map((p) => p[1]);
+    const [x0, x1] = xs.length ? [Math.min(...xs) - 1, Math.max(...xs) + 1] : [-5, 5];
+    const [y0, y1] = ys.length ? [Math.min(...ys) - 1, Math.max(...ys) + 1] : [-5, 5];
+    this.svg.setAttribute("viewBox", `${x0} ${-y1} ${x1 - x0} ${y1 - y0}`);
+    this.scale = Math.max(x1 - x0, y1 - y0) / 100;
+    zones.forEach((z, k) => {
+      const g = el("g", { class: `site-zone ${z.kind}${k === this.selected ? " selected" : ""}`,
+        "data-zone": z.name }, this.svg);
+      el("polygon", { points: pts(z.polygon || []), "data-index": k }, g);
+      if (k === this.selected && this.admin) {
+        (z.polygon || []).forEach(([x, y], i) => {
+          el("circle", { cx: x, cy: -y, r: this.scale * 1.2, class: "corner", "data-corner": i }, g);
+        });
+      }
+    });
+    if (this.drawing) {
+      el("polyline", { points: pts(this.drawing), class: "drawing" }, this.svg);
+      for (const [x, y] of this.drawing) el("circle", { cx: x, cy: -y, r: this.scale, class: "corner" }, this.svg);
+    }
+    this.renderList();
+    this.toForm();
+  }
+
+  renderList() {
+    const list = byId("site-zones");
+    list.replaceChildren();
+    this.zones().forEach((z, k) => {
+      const item = text("li", `${z.name} (${z.kind})`, k === this.selected ? "selected" : "");
+      item.dataset.zone = z.name;
+      item.addEventListener("click", () => { this.selected = k; this.render(); });
+      list.appendChild(item);
+    });
+    byId("site-save").disabled = !this.dirty;
+    byId("site-finish").hidden = !this.drawing;
+  }
+
+  toForm() {
+    const z = this.zones()[this.selected];
+    byId("site-form").hidden = !z;
+    if (!z) return;
+    const form = byId("site-form");
+    for (const input of form.querySelectorAll("input, select")) input.disabled = !this.admin;
+    byId("site-name").value = z.name;
+    byId("site-kind").value = z.kind;
+    byId("site-z0").value = z.z ? z.z[0] : 0;
+    byId("site-z1").value = z.z ? z.z[1] : 2.5;
+    byId("site-margin").value = z.margin_m ?? "";
+    byId("site-voltage").value = z.voltage_kv ?? "";
+    byId("site-points").value = (z.polygon || []).map(([x, y]) => `${x} ${y}`).join("; ");
+  }
+
+  fromForm() {
+    const z = this.zones()[this.selected];
+    if (!z || !this.admin) return;
+    z.name = byId("site-name").value;
+    z.kind = byId("site-kind").value;
+    z.z = [Number(byId("site-z0").value), Number(byId("site-z1").value)];
+    for (const [key, id] of [["margin_m", "site-margin"], ["voltage_kv", "site-voltage"]]) {
+      const v = byId(id).value.trim();
+      if (v === "") delete z[key];
+      else z[key] = Number(v);
+    }
+    const corners = byId("site-points").value.split(";").map((p) => p.trim().split(/[\s,]+/).map(Number));
+    if (corners.length >= 3 && corners.every((c) => c.length === 2 && c.every(Number.isFinite))) {
+      z.polygon = corners;
+    }
+    this.changed(false);
+  }
+
+  changed(rerender = true) {
+    this.dirty = true;
+    byId("site-info").textContent = `version ${this.version}, changed: not saved`;
+    if (rerender) this.render();
+    else { this.renderList(); this.redrawPolygons(); }
+  }
+
+  redrawPolygons() {
+    for (const polygon of this.svg.querySelectorAll("polygon[data-index]")) {
+      const z = this.zones()[Number(polygon.dataset.index)];
+      if (z) polygon.setAttribute("points", pts(z.polygon || []));
+    }
+  }
+
+  // -- the plan's pointer ---------------------------------------------------------------------
+
+  metres(event) {
+    const point = this.svg.createSVGPoint();
+    point.x = event.clientX;
+    point.y = event.clientY;
+    const m = point.matrixTransform(this.svg.getScreenCTM().inverse());
+    return [m.x, -m.y];
+  }
+
+  snapped([x, y], skip) {
+    let best = null;
+    this.zones().forEach((z, k) => {
+      if (k === skip) return;
+      for (const [cx, cy] of z.polygon || []) {
+        const d = Math.hypot(cx - x, cy - y);
+        if (d <= SNAP_M && (!best || d < best[0])) best = [d, [cx, cy]];
+      }
+    });
+    return best ? best[1] : [round(x), round(y)];
+  }
+
+  onDown(event) {
+    if (!this.admin || !this.site) return;
+    const at = this.metres(event);
+    if (this.drawing) {
+      this.drawing.push(this.snapped(at, -1));
+      this.render();
+      return;
+    }
+    const corner = event.target.dataset ? event.target.dataset.corner : undefined;
+    if (corner !== undefined) {
+      this.drag = Number(corner);
+      this.svg.setPointerCapture(event.pointerId);
+      return;
+    }
+    const index = event.target.dataset ? event.target.dataset.index : undefined;
+    if (index !== undefined) {
+      this.selected = Number(index);
+      this.render();
+    }
+  }
+
+  onMove(event) {
+    if (this.drag === null || this.drag === undefined) return;
+    const z = this.zones()[this.selected];
+    if (!z) return;
+    z.polygon[this.drag] = this.snapped(this.metres(event), this.selected);
+    this.changed();
+  }
+
+  startDrawing() {
+    if (!this.admin || !this.site) return;
+    this.drawing = [];
+    byId("site-error").textContent = "Click the new zone's corners on the plan, then Finish.";
+    this.render();
+  }
+
+  finishDrawing() {
+    const corners = this.drawing || [];
+    this.drawing = null;
+    if (corners.length >= 3) {
+      const names = new Set(this.zones().map((z) => z.name));
+      let n = this.zones().length + 1;
+      while (names.has(`zone_${n}`)) n += 1;
+      this.site.zones = [...this.zones(), { name: `zone_${n}`, kind: "restricted", polygon: corners, z: [0, 2.5] }];
+      this.selected = this.site.zones.length - 1;
+      byId("site-error").textContent = "";
+      this.changed();
+    } else {
+      byId("site-error").textContent = "A zone needs at least 3 corners.";
+      this.render();
+    }
+  }
+
+  deleteZone() {
+    if (!this.admin || this.selected < 0) return;
+    this.site.zones = this.zones().filter((_, k) => k !== this.selected);
+    this.selected = -1;
+    this.changed();
+  }
+
+  // -- saving and the history -----------------------------------------------------------------
+
+  async save(site = this.site) {
+    const error = byId("site-error");
+    error.textContent = "";
+    try {
+      const answer = await api.call("/api/site", { method: "PUT", body: { version: this.version, site } });
+      this.dirty = false;
+      byId("site-info").textContent = `version ${answer.version}: saved, taken at the next step`;
+      await this.load();
+    } catch (e) {
+      error.textContent = e.status === 409
+        ? `${e.detail} (Reload to see it; your changes are kept until then.)`
+        : `${e.detail || e.message}`;
+    }
+  }
+
+  async loadHistory() {
+    const list = byId("site-history");
+    list.replaceChildren();
+    let versions = [];
+    try {
+      versions = (await api.call("/api/site/history")).versions || [];
+    } catch {
+      return;
+    }
+    for (const v of versions) {
+      const item = text("li", `${v.version} by ${v.by}, ${new Date(v.at * 1000).toLocaleString()}`);
+      item.dataset.version = v.version;
+      if (this.admin && v.version !== this.version) {
+        const button = text("button", "Restore", "site-restore");
+        button.type = "button";
+        button.addEventListener("click", () => this.restore(v.version));
+        item.appendChild(button);
+      }
+      list.appendChild(item);
+    }
+  }
+
+  async restore(version) {
+    try {
+      const old = await api.call(`/api/site/history/${encodeURIComponent(version)}`);
+      await this.save(old.site);
+    } catch (e) {
+      byId("site-error").textContent = `${e.detail || e.message}`;
+    }
+  }
+}

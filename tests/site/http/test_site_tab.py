@@ -1,0 +1,126 @@
+"""The console's Site tab in the real browser (Playwright + Debian's chromium) over a real
+server and a real site file (the demo's): an admin draws a zone on the plan by clicking its
+corners, names it, saves, and the service has the new site to take at its next step; the
+versions are listed and an earlier one is restored; a viewer sees the tab and the zones but
+has nothing to save, and no page error or CSP violation happens."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import pytest
+
+from consoled import PASSWORDS, console_server
+from stereopose.fence import load_site
+from stereopose.site.site_desk import SiteDesk
+from waiting import wait_until
+
+pytestmark = [pytest.mark.slow]
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync"]
+DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
+ROOT = Path(__file__).resolve().parents[3]
+SHOTS = Path(os.environ.get("STEREOPOSE_SCREENSHOTS", ROOT / "out" / "console-screenshots"))
+WATCH = """
+window.__violations = [];
+document.addEventListener('securitypolicyviolation', (e) => {
+  window.__violations.push(`${e.violatedDirective} ${e.sourceFile}:${e.lineNumber}`);
+});
+"""
+
+
+@pytest.fixture
+def browser():
+    if CHROMIUM is None:
+        if os.environ.get("STEREOPOSE_REQUIRE_BROWSER") == "1":
+            pytest.fail("chromium not found; install Debian's chromium package")
+        pytest.skip("chromium not installed (Debian package chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@contextlib.contextmanager
+def _page(browser, url: str, user: str):
+    context = browser.new_context(viewport={"width": 1500, "height": 950})
+    context.add_init_script(WATCH)
+    page = context.new_page()
+    problems: list[str] = []
+    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    page.on("dialog", lambda d: (problems.append(f"dialog: {d.message}"), d.dismiss()))
+    page.goto(url + "/")
+    page.wait_for_selector("#login-form", state="visible", timeout=20_000)
+    page.fill("#login-user", user)
+    page.fill("#login-password", PASSWORDS[user])
+    page.click("#login-submit")
+    page.wait_for_selector("#console", state="visible", timeout=60_000)
+    page.click('.tab[data-tab="site"]')
+    page.wait_for_selector("#site-zones li", timeout=20_000)
+    try:
+        yield page
+        assert problems == [] and page.evaluate("window.__violations") == []
+    finally:
+        with contextlib.suppress(Exception):
+            SHOTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(SHOTS / f"site-tab-{user}.png"))
+        context.close()
+
+
+def _zones(page) -> list[str]:
+    return page.evaluate(
+        "[...document.querySelectorAll('#site-zones li')].map(n => n.dataset.zone)"
+    )
+
+
+def test_an_admin_draws_a_zone_saves_it_and_restores_the_earlier_version(browser, tmp_path):
+    path = tmp_path / "site.toml"
+    shutil.copy(DEMO_SITE, path)
+    desk = SiteDesk(path, load_site(path), tmp_path / "history")
+    first = desk.version
+    with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
+        with _page(browser, s.url, "ada") as page:
+            assert _zones(page) == ["overhead_busbar", "work_area", "qs1_front", "qs1_handle"]
+            page.click("#site-new")
+            box = page.locator("#site-plan").bounding_box()
+            for fx, fy in ((0.15, 0.15), (0.3, 0.15), (0.3, 0.3)):
+                page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
+            page.click("#site-finish")
+            wait_until(lambda: len(_zones(page)) == 5, "the drawn zone listed", poll_s=0.05)
+            page.fill("#site-name", "bay_3")
+            page.select_option("#site-kind", "restricted")
+            page.click("#site-save")
+            wait_until(lambda: desk.version != first, "the new site saved", poll_s=0.05)
+            wait_until(
+                lambda: (
+                    "saved" in page.text_content("#site-info")
+                    or "version" in page.text_content("#site-info")
+                ),
+                "the page saying so",
+                poll_s=0.05,
+            )
+            change = desk.take()
+            added = [z for z in change.new.zones if z.name == "bay_3"]
+            assert change.by == "ada" and len(added) == 1 and added[0].kind == "restricted"
+            assert len(added[0].polygon) == 3
+            assert "bay_3" in path.read_text()
+            # the versions listed, the earlier one restored
+            page.wait_for_selector(f'#site-history li[data-version="{first}"] button')
+            page.click(f'#site-history li[data-version="{first}"] button')
+            wait_until(lambda: desk.version == first, "the earlier version restored", poll_s=0.05)
+            wait_until(lambda: len(_zones(page)) == 4, "the plan reloaded", poll_s=0.05)
+        with _page(browser, s.url, "vera") as page:
+            assert len(_zones(page)) == 4
+            assert page.is_hidden("#site-save") and page.is_hidden("#site-new")
+            page.click('#site-zones li[data-zone="work_area"]')
+            assert page.is_disabled("#site-name")
+            assert not page.query_selector_all("#site-history button")
