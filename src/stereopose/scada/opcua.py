@@ -27,8 +27,8 @@ Logins count against the console's limits on password guesses (per address, per 
 
 Connections: `max_connections` sessions, and SPARE_SOCKETS more sockets for clients still in
 their handshake. A socket that has not activated a session within ACTIVATE_S is closed, and
-while fewer than two places are free the oldest such socket (past MIN_IDLE_S) is closed at
-once: idle or unauthenticated sockets cannot keep a client out.
+while fewer than two places are free the oldest such socket (past opcua_security.MIN_IDLE_S)
+is closed at once: idle or unauthenticated sockets cannot keep a client out.
 """
 
 from __future__ import annotations
@@ -58,6 +58,7 @@ from stereopose.scada.opcua_security import (
     Permissions,
     Users,
     caller,
+    sweep_idle,
     trusted_clients,
 )
 from stereopose.scada.opcua_settings import OpcuaSettings, application_certificate
@@ -74,8 +75,6 @@ STATUS_EVERY_S = 2.0  # the health status polled this often
 MAX_MESSAGE = 4 * 1024 * 1024  # bytes of one request at most
 SPARE_SOCKETS = 4  # sockets beyond max_connections, for handshakes
 ACTIVATE_S = 5.0  # a socket with no activated session is closed after this long
-MIN_IDLE_S = 1.0  # and before, when places run out, once it is this old
-SWEEP_S = 0.25  # how often the sockets are looked at
 _ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
 
 
@@ -176,7 +175,7 @@ class OpcuaServer(ClosesOnce):
             raise StereoposeError(f"cannot listen: {e.strerror or e}") from None
         self._ready.set()
         poll = asyncio.create_task(self._poll_status())
-        sweep = asyncio.create_task(self._sweep(server))
+        sweep = asyncio.create_task(sweep_idle(server, self._evicted_one))
         try:
             while not self._stop.is_set():
                 await self._wait()
@@ -362,27 +361,8 @@ class OpcuaServer(ClosesOnce):
             await self.space.drop(dataclasses.replace(rec, state=CLOSED), None, wall_start)
         await self.space.apply([(r, None, wall_start) for r in records])
 
-    async def _sweep(self, server: Server) -> None:
-        """While fewer than two places are free, the oldest socket without an activated
-        session (older than MIN_IDLE_S) is closed: a client that logs in finds a place."""
-        loop = asyncio.get_running_loop()
-        first_seen: dict[int, float] = {}
-        while True:
-            await asyncio.sleep(SWEEP_S)
-            try:
-                clients = list(getattr(server.bserver, "clients", []) or [])
-                now = loop.time()
-                first_seen = {id(c): first_seen.get(id(c), now) for c in clients}
-                free = server.iserver.max_connections - len(clients)
-                old = [c for c in clients if now - first_seen[id(c)] >= MIN_IDLE_S]
-                idle = sorted((first_seen[id(c)], id(c), c) for c in old if not _activated(c))
-                for _, _, c in idle[: max(0, 2 - free)]:
-                    transport = getattr(c, "transport", None)
-                    if transport is not None:
-                        transport.close()
-                        self.evicted += 1
-            except Exception:  # never ends the server
-                logger.exception("OPC UA: looking at the connections failed")
+    def _evicted_one(self) -> None:
+        self.evicted += 1
 
     async def _poll_status(self) -> None:
         if self.status is None:
@@ -494,13 +474,3 @@ class OpcuaServer(ClosesOnce):
             "idle_closed": self.evicted,
             "conditions": len(space.conditions) if space is not None else 0,
         }
-
-
-def _activated(protocol) -> bool:
-    """Whether an asyncua connection has an activated session."""
-    processor = getattr(protocol, "processor", None)
-    session = getattr(processor, "session", None)
-    try:
-        return session is not None and bool(session.is_activated())
-    except Exception:
-        return False

@@ -12,6 +12,7 @@ duration of each Call request of a session (asyncua gives a method callback no s
 
 from __future__ import annotations
 
+import asyncio
 import contextvars
 import dataclasses
 import logging
@@ -165,3 +166,41 @@ async def trusted_clients(folder: Path):
         | CertificateValidatorOptions.PEER_CLIENT
     )
     return CertificateValidator(opts, store)
+
+
+MIN_IDLE_S = 1.0  # a socket without a session is closed, when places run out, once this old
+SWEEP_S = 0.25  # how often the sockets are looked at
+
+
+async def sweep_idle(server, on_evict) -> None:
+    """While fewer than two places are free, the oldest socket without an activated session
+    (older than MIN_IDLE_S) is closed (on_evict() counts it): a client that logs in finds a
+    place. Runs until cancelled; a failure to look is logged, never ends the server."""
+    loop = asyncio.get_running_loop()
+    first_seen: dict[int, float] = {}
+    while True:
+        await asyncio.sleep(SWEEP_S)
+        try:
+            clients = list(getattr(server.bserver, "clients", []) or [])
+            now = loop.time()
+            first_seen = {id(c): first_seen.get(id(c), now) for c in clients}
+            free = server.iserver.max_connections - len(clients)
+            old = [c for c in clients if now - first_seen[id(c)] >= MIN_IDLE_S]
+            idle = sorted((first_seen[id(c)], id(c), c) for c in old if not _activated(c))
+            for _, _, c in idle[: max(0, 2 - free)]:
+                transport = getattr(c, "transport", None)
+                if transport is not None:
+                    transport.close()
+                    on_evict()
+        except Exception:  # never ends the server
+            logger.exception("OPC UA: looking at the connections failed")
+
+
+def _activated(protocol) -> bool:
+    """Whether an asyncua connection has an activated session."""
+    processor = getattr(protocol, "processor", None)
+    session = getattr(processor, "session", None)
+    try:
+        return session is not None and bool(session.is_activated())
+    except Exception:
+        return False

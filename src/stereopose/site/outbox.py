@@ -456,17 +456,15 @@ class LogOutbox:
         return OutputHealth(True, lag)
 
     def _confirmed_or_resent(self) -> bool:
-        """At the close, everything sent: whether each stream a receiver confirms is confirmed
-        up to its cursor; a mark behind it for CLOSE_RESEND_S is sent again after the mark."""
-        now, done = time.monotonic(), True
+        """At the close, all sent: whether each confirmed stream is confirmed to its cursor (a
+        mark behind for CLOSE_RESEND_S: sent again after it)."""
+        now = time.monotonic()
         with self._lock:
-            for st in self.streams:
-                if st.confirmed is None or st.confirmed >= st.cursor:
-                    continue
-                done = False
+            behind = [s for s in self.streams if s.confirmed is not None and s.confirmed < s.cursor]
+            for st in behind:
                 if now - st.confirmed_at > CLOSE_RESEND_S:
                     st.restart_at, st.confirmed_at = st.confirmed, now
-        return done
+        return not behind
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what the log holds beyond the cursors, waiting for the broker's
