@@ -104,7 +104,9 @@ class SiteService:
         self.power_sources = None
         # the site edited while serving (GET/PUT /api/site, SIGHUP): taken at a step's start
         self.site_desk = (
-            SiteDesk(plan.site.path, plan.site, plan.out_dir / "site-history", self._check_site)
+            SiteDesk(
+                plan.site.path, plan.site, plan.out_dir / "site-history", self._check_site, plan.rig
+            )
             if plan.site is not None and plan.site.path is not None
             else None
         )

@@ -53,7 +53,8 @@ class SiteChange:
 
 class SiteDesk:
     """See the module. check(site): a ConfigError when the running service cannot take
-    `site` (a ticket naming a zone it removes); None: nothing more to check."""
+    `site` (a ticket naming a zone it removes); None: nothing more to check. rig: the
+    cameras, for the zones seen in their pictures (site.site_views)."""
 
     def __init__(
         self,
@@ -61,8 +62,10 @@ class SiteDesk:
         site: Site,
         history_dir: Path,
         check: Callable[[Site], None] | None = None,
+        rig: Any = None,
     ) -> None:
         self.path, self.history_dir, self.check = Path(path), Path(history_dir), check
+        self.rig = rig  # the cameras (the Site tab's views of the zones; None: none)
         self.site, self.version = site, site_version(site)
         self._lock = threading.Lock()
         self._pending: SiteChange | None = None

@@ -12,9 +12,10 @@ import shutil
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from consoled import PASSWORDS, console_server
+from consoled import PASSWORDS, console_server, demo_plan
 from stereopose.fence import load_site
 from stereopose.site.site_desk import SiteDesk
 from waiting import wait_until
@@ -85,7 +86,7 @@ def _zones(page) -> list[str]:
 def test_an_admin_draws_a_zone_saves_it_and_restores_the_earlier_version(browser, tmp_path):
     path = tmp_path / "site.toml"
     shutil.copy(DEMO_SITE, path)
-    desk = SiteDesk(path, load_site(path), tmp_path / "history")
+    desk = SiteDesk(path, load_site(path), tmp_path / "history", rig=demo_plan(tmp_path).rig)
     first = desk.version
     with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
         with _page(browser, s.url, "ada") as page:
@@ -113,6 +114,48 @@ def test_an_admin_draws_a_zone_saves_it_and_restores_the_earlier_version(browser
             assert change.by == "ada" and len(added) == 1 and added[0].kind == "restricted"
             assert len(added[0].polygon) == 3
             assert "bay_3" in path.read_text()
+            # the demo's zones (in view of every camera) drawn in every camera's picture
+            for name in ("cam01", "cam02", "cam03", "cam04"):
+                page.select_option("#site-camera", name)
+                wait_until(
+                    lambda: (
+                        {"overhead_busbar", "work_area", "qs1_front", "qs1_handle"}
+                        <= set(
+                            page.evaluate(
+                                "[...document.querySelectorAll('#site-camera-svg g')]"
+                                ".filter(g => g.querySelector('polyline')).map(g => g.dataset.zone)"
+                            )
+                        )
+                    ),
+                    f"the zones' prisms in {name}",
+                    poll_s=0.05,
+                )
+            # a zone drawn on a camera's picture: its corners land on the floor there
+            page.click("#site-new")
+            picture = page.locator("#site-camera-svg")
+            picture.scroll_into_view_if_needed()
+            view = picture.bounding_box()
+            for fx, fy in ((0.4, 0.8), (0.6, 0.8), (0.6, 0.9)):
+                picture.click(position={"x": fx * view["width"], "y": fy * view["height"]})
+            wait_until(
+                lambda: page.evaluate("window.stereoposeConsole.site.drawing.length") == 3,
+                "three corners from the picture",
+                poll_s=0.05,
+            )
+            corners = page.evaluate("window.stereoposeConsole.site.drawing")
+            page.click("#site-finish")
+            wait_until(lambda: len(_zones(page)) == 6, "the zone from the picture", poll_s=0.05)
+            from stereopose.site.site_views import floor_point
+
+            cam = next(c for c in desk.rig if c.name == "cam04")
+            clicked = [
+                floor_point(cam, fx, fy, 0.0) for fx, fy in ((0.4, 0.8), (0.6, 0.8), (0.6, 0.9))
+            ]
+            # each corner where its ray meets the floor, snapped (a 5 cm grid, or another zone's
+            # corner within 15 cm)
+            assert np.linalg.norm(np.array(corners) - np.array(clicked), axis=1).max() <= 0.16
+            page.click('#site-zones li[data-zone="zone_6"]')
+            page.click("#site-delete")
             # the versions listed, the earlier one restored
             page.wait_for_selector(f'#site-history li[data-version="{first}"] button')
             page.click(f'#site-history li[data-version="{first}"] button')

@@ -7,6 +7,11 @@ admin, taken by the running service at its next step (site.site_desk).
   problem, nothing changed; 409 when `version` is not the current one.
 - `GET /api/site/history`: the versions kept, newest first (`version`, `by`, `at`);
   `GET /api/site/history/{version}`: one of them with its site (404 when not kept).
+- `POST /api/site/views` (any role) with `{"site"}` (optional: the running site): each zone's
+  prism in every camera's picture (site.site_views), so a draft is seen before it is saved.
+- `POST /api/site/floor` (any role) with `{"camera", "x", "y", "z"}` (x, y fractions of the
+  picture; z metres, 0 the floor): `{"x", "y"}` where that ray meets the plane; 422 when it
+  never does in front of the camera, 404 for an unknown camera.
 
 503 while the service has no site file to edit (serve without a site).
 """
@@ -20,8 +25,10 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
 from stereopose.errors import ConfigError
+from stereopose.fence.site import parse_site
 from stereopose.site.http.auth import Admin, Viewer
 from stereopose.site.site_desk import SiteConflictError, SiteDesk
+from stereopose.site.site_views import floor_point, views
 
 router = APIRouter(tags=["site"])
 
@@ -33,6 +40,21 @@ class SitePut(BaseModel):
 
     version: str = Field(min_length=1, max_length=64)
     site: dict[str, Any]
+
+
+class ViewsPost(BaseModel):
+    """A site (None: the running one) to see in the cameras' pictures."""
+
+    site: dict[str, Any] | None = None
+
+
+class FloorPost(BaseModel):
+    """A point of a camera's picture (fractions) and the height of the plane it lands on."""
+
+    camera: str = Field(min_length=1, max_length=200)
+    x: float = Field(ge=-1.0, le=2.0)
+    y: float = Field(ge=-1.0, le=2.0)
+    z: float = Field(default=0.0, ge=-100.0, le=100.0)
 
 
 def _desk(request: Request) -> SiteDesk:
@@ -76,3 +98,29 @@ def one_version(version: Annotated[str, _VERSION], session: Viewer, request: Req
     if found is None:
         raise HTTPException(404, f"version {version} is not kept")
     return found
+
+
+@router.post("/api/site/views", responses={400: {}, 503: {}})
+def site_views(body: ViewsPost, session: Viewer, request: Request) -> dict:
+    """{"cameras": [{"name", "size", "zones": [{"name", "kind", "lines"}]}]}."""
+    desk = _desk(request)
+    if desk.rig is None:
+        raise HTTPException(503, "this service has no cameras to show the site in")
+    try:
+        site = parse_site(body.site) if body.site is not None else desk.site
+    except ConfigError as e:
+        raise HTTPException(400, str(e)) from None
+    return views(site, desk.rig)
+
+
+@router.post("/api/site/floor", responses={404: {}, 422: {}, 503: {}})
+def site_floor(body: FloorPost, session: Viewer, request: Request) -> dict:
+    """{"x", "y"}: where the picture's point lands at height z."""
+    desk = _desk(request)
+    camera = next((c for c in desk.rig or () if c.name == body.camera), None)
+    if camera is None:
+        raise HTTPException(404, "no such camera")
+    point = floor_point(camera, body.x, body.y, body.z)
+    if point is None:
+        raise HTTPException(422, "that point of the picture never reaches the plane in front")
+    return {"x": round(point[0], 4), "y": round(point[1], 4)}

@@ -29,7 +29,7 @@ function text(tag, content, className = "") {
   return node;
 }
 
-const round = (v) => Math.round(v / GRID_M) * GRID_M;
+const round = (v) => Number((Math.round(v / GRID_M) * GRID_M).toFixed(3));
 const pts = (polygon) => polygon.map(([x, y]) => `${x.toFixed(3)},${(-y).toFixed(3)}`).join(" ");
 
 export class SiteEditor {
@@ -51,6 +51,12 @@ export class SiteEditor {
     this.svg.addEventListener("pointerdown", (e) => this.onDown(e));
     this.svg.addEventListener("pointermove", (e) => this.onMove(e));
     this.svg.addEventListener("pointerup", () => { this.drag = null; });
+    this.camera = null;
+    this.views = null;
+    this.viewTimer = null;
+    byId("site-camera").addEventListener("change", (e) => { this.camera = e.target.value; this.drawViews(); });
+    byId("site-camera-svg").addEventListener("click", (e) => this.onCameraClick(e));
+    byId("site-camera-img").addEventListener("error", () => { byId("site-camera-img").hidden = true; });
   }
 
   setRole(role) {
@@ -112,6 +118,65 @@ export class SiteEditor {
     }
     this.renderList();
     this.toForm();
+    clearTimeout(this.viewTimer);
+    this.viewTimer = setTimeout(() => this.loadViews(), 250);
+  }
+
+  // -- the zones in the cameras' pictures ----------------------------------------------------
+
+  async loadViews() {
+    if (!this.site) return;
+    try {
+      this.views = await api.call("/api/site/views", { method: "POST", body: { site: this.site } });
+    } catch {
+      return; // a draft that does not check yet: the last views stay
+    }
+    const select = byId("site-camera");
+    const names = this.views.cameras.map((c) => c.name);
+    if (select.options.length !== names.length) {
+      select.replaceChildren(...names.map((n) => { const o = text("option", n); o.value = n; return o; }));
+    }
+    if (!names.includes(this.camera)) this.camera = names[0] || null;
+    select.value = this.camera || "";
+    this.drawViews();
+  }
+
+  drawViews() {
+    const svg = byId("site-camera-svg");
+    svg.replaceChildren();
+    const cam = this.views && this.views.cameras.find((c) => c.name === this.camera);
+    if (!cam) return;
+    const view = byId("site-view");
+    view.style.aspectRatio = `${cam.size[0]} / ${cam.size[1]}`;
+    const img = byId("site-camera-img");
+    const src = `/api/cameras/${encodeURIComponent(cam.name)}/snapshot.jpg`;
+    if (img.dataset.camera !== cam.name) {
+      img.hidden = false;
+      img.dataset.camera = cam.name;
+      img.src = src;
+    }
+    const selected = this.zones()[this.selected];
+    for (const zone of cam.zones) {
+      const g = el("g", { class: `${zone.kind}${selected && selected.name === zone.name ? " selected" : ""}`,
+        "data-zone": zone.name }, svg);
+      for (const line of zone.lines) {
+        el("polyline", { points: line.map(([x, y]) => `${x},${y}`).join(" ") }, g);
+      }
+    }
+  }
+
+  async onCameraClick(event) {
+    if (!this.drawing || !this.camera) return;
+    const box = byId("site-camera-svg").getBoundingClientRect();
+    const x = (event.clientX - box.left) / box.width;
+    const y = (event.clientY - box.top) / box.height;
+    try {
+      const at = await api.call("/api/site/floor", { method: "POST", body: { camera: this.camera, x, y, z: 0 } });
+      this.drawing.push(this.snapped([at.x, at.y], -1));
+      this.render();
+    } catch (e) {
+      byId("site-error").textContent = `${e.detail || e.message}`;
+    }
   }
 
   renderList() {
@@ -193,7 +258,7 @@ export class SiteEditor {
         if (d <= SNAP_M && (!best || d < best[0])) best = [d, [cx, cy]];
       }
     });
-    return best ? best[1] : [round(x), round(y)];
+    return best ? [...best[1]] : [round(x), round(y)];
   }
 
   onDown(event) {
