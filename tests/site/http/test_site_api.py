@@ -134,35 +134,37 @@ def test_the_zones_in_the_cameras_pictures_and_a_click_back_on_the_floor(tmp_pat
     path = tmp_path / "site.toml"
     shutil.copy(DEMO_SITE, path)
     desk = SiteDesk(path, load_site(path), tmp_path / "history", rig=plan.rig)
-    with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
-        with contextlib.closing(s.client("vera")) as c:
-            got = c.post("/api/site/views", json={}).json()["cameras"]
-            assert [v["name"] for v in got] == ["cam01", "cam02", "cam03", "cam04"]
-            for view in got:  # the demo's four zones are in view of every camera
-                assert all(z["lines"] for z in view["zones"]) and len(view["zones"]) == 4
-            # a draft (not saved) is seen too; one that does not check is 400
-            draft = {**desk.current()["site"]}
-            draft["zones"] = [
-                *draft["zones"],
-                {
-                    "name": "new",
-                    "kind": "restricted",
-                    "polygon": [[0, 0], [1, 0], [1, 1]],
-                    "z": [0, 2],
-                },
-            ]
-            got = c.post("/api/site/views", json={"site": draft}).json()["cameras"]
-            assert [z["name"] for z in got[0]["zones"]][-1] == "new"
-            bad = {**draft, "zones": [{"name": "x", "kind": "lava"}]}
-            assert c.post("/api/site/views", json={"site": bad}).status_code == 400
-            # a point of cam02's picture back on the floor: the floor point seen there
-            cam = plan.rig[1]
-            fx, fy = project(np.array([[0.3, -0.2, 0.0]]), cam)[0] / cam.size
-            r = c.post("/api/site/floor", json={"camera": "cam02", "x": fx, "y": fy, "z": 0})
-            assert r.status_code == 200 and abs(r.json()["x"] - 0.3) < 1e-3
-            assert abs(r.json()["y"] + 0.2) < 1e-3
-            missing = {"camera": "cam09", "x": 0.5, "y": 0.5}
-            assert c.post("/api/site/floor", json=missing).status_code == 404
-            # a plane above the camera's height in front of it cannot be met looking down
-            up = {"camera": "cam02", "x": fx, "y": fy, "z": 50}
-            assert c.post("/api/site/floor", json=up).status_code == 422
+    with (
+        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        contextlib.closing(s.client("vera")) as c,
+    ):
+        got = c.post("/api/site/views", json={}).json()["cameras"]
+        assert [v["name"] for v in got] == ["cam01", "cam02", "cam03", "cam04"]
+        for view in got:  # the demo's four zones are in view of every camera
+            assert all(z["lines"] for z in view["zones"]) and len(view["zones"]) == 4
+        # a draft (not saved) is seen too; one that does not check is 400
+        draft = {**desk.current()["site"]}
+        draft["zones"] = [
+            *draft["zones"],
+            {
+                "name": "new",
+                "kind": "restricted",
+                "polygon": [[0, 0], [1, 0], [1, 1]],
+                "z": [0, 2],
+            },
+        ]
+        got = c.post("/api/site/views", json={"site": draft}).json()["cameras"]
+        assert [z["name"] for z in got[0]["zones"]][-1] == "new"
+        bad = {**draft, "zones": [{"name": "x", "kind": "lava"}]}
+        assert c.post("/api/site/views", json={"site": bad}).status_code == 400
+        # a point of cam02's picture back on the floor: the floor point seen there
+        cam = plan.rig[1]
+        fx, fy = project(np.array([[0.3, -0.2, 0.0]]), cam)[0] / cam.size
+        r = c.post("/api/site/floor", json={"camera": "cam02", "x": fx, "y": fy, "z": 0})
+        assert r.status_code == 200 and abs(r.json()["x"] - 0.3) < 1e-3
+        assert abs(r.json()["y"] + 0.2) < 1e-3
+        missing = {"camera": "cam09", "x": 0.5, "y": 0.5}
+        assert c.post("/api/site/floor", json=missing).status_code == 404
+        # a plane above the camera's height in front of it cannot be met looking down
+        up = {"camera": "cam02", "x": fx, "y": fy, "z": 50}
+        assert c.post("/api/site/floor", json=up).status_code == 422
