@@ -100,7 +100,8 @@ MADE = """() => {
     if (['b', 'i'].includes(tag)) found.push(tag);
     if (tag === 'a' && !['h-csv', 'player-download', 't-report'].includes(node.id) &&
         !node.classList.contains('t-clip')) found.push('a');
-    if (tag === 'img' && !node.dataset.camera && node.id !== 'player-frames') found.push('img');
+    if (tag === 'img' && !node.dataset.camera &&
+        !['player-frames', 'site-camera-img'].includes(node.id)) found.push('img');
   }
   return found;
 }"""
