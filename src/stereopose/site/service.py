@@ -103,13 +103,10 @@ class SiteService:
         self.power = ZoneStates(zones, self.power_board) if self.power_board else None
         self.power_sources = None
         # the site edited while serving (GET/PUT /api/site, SIGHUP): taken at a step's start
-        self.site_desk = (
-            SiteDesk(
-                plan.site.path, plan.site, plan.out_dir / "site-history", self._check_site, plan.rig
-            )
-            if plan.site is not None and plan.site.path is not None
-            else None
-        )
+        site, history = plan.site, plan.out_dir / "site-history"
+        self.site_desk = None
+        if site is not None and site.path is not None:
+            self.site_desk = SiteDesk(site.path, site, history, self._check_site, plan.rig)
         self.keeper = None  # site.health.calib_keeper, once the frame loop starts
         self.calibration_desk = KeeperDesk()  # the API's way to it
         if self.packets:
