@@ -8,9 +8,10 @@ zone appended; a removed one taken out), and handed to the frame loop, which tak
 step (`take`): no restart, no camera reconnected, no track lost. Every version is kept in
 `<data>/site-history/` (its TOML text, who made it and when; the latest MAX_HISTORY kept), so an
 earlier one can be read and restored. A PUT names the version it edits: another admin's change
-since is a conflict (409), never overwritten. Nothing is half-applied: a site that does not
-check, or a file that cannot be written, leaves the running site, the file and the version as
-they were.
+since is a conflict (409), never overwritten. A state source's endpoint is shown with its
+password hidden (user:***@host) and given its password back when it comes back so. Nothing is
+half-applied: a site that does not check, or a file that cannot be written, leaves the running
+site, the file and the version as they were.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import Any
 
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence.site import Site, format_site, load_site, parse_site, site_doc, site_version
+from stereopose.secrets import redact
 
 __all__ = ["SiteChange", "SiteConflictError", "SiteDesk"]
 
@@ -78,7 +80,7 @@ class SiteDesk:
 
     def current(self) -> dict[str, Any]:
         with self._lock:
-            return {"version": self.version, "site": site_doc(self.site)}
+            return {"version": self.version, "site": _hidden(site_doc(self.site))}
 
     def history(self) -> list[dict[str, Any]]:
         """The versions kept, newest first: {"version", "by", "at"} (at: Unix time)."""
@@ -95,7 +97,7 @@ class SiteDesk:
         except ConfigError as e:  # a kept file damaged: as if not kept, and said
             logger.warning("site: version %s unreadable: %s", version, e)
             return None
-        return {**row, "site": site_doc(site)}
+        return {**row, "site": _hidden(site_doc(site))}
 
     # -- changing ----------------------------------------------------------------------------
 
@@ -108,8 +110,8 @@ class SiteDesk:
                 raise SiteConflictError(
                     f"the site changed since version {version} (now {self.version}): reload it"
                 )
-            new = parse_site(doc, self.path)
-            return self._apply(new, _merged(self.path, site_doc(new)), by)
+            new = parse_site(_with_passwords(doc, site_doc(self.site)), self.path)
+            return self._apply(new, _merged(self.path, new), by)
 
     def reload(self, by: str = "the site file (SIGHUP)") -> str | None:
         """The site file read again (edited by hand): its version, or None when unchanged or
@@ -153,7 +155,6 @@ class SiteDesk:
             _write_atomic(self.path, text)
         else:
             text = self.path.read_text(encoding="utf-8")
-        new = Site(new.zones, new.fps, self.path, rules=new.rules, postures=new.postures)
         old = self._pending.old if self._pending is not None else self.site
         self.site, self.version = new, version
         self._pending = SiteChange(old, new, by, version)
@@ -196,16 +197,17 @@ class SiteDesk:
             logger.warning("site: the history in %s not written: %s", self.history_dir, e)
 
 
-def _merged(path: Path, doc: dict[str, Any]) -> str:
-    """The site file's text with `doc`'s keys, its comments kept where its tables stay; the
-    plain text of the site (format_site) when the file cannot be merged into."""
+def _merged(path: Path, new: Site) -> str:
+    """The site file's text holding `new`, its comments kept where its tables stay; the plain
+    text of the site (format_site) when the file cannot be merged into."""
     import tomlkit
 
+    doc = site_doc(new)
     try:
         old = tomlkit.parse(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as e:
         logger.warning("site: %s rewritten without its comments: %s", path, e)
-        return format_site(parse_site(doc, path))
+        return format_site(new)
     for key in list(old):
         if key not in doc:
             del old[key]
@@ -216,13 +218,11 @@ def _merged(path: Path, doc: dict[str, Any]) -> str:
             old[key] = value
     text = tomlkit.dumps(old)
     try:  # what was merged must read back as the site: else the plain text
-        if site_version(parse_site(tomlkit.parse(text).unwrap(), path)) == site_version(
-            parse_site(doc, path)
-        ):
+        if site_version(parse_site(tomlkit.parse(text).unwrap(), path)) == site_version(new):
             return text
     except (ConfigError, ValueError) as e:
         logger.warning("site: %s merged wrongly (%s); written without its comments", path, e)
-    return format_site(parse_site(doc, path))
+    return format_site(new)
 
 
 def _merge_tables(tables: Any, items: list[dict[str, Any]]) -> None:
@@ -267,3 +267,40 @@ def _write_atomic(path: Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _endpoints(value: Any, change: Callable[[str], str]) -> Any:
+    """`value` (a site's keys) with every state source's `endpoint` changed by `change`."""
+    if isinstance(value, dict):
+        return {
+            k: change(v) if k == "endpoint" and isinstance(v, str) else _endpoints(v, change)
+            for k, v in value.items()
+        }
+    if isinstance(value, list):
+        return [_endpoints(v, change) for v in value]
+    return value
+
+
+def _hidden(doc: dict[str, Any]) -> dict[str, Any]:
+    """The site's keys as the API shows them: an endpoint's password as *** (secrets.redact)."""
+    return _endpoints(doc, redact)
+
+
+def _with_passwords(doc: Any, current: dict[str, Any]) -> Any:
+    """A site sent back with its endpoints' passwords hidden: each hidden endpoint given the
+    running site's password again; one that hides a password the running site does not hold
+    is a ConfigError (its password is never written as ***)."""
+    known: dict[str, str] = {}
+    _endpoints(current, lambda e: known.setdefault(redact(e), e))
+
+    def restore(endpoint: str) -> str:
+        if ":***@" not in endpoint:  # not hidden: as given
+            return endpoint
+        if endpoint in known:
+            return known[endpoint]
+        raise ConfigError(
+            f"endpoint {redact(endpoint)}: its password is hidden and not the running site's; "
+            "give it again"
+        )
+
+    return _endpoints(doc, restore)

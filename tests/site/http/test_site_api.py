@@ -6,6 +6,7 @@ operators and viewers and for a cookie without its CSRF header, 409 for a stale 
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
 from importlib import resources
 from pathlib import Path
@@ -168,3 +169,37 @@ def test_the_zones_in_the_cameras_pictures_and_a_click_back_on_the_floor(tmp_pat
         # a plane above the camera's height in front of it cannot be met looking down
         up = {"camera": "cam02", "x": fx, "y": fy, "z": 50}
         assert c.post("/api/site/floor", json=up).status_code == 422
+
+
+def test_an_endpoints_password_is_never_shown_and_kept_when_the_site_comes_back(tmp_path):
+    path = tmp_path / "site.toml"
+    endpoint = "opc.tcp://scada:hunter2@10.0.0.6:4840"
+    path.write_text(
+        DEMO_SITE.read_text().replace(
+            "margin_m = 0.3\n",
+            "margin_m = 0.3\nstate = { opcua = { endpoint = "
+            f'"{endpoint}", node_id = "ns=2;s=QF" }} }}\n',
+            1,
+        )
+    )
+    desk = SiteDesk(path, load_site(path), tmp_path / "history")
+    with (
+        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        contextlib.closing(s.client("ada")) as c,
+    ):
+        r = c.get("/api/site")
+        assert "hunter2" not in r.text and "scada:***@10.0.0.6" in r.text
+        assert "hunter2" not in c.get(f"/api/site/history/{desk.version}").text
+        got = r.json()
+        r = c.put("/api/site", json={"version": got["version"], "site": _busbar_wider(got["site"])})
+        assert r.status_code == 200, r.text
+        assert (
+            endpoint in path.read_text() and desk.site.zones[0].power.points[0].endpoint == endpoint
+        )
+        # a hidden password the running site does not hold is never written as ***
+        moved = json.loads(json.dumps(c.get("/api/site").json()))
+        state = moved["site"]["zones"][0]["state"]["points"]["state"]["opcua"]
+        state["endpoint"] = "opc.tcp://scada:***@10.0.0.7:4840"
+        r = c.put("/api/site", json=moved)
+        assert r.status_code == 400 and "give it again" in r.json()["detail"]
+    assert "***" not in path.read_text()
