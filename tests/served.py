@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sqlite3
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 
@@ -79,3 +82,15 @@ def get(url: str, method: str = "GET", data: bytes | None = None, headers=None):
 def get_json(url: str) -> tuple[int, dict]:
     status, _, body = get(url)
     return status, json.loads(body)
+
+
+def log_rows(db: Path, sql: str) -> list[tuple]:
+    """Rows of an event log, read as another process would (read-only, no lock held); none
+    before the file or its tables are made."""
+    if not db.exists():
+        return []
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)) as c:
+            return c.execute(sql).fetchall()
+    except sqlite3.OperationalError:  # the tables not made yet
+        return []

@@ -7,28 +7,16 @@ and the restart's closing exits clear those whose person is gone."""
 from __future__ import annotations
 
 import json
-import sqlite3
 
 import pytest
 from test_serve import _start, _stop  # the same serve process and stop
 
 from brokers import Broker, Subscriber, free_port
+from served import log_rows
 from stereopose.pipeline.demo import write_serve_demo_config
 from waiting import wait_until
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
-
-
-def _rows(db, sql: str) -> list[tuple]:
-    if not db.exists():
-        return []
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-    try:
-        return con.execute(sql).fetchall()
-    except sqlite3.OperationalError:  # the tables not made yet
-        return []
-    finally:
-        con.close()
 
 
 @pytest.fixture
@@ -53,7 +41,7 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     proc = _start(config, log)
     try:
         wait_until(
-            lambda: _rows(db, "SELECT id FROM incidents"),
+            lambda: log_rows(db, "SELECT id FROM incidents"),
             "an incident in the log",
             timeout_s=120,
             poll_s=0.5,
@@ -64,16 +52,16 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
         proc.wait(timeout=10)
     change = json.loads(sub.on("stereopose/demo/incidents")[0])
     assert change["change"] == "raised" and change["incident"]["id"] >= 1
-    alarms = _rows(db, "SELECT incident, priority FROM events WHERE incident IS NOT NULL")
-    stored = {i for (i,) in _rows(db, "SELECT id FROM incidents")}
+    alarms = log_rows(db, "SELECT incident, priority FROM events WHERE incident IS NOT NULL")
+    stored = {i for (i,) in log_rows(db, "SELECT id FROM incidents")}
     assert alarms and {i for i, _ in alarms} <= stored and all(p for _, p in alarms)
-    before = dict(_rows(db, "SELECT id, state FROM incidents"))
+    before = dict(log_rows(db, "SELECT id, state FROM incidents"))
     top = max(before)
-    n_events = _rows(db, "SELECT MAX(id) FROM events")[0][0]
+    n_events = log_rows(db, "SELECT MAX(id) FROM events")[0][0]
     proc = _start(config, log)
     try:
         wait_until(
-            lambda: _rows(
+            lambda: log_rows(
                 db,
                 f"SELECT id FROM events WHERE id > {n_events} "
                 "AND incident IS NOT NULL AND restart = 0",
@@ -88,7 +76,7 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     left_open = sum(1 for state in before.values() if state != "closed")
     if left_open:  # taken back by the new run's book, each once
         assert f"restart: {left_open} incident(s) left open" in log.read_text()
-    after = _rows(db, "SELECT id, state, record FROM incidents ORDER BY id")
+    after = log_rows(db, "SELECT id, state, record FROM incidents ORDER BY id")
     ids = [i for i, _, _ in after]
     assert len(ids) == len(set(ids)) and set(before) <= set(ids)
     new = [i for i in ids if i not in before]
@@ -99,7 +87,7 @@ def test_incidents_in_serve_survive_kill_9_once(setup):
     # every event of the new run names an incident the log holds
     named = {
         i
-        for (i,) in _rows(
+        for (i,) in log_rows(
             db, f"SELECT incident FROM events WHERE id > {n_events} AND incident IS NOT NULL"
         )
     }

@@ -5,9 +5,7 @@ site and raises a diagnostic incident naming the file."""
 
 from __future__ import annotations
 
-import contextlib
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -17,6 +15,7 @@ import httpx
 import pytest
 
 from brokers import free_port
+from served import log_rows
 from stereopose.pipeline.demo import write_serve_demo_config
 from waiting import wait_until
 
@@ -30,18 +29,8 @@ FLOOR = {
 }
 
 
-def _rows(db: Path, sql: str) -> list[tuple]:
-    if not db.exists():
-        return []
-    try:
-        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)) as c:
-            return c.execute(sql).fetchall()
-    except sqlite3.OperationalError:
-        return []
-
-
 def _changes(db: Path) -> list[tuple]:
-    return _rows(
+    return log_rows(
         db,
         "SELECT id, type, source, incident FROM events WHERE type IN "
         "('site_changed', 'site_invalid', 'site_valid') ORDER BY id",
@@ -76,19 +65,21 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
         r = c.post("/api/login", json={"username": "ada", "password": "ada's passphrase"})
         c.headers["X-CSRF-Token"] = r.json()["csrf"]
         wait_until(
-            lambda: _rows(db, "SELECT 1 FROM events WHERE person >= 0 LIMIT 1"),
+            lambda: log_rows(db, "SELECT 1 FROM events WHERE person >= 0 LIMIT 1"),
             "the first people's events",
             timeout_s=120,
             poll_s=0.5,
         )
-        ids_before = {p for (p,) in _rows(db, "SELECT DISTINCT person FROM events")}
+        ids_before = {p for (p,) in log_rows(db, "SELECT DISTINCT person FROM events")}
         got = c.get("/api/site").json()
         new = {**got["site"], "zones": [*got["site"]["zones"], FLOOR]}
         saved = time.monotonic()
         r = c.put("/api/site", json={"version": got["version"], "site": new})
         assert r.status_code == 200, r.text
         wait_until(
-            lambda: _rows(db, "SELECT 1 FROM events WHERE zone = 'whole_floor' AND type = 'enter'"),
+            lambda: log_rows(
+                db, "SELECT 1 FROM events WHERE zone = 'whole_floor' AND type = 'enter'"
+            ),
             "an entry of the new zone",
             timeout_s=30,
             poll_s=0.1,
@@ -100,7 +91,10 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
         assert "whole_floor" in site.read_text() and "# recording looped" in site.read_text()
         # the people's ids go on: the tracks were not started again
         ids_after = {
-            p for (p,) in _rows(db, "SELECT DISTINCT person FROM events WHERE zone = 'whole_floor'")
+            p
+            for (p,) in log_rows(
+                db, "SELECT DISTINCT person FROM events WHERE zone = 'whole_floor'"
+            )
         }
         assert ids_after & ids_before
 
@@ -110,7 +104,9 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
         wait_until(lambda: len(_changes(db)) == 2, "the hand edit taken", timeout_s=30)
         text = _changes(db)[1][2]
         assert "SIGHUP" in text and "added floor_b" in text and "removed whole_floor" in text
-        exits = _rows(db, "SELECT source FROM events WHERE zone = 'whole_floor' AND type = 'exit' ")
+        exits = log_rows(
+            db, "SELECT source FROM events WHERE zone = 'whole_floor' AND type = 'exit' "
+        )
         assert ("site changed: zone removed",) in exits
 
         # a broken file: the running site kept, a diagnostic incident naming the file

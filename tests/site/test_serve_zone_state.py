@@ -6,9 +6,7 @@ diagnostic incident naming the RTU. status.json shows each zone's state and its 
 
 from __future__ import annotations
 
-import contextlib
 import json
-import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from brokers import free_port
+from served import log_rows
 from stereopose.pipeline.demo import write_serve_demo_config
 from waiting import wait_until
 
@@ -23,18 +22,8 @@ c104 = pytest.importorskip("c104")
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
-def _rows(db: Path, sql: str) -> list[tuple]:
-    if not db.exists():
-        return []
-    try:
-        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)) as c:
-            return c.execute(sql).fetchall()
-    except sqlite3.OperationalError:
-        return []
-
-
 def _busbar(db: Path) -> list[tuple]:
-    return _rows(
+    return log_rows(
         db,
         "SELECT id, kind, type, incident, source FROM events WHERE zone = 'overhead_busbar' "
         "ORDER BY id",

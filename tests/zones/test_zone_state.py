@@ -118,19 +118,25 @@ def _types(events) -> list[str]:
     return [e.type for e in events]
 
 
-def test_a_zone_follows_its_breaker_and_earthing_switch_over_iec104(tmp_path: Path) -> None:
-    rtu = Rtu(qf="closed", qe="open")
-    rtu_link = (
+def _rtu_state(rtu: Rtu, interrogation_s: float) -> str:
+    """The zone's [zones.state]: dead when the RTU's breaker QF2 is open and its earthing switch
+    QE2 closed."""
+    link = (
         f'host = "127.0.0.1", port = {rtu.port}, common_address = 7, type = "double", '
-        "interrogation_s = 2"
+        f"interrogation_s = {interrogation_s}"
     )
-    state = f"""
+    return f"""
 [zones.state]
 dead_when = "qf == 'open' and qe == 'closed'"
 [zones.state.points]
-qf = {{ iec104 = {{ {rtu_link}, ioa = 2001 }} }}
-qe = {{ iec104 = {{ {rtu_link}, ioa = 2002 }} }}
+qf = {{ iec104 = {{ {link}, ioa = 2001 }} }}
+qe = {{ iec104 = {{ {link}, ioa = 2002 }} }}
 """
+
+
+def test_a_zone_follows_its_breaker_and_earthing_switch_over_iec104(tmp_path: Path) -> None:
+    rtu = Rtu(qf="closed", qe="open")
+    state = _rtu_state(rtu, interrogation_s=2)
     site = load_site(_site(tmp_path, state))
     assert site.zones[0].margin_m == 0.70  # 10 kV: GB 26860's 0.7 m
     board = PowerBoard()
@@ -192,17 +198,7 @@ def test_a_link_left_muted_is_started_again(tmp_path: Path) -> None:
     RTU sends nothing. The master sees it muted over a period and sends STARTDT again (counted),
     and the zone follows its breaker once more."""
     rtu = Rtu(qf="closed", qe="open")
-    link = (
-        f'host = "127.0.0.1", port = {rtu.port}, common_address = 7, type = "double", '
-        "interrogation_s = 1"
-    )
-    state = f"""
-[zones.state]
-dead_when = "qf == 'open' and qe == 'closed'"
-[zones.state.points]
-qf = {{ iec104 = {{ {link}, ioa = 2001 }} }}
-qe = {{ iec104 = {{ {link}, ioa = 2002 }} }}
-"""
+    state = _rtu_state(rtu, interrogation_s=1)
     site = load_site(_site(tmp_path, state))
     board = PowerBoard()
     sources = start_sources(site.zones, board)

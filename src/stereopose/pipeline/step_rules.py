@@ -133,6 +133,7 @@ class StepChain:
 
     def __init__(self, rules: Sequence[StepRule]) -> None:
         self.rules = list(rules)
+        self._safety = [r for r in self.rules if isinstance(r, SafetyRule)]  # looked up once
 
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
         """The step's events, every rule's in order, each safe zone's made information; the
@@ -141,8 +142,7 @@ class StepChain:
         events: list[Event] = []
         for rule in self.rules:
             events += rule.step(ctx)
-        safe = [r.safe_now() for r in self.rules if isinstance(r, SafetyRule)]
-        return made_safe(events, safe), ctx.postures
+        return made_safe(events, [r.safe_now() for r in self._safety]), ctx.postures
 
     def finish(self, t: float, frame: int) -> list[Event]:
         """The events of the input's end at its last step (every active ticket completed)."""
