@@ -168,3 +168,59 @@ def test_the_service_says_which_interfaces_are_on_and_warns_of_one_left_off(tmp_
     assert warning.startswith("[iec104] sets host, port but not enabled = true")
     assert "set [iec104] enabled = true" in warning
     assert disabled_settings(load_config(None)) == []  # sections left alone: nothing to say
+
+
+def _corrected(calib: Path, folder: Path, moved: float, source: Path | None = None) -> Path:
+    """A correction of `calib` as the calibration keeper writes it, in `folder`."""
+    import dataclasses
+
+    import numpy as np
+
+    from stereopose.calibration.formats import load_calibration
+    from stereopose.types import Rig
+
+    rig = load_calibration(calib)
+    first = rig[rig.names[0]]
+    new = dataclasses.replace(first, translation=np.add(first.translation, [moved, 0.0, 0.0]))
+    fixed = Rig(tuple(new if c.name == first.name else c for c in rig))
+    path = folder / "calib.corrected.toml"
+    save_calibration(path, fixed, {"corrected_from": str(source or calib), "camera": first.name})
+    return path
+
+
+def test_a_restart_keeps_the_services_correction_of_the_calibration(tmp_path, calib, caplog):
+    import os
+
+    from stereopose.site.plan import plan_serve
+
+    own = tmp_path / "calib.toml"
+    own.write_bytes(calib.read_bytes())
+    before = plan_serve(_config(tmp_path, own, ""))
+    assert before.calib_loaded == own
+    x0 = before.rig[before.rig.names[0]].translation[0]
+    # corrected beside it (newer): loaded, and said
+    fixed = _corrected(own, tmp_path, 0.25)
+    plan = plan_serve(_config(tmp_path, own, ""))
+    assert plan.calib_loaded == fixed and plan.calib_path == own
+    assert plan.rig[plan.rig.names[0]].translation[0] == pytest.approx(x0 + 0.25)
+    assert "correction of" in caplog.text
+    # unless told not to
+    off = plan_serve(_config(tmp_path, own, "[serve]\ncalibration_corrected = false"))
+    assert off.calib_loaded == own
+    # in the output folder when it is newer still
+    out = tmp_path / "out"
+    out.mkdir()
+    later = _corrected(own, out, 0.5)
+    os.utime(later, (fixed.stat().st_mtime + 5, fixed.stat().st_mtime + 5))
+    assert plan_serve(_config(tmp_path, own, "")).calib_loaded == later
+    # the original calibrated again since: the original wins
+    t = later.stat().st_mtime + 10
+    os.utime(own, (t, t))
+    assert plan_serve(_config(tmp_path, own, "")).calib_loaded == own
+    # a correction of another file, or a broken one, is not used
+    os.utime(own, (t - 20, t - 20))
+    _corrected(own, out, 0.5, source=tmp_path / "other.toml")
+    fixed.write_text("[cam01\n")
+    caplog.clear()
+    assert plan_serve(_config(tmp_path, own, "")).calib_loaded == own
+    assert "not corrected from" in caplog.text and "is not used" in caplog.text

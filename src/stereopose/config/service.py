@@ -32,6 +32,9 @@ class ServeConfig:
     # a drifted camera placed again from the people the others see is applied at once (false:
     # proposed, for an admin to accept: POST /api/calibration/<camera>/accept)
     calibration_auto: bool = True
+    # a restart loads the correction the service wrote (<name>.corrected.toml beside the
+    # calibration, or in the output folder) when it is newer than the calibration named
+    calibration_corrected: bool = True
     # steps with people sampled before a drifted camera is placed again
     calibration_samples: int = number(150, integer=True, ge=10, le=10_000)
     # how often status.json (the health snapshot) is rewritten

@@ -10,6 +10,7 @@ written and nothing opened but the files read.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -22,7 +23,7 @@ from stereopose.config_refs import (
     source_path,
     tls_files,
 )
-from stereopose.errors import ConfigError
+from stereopose.errors import CalibrationError, ConfigError
 from stereopose.fence import Site, load_site
 from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB, POSES_DIR, STATUS
 from stereopose.io.sinks.clips import ClipSettings
@@ -33,10 +34,13 @@ from stereopose.pipeline.outputs import check_outputs
 from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.secrets import redact
+from stereopose.site.health.calib_keeper import corrected_file
 from stereopose.site.http.server import ServeSettings
 from stereopose.site.storage import RetentionSettings
 from stereopose.tickets.ticket import Ticket, check_ticket_site, load_ticket
 from stereopose.types import Rig
+
+logger = logging.getLogger(__name__)
 
 _GB = 10**9
 
@@ -63,6 +67,8 @@ class ServePlan:
     clips: ClipSettings | None
     retention: RetentionSettings
     tickets: tuple[Ticket, ...] = ()
+    # the calibration loaded: calib_path, or the keeper's correction of it (calibration_corrected)
+    calib_loaded: Path | None = None
 
     @property
     def events_db(self) -> Path:
@@ -152,7 +158,7 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     _check_cameras(path, cfg)
     base = path.resolve().parent
     calib_path = resolve(base, cfg.calibration or "")
-    rig = run_rig(path, calib_path, cfg)
+    rig, calib_loaded = _rig(path, calib_path, resolve(base, cfg.output), cfg)
     site_path = resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
     check_outputs(cfg, site, _NoTwoWay)
@@ -199,9 +205,26 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
         clips=clips,
         retention=retention,
         tickets=_tickets(path, base, cfg, site),
+        calib_loaded=calib_loaded,
     )
     _check_places(plan)
     return plan
+
+
+def _rig(path: Path, calib_path: Path, out_dir: Path, cfg: Config) -> tuple[Rig, Path]:
+    """The rig the service starts with, and its file: the one the configuration names, or the
+    correction the calibration keeper wrote of it (newer than it; `calibration_corrected`). A
+    correction that cannot be used is logged and the original loaded."""
+    fixed = corrected_file(calib_path, [out_dir]) if cfg.serve.calibration_corrected else None
+    if fixed is not None:
+        try:
+            rig = run_rig(path, fixed, cfg)
+        except (CalibrationError, ConfigError) as e:
+            logger.error("%s: the corrected calibration is not used: %s", fixed, e)
+        else:
+            logger.warning("calibration: %s (the service's correction of %s)", fixed, calib_path)
+            return rig, fixed
+    return run_rig(path, calib_path, cfg), calib_path
 
 
 def _tickets(path: Path, base: Path, cfg: Config, site: Site | None) -> tuple[Ticket, ...]:

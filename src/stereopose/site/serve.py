@@ -267,6 +267,7 @@ def _run_loop(
         auto=cfg.serve.calibration_auto,
         out_dir=plan.out_dir,
         samples=cfg.serve.calibration_samples,
+        loaded=plan.calib_loaded,
     )
     service.keep_calibration(keeper)
 
@@ -309,7 +310,7 @@ def _run_loop(
     stage = Stage3D(
         rig,
         cfg,
-        calib_path=str(plan.calib_path),
+        calib_path=str(plan.calib_loaded or plan.calib_path),
         first_id=service.resume.person_ids(plan.events_db),
     )
     # a step the service was too late for is no observation; a stall's length not their age

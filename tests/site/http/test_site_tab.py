@@ -7,7 +7,6 @@ has nothing to save, and no page error or CSP violation happens."""
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 from importlib import resources
 from pathlib import Path
@@ -15,66 +14,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from consoled import PASSWORDS, console_server, demo_plan
+from browsing import chromium, console_page
+from consoled import console_server, demo_plan
 from stereopose.fence import load_site
 from stereopose.site.site_desk import SiteDesk
 from waiting import wait_until
 
 pytestmark = [pytest.mark.slow]
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync"]
 DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
-ROOT = Path(__file__).resolve().parents[3]
-SHOTS = Path(os.environ.get("STEREOPOSE_SCREENSHOTS", ROOT / "out" / "console-screenshots"))
-WATCH = """
-window.__violations = [];
-document.addEventListener('securitypolicyviolation', (e) => {
-  window.__violations.push(`${e.violatedDirective} ${e.sourceFile}:${e.lineNumber}`);
-});
-"""
 
 
 @pytest.fixture
 def browser():
-    if CHROMIUM is None:
-        if os.environ.get("STEREOPOSE_REQUIRE_BROWSER") == "1":
-            pytest.fail("chromium not found; install Debian's chromium package")
-        pytest.skip("chromium not installed (Debian package chromium)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
+    with chromium() as b:
+        yield b
 
 
 @contextlib.contextmanager
 def _page(browser, url: str, user: str):
-    context = browser.new_context(viewport={"width": 1500, "height": 950})
-    context.add_init_script(WATCH)
-    page = context.new_page()
-    problems: list[str] = []
-    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
-    page.on("dialog", lambda d: (problems.append(f"dialog: {d.message}"), d.dismiss()))
-    page.goto(url + "/")
-    page.wait_for_selector("#login-form", state="visible", timeout=20_000)
-    page.fill("#login-user", user)
-    page.fill("#login-password", PASSWORDS[user])
-    page.click("#login-submit")
-    page.wait_for_selector("#console", state="visible", timeout=60_000)
-    page.click('.tab[data-tab="site"]')
-    page.wait_for_selector("#site-zones li", timeout=20_000)
-    try:
+    with console_page(browser, url, user, f"site-tab-{user}") as page:
+        page.click('.tab[data-tab="site"]')
+        page.wait_for_selector("#site-zones li", timeout=20_000)
         yield page
-        assert problems == [] and page.evaluate("window.__violations") == []
-    finally:
-        with contextlib.suppress(Exception):
-            SHOTS.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(SHOTS / f"site-tab-{user}.png"))
-        context.close()
 
 
 def _zones(page) -> list[str]:

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import tomllib
 
 from stereopose.calibration.formats import save_calibration
 from stereopose.calibration.refine import refine_camera
@@ -41,7 +42,7 @@ from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
 
-__all__ = ["CalibrationKeeper", "KeeperDesk"]
+__all__ = ["CalibrationKeeper", "KeeperDesk", "corrected_file"]
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +68,8 @@ class _Case:
 
 class CalibrationKeeper:
     """See the module. apply: callables given the new rig when a pose is applied; out_dir:
-    where the files go when the original's folder cannot be written."""
+    where the files go when the original's folder cannot be written; loaded: the file the rig
+    was loaded from (calib_path, or an earlier correction of it)."""
 
     def __init__(
         self,
@@ -82,6 +84,7 @@ class CalibrationKeeper:
         accept_factor: float = ACCEPT_FACTOR,
         out_dir: str | Path | None = None,
         wall_start: float | None = None,
+        loaded: str | Path | None = None,
     ) -> None:
         self.rig, self.calib_path, self.health = rig, Path(calib_path), health
         self.apply_to = list(apply)
@@ -93,6 +96,7 @@ class CalibrationKeeper:
         self._lock = threading.Lock()  # the cases, against the API's threads
         self.corrected: dict[str, int] = {}
         self.written: Path | None = None
+        self.loaded = Path(loaded) if loaded is not None else self.calib_path  # the start's file
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="calib-keeper")
 
     # -- the frame loop's side ---------------------------------------------------------------
@@ -308,10 +312,46 @@ class CalibrationKeeper:
             },
             "corrected": dict(self.corrected),
             "file": None if self.written is None else str(self.written),
+            "loaded": str(self.loaded),
         }
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def corrected_file(calib_path: str | Path, places: Sequence[str | Path] = ()) -> Path | None:
+    """The newest `<name>.corrected.toml` the keeper wrote for the calibration at `calib_path`
+    (beside it, or in one of `places`), when it is newer than the original: a restart keeps the
+    correction; an original changed since (calibrated again) wins. A corrected file that cannot
+    be read, or was corrected from another file, is skipped with a log line."""
+    calib_path = Path(calib_path)
+    stem = calib_path.name.split(".")[0] or "calibration"
+    try:
+        since = calib_path.stat().st_mtime
+    except OSError:
+        return None
+    found: list[tuple[float, Path]] = []
+    for folder in [calib_path.parent, *map(Path, places)]:
+        path = folder / f"{stem}.corrected.toml"
+        try:
+            mtime = path.stat().st_mtime
+            with open(path, "rb") as f:
+                meta = tomllib.load(f).get("metadata", {})
+        except FileNotFoundError:
+            continue
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            logger.error("%s: the corrected calibration is not used: %s", path, e)
+            continue
+        source = meta.get("corrected_from") if isinstance(meta, dict) else None
+        if source is None or Path(str(source)).resolve() != calib_path.resolve():
+            logger.warning("%s: not corrected from %s: not used", path, calib_path)
+        elif mtime < since:
+            logger.warning(
+                "%s is older than %s (calibrated again since): not used", path, calib_path
+            )
+        else:
+            found.append((mtime, path))
+    return max(found)[1] if found else None
 
 
 class KeeperDesk:

@@ -91,6 +91,10 @@ export const shelveIncident = (id, reason, durationS) => call(
   { method: "POST", body: { reason, duration_s: durationS } },
 );
 export const alarmRates = () => call("/api/alarm-rates");
+export const calibration = () => call("/api/calibration");
+export const acceptPose = (camera) => call(
+  `/api/calibration/${encodeURIComponent(camera)}/accept`, { method: "POST" },
+);
 
 /** The query string of history filters: only the ones given. */
 export function query(filters) {

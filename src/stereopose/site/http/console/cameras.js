@@ -4,6 +4,8 @@
 // opened so by the console); the large view follows the same pictures and closes with its
 // button or Escape. The Regions toggle draws over each picture where detection looked in the
 // camera's last step (tracked people, its own people, motion, a scan), refreshed with its health.
+// Under a camera knocked out of place, the calibration keeper's word: being placed again, a new
+// pose proposed (with Accept for an admin), accepted, or not corrected and why.
 
 const PERIOD_MS = 500; // 2 pictures a second per camera
 
@@ -25,6 +27,7 @@ export class CameraStrip {
     this.active = true; // the live tab is shown
     this.large = large; // {dialog, img, title, why, close} or null
     this.opened = null; // the camera shown large
+    this.onAccept = null; // (camera) => accept the pose proposed for it
     document.addEventListener("visibilitychange", () => this.schedule());
     if (large) {
       large.close.addEventListener("click", () => this.closeLarge());
@@ -100,12 +103,14 @@ export class CameraStrip {
       const name = text("span", "camera-name", cam.name);
       const badge = text("span", "badge", "");
       const stats = text("span", "camera-stats muted", "");
-      caption.append(name, badge, stats);
+      const calib = text("span", "camera-calibration", "");
+      calib.hidden = true;
+      caption.append(name, badge, stats, calib);
       card.append(frame, caption);
       frame.title = `${cam.name}: click to enlarge`;
       frame.addEventListener("click", () => this.open(cam.name));
       this.root.appendChild(card);
-      this.cards.set(cam.name, { card, img, badge, stats, regions, health: null,
+      this.cards.set(cam.name, { card, img, badge, stats, calib, regions, health: null,
         url: snapshotUrl(cam.name), loading: false });
       this.setHealth(cam.name, cam.health);
       this.setRegions(cam.name, cam.regions);
@@ -126,6 +131,57 @@ export class CameraStrip {
     const fps = typeof health.fps === "number" ? health.fps.toFixed(1) : "-";
     c.stats.textContent = `${fps} fps · last frame ${age} · ${health.reconnects ?? 0} reconnects` +
       (health.dropped_frames ? ` · ${health.dropped_frames} dropped` : "");
+  }
+
+  /** The keeper's figures (GET /api/calibration; null: not running) on each camera's card;
+   * role: the user's (only an admin gets Accept). */
+  setCalibration(body, role) {
+    const cases = (body && body.cameras) || {};
+    const proposals = (body && body.proposals) || {};
+    const corrected = (body && body.corrected) || {};
+    for (const [name, c] of this.cards) {
+      const state = cases[name];
+      const proposal = proposals[name];
+      const parts = [];
+      let kind = "";
+      if (proposal) {
+        kind = proposal.accepted_by ? "accepted" : "proposed";
+        parts.push(text("span", "", proposal.accepted_by
+          ? `new pose accepted by ${proposal.accepted_by}: applied at the next step`
+          : `new pose proposed: turned ${Number(proposal.turned_deg).toFixed(2)}°, moved `
+            + `${Number(proposal.moved_m).toFixed(2)} m, ${Number(proposal.reprojection_px).toFixed(1)} px`));
+        if (!proposal.accepted_by && role === "admin") {
+          const button = text("button", "accept-pose", "Accept");
+          button.type = "button";
+          button.dataset.camera = name;
+          button.title = `apply the proposed pose to ${name}`;
+          button.addEventListener("click", () => {
+            button.disabled = true;
+            if (this.onAccept) this.onAccept(name);
+          });
+          parts.push(button);
+        }
+      } else if (state) {
+        kind = state.reason ? "failing" : "placing";
+        parts.push(text("span", "", state.reason
+          ? `not corrected: ${state.reason} (tried ${state.tries})`
+          : `calibration drift: placing again (${state.samples} samples${state.working ? ", working" : ""})`));
+      } else if (corrected[name]) {
+        kind = "corrected";
+        parts.push(text("span", "", `corrected ${corrected[name]}× while serving`));
+      }
+      c.calib.replaceChildren(...parts);
+      c.calib.hidden = parts.length === 0;
+      c.calib.dataset.state = kind;
+    }
+  }
+
+  /** Accepting a pose failed: said under the camera. */
+  setCalibrationError(name, message) {
+    const c = this.cards.get(name);
+    if (!c) return;
+    c.calib.replaceChildren(text("span", "error", `not accepted: ${message}`));
+    c.calib.hidden = false;
   }
 
   /** Where detection looked in the camera's last step: {mode, regions: [[x, y, w, h, why]]}

@@ -160,7 +160,9 @@ class Console {
     clearInterval(this.staleTimer);
     this.staleTimer = setInterval(() => this.checkStale(), 1000);
     clearInterval(this.ratesTimer);
-    this.ratesTimer = setInterval(() => this.showRates(), RATES_MS);
+    this.ratesTimer = setInterval(() => { this.showRates(); this.showCalibration(); }, RATES_MS);
+    this.strip.onAccept = (camera) => this.acceptPose(camera);
+    this.showCalibration();
     try {
       const [cameras, zones, events, incidents, people] = await Promise.all([
         api.cameras(), api.zones(), api.events({ limit: 100 }), api.incidents({ limit: 100 }),
@@ -264,6 +266,29 @@ class Console {
     // kept, so that a logout lets the one in flight land before the session ends
     this.ratesPending = this.fetchRates();
     return this.ratesPending;
+  }
+
+  /** Each camera's calibration as the keeper has it: being placed again, a pose proposed for
+   * an admin to accept, or not corrected and why (api /api/calibration). */
+  async showCalibration() {
+    let body;
+    try {
+      body = await api.calibration();
+    } catch {
+      return; // the next period tries again
+    }
+    this.strip.setCalibration(body.running ? body : null, this.user ? this.user.role : "viewer");
+  }
+
+  /** An admin accepts the pose proposed for `camera`: applied by the service at its next step. */
+  async acceptPose(camera) {
+    try {
+      await api.acceptPose(camera);
+    } catch (error) {
+      this.strip.setCalibrationError(camera, error.detail || error.message);
+      return;
+    }
+    await this.showCalibration();
   }
 
   async fetchRates() {

@@ -1,0 +1,60 @@
+"""The rig kept calibrated, in the console (real browser, real server): a pose proposed for a
+knocked camera (calibration_auto = false) is shown under that camera's picture to every role;
+only an admin has Accept, and a click has the service apply it at its next step."""
+
+from __future__ import annotations
+
+import pytest
+
+from browsing import chromium, console_page
+from consoled import console_server, demo_plan
+from knocked import knocked_yard, run_keeper
+from stereopose.site.health.calib_keeper import KeeperDesk
+from waiting import wait_until
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def proposed(tmp_path_factory):
+    rig, _, steps = knocked_yard(steps_to=1040)
+    keeper, _, applied = run_keeper(rig, steps, tmp_path_factory.mktemp("calib"), auto=False)
+    assert "cam02" in keeper.proposals()
+    return keeper, applied, steps
+
+
+def _line(page, camera: str) -> tuple[str, str]:
+    node = page.locator(f'.camera-card[data-camera="{camera}"] .camera-calibration')
+    return node.get_attribute("data-state") or "", node.inner_text()
+
+
+def test_an_admin_accepts_the_pose_proposed_for_a_knocked_camera(proposed, tmp_path) -> None:
+    keeper, applied, steps = proposed
+    desk = KeeperDesk()
+    desk.keeper = keeper
+    plan = demo_plan(tmp_path)  # its cam01..cam04 on the console's strip
+    with (
+        console_server(tmp_path / "out", plan, app_kw={"calibration": desk}) as s,
+        chromium() as browser,
+    ):
+        with console_page(browser, s.url, "vera", "calibration-viewer") as page:
+            page.wait_for_selector('.camera-card[data-camera="cam02"] .camera-calibration:visible')
+            state, text = _line(page, "cam02")
+            assert state == "proposed" and "new pose proposed: turned 1." in text
+            assert page.locator(".accept-pose").count() == 0  # a viewer cannot accept
+            assert _line(page, "cam01") == ("", "")
+        with console_page(browser, s.url, "ada", "calibration-admin") as page:
+            button = page.locator('.accept-pose[data-camera="cam02"]')
+            button.wait_for()
+            assert not applied
+            button.click()
+            wait_until(
+                lambda: _line(page, "cam02")[0] == "accepted",
+                "the pose shown accepted",
+                poll_s=0.1,
+            )
+            assert "accepted by ada" in _line(page, "cam02")[1]
+    # the service applies it at its next step
+    events = keeper.update(len(steps), len(steps) * 0.08, steps[-1], [])
+    assert [e.type for e in events] == ["calibration_corrected"] and applied
+    assert events[0].result["accepted_by"] == "ada"
