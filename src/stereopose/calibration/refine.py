@@ -10,6 +10,7 @@ then refine it. The same step corrects a drifted camera while `serve` runs.
 from __future__ import annotations
 
 import logging
+import math
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -72,20 +73,11 @@ def joints_of_others(
 def refine_camera(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Refined:
     """The camera's pose from (people in 3D, its detections) per frame (joints_of_others);
     CalibrationError when too few joints agree."""
-    obj, img, tag = [], [], []
-    for f, (X, D) in enumerate(pairs):
-        for p in range(len(X)):
-            for d in range(len(D)):
-                ok = np.isfinite(X[p, :, 0]) & (D[d, :, 2] >= MIN_CONF)
-                if ok.sum() >= 6:
-                    obj.append(X[p, ok])
-                    img.append(D[d, ok, :2])
-                    tag.append(np.full(int(ok.sum()), f))
-    if not obj:
+    obj, img, tag = _pairings(pairs)
+    if not len(obj):
         raise CalibrationError(
             f"camera {cam.name}: no person seen by it and by two other cameras at once"
         )
-    obj, img, tag = np.concatenate(obj), np.concatenate(img), np.concatenate(tag)
     best = None
     # from its old pose first (a nudged camera); a pose found from scratch replaces it only
     # when clearly more joints agree (people near the cameras have mirror-like poses too)
@@ -115,6 +107,41 @@ def refine_camera(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Re
         turned,
         float(np.linalg.norm(new.center - cam.center)),
     )
+
+
+def pose_error(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[float, int]:
+    """The camera's pose as it is, measured as refine_camera measures its result: the RMS
+    error (px) over the joints that agree with it, and how many agree ((inf, 0): none)."""
+    obj, img, _ = _pairings(pairs)
+    if not len(obj):
+        return math.inf, 0
+    uv = cv2.projectPoints(obj, cam.rotation, cam.translation, cam.matrix, cam.distortions)[0]
+    err = np.linalg.norm(uv.reshape(-1, 2) - img, axis=1)
+    keep = np.flatnonzero(err < RANSAC_PX)
+    for _ in range(2):
+        if len(keep) < 6:
+            break
+        keep = np.flatnonzero(err < max(3.0, 3.0 * float(np.median(err[keep]))))
+    if not len(keep):
+        return math.inf, 0
+    return float(np.sqrt(np.mean(err[keep] ** 2))), len(keep)
+
+
+def _pairings(pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every (person, detection) of every frame sharing 6 joints or more: their 3D joints
+    (N, 3), the detections' pixels (N, 2) and each joint's frame (N,)."""
+    obj, img, tag = [], [], []
+    for f, (X, D) in enumerate(pairs):
+        for p in range(len(X)):
+            for d in range(len(D)):
+                ok = np.isfinite(X[p, :, 0]) & (D[d, :, 2] >= MIN_CONF)
+                if ok.sum() >= 6:
+                    obj.append(X[p, ok])
+                    img.append(D[d, ok, :2])
+                    tag.append(np.full(int(ok.sum()), f))
+    if not obj:
+        return np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, int)
+    return np.concatenate(obj), np.concatenate(img), np.concatenate(tag)
 
 
 def _from_scratch(cam: Camera, obj: np.ndarray, img: np.ndarray):

@@ -29,6 +29,10 @@ class ServeConfig:
     camera_timeout_s: float = number(5.0, gt=0.0, le=DAY_S)
     # a camera's reprojection error above this many times its baseline: calibration_drift
     calib_warn_factor: float = number(2.0, gt=1.0, le=1000.0)
+    # samples (a camera's steps with people) its baseline error is the median of, and the
+    # running error's window: fewer warn sooner, on noisier figures
+    calib_baseline_samples: int = number(300, integer=True, ge=10, le=100_000)
+    calib_window_samples: int = number(150, integer=True, ge=5, le=10_000)
     # a drifted camera placed again from the people the others see is applied at once (false:
     # proposed, for an admin to accept: POST /api/calibration/<camera>/accept)
     calibration_auto: bool = True

@@ -246,6 +246,27 @@ def _serve(
     return ServeResult(summary, url, summary.outputs, dict(service.failed))
 
 
+def _calibration(plan: ServePlan, cfg: Config) -> tuple[CalibrationHealth, CalibrationKeeper]:
+    """The calibration's health (drift) and its keeper (a drifted camera placed again)."""
+    s = cfg.serve
+    calib = CalibrationHealth(
+        plan.rig,
+        s.calib_warn_factor,
+        baseline_samples=s.calib_baseline_samples,
+        window=s.calib_window_samples,
+    )
+    keeper = CalibrationKeeper(
+        plan.rig,
+        plan.calib_path,
+        calib,
+        auto=s.calibration_auto,
+        out_dir=plan.out_dir,
+        samples=s.calibration_samples,
+        loaded=plan.calib_loaded,
+    )
+    return calib, keeper
+
+
 def _run_loop(
     plan: ServePlan,
     service: SiteService,
@@ -259,16 +280,7 @@ def _run_loop(
     fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
     timeout_s = cfg.serve.camera_timeout_s
     watch = CameraWatch(rig.names, timeout_s, start=0.0)
-    calib = CalibrationHealth(rig, cfg.serve.calib_warn_factor)
-    keeper = CalibrationKeeper(
-        rig,
-        plan.calib_path,
-        calib,
-        auto=cfg.serve.calibration_auto,
-        out_dir=plan.out_dir,
-        samples=cfg.serve.calibration_samples,
-        loaded=plan.calib_loaded,
-    )
+    calib, keeper = _calibration(plan, cfg)
     service.keep_calibration(keeper)
 
     def now_t() -> float:  # the service's clock: the steps' and the events' t

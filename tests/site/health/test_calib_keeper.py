@@ -28,8 +28,15 @@ def knocked():
 
 def test_a_knocked_camera_is_corrected_and_written_beside_the_original(knocked, tmp_path) -> None:
     rig, moved, steps = knocked
-    _keeper, events, applied = run_keeper(rig, steps, tmp_path, auto=True)
+    keeper, events, applied = run_keeper(rig, steps, tmp_path, auto=True)
     types = [(e.type, e.camera) for e in events]
+    # placed once: a later drift of every camera at once (people mixed up a moment) finds the
+    # camera's pose fitting the samples as well as any new one would, and leaves it alone
+    assert [c for t, c in types if t == "calibration_corrected"] == ["cam02"]
+    assert [c for t, c in types if t == "calibration_drift"].count("cam02") == 2
+    # each camera's reference: its calibrated pose measured against the others' people
+    assert set(keeper.references) == set(rig.names)
+    assert all(0.5 < v < 5.0 for v in keeper.references.values()), keeper.references
     assert ("calibration_drift", "cam02") in types
     assert ("calibration_corrected", "cam02") in types
     assert types.index(("calibration_drift", "cam02")) < types.index(

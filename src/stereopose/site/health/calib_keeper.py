@@ -9,9 +9,13 @@ From a camera's `calibration_drift` on, each step with people gives one sample: 
 other cameras reconstruct (3D) and the camera's own detections (a bounded buffer of `samples`
 steps). When it is full, the camera's pose is estimated again (calibration.refine) on a worker
 thread, so the frame loop never waits. The new pose is accepted when its reprojection error is
-back near the camera's baseline (at most `accept_factor` times it, or the baseline + 2 px) over
-joints that cover at least `min_coverage` of its view; then, with `auto`, it is applied at
-once (every part given the new rig), a `calibration_corrected` event says the turn and shift,
+back near the camera's reference (at most `accept_factor` times it, or it + 2 px) over joints
+that cover at least `min_coverage` of its view. The reference is the calibrated pose measured
+the same way (the others' people against its detections, the RMS over the joints that agree)
+on half as many samples as `samples`, taken before any drift (every CALM_EVERY steps; fewer
+when the camera drifts first); until it is known, the health's baseline stands in. A pose the
+old one fits as well is a false alarm. Then, with `auto`, the new pose is applied at once
+(every part given the new rig), a `calibration_corrected` event says the turn and shift,
 and the corrected calibration is written beside the original (`<name>.corrected.toml`, never
 over it) with a line in its history (`<name>.corrections.jsonl`). Without `auto` it is proposed
 (`proposals()`) for an admin to accept (`accept(camera)`). A camera that cannot be corrected
@@ -23,6 +27,7 @@ from __future__ import annotations
 import concurrent.futures
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -35,7 +40,7 @@ import numpy as np
 import tomllib
 
 from stereopose.calibration.formats import save_calibration
-from stereopose.calibration.refine import refine_camera
+from stereopose.calibration.refine import pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.site.health.calib_health import CalibrationHealth
@@ -51,6 +56,11 @@ MIN_COVERAGE = 0.25  # share of its view the agreeing joints must cover
 ACCEPT_FACTOR = 1.5  # the new error at most this many times the baseline (or baseline + 2 px)
 STILL_DEG, STILL_M = 0.1, 0.05  # a pose found this close to the old one is left alone
 MAX_TRIES = 20  # attempts per drift (each on fresh samples), then the camera stays flagged
+# a new pose is taken only where the old one, on the same samples, has its error this many
+# times larger, or fewer than KEPT times its agreeing joints
+BETTER, KEPT = 1.25, 0.8
+CALM_EVERY = 2  # before any drift, every this many steps a sample for the camera's reference
+MIN_CALM = 10  # calm samples a reference is measured from when the camera drifts first
 
 
 @dataclass
@@ -98,6 +108,14 @@ class CalibrationKeeper:
         self.written: Path | None = None
         self.loaded = Path(loaded) if loaded is not None else self.calib_path  # the start's file
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="calib-keeper")
+        # per camera, its calibrated pose measured as a new pose is (the others' people against
+        # its detections, calibration.refine.pose_error) on samples from before any drift: the
+        # error a new pose is judged against (the health's baseline rests on people the camera
+        # itself helped to place, and is a median, not an RMS)
+        self.references: dict[str, float] = {}
+        self._calm: dict[str, _Case] = {}
+        self._calm_samples = max(10, self.samples // 2)
+        self._steps = 0
 
     # -- the frame loop's side ---------------------------------------------------------------
 
@@ -112,6 +130,8 @@ class CalibrationKeeper:
                 case = self.cases[e.camera]
                 if case.proposal is None:  # it came back by itself: nothing to do
                     self._close(e.camera)
+        self._steps += 1
+        self._reference(people2d)
         out: list[Event] = []
         for name in list(self.cases):
             case = self.cases[name]
@@ -133,9 +153,40 @@ class CalibrationKeeper:
             self._sample(name, case, frame, people2d)
             if len(case.samples) >= self.samples:
                 case.tries += 1
-                case.job = self._pool.submit(refine_camera, self.rig[name], list(case.samples))
+                case.job = self._pool.submit(_attempt, self.rig[name], list(case.samples))
                 case.samples.clear()
         return out
+
+    def _reference(self, people2d: Mapping[str, People2D]) -> None:
+        """Samples for each camera's reference while it has none and is not drifting; the
+        reference measured once on the worker when enough are in (or when it drifts first)."""
+        for name in self.rig.names:
+            calm = self._calm.get(name)
+            if name in self.references:
+                continue
+            if calm is not None and calm.job is not None:
+                if calm.job.done():
+                    self.references[name] = calm.job.result()[0]
+                    del self._calm[name]
+                continue
+            if name in self.cases:
+                continue
+            if calm is None:
+                others = [n for n in self.rig.names if n != name]
+                if len(others) < 2:
+                    continue
+                rec = Reconstructor(self.rig.subset(others))
+                calm = self._calm[name] = _Case(deque(maxlen=self._calm_samples), rec)
+            if self._steps % CALM_EVERY == 0:
+                self._sample(name, calm, self._steps, people2d)
+                if len(calm.samples) >= self._calm_samples:
+                    self._measure(name)
+
+    def _measure(self, name: str) -> None:
+        """The camera's reference measured on the worker from the calm samples it has."""
+        calm = self._calm[name]
+        calm.job = self._pool.submit(pose_error, self.rig[name], list(calm.samples))
+        calm.samples.clear()
 
     def _open(self, name: str) -> None:
         if name in self.cases:  # already under way (or proposed): kept
@@ -145,6 +196,9 @@ class CalibrationKeeper:
             logger.warning("camera %s drifted: too few other cameras to place it again", name)
             return
         rec = Reconstructor(self.rig.subset(others))
+        calm = self._calm.get(name)
+        if calm is not None and calm.job is None and len(calm.samples) >= MIN_CALM:
+            self._measure(name)  # drifted before its reference was in: from what there is
         with self._lock:
             self.cases[name] = _Case(deque(maxlen=self.samples), rec)
         logger.warning("camera %s drifted: placing it again from the people the others see", name)
@@ -166,17 +220,36 @@ class CalibrationKeeper:
     def _judge(self, name: str, case: _Case, t: float, frame: int) -> list[Event]:
         job, case.job = case.job, None
         try:
-            r = job.result()
+            r, (old_px, old_joints) = job.result()
         except CalibrationError as e:
             return self._fail(name, case, str(e))
         except Exception as e:  # a failing attempt never stops the service
             logger.exception("camera %s: placing it again failed", name)
             return self._fail(name, case, f"{type(e).__name__}: {e}")
+        # where it was, or its pose fits the samples as well as the new one: a false alarm
+        still = r.turned_deg < STILL_DEG and r.moved_m < STILL_M
+        if still or (old_joints >= KEPT * r.joints and old_px <= BETTER * r.rms_px):
+            logger.info(
+                "camera %s: the others' people fit its pose as it is (%.1f px over %d joints; "
+                "placed again %.1f px over %d); nothing to correct",
+                name,
+                old_px,
+                old_joints,
+                r.rms_px,
+                r.joints,
+            )
+            self._close(name)
+            return []
         base = self.health.cameras[name].baseline or self.health.floor_px
-        bound = max(self.accept_factor * base, base + 2.0)
+        ref = self.references.get(name)
+        ref = ref if ref is not None and math.isfinite(ref) else base
+        bound = max(self.accept_factor * ref, ref + 2.0)
         if r.rms_px > bound:
             return self._fail(
-                name, case, f"the new pose's error {r.rms_px:.1f} px is above {bound:.1f} px"
+                name,
+                case,
+                f"the new pose's error {r.rms_px:.1f} px is above {bound:.1f} px (its "
+                f"calibrated pose's was {ref:.1f} px)",
             )
         if r.coverage < self.min_coverage:
             return self._fail(
@@ -185,10 +258,6 @@ class CalibrationKeeper:
                 f"the people covered {100 * r.coverage:.0f}% of its view (at least "
                 f"{100 * self.min_coverage:.0f}% needed)",
             )
-        if r.turned_deg < STILL_DEG and r.moved_m < STILL_M:  # where it was: a false alarm
-            logger.info("camera %s: the others place it where it is; nothing to correct", name)
-            self._close(name)
-            return []
         if not self.auto:
             case.proposal, case.reason = r, None
             logger.warning(
@@ -232,6 +301,7 @@ class CalibrationKeeper:
         for fn in self.apply_to:
             fn(self.rig)
         self.health.set_camera(self.rig, name)
+        self._calm.clear()  # the others' people as the new rig places them
         self.corrected[name] = self.corrected.get(name, 0) + 1
         self._close(name)
         self._write(name, old[name], r)
@@ -311,12 +381,19 @@ class CalibrationKeeper:
                 for n, c in cases
             },
             "corrected": dict(self.corrected),
+            "reference_px": {n: round(v, 2) for n, v in self.references.items()},
             "file": None if self.written is None else str(self.written),
             "loaded": str(self.loaded),
         }
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _attempt(cam, samples) -> tuple:
+    """The camera placed again from the samples (calibration.refine), and its pose as it is
+    measured on the same samples (RMS px, agreeing joints)."""
+    return refine_camera(cam, samples), pose_error(cam, samples)
 
 
 def corrected_file(calib_path: str | Path, places: Sequence[str | Path] = ()) -> Path | None:
