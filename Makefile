@@ -5,7 +5,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 ULTRALYTICS := ultralytics==8.4.190 ultralytics-thop==2.2.3
-# the runtime install of an edge box: the package and its base dependencies, no PyTorch
+# the runtime install of an edge box: the package, its base dependencies and OpenVINO (the
+# fastest detector where the CPU has bfloat16), no PyTorch
 RUNTIME := .venv-runtime
 RT_BIN := $(RUNTIME)/bin
 RT_STAMP := $(RUNTIME)/.installed
@@ -38,7 +39,7 @@ runtime: $(RT_STAMP)
 
 $(RT_STAMP): pyproject.toml Makefile $(SOURCES)
 	test -x $(RT_BIN)/python || $(PYTHON) -m venv $(RUNTIME)
-	$(RT_PIP) --upgrade .
+	$(RT_PIP) --upgrade '.[openvino]'
 	test -f $(MODEL) || { test -x $(BIN)/stereopose && $(BIN)/stereopose models export; } \
 		|| { echo "no $(MODEL): copy it from a machine that has it, or run" \
 		"'stereopose models export' where PyTorch is installed (make install)" >&2; exit 2; }

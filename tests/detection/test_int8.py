@@ -12,7 +12,7 @@ from stereopose.detection import ModelError, make_detector
 @pytest.mark.parametrize(
     ("backend", "precision", "message"),
     [
-        ("onnx", "fp8", "precision must be one of fp32, bf16, int8, fp16"),
+        ("onnx", "fp8", "precision must be auto or one of fp32, bf16, int8, fp16"),
         ("ultralytics", "int8", "int8 needs the onnx backend"),
     ],
 )
@@ -28,7 +28,7 @@ def test_int8_model_finds_the_people_fp32_finds_in_a_real_demo_frame():
     q = make_detector(precision="int8", threads=1)
     assert q.model.name.endswith("-int8.onnx")
     found = q.detect([frame])[0]
-    ref = make_detector(threads=1).detect([frame])[0]
+    ref = make_detector("onnx", threads=1).detect([frame])[0]
     assert len(found) >= 1 and len(ref) >= 1
     # every person FP32 finds, INT8 finds in the same place (its joints: benchmarks/int8.py)
     assert len(found) == len(ref)

@@ -130,7 +130,12 @@ def _add_detect(dt: argparse.ArgumentParser) -> None:
     )
     dt.add_argument("--names", nargs="+", metavar="NAME", help="camera names (default: file stems)")
     dt.add_argument("--out", required=True, type=Path, help="folder for the <camera>_json folders")
-    dt.add_argument("--backend", choices=("onnx", "openvino", "ultralytics"), default="onnx")
+    dt.add_argument(
+        "--backend",
+        choices=("auto", "onnx", "openvino", "ultralytics"),
+        default="auto",
+        help="auto: the fastest on this machine within the docs' accuracy (default)",
+    )
     dt.add_argument(
         "--model", type=Path, help="local .onnx or .pt pose model (default yolo11n-pose)"
     )
@@ -146,10 +151,11 @@ def _add_detect(dt: argparse.ArgumentParser) -> None:
     dt.add_argument("--threads", type=int, help="inference threads (default: all cores)")
     dt.add_argument(
         "--precision",
-        choices=("fp32", "bf16", "int8", "fp16"),
-        default="fp32",
-        help="fp32; int8: the INT8-quantised model (onnx); bf16: openvino on a CPU "
-        "with bfloat16 instructions; fp16: onnx on --device tensorrt",
+        choices=("auto", "fp32", "bf16", "int8", "fp16"),
+        default="auto",
+        help="auto (with --backend auto: bf16 where chosen, else fp32); fp32; int8: the "
+        "INT8-quantised model (onnx); bf16: openvino on a CPU with bfloat16 instructions; "
+        "fp16: onnx on --device tensorrt",
     )
     dt.add_argument(
         "--regions",

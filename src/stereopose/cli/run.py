@@ -60,6 +60,7 @@ def _detect(args: argparse.Namespace) -> int:
         args.threads,
         args.precision,
     )
+    out.print(f"detector: {getattr(detector, 'choice', args.backend)}", highlight=False)
     regions = None
     if args.regions:
         from stereopose.detection.regional import RegionDetector, RegionSettings

@@ -37,7 +37,9 @@ class NodeConfig:
 
 @_schema("detector")
 class DetectorConfig:
-    backend: Literal["onnx", "openvino", "ultralytics"] = "onnx"
+    # "auto": the fastest on this machine within the docs' accuracy (OpenVINO bf16 on a CPU
+    # with bfloat16 instructions, else ONNX Runtime fp32; detection.choose), said at start
+    backend: Literal["auto", "onnx", "openvino", "ultralytics"] = "auto"
     model: str | None = None  # a local .onnx or .pt file; default: yolo11n-pose from the cache
     # model input, long side
     imgsz: int = number(640, multiple_of=32, ge=32, le=8192)
@@ -49,7 +51,8 @@ class DetectorConfig:
     threads: int | None = number(None, integer=True, ge=1, le=1024)
     # "fp32", "int8" (the INT8-quantised model; onnx only), "bf16" (openvino on a
     # CPU with bfloat16 instructions) or "fp16" (onnx on device tensorrt)
-    precision: Literal["fp32", "bf16", "int8", "fp16"] = "fp32"
+    # "auto": with backend auto, bf16 where it is chosen, else fp32; with a backend named, fp32
+    precision: Literal["auto", "fp32", "bf16", "int8", "fp16"] = "auto"
     # detect where the people are (their tracks, each camera's own people, motion, periodic
     # full scans), at the camera's own resolution (detection.regional); false: every camera's
     # whole frame at imgsz, every step

@@ -1,8 +1,11 @@
 """Person detection: YOLO-Pose backends and readers/writers of 2D keypoint files.
 
-``make_detector`` builds a backend from local model files only: ``onnx`` (ONNX Runtime, the
-default), ``openvino`` (OpenVINO, on the same ONNX model) or ``ultralytics`` (PyTorch). None
-imports anything heavy until it is asked for. ``precision = "int8"`` (onnx) runs the ONNX model
+``make_detector`` builds a backend from local model files only: ``onnx`` (ONNX Runtime),
+``openvino`` (OpenVINO, on the same ONNX model) or ``ultralytics`` (PyTorch); ``auto`` (the
+default) chooses, on the machine it runs on, the fastest of them within the accuracy the docs
+set (``choose``: OpenVINO in bfloat16 on a CPU with bfloat16 instructions, 2.2x faster with 3D
+joints p95 within 5 cm of fp32's; ONNX Runtime fp32 elsewhere). None imports anything heavy
+until it is asked for. ``precision = "int8"`` (onnx) runs the ONNX model
 quantised to 8-bit integers (detection.models); ``"bf16"`` (openvino on a CPU that has it) runs
 in bfloat16; ``"fp16"`` (onnx with device tensorrt) lets TensorRT run in half precision. The onnx
 backend's device is cpu, cuda[:N], tensorrt[:N] or auto (detection.yolo_onnx).
@@ -10,6 +13,9 @@ backend's device is cpu, cuda[:N], tensorrt[:N] or auto (detection.yolo_onnx).
 
 from __future__ import annotations
 
+import importlib.util
+import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 from stereopose.detection.base import PoseDetector, Poses
@@ -25,27 +31,147 @@ from stereopose.detection.models import (
 
 BACKENDS = ("onnx", "openvino", "ultralytics")
 PRECISIONS = ("fp32", "bf16", "int8", "fp16")
+AUTO = "auto"
 
-__all__ = ["BACKENDS", "ModelError", "PoseDetector", "Poses", "make_detector"]
+__all__ = [
+    "AUTO",
+    "BACKENDS",
+    "Choice",
+    "ModelError",
+    "PoseDetector",
+    "Poses",
+    "choose",
+    "make_detector",
+]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The backend and precision a detector runs, and why (said once at start, and in
+    status.json and the report)."""
+
+    backend: str
+    precision: str
+    why: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {"backend": self.backend, "precision": self.precision, "why": self.why}
+
+    def __str__(self) -> str:
+        return f"{self.backend} {self.precision} ({self.why})"
+
+
+def cpu_bf16() -> bool | None:
+    """Whether OpenVINO finds bfloat16 instructions on this CPU (AVX512_BF16 or AMX); None
+    when OpenVINO is not installed."""
+    if importlib.util.find_spec("openvino") is None:
+        return None
+    try:
+        import openvino as ov
+
+        return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    except Exception as e:  # a broken install: as if it were not there
+        logger.warning("openvino: cannot read the CPU's capabilities: %s", e)
+        return None
+
+
+_ASK = object()  # choose(): find out here whether the CPU has bfloat16
+
+
+def choose(
+    backend: str = AUTO, precision: str = AUTO, device: str = "cpu", *, bf16: object = _ASK
+) -> Choice:
+    """The backend and precision to run: an explicit one as given (precision auto: fp32);
+    backend auto picks by device, and on the CPU by what it can do (bf16: whether OpenVINO is
+    installed and finds bfloat16 instructions, None: not installed; default: asked here).
+
+    Measured (benchmarks/results/backends.md, 2 cores): OpenVINO bf16 is 2.1x faster than ONNX
+    Runtime fp32 on an Intel Xeon with AMX and 2.2x on an AMD EPYC with AVX512_BF16, its 3D
+    joints within 5 cm (p95) of fp32's with the same people and ids; OpenVINO fp32 is not
+    faster than ONNX Runtime everywhere (1.5x slower at imgsz 320 on the Xeon), so without
+    bfloat16 the choice stays ONNX Runtime fp32, exact."""
+    if backend != AUTO:
+        if precision == AUTO:
+            return Choice(backend, "fp32", "as configured")
+        return Choice(backend, precision, "as configured")
+    d = device.strip().lower()
+    if d != "cpu":
+        where = "openvino" if d.startswith("gpu") else "onnx"
+        prec = "fp32" if precision == AUTO else precision
+        return Choice(where, prec, f"auto: device {device} runs on the {where} backend")
+    if precision not in (AUTO, "bf16"):  # int8, fp16, fp32 asked for: where they run
+        if precision == "fp32":
+            return Choice("onnx", "fp32", "auto: fp32 asked for; ONNX Runtime, exact")
+        return Choice("onnx", precision, f"auto: {precision} runs on the onnx backend")
+    if bf16 is _ASK:
+        bf16 = cpu_bf16()
+    if bf16:
+        return Choice(
+            "openvino",
+            "bf16",
+            "auto: this CPU has bfloat16 instructions; OpenVINO bf16 is "
+            "about 2x faster than fp32, 3D joints within 5 cm",
+        )
+    if precision == "bf16":
+        raise ModelError(
+            "precision bf16: "
+            + (
+                "this CPU has no bfloat16 instructions (AVX512_BF16 or AMX); use fp32"
+                if bf16 is False
+                else "it needs OpenVINO: pip install 'stereopose[openvino]'"
+            )
+        )
+    why = "no bfloat16 instructions on this CPU" if bf16 is False else "OpenVINO not installed"
+    return Choice("onnx", "fp32", f"auto: {why}; ONNX Runtime fp32, exact")
 
 
 def make_detector(
-    backend: str = "onnx",
+    backend: str = AUTO,
     model: str | Path | None = None,
     imgsz: int = 640,
     conf: float = 0.25,
     iou: float = 0.7,
     device: str = "cpu",
     threads: int | None = None,
-    precision: str = "fp32",
+    precision: str = AUTO,
 ) -> PoseDetector:
     """A pose detector. model: a local .onnx or .pt file (default: yolo11n-pose from the cache).
+    backend and precision "auto": chosen here (``choose``); the detector's ``choice`` says what
+    and why, logged once.
 
     The onnx and openvino backends given a .pt file export it to ONNX once, into the cache.
     precision "int8" (onnx only): the model quantised once into the cache (``<stem>-int8.onnx``
     beside it; a model already quantised is taken as it is); "bf16": openvino only; "fp16":
     onnx on device tensorrt only.
     """
+    if backend != AUTO and backend not in BACKENDS:
+        raise ModelError(
+            f"unknown detector backend {backend!r}; expected auto or one of {', '.join(BACKENDS)}"
+        )
+    if precision != AUTO and precision not in PRECISIONS:
+        raise ModelError(
+            f"precision must be auto or one of {', '.join(PRECISIONS)}, got {precision!r}"
+        )
+    choice = choose(backend, precision, device)
+    detector = _build(choice.backend, model, imgsz, conf, iou, device, threads, choice.precision)
+    detector.choice = choice  # type: ignore[attr-defined]
+    logger.info("detector: %s", choice)
+    return detector
+
+
+def _build(
+    backend: str,
+    model: str | Path | None,
+    imgsz: int,
+    conf: float,
+    iou: float,
+    device: str,
+    threads: int | None,
+    precision: str,
+) -> PoseDetector:
+    """make_detector's backend, once chosen."""
     if precision not in PRECISIONS:
         raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8" and backend != "onnx":

@@ -84,6 +84,8 @@ class RunSummary:
     pipeline: dict[str, float | None] = field(default_factory=dict)  # pipelined detection's figures
     # detection in regions, by camera (detection.regional.CameraRegions); empty: whole frames
     regions: dict[str, dict[str, float | int]] = field(default_factory=dict)
+    # the detector's backend and precision, and why (detection.Choice); empty: not known
+    detector: dict[str, str] = field(default_factory=dict)
     events: dict[str, int] = field(default_factory=dict)  # event type -> count
     trajectories: list[Trajectory] = field(default_factory=list)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
@@ -214,6 +216,7 @@ class RunSummary:
             **({"pipeline": dict(self.pipeline)} if self.pipeline else {}),
             # only where detection ran in regions
             **({"regions": dict(self.regions)} if self.regions else {}),
+            **({"detector": dict(self.detector)} if self.detector else {}),
         }
 
 

@@ -185,6 +185,9 @@ class Cameras:
         return out
 
     def finish(self, summary: RunSummary) -> None:
+        choice = getattr(self.detector, "choice", None)
+        if choice is not None:
+            summary.detector = choice.as_dict()
         if self.regions is not None:
             summary.regions = self.regions.report()
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}

@@ -222,6 +222,9 @@ def _serve(
     service = SiteService(
         plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
     )
+    choice = getattr(detector, "choice", None)
+    if choice is not None:  # status.json: what detects, and why
+        service.probes["detector"] = choice.as_dict
     closing = _Closing()
     reload = service.site_desk.reload if service.site_desk is not None else None
     with stop_signals(), reload_signal(reload):

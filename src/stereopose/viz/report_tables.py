@@ -105,6 +105,7 @@ def summary_html(s: dict) -> str:
         ["input", f"{source}, {_fmt(s.get('fps_input'))} frames/s"],
         ["speed", f"{_fmt(s.get('fps'))} frames/s overall"],
         ["per stage", ", ".join(f"{k} {_fmt(v, ' f/s', 0)}" for k, v in stages.items())],
+        *([["detector", _detector(s["detector"])]] if isinstance(s.get("detector"), dict) else []),
         ["3D stage loading", f"{_fmt(s.get('load_s_3d'), ' s', 2)} before the first frame"],
         ["people", f"{people} per frame"],
         ["events", events or "none"],
@@ -113,6 +114,12 @@ def summary_html(s: dict) -> str:
     if s.get("interrupted"):
         rows.append(["interrupted", "yes: the outputs end at the last complete frame"])
     return _table(rows, ["", ""])
+
+
+def _detector(d: dict) -> str:
+    """The detector's backend and precision, and why they were chosen."""
+    what = f"{d.get('backend', '?')} {d.get('precision', '?')}"
+    return f"{what} ({d['why']})" if d.get("why") else what
 
 
 def cameras_html(s: dict) -> str:
