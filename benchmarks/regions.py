@@ -11,14 +11,17 @@ Scenes (every one from the real 4-camera recording and its calibration):
 - newcomer: the canvas empty for 3 s, then the far_0.3 workers there at once and standing
   still (their frame frozen) for the rest, at 10 frames/s.
 
-For each scene and set-up in the same run: detection ms per step and the whole step's, people
+Set-ups: whole frames at 640 (the old path: regions off, ONNX Runtime fp32) and at 1280, regions
+(ONNX Runtime fp32), and the defaults (backend auto: OpenVINO bf16 where the CPU has bfloat16
+instructions; regions on) with and without regions. For each scene and set-up in the same run:
+detection ms per step and the whole step's, people
 per camera per frame, the frames in which the two longest tracks are both there ("ids
 stable"), the median reprojection error, the 3D joints against the whole-frame 1280 result
 (people matched per frame, mm), and for the newcomer scene the time from his appearance to
 his first 3D output (regions with motion, regions by the full scans alone, whole frames).
 Capacity: cameras one box holds at 5 steps/s, from the whole step's time per camera.
 
-    python benchmarks/regions.py [--frames 100]
+    python benchmarks/regions.py [--frames 100] [--scenes full,far_0.3] [--setups ...]
 
 Results in results/regions.{json,md}.
 """
@@ -45,11 +48,14 @@ from stereopose.pipeline.demo import CAMERAS, write_demo_config
 from stereopose.pipeline.run import run
 from stereopose.sim.distant import Distant
 
-SETUPS = {  # name: [detector] lines
-    "whole_640": "regions = false\nimgsz = 640",
-    "whole_1280": "regions = false\nimgsz = 1280",
-    "regions": "regions = true",
+SETUPS = {  # name: [detector] lines; ONNX Runtime fp32 unless it says otherwise
+    "whole_640": 'backend = "onnx"\nregions = false\nimgsz = 640',  # the old path
+    "whole_1280": 'backend = "onnx"\nregions = false\nimgsz = 1280',
+    "regions": 'backend = "onnx"\nregions = true',
+    "default": "",  # every default: backend auto (detection.choose), regions
+    "default_whole": "regions = false",  # backend auto, whole frames at 640
 }
+OLD_PATH = "whole_640"
 NEWCOMER_AT_S = 3.0
 NEWCOMER_FPS = 10.0
 EMPTY_FPS = 5.0
@@ -154,6 +160,7 @@ def one_run(work: Path, calib: Path, videos: dict[str, Path], detector: str) -> 
         "reprojection_median_px": s.reprojection_median_px,
         "ids_stable_frames": _stable(poses),
         "regions": s.regions,
+        "detector": s.detector,
     }, poses
 
 
@@ -193,7 +200,13 @@ def kept_after_first(poses: Path, fps: float) -> float | None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--scenes", help="comma-separated scenes (default: every one)")
+    ap.add_argument("--setups", help="comma-separated set-ups (default: every one)")
     args = ap.parse_args()
+    only = set(args.scenes.split(",")) if args.scenes else None
+    chosen = args.setups.split(",") if args.setups else list(SETUPS)
+    if "whole_1280" not in chosen or OLD_PATH not in chosen:
+        chosen = [*dict.fromkeys([OLD_PATH, "whole_1280", *chosen])]  # the references
     if not demo_videos():
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
     r: dict = {
@@ -205,12 +218,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for scene, (calib, videos, fps) in scenes(work / "scenes", args.frames).items():
+            if only is not None and scene not in only:
+                continue
             runs, poses = {}, {}
-            setups = dict(SETUPS)
+            setups = {k: SETUPS[k] for k in chosen}
             if scene == "newcomer":
-                setups["regions_scans_only"] = "regions = true\nmotion_threshold = 255"
-            if scene == "full":  # people too large for a region at whole frames' detail
-                setups["regions_detail_0.5"] = "regions = true\nregion_detail = 0.5"
+                setups["regions_scans_only"] = SETUPS["regions"] + "\nmotion_threshold = 255"
+            if scene == "full" and args.setups is None:  # people too large for a region
+                setups["regions_detail_0.5"] = SETUPS["regions"] + "\nregion_detail = 0.5"
             for name, det in setups.items():
                 runs[name], poses[name] = one_run(work / scene / name, calib, videos, det)
                 print(
@@ -225,7 +240,8 @@ def main() -> None:
                     runs[name]["first_output_s"] = first_output_s(poses[name], fps)
                     runs[name]["kept_after_first"] = kept_after_first(poses[name], fps)
             r["scenes"][scene] = {"fps": fps, "runs": runs}
-        r["empty_camera"] = empty_camera(videos_of(work / "scenes" / "empty"))
+        if only is None or "empty" in only:
+            r["empty_camera"] = empty_camera(videos_of(work / "scenes" / "empty"))
     save("regions", r, markdown(r))
 
 
@@ -281,18 +297,24 @@ def markdown(r: dict) -> list[str]:
         "# Detection in regions against whole frames",
         "",
         f"`python benchmarks/regions.py --frames {r['frames']}`, {r['date']}, {r['machine']}. "
-        "Every figure from `stereopose run` (ONNX Runtime, YOLO11n-pose, the 3D stage, "
-        "tracking) on the real demo and on scenes made from it; regions at their defaults "
+        "Every figure from `stereopose run` (YOLO11n-pose, the 3D stage, tracking) on the real "
+        "demo and on scenes made from it, all set-ups in the same run; the old path is whole "
+        "frames at 640 on ONNX Runtime fp32; regions at their defaults "
         "(region_imgsz 320, full_scan_s 3, region_detail 1). ms per step: detection's, and the "
         "whole step's (decoding, detection, 3D, writing) over 4 cameras.",
         "",
-        "| scene | set-up | detection ms/step | step ms | people per camera (cam01 / 02 / "
-        "03 / 04) | ids stable (frames) | reprojection median px | 3D joints against 1280: "
-        "median / p95 mm | model input against whole 640 | cameras at 5 steps/s |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | set-up | detector | detection ms/step | step ms | faster than the old path | "
+        "people per camera (cam01 / 02 / 03 / 04) | ids stable (frames) | reprojection median "
+        "px | 3D joints against 1280: median / p95 mm | model input against whole 640 | "
+        "cameras at 5 steps/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, sc in r["scenes"].items():
+        old = sc["runs"].get(OLD_PATH)
         for name, x in sc["runs"].items():
+            d = x.get("detector") or {}
+            what = f"{d.get('backend', 'onnx')} {d.get('precision', 'fp32')}"
+            faster = f"{old['step_ms'] / x['step_ms']:.2f}x" if old and x["step_ms"] else "-"
             ppl = " / ".join(f"{v:.2f}" for v in x["people_per_camera"].values())
             m = x.get("joints_against_1280")
             moved = f"{_f(m['median_mm'], 1)} / {_f(m['p95_mm'], 1)}" if m else "(reference)"
@@ -302,8 +324,9 @@ def markdown(r: dict) -> list[str]:
                 whole = sum(c["whole_input_px"] for c in x["regions"].values())
                 share = f"{100 * used / whole:.0f} %" if whole else "-"
             md.append(
-                f"| {scene} | {name.replace('_', ' ')} | {x['detect_ms_per_step']:.0f} | "
-                f"{x['step_ms']:.0f} | {ppl} | {x['ids_stable_frames']} of {x['frames']} | "
+                f"| {scene} | {name.replace('_', ' ')} | {what} | "
+                f"{x['detect_ms_per_step']:.0f} | {x['step_ms']:.0f} | {faster} | {ppl} | "
+                f"{x['ids_stable_frames']} of {x['frames']} | "
                 f"{_f(x['reprojection_median_px'], 2)} | {moved} | {share} | "
                 f"{capacity(x['step_ms']):.1f} |"
             )
