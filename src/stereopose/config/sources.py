@@ -69,6 +69,10 @@ class DetectorConfig:
     # imgsz (a person too large for a region at that detail is detected in the whole frame);
     # below 1: large people cost less, their joints a little less exact
     region_detail: float = number(1.0, gt=0.0, le=4.0)
+    # each camera's light measured (day, night, black, blinded: detection.light); a camera at
+    # night (dark or noisy) has its pictures denoised and its contrast normalised for
+    # the detector; false: measured only. Day pictures go to the detector unchanged
+    night: bool = True
 
 
 @_schema("input")

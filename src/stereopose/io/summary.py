@@ -86,6 +86,8 @@ class RunSummary:
     regions: dict[str, dict[str, float | int]] = field(default_factory=dict)
     # the detector's backend and precision, and why (detection.Choice); empty: not known
     detector: dict[str, str] = field(default_factory=dict)
+    # each camera's light at the end (detection.light.LightWatch.figures); empty: not measured
+    light: dict[str, dict] = field(default_factory=dict)
     events: dict[str, int] = field(default_factory=dict)  # event type -> count
     trajectories: list[Trajectory] = field(default_factory=list)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
@@ -217,6 +219,7 @@ class RunSummary:
             # only where detection ran in regions
             **({"regions": dict(self.regions)} if self.regions else {}),
             **({"detector": dict(self.detector)} if self.detector else {}),
+            **({"light": dict(self.light)} if self.light else {}),
         }
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.detection import PoseDetector
+from stereopose.detection.light import LightWatch
 from stereopose.detection.openpose import write_pose_frame
 from stereopose.detection.regional import RegionDetector
 from stereopose.errors import KeypointsError
@@ -75,11 +76,16 @@ def detect_step(
     step: FrameSet,
     regions: RegionDetector | None = None,
     hints: Mapping[str, np.ndarray] | None = None,
+    light: LightWatch | None = None,
 ) -> dict[str, People2D]:
     """The people of each camera with a usable image at this step: in one detector call over
     the whole frames, or with `regions` in the regions where people are (detection.regional;
-    hints: each camera's tracked people's boxes (N, 4) in its image's pixels)."""
+    hints: each camera's tracked people's boxes (N, 4) in its image's pixels); light: each
+    camera's light measured, and a night camera's picture prepared for the detector."""
     present = usable_images(step)
+    if light is not None and present:
+        seen = light.prepare(dict(present), step.t)
+        present = [(n, seen[n]) for n, _ in present]
     if regions is not None:
         found = regions.detect(dict(present), step.t, hints) if present else {}
         return {n: found[n].people(n, step.index) for n, _ in present}

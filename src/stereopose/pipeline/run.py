@@ -26,6 +26,7 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig, load_config
 from stereopose.config_refs import resolve, source_path
 from stereopose.detection import make_detector
+from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import load_site
@@ -112,8 +113,10 @@ def _camera_source(
 ) -> Cameras | PipelinedCameras:
     """Live cameras: detection on its own thread, always on the newest frames. Recorded ones
     keep the plain source: every frame is detected in turn, and the outputs stay the same.
-    settings: [detector] regions and its settings (detection.regional)."""
-    cameras = Cameras(cams, rig, detector, region_detector(detector, settings))
+    settings: [detector] regions and its settings (detection.regional), night
+    (detection.light)."""
+    light = LightWatch(enhance=settings.night)
+    cameras = Cameras(cams, rig, detector, region_detector(detector, settings), light)
     return PipelinedCameras(cameras) if cams.live else cameras
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.detection import PoseDetector
+from stereopose.detection.light import LightWatch
 from stereopose.detection.openpose import PoseSequence
 from stereopose.detection.regional import RegionDetector
 from stereopose.errors import StereoposeError
@@ -103,6 +104,8 @@ class Cameras:
 
     regions: detect where the people are (detection.regional), the tracked people of the last
     step the frame loop gave back (`tracked`) projected into each camera; None: whole frames.
+    light: each camera's light measured, a night camera's picture prepared for the detector
+    (detection.light); None: neither.
     """
 
     stages = CAMERA_STAGES
@@ -113,9 +116,11 @@ class Cameras:
         rig: Rig,
         detector: PoseDetector,
         regions: RegionDetector | None = None,
+        light: LightWatch | None = None,
     ) -> None:
         self.cams, self.rig, self.detector = cams, rig, detector
         self.regions = regions
+        self.light = light
         self._tracked: People3D | None = None
         self.cameras = tuple(cams.names)
         self.fps = float(cams.fps)
@@ -161,7 +166,7 @@ class Cameras:
                 check_size(self.rig[name], image)
         frames = FrameSet(step.frame, step.t, {**images, **subs})
         hints = self._hints(frames, step.t) if self.regions is not None else None
-        people2d = detect_step(self.detector, frames, self.regions, hints)
+        people2d = detect_step(self.detector, frames, self.regions, hints, self.light)
         for name in people2d.keys() & subs.keys():
             people2d[name] = scale_people(people2d[name], self.rig[name].size, subs[name].shape)
         return people2d
@@ -188,6 +193,8 @@ class Cameras:
         choice = getattr(self.detector, "choice", None)
         if choice is not None:
             summary.detector = choice.as_dict()
+        if self.light is not None:
+            summary.light = self.light.figures()
         if self.regions is not None:
             summary.regions = self.regions.report()
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}

@@ -51,6 +51,7 @@ from pathlib import Path
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import make_detector
+from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
@@ -304,7 +305,9 @@ def _run_loop(
         service.watch_nodes(cams)
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         regions = region_detector(detector, cfg.detector)
-        cameras = Cameras(cams, rig, detector, regions)
+        light = LightWatch(enhance=cfg.detector.night)
+        cameras = Cameras(cams, rig, detector, regions, light)
+        service.probes["light"] = light.figures  # status.json: each camera's day or night
         keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views
         pipelined, rates = PipelinedCameras(cameras), None
         service.watch_pipeline(pipelined)
