@@ -202,11 +202,11 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--scenes", help="comma-separated scenes (default: every one)")
     ap.add_argument("--setups", help="comma-separated set-ups (default: every one)")
+    ap.add_argument("--name", default="regions", help="results/<name>.{json,md} (regions)")
     args = ap.parse_args()
     only = set(args.scenes.split(",")) if args.scenes else None
     chosen = args.setups.split(",") if args.setups else list(SETUPS)
-    if "whole_1280" not in chosen or OLD_PATH not in chosen:
-        chosen = [*dict.fromkeys([OLD_PATH, "whole_1280", *chosen])]  # the references
+    chosen = [*dict.fromkeys([OLD_PATH, *chosen])]  # the old path: the speed-ups' reference
     if not demo_videos():
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
     r: dict = {
@@ -232,7 +232,7 @@ def main() -> None:
                     scene, name, {k: v for k, v in runs[name].items() if k != "regions"}, flush=True
                 )
             for name in setups:
-                if name != "whole_1280":
+                if name != "whole_1280" and "whole_1280" in poses:
                     runs[name]["joints_against_1280"] = joints_moved(
                         poses["whole_1280"], poses[name]
                     )
@@ -242,7 +242,8 @@ def main() -> None:
             r["scenes"][scene] = {"fps": fps, "runs": runs}
         if only is None or "empty" in only:
             r["empty_camera"] = empty_camera(videos_of(work / "scenes" / "empty"))
-    save("regions", r, markdown(r))
+    r["command"] = " ".join(["python benchmarks/regions.py", *sys.argv[1:]])
+    save(args.name, r, markdown(r))
 
 
 def videos_of(folder: Path) -> list[Path]:
@@ -296,7 +297,7 @@ def markdown(r: dict) -> list[str]:
     md = [
         "# Detection in regions against whole frames",
         "",
-        f"`python benchmarks/regions.py --frames {r['frames']}`, {r['date']}, {r['machine']}. "
+        f"`{r.get('command', 'python benchmarks/regions.py')}`, {r['date']}, {r['machine']}. "
         "Every figure from `stereopose run` (YOLO11n-pose, the 3D stage, tracking) on the real "
         "demo and on scenes made from it, all set-ups in the same run; the old path is whole "
         "frames at 640 on ONNX Runtime fp32; regions at their defaults "
@@ -317,7 +318,13 @@ def markdown(r: dict) -> list[str]:
             faster = f"{old['step_ms'] / x['step_ms']:.2f}x" if old and x["step_ms"] else "-"
             ppl = " / ".join(f"{v:.2f}" for v in x["people_per_camera"].values())
             m = x.get("joints_against_1280")
-            moved = f"{_f(m['median_mm'], 1)} / {_f(m['p95_mm'], 1)}" if m else "(reference)"
+            moved = (
+                f"{_f(m['median_mm'], 1)} / {_f(m['p95_mm'], 1)}"
+                if m
+                else "(reference)"
+                if name == "whole_1280"
+                else "-"
+            )
             share = "-"
             if x["regions"]:
                 used = sum(c["input_px"] for c in x["regions"].values())
