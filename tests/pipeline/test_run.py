@@ -212,7 +212,7 @@ def test_init_writes_a_config_that_run_reads(tmp_path: Path, capsys) -> None:
     from stereopose.config import load_config
 
     cfg = load_config(path)
-    assert [c.name for c in cfg.cameras] == ["cam01", "cam02"] and cfg.detector.backend == "onnx"
+    assert [c.name for c in cfg.cameras] == ["cam01", "cam02"] and cfg.detector.backend == "auto"
     assert main(["run", str(path)]) == 2  # the example's calibration does not exist here
     assert "calib.toml" in capsys.readouterr().err
 
