@@ -62,3 +62,12 @@ def run_keeper(rig, steps, tmp_path, auto: bool):
             case.job.result(timeout=60)  # the worker's attempt, judged at the next step
     keeper.close()
     return keeper, events, applied
+
+
+def proposed_keeper(folder):
+    """A keeper (calibration_auto = false) with a pose proposed for the knocked cam02, not yet
+    accepted: (the keeper, the rigs it applied, the steps)."""
+    rig, _, steps = knocked_yard(steps_to=1040)
+    keeper, _, applied = run_keeper(rig, steps, folder, auto=False)
+    assert "cam02" in keeper.proposals()
+    return keeper, applied, steps

@@ -45,6 +45,7 @@ from stereopose.config_refs import (
     source_path,
 )
 from stereopose.detection import make_detector
+from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError
 from stereopose.io.cameraset import CameraSet
@@ -289,6 +290,7 @@ class DetectNode:
         )
         # regions from each camera's own people, motion and full scans (a node has no 3D)
         self.regions = region_detector(self.detector, d)
+        self.light = LightWatch(enhance=d.night)  # a night camera's pictures prepared, as serve's
         self.topics = Topics.of(plan.mqtt.topic_prefix, plan.mqtt.site)
         self.figures = NodeFigures()
         self.picture_hz = cfg.input.node_picture_hz
@@ -400,7 +402,9 @@ class DetectNode:
                 self._checked.add(name)
                 check_size(self.plan.rig[name], image)
         # its people named and numbered, at the capture time t
-        people = detect_step(self.detector, dataclasses.replace(frames, t=t), self.regions)
+        people = detect_step(
+            self.detector, dataclasses.replace(frames, t=t), self.regions, light=self.light
+        )
         spent = time.perf_counter() - t0
         self.figures.steps += 1
         self.figures.detect_s += spent

@@ -9,7 +9,7 @@ import httpx
 import pytest
 
 from consoled import PASSWORDS, console_server
-from knocked import knocked_yard, run_keeper
+from knocked import proposed_keeper
 from stereopose.site.health.calib_keeper import KeeperDesk
 
 pytestmark = pytest.mark.slow
@@ -17,10 +17,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def proposed(tmp_path_factory):
-    rig, _, steps = knocked_yard(steps_to=1040)
-    keeper, _, applied = run_keeper(rig, steps, tmp_path_factory.mktemp("calib"), auto=False)
-    assert "cam02" in keeper.proposals()
-    return keeper, applied, steps
+    return proposed_keeper(tmp_path_factory.mktemp("calib"))
 
 
 def _login(c: httpx.Client, name: str) -> str:
