@@ -223,6 +223,7 @@ def one(
     workers: int = 1,
 ) -> dict:
     from brokers import Broker, free_port
+    from stereopose.controlroom.enrolment import Enrolment, broker_hash
     from stereopose.controlroom.store import ControlStore
 
     tag = f"{n_sites}-{database}-{workers}"
@@ -241,6 +242,12 @@ def one(
         if workers > 1:
             extra += 'shared_group = "fleet"\n'
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    names = [f"site{i:04d}" for i in range(n_sites)]
+    enrolled = ControlStore(db)  # the sites enrolled first: the room stores no other name
+    enrolment = Enrolment(enrolled)
+    for name in names:
+        enrolment.add(name, broker_hash(name, iterations=1), time.time())
+    enrolled.close()
     rooms, ports = [], []
     for w in range(workers):  # each worker its folder and port; one store
         (room_dir / f"w{w}").mkdir()
@@ -256,7 +263,6 @@ def one(
     time.sleep(3)
     # the sites in processes of SITES_PER_PROCESS each (paho's select() loop cannot use a
     # socket numbered beyond 1023: one process holds a few hundred clients at most)
-    names = [f"site{i:04d}" for i in range(n_sites)]
     begin = time.time() + 3 + n_sites / 200  # every site connected by then
     stop_flag = room_dir / "stop"
     sims = []

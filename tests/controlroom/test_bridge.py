@@ -15,7 +15,7 @@ from pathlib import Path
 import httpx
 import paho.mqtt.client as paho
 import pytest
-from test_control_room import ENV, _add_user, _central, _client
+from test_control_room import ENV, _add_user, _central, _client, _enrol
 
 from brokers import Broker, free_port, make_certificate
 from stereopose.io.sinks.eventwriter import SqliteSink
@@ -82,6 +82,7 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
     http_port = free_port()
     config = _room_config(tmp_path / "room", central.port, cert, http_port)
     _add_user(config)
+    _enrol(config, "north")
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     log = EventLog(tmp_path / "north.sqlite")
     box = LogOutbox(
@@ -201,6 +202,7 @@ def test_a_served_bridged_site_across_a_60_s_cut_a_control_room_kill_and_acks_bo
     )
     _add_user(config)
     _add(config, "olga", "operator")
+    _enrol(config, "north")
     site_config = write_serve_demo_config(
         tmp_path / "demo", tmp_path / "data", site_port, imgsz=320
     )

@@ -153,6 +153,7 @@ def test_sites_stored_once_across_a_kill_a_broker_restart_and_a_site_away(
         extra = f'[control_room]\ndatabase = "{without}"\ndatabase_password_file = "db.secret"\n'
     config = _config(tmp_path / "room", broker.port, http_port, extra)
     _add_user(config)
+    _enrol(config, "north", "south/yard")
     log = tmp_path / "room.log"
     a, b = Site(tmp_path, "north", broker.port), Site(tmp_path, "south/yard", broker.port)
     a.write(5)  # before the control room exists: it asks for them (a gap after its mark 0)
@@ -251,6 +252,7 @@ def test_a_served_site_reaches_the_control_room_and_shows_offline_when_stopped(t
     http_port = free_port()
     room_config = _config(tmp_path / "room", broker.port, http_port)
     _add_user(room_config)
+    _enrol(room_config, "demo")
     site_config = write_serve_demo_config(
         tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320
     )
@@ -357,6 +359,7 @@ def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
     )
     _add_user(config)  # vera, a viewer of every site
     _add(config, "olga", "operator", "--sites", "north")
+    _enrol(config, "north", "south")
     listed = subprocess.run(
         [sys.executable, "-m", "stereopose.cli", "users", "list", "--config", str(config)],
         capture_output=True,
@@ -442,3 +445,24 @@ def test_incidents_acks_users_limited_to_sites_and_the_console_page(tmp_path):
         south.close()
         broker.stop()
     assert rc == 0, (tmp_path / "room.log").read_text()
+
+
+def _enrol(config: Path, *sites: str) -> None:
+    """`stereopose control-room sites add` of each site: the only names the room stores."""
+    add = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereopose.cli",
+            "control-room",
+            "sites",
+            "add",
+            *sites,
+            "--config",
+            str(config),
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+    )
+    assert add.returncode == 0, add.stdout + add.stderr

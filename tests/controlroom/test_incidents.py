@@ -17,6 +17,7 @@ import pytest
 
 from brokers import Broker
 from stereopose.alarms import IncidentBook
+from stereopose.controlroom.enrolment import Enrolment, broker_hash
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.eventwriter import SqliteSink
@@ -123,6 +124,7 @@ def broker(tmp_path: Path):
 @pytest.fixture
 def room(broker, tmp_path: Path):
     store = ControlStore(tmp_path / "control.sqlite")
+    Enrolment(store).add("north", broker_hash("pw", iterations=1), 1.8e9)
     ingest = Ingest(
         _settings(broker.port, "unused"),
         store,
@@ -191,7 +193,7 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
         ingest.ask_ack("north", inc, "paul")
         wait_until(lambda: not store.pending_commands(), "the second answered")
         assert site.record(inc).acked_by == "olga via central"
-        with store._reading("read the commands") as run:
+        with store.reading("read the commands") as run:
             results = dict(run("SELECT id, result FROM commands").fetchall())
         assert results[command] == "acknowledged" and sorted(results.values()) == [
             "acknowledged",

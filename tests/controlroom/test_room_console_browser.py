@@ -14,7 +14,7 @@ import signal
 from urllib.parse import urlsplit
 
 import pytest
-from test_control_room import _add, _add_user, _client, _config, _start
+from test_control_room import _add, _add_user, _client, _config, _enrol, _start
 from test_incidents import Site
 
 from brokers import Broker, free_port
@@ -75,6 +75,7 @@ def test_the_control_rooms_console_in_a_browser(browser, tmp_path):
     )
     _add_user(config)  # vera, a viewer
     _add(config, "olga", "operator")
+    _enrol(config, "north", "south")
     plan = {
         "zones": [
             {"name": "busbar", "kind": "energized", "polygon": [[0, 0], [3, 0], [3, 1], [0, 1]]}

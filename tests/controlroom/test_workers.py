@@ -11,7 +11,17 @@ import subprocess
 import sys
 
 import pytest
-from test_control_room import ENV, _add, _add_user, _central, _client, _config, _login, _start
+from test_control_room import (
+    ENV,
+    _add,
+    _add_user,
+    _central,
+    _client,
+    _config,
+    _enrol,
+    _login,
+    _start,
+)
 from test_incidents import Site
 
 from brokers import Broker, free_port
@@ -32,6 +42,7 @@ def test_two_workers_share_the_sites_each_event_stored_once(tmp_path, postgres):
     for config in configs:  # each worker's users (its folder); one store
         _add_user(config)
         _add(config, "olga", "operator")
+    _enrol(configs[0], "north", "south", "east")  # one store: enrolled for both workers
     sites = [Site(tmp_path, broker.port, name) for name in ("north", "south", "east")]
     procs = [_start(config, tmp_path / f"w{i}.log") for i, config in enumerate(configs)]
     store = ControlStore(url)

@@ -107,10 +107,20 @@ def _add_cameras(parsers: dict[str, argparse.ArgumentParser]) -> None:
     _add_serve(parsers["serve"])
     _add_points(parsers["points"])
     _add_detect_node(parsers["detect-node"])
-    parsers["control-room"].add_argument(
-        "config",
-        type=Path,
-        help="the control room's configuration (output, [serve], [mqtt], [control_room])",
+    cr = parsers["control-room"]
+    cr.add_argument(
+        "what",
+        nargs="+",
+        metavar="CONFIG.toml | sites add|list|remove [NAME] | broker-config",
+        help="the control room's configuration (output, [serve], [mqtt], [control_room]) to "
+        "run it; `sites add NAME`, `sites list`, `sites remove NAME` (with --config): the sites "
+        "it takes, each with its own broker login; `broker-config` (with --config, --out): the "
+        "central broker's password file and ACL",
+    )
+    cr.add_argument("--config", type=Path, metavar="CONFIG.toml", help="for sites, broker-config")
+    cr.add_argument("--out", type=Path, metavar="DIR", help="broker-config: the files' folder")
+    cr.add_argument(
+        "--bridge", type=Path, metavar="FILE", help="sites add: write the site's bridge file here"
     )
     _add_users(parsers["users"])
     _add_init(parsers["init"])

@@ -112,9 +112,11 @@ class ControlRoomConfig:
     shared_group: str = ""
     # the store keeps events (and closed incidents, answered acknowledgements) this long
     retention_days: float = number(365.0, gt=0.0, le=36500.0)
-    # the sites that may report here (empty: any name, up to max_sites); a message from
-    # another is refused, counted, and raises one control-room incident
+    # sites taken besides those enrolled (`control-room sites add NAME`, which gives each
+    # its broker login); a message of any other name is refused, counted, and raises one
+    # control-room incident
     sites: tuple[str, ...] = ()
+    # the most sites `control-room sites add` enrols
     max_sites: int = number(1000, integer=True, ge=1, le=100_000)
     # a site's outbox message (an event, an incident's change) larger than this is refused
     max_event_bytes: int = number(65_536, integer=True, ge=1024, le=16 << 20)

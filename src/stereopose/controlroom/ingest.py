@@ -19,9 +19,9 @@ is asked for, at most once per `replay_every_s`), stores each site's batch and i
 one transaction, and then publishes the mark on the site's `log/confirmed` (retained). A site
 whose last message is older than `offline_after_s` is shown offline.
 
-What a peer sends is bounded before it is queued: the site names (`sites`, a list of those
-that may report, or at most `max_sites` names: a message from another is refused, counted,
-and raises one control-room incident), a message's bytes per topic (`max_event_bytes` for
+What a peer sends is bounded before it is queued: the site names (those enrolled, read again
+every ENROLMENT_EVERY_S, and `sites`: another name is refused, counted, raises one control-room
+incident and never takes a place), a message's bytes per topic (`max_event_bytes` for
 the outbox's events and incidents, `max_heartbeat_bytes`, small fixed ones for the rest), and
 then its content: every number within what a store holds, strings, keys and lists of bounded
 length, nesting at most MAX_DEPTH deep. An event id more than `ids_ahead` beyond the last id
@@ -48,6 +48,7 @@ import paho.mqtt.client as paho
 from stereopose.controlroom.checks import heartbeat, incident_change, is_id, numbered
 from stereopose.controlroom.checks import summary as beat_summary
 from stereopose.controlroom.commands import AckCommands
+from stereopose.controlroom.enrolment import Enrolment
 from stereopose.controlroom.intake import QUEUE, Intake
 from stereopose.controlroom.order import Order
 from stereopose.controlroom.room import RoomIncidents
@@ -74,6 +75,7 @@ logger = logging.getLogger(__name__)
 
 CLOCK_WARN_S = 5.0  # a site's clock this far from ours is logged
 PRUNE_EVERY_S = 3600.0  # how often the store's old rows are pruned
+ENROLMENT_EVERY_S = 1.0  # how often the enrolled sites are read again
 STUCK_S = 120.0  # events coming this long with none stored: the ingest is degraded
 COUNTS = (
     "messages",
@@ -117,7 +119,6 @@ class Ingest:
         shared_group: str = "",
         retention_days: float | None = None,
         sites: tuple[str, ...] | list[str] = (),
-        max_sites: int = 1000,
         max_event_bytes: int = 65_536,
         max_heartbeat_bytes: int = 8192,
         ids_ahead: int = 100_000,
@@ -147,13 +148,14 @@ class Ingest:
         self.client = self._make_client()
         self.room = RoomIncidents(store, self.counts, clock_tolerance_s)
         self.pages = SitePages(self.client, self.prefix)
+        self.enrolment = Enrolment(store)
+        self._enrolled_at = time.monotonic()
         self.intake = Intake(
             self.prefix,
             self.pages,
             self.counts,
-            {r.site for r in store.sites()},
+            self.enrolment.names(),
             sites=sites,
-            max_sites=max_sites,
             max_event_bytes=max_event_bytes,
             max_heartbeat_bytes=max_heartbeat_bytes,
             queue_size=queue_size,
@@ -266,6 +268,12 @@ class Ingest:
                     logger.error("control room: %s", e)
 
     def _step(self) -> None:
+        if time.monotonic() - self._enrolled_at >= ENROLMENT_EVERY_S:
+            self._enrolled_at = time.monotonic()
+            try:  # the store out: the sites enrolled before stay
+                self.intake.enrol(self.enrolment.names())
+            except StoreError as e:
+                self._warn("enrolment", f"control room: {e}")
         batch = self.intake.take()
         per_site: dict[str, list[dict]] = {}
         changes: dict[str, list[dict]] = {}

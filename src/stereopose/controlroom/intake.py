@@ -1,9 +1,9 @@
 """What paho's thread does with a site's message before the ingest's thread sees it: the
-topic's byte bound, the site's name admitted (a name of `[control_room] sites`, or any while
-fewer than `max_sites` are known), a plan or people message kept at once (one a site), and
-anything else appended to a bounded queue (at the bound dropped and counted: its site sends
-it again, since it is not confirmed). Every refusal is counted and logged at most once a
-minute a kind."""
+topic's byte bound, the site's name admitted (an enrolled site's, controlroom.enrolment, or
+one of `[control_room] sites`: no other name takes a place), a plan or people message kept at
+once (one a site), and anything else appended to a bounded queue (at the bound dropped and
+counted: its site sends it again, since it is not confirmed). Every refusal is counted and
+logged at most once a minute a kind."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 
 from stereopose.controlroom.site_pages import MAX_PLAN_BYTES, SitePages
 from stereopose.site.wire import (
@@ -30,30 +31,30 @@ QUEUE = 100_000  # messages waiting for the ingest's thread at most
 WARN_EVERY_S = 60.0  # a kind of bad message logged at most this often
 # bytes of a message on these topics at most (the outbox's and heartbeat's come from settings)
 SMALL_TOPICS = {AVAILABLE: 64, COMMAND_DONE: 1024}
-MAX_NAME = 200  # characters of a site's name at most
+NOT_ENROLLED = "not enrolled (stereopose control-room sites add NAME)"
 
 
 class Intake:
     """The bounded intake (paho's thread puts, the ingest's thread takes). counts: the
-    ingest's figures (oversize, refused_sites, dropped, malformed); known: the sites already
-    in the store."""
+    ingest's figures (oversize, refused_sites, dropped, malformed); enrolled: the sites
+    enrolled now (`enrol` gives them again when they change); sites: `[control_room] sites`,
+    taken as well."""
 
     def __init__(
         self,
         prefix: str,
         pages: SitePages,
         counts: dict[str, int],
-        known: set[str],
+        enrolled: Iterable[str],
         *,
         sites: tuple[str, ...] | list[str] = (),
-        max_sites: int = 1000,
         max_event_bytes: int = 65_536,
         max_heartbeat_bytes: int = 8192,
         queue_size: int = QUEUE,
     ) -> None:
         self.prefix, self.pages, self.counts = prefix, pages, counts
-        self.allowed_sites = frozenset(sites)  # empty: any name, up to max_sites
-        self.max_sites, self.queue_size = int(max_sites), int(queue_size)
+        self.listed = frozenset(sites)
+        self.queue_size = int(queue_size)
         self.max_bytes = {
             **SMALL_TOPICS,
             EVENTS: int(max_event_bytes),
@@ -62,7 +63,7 @@ class Intake:
             PLAN: MAX_PLAN_BYTES,
             PEOPLE: MAX_PLAN_BYTES,
         }
-        self._sites = set(known)  # the names admitted
+        self._sites = self.listed | frozenset(enrolled)  # the names admitted
         self._refused: list[str] = []  # site names refused since the ingest last looked
         self._queue: deque[tuple[str, str, bytes, float]] = deque()
         self._lock = threading.Lock()
@@ -111,16 +112,21 @@ class Intake:
         with self._lock:
             self.counts[what] += 1
 
+    def enrol(self, enrolled: Iterable[str]) -> None:
+        """The sites enrolled now (added and removed ones take effect with the next message)."""
+        admitted = self.listed | frozenset(enrolled)
+        with self._lock:
+            self._sites = admitted
+
+    def admitted(self) -> frozenset[str]:
+        with self._lock:
+            return self._sites
+
     def refused(self) -> tuple[list[str], str]:
         """The site names refused since last asked (ten at most) and why."""
         with self._lock:
             names, self._refused = self._refused, []
-        why = (
-            "not in [control_room] sites"
-            if self.allowed_sites
-            else f"beyond [control_room] max_sites = {self.max_sites}"
-        )
-        return names, why
+        return names, NOT_ENROLLED
 
     def warn(self, kind: str, text: str) -> None:
         """Log `text` unless a message of this kind was logged within the last minute."""
@@ -130,27 +136,12 @@ class Intake:
             logger.warning("%s", text)
 
     def _admit(self, site: str) -> bool:
-        """Whether messages of `site` are taken: a name of the list, or (no list) one already
-        known or a new one while fewer than max_sites are."""
+        """Whether messages of `site` are taken: an enrolled or listed name only."""
         with self._lock:
             if site in self._sites:
-                return True
-            ok = (
-                site in self.allowed_sites
-                if self.allowed_sites
-                else len(self._sites) < self.max_sites
-            )
-            ok = ok and 0 < len(site) <= MAX_NAME and site.isprintable()
-            if ok:
-                self._sites.add(site)
                 return True
             self.counts["refused_sites"] += 1
             if len(self._refused) < 10:
                 self._refused.append(site)
-        why = (
-            "not in [control_room] sites"
-            if self.allowed_sites
-            else f"already {self.max_sites} sites ([control_room] max_sites)"
-        )
-        self.warn("site", f"control room: a message of site {site[:80]!r} refused: {why}")
+        self.warn("site", f"control room: a message of site {site[:80]!r} refused: {NOT_ENROLLED}")
         return False

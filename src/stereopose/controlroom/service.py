@@ -147,7 +147,6 @@ class ControlRoom:
             shared_group=cr.shared_group,
             retention_days=cr.retention_days,
             sites=cr.sites,
-            max_sites=cr.max_sites,
             max_event_bytes=cr.max_event_bytes,
             max_heartbeat_bytes=cr.max_heartbeat_bytes,
             ids_ahead=cr.ids_ahead,

@@ -141,7 +141,7 @@ class ControlStore:
         return {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
 
     @contextlib.contextmanager
-    def _writing(self, what: str) -> Iterator:
+    def writing(self, what: str) -> Iterator:
         """The writer in one transaction under the lock: committed at the end, rolled back
         (and a StoreError naming `what`) on an error."""
         with self._lock:
@@ -158,7 +158,7 @@ class ControlStore:
                 raise StoreError(f"{self.name}: cannot {what}: {_why(e)}") from None
 
     @contextlib.contextmanager
-    def _reading(self, what: str) -> Iterator:
+    def reading(self, what: str) -> Iterator:
         """A reading connection: SQLite's read-only one per call; PostgreSQL's one shared."""
         try:
             if not self.postgres:
@@ -181,7 +181,7 @@ class ControlStore:
         """Store a site's events (each (site, id) once) and its new mark, in one transaction;
         the number newly stored."""
         rows = [event_row(site, e, now) for e in events]
-        with self._writing(f"store {len(rows)} event(s) of site {site!r}") as run:
+        with self.writing(f"store {len(rows)} event(s) of site {site!r}") as run:
             new = run.many(PUT_EVENT, rows)
             run(RAISE_MARK, (site, mark, now))
         self.stored += new
@@ -200,7 +200,7 @@ class ControlStore:
         ev_rows = [event_row(site, e, now) for site, (items, _) in events.items() for e in items]
         ch_rows = [change_row(site, c, now) for site, (items, _) in changes.items() for c in items]
         what = f"store {len(ev_rows)} event(s) and {len(ch_rows)} incident change(s)"
-        with self._writing(what) as run:
+        with self.writing(what) as run:
             new = run.many(PUT_EVENT, ev_rows)
             written = run.many(PUT_CHANGE, ch_rows)
             run.many(RAISE_MARK, [(site, mark, now) for site, (_, mark) in events.items()])
@@ -216,14 +216,14 @@ class ControlStore:
         stored one only when its seq is newer) and its new incidents mark, in one
         transaction; the number of records written."""
         rows = [change_row(site, c, now) for c in changes]
-        with self._writing(f"store {len(rows)} incident change(s) of site {site!r}") as run:
+        with self.writing(f"store {len(rows)} incident change(s) of site {site!r}") as run:
             new = run.many(PUT_CHANGE, rows)
             run(RAISE_INCIDENT_MARK, (site, mark, now))
         return new
 
     def add_command(self, site: str, incident: int, by: str, now: float) -> int:
         """An acknowledgement to ask of `site`; its command id."""
-        with self._writing("store the acknowledgement") as run:
+        with self.writing("store the acknowledgement") as run:
             row = run(
                 "INSERT INTO commands(site, incident, asked_by, asked_at) VALUES "
                 "(?, ?, ?, ?) RETURNING id",
@@ -241,13 +241,13 @@ class ControlStore:
         if site is not None:
             sql += " AND site = ?"
             args.append(site)
-        with self._writing("store a site's answer") as run:
+        with self.writing("store a site's answer") as run:
             cur = run(sql, args)
         return cur.rowcount > 0
 
     def pending_commands(self) -> list[tuple[int, str, int, str]]:
         """(command, site, incident, by) not answered yet, oldest first."""
-        with self._writing("read the acknowledgements") as run:
+        with self.writing("read the acknowledgements") as run:
             rows = run(
                 "SELECT id, site, incident, asked_by FROM commands WHERE done_at IS "
                 "NULL ORDER BY id"
@@ -259,7 +259,7 @@ class ControlStore:
     ) -> int | None:
         """A control-room incident of `kind` about `site`, unless one is active already; its
         id (None: one was)."""
-        with self._writing("raise an incident") as run:
+        with self.writing("raise an incident") as run:
             if run(
                 "SELECT 1 FROM room_incidents WHERE site = ? AND kind = ? AND state IN "
                 "('active', 'acknowledged')",
@@ -275,7 +275,7 @@ class ControlStore:
 
     def clear_room_incidents(self, site: str, kind: str, now: float) -> int:
         """The active incidents of `kind` about `site` cleared (closed when acknowledged)."""
-        with self._writing("clear an incident") as run:
+        with self.writing("clear an incident") as run:
             cur = run(
                 "UPDATE room_incidents SET cleared_at = ?, state = CASE state WHEN "
                 "'acknowledged' THEN 'closed' ELSE 'cleared' END WHERE site = ? AND "
@@ -287,7 +287,7 @@ class ControlStore:
     def ack_room_incident(self, incident: int, by: str, now: float) -> dict | None:
         """Acknowledge a control-room incident (a cleared one closes); its row, None when
         there is none with that id."""
-        with self._writing("acknowledge an incident") as run:
+        with self.writing("acknowledge an incident") as run:
             run(
                 "UPDATE room_incidents SET acked_by = ?, acked_at = ?, state = CASE state "
                 "WHEN 'active' THEN 'acknowledged' WHEN 'cleared' THEN 'closed' ELSE state "
@@ -304,7 +304,7 @@ class ControlStore:
         commands and closed control-room incidents last changed before it, deleted; the rows
         deleted. The sites and their marks stay, so nothing pruned is stored again."""
         n = 0
-        with self._writing("prune the store") as run:
+        with self.writing("prune the store") as run:
             for sql in (
                 "DELETE FROM events WHERE stored_at < ?",
                 "DELETE FROM incidents WHERE state = 'closed' AND stored_at < ?",
@@ -323,7 +323,7 @@ class ControlStore:
         last_seen: float | None = None,
         health: dict | None = None,
     ) -> None:
-        with self._writing(f"update site {site!r}") as run:
+        with self.writing(f"update site {site!r}") as run:
             run("INSERT OR IGNORE INTO sites(site) VALUES (?)", (site,))
             if state is not None:
                 run("UPDATE sites SET state = ? WHERE site = ?", (state, site))
@@ -338,7 +338,7 @@ class ControlStore:
 
     def set_summaries(self, summaries: dict[str, dict]) -> None:
         """Each site's latest summary (its heartbeat's status, cameras, people), at once."""
-        with self._writing("update the sites") as run:
+        with self.writing("update the sites") as run:
             run.many(
                 "INSERT INTO sites(site, health) VALUES (?, ?) ON CONFLICT(site) DO "
                 "UPDATE SET health = excluded.health",
@@ -346,17 +346,17 @@ class ControlStore:
             )
 
     def marks(self) -> dict[str, int]:
-        with self._writing("read the marks") as run:
+        with self.writing("read the marks") as run:
             return {s: int(m) for s, m in run("SELECT site, mark FROM sites").fetchall()}
 
     def incident_marks(self) -> dict[str, int]:
-        with self._writing("read the marks") as run:
+        with self.writing("read the marks") as run:
             return {s: int(m) for s, m in run("SELECT site, incident_mark FROM sites").fetchall()}
 
     # --- reads -----------------------------------------------------------------------------
 
     def sites(self, only: Iterable[str] | None = None) -> list[SiteRow]:
-        with self._reading("read the sites") as run:
+        with self.reading("read the sites") as run:
             rows = run(
                 "SELECT s.site, s.mark, s.state, s.last_seen, s.health, "
                 "(SELECT COUNT(*) FROM events e WHERE e.site = s.site) "
@@ -382,7 +382,7 @@ class ControlStore:
         where, args = of_sites(site, sites)
         where.append("id > ?")
         args.append(int(after_id))
-        with self._reading("read the events") as run:
+        with self.reading("read the events") as run:
             rows = run(
                 f"SELECT site, record FROM events WHERE {' AND '.join(where)} "
                 "ORDER BY site, id LIMIT ?",
@@ -409,7 +409,7 @@ class ControlStore:
             where.append("state = ?")
             args.append(state)
         cond = f" WHERE {' AND '.join(where)}" if where else ""
-        with self._reading("read the incidents") as run:
+        with self.reading("read the incidents") as run:
             rows = run(
                 f"SELECT site, seq, record FROM incidents{cond} ORDER BY stored_at "
                 "DESC, site, id DESC LIMIT ?",
@@ -442,7 +442,7 @@ class ControlStore:
     def open_counts(self) -> dict[str, dict[str, int]]:
         """Per site, its open incidents (not closed) by priority ("1".."4"), the control
         room's own with them."""
-        with self._reading("read the incidents") as run:
+        with self.reading("read the incidents") as run:
             rows = run(
                 "SELECT site, priority, COUNT(*) FROM incidents WHERE state IN "
                 "('active', 'acknowledged', 'cleared') GROUP BY site, priority "
@@ -458,7 +458,7 @@ class ControlStore:
 
     def room_incident(self, incident: int) -> dict | None:
         """A control-room incident, None when there is none with that id."""
-        with self._reading("read the incidents") as run:
+        with self.reading("read the incidents") as run:
             row = run(
                 f"SELECT {ROOM_COLUMNS} FROM room_incidents WHERE id = ?", (incident,)
             ).fetchone()
@@ -466,7 +466,7 @@ class ControlStore:
 
     def incident(self, site: str, incident: int) -> dict | None:
         """A site's incident as stored, None when the control room has none by that id."""
-        with self._reading("read the incidents") as run:
+        with self.reading("read the incidents") as run:
             row = run(
                 "SELECT record FROM incidents WHERE site = ? AND id = ?", (site, incident)
             ).fetchone()
