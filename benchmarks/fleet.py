@@ -250,7 +250,7 @@ def one(
     enrolled.close()
     rooms, ports = [], []
     for w in range(workers):  # each worker its folder and port; one store
-        (room_dir / f"w{w}").mkdir()
+        (room_dir / f"w{w}").mkdir(exist_ok=True)  # w0 holds the SQLite store already
         config = room_dir / f"w{w}" / "control.toml"
         ports.append(free_port())
         config.write_text(
@@ -302,7 +302,7 @@ def one(
     store = ControlStore(db)
 
     def stored() -> int:
-        with store._reading("count") as run:
+        with store.reading("count") as run:
             return int(run("SELECT COUNT(*) FROM events").fetchone()[0])
 
     deadline = time.monotonic() + 60
@@ -319,7 +319,7 @@ def one(
             continue
         for k in ("gaps", "replays", "behind", "duplicates"):
             ingest[k] = ingest.get(k, 0) + int(got.get(k, 0))
-    with store._reading("read") as run:
+    with store.reading("read") as run:
         rows = run("SELECT site, id, stored_at, record FROM events").fetchall()
         n_incidents = int(run("SELECT COUNT(*) FROM incidents").fetchone()[0])
     store.close()

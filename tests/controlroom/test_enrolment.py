@@ -100,6 +100,10 @@ class Site:
         self.sink.close()
 
 
+def _enrolled(c) -> int:
+    return c.get("/api/health").json()["ingest"]["enrolled"]
+
+
 def _login(port: int, user: str, password: str) -> paho.Client:
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     c.username_pw_set(user, password)
@@ -171,6 +175,7 @@ def test_only_enrolled_sites_each_with_its_own_login_on_a_real_broker(tmp_path):
         assert "topic stereopose/east/log/events out 1" in bridge and "SITE" not in bridge
         assert _cli("broker-config", "--config", str(config), "--out", str(files)).returncode == 0
         broker.proc.send_signal(signal.SIGHUP)
+        wait_until(lambda: _enrolled(c) == 3, "the room taking east")
         east = Site(tmp_path, broker.port, "east", east_pw)
         east.write(4)
         wait_until(lambda: _central(c, "east") == east.ids(), "east's events", timeout_s=30)
@@ -179,6 +184,7 @@ def test_only_enrolled_sites_each_with_its_own_login_on_a_real_broker(tmp_path):
         assert gone.returncode == 0, gone.stdout + gone.stderr
         listed = _cli("sites", "list", "--config", str(config))
         assert [line.split()[0] for line in listed.stdout.splitlines()] == ["east", "north"]
+        wait_until(lambda: _enrolled(c) == 2, "the room refusing south")
         south = Site(tmp_path, broker.port, "south", south_pw)
         south.write(2)
         wait_until(

@@ -124,7 +124,8 @@ def broker(tmp_path: Path):
 @pytest.fixture
 def room(broker, tmp_path: Path):
     store = ControlStore(tmp_path / "control.sqlite")
-    Enrolment(store).add("north", broker_hash("pw", iterations=1), 1.8e9)
+    for site in ("north", "east"):
+        Enrolment(store).add(site, broker_hash("pw", iterations=1), 1.8e9)
     ingest = Ingest(
         _settings(broker.port, "unused"),
         store,

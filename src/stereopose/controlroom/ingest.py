@@ -471,12 +471,8 @@ class Ingest:
         return True, ""
 
     def figures(self) -> dict:
-        f = dict(
-            self.counts,
-            queued=self.intake.queued(),
-            connected=self.connected,
-            subscribed=self.subscribed,
-        )
+        f = dict(self.counts, queued=self.intake.queued(), enrolled=len(self.intake.admitted()))
+        f.update(connected=self.connected, subscribed=self.subscribed)
         f["running"], f["trouble"] = self.health()
         if len(self._rate) >= 2:
             (t0, n0), (t1, n1) = self._rate[0], self._rate[-1]
