@@ -41,6 +41,7 @@ from stereopose.io.sinks import FrameResult  # noqa: E402
 from stereopose.pipeline.incidents import IncidentStep  # noqa: E402
 from stereopose.pipeline.step_rules import step_chain  # noqa: E402
 from stereopose.scada.opcua import CameraNode, OpcuaServer, ZoneNode  # noqa: E402
+from stereopose.scada.opcua_security import MIN_IDLE_S  # noqa: E402
 from stereopose.scada.opcua_settings import (  # noqa: E402
     OpcuaSettings,
     application_certificate,
@@ -989,3 +990,56 @@ async def _try_connect(url: str, pair) -> Client | None:
     except (OSError, TimeoutError, ua.UaError):
         await asyncio.sleep(0.3)
         return None
+
+
+def test_a_client_speaking_slowly_keeps_its_place_in_a_flood_of_idle_sockets(tmp_path, pair):
+    async def body(site: Site) -> None:
+        port = site.server.settings.port
+        flood: list[asyncio.StreamWriter] = []
+        stop = asyncio.Event()
+
+        async def keep_flooding() -> None:  # idle sockets, as fast as places free, all along
+            while not stop.is_set():
+                with contextlib.suppress(OSError):
+                    _, w = await asyncio.open_connection("127.0.0.1", port)
+                    flood.append(w)
+                await asyncio.sleep(0.02)
+
+        async def places_freed() -> bool:
+            return site.server.figures()["idle_closed"] >= 2
+
+        flooding = asyncio.create_task(keep_flooding())
+        c = Client(site.url, timeout=10)
+        c.application_uri = CLIENT_URI
+        await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{pair[0]},{pair[1]}")
+        c.set_user("vera")
+        c.set_password(PASSWORDS["vera"])
+        try:
+            await until(places_freed, "the oldest idle sockets closed")
+            deadline = time.monotonic() + 20
+            while True:  # a place, as a client gets one: it tries again when refused
+                try:
+                    await c.connect_socket()
+                    await c.send_hello()
+                    break
+                except (OSError, TimeoutError, ua.UaError):
+                    c.disconnect_socket()
+                    if time.monotonic() > deadline:
+                        raise
+                    await asyncio.sleep(0.1)
+            await c.open_secure_channel()
+            closed = site.server.figures()["idle_closed"]
+            await asyncio.sleep(3 * MIN_IDLE_S)  # slow to log in: a slow link, a slow client
+            assert site.server.figures()["idle_closed"] > closed  # the idle ones made way
+            await c._create_and_activate_session()  # its place kept: it goes on
+            idx, _ = await site_node(c)
+            assert await c.get_node(ua.NodeId("site/Running", idx)).read_value() is True
+            await c.disconnect()
+        finally:
+            stop.set()
+            await flooding
+            for w in flood:
+                w.close()
+
+    with running(tmp_path) as site:
+        asyncio.run(body(site))

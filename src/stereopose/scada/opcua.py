@@ -27,8 +27,9 @@ Logins count against the console's limits on password guesses (per address, per 
 
 Connections: `max_connections` sessions, and SPARE_SOCKETS more sockets for clients still in
 their handshake. A socket that has not activated a session within ACTIVATE_S is closed, and
-while fewer than two places are free the oldest such socket (past opcua_security.MIN_IDLE_S)
-is closed at once: idle or unauthenticated sockets cannot keep a client out.
+while fewer than two places are free the oldest such socket (past opcua_security.MIN_IDLE_S,
+a silent one before one that opened a secure channel) is closed at once: idle or
+unauthenticated sockets cannot keep a client out, nor take the place of one logging in.
 """
 
 from __future__ import annotations

@@ -174,8 +174,9 @@ SWEEP_S = 0.25  # how often the sockets are looked at
 
 async def sweep_idle(server, on_evict) -> None:
     """While fewer than two places are free, the oldest socket without an activated session
-    (older than MIN_IDLE_S) is closed (on_evict() counts it): a client that logs in finds a
-    place. Runs until cancelled; a failure to look is logged, never ends the server."""
+    (older than MIN_IDLE_S; a silent one before one with a secure channel open) is closed
+    (on_evict() counts it): a client that logs in finds a place and keeps it. Runs until
+    cancelled; a failure to look is logged, never ends the server."""
     loop = asyncio.get_running_loop()
     first_seen: dict[int, float] = {}
     while True:
@@ -186,14 +187,24 @@ async def sweep_idle(server, on_evict) -> None:
             first_seen = {id(c): first_seen.get(id(c), now) for c in clients}
             free = server.iserver.max_connections - len(clients)
             old = [c for c in clients if now - first_seen[id(c)] >= MIN_IDLE_S]
-            idle = sorted((first_seen[id(c)], id(c), c) for c in old if not _activated(c))
-            for _, _, c in idle[: max(0, 2 - free)]:
+            # the silent ones make way first, oldest first; one that opened a secure channel
+            # (it speaks: a client logging in) only when no silent one is left
+            idle = sorted(
+                (_spoke(c), first_seen[id(c)], id(c), c) for c in old if not _activated(c)
+            )
+            for *_, c in idle[: max(0, 2 - free)]:
                 transport = getattr(c, "transport", None)
                 if transport is not None:
                     transport.close()
                     on_evict()
         except Exception:  # never ends the server
             logger.exception("OPC UA: looking at the connections failed")
+
+
+def _spoke(protocol) -> bool:
+    """Whether an asyncua connection has opened a secure channel (said Hello and more)."""
+    processor = getattr(protocol, "processor", None)
+    return bool(getattr(getattr(processor, "_connection", None), "_open", False))
 
 
 def _activated(protocol) -> bool:
