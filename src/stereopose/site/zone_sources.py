@@ -17,6 +17,7 @@ from stereopose.errors import ConfigError
 from stereopose.io.mqtt_watcher import MqttWatcher
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.scada.iec104_master import Iec104Master
+from stereopose.scada.iec104_tls import Iec104TlsMaster, tls_context
 from stereopose.scada.opcua_watcher import OpcuaWatcher
 from stereopose.zones.power import Iec104Point, MqttPoint, OpcuaPoint, PointSource
 from stereopose.zones.power_state import PowerBoard
@@ -83,11 +84,22 @@ def _source(
     figures: dict[str, int],
     mqtt: MqttSettings | None,
     base: Path | None,
-) -> Iec104Master | OpcuaWatcher | MqttWatcher:
+) -> Iec104Master | Iec104TlsMaster | OpcuaWatcher | MqttWatcher:
     """The client of one link's points."""
     first = points[0]
     if isinstance(first, Iec104Point):
-        return Iec104Master(first.host, first.port, points, board, figures)
+        tls = first.tls
+        if any(isinstance(p, Iec104Point) and p.tls != tls for p in points):
+            raise ConfigError(
+                f"zone state: the points of IEC 104 {first.host}:{first.port} differ in their "
+                "tls_ca, tls_certificate and tls_key: one link, one TLS setting"
+            )
+        if tls is None:
+            return Iec104Master(first.host, first.port, points, board, figures)
+        here = base or Path(".")
+        ca, cert, key = (here / Path(f).expanduser() for f in tls)
+        context = tls_context(ca, cert, key, f"zone state: IEC 104 {first.host}:{first.port}")
+        return Iec104TlsMaster(first.host, first.port, points, board, figures, context)
     if isinstance(first, OpcuaPoint):
         return OpcuaWatcher(first.endpoint, points, board, figures, base)
     return MqttWatcher(mqtt, points, board, figures)

@@ -46,11 +46,21 @@ __all__ = [
 
 PROTOCOLS = ("iec104", "opcua", "mqtt")
 SINGLE, DOUBLE = "single", "double"
+TLS_KEYS = ("tls_ca", "tls_certificate", "tls_key")  # IEC 104 over TLS: all three or none
 MAX_POINTS = 16
 MAX_EXPRESSION = 500
 DEFAULT_INTERROGATION_S = 60.0  # IEC 104 general interrogation, OPC UA read: this often
 _KEYS = {
-    "iec104": {"host", "port", "common_address", "ioa", "type", "time_tag", "interrogation_s"},
+    "iec104": {
+        "host",
+        "port",
+        "common_address",
+        "ioa",
+        "type",
+        "time_tag",
+        "interrogation_s",
+        *TLS_KEYS,
+    },
     "opcua": {"endpoint", "node_id", "username", "password_file", "interrogation_s"},
     "mqtt": {"topic"},
 }
@@ -119,6 +129,12 @@ class Iec104Point(PointSource):
     @property
     def time_tag(self) -> bool:
         return bool(self.get("time_tag", True))
+
+    @property
+    def tls(self) -> tuple[str, str, str] | None:
+        """(CA, certificate, key) files of a link over TLS, else None."""
+        files = tuple(self.get(k) for k in TLS_KEYS)
+        return None if files[0] is None else (str(files[0]), str(files[1]), str(files[2]))
 
     @property
     def label(self) -> str:
@@ -290,6 +306,11 @@ def _point(name: str, doc: Any, where: str) -> PointSource:
         p.setdefault("time_tag", True)
         if not isinstance(p["time_tag"], bool):
             raise ConfigError(f"{w}: time_tag: expected true or false, got {p['time_tag']!r}")
+        given = [k for k in TLS_KEYS if k in p]
+        if given and len(given) != len(TLS_KEYS):
+            raise ConfigError(f"{w}: TLS needs {', '.join(TLS_KEYS)} together (files)")
+        for key in given:
+            _text(p, key, w)
     elif protocol == "opcua":
         _text(p, "endpoint", w)
         if not str(p["endpoint"]).startswith("opc.tcp://"):
