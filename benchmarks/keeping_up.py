@@ -14,6 +14,10 @@ on the loop's thread): steps per second, detection ms per step, latency from the
 arrival to the end of its step (p50, p95), frames each camera grabbed, decoded and dropped,
 resident memory at the start and the end, and the load average (the machine is shared).
 
+With `--cameras 4,8,16`, 8 and 16 cameras are the demo's 4 served twice and four times under
+other names (each copy with its camera's pose): the cost of that many live streams, measured
+with `serve`'s default set-up (full streams kept encoded, detection on the substreams).
+
 Results in results/keeping_up.{json,md}.
 """
 
@@ -47,6 +51,7 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
+from stereopose.types import Rig
 
 SUB_SIZE = (272, 480)  # the substreams' width, height
 
@@ -114,22 +119,33 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _names(videos: list[Path], copies: int) -> list[str]:
+    """The cameras' names: the videos' stems, then each copy's (cam01_2, ...)."""
+    return [v.stem if k == 0 else f"{v.stem}_{k + 1}" for k in range(copies) for v in videos]
+
+
 def measure(
-    videos: list[Path], subs: list[Path] | None, seconds: float, det, packets: bool = False
+    videos: list[Path],
+    subs: list[Path] | None,
+    seconds: float,
+    det,
+    packets: bool = False,
+    copies: int = 1,
 ) -> dict:
-    names = [v.stem for v in videos]
+    names = _names(videos, copies)
     servers, urls, sub_urls = [], [], []
-    for v in videos:
+    for name, v in zip(names, videos * copies, strict=True):
         port = free_port()
-        servers.append(serve(v, port, v.stem))
-        urls.append(f"http://127.0.0.1:{port}/{v.stem}.ts")
-    for v in subs or []:
+        servers.append(serve(v, port, name))
+        urls.append(f"http://127.0.0.1:{port}/{name}.ts")
+    for name, v in zip(names, (subs or []) * copies, strict=False):
         port = free_port()
-        servers.append(serve(v, port, v.stem))
-        sub_urls.append(f"http://127.0.0.1:{port}/{v.stem}.ts")
+        servers.append(serve(v, port, name))
+        sub_urls.append(f"http://127.0.0.1:{port}/{name}.ts")
     time.sleep(1.0)  # ffmpeg listening (cameras retry anyway)
     calib = videos[0].parents[1] / "calibration" / "Calib.qca.txt"
-    rig = load_calibration(calib).subset(names)
+    demo = load_calibration(calib)
+    rig = Rig(tuple(dataclasses.replace(demo[n.split("_")[0]], name=n) for n in names))
     site = load_site(Path(str(resources.files("stereopose") / "data" / "demo_site.toml")))
     proc = psutil.Process()
     rings = {n: PacketRing(20.0, 64 * 2**20) for n in names} if packets else None
@@ -159,6 +175,7 @@ def measure(
     st = source.stats
     loop_s = sum(v for k, v in summary.seconds.items() if k not in ("decode", "detect"))
     return {
+        "cameras_n": len(names),
         "substreams": bool(subs),
         "full_streams": "packets" if packets else "decoded",
         "packet_ring_mb": {n: r.bytes / 2**20 for n, r in (rings or {}).items()},
@@ -184,44 +201,60 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--threads", type=int, default=2, help="inference threads")
-    ap.add_argument("--precision", default="fp32", choices=("fp32", "int8"))
+    ap.add_argument("--backend", default="auto", help="auto (the default of serve), onnx, ...")
+    ap.add_argument("--precision", default="auto", choices=("auto", "fp32", "int8", "bf16"))
+    ap.add_argument("--cameras", default="4", help="camera counts, e.g. 4,8,16 (see the module)")
+    ap.add_argument("--name", default="keeping_up", help="the results' file name")
     args = ap.parse_args()
     videos = demo_videos()
     if len(videos) != 4:
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
-    det = make_detector(threads=args.threads, precision=args.precision)
+    counts = [int(n) for n in args.cameras.split(",")]
+    if any(n % 4 or n <= 0 for n in counts):
+        sys.exit("--cameras: multiples of 4 (the demo's cameras and their copies)")
+    det = make_detector(backend=args.backend, threads=args.threads, precision=args.precision)
     r = {
         "date": datetime.date.today().isoformat(),
         "machine": machine().replace("one thread", f"{args.threads} inference threads"),
         "precision": args.precision,
+        "detector": str(getattr(det, "choice", args.backend)),
         "runs": [],
     }
     with tempfile.TemporaryDirectory() as tmp:
         subs = [substream(v, Path(tmp) / f"{v.stem}_sub.mp4") for v in videos]
-        for use_subs, packets in ((False, False), (True, False), (True, True)):
-            run = measure(videos, subs if use_subs else None, args.seconds, det, packets)
-            r["runs"].append(run)
-            print(
-                f"substreams={use_subs} packets={packets}: {run['steps_per_s']:.2f} steps/s, "
-                f"latency p50 {run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
-                flush=True,
-            )
-    save("keeping_up", r, markdown(r))
+        for n in counts:
+            setups = ((False, False), (True, False), (True, True)) if n == 4 else ((True, True),)
+            for use_subs, packets in setups:
+                run = measure(
+                    videos, subs if use_subs else None, args.seconds, det, packets, n // 4
+                )
+                r["runs"].append(run)
+                print(
+                    f"{n} cameras, substreams={use_subs} packets={packets}: "
+                    f"{run['steps_per_s']:.2f} steps/s, latency p50 "
+                    f"{run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
+                    flush=True,
+                )
+    save(args.name, r, markdown(r))
 
 
 def markdown(r: dict) -> list[str]:
     md = [
-        "# Keeping up: 4 live demo cameras, pipelined",
+        "# Keeping up: live demo cameras, pipelined",
         "",
-        f"{r['date']}, {r['machine']}, {r['precision']} model. The 4 real demo videos "
+        f"{r['date']}, {r['machine']}, detector: {r.get('detector', r['precision'])}. The 4 "
+        "real demo videos "
         "(1088x1920, 60 fps, H.264) served live over HTTP by ffmpeg with stream copy; "
         f"substreams: the same at {SUB_SIZE[0]}x{SUB_SIZE[1]}. Before this work `run` made "
-        "0.54 steps/s on the same 4 full streams (detection 1.6 s per step).",
+        "0.54 steps/s on the same 4 full streams (detection 1.6 s per step). 8 and 16 "
+        "cameras: the 4 served twice and four times under other names. Latency: from the "
+        "oldest frame's arrival to the end of its step, when its events are out (capture to "
+        "event).",
         "",
-        "| set-up | steps/s | detect ms/step | 3D+zones ms/step | latency p50 / p95 s | "
+        "| cameras | set-up | steps/s | detect ms/step | 3D+zones ms/step | latency p50 / p95 s | "
         "steps dropped | frames grabbed / decoded per camera | RSS MB start -> end | "
         "load avg start -> end |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for run in r["runs"]:
         cams = run["cameras"].values()
@@ -235,7 +268,8 @@ def markdown(r: dict) -> list[str]:
                 else "full streams decoded + substreams (detect on the substream)"
             )
         md.append(
-            f"| {what} | {run['steps_per_s']:.2f} | {run['detect_ms_per_step']:.0f} | "
+            f"| {run.get('cameras_n', 4)} | {what} | {run['steps_per_s']:.2f} | "
+            f"{run['detect_ms_per_step']:.0f} | "
             f"{run['loop_ms_per_step']:.0f} | {run['latency_p50_s']:.2f} / "
             f"{run['latency_p95_s']:.2f} | {run['steps_dropped']} | {grabbed:.0f} / "
             f"{decoded:.0f} | {run['rss_mb_start']:.0f} -> {run['rss_mb_end']:.0f} | "
