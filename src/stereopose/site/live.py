@@ -376,6 +376,9 @@ class LiveHub:
             }
             if self._regions_view is not None:
                 item["regions"] = self._regions_view(name)
+            light = snap.light.get(name)
+            if light:  # its light (detection.light): the mode and what it rests on
+                item["light"] = {k: light.get(k) for k in ("mode", "brightness", "noise")}
             out.append(item)
         return {"cameras": out}
 

@@ -308,6 +308,7 @@ def _run_loop(
         light = LightWatch(enhance=cfg.detector.night)
         cameras = Cameras(cams, rig, detector, regions, light)
         service.probes["light"] = light.figures  # status.json: each camera's day or night
+        service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
         keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views
         pipelined, rates = PipelinedCameras(cameras), None
         service.watch_pipeline(pipelined)

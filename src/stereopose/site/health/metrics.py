@@ -22,6 +22,7 @@ from prometheus_client.metrics_core import (
 )
 from prometheus_client.registry import Collector
 
+from stereopose.detection.light import MODES
 from stereopose.site.health.snapshots import HistogramSnapshot, Snapshot
 from stereopose.site.health.state import ServiceState
 
@@ -132,6 +133,7 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
         yield from _alarm_families(s.alarms)
     if s.regions:
         yield from _region_families(s.regions)
+    yield from _light_families(s.light)
 
 
 # detection in regions (detection.regional.CameraRegions): metric, figure, help
@@ -175,6 +177,34 @@ def _region_families(regions) -> Iterator[Metric]:
         yield _counter(
             name, doc, "camera", {cam: float(c.get(key, 0)) for cam, c in regions.items()}
         )
+
+
+def _light_families(light) -> Iterator[Metric]:
+    """Each camera's light (detection.light): its mode, one of four, and the figures the
+    mode rests on."""
+    if not light:
+        return
+    family = GaugeMetricFamily(
+        PREFIX + "camera_light",
+        "1 for the camera's light now: day, night (its pictures prepared for the detector), "
+        "black (nothing to see) or blinded.",
+        labels=["camera", "mode"],
+    )
+    for cam, f in light.items():
+        for mode in MODES:
+            family.add_metric([cam, mode], float(f.get("mode") == mode))
+    yield family
+    for key, name, doc in (
+        ("brightness", "camera_brightness", "Mean grey level (0-255) of the camera's picture."),
+        ("noise", "camera_noise", "Sensor noise (grey levels, standard deviation)."),
+        (
+            "prepare_ms",
+            "camera_night_prepare_ms",
+            "Milliseconds a night picture's preparation took on average.",
+        ),
+    ):
+        values = {cam: float(f[key]) for cam, f in light.items() if isinstance(f.get(key), float)}
+        yield _gauge(name, doc, "camera", values)
 
 
 def _alarm_families(a) -> Iterator[Metric]:

@@ -80,6 +80,8 @@ class Snapshot:
     # detection in regions by camera (detection.regional.CameraRegions.as_dict); empty: whole
     # frames, or the nodes detect
     regions: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    # each camera's light (detection.light.LightWatch.figures): mode, brightness, noise, ...
+    light: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
 
     @property
     def status(self) -> str:

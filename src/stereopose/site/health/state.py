@@ -154,6 +154,7 @@ class ServiceState:
         self._storage: StorageProbe | None = None
         self._alarms: Callable[[], Mapping[str, object]] | None = None
         self._regions: Callable[[], Mapping[str, Mapping[str, float]]] | None = None
+        self._light: Callable[[], Mapping[str, Mapping[str, object]]] | None = None
         self._frames = 0
         self._people = 0
         self._stall: str | None = None
@@ -299,6 +300,11 @@ class ServiceState:
         with self._lock:
             self._storage = probe
 
+    def register_light(self, probe: Callable[[], Mapping[str, Mapping[str, object]]]) -> None:
+        """probe(): each camera's light (detection.light.LightWatch.figures); quick."""
+        with self._lock:
+            self._light = probe
+
     # -- reader: the HTTP side ---------------------------------------------------------------
 
     def snapshot(self) -> Snapshot:
@@ -309,7 +315,14 @@ class ServiceState:
             storage_probe = self._storage
             alarms_probe = self._alarms
             regions_probe = self._regions
+            light_probe = self._light
         problems: list[str] = []
+        light: Mapping[str, Mapping[str, object]] = {}
+        if light_probe is not None:
+            try:
+                light = dict(light_probe())
+            except Exception as e:  # a probe failing never stops the health answer
+                problems.append(f"cameras' light: {e}")
         regions: Mapping[str, Mapping[str, float]] = {}
         if regions_probe is not None:
             try:
@@ -345,6 +358,7 @@ class ServiceState:
                 outputs=output_snaps,
                 alarms=alarms,
                 regions=regions,
+                light=light,
             )
         if stall is not None:
             problems.append(f"service {stall}")

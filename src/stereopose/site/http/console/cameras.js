@@ -103,16 +103,19 @@ export class CameraStrip {
       const name = text("span", "camera-name", cam.name);
       const badge = text("span", "badge", "");
       const stats = text("span", "camera-stats muted", "");
+      const light = text("span", "camera-light", "");
+      light.hidden = true;
       const calib = text("span", "camera-calibration", "");
       calib.hidden = true;
-      caption.append(name, badge, stats, calib);
+      caption.append(name, badge, light, stats, calib);
       card.append(frame, caption);
       frame.title = `${cam.name}: click to enlarge`;
       frame.addEventListener("click", () => this.open(cam.name));
       this.root.appendChild(card);
-      this.cards.set(cam.name, { card, img, badge, stats, calib, regions, health: null,
+      this.cards.set(cam.name, { card, img, badge, light, stats, calib, regions, health: null,
         url: snapshotUrl(cam.name), loading: false });
       this.setHealth(cam.name, cam.health);
+      this.setLight(cam.name, cam.light);
       this.setRegions(cam.name, cam.regions);
     }
     this.schedule();
@@ -131,6 +134,28 @@ export class CameraStrip {
     const fps = typeof health.fps === "number" ? health.fps.toFixed(1) : "-";
     c.stats.textContent = `${fps} fps · last frame ${age} · ${health.reconnects ?? 0} reconnects` +
       (health.dropped_frames ? ` · ${health.dropped_frames} dropped` : "");
+  }
+
+  /** The camera's light ({mode, brightness, noise}; absent: not watched): said on its card
+   * unless it is day. */
+  setLight(name, light) {
+    const c = this.cards.get(name);
+    if (!c) return;
+    const mode = light && typeof light.mode === "string" ? light.mode : "day";
+    const said = {
+      night: "NIGHT",
+      black: "SEES BLACK",
+      blinded: "BLINDED",
+    }[mode];
+    c.card.dataset.light = mode;
+    c.light.textContent = said || "";
+    c.light.hidden = !said;
+    c.light.className = `camera-light light-${mode}`;
+    const brightness = light && typeof light.brightness === "number" ? light.brightness.toFixed(0) : "-";
+    const noise = light && typeof light.noise === "number" ? light.noise.toFixed(1) : "-";
+    c.light.title = mode === "night"
+      ? `dark or noisy (brightness ${brightness}, noise ${noise}): pictures prepared for the detector`
+      : `brightness ${brightness}, noise ${noise}: people may be missed`;
   }
 
   /** The keeper's figures (GET /api/calibration; null: not running) on each camera's card;

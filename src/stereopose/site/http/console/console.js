@@ -219,6 +219,7 @@ class Console {
       for (const cam of this.cameras) if (byName.get(cam.name)) cam.health = byName.get(cam.name);
       for (const [name, health] of byName) this.strip.setHealth(name, health);
       for (const cam of cameras) if ("regions" in cam) this.strip.setRegions(cam.name, cam.regions);
+      for (const cam of cameras) this.strip.setLight(cam.name, cam.light);
       this.floor.setHealth(byName);
     }
     this.view3d.setCameras(this.cameras);
