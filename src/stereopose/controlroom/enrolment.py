@@ -21,6 +21,7 @@ import re
 import secrets
 from dataclasses import dataclass
 
+from stereopose.controlroom.schema import SCHEMA_LOCK
 from stereopose.errors import ConfigError
 
 __all__ = ["Enrolled", "Enrolment", "broker_hash", "check_name", "login_of", "new_password"]
@@ -79,6 +80,8 @@ class Enrolment:
     def __init__(self, store) -> None:
         self.store = store
         with store.writing("make the enrolment table") as run:
+            if store.postgres:  # several workers starting at once make it one at a time
+                run("SELECT pg_advisory_xact_lock(?)", (SCHEMA_LOCK,))
             existed = self._exists(run)
             run(TABLE.format(real="DOUBLE PRECISION" if store.postgres else "REAL"))
             if not existed:  # an upgrade: every site already stored stays enrolled
