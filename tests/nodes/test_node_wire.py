@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from stereopose.detection.light import MODES
 from stereopose.nodes.wire import (
+    LIGHT_MODES,
     Topics,
     WireError,
     decode_health,
@@ -91,6 +93,13 @@ def test_pictures_and_health_round_trip_and_refuse_what_they_are_not():
     for bad in (b"{}", health_message("a", "online"), health_message("a", "asleep")):
         with pytest.raises(WireError):
             decode_health(bad)
+    # each camera's light, one of the light watch's modes (a peer's text is refused)
+    night = {"cam01": {"fps": 25.0, "up": True, "light": "night"}, "cam02": {"light": None}}
+    doc = decode_health(health_message("a", "online", clock=5.0, cameras=night))
+    assert doc["cameras"]["cam01"]["light"] == "night"
+    with pytest.raises(WireError, match=r"cameras\.light"):
+        decode_health(health_message("a", "online", clock=5.0, cameras={"c": {"light": "x"}}))
+    assert LIGHT_MODES == MODES
 
 
 def test_topics_name_any_camera_and_only_their_own():

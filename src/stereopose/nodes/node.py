@@ -357,6 +357,7 @@ class DetectNode:
                     "dropped": getattr(st, "dropped", 0),
                     "up": src.delivering(name, timeout_s),
                 }
+            entry["light"] = self.light.mode(name)  # day, night, black, blinded (None: unseen)
             out[name] = entry
         return out
 

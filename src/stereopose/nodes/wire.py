@@ -39,6 +39,7 @@ MAX_PEOPLE = 256  # more people in one camera-frame is not a real frame
 MAX_PAYLOAD = 256 * 1024  # bytes of a keypoints message
 MAX_PICTURE = 4 * 2**20  # bytes of a picture message
 MAX_CAMERAS = 256  # cameras in one node's health
+LIGHT_MODES = ("day", "night", "black", "blinded")  # a camera's light (detection.light.MODES)
 _STAMP = struct.Struct(">d")
 
 
@@ -242,6 +243,8 @@ def _camera_health(name: object, value: object) -> None:
             _number(v, f"cameras.{key}")
     if "up" in value and not isinstance(value["up"], bool):
         raise WireError("cameras.up: expected true or false")
+    if value.get("light") is not None and value["light"] not in LIGHT_MODES:
+        raise WireError(f"cameras.light: expected one of {', '.join(LIGHT_MODES)}")
 
 
 def health_message(node: str, state: str, **fields: object) -> bytes:
