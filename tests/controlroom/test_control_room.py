@@ -27,15 +27,21 @@ ENV = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1")
 
 
 class Site:
-    """A site's event log (a real SqliteSink) and its outbox to the broker."""
+    """A site's event log (a real SqliteSink) and its outbox to the broker (logged in with
+    `login`: username and password, where given)."""
 
-    def __init__(self, folder: Path, name: str, port: int) -> None:
+    def __init__(self, folder: Path, name: str, port: int, **login: str) -> None:
         self.name, self.k = name, 0
         self.sink = SqliteSink(folder / f"{name}.sqlite", "site.toml", "test", wall_start=1.8e9)
         self.log = EventLog(folder / f"{name}.sqlite")
         self.box = LogOutbox(
             MqttSettings(
-                host="127.0.0.1", port=port, site=name, reconnect_min_s=0.05, reconnect_max_s=0.2
+                host="127.0.0.1",
+                port=port,
+                site=name,
+                reconnect_min_s=0.05,
+                reconnect_max_s=0.2,
+                **login,
             ),
             self.log,
             resend_s=1.0,

@@ -15,18 +15,13 @@ from pathlib import Path
 
 import paho.mqtt.client as paho
 import pytest
-from test_control_room import ENV, _add_user, _central, _client, _start
+from test_control_room import ENV, Site, _add_user, _central, _client, _start
 
 from brokers import Broker, free_port
 from stereopose.controlroom.broker_config import acl_text
 from stereopose.controlroom.enrolment import Enrolment, broker_hash, check_name
 from stereopose.controlroom.store import ControlStore
 from stereopose.errors import ConfigError
-from stereopose.io.sinks.eventwriter import SqliteSink
-from stereopose.io.sinks.mqtt import MqttSettings
-from stereopose.site.eventlog import EventLog
-from stereopose.site.outbox import LogOutbox
-from stereopose.types import Event
 from waiting import wait_until
 
 PACKAGING = Path(__file__).resolve().parents[2] / "packaging" / "mosquitto"
@@ -55,49 +50,6 @@ def _room(folder: Path, broker_port: int, http_port: int) -> Path:
         f'port = {broker_port}\nusername = "control-room"\npassword_file = "mqtt.secret"\n'
     )
     return config
-
-
-class Site:
-    """A site's event log and its outbox, logged in to the central broker as `login`."""
-
-    def __init__(self, folder: Path, port: int, name: str, password: str) -> None:
-        self.sink = SqliteSink(folder / f"{name}.sqlite", "site.toml", "test", wall_start=1.8e9)
-        self.log = EventLog(folder / f"{name}.sqlite")
-        settings = MqttSettings(
-            host="127.0.0.1",
-            port=port,
-            site=name,
-            username=f"site-{name}",
-            password=password,
-            reconnect_min_s=0.05,
-            reconnect_max_s=0.5,
-        )
-        self.box = LogOutbox(settings, self.log, resend_s=0.5, heartbeat_s=0.5)
-        self.k = 0
-
-    def write(self, n: int, zone: str = "bus") -> None:
-        evs = []
-        for _ in range(n):
-            self.k += 1
-            evs.append(
-                Event(
-                    t=self.k / 25,
-                    frame=self.k,
-                    person=1,
-                    zone=zone,
-                    kind="energized",
-                    type="enter",
-                    onset_t=self.k / 25,
-                )
-            )
-        self.sink.write_events(evs)
-
-    def ids(self) -> list[int]:
-        return [e["id"] for e in self.log.after(0, limit=100_000)]
-
-    def close(self) -> None:
-        self.box.close()
-        self.sink.close()
 
 
 def _enrolled(c) -> int:
@@ -143,7 +95,7 @@ def test_only_enrolled_sites_each_with_its_own_login_on_a_real_broker(tmp_path):
     broker.start()
     _add_user(config)
     room = _start(config, tmp_path / "room.log")
-    north = Site(tmp_path, broker.port, "north", north_pw)
+    north = Site(tmp_path, "north", broker.port, username="site-north", password=north_pw)
     east = south = None
     intruder = _login(broker.port, "site-south", south_pw)
     try:
@@ -176,7 +128,7 @@ def test_only_enrolled_sites_each_with_its_own_login_on_a_real_broker(tmp_path):
         assert _cli("broker-config", "--config", str(config), "--out", str(files)).returncode == 0
         broker.proc.send_signal(signal.SIGHUP)
         wait_until(lambda: _enrolled(c) == 3, "the room taking east")
-        east = Site(tmp_path, broker.port, "east", east_pw)
+        east = Site(tmp_path, "east", broker.port, username="site-east", password=east_pw)
         east.write(4)
         wait_until(lambda: _central(c, "east") == east.ids(), "east's events", timeout_s=30)
         # south removed: its own messages are refused by the room (its login still works)
@@ -185,7 +137,7 @@ def test_only_enrolled_sites_each_with_its_own_login_on_a_real_broker(tmp_path):
         listed = _cli("sites", "list", "--config", str(config))
         assert [line.split()[0] for line in listed.stdout.splitlines()] == ["east", "north"]
         wait_until(lambda: _enrolled(c) == 2, "the room refusing south")
-        south = Site(tmp_path, broker.port, "south", south_pw)
+        south = Site(tmp_path, "south", broker.port, username="site-south", password=south_pw)
         south.write(2)
         wait_until(
             lambda: c.get("/api/health").json()["ingest"]["refused_sites"] >= 1,

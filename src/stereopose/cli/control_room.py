@@ -118,7 +118,8 @@ def _add(plan, enrolment, name: str, bridge: Path | None) -> int:
     from stereopose.controlroom.enrolment import broker_hash, login_of, new_password
 
     cap = plan.config.control_room.max_sites
-    if name not in enrolment.names() and len(enrolment.names()) >= cap:
+    enrolled = enrolment.names()
+    if name not in enrolled and len(enrolled) >= cap:
         raise ConfigError(
             f"{plan.config_path}: control_room.max_sites = {cap}: {cap} sites are enrolled "
             "already; remove one or raise the bound"
@@ -149,8 +150,9 @@ def _add(plan, enrolment, name: str, bridge: Path | None) -> int:
 def _write_bridge(path: Path, plan, name: str, password: str) -> None:
     """The shipped site-bridge.conf for `name`, with its login and the central broker's
     address, readable by its owner only."""
-    import os
     from importlib import resources
+
+    from stereopose.io.writing import write_private
 
     text = (resources.files("stereopose") / "data" / "site-bridge.conf").read_text("utf-8")
     text = (
@@ -167,9 +169,7 @@ def _write_bridge(path: Path, plan, name: str, password: str) -> None:
     text = text.replace("site-SITE", f"site-{name}")
     text = text.replace("central.example.org:8883", f"{plan.mqtt.host}:{plan.mqtt.port}")
     text = text.replace("remote_password CHANGE-ME", f"remote_password {password}")
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text)
+    write_private(path, text.encode("utf-8"))
 
 
 def _broker_config(args: argparse.Namespace) -> int:

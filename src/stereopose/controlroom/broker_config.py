@@ -6,11 +6,11 @@ Mosquitto reads both again on SIGHUP (`systemctl reload mosquitto`)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from stereopose.controlroom.enrolment import login_of
 from stereopose.io.sinks.mqtt_settings import topic_part
+from stereopose.io.writing import write_private
 from stereopose.site.wire import (
     AVAILABLE,
     COMMAND_ACK,
@@ -69,15 +69,6 @@ def passwd_text(room_login: str, room_hash: str, logins: list[tuple[str, str]]) 
     return "\n".join(rows) + "\n"
 
 
-def _write_private(path: Path, text: str) -> None:
-    """`text` to `path` at once (a file beside it renamed over it), readable by its owner."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def write_broker_config(
     out_dir: Path, prefix: str, room: tuple[str, str], logins: list[tuple[str, str]]
 ) -> tuple[Path, Path]:
@@ -85,6 +76,6 @@ def write_broker_config(
     sites' (site, hash); their paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     passwd, acl = out_dir / PASSWD, out_dir / ACL
-    _write_private(passwd, passwd_text(room[0], room[1], logins))
-    _write_private(acl, acl_text(prefix, room[0], [s for s, _ in logins]))
+    write_private(passwd, passwd_text(room[0], room[1], logins).encode())
+    write_private(acl, acl_text(prefix, room[0], [s for s, _ in logins]).encode())
     return passwd, acl

@@ -4,6 +4,7 @@ checks, made before any work, that an output written later can be written at all
 from __future__ import annotations
 
 import errno
+import os
 import sqlite3
 import tempfile
 from pathlib import Path
@@ -73,3 +74,19 @@ def probe_folder(folder: str | Path, what: str) -> None:
         _probe(folder)
     except OSError as e:
         raise OutputError(f"{folder}: cannot write {what}: {e.strerror}") from None
+
+
+def write_private(path: Path, data: bytes) -> None:
+    """Written atomically (a temporary file renamed over it), readable by its owner only."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), 0o600)
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -78,7 +78,8 @@ class Iec104TlsMaster:
         self._stop = threading.Event()
         self._sock: ssl.SSLSocket | None = None
         self._thread = threading.Thread(target=self._run, name=f"iec104-tls-{host}", daemon=True)
-        self.connected = False
+        self.connected = False  # the link is open (STARTDT confirmed)
+        self.sent = self.received = self.unacked = 0  # I frames' sequence numbers (the link's)
 
     def __repr__(self) -> str:
         return f"IEC 104 (TLS) master of {self.host}:{self.port}"
@@ -124,7 +125,7 @@ class Iec104TlsMaster:
             if self._stop.is_set():
                 return
             sock.settimeout(1.0)
-            self._send(sock, bytes([0x68, 4, STARTDT_ACT, 0, 0, 0]))
+            sock.sendall(bytes([0x68, 4, STARTDT_ACT, 0, 0, 0]))
             self.sent = self.received = self.unacked = 0
             last_heard = time.monotonic()
             asked, tested, started = 0.0, None, False
@@ -135,7 +136,7 @@ class Iec104TlsMaster:
                         self._interrogate(sock, ca)
                     asked = now
                 if tested is None and now - last_heard >= QUIET_S:
-                    self._send(sock, bytes([0x68, 4, TESTFR_ACT, 0, 0, 0]))
+                    sock.sendall(bytes([0x68, 4, TESTFR_ACT, 0, 0, 0]))
                     tested = now
                 if now - last_heard >= QUIET_S + TIMEOUT_S:
                     raise TimeoutError("the RTU does not answer")
@@ -155,7 +156,7 @@ class Iec104TlsMaster:
                 elif control[0] == STARTDT_CON:  # the link is open
                     started, asked, self.connected = True, 0.0, True
                 elif control[0] == TESTFR_ACT:
-                    self._send(sock, bytes([0x68, 4, TESTFR_CON, 0, 0, 0]))
+                    sock.sendall(bytes([0x68, 4, TESTFR_CON, 0, 0, 0]))
 
     def _frame(self, sock: ssl.SSLSocket) -> tuple[bytes, bytes] | None:
         """The next APDU's control field and ASDU; None when nothing came within a second."""
@@ -188,18 +189,15 @@ class Iec104TlsMaster:
             out += got
         return out
 
-    def _send(self, sock: ssl.SSLSocket, apdu: bytes) -> None:
-        sock.sendall(apdu)
-
     def _ack(self, sock: ssl.SSLSocket) -> None:
-        self._send(sock, bytes([0x68, 4, 0x01, 0]) + struct.pack("<H", self.received << 1))
+        sock.sendall(bytes([0x68, 4, 0x01, 0]) + struct.pack("<H", self.received << 1))
         self.unacked = 0
 
     def _interrogate(self, sock: ssl.SSLSocket, ca: int) -> None:
         """C_IC_NA_1 (activation, station interrogation) to common address `ca`."""
         asdu = bytes([100, 1, 6, 0]) + struct.pack("<H", ca) + bytes([0, 0, 0, 20])
         control = struct.pack("<HH", self.sent << 1, self.received << 1)
-        self._send(sock, bytes([0x68, 4 + len(asdu)]) + control + asdu)
+        sock.sendall(bytes([0x68, 4 + len(asdu)]) + control + asdu)
         self.sent = (self.sent + 1) & 0x7FFF
         self.unacked = 0
 

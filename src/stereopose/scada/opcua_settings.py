@@ -18,7 +18,6 @@ from __future__ import annotations
 import datetime
 import hashlib
 import logging
-import os
 import socket
 import stat
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from urllib.parse import quote
 
 from stereopose.config import Config
 from stereopose.errors import ConfigError
+from stereopose.io.writing import write_private
 
 __all__ = ["AppCertificate", "OpcuaSettings", "application_certificate", "opcua_settings"]
 
@@ -261,8 +261,8 @@ def _make(settings: OpcuaSettings, cert_path: Path, key_path: Path) -> AppCertif
         days=CERT_DAYS,
     )
     cert_path.parent.mkdir(parents=True, exist_ok=True)
-    _write_private(key_path, dump_private_key_as_pem(key))
-    _write_private(cert_path, cert.public_bytes(Encoding.DER))
+    write_private(key_path, dump_private_key_as_pem(key))
+    write_private(cert_path, cert.public_bytes(Encoding.DER))
     app = AppCertificate(cert, key, cert_path, thumbprint(cert), uri, generated=True)
     logger.warning(
         "OPC UA: made a self-signed certificate %s (SHA-1 thumbprint %s): clients "
@@ -271,19 +271,3 @@ def _make(settings: OpcuaSettings, cert_path: Path, key_path: Path) -> AppCertif
         app.thumbprint,
     )
     return app
-
-
-def _write_private(path: Path, data: bytes) -> None:
-    """Written atomically (a temporary file renamed over it), readable by its owner only."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            os.fchmod(f.fileno(), 0o600)
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise

@@ -317,24 +317,9 @@ class ServiceState:
             regions_probe = self._regions
             light_probe = self._light
         problems: list[str] = []
-        light: Mapping[str, Mapping[str, object]] = {}
-        if light_probe is not None:
-            try:
-                light = dict(light_probe())
-            except Exception as e:  # a probe failing never stops the health answer
-                problems.append(f"cameras' light: {e}")
-        regions: Mapping[str, Mapping[str, float]] = {}
-        if regions_probe is not None:
-            try:
-                regions = dict(regions_probe())
-            except Exception as e:  # a probe failing never stops the health answer
-                problems.append(f"detection regions: {e}")
-        alarms: Mapping[str, object] = {}
-        if alarms_probe is not None:
-            try:
-                alarms = dict(alarms_probe())
-            except Exception as e:  # a probe failing never stops the health answer
-                problems.append(f"alarm rates: {e}")
+        light = _probed(light_probe, "cameras' light", problems)
+        regions = _probed(regions_probe, "detection regions", problems)
+        alarms = _probed(alarms_probe, "alarm rates", problems)
         probed = {name: self._probe_queue(name, q, problems) for name, q in queues.items()}
         healths = {name: o.probe(name) for name, o in outputs.items()}
         storage = self._probe_storage(storage_probe, problems)
@@ -457,3 +442,15 @@ class ServiceState:
         if len(storage) != len(raw):
             problems.append("storage: some sizes unknown")
         return dict(list(storage.items())[:MAX_NAMES])
+
+
+def _probed(probe: Callable[[], Mapping] | None, what: str, problems: list[str]) -> dict:
+    """What `probe` gives, as a dict ({} without one); a probe failing never stops the
+    health answer: its failure is one of `problems`."""
+    if probe is None:
+        return {}
+    try:
+        return dict(probe())
+    except Exception as e:
+        problems.append(f"{what}: {e}")
+        return {}
