@@ -120,12 +120,9 @@ class AlarmSettings:
         `rearm_s` (fence.site.Site; read by attribute so this package imports no fence)."""
 
         def table(items: Iterable[Any]) -> dict[str, Tuning]:
-            return {
-                x.name: Tuning(getattr(x, "priority", None), getattr(x, "rearm_s", default_rearm_s))
-                for x in items
-            }
+            return {x.name: Tuning(x.priority, x.rearm_s) for x in items}
 
-        return cls(table(site.zones), table(getattr(site, "rules", ())), default_rearm_s)
+        return cls(table(site.zones), table(site.rules), default_rearm_s)
 
     def tuning(self, key: HazardKey) -> Tuning:
         """The settings of a hazard: its zone's, its rule's, or the defaults."""

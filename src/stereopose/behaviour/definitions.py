@@ -18,7 +18,7 @@ them is behaviour.rules.BehaviourMonitor.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar, Protocol
 
@@ -52,6 +52,7 @@ __all__ = [
     "format_rules",
     "parse_postures",
     "parse_rules",
+    "watched_zones",
 ]
 
 BEHAVIOUR_KIND = "behaviour"  # the `kind` of every behaviour event
@@ -175,6 +176,20 @@ RULE_TYPES: dict[str, type] = {
     cls.type: cls
     for cls in (PersonDownRule, LoneWorkerRule, WorkPositionRule, ImmobileRule, OverreachRule)
 }
+
+
+def watched_zones(rule: Rule, zones: Iterable[Zone]) -> tuple[str, ...] | None:
+    """The zones a rule watches, in order (None: the whole site): a work position's energized
+    zones (default: every energized zone) and its work area; the zones of a lone-worker or
+    overreach rule (none given: the whole site)."""
+    names: list[str] = []
+    if isinstance(rule, LoneWorkerRule | OverreachRule):
+        names += rule.zones
+    elif isinstance(rule, WorkPositionRule):
+        names += rule.energized or [z.name for z in zones if z.kind == "energized"]
+        names.append(rule.zone)
+    return tuple(dict.fromkeys(names)) or None
+
 
 # each numeric key's range, beside its meaning
 _RANGES: dict[str, Range] = {

@@ -473,11 +473,13 @@ def _incomplete(e: IncompleteOutputError, console) -> None:
     """What a command that finished kept, and which outputs it could not write (exit 3)."""
     from rich.markup import escape
 
+    from stereopose.io.summary import RunSummary
+
     for path in e.written:
         console.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
     if e.note:
         console.print(e.note, markup=False, highlight=False, soft_wrap=True)
-    if getattr(e.summary, "interrupted", False):
+    if isinstance(e.summary, RunSummary) and e.summary.interrupted:
         console.print("interrupted: the outputs above are complete up to the last frame processed")
     n = len(e.failures)
     console.print(

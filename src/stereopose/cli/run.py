@@ -46,7 +46,7 @@ def _previous_demo(out_dir: Path, config: Path) -> bool:
 
 def _detect(args: argparse.Namespace) -> int:
     from stereopose.config import DetectorConfig, InputConfig, check_options
-    from stereopose.detection import make_detector
+    from stereopose.detection import choice_of, make_detector
     from stereopose.pipeline import detect_videos
 
     check_options(args, InputConfig, DetectorConfig)  # --fps, --max-frames, --imgsz, ...
@@ -60,7 +60,7 @@ def _detect(args: argparse.Namespace) -> int:
         args.threads,
         args.precision,
     )
-    out.print(f"detector: {getattr(detector, 'choice', args.backend)}", highlight=False)
+    out.print(f"detector: {choice_of(detector) or args.backend}", highlight=False)
     regions = None
     if args.regions:
         from stereopose.detection.regional import RegionDetector, RegionSettings

@@ -40,6 +40,7 @@ __all__ = [
     "ModelError",
     "PoseDetector",
     "Poses",
+    "choice_of",
     "choose",
     "make_detector",
 ]
@@ -61,6 +62,13 @@ class Choice:
 
     def __str__(self) -> str:
         return f"{self.backend} {self.precision} ({self.why})"
+
+
+def choice_of(detector: object) -> Choice | None:
+    """What make_detector chose for `detector`, and why; None for a detector made otherwise
+    (a wrapper, a test's own)."""
+    choice = getattr(detector, "choice", None)
+    return choice if isinstance(choice, Choice) else None
 
 
 def cpu_bf16() -> bool | None:

@@ -124,20 +124,19 @@ def format_site(site: Site) -> str:
         ]
         if len(z.joints) != len(JOINTS):
             lines.append("joints = [" + ", ".join(f'"{JOINTS[j]}"' for j in z.joints) + "]")
-        for key, default in (
-            ("margin_m", 0.0),
-            ("dwell_s", None),
-            ("enter_s", DEFAULT_ENTER_S),
-            ("exit_s", DEFAULT_EXIT_S),
-            ("priority", None),
-            ("rearm_s", DEFAULT_REARM_S),
-            ("voltage_kv", None),
+        for key, v, default in (
+            ("margin_m", z.margin_m, 0.0),
+            ("dwell_s", z.dwell_s, None),
+            ("enter_s", z.enter_s, DEFAULT_ENTER_S),
+            ("exit_s", z.exit_s, DEFAULT_EXIT_S),
+            ("priority", z.priority, None),
+            ("rearm_s", z.rearm_s, DEFAULT_REARM_S),
+            ("voltage_kv", z.voltage_kv, None),
         ):
-            v = getattr(z, key)
             if v != default:
                 lines.append(f"{key} = {v!r}")
-        for key in ("allowed", "expected"):
-            ids = sorted(getattr(z, key))
+        for key, members in (("allowed", z.allowed), ("expected", z.expected)):
+            ids = sorted(members)
             if ids:
                 lines.append(f"{key} = {ids}")
         if z.distance_table is not None:

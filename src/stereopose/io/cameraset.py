@@ -30,6 +30,7 @@ import numpy as np
 
 from stereopose.io.packets import PacketRing
 from stereopose.io.source import JOIN_S, Clock, SourceStats, VideoError, check_fps, source_name
+from stereopose.io.stream import LiveStream
 from stereopose.io.video import FrameSet, Source, _check_timeouts, is_stream, open_source
 
 logger = logging.getLogger(__name__)
@@ -48,7 +49,7 @@ def _per_camera(value: object, n: int, what: str) -> list:
 
 
 def _packets_only(s: Source) -> bool:
-    return getattr(s, "packets", None) is not None
+    return isinstance(s, LiveStream) and s.packets is not None
 
 
 class CameraSet:
@@ -156,7 +157,7 @@ class CameraSet:
     def _loop_in_step(self) -> None:
         """Looped cameras play the same length: the shortest one's (in frames, or in time
         when aligned by time)."""
-        looped = [s for s in self.all_sources if getattr(s, "loop", False)]
+        looped = [s for s in self.all_sources if not isinstance(s, LiveStream) and s.loop]
         if not looped:
             return
         if self.sync == "index":
@@ -375,7 +376,7 @@ class CameraSet:
                 continue
             if not s.live:
                 return id(s) not in self._ended_ids
-            last = getattr(s, "last_frame_at", None)
+            last = s.last_frame_at if isinstance(s, LiveStream) else None
             return last is not None and time.monotonic() - last < within_s
         return False
 

@@ -78,6 +78,7 @@ EVENT_COLUMNS = (
     "source",
 )
 # the behaviour events' optional fields: (name, decimals; None for text)
+
 _BEHAVIOUR_FIELDS = (
     ("rule", None),
     ("posture", None),
@@ -239,12 +240,11 @@ def event_record(e: Event) -> dict:
         d["restart"] = True
     if e.camera is not None:
         d["camera"] = e.camera
-    for key in ("reprojection_px", "baseline_px"):
-        value = getattr(e, key)
+    for key, value in (("reprojection_px", e.reprojection_px), ("baseline_px", e.baseline_px)):
         if value is not None:
             d[key] = _round(value, 3)
-    for key, nd in _BEHAVIOUR_FIELDS:
-        value = getattr(e, key)
+    behaviour = (e.rule, e.posture, e.nearest_m, e.facing_deg, e.failed, e.height_m, e.speed_m_s)
+    for (key, nd), value in zip(_BEHAVIOUR_FIELDS, behaviour, strict=True):
         if value is not None:
             d[key] = value if nd is None else _round(value, nd)
     d["incident"] = e.incident  # always there: null for info events (or no incident book)

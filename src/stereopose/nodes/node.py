@@ -354,7 +354,7 @@ class DetectNode:
                 entry |= {
                     "fps": float(s.fps) if s is not None and s.fps else None,
                     "detect_fps": src.detect_fps,
-                    "dropped": getattr(st, "dropped", 0),
+                    "dropped": 0 if st is None else st.dropped,
                     "up": src.delivering(name, timeout_s),
                 }
             entry["light"] = self.light.mode(name)  # day, night, black, blinded (None: unseen)
@@ -450,7 +450,7 @@ class DetectNode:
                 "queued": pub.queued() if pub else 0,
                 "dropped": pub.counts.dropped if pub else 0,
             },
-            backend=getattr(self.detector, "name", "?"),
+            backend=self.detector.name,
             regions=self._region_figures(),
         )
 

@@ -29,6 +29,7 @@ import numpy as np
 from stereopose.alarms import AlarmRates, Change, IncidentBook, IncidentRecord
 from stereopose.alarms.incident import IncidentError
 from stereopose.fence.rules import FenceMonitor
+from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.pipeline.step_rules import StepChain
 from stereopose.types import Event, People3D
 
@@ -86,9 +87,9 @@ class IncidentStep:
 
     def _book(self, t: float, events: list[Event]) -> list[Event]:
         """The events through the book, each alarm-level one stamped with its incident."""
-        top_up = getattr(self.book.next_id, "top_up", None)
-        if top_up is not None:  # ids reserved ahead: the book never waits for the log's lock
-            top_up()
+        ids = self.book.next_id
+        if isinstance(ids, IncidentIds):  # reserved ahead: the book never waits for the log
+            ids.top_up()
         with self.lock:
             now = max(float(t), *(e.t for e in events)) if events else float(t)
             up = self.book.update(events, now, holding=self._holding())

@@ -33,6 +33,8 @@ from stereopose.config import Config
 from stereopose.errors import IncompleteOutputError
 from stereopose.fence import FenceMonitor, Site
 from stereopose.io.sinks import FrameResult, Sink
+from stereopose.io.sinks.base import unwrapped
+from stereopose.io.sinks.files import TwoWaySink
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.interrupt import Interrupt
 from stereopose.pipeline.outputs import Outputs, open_outputs
@@ -228,7 +230,9 @@ class FrameLoop:
         except Exception as e:  # the outputs are closed all the same
             logger.exception("finishing the run's figures failed")
             failed = e
-        s.two_way_frames = sum(getattr(sink, "frames_kept", 0) for sink in self.sinks)
+        s.two_way_frames = sum(
+            w.frames_kept for sink in self.sinks if isinstance(w := unwrapped(sink), TwoWaySink)
+        )
         for sink in self.sinks:
             try:
                 s.outputs.extend(sink.close())
@@ -327,7 +331,7 @@ def run_incidents(
     from stereopose.pipeline.step_rules import step_chain
     from stereopose.tickets import TicketDesk
 
-    db = next((s for s in sinks if isinstance(getattr(s, "sink", s), SqliteSink)), None)
+    db = next((s for s in sinks if isinstance(unwrapped(s), SqliteSink)), None)
     desk = None
     if ticket is not None:
         desk = TicketDesk(site.zones)

@@ -264,8 +264,15 @@ def output_places(outputs: Outputs, what: Callable[[str, Path], str]) -> list[Pl
     """Every path `outputs` writes (pipeline.outputs.Outputs): files, the TRC and overlay
     folders, the SQLite log's journals, report.html; what(field, path) names each."""
     found: list[Place] = []
-    for field in ("poses", "events", "csv", "tracks", "summary", "trc_dir", "overlays_dir"):
-        path = getattr(outputs, field)
+    for field, path in (
+        ("poses", outputs.poses),
+        ("events", outputs.events),
+        ("csv", outputs.csv),
+        ("tracks", outputs.tracks),
+        ("summary", outputs.summary),
+        ("trc_dir", outputs.trc_dir),
+        ("overlays_dir", outputs.overlays_dir),
+    ):
         if path is not None:
             found.append(Place(what(field, path), Path(path), folder=field.endswith("_dir")))
     if outputs.events_db is not None:

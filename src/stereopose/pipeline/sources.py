@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.detection import PoseDetector
+from stereopose.detection import PoseDetector, choice_of
 from stereopose.detection.light import LightWatch
 from stereopose.detection.openpose import PoseSequence
 from stereopose.detection.regional import RegionDetector
@@ -190,7 +190,7 @@ class Cameras:
         return out
 
     def finish(self, summary: RunSummary) -> None:
-        choice = getattr(self.detector, "choice", None)
+        choice = choice_of(self.detector)
         if choice is not None:
             summary.detector = choice.as_dict()
         if self.light is not None:

@@ -175,7 +175,7 @@ class Outstation(ClosesOnce):
         wall = self.wall_start + float(frame.t)
         if frame.events:
             self._put("events", tuple(frame.events))
-        n = len(getattr(frame.people3d, "ids", ()))
+        n = len(frame.people3d.ids)
         if n != self._last_people:
             self._last_people = n
             self._put("people", (wall, n))

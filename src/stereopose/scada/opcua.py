@@ -355,7 +355,7 @@ class OpcuaServer(ClosesOnce):
                 return desk.book.incidents()
 
         records = await asyncio.get_running_loop().run_in_executor(None, read)
-        wall_start = getattr(desk, "wall_start", None)
+        wall_start = desk.wall_start
         kept = {r.id for r in records}
         for gone in [i for i in self.space.conditions if i not in kept]:
             rec = self.space.conditions[gone].record
@@ -415,7 +415,7 @@ class OpcuaServer(ClosesOnce):
         if desk is None:
             return ua.StatusCodes.BadResourceUnavailable
         comment = args[1].Value if isinstance(args[1], ua.Variant) else None
-        text = getattr(comment, "Text", None) or ""
+        text = (comment.Text or "") if isinstance(comment, ua.LocalizedText) else ""
         try:
             rec = await asyncio.get_running_loop().run_in_executor(
                 None, desk.acknowledge, incident, name
@@ -428,7 +428,7 @@ class OpcuaServer(ClosesOnce):
             name,
             f" ({text[:200]!r})" if text else "",
         )
-        await space.apply([(rec, time.time(), getattr(desk, "wall_start", None))])
+        await space.apply([(rec, time.time(), desk.wall_start)])
         return None
 
     def _may_acknowledge(self, caller) -> bool:

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.behaviour.definitions import watched_zones
 from stereopose.geometry.camera import distort, normalized_to_pixels, world_to_camera
 from stereopose.tickets.ticket import TICKET_SLOTS
 from stereopose.types import Camera, Rig
@@ -175,18 +176,6 @@ def cameras_seeing(zone, rig: Rig) -> tuple[str, ...]:
     z (bottom, top) metres), in the rig's order."""
     pts = _sample(zone.polygon, zone.z)
     return tuple(c.name for c in rig if _in_view(pts, c))
-
-
-def _rule_zones(rule, zones) -> tuple[str, ...] | None:
-    """The zones a behaviour rule watches (None: the whole site)."""
-    names: list[str] = []
-    for key in ("zones", "energized"):
-        names += list(getattr(rule, key, ()) or ())
-    if getattr(rule, "type", "") == "work_position" and not getattr(rule, "energized", ()):
-        names += [z.name for z in zones if z.kind == "energized"]
-    if getattr(rule, "zone", None):
-        names.append(rule.zone)
-    return tuple(dict.fromkeys(names)) or None
 
 
 def _quality(cameras: Sequence[str], unseen: bool) -> str:
@@ -370,7 +359,7 @@ def _rule_points(
     """Each behaviour rule's alarm point, its quality from the cameras of its zones."""
     pts: list[Point] = []
     for n, r in enumerate(rules, start=1):
-        watched = _rule_zones(r, zones)
+        watched = watched_zones(r, zones)
         if watched is None:
             cams, unseen = everyone, False
         else:

@@ -27,6 +27,7 @@ from typing import Any
 
 import paho.mqtt.client as paho
 
+from stereopose.alarms.incident import IncidentRecord
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.io.sinks.health import OutputHealth
 from stereopose.io.sinks.mqtt_settings import (
@@ -91,7 +92,7 @@ class LogOutbox:
         inflight: int = INFLIGHT,
         poll_s: float = POLL_S,
         heartbeat_s: float = HEARTBEAT_S,
-        acknowledger: Callable[[int, str], Any] | None = None,
+        acknowledger: Callable[[int, str], IncidentRecord] | None = None,
         summary: Callable[[], dict] | None = None,
         plan: dict | None = None,
     ) -> None:
@@ -281,8 +282,7 @@ class LogOutbox:
             result = "unavailable"
         else:
             try:
-                rec = ack(incident, by)
-                result = "acknowledged" if getattr(rec, "acked_by", by) == by else "already"
+                result = "acknowledged" if ack(incident, by).acked_by == by else "already"
             except StereoposeError:  # no such open incident (never raised, or forgotten)
                 result = "unknown"
             except Exception:  # the book failing must not end paho's thread

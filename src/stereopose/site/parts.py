@@ -31,7 +31,8 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
-from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
+from stereopose.io.source import SourceStats
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import Source, SourceStep
 from stereopose.types import People2D, People3D
@@ -137,9 +138,7 @@ class ServeSource:
 
     def tracked(self, people: People3D) -> None:
         """The loop's people of its last step, to a source that detects in regions."""
-        tracked = getattr(self.inner, "tracked", None)
-        if tracked is not None:
-            tracked(people)
+        self.inner.tracked(people)
 
     def finish(self, summary: RunSummary) -> None:
         self.inner.finish(summary)
@@ -163,7 +162,7 @@ class StateSink(ClosesOnce):
         summary: RunSummary,
         *,
         arrival: Callable[[float], float | None] = lambda t: None,
-        stats: Callable[[], Mapping[str, object]] | None = None,
+        stats: Callable[[], Mapping[str, SourceStats]] | None = None,
         stats_s: float = 1.0,
         elsewhere: Callable[[], Mapping[str, float]] | None = None,
         rates: Callable[[], Mapping[str, tuple[float | None, float | None]]] | None = None,
@@ -203,7 +202,7 @@ class StateSink(ClosesOnce):
 
     def _readers(self) -> None:
         for name, st in self.stats().items():
-            dropped, reconnects = getattr(st, "dropped", 0), getattr(st, "reconnects", 0)
+            dropped, reconnects = st.dropped, st.reconnects
             was_dropped, was_reconnects = self._seen.get(name, (0, 0))
             if dropped > was_dropped:
                 self.state.camera_dropped(name, dropped - was_dropped)
@@ -264,13 +263,13 @@ class StatusSink(ClosesOnce):
         return [self.path] if self.write_now() else []
 
 
-def output_health(sink) -> Callable[[], tuple[bool, int, str | None]]:
+def output_health(sink: Guarded) -> Callable[[], tuple[bool, int, str | None]]:
     """The probe of an alarm output (io.sinks.health) for ServiceState.register_output:
     its own health(), and down once its Guarded wrapper has stopped it after a failure."""
 
     def probe() -> tuple[bool, int, str | None]:
         ok, waiting, reason = sink.health()
-        if getattr(sink, "failed", False):  # the failure itself (it may name a file) is logged
+        if sink.failed:  # the failure itself (it may name a file) is logged
             return False, waiting, "stopped after a failure (see the log)"
         return ok, waiting, reason
 

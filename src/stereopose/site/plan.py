@@ -16,6 +16,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from stereopose.config import Config, load_config
+from stereopose.config.scada import Iec104Config, OpcuaConfig
 from stereopose.config_refs import (
     mqtt_settings,
     resolve,
@@ -266,8 +267,11 @@ def disabled_settings(cfg: Config) -> list[str]:
     """A warning for each interface left off whose section sets keys all the same: the
     operator meant it on, most likely."""
     out = []
-    for section, name in (("iec104", "the IEC 104 outstation"), ("opcua", "the OPC UA server")):
-        value = getattr(cfg, section)
+    sections: tuple[tuple[str, str, Iec104Config | OpcuaConfig], ...] = (
+        ("iec104", "the IEC 104 outstation", cfg.iec104),
+        ("opcua", "the OPC UA server", cfg.opcua),
+    )
+    for section, name, value in sections:
         if value.enabled:
             continue
         default = type(value)()

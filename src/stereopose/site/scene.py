@@ -102,7 +102,7 @@ class SceneState:
             joints,
             positions,
             headings,
-            getattr(frame, "postures", None),
+            frame.postures,
         )
         touching = self._touching_now(joints, ids)
         with self._lock:
@@ -196,8 +196,8 @@ class SceneState:
                     "joints": joints,
                     "zones": sorted(z for z, ids in inside.items() if pid in ids),
                     "trail": [[round(px, 3), round(py, 3)] for _, px, py in trails.get(pid, [])],
-                    "posture": getattr(posture, "posture", None),
-                    "flags": [str(f) for f in getattr(posture, "flags", ())],
+                    "posture": None if posture is None else posture.posture,
+                    "flags": [] if posture is None else [str(f) for f in posture.flags],
                 }
             )
         return {

@@ -50,7 +50,7 @@ from pathlib import Path
 
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
-from stereopose.detection import make_detector
+from stereopose.detection import choice_of, make_detector
 from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import StereoposeError
@@ -223,7 +223,7 @@ def _serve(
     service = SiteService(
         plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
     )
-    choice = getattr(detector, "choice", None)
+    choice = choice_of(detector)
     if choice is not None:  # status.json: what detects, and why
         service.probes["detector"] = choice.as_dict
     closing = _Closing()

@@ -204,13 +204,16 @@ class TicketMonitor:
         inside, _ = self.geometry.test(wrists[None], np.array([k]))
         return int(inside[0].sum())
 
+    def _gone(self, pid: int | None, t: float) -> bool:
+        """Whether a bound person has not been seen for REBIND_S."""
+        return pid is not None and t - self.last_seen.get(pid, t) > REBIND_S
+
     def _bind(self, t: float, seen: Seen) -> None:
         tk = self.ticket
-        for role in ("operator", "supervisor"):
-            pid = getattr(self, role)
-            auto = getattr(tk, role) == "auto"
-            if auto and pid is not None and t - self.last_seen.get(pid, t) > REBIND_S:
-                setattr(self, role, None)
+        if tk.operator == "auto" and self._gone(self.operator, t):
+            self.operator = None
+        if tk.supervisor == "auto" and self._gone(self.supervisor, t):
+            self.supervisor = None
         if self.operator is None and tk.operator == "auto":
             self.operator = self._find_operator(seen)
         if (
@@ -290,7 +293,7 @@ class TicketMonitor:
                 failed.append("facing")
         if s.posture is not None:
             p = postures.get(op)
-            if getattr(p, "posture", None) not in s.posture:
+            if (None if p is None else p.posture) not in s.posture:
                 failed.append("posture")
         if failed:
             x.failed = ",".join(failed)

@@ -202,7 +202,7 @@ def incidents_html(events) -> str:
     and last time and its occurrences; "" when the run raised none."""
     groups: dict[int, list] = {}
     for e in events:
-        if getattr(e, "incident", None) is not None:
+        if e.incident is not None:
             groups.setdefault(int(e.incident), []).append(e)
     if not groups:
         return ""

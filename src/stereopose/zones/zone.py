@@ -76,13 +76,19 @@ class Zone:
         z0, z1 = (float(SITE_COORD.check(v, f"{where}: z")) for v in band)
         if z0 >= z1:
             raise ConfigError(f"{where}: height band z = [{z0}, {z1}] must have bottom < top")
-        for key, rng in _ZONE_RANGES.items():
-            v = getattr(self, key)
+        for key, v in (
+            ("margin_m", self.margin_m),
+            ("enter_s", self.enter_s),
+            ("exit_s", self.exit_s),
+            ("dwell_s", self.dwell_s),
+            ("rearm_s", self.rearm_s),
+        ):
             if v is not None:
-                object.__setattr__(self, key, float(rng.check(v, f"{where}: {key}")))
-        for key in ("allowed", "expected"):
-            for pid in getattr(self, key):
+                object.__setattr__(self, key, float(_ZONE_RANGES[key].check(v, f"{where}: {key}")))
+        for key, members in (("allowed", self.allowed), ("expected", self.expected)):
+            for pid in members:
                 PERSON_ID.check(pid, f"{where}: {key}")
+
         if self.expected and self.kind != "work_area":
             raise ConfigError(f"{where}: `expected` persons only make sense for a work_area")
         poly.setflags(write=False)

@@ -73,6 +73,11 @@ class ClosesOnce:
         raise NotImplementedError
 
 
+def unwrapped(sink: Sink) -> Sink:
+    """The output itself, also behind its Guarded wrapper."""
+    return sink.sink if isinstance(sink, Guarded) else sink
+
+
 def close_all(sinks: Iterable[Sink]) -> tuple[list[Path], BaseException | None]:
     """Close every sink in order, even when one fails; (files written, the first error)."""
     paths: list[Path] = []
@@ -120,7 +125,7 @@ class Guarded:
         except OUTPUT_FAILURES as e:
             self._fail(reason(e))
             return []
-        incomplete = getattr(self.sink, "incomplete", None)
+        incomplete = getattr(self.sink, "incomplete", None)  # a message: part not written
         if incomplete and not self.failed:
             self._fail(incomplete)
             return paths  # what it did write stays listed: its file holds the rest

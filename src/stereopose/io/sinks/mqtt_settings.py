@@ -62,12 +62,15 @@ class MqttSettings:
                 raise ConfigError(f"mqtt.ca_file: no such file {str(self.ca_file)!r}")
         if self.password is not None and self.username is None:
             raise ConfigError("mqtt.password: given without mqtt.username")
-        for key, low in (("keepalive_s", 1), ("queue_size", 1)):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"mqtt.{key}: expected an integer >= {low}, got {value!r}")
-        for key in ("people_hz", "reconnect_min_s", "reconnect_max_s", "close_timeout_s"):
-            value = getattr(self, key)
+        for key, value in (("keepalive_s", self.keepalive_s), ("queue_size", self.queue_size)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"mqtt.{key}: expected an integer >= 1, got {value!r}")
+        for key, value in (
+            ("people_hz", self.people_hz),
+            ("reconnect_min_s", self.reconnect_min_s),
+            ("reconnect_max_s", self.reconnect_max_s),
+            ("close_timeout_s", self.close_timeout_s),
+        ):
             if not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
                 raise ConfigError(f"mqtt.{key}: expected a number >= 0, got {value!r}")
         if not 0 < self.reconnect_min_s <= self.reconnect_max_s:

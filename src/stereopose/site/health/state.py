@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 from itertools import pairwise
 
 from stereopose import __version__
+from stereopose.io.sinks.base import FrameResult
 from stereopose.site.health.alarm_outputs import OutputProbe, OutputWatch
 from stereopose.site.health.rates import CameraRates
 from stereopose.site.health.snapshots import (
@@ -41,6 +42,7 @@ from stereopose.site.health.snapshots import (
     QueueSnapshot,
     Snapshot,
 )
+from stereopose.types import Event
 
 logger = logging.getLogger(__name__)
 
@@ -229,14 +231,13 @@ class ServiceState:
                 cam.lost = True
 
     def on_frame(
-        self, result: object, timings: Mapping[str, float], t_arrival: float | None = None
+        self, result: FrameResult, timings: Mapping[str, float], t_arrival: float | None = None
     ) -> None:
         """One frame through the loop. result: its FrameResult (people counted from
         `people3d.ids`); timings: stage -> seconds spent on this frame; t_arrival: when its
         frames arrived, on the state's clock (end-to-end latency = now - t_arrival; None: the
         sum of the stage times). Zone events are counted by `on_events`, not here."""
-        people3d = getattr(result, "people3d", None)
-        ids = getattr(people3d, "ids", ())
+        ids = result.people3d.ids if isinstance(result, FrameResult) else ()  # never raises
         stages = {str(k): d for k, v in timings.items() if (d := _duration(v)) is not None}
         arrival = _time(t_arrival)
         with self._lock:
@@ -250,13 +251,13 @@ class ServiceState:
             latency = sum(stages.values()) if arrival is None else max(now - arrival, 0.0)
             self._end_to_end.observe(latency)
 
-    def on_event(self, event: object) -> None:
+    def on_event(self, event: Event) -> None:
         """One zone event (its `type` counted)."""
         self.on_events([event])
 
-    def on_events(self, events: Iterable[object]) -> None:
+    def on_events(self, events: Iterable[Event]) -> None:
         """Zone events of one frame; fits run_frames' on_events."""
-        types = [str(getattr(e, "type", "unknown")) for e in events]
+        types = [str(e.type) if isinstance(e, Event) else "unknown" for e in events]
         with self._lock:
             for t in types:
                 if t in self._events or self._admit("event type", t, self._events):

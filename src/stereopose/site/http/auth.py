@@ -225,7 +225,7 @@ class Sessions:
 
 def console_parts(request: Request):
     """The console's running parts (site.http.web.Console); 503 when the app has none."""
-    parts = getattr(request.app.state, "console", None)
+    parts = request.app.state.console
     if parts is None:
         raise HTTPException(503, "the console is not available on this server")
     return parts

@@ -74,8 +74,12 @@ class ConnectionLimits:
     trusted_proxies: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        for name in ("max_connections", "max_per_address", "max_requests", "max_header_bytes"):
-            value = getattr(self, name)
+        for name, value in (
+            ("max_connections", self.max_connections),
+            ("max_per_address", self.max_per_address),
+            ("max_requests", self.max_requests),
+            ("max_header_bytes", self.max_header_bytes),
+        ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(
                     f"connection limits: {name} must be an integer >= 1, got {value!r}"
@@ -103,8 +107,7 @@ class ConnectionLimits:
                 f"networks, got {self.trusted_proxies!r}"
             ) from None
         object.__setattr__(self, "_proxies", nets)
-        for name in ("idle_s", "request_s"):
-            value = getattr(self, name)
+        for name, value in (("idle_s", self.idle_s), ("request_s", self.request_s)):
             if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
                 raise ConfigError(f"connection limits: {name} must be a number > 0, got {value!r}")
 

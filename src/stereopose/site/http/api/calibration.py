@@ -22,7 +22,7 @@ _NAME = Path(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.\-]+$")
 
 
 def _keeper(request: Request):
-    desk = getattr(request.app.state, "calibration", None)
+    desk = request.app.state.calibration
     return None if desk is None else desk.keeper
 
 

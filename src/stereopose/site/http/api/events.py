@@ -186,7 +186,7 @@ def ack(
 def _ack_incident(request: Request, parts, event_id: int, by: str) -> dict | None:
     """The event's incident acknowledged in the running service's book (its record)."""
     desk = request.app.state.incidents.step
-    log = getattr(parts, "log", None)
+    log = parts.log
     if desk is None or log is None:
         return None
     try:

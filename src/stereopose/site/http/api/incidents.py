@@ -68,7 +68,7 @@ def incidents(
     parts=Depends(console_parts),  # noqa: B008
 ) -> JSONResponse:
     """{"incidents": [...]}, newest first (see the module)."""
-    log = getattr(parts, "log", None)
+    log = parts.log
     found: list[dict] = []
     if log is not None:
         try:
@@ -92,7 +92,7 @@ def _answer(desk, act) -> dict:
         raise HTTPException(404, str(e)) from None
     except IncidentError as e:
         raise HTTPException(422, str(e)) from None
-    return {"incident": rec.to_dict(getattr(desk, "wall_start", None))}
+    return {"incident": rec.to_dict(desk.wall_start)}
 
 
 @router.post("/api/incidents/{incident_id}/ack", responses={403: {}, 404: {}})

@@ -30,7 +30,7 @@ def poses(
 ) -> JSONResponse:
     """{"since", "until", "frames": [{"wall_t", "t", "people": [{"id", "joints",
     "position", "posture"}]}], "skipped", "thinned"}."""
-    folder = getattr(parts, "poses_dir", None)
+    folder = parts.poses_dir
     if folder is None:
         raise HTTPException(503, "this server keeps no 3D poses")
     try:

@@ -46,7 +46,7 @@ class Binding(BaseModel):
 
 
 def _desk(request: Request) -> TicketDesk:
-    desk = getattr(request.app.state, "tickets", None)
+    desk = request.app.state.tickets
     if desk is None:
         raise HTTPException(503, "no site file: tickets need its zones")
     return desk
@@ -137,7 +137,7 @@ def report(
     desk = _desk(request)
     view = _act(lambda: desk.ticket(ticket_id))["ticket"]
     frames: list[dict] = []
-    folder = getattr(parts, "poses_dir", None)
+    folder = parts.poses_dir
     since, until = view.get("started_wall"), view.get("ended_wall") or time.time()
     if folder is not None and since is not None:
         since = max(since - 1.0, until - MAX_WINDOW_S)  # a long job: its last hours

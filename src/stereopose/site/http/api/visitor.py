@@ -18,8 +18,8 @@ logger = logging.getLogger(__name__)
 
 def has_session(request: Request) -> bool:
     """Whether the request's bearer token or session cookie names a live session."""
-    parts = getattr(request.app.state, "console", None)
-    sessions = getattr(parts, "sessions", None)
+    parts = request.app.state.console
+    sessions = None if parts is None else parts.sessions
     if sessions is None:
         return False
     token, _ = request_token(request)
