@@ -60,7 +60,7 @@ class Range:
             return f"{kind} {'<=' if self.le is not None else '<'} {_fmt(hi)}"
         return kind
 
-    def contains(self, value: Any) -> bool:
+    def contains(self, value: object) -> bool:
         """Whether value is a number (of the right kind) within the bounds."""
         if isinstance(value, (bool, np.bool_)):
             return False
@@ -83,7 +83,7 @@ class Range:
             and (self.lt is None or v < self.lt)
         )
 
-    def check(self, value: Any, where: str, error: type[StereoposeError] = ConfigError) -> Any:
+    def check(self, value: object, where: str, error: type[StereoposeError] = ConfigError) -> Any:
         """Return value when within range, else raise `error` naming `where` and the value."""
         if not self.contains(value):
             raise error(f"{where}: expected {self.describe()}, got {_show(value)}")
@@ -94,7 +94,7 @@ def _fmt(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
-def _show(value: Any) -> str:
+def _show(value: object) -> str:
     if isinstance(value, np.generic):
         value = value.item()
     text = repr(value)

@@ -111,7 +111,7 @@ class IncidentRecord:
     def camera(self) -> str | None:
         return str(self.key[1]) if self.key[0] in ("camera", "calibration") else None
 
-    def to_dict(self, wall_start: float | None = None) -> dict[str, Any]:
+    def to_dict(self, wall_start: float | None = None) -> dict[str, object]:
         """JSON-ready: the fields, the key as a list, and zone / rule / person / camera /
         shelved spelled out for readers that do not parse keys; with wall_start (the Unix
         time of t = 0) the wall times too (WALL_TIMES)."""
@@ -129,7 +129,7 @@ class IncidentRecord:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> IncidentRecord:
+    def from_dict(cls, d: dict[str, object]) -> IncidentRecord:
         """Back from to_dict (extra keys ignored); a bad record is an IncidentError."""
         names = {f.name for f in fields(cls)}
         try:
@@ -152,7 +152,7 @@ WALL_TIMES = (
 )
 
 
-def with_wall_times(d: dict[str, Any], wall_start: float | None) -> dict[str, Any]:
+def with_wall_times(d: dict[str, object], wall_start: float | None) -> dict[str, object]:
     """d (a record's dict) with its WALL_TIMES: wall_start + t (None without either)."""
     for name, key in WALL_TIMES:
         d[name] = None if wall_start is None or d.get(key) is None else wall_start + d[key]

@@ -18,9 +18,9 @@ after its incident cleared is an occurrence of the same incident, not a new one.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Protocol
 
 from stereopose.alarms.levels import BEHAVIOUR_ALARMS, HazardKey
 from stereopose.checks import DAY_S, Range
@@ -77,7 +77,7 @@ def default_priority(kind: str, type_: str) -> int:
     return MEDIUM  # restricted entries, dwells, leaving a work area
 
 
-def parse_priority(value: Any, where: str) -> int:
+def parse_priority(value: object, where: str) -> int:
     """A site file's `priority`: 1-4 or critical / high / medium / low -> 1-4; anything else
     a ConfigError naming `where` and the value."""
     if isinstance(value, str):
@@ -92,7 +92,7 @@ def parse_priority(value: Any, where: str) -> int:
     )
 
 
-def parse_rearm(value: Any, where: str) -> float:
+def parse_rearm(value: object, where: str) -> float:
     """A site file's `rearm_s`: seconds in [0, 86400]."""
     return float(REARM.check(value, f"{where}: rearm_s"))
 
@@ -105,6 +105,30 @@ class Tuning:
     rearm_s: float = DEFAULT_REARM_S
 
 
+class Tuned(Protocol):
+    """A zone or a behaviour rule, as the incident book reads it (zones.Zone, a rule of
+    behaviour.definitions)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def priority(self) -> int | None: ...
+
+    @property
+    def rearm_s(self) -> float: ...
+
+
+class TunedSite(Protocol):
+    """A site's zones and rules (fence.site.Site; this package imports no fence)."""
+
+    @property
+    def zones(self) -> Sequence[Tuned]: ...
+
+    @property
+    def rules(self) -> Sequence[Tuned]: ...
+
+
 @dataclass(frozen=True)
 class AlarmSettings:
     """What the incident book needs of the site: per zone and per rule name, its Tuning;
@@ -115,11 +139,11 @@ class AlarmSettings:
     default_rearm_s: float = DEFAULT_REARM_S
 
     @classmethod
-    def from_site(cls, site: Any, default_rearm_s: float = DEFAULT_REARM_S) -> AlarmSettings:
+    def from_site(cls, site: TunedSite, default_rearm_s: float = DEFAULT_REARM_S) -> AlarmSettings:
         """From anything with `zones` and `rules` whose items have `name`, `priority` and
         `rearm_s` (fence.site.Site; read by attribute so this package imports no fence)."""
 
-        def table(items: Iterable[Any]) -> dict[str, Tuning]:
+        def table(items: Iterable[Tuned]) -> dict[str, Tuning]:
             return {x.name: Tuning(x.priority, x.rearm_s) for x in items}
 
         return cls(table(site.zones), table(site.rules), default_rearm_s)

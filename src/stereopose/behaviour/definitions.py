@@ -229,7 +229,7 @@ def _keys(cls: type) -> tuple[list[str], list[str]]:
     return required, optional
 
 
-def _names(value: Any, where: str, key: str) -> tuple[str, ...]:
+def _names(value: object, where: str, key: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
         raise ConfigError(f"{where}: {key} must be a non-empty list of names, got {value!r}")
     return tuple(dict.fromkeys(value))
@@ -248,7 +248,7 @@ def _zone_names(
             )
 
 
-def _value(key: str, value: Any, where: str) -> Any:
+def _value(key: str, value: object, where: str) -> Any:
     """One parameter, checked and converted."""
     if key in _RANGES:
         rng = _RANGES[key]
@@ -280,7 +280,7 @@ def _value(key: str, value: Any, where: str) -> Any:
 
 
 def parse_rules(
-    items: Sequence[Mapping[str, Any]] | None, where: str, zones: Sequence[Zone]
+    items: Sequence[Mapping[str, object]] | None, where: str, zones: Sequence[Zone]
 ) -> tuple[Rule, ...]:
     """The rules of a site file's `[[rules]]` (None or [] -> none); `where` prefixes every
     message (e.g. the file); zones: the site's zones, which the rules name."""
@@ -329,7 +329,7 @@ def _check_zones(rule: Rule, where: str, zones: Mapping[str, Zone]) -> None:
             raise ConfigError(f"{where}: the site has no energized zone to watch the hands in")
 
 
-def _toml(value: Any) -> str:
+def _toml(value: object) -> str:
     if isinstance(value, str):
         return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(value, tuple):
@@ -383,7 +383,7 @@ _POSTURE_RANGES: dict[str, Range] = {
 assert set(_POSTURE_RANGES) == {f.name for f in fields(PostureSettings)}
 
 
-def parse_postures(table: Any, where: str) -> PostureSettings | None:
+def parse_postures(table: object, where: str) -> PostureSettings | None:
     """The site file's optional `[postures]` table: PostureSettings' thresholds to change for
     this site (None: the defaults). An unknown key or a value out of range is a ConfigError
     naming the key."""

@@ -16,7 +16,7 @@ import dataclasses
 import sys
 from dataclasses import field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -100,7 +100,7 @@ class Config:
     control_room: ControlRoomConfig = field(default_factory=ControlRoomConfig)
 
 
-def read_toml(path: Path, what: str) -> dict[str, Any]:
+def read_toml(path: Path, what: str) -> dict[str, object]:
     """A TOML file's tables; a missing, unreadable, oversized or invalid file is a ConfigError
     naming it (`what`: what the file is, for the message)."""
     raw = read_limited(path, what, ConfigError)
@@ -111,7 +111,7 @@ def read_toml(path: Path, what: str) -> dict[str, Any]:
     return parse_toml(text, path)
 
 
-def parse_toml(text: str, path: Path | str) -> dict[str, Any]:
+def parse_toml(text: str, path: Path | str) -> dict[str, object]:
     """TOML text -> tables; any parse failure is a ConfigError naming `path`."""
     try:
         return tomllib.loads(text)
@@ -133,14 +133,14 @@ def load_config(path: str | Path | None = None) -> Config:
         raise ConfigError(f"{path}: {e}".replace(": : ", ": ")) from None
 
 
-def _replace(obj: _T, values: dict[str, Any], where: str) -> _T:
+def _replace(obj: _T, values: dict[str, object], where: str) -> _T:
     try:
         return dataclasses.replace(obj, **values)
     except TypeError as e:  # an unknown field
         raise ConfigError(f"{where}: {e}") from None
 
 
-def with_overrides(config: Config, **sections: dict[str, Any]) -> Config:
+def with_overrides(config: Config, **sections: dict[str, object]) -> Config:
     """A copy of `config` with fields of its sections replaced: `tracking`, or one of the
     reconstruction sections; the new values are checked as a file's would be.
 

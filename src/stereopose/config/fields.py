@@ -85,7 +85,7 @@ def _key(cls: Any, name: str) -> str:
     return f"{cls._section}.{name}" if cls._section else name
 
 
-def _check_value(value: Any, tp: Any, where: str) -> Any:
+def _check_value(value: object, tp: Any, where: str) -> Any:
     origin = get_origin(tp)
     if origin in (Union, types.UnionType):
         options = [a for a in get_args(tp) if a is not type(None)]
@@ -125,7 +125,7 @@ def _check_value(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
-def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+def from_dict(cls: type, data: dict[str, object], where: str) -> Any:
     """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys and values
     out of range."""
     if not isinstance(data, dict):
@@ -137,7 +137,7 @@ def from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
         raise ConfigError(
             f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}"
         )
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, object] = {}
     for key, value in data.items():
         tp = hints[key]
         sub = f"{where}.{key}" if where else key

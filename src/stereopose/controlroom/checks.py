@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
 
 MAX_ID = 2**63 - 1
 MAX_DEPTH = 8  # an outbox message nests no deeper (an event, an incident's record)
@@ -40,7 +39,7 @@ def is_id(v: object) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_ID
 
 
-def sane(value: Any, depth: int = 0) -> bool:
+def sane(value: object, depth: int = 0) -> bool:
     """Whether every number in `value` fits a store (int64, finite), every string and key is
     at most MAX_TEXT characters, every object and list at most MAX_ITEMS long, and it nests
     at most MAX_DEPTH deep (below `depth`)."""
@@ -66,7 +65,7 @@ def sane(value: Any, depth: int = 0) -> bool:
 def summary(beat: dict) -> dict:
     """A heartbeat's summary of its site, each field checked: a short status, counts in
     range; anything else left out."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     status = beat.get("status")
     if isinstance(status, str) and 0 < len(status) <= MAX_STATUS and status.isprintable():
         out["status"] = status

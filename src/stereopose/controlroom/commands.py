@@ -8,10 +8,13 @@ import json
 import logging
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from stereopose.controlroom.store import ControlStore, StoreError
 from stereopose.site.wire import COMMAND_ACK, ack_body, site_topic
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as paho
 
 logger = logging.getLogger(__name__)
 
@@ -24,7 +27,7 @@ class AckCommands:
     def __init__(
         self,
         store: ControlStore,
-        client: Any,
+        client: paho.Client,
         prefix: str,
         name: str,
         counts: dict[str, int],

@@ -41,9 +41,9 @@ import threading
 import time
 import uuid
 from collections import deque
-from typing import Any
 
 import paho.mqtt.client as paho
+from paho.mqtt.reasoncodes import ReasonCode
 
 from stereopose.controlroom.checks import heartbeat, incident_change, is_id, numbered
 from stereopose.controlroom.checks import summary as beat_summary
@@ -194,10 +194,12 @@ class Ingest:
         c.on_subscribe = self._on_subscribe
         return c
 
-    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any, props: Any) -> None:
+    def _on_subscribe(self, *_: object) -> None:
         self.subscribed = True
 
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+    def _on_connect(
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
+    ) -> None:
         if reason.is_failure:
             logger.error(
                 "control room: the broker %s:%d refused the connection: %s",
@@ -214,7 +216,7 @@ class Ingest:
         logger.info("control room: connected to %s:%d", self.settings.host, self.settings.port)
 
     def _on_disconnect(
-        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
     ) -> None:
         self.connected = self.subscribed = False
         if not self._stop.is_set():
@@ -225,7 +227,7 @@ class Ingest:
                 reason,
             )
 
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+    def _on_message(self, client: paho.Client, userdata: object, msg: paho.MQTTMessage) -> None:
         try:
             self._message(msg)
         except Exception as e:  # nothing one message holds may end paho's thread
@@ -236,7 +238,7 @@ class Ingest:
                 f"refused: {type(e).__name__}: {str(e)[:200]}",
             )
 
-    def _message(self, msg: Any) -> None:
+    def _message(self, msg: paho.MQTTMessage) -> None:
         self.intake.put(msg.topic, msg.payload)
 
     def _warn(self, kind: str, text: str) -> None:

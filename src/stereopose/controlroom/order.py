@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 from stereopose.controlroom.room import RoomIncidents
 from stereopose.controlroom.store import ControlStore, StoreError
 from stereopose.site.wire import CONFIRMED, REPLAY, confirmed_body, replay_body, site_topic
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as paho
 
 HOLD_S = 3.0  # a worker holds a message this long for the one before it (another worker's)
 MAX_HELD = 10_000  # messages held per site and stream at most
@@ -29,7 +32,7 @@ class Order:
     def __init__(
         self,
         store: ControlStore,
-        client: Any,
+        client: paho.Client,
         prefix: str,
         counts: dict[str, int],
         room: RoomIncidents,

@@ -7,10 +7,13 @@ from __future__ import annotations
 import json
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from stereopose.controlroom.checks import MAX_DEPTH, sane
 from stereopose.site.wire import PEOPLE, PLAN, site_topic
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as paho
 
 WATCH_S = 15.0  # a site's people are followed this long after its page last looked
 MAX_PLAN_BYTES = 1 << 20  # a plan or people message larger than this is ignored
@@ -21,7 +24,7 @@ class SitePages:
     """The plans and watched people of every site (any thread). client: the ingest's paho
     client (subscribes and unsubscribes the people topics); prefix: the topics' prefix."""
 
-    def __init__(self, client: Any, prefix: str) -> None:
+    def __init__(self, client: paho.Client, prefix: str) -> None:
         self.client, self.prefix = client, prefix
         self._lock = threading.Lock()
         self._plans: dict[str, dict] = {}  # site -> its retained plan
@@ -67,7 +70,7 @@ class SitePages:
             people = {**seen[1], "received_at": round(seen[0], 3)}
         return {"plan": plan, "people": people, "console_url": (plan or {}).get("console_url")}
 
-    def follow_again(self, client: Any) -> None:
+    def follow_again(self, client: paho.Client) -> None:
         """A new connection: the pages being looked at follow their people again."""
         with self._lock:
             watched = list(self._watched)

@@ -37,7 +37,6 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from stereopose.alarms.priority import DEFAULT_REARM_S, parse_priority
 from stereopose.behaviour.definitions import (
@@ -97,7 +96,7 @@ def _toml_str(text: str) -> str:
     return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
-def _inline(value: Any) -> str:
+def _inline(value: object) -> str:
     """A value as TOML (inline tables)."""
     if isinstance(value, dict):
         return (
@@ -168,7 +167,7 @@ def load_site(path: str | Path) -> Site:
         raise ConfigError(f"{path}: {e}") from None
 
 
-def parse_site(data: Any, path: Path | None = None) -> Site:
+def parse_site(data: object, path: Path | None = None) -> Site:
     """A site from the site file's keys (as TOML reads them, or as JSON gives them: the API's
     `site`), checked as load_site checks a file; a ConfigError naming the zone and the key."""
     if not isinstance(data, dict):
@@ -180,7 +179,7 @@ def parse_site(data: Any, path: Path | None = None) -> Site:
     return Site(zones, fps, path, rules=rules, postures=postures)
 
 
-def site_doc(site: Site) -> dict[str, Any]:
+def site_doc(site: Site) -> dict[str, object]:
     """The site file's keys of `site` (defaults left out) as plain values: what the API gives
     and takes, and what parse_site reads back to the same site."""
     return parse_toml(format_site(site), "the site")
@@ -192,7 +191,7 @@ def site_version(site: Site) -> str:
     return hashlib.sha256(format_site(site).encode("utf-8")).hexdigest()[:16]
 
 
-def _fps(data: dict[str, Any]) -> float | None:
+def _fps(data: dict[str, object]) -> float | None:
     unknown = sorted(set(data) - {"fps", "zones", "rules", "postures"})
     if unknown:
         raise ConfigError(
@@ -202,7 +201,7 @@ def _fps(data: dict[str, Any]) -> float | None:
     return None if fps is None else float(FPS.check(fps, "fps"))
 
 
-def _number(value: Any, what: str) -> float:
+def _number(value: object, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{what}: expected a number, got {value!r}")
     try:
@@ -212,13 +211,13 @@ def _number(value: Any, what: str) -> float:
         raise ConfigError(f"{what}: expected a number, got an integer of {bits} bits") from None
 
 
-def _ids(value: Any, what: str) -> frozenset[int]:
+def _ids(value: object, what: str) -> frozenset[int]:
     if not isinstance(value, list) or not all(PERSON_ID.contains(v) for v in value):
         raise ConfigError(f"{what}: expected a list of person ids (integers >= 0), got {value!r}")
     return frozenset(value)
 
 
-def _points(value: Any, where: str) -> list[list[float]]:
+def _points(value: object, where: str) -> list[list[float]]:
     """A TOML polygon: a list of [x, y] pairs of numbers (not strings, not booleans)."""
     ok = isinstance(value, list) and all(
         isinstance(p, list)
@@ -231,7 +230,7 @@ def _points(value: Any, where: str) -> list[list[float]]:
     return value
 
 
-def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
+def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
     raw = data.get("zones")
     if not isinstance(raw, list) or not raw:
         raise ConfigError("no [[zones]] defined")
@@ -253,7 +252,7 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
         band = z["z"]
         if not isinstance(band, list) or len(band) != 2:
             raise ConfigError(f"{where}: z must be [bottom, top], got {band!r}")
-        kwargs: dict[str, Any] = {}
+        kwargs: dict[str, object] = {}
         if "joints" in z:
             js = z["joints"]
             if not isinstance(js, list) or not js:
@@ -283,10 +282,10 @@ def _zones(data: dict[str, Any]) -> tuple[Zone, ...]:
     return tuple(zones)
 
 
-def _power(z: dict[str, Any], where: str) -> dict[str, Any]:
+def _power(z: dict[str, object], where: str) -> dict[str, object]:
     """An energized zone's voltage (its margin from the distance table, unless margin_m is
     given) and state source."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     keys = [k for k in ("voltage_kv", "distance_table", "state") if k in z]
     if keys and z["kind"] != "energized":
         raise ConfigError(f"{where}: {', '.join(keys)} only for an energized zone")

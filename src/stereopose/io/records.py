@@ -169,7 +169,7 @@ def _joints_array(joints: Sequence[Sequence[float] | None]) -> np.ndarray:
     )
 
 
-def parse_frame_record(rec: Mapping[str, Any]) -> tuple[int, float | None, list[dict]]:
+def parse_frame_record(rec: Mapping[str, object]) -> tuple[int, float | None, list[dict]]:
     """(frame, t, people) of one frame record; each person keeps its JSON fields and gains
     `joints_array` (17, 3) with NaN for null. Raises KeyError, TypeError or ValueError on a
     malformed record (the reader names the file and line)."""
@@ -183,7 +183,7 @@ def parse_frame_record(rec: Mapping[str, Any]) -> tuple[int, float | None, list[
 
 
 def people3d_from_record(
-    frame: int, people: Sequence[Mapping[str, Any]], num_cameras: int = 0
+    frame: int, people: Sequence[Mapping[str, object]], num_cameras: int = 0
 ) -> People3D:
     """People3D from the people of a parsed frame record (see `parse_frame_record`).
 
@@ -260,7 +260,7 @@ def event_record(e: Event) -> dict:
     return d
 
 
-def event_from_record(d: Mapping[str, Any]) -> Event:
+def event_from_record(d: Mapping[str, object]) -> Event:
     """An Event from its JSON object (or an SQLite row as a dict: `x`, `y` for the position).
     Raises KeyError, TypeError, ValueError or IndexError when a required field is missing or
     malformed."""
@@ -300,7 +300,7 @@ def event_from_record(d: Mapping[str, Any]) -> Event:
     )
 
 
-def _result(value: Any) -> dict | None:
+def _result(value: object) -> dict | None:
     """ticket_completed's result: a dict, or its JSON text (an SQLite row's)."""
     if value is None or isinstance(value, dict):
         return value
@@ -310,7 +310,7 @@ def _result(value: Any) -> dict | None:
     return doc
 
 
-def _optional_float(value: Any) -> float | None:
+def _optional_float(value: object) -> float | None:
     return None if value is None else float(value)
 
 

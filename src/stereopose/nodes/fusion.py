@@ -50,7 +50,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -78,6 +78,10 @@ from stereopose.nodes.wire import (
 )
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import People2D, People3D, Rig
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as paho
+    from paho.mqtt.reasoncodes import ReasonCode
 
 logger = logging.getLogger(__name__)
 
@@ -182,7 +186,9 @@ class NodeInput:
             self._closed = True
             self._cond.notify_all()
 
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+    def _on_connect(
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
+    ) -> None:
         if reason.is_failure:
             self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
             return
@@ -196,7 +202,7 @@ class NodeInput:
         self._problem = None
 
     def _on_disconnect(
-        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
     ) -> None:
         was, self.connected = self.connected, False
         if was and not self._closed:
@@ -205,7 +211,7 @@ class NodeInput:
                 "connection lost: no camera-frames from the nodes meanwhile; retrying",
             )
 
-    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+    def _on_connect_fail(self, client: paho.Client, userdata: object) -> None:
         self._say(logging.WARNING, "broker unreachable; retrying")
 
     def _say(self, level: int, text: str) -> None:
@@ -223,7 +229,7 @@ class NodeInput:
 
     # -- messages (paho's thread) ---------------------------------------------------------------
 
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+    def _on_message(self, client: paho.Client, userdata: object, msg: paho.MQTTMessage) -> None:
         try:
             self._message(msg.topic, bytes(msg.payload), bool(msg.retain))
         except Exception as e:  # nothing a message holds may end paho's thread

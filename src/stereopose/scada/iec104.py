@@ -53,6 +53,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from stereopose.alarms import Change, IncidentRecord
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
@@ -180,16 +181,16 @@ class Outstation(ClosesOnce):
             self._last_people = n
             self._put("people", (wall, n))
 
-    def write_changes(self, changes: Sequence[Any]) -> None:
+    def write_changes(self, changes: Sequence[Change]) -> None:
         """An incident output: each step's changes (alarms.book.Change)."""
         if changes:
             self._put("changes", tuple(changes))
 
-    def incidents(self, records: Iterable[Any]) -> None:
+    def incidents(self, records: Iterable[IncidentRecord]) -> None:
         """The incidents open now (IncidentRecord), e.g. restored at a restart."""
         self._put("records", tuple(records))
 
-    def _put(self, kind: str, item: Any) -> None:
+    def _put(self, kind: str, item: object) -> None:
         with self._cond:
             if len(self._queue) >= self.settings.queue_size:
                 self._figures["dropped"] += 1
@@ -233,7 +234,7 @@ class Outstation(ClosesOnce):
             if stopping:
                 return
 
-    def _apply(self, kind: str, item: Any) -> None:
+    def _apply(self, kind: str, item: object) -> None:
         s = self._state
         if kind == "events":
             for e in item:

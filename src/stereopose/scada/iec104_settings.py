@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from stereopose.config.scada import Iec104Config
 from stereopose.errors import StereoposeError
 
 __all__ = ["Iec104Error", "Iec104Settings"]
@@ -52,7 +53,7 @@ class Iec104Settings:
     start_within_s: float = 5.0
 
     @classmethod
-    def from_config(cls, cfg: Any) -> Iec104Settings:
+    def from_config(cls, cfg: Iec104Config) -> Iec104Settings:
         """From [iec104] (config.Iec104Config, whose construction checked every value)."""
         nets = tuple(ipaddress.IPv4Network(a, strict=False) for a in cfg.allowed_clients)
         return cls(

@@ -9,8 +9,10 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
+from stereopose.alarms import IncidentRecord
 from stereopose.scada.points import Point, PointsTable
 from stereopose.scada.ticket_slots import TicketSlots, deviating
+from stereopose.types import Event
 
 __all__ = ["UNACKED", "PointState"]
 
@@ -27,12 +29,12 @@ class PointState:
     running: bool = True
     degraded: bool = False
     people: int = 0
-    records: dict[int, Any] = field(default_factory=dict)  # open incidents by id
+    records: dict[int, IncidentRecord] = field(default_factory=dict)  # open incidents by id
     tickets: TicketSlots = field(default_factory=TicketSlots)  # the active tickets' slots
     power: dict[str, str] = field(default_factory=dict)  # zone -> live, dead, unknown
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def event(self, e: Any) -> None:
+    def event(self, e: Event) -> None:
         """A zone, camera or service event folded in."""
         if e.kind == "camera" and e.camera in self.camera_up:
             if e.type == "camera_down":
@@ -54,7 +56,7 @@ class PointState:
             elif e.type == "exit":
                 self.inside[e.zone].discard(int(e.person))
 
-    def record(self, r: Any) -> None:
+    def record(self, r: IncidentRecord) -> None:
         """An incident's record (alarms.IncidentRecord) kept while open, forgotten closed."""
         with self.lock:
             if r.state == "closed":
@@ -62,7 +64,7 @@ class PointState:
             else:
                 self.records[r.id] = r
 
-    def open_records(self) -> list[Any]:
+    def open_records(self) -> list[IncidentRecord]:
         with self.lock:
             return list(self.records.values())
 

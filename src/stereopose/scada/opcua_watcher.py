@@ -111,7 +111,7 @@ class OpcuaWatcher:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._stopping.wait(), self.interrogation_s)
 
-    def _take(self, label: str, value: Any, status: Any) -> None:
+    def _take(self, label: str, value: object, status: Any) -> None:
         good = status is None or bool(getattr(status, "is_good", lambda: True)())
         if value is None:
             self.board.set(label, None, False, "no value")

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
 
+from stereopose.alarms import IncidentRecord
 from stereopose.tickets.ticket import TICKET_SLOTS
+from stereopose.types import Event
 
 __all__ = ["SlotRow", "TicketSlots", "deviating"]
 
@@ -34,7 +35,7 @@ class TicketSlots:
     slots: list[str | None] = field(default_factory=lambda: [None] * TICKET_SLOTS)
     steps_done: dict[str, int] = field(default_factory=dict)
 
-    def event(self, e: Any) -> bool:
+    def event(self, e: Event) -> bool:
         """A ticket's event folded in (started: the lowest free slot; a step done; ended: its
         slot freed); whether it changed a slot."""
         tid = e.ticket
@@ -63,6 +64,6 @@ class TicketSlots:
         ]
 
 
-def deviating(records: Iterable[Any]) -> set[str]:
+def deviating(records: Iterable[IncidentRecord]) -> set[str]:
     """The tickets with an incident not closed, among open incident records."""
     return {r.key[1] for r in records if r.key and r.key[0] == "ticket" and r.state != "closed"}

@@ -10,7 +10,7 @@ yet".
 
 from __future__ import annotations
 
-from typing import Any
+from stereopose.pipeline.incidents import IncidentStep
 
 __all__ = ["IncidentDesk"]
 
@@ -19,8 +19,8 @@ class IncidentDesk:
     """See the module."""
 
     def __init__(self) -> None:
-        self.step: Any = None  # pipeline.incidents.IncidentStep once the book runs
+        self.step: IncidentStep | None = None  # once the book runs
 
-    def attach(self, step: Any) -> None:
+    def attach(self, step: IncidentStep) -> None:
         """The running incident step: its acknowledge, shelve, unshelve and figures."""
         self.step = step

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 import paho.mqtt.client as paho
+from paho.mqtt.reasoncodes import ReasonCode
 
 from stereopose.alarms.incident import IncidentRecord
 from stereopose.errors import ConfigError, StereoposeError
@@ -96,11 +97,9 @@ class LogOutbox:
         summary: Callable[[], dict] | None = None,
         plan: dict | None = None,
     ) -> None:
-        self.heartbeat_s = float(heartbeat_s)
-        self.settings, self.log = settings, log
+        self.settings, self.log, self.heartbeat_s = settings, log, float(heartbeat_s)
         self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
-        self.acknowledger, self.summary = acknowledger, summary
-        self.plan = plan
+        self.acknowledger, self.summary, self.plan = acknowledger, summary, plan
         self.topics = site_topics(settings.topic_prefix, settings.site)  # site.wire
         self.streams = [
             _Stream(
@@ -129,8 +128,8 @@ class LogOutbox:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self._connected = False
-        self._subscribed = False  # the broker confirmed this connection's subscriptions
+        # _subscribed: the broker confirmed this connection's subscriptions
+        self._connected = self._subscribed = False
         self._unacked: set[int] = set()  # paho message ids not yet acknowledged
         self._acked: set[int] = set()
         self.counts = {"replays": 0, "malformed": 0, "read_errors": 0, "commands": 0, "restarts": 0}
@@ -164,11 +163,13 @@ class LogOutbox:
         c.on_subscribe = self._on_subscribe
         return c
 
-    def _on_subscribe(self, client: Any, userdata: Any, mid: Any, reasons: Any, props: Any) -> None:
+    def _on_subscribe(self, *_: object) -> None:
         with self._lock:
             self._subscribed = True
 
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+    def _on_connect(
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
+    ) -> None:
         if reason.is_failure:
             self._problem(logging.ERROR, f"the broker refused the connection: {reason}")
             return
@@ -192,7 +193,7 @@ class LogOutbox:
         self._wake.set()
 
     def _on_disconnect(
-        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
     ) -> None:
         with self._lock:
             self._connected = self._subscribed = False
@@ -203,12 +204,12 @@ class LogOutbox:
                 "the events not confirmed are sent again when it is back",
             )
 
-    def _on_publish(self, client: Any, userdata: Any, mid: int, *rest: Any) -> None:
+    def _on_publish(self, client: paho.Client, userdata: object, mid: int, *rest: object) -> None:
         with self._lock:
             self._acked.add(mid)
         self._wake.set()
 
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+    def _on_message(self, client: paho.Client, userdata: object, msg: paho.MQTTMessage) -> None:
         try:
             self._message(msg)
         except Exception as e:  # nothing one message holds may end paho's thread
@@ -224,7 +225,7 @@ class LogOutbox:
                     str(e)[:200],
                 )
 
-    def _message(self, msg: Any) -> None:
+    def _message(self, msg: paho.MQTTMessage) -> None:
         if msg.topic == self.topics["ack"]:
             self._command(msg.payload)
             return
@@ -276,11 +277,8 @@ class LogOutbox:
             return
         with self._lock:
             self.counts["commands"] += 1
-        command, incident, by = cmd
-        ack = self.acknowledger
-        if ack is None:
-            result = "unavailable"
-        else:
+        (command, incident, by), ack, result = cmd, self.acknowledger, "unavailable"
+        if ack is not None:
             try:
                 result = "acknowledged" if ack(incident, by).acked_by == by else "already"
             except StereoposeError:  # no such open incident (never raised, or forgotten)

@@ -30,6 +30,7 @@ from typing import Any
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence.site import Site, format_site, load_site, parse_site, site_doc, site_version
 from stereopose.secrets import redact
+from stereopose.types import Rig
 
 __all__ = ["SiteChange", "SiteConflictError", "SiteDesk"]
 
@@ -64,7 +65,7 @@ class SiteDesk:
         site: Site,
         history_dir: Path,
         check: Callable[[Site], None] | None = None,
-        rig: Any = None,
+        rig: Rig | None = None,
     ) -> None:
         self.path, self.history_dir, self.check = Path(path), Path(history_dir), check
         self.rig = rig  # the cameras (the Site tab's views of the zones; None: none)
@@ -78,15 +79,15 @@ class SiteDesk:
 
     # -- reading -----------------------------------------------------------------------------
 
-    def current(self) -> dict[str, Any]:
+    def current(self) -> dict[str, object]:
         with self._lock:
             return {"version": self.version, "site": _hidden(site_doc(self.site))}
 
-    def history(self) -> list[dict[str, Any]]:
+    def history(self) -> list[dict[str, object]]:
         """The versions kept, newest first: {"version", "by", "at"} (at: Unix time)."""
         return list(reversed(self._index()))
 
-    def at_version(self, version: str) -> dict[str, Any] | None:
+    def at_version(self, version: str) -> dict[str, object] | None:
         """A version kept: {"version", "by", "at", "site"}; None when not kept."""
         row = next((r for r in self._index() if r["version"] == version), None)
         path = self.history_dir / f"{version}.toml"
@@ -101,7 +102,7 @@ class SiteDesk:
 
     # -- changing ----------------------------------------------------------------------------
 
-    def put(self, doc: Any, version: str, by: str) -> str:
+    def put(self, doc: object, version: str, by: str) -> str:
         """The new site `doc` (the site file's keys), edited from `version`: its version once
         written and handed to the frame loop. SiteConflictError when `version` is not the current
         one; ConfigError naming the key when it does not check."""
@@ -165,7 +166,7 @@ class SiteDesk:
 
     # -- history -----------------------------------------------------------------------------
 
-    def _index(self) -> list[dict[str, Any]]:
+    def _index(self) -> list[dict[str, object]]:
         path = self.history_dir / INDEX
         try:
             lines = path.read_text(encoding="utf-8").splitlines()
@@ -225,7 +226,7 @@ def _merged(path: Path, new: Site) -> str:
     return format_site(new)
 
 
-def _merge_tables(tables: Any, items: list[dict[str, Any]]) -> None:
+def _merge_tables(tables: object, items: list[dict[str, object]]) -> None:
     """The file's zone (or rule) tables made `items`: one of the same name kept (its keys
     changed in place, their comments with them), a new one appended, a removed one taken out,
     in `items`' order."""
@@ -269,7 +270,7 @@ def _write_atomic(path: Path, text: str) -> None:
         raise
 
 
-def _endpoints(value: Any, change: Callable[[str], str]) -> Any:
+def _endpoints(value: object, change: Callable[[str], str]) -> Any:
     """`value` (a site's keys) with every state source's `endpoint` changed by `change`."""
     if isinstance(value, dict):
         return {
@@ -281,12 +282,12 @@ def _endpoints(value: Any, change: Callable[[str], str]) -> Any:
     return value
 
 
-def _hidden(doc: dict[str, Any]) -> dict[str, Any]:
+def _hidden(doc: dict[str, object]) -> dict[str, object]:
     """The site's keys as the API shows them: an endpoint's password as *** (secrets.redact)."""
     return _endpoints(doc, redact)
 
 
-def _with_passwords(doc: Any, current: dict[str, Any]) -> Any:
+def _with_passwords(doc: object, current: dict[str, object]) -> Any:
     """A site sent back with its endpoints' passwords hidden: each hidden endpoint given the
     running site's password again; one that hides a password the running site does not hold
     is a ConfigError (its password is never written as ***)."""

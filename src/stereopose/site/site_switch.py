@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any
 
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
@@ -23,9 +22,13 @@ from stereopose.fence.site import format_site
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import behaviour_monitor
 from stereopose.pipeline.step_rules import step_chain
+from stereopose.site.scene import SceneState
 from stereopose.site.site_desk import SiteChange, SiteDesk
 from stereopose.site.steps import HeldRules, ServeEvents
+from stereopose.tickets import TicketDesk
 from stereopose.types import Event
+from stereopose.zones import Zone
+from stereopose.zones.power_state import ZoneStates
 
 __all__ = ["SiteSwitch", "site_changes"]
 
@@ -42,7 +45,7 @@ def site_changes(old: Site, new: Site) -> tuple[list[str], list[str], list[str]]
     return added, removed, changed
 
 
-def _zone_text(zone: Any) -> str:
+def _zone_text(zone: Zone) -> str:
     return format_site(Site((zone,), None, None))
 
 
@@ -56,10 +59,10 @@ class SiteSwitch:
         events: ServeEvents,
         config: Config,
         *,
-        tickets: Any = None,
-        zone_state: Any = None,
-        restart_power: Callable[[Site], Any] | None = None,
-        scene: Any = None,
+        tickets: TicketDesk | None = None,
+        zone_state: ZoneStates | None = None,
+        restart_power: Callable[[Site], ZoneStates | None] | None = None,
+        scene: SceneState | None = None,
     ) -> None:
         self.desk, self.events, self.config = desk, events, config
         self.tickets, self.zone_state = tickets, zone_state
@@ -142,7 +145,7 @@ def _exits(old: FenceMonitor, removed: list[str], t: float, frame: int) -> list[
 
 
 def _power_changed(old: Site, new: Site) -> bool:
-    def sources(site: Site) -> dict[str, Any]:
+    def sources(site: Site) -> dict[str, dict]:
         return {z.name: z.power.to_toml() for z in site.zones if z.power is not None}
 
     return sources(old) != sources(new)

@@ -10,8 +10,6 @@ None when it never does in front of the camera.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from stereopose.fence import Site
@@ -53,7 +51,7 @@ def _polylines(uv: np.ndarray, size: tuple[float, float]) -> list[list[list[floa
     return [r for r in runs if len(r) >= 2]
 
 
-def views(site: Site, rig: Rig) -> dict[str, Any]:
+def views(site: Site, rig: Rig) -> dict[str, object]:
     """{"cameras": [{"name", "size", "zones": [{"name", "kind", "lines"}]}]} (see the module)."""
     t = np.linspace(0.0, 1.0, SAMPLES)[:, None]
     segments = {

@@ -11,7 +11,6 @@ import logging
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from stereopose.errors import ConfigError
 from stereopose.io.mqtt_watcher import MqttWatcher
@@ -41,7 +40,7 @@ class PowerSources:
     """The running sources (see the module); figures: messages taken and refused by source."""
 
     def __init__(self) -> None:
-        self.parts: list[Any] = []
+        self.parts: list[Iec104Master | Iec104TlsMaster | OpcuaWatcher | MqttWatcher] = []
         self.figures: dict[str, int] = defaultdict(int)
 
     def stop(self) -> None:

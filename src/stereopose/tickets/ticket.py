@@ -6,14 +6,15 @@ step's action). Every problem is a ConfigError naming the file, the key and the 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Protocol
 
 import tomllib
 
 from stereopose.errors import ConfigError
+from stereopose.zones import Zone
 
 __all__ = [
     "KINDS",
@@ -103,7 +104,7 @@ class Ticket:
 
     def to_dict(self) -> dict:
         """The ticket as its file holds it (the API's body, the report's)."""
-        roles: dict[str, Any] = {"operator": self.operator}
+        roles: dict[str, object] = {"operator": self.operator}
         if self.supervisor is not None:
             roles["supervisor"] = self.supervisor
         return {
@@ -142,7 +143,7 @@ def load_ticket(path: str | Path) -> Ticket:
     return parse_ticket(doc, str(path))
 
 
-def parse_ticket(doc: Any, where: str = "the ticket") -> Ticket:
+def parse_ticket(doc: object, where: str = "the ticket") -> Ticket:
     """A ticket from its document (the TOML file's or the API's JSON body)."""
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{where}: a ticket is a table of keys, got {type(doc).__name__}")
@@ -202,7 +203,14 @@ def check_zones(ticket: Ticket, zones: Mapping[str, str], where: str = "") -> No
         raise ConfigError(f"{at}: isolated zone(s) {', '.join(map(repr, live))}: not energized")
 
 
-def check_ticket_site(ticket: Ticket | None, site: Any) -> None:
+class ZonedSite(Protocol):
+    """A site's zones (fence.site.Site)."""
+
+    @property
+    def zones(self) -> Sequence[Zone]: ...
+
+
+def check_ticket_site(ticket: Ticket | None, site: ZonedSite | None) -> None:
     """ConfigError when a ticket is given without a site file, or names zones it lacks."""
     if ticket is None:
         return
@@ -212,7 +220,7 @@ def check_ticket_site(ticket: Ticket | None, site: Any) -> None:
     check_zones(ticket, {z.name: z.kind for z in site.zones}, where)
 
 
-def _step(doc: Any, where: str) -> TicketStep:
+def _step(doc: object, where: str) -> TicketStep:
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{where}: a step is a table of keys, got {type(doc).__name__}")
     unknown = sorted(set(doc) - _STEP_KEYS)
@@ -243,7 +251,7 @@ def _step(doc: Any, where: str) -> TicketStep:
     )
 
 
-def _text(v: Any, where: str, empty: bool = False) -> str:
+def _text(v: object, where: str, empty: bool = False) -> str:
     if not isinstance(v, str) or (not v.strip() and not empty) or len(v) > MAX_TEXT:
         raise ConfigError(f"{where}: a name of 1 to {MAX_TEXT} characters is needed, got {v!r}")
     if not v.isprintable():
@@ -251,7 +259,7 @@ def _text(v: Any, where: str, empty: bool = False) -> str:
     return v
 
 
-def _number(v: Any, where: str, lo: float, hi: float) -> float:
+def _number(v: object, where: str, lo: float, hi: float) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         raise ConfigError(f"{where}: a number is needed, got {v!r}")
     if not lo <= v <= hi:
@@ -259,7 +267,7 @@ def _number(v: Any, where: str, lo: float, hi: float) -> float:
     return float(v)
 
 
-def _role(v: Any, where: str) -> str | int:
+def _role(v: object, where: str) -> str | int:
     if v == "auto":
         return "auto"
     if isinstance(v, int) and not isinstance(v, bool) and v >= 0:

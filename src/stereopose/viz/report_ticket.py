@@ -41,7 +41,7 @@ def _when(wall: float | None, t: float | None) -> str:
     return f"t = {t:.2f} s" if isinstance(t, (int, float)) else "-"
 
 
-def view_from_events(ticket: Mapping[str, Any], events: Iterable[Mapping[str, Any]]) -> dict:
+def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str, object]]) -> dict:
     """A ticket's view (as TicketDesk.ticket gives it) from its events (event records, as in
     events.jsonl): the steps done, the deviations and the result."""
     tid = ticket["id"]
@@ -63,7 +63,7 @@ def view_from_events(ticket: Mapping[str, Any], events: Iterable[Mapping[str, An
         }
         for s in ticket["steps"]
     }
-    view: dict[str, Any] = {
+    view: dict[str, object] = {
         **{k: ticket.get(k) for k in ("id", "title", "kind")},
         "isolated": list(ticket.get("isolated", [])),
         "state": "active",
@@ -107,7 +107,7 @@ def view_from_events(ticket: Mapping[str, Any], events: Iterable[Mapping[str, An
     return view
 
 
-def _timeline(view: Mapping[str, Any]) -> str:
+def _timeline(view: Mapping[str, object]) -> str:
     """An SVG bar per step from its action's onset to its completion over the job's span."""
     t0, t1 = view.get("started_t"), view.get("ended_t")
     done = [s for s in view["steps"] if s.get("done_t") is not None]
@@ -147,7 +147,7 @@ def _timeline(view: Mapping[str, Any]) -> str:
     return f"<svg width='920' height='{height}' role='img'>{''.join(rows)}{axis}</svg>"
 
 
-def _steps_table(view: Mapping[str, Any], wall0: float | None) -> str:
+def _steps_table(view: Mapping[str, object], wall0: float | None) -> str:
     head = (
         "<tr><th>#</th><th>step</th><th>position</th><th>target</th><th>state</th>"
         "<th>done</th><th>held</th><th>by</th><th>in order</th><th>wrong</th><th>stood at</th></tr>"
@@ -178,7 +178,7 @@ def _steps_table(view: Mapping[str, Any], wall0: float | None) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
-def _figure(frames: Sequence[Mapping[str, Any]], zones, marked: set[str]) -> go.Figure | None:
+def _figure(frames: Sequence[Mapping[str, object]], zones, marked: set[str]) -> go.Figure | None:
     poses = []
     stride = max(1, int(np.ceil(len(frames) / MAX_REPORT_FRAMES)))
     for k, f in enumerate(frames[::stride]):
@@ -206,7 +206,7 @@ def _figure(frames: Sequence[Mapping[str, Any]], zones, marked: set[str]) -> go.
     return fig
 
 
-def _states_used(changes: Sequence[Mapping[str, Any]]) -> str:
+def _states_used(changes: Sequence[Mapping[str, object]]) -> str:
     """Which energized zones' states the job was judged with, in one line."""
     if not changes:
         return "none known: every energized zone taken as live"
@@ -218,9 +218,9 @@ def _states_used(changes: Sequence[Mapping[str, Any]]) -> str:
 
 
 def ticket_report(
-    view: Mapping[str, Any],
+    view: Mapping[str, object],
     zones: Sequence[Any],
-    frames: Sequence[Mapping[str, Any]] = (),
+    frames: Sequence[Mapping[str, object]] = (),
     wall_start: float | None = None,
 ) -> str:
     """The report (see the module) as one HTML string. wall_start: the Unix time of the

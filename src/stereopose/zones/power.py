@@ -97,7 +97,7 @@ class PointSource:
         return float(self.get("interrogation_s", DEFAULT_INTERROGATION_S))
 
     @staticmethod
-    def of(name: str, protocol: str, params: Mapping[str, Any]) -> PointSource:
+    def of(name: str, protocol: str, params: Mapping[str, object]) -> PointSource:
         """The point of `protocol` (iec104, opcua, mqtt) with these checked parameters."""
         kind = {"iec104": Iec104Point, "opcua": OpcuaPoint, "mqtt": MqttPoint}[protocol]
         return kind(name, protocol, tuple(params.items()))
@@ -210,7 +210,7 @@ class PowerSpec:
         """The rule parsed once (checked at load): judged at every step of the service."""
         return ast.parse(self.expression, mode="eval").body
 
-    def is_dead(self, values: Mapping[str, Any]) -> bool:
+    def is_dead(self, values: Mapping[str, object]) -> bool:
         """Whether the zone is dead with these point values (every point known)."""
         result = _evaluate(self._tree, values)
         return bool(result) if self.dead else not bool(result)
@@ -218,14 +218,14 @@ class PowerSpec:
     def to_toml(self) -> dict:
         """The site file's table (format_site)."""
         key = "dead_when" if self.dead else "energized_when"
-        out: dict[str, Any] = {key: self.expression}
+        out: dict[str, object] = {key: self.expression}
         if self.stale_s is not None:
             out["stale_s"] = self.stale_s
         out["points"] = {p.name: {p.protocol: dict(p.params)} for p in self.points}
         return out
 
 
-def parse_power(doc: Any, where: str) -> PowerSpec:
+def parse_power(doc: object, where: str) -> PowerSpec:
     """A zone's `state` table (see the module) checked; `where`: "zone 'x'"."""
     where = f"{where}: state"
     if not isinstance(doc, Mapping):
@@ -273,13 +273,13 @@ def parse_power(doc: Any, where: str) -> PowerSpec:
     return PowerSpec(parsed, expression, has[0] == "dead_when", None if stale is None else stale)
 
 
-def _literal(value: Any) -> str:
+def _literal(value: object) -> str:
     if isinstance(value, bool):
         return repr("on" if value else "off")
     return repr(value)
 
 
-def _point(name: str, doc: Any, where: str) -> PointSource:
+def _point(name: str, doc: object, where: str) -> PointSource:
     if not isinstance(doc, Mapping) or len(doc) != 1 or next(iter(doc)) not in PROTOCOLS:
         raise ConfigError(f"{where}: expected one of {', '.join(PROTOCOLS)} = {{ ... }}")
     ((protocol, table),) = doc.items()
@@ -346,7 +346,7 @@ def _integer(p: dict, key: str, lo: int, hi: int, where: str) -> None:
         raise ConfigError(f"{where}: {key}: expected an integer {lo} to {hi}, got {v!r}")
 
 
-def _check_expression(text: Any, names: set[str], where: str) -> None:
+def _check_expression(text: object, names: set[str], where: str) -> None:
     if not isinstance(text, str) or not text.strip() or len(text) > MAX_EXPRESSION:
         raise ConfigError(f"{where}: expected an expression of at most {MAX_EXPRESSION} characters")
     try:
@@ -382,7 +382,7 @@ def _check_expression(text: Any, names: set[str], where: str) -> None:
         )
 
 
-def _evaluate(node: ast.AST, values: Mapping[str, Any]) -> Any:
+def _evaluate(node: ast.AST, values: Mapping[str, object]) -> Any:
     if isinstance(node, ast.BoolOp):
         parts = [_evaluate(v, values) for v in node.values]
         return all(parts) if isinstance(node.op, ast.And) else any(parts)
@@ -403,7 +403,7 @@ def _evaluate(node: ast.AST, values: Mapping[str, Any]) -> Any:
     raise ValueError(f"cannot evaluate {type(node).__name__}")
 
 
-def _compare(op: ast.cmpop, a: Any, b: Any) -> bool:
+def _compare(op: ast.cmpop, a: object, b: object) -> bool:
     if isinstance(op, (ast.Eq, ast.NotEq)):
         same = _same(a, b)
         return same if isinstance(op, ast.Eq) else not same
@@ -416,7 +416,7 @@ def _compare(op: ast.cmpop, a: Any, b: Any) -> bool:
     return {ast.Lt: a < b, ast.LtE: a <= b, ast.Gt: a > b, ast.GtE: a >= b}[type(op)]
 
 
-def _same(a: Any, b: Any) -> bool:
+def _same(a: object, b: object) -> bool:
     if isinstance(a, str) and isinstance(b, str):
         return a.strip().lower() == b.strip().lower()
     try:
@@ -425,7 +425,7 @@ def _same(a: Any, b: Any) -> bool:
         return str(a).strip().lower() == str(b).strip().lower()
 
 
-def reading(value: Any) -> Any:
+def reading(value: object) -> Any:
     """A point's value as the expressions read it: a boolean as "on" / "off", a number or text
     as it is, anything else as its text."""
     if isinstance(value, bool):

@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class PowerBoard:
         self._readings: dict[str, Reading] = {}
         self.updates = 0
 
-    def set(self, key: str, value: Any, valid: bool = True, reason: str = "") -> None:
+    def set(self, key: str, value: object, valid: bool = True, reason: str = "") -> None:
         """A reading of point `key` now (valid False: its quality is invalid, `reason`)."""
         if not valid and not reason:
             reason = "invalid quality"
@@ -120,7 +120,7 @@ class ZoneStates:
     def judge(self, zone: Zone) -> tuple[str, str, str]:
         """(state, source, reason) of a zone now."""
         spec = zone.power
-        values: dict[str, Any] = {}
+        values: dict[str, object] = {}
         now = self.board.clock()
         for p in spec.points:
             r = self.board.read(p.label)
@@ -137,7 +137,7 @@ class ZoneStates:
             return UNKNOWN, labels, f"its rule cannot be judged: {e}"
         return (DEAD if dead else LIVE), labels, ""
 
-    def step(self, t: float, frame: int, fences: Any = None) -> list[Event]:
+    def step(self, t: float, frame: int, fences: Occupancy | None = None) -> list[Event]:
         """The zones' state changes at this step, and the entries of zones turned live with
         people inside (fences: the FenceMonitor, whose occupants they are)."""
         out: list[Event] = []
@@ -200,7 +200,15 @@ def state_event(t: float, frame: int, zone: Zone, type_: str, source: str) -> Ev
     )
 
 
-def entries(t: float, frame: int, zone: Zone, fences: Any, source: str) -> list[Event]:
+class Occupancy(Protocol):
+    """Who is in and near each zone now (fence.FenceMonitor)."""
+
+    def occupants(self, zone: str) -> tuple[list[tuple[int, object]], list[tuple[int, object]]]:
+        """(inside, near): (person id, floor position) pairs."""
+        ...
+
+
+def entries(t: float, frame: int, zone: Zone, fences: Occupancy, source: str) -> list[Event]:
     """An enter for each person inside the zone now turned live, an approach for each one
     within its margin: alarms at once."""
     inside, near = fences.occupants(zone.name)

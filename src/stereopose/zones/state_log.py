@@ -25,11 +25,11 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from stereopose.errors import ConfigError
 from stereopose.types import Event
-from stereopose.zones.power_state import DEAD, LIVE, UNKNOWN, entries, state_event
+from stereopose.zones.power_state import DEAD, LIVE, UNKNOWN, Occupancy, entries, state_event
 from stereopose.zones.safe import Safe
 from stereopose.zones.zone import Zone
 
@@ -39,6 +39,13 @@ MAX_ROWS = 100_000
 STATES = (LIVE, DEAD, UNKNOWN)
 
 
+class Moment(Protocol):
+    """The step a rule runs at (pipeline.step_rules.StepContext)."""
+
+    t: float
+    frame: int
+
+
 @dataclass(frozen=True)
 class StateRow:
     """One row: at `t` seconds, a zone's state, or (point not None) one of its points' value."""
@@ -46,7 +53,7 @@ class StateRow:
     t: float
     zone: str
     point: str | None
-    value: Any
+    value: object
     line: int
 
 
@@ -62,7 +69,7 @@ class StateLogFile:
     def read(cls, path: str | Path, zones: Sequence[Zone]) -> StateLogFile:
         return cls(Path(path), tuple(read_state_log(path, zones)))
 
-    def rule(self, zones: Sequence[Zone], monitor: Any = None) -> ZoneStateLog:
+    def rule(self, zones: Sequence[Zone], monitor: Occupancy | None = None) -> ZoneStateLog:
         return ZoneStateLog(self.rows, zones, self.path.name, monitor)
 
 
@@ -133,17 +140,21 @@ class ZoneStateLog:
     (who is inside a zone turning live)."""
 
     def __init__(
-        self, rows: Sequence[StateRow], zones: Sequence[Zone], source: str, monitor: Any = None
+        self,
+        rows: Sequence[StateRow],
+        zones: Sequence[Zone],
+        source: str,
+        monitor: Occupancy | None = None,
     ) -> None:
         self.rows, self.source, self.monitor = list(rows), source, monitor
         self.zones = {z.name: z for z in zones}
         self.states: dict[str, str] = {}  # a zone in the log -> its state (before: live)
-        self.points: dict[str, dict[str, Any]] = {}  # zone -> its points' values so far
+        self.points: dict[str, dict[str, object]] = {}  # zone -> its points' values so far
         self.used: list[dict] = []  # each change: {"t", "zone", "state", "line"}
         self._next = 0
         self._dead: dict[str, str] = {}
 
-    def step(self, ctx: Any) -> list[Event]:
+    def step(self, ctx: Moment) -> list[Event]:
         t, frame = float(ctx.t), int(ctx.frame)
         changed: dict[str, int] = {}  # zone -> the line that changed it last
         while self._next < len(self.rows) and self.rows[self._next].t <= t:

@@ -10,10 +10,10 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from stereopose.alarms import Change
 from stereopose.errors import OutputError
 from stereopose.io.records import event_record, event_row
 from stereopose.io.sinks.base import FrameResult
@@ -325,7 +325,7 @@ class SqliteSink(_EventSink):
     def label(self) -> str:
         return str(self.path)
 
-    def write_changes(self, changes: Sequence[Any]) -> None:
+    def write_changes(self, changes: Sequence[Change]) -> None:
         """The incident book's changes: their records stored with the next events, in the
         same transaction (as put_incidents)."""
         self.put_incidents([c.incident for c in changes])

@@ -30,7 +30,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple, Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
+
+from stereopose.alarms import Change
+from stereopose.io.sinks.base import FrameResult
 
 
 class OutputHealth(NamedTuple):
@@ -57,9 +60,9 @@ class AlarmOutput(Protocol):
     @property
     def label(self) -> str: ...
 
-    def write(self, frame: Any) -> None: ...
+    def write(self, frame: FrameResult) -> None: ...
 
-    def write_changes(self, changes: Sequence[Any]) -> None: ...
+    def write_changes(self, changes: Sequence[Change]) -> None: ...
 
     def health(self) -> tuple[bool, int, str | None]: ...
 

@@ -34,7 +34,9 @@ from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as paho
+from paho.mqtt.reasoncodes import ReasonCode
 
+from stereopose.alarms import Change
 from stereopose.io.records import event_record, frame_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
@@ -133,7 +135,7 @@ class MqttSink(ClosesOnce):
                 self._occupy(e)
         self._wake.set()
 
-    def write_changes(self, changes: Sequence[Any]) -> None:
+    def write_changes(self, changes: Sequence[Change]) -> None:
         """Queue incident changes (alarms.Change) for `<prefix>/<site>/incidents`, QoS 1: each
         Change.to_dict(), in order with the events."""
         if not changes:
@@ -306,7 +308,7 @@ class MqttSink(ClosesOnce):
         c.on_publish = self._on_publish
         return c
 
-    def _on_publish(self, client: Any, userdata: Any, mid: int, *rest: Any) -> None:
+    def _on_publish(self, client: paho.Client, userdata: object, mid: int, *rest: object) -> None:
         self._acked.add(mid)  # a set's add is atomic: no lock on paho's thread
         self._wake.set()
 
@@ -316,7 +318,9 @@ class MqttSink(ClosesOnce):
             self._last_problem = text
             logger.log(level, "MQTT %s:%d: %s", self.settings.host, self.settings.port, text)
 
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+    def _on_connect(
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
+    ) -> None:
         if reason.is_failure:
             with self._lock:
                 self._counts.refused += 1
@@ -337,7 +341,7 @@ class MqttSink(ClosesOnce):
         self._last_problem = None
         self._wake.set()
 
-    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+    def _on_connect_fail(self, client: paho.Client, userdata: object) -> None:
         why = (
             "broker unreachable or TLS handshake failed"
             if self.settings.tls
@@ -346,7 +350,7 @@ class MqttSink(ClosesOnce):
         self._problem(logging.WARNING, f"{why}; queueing and retrying")
 
     def _on_disconnect(
-        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+        self, client: paho.Client, userdata: object, flags: object, reason: ReasonCode, *_: object
     ) -> None:
         with self._lock:
             was_up, self._connected = self._connected, False
@@ -472,5 +476,5 @@ def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None
     }
 
 
-def _dumps(obj: Any) -> str:
+def _dumps(obj: object) -> str:
     return json.dumps(obj)  # as the events JSON lines write it

@@ -9,9 +9,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from stereopose.errors import ConfigError
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as paho
 
 __all__ = ["MqttSettings", "make_client", "topic_name", "topic_part"]
 
@@ -160,7 +163,7 @@ def _check_prefix(prefix: str) -> None:
         )
 
 
-def loop_alive(client: Any) -> bool:
+def loop_alive(client: paho.Client) -> bool:
     """Whether a started paho client's network thread (loop_start) runs; True for no client,
     and for one whose loop was stopped (loop_stop). paho forgets its thread when the thread
     ends, whatever ended it; loop_stop alone marks it terminated."""
@@ -172,7 +175,7 @@ def loop_alive(client: Any) -> bool:
     return bool(getattr(client, "_thread_terminate", True))
 
 
-def restart_loop(client: Any) -> bool:
+def restart_loop(client: paho.Client) -> bool:
     """paho's network thread started again when it died (an error no callback caught ends it):
     True when it had to be. The connection is made anew (a thread that died mid-packet leaves
     the link's state half read), and the client's on_connect subscribes again; what the

@@ -23,9 +23,9 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 from urllib.parse import urlsplit
 
+from stereopose.alarms import Change
 from stereopose.errors import StereoposeError
 from stereopose.io.records import event_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -118,7 +118,7 @@ class WebhookSink(ClosesOnce):
                 with self._lock:
                     self.dropped += 1
 
-    def write_changes(self, changes: Iterable[Any]) -> None:
+    def write_changes(self, changes: Iterable[Change]) -> None:
         """Incident changes (alarms.Change), each POSTed as {"incident_change": true,
         "type": "incident_change", "kind": "incident", ...Change.to_dict()}: a receiver tells
         them from events by that key, and one that reads every body as an event sees a type
