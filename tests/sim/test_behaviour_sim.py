@@ -36,13 +36,12 @@ def work():
 
 
 def _one(shape: str, height: float, fall_dir: float = 0.0, heading: float = 0.3) -> np.ndarray:
-    return body(
-        height,
-        np.array([[5.0, 4.0]]),
-        np.array([heading]),
-        SHAPES[shape][None],
-        np.array([fall_dir]),
-    )[0]
+    signals = {
+        "heading": np.array([heading]),
+        "shape": SHAPES[shape][None],
+        "fall_dir": np.array([fall_dir]),
+    }
+    return body(height, np.array([[5.0, 4.0]]), signals)[0]
 
 
 @pytest.mark.parametrize(

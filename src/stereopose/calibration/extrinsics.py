@@ -128,16 +128,35 @@ def _place_cameras(cams, views, poses, flipped):
     return ref, cam_T, flip, board_T
 
 
-def _project(params, n_cams, n_views, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine):
+@dataclass(frozen=True)
+class _Seen:
+    """The board corners seen: per observation its camera, board view and corner (indices);
+    the corners on the board (obj); the reference camera (fixed); the cameras' intrinsics
+    (fx, fy, cx, cy, k1, k2, p1, p2 per camera) and whether they are refined."""
+
+    n_cams: int
+    n_views: int
+    cam_idx: np.ndarray
+    view_idx: np.ndarray
+    obj_idx: np.ndarray
+    obj: np.ndarray
+    fixed: int
+    intr: np.ndarray
+    refine: bool
+
+
+def _project(params: np.ndarray, seen: _Seen) -> np.ndarray:
     """Reprojection of every observation. params: cameras' rvec, tvec (6 each, the reference
     camera excluded), then boards' (6 each), then intrinsics (8 per camera) when refined."""
+    n_cams, n_views, fixed, intr = seen.n_cams, seen.n_views, seen.fixed, seen.intr
+    cam_idx, view_idx, obj_idx, obj = seen.cam_idx, seen.view_idx, seen.obj_idx, seen.obj
     cam_p = np.zeros((n_cams, 6))
     free = [c for c in range(n_cams) if c != fixed]
     cam_p[free] = params[: 6 * (n_cams - 1)].reshape(-1, 6)
     off = 6 * (n_cams - 1)
     board_p = params[off : off + 6 * n_views].reshape(-1, 6)
     off += 6 * n_views
-    if refine:
+    if seen.refine:
         intr = params[off : off + 8 * n_cams].reshape(-1, 8)
     Rc, tc = rodrigues(cam_p[:, :3]), cam_p[:, 3:]
     Rb, tb = rodrigues(board_p[:, :3]), board_p[:, 3:]
@@ -236,8 +255,10 @@ def bundle_adjust(
     S = _jacobian_sparsity(observed.shape[0], C, V, cam_idx, view_idx, fixed, refine_intrinsics)
     S = S.tocsr()
 
+    seen = _Seen(C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
+
     def residuals(p):
-        proj = _project(p, C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
+        proj = _project(p, seen)
         return (proj - observed).ravel()
 
     groups = group_columns(S)

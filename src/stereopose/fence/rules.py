@@ -82,6 +82,25 @@ class _Geometry:
     joint_distance: np.ndarray | None = None
 
 
+@dataclass
+class _Step:
+    """One frame through the debouncers, (P, Z) per person row and zone: rose, fell (inside
+    turned on or off), onset (when), began (since when inside); dwell and near_rose (the
+    approach turned on) with near_onset, None when no zone needs them."""
+
+    people: People3D
+    t: float
+    geo: _Geometry
+    pos: np.ndarray
+    rose: np.ndarray
+    fell: np.ndarray
+    onset: np.ndarray
+    began: np.ndarray
+    dwell: np.ndarray | None
+    near_rose: np.ndarray | None
+    near_onset: np.ndarray | None
+
+
 class FenceMonitor:
     """Turns tracked people, frame by frame, into zone events. `update` once per frame."""
 
@@ -195,11 +214,11 @@ class FenceMonitor:
                 if extra is not None:
                     fired |= extra
             if fired.any():
-                flags = (rose, fell, dwell, near_rose)
+                step = _Step(
+                    people, t, geo, pos, rose, fell, onset, began, dwell, near_rose, near_onset
+                )
                 for p, k in zip(*np.nonzero(fired), strict=True):
-                    events.extend(
-                        self._events(people, p, k, t, flags, onset, began, geo, pos, near_onset)
-                    )
+                    events.extend(self._events(step, p, k))
         events.extend(self._lost(t, people.frame))
         return events
 
@@ -225,8 +244,23 @@ class FenceMonitor:
         geo.pair[ps, zs] = np.arange(ps.size)
         return geo
 
-    def _events(self, people, p, k, t, flags, onset, began, geo, pos, near_onset) -> list[Event]:
-        rose, fell, dwell, near_rose = flags
+    def _events(self, step: _Step, p: int, k: int) -> list[Event]:
+        """The events of person row p in zone k at this step."""
+        people, t, geo, pos, onset, began = (
+            step.people,
+            step.t,
+            step.geo,
+            step.pos,
+            step.onset,
+            step.began,
+        )
+        rose, fell, dwell, near_rose, near_onset = (
+            step.rose,
+            step.fell,
+            step.dwell,
+            step.near_rose,
+            step.near_onset,
+        )
         zone = self.zones[k]
         pid = int(people.ids[p])
         base = dict(

@@ -99,18 +99,10 @@ def _pair(v: list[float], nd: int) -> list[float] | None:
     return [round(a, nd), round(b, nd)] if math.isfinite(a) and math.isfinite(b) else None
 
 
-def _person_record(
-    pid: int,
-    joints: list,
-    conf: list,
-    position: list,
-    heading: float,
-    velocity: list,
-    predicted: bool,
-    views: list,
-    reprojection_px: float,
-) -> dict:
-    """One person's record from plain Python values (NaN: unknown)."""
+def _person_record(row: tuple) -> dict:
+    """One person's record from a row of plain Python values (NaN: unknown): id, joints,
+    conf, floor position, heading, velocity, predicted, views, mean reprojection error."""
+    pid, joints, conf, position, heading, velocity, predicted, views, reprojection_px = row
     vx, vy = velocity
     return {
         "id": pid,
@@ -153,7 +145,7 @@ def frame_record(people: People3D, fps: float, postures: Mapping[int, Any] | Non
             people.views.tolist(),
             mean_err.tolist(),
         )
-        out = [_person_record(*row) for row in zip(*columns, strict=True)]
+        out = [_person_record(row) for row in zip(*columns, strict=True)]
         if postures:
             for rec in out:
                 pos = postures.get(rec["id"])

@@ -319,20 +319,29 @@ def _work(rng, panels, duration_s, num_people):
     return scripts
 
 
+@dataclass(frozen=True)
+class Take:
+    """How an acted scene is filmed: fps, its length in frames, the room (width, depth,
+    height, metres), and the difficulty and seed it is known by."""
+
+    fps: float
+    num_frames: int
+    room: tuple[float, float, float]
+    difficulty: str
+    seed: int
+
+
 def acted_scene(
     actors: Sequence[Actor],
     rig,
     noise: DetectorNoise,
-    fps: float,
-    num_frames: int,
-    room: tuple[float, float, float],
+    take: Take,
     detect_rng: np.random.Generator,
-    difficulty: str,
-    seed: int,
 ) -> Scene:
     """The scene of scripted workers: their joints per frame (kept MIN_APART_M apart) and the
     detector's view of them in every camera of `rig`."""
-    T, N, floor = num_frames, len(actors), room[:2]
+    fps, room = take.fps, take.room
+    T, N, floor = take.num_frames, len(actors), room[:2]
     truth = np.full((T, N, NUM_JOINTS, 3), np.nan)
     present = np.zeros((T, N), dtype=bool)
     xy = np.zeros((N, T, 2))
@@ -352,8 +361,8 @@ def acted_scene(
         ids=np.arange(1, N + 1, dtype=np.int64),
         detections=detections,
         detection_truth=labels,
-        difficulty=difficulty,
-        seed=int(seed),
+        difficulty=take.difficulty,
+        seed=int(take.seed),
         room=room,
     )
 
@@ -414,9 +423,8 @@ def simulate_behaviour(
             )
         )
         falls += script_falls[n]
-    scene = acted_scene(
-        actors, rig, noise, fps, T, room, np.random.default_rng([seed, 2]), difficulty, seed
-    )
+    take = Take(fps, T, room, difficulty, seed)
+    scene = acted_scene(actors, rig, noise, take, np.random.default_rng([seed, 2]))
     zones = tuple(z for p in panels for z in (p.energized, p.work_area))
     return BehaviourScene(
         scene=scene,

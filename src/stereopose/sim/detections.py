@@ -104,15 +104,19 @@ def max_ideal_radius(camera: Camera) -> float:
     """
     K, d = camera.matrix, camera.distortions
     k3 = float(d[4]) if d.shape[0] > 4 else 0.0
-    return _max_ideal_radius(
-        float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), *camera.size, *d[:2], k3
-    )
+    focal_centre = (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+    return _max_ideal_radius(focal_centre, tuple(camera.size), (float(d[0]), float(d[1]), k3))
 
 
 @functools.lru_cache(maxsize=256)
 def _max_ideal_radius(
-    fx: float, fy: float, cx: float, cy: float, w: float, h: float, k1: float, k2: float, k3: float
+    focal_centre: tuple[float, float, float, float],
+    size: tuple[float, float],
+    radial: tuple[float, float, float],
 ) -> float:
+    """(fx, fy, cx, cy), the image's (w, h) and its radial distortion (k1, k2, k3)."""
+    fx, fy, cx, cy = focal_centre
+    (w, h), (k1, k2, k3) = size, radial
     corners = np.array([[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]])
     x = (corners[:, 0] - cx) / fx
     y = (corners[:, 1] - cy) / fy

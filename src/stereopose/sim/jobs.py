@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereopose.fence import Site, Zone
-from stereopose.sim.behaviour import _Script, acted_scene
+from stereopose.sim.behaviour import Take, _Script, acted_scene
 from stereopose.sim.detections import DetectorNoise
 from stereopose.sim.postures import Actor
 from stereopose.sim.scene import Scene, ScenePreset, make_rig
@@ -254,9 +254,8 @@ def simulate_job(
             )
         )
     rng = np.random.default_rng([seed, 9])
-    scene = acted_scene(
-        actors, rig, noise, fps, round(duration_s * fps), ROOM, rng, difficulty, seed
-    )
+    take = Take(fps, round(duration_s * fps), ROOM, difficulty, seed)
+    scene = acted_scene(actors, rig, noise, take, rng)
     ticket = work_ticket() if variant == "neighbour_live" else operation_ticket()
     return JobScene(
         scene=scene,

@@ -117,7 +117,7 @@ def pose(
     out = np.empty((T, NUM_JOINTS, 3))
     shoulder_c, spine = _legs_and_trunk(out, xy, h, f, left, g, ph, beta)
     _head(out, shoulder_c, spine, h, f, left, beta)
-    _arms(out, h, f, left, g, ph, wl, wr, beta)
+    _arms(out, _Body(h, f, left, g, ph, beta), wl, wr)
     return out
 
 
@@ -174,9 +174,24 @@ def _head(out, shoulder_c, spine, h, f, left, beta) -> None:
     out[:, LEFT_EAR], out[:, RIGHT_EAR] = ear + 0.042 * h * left, ear - 0.042 * h * left
 
 
-def _arms(out, h, f, left, g, ph, wl, wr, beta) -> None:
+@dataclass(frozen=True)
+class _Body:
+    """Per frame: h (T, 1) height, f and left (T, 3) the forward and left directions, g the
+    gait amplitude, ph its phase, beta the torso's bend (T,)."""
+
+    h: np.ndarray
+    f: np.ndarray
+    left: np.ndarray
+    g: np.ndarray
+    ph: np.ndarray
+    beta: np.ndarray
+
+
+def _arms(out: np.ndarray, body: _Body, wl: np.ndarray, wr: np.ndarray) -> None:
     """Elbows and wrists into out (T, 17, 3), from the shoulders there. Arms swing against the
-    legs; reaching raises the arm forward and up above the head."""
+    legs; reaching (wl, wr: left and right, 0 to 1) raises the arm forward and up above the
+    head."""
+    h, f, left, g, ph, beta = body.h, body.f, body.left, body.g, body.ph, body.beta
     for k, (side, phase_arm, w) in enumerate(((1.0, ph + np.pi, wl), (-1.0, ph, wr))):
         swing = ARM_SWING * g * np.sin(phase_arm)
         phi = (1.0 - w) * (swing + 0.3 * beta) + w * ARM_UP

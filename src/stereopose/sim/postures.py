@@ -15,6 +15,7 @@ get-up rises through a crouch in seconds.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,26 +94,19 @@ _UPPER = np.array([j for j in range(NUM_JOINTS) if j not in _LEGS])
 _UP = np.array([0.0, 0.0, 1.0])
 
 
-def body(
-    height: float,
-    xy: np.ndarray,
-    heading: np.ndarray,
-    shape: np.ndarray,
-    fall_dir: np.ndarray,
-    gait: np.ndarray | None = None,
-    phase: np.ndarray | None = None,
-    reach_left: np.ndarray | None = None,
-    reach_right: np.ndarray | None = None,
-) -> np.ndarray:
-    """COCO-17 joints (T, 17, 3) in metres of a body of `height` metres in the shapes (T, 8).
+def body(height: float, xy: np.ndarray, signals: Mapping[str, np.ndarray]) -> np.ndarray:
+    """COCO-17 joints (T, 17, 3) in metres of a body of `height` metres.
 
     xy: (T, 2) floor point under the standing hip centre, also the point the body tilts about;
-    heading: (T,) rad from world x; fall_dir: (T,) world azimuth (rad) toward which the head
-    goes when tilting; gait, phase, reach_left/right as for motion.pose (the bend is the
-    shape's).
+    signals: "shape" (T, 8) the shapes; "heading" (T,) rad from world x; "fall_dir" (T,) world
+    azimuth (rad) toward which the head goes when tilting; "gait", "phase", "reach_left",
+    "reach_right" as for motion.pose, each optional (the bend is the shape's).
     """
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    shape = np.asarray(shape, dtype=np.float64)
+    shape = np.asarray(signals["shape"], dtype=np.float64)
+    heading, fall_dir = signals["heading"], signals["fall_dir"]
+    gait, phase = signals.get("gait"), signals.get("phase")
+    reach_left, reach_right = signals.get("reach_left"), signals.get("reach_right")
     T = xy.shape[0]
     if shape.shape != (T, SHAPE_SIZE):
         raise ValueError(f"shape must be ({T}, {SHAPE_SIZE}), got {shape.shape}")
@@ -302,17 +296,7 @@ class Actor:
         """Joints (T, 17, 3) in metres, NaN where absent, and presence (T,) bool; xy: (T, 2)
         floor points to use instead of the script's (moved aside by keep_apart)."""
         s = self.signals(num_frames, fps)
-        joints = body(
-            self.height,
-            np.column_stack([s["x"], s["y"]]) if xy is None else xy,
-            s["heading"],
-            s["shape"],
-            s["fall_dir"],
-            s["gait"],
-            s["phase"],
-            s["reach_left"],
-            s["reach_right"],
-        )
+        joints = body(self.height, np.column_stack([s["x"], s["y"]]) if xy is None else xy, s)
         joints[~s["present"]] = np.nan
         return joints, s["present"]
 
