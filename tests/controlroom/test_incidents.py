@@ -17,6 +17,7 @@ import pytest
 
 from brokers import Broker
 from stereopose.alarms import IncidentBook
+from stereopose.config.service import ControlRoomConfig
 from stereopose.controlroom.enrolment import Enrolment, broker_hash
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
@@ -126,13 +127,8 @@ def room(broker, tmp_path: Path):
     store = ControlStore(tmp_path / "control.sqlite")
     for site in ("north", "east"):
         Enrolment(store).add(site, broker_hash("pw", iterations=1), 1.8e9)
-    ingest = Ingest(
-        _settings(broker.port, "unused"),
-        store,
-        command_resend_s=0.5,
-        replay_every_s=0.2,
-        name="central",
-    )
+    room = ControlRoomConfig(command_resend_s=0.5, name="central")
+    ingest = Ingest(_settings(broker.port, "unused"), store, room, replay_every_s=0.2)
     wait_until(lambda: ingest.subscribed, "the control room subscribed")
     yield store, ingest
     ingest.close()

@@ -12,6 +12,7 @@ import paho.mqtt.client as paho
 import pytest
 
 from brokers import Broker
+from stereopose.config.service import ControlRoomConfig
 from stereopose.controlroom.enrolment import Enrolment, broker_hash
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
@@ -129,7 +130,7 @@ def test_a_pruned_event_sent_again_is_not_stored_again(broker, tmp_path):
     import json
 
     store = _store(tmp_path)
-    ingest = Ingest(_settings(broker.port, "unused"), store, retention_days=30)
+    ingest = Ingest(_settings(broker.port, "unused"), store, ControlRoomConfig(retention_days=30))
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     c.connect("127.0.0.1", broker.port)
     c.loop_start()
@@ -217,14 +218,8 @@ def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(br
         _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
     )
     store = _store(tmp_path)
-    ingest = Ingest(
-        _settings(broker.port, "unused"),
-        store,
-        replay_every_s=0.2,
-        max_event_bytes=4096,
-        max_heartbeat_bytes=1024,
-        ids_ahead=1000,
-    )
+    room = ControlRoomConfig(max_event_bytes=4096, max_heartbeat_bytes=1024, ids_ahead=1000)
+    ingest = Ingest(_settings(broker.port, "unused"), store, room, replay_every_s=0.2)
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
     c.connect("127.0.0.1", broker.port)
     c.loop_start()

@@ -263,13 +263,13 @@ def test_the_live_hub_pushes_new_rows_after_the_log_was_emptied(
 ) -> None:
     from stereopose.calibration.formats import load_calibration
     from stereopose.site.health.state import ServiceState
-    from stereopose.site.live import LiveHub
+    from stereopose.site.live import HubSettings, LiveHub
 
     db = tmp_path / "events.sqlite"
     sink = SqliteSink(db)
     sink.write_events(passing(5))
     rig = load_calibration(shared_data_dir / "calib.toml")
-    hub = LiveHub(rig, None, ServiceState(rig.names), EventLog(db), snapshot_hz=0.0)
+    hub = LiveHub(rig, None, ServiceState(rig.names), EventLog(db), HubSettings(snapshot_hz=0.0))
     loop = asyncio.new_event_loop()
     try:
         hub.start()

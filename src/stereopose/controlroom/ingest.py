@@ -45,6 +45,7 @@ from collections import deque
 import paho.mqtt.client as paho
 from paho.mqtt.reasoncodes import ReasonCode
 
+from stereopose.config.service import ControlRoomConfig
 from stereopose.controlroom.checks import heartbeat, incident_change, is_id, numbered
 from stereopose.controlroom.checks import summary as beat_summary
 from stereopose.controlroom.commands import AckCommands
@@ -102,29 +103,23 @@ STALL_S = 30.0  # the ingest's thread silent this long: down
 
 class Ingest:
     """See the module. settings: the central broker ([mqtt]; its site is unused); store: the
-    ControlStore."""
+    ControlStore; room: the [control_room] settings (None: the defaults)."""
 
     def __init__(
         self,
         settings: MqttSettings,
         store: ControlStore,
+        room: ControlRoomConfig | None = None,
         *,
-        offline_after_s: float = 90.0,
         batch_s: float = 0.1,
         replay_every_s: float = 2.0,
         queue_size: int = QUEUE,
-        clock_tolerance_s: float = 5.0,
-        name: str = "control-room",
-        command_resend_s: float = 5.0,
-        shared_group: str = "",
-        retention_days: float | None = None,
-        sites: tuple[str, ...] | list[str] = (),
-        max_event_bytes: int = 65_536,
-        max_heartbeat_bytes: int = 8192,
-        ids_ahead: int = 100_000,
     ) -> None:
+        room = room if room is not None else ControlRoomConfig()
         self.settings, self.store = settings, store
-        self.retention_days = retention_days  # None: kept for ever
+        self.retention_days: float | None = room.retention_days  # None: kept for ever
+        name, shared_group, sites = room.name, room.shared_group, room.sites
+        offline_after_s, clock_tolerance_s = room.offline_after_s, room.clock_tolerance_s
         self._pruned_at = -PRUNE_EVERY_S  # the first step prunes
         self.clock_tolerance_s, self.name = float(clock_tolerance_s), name
         # several workers on one store: the broker gives each a share of the sites' messages
@@ -156,8 +151,8 @@ class Ingest:
             self.counts,
             self.enrolment.names(),
             sites=sites,
-            max_event_bytes=max_event_bytes,
-            max_heartbeat_bytes=max_heartbeat_bytes,
+            max_event_bytes=room.max_event_bytes,
+            max_heartbeat_bytes=room.max_heartbeat_bytes,
             queue_size=queue_size,
         )
         self.order = Order(
@@ -168,7 +163,7 @@ class Ingest:
             self.room,
             self._warn,
             shared=bool(self.shared),
-            ids_ahead=ids_ahead,
+            ids_ahead=room.ids_ahead,
             replay_every_s=replay_every_s,
         )
         self.commands = AckCommands(
@@ -177,7 +172,7 @@ class Ingest:
             self.prefix,
             name,
             self.counts,
-            resend_s=command_resend_s,
+            resend_s=room.command_resend_s,
             shared=bool(self.shared),
         )
         self._thread = threading.Thread(target=self._run, name="control-ingest", daemon=True)

@@ -136,21 +136,7 @@ class ControlRoom:
         self.ingest: Ingest | None = None
         self.server.start()
         self.url = self.server.url
-        cr = plan.config.control_room
-        self.ingest = Ingest(
-            plan.mqtt,
-            self.store,
-            offline_after_s=cr.offline_after_s,
-            clock_tolerance_s=cr.clock_tolerance_s,
-            name=cr.name,
-            command_resend_s=cr.command_resend_s,
-            shared_group=cr.shared_group,
-            retention_days=cr.retention_days,
-            sites=cr.sites,
-            max_event_bytes=cr.max_event_bytes,
-            max_heartbeat_bytes=cr.max_heartbeat_bytes,
-            ids_ahead=cr.ids_ahead,
-        )
+        self.ingest = Ingest(plan.mqtt, self.store, plan.config.control_room)
 
     def close(self) -> None:
         if self.ingest is not None:

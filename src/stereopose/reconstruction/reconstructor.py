@@ -28,6 +28,8 @@ from stereopose.geometry.camera import project_to_cameras
 from stereopose.geometry.epipolar import essential_matrices
 from stereopose.reconstruction._kernels import plausible
 from stereopose.reconstruction.triangulate import (
+    PairScore,
+    Robust,
     reprojection_errors,
     triangulate_pair,
     triangulate_robust,
@@ -211,9 +213,7 @@ class Reconstructor:
                 self.P,
                 self.E,
                 self.focal,
-                tc.pair_a,
-                tc.pair_b,
-                self.config.association.min_common_joints,
+                PairScore(tc.pair_a, tc.pair_b, self.config.association.min_common_joints),
             )
         elif tc.mode == "weighted":
             X, used = triangulate_weighted(xy, w, self.P)
@@ -224,9 +224,7 @@ class Reconstructor:
                 self.P,
                 self.focal,
                 size_px,
-                tc.inlier_px,
-                tc.inlier_rel,
-                tc.fix_swaps,
+                Robust(tc.inlier_px, tc.inlier_rel, tc.fix_swaps),
                 pair_distances=None if labels_known else _group_pair_distances(members, dist),
                 rays=(self.centers, self.R) if tc.single_view else None,
             )

@@ -9,6 +9,9 @@ Each returns X (G, 17, 3) metres and used (G, 17, C) bool, the views each joint 
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 
 from stereopose.arrays import checked
@@ -51,6 +54,29 @@ def triangulate_weighted(xy: np.ndarray, w: np.ndarray, P: np.ndarray):
     return X, used
 
 
+@dataclass(frozen=True)
+class PairScore:
+    """How triangulate_pair scores a camera pair: a * mean epipolar distance (pixels) - b *
+    the views' mean confidences; a pair needs min_common_joints joints seen in both views."""
+
+    a: float
+    b: float
+    min_common_joints: int
+
+
+@dataclass(frozen=True)
+class Robust:
+    """triangulate_robust's settings: a view agrees when it reprojects within
+    max(inlier_px, inlier_rel * the person's size in pixels); fix_swaps: the detector's
+    left/right swaps corrected; relabel: then implausible skeletons solved again with
+    labels exchanged (see _relabel_implausible)."""
+
+    inlier_px: float
+    inlier_rel: float
+    fix_swaps: bool
+    relabel: bool = True
+
+
 def triangulate_pair(
     xy: np.ndarray,
     w: np.ndarray,
@@ -58,9 +84,7 @@ def triangulate_pair(
     P: np.ndarray,
     E: np.ndarray,
     focal: np.ndarray,
-    a: float,
-    b: float,
-    min_common_joints: int,
+    score_by: PairScore,
 ):
     """The reference method: per person, the camera pair (j, k) minimising
     a * mean_i d_i^{jk} - b * (mean_i conf_i^j + mean_i conf_i^k), then two-view DLT.
@@ -68,6 +92,7 @@ def triangulate_pair(
     conf: (G, 17, C) raw confidences (0 where no detection); d_i^{jk} is the symmetric epipolar
     distance of joint i in pixels, averaged over joints usable in both views; E: (C, C, 3, 3).
     """
+    a, b, min_common_joints = score_by.a, score_by.b, score_by.min_common_joints
     G, C = xy.shape[0], xy.shape[2]
     ka, kb = upper_pairs(C)
     xa, xb = np.nan_to_num(xy[:, :, ka]), np.nan_to_num(xy[:, :, kb])  # (G, J, K, 2)
@@ -99,12 +124,9 @@ def triangulate_robust(
     P: np.ndarray,
     focal: np.ndarray,
     size_px: np.ndarray,
-    inlier_px: float,
-    inlier_rel: float,
-    fix_swaps: bool,
+    robust: Robust,
     pair_distances: tuple[np.ndarray, np.ndarray] | None = None,
     rays: tuple[np.ndarray, np.ndarray] | None = None,
-    relabel: bool = True,
 ):
     """Weighted DLT over the views that agree, with left/right swaps of the detector corrected.
 
@@ -123,8 +145,9 @@ def triangulate_robust(
     (G, 17, C) in pixels of the views used (NaN elsewhere), and (G, 17) the joints placed
     from one view (None without rays).
     """
-    C = xy.shape[2]
-    thr = np.fmax(inlier_px, inlier_rel * size_px)[:, None, :]  # (G, 1, C); NaN size: inlier_px
+    C, fix_swaps = xy.shape[2], robust.fix_swaps
+    # (G, 1, C); a NaN size: inlier_px
+    thr = np.fmax(robust.inlier_px, robust.inlier_rel * size_px)[:, None, :]
     if fix_swaps and pair_distances is not None and C <= _MAX_LABEL_CAMERAS:
         xy, w = consistent_labels(xy, w, *pair_distances)
     X_all = triangulate_dlt(xy, P, w)
@@ -136,10 +159,8 @@ def triangulate_robust(
             # exchanging a part in every view exchanges its triangulated points
             X_all = exchange_joints(X_all, flip)
     X, used, err = choose_views(xy, w, P, focal, thr[:, 0], X_all)
-    if fix_swaps and relabel:
-        X, used, xy, w, err = _relabel_implausible(
-            X, used, xy, w, err, P, focal, size_px, inlier_px, inlier_rel
-        )
+    if fix_swaps and robust.relabel:
+        X, used, xy, w, err = _relabel_implausible((X, used, xy, w, err), P, focal, size_px, robust)
     if fix_swaps:
         # The joints re-seeded above may settle on labels the whole-body check could not see
         # (a limb swapped in as many views as not); the final skeleton is checked once more.
@@ -197,20 +218,9 @@ def _implausibility(X: np.ndarray) -> np.ndarray:
     return implausibility(np.ascontiguousarray(X), _BONES_L, _BONES_R, _BONES_MAX, _MAX_M)
 
 
-def _relabel_implausible(
-    X,
-    used,
-    xy,
-    w,
-    err,
-    P,
-    focal,
-    size_px,
-    inlier_px,
-    inlier_rel,
-    max_implausibility: float = 0.15,
-):
-    """Solve again the people whose skeleton is implausible by more than max_implausibility.
+def _relabel_implausible(solved, P, focal, size_px, robust: Robust, max_implausibility=0.15):
+    """Solve again the people whose skeleton is implausible by more than max_implausibility;
+    solved: triangulate_robust's (X, used, xy, w, err), returned with them solved again.
 
     When a person's left/right offset runs along the epipolar lines of two views, the labels
     of one view can be exchanged and the views still agree: the skeleton is then wrong but
@@ -219,6 +229,7 @@ def _relabel_implausible(
     (upper body, legs) is exchanged in turn, and the most plausible skeleton is kept if it is
     clearly better.
     """
+    X, used, xy, w, err = solved
     asym = _implausibility(X)
     bad = np.flatnonzero(asym > max_implausibility)
     if bad.size == 0:
@@ -238,10 +249,7 @@ def _relabel_implausible(
         P,
         focal,
         size_px[bad][g],
-        inlier_px,
-        inlier_rel,
-        True,
-        relabel=False,
+        dataclasses.replace(robust, fix_swaps=True, relabel=False),
     )
     ac = _implausibility(Xc)
     ac[~np.isfinite(ac)] = np.inf

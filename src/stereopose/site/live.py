@@ -30,6 +30,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from urllib.parse import quote
 
 import cv2
@@ -142,11 +143,27 @@ class Subscriber:
         return len(self._queue)
 
 
+@dataclass(frozen=True)
+class HubSettings:
+    """The live side's pace and limits: camera pictures snapshot_hz a second, scaled by
+    snapshot_scale, JPEG quality jpeg_quality; people pushed people_hz a second; at most
+    max_clients push channels, per_user of them a user's, each with client_queue messages
+    waiting at most."""
+
+    snapshot_hz: float = 3.0
+    snapshot_scale: float = 0.5
+    jpeg_quality: int = 75
+    people_hz: float = 5.0
+    max_clients: int = 32
+    per_user: int = STREAMS_PER_USER
+    client_queue: int = 256
+
+
 class LiveHub:
     """See the module. rig: the cameras; site: the zones (None: none); state: the health
     state (cameras' health; the hub's queues registered on it); log: the event log to tail
-    (None: no events pushed); draw: (camera, image, people2d, people3d, scale, label) -> the
-    picture (default viz.overlay over the rig)."""
+    (None: no events pushed); settings: its pace and limits; draw: (camera, image, people2d,
+    people3d, scale, label) -> the picture (default viz.overlay over the rig)."""
 
     def __init__(
         self,
@@ -154,21 +171,15 @@ class LiveHub:
         site: Site | None,
         state: ServiceState,
         log: EventLog | None = None,
+        settings: HubSettings = HubSettings(),
         *,
-        snapshot_hz: float = 3.0,
-        snapshot_scale: float = 0.5,
-        jpeg_quality: int = 75,
-        people_hz: float = 5.0,
-        max_clients: int = 32,
-        per_user: int = STREAMS_PER_USER,
-        client_queue: int = 256,
         draw: Callable | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.rig, self.site, self.state, self.log = rig, site, state, log
-        self.people_hz = people_hz
-        self._places = FairPlaces(max_clients, per_user=per_user)
-        self.max_clients, self.client_queue = max_clients, client_queue
+        self.people_hz = settings.people_hz
+        self._places = FairPlaces(settings.max_clients, per_user=settings.per_user)
+        self.max_clients, self.client_queue = settings.max_clients, settings.client_queue
         self.clock = clock
         if draw is None:
             from stereopose.viz.overlay import draw_overlay
@@ -181,9 +192,9 @@ class LiveHub:
         self.pictures = PictureEncoder(
             self._views,
             draw,
-            snapshot_hz=snapshot_hz,
-            snapshot_scale=snapshot_scale,
-            jpeg_quality=jpeg_quality,
+            snapshot_hz=settings.snapshot_hz,
+            snapshot_scale=settings.snapshot_scale,
+            jpeg_quality=settings.jpeg_quality,
             clock=clock,
         )
         self._lock = threading.Lock()
