@@ -11,7 +11,7 @@ from stereopose.io.sinks.base import FrameResult
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.sim.yard import bump, yard_scene
 from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.calib_keeper import CalibrationKeeper
+from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
 from stereopose.types import Rig
 
 KNOCKED_AT = 600  # frame (step 300)
@@ -47,8 +47,7 @@ def run_keeper(rig, steps, tmp_path, auto: bool):
         tmp_path / "calib.toml",
         health,
         apply=[stage.set_rig, applied.append],
-        auto=auto,
-        samples=60,
+        settings=KeeperSettings(auto, 60),
     )
     events = []
     for k, people2d in enumerate(steps):

@@ -20,7 +20,7 @@ import pytest
 from test_restart import WRITER, run_writer_until_killed
 
 from stereopose.io.sinks.events import query_events
-from stereopose.io.sinks.eventwriter import SqliteSink
+from stereopose.io.sinks.eventwriter import LockWaits, SqliteSink
 from stereopose.io.sinks.spill import read_spill, spill_path
 from stereopose.site.acks import AckStore
 from stereopose.site.eventlog import EventLog, Filters
@@ -311,7 +311,7 @@ def test_events_waiting_for_a_locked_log_are_kept_and_stored_once_at_the_next_st
     """An enter sent while the log was locked, then the process gone without closing (as
     after kill -9): the next start closes its zone and stores it in the log, once."""
     db = tmp_path / "events.sqlite"
-    first = SqliteSink(db, busy_s=0.01)
+    first = SqliteSink(db, waits=LockWaits(busy_s=0.01))
     holder = sqlite3.connect(db, isolation_level=None)
     holder.execute("BEGIN IMMEDIATE")
     try:
@@ -353,7 +353,7 @@ def test_incidents_waiting_for_a_locked_log_are_kept_and_taken_back_at_the_next_
     from stereopose.io.sinks.spill import read_spilled_incidents
 
     db = tmp_path / "events.sqlite"
-    first = SqliteSink(db, busy_s=0.01, wall_start=1_000.0)
+    first = SqliteSink(db, wall_start=1_000.0, waits=LockWaits(busy_s=0.01))
     book = IncidentBook(AlarmSettings(), next_id=iter(range(1, 100)).__next__)
     enter = Event(1.0, 25, 7, "panel", "energized", "enter", 1.0)
     up = book.update([enter], 1.0)

@@ -92,6 +92,7 @@ def _finish(run) -> int:
 
 def _calibrate_extrinsics(args: argparse.Namespace) -> int:
     from stereopose.pipeline import calibrate_extrinsics_dir
+    from stereopose.pipeline.calibrate import ExtrinsicsOptions
     from stereopose.pipeline.paths import check_calibration_places
 
     _needs(solver=True, pictures=args.report is not None)
@@ -110,13 +111,15 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
             args.intrinsics,
             board,
             args.out,
-            floor=args.floor,
-            origin_m=tuple(args.origin),
-            yaw_deg=args.yaw,
-            refine_intrinsics=args.refine_intrinsics,
+            ExtrinsicsOptions(
+                args.floor,
+                tuple(args.origin),
+                args.yaw,
+                args.refine_intrinsics,
+                args.intrinsics_images,
+            ),
             report_dir=args.report,
             on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
-            intrinsics_images=args.intrinsics_images,
         )
     r = run.result
     table = Table(title=f"Rig {_where(run, args.out)}: RMS {r.rms_px:.3f} px")

@@ -165,25 +165,32 @@ class ExtrinsicsRun(Kept):
     calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
+@dataclass(frozen=True)
+class ExtrinsicsOptions:
+    """floor, origin_m, yaw_deg: the world frame (calibration.extrinsics.calibrate_extrinsics);
+    refine_intrinsics: focal lengths and distortion refined too; intrinsics_images: the
+    cameras' own board photos (as for the intrinsics), added to the adjustment as positions
+    seen by one camera: with refine_intrinsics, refined from both sets at once."""
+
+    floor: str | None = None
+    origin_m: tuple[float, float] = (0.0, 0.0)
+    yaw_deg: float = 0.0
+    refine_intrinsics: bool = False
+    intrinsics_images: str | Path | None = None
+
+
 def calibrate_extrinsics_dir(
     images: str | Path,
     intrinsics: str | Path,
     board: Board,
     out: str | Path,
-    floor: str | None = None,
-    origin_m: tuple[float, float] = (0.0, 0.0),
-    yaw_deg: float = 0.0,
-    refine_intrinsics: bool = False,
+    options: ExtrinsicsOptions = ExtrinsicsOptions(),
     report_dir: str | Path | None = None,
     on_camera: Callable[[str], None] | None = None,
-    intrinsics_images: str | Path | None = None,
 ) -> ExtrinsicsRun:
     """The rig from synchronised board photos: `images` holds one sub-folder per camera with
-    the same file name per board position (the position's name is the file's stem).
-
-    intrinsics_images: the cameras' own board photos (as for the intrinsics), added to the
-    adjustment as positions seen by one camera: with refine_intrinsics, focal lengths and
-    distortion are then refined from both sets at once."""
+    the same file name per board position (the position's name is the file's stem)."""
+    intrinsics_images = options.intrinsics_images
     from stereopose.calibration.extrinsics import calibrate_extrinsics
     from stereopose.calibration.intrinsics import detect_all, iter_images
 
@@ -223,7 +230,10 @@ def calibrate_extrinsics_dir(
             for d in detect_all(iter_images(folder), board):
                 if d.corners is not None:
                     corners[name][f"{name}:{Path(d.name).stem}"] = d.corners.points
-    result = calibrate_extrinsics(cams, corners, board, floor, origin_m, yaw_deg, refine_intrinsics)
+    o = options
+    result = calibrate_extrinsics(
+        cams, corners, board, o.floor, o.origin_m, o.yaw_deg, o.refine_intrinsics
+    )
     run = ExtrinsicsRun(result=result, found=found)
     _save_rig(run, out, result.rig, {"rms_px": round(result.rms_px, 4)})
     if report_dir is not None:

@@ -72,7 +72,7 @@ from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.calib_keeper import CalibrationKeeper
+from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
 from stereopose.site.health.watch import CameraWatch
 from stereopose.site.parts import (
     ServeSource,
@@ -263,9 +263,8 @@ def _calibration(plan: ServePlan, cfg: Config) -> tuple[CalibrationHealth, Calib
         plan.rig,
         plan.calib_path,
         calib,
-        auto=s.calibration_auto,
+        settings=KeeperSettings(s.calibration_auto, s.calibration_samples),
         out_dir=plan.out_dir,
-        samples=s.calibration_samples,
         loaded=plan.calib_loaded,
     )
     return calib, keeper

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from stereopose.io.records import event_record
 from stereopose.io.sinks.events import query_events, read_events
-from stereopose.io.sinks.eventwriter import SqliteSink
+from stereopose.io.sinks.eventwriter import LockWaits, SqliteSink
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -63,7 +63,7 @@ def returns(call, *args) -> None:
 
 def test_a_locked_log_keeps_the_events_and_stores_them_later(tmp_path: Path) -> None:
     db = tmp_path / "e.sqlite"
-    sink = SqliteSink(db, busy_s=0.01, retry_s=0.0)
+    sink = SqliteSink(db, waits=LockWaits(busy_s=0.01, retry_s=0.0))
     sink.write_events([event(0)])
     release = threading.Event()
     lock = Lock(db, release.is_set)
@@ -83,7 +83,7 @@ def test_a_locked_log_keeps_the_events_and_stores_them_later(tmp_path: Path) -> 
 
 def test_close_waits_a_bounded_time_for_the_lock(tmp_path: Path) -> None:
     db = tmp_path / "e.sqlite"
-    sink = SqliteSink(db, busy_s=0.01, retry_s=0.0, close_timeout_s=20.0)
+    sink = SqliteSink(db, waits=LockWaits(busy_s=0.01, retry_s=0.0, close_timeout_s=20.0))
     closing = threading.Event()
     lock = Lock(db, closing.is_set)
     lock.hold()
@@ -101,7 +101,7 @@ def test_close_waits_a_bounded_time_for_the_lock(tmp_path: Path) -> None:
 
 def test_a_lock_held_past_close_keeps_the_events_beside_the_log(tmp_path: Path) -> None:
     db = tmp_path / "e.sqlite"
-    sink = SqliteSink(db, busy_s=0.01, retry_s=0.0, close_timeout_s=0.2)
+    sink = SqliteSink(db, waits=LockWaits(busy_s=0.01, retry_s=0.0, close_timeout_s=0.2))
     done = threading.Event()
     lock = Lock(db, done.is_set)
     lock.hold()
@@ -117,7 +117,7 @@ def test_a_lock_held_past_close_keeps_the_events_beside_the_log(tmp_path: Path) 
     assert [event_record(e) for e in read_events(kept)] == [event_record(e) for e in events]
     assert query_events(db) == []
     # a second run's unstored events are appended, never written over
-    sink = SqliteSink(db, busy_s=0.01, close_timeout_s=0.2)
+    sink = SqliteSink(db, waits=LockWaits(busy_s=0.01, close_timeout_s=0.2))
     lock = Lock(db, done.is_set)
     done.clear()
     lock.hold()
@@ -130,7 +130,9 @@ def test_a_lock_held_past_close_keeps_the_events_beside_the_log(tmp_path: Path) 
 
 def test_a_full_buffer_drops_and_counts(tmp_path: Path) -> None:
     db = tmp_path / "e.sqlite"
-    sink = SqliteSink(db, busy_s=0.01, retry_s=0.0, buffer_size=4, close_timeout_s=20.0)
+    sink = SqliteSink(
+        db, waits=LockWaits(busy_s=0.01, retry_s=0.0, buffer_size=4, close_timeout_s=20.0)
+    )
     closing = threading.Event()
     lock = Lock(db, closing.is_set)
     lock.hold()

@@ -16,7 +16,7 @@ from stereopose.config import Config
 from stereopose.io.sinks.base import FrameResult
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.calib_keeper import CalibrationKeeper
+from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
 
 pytestmark = pytest.mark.slow
 
@@ -89,7 +89,9 @@ def test_a_camera_that_cannot_be_corrected_stays_flagged_with_the_reason(knocked
     rig, _, steps = knocked
     save_calibration(tmp_path / "calib.toml", rig)
     health = CalibrationHealth(rig, 2.0, baseline_samples=60, window=30)
-    keeper = CalibrationKeeper(rig, tmp_path / "calib.toml", health, samples=10, min_coverage=1.01)
+    keeper = CalibrationKeeper(
+        rig, tmp_path / "calib.toml", health, settings=KeeperSettings(samples=10, min_coverage=1.01)
+    )
     stage = Stage3D(rig, Config())
     events = []
     for k, people2d in enumerate(steps):

@@ -21,7 +21,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from brokers import Broker
 from served import event, get, get_json, serving
 from stereopose.io.sinks.base import Guarded
-from stereopose.io.sinks.eventwriter import SqliteSink
+from stereopose.io.sinks.eventwriter import LockWaits, SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings, MqttSink
 from stereopose.io.sinks.webhook import WebhookSink
 from stereopose.site.health.state import ServiceState
@@ -177,7 +177,9 @@ def test_a_failing_webhook_is_degraded_until_it_delivers_again() -> None:
 def test_an_event_log_locked_by_another_connection_is_degraded_then_ok(tmp_path: Path) -> None:
     path = tmp_path / "events.sqlite"
     state, failures = _state(), {}
-    db = _watch(state, "events_db", SqliteSink(path, busy_s=0.01, retry_s=0.01), failures)
+    db = _watch(
+        state, "events_db", SqliteSink(path, waits=LockWaits(busy_s=0.01, retry_s=0.01)), failures
+    )
     other = sqlite3.connect(path, isolation_level=None)
     try:
         with serving(state) as server:
@@ -225,7 +227,12 @@ def _small_tmpfs(path: Path, size: str):
 def test_an_event_log_on_a_full_disk_is_degraded_until_there_is_room(tmp_path: Path) -> None:
     with _small_tmpfs(tmp_path / "disk", "1m") as disk:
         state, failures = _state(), {}
-        db = _watch(state, "events_db", SqliteSink(disk / "events.sqlite", retry_s=0.01), failures)
+        db = _watch(
+            state,
+            "events_db",
+            SqliteSink(disk / "events.sqlite", waits=LockWaits(retry_s=0.01)),
+            failures,
+        )
         filler = disk / "filler"
         try:
             with serving(state) as server:

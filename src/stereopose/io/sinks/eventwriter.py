@@ -9,6 +9,7 @@ import sqlite3
 import time
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +53,19 @@ def mask_sources(db: sqlite3.Connection) -> int:
     return len(changed)
 
 
+@dataclass(frozen=True)
+class LockWaits:
+    """How the event log's writer waits on the file's lock: a write waits busy_s, then is
+    kept (at most buffer_size events) and tried again every retry_s; opening waits
+    open_timeout_s; closing writes what is kept for up to close_timeout_s."""
+
+    busy_s: float = 0.05
+    retry_s: float = 0.2
+    buffer_size: int = 100_000
+    open_timeout_s: float = 5.0
+    close_timeout_s: float = 10.0
+
+
 class SqliteSink(_EventSink):
     """Events in an SQLite database (WAL), one transaction per write with events.
 
@@ -82,11 +96,7 @@ class SqliteSink(_EventSink):
         site: str | None = None,
         source: str | None = None,
         *,
-        busy_s: float = 0.05,
-        retry_s: float = 0.2,
-        buffer_size: int = 100_000,
-        open_timeout_s: float = 5.0,
-        close_timeout_s: float = 10.0,
+        waits: LockWaits = LockWaits(),
         first_id: int | None = None,
         id_block: int = 1000,
         wall_start: float | None = None,
@@ -97,8 +107,8 @@ class SqliteSink(_EventSink):
         self.id_block = id_block
         self.reserved: int | None = None  # ids below it are reserved (committed); None: off
         self._want: int | None = None  # a reservation not committed yet
-        self.busy_s, self.retry_s, self.buffer_size = busy_s, retry_s, buffer_size
-        self.close_timeout_s = close_timeout_s
+        self.busy_s, self.retry_s, self.buffer_size = waits.busy_s, waits.retry_s, waits.buffer_size
+        self.close_timeout_s = waits.close_timeout_s
         try:
             make_folder(self.path.parent)
         except OSError as e:
@@ -106,7 +116,7 @@ class SqliteSink(_EventSink):
                 f"{self.path}: cannot write the event database: {e.strerror}"
             ) from None
         try:
-            self.db = connect_writer(self.path, open_timeout_s, create=True)
+            self.db = connect_writer(self.path, waits.open_timeout_s, create=True)
             create_schema(self.db)
             raise_marks(self.db)  # an earlier version's log: its marks start above its ids
             self.spill = Spill(self.path)
@@ -124,7 +134,7 @@ class SqliteSink(_EventSink):
                     (self.run, first_id + id_block),
                 )
                 self.reserved = first_id + id_block
-            self._busy(busy_s)
+            self._busy(waits.busy_s)
         except sqlite3.DatabaseError as e:
             raise OutputError(f"{self.path}: cannot open the event database: {e}") from None
         self.committed = self.dropped = 0
@@ -138,7 +148,7 @@ class SqliteSink(_EventSink):
         self.incomplete: str | None = None
         self.kept_in: Path | None = None  # where close put the events it could not store
         self._next_try = 0.0
-        self._delay = retry_s
+        self._delay = waits.retry_s
         self._error: str | None = None  # why the last store failed; None: it did not
 
     def _store_spill(self) -> bool:

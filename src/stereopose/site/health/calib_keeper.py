@@ -76,6 +76,19 @@ class _Case:
     accepted_by: str | None = None  # an admin accepted it: applied at the next step
 
 
+@dataclass(frozen=True)
+class KeeperSettings:
+    """auto: a new pose is applied by itself (else it waits for an admin); samples: steps
+    with people sampled before a camera is placed again; min_coverage: the share of its view
+    the agreeing joints must cover; accept_factor: the new error at most this many times the
+    reference."""
+
+    auto: bool = True
+    samples: int = SAMPLES
+    min_coverage: float = MIN_COVERAGE
+    accept_factor: float = ACCEPT_FACTOR
+
+
 class CalibrationKeeper:
     """See the module. apply: callables given the new rig when a pose is applied; out_dir:
     where the files go when the original's folder cannot be written; loaded: the file the rig
@@ -88,18 +101,16 @@ class CalibrationKeeper:
         health: CalibrationHealth,
         *,
         apply: Sequence[Callable[[Rig], None]] = (),
-        auto: bool = True,
-        samples: int = SAMPLES,
-        min_coverage: float = MIN_COVERAGE,
-        accept_factor: float = ACCEPT_FACTOR,
+        settings: KeeperSettings = KeeperSettings(),
         out_dir: str | Path | None = None,
         wall_start: float | None = None,
         loaded: str | Path | None = None,
     ) -> None:
         self.rig, self.calib_path, self.health = rig, Path(calib_path), health
         self.apply_to = list(apply)
-        self.auto, self.samples = bool(auto), int(samples)
-        self.min_coverage, self.accept_factor = float(min_coverage), float(accept_factor)
+        self.auto, self.samples = bool(settings.auto), int(settings.samples)
+        self.min_coverage = float(settings.min_coverage)
+        self.accept_factor = float(settings.accept_factor)
         self.out_dir = None if out_dir is None else Path(out_dir)
         self.wall_start = wall_start
         self.cases: dict[str, _Case] = {}
