@@ -21,7 +21,7 @@ from brokers import Broker, free_port, make_certificate
 from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
-from stereopose.site.outbox import LogOutbox
+from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -94,7 +94,7 @@ def test_a_bridged_site_reaches_the_control_room_once_across_a_cut(tmp_path):
             reconnect_max_s=0.2,
         ),
         log,
-        resend_s=2.0,
+        pace=OutboxPace(resend_s=2.0),
     )
     k = 0
 

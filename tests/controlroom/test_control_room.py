@@ -19,7 +19,7 @@ from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
-from stereopose.site.outbox import LogOutbox
+from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -44,7 +44,7 @@ class Site:
                 **login,
             ),
             self.log,
-            resend_s=1.0,
+            pace=OutboxPace(resend_s=1.0),
         )
 
     def write(self, n: int) -> None:

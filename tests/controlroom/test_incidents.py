@@ -26,7 +26,7 @@ from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.eventlog import EventLog
-from stereopose.site.outbox import LogOutbox
+from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event, People3D
 from waiting import wait_until
 
@@ -54,7 +54,9 @@ class Site:
     """A site as serve wires it: an incident book whose records and events go to the event
     log, and the log's outbox with the book's acknowledge as its commands' way in."""
 
-    def __init__(self, folder: Path, port: int, name: str = "north", **box) -> None:
+    def __init__(
+        self, folder: Path, port: int, name: str = "north", pace: OutboxPace | None = None
+    ) -> None:
         self.t, self.frame = 0.0, 0
         self.sink = SqliteSink(
             folder / f"{name}.sqlite", "site.toml", "test", wall_start=WALL_START
@@ -70,8 +72,8 @@ class Site:
         self.box = LogOutbox(
             _settings(port, name),
             EventLog(folder / f"{name}.sqlite"),
+            pace or OutboxPace(),
             acknowledger=self.step.acknowledge,
-            **box,
         )
 
     def run(self, *events: Event) -> list[Event]:
@@ -239,7 +241,7 @@ def test_an_ack_asked_while_the_broker_is_away_arrives_when_it_is_back(broker, r
 
 def test_a_site_offline_and_a_clock_off_raise_the_control_rooms_incidents(broker, room, tmp_path):
     store, _ingest = room
-    site = Site(tmp_path, broker.port, heartbeat_s=0.2)
+    site = Site(tmp_path, broker.port, pace=OutboxPace(heartbeat_s=0.2))
     try:
         site.enter()
         wait_until(lambda: store.incidents(site="north"), "the site known")

@@ -19,7 +19,7 @@ from stereopose.controlroom.store import ControlStore
 from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
-from stereopose.site.outbox import LogOutbox
+from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -66,7 +66,7 @@ def _write(sink: SqliteSink, start: int, n: int) -> None:
 def test_the_last_events_lost_are_found_by_the_heartbeat(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     log = EventLog(tmp_path / "north.sqlite")
-    box = LogOutbox(_settings(broker.port), log, resend_s=0, heartbeat_s=0.3)
+    box = LogOutbox(_settings(broker.port), log, pace=OutboxPace(resend_s=0, heartbeat_s=0.3))
     store = _store(tmp_path)
     ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
     try:
@@ -160,7 +160,9 @@ def test_a_pruned_event_sent_again_is_not_stored_again(broker, tmp_path):
 def test_hostile_messages_never_stop_the_ingest_nor_cost_a_real_sites_events(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     box = LogOutbox(
-        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+        _settings(broker.port),
+        EventLog(tmp_path / "north.sqlite"),
+        pace=OutboxPace(resend_s=0.5, heartbeat_s=0.3),
     )
     store = _store(tmp_path)
     ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)
@@ -215,7 +217,9 @@ def _room_kinds(store: ControlStore) -> dict[tuple[str, str], str]:
 def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     box = LogOutbox(
-        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+        _settings(broker.port),
+        EventLog(tmp_path / "north.sqlite"),
+        pace=OutboxPace(resend_s=0.5, heartbeat_s=0.3),
     )
     store = _store(tmp_path)
     room = ControlRoomConfig(max_event_bytes=4096, max_heartbeat_bytes=1024, ids_ahead=1000)
@@ -293,7 +297,9 @@ def test_names_sizes_and_forged_ids_are_bounded_and_a_real_site_loses_nothing(br
 def test_a_dead_ingest_thread_is_started_again_and_health_says_so_meanwhile(broker, tmp_path):
     sink = SqliteSink(tmp_path / "north.sqlite", "site.toml", "test", wall_start=1.8e9)
     box = LogOutbox(
-        _settings(broker.port), EventLog(tmp_path / "north.sqlite"), resend_s=0.5, heartbeat_s=0.3
+        _settings(broker.port),
+        EventLog(tmp_path / "north.sqlite"),
+        pace=OutboxPace(resend_s=0.5, heartbeat_s=0.3),
     )
     store = _store(tmp_path)
     ingest = Ingest(_settings(broker.port, "unused"), store, replay_every_s=0.2)

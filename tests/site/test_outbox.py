@@ -15,7 +15,7 @@ from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.site.eventlog import EventLog
 from stereopose.site.health.watchdog import Watchdog
-from stereopose.site.outbox import LogOutbox
+from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -136,7 +136,7 @@ def test_a_receiver_away_gets_what_it_missed_from_the_log(broker, log, closing):
 
 
 def test_the_site_sends_again_when_the_mark_stays_behind(broker, log, closing):
-    box = LogOutbox(settings(broker.port), log.read, resend_s=0.5)
+    box = LogOutbox(settings(broker.port), log.read, pace=OutboxPace(resend_s=0.5))
     closing(box)
     rx = LogReceiver(broker.port, replay_on_start=False)
     closing(rx)
@@ -156,7 +156,9 @@ def test_the_last_events_at_the_close_reach_a_receiver_that_lost_them(broker, lo
     """A service's stop: its last events stored, the outbox closed at once. Where a receiver
     confirms, the close waits for its mark (bounded) and sends again what it lost: nothing after
     them would show the gap, and no next resend comes from a stopped site."""
-    box = LogOutbox(settings(broker.port), log.read, resend_s=0)  # no resend while running
+    box = LogOutbox(
+        settings(broker.port), log.read, pace=OutboxPace(resend_s=0)
+    )  # no resend while running
     rx = LogReceiver(broker.port, replay_on_start=False)
     closing(rx)
     log.write(3)
@@ -172,7 +174,7 @@ def test_the_last_events_at_the_close_reach_a_receiver_that_lost_them(broker, lo
 def test_a_gap_seen_by_the_receiver_is_filled_by_a_replay(broker, log, closing):
     rx = LogReceiver(broker.port, replay_on_start=False)  # no replay but the gap's
     closing(rx)
-    box = LogOutbox(settings(broker.port), log.read, resend_s=0)
+    box = LogOutbox(settings(broker.port), log.read, pace=OutboxPace(resend_s=0))
     closing(box)
     log.write(3)
     wait_until(lambda: len(rx.ids()) == 3, "the first events")
@@ -261,7 +263,7 @@ def test_dead_threads_are_started_again_by_the_watchdog_and_health_says_so_meanw
 ):
     rx = LogReceiver(broker.port)
     closing(rx)
-    box = LogOutbox(settings(broker.port), log.read, resend_s=0.5)
+    box = LogOutbox(settings(broker.port), log.read, pace=OutboxPace(resend_s=0.5))
     closing(box)
     dog = Watchdog(interval_s=3600)  # its rounds asked for by hand here
     dog.add("outbox", box.ensure_running)

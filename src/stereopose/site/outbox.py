@@ -23,6 +23,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as paho
@@ -51,34 +52,54 @@ CLOSE_RESEND_S = 1.0  # at the close, a receiver's mark behind this long: sent a
 HEARTBEAT_S = 10.0  # how often the log's last id and the clock are published
 
 
+@dataclass(eq=False)
 class _Stream:
     """One numbered stream of the log: its topic, the confirmation's and the replay's keys,
     and its reader (`after(n, limit)` -> rows carrying `key`, `last()` -> the last number)."""
 
-    def __init__(
-        self,
-        name: str,
-        topic: str,
-        key: str,
-        replay_key: str,
-        after: Callable[[int, int], list[dict]],
-        last: Callable[[], int],
-    ) -> None:
-        self.name, self.topic, self.key, self.replay_key = name, topic, key, replay_key
-        self.after, self.last = after, last
-        self.cursor = self.high = int(last())  # the last handed to paho; the highest ever sent
-        self.confirmed: int | None = None  # the receiver's mark
+    name: str
+    topic: str
+    key: str
+    replay_key: str
+    after: Callable[[int, int], list[dict]]
+    last: Callable[[], int]
+    confirmed: int | None = None  # the receiver's mark
+    restart_at: int | None = None  # start again after this number (connect, replay)
+    published: int = 0
+    resent: int = 0
+
+    def __post_init__(self) -> None:
+        self.cursor = self.high = int(self.last())  # the last handed to paho; the highest sent
         self.confirmed_at = time.monotonic()  # when the mark last moved (or was set)
-        self.restart_at: int | None = None  # start again after this number (connect, replay)
-        self.published = self.resent = 0
+
+    def figures(self) -> dict:
+        lag = None if self.confirmed is None else max(0, self.high - self.confirmed)
+        return {
+            "published": self.published,
+            "resent": self.resent,
+            "cursor": self.cursor,
+            "confirmed": self.confirmed,
+            "lag": lag,
+        }
+
+
+@dataclass(frozen=True)
+class OutboxPace:
+    """resend_s: how long the confirmed mark may stay behind what was sent before it is sent
+    again (0: only on a new connection); inflight: messages handed to paho and not yet
+    acknowledged by the broker, at most."""
+
+    resend_s: float = 30.0
+    inflight: int = INFLIGHT
+    poll_s: float = POLL_S  # the log read at least this often
+    heartbeat_s: float = HEARTBEAT_S
 
 
 class LogOutbox:
     """See the module. settings: the site's broker ([mqtt]); log: a site.eventlog.EventLog
     (its `after(id, limit)` and `last_id()`; with `incident_changes_after(seq, limit)` and
-    `last_incident_change()` the incidents' stream too); resend_s: how long the confirmed
-    mark may stay behind what was sent before it is sent again (0: only on a new connection);
-    start_after: the events' cursor without a confirmation (default: the log's last id now).
+    `last_incident_change()` the incidents' stream too); pace: see OutboxPace; start_after:
+    the events' cursor without a confirmation (default: the log's last id now).
     `wake()` (after events were stored) makes the thread read the log at once. Settable
     later: `acknowledger(incident_id, by)` (the incident book's acknowledge: the commands'
     way in; -> the incident's record) and `summary()` (-> a dict added to each heartbeat)."""
@@ -87,18 +108,14 @@ class LogOutbox:
         self,
         settings: MqttSettings,
         log: Any,
+        pace: OutboxPace = OutboxPace(),
         *,
-        resend_s: float = 30.0,
         start_after: int | None = None,
-        inflight: int = INFLIGHT,
-        poll_s: float = POLL_S,
-        heartbeat_s: float = HEARTBEAT_S,
         acknowledger: Callable[[int, str], IncidentRecord] | None = None,
         summary: Callable[[], dict] | None = None,
         plan: dict | None = None,
     ) -> None:
-        self.settings, self.log, self.heartbeat_s = settings, log, float(heartbeat_s)
-        self.resend_s, self.inflight, self.poll_s = float(resend_s), int(inflight), float(poll_s)
+        self.settings, self.log, self.pace = settings, log, pace
         self.acknowledger, self.summary, self.plan = acknowledger, summary, plan
         self.topics = site_topics(settings.topic_prefix, settings.site)  # site.wire
         self.streams = [
@@ -155,7 +172,7 @@ class LogOutbox:
         s = self.settings
         cid = f"stereopose-{topic_part(s.site)}-outbox-{uuid.uuid4().hex[:8]}"
         c = make_client(s, cid)
-        c.max_inflight_messages_set(self.inflight)
+        c.max_inflight_messages_set(self.pace.inflight)
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
@@ -303,11 +320,11 @@ class LogOutbox:
     def _run(self) -> None:
         beat = 0.0
         while not self._stop.is_set():
-            self._wake.wait(self.poll_s)
+            self._wake.wait(self.pace.poll_s)
             self._wake.clear()
             try:
                 self._send()
-                if self._connected and time.monotonic() - beat >= self.heartbeat_s:
+                if self._connected and time.monotonic() - beat >= self.pace.heartbeat_s:
                     beat = time.monotonic()
                     self._heartbeat()
             except Exception:  # a bug must not end the outbox: logged, tried again
@@ -331,10 +348,10 @@ class LogOutbox:
                 st.cursor = st.restart_at
                 st.restart_at = None
             elif (
-                self.resend_s > 0
+                self.pace.resend_s > 0
                 and st.confirmed is not None
                 and st.confirmed < st.cursor
-                and time.monotonic() - st.confirmed_at > self.resend_s
+                and time.monotonic() - st.confirmed_at > self.pace.resend_s
             ):
                 logger.info(
                     "event outbox: the receiver's mark of the %s stayed at %d (sent up "
@@ -342,11 +359,11 @@ class LogOutbox:
                     st.name,
                     st.confirmed,
                     st.cursor,
-                    self.resend_s,
+                    self.pace.resend_s,
                 )
                 st.cursor = st.confirmed
                 st.confirmed_at = time.monotonic()
-            room = self.inflight - len(self._unacked)
+            room = self.pace.inflight - len(self._unacked)
             cursor = st.cursor
         while room > 0:
             try:
@@ -406,26 +423,12 @@ class LogOutbox:
         the lag (events sent but not confirmed: the cursor's id minus the mark); the same of
         the incidents' stream under `incidents`."""
         with self._lock:
-            ev = self.streams[0]
-            f = dict(self.counts)
-            f.update(
-                published=ev.published,
-                resent=ev.resent,
-                cursor=ev.cursor,
-                confirmed=ev.confirmed,
-                connected=self._connected,
-                subscribed=self._subscribed,
-                unacknowledged=len(self._unacked - self._acked),
-                lag=_lag(ev),
-            )
+            ev = self.streams[0].figures()
+            lag = ev.pop("lag")
+            f = {**self.counts, **ev, "connected": self._connected, "subscribed": self._subscribed}
+            f.update(unacknowledged=len(self._unacked - self._acked), lag=lag)
             for st in self.streams[1:]:
-                f[st.name] = {
-                    "published": st.published,
-                    "resent": st.resent,
-                    "cursor": st.cursor,
-                    "confirmed": st.confirmed,
-                    "lag": _lag(st),
-                }
+                f[st.name] = st.figures()
         return f
 
     def ensure_running(self) -> None:
@@ -446,7 +449,7 @@ class LogOutbox:
         """Not ok while a thread is down (the broker's link is the MQTT output's health);
         waiting: the events sent and not confirmed."""
         with self._lock:
-            lag = _lag(self.streams[0]) or 0
+            lag = self.streams[0].figures()["lag"] or 0
         if not self._thread.is_alive() and not self._stop.is_set():
             return OutputHealth(False, lag, "the event outbox's sending thread is not running")
         if not loop_alive(self.client):
@@ -492,7 +495,3 @@ class LogOutbox:
             self.client.disconnect()
         finally:
             self.client.loop_stop()
-
-
-def _lag(st: _Stream) -> int | None:
-    return None if st.confirmed is None else max(0, st.high - st.confirmed)

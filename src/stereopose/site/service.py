@@ -262,14 +262,14 @@ class SiteService:
     def _start_outbox(self, cfg: Config) -> None:
         """The event log sent over MQTT to a control room (site.outbox), watched by the
         watchdog."""
-        from stereopose.site.outbox import LogOutbox
+        from stereopose.site.outbox import LogOutbox, OutboxPace
 
         p = self.plan
         log = EventLog(p.events_db, p.out_dir / "clips")
         self.outbox = LogOutbox(
             p.mqtt,
             log,
-            resend_s=cfg.mqtt.outbox_resend_s,
+            OutboxPace(resend_s=cfg.mqtt.outbox_resend_s),
             summary=self._summary,
             plan=self._plan(cfg),
         )
