@@ -13,7 +13,7 @@ from stereopose.fence import FenceMonitor, Site
 from stereopose.pipeline.loop import SourceStep
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.site.health.watch import CameraWatch
-from stereopose.site.steps import HeldStage, ServeEvents
+from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.zones import Zone
 
 TIMEOUT_S = 2.0
@@ -29,13 +29,10 @@ class Run:
         fences = FenceMonitor(site, scene.fps, cfg.tracking.max_lost_s)
         watch = CameraWatch(scene.rig.names, TIMEOUT_S, start=0.0)
         self.now = 0.0
-        self.events = ServeEvents(
-            fences,
-            watch,
-            None,
-            fresh=None if fresh is None else (lambda name: fresh),
-            clock=lambda: self.now,
+        hooks = StepHooks(
+            fresh=None if fresh is None else (lambda name: fresh), clock=lambda: self.now
         )
+        self.events = ServeEvents(fences, watch, None, hooks)
         self.stage = HeldStage(Stage3D(scene.rig, cfg), self.events)
         self.scene, self.frame = scene, 0
         self.ids: list[set[int]] = []

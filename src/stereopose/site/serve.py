@@ -89,7 +89,7 @@ from stereopose.site.plan import (
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
 from stereopose.site.site_switch import SiteSwitch
-from stereopose.site.steps import HeldRules, HeldStage, ServeEvents
+from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -289,16 +289,13 @@ def _run_loop(
     def now_t() -> float:  # the service's clock: the steps' and the events' t
         return cams.clock.since(time.monotonic())
 
-    events = ServeEvents(
-        fences,
-        watch,
-        calib,
+    hooks = StepHooks(
         service.resume.closing_events,
         fresh=lambda name: cams.delivering(name, timeout_s),
         clock=now_t,
         on_stall=service.state.service_stall,
-        keeper=keeper,
     )
+    events = ServeEvents(fences, watch, calib, hooks, keeper=keeper)
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)

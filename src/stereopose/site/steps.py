@@ -31,6 +31,7 @@ from stereopose.fence import FenceMonitor
 from stereopose.io.sinks.base import FrameResult
 from stereopose.pipeline.loop import SourceStep
 from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.calib_keeper import CalibrationKeeper
 from stereopose.site.health.stall import StallWatch
 from stereopose.site.health.watch import CameraWatch
 from stereopose.types import Event, People2D, People3D
@@ -38,33 +39,41 @@ from stereopose.types import Event, People2D, People3D
 MAX_BREAKS = 64  # stalls remembered to put older onsets back on the clock (bounded)
 
 
+@dataclasses.dataclass(frozen=True)
+class StepHooks:
+    """What the service gives the steps: opening(t, frame): the events of the first step (at
+    its time and frame); fresh(camera): whether its reader still has frames to give (None:
+    not known, only a stall holds steps); clock(): the service's time now, on the steps' clock
+    (None: each step's t; a stopped process is seen only with it); on_stall(reason or None):
+    told when a stall begins and ends."""
+
+    opening: Callable[[float, int], list[Event]] | None = None
+    fresh: Callable[[str], bool] | None = None
+    clock: Callable[[], float] | None = None
+    on_stall: Callable[[str | None], None] | None = None
+
+
 class ServeEvents:
     """See the module. fences: None without a site; calib: None to leave the calibration
-    unwatched; opening(t, frame): the events of the first step (at its time and frame);
-    stall: the service's stall watch (default: on the watch's timeout); fresh(camera): whether
-    its reader still has frames to give (None: not known, only a stall holds steps); keeper:
-    the calibration keeper (site.health.calib_keeper; None: drift only flagged); clock():
-    the service's time now, on the steps' clock (None: each step's t; a stopped process is seen
-    only with it); on_stall(reason or None): told when a stall begins and ends."""
+    unwatched; hooks: see StepHooks; stall: the service's stall watch (default: on the
+    watch's timeout); keeper: the calibration keeper (site.health.calib_keeper; None: drift
+    only flagged)."""
 
     def __init__(
         self,
         fences: FenceMonitor | None,
         watch: CameraWatch,
         calib: CalibrationHealth | None,
-        opening: Callable[[float, int], list[Event]] | None = None,
+        hooks: StepHooks = StepHooks(),
         *,
         stall: StallWatch | None = None,
-        fresh: Callable[[str], bool] | None = None,
-        clock: Callable[[], float] | None = None,
-        on_stall: Callable[[str | None], None] | None = None,
-        keeper=None,
+        keeper: CalibrationKeeper | None = None,
     ) -> None:
         self.fences, self.watch, self.calib = fences, watch, calib
-        self.keeper = keeper  # site.health.calib_keeper: a drifted camera placed again
-        self.opening = opening
+        self.keeper = keeper  # a drifted camera placed again
+        self.opening = hooks.opening
         self.stall = stall or StallWatch(watch.timeout_s)
-        self.fresh, self.clock, self.on_stall = fresh, clock, on_stall
+        self.fresh, self.clock, self.on_stall = hooks.fresh, hooks.clock, hooks.on_stall
         self.held = False  # this step is no observation (see the module)
         self._people2d: Mapping[str, People2D] = {}
         self._opened = False

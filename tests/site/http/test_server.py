@@ -24,6 +24,7 @@ from stereopose.site.http.server import (
     MAX_REQUESTS,
     ServeError,
     Server,
+    ServerTimes,
     ServeSettings,
     bind,
     is_loopback,
@@ -125,7 +126,9 @@ def test_shutdown_is_bounded_with_requests_still_open(caplog):
 
     for path in ("/api/slow", "/api/stuck"):
         entered.clear()
-        server = Server(app, ServeSettings(port=0), graceful_s=0.2, shutdown_timeout_s=1.0)
+        server = Server(
+            app, ServeSettings(port=0), times=ServerTimes(graceful_s=0.2, shutdown_timeout_s=1.0)
+        )
         port = server.start()
         idle = socket.create_connection(("127.0.0.1", port))  # a keep-alive client, silent
         threading.Thread(target=get, args=(server.url + path,), daemon=True).start()

@@ -189,13 +189,23 @@ def uvicorn_config(
     )
 
 
+@dataclass(frozen=True)
+class ServerTimes:
+    """start_timeout_s: the most `start()` waits for the server to accept; shutdown_timeout_s:
+    the most `stop()` takes; graceful_s: how long open requests may finish at shutdown."""
+
+    start_timeout_s: float = 10.0
+    shutdown_timeout_s: float = 5.0
+    graceful_s: float = GRACEFUL_S
+
+
 class Server:
     """The app served from a background thread. `start()` binds, serves and returns the bound
-    port once the server accepts connections; `stop()` ends it within shutdown_timeout_s.
-    graceful_s: how long open requests may finish at shutdown; users: the number of console
-    users now (None: not checked), and users_hint: how to add one, for the refusal to listen
-    beyond this machine without any; limits: what one connection and one client address may
-    hold (site.http.connections; None: its defaults). Usable as a context manager."""
+    port once the server accepts connections; `stop()` ends it (see ServerTimes). users: the
+    number of console users now (None: not checked), and users_hint: how to add one, for the
+    refusal to listen beyond this machine without any; limits: what one connection and one
+    client address may hold (site.http.connections; None: its defaults). Usable as a context
+    manager."""
 
     def __init__(
         self,
@@ -203,9 +213,7 @@ class Server:
         settings: ServeSettings | None = None,
         *,
         local_only: bool = False,
-        start_timeout_s: float = 10.0,
-        shutdown_timeout_s: float = 5.0,
-        graceful_s: float = GRACEFUL_S,
+        times: ServerTimes = ServerTimes(),
         users: Callable[[], int] | None = None,
         users_hint: str = "stereopose users add NAME --role admin --config CONFIG.toml",
         limits: ConnectionLimits | None = None,
@@ -215,9 +223,9 @@ class Server:
         self.users, self.users_hint = users, users_hint
         self.settings = settings or ServeSettings()
         self.local_only = local_only
-        self.start_timeout_s = start_timeout_s
-        self.shutdown_timeout_s = shutdown_timeout_s
-        self.graceful_s = graceful_s
+        self.start_timeout_s = times.start_timeout_s
+        self.shutdown_timeout_s = times.shutdown_timeout_s
+        self.graceful_s = times.graceful_s
         self.port: int | None = None
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
