@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stereopose.io.cameraset import CameraSet
-from stereopose.io.stream import JOIN_S, LiveStream, redact, why_not_open
+from stereopose.io.stream import JOIN_S, LiveStream, StreamWaits, redact, why_not_open
 from stereopose.io.video import VideoError, open_source, source_name
 from streams import (
     StallingServer,
@@ -55,7 +55,9 @@ def test_a_server_that_accepts_but_never_sends_is_a_clear_error() -> None:
 
 def test_close_returns_while_a_stream_is_still_opening() -> None:
     with StallingServer() as server:
-        stream = LiveStream(server.url(), "cam", timeout_s=60.0)  # FFmpeg would wait 60 s
+        stream = LiveStream(
+            server.url(), "cam", StreamWaits(timeout_s=60.0)
+        )  # FFmpeg would wait 60 s
         wait_until(lambda: server.clients, "the camera to connect")
         closing = threading.Thread(target=stream.close)
         closing.start()
@@ -72,7 +74,7 @@ def ts_bytes(tmp_path_factory) -> bytes:
 
 def test_a_camera_that_stops_sending_is_lost_logged_and_retried(ts_bytes, caplog) -> None:
     with caplog.at_level(logging.WARNING), StallingServer(ts_bytes) as server:
-        stream = LiveStream(server.url(), "cam", timeout_s=0.5, backoff_s=0.05)
+        stream = LiveStream(server.url(), "cam", StreamWaits(timeout_s=0.5, backoff_s=0.05))
         try:
             wait_until(lambda: stream.stats.reconnects >= 1, "the camera lost and back")
         finally:

@@ -19,6 +19,7 @@ import logging
 import socket
 import threading
 import time
+from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 import cv2
@@ -72,6 +73,18 @@ def _capture_params(timeout_s: float) -> list[int]:
     return params
 
 
+@dataclass(frozen=True)
+class StreamWaits:
+    """timeout_s: the most opening or reading waits; backoff_s: the first wait before trying
+    again after a loss, doubled up to max_backoff_s; log_every_s: the same problem logged at
+    most this often."""
+
+    timeout_s: float = 5.0
+    backoff_s: float = 0.5
+    max_backoff_s: float = 10.0
+    log_every_s: float = 10.0
+
+
 class LiveStream:
     """A live camera read on its own thread; ``latest()`` gives the newest unread frame.
 
@@ -88,21 +101,19 @@ class LiveStream:
         self,
         url: str,
         name: str | None = None,
-        timeout_s: float = 5.0,
-        backoff_s: float = 0.5,
-        max_backoff_s: float = 10.0,
+        waits: StreamWaits = StreamWaits(),
         *,
         clock: Clock | None = None,
         notify: threading.Event | None = None,
-        log_every_s: float = 10.0,
         packets: PacketRing | None = None,
     ) -> None:
         self.url = str(url)
         self.path = self.url
         self.name = name or source_name(self.url)
-        self.timeout_s, self.backoff_s, self.max_backoff_s = timeout_s, backoff_s, max_backoff_s
+        self.timeout_s, self.backoff_s = waits.timeout_s, waits.backoff_s
+        self.max_backoff_s = waits.max_backoff_s
         self.clock = clock or Clock.now()
-        self.log_every_s = log_every_s
+        self.log_every_s = waits.log_every_s
         self.fps: float | None = None
         self.count: int | None = None
         self.shape: tuple[int, int] | None = None

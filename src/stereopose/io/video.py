@@ -320,9 +320,10 @@ def open_source(
     text = str(spec)
     fps = check_fps(fps, f"{text}: fps")
     if is_stream(text):
-        from stereopose.io.stream import LiveStream
+        from stereopose.io.stream import LiveStream, StreamWaits
 
-        return LiveStream(text, name, open_timeout_s, clock=clock, notify=notify, packets=packets)
+        waits = StreamWaits(timeout_s=open_timeout_s)
+        return LiveStream(text, name, waits, clock=clock, notify=notify, packets=packets)
     path = Path(text)
     if path.is_dir():
         return ImageFolder(path, name, fps, loop=loop)

@@ -67,18 +67,26 @@ def query_times(since: str | None, until: str | None) -> dict[str, float]:
     return times
 
 
+def page(
+    limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
+    before_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
+    after_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
+) -> tuple[int, int | None, int | None]:
+    """(limit, before_id, after_id) of a page of events."""
+    return limit, before_id, after_id
+
+
 def filters(
     since: Annotated[str | None, _TIME] = None,
     until: Annotated[str | None, _TIME] = None,
     person: Annotated[int | None, Query(ge=-_I64, le=_I64)] = None,
     zone: Annotated[str | None, Query(max_length=200)] = None,
     type: Annotated[str | None, Query(max_length=64)] = None,
-    limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
-    before_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
-    after_id: Annotated[int | None, Query(ge=0, le=_I64)] = None,
     ticket: Annotated[str | None, Query(max_length=200)] = None,
+    paged: Annotated[tuple[int, int | None, int | None], Depends(page)] = (100, None, None),
 ) -> Filters:
     times = query_times(since, until)
+    limit, before_id, after_id = paged
     return Filters(
         since=times.get("since"),
         until=times.get("until"),
