@@ -156,10 +156,8 @@ class Ingest:
             queue_size=queue_size,
         )
         self.order = Order(
-            store,
             self.client,
             self.prefix,
-            self.counts,
             self.room,
             self._warn,
             shared=bool(self.shared),

@@ -26,15 +26,14 @@ Batch = dict[str, list[dict]]  # site -> the messages taken, in order
 
 
 class Order:
-    """The ingest thread's marks and ordering. counts: the ingest's figures (duplicates,
-    gaps, dropped, replays, ahead, behind); warn(kind, text): the ingest's rate-limited log."""
+    """The ingest thread's marks and ordering. room: the control room's incidents, with the
+    store and the ingest's figures (duplicates, gaps, dropped, replays, ahead, behind) it
+    shares; warn(kind, text): the ingest's rate-limited log."""
 
     def __init__(
         self,
-        store: ControlStore,
         client: paho.Client,
         prefix: str,
-        counts: dict[str, int],
         room: RoomIncidents,
         warn: Callable[[str, str], None],
         *,
@@ -42,8 +41,9 @@ class Order:
         ids_ahead: int = 100_000,
         replay_every_s: float = 2.0,
     ) -> None:
+        store: ControlStore = room.store
         self.store, self.client, self.prefix = store, client, prefix
-        self.counts, self.room, self.warn = counts, room, warn
+        self.counts, self.room, self.warn = room.counts, room, warn
         self.shared, self.ids_ahead = shared, int(ids_ahead)
         self.replay_every_s = float(replay_every_s)
         self.marks = store.marks()

@@ -19,6 +19,7 @@ from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import People2D
 
 PAD_VALUE = 114
+MAX_DET = 300  # people kept in one image at most (after non-maximum suppression)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.detection.base import Poses, detect_letterboxed
+from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed
 from stereopose.detection.models import ModelError, check_weights, models_dir, offline_environment
 from stereopose.skeleton import NUM_JOINTS
 
@@ -170,6 +170,7 @@ class OnnxPoseDetector:
     """
 
     name = "onnx"
+    max_det = MAX_DET  # people kept in one image at most
 
     def __init__(
         self,
@@ -177,7 +178,6 @@ class OnnxPoseDetector:
         imgsz: int = 640,
         conf: float = 0.25,
         iou: float = 0.7,
-        max_det: int = 300,
         device: str = "cpu",
         threads: int | None = None,
         precision: str = "fp32",
@@ -218,7 +218,7 @@ class OnnxPoseDetector:
         self.fixed = None if self.dynamic else (int(shape[2]), int(shape[3]))
         self.batch_dynamic = not isinstance(shape[0], int)
         self.imgsz = imgsz
-        self.conf, self.iou, self.max_det = conf, iou, max_det
+        self.conf, self.iou = conf, iou
         self.device, self.precision, self.max_batch = device, precision, max_batch
         if providers[0][0] != CPU:
             if kind == "tensorrt":

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.detection.base import Poses, detect_letterboxed
+from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed
 from stereopose.detection.models import ModelError, check_weights
 from stereopose.skeleton import NUM_JOINTS
 
@@ -43,6 +43,7 @@ class OpenVinoPoseDetector:
     """A YOLO pose model in ONNX (output (B, 56, N), no NMS inside) compiled by OpenVINO."""
 
     name = "openvino"
+    max_det = MAX_DET  # people kept in one image at most
 
     def __init__(
         self,
@@ -50,7 +51,6 @@ class OpenVinoPoseDetector:
         imgsz: int = 640,
         conf: float = 0.25,
         iou: float = 0.7,
-        max_det: int = 300,
         device: str = "cpu",
         threads: int | None = None,
         precision: str = "fp32",
@@ -123,7 +123,7 @@ class OpenVinoPoseDetector:
         self.precision = precision
         self.runs_in = ran  # what the device compiled it to: f32, bf16, f16
         self.imgsz = imgsz
-        self.conf, self.iou, self.max_det = conf, iou, max_det
+        self.conf, self.iou = conf, iou
         self.providers = [f"OpenVINO {ov.__version__.split('-')[0]} {self.device} {ran}"]
         logger.debug(
             "openvino: %s on %s, inference precision %s", self.model.name, self.device, ran

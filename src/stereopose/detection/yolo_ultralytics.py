@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.detection.base import Poses, check_image, group_by_shape
+from stereopose.detection.base import MAX_DET, Poses, check_image, group_by_shape
 from stereopose.detection.models import ModelError, check_weights, offline_environment
 
 logger = logging.getLogger(__name__)
@@ -18,6 +18,7 @@ class UltralyticsPoseDetector:
     """A local YOLO pose model (.pt, or any format ultralytics reads) run by ultralytics."""
 
     name = "ultralytics"
+    max_det = MAX_DET  # people kept in one image at most
 
     def __init__(
         self,
@@ -25,7 +26,6 @@ class UltralyticsPoseDetector:
         imgsz: int = 640,
         conf: float = 0.25,
         iou: float = 0.7,
-        max_det: int = 300,
         device: str = "cpu",
         threads: int | None = None,
     ) -> None:
@@ -49,7 +49,7 @@ class UltralyticsPoseDetector:
             raise ModelError(f"{self.model_path}: not a readable YOLO model: {e}") from None
         if self.model.task != "pose":
             raise ModelError(f"{self.model_path}: a {self.model.task} model, not a pose model")
-        self.imgsz, self.conf, self.iou, self.max_det = imgsz, conf, iou, max_det
+        self.imgsz, self.conf, self.iou = imgsz, conf, iou
         self.device = "cpu" if device == "auto" and not torch.cuda.is_available() else device
         if self.device == "auto":
             self.device = "cuda"

@@ -30,7 +30,7 @@ from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watchdog import Watchdog
 from stereopose.site.http.api.health import health_of
-from stereopose.site.http.app import create_app
+from stereopose.site.http.app import Desks, create_app
 from stereopose.site.http.hosts import allowed_hosts
 from stereopose.site.http.server import Server
 from stereopose.site.http.web import Console
@@ -128,10 +128,7 @@ class SiteService:
             self.state,
             console=self.console,
             allowed_hosts=hosts,
-            incidents=self.desk,
-            tickets=self.tickets,
-            calibration=self.calibration_desk,
-            site=self.site_desk,
+            desks=Desks(self.desk, self.tickets, self.calibration_desk, self.site_desk),
         )
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"

@@ -11,6 +11,7 @@ import pytest
 from consoled import PASSWORDS, console_server
 from knocked import proposed_keeper
 from stereopose.site.health.calib_keeper import KeeperDesk
+from stereopose.site.http.app import Desks
 
 pytestmark = pytest.mark.slow
 
@@ -31,7 +32,7 @@ def test_the_proposal_is_shown_and_only_an_admin_accepts_it(proposed, tmp_path) 
     desk = KeeperDesk()
     desk.keeper = keeper
     with (
-        console_server(tmp_path / "out", app_kw={"calibration": desk}) as s,
+        console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=30) as c,
     ):
         for name in ("vera", "otto"):
@@ -56,7 +57,7 @@ def test_the_proposal_is_shown_and_only_an_admin_accepts_it(proposed, tmp_path) 
 
 def test_before_the_keeper_runs_the_api_says_so(tmp_path) -> None:
     with (
-        console_server(tmp_path / "out", app_kw={"calibration": KeeperDesk()}) as s,
+        console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=KeeperDesk())}) as s,
         httpx.Client(base_url=s.url, timeout=30) as c,
     ):
         admin = {"Authorization": f"Bearer {_login(c, 'ada')}"}

@@ -10,6 +10,7 @@ from browsing import chromium, console_page
 from consoled import console_server, demo_plan
 from knocked import proposed_keeper
 from stereopose.site.health.calib_keeper import KeeperDesk
+from stereopose.site.http.app import Desks
 from waiting import wait_until
 
 pytestmark = pytest.mark.slow
@@ -31,7 +32,7 @@ def test_an_admin_accepts_the_pose_proposed_for_a_knocked_camera(proposed, tmp_p
     desk.keeper = keeper
     plan = demo_plan(tmp_path)  # its cam01..cam04 on the console's strip
     with (
-        console_server(tmp_path / "out", plan, app_kw={"calibration": desk}) as s,
+        console_server(tmp_path / "out", plan, app_kw={"desks": Desks(calibration=desk)}) as s,
         chromium() as browser,
     ):
         with console_page(browser, s.url, "vera", "calibration-viewer") as page:

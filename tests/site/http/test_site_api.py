@@ -18,6 +18,7 @@ import pytest
 from consoled import console_server
 from stereopose.fence import load_site
 from stereopose.fence.site import site_version
+from stereopose.site.http.app import Desks
 from stereopose.site.site_desk import SiteDesk
 
 DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
@@ -38,7 +39,7 @@ def _busbar_wider(doc: dict) -> dict:
 
 def test_every_role_reads_the_site_and_only_an_admin_changes_it(desk, tmp_path) -> None:
     before = desk.path.read_text()
-    with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
+    with console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s:
         for name in ("vera", "otto"):
             with contextlib.closing(s.client(name)) as c:
                 got = c.get("/api/site").json()
@@ -96,7 +97,7 @@ def test_every_role_reads_the_site_and_only_an_admin_changes_it(desk, tmp_path) 
 def test_a_bad_site_is_400_naming_the_key_and_changes_nothing(desk, tmp_path, edit, message):
     before, version = desk.path.read_text(), desk.version
     with (
-        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s,
         contextlib.closing(s.client("ada")) as c,
     ):
         got = c.get("/api/site").json()
@@ -136,7 +137,7 @@ def test_the_zones_in_the_cameras_pictures_and_a_click_back_on_the_floor(tmp_pat
     shutil.copy(DEMO_SITE, path)
     desk = SiteDesk(path, load_site(path), tmp_path / "history", rig=plan.rig)
     with (
-        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s,
         contextlib.closing(s.client("vera")) as c,
     ):
         got = c.post("/api/site/views", json={}).json()["cameras"]
@@ -184,7 +185,7 @@ def test_an_endpoints_password_is_never_shown_and_kept_when_the_site_comes_back(
     )
     desk = SiteDesk(path, load_site(path), tmp_path / "history")
     with (
-        console_server(tmp_path / "out", app_kw={"site": desk}) as s,
+        console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s,
         contextlib.closing(s.client("ada")) as c,
     ):
         r = c.get("/api/site")

@@ -17,6 +17,7 @@ import pytest
 from browsing import chromium, console_page
 from consoled import console_server, demo_plan
 from stereopose.fence import load_site
+from stereopose.site.http.app import Desks
 from stereopose.site.site_desk import SiteDesk
 from waiting import wait_until
 
@@ -50,7 +51,7 @@ def test_an_admin_draws_a_zone_saves_it_and_restores_the_earlier_version(browser
     shutil.copy(DEMO_SITE, path)
     desk = SiteDesk(path, load_site(path), tmp_path / "history", rig=demo_plan(tmp_path).rig)
     first = desk.version
-    with console_server(tmp_path / "out", app_kw={"site": desk}) as s:
+    with console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s:
         with _page(browser, s.url, "ada") as page:
             assert _zones(page) == ["overhead_busbar", "work_area", "qs1_front", "qs1_handle"]
             page.click("#site-new")

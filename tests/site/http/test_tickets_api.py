@@ -19,6 +19,7 @@ from stereopose.pipeline.step_rules import step_chain
 from stereopose.sim.behaviour_events import truth_frames
 from stereopose.sim.jobs import simulate_job
 from stereopose.site.desk import IncidentDesk
+from stereopose.site.http.app import Desks
 from stereopose.tickets import TicketDesk
 
 
@@ -39,7 +40,7 @@ def test_a_ticket_started_over_the_api_is_followed_step_by_step(tmp_path: Path) 
     segments = SegmentSink(tmp_path, fps, wall_start=WALL_START)
     body = js.ticket.to_dict()
     with console_server(
-        tmp_path, app_kw={"tickets": desk, "incidents": incidents}, events=False
+        tmp_path, app_kw={"desks": Desks(tickets=desk, incidents=incidents)}, events=False
     ) as served:
         viewer, op = served.client("vera"), served.client("otto")
         assert viewer.post("/api/tickets", json=body).status_code == 403
@@ -118,7 +119,7 @@ def test_a_ticket_posted_as_its_toml_file(tmp_path: Path) -> None:
         f'target = "{js.ticket.steps[0].target}"\n'
     )
     toml = {"Content-Type": "application/toml"}
-    with console_server(tmp_path, app_kw={"tickets": desk}, events=False) as served:
+    with console_server(tmp_path, app_kw={"desks": Desks(tickets=desk)}, events=False) as served:
         op = served.client("otto")
         r = op.post("/api/tickets", content=text.encode(), headers=toml)
         assert r.status_code == 201 and r.json()["ticket"]["id"] == "OT-T1"

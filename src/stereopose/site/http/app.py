@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -54,6 +55,21 @@ async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)
 
 
+@dataclass(frozen=True)
+class Desks:
+    """What the API acts through. incidents: the incident desk (site.desk: the incident book
+    once it runs; None: a desk of its own, never attached); tickets: the site's tickets
+    (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503); calibration:
+    the calibration keeper's desk (site.health.calib_keeper.KeeperDesk; None: the calibration
+    API answers that it is not running); site: the running site's desk (site.site_desk.
+    SiteDesk; None: the site API answers 503)."""
+
+    incidents: IncidentDesk | None = None
+    tickets: TicketDesk | None = None
+    calibration: object | None = None
+    site: object | None = None
+
+
 def create_app(
     state: ServiceState,
     *,
@@ -62,21 +78,19 @@ def create_app(
     lifespan: Callable[[FastAPI], Any] | None = None,
     console: object | None = None,
     allowed_hosts: Iterable[str] | None = None,
-    incidents: IncidentDesk | None = None,
-    tickets: TicketDesk | None = None,
-    calibration: object | None = None,
-    site: object | None = None,
+    desks: Desks = Desks(),
 ) -> FastAPI:
     """The app over `state`. registry: the metrics registry (None: one of its own over
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
     and stops with the server (the frame loop, the sinks); console: the console's parts
     (site.http.web.Console); allowed_hosts: the Host names served
-    (site.http.hosts.allowed_hosts; None: any); incidents: the incident desk (site.desk: the
-    incident book once it runs; None: a desk of its own, never attached); tickets: the site's
-    tickets (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503);
-    calibration: the calibration keeper's desk (site.health.calib_keeper.KeeperDesk; None:
-    the calibration API answers that it is not running); site: the running site's desk
-    (site.site_desk.SiteDesk; None: the site API answers 503)."""
+    (site.http.hosts.allowed_hosts; None: any); desks: what the API acts through (Desks)."""
+    incidents, tickets, calibration, site = (
+        desks.incidents,
+        desks.tickets,
+        desks.calibration,
+        desks.site,
+    )
     app = FastAPI(
         title="stereopose",
         version=__version__,  # shown only with a session (api.docs serves /openapi.json)
