@@ -306,6 +306,22 @@ class People3D:
         arrival time), frame / fps otherwise."""
         return self.frame / fps if self.t is None else self.t
 
+    def where(self, mask: np.ndarray) -> People3D:
+        """The people where `mask` (P,) is true, at the same frame and time."""
+        m = np.asarray(mask, dtype=bool)
+        return People3D(
+            self.frame,
+            self.joints[m],
+            self.conf[m],
+            self.ids[m],
+            self.reprojection_px[m],
+            self.views[m],
+            self.detections[m],
+            self.predicted[m],
+            self.velocity[m],
+            self.t,
+        )
+
     def at(self, t: float) -> People3D:
         """The same people stamped with time t (the arrays shared, not copied or checked again)."""
         out = copy.copy(self)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -135,3 +137,38 @@ def test_people_are_independent_and_nobody_is_fine() -> None:
     for f in range(10, 20):
         evs += mon.update(frame(f))
     assert [(e.person, e.type) for e in evs] == [(1, "enter")]
+
+
+def predicted(people: People3D) -> People3D:
+    """The same people, every one of them only predicted by the tracker (no camera saw them)."""
+    return dataclasses.replace(people, predicted=np.ones(len(people), dtype=bool))
+
+
+def test_a_predicted_position_alone_raises_no_alarm() -> None:
+    """The tracker carries a person nobody sees along his last velocity: carried into the
+    zone, he raises no enter nor approach; seen there, he does."""
+    mon = monitor(margin_m=0.5)
+    out = [mon.update(frame(f, (1, body(3.0)))) for f in range(5)]
+    out += [mon.update(predicted(frame(f, (1, body(0.5))))) for f in range(5, 40)]
+    assert flat(out) == []
+    out += [mon.update(frame(f, (1, body(0.5)))) for f in range(40, 50)]
+    assert flat(out) == [(42, "enter")]
+
+
+def test_a_person_inside_stays_inside_while_only_predicted_and_is_lost_in_time() -> None:
+    """Missed by every camera while inside: no exit while the track carries him (even carried
+    outside), he is inside again when seen there; carried for longer than lost_s after he was
+    last seen, he exits as lost, timed from that last sight."""
+    mon = monitor()
+    out = [mon.update(frame(f, (1, body(0.5)))) for f in range(10)]
+    out += [mon.update(predicted(frame(f, (1, body(3.0))))) for f in range(10, 30)]
+    out += [mon.update(frame(f, (1, body(0.5)))) for f in range(30, 40)]
+    assert flat(out) == [(2, "enter")]
+    last_seen = 39 / FPS
+    f = 40
+    while not out[-1]:
+        out.append(mon.update(predicted(frame(f, (1, body(0.5))))))
+        f += 1
+    (e,) = out[-1]
+    assert e.type == "exit" and e.lost and e.onset_t == pytest.approx(last_seen)
+    assert e.t - last_seen == pytest.approx(mon.lost_s, abs=1.5 / FPS)

@@ -186,9 +186,13 @@ class FenceMonitor:
 
     def update(self, people: People3D) -> list[Event]:
         """Events raised at this frame (usually none), at its time (People3D.time: live
-        cameras stamp their arrival time; frame / fps otherwise)."""
+        cameras stamp their arrival time; frame / fps otherwise). A person the tracker only
+        predicts (no camera saw him this frame) changes nothing: no alarm rests on a predicted
+        position alone, and whoever was inside stays so until seen again or lost."""
         t = people.time(self.fps)
         events: list[Event] = []
+        if people.predicted.any():
+            people = people.where(~people.predicted)
         if len(people):
             rows = self._rows(people.ids)
             geo = self._geometry(people.joints)
