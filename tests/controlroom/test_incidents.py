@@ -55,7 +55,12 @@ class Site:
     log, and the log's outbox with the book's acknowledge as its commands' way in."""
 
     def __init__(
-        self, folder: Path, port: int, name: str = "north", pace: OutboxPace | None = None
+        self,
+        folder: Path,
+        port: int,
+        name: str = "north",
+        pace: OutboxPace | None = None,
+        plan: dict | None = None,
     ) -> None:
         self.t, self.frame = 0.0, 0
         self.sink = SqliteSink(
@@ -74,6 +79,7 @@ class Site:
             EventLog(folder / f"{name}.sqlite"),
             pace or OutboxPace(),
             acknowledger=self.step.acknowledge,
+            plan=plan,
         )
 
     def run(self, *events: Event) -> list[Event]:

@@ -1,15 +1,22 @@
 """Detection in regions with the real detector on real demo frames: distant workers found in
 every camera, a worker who stands still kept, a newcomer found by the scan, one person each
-from regions at a frame's edge or overlapping, and empty cameras that cost nothing."""
+from regions at a frame's edge or overlapping, empty cameras that cost nothing, and near
+workers (as the site shows them) that cost what whole frames cost."""
 
 from __future__ import annotations
+
+from importlib import resources
 
 import numpy as np
 import pytest
 
 from demo_frames import demo_step
+from stereopose.calibration.formats import load_calibration
 from stereopose.detection import make_detector
-from stereopose.detection.regional import RegionDetector, RegionSettings
+from stereopose.detection.models import demo_videos
+from stereopose.detection.regional import FOUND_WHOLE_PX, RegionDetector, RegionSettings
+from stereopose.fence import load_site
+from stereopose.pipeline.track_regions import watched_heights
 from stereopose.sim.distant import Distant
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
@@ -163,3 +170,43 @@ def test_settings_are_checked():
         RegionSettings(full_scan_s=0.0)
     with pytest.raises(ValueError, match="detail"):
         RegionSettings(detail=0.0)
+
+
+def _demo_site_heights(rig) -> dict[str, float]:
+    site = load_site(str(resources.files("stereopose") / "data" / "demo_site.toml"))
+    return watched_heights(rig, site.zones)
+
+
+def test_near_workers_cost_what_whole_frames_cost_and_are_found_the_same(detector, steps):
+    """The real demo's workers are near (600-1000 px tall): the site shows that even the
+    farthest one the zones care about is found in the whole frame, so the scans take no tiles
+    and regions cost no more model input than whole frames, with the same people found. The
+    same frames with nothing known of the site tile the whole frame at the first scan."""
+    rig = load_calibration(demo_videos()[0].parents[1] / "calibration" / "Calib.qca.txt")
+    heights = _demo_site_heights(rig)
+    assert min(heights.values()) * detector.imgsz / 1920 >= FOUND_WHOLE_PX
+    watched = RegionDetector(detector, RegionSettings(full_scan_s=0.2))  # a scan every 2 steps
+    watched.watch(heights)
+    blind = RegionDetector(detector, RegionSettings(full_scan_s=0.2))
+    for k, images in enumerate(steps):
+        found = watched.detect(_step(images), k * STEP_S)
+        blind.detect(_step(images), k * STEP_S)
+        for cam, whole in zip(CAMS, detector.detect(images), strict=True):
+            assert len(found[cam]) == len(whole), (k, cam)
+            for box in whole.boxes:  # each person where the whole frame finds him
+                assert np.abs(found[cam].boxes - box).max(axis=1).min() < 0.02 * box[3], (k, cam)
+    report = watched.report()
+    assert all(c["full_scans"] >= 2 for c in report.values())
+    assert all(c["input_px"] <= c["whole_input_px"] for c in report.values()), report
+    assert all(c["input_px"] > c["whole_input_px"] for c in blind.report().values())
+
+
+def test_far_workers_keep_their_tiles(detector, steps):
+    """The same site seen from far (the frames a fifth of their size in a wide view): its
+    farthest worker is too small for the whole frame, so the first scan still tiles it."""
+    far = Distant(0.2)
+    rig = load_calibration(demo_videos()[0].parents[1] / "calibration" / "Calib.qca.txt")
+    regions = RegionDetector(detector)
+    regions.watch(_demo_site_heights(far.rig(rig)))
+    regions.detect(_step([far.frame(im) for im in steps[0]]), 0.0)
+    assert all(c["regions"] > 1 and c["whole_frames"] == 1 for c in regions.report().values())

@@ -14,7 +14,10 @@ Per camera and step the regions come from:
   and one step; where the whole frame sees more coarsely than half the camera's resolution,
   each scan adds one of the frame's overlapping tiles at that resolution in turn (a distant
   worker never seen moving is found within as many scans as there are tiles); a camera's
-  first scan takes every tile.
+  first scan takes every tile. Tiles are for workers too small for the whole frame: where the
+  site shows that even the farthest worker that matters looks tall enough there (`watch`),
+  the scan is the whole frame alone, and a camera of near people costs what its whole frame
+  costs.
 
 Regions are squares merged into a few (detection.regions), cut from the frame at its own
 resolution and letterboxed each into a `imgsz` x `imgsz` model input: smaller ones are
@@ -54,6 +57,9 @@ HELD_MAX = 64  # a camera's own people held for their regions, at most
 MAX_REGIONS = 8  # regions of one camera and step; more are merged, or the whole frame taken
 # people boxes in regions: they move on between steps, so a little more than motion's
 SEEN_MIN_SIDE = 0.5  # of imgsz: a region at most twice enlarged
+# a worker at least this tall in the whole frame's model input is found there: a camera whose
+# smallest watched worker (watch) is that tall scans its whole frame alone, no tiles
+FOUND_WHOLE_PX = 96
 
 # the reasons that say a person is there (a track, a detection at the last step)
 _PEOPLE = frozenset({Why.TRACK, Why.SEEN})
@@ -144,6 +150,15 @@ class RegionDetector:
         self.iou = float(detector.iou)
         self.cameras: dict[str, CameraRegions] = {}
         self._state: dict[str, _Camera] = {}
+        self._watched: dict[str, float] = {}
+
+    def watch(self, heights: Mapping[str, float]) -> None:
+        """Per camera, how tall (its pixels) the smallest worker looks anywhere he matters
+        (pipeline.track_regions.watched_heights, from the site). A camera that sees him at
+        least FOUND_WHOLE_PX tall in its whole frame's model input scans the whole frame
+        alone: no tile would find anyone it misses. A camera not named: tiles as needed. Any
+        thread (a site change)."""
+        self._watched = {str(k): float(v) for k, v in heights.items()}
 
     def regions(self, camera: str) -> list[Region]:
         """The regions of `camera`'s last step (empty: detected whole, or nothing to see);
@@ -245,6 +260,10 @@ class RegionDetector:
             # one whole frame and a region: every tile is looked at once in as many scans);
             # the camera's first scan, every tile
             tile = 2 * s.imgsz
+            if self._watched.get(name, 0.0) * whole_scale >= FOUND_WHOLE_PX:
+                # every worker that matters is found whole: no tile, and a region only for
+                # whom the whole frame sees at less than half its detail
+                return _finer(regions, s.imgsz, whole_scale), True, True
             if whole_scale >= s.imgsz / tile:
                 return regions, True, True
             grid = tiles(size, tile)
@@ -261,12 +280,7 @@ class RegionDetector:
             # someone too large for a region's detail: the whole frame, and the regions of
             # people it would see at less than half their region's detail (a distant worker
             # beside a near one)
-            finer = [
-                r
-                for r in regions
-                if s.imgsz / max(r.side_w, r.side_h) > 2 * whole_scale and r.why & _PEOPLE
-            ]
-            return finer, False, True
+            return _finer(regions, s.imgsz, whole_scale), False, True
         whole_px = whole.input_shape[0] * whole.input_shape[1]
         finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
         if len(regions) * s.imgsz**2 >= whole_px and whole_scale >= finest:
@@ -378,6 +392,14 @@ class RegionDetector:
             np.array([boxes[i] for i in keep]),
             np.array([scores[i] for i in keep]),
         )
+
+
+def _finer(regions: list[Region], imgsz: int, whole_scale: float) -> list[Region]:
+    """The regions of people the whole frame (at whole_scale) sees at less than half the
+    detail of their region (at imgsz): kept beside the whole frame."""
+    return [
+        r for r in regions if imgsz / max(r.side_w, r.side_h) > 2 * whole_scale and r.why & _PEOPLE
+    ]
 
 
 def _in_view(boxes: np.ndarray, size: tuple[int, int], share: float = 0.5) -> np.ndarray:

@@ -29,7 +29,7 @@ from stereopose.detection import make_detector
 from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
-from stereopose.fence import load_site
+from stereopose.fence import Site, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
 from stereopose.io.video import is_stream, open_source
@@ -48,6 +48,7 @@ from stereopose.pipeline.paths import (
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.reconstruct import save_inputs
 from stereopose.pipeline.sources import Cameras, check_size
+from stereopose.pipeline.track_regions import watched_heights
 from stereopose.secrets import masked_toml
 from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
@@ -109,14 +110,17 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
 
 
 def _camera_source(
-    cams: CameraSet, rig: Rig, detector, settings: DetectorConfig
+    cams: CameraSet, rig: Rig, detector, settings: DetectorConfig, site: Site | None
 ) -> Cameras | PipelinedCameras:
     """Live cameras: detection on its own thread, always on the newest frames. Recorded ones
     keep the plain source: every frame is detected in turn, and the outputs stay the same.
     settings: [detector] regions and its settings (detection.regional), night
-    (detection.light)."""
+    (detection.light); site: where workers matter, for the regions' scans (None: anywhere)."""
     light = LightWatch(enhance=settings.night)
-    cameras = Cameras(cams, rig, detector, region_detector(detector, settings), light)
+    regions = region_detector(detector, settings)
+    if regions is not None and site is not None:
+        regions.watch(watched_heights(rig, site.zones))
+    cameras = Cameras(cams, rig, detector, regions, light)
     return PipelinedCameras(cameras) if cams.live else cameras
 
 
@@ -252,7 +256,7 @@ def run(
         return run_frames(
             rig,
             cfg,
-            _camera_source(cams, rig, detector, det),
+            _camera_source(cams, rig, detector, det, site),
             outputs,
             site,
             calib_path=cfg.calibration or "",

@@ -1,18 +1,25 @@
 """The tracks' way back to detection: each tracked person's box in a camera at the next step's
 time, for the regions where detection.regional looks (the one loop of the data flow, through
-the frame loop)."""
+the frame loop); and, from the site, how small a worker can look in each camera where he
+matters, for its scans."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
 from stereopose.geometry.camera import project, world_to_camera
-from stereopose.types import Camera, People3D
+from stereopose.types import Camera, People3D, Rig
+from stereopose.zones import Zone
 
 AHEAD_MAX_S = 1.0  # a track is moved on by its velocity for at most this long
 NEAR_M = 0.5  # a person with a joint nearer the camera's plane than this has no sane box
 HEAD_ROOM = 0.12  # of the joints' height above the top joint (the eyes): the top of the head
 FOOT_ROOM = 0.05  # below the ankles
+WORKER_M = 1.6  # the smallest worker the scans are planned for, metres tall
+REACH_M = 1.0  # around a zone, beyond its margin, where a worker matters (he walks in from it)
+GRID = 11  # places per side of each zone's grown box where a worker is put
 
 
 def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
@@ -39,3 +46,33 @@ def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
         h = max(y2 - y1, x2 - x1, 1.0)
         out.append((x1, y1 - HEAD_ROOM * h, x2, y2 + FOOT_ROOM * h))
     return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+
+
+def watched_heights(rig: Rig, zones: Sequence[Zone]) -> dict[str, float]:
+    """Per camera, how tall (its pixels) the smallest worker looks anywhere he matters: one
+    WORKER_M tall standing on a grid over each zone's box grown by its margin and REACH_M,
+    where his feet or his head fall inside the picture. inf: no such place in the camera's
+    view; no zones: {} (nothing known: the scans look everywhere)."""
+    places = []
+    for z in zones:
+        grow = float(z.margin_m or 0.0) + REACH_M
+        lo, hi = z.polygon.min(axis=0) - grow, z.polygon.max(axis=0) + grow
+        gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], GRID), np.linspace(lo[1], hi[1], GRID))
+        places.append(np.column_stack([gx.ravel(), gy.ravel()]))
+    if not places:
+        return {}
+    floor = np.concatenate(places)
+    feet = np.column_stack([floor, np.zeros(len(floor))])
+    heads = feet + np.array([0.0, 0.0, WORKER_M])
+    out = {}
+    for camera in rig:
+        a, b = project(feet, camera), project(heads, camera)
+        w, h = camera.size
+
+        def inside(p: np.ndarray, w: float = w, h: float = h) -> np.ndarray:
+            return (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
+
+        seen = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & (inside(a) | inside(b))
+        tall = np.linalg.norm(b - a, axis=1)
+        out[camera.name] = float(tall[seen].min()) if seen.any() else float("inf")
+    return out

@@ -52,10 +52,10 @@ from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
 from stereopose.detection.light import LightWatch
-from stereopose.detection.regional import region_detector
+from stereopose.detection.regional import RegionDetector, region_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
-from stereopose.fence import FenceMonitor
+from stereopose.fence import FenceMonitor, Site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -70,6 +70,7 @@ from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
+from stereopose.pipeline.track_regions import watched_heights
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
@@ -90,6 +91,7 @@ from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
 from stereopose.site.site_switch import SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
+from stereopose.types import Rig
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -296,6 +298,7 @@ def _run_loop(
         on_stall=service.state.service_stall,
     )
     events = ServeEvents(fences, watch, calib, hooks, keeper=keeper)
+    scans = None  # the regions' scans told each new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
@@ -310,6 +313,7 @@ def _run_loop(
         service.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
+            scans = _scans_watch(regions, rig, plan.site)
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
@@ -355,7 +359,7 @@ def _run_loop(
     try:
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
-            incidents.switch = _site_switch(service, events, cfg)
+            incidents.switch = _site_switch(service, events, cfg, scans)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -401,8 +405,11 @@ def _incidents(
     return step
 
 
-def _site_switch(service: SiteService, events: ServeEvents, cfg: Config) -> SiteSwitch:
-    """What takes a new site at a step's start (site.site_switch), on the run's settings."""
+def _site_switch(
+    service: SiteService, events: ServeEvents, cfg: Config, scans: Callable[[Site], None] | None
+) -> SiteSwitch:
+    """What takes a new site at a step's start (site.site_switch), on the run's settings;
+    scans: told each new site (the regions' scans; None: no regions)."""
     hub = service.console.hub if service.console is not None else None
     return SiteSwitch(
         service.site_desk,
@@ -412,4 +419,16 @@ def _site_switch(service: SiteService, events: ServeEvents, cfg: Config) -> Site
         zone_state=service.power,
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
+        on_site=() if scans is None else (scans,),
     )
+
+
+def _scans_watch(regions: RegionDetector, rig: Rig, site: Site | None) -> Callable[[Site], None]:
+    """The regions' scans told where workers matter, from `site` now and from each new site
+    (detection.regional.RegionDetector.watch); the callable takes a new site."""
+
+    def watch(new: Site | None) -> None:
+        regions.watch({} if new is None else watched_heights(rig, new.zones))
+
+    watch(site)
+    return watch

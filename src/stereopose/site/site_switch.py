@@ -13,7 +13,7 @@ again only when a zone's state source changed.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
@@ -63,10 +63,12 @@ class SiteSwitch:
         zone_state: ZoneStates | None = None,
         restart_power: Callable[[Site], ZoneStates | None] | None = None,
         scene: SceneState | None = None,
+        on_site: Sequence[Callable[[Site], None]] = (),
     ) -> None:
         self.desk, self.events, self.config = desk, events, config
         self.tickets, self.zone_state = tickets, zone_state
         self.restart_power, self.scene = restart_power, scene
+        self.on_site = list(on_site)  # told each new site (the regions' scans)
 
     def __call__(self, step: IncidentStep, t: float, frame: int) -> list[Event]:
         """The events of a change taken at this step (none without one)."""
@@ -105,6 +107,8 @@ class SiteSwitch:
         step.book.settings = AlarmSettings.from_site(change.new)
         if self.scene is not None:
             self.scene.set_site(change.new)
+        for tell in self.on_site:
+            tell(change.new)
         said = "; ".join(
             f"{what} {', '.join(names)}"
             for what, names in (("added", added), ("removed", removed), ("changed", changed))
