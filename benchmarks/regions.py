@@ -125,10 +125,13 @@ def scenes(work: Path, n: int) -> dict[str, tuple[Path, dict[str, Path], float]]
     return out
 
 
-def one_run(work: Path, calib: Path, videos: dict[str, Path], detector: str) -> tuple[dict, Path]:
+def one_run(
+    work: Path, calib: Path, videos: dict[str, Path], detector: str, site: Path | None = None
+) -> tuple[dict, Path]:
     work.mkdir(parents=True, exist_ok=True)
     lines = [
         f'calibration = "{calib}"',
+        *([f'site = "{site}"'] if site is not None else []),
         'output = "."',
         "",
         "[detector]",
@@ -203,6 +206,12 @@ def main() -> None:
     ap.add_argument("--scenes", help="comma-separated scenes (default: every one)")
     ap.add_argument("--setups", help="comma-separated set-ups (default: every one)")
     ap.add_argument("--name", default="regions", help="results/<name>.{json,md} (regions)")
+    ap.add_argument(
+        "--site",
+        action="store_true",
+        help="every scene watched as the demo's site (its zones, in the recording's world "
+        "frame): the scans plan their tiles on how small its farthest worker looks",
+    )
     args = ap.parse_args()
     only = set(args.scenes.split(",")) if args.scenes else None
     chosen = args.setups.split(",") if args.setups else list(SETUPS)
@@ -215,8 +224,10 @@ def main() -> None:
         "frames": args.frames,
         "scenes": {},
     }
+    r["site"] = bool(args.site)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
+        site = write_demo_config(work / "site").parent / "demo_site.toml" if args.site else None
         for scene, (calib, videos, fps) in scenes(work / "scenes", args.frames).items():
             if only is not None and scene not in only:
                 continue
@@ -227,7 +238,7 @@ def main() -> None:
             if scene == "full" and args.setups is None:  # people too large for a region
                 setups["regions_detail_0.5"] = SETUPS["regions"] + "\nregion_detail = 0.5"
             for name, det in setups.items():
-                runs[name], poses[name] = one_run(work / scene / name, calib, videos, det)
+                runs[name], poses[name] = one_run(work / scene / name, calib, videos, det, site)
                 print(
                     scene, name, {k: v for k, v in runs[name].items() if k != "regions"}, flush=True
                 )
@@ -302,7 +313,14 @@ def markdown(r: dict) -> list[str]:
         "demo and on scenes made from it, all set-ups in the same run; the old path is whole "
         "frames at 640 on ONNX Runtime fp32; regions at their defaults "
         "(region_imgsz 320, full_scan_s 3, region_detail 1). ms per step: detection's, and the "
-        "whole step's (decoding, detection, 3D, writing) over 4 cameras.",
+        "whole step's (decoding, detection, 3D, writing) over 4 cameras."
+        + (
+            " Every scene is watched as the demo's site (its zones, in the recording's world "
+            "frame): a camera whose farthest watched worker is found in the whole frame scans "
+            "it without tiles."
+            if r.get("site")
+            else ""
+        ),
         "",
         "| scene | set-up | detector | detection ms/step | step ms | faster than the old path | "
         "people per camera (cam01 / 02 / 03 / 04) | ids stable (frames) | reprojection median "

@@ -1,10 +1,12 @@
 """`stereopose serve` on the real demo takes a new site while it runs: an admin's PUT adds a
-zone whose events start within seconds, with no restart and the people's ids going on; a hand
-edit and SIGHUP remove it again (its occupants exit); a broken file on SIGHUP keeps the running
-site and raises a diagnostic incident naming the file."""
+zone whose events start within seconds, with no restart and the people's ids going on, and the
+MQTT output's retained `site` says the new version and zones; a hand edit and SIGHUP remove it
+again (its occupants exit, its retained state cleared); a broken file on SIGHUP keeps the
+running site and raises a diagnostic incident naming the file."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -14,7 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from brokers import free_port
+from brokers import Broker, Subscriber, free_port
 from served import log_rows
 from stereopose.pipeline.demo import write_serve_demo_config
 from waiting import wait_until
@@ -40,6 +42,10 @@ def _changes(db: Path) -> list[tuple]:
 def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
     port = free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
+    broker = Broker(tmp_path / "broker").start()
+    mqtt = f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n[serve]\n'
+    config.write_text(config.read_text().replace("[serve]\n", mqtt, 1))
+    sub = Subscriber(broker.port, "stereopose/demo/site", "stereopose/demo/zones/+")
     site = tmp_path / "demo" / "demo_site.toml"
     db = tmp_path / "data" / "events.sqlite"
     add = [sys.executable, "-m", "stereopose.cli", "users", "add", "ada", "--role", "admin"]
@@ -72,6 +78,8 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
         )
         ids_before = {p for (p,) in log_rows(db, "SELECT DISTINCT person FROM events")}
         got = c.get("/api/site").json()
+        wait_until(lambda: sub.on("stereopose/demo/site"), "the retained site", timeout_s=10)
+        assert json.loads(sub.on("stereopose/demo/site")[-1])["version"] == got["version"]
         new = {**got["site"], "zones": [*got["site"]["zones"], FLOOR]}
         saved = time.monotonic()
         r = c.put("/api/site", json={"version": got["version"], "site": new})
@@ -89,6 +97,15 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
         assert kind == "site_changed" and incident is None
         assert text.startswith("ada: version ") and "zones added whole_floor" in text
         assert "whole_floor" in site.read_text() and "# recording looped" in site.read_text()
+        version = c.get("/api/site").json()["version"]
+
+        def said(version: str) -> dict | None:
+            bodies = [json.loads(b) for b in sub.on("stereopose/demo/site")]
+            return next((b for b in bodies if b["version"] == version), None)
+
+        wait_until(lambda: said(version), "the new site over MQTT", timeout_s=10)
+        assert "whole_floor" in said(version)["zones"]
+        wait_until(lambda: sub.on("stereopose/demo/zones/whole_floor"), "its zone's state")
         # the people's ids go on: the tracks were not started again
         ids_after = {
             p
@@ -108,6 +125,11 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
             db, "SELECT source FROM events WHERE zone = 'whole_floor' AND type = 'exit' "
         )
         assert ("site changed: zone removed",) in exits
+        wait_until(
+            lambda: "" in sub.on("stereopose/demo/zones/whole_floor"),
+            "the removed zone's retained state cleared",
+            timeout_s=10,
+        )
 
         # a broken file: the running site kept, a diagnostic incident naming the file
         site.write_text(site.read_text().replace('kind = "restricted"', 'kind = "lava"'))
@@ -123,3 +145,5 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=60) == 0, (tmp_path / "serve.log").read_text()[-3000:]
+        sub.close()
+        broker.stop()

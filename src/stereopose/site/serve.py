@@ -56,9 +56,10 @@ from stereopose.detection.regional import RegionDetector, region_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import FenceMonitor, Site
+from stereopose.fence.site import site_version
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
-from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, unwrapped
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
@@ -298,7 +299,7 @@ def _run_loop(
         on_stall=service.state.service_stall,
     )
     events = ServeEvents(fences, watch, calib, hooks, keeper=keeper)
-    scans = None  # the regions' scans told each new site
+    on_site: list[Callable[[Site], None]] = []  # each told every new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
@@ -313,7 +314,7 @@ def _run_loop(
         service.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
-            scans = _scans_watch(regions, rig, plan.site)
+            on_site.append(_scans_watch(regions, rig, plan.site))
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
@@ -354,12 +355,13 @@ def _run_loop(
     sinks = service.open_sinks(
         cfg, wall_start, summary, cams.stats, arrival, rates or (lambda: nominal_rates(cams))
     )
+    on_site += _mqtt_site(sinks, plan.site)
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
         incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
-            incidents.switch = _site_switch(service, events, cfg, scans)
+            incidents.switch = _site_switch(service, events, cfg, on_site)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -406,10 +408,10 @@ def _incidents(
 
 
 def _site_switch(
-    service: SiteService, events: ServeEvents, cfg: Config, scans: Callable[[Site], None] | None
+    service: SiteService, events: ServeEvents, cfg: Config, on_site: list[Callable[[Site], None]]
 ) -> SiteSwitch:
     """What takes a new site at a step's start (site.site_switch), on the run's settings;
-    scans: told each new site (the regions' scans; None: no regions)."""
+    on_site: told each new site (the regions' scans, the MQTT output's `site`)."""
     hub = service.console.hub if service.console is not None else None
     return SiteSwitch(
         service.site_desk,
@@ -419,8 +421,24 @@ def _site_switch(
         zone_state=service.power,
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
-        on_site=() if scans is None else (scans,),
+        on_site=on_site,
     )
+
+
+def _mqtt_site(sinks: list, site: Site | None) -> list[Callable[[Site], None]]:
+    """The MQTT output's retained `site` message (its version as GET /api/site gives it, its
+    zones), now and at each new site; none without an MQTT output or a site."""
+    from stereopose.io.sinks.mqtt import MqttSink
+
+    mqtt = next((u for s in sinks if isinstance(u := unwrapped(s), MqttSink)), None)
+    if mqtt is None or site is None:
+        return []
+
+    def tell(new: Site) -> None:
+        mqtt.set_site(site_version(new), [z.name for z in new.zones], time.time())
+
+    tell(site)
+    return [tell]
 
 
 def _scans_watch(regions: RegionDetector, rig: Rig, site: Site | None) -> Callable[[Site], None]:

@@ -453,3 +453,28 @@ def test_a_message_published_as_the_link_drops_is_counted_when_resent(closing) -
     assert sink.figures()["events"]["queued"] == 1  # waiting, and no exception
     sink._on_publish(None, None, 7)  # paho resent it after reconnecting
     assert published(sink, "events") == 1 and sink.figures()["events"]["queued"] == 0
+
+
+def test_the_site_is_retained_and_a_removed_zone_is_cleared(broker, closing) -> None:
+    """`site` retained with the running site's version and zones; at a change, a new zone's
+    state is published (empty) and a removed one's retained state cleared, so a late
+    subscriber sees the new site's zones only."""
+    sink = MqttSink(settings(broker.port), zone_names=["bay1", "bay2"])
+    closing(sink)
+    sink.set_site("v1", ["bay1", "bay2"], 1.8e9)
+    sink.write(frame(1, [3], [event(1, person=3, zone="bay2")]))
+    wait_until(lambda: sink.figures()["zones"]["queued"] == 0, "the zone states sent")
+    sink.set_site("v2", ["bay1", "bay3"], 1.8e9 + 60)
+    wait_until(lambda: sink.figures()["zones"]["queued"] == 0, "the change sent")
+    late = Subscriber(broker.port, f"{BASE}/site", f"{BASE}/zones/+")
+    closing(late)
+    wait_until(lambda: late.on(f"{BASE}/site"), "the retained site")
+    wait_until(lambda: len({m.topic for m in late.messages}) == 3, "the site and two zones")
+    (site,) = late.on(f"{BASE}/site")
+    assert json.loads(site) == {"version": "v2", "zones": ["bay1", "bay3"], "t": 1.8e9 + 60}
+    assert {m.topic for m in late.messages} == {
+        f"{BASE}/site",
+        f"{BASE}/zones/bay1",
+        f"{BASE}/zones/bay3",
+    }
+    assert all(m.retain for m in late.messages)

@@ -10,6 +10,8 @@ Topics under ``<prefix>/<site>/`` (see docs/mqtt.md):
   of the frames' own clock, QoS 0.
 - ``available``: ``online`` retained on connect; ``offline`` retained at a clean close and as
   the last will, so a crash or a lost link reads ``offline``.
+- ``site``: the running site's version and zones, retained, QoS 1 (`set_site`: at the start
+  and at each change; a removed zone's retained state is cleared).
 
 The frame loop never waits on the network: `write` only appends to bounded queues; a sender
 thread hands messages to paho (whose network loop runs on its own thread and reconnects with
@@ -85,7 +87,8 @@ class MqttSink(ClosesOnce):
     def __init__(self, settings: MqttSettings, zone_names: Iterable[str] = ()) -> None:
         self.settings = s = settings
         base = f"{s.topic_prefix}/{topic_part(s.site)}"
-        self.topics = {k: f"{base}/{k}" for k in ("events", "people", "available", "incidents")}
+        kinds = ("events", "people", "available", "incidents", "site")
+        self.topics = {k: f"{base}/{k}" for k in kinds}
         self._zone_base = f"{base}/zones/"
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -100,12 +103,14 @@ class MqttSink(ClosesOnce):
             z: (set(), None, None) for z in zone_names
         }
         self._dirty: set[str] = set(self._zones)
+        self._site: str | None = None  # the `site` message's payload, sent again on connect
+        self._cleared: set[str] = set()  # removed zones whose retained state is to be cleared
         self._power: dict[str, tuple[str, str | None]] = {}  # zone -> its state, source
         self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
         # message ids paho says are sent (QoS 0) or acknowledged (QoS 1): a message published
         # while the link was down keeps that error in its info even once paho has resent it
         self._acked: set[int] = set()
-        self._connected = self._announce = self._resync = False
+        self._connected = self._announce = self._resync = self._announce_site = False
         self._last_problem: str | None = None
         self._people_t: float | None = None
         self._people_empty = True
@@ -144,6 +149,25 @@ class MqttSink(ClosesOnce):
             for c in changes:
                 body = _dumps(c.to_dict())
                 self._put(_Message("incidents", self.topics["incidents"], body, 1))
+        self._wake.set()
+
+    def set_site(self, version: str, zones: Sequence[str], t: float) -> None:
+        """The running site (at the start, and each change at wall time t): `site` retained
+        with its version and zones; a new zone's state published empty, a removed one's
+        cleared (an empty retained message)."""
+        body = {"version": version, "zones": list(zones), "t": round(float(t), 3)}
+        with self._lock:
+            self._site = _dumps(body)
+            for gone in [z for z in self._zones if z not in zones]:
+                del self._zones[gone]
+                self._dirty.discard(gone)
+                self._cleared.add(gone)
+            for z in zones:
+                if z not in self._zones:
+                    self._zones[z] = (set(), None, None)
+                    self._dirty.add(z)
+                    self._cleared.discard(z)
+            self._announce_site = True
         self._wake.set()
 
     def _occupy(self, e: Event) -> None:
@@ -226,6 +250,12 @@ class MqttSink(ClosesOnce):
             if self._announce:
                 self._announce = False
                 return _Message("available", self.topics["available"], ONLINE, 1, retain=True)
+            if self._announce_site and self._site is not None:
+                self._announce_site = False
+                return _Message("site", self.topics["site"], self._site, 1, retain=True)
+            if self._cleared:
+                gone = self._zone_base + topic_part(self._cleared.pop())
+                return _Message("zones", gone, "", 1, retain=True)
             if self._dirty:
                 return self._zone_message(self._dirty.pop())
             heads = [q for q in self._queues.values() if q]
@@ -327,26 +357,19 @@ class MqttSink(ClosesOnce):
             self._problem(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
             return
         with self._lock:
-            self._connected = self._announce = True
+            self._connected = self._announce = self._announce_site = True
             self._resync = bool(self._inflight)
             self._dirty.update(self._zones)  # the broker may have lost its retained states
             waiting = sum(len(q) for q in self._queues.values())
         if self._last_problem is not None:
-            logger.info(
-                "MQTT %s:%d: connected; %d messages waiting",
-                self.settings.host,
-                self.settings.port,
-                waiting,
-            )
+            st = self.settings
+            logger.info("MQTT %s:%d: connected; %d messages waiting", st.host, st.port, waiting)
         self._last_problem = None
         self._wake.set()
 
     def _on_connect_fail(self, client: paho.Client, userdata: object) -> None:
-        why = (
-            "broker unreachable or TLS handshake failed"
-            if self.settings.tls
-            else "broker unreachable"
-        )
+        tls = self.settings.tls
+        why = "broker unreachable or TLS handshake failed" if tls else "broker unreachable"
         self._problem(logging.WARNING, f"{why}; queueing and retrying")
 
     def _on_disconnect(
@@ -369,7 +392,7 @@ class MqttSink(ClosesOnce):
             for kind, _ in self._inflight:
                 if kind in queued:
                     queued[kind] += 1
-            queued["zones"] += len(self._dirty)
+            queued["zones"] += len(self._dirty) + len(self._cleared)
             return {
                 k: {
                     "published": c.published[k],
@@ -454,13 +477,8 @@ class MqttSink(ClosesOnce):
             f"{k} " + ", ".join(f"{n} {w}" for w, n in v.items()) for k, v in counts.items()
         )
         lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())
-        logger.log(
-            logging.WARNING if lost else logging.INFO,
-            "MQTT %s:%d closed: %s",
-            self.settings.host,
-            self.settings.port,
-            text,
-        )
+        level, st = logging.WARNING if lost else logging.INFO, self.settings
+        logger.log(level, "MQTT %s:%d closed: %s", st.host, st.port, text)
 
 
 def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None = None) -> dict:
