@@ -107,8 +107,11 @@ class SiteSwitch:
         step.book.settings = AlarmSettings.from_site(change.new)
         if self.scene is not None:
             self.scene.set_site(change.new)
-        for tell in self.on_site:
-            tell(change.new)
+        for tell in self.on_site:  # what only follows the site: a failure does not undo it
+            try:
+                tell(change.new)
+            except Exception:
+                logger.exception("site: version %s not told to %r", change.version, tell)
         said = "; ".join(
             f"{what} {', '.join(names)}"
             for what, names in (("added", added), ("removed", removed), ("changed", changed))
