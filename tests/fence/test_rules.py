@@ -172,3 +172,17 @@ def test_a_person_inside_stays_inside_while_only_predicted_and_is_lost_in_time()
     (e,) = out[-1]
     assert e.type == "exit" and e.lost and e.onset_t == pytest.approx(last_seen)
     assert e.t - last_seen == pytest.approx(mon.lost_s, abs=1.5 / FPS)
+
+
+def test_a_zone_switched_off_raises_nothing_and_stays_off_across_a_site_change() -> None:
+    mon = monitor()
+    assert flat(run(mon, [0.5] * 10)) == [(2, "enter")]
+    assert mon.switch("panel", False) and not mon.switch("panel", False)
+    assert not mon.switch("no such zone", False)
+    assert mon.occupants("panel") == ([], [])
+    assert flat(run(mon, [3.0] * 10 + [0.5] * 10)) == []
+    again = monitor()  # the same site taken again (a site change): the switch kept
+    again.carry(mon)
+    assert flat(run(again, [0.5] * 10)) == []
+    assert again.switch("panel", True)
+    assert flat(run(again, [0.5] * 10)) == [(2, "enter")]

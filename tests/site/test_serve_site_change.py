@@ -1,8 +1,9 @@
 """`stereopose serve` on the real demo takes a new site while it runs: an admin's PUT adds a
 zone whose events start within seconds, with no restart and the people's ids going on, and the
 MQTT output's retained `site` says the new version and zones; a hand edit and SIGHUP remove it
-again (its occupants exit, its retained state cleared); a broken file on SIGHUP keeps the
-running site and raises a diagnostic incident naming the file."""
+again (its occupants exit, its retained state cleared); the work area switched off and on
+over MQTT (its people exit, who did it said, they enter again); a broken file on SIGHUP keeps
+the running site and raises a diagnostic incident naming the file."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import time
 from pathlib import Path
 
 import httpx
+import paho.mqtt.client as paho
 import pytest
 
 from brokers import Broker, Subscriber, free_port
@@ -43,7 +45,10 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
     port = free_port()
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", port, imgsz=320)
     broker = Broker(tmp_path / "broker").start()
-    mqtt = f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n[serve]\n'
+    mqtt = (
+        f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\ncommands = true\n\n'
+        "[serve]\n"
+    )
     config.write_text(config.read_text().replace("[serve]\n", mqtt, 1))
     sub = Subscriber(broker.port, "stereopose/demo/site", "stereopose/demo/zones/+")
     site = tmp_path / "demo" / "demo_site.toml"
@@ -130,6 +135,41 @@ def test_a_site_change_is_taken_while_serving(tmp_path: Path) -> None:
             "the removed zone's retained state cleared",
             timeout_s=10,
         )
+
+        # the work area switched off over MQTT, then on again: its people exit, who did it is
+        # said, and they enter again
+        def zone_rows() -> list[tuple]:
+            return log_rows(
+                db,
+                "SELECT type, source FROM events WHERE zone = 'work_area' AND "
+                "type IN ('zone_disabled', 'zone_enabled', 'exit') ORDER BY id",
+            )
+
+        control = paho.Client(paho.CallbackAPIVersion.VERSION2, protocol=paho.MQTTv311)
+        control.connect("127.0.0.1", broker.port)  # a control desk's client
+        control.loop_start()
+        topic = "stereopose/demo/zones/work_area/enabled"
+        control.publish(topic, '{"enabled": false, "by": "desk 1"}', qos=1).wait_for_publish(5)
+        wait_until(
+            lambda: ("zone_disabled", "MQTT: desk 1: work_area switched off") in zone_rows(),
+            "the zone switched off",
+            timeout_s=20,
+        )
+        assert ("exit", "zone switched off by MQTT: desk 1") in zone_rows()
+        control.publish(topic, "ON", qos=1).wait_for_publish(5)
+        wait_until(lambda: zone_rows()[-1][0] == "zone_enabled", "on again", timeout_s=20)
+        wait_until(
+            lambda: log_rows(
+                db,
+                "SELECT 1 FROM events WHERE zone = 'work_area' AND "
+                "type = 'enter' AND id > (SELECT MAX(id) FROM events WHERE "
+                "type = 'zone_enabled')",
+            ),
+            "its people in again",
+            timeout_s=20,
+        )
+        control.disconnect()
+        control.loop_stop()
 
         # a broken file: the running site kept, a diagnostic incident naming the file
         site.write_text(site.read_text().replace('kind = "restricted"', 'kind = "lava"'))

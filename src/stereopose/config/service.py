@@ -86,6 +86,9 @@ class MqttConfig:
     # the receiver's confirmed mark behind what was sent for this long: sent again (0: only on
     # a new connection)
     outbox_resend_s: float = number(30.0, ge=0.0, le=DAY_S)
+    # zones switched off and on over MQTT: <prefix>/<site>/zones/<zone>/enabled (docs/mqtt.md;
+    # who may is the broker's ACL's to say); off: no command is taken
+    commands: bool = False
 
 
 @_schema("control_room")

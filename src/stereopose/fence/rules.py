@@ -123,6 +123,7 @@ class FenceMonitor:
         self.inside = _Debounced(on, off)
         self.near = _Debounced(on, off)
         self.dwelt = np.zeros((0, Z), dtype=bool)
+        self.off = np.zeros(Z, dtype=bool)  # zones switched off (switch): no events of theirs
         self.row_of: dict[int, int] = {}
         self._last_ids: tuple[np.ndarray, np.ndarray] | None = None
         self.ids = np.zeros(0, dtype=np.int64)
@@ -150,7 +151,25 @@ class FenceMonitor:
                 mine.since[:, k] = theirs.since[:, j]
                 mine.began[:, k] = theirs.began[:, j]
             self.dwelt[:, k] = old.dwelt[:, j]
+        for k, z in enumerate(self.zones):  # a zone switched off stays so
+            j = before.get(z.name)
+            self.off[k] = j is not None and bool(old.off[j])
         self._last_ids = None
+
+    def switch(self, zone: str, on: bool) -> bool:
+        """Switch `zone` off (no event of its own from then on; who is inside or near it is
+        forgotten: the caller raises their exits first, from `occupants`) or on again (people
+        in it enter as newcomers, after its debounce). Whether it changed; False for a zone
+        this site does not have."""
+        k = next((i for i, z in enumerate(self.zones) if z.name == zone), None)
+        if k is None or bool(self.off[k]) != on:
+            return False
+        self.off[k] = not on
+        if not on:
+            for d in (self.inside, self.near):
+                d.state[:, k], d.since[:, k], d.began[:, k] = False, np.nan, np.nan
+            self.dwelt[:, k] = False
+        return True
 
     def _rows(self, ids: np.ndarray) -> np.ndarray:
         """State rows of people `ids`, new people added."""
@@ -196,7 +215,7 @@ class FenceMonitor:
         if len(people):
             rows = self._rows(people.ids)
             geo = self._geometry(people.joints)
-            raw_in = geo.inside
+            raw_in = geo.inside & ~self.off
             pos = floor_position(people.joints)
             self.last_seen[rows] = t
             self.last_pos[rows] = pos
@@ -211,7 +230,7 @@ class FenceMonitor:
                 self.dwelt[rows] |= dwell
             near_rose = near_onset = None
             if self.needs_distance:
-                raw_near = ~raw_in & (geo.distance <= self.margin)
+                raw_near = ~raw_in & (geo.distance <= self.margin) & ~self.off
                 near_rose, _, near_onset = self.near.step(rows, raw_near, t)
             fired = rose | fell
             for extra in (dwell, near_rose):

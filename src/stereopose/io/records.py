@@ -343,3 +343,16 @@ def event_row(e: Event, run: int) -> tuple:
         None if e.result is None else json.dumps(e.result, separators=(",", ":")),
         e.source,
     )
+
+
+def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None = None) -> dict:
+    """The people topic's JSON: the poses record's frame, t and, per person, id, position
+    and heading_deg (the same fields and rounding as the 3D poses JSON lines), and posture and
+    flags where the behaviour rules give them."""
+    rec = frame_record(people, fps=1.0, postures=postures)  # its t is replaced by the frame's
+    keep = ("id", "position", "heading_deg", "posture", "flags")
+    return {
+        "frame": rec["frame"],
+        "t": round(t, 6),
+        "people": [{k: p[k] for k in keep if k in p} for p in rec["people"]],
+    }

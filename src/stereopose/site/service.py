@@ -237,7 +237,9 @@ class SiteService:
         if p.mqtt is not None:
             from stereopose.io.sinks.mqtt import MqttSink
 
-            yield MqttSink(p.mqtt, [z.name for z in p.site.zones] if p.site is not None else [])
+            desk = self.site_desk if cfg.mqtt.commands else None  # zones switched over MQTT
+            zones = [z.name for z in p.site.zones] if p.site is not None else []
+            yield MqttSink(p.mqtt, zones, None if desk is None else desk.switch_zone)
         if cfg.iec104.enabled:
             yield self._iec104(cfg, wall_start)
         if self.opcua is not None:

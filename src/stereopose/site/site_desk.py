@@ -22,6 +22,7 @@ import os
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +38,7 @@ __all__ = ["SiteChange", "SiteConflictError", "SiteDesk"]
 logger = logging.getLogger(__name__)
 
 MAX_HISTORY = 200  # versions kept in the history folder
+MAX_SWITCHES = 100  # zone switches waiting for the next step, at most
 INDEX = "index.jsonl"
 
 
@@ -73,6 +75,9 @@ class SiteDesk:
         self._lock = threading.Lock()
         self._pending: SiteChange | None = None
         self._notes: list[tuple[str, str]] = []  # (event type, text) for the next step
+        # zones switched off or on (zone, on, by), for the next step; at most MAX_SWITCHES
+        self._switches: deque[tuple[str, bool, str]] = deque(maxlen=MAX_SWITCHES)
+        self.switches_dropped = 0  # switches not taken in time: the oldest went
         self._broken = False  # the file did not load at the last reload
         self.changes = 0  # sites taken since the start
         self._remember(self.version, self.path.read_text(encoding="utf-8"), "the site file")
@@ -137,6 +142,25 @@ class SiteDesk:
         with self._lock:
             notes, self._notes = self._notes, []
             return notes
+
+    def switch_zone(self, zone: str, on: bool, by: str) -> None:
+        """`zone` switched off (its events stop; who is in it exits) or on again, at the next
+        step. Not written to the file: a restart has every zone on. ConfigError when the
+        running site (or the one waiting) has no such zone."""
+        with self._lock:
+            site = self._pending.new if self._pending is not None else self.site
+            if zone not in {z.name for z in site.zones}:
+                raise ConfigError(f"zone {zone[:80]!r}: no such zone in the site")
+            self.switches_dropped += len(self._switches) == MAX_SWITCHES
+            self._switches.append((zone, bool(on), by))
+
+    def take_switches(self) -> list[tuple[str, bool, str]]:
+        """(zone, on, by) of the switches since the last step, in order (the frame loop's
+        thread)."""
+        with self._lock:
+            out = list(self._switches)
+            self._switches.clear()
+            return out
 
     def take(self) -> SiteChange | None:
         """The change waiting for the frame loop, once (the frame loop's thread)."""

@@ -12,6 +12,7 @@ again only when a zone's state source changed.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 
@@ -74,13 +75,31 @@ class SiteSwitch:
         """The events of a change taken at this step (none without one)."""
         notes = [_service_event(t, frame, kind, text) for kind, text in self.desk.take_notes()]
         change = self.desk.take()
-        if change is None:
-            return notes
-        try:
-            return [*notes, *self._switch(step, change, t, frame)]
-        except Exception:  # a change half-taken would leave the site unwatched: said loudly
-            logger.exception("site: version %s could not be taken", change.version)
-            raise
+        if change is not None:
+            try:
+                notes += self._switch(step, change, t, frame)
+            except Exception:  # a change half-taken would leave the site unwatched: said loudly
+                logger.exception("site: version %s could not be taken", change.version)
+                raise
+        return notes + self._zones_switched(t, frame)
+
+    def _zones_switched(self, t: float, frame: int) -> list[Event]:
+        """The zones switched off or on since the last step (SiteDesk.switch_zone): for one
+        switched off, an exit for each person in it (its incident ends) and `zone_disabled`;
+        for one switched on, `zone_enabled` (people in it enter after its debounce)."""
+        out: list[Event] = []
+        fences = self.events.fences
+        for zone, on, by in self.desk.take_switches():
+            if fences is None:
+                break
+            exits = [] if on else _exits(fences, [zone], t, frame, f"zone switched off by {by}")
+            if fences.switch(zone, on):
+                out += exits
+                kind = "zone_enabled" if on else "zone_disabled"
+                text = f"{by}: {zone} switched {'on' if on else 'off'}"
+                logger.warning("site: %s", text)
+                out.append(dataclasses.replace(_service_event(t, frame, kind, text), zone=zone))
+        return out
 
     def _switch(self, step: IncidentStep, change: SiteChange, t: float, frame: int) -> list[Event]:
         cfg, old_mon = self.config, self.events.fences
@@ -129,8 +148,14 @@ def _service_event(t: float, frame: int, type_: str, text: str) -> Event:
     )
 
 
-def _exits(old: FenceMonitor, removed: list[str], t: float, frame: int) -> list[Event]:
-    """An exit for each person inside a removed zone: its incident ends."""
+def _exits(
+    old: FenceMonitor,
+    removed: list[str],
+    t: float,
+    frame: int,
+    why: str = "site changed: zone removed",
+) -> list[Event]:
+    """An exit for each person inside a removed (or switched off) zone: its incident ends."""
     out = []
     kinds = {z.name: z.kind for z in old.zones}
     for name in removed:
@@ -145,7 +170,7 @@ def _exits(old: FenceMonitor, removed: list[str], t: float, frame: int) -> list[
                     kind=kinds[name],
                     type="exit",
                     onset_t=t,
-                    source="site changed: zone removed",
+                    source=why,
                 )
             )
     return out

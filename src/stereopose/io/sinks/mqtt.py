@@ -30,20 +30,26 @@ import threading
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import paho.mqtt.client as paho
 from paho.mqtt.reasoncodes import ReasonCode
 
 from stereopose.alarms import Change
-from stereopose.io.records import event_record, frame_record
+from stereopose.io.records import event_record, people_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
-from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client, topic_name, topic_part
-from stereopose.types import Event, People3D
+from stereopose.io.sinks.mqtt_commands import ZoneCommands
+from stereopose.io.sinks.mqtt_settings import (
+    MqttSettings,
+    make_client,
+    stop_loop,
+    topic_name,
+    topic_part,
+)
+from stereopose.types import Event
 
 __all__ = ["MqttSettings", "MqttSink", "people_record", "topic_name", "topic_part"]
 
@@ -84,8 +90,14 @@ class MqttSink(ClosesOnce):
 
     stage = "write"
 
-    def __init__(self, settings: MqttSettings, zone_names: Iterable[str] = ()) -> None:
+    def __init__(
+        self,
+        settings: MqttSettings,
+        zone_names: Iterable[str] = (),
+        switch: Callable[[str, bool, str], None] | None = None,
+    ) -> None:
         self.settings = s = settings
+        self.commands = None if switch is None else ZoneCommands(s, switch)
         base = f"{s.topic_prefix}/{topic_part(s.site)}"
         kinds = ("events", "people", "available", "incidents", "site")
         self.topics = {k: f"{base}/{k}" for k in kinds}
@@ -459,17 +471,11 @@ class MqttSink(ClosesOnce):
             with contextlib.suppress(RuntimeError, ValueError):
                 info.wait_for_publish(timeout=max(0.5, deadline - time.monotonic()))
         self._client.disconnect()
-        self._stop_loop()
+        stop_loop(self._client, self.settings.close_timeout_s)
+        if self.commands is not None:
+            self.commands.close()
         self._report()
         return []
-
-    def _stop_loop(self) -> None:
-        """paho's loop_stop joins without a limit; a connect in progress must not hang close."""
-        stopper = threading.Thread(target=self._client.loop_stop, daemon=True)
-        stopper.start()
-        stopper.join(timeout=self.settings.close_timeout_s + 1.0)
-        if stopper.is_alive():
-            logger.warning("MQTT: the network thread did not stop; left behind")
 
     def _report(self) -> None:
         counts = self.figures()
@@ -479,19 +485,6 @@ class MqttSink(ClosesOnce):
         lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())
         level, st = logging.WARNING if lost else logging.INFO, self.settings
         logger.log(level, "MQTT %s:%d closed: %s", st.host, st.port, text)
-
-
-def people_record(people: People3D, t: float, postures: Mapping[int, Any] | None = None) -> dict:
-    """The people topic's JSON: the poses record's frame, t and, per person, id, position
-    and heading_deg (the same fields and rounding as the 3D poses JSON lines), and posture and
-    flags where the behaviour rules give them."""
-    rec = frame_record(people, fps=1.0, postures=postures)  # its t is replaced by the frame's
-    keep = ("id", "position", "heading_deg", "posture", "flags")
-    return {
-        "frame": rec["frame"],
-        "t": round(t, 6),
-        "people": [{k: p[k] for k in keep if k in p} for p in rec["people"]],
-    }
 
 
 def _dumps(obj: object) -> str:

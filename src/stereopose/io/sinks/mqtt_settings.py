@@ -6,12 +6,16 @@ Every settings value is checked at once; a bad one is a ConfigError naming its k
 
 from __future__ import annotations
 
+import logging
 import math
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stereopose.errors import ConfigError
+
+logger = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     import paho.mqtt.client as paho
@@ -186,3 +190,13 @@ def restart_loop(client: paho.Client) -> bool:
     client.connect_async(client.host, client.port, keepalive=client.keepalive)
     client.loop_start()
     return True
+
+
+def stop_loop(client: paho.Client, timeout_s: float) -> None:
+    """paho's loop_stop joins without a limit: a connect in progress must not hang a close.
+    Waits at most timeout_s + 1 s; the thread is left behind (logged) after that."""
+    stopper = threading.Thread(target=client.loop_stop, daemon=True)
+    stopper.start()
+    stopper.join(timeout=timeout_s + 1.0)
+    if stopper.is_alive():
+        logger.warning("MQTT: the network thread did not stop; left behind")
