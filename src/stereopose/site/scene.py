@@ -67,6 +67,7 @@ class SceneState:
         self._geometry = ZoneGeometry(self._energized) if self._energized else None
         self._touching: dict[str, frozenset[int]] = {}
         self._approach: dict[str, float] = {}  # zone -> service time of its last approach
+        self._off: set[str] = set()  # zones switched off (zone_disabled; zone_enabled: on)
         self.version = 0  # raised at each change of a zone's occupants or alarm
 
     def set_site(self, site: Site | None) -> None:
@@ -77,6 +78,7 @@ class SceneState:
         with self._lock:
             self.zones_by_name = {z.name: z for z in zones}
             self._inside = {z.name: self._inside.get(z.name, set()) for z in zones}
+            self._off &= set(self.zones_by_name)  # a zone switched off stays so (the fences')
             self._energized = energized
             self._geometry = ZoneGeometry(energized) if energized else None
             self._touching = {}
@@ -158,6 +160,8 @@ class SceneState:
                 inside.discard(e.person)
             elif e.type == "approach":
                 self._approach[e.zone] = t
+            elif e.type in ("zone_disabled", "zone_enabled"):
+                (self._off.add if e.type == "zone_disabled" else self._off.discard)(e.zone)
             else:
                 continue
             self.version += 1
@@ -218,13 +222,16 @@ class SceneState:
             inside = {z: sorted(ids) for z, ids in self._occupants().items()}
             approach = dict(self._approach)
             now_t = self.latest.t if self.latest is not None else 0.0
+            off = set(self._off)
         power = self.power() if self.power is not None else {}
         out = []
         for name, z in self.zones_by_name.items():
             occupants = inside.get(name, [])
             recent = now_t - approach.get(name, -math.inf) <= ALARM_HOLD_S
             dead = power.get(name, {}).get("state") == "dead"
-            if z.kind == "energized" and (occupants or recent) and not dead:
+            if name in off:  # switched off: no alarm of its own, whoever stands in it
+                state = "off"
+            elif z.kind == "energized" and (occupants or recent) and not dead:
                 state = "alarm"
             else:
                 state = "occupied" if occupants else "free"
@@ -240,6 +247,7 @@ class SceneState:
                     # live, dead or unknown, its source and since when (null: no source)
                     "power": power.get(name),
                     "voltage_kv": z.voltage_kv,
+                    "enabled": name not in off,  # false: switched off (docs/mqtt.md)
                 }
             )
         return {"zones": out}

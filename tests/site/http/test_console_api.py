@@ -308,6 +308,18 @@ def test_people_zones_and_trails_from_the_frames(served):
         zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
         assert zones["overhead_busbar"]["state"] == "free"
         assert zones["overhead_busbar"]["occupants"] == []
+        assert all(z["enabled"] for z in zones.values())
+        # switched off over MQTT: shown off; on again: as before
+        off = zone_event(21, "zone_disabled", person=-1, kind="service")
+        hub.on_frame(_frame(21, 0.0, [off]), WALL_START)
+        zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
+        assert zones["overhead_busbar"]["enabled"] is False
+        assert zones["overhead_busbar"]["state"] == "off"
+        on = zone_event(22, "zone_enabled", person=-1, kind="service")
+        hub.on_frame(_frame(22, 0.0, [on]), WALL_START)
+        zones = {z["name"]: z for z in c.get("/api/zones").json()["zones"]}
+        assert zones["overhead_busbar"]["enabled"] is True
+        assert zones["overhead_busbar"]["state"] == "free"
     finally:
         c.close()
 

@@ -100,7 +100,8 @@ export class FloorPlan {
       const label = g.querySelector("text");
       const who = (zone.occupants || []).length ? ` (${zone.occupants.join(", ")})` : "";
       const since = zone.power && zone.power.since ? ` since ${new Date(zone.power.since * 1000).toLocaleTimeString([], { hour12: false })}` : "";
-      label.textContent = `${zone.name}${power && power !== "live" ? ` [${power}]` : ""}${who}`;
+      const off = zone.enabled === false ? " [switched off]" : "";
+      label.textContent = `${zone.name}${off}${power && power !== "live" ? ` [${power}]` : ""}${who}`;
       shape.replaceChildren();
       if (power) {
         const title = document.createElementNS("http://www.w3.org/2000/svg", "title");
