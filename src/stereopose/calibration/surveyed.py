@@ -16,6 +16,7 @@ A click whose residual stands out is left out and named; a camera left with fewe
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,14 @@ from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
 
-__all__ = ["PointsResult", "Survey", "calibrate_points", "read_survey"]
+__all__ = [
+    "PointsResult",
+    "Survey",
+    "calibrate_points",
+    "format_survey",
+    "read_survey",
+    "survey_from_doc",
+]
 
 MIN_POINTS = 6  # per camera, after the clicks left out (10 or more advised)
 RANSAC_PX = 12.0  # PnP's inlier bound on a click's residual
@@ -72,6 +80,14 @@ def read_survey(path: str | Path) -> Survey:
         raise CalibrationError(f"{path}: not UTF-8 text (byte {e.start}); expected TOML") from None
     except (ValueError, RecursionError) as e:
         raise CalibrationError(f"{path}: not valid TOML: {e}") from None
+    return survey_from_doc(doc, path)
+
+
+def survey_from_doc(doc: object, path: Path) -> Survey:
+    """A points file's tables (as TOML or JSON give them) checked; CalibrationError naming
+    `path`, the key and the problem."""
+    if not isinstance(doc, dict):
+        raise CalibrationError(f"{path}: expected the tables [points] and [cameras.<name>]")
     unknown = sorted(set(doc) - {"points", "cameras"})
     if unknown:
         raise CalibrationError(
@@ -99,6 +115,26 @@ def read_survey(path: str | Path) -> Survey:
             seen[str(k)] = _vector(path, f"cameras.{cam}.{k}", v, 2, PIXEL_LIMIT)
         clicks[str(cam)] = seen
     return Survey(path, world, clicks)
+
+
+def format_survey(survey: Survey) -> str:
+    """The points file's text (TOML) of `survey`: read back, the same survey."""
+
+    def key(name: str) -> str:  # a bare key where TOML allows one, else a quoted one
+        bare = name and all(ch.isascii() and (ch.isalnum() or ch in "_-") for ch in name)
+        return name if bare else json.dumps(name)
+
+    def nums(v: np.ndarray) -> str:
+        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+    lines = ["[points]", *(f"{key(k)} = {nums(v)}" for k, v in survey.world.items())]
+    for cam, clicks in survey.clicks.items():
+        lines += [
+            "",
+            f"[cameras.{key(cam)}]",
+            *(f"{key(k)} = {nums(v)}" for k, v in clicks.items()),
+        ]
+    return "\n".join(lines) + "\n"
 
 
 @dataclass

@@ -44,6 +44,7 @@ from stereopose.calibration.refine import pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.survey_desk import SurveyDesk
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
 
@@ -127,6 +128,7 @@ class CalibrationKeeper:
         self._calm: dict[str, _Case] = {}
         self._calm_samples = max(10, self.samples // 2)
         self._steps = 0
+        self._new_rig: tuple[Rig, str] | None = None  # a whole rig accepted (take_rig)
 
     # -- the frame loop's side ---------------------------------------------------------------
 
@@ -143,7 +145,9 @@ class CalibrationKeeper:
                     self._close(e.camera)
         self._steps += 1
         self._reference(people2d)
-        out: list[Event] = []
+        with self._lock:
+            new, self._new_rig = self._new_rig, None
+        out = [] if new is None else self._replace_rig(*new, t, frame)
         for name in list(self.cases):
             case = self.cases[name]
             with self._lock:
@@ -317,6 +321,33 @@ class CalibrationKeeper:
         self._close(name)
         self._write(name, old[name], r)
 
+    def take_rig(self, rig: Rig, by: str) -> None:
+        """A whole new rig (the surveyed points solved, accepted by an admin; any thread):
+        applied at the next step. Every camera of the running rig must be in it."""
+        missing = sorted(set(self.rig.names) - set(rig.names))
+        if missing:
+            raise CalibrationError(f"camera(s) {', '.join(missing)} not placed by the new rig")
+        with self._lock:
+            self._new_rig = (Rig(tuple(rig[n] for n in self.rig.names)), by)
+
+    def _replace_rig(self, rig: Rig, by: str, t: float, frame: int) -> list[Event]:
+        """The new rig applied at this step: each camera as `calibration_corrected` (who
+        accepted it, how far it moved), written as the corrected calibration."""
+        old, self.rig = self.rig, rig
+        for fn in self.apply_to:
+            fn(rig)
+        self._calm.clear()
+        out = []
+        for cam in rig:
+            self.health.set_camera(rig, cam.name)
+            self._close(cam.name)
+            self.corrected[cam.name] = self.corrected.get(cam.name, 0) + 1
+            moved = float(np.linalg.norm(cam.center - old[cam.name].center))
+            result = {"accepted_by": by, "from": "surveyed points", "moved_m": round(moved, 3)}
+            out.append(camera_event("calibration_corrected", cam.name, t, frame, t, result=result))
+        self._write(rig[0].name, old[rig[0].name], None, by)
+        return out
+
     def accept(self, name: str, by: str = "admin") -> bool:
         """An admin's acceptance of a proposed pose (any thread): applied at the next step;
         False when none is proposed."""
@@ -342,21 +373,19 @@ class CalibrationKeeper:
             if c.proposal is not None
         }
 
-    def _write(self, name: str, old, r) -> None:
-        """The corrected calibration beside the original (or in out_dir) and its history."""
+    def _write(self, name: str, old, r, by: str | None = None) -> None:
+        """The corrected calibration beside the original (or in out_dir) and its history; r:
+        the camera's new pose (calibration.refine), None for a whole rig accepted by `by`."""
         stem = self.calib_path.name.split(".")[0] or "calibration"
         places = [self.calib_path.parent] + ([self.out_dir] if self.out_dir is not None else [])
+        new = self.rig[name]
         line = {
             "wall_time": time.time(),
-            "camera": name,
-            "turned_deg": r.turned_deg,
-            "moved_m": r.moved_m,
-            "reprojection_px": r.rms_px,
+            "camera": name if r is not None else "all (surveyed points)",
+            **({} if r is None else {"turned_deg": r.turned_deg, "moved_m": r.moved_m}),
+            **({"accepted_by": by} if r is None else {"reprojection_px": r.rms_px}),
             "from": {"rotation": old.rotation.tolist(), "translation": old.translation.tolist()},
-            "to": {
-                "rotation": r.camera.rotation.tolist(),
-                "translation": r.camera.translation.tolist(),
-            },
+            "to": {"rotation": new.rotation.tolist(), "translation": new.translation.tolist()},
         }
         for folder in places:
             path = folder / f"{stem}.corrected.toml"
@@ -448,3 +477,15 @@ class KeeperDesk:
 
     def __init__(self) -> None:
         self.keeper: CalibrationKeeper | None = None
+        self._survey: SurveyDesk | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def survey(self) -> SurveyDesk | None:
+        """The surveyed points' desk over the running keeper (None until it runs): its file in
+        the service's output folder (or beside the calibration)."""
+        k = self.keeper
+        with self._lock:
+            if k is not None and (self._survey is None or self._survey.keeper is not k):
+                self._survey = SurveyDesk(k, k.out_dir or k.calib_path.parent)
+            return None if k is None else self._survey

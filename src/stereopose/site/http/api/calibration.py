@@ -1,10 +1,19 @@
-"""GET /api/calibration, POST /api/calibration/{camera}/accept: the rig kept calibrated.
+"""GET /api/calibration, POST /api/calibration/{camera}/accept: the rig kept calibrated; the
+surveyed points under /api/survey.
 
 The keeper (site.health.calib_keeper) places a drifted camera again from the people the other
 cameras see. GET (any role): whether it runs, the cameras being placed again (samples, tries,
 the reason one is not corrected), the poses proposed for an admin (`[serve]
 calibration_auto = false`), the corrections made and the corrected file. POST accept (admin):
 the proposed pose is applied at the next step; 404 when none is proposed for that camera.
+
+The surveyed points (site.health.survey_desk): `GET /api/survey` (any role) the
+points file as JSON and the last solution not accepted; `PUT` (admin) `{"points": {name:
+[x, y, z]}, "cameras": {camera: {name: [u, v]}}}` writes it (400 naming the key and the
+problem); `POST .../solve` (admin) places every camera from it: each camera's error and move,
+each click's residual (422 naming the camera or point that cannot be placed); `POST
+.../accept` (admin) applies the solved rig at the next step (404: nothing solved; 409: a
+running camera it does not place). 503 before the keeper runs.
 """
 
 from __future__ import annotations
@@ -13,7 +22,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
 
+from stereopose.errors import CalibrationError
 from stereopose.site.http.auth import Admin, Viewer
 
 router = APIRouter(tags=["calibration"])
@@ -47,3 +58,60 @@ def accept(camera: Annotated[str, _NAME], session: Admin, request: Request) -> d
     if not keeper.accept(camera, session.username):
         raise HTTPException(404, f"no pose is proposed for camera {camera}")
     return {"accepted": camera, "by": session.username}
+
+
+class PointsPut(BaseModel):
+    """The surveyed points: their site coordinates, and where each camera sees them."""
+
+    points: dict[str, list[float]] = Field(max_length=10_000)
+    cameras: dict[str, dict[str, list[float]]] = Field(max_length=1_000)
+
+
+def _survey(request: Request):
+    desk = request.app.state.calibration
+    survey = None if desk is None else desk.survey
+    if survey is None:
+        raise HTTPException(503, "the calibration keeper is not running yet")
+    return survey
+
+
+@router.get("/api/survey", responses={503: {}})
+def points(session: Viewer, request: Request) -> JSONResponse:
+    """{"file", "points", "cameras", "solved"}."""
+    survey = _survey(request)
+    try:
+        body = survey.current()
+    except CalibrationError as e:  # the file broken by hand: said, the console can save anew
+        raise HTTPException(409, str(e)) from None
+    return JSONResponse(body, headers={"Cache-Control": "no-store"})
+
+
+@router.put("/api/survey", responses={400: {}, 403: {}, 503: {}})
+def put_points(body: PointsPut, session: Admin, request: Request) -> dict:
+    """The points file written: {"saved": true}."""
+    try:
+        _survey(request).put(body.model_dump())
+    except CalibrationError as e:
+        raise HTTPException(400, str(e)) from None
+    return {"saved": True}
+
+
+@router.post("/api/survey/solve", responses={403: {}, 422: {}, 503: {}})
+def solve_points(session: Admin, request: Request) -> dict:
+    """Every camera placed from the points: {"cameras", "residuals_px", "left_out", ...}."""
+    try:
+        return _survey(request).solve()
+    except CalibrationError as e:
+        raise HTTPException(422, str(e)) from None
+
+
+@router.post("/api/survey/accept", responses={403: {}, 404: {}, 409: {}, 503: {}})
+def accept_points(session: Admin, request: Request) -> dict:
+    """The solved rig applied at the next step: {"cameras", "by"}."""
+    try:
+        cameras = _survey(request).accept(session.username)
+    except LookupError as e:
+        raise HTTPException(404, str(e).strip("'")) from None
+    except CalibrationError as e:
+        raise HTTPException(409, str(e)) from None
+    return {"cameras": cameras, "by": session.username}

@@ -1,0 +1,134 @@
+"""The surveyed points over the API on a real server, against a simulated yard with known
+points: an admin saves the points and the clicks, solves (every camera's error, each click's
+residual, the knocked camera's move), accepts, and the keeper applies the rig at the next step,
+written beside the calibration; every role reads, only an admin writes; bad files and clicks
+are 400 naming the key, a camera that cannot be placed 422 naming it."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+
+from consoled import PASSWORDS, console_server
+from stereopose.calibration.formats import save_calibration
+from stereopose.sim.yard import survey, yard_rig
+from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperDesk, KeeperSettings
+from stereopose.site.http.app import Desks
+from stereopose.types import Camera, Rig
+
+pytestmark = pytest.mark.slow
+
+
+def _knocked(rig: Rig, name: str, deg: float) -> Rig:
+    """The rig with camera `name` turned `deg` about its own vertical axis."""
+    a = np.radians(deg)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    out = []
+    for c in rig:
+        if c.name == name:
+            R = turn @ c.R
+            t = -R @ c.center
+            c = Camera(c.name, c.size, c.matrix, c.distortions, cv_rvec(R), t)
+        out.append(c)
+    return Rig(tuple(out))
+
+
+def cv_rvec(R: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(R)[0].ravel()
+
+
+def _login(c: httpx.Client, name: str) -> dict:
+    token = c.post("/api/login", json={"username": name, "password": PASSWORDS[name]}).json()
+    return {"Authorization": f"Bearer {token['token']}"}
+
+
+def test_the_surveyed_points_place_the_rig_while_serving(tmp_path) -> None:
+    rng = np.random.default_rng(5)
+    truth = yard_rig(rng)
+    world, clicks = survey(truth, rng)
+    running = _knocked(truth, "cam02", 2.0)  # the running rig: cam02 bumped
+    save_calibration(tmp_path / "calib.toml", running)
+    applied: list[Rig] = []
+    keeper = CalibrationKeeper(
+        running,
+        tmp_path / "calib.toml",
+        CalibrationHealth(running, 2.0),
+        apply=[applied.append],
+        settings=KeeperSettings(auto=False),
+        out_dir=tmp_path / "out",
+    )
+    desk = KeeperDesk()
+    desk.keeper = keeper
+    doc = {
+        "points": {k: v.tolist() for k, v in world.items()},
+        "cameras": {c: {k: v.tolist() for k, v in t.items()} for c, t in clicks.items()},
+    }
+    with (
+        console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
+        httpx.Client(base_url=s.url, timeout=60) as c,
+    ):
+        admin, viewer = _login(c, "ada"), _login(c, "vera")
+        assert c.get("/api/survey", headers=viewer).json()["points"] == {}
+        assert c.put("/api/survey", json=doc, headers=viewer).status_code == 403
+        assert c.post("/api/survey/solve", headers=admin).status_code == 422
+        # a click of a point the file does not have, a camera the rig does not have
+        bad = {**doc, "cameras": {**doc["cameras"], "cam01": {"P99": [1.0, 2.0]}}}
+        r = c.put("/api/survey", json=bad, headers=admin)
+        assert r.status_code == 400 and "cameras.cam01.P99" in r.json()["detail"]
+        bad = {**doc, "cameras": {**doc["cameras"], "cam9": doc["cameras"]["cam01"]}}
+        r = c.put("/api/survey", json=bad, headers=admin)
+        assert r.status_code == 400 and "cam9" in r.json()["detail"]
+        assert c.put("/api/survey", json=doc, headers=admin).json() == {"saved": True}
+        back = c.get("/api/survey", headers=viewer).json()
+        assert back["points"] == doc["points"] and back["cameras"] == doc["cameras"]
+        assert c.post("/api/survey/accept", headers=admin).status_code == 404
+        solved = c.post("/api/survey/solve", headers=admin).json()
+        assert set(solved["cameras"]) == set(truth.names) and solved["unplaced"] == []
+        assert max(cam["rms_px"] for cam in solved["cameras"].values()) < 3.0
+        assert 1.7 < solved["cameras"]["cam02"]["turned_deg"] < 2.3  # bumped back
+        assert all(solved["cameras"][n]["turned_deg"] < 0.3 for n in truth.names if n != "cam02")
+        assert set(solved["residuals_px"]["cam02"]) == set(clicks["cam02"])
+        assert c.get("/api/survey", headers=viewer).json()["solved"] == solved
+        assert c.post("/api/survey/accept", headers=viewer).status_code == 403
+        ok = c.post("/api/survey/accept", headers=admin).json()
+        assert ok == {"cameras": list(truth.names), "by": "ada"}
+        assert c.post("/api/survey/accept", headers=admin).status_code == 404
+    assert applied == []  # at the next step, not before
+    events = keeper.update(1, 0.1, {}, [])
+    assert [e.camera for e in events] == list(truth.names)
+    assert all(e.type == "calibration_corrected" for e in events)
+    assert events[0].result == {**events[0].result, "accepted_by": "ada"}
+    (rig,) = applied
+    turn = np.degrees(
+        np.arccos(np.clip((np.trace(rig["cam02"].R.T @ truth["cam02"].R) - 1) / 2, -1, 1))
+    )
+    assert turn < 0.3
+    assert keeper.written is not None and keeper.written.name == "calib.corrected.toml"
+    assert (tmp_path / "out" / "survey" / "points.toml").is_file()
+
+
+def test_a_camera_with_too_few_clicks_is_named(tmp_path) -> None:
+    rng = np.random.default_rng(5)
+    truth = yard_rig(rng)
+    world, clicks = survey(truth, rng)
+    clicks["cam04"] = dict(sorted(clicks["cam04"].items())[:4])
+    save_calibration(tmp_path / "calib.toml", truth)
+    keeper = CalibrationKeeper(truth, tmp_path / "calib.toml", CalibrationHealth(truth, 2.0))
+    desk = KeeperDesk()
+    desk.keeper = keeper
+    doc = {
+        "points": {k: v.tolist() for k, v in world.items()},
+        "cameras": {c: {k: v.tolist() for k, v in t.items()} for c, t in clicks.items()},
+    }
+    with (
+        console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
+        httpx.Client(base_url=s.url, timeout=60) as c,
+    ):
+        admin = _login(c, "ada")
+        assert c.put("/api/survey", json=doc, headers=admin).status_code == 200
+        r = c.post("/api/survey/solve", headers=admin)
+        assert r.status_code == 422 and "camera cam04: 4 surveyed point(s)" in r.json()["detail"]
