@@ -8,6 +8,7 @@
 // Everyone sees the tab; only an admin edits (the API refuses the others anyway).
 
 import * as api from "./api.js";
+import { SurveyPanel } from "./survey.js";
 
 const SVG = "http://www.w3.org/2000/svg";
 const GRID_M = 0.05;
@@ -57,11 +58,13 @@ export class SiteEditor {
     byId("site-camera").addEventListener("change", (e) => { this.camera = e.target.value; this.drawViews(); });
     byId("site-camera-svg").addEventListener("click", (e) => this.onCameraClick(e));
     byId("site-camera-img").addEventListener("error", () => { byId("site-camera-img").hidden = true; });
+    this.survey = new SurveyPanel(this); // the surveyed points, clicked in the same pictures
   }
 
   setRole(role) {
     this.admin = role === "admin";
     for (const node of document.querySelectorAll(".site-admin")) node.hidden = !this.admin;
+    this.survey.setRole(role);
   }
 
   async show(on) {
@@ -84,6 +87,7 @@ export class SiteEditor {
     }
     this.render();
     this.loadHistory();
+    this.survey.load();
   }
 
   zones() {
@@ -163,13 +167,19 @@ export class SiteEditor {
         el("polyline", { points: line.map(([x, y]) => `${x},${y}`).join(" ") }, g);
       }
     }
+    this.survey.draw(svg, cam);
   }
 
   async onCameraClick(event) {
-    if (!this.drawing || !this.camera) return;
+    if (!this.camera) return;
     const box = byId("site-camera-svg").getBoundingClientRect();
     const x = (event.clientX - box.left) / box.width;
     const y = (event.clientY - box.top) / box.height;
+    if (!this.drawing) { // not drawing a zone: the chosen surveyed point seen here
+      const cam = this.views && this.views.cameras.find((c) => c.name === this.camera);
+      if (cam) this.survey.click(cam.name, x, y, cam.size);
+      return;
+    }
     try {
       const at = await api.call("/api/site/floor", { method: "POST", body: { camera: this.camera, x, y, z: 0 } });
       this.drawing.push(this.snapped([at.x, at.y], -1));
