@@ -185,7 +185,7 @@ class LiveHub:
             from stereopose.viz.overlay import draw_overlay
 
             def draw(camera, image, p2, p3, scale, label):
-                return draw_overlay(image, rig[camera], p2, p3, scale, label)
+                return draw_overlay(image, self.rig[camera], p2, p3, scale, label)
 
         self._views = {c.name: camera_view(c) for c in rig}
         self.scene = SceneState(site)
@@ -392,6 +392,12 @@ class LiveHub:
                 item["light"] = {k: light.get(k) for k in ("mode", "brightness", "noise")}
             out.append(item)
         return {"cameras": out}
+
+    def set_rig(self, rig: Rig) -> None:
+        """The cameras placed again (the calibration keeper, the surveyed points): their views
+        on the plan and their pictures' overlays from now on."""
+        self.rig = rig
+        self._views.update({c.name: camera_view(c) for c in rig if c.name in self._views})
 
     def show_regions(self, view: Callable[[str], dict | None]) -> None:
         """view(camera): what detection in regions looked at in the camera's last step

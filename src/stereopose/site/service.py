@@ -342,6 +342,8 @@ class SiteService:
         """The calibration keeper's figures in status.json; closed with the service."""
         self.keeper = keeper
         self.calibration_desk.keeper = keeper
+        hub = self.console.hub if self.console is not None else None
+        keeper.apply_to += [x.set_rig for x in (self.site_desk, hub) if x is not None]
         self.probes["calibration"] = keeper.figures
         self._started("the calibration keeper", keeper.close)
 

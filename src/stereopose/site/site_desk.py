@@ -82,6 +82,11 @@ class SiteDesk:
         self.changes = 0  # sites taken since the start
         self._remember(self.version, self.path.read_text(encoding="utf-8"), "the site file")
 
+    def set_rig(self, rig: Rig) -> None:
+        """The cameras placed again (the calibration keeper, the surveyed points): the zones
+        drawn in their pictures from now on."""
+        self.rig = rig
+
     # -- reading -----------------------------------------------------------------------------
 
     def current(self) -> dict[str, object]:

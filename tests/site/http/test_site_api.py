@@ -20,6 +20,7 @@ from stereopose.fence import load_site
 from stereopose.fence.site import site_version
 from stereopose.site.http.app import Desks
 from stereopose.site.site_desk import SiteDesk
+from stereopose.types import Camera, Rig
 
 DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
 
@@ -128,6 +129,12 @@ def test_a_hand_edit_is_taken_and_a_broken_file_keeps_the_running_site(desk) -> 
     assert desk.take_notes() == [("site_valid", f"{desk.path}: loads again")]
 
 
+def _shifted(cam: Camera, dx: float) -> Camera:
+    """The camera moved dx metres along world x."""
+    center = cam.center + np.array([dx, 0.0, 0.0])
+    return Camera(cam.name, cam.size, cam.matrix, cam.distortions, cam.rotation, -cam.R @ center)
+
+
 def test_the_zones_in_the_cameras_pictures_and_a_click_back_on_the_floor(tmp_path) -> None:
     from consoled import demo_plan
     from stereopose.geometry.camera import project
@@ -170,6 +177,11 @@ def test_the_zones_in_the_cameras_pictures_and_a_click_back_on_the_floor(tmp_pat
         # a plane above the camera's height in front of it cannot be met looking down
         up = {"camera": "cam02", "x": fx, "y": fy, "z": 50}
         assert c.post("/api/site/floor", json=up).status_code == 422
+        # the cameras placed again (the keeper, the surveyed points): seen through the new rig
+        moved = Rig(tuple(_shifted(k, 0.5) if k.name == "cam02" else k for k in plan.rig))
+        desk.set_rig(moved)
+        r = c.post("/api/site/floor", json={"camera": "cam02", "x": fx, "y": fy, "z": 0})
+        assert abs(r.json()["x"] - 0.3) > 0.1  # the same pixel lands elsewhere now
 
 
 def test_an_endpoints_password_is_never_shown_and_kept_when_the_site_comes_back(tmp_path):
