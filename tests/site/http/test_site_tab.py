@@ -130,3 +130,32 @@ def test_an_admin_draws_a_zone_saves_it_and_restores_the_earlier_version(browser
             page.click('#site-zones li[data-zone="work_area"]')
             assert page.is_disabled("#site-name")
             assert not page.query_selector_all("#site-history button")
+
+
+def test_the_plan_shows_the_cameras_and_an_error_is_shown_at_its_field(browser, tmp_path):
+    """The plan draws each camera with the floor it sees; a zone's joints and state source are
+    set in the form; a bad margin saved is refused at the margin's field, the zone chosen."""
+    plan = demo_plan(tmp_path)
+    path = tmp_path / "site.toml"
+    shutil.copy(DEMO_SITE, path)
+    desk = SiteDesk(path, load_site(path), tmp_path / "history", rig=plan.rig)
+    with console_server(tmp_path / "out", plan, app_kw={"desks": Desks(site=desk)}) as s:
+        with _page(browser, s.url, "ada") as page:
+            wait_until(
+                lambda: page.locator("#site-plan .site-cameras [data-camera]").count() == 4,
+                "the four cameras on the plan",
+            )
+            assert page.locator("#site-plan .site-cameras .fov").count() == 4
+            page.click('#site-zones li[data-zone="overhead_busbar"]')
+            page.fill("#site-joints", "left_wrist, right_wrist, nose")
+            page.fill("#site-margin", "-1")
+            page.click("#site-save")
+            note = "#site-margin ~ .field-error, label:has(#site-margin) .field-error"
+            wait_until(lambda: "margin_m" in (page.text_content(note) or ""), "at the field")
+            assert "expected a finite number" in page.text_content(note)
+            assert page.evaluate("document.activeElement.id") == "site-margin"
+            page.fill("#site-margin", "0.4")
+            page.click("#site-save")
+            wait_until(lambda: desk.take() is not None or False, "saved", poll_s=0.05)
+        busbar = next(z for z in load_site(path).zones if z.name == "overhead_busbar")
+        assert busbar.margin_m == 0.4 and len(busbar.joints) == 3

@@ -30,6 +30,25 @@ function text(tag, content, className = "") {
   return node;
 }
 
+// the form's field of each key the API's errors name
+const FIELDS = {
+  name: "site-name", kind: "site-kind", z: "site-z0", margin_m: "site-margin",
+  voltage_kv: "site-voltage", distance_table: "site-distance", joints: "site-joints",
+  power: "site-power", polygon: "site-points",
+};
+
+function fieldError(id, message) {
+  const input = byId(id);
+  let note = input.parentElement.querySelector(".field-error");
+  if (!note) {
+    note = text("span", "", "field-error");
+    note.setAttribute("role", "alert");
+    input.parentElement.appendChild(note);
+  }
+  note.textContent = message;
+  input.classList.toggle("invalid", Boolean(message));
+}
+
 const round = (v) => Number((Math.round(v / GRID_M) * GRID_M).toFixed(3));
 const pts = (polygon) => polygon.map(([x, y]) => `${x.toFixed(3)},${(-y).toFixed(3)}`).join(" ");
 
@@ -68,7 +87,11 @@ export class SiteEditor {
   }
 
   async show(on) {
-    if (on && !this.dirty) await this.load();
+    clearInterval(this.peopleTimer);
+    if (!on) return;
+    if (!this.dirty) await this.load();
+    this.loadCameras();
+    this.peopleTimer = setInterval(() => this.refreshPeople(), 1000);
   }
 
   async load() {
@@ -99,7 +122,8 @@ export class SiteEditor {
   render() {
     const zones = this.zones();
     this.svg.replaceChildren();
-    const all = zones.flatMap((z) => z.polygon || []).concat(this.drawing || []);
+    const placed = (this.cameras || []).map((c) => c.position).filter(Array.isArray);
+    const all = zones.flatMap((z) => z.polygon || []).concat(this.drawing || [], placed);
     const xs = all.map((p) => p[0]);
     const ys = all.map((p) => p[1]);
     const [x0, x1] = xs.length ? [Math.min(...xs) - 1, Math.max(...xs) + 1] : [-5, 5];
@@ -120,10 +144,60 @@ export class SiteEditor {
       el("polyline", { points: pts(this.drawing), class: "drawing" }, this.svg);
       for (const [x, y] of this.drawing) el("circle", { cx: x, cy: -y, r: this.scale, class: "corner" }, this.svg);
     }
+    this.drawCameras();
+    this.peopleLayer = el("g", { class: "site-people" }, this.svg);
+    this.drawPeople();
     this.renderList();
     this.toForm();
     clearTimeout(this.viewTimer);
     this.viewTimer = setTimeout(() => this.loadViews(), 250);
+  }
+
+  // -- the cameras and the people on the plan -----------------------------------------------
+
+  async loadCameras() {
+    try {
+      this.cameras = (await api.cameras()).cameras || [];
+    } catch {
+      this.cameras = [];
+    }
+    this.render();
+  }
+
+  drawCameras() {
+    const g = el("g", { class: "site-cameras" }, this.svg);
+    for (const cam of this.cameras || []) {
+      if (!Array.isArray(cam.position)) continue;
+      const [x, y] = cam.position;
+      const node = el("g", { "data-camera": cam.name }, g);
+      if (Array.isArray(cam.floor_fov) && cam.floor_fov.length >= 3) {
+        el("polygon", { points: pts(cam.floor_fov), class: "fov" }, node);
+      }
+      el("circle", { cx: x, cy: -y, r: this.scale * 1.4, class: "camera" }, node);
+      const label = el("text", { x: x + this.scale * 2, y: -y, class: "label" }, node);
+      label.textContent = cam.name;
+      label.style.fontSize = `${this.scale * 3}px`;
+    }
+  }
+
+  async refreshPeople() {
+    if (byId("tab-site").hidden) return;
+    try {
+      this.people = (await api.people()).people || [];
+    } catch {
+      return;
+    }
+    this.drawPeople();
+  }
+
+  drawPeople() {
+    if (!this.peopleLayer) return;
+    this.peopleLayer.replaceChildren();
+    for (const p of this.people || []) {
+      if (!Array.isArray(p.position)) continue;
+      const [x, y] = p.position;
+      el("circle", { cx: x, cy: -y, r: this.scale * 1.6, "data-person": p.id }, this.peopleLayer);
+    }
   }
 
   // -- the zones in the cameras' pictures ----------------------------------------------------
@@ -208,12 +282,18 @@ export class SiteEditor {
     if (!z) return;
     const form = byId("site-form");
     for (const input of form.querySelectorAll("input, select")) input.disabled = !this.admin;
+    for (const note of form.querySelectorAll(".field-error")) note.textContent = "";
+    for (const node of form.querySelectorAll(".invalid")) node.classList.remove("invalid");
     byId("site-name").value = z.name;
     byId("site-kind").value = z.kind;
     byId("site-z0").value = z.z ? z.z[0] : 0;
     byId("site-z1").value = z.z ? z.z[1] : 2.5;
     byId("site-margin").value = z.margin_m ?? "";
     byId("site-voltage").value = z.voltage_kv ?? "";
+    byId("site-distance").value = z.distance_table ?? "";
+    byId("site-joints").value = (z.joints || []).join(", ");
+    byId("site-power").value = z.power ? JSON.stringify(z.power, null, 1) : "";
+    for (const node of form.querySelectorAll("textarea")) node.disabled = !this.admin;
     byId("site-points").value = (z.polygon || []).map(([x, y]) => `${x} ${y}`).join("; ");
   }
 
@@ -227,6 +307,20 @@ export class SiteEditor {
       const v = byId(id).value.trim();
       if (v === "") delete z[key];
       else z[key] = Number(v);
+    }
+    const table = byId("site-distance").value.trim();
+    if (table) z.distance_table = table;
+    else delete z.distance_table;
+    const joints = byId("site-joints").value.split(/[\s,]+/).filter(Boolean);
+    if (joints.length) z.joints = joints;
+    else delete z.joints;
+    const power = byId("site-power").value.trim();
+    try {
+      if (power) z.power = JSON.parse(power);
+      else delete z.power;
+      fieldError("site-power", "");
+    } catch {
+      fieldError("site-power", "not JSON: a table as the site file's [zones.power]");
     }
     const corners = byId("site-points").value.split(";").map((p) => p.trim().split(/[\s,]+/).map(Number));
     if (corners.length >= 3 && corners.every((c) => c.length === 2 && c.every(Number.isFinite))) {
@@ -345,6 +439,23 @@ export class SiteEditor {
       error.textContent = e.status === 409
         ? `${e.detail} (Reload to see it; your changes are kept until then.)`
         : `${e.detail || e.message}`;
+      if (e.status === 400) this.showAtField(`${e.detail || ""}`);
+    }
+  }
+
+  // The API's error (`zone 'name': key: ...`) shown at the field it names, its zone chosen.
+  showAtField(detail) {
+    const m = /^zone '(.+?)': ([a-z_]+)/.exec(detail);
+    if (!m) return;
+    const k = this.zones().findIndex((z) => z.name === m[1]);
+    if (k < 0) return;
+    this.selected = k;
+    this.render();
+    const word = m[2] === "unknown" && /joint/.test(detail) ? "joints" : m[2];
+    const id = FIELDS[word] || (/joint/.test(word) ? "site-joints" : null);
+    if (id) {
+      fieldError(id, detail.slice(m[0].indexOf(":") + 2));
+      byId(id).focus();
     }
   }
 
