@@ -31,6 +31,7 @@ from typing import Any
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence.site import Site, format_site, load_site, parse_site, site_doc, site_version
 from stereopose.secrets import redact
+from stereopose.site.plan_background import Background
 from stereopose.types import Rig
 
 __all__ = ["SiteChange", "SiteConflictError", "SiteDesk"]
@@ -71,6 +72,7 @@ class SiteDesk:
     ) -> None:
         self.path, self.history_dir, self.check = Path(path), Path(history_dir), check
         self.rig = rig  # the cameras (the Site tab's views of the zones; None: none)
+        self.background = Background(self.history_dir.parent / "site-plan")  # the plan's drawing
         self.site, self.version = site, site_version(site)
         self._lock = threading.Lock()
         self._pending: SiteChange | None = None

@@ -216,3 +216,47 @@ def test_an_endpoints_password_is_never_shown_and_kept_when_the_site_comes_back(
         r = c.put("/api/site", json=moved)
         assert r.status_code == 400 and "give it again" in r.json()["detail"]
     assert "***" not in path.read_text()
+
+
+def test_the_plans_background_drawing(desk, tmp_path) -> None:
+    """An admin puts a drawing under the plan, placed by two of its points; everyone reads it;
+    anything that is not a PNG or JPEG, or points not in it, is 400 and keeps what was."""
+    import cv2
+
+    drawing = np.full((300, 400, 3), 255, np.uint8)
+    png = cv2.imencode(".png", drawing)[1].tobytes()
+    jpg = cv2.imencode(".jpg", drawing)[1].tobytes()
+    points = "10,290,0,0,390,290,19,0"
+    with console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s:
+        admin, viewer = s.client("ada"), s.client("vera")
+        try:
+            assert viewer.get("/api/site/background").status_code == 404
+            url = f"/api/site/background?points={points}"
+            png_type = {"Content-Type": "image/png"}
+            assert viewer.put(url, content=png, headers=png_type).status_code == 403
+            r = admin.put(url, content=png, headers=png_type)
+            assert r.status_code == 200 and r.json()["size"] == [400, 300]
+            got = viewer.get("/api/site/background")
+            assert got.content == png and got.headers["content-type"] == "image/png"
+            placement = viewer.get("/api/site/background/placement").json()
+            assert placement["points"] == [[10, 290, 0, 0], [390, 290, 19, 0]]
+            for body, pts, why in (
+                (b"GIF89a...", points, "PNG or a JPEG"),
+                (png[:60], points, "decodes"),
+                (png, "10,290,0,0,500,290,19,0", "not in the 400x300 drawing"),
+                (png, "10,290,0,0,12,290,19,0", "apart"),
+                (png, "1,2,3", "8 finite numbers"),
+                (png, "a,b", "8 numbers"),
+            ):
+                r = admin.put(f"/api/site/background?points={pts}", content=body)
+                assert r.status_code == 400 and why in r.json()["detail"], (why, r.text)
+            assert viewer.get("/api/site/background").content == png  # kept
+            r = admin.put(url, content=jpg, headers={"Content-Type": "image/jpeg"})
+            assert r.status_code == 200
+            assert viewer.get("/api/site/background").headers["content-type"] == "image/jpeg"
+            assert admin.delete("/api/site/background").json() == {"deleted": True}
+            assert admin.delete("/api/site/background").status_code == 404
+            assert viewer.get("/api/site/background/placement").status_code == 404
+        finally:
+            admin.close()
+            viewer.close()

@@ -157,5 +157,20 @@ def test_the_plan_shows_the_cameras_and_an_error_is_shown_at_its_field(browser, 
             page.fill("#site-margin", "0.4")
             page.click("#site-save")
             wait_until(lambda: desk.take() is not None or False, "saved", poll_s=0.05)
+            # a drawing of the site under the plan, placed by two of its points
+            import cv2
+
+            drawing = tmp_path / "layout.png"
+            cv2.imwrite(str(drawing), np.full((300, 400, 3), 200, np.uint8))
+            page.set_input_files("#site-bg-file", str(drawing))
+            page.fill("#site-bg-points", "10 290 0 0; 390 290 19 0")
+            page.click("#site-bg-set")
+            image = "#site-plan image.site-background"
+            wait_until(lambda: page.locator(image).count() == 1, "the drawing on the plan")
+            matrix = page.get_attribute(image, "transform")
+            a, b, c, d, e, f = (float(v) for v in matrix[7:-1].split())
+            assert (a, b, d) == pytest.approx((0.05, 0.0, 0.05)) and abs(c) < 1e-12
+            assert (e, f) == pytest.approx((-0.5, -14.5))  # pixel (10, 290) on the site's (0, 0)
+            assert desk.background.placement()["size"] == [400, 300]
         busbar = next(z for z in load_site(path).zones if z.name == "overhead_busbar")
         assert busbar.margin_m == 0.4 and len(busbar.joints) == 3

@@ -13,6 +13,13 @@ admin, taken by the running service at its next step (site.site_desk).
   picture; z metres, 0 the floor): `{"x", "y"}` where that ray meets the plane; 422 when it
   never does in front of the camera, 404 for an unknown camera.
 
+- `GET /api/site/background` (any role): the plan's background drawing (PNG or JPEG; 404:
+  none), `GET /api/site/background/placement`: `{"points": [[u, v, x, y], [u, v, x, y]],
+  "size": [w, h]}`, two points of the drawing (pixels) and where they are on the site
+  (metres); `PUT /api/site/background?points=u1,v1,x1,y1,u2,v2,x2,y2` (admin) with the image as
+  the body (`image/png` or `image/jpeg`, at most 1 MiB): 400 naming the problem, nothing kept;
+  `DELETE /api/site/background` (admin).
+
 503 while the service has no site file to edit (serve without a site).
 """
 
@@ -20,8 +27,8 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Path, Request
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, HTTPException, Path, Query, Request
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
 from stereopose.errors import ConfigError
@@ -124,3 +131,46 @@ def site_floor(body: FloorPost, session: Viewer, request: Request) -> dict:
     if point is None:
         raise HTTPException(422, "that point of the picture never reaches the plane in front")
     return {"x": round(point[0], 4), "y": round(point[1], 4)}
+
+
+@router.get("/api/site/background", responses={404: {}, 503: {}})
+def background(session: Viewer, request: Request) -> Response:
+    """The plan's background drawing."""
+    found = _desk(request).background.image()
+    if found is None:
+        raise HTTPException(404, "the plan has no background drawing")
+    data, media = found
+    return Response(data, media_type=media, headers={"Cache-Control": "no-store"})
+
+
+@router.get("/api/site/background/placement", responses={404: {}, 503: {}})
+def background_placement(session: Viewer, request: Request) -> dict:
+    """{"points": [[u, v, x, y], [u, v, x, y]], "size": [w, h]}."""
+    found = _desk(request).background.placement()
+    if found is None:
+        raise HTTPException(404, "the plan has no background drawing")
+    return found
+
+
+@router.put("/api/site/background", responses={400: {}, 403: {}, 503: {}})
+async def put_background(
+    session: Admin, request: Request, points: Annotated[str, Query(max_length=400)]
+) -> dict:
+    """The drawing (the body) and where it lies: its placement."""
+    desk = _desk(request)
+    try:
+        numbers = [float(v) for v in points.split(",")]
+    except ValueError:
+        raise HTTPException(400, "points: 8 numbers separated by commas") from None
+    try:
+        return desk.background.put(await request.body(), numbers)
+    except ConfigError as e:
+        raise HTTPException(400, str(e)) from None
+
+
+@router.delete("/api/site/background", responses={403: {}, 404: {}, 503: {}})
+def delete_background(session: Admin, request: Request) -> dict:
+    """The drawing taken away."""
+    if not _desk(request).background.delete():
+        raise HTTPException(404, "the plan has no background drawing")
+    return {"deleted": True}

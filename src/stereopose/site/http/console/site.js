@@ -78,6 +78,10 @@ export class SiteEditor {
     byId("site-camera-svg").addEventListener("click", (e) => this.onCameraClick(e));
     byId("site-camera-img").addEventListener("error", () => { byId("site-camera-img").hidden = true; });
     this.survey = new SurveyPanel(this); // the surveyed points, clicked in the same pictures
+    this.background = null; // the plan's drawing: {points, size} (GET .../placement)
+    this.backgroundVersion = 0;
+    byId("site-bg-set").addEventListener("click", () => this.setBackground());
+    byId("site-bg-remove").addEventListener("click", () => this.removeBackground());
   }
 
   setRole(role) {
@@ -108,6 +112,12 @@ export class SiteEditor {
       this.site = null;
       info.textContent = error.status === 503 ? "this service has no site file" : `${error.detail || error.message}`;
     }
+    try {
+      this.background = await api.call("/api/site/background/placement");
+      this.backgroundVersion += 1;
+    } catch {
+      this.background = null;
+    }
     this.render();
     this.loadHistory();
     this.survey.load();
@@ -130,6 +140,7 @@ export class SiteEditor {
     const [y0, y1] = ys.length ? [Math.min(...ys) - 1, Math.max(...ys) + 1] : [-5, 5];
     this.svg.setAttribute("viewBox", `${x0} ${-y1} ${x1 - x0} ${y1 - y0}`);
     this.scale = Math.max(x1 - x0, y1 - y0) / 100;
+    this.drawBackground();
     zones.forEach((z, k) => {
       const g = el("g", { class: `site-zone ${z.kind}${k === this.selected ? " selected" : ""}`,
         "data-zone": z.name }, this.svg);
@@ -151,6 +162,55 @@ export class SiteEditor {
     this.toForm();
     clearTimeout(this.viewTimer);
     this.viewTimer = setTimeout(() => this.loadViews(), 250);
+  }
+
+  // -- the background drawing ----------------------------------------------------------------
+
+  drawBackground() {
+    const b = this.background;
+    if (!b) return;
+    // the similarity taking the drawing's pixels (y down) to the plan's (x, -y)
+    const [[u1, v1, x1, y1], [u2, v2, x2, y2]] = b.points;
+    const [du, dv, dx, dy] = [u2 - u1, v2 - v1, x2 - x1, -(y2 - y1)];
+    const s = Math.hypot(dx, dy) / Math.hypot(du, dv);
+    const a = Math.atan2(dy, dx) - Math.atan2(dv, du);
+    const [c, n] = [s * Math.cos(a), s * Math.sin(a)];
+    const e = x1 - (c * u1 - n * v1);
+    const f = -y1 - (n * u1 + c * v1);
+    el("image", {
+      href: `/api/site/background?v=${this.backgroundVersion}`, width: b.size[0], height: b.size[1],
+      transform: `matrix(${c} ${n} ${-n} ${c} ${e} ${f})`, class: "site-background",
+      preserveAspectRatio: "none",
+    }, this.svg);
+  }
+
+  async setBackground() {
+    const file = byId("site-bg-file").files[0];
+    const numbers = byId("site-bg-points").value.split(/[\s,;]+/).filter(Boolean).map(Number);
+    const error = byId("site-error");
+    error.textContent = "";
+    if (!file || numbers.length !== 8) {
+      error.textContent = "choose a PNG or JPEG drawing and give two points: u v x y; u v x y";
+      return;
+    }
+    try {
+      const path = `/api/site/background?points=${numbers.join(",")}`;
+      this.background = await api.call(path, { method: "PUT", text: file, type: file.type });
+      this.backgroundVersion += 1;
+      this.render();
+    } catch (e) {
+      error.textContent = `${e.detail || e.message}`;
+    }
+  }
+
+  async removeBackground() {
+    try {
+      await api.call("/api/site/background", { method: "DELETE" });
+    } catch (e) {
+      if (e.status !== 404) byId("site-error").textContent = `${e.detail || e.message}`;
+    }
+    this.background = null;
+    this.render();
   }
 
   // -- the cameras and the people on the plan -----------------------------------------------
