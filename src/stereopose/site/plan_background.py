@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 import threading
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from stereopose.io.writing import make_folder, write_private
 
 __all__ = ["Background"]
 
-MAX_SIDE = 10_000  # pixels of the drawing a side, at most
+MAX_SIDE = 5000  # pixels of the drawing a side, at most (read from its header first)
 KINDS = {b"\x89PNG\r\n\x1a\n": ("png", "image/png"), b"\xff\xd8\xff": ("jpg", "image/jpeg")}
 
 
@@ -32,6 +33,23 @@ def _kind(data: bytes) -> tuple[str, str]:
         if data.startswith(magic):
             return kind
     raise ConfigError("the drawing: expected a PNG or a JPEG image")
+
+
+def _header_size(data: bytes, ext: str) -> tuple[int, int] | None:
+    """(width, height) from a PNG's IHDR or a JPEG's frame header, before anything is decoded
+    (a small file can hold a huge picture); None when the header cannot say."""
+    if ext == "png":
+        return struct.unpack(">II", data[16:24]) if len(data) >= 24 else None
+    i = 2
+    while i + 9 < len(data):
+        if data[i] != 0xFF:
+            return None
+        marker, length = data[i + 1], struct.unpack(">H", data[i + 2 : i + 4])[0]
+        if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):
+            h, w = struct.unpack(">HH", data[i + 5 : i + 9])
+            return w, h
+        i += 2 + length
+    return None
 
 
 class Background:
@@ -60,12 +78,15 @@ class Background:
         """The drawing and its two points (u1, v1, x1, y1, u2, v2, x2, y2) kept: its
         placement. ConfigError naming the problem, nothing written."""
         ext, _ = _kind(data)
+        size = _header_size(data, ext)
+        if size is None:
+            raise ConfigError(f"the drawing: not a {ext.upper()} that decodes")
+        if max(size) > MAX_SIDE or min(size) < 1:
+            raise ConfigError(f"the drawing: {size[0]}x{size[1]} pixels; 1 to {MAX_SIDE} a side")
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise ConfigError(f"the drawing: not a {ext.upper()} that decodes")
         h, w = image.shape[:2]
-        if max(w, h) > MAX_SIDE:
-            raise ConfigError(f"the drawing: {w}x{h} pixels; at most {MAX_SIDE} a side")
         if len(points) != 8 or not all(math.isfinite(v) and abs(v) <= 1e6 for v in points):
             raise ConfigError("points: expected 8 finite numbers: u1 v1 x1 y1 u2 v2 x2 y2")
         pairs = [points[0:4], points[4:8]]

@@ -227,6 +227,8 @@ def test_the_plans_background_drawing(desk, tmp_path) -> None:
     png = cv2.imencode(".png", drawing)[1].tobytes()
     jpg = cv2.imencode(".jpg", drawing)[1].tobytes()
     points = "10,290,0,0,390,290,19,0"
+    # a small file whose header says 60000 x 60000: refused before it is decoded
+    huge_png = png[:16] + (60000).to_bytes(4, "big") * 2 + png[24:]
     with console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s:
         admin, viewer = s.client("ada"), s.client("vera")
         try:
@@ -246,6 +248,7 @@ def test_the_plans_background_drawing(desk, tmp_path) -> None:
                 (png, "10,290,0,0,500,290,19,0", "not in the 400x300 drawing"),
                 (png, "10,290,0,0,12,290,19,0", "apart"),
                 (png, "1,2,3", "8 finite numbers"),
+                (huge_png, points, "1 to 5000 a side"),
                 (png, "a,b", "8 numbers"),
             ):
                 r = admin.put(f"/api/site/background?points={pts}", content=body)
