@@ -337,6 +337,7 @@ class CalibrationKeeper:
         for fn in self.apply_to:
             fn(rig)
         self._calm.clear()
+        self.references.clear()  # measured again on the new rig
         out = []
         for cam in rig:
             self.health.set_camera(rig, cam.name)
