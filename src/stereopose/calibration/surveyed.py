@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from stereopose.calibration.bundle import Bundle, adjust, project_px
 from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
@@ -192,6 +191,8 @@ def calibrate_points(
     intrinsics: cameras with their intrinsics (their poses ignored); every camera of the survey
     must be there. outlier_px: a click is never left out under this residual. survey_sigma_m:
     how far a surveyed position may be off (the adjustment moves the points that much)."""
+    from stereopose.calibration.bundle import Bundle, adjust, project_px  # scipy: an extra
+
     missing = sorted(set(survey.clicks) - set(intrinsics.names))
     if missing:
         raise CalibrationError(

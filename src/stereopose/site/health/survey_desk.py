@@ -28,6 +28,7 @@ from stereopose.calibration.surveyed import (
     survey_from_doc,
 )
 from stereopose.errors import CalibrationError
+from stereopose.extras import require
 from stereopose.io.writing import make_folder, write_private
 from stereopose.types import Camera
 
@@ -76,6 +77,7 @@ class SurveyDesk:
         """Every camera placed from the points file (calibration.surveyed.calibrate_points on
         the running rig's intrinsics): the summary (see `_summary`); CalibrationError naming
         the camera or the point when it cannot be."""
+        require("scipy", "calibration", "solving the surveyed points")
         with self._lock:
             if not self.path.exists():
                 raise CalibrationError("no surveyed points yet: save them first")

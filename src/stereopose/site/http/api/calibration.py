@@ -24,7 +24,7 @@ from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
-from stereopose.errors import CalibrationError
+from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.site.http.auth import Admin, Viewer
 
 router = APIRouter(tags=["calibration"])
@@ -101,7 +101,7 @@ def solve_points(session: Admin, request: Request) -> dict:
     """Every camera placed from the points: {"cameras", "residuals_px", "left_out", ...}."""
     try:
         return _survey(request).solve()
-    except CalibrationError as e:
+    except StereoposeError as e:  # a camera or point that cannot be placed; scipy missing
         raise HTTPException(422, str(e)) from None
 
 
