@@ -232,6 +232,16 @@ def test_a_zones_state_from_its_breakers_is_in_its_retained_message(broker, clos
     assert bodies["bay2"]["power"] == "dead" and bodies["bay2"]["power_source"] == "rtu"
     assert bodies["bay2"]["people"] == [3]
     assert "power" not in bodies["bench"]  # no state source
+    # switched off over MQTT (io.sinks.mqtt_commands): its retained state says so
+    off = dataclasses.replace(
+        event(3, person=-1, zone="bench", type="zone_disabled"), kind="service"
+    )
+    sink.write(frame(3, [], [off]))
+    wait_until(
+        lambda: any(json.loads(m.payload).get("enabled") is False for m in late.messages),
+        "the zone's state switched off",
+    )
+    assert "enabled" not in bodies["bay2"]
 
 
 def test_people_are_rate_limited_by_frame_time(broker, closing) -> None:

@@ -118,6 +118,7 @@ class MqttSink(ClosesOnce):
         self._site: str | None = None  # the `site` message's payload, sent again on connect
         self._cleared: set[str] = set()  # removed zones whose retained state is to be cleared
         self._power: dict[str, tuple[str, str | None]] = {}  # zone -> its state, source
+        self._off: set[str] = set()  # zones switched off
         self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
         # message ids paho says are sent (QoS 0) or acknowledged (QoS 1): a message published
         # while the link was down keeps that error in its info even once paho has resent it
@@ -184,6 +185,11 @@ class MqttSink(ClosesOnce):
 
     def _occupy(self, e: Event) -> None:
         if not e.zone:  # a camera's event: no zone's occupancy changes
+            return
+        if e.type in ("zone_disabled", "zone_enabled"):  # switched off or on (mqtt_commands)
+            (self._off.add if e.type == "zone_disabled" else self._off.discard)(e.zone)
+            if e.zone in self._zones:
+                self._dirty.add(e.zone)
             return
         if e.type in ("zone_live", "zone_dead", "zone_unknown"):  # its state from its breakers
             self._power[e.zone] = (e.type[5:], e.source)
@@ -282,6 +288,8 @@ class MqttSink(ClosesOnce):
         body = {"zone": zone, "people": people, "count": len(people), "t": t, "frame": frame}
         if zone in self._power:  # a zone with a state source: live, dead or unknown, and why
             body["power"], body["power_source"] = self._power[zone]
+        if zone in self._off:
+            body["enabled"] = False
         return _Message("zones", self._zone_base + topic_part(zone), _dumps(body), 1, True)
 
     def _publish(self, msg: _Message) -> None:
