@@ -122,6 +122,15 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         assert report["cameras"]["cam01"]["node"] == "node-a"
         assert report["cameras"]["cam04"]["node"] == "node-b"
         assert report["nodes"]["node-a"]["clock_refused"] is False
+        # each camera's light as its node sees it, in the service's /metrics (the console's too)
+        metrics = f"http://127.0.0.1:{http_port}/metrics"
+        day = 'stereopose_camera_light{camera="%s",mode="day"} 1.0'
+        wait_until(
+            lambda: all(day % c in http_get(metrics)[1].decode() for c in all_up),
+            "the nodes' cameras' light in /metrics",
+            30,
+            0.5,
+        )
 
         before = len(events("camera"))  # a node slower to start than the timeout: its own
         nodes["node-a"].send_signal(signal.SIGKILL)  # no goodbye: its will says offline

@@ -304,3 +304,25 @@ def test_the_mqtt_thread_that_dies_is_started_again_and_frames_come_again(rig, t
     finally:
         pub.loop_stop()
         broker.stop()
+
+
+def test_each_cameras_light_is_what_its_node_says(rig):
+    """A camera's light mode as its node's health gives it (the service's console, /metrics):
+    none while its node has not said, the mode once it has, from the node its frames come
+    from."""
+    from stereopose.nodes.node_state import nodes_light
+
+    inp = _input(rig)
+    topic = Topics.of("stereopose", "north")
+    try:
+        assert nodes_light(inp.report()) == {}
+        now = time.time()
+        cameras = {"cam01": {"light": "night"}, "cam02": {"light": "day"}, "cam03": {}}
+        health = health_message("a", "online", clock=now, cameras=cameras)
+        inp._message(topic.node("a"), health, False)
+        for cam in ("cam01", "cam02", "cam03"):
+            _send(inp, "a", cam, now)
+        wait_until(lambda: inp.figures["cam03"].frames >= 1, "the cameras' frames")
+        assert nodes_light(inp.report()) == {"cam01": {"mode": "night"}, "cam02": {"mode": "day"}}
+    finally:
+        inp.end()

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from stereopose.nodes.wire import Keypoints
@@ -144,3 +144,15 @@ def positive_rate(v: object) -> float | None:
 
 def rounded(v: float | None) -> float | None:
     return None if v is None else round(v, 4)
+
+
+def nodes_light(report: Mapping) -> dict[str, dict[str, str]]:
+    """Each camera's light (detection.light's mode) as its node's last health says it, from
+    NodeInput.report(): {camera: {"mode"}}, the cameras whose mode is known."""
+    out = {}
+    for name, cam in (report.get("cameras") or {}).items():
+        node = (report.get("nodes") or {}).get(cam.get("node") or "") or {}
+        mode = ((node.get("cameras") or {}).get(name) or {}).get("light")
+        if isinstance(mode, str):
+            out[name] = {"mode": mode}
+    return out

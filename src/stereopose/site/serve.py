@@ -64,6 +64,7 @@ from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
+from stereopose.nodes.node_state import nodes_light
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
@@ -303,6 +304,7 @@ def _run_loop(
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
+        service.state.register_light(lambda: nodes_light(cams.report()))  # as the nodes see
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         regions = region_detector(detector, cfg.detector)
         light = LightWatch(enhance=cfg.detector.night)
