@@ -70,3 +70,32 @@ def proposed_keeper(folder):
     keeper, _, applied = run_keeper(rig, steps, folder, auto=False)
     assert "cam02" in keeper.proposals()
     return keeper, applied, steps
+
+
+def surveyed_yard(folder, bumped_deg: float = 2.0):
+    """A simulated yard with its surveyed points, its running rig cam02 bumped `bumped_deg`
+    (0: none), and a keeper over the running rig (calibration_auto = false; its files in
+    `folder`): (the true rig, the points file's JSON, the true clicks, the keeper, the rigs it
+    applied)."""
+    from stereopose.sim.yard import survey, yard_rig
+
+    rng = np.random.default_rng(5)
+    truth = yard_rig(rng)
+    world, clicks = survey(truth, rng)
+    moved = bump(truth["cam02"], np.random.default_rng(6), bumped_deg, 0.0)
+    running = Rig(tuple(moved if c.name == "cam02" else c for c in truth))
+    save_calibration(folder / "calib.toml", running)
+    applied: list[Rig] = []
+    keeper = CalibrationKeeper(
+        running,
+        folder / "calib.toml",
+        CalibrationHealth(running, 2.0),
+        apply=[applied.append],
+        settings=KeeperSettings(auto=False),
+        out_dir=folder / "out",
+    )
+    doc = {
+        "points": {k: v.tolist() for k, v in world.items()},
+        "cameras": {c: {k: v.tolist() for k, v in t.items()} for c, t in clicks.items()},
+    }
+    return truth, doc, clicks, keeper, applied

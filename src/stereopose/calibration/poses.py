@@ -9,7 +9,7 @@ import numpy as np
 
 from stereopose.types import Camera
 
-__all__ = ["camera_with_pose", "intrinsics_row", "robust_pnp"]
+__all__ = ["camera_with_pose", "intrinsics_row", "pose_change", "robust_pnp"]
 
 
 def intrinsics_row(cam: Camera) -> np.ndarray:
@@ -17,6 +17,12 @@ def intrinsics_row(cam: Camera) -> np.ndarray:
     K, d = cam.matrix, np.zeros(4)
     d[: min(4, cam.distortions.size)] = cam.distortions[:4]
     return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d])
+
+
+def pose_change(old: Camera, new: Camera) -> tuple[float, float]:
+    """How far a camera placed again moved: (turned degrees, moved metres of its centre)."""
+    turned = float(np.degrees(np.linalg.norm(cv2.Rodrigues(new.R @ old.R.T)[0])))
+    return turned, float(np.linalg.norm(new.center - old.center))
 
 
 def camera_with_pose(cam: Camera, pose: np.ndarray) -> Camera:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereopose.calibration.poses import camera_with_pose, robust_pnp
+from stereopose.calibration.poses import camera_with_pose, pose_change, robust_pnp
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction.reconstructor import Reconstructor
 from stereopose.types import Camera, People2D, Rig
@@ -97,7 +97,7 @@ def refine_camera(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Re
     new = camera_with_pose(cam, np.concatenate([r.ravel(), t.ravel()]))
     w, h = cam.size
     cells = {(int(u / w * 4), int(v / h * 3)) for u, v in img[keep] if 0 <= u < w and 0 <= v < h}
-    turned = float(np.degrees(np.linalg.norm(cv2.Rodrigues(new.R @ cam.R.T)[0])))
+    turned, moved = pose_change(cam, new)
     return Refined(
         new,
         float(np.sqrt(np.mean(err[keep] ** 2))),
@@ -105,7 +105,7 @@ def refine_camera(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Re
         len(set(tag[keep].tolist())),
         len(cells) / 12.0,
         turned,
-        float(np.linalg.norm(new.center - cam.center)),
+        moved,
     )
 
 

@@ -7,38 +7,15 @@ are 400 naming the key, a camera that cannot be placed 422 naming it."""
 from __future__ import annotations
 
 import httpx
-import numpy as np
 import pytest
 
 from consoled import PASSWORDS, console_server
-from stereopose.calibration.formats import save_calibration
-from stereopose.sim.yard import survey, yard_rig
-from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperDesk, KeeperSettings
+from knocked import surveyed_yard
+from stereopose.calibration.poses import pose_change
+from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.http.app import Desks
-from stereopose.types import Camera, Rig
 
 pytestmark = pytest.mark.slow
-
-
-def _knocked(rig: Rig, name: str, deg: float) -> Rig:
-    """The rig with camera `name` turned `deg` about its own vertical axis."""
-    a = np.radians(deg)
-    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    out = []
-    for c in rig:
-        if c.name == name:
-            R = turn @ c.R
-            t = -R @ c.center
-            c = Camera(c.name, c.size, c.matrix, c.distortions, cv_rvec(R), t)
-        out.append(c)
-    return Rig(tuple(out))
-
-
-def cv_rvec(R: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(R)[0].ravel()
 
 
 def _login(c: httpx.Client, name: str) -> dict:
@@ -47,26 +24,9 @@ def _login(c: httpx.Client, name: str) -> dict:
 
 
 def test_the_surveyed_points_place_the_rig_while_serving(tmp_path) -> None:
-    rng = np.random.default_rng(5)
-    truth = yard_rig(rng)
-    world, clicks = survey(truth, rng)
-    running = _knocked(truth, "cam02", 2.0)  # the running rig: cam02 bumped
-    save_calibration(tmp_path / "calib.toml", running)
-    applied: list[Rig] = []
-    keeper = CalibrationKeeper(
-        running,
-        tmp_path / "calib.toml",
-        CalibrationHealth(running, 2.0),
-        apply=[applied.append],
-        settings=KeeperSettings(auto=False),
-        out_dir=tmp_path / "out",
-    )
+    truth, doc, clicks, keeper, applied = surveyed_yard(tmp_path)
     desk = KeeperDesk()
     desk.keeper = keeper
-    doc = {
-        "points": {k: v.tolist() for k, v in world.items()},
-        "cameras": {c: {k: v.tolist() for k, v in t.items()} for c, t in clicks.items()},
-    }
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=60) as c,
@@ -103,27 +63,17 @@ def test_the_surveyed_points_place_the_rig_while_serving(tmp_path) -> None:
     assert all(e.type == "calibration_corrected" for e in events)
     assert events[0].result == {**events[0].result, "accepted_by": "ada"}
     (rig,) = applied
-    turn = np.degrees(
-        np.arccos(np.clip((np.trace(rig["cam02"].R.T @ truth["cam02"].R) - 1) / 2, -1, 1))
-    )
-    assert turn < 0.3
+    turned, _ = pose_change(truth["cam02"], rig["cam02"])
+    assert turned < 0.3
     assert keeper.written is not None and keeper.written.name == "calib.corrected.toml"
     assert (tmp_path / "out" / "survey" / "points.toml").is_file()
 
 
 def test_a_camera_with_too_few_clicks_is_named(tmp_path) -> None:
-    rng = np.random.default_rng(5)
-    truth = yard_rig(rng)
-    world, clicks = survey(truth, rng)
-    clicks["cam04"] = dict(sorted(clicks["cam04"].items())[:4])
-    save_calibration(tmp_path / "calib.toml", truth)
-    keeper = CalibrationKeeper(truth, tmp_path / "calib.toml", CalibrationHealth(truth, 2.0))
+    _, doc, _, keeper, _ = surveyed_yard(tmp_path, bumped_deg=0.0)
+    doc["cameras"]["cam04"] = dict(sorted(doc["cameras"]["cam04"].items())[:4])
     desk = KeeperDesk()
     desk.keeper = keeper
-    doc = {
-        "points": {k: v.tolist() for k, v in world.items()},
-        "cameras": {c: {k: v.tolist() for k, v in t.items()} for c, t in clicks.items()},
-    }
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=60) as c,

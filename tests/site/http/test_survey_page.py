@@ -9,17 +9,13 @@ import shutil
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
 import pytest
-from test_survey_api import _knocked
 
 from browsing import chromium, console_page
 from consoled import console_server
-from stereopose.calibration.formats import save_calibration
+from knocked import surveyed_yard
 from stereopose.fence import load_site
-from stereopose.sim.yard import survey, yard_rig
-from stereopose.site.health.calib_health import CalibrationHealth
-from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperDesk, KeeperSettings
+from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.http.app import Desks
 from stereopose.site.site_desk import SiteDesk
 from waiting import wait_until
@@ -30,31 +26,18 @@ DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
 
 
 def test_an_admin_places_the_cameras_from_surveyed_points(tmp_path) -> None:
-    rng = np.random.default_rng(5)
-    truth = yard_rig(rng)
-    world, clicks = survey(truth, rng)
-    running = _knocked(truth, "cam02", 2.0)
-    save_calibration(tmp_path / "calib.toml", running)
-    applied: list = []
-    keeper = CalibrationKeeper(
-        running,
-        tmp_path / "calib.toml",
-        CalibrationHealth(running, 2.0),
-        apply=[applied.append],
-        settings=KeeperSettings(auto=False),
-        out_dir=tmp_path / "out",
-    )
+    truth, doc, clicks, keeper, applied = surveyed_yard(tmp_path)
     calibration = KeeperDesk()
     calibration.keeper = keeper
     path = tmp_path / "site.toml"
     shutil.copy(DEMO_SITE, path)
-    site = SiteDesk(path, load_site(path), tmp_path / "history", rig=running)
+    site = SiteDesk(path, load_site(path), tmp_path / "history", rig=keeper.rig)
     desks = Desks(calibration=calibration, site=site)
     with console_server(tmp_path / "out", app_kw={"desks": desks}) as s, chromium() as browser:
         with console_page(browser, s.url, "ada", "survey-admin") as page:
             page.click('.tab[data-tab="site"]')
             wait_until(lambda: page.locator("#site-camera option").count() == len(truth), "views")
-            lines = [f"{k} {x} {y} {z}" for k, (x, y, z) in world.items()]
+            lines = [f"{k} {x} {y} {z}" for k, (x, y, z) in doc["points"].items()]
             page.fill("#survey-points", "\n".join(lines))
             for cam in truth:
                 page.select_option("#site-camera", cam.name)

@@ -40,6 +40,7 @@ import numpy as np
 import tomllib
 
 from stereopose.calibration.formats import save_calibration
+from stereopose.calibration.poses import pose_change
 from stereopose.calibration.refine import pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
@@ -343,7 +344,7 @@ class CalibrationKeeper:
             self.health.set_camera(rig, cam.name)
             self._close(cam.name)
             self.corrected[cam.name] = self.corrected.get(cam.name, 0) + 1
-            moved = float(np.linalg.norm(cam.center - old[cam.name].center))
+            _, moved = pose_change(old[cam.name], cam)
             result = {"accepted_by": by, "from": "surveyed points", "moved_m": round(moved, 3)}
             out.append(camera_event("calibration_corrected", cam.name, t, frame, t, result=result))
         self._write(rig[0].name, old[rig[0].name], None, by)

@@ -18,8 +18,7 @@ import math
 import threading
 from pathlib import Path
 
-import numpy as np
-
+from stereopose.calibration.poses import pose_change
 from stereopose.calibration.surveyed import (
     PointsResult,
     calibrate_points,
@@ -30,7 +29,6 @@ from stereopose.calibration.surveyed import (
 from stereopose.errors import CalibrationError
 from stereopose.extras import require
 from stereopose.io.writing import make_folder, write_private
-from stereopose.types import Camera
 
 __all__ = ["SurveyDesk"]
 
@@ -104,11 +102,13 @@ class SurveyDesk:
         running = self.keeper.rig
         cameras = {}
         for cam in r.rig:
-            old = running[cam.name] if cam.name in running.names else None
+            turned, moved = (
+                pose_change(running[cam.name], cam) if cam.name in running.names else (None, None)
+            )
             cameras[cam.name] = {
                 "rms_px": round(r.camera_rms_px[cam.name], 2),
-                "moved_m": None if old is None else round(_moved(old, cam), 3),
-                "turned_deg": None if old is None else round(_turned(old, cam), 2),
+                "moved_m": None if moved is None else round(moved, 3),
+                "turned_deg": None if turned is None else round(turned, 2),
             }
         return {
             "cameras": cameras,
@@ -120,12 +120,3 @@ class SurveyDesk:
             "unplaced": sorted(set(running.names) - set(r.rig.names)),
             "warnings": list(r.warnings),
         }
-
-
-def _moved(a: Camera, b: Camera) -> float:
-    return float(np.linalg.norm(a.center - b.center))
-
-
-def _turned(a: Camera, b: Camera) -> float:
-    c = (np.trace(a.R @ b.R.T) - 1.0) / 2.0
-    return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))

@@ -6,17 +6,10 @@
 // an energized zone is drawn red (data-danger="true").
 
 import { idColour } from "./colours.js";
+import { el, SVG } from "./svg.js";
 
-const SVG = "http://www.w3.org/2000/svg";
 const MARGIN_M = 0.8;
 const LINGER_MS = 2000;
-
-function el(name, attrs = {}, parent = null) {
-  const node = document.createElementNS(SVG, name);
-  for (const [key, value] of Object.entries(attrs)) node.setAttribute(key, String(value));
-  if (parent) parent.appendChild(node);
-  return node;
-}
 
 const points = (polygon) => polygon.map(([x, y]) => `${x.toFixed(3)},${(-y).toFixed(3)}`).join(" ");
 const finite = (v) => typeof v === "number" && Number.isFinite(v);
@@ -104,7 +97,7 @@ export class FloorPlan {
       label.textContent = `${zone.name}${off}${power && power !== "live" ? ` [${power}]` : ""}${who}`;
       shape.replaceChildren();
       if (power) {
-        const title = document.createElementNS("http://www.w3.org/2000/svg", "title");
+        const title = document.createElementNS(SVG, "title");
         title.textContent = `${power}${since}: ${zone.power.source || ""}${zone.power.reason ? ` (${zone.power.reason})` : ""}`;
         shape.appendChild(title);
       }

@@ -9,19 +9,12 @@
 
 import * as api from "./api.js";
 import { SurveyPanel } from "./survey.js";
+import { el } from "./svg.js";
 
-const SVG = "http://www.w3.org/2000/svg";
 const GRID_M = 0.05;
 const SNAP_M = 0.15;
 const KINDS = ["energized", "restricted", "work_area"];
 const byId = (id) => document.getElementById(id);
-
-function el(name, attrs = {}, parent = null) {
-  const node = document.createElementNS(SVG, name);
-  for (const [key, value] of Object.entries(attrs)) node.setAttribute(key, String(value));
-  if (parent) parent.appendChild(node);
-  return node;
-}
 
 function text(tag, content, className = "") {
   const node = document.createElement(tag);

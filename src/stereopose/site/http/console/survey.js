@@ -6,16 +6,9 @@
 // residual beside its mark), Accept applies the new rig at the next step. Everyone sees them.
 
 import * as api from "./api.js";
+import { el } from "./svg.js";
 
-const SVG = "http://www.w3.org/2000/svg";
 const byId = (id) => document.getElementById(id);
-
-function el(name, attrs = {}, parent = null) {
-  const node = document.createElementNS(SVG, name);
-  for (const [key, value] of Object.entries(attrs)) node.setAttribute(key, String(value));
-  if (parent) parent.appendChild(node);
-  return node;
-}
 
 function cell(row, content) {
   const td = document.createElement("td");
