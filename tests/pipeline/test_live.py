@@ -75,6 +75,19 @@ def _stalling_urls(servers: list[StallingServer]) -> dict[str, str]:
 # --- the live clock through the whole run --------------------------------------------------
 
 
+@pytest.fixture(autouse=True)
+def no_camera_thread_left():
+    """A live camera's reader may outlive its close() (a read that ends only when its socket
+    does): the next test starts once every reader has ended, so that no native read of one
+    test runs on into another's (a detector loading, a signal raised)."""
+    yield
+    wait_until(
+        lambda: not [t for t in threading.enumerate() if t.name.startswith("camera-")],
+        "the cameras' reader threads ended",
+        timeout_s=120,
+    )
+
+
 def test_live_run_times_follow_the_frames_arrival(tmp_path: Path) -> None:
     """Both cameras stream at 5 fps while the time steps are nominally 25 per second: each
     record's t is when its frames arrived (on the run's clock, clock_start_epoch + t on the
