@@ -73,6 +73,12 @@ class DetectorConfig:
     # night (dark or noisy) has its pictures denoised and its contrast normalised for
     # the detector; false: measured only. Day pictures go to the detector unchanged
     night: bool = True
+    # between detections, a camera whose people's sure joints all moved less than
+    # carry_motion of their height between its last two detections skips the detector at its
+    # next step (the cameras take turns), its people carried as last detected
+    # (detection.carry); never two steps in a row. false: every camera detected every step
+    carry: bool = True
+    carry_motion: float = number(0.05, gt=0.0, le=1.0)
 
 
 @_schema("input")

@@ -88,6 +88,8 @@ class RunSummary:
     detector: dict[str, str] = field(default_factory=dict)
     # each camera's light at the end (detection.light.LightWatch.figures); empty: not measured
     light: dict[str, dict] = field(default_factory=dict)
+    # carried steps, by camera: steps detected and carried (detection.carry); empty: none
+    carry: dict[str, dict[str, int]] = field(default_factory=dict)
     events: dict[str, int] = field(default_factory=dict)  # event type -> count
     trajectories: list[Trajectory] = field(default_factory=list)
     skipped_files: list[tuple[str, str]] = field(default_factory=list)  # malformed inputs
@@ -220,6 +222,7 @@ class RunSummary:
             **({"regions": dict(self.regions)} if self.regions else {}),
             **({"detector": dict(self.detector)} if self.detector else {}),
             **({"light": dict(self.light)} if self.light else {}),
+            **({"carry": dict(self.carry)} if self.carry else {}),
         }
 
 

@@ -26,6 +26,7 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig, load_config
 from stereopose.config_refs import resolve, source_path
 from stereopose.detection import make_detector
+from stereopose.detection.carry import carrier
 from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
@@ -120,7 +121,7 @@ def _camera_source(
     regions = region_detector(detector, settings)
     if regions is not None and site is not None:
         regions.watch(watched_heights(rig, site.zones))
-    cameras = Cameras(cams, rig, detector, regions, light)
+    cameras = Cameras(cams, rig, detector, regions, light, carrier(settings))
     return PipelinedCameras(cameras) if cams.live else cameras
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.detection import PoseDetector, choice_of
+from stereopose.detection.carry import Carrier
 from stereopose.detection.light import LightWatch
 from stereopose.detection.openpose import PoseSequence
 from stereopose.detection.regional import RegionDetector
@@ -105,7 +106,9 @@ class Cameras:
     regions: detect where the people are (detection.regional), the tracked people of the last
     step the frame loop gave back (`tracked`) projected into each camera; None: whole frames.
     light: each camera's light measured, a night camera's picture prepared for the detector
-    (detection.light); None: neither.
+    (detection.light); None: neither. carry: a camera whose people move slowly skips the
+    detector every other step, its people carried on (detection.carry); None: every camera
+    detected at every step.
     """
 
     stages = CAMERA_STAGES
@@ -117,10 +120,12 @@ class Cameras:
         detector: PoseDetector,
         regions: RegionDetector | None = None,
         light: LightWatch | None = None,
+        carry: Carrier | None = None,
     ) -> None:
         self.cams, self.rig, self.detector = cams, rig, detector
         self.regions = regions
         self.light = light
+        self.carry = carry
         self._tracked: People3D | None = None
         self.cameras = tuple(cams.names)
         self.fps = float(cams.fps)
@@ -165,11 +170,23 @@ class Cameras:
                 self._checked.add(name)
                 check_size(self.rig[name], image)
         frames = FrameSet(step.frame, step.t, {**images, **subs})
+        order = [n for n, im in frames.images.items() if im is not None]
+        carried = self.carry.plan(order, step.frame, step.t) if self.carry is not None else set()
+        if carried:
+            frames = FrameSet(
+                step.frame, step.t, {n: im for n, im in frames.images.items() if n not in carried}
+            )
         hints = self._hints(frames, step.t) if self.regions is not None else None
         people2d = detect_step(self.detector, frames, self.regions, hints, self.light)
         for name in people2d.keys() & subs.keys():
             people2d[name] = scale_people(people2d[name], self.rig[name].size, subs[name].shape)
-        return people2d
+        if self.carry is None:
+            return people2d
+        for name, people in people2d.items():
+            self.carry.seen(name, people, step.frame, step.t)
+        for name in carried:
+            people2d[name] = self.carry.carried(name, step.frame)
+        return {n: people2d[n] for n in order if n in people2d}
 
     def tracked(self, people: People3D) -> None:
         """The frame loop's people of its last step: the next steps' regions (any thread)."""
@@ -195,6 +212,8 @@ class Cameras:
             summary.detector = choice.as_dict()
         if self.light is not None:
             summary.light = self.light.figures()
+        if self.carry is not None:
+            summary.carry = self.carry.report()
         if self.regions is not None:
             summary.regions = self.regions.report()
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}

@@ -51,6 +51,7 @@ from pathlib import Path
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
+from stereopose.detection.carry import carrier
 from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import RegionDetector, region_detector
 from stereopose.errors import StereoposeError
@@ -308,7 +309,7 @@ def _run_loop(
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         regions = region_detector(detector, cfg.detector)
         light = LightWatch(enhance=cfg.detector.night)
-        cameras = Cameras(cams, rig, detector, regions, light)
+        cameras = Cameras(cams, rig, detector, regions, light, carrier(cfg.detector))
         service.probes["light"] = light.figures  # status.json: each camera's day or night
         service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
         keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views

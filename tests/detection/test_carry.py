@@ -1,0 +1,164 @@
+"""Carried steps (detection.carry): which cameras skip the detector, and what they carry."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereopose.config import DetectorConfig
+from stereopose.detection.carry import Carrier, CarrySettings, carrier
+from stereopose.types import People2D
+
+DT = 1 / 60
+
+
+def person(x: float, y: float = 100.0, height: float = 400.0, hand: float = 0.0) -> np.ndarray:
+    """A standing person's 17 joints (x, y, conf) at (x, y), `height` px tall; the right
+    wrist (10) moved `hand` px to the right."""
+    ys = np.linspace(y, y + height, 17)
+    kp = np.column_stack([np.full(17, x), ys, np.full(17, 0.9)])
+    kp[10, 0] += hand
+    return kp
+
+
+def people(camera: str, frame: int, *kps: np.ndarray) -> People2D:
+    kp = np.array(kps, float).reshape(-1, 17, 3)
+    boxes = [[p[:, 0].min() - 50, p[:, 1].min(), p[:, 0].max() + 50, p[:, 1].max()] for p in kp]
+    return People2D(camera, frame, kp, np.array(boxes).reshape(-1, 4), np.full(len(kp), 0.8))
+
+
+def drive(carry: Carrier, names, steps: int, found) -> list[set[str]]:
+    """`steps` steps of `names`: each step's carried cameras; found(name, step): what the
+    detector finds in a camera it runs on."""
+    out = []
+    for step in range(steps):
+        t = step * DT
+        skip = carry.plan(list(names), step, t)
+        for name in names:
+            if name in skip:
+                carry.carried(name, step)
+            else:
+                carry.seen(name, found(name, step), step, t)
+        out.append(skip)
+    return out
+
+
+def test_still_cameras_take_turns_and_none_is_carried_twice_in_a_row():
+    names = ["cam01", "cam02", "cam03", "cam04"]
+    carry = Carrier()
+    plans = drive(carry, names, 40, lambda n, s: people(n, s, person(500 + 0.5 * s)))
+    assert plans[:2] == [set(), set()]  # two detections first
+    for a, b in itertools.pairwise(plans[2:]):
+        assert len(a) == 2 and not a & b  # half the cameras, never the same two in a row
+    report = carry.report()
+    assert sum(c["carried"] for c in report.values()) == sum(len(p) for p in plans)
+    assert all(c["detected"] + c["carried"] == 40 for c in report.values())
+
+
+def test_a_hand_that_reaches_out_is_detected_at_every_step():
+    """The body stands still but the right wrist moves 30 px a step (over 5 % of 400 px)."""
+    carry = Carrier()
+    plans = drive(carry, ["cam01"], 20, lambda n, s: people(n, s, person(500, hand=30.0 * s)))
+    assert not any(plans)
+    # a doubted joint's jumps do not count
+    carry = Carrier()
+
+    def doubted(n, s):
+        kp = person(500, hand=30.0 * s)
+        kp[10, 2] = 0.2
+        return people(n, s, kp)
+
+    assert any(drive(carry, ["cam01"], 20, doubted))
+
+
+def test_a_walk_past_the_camera_and_a_newcomer_are_detected_at_every_step():
+    fast = Carrier(CarrySettings(motion=0.05))
+    assert not any(drive(fast, ["cam01"], 20, lambda n, s: people(n, s, person(500 + 25.0 * s))))
+    slow = Carrier(CarrySettings(motion=0.1))  # 25 px of 400 is within a tenth
+    assert any(drive(slow, ["cam01"], 20, lambda n, s: people(n, s, person(500 + 25.0 * s))))
+    # one more person at every other detection: never the same people twice, never carried
+    newcomer = Carrier()
+
+    def coming(n, s):
+        return people(n, s, *[person(300 + 200 * k) for k in range(1 + s % 2)])
+
+    assert not any(drive(newcomer, ["cam01"], 20, coming))
+
+
+def test_a_carried_camera_gives_its_last_detection_at_the_step_carried():
+    carry = Carrier()
+    names = ["cam01", "cam02"]
+    last: dict[str, People2D] = {}
+
+    def found(n, s):
+        last[n] = people(n, s, person(400 + s), person(900 - s))
+        return last[n]
+
+    for step in range(6):
+        skip = carry.plan(names, step, step * DT)
+        for name in names:
+            if name in skip:
+                got = carry.carried(name, step)
+                assert got.camera == name and got.frame == step
+                np.testing.assert_array_equal(got.keypoints, last[name].keypoints)
+                np.testing.assert_array_equal(got.boxes, last[name].boxes)
+            else:
+                carry.seen(name, found(name, step), step, step * DT)
+    assert carry.report()["cam01"]["carried"] > 0
+
+
+def test_an_empty_camera_is_carried_and_a_missed_step_starts_again():
+    carry = Carrier()
+    plans = drive(carry, ["cam01"], 6, lambda n, s: people(n, s))
+    assert any(plans)
+    assert len(carry.carried("cam01", 99)) == 0
+    # the camera had no picture at the step before: it is not carried
+    carry.seen("cam01", people("cam01", 10), 10, 10 * DT)
+    assert carry.plan(["cam01"], 12, 12 * DT) == set()
+
+
+def test_the_settings_and_the_configuration():
+    with pytest.raises(ValueError, match="carry motion"):
+        CarrySettings(motion=0.0)
+    assert carrier(DetectorConfig(carry=False)) is None
+    assert carrier(DetectorConfig(carry_motion=0.2)).settings.motion == 0.2
+
+
+def _events(folder) -> list[dict]:
+    return [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+
+
+def test_carried_steps_keep_every_alarm_of_the_real_demo(real_demo_dir: Path, tmp_path: Path):
+    """The demo (carried steps on, the default) against the same run with every camera
+    detected at every step: every alarm of the one is in the other, for the same person, zone
+    and type, at most one step apart; the joints reproject as well (+0.5 px at most)."""
+    from stereopose.cli import main
+
+    carried = json.loads((real_demo_dir / "summary.json").read_text())
+    assert sum(c["carried"] for c in carried["carry"].values()) >= 0.1 * 4 * carried["frames"]
+    for name in ("demo_site.toml", "demo_ticket.toml"):
+        shutil.copy(real_demo_dir / name, tmp_path / name)
+    config = tmp_path / "demo.toml"
+    demo = (real_demo_dir / "demo.toml").read_text()
+    config.write_text(demo + "\n[detector]\ncarry = false\n")
+    assert main(["run", str(config), "--ticket", str(tmp_path / "demo_ticket.toml")]) == 0
+    every = json.loads((tmp_path / "summary.json").read_text())
+    assert "carry" not in every
+    alarms = [e for e in _events(tmp_path) if e["kind"] == "energized"]
+    assert {e["type"] for e in alarms} >= {"approach", "enter", "exit"}
+    kept = _events(real_demo_dir)
+    for a in alarms:
+        same = [
+            e
+            for e in kept
+            if (e["person"], e["zone"], e["kind"], e["type"])
+            == (a["person"], a["zone"], a["kind"], a["type"])
+            and abs(e["frame"] - a["frame"]) <= 1
+        ]
+        assert same, f"alarm {a} of the run detected at every step is not kept"
+    assert carried["reprojection_median_px"] <= every["reprojection_median_px"] + 0.5
