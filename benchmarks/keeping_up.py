@@ -39,9 +39,12 @@ import psutil
 
 from common import machine, save
 from stereopose.calibration.formats import load_calibration
-from stereopose.config import Config
+from stereopose.config import Config, DetectorConfig
 from stereopose.detection import make_detector
+from stereopose.detection.carry import carrier
+from stereopose.detection.light import LightWatch
 from stereopose.detection.models import demo_videos
+from stereopose.detection.regional import region_detector
 from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
@@ -51,6 +54,7 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
+from stereopose.pipeline.track_regions import watched_heights
 from stereopose.types import Rig
 
 SUB_SIZE = (272, 480)  # the substreams' width, height
@@ -131,7 +135,11 @@ def measure(
     det,
     packets: bool = False,
     copies: int = 1,
+    settings: DetectorConfig | None = None,
 ) -> dict:
+    """One set-up's figures; settings: the [detector] settings of serve (regions, night,
+    carried steps) around `det` (None: serve's defaults)."""
+    settings = settings or DetectorConfig()
     names = _names(videos, copies)
     servers, urls, sub_urls = [], [], []
     for name, v in zip(names, videos * copies, strict=True):
@@ -154,7 +162,12 @@ def measure(
             urls, names, detect=sub_urls or None, first_frame_timeout_s=30, packets=rings
         ) as cams:
             cfg = dataclasses.replace(Config(), fps=cams.fps)
-            source = PipelinedCameras(Cameras(cams, rig, det))
+            regions = region_detector(det, settings)  # as serve sets it up
+            if regions is not None:
+                regions.watch(watched_heights(rig, site.zones))
+            light = LightWatch(enhance=settings.night)
+            cameras = Cameras(cams, rig, det, regions, light, carrier(settings))
+            source = PipelinedCameras(cameras)
             stage = Stage3D(rig, cfg, calib_path=str(calib))
             summary = RunSummary(rig.names, source.stages, "", stage.tracking, live=True)
             fences = FenceMonitor(site, cfg.fps, cfg.tracking.max_lost_s)
@@ -174,8 +187,12 @@ def measure(
             s.wait()
     st = source.stats
     loop_s = sum(v for k, v in summary.seconds.items() if k not in ("decode", "detect"))
+    carried = summary.carry or (cameras.carry.report() if cameras.carry else {})
     return {
         "cameras_n": len(names),
+        "carry": settings.carry,
+        "carried_share": sum(c["carried"] for c in carried.values())
+        / max(sum(c["carried"] + c["detected"] for c in carried.values()), 1),
         "substreams": bool(subs),
         "full_streams": "packets" if packets else "decoded",
         "packet_ring_mb": {n: r.bytes / 2**20 for n, r in (rings or {}).items()},
@@ -223,14 +240,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         subs = [substream(v, Path(tmp) / f"{v.stem}_sub.mp4") for v in videos]
         for n in counts:
-            setups = ((False, False), (True, False), (True, True)) if n == 4 else ((True, True),)
-            for use_subs, packets in setups:
+            setups = ((False, False, True), (True, False, True), (True, True, True))
+            setups = (*setups, (True, True, False)) if n == 4 else ((True, True, True),)
+            for use_subs, packets, carry in setups:
+                settings = DetectorConfig(carry=carry)
                 run = measure(
-                    videos, subs if use_subs else None, args.seconds, det, packets, n // 4
+                    videos, subs if use_subs else None, args.seconds, det, packets, n // 4, settings
                 )
                 r["runs"].append(run)
                 print(
-                    f"{n} cameras, substreams={use_subs} packets={packets}: "
+                    f"{n} cameras, substreams={use_subs} packets={packets} carry={carry}: "
                     f"{run['steps_per_s']:.2f} steps/s, latency p50 "
                     f"{run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
                     flush=True,
@@ -249,12 +268,14 @@ def markdown(r: dict) -> list[str]:
         "0.54 steps/s on the same 4 full streams (detection 1.6 s per step). 8 and 16 "
         "cameras: the 4 served twice and four times under other names. Latency: from the "
         "oldest frame's arrival to the end of its step, when its events are out (capture to "
-        "event).",
+        "event). Detection as `serve` sets it up by default: regions (the demo site's "
+        "workers watched), each camera's light, carried steps (`[detector] carry`); off: "
+        "every camera detected at every step.",
         "",
-        "| cameras | set-up | steps/s | detect ms/step | 3D+zones ms/step | latency p50 / p95 s | "
-        "steps dropped | frames grabbed / decoded per camera | RSS MB start -> end | "
-        "load avg start -> end |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| cameras | set-up | carried steps | steps/s | detect ms/step | 3D+zones ms/step | "
+        "latency p50 / p95 s | steps dropped | frames grabbed / decoded per camera | "
+        "RSS MB start -> end | load avg start -> end |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for run in r["runs"]:
         cams = run["cameras"].values()
@@ -267,8 +288,13 @@ def markdown(r: dict) -> list[str]:
                 if run.get("full_streams") == "packets"
                 else "full streams decoded + substreams (detect on the substream)"
             )
+        carry = (
+            f"on ({100 * run['carried_share']:.0f} % of camera-steps)"
+            if run.get("carry")
+            else "off"
+        )
         md.append(
-            f"| {run.get('cameras_n', 4)} | {what} | {run['steps_per_s']:.2f} | "
+            f"| {run.get('cameras_n', 4)} | {what} | {carry} | {run['steps_per_s']:.2f} | "
             f"{run['detect_ms_per_step']:.0f} | "
             f"{run['loop_ms_per_step']:.0f} | {run['latency_p50_s']:.2f} / "
             f"{run['latency_p95_s']:.2f} | {run['steps_dropped']} | {grabbed:.0f} / "

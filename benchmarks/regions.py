@@ -11,9 +11,11 @@ Scenes (every one from the real 4-camera recording and its calibration):
 - newcomer: the canvas empty for 3 s, then the far_0.3 workers there at once and standing
   still (their frame frozen) for the rest, at 10 frames/s.
 
-Set-ups: whole frames at 640 (the old path: regions off, ONNX Runtime fp32) and at 1280, regions
-(ONNX Runtime fp32), and the defaults (backend auto: OpenVINO bf16 where the CPU has bfloat16
-instructions; regions on) with and without regions. For each scene and set-up in the same run:
+Set-ups: whole frames at 640 (the old path: regions off, ONNX Runtime fp32, every camera
+detected at every step) and at 1280, regions (ONNX Runtime fp32), and the defaults (backend
+auto: OpenVINO bf16 where the CPU has bfloat16 instructions; regions on; carried steps) with
+regions off, and with every camera detected at every step. For each scene and set-up in the
+same run:
 detection ms per step and the whole step's, people
 per camera per frame, the frames in which the two longest tracks are both there ("ids
 stable"), the median reprojection error, the 3D joints against the whole-frame 1280 result
@@ -49,11 +51,12 @@ from stereopose.pipeline.run import run
 from stereopose.sim.distant import Distant
 
 SETUPS = {  # name: [detector] lines; ONNX Runtime fp32 unless it says otherwise
-    "whole_640": 'backend = "onnx"\nregions = false\nimgsz = 640',  # the old path
-    "whole_1280": 'backend = "onnx"\nregions = false\nimgsz = 1280',
-    "regions": 'backend = "onnx"\nregions = true',
-    "default": "",  # every default: backend auto (detection.choose), regions
-    "default_whole": "regions = false",  # backend auto, whole frames at 640
+    "whole_640": 'backend = "onnx"\nregions = false\ncarry = false\nimgsz = 640',  # the old path
+    "whole_1280": 'backend = "onnx"\nregions = false\ncarry = false\nimgsz = 1280',
+    "regions": 'backend = "onnx"\nregions = true\ncarry = false',
+    "default": "",  # every default: backend auto (detection.choose), regions, carried steps
+    "default_whole": "regions = false",  # backend auto, whole frames at 640, carried steps
+    "default_every_step": "carry = false",  # backend auto, regions, every camera every step
 }
 OLD_PATH = "whole_640"
 NEWCOMER_AT_S = 3.0
@@ -164,6 +167,8 @@ def one_run(
         "ids_stable_frames": _stable(poses),
         "regions": s.regions,
         "detector": s.detector,
+        "carried_share": sum(c["carried"] for c in s.carry.values())
+        / max(sum(c["carried"] + c["detected"] for c in s.carry.values()), 1),
     }, poses
 
 
@@ -325,8 +330,8 @@ def markdown(r: dict) -> list[str]:
         "| scene | set-up | detector | detection ms/step | step ms | faster than the old path | "
         "people per camera (cam01 / 02 / 03 / 04) | ids stable (frames) | reprojection median "
         "px | 3D joints against 1280: median / p95 mm | model input against whole 640 | "
-        "cameras at 5 steps/s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "camera-steps carried | cameras at 5 steps/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, sc in r["scenes"].items():
         old = sc["runs"].get(OLD_PATH)
@@ -353,7 +358,7 @@ def markdown(r: dict) -> list[str]:
                 f"{x['detect_ms_per_step']:.0f} | {x['step_ms']:.0f} | {faster} | {ppl} | "
                 f"{x['ids_stable_frames']} of {x['frames']} | "
                 f"{_f(x['reprojection_median_px'], 2)} | {moved} | {share} | "
-                f"{capacity(x['step_ms']):.1f} |"
+                f"{100 * x.get('carried_share', 0.0):.0f} % | {capacity(x['step_ms']):.1f} |"
             )
     ec = r.get("empty_camera")
     if ec:
