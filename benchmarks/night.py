@@ -194,9 +194,10 @@ def markdown(r: dict) -> list[str]:
                 f"{ppf:.2f} | {x['ids_stable_frames']} of {x['frames']} | "
                 f"{onto:.1f} | {x['onto_day_all_px']:.1f} | {x['beyond_gate']} of "
                 f"{x['matched'] + x['beyond_gate']} | {x['prepare_ms_per_step']:.1f} | "
-                f"{x['step_ms']:.0f} |"
+                f"{x.get('wall_ms_per_step', x['step_ms']):.0f} |"
                 if ppf is not None and onto is not None
-                else f"| {name} | {setup} | {modes} | - | - | - | - | - | - | {x['step_ms']:.0f} |"
+                else f"| {name} | {setup} | {modes} | - | - | - | - | - | - | "
+                f"{x.get('wall_ms_per_step', x['step_ms']):.0f} |"
             )
     same = r["variants"].get("day", {}).get("prepared", {}).get("same_as_without")
     if same is not None:

@@ -14,7 +14,10 @@ Beyond io.video's rules (alignment, live newest frames, first-frame wait):
   to an image only the frame a step asked for);
 - ``wall_clock``: recorded files stamped as live frames are: a step's t is when its frames were
   read, seconds on the set's clock (strictly increasing), so wall time = clock.start_epoch + t
-  (a service plays its files as live cameras; a run on files keeps frame / fps).
+  (a service plays its files as live cameras; a run on files keeps frame / fps);
+- ``read_ahead``: recorded cameras (not on the wall clock) decoded this many steps ahead on a
+  thread of their own (io.readahead) while the caller works on the current step: the same
+  steps in their order; close() stops and joins that thread before any reader is closed.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.io.packets import PacketRing
+from stereopose.io.readahead import ReadAhead
 from stereopose.io.source import JOIN_S, Clock, SourceStats, VideoError, check_fps, source_name
 from stereopose.io.stream import LiveStream
 from stereopose.io.video import FrameSet, Source, _check_timeouts, is_stream, open_source
@@ -80,6 +84,7 @@ class CameraSet:
         wait_first_frame: bool = True,
         packets: Mapping[str, PacketRing] | None = None,
         wall_clock: bool = False,
+        read_ahead: int = 0,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -99,6 +104,8 @@ class CameraSet:
         substreams = [str(x) if x else None for x in _per_camera(detect, len(specs), "detect")]
         self.sync, self.max_frames = sync, max_frames
         self.wall_clock = bool(wall_clock)
+        self.read_ahead = int(read_ahead)
+        self._ahead: ReadAhead[FrameSet] | None = None
         self.first_frame_timeout_s = first_frame_timeout_s
         self.clock = Clock.now()
         self._fresh = threading.Event()  # set by a live camera at each new image
@@ -201,7 +208,14 @@ class CameraSet:
         return min(n, self.max_frames) if self.max_frames else n
 
     def __iter__(self) -> Iterator[FrameSet]:
-        return self._live() if self.live else self._recorded()
+        if self.live:
+            return self._live()
+        if self.read_ahead and not self.wall_clock:  # decoded on a thread, joined by close()
+            if self._ahead is not None:
+                self._ahead.close()
+            self._ahead = ReadAhead(self._recorded(), self.read_ahead, "camera-read-ahead")
+            return self._ahead
+        return self._recorded()
 
     # recorded
 
@@ -387,6 +401,8 @@ class CameraSet:
         """Close every camera; live ones are all stopped first, then waited for together, at
         most JOIN_S in all."""
         self._closing.set()
+        if self._ahead is not None:  # no reader reads once the sources close
+            self._ahead.close()
         every = self.all_sources
         live = [s for s in every if s.live]
         for s in live:

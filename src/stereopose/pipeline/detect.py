@@ -39,6 +39,10 @@ from stereopose.types import People2D
 
 logger = logging.getLogger(__name__)
 
+# recorded cameras' next steps decoded while the detector runs on this one (io.cameraset's
+# read_ahead; bounded: a step of 4 full-HD cameras is about 25 MB)
+READ_AHEAD = 2
+
 
 @dataclass
 class DetectionSummary:
@@ -197,6 +201,7 @@ def detect_videos(
         max_frames=max_frames,
         open_timeout_s=open_timeout_s,
         first_frame_timeout_s=first_frame_timeout_s,
+        read_ahead=READ_AHEAD,
     ) as cams:
         remove_outputs(previous)
         probe_folder(out_dir, "keypoint files")  # before any frame: exit 2, nothing detected

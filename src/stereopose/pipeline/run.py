@@ -34,6 +34,7 @@ from stereopose.fence import Site, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
 from stereopose.io.video import is_stream, open_source
+from stereopose.pipeline.detect import READ_AHEAD
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
 from stereopose.pipeline.paths import (
@@ -249,6 +250,7 @@ def run(
         loop=[c.loop for c in cfg.cameras],
         detect=[d or None for d in substreams],
         detect_fps=cfg.input.detect_fps,
+        read_ahead=READ_AHEAD,
     ) as cams:
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace
