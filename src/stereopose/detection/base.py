@@ -8,7 +8,7 @@ Ultralytics exactly (same rounding of the padding), so that backends agree to a 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -117,6 +117,12 @@ def to_blob(images: Sequence[np.ndarray]) -> np.ndarray:
     return np.ascontiguousarray(batch, dtype=np.float32) / np.float32(255.0)
 
 
+def to_u8_blob(images: Sequence[np.ndarray]) -> np.ndarray:
+    """BGR uint8 (H, W, 3) images of one size -> (N, H, W, 3) uint8, for a model that makes
+    them RGB float in [0, 1] itself (OpenVINO's preprocessing, compiled into the model)."""
+    return np.stack(images)
+
+
 def nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> np.ndarray:
     """Greedy non-maximum suppression; kept indices by decreasing score (as torchvision)."""
     order = np.argsort(-scores, kind="stable")
@@ -182,14 +188,18 @@ def group_by_shape(images: Sequence[np.ndarray]) -> dict[tuple[int, int], list[i
 
 
 def detect_letterboxed(
-    model, images: Sequence[np.ndarray], imgsz: int | None = None
+    model,
+    images: Sequence[np.ndarray],
+    imgsz: int | None = None,
+    blob: Callable[[Sequence[np.ndarray]], np.ndarray] = to_blob,
 ) -> list[Poses]:
     """The people of each image through an exported YOLO pose model: images of one size
     letterboxed together (model.dynamic: to model.imgsz, padded to model.stride; `imgsz`
     given: every image into an imgsz x imgsz square, so that images of any size make one
     batch; a model of fixed input: to model.fixed), one `model._infer(blob)` -> (B, 56, N) per
     input shape, decoded with model.conf, model.iou and model.max_det (the onnx and openvino
-    backends)."""
+    backends). blob: the letterboxed images of one shape -> the model's input (to_blob:
+    RGB float (N, 3, H, W); to_u8_blob for a model that converts them itself)."""
     images = [check_image(im, i) for i, im in enumerate(images)]
     results: list[Poses] = [Poses.empty()] * len(images)
     if not model.dynamic:
@@ -202,15 +212,14 @@ def detect_letterboxed(
         boxes = [letterbox_for(im.shape[:2], fixed, model.stride, auto=False) for im in images]
         if images:
             out = model._infer(
-                to_blob([letterbox_image(im, lb) for im, lb in zip(images, boxes, strict=False)])
+                blob([letterbox_image(im, lb) for im, lb in zip(images, boxes, strict=False)])
             )
             for k, lb in enumerate(boxes):
                 results[k] = decode(out[k], lb, model.conf, model.iou, model.max_det)
         return results
     for shape, idx in group_by_shape(images).items():
         lb = letterbox_for(shape, model.imgsz, model.stride, auto=True)
-        blob = to_blob([letterbox_image(images[i], lb) for i in idx])
-        out = model._infer(blob)
+        out = model._infer(blob([letterbox_image(images[i], lb) for i in idx]))
         for k, i in enumerate(idx):
             results[i] = decode(out[k], lb, model.conf, model.iou, model.max_det)
     return results
