@@ -51,25 +51,34 @@ MODES = ("day", "night", "black", "blinded")
 _KERNEL = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
 
+def _thumb(image: np.ndarray) -> np.ndarray:
+    """The frame THUMB pixels wide, each pixel its area's mean: shrunk first by a whole factor
+    (OpenCV's fast block means, the frame's last few rows and columns left out), then to
+    THUMB (about 1 ms for a full-HD frame, against 4 ms straight)."""
+    h, w = image.shape[:2]
+    size = (THUMB, max(1, round(THUMB * h / w)))
+    k = min(w // size[0], h // size[1])
+    if k >= 2:
+        hk, wk = h - h % k, w - w % k
+        image = cv2.resize(image[:hk, :wk], (wk // k, hk // k), interpolation=cv2.INTER_AREA)
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
 def measure(image: np.ndarray) -> dict[str, float]:
     """brightness, contrast, noise and colour of one BGR (or grey) frame; see the module."""
-    if image.ndim == 2:
-        grey, colour = image, 0.0
-    else:
-        h, w = image.shape[:2]
-        small = cv2.resize(
-            image, (THUMB, max(1, round(THUMB * h / w))), interpolation=cv2.INTER_AREA
-        )
-        s = small.astype(np.int16)
-        colour = float((np.abs(s[..., 0] - s[..., 1]) + np.abs(s[..., 1] - s[..., 2])).mean() / 2.0)
-        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    h, w = grey.shape[:2]
-    small_grey = cv2.resize(
-        grey, (THUMB, max(1, round(THUMB * h / w))), interpolation=cv2.INTER_AREA
-    )
+    h, w = image.shape[:2]
     c = min(NOISE_CROP, h, w)
     y0, x0 = (h - c) // 2, (w - c) // 2
-    crop = grey[y0 : y0 + c, x0 : x0 + c].astype(np.float32)
+    centre = image[y0 : y0 + c, x0 : x0 + c]
+    small = _thumb(image)
+    if image.ndim == 2:
+        small_grey, grey_centre, colour = small, centre, 0.0
+    else:
+        s = small.astype(np.int16)
+        colour = float((np.abs(s[..., 0] - s[..., 1]) + np.abs(s[..., 1] - s[..., 2])).mean() / 2.0)
+        small_grey = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+        grey_centre = cv2.cvtColor(np.ascontiguousarray(centre), cv2.COLOR_BGR2GRAY)
+    crop = grey_centre.astype(np.float32)
     lap = cv2.filter2D(crop, -1, _KERNEL)[1:-1, 1:-1]
     noise = float(np.sqrt(np.pi / 2.0) * np.abs(lap).mean() / 6.0) if lap.size else 0.0
     return {
