@@ -131,9 +131,10 @@ class OpenVinoPoseDetector:
         )
 
     def _infer(self, blob: np.ndarray) -> np.ndarray:
+        # infer() gives its outputs as arrays of their own (share_outputs is off): no copy
         if self.batch_dynamic or len(blob) == 1:
-            return np.array(self.request.infer([blob])[0])
-        return np.concatenate([np.array(self.request.infer([b[None]])[0]) for b in blob])
+            return np.asarray(self.request.infer([blob])[0])
+        return np.concatenate([np.asarray(self.request.infer([b[None]])[0]) for b in blob])
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         return detect_letterboxed(self, images, imgsz, to_u8_blob)
