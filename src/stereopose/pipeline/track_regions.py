@@ -36,16 +36,18 @@ def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
     J[..., :2] += v[:, None, :] * dt
     px = project(J, camera)  # (P, 17, 2), NaN behind the camera or where a joint is missing
     depth = world_to_camera(J, camera)[..., 2]  # (P, 17), NaN where a joint is missing
-    out = []
-    for p, z in zip(px, depth, strict=True):
-        ok = np.isfinite(p).all(axis=1)
-        if not ok.any() or np.nanmin(np.where(np.isfinite(z), z, np.inf)) < NEAR_M:
-            continue
-        x1, y1 = p[ok].min(axis=0)
-        x2, y2 = p[ok].max(axis=0)
-        h = max(y2 - y1, x2 - x1, 1.0)
-        out.append((x1, y1 - HEAD_ROOM * h, x2, y2 + FOOT_ROOM * h))
-    return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+    ok = np.isfinite(px).all(axis=2)  # (P, 17)
+    nearest = np.where(np.isfinite(depth), depth, np.inf).min(axis=1)
+    keep = ok.any(axis=1) & (nearest >= NEAR_M)
+    if not keep.any():
+        return np.zeros((0, 4))
+    px, ok = px[keep], ok[keep, :, None]
+    lo = np.where(ok, px, np.inf).min(axis=1)  # (K, 2)
+    hi = np.where(ok, px, -np.inf).max(axis=1)
+    h = np.maximum(np.maximum(hi[:, 1] - lo[:, 1], hi[:, 0] - lo[:, 0]), 1.0)
+    return np.column_stack(
+        [lo[:, 0], lo[:, 1] - HEAD_ROOM * h, hi[:, 0], hi[:, 1] + FOOT_ROOM * h]
+    ).astype(np.float64)
 
 
 def watched_heights(rig: Rig, zones: Sequence[Zone]) -> dict[str, float]:
