@@ -3,6 +3,8 @@ every pair of cameras, only people seen by cameras two at a time.
 
 1. People matched across views without a calibration (calibration.people_match): relative
    poses per camera pair, and groups (one person at one frame, seen by several cameras).
+   Where single frames leave a camera with no agreeing pairing, whole tracks are paired
+   instead (calibration.people_tracks), and give the first pair and the groups.
 2. Incremental, as COLMAP's mapper: the pair with most agreeing joints and a wide enough
    angle starts; each next camera is placed by PnP (RANSAC) on the joints already
    triangulated; the joints are triangulated again with every camera placed.
@@ -33,6 +35,7 @@ from stereopose.calibration.people_match import (
     group_detections,
     match_pair,
 )
+from stereopose.calibration.people_tracks import match_tracks
 from stereopose.calibration.people_world import coverage_advice, to_world
 from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.errors import CalibrationError
@@ -45,6 +48,10 @@ __all__ = ["PeopleResult", "calibrate_people"]
 logger = logging.getLogger(__name__)
 
 MIN_PNP = 30  # 2D-3D correspondences to place a camera
+TRACK_PX = 8.0  # an agreeing joint's residual where cameras are matched by tracks
+DROP_MIN_PX = (
+    8.0  # a joint's residual this far off or more may be dropped before the last adjustment
+)
 
 
 @dataclass
@@ -193,13 +200,20 @@ def calibrate_people(
     linked = {c for m in matches for c in (m.a, m.b)}
     alone = [names[c] for c in range(C) if c not in linked]
     if alone:
-        raise CalibrationError(
-            f"camera(s) {', '.join(alone)} share no walker with any other camera "
-            f"({len(views.det)} people seen in {len(frames)} frames); walk where they and "
-            "another camera both see"
-        )
-    groups = group_detections(views, matches)
-    first = _start(matches)
+        # single frames do not say who is who: whole tracks paired (people_tracks)
+        thr = TRACK_PX / focal
+        by_tracks = match_tracks(views, thr)
+        if by_tracks is None:
+            raise CalibrationError(
+                f"camera(s) {', '.join(alone)} share no walker with any other camera "
+                f"({len(views.det)} people seen in {len(frames)} frames); walk where they and "
+                "another camera both see"
+            )
+        logger.info("people: camera(s) %s placed by tracks", ", ".join(alone))
+        first, groups = by_tracks
+    else:
+        groups = group_detections(views, matches)
+        first = _start(matches)
     poses, X = _place_all(views, groups, first, names, thr)
     intr = np.stack([intrinsics_row(cams[n]) for n in names])
     poses, sol, pid, cam, uv = _adjust_all(views, groups, poses, X, intr, first)
@@ -270,7 +284,7 @@ def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
         poses = sol.poses
         if round_ == 0:
             turned = _unswap(views, groups, poses, intr)
-            limit = max(8.0, 4.0 * float(np.median(sol.residual_px)))
+            limit = max(DROP_MIN_PX, 4.0 * float(np.median(sol.residual_px)))
             drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
             logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
             X = _triangulate(views, groups, poses, placed)

@@ -171,7 +171,8 @@ def coverage_advice(rig: Rig, uv: dict[str, np.ndarray], min_obs: int = 20) -> t
                 walkable += 1
                 if counts[r, c] < min_obs:
                     empty.append(cam.center + k * ray)
-        share = 1.0 - len(empty) / walkable if walkable else 0.0
+        # a camera at or below person height (no cell meets that plane): its whole view
+        share = 1.0 - len(empty) / walkable if walkable else float(np.mean(counts >= min_obs))
         cover[cam.name] = share
         if share < 0.5 and empty:
             where = ", ".join(f"({p[0]:.1f}, {p[1]:.1f})" for p in empty[:4])
