@@ -84,7 +84,11 @@ def test_report_of_a_run_cut_mid_line(real_demo_dir: Path, tmp_path: Path, caplo
     # the demo detects in regions (the default): each camera's cost against whole frames
     import json
 
-    regions = json.loads((run / "summary.json").read_text())["regions"]
+    summary = json.loads((run / "summary.json").read_text())
+    regions, carry = summary["regions"], summary["carry"]
     assert set(regions) == {"cam01", "cam02", "cam03", "cam04"}
-    assert all(r["full_scans"] >= 1 and r["steps"] == 100 for r in regions.values())
+    # every step of a camera either detected (in regions or its whole frame) or carried
+    assert all(r["full_scans"] >= 1 for r in regions.values())
+    assert all(r["steps"] == carry[c]["detected"] for c, r in regions.items()), (regions, carry)
+    assert all(carry[c]["detected"] + carry[c]["carried"] == 100 for c in regions), carry
     assert "model input of whole frames&#x27;" in page and "newcomers: motion / scan" in page
