@@ -177,11 +177,11 @@ def _reconstructed(rig: Rig, work: Path, name: str) -> dict:
 
 def _fit_px(rig: Rig, views, groups) -> float:
     """Median pixel error of the track groups' joints triangulated with rig, every camera."""
-    from stereopose.calibration.people import _triangulate
+    from stereopose.calibration.people_match import triangulate_groups
     from stereopose.geometry.camera import project_to_rig
 
     poses = np.stack([np.concatenate([cv2.Rodrigues(c.R)[0].ravel(), c.translation]) for c in rig])
-    X = _triangulate(views, groups, poses, np.ones(len(rig), dtype=bool))
+    X = triangulate_groups(views, groups, poses, np.ones(len(rig), dtype=bool))
     errs = []
     for g, members in enumerate(groups):
         uv = project_to_rig(np.nan_to_num(X[g]), rig)

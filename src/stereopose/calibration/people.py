@@ -34,12 +34,12 @@ from stereopose.calibration.people_match import (
     collect_views,
     group_detections,
     match_pair,
+    triangulate_groups,
 )
 from stereopose.calibration.people_tracks import match_tracks
 from stereopose.calibration.people_world import coverage_advice, to_world
 from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.errors import CalibrationError
-from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.skeleton import SWAP
 from stereopose.types import People2D, Rig
 
@@ -68,23 +68,6 @@ class PeopleResult:
     scale_from: str
     seconds: float
     warnings: list[str] = field(default_factory=list)
-
-
-def _triangulate(views: Views, groups, poses: np.ndarray, placed: np.ndarray) -> np.ndarray:
-    """(G, 17, 3) joints of every group from its placed cameras (NaN: fewer than two)."""
-    X = np.full((len(groups), 17, 3), np.nan)
-    for g, members in enumerate(groups):
-        cams = [c for c in members if placed[c]]
-        if len(cams) < 2:
-            continue
-        P = np.stack(
-            [np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in cams]
-        )
-        xy = np.stack([views.det[members[c]][3] for c in cams], axis=1)  # (17, V, 2)
-        w = np.stack([views.det[members[c]][2][:, 2] for c in cams], axis=1)
-        w = np.where(np.isfinite(xy[..., 0]), w, 0.0)
-        X[g] = triangulate_dlt(np.nan_to_num(xy), P, w)
-    return X
 
 
 def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int] | None:
@@ -142,7 +125,7 @@ def _median_error(uv: np.ndarray, kp: np.ndarray, ok: np.ndarray) -> float:
 def _unswap(views: Views, groups, poses, intr) -> int:
     """Detections whose joints fit the others' person better left/right swapped are swapped
     (in views); how many."""
-    X = _triangulate(views, groups, poses, np.ones(len(poses), dtype=bool))
+    X = triangulate_groups(views, groups, poses, np.ones(len(poses), dtype=bool))
     turned = 0
     for g, members in enumerate(groups):
         ok = np.isfinite(X[g, :, 0])
@@ -249,7 +232,7 @@ def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: fl
     poses[first.b] = np.concatenate([cv2.Rodrigues(first.R)[0].ravel(), first.t])
     placed = np.zeros(C, dtype=bool)
     placed[[first.a, first.b]] = True
-    X = _triangulate(views, groups, poses, placed)
+    X = triangulate_groups(views, groups, poses, placed)
     while not placed.all():
         tries = {c: _place(views, groups, X, c, 2 * thr) for c in np.flatnonzero(~placed)}
         tries = {c: r for c, r in tries.items() if r is not None}
@@ -261,7 +244,7 @@ def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: fl
             )
         c = max(tries, key=lambda c: tries[c][1])
         poses[c], placed[c] = tries[c][0], True
-        X = _triangulate(views, groups, poses, placed)
+        X = triangulate_groups(views, groups, poses, placed)
     return poses, X
 
 
@@ -287,5 +270,5 @@ def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
             limit = max(DROP_MIN_PX, 4.0 * float(np.median(sol.residual_px)))
             drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
             logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
-            X = _triangulate(views, groups, poses, placed)
+            X = triangulate_groups(views, groups, poses, placed)
     return poses, sol, pid, cam, uv

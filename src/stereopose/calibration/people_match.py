@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from stereopose.geometry.camera import undistort_normalized
+from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.types import Camera, People2D
 
 logger = logging.getLogger(__name__)
@@ -197,3 +198,21 @@ def group_detections(views: Views, matches: list[PairMatch]) -> list[dict[int, i
         if len(g) >= 2:
             groups.append(g)
     return groups
+
+
+def triangulate_groups(views: Views, groups, poses: np.ndarray, placed: np.ndarray) -> np.ndarray:
+    """(G, 17, 3) joints of every group (camera index -> detection) from its placed cameras,
+    poses (C, 6) as rotation vector and translation (NaN: fewer than two views)."""
+    X = np.full((len(groups), 17, 3), np.nan)
+    for g, members in enumerate(groups):
+        cams = [c for c in members if placed[c]]
+        if len(cams) < 2:
+            continue
+        P = np.stack(
+            [np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in cams]
+        )
+        xy = np.stack([views.det[members[c]][3] for c in cams], axis=1)  # (17, V, 2)
+        w = np.stack([views.det[members[c]][2][:, 2] for c in cams], axis=1)
+        w = np.where(np.isfinite(xy[..., 0]), w, 0.0)
+        X[g] = triangulate_dlt(np.nan_to_num(xy), P, w)
+    return X

@@ -28,9 +28,15 @@ import logging
 import cv2
 import numpy as np
 
-from stereopose.calibration.people_match import MIN_CONF, PairMatch, Views, _ray_angles, _sampson
+from stereopose.calibration.people_match import (
+    MIN_CONF,
+    PairMatch,
+    Views,
+    _ray_angles,
+    _sampson,
+    triangulate_groups,
+)
 from stereopose.calibration.poses import robust_pnp
-from stereopose.geometry.triangulation import triangulate_dlt
 
 logger = logging.getLogger(__name__)
 
@@ -127,21 +133,27 @@ def _pair(views: Views, T, a: int, b: int, thr: float):
     return n, second, R, t.ravel(), pairs, xa, xb
 
 
+def _groups(views: Views, T, persons) -> tuple[list[dict[int, int]], list[tuple[int, int]]]:
+    """Each person's detections at each frame seen by two cameras or more (camera ->
+    detection), and the (person, frame) of each."""
+    groups, where = [], []
+    for p, person in enumerate(persons):
+        for f in range(len(views.frames)):
+            g = {c: T[c][ti][f] for c, ti in person.items() if f in T[c][ti]}
+            if len(g) >= 2:
+                groups.append(g)
+                where.append((p, f))
+    return groups, where
+
+
 def _triangulate_persons(views, T, persons, poses, placed) -> np.ndarray:
     """(P, F, 17, 3) joints of every person at every frame from its placed cameras' tracks."""
-    F = len(views.frames)
-    X = np.full((len(persons), F, 17, 3), np.nan)
-    P = {c: np.hstack([cv2.Rodrigues(poses[c, :3])[0], poses[c, 3:, None]]) for c in placed}
-    for p, person in enumerate(persons):
-        for f in range(F):
-            cams = [c for c, ti in person.items() if c in placed and f in T[c][ti]]
-            if len(cams) < 2:
-                continue
-            xy = np.stack([views.det[T[c][person[c]][f]][3] for c in cams], axis=1)
-            w = np.stack([views.det[T[c][person[c]][f]][2][:, 2] for c in cams], axis=1)
-            w = np.where(np.isfinite(xy[..., 0]), w, 0.0)
-            X[p, f] = triangulate_dlt(np.nan_to_num(xy), np.stack([P[c] for c in cams]), w)
-            X[p, f][(w > 0).sum(axis=1) < 2] = np.nan
+    X = np.full((len(persons), len(views.frames), 17, 3), np.nan)
+    groups, where = _groups(views, T, persons)
+    if groups:
+        mask = np.isin(np.arange(len(poses)), list(placed))
+        for (p, f), x in zip(where, triangulate_groups(views, groups, poses, mask), strict=True):
+            X[p, f] = x
     return X
 
 
@@ -237,11 +249,5 @@ def match_tracks(views: Views, thr: float) -> tuple[PairMatch, list[dict[int, in
     if best is None:
         return None
     _err, (a, b, R, t, pairs), n, angle, persons = best
-    groups = []
-    for person in persons:
-        for f in range(len(views.frames)):
-            g = {c: T[c][ti][f] for c, ti in person.items() if f in T[c][ti]}
-            if len(g) >= 2:
-                groups.append(g)
-    first = PairMatch(a, b, R, t, [], n, angle)
-    return first, groups
+    groups, _ = _groups(views, T, persons)
+    return PairMatch(a, b, R, t, [], n, angle), groups
