@@ -41,20 +41,16 @@ from common import machine, save
 from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig
 from stereopose.detection import make_detector
-from stereopose.detection.carry import carrier
-from stereopose.detection.light import LightWatch
 from stereopose.detection.models import demo_videos
-from stereopose.detection.regional import region_detector
 from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
-from stereopose.pipeline.sources import Cameras
+from stereopose.pipeline.sources import detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
-from stereopose.pipeline.track_regions import watched_heights
 from stereopose.types import Rig
 
 SUB_SIZE = (272, 480)  # the substreams' width, height
@@ -162,11 +158,7 @@ def measure(
             urls, names, detect=sub_urls or None, first_frame_timeout_s=30, packets=rings
         ) as cams:
             cfg = dataclasses.replace(Config(), fps=cams.fps)
-            regions = region_detector(det, settings)  # as serve sets it up
-            if regions is not None:
-                regions.watch(watched_heights(rig, site.zones))
-            light = LightWatch(enhance=settings.night)
-            cameras = Cameras(cams, rig, det, regions, light, carrier(settings))
+            cameras = detecting_cameras(cams, rig, det, settings, site)  # as serve does
             source = PipelinedCameras(cameras)
             stage = Stage3D(rig, cfg, calib_path=str(calib))
             summary = RunSummary(rig.names, source.stages, "", stage.tracking, live=True)

@@ -26,9 +26,6 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig, load_config
 from stereopose.config_refs import resolve, source_path
 from stereopose.detection import make_detector
-from stereopose.detection.carry import carrier
-from stereopose.detection.light import LightWatch
-from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import Site, load_site
 from stereopose.io.cameraset import CameraSet
@@ -49,8 +46,7 @@ from stereopose.pipeline.paths import (
 )
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.reconstruct import save_inputs
-from stereopose.pipeline.sources import Cameras, check_size
-from stereopose.pipeline.track_regions import watched_heights
+from stereopose.pipeline.sources import Cameras, check_size, detecting_cameras
 from stereopose.secrets import masked_toml
 from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
@@ -118,11 +114,7 @@ def _camera_source(
     keep the plain source: every frame is detected in turn, and the outputs stay the same.
     settings: [detector] regions and its settings (detection.regional), night
     (detection.light); site: where workers matter, for the regions' scans (None: anywhere)."""
-    light = LightWatch(enhance=settings.night)
-    regions = region_detector(detector, settings)
-    if regions is not None and site is not None:
-        regions.watch(watched_heights(rig, site.zones))
-    cameras = Cameras(cams, rig, detector, regions, light, carrier(settings))
+    cameras = detecting_cameras(cams, rig, detector, settings, site)
     return PipelinedCameras(cameras) if cams.live else cameras
 
 

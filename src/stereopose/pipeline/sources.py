@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from stereopose.detection import PoseDetector, choice_of
-from stereopose.detection.carry import Carrier
+from stereopose.detection.carry import Carrier, carrier
 from stereopose.detection.light import LightWatch
 from stereopose.detection.openpose import PoseSequence
-from stereopose.detection.regional import RegionDetector
+from stereopose.detection.regional import RegionDetector, region_detector
 from stereopose.errors import StereoposeError
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
 from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
-from stereopose.pipeline.track_regions import track_boxes
+from stereopose.pipeline.track_regions import track_boxes, watched_heights
 from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
 
@@ -219,6 +219,19 @@ class Cameras:
         summary.sources = {k: dataclasses.asdict(v) for k, v in self.cams.stats().items()}
         if self.live or self.cams.wall_clock:
             summary.clock_start_epoch = self.cams.clock.start_epoch
+
+
+def detecting_cameras(
+    cams: CameraSet, rig: Rig, detector: PoseDetector, settings, site=None
+) -> Cameras:
+    """The cameras detected as `run` and `serve` set them up, from the [detector] settings
+    (config.DetectorConfig): in regions (regions and their keys; `site`'s workers watched for
+    the scans, None: nobody yet), each camera's light (night), carried steps (carry)."""
+    regions = region_detector(detector, settings)
+    if regions is not None and site is not None:
+        regions.watch(watched_heights(rig, site.zones))
+    light = LightWatch(enhance=settings.night)
+    return Cameras(cams, rig, detector, regions, light, carrier(settings))
 
 
 def source_label(value: str | Path | Mapping[str, str] | Sequence[str]) -> str:

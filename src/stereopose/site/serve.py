@@ -51,9 +51,7 @@ from pathlib import Path
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
-from stereopose.detection.carry import carrier
-from stereopose.detection.light import LightWatch
-from stereopose.detection.regional import RegionDetector, region_detector
+from stereopose.detection.regional import RegionDetector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import FenceMonitor, Site
@@ -70,7 +68,7 @@ from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.sources import Cameras
+from stereopose.pipeline.sources import detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.pipeline.track_regions import watched_heights
@@ -307,9 +305,8 @@ def _run_loop(
         service.watch_nodes(cams)
         service.state.register_light(lambda: nodes_light(cams.report()))  # as the nodes see
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
-        regions = region_detector(detector, cfg.detector)
-        light = LightWatch(enhance=cfg.detector.night)
-        cameras = Cameras(cams, rig, detector, regions, light, carrier(cfg.detector))
+        cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
+        regions, light = cameras.regions, cameras.light
         service.probes["light"] = light.figures  # status.json: each camera's day or night
         service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
         keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views
