@@ -133,21 +133,35 @@ def _events(folder) -> list[dict]:
     return [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
 
 
+BUSBAR_POLYGON = "polygon = [[-1.0, -0.45], [-0.45, -0.45], [-0.45, 0.0], [-1.0, 0.0]]"
+
+
+def _run_demo(real_demo_dir: Path, out: Path, detector: str = "", site=None, ticket=True) -> dict:
+    """The real demo's run again into `out`, with [detector] lines added and `site` (the
+    text of its site file; None: the demo's); its summary."""
+    from stereopose.cli import main
+
+    for name in ("demo_site.toml", "demo_ticket.toml"):
+        shutil.copy(real_demo_dir / name, out / name)
+    if site is not None:
+        (out / "demo_site.toml").write_text(site)
+    config = out / "demo.toml"
+    config.write_text((real_demo_dir / "demo.toml").read_text() + f"\n[detector]\n{detector}\n")
+    args = ["run", str(config)] + (["--ticket", str(out / "demo_ticket.toml")] if ticket else [])
+    assert main(args) == 0
+    return json.loads((out / "summary.json").read_text())
+
+
 def test_carried_steps_keep_every_alarm_of_the_real_demo(real_demo_dir: Path, tmp_path: Path):
     """The demo (carried steps on, the default) against the same run with every camera
     detected at every step: every alarm of the one is in the other, for the same person, zone
-    and type, at most one step apart; the joints reproject as well (+0.5 px at most)."""
-    from stereopose.cli import main
-
+    and type, at most one step apart; the joints reproject as well (+0.5 px at most). The
+    walker works at the busbar: the cameras that see him there detect at every step."""
     carried = json.loads((real_demo_dir / "summary.json").read_text())
-    assert sum(c["carried"] for c in carried["carry"].values()) >= 0.1 * 4 * carried["frames"]
-    for name in ("demo_site.toml", "demo_ticket.toml"):
-        shutil.copy(real_demo_dir / name, tmp_path / name)
-    config = tmp_path / "demo.toml"
-    demo = (real_demo_dir / "demo.toml").read_text()
-    config.write_text(demo + "\n[detector]\ncarry = false\n")
-    assert main(["run", str(config), "--ticket", str(tmp_path / "demo_ticket.toml")]) == 0
-    every = json.loads((tmp_path / "summary.json").read_text())
+    frames = carried["frames"]
+    assert all(c["detected"] + c["carried"] == frames for c in carried["carry"].values())
+    assert sum(c["near_hazard"] for c in carried["carry"].values()) >= 0.1 * 4 * frames
+    every = _run_demo(real_demo_dir, tmp_path, "carry = false")
     assert "carry" not in every
     alarms = [e for e in _events(tmp_path) if e["kind"] == "energized"]
     assert {e["type"] for e in alarms} >= {"approach", "enter", "exit"}
@@ -162,3 +176,50 @@ def test_carried_steps_keep_every_alarm_of_the_real_demo(real_demo_dir: Path, tm
         ]
         assert same, f"alarm {a} of the run detected at every step is not kept"
     assert carried["reprojection_median_px"] <= every["reprojection_median_px"] + 0.5
+
+
+def test_the_demo_is_carried_with_its_busbar_moved_away_and_held_with_it_back(
+    real_demo_dir: Path, tmp_path: Path
+):
+    """The demo's frames with the busbar moved 50 m away: nobody is near a hazard, and the
+    slow steps are carried (a tenth of them at least); with the busbar back where the walker
+    reaches into it (the demo), its cameras are held, and fewer steps are carried."""
+    site = (real_demo_dir / "demo_site.toml").read_text()
+    assert BUSBAR_POLYGON in site
+    away = site.replace(
+        BUSBAR_POLYGON, "polygon = [[49.0, -0.45], [49.55, -0.45], [49.55, 0.0], [49.0, 0.0]]"
+    )
+    moved = _run_demo(real_demo_dir, tmp_path, site=away, ticket=False)
+    assert not [e for e in _events(tmp_path) if e["zone"] == "overhead_busbar"]
+    frames = moved["frames"]
+    carried_away = sum(c["carried"] for c in moved["carry"].values())
+    assert sum(c["near_hazard"] for c in moved["carry"].values()) == 0
+    assert carried_away >= 0.1 * 4 * frames
+    back = json.loads((real_demo_dir / "summary.json").read_text())["carry"]
+    assert sum(c["near_hazard"] for c in back.values()) > 0
+    assert sum(c["carried"] for c in back.values()) < carried_away / 2
+
+
+def test_a_camera_that_sees_someone_near_a_hazard_is_never_carried():
+    """`hold` (the cameras seeing someone near an energized zone) detects at every step, and
+    counts the steps it would have been carried; the others still take their turns."""
+    names = ["cam01", "cam02"]
+    carry = Carrier()
+    plans = []
+    for step in range(20):
+        t = step * DT
+        hold = {"cam01"} if step < 12 else set()
+        skip = carry.plan(names, step, t, hold)
+        for name in names:
+            if name in skip:
+                carry.carried(name, step)
+            else:
+                carry.seen(name, people(name, step, person(500)), step, t)
+        plans.append(skip)
+    assert not any("cam01" in p for p in plans[:12])
+    assert any("cam01" in p for p in plans[12:])  # far from it again: carried again
+    assert any("cam02" in p for p in plans[:12])
+    report = carry.report()
+    assert report["cam01"]["near_hazard"] == 5  # its turns at steps 3, 5, ..., 11
+    assert report["cam02"]["near_hazard"] == 0
+    assert report["cam01"]["detected"] + report["cam01"]["carried"] == 20

@@ -44,3 +44,25 @@ def test_people_behind_or_beside_the_camera_give_no_box():
     boxes = track_boxes(people, CAM, 0.0)
     assert len(boxes) == 1 and boxes[0][0] == pytest.approx(100)
     assert track_boxes(people3d_from_record(0, []), CAM, 0.0).shape == (0, 4)
+
+
+def test_the_cameras_that_see_a_person():
+    """A camera sees a picked person where its detection was used for him, or where a joint
+    of his projects into its picture; people not picked are not asked about."""
+    from stereopose.pipeline.track_regions import cameras_seeing
+    from stereopose.types import Rig
+
+    lens = (CAM.size, CAM.matrix, CAM.distortions)
+    turned = Camera("back", *lens, np.array([0.0, np.pi, 0.0]), np.zeros(3))
+    aside = Camera("aside", *lens, np.zeros(3), np.array([50.0, 0, 0]))
+    rig = Rig((CAM, turned, aside))
+    ahead, behind = person(1, 0.0, 4.0), person(2, 0.0, -4.0)
+    people = people3d_from_record(0, [ahead, behind])
+    assert cameras_seeing(people, rig, np.array([True, False])) == {"cam"}
+    assert cameras_seeing(people, rig, np.array([False, True])) == {"back"}
+    assert cameras_seeing(people, rig, np.array([False, False])) == set()
+    # matched in the camera aside although he projects outside its picture
+    used = np.array([[-1, -1, 0], [-1, -1, -1]])
+    people = type(people)(**{**people.__dict__, "detections": used})
+    assert cameras_seeing(people, rig, np.array([True, False])) == {"cam", "aside"}
+    assert cameras_seeing(people3d_from_record(0, []), rig, np.zeros(0, bool)) == set()

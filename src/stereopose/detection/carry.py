@@ -16,7 +16,11 @@ A camera is carried at a step only when all of these hold:
   nearest of the other, and no joint of theirs that the detector is sure of (SURE) moved
   more than `motion` of its person's height between the two: a hand reaching out, a walk
   past a slow camera (1.2 m/s is about 7 % of a worker's height per step at 10 steps/s) are
-  detected at every step; the slow work at a bay is carried.
+  detected at every step; the slow work at a bay is carried;
+- no person it sees is near a hazard: `plan`'s `hold` names the cameras that see someone
+  within an energized, live zone's approach distance plus a hand's motion until the step
+  (zones.hazard, pipeline.sources.Cameras); near a hazard every camera detects at every step,
+  so an alarm there is never a step late.
 
 A carried camera's people are its last detection's, as they were (a slow worker moves less in
 one step than the detector's own jitter between two: on the real demo, moving them on at
@@ -26,6 +30,7 @@ with the detected cameras' people as usual.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +64,7 @@ class _Seen:
     slow: bool = False  # its people moved slowly between them: it may be carried
     detected: int = 0
     carried: int = 0
+    held: int = 0  # steps it would have been carried but for someone near a hazard
 
 
 def _centres(people: People2D) -> np.ndarray:
@@ -106,8 +112,9 @@ class Carrier:
         self.settings = settings or CarrySettings()
         self._cameras: dict[str, _Seen] = {}
 
-    def plan(self, names: list[str], step: int, t: float) -> set[str]:
-        """The cameras of `names` (those with a picture at this step) carried at `step`."""
+    def plan(self, names: list[str], step: int, t: float, hold: Collection[str] = ()) -> set[str]:
+        """The cameras of `names` (those with a picture at this step) carried at `step`;
+        hold: cameras that see someone near a hazard, never carried (counted as held)."""
         out = set()
         for name in names:
             seen = self._cameras.get(name)
@@ -116,6 +123,9 @@ class Carrier:
             if seen.last[1] != step - 1 or (step + seen.turn) % 2:
                 continue  # its last step was carried (or missed), or not its turn
             if t <= seen.last[2]:
+                continue
+            if name in hold:
+                seen.held += 1
                 continue
             out.add(name)
         return out
@@ -154,8 +164,12 @@ class Carrier:
         return bool((dist.max(axis=1) <= self.settings.motion * _heights(last)).all())
 
     def report(self) -> dict[str, dict[str, int]]:
-        """Per camera, the steps detected and carried."""
-        return {n: {"detected": s.detected, "carried": s.carried} for n, s in self._cameras.items()}
+        """Per camera, the steps detected and carried, and of those detected, the steps it
+        would have been carried but for someone near a hazard (near_hazard)."""
+        return {
+            n: {"detected": s.detected, "carried": s.carried, "near_hazard": s.held}
+            for n, s in self._cameras.items()
+        }
 
 
 def carrier(settings) -> Carrier | None:

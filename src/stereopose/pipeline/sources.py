@@ -21,9 +21,10 @@ from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
 from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
-from stereopose.pipeline.track_regions import track_boxes, watched_heights
+from stereopose.pipeline.track_regions import cameras_seeing, track_boxes, watched_heights
 from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
+from stereopose.zones.hazard import Hazards
 
 logger = logging.getLogger(__name__)
 
@@ -108,7 +109,9 @@ class Cameras:
     light: each camera's light measured, a night camera's picture prepared for the detector
     (detection.light); None: neither. carry: a camera whose people move slowly skips the
     detector every other step, its people carried on (detection.carry); None: every camera
-    detected at every step.
+    detected at every step. hazards: the site's energized zones (zones.hazard); a camera
+    that sees a tracked person near one is never carried, nor is any camera while nobody's
+    place is known yet (set_hazards: a new site's); None: no site, no hazard.
     """
 
     stages = CAMERA_STAGES
@@ -121,11 +124,13 @@ class Cameras:
         regions: RegionDetector | None = None,
         light: LightWatch | None = None,
         carry: Carrier | None = None,
+        hazards: Hazards | None = None,
     ) -> None:
         self.cams, self.rig, self.detector = cams, rig, detector
         self.regions = regions
         self.light = light
         self.carry = carry
+        self.hazards = hazards
         self._tracked: People3D | None = None
         self.cameras = tuple(cams.names)
         self.fps = float(cams.fps)
@@ -137,6 +142,10 @@ class Cameras:
     def set_rig(self, rig: Rig) -> None:
         """The rig from the next step on (a camera placed again while serving)."""
         self.rig = rig
+
+    def set_hazards(self, hazards: Hazards | None) -> None:
+        """The hazards from the next step on (a new site while serving)."""
+        self.hazards = hazards
 
     @property
     def total(self) -> int | None:
@@ -171,7 +180,9 @@ class Cameras:
                 check_size(self.rig[name], image)
         frames = FrameSet(step.frame, step.t, {**images, **subs})
         order = [n for n, im in frames.images.items() if im is not None]
-        carried = self.carry.plan(order, step.frame, step.t) if self.carry is not None else set()
+        carried = set()
+        if self.carry is not None:
+            carried = self.carry.plan(order, step.frame, step.t, self._held(order, step.t))
         if carried:
             frames = FrameSet(
                 step.frame, step.t, {n: im for n, im in frames.images.items() if n not in carried}
@@ -191,6 +202,22 @@ class Cameras:
     def tracked(self, people: People3D) -> None:
         """The frame loop's people of its last step: the next steps' regions (any thread)."""
         self._tracked = people
+
+    def _held(self, names: list[str], t: float) -> set[str]:
+        """The cameras of `names` that must detect at the step at t whatever their people's
+        pace: those that see a tracked person near a hazard (zones.hazard) by the time t, a
+        hand moving at the hazards' speed from the pose known; every camera while no pose is
+        known yet."""
+        hazards, people = self.hazards, self._tracked
+        if hazards is None or not hazards:
+            return set()
+        if people is None:
+            return set(names)
+        ahead = max(t - people.time(self.fps), 1.0 / self.fps)
+        near = hazards.near(people.joints, ahead)
+        if not near.any():
+            return set()
+        return cameras_seeing(people, self.rig, near) & set(names)
 
     def _hints(self, frames: FrameSet, t: float) -> dict[str, np.ndarray]:
         """Each camera's tracked people's boxes at t, in the pixels of the image detected."""
@@ -226,12 +253,15 @@ def detecting_cameras(
 ) -> Cameras:
     """The cameras detected as `run` and `serve` set them up, from the [detector] settings
     (config.DetectorConfig): in regions (regions and their keys; `site`'s workers watched for
-    the scans, None: nobody yet), each camera's light (night), carried steps (carry)."""
+    the scans, None: nobody yet), each camera's light (night), carried steps (carry) never
+    near `site`'s energized zones, each taken as live (zones.hazard; serve's set_hazards
+    tells which are dead)."""
     regions = region_detector(detector, settings)
     if regions is not None and site is not None:
         regions.watch(watched_heights(rig, site.zones))
     light = LightWatch(enhance=settings.night)
-    return Cameras(cams, rig, detector, regions, light, carrier(settings))
+    hazards = Hazards(site.zones) if site is not None else None
+    return Cameras(cams, rig, detector, regions, light, carrier(settings), hazards)
 
 
 def source_label(value: str | Path | Mapping[str, str] | Sequence[str]) -> str:

@@ -50,6 +50,32 @@ def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
     ).astype(np.float64)
 
 
+def cameras_seeing(people: People3D, rig: Rig, which: np.ndarray) -> set[str]:
+    """The cameras of `rig` that see any of the people picked by `which` (P,) bool: those
+    whose detection was used for him (People3D.detections, in the rig's order) and those into
+    whose picture a joint of his projects (in front of the camera), so that a person only
+    predicted, or missed by a camera's matching, is still seen where he stands."""
+    picked = np.flatnonzero(np.asarray(which, dtype=bool))
+    if not picked.size:
+        return set()
+    det = people.detections[picked]
+    out = {n for c, n in enumerate(rig.names) if c < det.shape[1] and (det[:, c] >= 0).any()}
+    J = people.joints[picked].reshape(-1, 3)
+    J = J[np.isfinite(J).all(axis=1)]
+    if not len(J):
+        return out
+    for camera in rig:
+        if camera.name in out:
+            continue
+        px = project(J, camera)  # NaN behind the camera
+        w, h = camera.size
+        with np.errstate(invalid="ignore"):
+            inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        if inside.any():
+            out.add(camera.name)
+    return out
+
+
 def watched_heights(rig: Rig, zones: Sequence[Zone]) -> dict[str, float]:
     """Per camera, how tall (its pixels) the smallest worker looks anywhere he matters: one
     WORKER_M tall standing on a grid over each zone's box grown by its margin and REACH_M,

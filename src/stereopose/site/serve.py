@@ -44,7 +44,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,7 +68,7 @@ from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.sources import detecting_cameras
+from stereopose.pipeline.sources import Cameras, detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.pipeline.track_regions import watched_heights
@@ -93,6 +93,7 @@ from stereopose.site.service import SiteService
 from stereopose.site.site_switch import SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
 from stereopose.types import Rig
+from stereopose.zones.hazard import Hazards
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -315,6 +316,8 @@ def _run_loop(
         if regions is not None:
             service.watch_regions(regions)
             on_site.append(_scans_watch(regions, rig, plan.site))
+        if cameras.carry is not None:
+            on_site.append(_hazards_watch(cameras, service, plan.site))
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
@@ -439,6 +442,24 @@ def _mqtt_site(sinks: list, site: Site | None) -> list[Callable[[Site], None]]:
 
     tell(site)
     return [tell]
+
+
+def _hazards_watch(
+    cameras: Cameras, service: SiteService, site: Site | None
+) -> Callable[[Site], None]:
+    """The carried steps kept away from `site`'s energized zones now and from each new
+    site's (zones.hazard): dead where the breakers' points read dead (the service's zone
+    states, whichever it has when asked), live otherwise."""
+
+    def dead() -> Collection[str]:
+        states = service.power
+        return () if states is None else states.safe_now().keys()
+
+    def watch(new: Site | None) -> None:
+        cameras.set_hazards(None if new is None else Hazards(new.zones, dead=dead))
+
+    watch(site)
+    return watch
 
 
 def _scans_watch(regions: RegionDetector, rig: Rig, site: Site | None) -> Callable[[Site], None]:
