@@ -33,6 +33,7 @@ Results in results/regions.{json,md}.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import sys
@@ -48,6 +49,7 @@ from backends import _f, joints_moved  # 3D joints matched per frame; a figure o
 from common import machine, save
 from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.detection.models import demo_videos
+from stereopose.fence.site import Site, load_site, save_site
 from stereopose.pipeline.demo import CAMERAS, write_demo_config
 from stereopose.pipeline.run import run
 from stereopose.sim.distant import Distant
@@ -65,6 +67,7 @@ NEWCOMER_AT_S = 3.0
 NEWCOMER_FPS = 10.0
 EMPTY_FPS = 5.0
 STEP_RATE = 5.0  # steps/s a box must keep up with, for its capacity
+AWAY_M = 50.0  # --hazards-away: how far the energized zones are moved
 
 
 def _frames(n: int) -> dict[str, list[np.ndarray]]:
@@ -173,6 +176,10 @@ def one_run(
         "detector": s.detector,
         "carried_share": sum(c["carried"] for c in s.carry.values())
         / max(sum(c["carried"] + c["detected"] for c in s.carry.values()), 1),
+        # the camera-steps detected that would have been carried but for someone near a
+        # hazard (detection.carry, zones.hazard)
+        "held_share": sum(c.get("near_hazard", 0) for c in s.carry.values())
+        / max(sum(c["carried"] + c["detected"] for c in s.carry.values()), 1),
     }, poses
 
 
@@ -227,7 +234,15 @@ def main() -> None:
         help="every scene watched as the demo's site (its zones, in the recording's world "
         "frame): the scans plan their tiles on how small its farthest worker looks",
     )
+    ap.add_argument(
+        "--hazards-away",
+        action="store_true",
+        help="with --site: the site's energized zones moved 50 m along x, away from everyone "
+        "(the same zones otherwise): where carried steps are allowed",
+    )
     args = ap.parse_args()
+    if args.hazards_away and not args.site:
+        ap.error("--hazards-away needs --site")
     only = set(args.scenes.split(",")) if args.scenes else None
     chosen = args.setups.split(",") if args.setups else list(SETUPS)
     chosen = [*dict.fromkeys([OLD_PATH, *chosen])]  # the old path: the speed-ups' reference
@@ -240,9 +255,12 @@ def main() -> None:
         "scenes": {},
     }
     r["site"] = bool(args.site)
+    r["hazards_away"] = bool(args.hazards_away)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         site = write_demo_config(work / "site").parent / "demo_site.toml" if args.site else None
+        if site is not None and args.hazards_away:
+            save_site(site, hazards_moved(load_site(site), AWAY_M))
         for scene, (calib, videos, fps) in scenes(work / "scenes", args.frames).items():
             if only is not None and scene not in only:
                 continue
@@ -274,6 +292,15 @@ def main() -> None:
             r["empty_camera"] = empty_camera(videos_of(work / "scenes" / "empty"))
     r["command"] = " ".join(["python benchmarks/regions.py", *sys.argv[1:]])
     save(args.name, r, markdown(r))
+
+
+def hazards_moved(site: Site, dx: float) -> Site:
+    """`site` with each energized zone moved dx metres along x (the rest as it is)."""
+    zones = tuple(
+        dataclasses.replace(z, polygon=np.add(z.polygon, [dx, 0.0])) if z.kind == "energized" else z
+        for z in site.zones
+    )
+    return dataclasses.replace(site, zones=zones)
 
 
 def videos_of(folder: Path) -> list[Path]:
@@ -345,13 +372,22 @@ def markdown(r: dict) -> list[str]:
             "it without tiles."
             if r.get("site")
             else ""
+        )
+        + (
+            f" Its energized zone (the busbar) moved {AWAY_M:g} m along x, away from everyone: "
+            "no camera is held for a hazard."
+            if r.get("hazards_away")
+            else " A camera that sees someone near an energized zone is never carried "
+            "(held near a hazard)."
+            if r.get("site")
+            else ""
         ),
         "",
         "| scene | set-up | detector | detection ms/step | step ms | faster than the old path | "
         "people per camera (cam01 / 02 / 03 / 04) | ids stable (frames) | reprojection median "
         "px | 3D joints against 1280: median / p95 mm | model input against whole 640 | "
-        "camera-steps carried | cameras at 5 steps/s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "camera-steps carried | camera-steps held near a hazard | cameras at 5 steps/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, sc in r["scenes"].items():
         old = sc["runs"].get(OLD_PATH)
@@ -378,7 +414,8 @@ def markdown(r: dict) -> list[str]:
                 f"{x['detect_ms_per_step']:.0f} | {_per_step(x):.0f} | {faster} | {ppl} | "
                 f"{x['ids_stable_frames']} of {x['frames']} | "
                 f"{_f(x['reprojection_median_px'], 2)} | {moved} | {share} | "
-                f"{100 * x.get('carried_share', 0.0):.0f} % | {capacity(_per_step(x)):.1f} |"
+                f"{100 * x.get('carried_share', 0.0):.0f} % | "
+                f"{100 * x.get('held_share', 0.0):.0f} % | {capacity(_per_step(x)):.1f} |"
             )
     ec = r.get("empty_camera")
     if ec:

@@ -896,6 +896,42 @@ def test_an_alarms_clips_play_in_the_page(watched, served):
     assert full and len(full) < len(alarm["clips"])  # both kinds were played
 
 
+_DRAWN_BEFORE_ITS_CLIPS = """([e]) => {
+    const h = window.stereoposeConsole.history;
+    const tr = h.rows.querySelector(`tr[data-event-id="${e.id}"]`);
+    tr.replaceWith(h.row({ ...e, clips: [] }));
+}"""
+
+
+def test_a_clip_finished_after_its_row_is_drawn_comes_into_the_row(watched, served):
+    """A recent alarm's row in the History tab, drawn before its clips were finished (here:
+    drawn again from the alarm without them, as a search answered a moment earlier would
+    have), gets each clip's play button within seconds, without a new search; hidden, the
+    tab asks nothing."""
+    w = watched("olga")
+    page = w.page
+    wait_until(lambda: _clipped(w, served), "an alarm with a clip", timeout_s=90, poll_s=0.5)
+    alarm = _clipped(w, served)
+    page.click('[data-tab="history"]')
+    row = f'#h-rows tr[data-event-id="{alarm["id"]}"]'
+    page.wait_for_selector(f"{row} button.play", timeout=20_000)
+    asked: list[str] = []
+    page.on("request", lambda r: asked.append(r.url) if "/api/events?" in r.url else None)
+    page.evaluate(_DRAWN_BEFORE_ITS_CLIPS, [alarm])
+    assert page.query_selector(f"{row} button.play") is None
+    for url in alarm["clips"]:
+        page.wait_for_selector(f'{row} button.play[data-clip="{url}"]', timeout=20_000)
+    # the rows from the recent alarms on were asked for again, no new search was made
+    assert asked and all("since=" in u for u in asked), asked
+    # another tab: no more looks, and a late answer draws nothing
+    page.click('[data-tab="live"]')
+    assert page.evaluate("window.stereoposeConsole.history.clipTimer === null")
+    page.evaluate(_DRAWN_BEFORE_ITS_CLIPS, [alarm])
+    page.click('[data-tab="history"]')  # shown again: searched anew, the clips there
+    for url in alarm["clips"]:
+        page.wait_for_selector(f'{row} button.play[data-clip="{url}"]', timeout=20_000)
+
+
 _OPENED_FOR = """([name, incident]) => {
     const d = document.getElementById('camera-view');
     if (!d.open) return false;

@@ -101,6 +101,7 @@ class Console {
     this.strip.closeLarge();
     this.view3d.show(false);
     this.tickets.show(false);
+    this.history.show(false);
     this.replay.close();
     this.feed.sound.sounding(false);
     this.user = null;
@@ -368,6 +369,7 @@ class Console {
     this.strip.show(name === "live");
     this.view3d.show(name === "view3d");
     this.tickets.show(name === "tickets" && !!this.user);
+    this.history.show(name === "history" && !!this.user);
     if (name === "history" && this.user) this.history.search();
     if (name === "site" && this.user) this.site.show(true);
   }

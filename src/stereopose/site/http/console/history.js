@@ -1,10 +1,17 @@
 // History: events filtered by time range, person, zone and type (/api/events), a table with
-// each alarm's clips playable in the page, and the CSV export of the same filters.
+// each alarm's clips playable in the page, and the CSV export of the same filters. While the
+// tab is shown, the rows of recent alarms are asked for again every few seconds: a clip is
+// finished seconds after its alarm (clip_post_s later, its full stream's copy just after), and
+// its play button comes into the row as soon as the server lists it, without a new search.
 
 import { ApiError, events, eventsCsvUrl } from "./api.js";
 import { ackText, dateTime, describe, typeText } from "./feed.js";
 
 const PAGE = 200;
+const CLIP_POLL_MS = 2000;
+// an alarm's clips may still come this long after it: clip_post_s (at most 600 s), the
+// writing, and the full stream's copy after the drawn clip
+const CLIP_PENDING_S = 660;
 const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_down", "fall",
   "lone_worker", "work_position", "immobile", "overreach", "camera_down", "camera_up",
   "camera_moved", "calibration_drift"];
@@ -49,6 +56,9 @@ function clipFile(url) {
 /** A clip's URL with its file name escaped as one path segment. */
 const clipUrl = (url) => `/api/clips/${encodeURIComponent(clipFile(url))}`;
 
+/** What of an event's row can change after it is drawn: its clips and acknowledgement. */
+const rowState = (e) => JSON.stringify([e.clips || [], e.ack || null]);
+
 export class History {
   constructor(replay) {
     this.replay = replay;
@@ -79,6 +89,8 @@ export class History {
     this.typeSelect = byId("h-type");
     this.oldest = null;
     this.asked = 0; // the newest search: an older one's late answer is dropped
+    this.visible = false;
+    this.clipTimer = null;
     for (const t of TYPES) this.typeSelect.appendChild(new Option(typeText(t), t));
     this.form.addEventListener("submit", (e) => {
       e.preventDefault();
@@ -88,6 +100,57 @@ export class History {
     this.more.addEventListener("click", () => this.search(true));
     byId("h-replay").addEventListener("click", () => this.replayWindow());
     this.updateCsv();
+  }
+
+  /** The tab shown or hidden: recent alarms' clips asked for while it is shown. */
+  show(visible) {
+    this.visible = visible;
+    this.watchClips();
+  }
+
+  /** The oldest wall time of a shown alarm whose clips may still come; null: none. */
+  pendingSince() {
+    const now = Date.now() / 1000;
+    let since = null;
+    for (const tr of this.rows.children) {
+      const t = Number(tr.dataset.wallT);
+      if (tr.dataset.level !== "alarm" || !Number.isFinite(t) || now - t > CLIP_PENDING_S) continue;
+      since = since === null ? t : Math.min(since, t);
+    }
+    return since;
+  }
+
+  /** The next look at the recent alarms' clips, while the tab is shown and one may come. */
+  watchClips() {
+    clearTimeout(this.clipTimer);
+    this.clipTimer = null;
+    if (this.visible && this.pendingSince() !== null) {
+      this.clipTimer = setTimeout(() => this.refreshClips(), CLIP_POLL_MS);
+    }
+  }
+
+  /** The shown rows from the recent alarms on asked again with the same filters; each row
+   * whose clips (or acknowledgement) changed is drawn again in place. */
+  async refreshClips() {
+    this.clipTimer = null;
+    const since = this.pendingSince();
+    if (!this.visible || since === null) return;
+    const asked = this.asked;
+    const f = this.filters();
+    const from = Math.max(Number(f.since) || 0, since - 1);
+    let answer = null;
+    try {
+      answer = await events({ ...f, since: from.toFixed(3), limit: PAGE });
+    } catch {
+      answer = null; // asked again at the next look
+    }
+    // hidden meanwhile, or a new search drew the table (and looks on itself)
+    if (!this.visible || asked !== this.asked) return;
+    for (const e of (answer && answer.events) || []) {
+      const tr = this.rows.querySelector(`tr[data-event-id="${Number(e.id)}"]`);
+      if (tr && tr.dataset.state !== rowState(e)) tr.replaceWith(this.row(e));
+    }
+    this.watchClips();
   }
 
   setZones(zones) {
@@ -152,6 +215,7 @@ export class History {
     this.more.hidden = found.length < PAGE;
     const shown = this.rows.children.length;
     this.info.textContent = `${shown} event${shown === 1 ? "" : "s"}`;
+    this.watchClips();
   }
 
   row(e) {
@@ -159,6 +223,9 @@ export class History {
     tr.dataset.eventId = String(e.id);
     tr.className = `level-${e.level || "info"}`;
     tr.dataset.type = e.type;
+    tr.dataset.level = e.level || "info";
+    tr.dataset.wallT = String(e.wall_t);
+    tr.dataset.state = rowState(e);
     cell(tr, dateTime(e.wall_t), "time");
     cell(tr, e.level || "info", `level level-${e.level || "info"}`);
     cell(tr, typeText(e.type));
