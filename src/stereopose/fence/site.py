@@ -50,6 +50,7 @@ from stereopose.behaviour.posture import PostureSettings
 from stereopose.checks import FPS, MAX_ZONES, named_tables
 from stereopose.config import parse_toml, read_toml
 from stereopose.errors import ConfigError
+from stereopose.onsite.settings import WarningSettings, format_warnings, parse_warnings
 from stereopose.skeleton import JOINTS, joint_index
 from stereopose.zones.distances import DEFAULT_TABLE, approach_distance
 from stereopose.zones.power import parse_power
@@ -72,6 +73,7 @@ _ZONE_KEYS = {
     "voltage_kv",
     "distance_table",
     "state",
+    "on_site",
 }
 
 
@@ -82,6 +84,8 @@ class Site:
     path: Path | None = field(default=None, compare=False)
     rules: tuple[Rule, ...] = ()  # behaviour rules (behaviour.definitions)
     postures: PostureSettings | None = None  # [postures]: the thresholds (None: defaults)
+    # [warnings], [[speakers]], [[signals]]: warnings on site (onsite.settings; None: none)
+    warnings: WarningSettings | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rules", tuple(self.rules))
@@ -142,9 +146,12 @@ def format_site(site: Site) -> str:
             lines.append(f"distance_table = {_toml_str(z.distance_table)}")
         if z.power is not None:
             lines.append(f"state = {_inline(z.power.to_toml())}")
+        if not z.on_site:
+            lines.append("on_site = false")
         lines.append("")
     lines += format_rules(site.rules)
     lines += format_postures(site.postures)
+    lines += format_warnings(site.warnings)
     return "\n".join(lines)
 
 
@@ -176,7 +183,9 @@ def parse_site(data: object, path: Path | None = None) -> Site:
     zones = _zones(data)
     rules = parse_rules(data.get("rules"), "", zones)
     postures = parse_postures(data.get("postures"), "")
-    return Site(zones, fps, path, rules=rules, postures=postures)
+    folder = path.parent if path is not None else None
+    warnings = parse_warnings(data, [z.name for z in zones], folder)
+    return Site(zones, fps, path, rules=rules, postures=postures, warnings=warnings)
 
 
 def site_doc(site: Site) -> dict[str, object]:
@@ -192,11 +201,10 @@ def site_version(site: Site) -> str:
 
 
 def _fps(data: dict[str, object]) -> float | None:
-    unknown = sorted(set(data) - {"fps", "zones", "rules", "postures"})
+    known = ("fps", "zones", "rules", "postures", "warnings", "speakers", "signals")
+    unknown = sorted(set(data) - set(known))
     if unknown:
-        raise ConfigError(
-            f"unknown key(s) {', '.join(unknown)}; known: fps, zones, rules, postures"
-        )
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)}; known: {', '.join(known)}")
     fps = data.get("fps")
     return None if fps is None else float(FPS.check(fps, "fps"))
 
@@ -267,6 +275,10 @@ def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
         if "priority" in z:
             kwargs["priority"] = parse_priority(z["priority"], where)
         kwargs |= _power(z, where)
+        if "on_site" in z:
+            if not isinstance(z["on_site"], bool):
+                raise ConfigError(f"{where}: on_site: expected true or false, got {z['on_site']!r}")
+            kwargs["on_site"] = z["on_site"]
         for key in ("allowed", "expected"):
             if key in z:
                 kwargs[key] = _ids(z[key], f"{where}: {key}")

@@ -55,6 +55,7 @@ class Zone:
     voltage_kv: float | None = None  # its nominal voltage (the approach margin's table row)
     distance_table: str | None = None  # zones.distances' table (None: the default)
     power: PowerSpec | None = None  # where its live or dead state comes from (zones.power)
+    on_site: bool = True  # its hazards warn on site (onsite: speakers, beacons)
 
     def __post_init__(self) -> None:
         where = f"zone {self.name!r}"
