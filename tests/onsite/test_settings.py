@@ -85,7 +85,7 @@ def test_a_bad_entry_names_its_key(change, message):
 
 
 def test_a_template_with_an_unknown_placeholder_is_refused_at_start():
-    from stereopose.onsite.phrases import check_template
+    from stereopose.onsite.settings import check_template
 
     assert [name for _, name in check_template("Stop. {zone}, {distance}.", "t")] == [
         "zone",
@@ -95,3 +95,5 @@ def test_a_template_with_an_unknown_placeholder_is_refused_at_start():
     for bad in ("Stop {who}", "Stop {zone:>5}", "Stop {zone"):
         with pytest.raises(ConfigError, match=r"\[warnings\] templates.approach"):
             check_template(bad, "[warnings] templates.approach")
+        with pytest.raises(ConfigError, match=r"\[warnings\] templates.approach"):
+            parse_site(site(warnings={"templates": {"approach": bad}}))

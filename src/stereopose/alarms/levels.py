@@ -10,6 +10,8 @@ hazard an event concerns is its key (`hazard_key`):
     ("camera", camera)                camera_down / camera_up
     ("calibration", camera)           calibration_drift / calibration_recovered
     ("service",)                      service_stalled / service_resumed
+    ("warning_output", name)          warning_output_down / warning_output_back (a speaker or
+                                      a signal on site, onsite.warner; its name in `source`)
     ("ticket", ticket, step)          a step's deviation (out of order, wrong position,
                                       timeout), cleared when the step is done
     ("ticket", ticket, "supervisor")  supervisor_absent / supervisor_back
@@ -66,6 +68,7 @@ DIAGNOSTIC_ENDS = {
     "calibration_drift": "calibration_recovered",
     "service_stalled": "service_resumed",
     "site_invalid": "site_valid",  # the site file (SIGHUP) does not load; loads again
+    "warning_output_down": "warning_output_back",  # a beacon's or a speaker's device on site
 }
 # a ticket's deviations (stereopose.tickets.monitor); the supervisor's and the lone worker's end
 TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
@@ -75,7 +78,9 @@ TICKET_ALARMS = TICKET_STEP_ALARMS | frozenset(TICKET_ENDS)
 # zone counts as live) until it is known again, live or dead
 POWER_TYPES = frozenset({"zone_unknown", "zone_live", "zone_dead"})
 _ALARM_TYPES = (
-    frozenset({"camera_down", "service_stalled", "zone_unknown", "site_invalid"})
+    frozenset(
+        {"camera_down", "service_stalled", "zone_unknown", "site_invalid", "warning_output_down"}
+    )
     | BEHAVIOUR_ALARMS
     | TICKET_ALARMS
 )
@@ -114,6 +119,8 @@ def hazard_key(event: Event) -> HazardKey | None:
         return ("service",)
     if t in ("site_invalid", "site_valid"):
         return ("site",)
+    if t in ("warning_output_down", "warning_output_back"):
+        return ("warning_output", event.source or "")
     if t in POWER_TYPES:
         return ("power", event.zone)
     if t in ("enter", "approach", "dwell", "exit") and event.zone:

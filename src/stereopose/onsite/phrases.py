@@ -14,20 +14,17 @@ skeleton's heading; "nearby" when it is not known). A site's own recording (a WA
 
 from __future__ import annotations
 
-import string
 from collections.abc import Sequence
 
 import numpy as np
 
-from stereopose.errors import ConfigError
 from stereopose.onsite.audio import read_wav, silence
-from stereopose.onsite.settings import KINDS, WarningSettings
+from stereopose.onsite.settings import KINDS, WarningSettings, check_template
 from stereopose.onsite.speech import Speech
 from stereopose.zones import Zone
 
-__all__ = ["PLACEHOLDERS", "SIDES", "TEMPLATES", "Phrasebook", "check_template"]
+__all__ = ["SIDES", "TEMPLATES", "Phrasebook"]
 
-PLACEHOLDERS = ("zone", "voltage", "distance", "direction")
 _DYNAMIC = ("distance", "direction")  # filled per message; the others per zone
 SIDES = ("ahead", "behind", "left", "right", "nearby")
 MAX_DISTANCE_M = 10.0  # distances spoken up to this far (farther: said as this)
@@ -69,24 +66,6 @@ _WORDS = {
         "m": "{d:.1f}米",
     },
 }
-
-
-def check_template(text: str, where: str) -> list[tuple[str, str | None]]:
-    """A template's (literal, placeholder or None) pieces; an unknown placeholder, a format
-    spec or a broken brace is a ConfigError naming `where`."""
-    try:
-        pieces = list(string.Formatter().parse(text))
-    except ValueError as e:
-        raise ConfigError(f"{where}: {e} in {text!r}") from None
-    out = []
-    for literal, name, spec, conv in pieces:
-        if name is not None and (name not in PLACEHOLDERS or spec or conv):
-            raise ConfigError(
-                f"{where}: unknown placeholder {{{name}}} in {text!r}; known: "
-                + ", ".join(f"{{{p}}}" for p in PLACEHOLDERS)
-            )
-        out.append((literal, name))
-    return out
 
 
 def _spoken_name(zone: Zone) -> str:

@@ -34,6 +34,7 @@ section, the entry and the key (onsite.phrases checks the templates' placeholder
 from __future__ import annotations
 
 import ipaddress
+import string
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,21 +43,29 @@ from urllib.parse import urlsplit
 from stereopose.alarms.priority import CRITICAL, HIGH, PRIORITIES, parse_priority
 from stereopose.checks import named_tables
 from stereopose.errors import ConfigError
-from stereopose.onsite.audio import CODECS
+from stereopose.onsite.audio import CODECS, read_wav
 
 __all__ = [
     "KINDS",
     "LANGUAGES",
+    "PLACEHOLDERS",
     "SignalSpec",
     "SpeakerSpec",
     "WarningSettings",
+    "check_template",
     "format_warnings",
     "parse_warnings",
 ]
 
 # the site's language -> eSpeak NG's voice (onsite.speech)
 LANGUAGES = {"en": "en", "zh": "cmn"}
-KINDS = ("approach", "enter", "test")  # the messages: a hazard near, inside, a test
+KINDS = ("approach", "enter", "test")
+PLACEHOLDERS = (
+    "zone",
+    "voltage",
+    "distance",
+    "direction",
+)  # the messages: a hazard near, inside, a test
 DEFAULT_REPEAT_S = 4.0
 MAX_OUTPUTS = 64  # speakers or signals on one site
 MAX_COIL = 65535
@@ -257,6 +266,24 @@ def _strings(value: object, what: str, keys: Sequence[str] | None) -> tuple[tupl
     return tuple(value.items())
 
 
+def check_template(text: str, where: str) -> list[tuple[str, str | None]]:
+    """A template's (literal, placeholder or None) pieces; an unknown placeholder, a format
+    spec or a broken brace is a ConfigError naming `where`."""
+    try:
+        pieces = list(string.Formatter().parse(text))
+    except ValueError as e:
+        raise ConfigError(f"{where}: {e} in {text!r}") from None
+    out = []
+    for literal, name, spec, conv in pieces:
+        if name is not None and (name not in PLACEHOLDERS or spec or conv):
+            raise ConfigError(
+                f"{where}: unknown placeholder {{{name}}} in {text!r}; known: "
+                + ", ".join(f"{{{p}}}" for p in PLACEHOLDERS)
+            )
+        out.append((literal, name))
+    return out
+
+
 def parse_warnings(
     data: Mapping[str, object], zones: Sequence[str], folder: Path | None = None
 ) -> WarningSettings | None:
@@ -306,6 +333,11 @@ def parse_warnings(
             )
     settings = WarningSettings(folder=folder, **out)  # type: ignore[arg-type]
     assert all(p in PRIORITIES for p in settings.priorities)
+    for kind, text in settings.templates:
+        check_template(text, f"[warnings] templates.{kind}")
+    for key, _ in settings.recordings:  # each readable now, not at the first hazard
+        zone, _, kind = key.rpartition(".")
+        read_wav(settings.recording(zone or None, kind), f"[warnings] recordings: {key}")
     return settings
 
 

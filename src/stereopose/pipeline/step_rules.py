@@ -1,5 +1,6 @@
 """One chain of step rules, built alike by `run` and `serve`: at each step the fences, the
-behaviour rules, the zones' live or dead state and the work tickets, in that order, each a
+behaviour rules, the zones' live or dead state, the work tickets and (serve) the warnings on
+site, in that order, each a
 `StepRule` with one typed interface. Each adds its events to the step's; those that know a zone
 safe now (dead by its breakers, isolated by a ticket) say so, and the chain makes that zone's
 events information in one place (zones.safe), before the incident book sees them
@@ -26,6 +27,7 @@ from stereopose.zones.state_log import ZoneStateLog
 __all__ = [
     "BehaviourRule",
     "FenceRule",
+    "OnSiteRule",
     "StepChain",
     "StepContext",
     "StepRule",
@@ -128,6 +130,23 @@ class TicketRule:
         return bool(self.desk.active_or_starting())
 
 
+class OnSite(Protocol):
+    """onsite.service.OnSite: the step's hazards said and shown on site."""
+
+    def step(self, t: float, frame: int, people: People3D, fences) -> list[Event]: ...
+
+
+class OnSiteRule:
+    """The warnings on site (speakers, beacons) from the fences' state at this step; their
+    devices' health events. Last: the zones' states and the tickets are known by then."""
+
+    def __init__(self, onsite: OnSite, fences: Callable[[], FenceMonitor | None]) -> None:
+        self.onsite, self.fences = onsite, fences
+
+    def step(self, ctx: StepContext) -> list[Event]:
+        return list(self.onsite.step(ctx.t, ctx.frame, ctx.people, self.fences()))
+
+
 class StepChain:
     """The step's rules in order (see the module); a step's rules of the frame loop."""
 
@@ -162,15 +181,20 @@ def step_chain(
     monitor: FenceMonitor | None = None,
     tickets: TicketDesk | None = None,
     zone_log: ZoneStateLog | None = None,
+    onsite: OnSite | None = None,
+    fences: Callable[[], FenceMonitor | None] | None = None,
 ) -> StepChain:
     """The chain `run` and `serve` build: the fences' events, the behaviour rules, the zones'
     states (read live, with the fence `monitor` that says who is inside; or a recorded job's
-    switching log, zones.state_log), the tickets; each left out when None."""
+    switching log, zones.state_log), the tickets, the warnings on site (`onsite`, with the
+    running fences: `fences()`, by default `monitor`); each left out when None."""
+    running = fences or (lambda: monitor)
     parts: list[tuple[object | None, Callable[[], StepRule]]] = [
         (events, lambda: FenceRule(events)),
         (behaviour, lambda: BehaviourRule(behaviour)),
         (zone_state, lambda: ZoneStateRule(zone_state, monitor)),
         (zone_log, lambda: zone_log),
         (tickets, lambda: TicketRule(tickets)),
+        (onsite, lambda: OnSiteRule(onsite, running)),
     ]
     return StepChain([make() for given, make in parts if given is not None])

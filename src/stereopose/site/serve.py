@@ -44,34 +44,32 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from stereopose.alarms import AlarmSettings, IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
-from stereopose.detection.regional import RegionDetector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import FenceMonitor, Site
-from stereopose.fence.site import site_version
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
-from stereopose.io.sinks.base import ClosesOnce, FrameResult, unwrapped
+from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
 from stereopose.nodes.node_state import nodes_light
+from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.sources import Cameras, detecting_cameras
+from stereopose.pipeline.sources import detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.pipeline.step_rules import step_chain
-from stereopose.pipeline.track_regions import watched_heights
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
@@ -90,10 +88,9 @@ from stereopose.site.plan import (
 )
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
+from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
 from stereopose.site.site_switch import SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
-from stereopose.types import Rig
-from stereopose.zones.hazard import Hazards
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -315,9 +312,9 @@ def _run_loop(
         service.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
-            on_site.append(_scans_watch(regions, rig, plan.site))
+            on_site.append(scans_watch(regions, rig, plan.site))
         if cameras.carry is not None:
-            on_site.append(_hazards_watch(cameras, service, plan.site))
+            on_site.append(hazards_watch(cameras, service, plan.site))
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
@@ -358,17 +355,22 @@ def _run_loop(
     sinks = service.open_sinks(
         cfg, wall_start, summary, cams.stats, arrival, rates or (lambda: nominal_rates(cams))
     )
-    on_site += _mqtt_site(sinks, plan.site)
+    on_site += mqtt_site(sinks, plan.site)
+    onsite = onsite_warnings(plan, service, sinks)
+    if onsite is not None:
+        on_site.append(onsite.set_site)
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
-        incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t)
+        incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t, onsite)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
-            incidents.switch = _site_switch(service, events, cfg, on_site)
+            incidents.switch = _site_switch(service, events, cfg, on_site, onsite)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
         ids.close()
+        if onsite is not None:
+            onsite.close()  # every speaker quiet, every coil off
 
 
 def _incidents(
@@ -380,6 +382,7 @@ def _incidents(
     ids: IncidentIds,
     wall_start: float,
     clock: Callable[[], float],
+    onsite: OnSite | None = None,
 ) -> IncidentStep:
     """The incident book over the step's events (pipeline.incidents): ids from the
     log's mark, the incidents the last run left open restored (on this run's clock), its
@@ -397,6 +400,8 @@ def _incidents(
         zone_state=service.power,
         monitor=fences,
         tickets=service.tickets,
+        onsite=onsite,
+        fences=lambda: events.fences,
     )
     step = IncidentStep(
         book,
@@ -411,7 +416,11 @@ def _incidents(
 
 
 def _site_switch(
-    service: SiteService, events: ServeEvents, cfg: Config, on_site: list[Callable[[Site], None]]
+    service: SiteService,
+    events: ServeEvents,
+    cfg: Config,
+    on_site: list[Callable[[Site], None]],
+    onsite: OnSite | None = None,
 ) -> SiteSwitch:
     """What takes a new site at a step's start (site.site_switch), on the run's settings;
     on_site: told each new site (the regions' scans, the MQTT output's `site`)."""
@@ -425,49 +434,5 @@ def _site_switch(
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
         on_site=on_site,
+        onsite=onsite,
     )
-
-
-def _mqtt_site(sinks: list, site: Site | None) -> list[Callable[[Site], None]]:
-    """The MQTT output's retained `site` message (its version as GET /api/site gives it, its
-    zones), now and at each new site; none without an MQTT output or a site."""
-    from stereopose.io.sinks.mqtt import MqttSink
-
-    mqtt = next((u for s in sinks if isinstance(u := unwrapped(s), MqttSink)), None)
-    if mqtt is None or site is None:
-        return []
-
-    def tell(new: Site) -> None:
-        mqtt.set_site(site_version(new), [z.name for z in new.zones], time.time())
-
-    tell(site)
-    return [tell]
-
-
-def _hazards_watch(
-    cameras: Cameras, service: SiteService, site: Site | None
-) -> Callable[[Site], None]:
-    """The carried steps kept away from `site`'s energized zones now and from each new
-    site's (zones.hazard): dead where the breakers' points read dead (the service's zone
-    states, whichever it has when asked), live otherwise."""
-
-    def dead() -> Collection[str]:
-        states = service.power
-        return () if states is None else states.safe_now().keys()
-
-    def watch(new: Site | None) -> None:
-        cameras.set_hazards(None if new is None else Hazards(new.zones, dead=dead))
-
-    watch(site)
-    return watch
-
-
-def _scans_watch(regions: RegionDetector, rig: Rig, site: Site | None) -> Callable[[Site], None]:
-    """The regions' scans told where workers matter, from `site` now and from each new site
-    (detection.regional.RegionDetector.watch); the callable takes a new site."""
-
-    def watch(new: Site | None) -> None:
-        regions.watch({} if new is None else watched_heights(rig, new.zones))
-
-    watch(site)
-    return watch

@@ -20,6 +20,7 @@ from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
 from stereopose.fence import FenceMonitor, Site
 from stereopose.fence.site import format_site
+from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import behaviour_monitor
 from stereopose.pipeline.step_rules import step_chain
@@ -65,11 +66,13 @@ class SiteSwitch:
         restart_power: Callable[[Site], ZoneStates | None] | None = None,
         scene: SceneState | None = None,
         on_site: Sequence[Callable[[Site], None]] = (),
+        onsite: OnSite | None = None,
     ) -> None:
         self.desk, self.events, self.config = desk, events, config
         self.tickets, self.zone_state = tickets, zone_state
         self.restart_power, self.scene = restart_power, scene
         self.on_site = list(on_site)  # told each new site (the regions' scans)
+        self.onsite = onsite  # the warnings on site: in the chain built again
 
     def __call__(self, step: IncidentStep, t: float, frame: int) -> list[Event]:
         """The events of a change taken at this step (none without one)."""
@@ -121,6 +124,8 @@ class SiteSwitch:
             zone_state=self.zone_state,
             monitor=new_mon,
             tickets=self.tickets,
+            onsite=self.onsite,
+            fences=lambda: self.events.fences,
         )
         step.monitor = new_mon
         step.book.settings = AlarmSettings.from_site(change.new)

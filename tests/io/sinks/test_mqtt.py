@@ -488,3 +488,18 @@ def test_the_site_is_retained_and_a_removed_zone_is_cleared(broker, closing) -> 
         f"{BASE}/zones/bay3",
     }
     assert all(m.retain for m in late.messages)
+
+
+def test_what_warns_on_site_is_retained_its_newest_only(broker, closing) -> None:
+    """`warnings` retained (onsite.warner's document): a late subscriber gets the newest one;
+    after a reconnect it is sent again."""
+    sink = MqttSink(settings(broker.port), zone_names=["busbar"])
+    closing(sink)
+    first = {"warnings": [{"zone": "busbar", "person": 1, "kind": "approach"}], "t": 1.0}
+    sink.set_warnings(first)
+    sink.set_warnings({"warnings": [], "t": 2.0})  # over before the first was sent, or after
+    late = Subscriber(broker.port, f"{BASE}/warnings")
+    closing(late)
+    wait_until(lambda: late.on(f"{BASE}/warnings"), "the retained warnings")
+    assert json.loads(late.on(f"{BASE}/warnings")[-1]) == {"warnings": [], "t": 2.0}
+    assert all(m.retain for m in late.messages)

@@ -12,6 +12,8 @@ Topics under ``<prefix>/<site>/`` (see docs/mqtt.md):
   the last will, so a crash or a lost link reads ``offline``.
 - ``site``: the running site's version and zones, retained, QoS 1 (`set_site`: at the start
   and at each change; a removed zone's retained state is cleared).
+- ``warnings``: what warns on site now (onsite.warner: each hazard with its speakers and
+  signals), retained, QoS 1 (`set_warnings`, each time it changes).
 
 The frame loop never waits on the network: `write` only appends to bounded queues; a sender
 thread hands messages to paho (whose network loop runs on its own thread and reconnects with
@@ -24,7 +26,6 @@ it is sent again on every connect (the broker may have lost it in a restart).
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import threading
 import time
@@ -42,6 +43,7 @@ from stereopose.io.records import event_record, people_record
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
 from stereopose.io.sinks.mqtt_commands import ZoneCommands
+from stereopose.io.sinks.mqtt_retained import Message, Retained, dumps
 from stereopose.io.sinks.mqtt_settings import (
     MqttSettings,
     make_client,
@@ -58,15 +60,6 @@ logger = logging.getLogger(__name__)
 KINDS = ("events", "zones", "people", "incidents")
 ONLINE, OFFLINE = "online", "offline"
 INFLIGHT = 20  # messages handed to paho and not yet acknowledged (paho's own default window)
-
-
-@dataclass
-class _Message:
-    kind: str
-    topic: str
-    payload: str
-    qos: int
-    retain: bool = False
 
 
 @dataclass
@@ -99,31 +92,23 @@ class MqttSink(ClosesOnce):
         self.settings = s = settings
         self.commands = None if switch is None else ZoneCommands(s, switch)
         base = f"{s.topic_prefix}/{topic_part(s.site)}"
-        kinds = ("events", "people", "available", "incidents", "site")
+        kinds = ("events", "people", "available", "incidents", "site", "warnings")
         self.topics = {k: f"{base}/{k}" for k in kinds}
-        self._zone_base = f"{base}/zones/"
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = False
-        self._queues: dict[str, deque[tuple[int, _Message]]] = {
+        self._queues: dict[str, deque[tuple[int, Message]]] = {
             "events": deque(),
             "people": deque(),
             "incidents": deque(),
         }
         self._seq = 0
-        self._zones: dict[str, tuple[set[int], float | None, int | None]] = {
-            z: (set(), None, None) for z in zone_names
-        }
-        self._dirty: set[str] = set(self._zones)
-        self._site: str | None = None  # the `site` message's payload, sent again on connect
-        self._cleared: set[str] = set()  # removed zones whose retained state is to be cleared
-        self._power: dict[str, tuple[str, str | None]] = {}  # zone -> its state, source
-        self._off: set[str] = set()  # zones switched off
+        self._retained = Retained(self.topics, f"{base}/zones/", zone_names)
         self._inflight: deque[tuple[str, paho.MQTTMessageInfo]] = deque()
         # message ids paho says are sent (QoS 0) or acknowledged (QoS 1): a message published
         # while the link was down keeps that error in its info even once paho has resent it
         self._acked: set[int] = set()
-        self._connected = self._announce = self._resync = self._announce_site = False
+        self._connected = self._announce = self._resync = False
         self._last_problem: str | None = None
         self._people_t: float | None = None
         self._people_empty = True
@@ -149,8 +134,8 @@ class MqttSink(ClosesOnce):
             return
         with self._lock:
             for e in events:
-                self._put(_Message("events", self.topics["events"], _dumps(event_record(e)), 1))
-                self._occupy(e)
+                self._put(Message("events", self.topics["events"], dumps(event_record(e)), 1))
+                self._retained.occupy(e)
         self._wake.set()
 
     def write_changes(self, changes: Sequence[Change]) -> None:
@@ -160,51 +145,24 @@ class MqttSink(ClosesOnce):
             return
         with self._lock:
             for c in changes:
-                body = _dumps(c.to_dict())
-                self._put(_Message("incidents", self.topics["incidents"], body, 1))
+                body = dumps(c.to_dict())
+                self._put(Message("incidents", self.topics["incidents"], body, 1))
         self._wake.set()
 
     def set_site(self, version: str, zones: Sequence[str], t: float) -> None:
         """The running site (at the start, and each change at wall time t): `site` retained
         with its version and zones; a new zone's state published empty, a removed one's
         cleared (an empty retained message)."""
-        body = {"version": version, "zones": list(zones), "t": round(float(t), 3)}
         with self._lock:
-            self._site = _dumps(body)
-            for gone in [z for z in self._zones if z not in zones]:
-                del self._zones[gone]
-                self._dirty.discard(gone)
-                self._cleared.add(gone)
-            for z in zones:
-                if z not in self._zones:
-                    self._zones[z] = (set(), None, None)
-                    self._dirty.add(z)
-                    self._cleared.discard(z)
-            self._announce_site = True
+            self._retained.set_site(version, zones, t)
         self._wake.set()
 
-    def _occupy(self, e: Event) -> None:
-        if not e.zone:  # a camera's event: no zone's occupancy changes
-            return
-        if e.type in ("zone_disabled", "zone_enabled"):  # switched off or on (mqtt_commands)
-            (self._off.add if e.type == "zone_disabled" else self._off.discard)(e.zone)
-            if e.zone in self._zones:
-                self._dirty.add(e.zone)
-            return
-        if e.type in ("zone_live", "zone_dead", "zone_unknown"):  # its state from its breakers
-            self._power[e.zone] = (e.type[5:], e.source)
-            if e.zone in self._zones:
-                self._dirty.add(e.zone)
-            return
-        inside, _, _ = self._zones.get(e.zone, (set(), None, None))
-        if e.type == "enter":
-            inside = inside | {e.person}
-        elif e.type == "exit":
-            inside = inside - {e.person}
-        elif e.zone in self._zones:
-            return
-        self._zones[e.zone] = (inside, e.t, e.frame)
-        self._dirty.add(e.zone)
+    def set_warnings(self, doc: dict) -> None:
+        """What warns on site now (onsite.warner: each hazard with its speakers and
+        signals), retained on `<prefix>/<site>/warnings`: a newer one replaces one not sent."""
+        with self._lock:
+            self._retained.set_warnings(doc)
+        self._wake.set()
 
     def _write_people(self, frame: FrameResult) -> None:
         hz = self.settings.people_hz
@@ -219,12 +177,12 @@ class MqttSink(ClosesOnce):
         if empty and self._people_empty:
             return  # nobody now and nobody in the last update: nothing new to say
         self._people_t, self._people_empty = t, empty
-        payload = _dumps(people_record(frame.people3d, t, frame.postures))
+        payload = dumps(people_record(frame.people3d, t, frame.postures))
         with self._lock:
-            self._put(_Message("people", self.topics["people"], payload, 0))
+            self._put(Message("people", self.topics["people"], payload, 0))
         self._wake.set()
 
-    def _put(self, msg: _Message) -> None:
+    def _put(self, msg: Message) -> None:
         """Append under the lock; at the bound drop the oldest people update, else the oldest
         event."""
         queues = self._queues
@@ -255,7 +213,7 @@ class MqttSink(ClosesOnce):
             if self._stop:
                 return
 
-    def _next(self) -> _Message | None:
+    def _next(self) -> Message | None:
         """The next message to hand over, or None (not connected, window full, nothing)."""
         with self._lock:
             self._sweep()
@@ -267,32 +225,17 @@ class MqttSink(ClosesOnce):
                 self._resync = False
             if self._announce:
                 self._announce = False
-                return _Message("available", self.topics["available"], ONLINE, 1, retain=True)
-            if self._announce_site and self._site is not None:
-                self._announce_site = False
-                return _Message("site", self.topics["site"], self._site, 1, retain=True)
-            if self._cleared:
-                gone = self._zone_base + topic_part(self._cleared.pop())
-                return _Message("zones", gone, "", 1, retain=True)
-            if self._dirty:
-                return self._zone_message(self._dirty.pop())
+                return Message("available", self.topics["available"], ONLINE, 1, retain=True)
+            retained = self._retained.next()
+            if retained is not None:
+                return retained
             heads = [q for q in self._queues.values() if q]
             if not heads:
                 self._end_burst()
                 return None
             return min(heads, key=lambda q: q[0][0]).popleft()[1]
 
-    def _zone_message(self, zone: str) -> _Message:
-        inside, t, frame = self._zones[zone]
-        people = sorted(inside)
-        body = {"zone": zone, "people": people, "count": len(people), "t": t, "frame": frame}
-        if zone in self._power:  # a zone with a state source: live, dead or unknown, and why
-            body["power"], body["power_source"] = self._power[zone]
-        if zone in self._off:
-            body["enabled"] = False
-        return _Message("zones", self._zone_base + topic_part(zone), _dumps(body), 1, True)
-
-    def _publish(self, msg: _Message) -> None:
+    def _publish(self, msg: Message) -> None:
         try:
             info = self._client.publish(msg.topic, msg.payload, qos=msg.qos, retain=msg.retain)
         except Exception as e:  # paho refuses it (too large, bad topic): the sender goes on
@@ -377,9 +320,9 @@ class MqttSink(ClosesOnce):
             self._problem(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
             return
         with self._lock:
-            self._connected = self._announce = self._announce_site = True
+            self._connected = self._announce = True
             self._resync = bool(self._inflight)
-            self._dirty.update(self._zones)  # the broker may have lost its retained states
+            self._retained.connected()  # the broker may have lost its retained states
             waiting = sum(len(q) for q in self._queues.values())
         if self._last_problem is not None:
             st = self.settings
@@ -412,7 +355,7 @@ class MqttSink(ClosesOnce):
             for kind, _ in self._inflight:
                 if kind in queued:
                     queued[kind] += 1
-            queued["zones"] += len(self._dirty) + len(self._cleared)
+            queued["zones"] += self._retained.pending()
             return {
                 k: {
                     "published": c.published[k],
@@ -493,7 +436,3 @@ class MqttSink(ClosesOnce):
         lost = any(v["queued"] or v["dropped"] or v["failed"] for v in counts.values())
         level, st = logging.WARNING if lost else logging.INFO, self.settings
         logger.log(level, "MQTT %s:%d closed: %s", st.host, st.port, text)
-
-
-def _dumps(obj: object) -> str:
-    return json.dumps(obj)  # as the events JSON lines write it
