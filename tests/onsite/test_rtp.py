@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import itertools
 import socket
-import struct
 import subprocess
 import time
 
 import numpy as np
 import pytest
 
+from rtp_listener import Listener
 from stereopose.onsite.audio import decode, encode
 from stereopose.onsite.rtp import SAMPLES, Speaker
 from stereopose.onsite.settings import SpeakerSpec
@@ -84,28 +84,6 @@ def test_ffmpeg_decodes_the_message_from_the_sdp(tmp_path, codec, pt, name):
     r = float(np.dot(piece, expected) / (np.linalg.norm(piece) * np.linalg.norm(expected)))
     assert r > 0.95, r
     assert speaker.figures["send_errors"] == 0 and speaker.figures["messages"] == 1
-
-
-class Listener:
-    """A UDP socket that keeps every RTP packet: (arrival, marker, pt, seq, ts, payload)."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.05)
-        self.port = self.sock.getsockname()[1]
-        self.packets: list[tuple] = []
-
-    def take(self, until) -> None:
-        deadline = time.monotonic() + 15
-        while not until() and time.monotonic() < deadline:
-            try:
-                data = self.sock.recv(2048)
-            except TimeoutError:
-                continue
-            b0, b1, seq, ts, _ssrc = struct.unpack("!BBHII", data[:12])
-            assert b0 == 0x80
-            self.packets.append((time.monotonic(), bool(b1 & 0x80), b1 & 0x7F, seq, ts, data[12:]))
 
 
 def test_one_message_at_a_time_a_more_urgent_one_cuts_in_and_quiet_ends_it():

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_rtp import Listener
 
 from modbus_device import IoModule
+from rtp_listener import Listener
 from stereopose.fence import FenceMonitor
 from stereopose.fence.site import parse_site
 from stereopose.onsite.modbus import Signal

@@ -76,9 +76,8 @@ def _serve(args: argparse.Namespace) -> int:
             soft_wrap=True,
         )
         out.print(_console_line(url, path, plan.out_dir), highlight=False, soft_wrap=True)
-        out.print(
-            f"interfaces: {', '.join(interfaces(plan.config))}", highlight=False, soft_wrap=True
-        )
+        shown = ", ".join(interfaces(plan.config, plan.site))
+        out.print(f"interfaces: {shown}", highlight=False, soft_wrap=True)
 
     try:
         result = serve(path, plan=plan, on_ready=ready)

@@ -250,8 +250,9 @@ class _NoTwoWay:
     two_way = False
 
 
-def interfaces(cfg: Config) -> list[str]:
-    """Which optional interface of the service is on, and where, for its first log line."""
+def interfaces(cfg: Config, site: Site | None = None) -> list[str]:
+    """Which optional interface of the service is on, and where, for its first log line;
+    with the site, its warnings on site (speakers and signals)."""
     shown = []
     m = cfg.mqtt
     shown.append(f"MQTT on {m.host}:{m.port} (site {m.site})" if m.host else "MQTT off")
@@ -260,6 +261,12 @@ def interfaces(cfg: Config) -> list[str]:
     shown.append(f"IEC 104 on {i.host}:{i.port}" if i.enabled else "IEC 104 off")
     o = cfg.opcua
     shown.append(f"OPC UA on opc.tcp://{o.host}:{o.port}{o.path}" if o.enabled else "OPC UA off")
+    w = site.warnings if site is not None else None
+    shown.append(
+        f"warnings on site: {len(w.speakers)} speaker(s), {len(w.signals)} signal(s)"
+        if w is not None
+        else "warnings on site off"
+    )
     return shown
 
 

@@ -199,7 +199,8 @@ def _serve(
     cfg = plan.config
     if cfg.iec104.enabled:  # before any work: the extra named, not an ImportError later
         require("c104", "scada", "the IEC 60870-5-104 outstation ([iec104] enabled)")
-    logger.info("interfaces: %s", ", ".join(interfaces(cfg)))  # the command prints it too
+    shown = ", ".join(interfaces(cfg, plan.site))
+    logger.info("interfaces: %s", shown)  # the command prints it too
     for warning in disabled_settings(cfg):
         logger.warning("%s: %s", plan.config_path, warning)
     d = cfg.detector  # none in this process when the nodes detect

@@ -491,13 +491,18 @@ def test_the_site_is_retained_and_a_removed_zone_is_cleared(broker, closing) -> 
 
 
 def test_what_warns_on_site_is_retained_its_newest_only(broker, closing) -> None:
-    """`warnings` retained (onsite.warner's document): a late subscriber gets the newest one;
-    after a reconnect it is sent again."""
+    """`warnings` retained (onsite.warner's document): a subscriber follows each change, and
+    one that comes later gets the newest, retained."""
     sink = MqttSink(settings(broker.port), zone_names=["busbar"])
     closing(sink)
+    now = Subscriber(broker.port, f"{BASE}/warnings")
+    closing(now)
     first = {"warnings": [{"zone": "busbar", "person": 1, "kind": "approach"}], "t": 1.0}
     sink.set_warnings(first)
-    sink.set_warnings({"warnings": [], "t": 2.0})  # over before the first was sent, or after
+    wait_until(lambda: now.on(f"{BASE}/warnings"), "the warnings")
+    sink.set_warnings({"warnings": [], "t": 2.0})
+    wait_until(lambda: len(now.on(f"{BASE}/warnings")) == 2, "the change")
+    assert json.loads(now.on(f"{BASE}/warnings")[0]) == first
     late = Subscriber(broker.port, f"{BASE}/warnings")
     closing(late)
     wait_until(lambda: late.on(f"{BASE}/warnings"), "the retained warnings")
