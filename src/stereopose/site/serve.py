@@ -89,7 +89,7 @@ from stereopose.site.plan import (
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
 from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
-from stereopose.site.site_switch import SiteSwitch
+from stereopose.site.site_switch import Outliving, SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
@@ -363,7 +363,7 @@ def _run_loop(
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
-        incidents = _incidents(plan, service, events, rules, fences, ids, wall_start, now_t, onsite)
+        incidents = _incidents(plan, service, events, rules, ids, wall_start, now_t, onsite)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
             incidents.switch = _site_switch(service, events, cfg, on_site, onsite)
         loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
@@ -379,7 +379,6 @@ def _incidents(
     service: SiteService,
     events: ServeEvents,
     rules,
-    fences,
     ids: IncidentIds,
     wall_start: float,
     clock: Callable[[], float],
@@ -399,7 +398,7 @@ def _incidents(
         events,
         behaviour=HeldRules(rules, events) if rules is not None else None,
         zone_state=service.power,
-        monitor=fences,
+        monitor=events.fences,
         tickets=service.tickets,
         onsite=onsite,
         fences=lambda: events.fences,
@@ -407,7 +406,7 @@ def _incidents(
     step = IncidentStep(
         book,
         chain,
-        holding=fences,
+        holding=events.fences,
         outputs=service.incident_outputs,
         clock=clock,
         wall_start=wall_start,
@@ -430,10 +429,8 @@ def _site_switch(
         service.site_desk,
         events,
         cfg,
-        tickets=service.tickets,
-        zone_state=service.power,
+        kept=Outliving(service.tickets, service.power, onsite),
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
         on_site=on_site,
-        onsite=onsite,
     )

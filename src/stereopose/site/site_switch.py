@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
@@ -32,7 +33,7 @@ from stereopose.types import Event
 from stereopose.zones import Zone
 from stereopose.zones.power_state import ZoneStates
 
-__all__ = ["SiteSwitch", "site_changes"]
+__all__ = ["Outliving", "SiteSwitch", "site_changes"]
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +52,17 @@ def _zone_text(zone: Zone) -> str:
     return format_site(Site((zone,), None, None))
 
 
+@dataclass
+class Outliving:
+    """The step chain's parts that outlive a site, in each new site's chain: the tickets'
+    desk (told the new zones), the zones' states from their breakers (restarted when a
+    zone's state source changed), the warnings on site (built again by an `on_site`)."""
+
+    tickets: TicketDesk | None = None
+    zone_state: ZoneStates | None = None
+    onsite: OnSite | None = None
+
+
 class SiteSwitch:
     """See the module. restart_power(site): the service's zone-state sources made the new
     site's; returns its ZoneStates (None: no zone with a state source)."""
@@ -61,18 +73,15 @@ class SiteSwitch:
         events: ServeEvents,
         config: Config,
         *,
-        tickets: TicketDesk | None = None,
-        zone_state: ZoneStates | None = None,
+        kept: Outliving | None = None,
         restart_power: Callable[[Site], ZoneStates | None] | None = None,
         scene: SceneState | None = None,
         on_site: Sequence[Callable[[Site], None]] = (),
-        onsite: OnSite | None = None,
     ) -> None:
         self.desk, self.events, self.config = desk, events, config
-        self.tickets, self.zone_state = tickets, zone_state
+        self.kept = kept or Outliving()
         self.restart_power, self.scene = restart_power, scene
         self.on_site = list(on_site)  # told each new site (the regions' scans)
-        self.onsite = onsite  # the warnings on site: in the chain built again
 
     def __call__(self, step: IncidentStep, t: float, frame: int) -> list[Event]:
         """The events of a change taken at this step (none without one)."""
@@ -113,18 +122,19 @@ class SiteSwitch:
             new_mon.carry(old_mon)
             out += _exits(old_mon, removed, t, frame)
         self.events.fences = new_mon
-        if self.tickets is not None:
-            self.tickets.set_zones(change.new.zones)
+        kept = self.kept
+        if kept.tickets is not None:
+            kept.tickets.set_zones(change.new.zones)
         if self.restart_power is not None and _power_changed(change.old, change.new):
-            self.zone_state = self.restart_power(change.new)
+            kept.zone_state = self.restart_power(change.new)
         behaviour = behaviour_monitor(change.new, cfg)
         step.chain = step_chain(
             self.events,
             behaviour=HeldRules(behaviour, self.events) if behaviour is not None else None,
-            zone_state=self.zone_state,
+            zone_state=kept.zone_state,
             monitor=new_mon,
-            tickets=self.tickets,
-            onsite=self.onsite,
+            tickets=kept.tickets,
+            onsite=kept.onsite,
             fences=lambda: self.events.fences,
         )
         step.monitor = new_mon
