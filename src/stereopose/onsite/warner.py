@@ -189,9 +189,14 @@ class Warner:
                 self._said[name] = None
                 continue
             h = mine[0]
-            pcm = self.book.message(h.zone, h.kind, h.distance_m, h.side)
-            speaker.want((h.zone, h.kind, h.person), h.priority, pcm)
-            if self._said.get(name) is None or self._said[name].zone != h.zone:
+            before = self._said.get(name)
+            words = (h.zone, h.kind, h.person, round(h.distance_m, 1), h.side)
+            if before is None or words != (
+                before.zone, before.kind, before.person, round(before.distance_m, 1), before.side
+            ):  # fmt: skip
+                pcm = self.book.message(h.zone, h.kind, h.distance_m, h.side)
+                speaker.want((h.zone, h.kind, h.person), h.priority, pcm)
+            if before is None or before.zone != h.zone:
                 self.figures["messages"] += 1
             self._said[name] = h
         for name, signal in self.signals.items():
