@@ -16,6 +16,10 @@ def test_a_test_leaving_sigint_ignored_fails_and_the_next_one_finds_it_put_back(
         test_leaves="""
         import signal
 
+        # Python's own handler, as where SIGINT was not ignored at its start (a shell's
+        # background job starts with it ignored, and Python then leaves it so)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
         def test_ignores_ctrl_c():
             signal.signal(signal.SIGINT, signal.SIG_IGN)
 
