@@ -163,7 +163,14 @@ def test_the_service_says_which_interfaces_are_on_and_warns_of_one_left_off(tmp_
         "webhook off",
         "IEC 104 off",
         "OPC UA on opc.tcp://127.0.0.1:4840/stereopose",
+        "warnings on site off",
     ]
+    from stereopose.fence.site import parse_site
+
+    zone = {"name": "bus", "kind": "energized", "polygon": [[0, 0], [1, 0], [1, 1]], "z": [0, 2]}
+    speaker = {"name": "pa", "url": "rtp://239.1.1.1:5004", "zones": ["bus"]}
+    site = parse_site({"zones": [zone], "speakers": [speaker]})
+    assert interfaces(cfg, site)[-1] == "warnings on site: 1 speaker(s), 0 signal(s)"
     (warning,) = disabled_settings(cfg)
     assert warning.startswith("[iec104] sets host, port but not enabled = true")
     assert "set [iec104] enabled = true" in warning

@@ -13,9 +13,10 @@ wall_start + the event's t):
 - the CPU the service used, against the same run with no warnings on site (CPU seconds per
   wall second of the whole process, psutil).
 
-    python benchmarks/warnings.py [--seconds 60]
+    python benchmarks/warnings_on_site.py [--seconds 90]
 
-Results in results/warnings.{json,md}.
+Results in results/warnings_on_site.{json,md}. (Not `warnings.py`: a script's folder comes
+first on Python's path, and that name is the standard library's.)
 """
 
 from __future__ import annotations
@@ -23,11 +24,7 @@ from __future__ import annotations
 import os
 import sys
 
-# this file's name is the standard library's `warnings`: its folder goes after the library's
-# (before anything imports `warnings`; os and sys are loaded already)
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != HERE] + [HERE]
-
 import argparse
 import datetime
 import sqlite3
@@ -41,6 +38,7 @@ import numpy as np
 import psutil
 import tomllib
 
+sys.path.insert(0, HERE)
 sys.path.append(os.path.join(os.path.dirname(HERE), "tests"))
 from common import machine, save
 from modbus_device import IoModule
@@ -279,7 +277,7 @@ def main() -> None:
     r: dict = {
         "date": datetime.date.today().isoformat(),
         "machine": machine().replace("one thread", "all cores"),
-        "command": " ".join(["python benchmarks/warnings.py", *sys.argv[1:]]),
+        "command": " ".join(["python benchmarks/warnings_on_site.py", *sys.argv[1:]]),
     }
     r["cost"] = output_cost()
     print(r["cost"], flush=True)
@@ -289,7 +287,7 @@ def main() -> None:
         r["without"] = one_run(Path(tmp) / "without", args.seconds, False)
     for k in ("with", "without"):
         r[k].pop("log_tail")
-    save("warnings", r, markdown(r))
+    save("warnings_on_site", r, markdown(r))
 
 
 if __name__ == "__main__":
