@@ -103,7 +103,6 @@ class Speaker:
             "cut_in": 0,
             "send_errors": 0,
         }
-        self.first_packet_at: dict[Hashable, float] = {}  # key -> clock of its first packet
         self.sounding: Hashable | None = None  # the key of what plays now
         self._thread = threading.Thread(target=self._run, name=f"speaker {spec.name}", daemon=True)
         self._thread.start()
@@ -185,7 +184,7 @@ class Speaker:
                 chunk = playing.payload[k * SAMPLES : (k + 1) * SAMPLES]
                 first = k == 0
                 k += 1
-            self._send(chunk, first, playing.key)
+            self._send(chunk, first)
             due += PACKET_S
             sent_until = due
             with self._cond:  # paced: the next packet at its time; quiet or a cut-in at once
@@ -203,7 +202,7 @@ class Speaker:
         self.figures["messages"] += 1
         self.sounding = m.key
 
-    def _send(self, chunk: bytes, first: bool, key: Hashable) -> None:
+    def _send(self, chunk: bytes, first: bool) -> None:
         if len(chunk) < SAMPLES:  # the last packet padded with silence (0xFF mu-law, 0xD5 A)
             chunk = chunk + bytes([0xFF if self.spec.codec == "pcmu" else 0xD5]) * (
                 SAMPLES - len(chunk)
@@ -211,9 +210,5 @@ class Speaker:
         try:
             self.sock.sendto(self.rtp.packet(chunk, marker=first), self.address)
             self.figures["packets"] += 1
-            if first and key not in self.first_packet_at:
-                if len(self.first_packet_at) >= 256:  # bounded: the oldest forgotten
-                    self.first_packet_at.pop(next(iter(self.first_packet_at)))
-                self.first_packet_at[key] = self.clock()
         except OSError:
             self.figures["send_errors"] += 1

@@ -47,7 +47,8 @@ class OnSite:
         self.warner: Warner | None = None
         self._speakers: dict[str, Speaker] = {}
         self._signals: dict[str, Signal] = {}
-        self._building: threading.Thread | None = None
+        self._building = threading.Lock()  # held by the site build in progress
+        self._generation = 0  # the newest site asked for
         self._closed = False
         self.warner = self._build(site)  # at start: a bad template or recording fails here
 
@@ -94,18 +95,26 @@ class OnSite:
         self._speakers, self._signals = speakers, signals
 
     def set_site(self, site) -> None:
-        """A new site (the frame loop's thread): built on a thread of its own, then taken."""
+        """A new site (the frame loop's thread, never waiting): built on a thread of its own,
+        one build at a time, and taken unless a newer site came meanwhile."""
+        with self._lock:
+            self._generation += 1
+            generation = self._generation
 
         def build() -> None:
-            try:
-                warner = self._build(site)
-            except Exception:
-                logger.exception("warnings on site: the new site's could not be built")
-                return
-            with self._lock:
-                if self._closed:
+            with self._building:  # one at a time: the outputs are swapped by each
+                with self._lock:
+                    if self._closed or generation != self._generation:
+                        return  # a newer site's build follows
+                try:
+                    warner = self._build(site)
+                except Exception:
+                    logger.exception("warnings on site: the new site's could not be built")
                     return
-                self.warner = warner
+                with self._lock:
+                    if self._closed:
+                        return
+                    self.warner = warner
             logger.info(
                 "warnings on site: %s",
                 "none"
@@ -113,12 +122,7 @@ class OnSite:
                 else f"{len(warner.speakers)} speaker(s), {len(warner.signals)} signal(s)",
             )
 
-        with self._lock:
-            previous = self._building
-        if previous is not None:
-            previous.join()
-        self._building = threading.Thread(target=build, name="onsite site", daemon=True)
-        self._building.start()
+        threading.Thread(target=build, name="onsite site", daemon=True).start()
 
     def step(self, t: float, frame: int, people: People3D, fences: Occupancy | None) -> list[Event]:
         """The step's warnings to the outputs; the outputs' health events."""
@@ -138,8 +142,6 @@ class OnSite:
     def close(self) -> None:
         with self._lock:
             self._closed = True
-            building = self._building
-        if building is not None:
-            building.join()
-        self._swap_outputs({}, {})
+        with self._building:  # a build in progress ends first
+            self._swap_outputs({}, {})
         self.warner = None

@@ -29,6 +29,7 @@ import math
 import threading
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class Hazard:
         }
 
 
-class Occupancy:
+class Occupancy(Protocol):
     """What the warner needs of the fences (fence.rules.FenceMonitor.occupants)."""
 
     def occupants(self, zone: str) -> tuple[list, list]: ...
