@@ -48,7 +48,7 @@ def test_a_new_site_keeps_what_did_not_change_and_closes_what_went():
         wait_until(lambda: not old_tower._thread.is_alive(), "the old signal closed")
         onsite.set_site(parse_site({"zones": [BUSBAR]}))  # no warnings any more
         wait_until(lambda: onsite.warner is None, "nothing on site")
-        assert onsite.now() == {"warnings": []}
+        assert onsite.now() == {"warnings": [], "calls": [], "silenced": []}
         assert not kept._thread.is_alive()
     finally:
         onsite.close()

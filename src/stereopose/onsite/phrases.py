@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from stereopose.onsite.audio import read_wav, silence
-from stereopose.onsite.settings import KINDS, WarningSettings, check_template
+from stereopose.onsite.settings import CALLS, KINDS, WarningSettings, check_template
 from stereopose.onsite.speech import Speech
 from stereopose.zones import Zone
 
@@ -35,11 +35,15 @@ TEMPLATES = {
         "approach": "Stop. {voltage} {zone}, {distance}, {direction}.",
         "enter": "Danger! You are inside the {voltage} {zone}. Back away, now.",
         "test": "This is a test of the site warning system.",
+        "person_down": "Attention. A person is down. Go and help now.",
+        "step_wrong_position": "Stop. Wrong position for this step. Check your work ticket.",
     },
     "zh": {
         "approach": "停！{voltage}{zone}，{distance}，在你的{direction}。",
         "enter": "危险！你已进入{voltage}{zone}，立即撤离！",
         "test": "这是现场警告系统测试。",
+        "person_down": "注意！有人倒地，请立即前往救助。",
+        "step_wrong_position": "停！操作位置错误，请核对工作票。",
     },
 }
 _WORDS = {
@@ -125,7 +129,8 @@ class Phrasebook:
     def message(
         self, zone: str | None, kind: str, distance_m: float | None = None, side: str = "nearby"
     ) -> np.ndarray:
-        """The message `kind` about `zone` (None: the test message), (N,) int16 at 8 kHz."""
+        """The message `kind` about `zone` (None: a message of no zone: a test, a call),
+        (N,) int16 at 8 kHz."""
         for key in ((zone, kind), (None, kind)):
             if key in self._recorded:
                 return self._recorded[key]
@@ -159,4 +164,5 @@ class Phrasebook:
         for name in self.zones:
             for kind in ("approach", "enter"):
                 self.message(name, kind, 0.0, "nearby")
-        self.message(None, "test")
+        for kind in ("test", *CALLS):
+            self.message(None, kind)

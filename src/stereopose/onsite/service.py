@@ -4,6 +4,9 @@
     onsite = OnSite(site, safe=..., publish=mqtt.set_warnings)   # at start: rendered now
     events = onsite.step(t, frame, people, fences)               # each step (never waits)
     onsite.set_site(new_site)        # a new site: rendered on a thread, then swapped in
+    onsite.controls.silence("bay1_pa", 600, "amplifier serviced", by="alice")   # an admin's
+    onsite.test("bay1_tower", by="alice")      # a test at the next step (onsite.control)
+    onsite.outputs()                 # each speaker and signal: health, silence, what it says
     onsite.close()                   # every speaker quiet, every coil off
 
 At a new site the speakers and signals whose settings are unchanged are kept as they are (a
@@ -16,11 +19,13 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 
+from stereopose.onsite.control import ControlError, Controls
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
+from stereopose.onsite.speaker_health import SpeakerChecks
 from stereopose.onsite.speech import Speech
 from stereopose.onsite.warner import Occupancy, Warner
 from stereopose.types import Event, People3D
@@ -50,7 +55,17 @@ class OnSite:
         self._building = threading.Lock()  # held by the site build in progress
         self._generation = 0  # the newest site asked for
         self._closed = False
+        self.controls = Controls(self._names)  # an admin's silences and tests
+        self.checks = SpeakerChecks(self._speaker_health)  # speakers with a health_url
         self.warner = self._build(site)  # at start: a bad template or recording fails here
+
+    def _names(self) -> set[str]:
+        return set(self._speakers) | set(self._signals)
+
+    def _speaker_health(self, name: str, up: bool, why: str) -> None:
+        warner = self.warner
+        if warner is not None:
+            warner.on_health(name, up, why)
 
     def _build(self, site) -> Warner | None:
         """The warner of `site`: its phrasebook rendered, its speakers and signals (the
@@ -58,6 +73,7 @@ class OnSite:
         settings = getattr(site, "warnings", None) if site is not None else None
         if settings is None:
             self._swap_outputs({}, {})
+            self.checks.watch(())
             return None
         book = Phrasebook(settings, site.zones, self.speech)
         speakers = {}
@@ -82,6 +98,7 @@ class OnSite:
         warner = Warner(site.zones, settings, book, speakers, signals, self.safe, self.publish)
         holder.append(warner)
         self._swap_outputs(speakers, signals)
+        self.checks.watch(settings.speakers)
         return warner
 
     def _swap_outputs(self, speakers: dict[str, Speaker], signals: dict[str, Signal]) -> None:
@@ -124,24 +141,93 @@ class OnSite:
 
         threading.Thread(target=build, name="onsite site", daemon=True).start()
 
-    def step(self, t: float, frame: int, people: People3D, fences: Occupancy | None) -> list[Event]:
-        """The step's warnings to the outputs; the outputs' health events."""
+    def step(
+        self,
+        t: float,
+        frame: int,
+        people: People3D,
+        fences: Occupancy | None,
+        events: Sequence[Event] = (),
+    ) -> list[Event]:
+        """The step's warnings and calls (its earlier `events`) to the outputs, the silenced
+        ones left quiet; the outputs' health events and the admin's acts (onsite.control)."""
         warner = self.warner
+        silenced = self.controls.silenced()
+        tests = self.controls.take_tests()
+        acts = self.controls.take(t, frame)
         if warner is None or fences is None:
-            return []
+            return acts
         try:
-            return warner.step(t, frame, people, fences)
+            for output, _by in tests:
+                warner.test(output, t)
+            return acts + warner.step(t, frame, people, fences, events, silenced)
         except Exception:  # an output's fault never ends the service's steps
             logger.exception("warnings on site: a step failed")
-            return []
+            return acts
+
+    def test(self, output: str, by: str) -> None:
+        """`output` tested at the next step (onsite.control); ControlError 409 while it warns
+        or is silenced, 404 when there is no such output."""
+        warner = self.warner
+        if output in self.controls.silenced():
+            raise ControlError(f"{output!r} is silenced: lift the silence to test it", 409)
+        if warner is not None and warner.sounding(output):
+            raise ControlError(f"{output!r} is warning now: not tested", 409)
+        self.controls.test(output, by)
+
+    def outputs(self) -> list[dict]:
+        """Each speaker and signal: its kind, zones, health ("up", "down", "unknown", "not
+        verifiable"), its silence (None) and what it gives now."""
+        silenced = self.controls.silenced()
+        now = self.now()
+        out = []
+        for name, sp in self._speakers.items():
+            out.append(
+                {
+                    "name": name,
+                    "type": "speaker",
+                    "url": sp.spec.url,
+                    "zones": list(sp.spec.zones),
+                    "position": list(sp.spec.position) if sp.spec.position else None,
+                    "health": self.checks.state(name),
+                    "silenced": silenced[name].as_dict() if name in silenced else None,
+                    "sounding": _giving(now, name, "speakers"),
+                }
+            )
+        for name, g in self._signals.items():
+            out.append(
+                {
+                    "name": name,
+                    "type": "signal",
+                    "url": f"modbus://{g.spec.host}:{g.spec.port}/{g.spec.unit}",
+                    "zones": list(g.spec.zones),
+                    "position": list(g.spec.position) if g.spec.position else None,
+                    "health": "unknown" if g.up is None else "up" if g.up else "down",
+                    "silenced": silenced[name].as_dict() if name in silenced else None,
+                    "sounding": _giving(now, name, "signals"),
+                }
+            )
+        return out
 
     def now(self) -> dict:
         warner = self.warner
-        return {"warnings": []} if warner is None else warner.now()
+        doc = {"warnings": [], "calls": []} if warner is None else warner.now()
+        doc["silenced"] = [s.as_dict() for s in self.controls.silenced().values()]
+        return doc
 
     def close(self) -> None:
         with self._lock:
             self._closed = True
         with self._building:  # a build in progress ends first
             self._swap_outputs({}, {})
+        self.checks.close()
         self.warner = None
+
+
+def _giving(now: dict, name: str, where: str) -> list[dict]:
+    """What output `name` gives now: the hazards and calls of `now` naming it in `where`."""
+    return [
+        {k: v for k, v in item.items() if k not in ("speakers", "signals")}
+        for item in (*now.get("warnings", ()), *now.get("calls", ()))
+        if name in item.get(where, ())
+    ]

@@ -5,6 +5,7 @@
     language = "en"                       # en | zh (Mandarin): the spoken messages' language
     repeat_s = 4.0                        # a lasting hazard's message said again this often
     priorities = [1, 2]                   # energized-zone alarms of these priorities warn
+    calls = ["person_down", "step_wrong_position"]   # the other alarms said on site
     templates = { approach = "Stop. {voltage} {zone}, {distance}, {direction}." }
     recordings = { test = "test.wav" }    # the site's own WAV for a message (KIND or ZONE.KIND)
 
@@ -46,6 +47,7 @@ from stereopose.errors import ConfigError
 from stereopose.onsite.audio import CODECS, read_wav
 
 __all__ = [
+    "CALLS",
     "KINDS",
     "LANGUAGES",
     "PLACEHOLDERS",
@@ -59,7 +61,9 @@ __all__ = [
 
 # the site's language -> eSpeak NG's voice (onsite.speech)
 LANGUAGES = {"en": "en", "zh": "cmn"}
-KINDS = ("approach", "enter", "test")
+# the events, other than an energized zone's, called on site by default (onsite.calls)
+CALLS = ("person_down", "step_wrong_position")
+KINDS = ("approach", "enter", "test", *CALLS)
 PLACEHOLDERS = (
     "zone",
     "voltage",
@@ -70,7 +74,7 @@ DEFAULT_REPEAT_S = 4.0
 MAX_OUTPUTS = 64  # speakers or signals on one site
 MAX_COIL = 65535
 
-_WARNING_KEYS = {"language", "repeat_s", "priorities", "templates", "recordings"}
+_WARNING_KEYS = {"language", "repeat_s", "priorities", "calls", "templates", "recordings"}
 _SPEAKER_KEYS = {"name", "url", "codec", "zones", "ttl", "health_url", "position"}
 _SIGNAL_KEYS = {"name", "host", "port", "unit", "coils", "zones", "priorities", "position"}
 
@@ -120,6 +124,7 @@ class WarningSettings:
     language: str = "en"
     repeat_s: float = DEFAULT_REPEAT_S
     priorities: tuple[int, ...] = (CRITICAL, HIGH)
+    calls: tuple[str, ...] = CALLS
     templates: tuple[tuple[str, str], ...] = ()
     recordings: tuple[tuple[str, str], ...] = ()
     speakers: tuple[SpeakerSpec, ...] = ()
@@ -253,6 +258,17 @@ def _signal(name: str, s: Mapping, zones: Sequence[str]) -> SignalSpec:
     )
 
 
+def _calls(value: object) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"[warnings] calls: expected a list of event types, got {value!r}")
+    bad = [v for v in value if v not in CALLS]
+    if bad:
+        raise ConfigError(
+            f"[warnings] calls: unknown {', '.join(map(repr, bad))}; known: {', '.join(CALLS)}"
+        )
+    return tuple(dict.fromkeys(value))
+
+
 def _strings(value: object, what: str, keys: Sequence[str] | None) -> tuple[tuple[str, str], ...]:
     if not isinstance(value, dict) or not all(
         isinstance(k, str) and isinstance(v, str) and v for k, v in value.items()
@@ -309,6 +325,7 @@ def parse_warnings(
         "priorities": _priorities(w["priorities"], "[warnings] priorities")
         if "priorities" in w
         else (CRITICAL, HIGH),
+        "calls": _calls(w["calls"]) if "calls" in w else CALLS,
         "templates": _strings(w["templates"], "[warnings] templates", KINDS)
         if "templates" in w
         else (),
@@ -362,6 +379,8 @@ def format_warnings(w: WarningSettings | None) -> list[str]:
         lines.append(f"repeat_s = {w.repeat_s!r}")
     if w.priorities != (CRITICAL, HIGH):
         lines.append(f"priorities = {list(w.priorities)}")
+    if w.calls != CALLS:
+        lines.append(f"calls = {_toml(w.calls)}")
     for key, table in (("templates", w.templates), ("recordings", w.recordings)):
         if table:
             lines.append(f"{key} = {_toml(dict(table))}")

@@ -34,10 +34,12 @@ from typing import Protocol
 import numpy as np
 
 from stereopose.alarms.priority import default_priority
+from stereopose.onsite.audio import RATE
+from stereopose.onsite.calls import TEST_PRIORITY, Call, Calls
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
-from stereopose.onsite.settings import WarningSettings
+from stereopose.onsite.settings import CALLS, WarningSettings
 from stereopose.skeleton import floor_position, heading_deg
 from stereopose.types import Event, People3D
 from stereopose.zones import Zone, ZoneGeometry
@@ -45,6 +47,7 @@ from stereopose.zones import Zone, ZoneGeometry
 __all__ = ["Hazard", "Warner", "side_of"]
 
 AHEAD_DEG = 45.0  # within this of the way he faces: ahead (beyond 180 - this: behind)
+PULSE_S = 3.0  # a signal's test: its coils on this long
 SERVICE_KIND = "service"
 
 
@@ -69,6 +72,17 @@ class Hazard:
             "distance_m": round(self.distance_m, 2),
             "side": self.side,
         }
+
+
+@dataclass(frozen=True)
+class _Said:
+    """What a speaker says: its message's key and priority, the words it is made of (new
+    words: the message again), and the hazard or call it tells."""
+
+    key: tuple
+    priority: int
+    words: tuple
+    item: Hazard | Call
 
 
 class Occupancy(Protocol):
@@ -123,7 +137,12 @@ class Warner:
         self._lock = threading.Lock()
         self._health: list[tuple[str, bool, str]] = []  # from the signals' threads
         self._now: list[Hazard] = []
-        self._said: dict[str, Hazard | None] = dict.fromkeys(self.speakers)
+        self._said: dict[str, _Said | None] = dict.fromkeys(self.speakers)
+        self.calls = Calls(settings, zones)
+        self._calls_now: list[Call] = []
+        self._silenced: frozenset[str] = frozenset()
+        # how long a one-off call takes to say: its longest message, and a breath
+        self._one_off_s = max(len(book.message(None, k)) for k in CALLS) / RATE + 0.1
         self._coils: dict[str, bool] = dict.fromkeys(self.signals, False)
         self._last_doc: str | None = None
         self.figures = {"hazards": 0, "messages": 0, "publish_failures": 0}
@@ -177,50 +196,101 @@ class Warner:
             side = side_of(toward, float(headings[r]))
         return Hazard(zone.name, int(people.ids[r]), kind, int(priority), d, side)
 
-    def step(self, t: float, frame: int, people: People3D, fences: Occupancy) -> list[Event]:
-        """This step's hazards to the speakers and signals; the signals' health events."""
+    def step(
+        self,
+        t: float,
+        frame: int,
+        people: People3D,
+        fences: Occupancy,
+        events: Sequence[Event] = (),
+        silenced: Collection[str] = (),
+    ) -> list[Event]:
+        """This step's hazards and calls (the step's earlier `events`: a person down, a step
+        in the wrong position; the admin's tests) to the speakers and signals, except those
+        `silenced`; the outputs' health events."""
         hazards = self.hazards(people, fences)
         self._now = hazards
         self.figures["hazards"] += len(hazards)
+        self.calls.take(t, events, people, self._one_off_s)
+        calls = self.calls.now(t)
+        self._calls_now = calls
+        self._silenced = frozenset(silenced)
         for name, speaker in self.speakers.items():
-            mine = [h for h in hazards if h.zone in speaker.spec.zones]
-            if not mine:
-                if self._said.get(name) is not None:
-                    speaker.quiet()
-                self._said[name] = None
-                continue
-            h = mine[0]
+            said = None if name in self._silenced else self._choose(name, hazards, calls)
             before = self._said.get(name)
-            words = (h.zone, h.kind, h.person, round(h.distance_m, 1), h.side)
-            if before is None or words != (
-                before.zone, before.kind, before.person, round(before.distance_m, 1), before.side
-            ):  # fmt: skip
-                pcm = self.book.message(h.zone, h.kind, h.distance_m, h.side)
-                speaker.want((h.zone, h.kind, h.person), h.priority, pcm)
-            if before is None or before.zone != h.zone:
+            self._said[name] = said
+            if said is None:
+                if before is not None:
+                    speaker.quiet()
+                continue
+            if before is None or said.words != before.words:
+                speaker.want(said.key, said.priority, self._message(said.item))
+            if before is None or before.key != said.key:
                 self.figures["messages"] += 1
-            self._said[name] = h
         for name, signal in self.signals.items():
             spec = signal.spec
-            on = any(h.zone in spec.zones and h.priority in spec.priorities for h in hazards)
+            on = name not in self._silenced and (
+                any(h.zone in spec.zones and h.priority in spec.priorities for h in hazards)
+                or any(name in c.signals for c in calls)
+            )
             self._coils[name] = on
             signal.want(signal.coils if on else ())
         self._tell(t)
         return self._health_events(t, frame)
 
+    def _choose(self, name: str, hazards: list[Hazard], calls: list[Call]) -> _Said | None:
+        """What speaker `name` says now: the most urgent of its zones' hazards (then the
+        nearest) and its calls, a hazard before a call of the same priority."""
+        zones = self.speakers[name].spec.zones
+        h = next((h for h in hazards if h.zone in zones), None)
+        c = next((c for c in calls if name in c.speakers), None)
+        if h is not None and (c is None or h.priority <= c.priority):
+            words = (h.zone, h.kind, h.person, round(h.distance_m, 1), h.side)
+            return _Said((h.zone, h.kind, h.person), h.priority, words, h)
+        if c is not None:
+            return _Said(c.key, c.priority, c.key, c)
+        return None
+
+    def _message(self, item: Hazard | Call) -> np.ndarray:
+        if isinstance(item, Hazard):
+            return self.book.message(item.zone, item.kind, item.distance_m, item.side)
+        return self.book.message(None, item.kind)
+
+    def test(self, output: str, t: float) -> None:
+        """A test of speaker or signal `output` at this step's time `t` (see onsite.calls):
+        a speaker says the test message once, a signal's coils pulse for PULSE_S."""
+        if output in self.speakers:
+            self.calls.test(output, t, True, len(self.book.message(None, "test")) / RATE + 0.1)
+        elif output in self.signals:
+            self.calls.test(output, t, False, PULSE_S)
+
+    def sounding(self, output: str) -> bool:
+        """Whether `output` warns or calls now (a test is refused meanwhile)."""
+        said = self._said.get(output)
+        return (said is not None and said.priority < TEST_PRIORITY) or (
+            self._coils.get(output, False) and not any(output in c.signals for c in self._calls_now)
+        )
+
     def now(self) -> dict:
-        """What warns on site now: each hazard with the speakers and signals that give it."""
+        """What warns on site now: each hazard and call with the speakers and signals that
+        give it."""
         out = []
         for h in self._now:
             d = h.as_dict()
-            d["speakers"] = [n for n, s in self._said.items() if s == h]
+            d["speakers"] = [n for n, s in self._said.items() if s is not None and s.item == h]
             d["signals"] = [
                 n
                 for n, g in self.signals.items()
                 if self._coils.get(n) and h.zone in g.spec.zones and h.priority in g.spec.priorities
             ]
             out.append(d)
-        return {"warnings": out}
+        calls = []
+        for c in self._calls_now:
+            d = c.as_dict()
+            d["speakers"] = [n for n, s in self._said.items() if s is not None and s.item is c]
+            d["signals"] = [n for n in c.signals if self._coils.get(n)]
+            calls.append(d)
+        return {"warnings": out, "calls": calls}
 
     def _tell(self, t: float) -> None:
         if self.publish is None:

@@ -14,7 +14,7 @@ step boundary by building the chain again.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 from stereopose.fence.rules import FenceMonitor
@@ -40,12 +40,13 @@ __all__ = [
 @dataclass
 class StepContext:
     """What a step's rules share: its time, frame and people; the postures once the behaviour
-    rule has classified them (None: no posture rules)."""
+    rule has classified them (None: no posture rules); the events of the rules before."""
 
     t: float
     frame: int
     people: People3D
     postures: dict | None = None
+    events: list[Event] = field(default_factory=list)
 
 
 class StepRule(Protocol):
@@ -137,14 +138,16 @@ class OnSite(Protocol):
 
 
 class OnSiteRule:
-    """The warnings on site (speakers, beacons) from the fences' state at this step; their
-    devices' health events. Last: the zones' states and the tickets are known by then."""
+    """The warnings on site (speakers, beacons) from the fences' state at this step, and the
+    calls of the events before it (a person down, a ticket's step in the wrong position);
+    their devices' health events and the admin's acts. Last: the zones' states and the tickets
+    are known by then."""
 
     def __init__(self, onsite: OnSite, fences: Callable[[], FenceMonitor | None]) -> None:
         self.onsite, self.fences = onsite, fences
 
     def step(self, ctx: StepContext) -> list[Event]:
-        return list(self.onsite.step(ctx.t, ctx.frame, ctx.people, self.fences()))
+        return list(self.onsite.step(ctx.t, ctx.frame, ctx.people, self.fences(), ctx.events))
 
 
 class StepChain:
@@ -158,7 +161,7 @@ class StepChain:
         """The step's events, every rule's in order, each safe zone's made information; the
         postures."""
         ctx = StepContext(float(t), int(frame), people)
-        events: list[Event] = []
+        events = ctx.events  # each rule's added: the rules after it see them
         for rule in self.rules:
             events += rule.step(ctx)
         return made_safe(events, [r.safe_now() for r in self._safety]), ctx.postures
