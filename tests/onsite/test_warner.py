@@ -11,13 +11,14 @@ from modbus_device import IoModule
 from rtp_listener import Listener
 from stereopose.fence import FenceMonitor
 from stereopose.fence.site import parse_site
+from stereopose.onsite.calls import near
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
 from stereopose.onsite.speech import Speech
 from stereopose.onsite.warner import Warner, side_of
 from stereopose.skeleton import JOINTS
-from stereopose.types import People3D
+from stereopose.types import Event, People3D
 from waiting import wait_until
 
 BUSBAR = {  # west of the origin, a hand's height up
@@ -211,3 +212,114 @@ def test_a_signal_down_is_an_event_once_and_back_again(rig):
         timeout_s=10,
     )
     assert events[-1].type == "warning_output_back"
+
+
+# --- calls, silences and tests ------------------------------------------------------------------
+
+
+def _event(type_: str, person: int, t: float, **more) -> Event:
+    kind = "ticket" if type_.startswith("step_") else "behaviour"
+    more.setdefault("zone", "")
+    return Event(t=t, frame=0, person=person, kind=kind, type=type_, onset_t=t, **more)
+
+
+def test_a_silenced_speaker_and_signal_stay_quiet_while_the_other_speakers_warn(rig):
+    near = worker(1, 0.0, 0.0, 90.0, hand=(-1.2, 0.0, 1.3))
+    p = people(0, near)
+    for _ in range(4):
+        p = people(rig.frame, near)
+        rig.fences.update(p)
+        rig.warner.step(p.t, rig.frame, p, rig.fences, silenced={"pa_busbar", "tower"})
+        rig.frame += 1
+    assert rig.warner.hazards(p, rig.fences)  # the hazard is there: only its outputs are silent
+    assert rig.speakers["pa_busbar"].figures["messages"] == 0
+    assert rig.module.coils(0, 2) == [False, False]
+    assert rig.warner.now()["warnings"][0]["speakers"] == []
+    rig.step(near)  # the silence over: said and lit at once
+    wait_until(lambda: rig.speakers["pa_busbar"].figures["packets"] > 5, "the busbar's page")
+    wait_until(lambda: rig.module.coils(0, 2) == [True, True], "its beacon and siren on")
+
+
+def test_a_test_says_the_test_message_once_and_pulses_a_signal():
+    r = Rig(site_extra={"warnings": {"repeat_s": 30.0}})
+    ear = r.ears["pa_panel"]
+    try:
+        idle = worker(1, 0.0, 0.0, 90.0)
+        r.warner.test("pa_panel", 0.0)
+        r.warner.test("tower", 0.0)
+        r.step(idle)
+        assert r.warner.sounding("pa_panel") is False  # a test is no warning: others may come
+        wait_until(lambda: r.module.coils(0, 2) == [True, True], "the tower pulsed")
+        wait_until(lambda: r.speakers["pa_panel"].figures["messages"] == 1, "the test said")
+        wait_until(lambda: r.speakers["pa_panel"].sounding is None, "the test's end")
+        test = r.warner.book.message(None, "test")
+        ear.take(lambda: len(ear.packets) >= -(-len(test) // 160))
+        assert len(ear.packets) == -(-len(test) // 160)  # once, whole
+        assert r.speakers["pa_busbar"].figures["packets"] == 0
+        while r.frame * 0.05 < 3.2:  # past the pulse's 3 s on the step's clock
+            r.step(idle)
+        wait_until(lambda: r.module.coils(0, 2) == [False, False], "the pulse's end")
+        assert r.speakers["pa_panel"].figures["messages"] == 1
+    finally:
+        r.close()
+
+
+def test_a_person_down_is_called_until_he_is_up_and_a_p1_cuts_into_a_p3(rig):
+    idle = worker(1, 0.0, 0.0, 90.0)
+    # a step done in the wrong position at the busbar (P3): said on the busbar's speaker
+    wrong = _event("step_wrong_position", 1, 0.0, ticket="T1", step="rack_out", zone="busbar")
+    p = people(rig.frame, idle)
+    rig.fences.update(p)
+    rig.warner.step(p.t, rig.frame, p, rig.fences, events=[wrong])
+    rig.frame += 1
+    speaker = rig.speakers["pa_busbar"]
+    wait_until(lambda: speaker.sounding == ("step_wrong_position", "T1", "rack_out"), "P3")
+    assert rig.speakers["pa_panel"].figures["messages"] == 0
+    assert rig.warner.now()["calls"][0]["priority"] == 3
+    # a hand inside the busbar (P1) cuts into it at the next packet
+    inside = worker(1, -1.2, 0.0, 180.0, hand=(-1.8, 0.0, 1.5))
+    for _ in range(4):
+        rig.step(inside)
+    wait_until(lambda: speaker.sounding == ("busbar", "enter", 1), "the P1 cut in")
+    assert speaker.figures["cut_in"] >= 1
+    # a person down: a call for help (P1) on every speaker (none hung near him: all)
+    down = _event("person_down", 2, rig.frame * 0.05, position=(5.5, 4.0))
+    fallen = worker(2, 5.5, 4.0, 0.0)
+    p = people(rig.frame, idle, fallen)
+    rig.fences.update(p)
+    rig.warner.step(p.t, rig.frame, p, rig.fences, events=[down])
+    rig.frame += 1
+    panel = rig.speakers["pa_panel"]
+    wait_until(lambda: panel.sounding == ("person_down", 2), "the call for help")
+    calls = [(c["kind"], c["person"], c["priority"]) for c in rig.warner.now()["calls"]]
+    assert calls == [("person_down", 2, 1), ("step_wrong_position", 1, 3)]  # the P3 not said yet
+    up = _event("person_up", 2, rig.frame * 0.05)
+    p = people(rig.frame, idle, fallen)
+    rig.fences.update(p)
+    rig.warner.step(p.t, rig.frame, p, rig.fences, events=[up])
+    assert [c["kind"] for c in rig.warner.now()["calls"]] == ["step_wrong_position"]
+    wait_until(lambda: panel.sounding is None, "the call ended")
+
+
+def test_the_speakers_near_a_place():
+    specs = parse_site(
+        {
+            "zones": [BUSBAR, PANEL],
+            "speakers": [
+                {
+                    "name": "hung",
+                    "url": "rtp://127.0.0.1:5004",
+                    "zones": ["panel"],
+                    "position": [40.0, 40.0],
+                },
+                {"name": "west", "url": "rtp://127.0.0.1:5006", "zones": ["busbar"]},
+                {"name": "east", "url": "rtp://127.0.0.1:5008", "zones": ["panel"]},
+            ],
+        }
+    )
+    zones, speakers = specs.zones, specs.warnings.speakers
+    assert near((41.0, 40.0), speakers, zones) == {"hung"}  # hung 1 m away
+    assert near((-15.0, 0.0), speakers, zones) == {"west"}  # the busbar 13 m, the panel 21
+    assert near((0.0, 0.0), speakers, zones) == {"hung", "west", "east"}  # both zones near
+    assert near((500.0, 0.0), speakers, zones) == {"hung", "west", "east"}  # nobody near: all
+    assert near(None, speakers, zones) == {"hung", "west", "east"}

@@ -12,6 +12,8 @@ hazard an event concerns is its key (`hazard_key`):
     ("service",)                      service_stalled / service_resumed
     ("warning_output", name)          warning_output_down / warning_output_back (a speaker or
                                       a signal on site, onsite.warner; its name in `source`)
+    ("silenced", name)                warning_output_silenced / warning_output_unsilenced (an
+                                      admin silenced it for a time, onsite.control)
     ("ticket", ticket, step)          a step's deviation (out of order, wrong position,
                                       timeout), cleared when the step is done
     ("ticket", ticket, "supervisor")  supervisor_absent / supervisor_back
@@ -69,6 +71,7 @@ DIAGNOSTIC_ENDS = {
     "service_stalled": "service_resumed",
     "site_invalid": "site_valid",  # the site file (SIGHUP) does not load; loads again
     "warning_output_down": "warning_output_back",  # a beacon's or a speaker's device on site
+    "warning_output_silenced": "warning_output_unsilenced",  # by an admin, for a time
 }
 # a ticket's deviations (stereopose.tickets.monitor); the supervisor's and the lone worker's end
 TICKET_ENDS = {"supervisor_absent": "supervisor_back", "lone_in_room": "lone_in_room_end"}
@@ -84,14 +87,17 @@ _ALARM_TYPES = (
     | BEHAVIOUR_ALARMS
     | TICKET_ALARMS
 )
-_WARNING_TYPES = frozenset({"dwell", "left_work_area", "calibration_drift"})
+_WARNING_TYPES = frozenset(
+    {"dwell", "left_work_area", "calibration_drift", "warning_output_silenced"}
+)
 _ENDS = frozenset(BEHAVIOUR_ENDS.values()) | frozenset(DIAGNOSTIC_ENDS.values())
 
 
 def level(kind: str, type_: str) -> Level:
     """alarm: entering or approaching an energized zone, a camera down, the service stalled,
     a behaviour alarm (person_down, lone_worker, work_position, immobile, overreach);
-    warning: dwell, leaving the work area, calibration drift, entering a restricted zone;
+    warning: dwell, leaving the work area, calibration drift, entering a restricted zone, a
+    warning output silenced by an admin;
     info: the rest (exits, the ends of conditions, entering a work area)."""
     if (kind == "energized" and type_ in ("enter", "approach")) or type_ in _ALARM_TYPES:
         return ALARM
@@ -121,6 +127,8 @@ def hazard_key(event: Event) -> HazardKey | None:
         return ("site",)
     if t in ("warning_output_down", "warning_output_back"):
         return ("warning_output", event.source or "")
+    if t in ("warning_output_silenced", "warning_output_unsilenced"):
+        return ("silenced", event.source or "")
     if t in POWER_TYPES:
         return ("power", event.zone)
     if t in ("enter", "approach", "dwell", "exit") and event.zone:

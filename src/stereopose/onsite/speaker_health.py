@@ -13,11 +13,13 @@ it answers again (as onsite.modbus's signals). Its password never reaches a log 
 
 from __future__ import annotations
 
+import base64
 import logging
 import threading
 import urllib.error
 import urllib.request
 from collections.abc import Callable, Sequence
+from urllib.parse import unquote, urlsplit, urlunsplit
 
 from stereopose.onsite.settings import SpeakerSpec
 from stereopose.secrets import redact
@@ -30,10 +32,23 @@ CHECK_S = 10.0
 TIMEOUT_S = 2.0
 
 
+def _request(url: str) -> urllib.request.Request:
+    """A GET of `url`, its user:password@ (if any) sent as HTTP basic authentication."""
+    parts = urlsplit(url)
+    if parts.username is None:
+        return urllib.request.Request(url)
+    host = parts.hostname or ""
+    netloc = (f"[{host}]" if ":" in host else host) + (f":{parts.port}" if parts.port else "")
+    login = f"{unquote(parts.username)}:{unquote(parts.password or '')}"
+    request = urllib.request.Request(urlunsplit(parts._replace(netloc=netloc)))
+    request.add_header("Authorization", "Basic " + base64.b64encode(login.encode()).decode())
+    return request
+
+
 def _ask(url: str, timeout_s: float) -> str:
     """'' when `url` answers 2xx; else why not."""
     try:
-        with urllib.request.urlopen(url, timeout=timeout_s) as r:
+        with urllib.request.urlopen(_request(url), timeout=timeout_s) as r:
             return "" if 200 <= r.status < 300 else f"answered HTTP {r.status}"
     except urllib.error.HTTPError as e:
         return f"answered HTTP {e.code}"

@@ -371,6 +371,7 @@ def _run_loop(
     finally:
         ids.close()
         if onsite is not None:
+            service.warnings.onsite = None
             onsite.close()  # every speaker quiet, every coil off
 
 

@@ -30,6 +30,7 @@ from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watchdog import Watchdog
 from stereopose.site.http.api.health import health_of
+from stereopose.site.http.api.warnings import WarningsDesk
 from stereopose.site.http.app import Desks, create_app
 from stereopose.site.http.hosts import allowed_hosts
 from stereopose.site.http.server import Server
@@ -108,6 +109,7 @@ class SiteService:
         if site is not None and site.path is not None:
             self.site_desk = SiteDesk(site.path, site, history, self._check_site, plan.rig)
         self.keeper = None  # site.health.calib_keeper, once the frame loop starts
+        self.warnings = WarningsDesk()  # the API's way to the warnings on site, once built
         self.calibration_desk = KeeperDesk()  # the API's way to it
         if self.packets:
             self.probes["full_streams"] = lambda: {
@@ -128,7 +130,9 @@ class SiteService:
             self.state,
             console=self.console,
             allowed_hosts=hosts,
-            desks=Desks(self.desk, self.tickets, self.calibration_desk, self.site_desk),
+            desks=Desks(
+                self.desk, self.tickets, self.calibration_desk, self.site_desk, self.warnings
+            ),
         )
         self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"

@@ -48,6 +48,7 @@ def onsite_warnings(plan: ServePlan, service: SiteService, sinks: list) -> OnSit
         return out
 
     onsite = OnSite(plan.site, safe=safe, publish=mqtt.set_warnings if mqtt else None)
+    service.warnings.onsite = onsite  # the API's: what sounds, silences and tests
     if onsite.warner is not None:
         w = onsite.warner
         speakers, signals = len(w.speakers), len(w.signals)

@@ -107,6 +107,7 @@ def create_app(
     app.state.tickets = tickets
     app.state.calibration = calibration
     app.state.site = site
+    app.state.warnings = desks.warnings
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
     app.add_exception_handler(Exception, _internal_error)
     error_answers.add_handlers(app)
@@ -118,6 +119,7 @@ def create_app(
     from stereopose.site.http.api import calibration as calib_api
     from stereopose.site.http.api import incidents, replay, tickets
     from stereopose.site.http.api import site as site_api
+    from stereopose.site.http.api import warnings as warnings_api
 
     routers = (
         auth,
@@ -133,6 +135,7 @@ def create_app(
         users,
         calib_api,
         site_api,
+        warnings_api,
     )
     for router in routers:
         app.include_router(router.router)

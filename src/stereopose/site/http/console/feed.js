@@ -23,6 +23,11 @@ const TYPE_TEXT = {
   lone_worker: "alone",
   work_position: "out of work position",
   service_stalled: "service stalled",
+  warning_output_down: "warning output down",
+  warning_output_back: "warning output back",
+  warning_output_silenced: "warning output silenced",
+  warning_output_unsilenced: "warning output sounding again",
+  warning_output_test: "warning output tested",
 };
 
 export const PRIORITY_NAMES = { 1: "critical", 2: "high", 3: "medium", 4: "low" };
