@@ -62,12 +62,14 @@ class Desks:
     (stereopose.tickets.TicketDesk; None: no site, the tickets API answers 503); calibration:
     the calibration keeper's desk (site.health.calib_keeper.KeeperDesk; None: the calibration
     API answers that it is not running); site: the running site's desk (site.site_desk.
-    SiteDesk; None: the site API answers 503)."""
+    SiteDesk; None: the site API answers 503); warnings: the warnings on site's desk
+    (site.http.api.warnings.WarningsDesk; None: the warnings API answers 503)."""
 
     incidents: IncidentDesk | None = None
     tickets: TicketDesk | None = None
     calibration: object | None = None
     site: object | None = None
+    warnings: object | None = None
 
 
 def create_app(
