@@ -91,6 +91,16 @@ export const shelveIncident = (id, reason, durationS) => call(
   { method: "POST", body: { reason, duration_s: durationS } },
 );
 export const alarmRates = () => call("/api/alarm-rates");
+export const warnings = () => call("/api/warnings");
+export const silenceOutput = (name, minutes, reason) => call(
+  `/api/warnings/${encodeURIComponent(name)}/silence`, { method: "POST", body: { minutes, reason } },
+);
+export const unsilenceOutput = (name) => call(
+  `/api/warnings/${encodeURIComponent(name)}/silence`, { method: "DELETE" },
+);
+export const testOutput = (name) => call(
+  `/api/warnings/${encodeURIComponent(name)}/test`, { method: "POST" },
+);
 export const calibration = () => call("/api/calibration");
 export const acceptPose = (camera) => call(
   `/api/calibration/${encodeURIComponent(camera)}/accept`, { method: "POST" },

@@ -6,6 +6,7 @@ import { CameraStrip } from "./cameras.js";
 import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
+import { OnSitePanel } from "./onsite.js";
 import { Replay } from "./replay.js";
 import { SiteEditor } from "./site.js";
 import { Tickets } from "./tickets.js";
@@ -13,6 +14,7 @@ import { View3D } from "./view3d.js";
 
 const byId = (id) => document.getElementById(id);
 const RATES_MS = 10_000;
+const ONSITE_MS = 2_000; // what sounds on site: asked this often
 
 function insidePolygon([x, y], polygon) {
   let inside = false;
@@ -45,6 +47,7 @@ class Console {
     this.history = new History(this.replay);
     this.tickets = new Tickets(this.replay);
     this.site = new SiteEditor();
+    this.onsite = new OnSitePanel(byId("onsite"));
     this.feed = new Feed({
       list: byId("feed"), banner: byId("alarm-banner"), bannerText: byId("alarm-text"),
       bannerAck: byId("alarm-ack"), bannerAckAll: byId("alarm-ack-all"), counter: byId("alarm-count"), mute: byId("mute"),
@@ -52,6 +55,7 @@ class Console {
     });
     this.feed.onRaised = (rec) => this.onRaised(rec);
     this.ratesTimer = null;
+    this.onsiteTimer = null;
     this.live = new api.Live({
       people: (body) => this.onPeople(body),
       event: (e) => this.feed.add(e),
@@ -97,6 +101,7 @@ class Console {
     this.live.stop();
     clearInterval(this.staleTimer);
     clearInterval(this.ratesTimer);
+    clearInterval(this.onsiteTimer);
     this.strip.show(false);
     this.strip.closeLarge();
     this.view3d.show(false);
@@ -136,9 +141,11 @@ class Console {
     // nothing more asked with this session: the pictures in flight are let land first
     this.live.stop();
     clearInterval(this.ratesTimer);
+    clearInterval(this.onsiteTimer);
     this.strip.show(false);
     await this.strip.idle();
     await this.ratesPending;
+    await this.onsite.pending;
     try {
       await api.logout();
     } catch {
@@ -154,6 +161,7 @@ class Console {
     this.feed.setRole(user.role);
     this.tickets.setRole(user.role);
     this.site.setRole(user.role);
+    this.onsite.setRole(user.role);
     byId("login").hidden = true;
     byId("console").hidden = false;
     this.live.start();
@@ -162,6 +170,9 @@ class Console {
     this.staleTimer = setInterval(() => this.checkStale(), 1000);
     clearInterval(this.ratesTimer);
     this.ratesTimer = setInterval(() => { this.showRates(); this.showCalibration(); }, RATES_MS);
+    clearInterval(this.onsiteTimer);
+    this.onsiteTimer = setInterval(() => this.onsite.refresh(), ONSITE_MS);
+    this.onsite.refresh();
     this.strip.onAccept = (camera) => this.acceptPose(camera);
     this.showCalibration();
     try {
