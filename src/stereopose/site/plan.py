@@ -27,6 +27,7 @@ from stereopose.config_refs import (
 from stereopose.errors import CalibrationError, ConfigError
 from stereopose.fence import Site, load_site
 from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB, POSES_DIR, STATUS
+from stereopose.io.packets import PacketRing
 from stereopose.io.sinks.clips import ClipSettings
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.sinks.segments import SegmentSettings
@@ -293,3 +294,19 @@ def disabled_settings(cfg: Config) -> list[str]:
                 f"off; set [{section}] enabled = true to turn it on"
             )
     return out
+
+
+def packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
+    """Per live camera with a live detection substream, the ring its full stream is kept in
+    (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
+    clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
+    cfg = plan.config
+    if cfg.input.full_streams != "copy" or cfg.input.detection == "nodes":
+        return {}
+    s = plan.clips or ClipSettings()
+    keep_s = s.clip_pre_s + s.clip_post_s + 5.0
+    return {
+        name: PacketRing(keep_s, s.clip_buffer_bytes)
+        for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources, strict=True)
+        if sub and is_stream(str(src)) and is_stream(str(sub))
+    }

@@ -370,9 +370,6 @@ def _run_loop(
         return loop.run()
     finally:
         ids.close()
-        if onsite is not None:
-            service.warnings.onsite = None
-            onsite.close()  # every speaker quiet, every coil off
 
 
 def _incidents(

@@ -15,13 +15,10 @@ from typing import TYPE_CHECKING
 from stereopose.config import Config
 from stereopose.detection.regional import RegionDetector
 from stereopose.fence import Site
-from stereopose.io.packets import PacketRing
 from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import Guarded, Sink
-from stereopose.io.sinks.clips import ClipSettings
 from stereopose.io.sinks.health import AlarmOutput
 from stereopose.io.summary import RunSummary
-from stereopose.io.video import is_stream
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import source_label
 from stereopose.site.desk import IncidentDesk
@@ -41,9 +38,7 @@ from stereopose.site.parts import (
     StatusSink,
     output_health,
 )
-from stereopose.site.plan import (
-    ServePlan,
-)
+from stereopose.site.plan import ServePlan, packet_rings
 from stereopose.site.restart import Resume
 from stereopose.site.site_desk import SiteDesk
 from stereopose.site.storage import StorageMaintainer
@@ -52,6 +47,7 @@ from stereopose.zones.power_state import PowerBoard, ZoneStates
 
 if TYPE_CHECKING:
     from stereopose.alarms import IncidentRecord
+    from stereopose.onsite.service import OnSite
     from stereopose.pipeline.incidents import IncidentStep
     from stereopose.scada.opcua_settings import OpcuaSettings
     from stereopose.site.health.calib_keeper import CalibrationKeeper
@@ -89,7 +85,7 @@ class SiteService:
         self.failed: dict[str, str] = {}
         self.probes: dict[str, Callable[[], dict]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
-        self.packets = _packet_rings(plan)
+        self.packets = packet_rings(plan)
         self.opcua_settings = opcua
         self.opcua = None  # the OPC UA server, once started
         self.watchdog = Watchdog()  # the receivers' threads started again where one died
@@ -366,6 +362,17 @@ class SiteService:
             self.opcua.attach(step)
         self.desk.attach(step)
 
+    def warn_on_site(self, onsite: OnSite) -> None:
+        """The warnings on site to the API (what sounds, an admin's silences and tests),
+        closed with the service: every speaker quiet, every coil off."""
+        self.warnings.onsite = onsite
+
+        def close() -> None:
+            self.warnings.onsite = None
+            onsite.close()
+
+        self._started("the warnings on site", close)
+
     def watch_nodes(self, nodes) -> None:
         """The nodes' camera-frames waiting for their step as a queue of the health state
         (late, over-full and refused ones as its drops); the nodes' figures in status."""
@@ -485,19 +492,3 @@ def _live_changes(hub: LiveHub, changes) -> None:
     """Each incident change to the console's live channel, as an `incident` message."""
     for c in changes:
         hub.publish("incident", c.to_dict())
-
-
-def _packet_rings(plan: ServePlan) -> dict[str, PacketRing]:
-    """Per live camera with a live detection substream, the ring its full stream is kept in
-    (encoded, never decoded) unless [input] full_streams = "decode"; sized for one alarm's
-    clip (clip_pre_s + clip_post_s, and some seconds for the keyframe before)."""
-    cfg = plan.config
-    if cfg.input.full_streams != "copy" or cfg.input.detection == "nodes":
-        return {}
-    s = plan.clips or ClipSettings()
-    keep_s = s.clip_pre_s + s.clip_post_s + 5.0
-    return {
-        name: PacketRing(keep_s, s.clip_buffer_bytes)
-        for name, src, sub in zip(plan.rig.names, plan.sources, plan.detect_sources, strict=True)
-        if sub and is_stream(str(src)) and is_stream(str(sub))
-    }

@@ -48,7 +48,7 @@ def onsite_warnings(plan: ServePlan, service: SiteService, sinks: list) -> OnSit
         return out
 
     onsite = OnSite(plan.site, safe=safe, publish=mqtt.set_warnings if mqtt else None)
-    service.warnings.onsite = onsite  # the API's: what sounds, silences and tests
+    service.warn_on_site(onsite)  # the API's, and closed with the service
     if onsite.warner is not None:
         w = onsite.warner
         speakers, signals = len(w.speakers), len(w.signals)

@@ -41,7 +41,7 @@ class WarningsDesk:
 
 
 def _onsite(request: Request):
-    desk = getattr(request.app.state, "warnings", None)
+    desk = request.app.state.warnings
     onsite = desk.onsite if desk is not None else None
     if onsite is None:
         raise HTTPException(503, "no warnings on site: the site file has no [warnings]")
