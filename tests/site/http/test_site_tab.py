@@ -174,3 +174,57 @@ def test_the_plan_shows_the_cameras_and_an_error_is_shown_at_its_field(browser, 
             assert desk.background.placement()["size"] == [400, 300]
         busbar = next(z for z in load_site(path).zones if z.name == "overhead_busbar")
         assert busbar.margin_m == 0.4 and len(busbar.joints) == 3
+
+
+WARNINGS = """
+[warnings]
+language = "en"
+
+[[speakers]]
+name = "pa_bay1"
+url = "rtp://239.10.0.1:5004"
+zones = ["overhead_busbar"]
+
+[[signals]]
+name = "tower"
+host = "127.0.0.1"
+coils = { beacon = 0 }
+zones = ["overhead_busbar"]
+position = [1.0, 1.0]
+"""
+
+
+def test_an_admin_places_a_speaker_on_the_plan_and_names_the_zones_it_covers(browser, tmp_path):
+    path = tmp_path / "site.toml"
+    path.write_text(DEMO_SITE.read_text() + WARNINGS)
+    desk = SiteDesk(path, load_site(path), tmp_path / "history")
+    first = desk.version
+    with console_server(tmp_path / "out", app_kw={"desks": Desks(site=desk)}) as s:
+        with _page(browser, s.url, "ada") as page:
+            page.wait_for_selector('#site-outputs li[data-output="pa_bay1"]')
+            assert "(not placed)" in page.text_content('#site-outputs li[data-output="pa_bay1"]')
+            assert page.locator('#site-plan g.site-output[data-output="tower"] line').count() == 1
+            page.click('#site-outputs li[data-output="pa_bay1"]')
+            assert "rtp://239.10.0.1:5004" in page.text_content("#site-output-what")
+            page.click("#site-output-place")
+            box = page.locator("#site-plan").bounding_box()
+            page.mouse.click(box["x"] + 0.5 * box["width"], box["y"] + 0.5 * box["height"])
+            page.wait_for_selector('#site-plan g.site-output[data-output="pa_bay1"] circle')
+            page.check('#site-output-zones input[value="work_area"]')
+            page.click("#site-save")
+            wait_until(lambda: desk.version != first, "the new site saved", poll_s=0.05)
+            change = desk.take()
+            (pa,) = change.new.warnings.speakers
+            assert pa.zones == ("overhead_busbar", "work_area") and pa.position is not None
+            assert change.new.warnings.signals[0].position == (1.0, 1.0)  # left as it was
+            assert "position" in path.read_text()
+            # a place typed: the plan's mark follows
+            page.click('#site-outputs li[data-output="tower"]')
+            page.fill("#site-output-position", "-0.5 0.5")
+            mark = '#site-plan g.site-output[data-output="tower"] rect'
+            page.wait_for_function(f"document.querySelector('{mark}').getAttribute('y') < -0.4")
+        with _page(browser, s.url, "vera") as page:
+            page.wait_for_selector('#site-outputs li[data-output="tower"]')
+            page.click('#site-outputs li[data-output="tower"]')
+            assert page.is_hidden("#site-output-place")
+            assert page.is_disabled("#site-output-position")

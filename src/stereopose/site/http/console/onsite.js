@@ -56,26 +56,22 @@ export class OnSitePanel {
     this.role = role;
   }
 
-  /** Asks for the outputs' state and draws it; the panel hides where the site has none. */
+  /** Asks for the outputs' state and draws it; the panel is hidden where the site has none. */
   async refresh() {
     if (this.pending || this.busy) return;
     this.pending = api.warnings();
     try {
       this.draw(await this.pending);
     } catch (error) {
-      if (error instanceof api.ApiError && error.status === 503) {
-        this.root.hidden = true;
-      } else {
-        this.info.textContent = `not loaded: ${error.detail || error.message}`;
-      }
+      this.info.textContent = `not loaded: ${error.detail || error.message}`;
     } finally {
       this.pending = null;
     }
   }
 
   draw(body) {
-    this.root.hidden = false;
     const outputs = body.outputs || [];
+    this.root.hidden = outputs.length === 0; // a site without speakers or signals
     const sounding = outputs.filter((o) => (o.sounding || []).length).length;
     this.info.textContent = sounding ? `${sounding} sounding now` : "quiet";
     this.list.replaceChildren(...outputs.map((o) => this.row(o)));

@@ -8,6 +8,7 @@
 // Everyone sees the tab; only an admin edits (the API refuses the others anyway).
 
 import * as api from "./api.js";
+import { SiteOutputs } from "./site_outputs.js";
 import { SurveyPanel } from "./survey.js";
 import { el } from "./svg.js";
 
@@ -71,6 +72,7 @@ export class SiteEditor {
     byId("site-camera-svg").addEventListener("click", (e) => this.onCameraClick(e));
     byId("site-camera-img").addEventListener("error", () => { byId("site-camera-img").hidden = true; });
     this.survey = new SurveyPanel(this); // the surveyed points, clicked in the same pictures
+    this.outputs = new SiteOutputs(this); // the speakers and signals of the warnings on site
     this.background = null; // the plan's drawing: {points, size} (GET .../placement)
     this.backgroundVersion = 0;
     byId("site-bg-set").addEventListener("click", () => this.setBackground());
@@ -126,7 +128,8 @@ export class SiteEditor {
     const zones = this.zones();
     this.svg.replaceChildren();
     const placed = (this.cameras || []).map((c) => c.position).filter(Array.isArray);
-    const all = zones.flatMap((z) => z.polygon || []).concat(this.drawing || [], placed);
+    const all = zones.flatMap((z) => z.polygon || [])
+      .concat(this.drawing || [], placed, this.outputs.positions());
     const xs = all.map((p) => p[0]);
     const ys = all.map((p) => p[1]);
     const [x0, x1] = xs.length ? [Math.min(...xs) - 1, Math.max(...xs) + 1] : [-5, 5];
@@ -149,9 +152,11 @@ export class SiteEditor {
       for (const [x, y] of this.drawing) el("circle", { cx: x, cy: -y, r: this.scale, class: "corner" }, this.svg);
     }
     this.drawCameras();
+    this.outputs.draw(this.svg, this.scale);
     this.peopleLayer = el("g", { class: "site-people" }, this.svg);
     this.drawPeople();
     this.renderList();
+    this.outputs.renderList();
     this.toForm();
     clearTimeout(this.viewTimer);
     this.viewTimer = setTimeout(() => this.loadViews(), 250);
@@ -421,6 +426,7 @@ export class SiteEditor {
   onDown(event) {
     if (!this.admin || !this.site) return;
     const at = this.metres(event);
+    if (this.outputs.place(at)) return;
     if (this.drawing) {
       this.drawing.push(this.snapped(at, -1));
       this.render();
