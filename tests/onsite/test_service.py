@@ -53,3 +53,18 @@ def test_a_new_site_keeps_what_did_not_change_and_closes_what_went():
     finally:
         onsite.close()
         module.stop()
+
+
+def test_the_outputs_figures_count_what_they_did_and_dropped():
+    ear = Listener()
+    pa = {"name": "pa", "url": f"rtp://127.0.0.1:{ear.port}", "zones": ["busbar"]}
+    onsite = OnSite(site([pa]))
+    try:
+        for _ in range(300):
+            onsite.controls.test("pa", by="ada")  # more than a step takes: the oldest dropped
+        figures = onsite.figures()
+        assert figures["acts_dropped"] >= 44 and figures["calls_dropped"] == 0
+        assert set(figures["speakers"]["pa"]) >= {"packets", "messages", "send_errors"}
+        assert figures["signals"] == {}
+    finally:
+        onsite.close()

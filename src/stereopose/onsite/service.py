@@ -209,6 +209,20 @@ class OnSite:
             )
         return out
 
+    def figures(self) -> dict:
+        """What the outputs did (status.json's `warnings_on_site`): each speaker's packets,
+        messages, cut-ins and failed sends, each signal's writes, failures and outages, the
+        hazards and messages, and what was dropped (calls when too many were open, acts no
+        step took in time)."""
+        warner = self.warner
+        return {
+            "speakers": {n: dict(s.figures) for n, s in self._speakers.items()},
+            "signals": {n: dict(g.figures) for n, g in self._signals.items()},
+            "warner": dict(warner.figures) if warner is not None else {},
+            "calls_dropped": warner.calls.dropped if warner is not None else 0,
+            "acts_dropped": self.controls.dropped,
+        }
+
     def now(self) -> dict:
         warner = self.warner
         doc = {"warnings": [], "calls": []} if warner is None else warner.now()

@@ -366,6 +366,7 @@ class SiteService:
         """The warnings on site to the API (what sounds, an admin's silences and tests),
         closed with the service: every speaker quiet, every coil off."""
         self.warnings.onsite = onsite
+        self.probes["warnings_on_site"] = onsite.figures
 
         def close() -> None:
             self.warnings.onsite = None
