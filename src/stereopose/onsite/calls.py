@@ -26,7 +26,7 @@ from stereopose.onsite.settings import SpeakerSpec, WarningSettings
 from stereopose.types import Event, People3D
 from stereopose.zones import Zone
 
-__all__ = ["TEST_PRIORITY", "Call", "Calls", "near"]
+__all__ = ["TEST_PRIORITY", "Call", "Calls", "near", "nearest_on_polygon"]
 
 NEAR_M = 20.0
 MAX_CALL_S = 600.0
@@ -63,14 +63,20 @@ def _inside(p: np.ndarray, poly: np.ndarray) -> bool:
     return bool(np.count_nonzero(crosses) % 2)
 
 
+def nearest_on_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """The point of polygon `poly` (V, 2) nearest to floor point p (2,) (its edges)."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab**2).sum(1), 1e-12), 0.0, 1.0)
+    q = a + t[:, None] * ab
+    return q[np.argmin(((q - p) ** 2).sum(1))]
+
+
 def _floor_distance(p: np.ndarray, poly: np.ndarray) -> float:
     """Metres from floor point p to polygon `poly` (0 inside)."""
     if _inside(p, poly):
         return 0.0
-    a, b = poly, np.roll(poly, -1, axis=0)
-    ab = b - a
-    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab**2).sum(1), 1e-12), 0.0, 1.0)
-    return float(np.sqrt((((a + t[:, None] * ab) - p) ** 2).sum(1)).min())
+    return float(np.hypot(*(nearest_on_polygon(p, poly) - p)))
 
 
 def near(

@@ -35,7 +35,7 @@ import numpy as np
 
 from stereopose.alarms.priority import default_priority
 from stereopose.onsite.audio import RATE
-from stereopose.onsite.calls import TEST_PRIORITY, Call, Calls
+from stereopose.onsite.calls import TEST_PRIORITY, Call, Calls, nearest_on_polygon
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
@@ -103,15 +103,6 @@ def side_of(toward: np.ndarray, heading: float) -> str:
     if abs(a) >= 180.0 - AHEAD_DEG:
         return "behind"
     return "left" if a > 0 else "right"
-
-
-def _nearest_on_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """The point of polygon `poly` (V, 2) nearest to floor point p (2,) (its edges)."""
-    a, b = poly, np.roll(poly, -1, axis=0)
-    ab = b - a
-    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab**2).sum(1), 1e-12), 0.0, 1.0)
-    q = a + t[:, None] * ab
-    return q[np.argmin(((q - p) ** 2).sum(1))]
 
 
 class Warner:
@@ -192,7 +183,7 @@ class Warner:
             side = "nearby"
         else:
             poly = zone.polygon
-            toward = _nearest_on_polygon(floor, poly) - floor
+            toward = nearest_on_polygon(floor, poly) - floor
             side = side_of(toward, float(headings[r]))
         return Hazard(zone.name, int(people.ids[r]), kind, int(priority), d, side)
 
