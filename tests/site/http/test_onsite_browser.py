@@ -8,14 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_warnings_api import BUSBAR, _people
+from test_warnings_api import _people, warned_site
 
 from browsing import chromium, console_page
 from consoled import console_server
 from modbus_device import IoModule
 from rtp_listener import Listener
 from stereopose.fence import FenceMonitor
-from stereopose.fence.site import parse_site
 from stereopose.onsite.service import OnSite
 from stereopose.site.http.api.warnings import WarningsDesk
 from stereopose.site.http.app import Desks
@@ -26,21 +25,7 @@ pytestmark = [pytest.mark.slow]
 
 def test_the_panel_shows_what_sounds_and_an_admin_silences_the_beacon(tmp_path: Path) -> None:
     ear, module = Listener(), IoModule().start()
-    site = parse_site(
-        {
-            "zones": [BUSBAR],
-            "speakers": [{"name": "pa", "url": f"rtp://127.0.0.1:{ear.port}", "zones": ["busbar"]}],
-            "signals": [
-                {
-                    "name": "tower",
-                    "host": "127.0.0.1",
-                    "port": module.port,
-                    "coils": {"beacon": 0},
-                    "zones": ["busbar"],
-                }
-            ],
-        }
-    )
+    site = warned_site(ear.port, module.port)
     onsite, fences, desk = OnSite(site), FenceMonitor(site, fps=20.0), WarningsDesk()
     desk.onsite = onsite
     for frame in range(5):  # a hand near the busbar

@@ -49,23 +49,31 @@ def _people(frame: int, hand_near: bool) -> People3D:
     )
 
 
-def test_only_an_admin_silences_lifts_and_tests_and_each_act_is_logged(tmp_path: Path) -> None:
-    ear, module = Listener(), IoModule().start()
-    site = parse_site(
+def warned_site(speaker_port: int, module_port: int):
+    """The busbar, a speaker covering it (RTP to speaker_port) and a beacon (a Modbus TCP
+    IO module at module_port)."""
+    return parse_site(
         {
             "zones": [BUSBAR],
-            "speakers": [{"name": "pa", "url": f"rtp://127.0.0.1:{ear.port}", "zones": ["busbar"]}],
+            "speakers": [
+                {"name": "pa", "url": f"rtp://127.0.0.1:{speaker_port}", "zones": ["busbar"]}
+            ],
             "signals": [
                 {
                     "name": "tower",
                     "host": "127.0.0.1",
-                    "port": module.port,
+                    "port": module_port,
                     "coils": {"beacon": 0},
                     "zones": ["busbar"],
                 }
             ],
         }
     )
+
+
+def test_only_an_admin_silences_lifts_and_tests_and_each_act_is_logged(tmp_path: Path) -> None:
+    ear, module = Listener(), IoModule().start()
+    site = warned_site(ear.port, module.port)
     onsite, fences, desk = OnSite(site), FenceMonitor(site, fps=20.0), WarningsDesk()
     frame, events = 0, []
 

@@ -5,6 +5,7 @@
 // text from the server goes in as text, never as markup.
 
 import * as api from "./api.js";
+import { text } from "./dom.js";
 
 const SILENCE_CHOICES = [[15, "15 min"], [60, "1 h"], [240, "4 h"], [480, "8 h"]];
 const CALL_TEXT = {
@@ -19,12 +20,6 @@ const HEALTH_TEXT = {
   "not verifiable": "not verifiable",
 };
 
-function el(tag, className, text) {
-  const node = document.createElement(tag);
-  if (className) node.className = className;
-  if (text !== undefined) node.textContent = text;
-  return node;
-}
 
 function clock(unixS) {
   return new Date(unixS * 1000).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" });
@@ -78,57 +73,57 @@ export class OnSitePanel {
   }
 
   row(output) {
-    const li = el("li", "onsite-output");
+    const li = text("li", "", "onsite-output");
     li.dataset.output = output.name;
     li.dataset.health = output.health;
-    const head = el("div", "onsite-head");
-    head.append(el("strong", "", output.name), el("span", "muted", ` ${output.type}`));
-    head.append(el("span", `onsite-health health-${output.health.replace(" ", "-")}`,
-      HEALTH_TEXT[output.health] || output.health));
+    const head = text("div", "", "onsite-head");
+    head.append(text("strong", output.name), text("span", ` ${output.type}`, "muted"));
+    const health = HEALTH_TEXT[output.health] || output.health;
+    head.append(text("span", health, `onsite-health health-${output.health.replace(" ", "-")}`));
     li.append(head);
-    li.append(el("div", "muted onsite-zones", `covers ${(output.zones || []).join(", ")}`));
+    li.append(text("div", `covers ${(output.zones || []).join(", ")}`, "muted onsite-zones"));
     for (const item of output.sounding || []) {
-      li.append(el("div", "onsite-sounding", soundingText(item)));
+      li.append(text("div", soundingText(item), "onsite-sounding"));
     }
     if (output.silenced) {
       li.dataset.silenced = "true";
       const s = output.silenced;
-      li.append(el("div", "onsite-silenced",
-        `silenced until ${clock(s.until)} by ${s.by}: ${s.reason}`));
+      const said = `silenced until ${clock(s.until)} by ${s.by}: ${s.reason}`;
+      li.append(text("div", said, "onsite-silenced"));
     }
     if (this.role === "admin") li.append(this.actions(output));
     return li;
   }
 
   actions(output) {
-    const box = el("div", "onsite-actions");
+    const box = text("div", "", "onsite-actions");
     const name = output.name;
     if (output.silenced) {
-      const again = el("button", "onsite-unsilence", "Sound again");
+      const again = text("button", "Sound again", "onsite-unsilence");
       again.type = "button";
       again.addEventListener("click", () => this.act(() => api.unsilenceOutput(name),
         `${name} sounds again`));
       box.append(again);
       return box;
     }
-    const test = el("button", "onsite-test", "Test");
+    const test = text("button", "Test", "onsite-test");
     test.type = "button";
     test.title = output.type === "speaker" ? "say 'this is a test' on it" : "pulse its coils";
     test.addEventListener("click", () => this.act(() => api.testOutput(name), `${name} tested`));
-    const form = el("form", "onsite-silence");
-    const minutes = el("select", "onsite-minutes");
-    for (const [value, text] of SILENCE_CHOICES) {
-      const option = el("option", "", text);
+    const form = text("form", "", "onsite-silence");
+    const minutes = text("select", "", "onsite-minutes");
+    for (const [value, label] of SILENCE_CHOICES) {
+      const option = text("option", label);
       option.value = String(value);
       minutes.append(option);
     }
-    const reason = el("input", "onsite-reason");
+    const reason = text("input", "", "onsite-reason");
     reason.placeholder = "reason";
     reason.required = true;
     reason.maxLength = 500;
     reason.addEventListener("focus", () => { this.busy = true; });
     reason.addEventListener("blur", () => { this.busy = false; });
-    const silence = el("button", "", "Silence");
+    const silence = text("button", "Silence");
     silence.type = "submit";
     form.append(minutes, reason, silence);
     form.addEventListener("submit", (e) => {

@@ -5,16 +5,10 @@
 // site's: saved with it (PUT /api/site), checked by the service (a bad zone named in the
 // answer). Every name goes in as text, never as markup.
 
+import { text } from "./dom.js";
 import { el } from "./svg.js";
 
 const byId = (id) => document.getElementById(id);
-
-function text(tag, content, className = "") {
-  const node = document.createElement(tag);
-  node.textContent = content;
-  if (className) node.className = className;
-  return node;
-}
 
 function centre(polygon) {
   const n = polygon.length || 1;

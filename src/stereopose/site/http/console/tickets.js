@@ -5,6 +5,7 @@
 // of any step. A new ticket is posted as its TOML file (docs/formats.md#tickets).
 
 import * as api from "./api.js";
+import { text } from "./dom.js";
 import { dateTime, typeText } from "./feed.js";
 
 const byId = (id) => document.getElementById(id);
@@ -16,13 +17,6 @@ const CLIPS_MS = 5000; // the ticket's events (their clips) asked again at most 
 // Events close together share one clip per camera, named after the first: a step's action
 // that fell inside another alarm's clip is shown by that clip (begun at most this long before)
 const SHARED_CLIP_S = 10;
-
-function text(tag, content, className = "") {
-  const el = document.createElement(tag);
-  el.textContent = content;
-  if (className) el.className = className;
-  return el;
-}
 
 const seconds = (s) => (typeof s === "number" ? `${s.toFixed(1)} s` : "-");
 const who = (id) => (id === null || id === undefined ? "unbound" : `id ${id}`);
