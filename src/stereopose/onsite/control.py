@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from stereopose.errors import StereoposeError
 from stereopose.types import Event
 
-__all__ = ["MAX_SILENCE_S", "ControlError", "Controls", "Silence"]
+__all__ = ["MAX_SILENCE_S", "ControlError", "Controls", "Silence", "output_event"]
 
 MAX_SILENCE_S = 24 * 3600.0  # a silence lasts at most a day
 MAX_REASON = 500  # characters
@@ -145,17 +145,21 @@ class Controls:
         with self._lock:
             acts = list(self._acts)
             self._acts.clear()
-        return [
-            Event(
-                t=t,
-                frame=frame,
-                person=-1,
-                zone="",
-                kind=SERVICE_KIND,
-                type=type_,
-                onset_t=t,
-                source=output,
-                result=result,
-            )
-            for type_, output, result in acts
-        ]
+        return [output_event(t, frame, type_, output, result) for type_, output, result in acts]
+
+
+def output_event(
+    t: float, frame: int, type_: str, output: str, result: dict | None = None
+) -> Event:
+    """An event of a warning output on site (kind "service", its name in `source`)."""
+    return Event(
+        t=t,
+        frame=frame,
+        person=-1,
+        zone="",
+        kind=SERVICE_KIND,
+        type=type_,
+        onset_t=t,
+        source=output,
+        result=result,
+    )

@@ -36,6 +36,7 @@ import numpy as np
 from stereopose.alarms.priority import default_priority
 from stereopose.onsite.audio import RATE
 from stereopose.onsite.calls import TEST_PRIORITY, Call, Calls, nearest_on_polygon
+from stereopose.onsite.control import output_event
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
@@ -48,7 +49,6 @@ __all__ = ["Hazard", "Warner", "side_of"]
 
 AHEAD_DEG = 45.0  # within this of the way he faces: ahead (beyond 180 - this: behind)
 PULSE_S = 3.0  # a signal's test: its coils on this long
-SERVICE_KIND = "service"
 
 
 @dataclass(frozen=True)
@@ -300,16 +300,7 @@ class Warner:
         with self._lock:
             told, self._health = self._health, []
         return [
-            Event(
-                t=t,
-                frame=frame,
-                person=-1,
-                zone="",
-                kind=SERVICE_KIND,
-                type="warning_output_back" if up else "warning_output_down",
-                onset_t=t,
-                source=name,
-            )
+            output_event(t, frame, "warning_output_back" if up else "warning_output_down", name)
             for name, up, _why in told
         ]
 
