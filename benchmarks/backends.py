@@ -37,6 +37,7 @@ from common import RESULTS, machine, save
 from int8 import _iou, frames  # the demo's steps, box overlap: as the INT8 benchmark reads them
 from stereopose.detection import make_detector
 from stereopose.detection.models import default_int8, demo_videos
+from stereopose.detection.openvino_core import ov_core
 
 VARIANTS = {  # name: (backend, precision)
     "onnxruntime_fp32": ("onnx", "fp32"),
@@ -182,7 +183,7 @@ def main() -> None:
     if not videos:
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
     data = frames(videos, args.steps)
-    core = ov.Core()
+    core = ov_core()
     r: dict = {
         "date": datetime.date.today().isoformat(),
         "machine": machine().replace(", one thread", ""),

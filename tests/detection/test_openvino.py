@@ -76,9 +76,9 @@ def _displacements(a, b) -> np.ndarray:
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_bf16_finds_the_same_people_within_a_few_pixels():
-    import openvino as ov
+    from stereopose.detection.openvino_core import ov_core
 
-    if "BF16" not in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"):
+    if "BF16" not in ov_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"):
         with pytest.raises(ModelError, match="no bfloat16 instructions"):
             make_detector("openvino", precision="bf16")
         return

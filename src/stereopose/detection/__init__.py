@@ -77,9 +77,9 @@ def cpu_bf16() -> bool | None:
     if importlib.util.find_spec("openvino") is None:
         return None
     try:
-        import openvino as ov
+        from stereopose.detection.openvino_core import ov_core
 
-        return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+        return "BF16" in ov_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
     except Exception as e:  # a broken install: as if it were not there
         logger.warning("openvino: cannot read the CPU's capabilities: %s", e)
         return None

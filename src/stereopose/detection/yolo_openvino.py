@@ -20,6 +20,7 @@ import numpy as np
 
 from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed, to_u8_blob
 from stereopose.detection.models import ModelError, check_weights
+from stereopose.detection.openvino_core import ov_core
 from stereopose.skeleton import NUM_JOINTS
 
 logger = logging.getLogger(__name__)
@@ -63,12 +64,13 @@ class OpenVinoPoseDetector:
             raise ModelError(f"precision {precision!r}: the openvino backend runs fp32 or bf16")
         try:
             import openvino as ov
+
+            core = ov_core()  # one for the process: see detection.openvino_core
         except ImportError:
             raise ModelError(
                 "the openvino backend needs OpenVINO: pip install 'stereopose[openvino]'"
             ) from None
         self.device = ov_device(device)
-        core = ov.Core()
         have = core.available_devices
         if self.device != "AUTO" and self.device.split(".")[0] not in {
             d.split(".")[0] for d in have
