@@ -85,6 +85,14 @@ def test_the_busbars_alarms_are_said_on_its_speaker_and_light_its_beacon(tmp_pat
         panel_ear.take(lambda: True)
         assert panel_ear.packets == []  # far from everyone: its speaker says nothing
         assert "warnings on site: 2 speaker(s), 1 signal(s)" in log.read_text()  # said at start
+        # the IO module gone: one incident, cleared once it answers again
+        module.stop()
+        wait_until(lambda: _output_rows(db, "warning_output_down"), "the beacon's module down")
+        ((incident,),) = _output_rows(db, "warning_output_down")
+        assert incident is not None  # an incident of its own
+        module = IoModule(port=module.port).start()
+        wait_until(lambda: _output_rows(db, "warning_output_back"), "it answers again")
+        assert len(_output_rows(db, "warning_output_down")) == 1
     finally:
         proc.terminate()
         try:
@@ -97,6 +105,10 @@ def test_the_busbars_alarms_are_said_on_its_speaker_and_light_its_beacon(tmp_pat
     assert rc == 0, log.read_text()
     assert off == [False, False]  # stopped: nothing left on
     assert "Traceback" not in log.read_text()
+
+
+def _output_rows(db: Path, type_: str) -> list[tuple]:
+    return log_rows(db, f"SELECT incident FROM events WHERE type = '{type_}' AND source = 'tower'")
 
 
 def _dead_rows(db: Path) -> list[tuple]:
