@@ -921,9 +921,10 @@ def test_a_clip_finished_after_its_row_is_drawn_comes_into_the_row(watched, serv
     assert page.query_selector(f"{row} button.play") is None
     for url in alarm["clips"]:
         page.wait_for_selector(f'{row} button.play[data-clip="{url}"]', timeout=20_000)
-    # no new search was made: only the rows from the recent alarms on were asked for again
-    # (the answer that drew the buttons may have been asked for before the listener came)
-    assert all("since=" in u for u in asked), asked
+    # no new search was made: only the events from the oldest pending alarm on were asked for
+    # again, by id (the answer that drew the buttons may have been asked for before the
+    # listener came)
+    assert all("after_id=" in u for u in asked), asked
     # another tab: no more looks, and a late answer draws nothing
     page.click('[data-tab="live"]')
     assert page.evaluate("window.stereoposeConsole.history.clipTimer === null")

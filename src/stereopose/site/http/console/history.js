@@ -12,6 +12,7 @@ const CLIP_POLL_MS = 2000;
 // an alarm's clips may still come this long after it: clip_post_s (at most 600 s), the
 // writing, and the full stream's copy after the drawn clip
 const CLIP_PENDING_S = 660;
+const CLIP_PAGES = 5; // pages of events asked at one look, at most
 const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_down", "fall",
   "lone_worker", "work_position", "immobile", "overreach", "camera_down", "camera_up",
   "camera_moved", "calibration_drift"];
@@ -108,47 +109,55 @@ export class History {
     this.watchClips();
   }
 
-  /** The oldest wall time of a shown alarm whose clips may still come; null: none. */
-  pendingSince() {
+  /** The ids of the shown alarms whose clips may still come, oldest first. */
+  pendingIds() {
     const now = Date.now() / 1000;
-    let since = null;
+    const ids = [];
     for (const tr of this.rows.children) {
       const t = Number(tr.dataset.wallT);
       if (tr.dataset.level !== "alarm" || !Number.isFinite(t) || now - t > CLIP_PENDING_S) continue;
-      since = since === null ? t : Math.min(since, t);
+      ids.push(Number(tr.dataset.eventId));
     }
-    return since;
+    return ids.filter(Number.isFinite).sort((a, b) => a - b);
   }
 
   /** The next look at the recent alarms' clips, while the tab is shown and one may come. */
   watchClips() {
     clearTimeout(this.clipTimer);
     this.clipTimer = null;
-    if (this.visible && this.pendingSince() !== null) {
+    if (this.visible && this.pendingIds().length) {
       this.clipTimer = setTimeout(() => this.refreshClips(), CLIP_POLL_MS);
     }
   }
 
-  /** The shown rows from the recent alarms on asked again with the same filters; each row
-   * whose clips (or acknowledgement) changed is drawn again in place. */
+  /** The shown rows from the oldest pending alarm on asked again by id with the same filters
+   * (pages of the events after it, oldest first, up to the newest pending one: on a busy site
+   * more than a page of events may have come since); each row whose clips (or
+   * acknowledgement) changed is drawn again in place. */
   async refreshClips() {
     this.clipTimer = null;
-    const since = this.pendingSince();
-    if (!this.visible || since === null) return;
+    const ids = this.pendingIds();
+    if (!this.visible || !ids.length) return;
     const asked = this.asked;
     const f = this.filters();
-    const from = Math.max(Number(f.since) || 0, since - 1);
-    let answer = null;
-    try {
-      answer = await events({ ...f, since: from.toFixed(3), limit: PAGE });
-    } catch {
-      answer = null; // asked again at the next look
-    }
-    // hidden meanwhile, or a new search drew the table (and looks on itself)
-    if (!this.visible || asked !== this.asked) return;
-    for (const e of (answer && answer.events) || []) {
-      const tr = this.rows.querySelector(`tr[data-event-id="${Number(e.id)}"]`);
-      if (tr && tr.dataset.state !== rowState(e)) tr.replaceWith(this.row(e));
+    let after = ids[0] - 1;
+    const last = ids[ids.length - 1];
+    for (let page = 0; page < CLIP_PAGES && after < last; page += 1) {
+      let answer = null;
+      try {
+        answer = await events({ ...f, after_id: after, limit: PAGE });
+      } catch {
+        break; // asked again at the next look
+      }
+      // hidden meanwhile, or a new search drew the table (and looks on itself)
+      if (!this.visible || asked !== this.asked) return;
+      const got = (answer && answer.events) || [];
+      for (const e of got) {
+        const tr = this.rows.querySelector(`tr[data-event-id="${Number(e.id)}"]`);
+        if (tr && tr.dataset.state !== rowState(e)) tr.replaceWith(this.row(e));
+      }
+      if (got.length < PAGE) break;
+      after = Math.max(...got.map((e) => Number(e.id)));
     }
     this.watchClips();
   }
