@@ -20,12 +20,18 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
-from stereopose.calibration.bundle import Bundle, adjust, project_px
+from stereopose.calibration.bundle import Bundle, Solution, adjust, project_px
+from stereopose.calibration.people_check import (
+    camera_fit_px,
+    fit_px,
+    point_like_joints,
+    thin_warnings,
+)
 from stereopose.calibration.people_match import (
     MIN_CONF,
     MIN_JOINTS,
@@ -41,7 +47,7 @@ from stereopose.calibration.people_world import coverage_advice, to_world
 from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.errors import CalibrationError
 from stereopose.skeleton import SWAP
-from stereopose.types import People2D, Rig
+from stereopose.types import Camera, People2D, Rig
 
 __all__ = ["PeopleResult", "calibrate_people"]
 
@@ -57,7 +63,12 @@ DROP_MIN_PX = (
 @dataclass
 class PeopleResult:
     """The rig; per camera its RMS reprojection error (px), joints and frames used, the part
-    of its view the walkers covered (0-1) and advice where too thin; the scale's source."""
+    of its view the walkers covered (0-1) and advice where too thin; the scale's source.
+    fit_px: each camera's median reprojection error (confident joints) on the recordings it
+    was calibrated on; held_out_px: recording index -> the same on that recording by the rig
+    from the others; point_like: each camera's observations of joints that are nearly points
+    in every view (nose, eyes, ears, wrists, ankles) in the adjustment; recordings: how many
+    were used."""
 
     rig: Rig
     camera_rms_px: dict[str, float]
@@ -68,6 +79,10 @@ class PeopleResult:
     scale_from: str
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    fit_px: dict[str, float] = field(default_factory=dict)
+    held_out_px: dict[int, dict[str, float]] = field(default_factory=dict)
+    point_like: dict[str, int] = field(default_factory=dict)
+    recordings: int = 1
 
 
 def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int] | None:
@@ -146,8 +161,152 @@ def _start(matches: list[PairMatch]) -> PairMatch:
     return max(matches, key=lambda m: m.inliers * min(m.angle_deg / 8.0, 1.0))
 
 
+Frames = list[tuple[int, dict[str, People2D]]]
+
+
+@dataclass
+class _Matched:
+    """One recording's views, its people grouped across cameras and its first pair."""
+
+    views: Views
+    groups: list[dict[int, int]]
+    first: PairMatch
+    thr: float
+    recording: int = 0
+
+
+@dataclass
+class _Solved:
+    """The pooled views and groups, the poses (C, 6), the last adjustment's solution, each
+    (group, joint)'s point in it (-1: none) and its observations' cameras and pixels."""
+
+    views: Views
+    groups: list[dict[int, int]]
+    poses: np.ndarray
+    sol: Solution
+    pid: np.ndarray
+    cam: np.ndarray
+    uv: np.ndarray
+
+
+def _recordings(frames) -> list[Frames]:
+    """One recording (a list of frames) or several (a list of such lists)."""
+    if frames and isinstance(frames[0], list):
+        return [list(r) for r in frames]
+    return [list(frames)]
+
+
+def _match(views: Views, focal: float, rng) -> _Matched:
+    """The groups and first pair of one recording: same-frame pairings, or whole tracks where
+    single frames leave a camera unlinked."""
+    names, C = views.cameras, len(views.cameras)
+    thr = 3.0 / focal
+    matches = [
+        m for a in range(C) for b in range(a + 1, C) if (m := match_pair(views, a, b, thr, rng))
+    ]
+    linked = {c for m in matches for c in (m.a, m.b)}
+    alone = [names[c] for c in range(C) if c not in linked]
+    if not alone:
+        return _Matched(views, group_detections(views, matches), _start(matches), thr)
+    # single frames do not say who is who: whole tracks paired (people_tracks)
+    thr = TRACK_PX / focal
+    by_tracks = match_tracks(views, thr)
+    if by_tracks is None:
+        raise CalibrationError(
+            f"camera(s) {', '.join(alone)} share no walker with any other camera "
+            f"({len(views.det)} people seen in {len(views.frames)} frames); walk where they "
+            "and another camera both see"
+        )
+    logger.info("people: camera(s) %s placed by tracks", ", ".join(alone))
+    first, groups = by_tracks
+    return _Matched(views, groups, first, thr)
+
+
+def _pool(parts: list[_Matched]) -> tuple[Views, list[dict[int, int]], list[PairMatch]]:
+    """The recordings' views in one (frame and detection indices shifted), their groups and
+    their first pairs (pairings shifted likewise)."""
+    det, numbers, groups, firsts = [], [], [], []
+    for m in parts:
+        f0, k0 = len(numbers), len(det)
+        numbers.extend(m.views.frames.tolist())
+        det.extend((f + f0, c, kp, xy) for f, c, kp, xy in m.views.det)
+        groups.extend({c: k + k0 for c, k in g.items()} for g in m.groups)
+        firsts.append(replace(m.first, pairings=[(i + k0, j + k0) for i, j in m.first.pairings]))
+    views = Views(parts[0].views.cameras, np.array(numbers, dtype=np.int64), det)
+    return views, groups, firsts
+
+
+def match_recordings(
+    recordings: list[Frames], cams: dict[str, Camera], seed: int = 0
+) -> tuple[list[_Matched], list[str]]:
+    """Each recording matched on its own (its own frame numbers, its own tracks); a recording
+    that matches nobody is left out with a warning while another one matches."""
+    focal = float(np.median([c.focal for c in cams.values()]))
+    rng = np.random.default_rng(seed)
+    parts, warnings, errors = [], [], []
+    for i, frames in enumerate(recordings):
+        views = collect_views(frames, cams)
+        if not views.det:
+            errors.append(
+                f"no person with {MIN_JOINTS} or more confident joints in {len(frames)} frame(s)"
+            )
+        else:
+            try:
+                parts.append(replace(_match(views, focal, rng), recording=i))
+                continue
+            except CalibrationError as e:
+                errors.append(str(e))
+        if len(recordings) > 1:
+            warnings.append(f"recording {i + 1} left out: {errors[-1]}")
+    if not parts:
+        if len(errors) == 1:
+            raise CalibrationError(errors[0])
+        raise CalibrationError("; ".join(f"recording {i + 1}: {e}" for i, e in enumerate(errors)))
+    return parts, warnings
+
+
+def solve_poses(parts: list[_Matched], intr: np.ndarray) -> _Solved:
+    """Every camera's pose (C, 6) from the matched recordings pooled, in the frame of the
+    best start (its first camera at the origin, unit baseline): each recording's first pair
+    starts a placement of every camera on all the groups, and the one whose joints fit best
+    is adjusted."""
+    views, groups, firsts = _pool(parts)
+    thr = max(m.thr for m in parts)
+    names = views.cameras
+    best = None
+    for first in firsts:
+        try:
+            poses, X = _place_all(views, groups, first, names, thr)
+        except CalibrationError:
+            if len(firsts) == 1:
+                raise
+            continue
+        fit = fit_px(views, groups, poses, intr)
+        if best is None or fit < best[0]:
+            best = (fit, first, poses, X)
+    if best is None:
+        raise CalibrationError("no recording's first pair places every camera")
+    _, first, poses, X = best
+    poses, sol, pid, cam, uv = _adjust_all(views, groups, poses, X, intr, first)
+    return _Solved(views, groups, poses, sol, pid, cam, uv)
+
+
+def held_out_fit(parts: list[_Matched], intr: np.ndarray) -> dict[int, dict[str, float]]:
+    """Recording index -> each camera's fit on it (median px) by the rig from the others."""
+    out = {}
+    for m in parts:
+        rest = [p for p in parts if p is not m]
+        try:
+            poses = solve_poses(rest, intr).poses
+        except CalibrationError as e:
+            logger.warning("people: no rig without recording %d: %s", m.recording + 1, e)
+            continue
+        out[m.recording] = camera_fit_px(m.views, m.groups, poses, intr)
+    return out
+
+
 def calibrate_people(
-    frames: list[tuple[int, dict[str, People2D]]],
+    frames,
     intrinsics: Rig,
     *,
     distance: tuple[str, str, float] | None = None,
@@ -155,10 +314,14 @@ def calibrate_people(
     survey=None,
     ankle_m: float = 0.08,
     seed: int = 0,
+    held_out: bool = True,
 ) -> PeopleResult:
     """The rig of `intrinsics`' cameras from the people of `frames` (frame number, camera ->
-    People2D; synchronised). Exactly one of distance (camera, camera, metres), height_m (the
-    walkers' standing height) or survey (calibration.surveyed.Survey) gives the scale."""
+    People2D; synchronised), or of several recordings of the same cameras (a list of such
+    lists, each with its own frame numbers), pooled. Exactly one of distance (camera, camera,
+    metres), height_m (the walkers' standing height) or survey (calibration.surveyed.Survey)
+    gives the scale. held_out: with two recordings or more, each one's fit by the rig from
+    the others (PeopleResult.held_out_px)."""
     t0 = time.perf_counter()
     if sum(x is not None for x in (distance, height_m, survey)) != 1:
         raise CalibrationError("give exactly one scale: a distance, a height or surveyed points")
@@ -168,38 +331,11 @@ def calibrate_people(
         for n in distance[:2]:
             if n not in cams:
                 raise CalibrationError(f"--distance: no camera {n!r} (cameras: {', '.join(names)})")
-    views = collect_views(frames, cams)
-    if not views.det:
-        raise CalibrationError(
-            f"no person with {MIN_JOINTS} or more confident joints in {len(frames)} frame(s)"
-        )
-    rng = np.random.default_rng(seed)
-    focal = float(np.median([c.focal for c in intrinsics]))
-    thr = 3.0 / focal
-    C = len(names)
-    matches = [
-        m for a in range(C) for b in range(a + 1, C) if (m := match_pair(views, a, b, thr, rng))
-    ]
-    linked = {c for m in matches for c in (m.a, m.b)}
-    alone = [names[c] for c in range(C) if c not in linked]
-    if alone:
-        # single frames do not say who is who: whole tracks paired (people_tracks)
-        thr = TRACK_PX / focal
-        by_tracks = match_tracks(views, thr)
-        if by_tracks is None:
-            raise CalibrationError(
-                f"camera(s) {', '.join(alone)} share no walker with any other camera "
-                f"({len(views.det)} people seen in {len(frames)} frames); walk where they and "
-                "another camera both see"
-            )
-        logger.info("people: camera(s) %s placed by tracks", ", ".join(alone))
-        first, groups = by_tracks
-    else:
-        groups = group_detections(views, matches)
-        first = _start(matches)
-    poses, X = _place_all(views, groups, first, names, thr)
+    parts, warnings = match_recordings(_recordings(frames), cams, seed)
     intr = np.stack([intrinsics_row(cams[n]) for n in names])
-    poses, sol, pid, cam, uv = _adjust_all(views, groups, poses, X, intr, first)
+    solved = solve_poses(parts, intr)
+    views, groups, poses, sol = solved.views, solved.groups, solved.poses, solved.sol
+    pid, cam, uv = solved.pid, solved.cam, solved.uv
     X = np.full((len(groups), 17, 3), np.nan)
     for g, j in zip(*np.nonzero(pid >= 0), strict=True):
         X[g, j] = sol.points[pid[g, j]]
@@ -217,11 +353,25 @@ def calibrate_people(
         n: len({views.det[g[c]][0] for g in groups if c in g}) for c, n in enumerate(names)
     }
     cover, advice = coverage_advice(rig, {n: uv[cam == c] for c, n in enumerate(names)})
-    warnings = [
+    warnings += [
         f"camera {n}: reprojection error {e:.2f} px is high" for n, e in rms.items() if e > 5
     ]
+    point_like = point_like_joints(views, groups, pid, names)
+    warnings += thin_warnings(point_like)
     return PeopleResult(
-        rig, rms, used, frames_used, cover, advice, scale_from, time.perf_counter() - t0, warnings
+        rig,
+        rms,
+        used,
+        frames_used,
+        cover,
+        advice,
+        scale_from,
+        time.perf_counter() - t0,
+        warnings,
+        fit_px=camera_fit_px(views, groups, poses, intr),
+        held_out_px=held_out_fit(parts, intr) if held_out and len(parts) > 1 else {},
+        point_like=point_like,
+        recordings=len(parts),
     )
 
 

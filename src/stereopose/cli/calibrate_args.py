@@ -22,7 +22,13 @@ def add_calibrate_site(steps: dict[str, argparse.ArgumentParser]) -> None:
     cp.add_argument("--report", type=Path, metavar="DIR", help="write points.json here")
     pe = steps["people"]
     pe.add_argument(
-        "--pose", required=True, type=Path, metavar="DIR", help="detect's <camera>_json folders"
+        "--pose",
+        required=True,
+        type=Path,
+        nargs="+",
+        metavar="DIR",
+        help="detect's <camera>_json folders; several: recordings of the same cameras at "
+        "different times, pooled (each with its own frame numbers)",
     )
     pe.add_argument("--intrinsics", required=True, type=Path, help="calibration with intrinsics")
     pe.add_argument("--out", required=True, type=Path, metavar="CALIB.toml")
@@ -44,12 +50,25 @@ def add_calibrate_site(steps: dict[str, argparse.ArgumentParser]) -> None:
         metavar="METRES",
         help="the COCO ankle's height above the floor (default 0.08)",
     )
-    pe.add_argument("--max-frames", type=int, default=600, help="frames sampled at most")
+    pe.add_argument(
+        "--max-frames", type=int, default=600, help="frames sampled at most, per recording"
+    )
+    pe.add_argument(
+        "--held-out",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="with several recordings, each one's fit by the rig from the others (default: on)",
+    )
     pe.add_argument("--report", type=Path, metavar="DIR", help="write people.json here")
     rf = steps["refine"]
     rf.add_argument("--calib", required=True, type=Path, metavar="CALIB.toml")
     rf.add_argument(
-        "--pose", required=True, type=Path, metavar="DIR", help="detect's <camera>_json folders"
+        "--pose",
+        required=True,
+        type=Path,
+        nargs="+",
+        metavar="DIR",
+        help="detect's <camera>_json folders (several: recordings pooled)",
     )
     rf.add_argument("--out", required=True, type=Path, metavar="CALIB.toml")
     rf.add_argument(
@@ -57,4 +76,6 @@ def add_calibrate_site(steps: dict[str, argparse.ArgumentParser]) -> None:
         metavar="CAM,...",
         help="the cameras to place again (default: those the others place elsewhere)",
     )
-    rf.add_argument("--max-frames", type=int, default=600, help="frames sampled at most")
+    rf.add_argument(
+        "--max-frames", type=int, default=600, help="frames sampled at most, per recording"
+    )

@@ -142,6 +142,17 @@ def _scale(args: argparse.Namespace):
     return {"survey": read_survey(args.points)}
 
 
+def _recordings(dirs: list[Path], rig, max_frames: int) -> list[list]:
+    """Each folder's frames (its own frame numbers); the same folder twice is an error."""
+    seen: set[Path] = set()
+    for d in dirs:
+        key = d.resolve()
+        if key in seen:
+            raise StereoposeError(f"--pose: {d} is given twice")
+        seen.add(key)
+    return [_frames(d, rig, max_frames) for d in dirs]
+
+
 def _calibrate_people(args: argparse.Namespace) -> int:
     from stereopose.calibration.people import calibrate_people
 
@@ -150,31 +161,52 @@ def _calibrate_people(args: argparse.Namespace) -> int:
     if not 0.0 <= args.ankle_height <= 0.3:
         raise StereoposeError(f"--ankle-height: {args.ankle_height} m is not an ankle's height")
     intrinsics = _intrinsics(args.intrinsics)
-    frames = _frames(args.pose, intrinsics, args.max_frames)
-    with console.status(f"calibrating {len(intrinsics)} cameras from {len(frames)} frames"):
-        r = calibrate_people(frames, intrinsics, ankle_m=args.ankle_height, **scale)
-    _save(args.out, r.rig, {"method": "people", "pose": str(args.pose), "scale": r.scale_from})
+    recordings = _recordings(args.pose, intrinsics, args.max_frames)
+    n_frames = sum(len(r) for r in recordings)
+    where = f"{n_frames} frames" + (f" of {len(recordings)} recordings" * (len(recordings) > 1))
+    with console.status(f"calibrating {len(intrinsics)} cameras from {where}"):
+        r = calibrate_people(
+            recordings, intrinsics, ankle_m=args.ankle_height, held_out=args.held_out, **scale
+        )
+    pose = ", ".join(str(d) for d in args.pose)
+    _save(args.out, r.rig, {"method": "people", "pose": pose, "scale": r.scale_from})
+    fit = {"fit px": {k: f"{v:.1f}" for k, v in r.fit_px.items()}}
+    for i, h in r.held_out_px.items():
+        fit[f"held out {i + 1} px"] = {k: f"{v:.1f}" for k, v in h.items()}
     _rig_table(
         f"Rig from people, written to {args.out} (scale: {r.scale_from})",
         r.rig,
         r.camera_rms_px,
         {
             "joints": r.joints_used,
+            "point-like": r.point_like,
             "frames": r.frames_used,
             "view covered": {k: f"{100 * v:.0f}%" for k, v in r.coverage.items()},
+            **fit,
         },
     )
+    if len(recordings) > 1 and r.held_out_px:
+        out.print(
+            "fit px: median reprojection error on the recordings calibrated on; held out N: "
+            "on recording N (--pose order) by the rig from the others",
+            markup=False,
+            highlight=False,
+        )
     for a in r.advice:
         console.print(f"[yellow]coverage:[/] {escape(a)}")
     for w in r.warnings:
         console.print(f"[yellow]warning:[/] {escape(w)}")
-    out.print(f"{len(frames)} frames in {r.seconds:.1f} s", markup=False, highlight=False)
+    out.print(f"{where} in {r.seconds:.1f} s", markup=False, highlight=False)
     _report(
         args.report,
         "people.json",
         {
             "scale": r.scale_from,
+            "recordings": [str(d) for d in args.pose],
             "camera_rms_px": r.camera_rms_px,
+            "fit_px": r.fit_px,
+            "held_out_px": {str(args.pose[i]): h for i, h in r.held_out_px.items()},
+            "point_like_joints": r.point_like,
             "joints_used": r.joints_used,
             "frames_used": r.frames_used,
             "coverage": r.coverage,
@@ -191,7 +223,8 @@ def _calibrate_refine(args: argparse.Namespace) -> int:
     from stereopose.calibration.refine import refine_rig
 
     rig = load_calibration(args.calib)
-    frames = _frames(args.pose, rig, args.max_frames)
+    # recordings pooled: each frame stands alone here, so their frames simply follow
+    frames = [f for r in _recordings(args.pose, rig, args.max_frames) for f in r]
     if args.cameras is not None:
         names = [c.strip() for c in args.cameras.split(",") if c.strip()]
         if not names:

@@ -1,4 +1,7 @@
-"""Demo files of Pose2Sim (BSD-3-Clause): a Qualisys calibration, four videos, checkerboards.
+"""Demo files of Pose2Sim (BSD-3-Clause): a Qualisys calibration, two real 4-camera
+recordings of the same rig (Demo_MultiPerson: three people; Demo_SinglePerson: one walking),
+checkerboards. The wheel's Demo_Batch trials are byte-for-byte copies of these two recordings
+(Trial_1 of Demo_SinglePerson, Trial_2 of Demo_MultiPerson) and are not extracted.
 
 ``pose2sim_demo_dir()`` downloads the ``pose2sim`` wheel once with pip, extracts only the demo
 calibration and video folders into a cache folder and returns that folder. Run
@@ -25,19 +28,28 @@ _MEMBERS = (
     "Pose2Sim/Demo_MultiPerson/calibration/",
     "Pose2Sim/Demo_MultiPerson/videos/",
     "Pose2Sim/Demo_SinglePerson/calibration/",
+    "Pose2Sim/Demo_SinglePerson/videos/",
 )
 _MARKER = ".complete"
 
 
+def _complete(target: Path) -> bool:
+    """Extracted, with every member folder (an older cache may lack a newer one)."""
+    return (target / _MARKER).is_file() and all(
+        (target / m[len(_PREFIX) :]).is_dir() for m in _MEMBERS
+    )
+
+
 def pose2sim_demo_dir(cache: Path | None = None) -> Path:
-    """Folder with ``Demo_MultiPerson/{calibration,videos}``, ``Demo_SinglePerson/calibration``.
+    """Folder with ``Demo_MultiPerson`` and ``Demo_SinglePerson``, each with its
+    ``calibration`` and ``videos``.
 
     cache: cache root (default $STEREOPOSE_CACHE or ~/.cache/stereopose); the files go to
     ``<cache>/pose2sim-<version>``. Downloads and extracts on first use.
     """
     root = cache_root(cache)
     target = root / f"pose2sim-{POSE2SIM_VERSION}"
-    if (target / _MARKER).is_file():
+    if _complete(target):
         return target
     root.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=root))
