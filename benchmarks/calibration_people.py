@@ -11,9 +11,11 @@ surveyed points, a bumped camera placed again; and the real demo.
 - A camera bumped by 1.5 degrees and 0.3 m, placed again from the people the others see.
 - The real demo (shared/data/pose2sim-demo-yolo11n, 100 frames, 4 cameras): the rig from its
   people, and each camera bumped then placed again, against its Qualisys calibration.
+- The pose2sim wheel's two real recordings of that rig, each held out in turn
+  (benchmarks/real_recordings.py).
 Results: benchmarks/results/calibration_people.{md,json}.
 
-usage: python benchmarks/calibration_people.py [--quick]
+usage: python benchmarks/calibration_people.py [--quick] [--real-only]
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import cv2
 import numpy as np
 
 from common import machine
+from real_recordings import lines as real_lines
+from real_recordings import real_recordings
 from stereopose.calibration.formats import load_calibration
 from stereopose.calibration.people import calibrate_people
 from stereopose.calibration.refine import refine_rig
@@ -308,7 +312,13 @@ def _real_lines(rd) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="one walker for 60 s only")
+    ap.add_argument(
+        "--real-only", action="store_true", help="the real recordings only (results not written)"
+    )
     args = ap.parse_args()
+    if args.real_only:
+        print("\n".join(real_lines(real_recordings(DEMO))))
+        return
     res = {
         "date": datetime.date.today().isoformat(),
         "machine": machine().replace(", one thread", ""),
@@ -319,6 +329,7 @@ def main() -> None:
     res["points"] = points(5)
     res["refine"] = refine(2)
     res["real_demo"] = real_demo() if DEMO.is_dir() else "shared data not found"
+    res["real_recordings"] = real_recordings(DEMO) if DEMO.is_dir() else "shared data not found"
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "calibration_people.json").write_text(json.dumps(res, indent=1, default=str) + "\n")
     lines = [
@@ -352,6 +363,7 @@ def main() -> None:
         f"{rf['before_deg']:.2f} deg off before, {rf['after_deg']:.4f} deg and {rf['after_m']:.4f} m after; "
         f"the others unchanged: {rf['others_unchanged']}; {rf['seconds']:.1f} s.",
         "",
+        *real_lines(res["real_recordings"]),
         *_real_lines(res["real_demo"]),
     ]
     (OUT / "calibration_people.md").write_text("\n".join(lines))

@@ -66,9 +66,9 @@ class PeopleResult:
     of its view the walkers covered (0-1) and advice where too thin; the scale's source.
     fit_px: each camera's median reprojection error (confident joints) on the recordings it
     was calibrated on; held_out_px: recording index -> the same on that recording by the rig
-    from the others; point_like: each camera's observations of joints that are nearly points
-    in every view (nose, eyes, ears, wrists, ankles) in the adjustment; recordings: how many
-    were used."""
+    from the others, and held_out_all_px the median over all its cameras; point_like: each
+    camera's observations of joints that are nearly points in every view (nose, eyes, ears,
+    wrists, ankles) in the adjustment; recordings: how many were used."""
 
     rig: Rig
     camera_rms_px: dict[str, float]
@@ -81,6 +81,7 @@ class PeopleResult:
     warnings: list[str] = field(default_factory=list)
     fit_px: dict[str, float] = field(default_factory=dict)
     held_out_px: dict[int, dict[str, float]] = field(default_factory=dict)
+    held_out_all_px: dict[int, float] = field(default_factory=dict)
     point_like: dict[str, int] = field(default_factory=dict)
     recordings: int = 1
 
@@ -291,9 +292,12 @@ def solve_poses(parts: list[_Matched], intr: np.ndarray) -> _Solved:
     return _Solved(views, groups, poses, sol, pid, cam, uv)
 
 
-def held_out_fit(parts: list[_Matched], intr: np.ndarray) -> dict[int, dict[str, float]]:
-    """Recording index -> each camera's fit on it (median px) by the rig from the others."""
-    out = {}
+def held_out_fit(
+    parts: list[_Matched], intr: np.ndarray
+) -> tuple[dict[int, dict[str, float]], dict[int, float]]:
+    """Recording index -> each camera's fit on it (median px) by the rig from the others, and
+    the median over every camera's joints."""
+    out, overall = {}, {}
     for m in parts:
         rest = [p for p in parts if p is not m]
         try:
@@ -302,7 +306,8 @@ def held_out_fit(parts: list[_Matched], intr: np.ndarray) -> dict[int, dict[str,
             logger.warning("people: no rig without recording %d: %s", m.recording + 1, e)
             continue
         out[m.recording] = camera_fit_px(m.views, m.groups, poses, intr)
-    return out
+        overall[m.recording] = fit_px(m.views, m.groups, poses, intr)
+    return out, overall
 
 
 def calibrate_people(
@@ -358,6 +363,7 @@ def calibrate_people(
     ]
     point_like = point_like_joints(views, groups, pid, names)
     warnings += thin_warnings(point_like)
+    held, held_all = held_out_fit(parts, intr) if held_out and len(parts) > 1 else ({}, {})
     return PeopleResult(
         rig,
         rms,
@@ -369,7 +375,8 @@ def calibrate_people(
         time.perf_counter() - t0,
         warnings,
         fit_px=camera_fit_px(views, groups, poses, intr),
-        held_out_px=held_out_fit(parts, intr) if held_out and len(parts) > 1 else {},
+        held_out_px=held,
+        held_out_all_px=held_all,
         point_like=point_like,
         recordings=len(parts),
     )

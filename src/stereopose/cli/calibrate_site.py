@@ -185,10 +185,12 @@ def _calibrate_people(args: argparse.Namespace) -> int:
             **fit,
         },
     )
-    if len(recordings) > 1 and r.held_out_px:
+    if r.held_out_px:
         out.print(
             "fit px: median reprojection error on the recordings calibrated on; held out N: "
-            "on recording N (--pose order) by the rig from the others",
+            "on recording N (--pose order) by the rig from the others ("
+            + ", ".join(f"{i + 1}: {v:.1f} px" for i, v in r.held_out_all_px.items())
+            + " over all cameras)",
             markup=False,
             highlight=False,
         )
@@ -206,6 +208,7 @@ def _calibrate_people(args: argparse.Namespace) -> int:
             "camera_rms_px": r.camera_rms_px,
             "fit_px": r.fit_px,
             "held_out_px": {str(args.pose[i]): h for i, h in r.held_out_px.items()},
+            "held_out_all_px": {str(args.pose[i]): v for i, v in r.held_out_all_px.items()},
             "point_like_joints": r.point_like,
             "joints_used": r.joints_used,
             "frames_used": r.frames_used,
