@@ -45,6 +45,7 @@ from stereopose.detection.models import demo_videos
 from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
+from stereopose.io.sinks.stats import SummarySink
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
@@ -168,7 +169,8 @@ def measure(
             load_start = os.getloadavg()
             threading.Timer(seconds, stop.set).start()
             t0 = time.perf_counter()
-            FrameLoop(source, stage, [], summary, rules=step_chain(fences), stop=stop).run()
+            sinks = [SummarySink(summary)]  # the people figures (in memory)
+            FrameLoop(source, stage, sinks, summary, rules=step_chain(fences), stop=stop).run()
             wall = time.perf_counter() - t0
             rss_end = proc.memory_info().rss
             per_camera = {n: dataclasses.asdict(s) for n, s in cams.stats().items()}
