@@ -14,6 +14,12 @@ every pair of cameras, only people seen by cameras two at a time.
    surveyed points; z up and z = 0 on the floor under the feet (the ankles' plane, less the
    ankle's height above the floor); x along the first camera's view on the floor, the origin
    under it. With surveyed points, the points' own frame instead.
+
+Several recordings of the same cameras (walks at different times) are matched each on its
+own (its frame numbers, its tracks) and pooled for 2 and 3: every recording's first pair
+starts a placement of all the groups, and the one that fits best is adjusted. With two or
+more, each is held out in turn, and the rig from the others is measured on it
+(calibration.people_check).
 """
 
 from __future__ import annotations
@@ -49,7 +55,14 @@ from stereopose.errors import CalibrationError
 from stereopose.skeleton import SWAP
 from stereopose.types import Camera, People2D, Rig
 
-__all__ = ["PeopleResult", "calibrate_people"]
+__all__ = [
+    "Matched",
+    "PeopleResult",
+    "Solved",
+    "calibrate_people",
+    "match_recordings",
+    "solve_poses",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -166,7 +179,7 @@ Frames = list[tuple[int, dict[str, People2D]]]
 
 
 @dataclass
-class _Matched:
+class Matched:
     """One recording's views, its people grouped across cameras and its first pair."""
 
     views: Views
@@ -177,7 +190,7 @@ class _Matched:
 
 
 @dataclass
-class _Solved:
+class Solved:
     """The pooled views and groups, the poses (C, 6), the last adjustment's solution, each
     (group, joint)'s point in it (-1: none) and its observations' cameras and pixels."""
 
@@ -197,7 +210,7 @@ def _recordings(frames) -> list[Frames]:
     return [list(frames)]
 
 
-def _match(views: Views, focal: float, rng) -> _Matched:
+def _match(views: Views, focal: float, rng) -> Matched:
     """The groups and first pair of one recording: same-frame pairings, or whole tracks where
     single frames leave a camera unlinked."""
     names, C = views.cameras, len(views.cameras)
@@ -208,7 +221,7 @@ def _match(views: Views, focal: float, rng) -> _Matched:
     linked = {c for m in matches for c in (m.a, m.b)}
     alone = [names[c] for c in range(C) if c not in linked]
     if not alone:
-        return _Matched(views, group_detections(views, matches), _start(matches), thr)
+        return Matched(views, group_detections(views, matches), _start(matches), thr)
     # single frames do not say who is who: whole tracks paired (people_tracks)
     thr = TRACK_PX / focal
     by_tracks = match_tracks(views, thr)
@@ -220,10 +233,10 @@ def _match(views: Views, focal: float, rng) -> _Matched:
         )
     logger.info("people: camera(s) %s placed by tracks", ", ".join(alone))
     first, groups = by_tracks
-    return _Matched(views, groups, first, thr)
+    return Matched(views, groups, first, thr)
 
 
-def _pool(parts: list[_Matched]) -> tuple[Views, list[dict[int, int]], list[PairMatch]]:
+def _pool(parts: list[Matched]) -> tuple[Views, list[dict[int, int]], list[PairMatch]]:
     """The recordings' views in one (frame and detection indices shifted), their groups and
     their first pairs (pairings shifted likewise)."""
     det, numbers, groups, firsts = [], [], [], []
@@ -239,7 +252,7 @@ def _pool(parts: list[_Matched]) -> tuple[Views, list[dict[int, int]], list[Pair
 
 def match_recordings(
     recordings: list[Frames], cams: dict[str, Camera], seed: int = 0
-) -> tuple[list[_Matched], list[str]]:
+) -> tuple[list[Matched], list[str]]:
     """Each recording matched on its own (its own frame numbers, its own tracks); a recording
     that matches nobody is left out with a warning while another one matches."""
     focal = float(np.median([c.focal for c in cams.values()]))
@@ -266,7 +279,7 @@ def match_recordings(
     return parts, warnings
 
 
-def solve_poses(parts: list[_Matched], intr: np.ndarray) -> _Solved:
+def solve_poses(parts: list[Matched], intr: np.ndarray) -> Solved:
     """Every camera's pose (C, 6) from the matched recordings pooled, in the frame of the
     best start (its first camera at the origin, unit baseline): each recording's first pair
     starts a placement of every camera on all the groups, and the one whose joints fit best
@@ -289,11 +302,11 @@ def solve_poses(parts: list[_Matched], intr: np.ndarray) -> _Solved:
         raise CalibrationError("no recording's first pair places every camera")
     _, first, poses, X = best
     poses, sol, pid, cam, uv = _adjust_all(views, groups, poses, X, intr, first)
-    return _Solved(views, groups, poses, sol, pid, cam, uv)
+    return Solved(views, groups, poses, sol, pid, cam, uv)
 
 
 def held_out_fit(
-    parts: list[_Matched], intr: np.ndarray
+    parts: list[Matched], intr: np.ndarray
 ) -> tuple[dict[int, dict[str, float]], dict[int, float]]:
     """Recording index -> each camera's fit on it (median px) by the rig from the others, and
     the median over every camera's joints."""
