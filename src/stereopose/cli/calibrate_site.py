@@ -198,6 +198,14 @@ def _calibrate_people(args: argparse.Namespace) -> int:
         console.print(f"[yellow]coverage:[/] {escape(a)}")
     for w in r.warnings:
         console.print(f"[yellow]warning:[/] {escape(w)}")
+    if len(recordings) == 1 and args.held_out:
+        out.print(
+            "one recording: no held-out check; record another walk with the same cameras and "
+            "give both folders to --pose to see each camera's fit on people it was not "
+            "calibrated on",
+            markup=False,
+            highlight=False,
+        )
     out.print(f"{where} in {r.seconds:.1f} s", markup=False, highlight=False)
     _report(
         args.report,
