@@ -36,7 +36,13 @@ def test_an_admin_accepts_the_pose_proposed_for_a_knocked_camera(proposed, tmp_p
         chromium() as browser,
     ):
         with console_page(browser, s.url, "vera", "calibration-viewer") as page:
-            page.wait_for_selector('.camera-card[data-camera="cam02"] .camera-calibration:visible')
+            # the cards may be drawn again (the cameras' list coming in) after a first
+            # calibration line: wait for the proposal on the card as it stands
+            wait_until(
+                lambda: _line(page, "cam02")[0] == "proposed",
+                "the proposal shown to a viewer",
+                poll_s=0.1,
+            )
             state, text = _line(page, "cam02")
             assert state == "proposed" and "new pose proposed: turned 1." in text
             assert page.locator(".accept-pose").count() == 0  # a viewer cannot accept

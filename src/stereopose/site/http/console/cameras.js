@@ -118,6 +118,8 @@ export class CameraStrip {
       this.setLight(cam.name, cam.light);
       this.setRegions(cam.name, cam.regions);
     }
+    // the cards drawn again keep the keeper's last word on each camera until its next poll
+    if (this.lastCalibration) this.setCalibration(...this.lastCalibration);
     this.schedule();
   }
 
@@ -161,6 +163,7 @@ export class CameraStrip {
   /** The keeper's figures (GET /api/calibration; null: not running) on each camera's card;
    * role: the user's (only an admin gets Accept). */
   setCalibration(body, role) {
+    this.lastCalibration = [body, role];
     const cases = (body && body.cameras) || {};
     const proposals = (body && body.proposals) || {};
     const corrected = (body && body.corrected) || {};
