@@ -31,9 +31,10 @@ import numpy as np
 
 from common import machine
 from real_recordings import lines as real_lines
-from real_recordings import real_recordings
+from real_recordings import real_recordings, turns
 from stereopose.calibration.formats import load_calibration
 from stereopose.calibration.people import calibrate_people
+from stereopose.calibration.poses import rig_poses
 from stereopose.calibration.refine import refine_rig
 from stereopose.calibration.surveyed import Survey, calibrate_points
 from stereopose.errors import CalibrationError
@@ -135,12 +136,6 @@ def refine(seed: int) -> dict:
     }
 
 
-def _turn(rig: Rig, ref: Rig, name: str) -> float:
-    """Degrees between name's rotation from cam01 in rig and in ref (the worlds differ)."""
-    a, b = rig[name].R @ rig["cam01"].R.T, ref[name].R @ ref["cam01"].R.T
-    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(a @ b.T)[0])))
-
-
 def _reconstructed(rig: Rig, work: Path, name: str) -> dict:
     """The demo's detections through `reconstruct` with rig: its median reprojection (conf >
     0.5), people per frame, and the views each joint was triangulated from."""
@@ -184,7 +179,7 @@ def _fit_px(rig: Rig, views, groups) -> float:
     from stereopose.calibration.people_match import triangulate_groups
     from stereopose.geometry.camera import project_to_rig
 
-    poses = np.stack([np.concatenate([cv2.Rodrigues(c.R)[0].ravel(), c.translation]) for c in rig])
+    poses = rig_poses(rig)
     X = triangulate_groups(views, groups, poses, np.ones(len(rig), dtype=bool))
     errs = []
     for g, members in enumerate(groups):
@@ -212,7 +207,7 @@ def real_demo() -> dict:
         r = calibrate_people(frames, _bare(rig), distance=("cam01", "cam03", d))
         out["people"] = {
             "seconds": time.perf_counter() - t0,
-            "turn_deg": {n: _turn(r.rig, rig, n) for n in rig.names},
+            "turn_deg": turns(r.rig, rig),
             "rms_px": r.camera_rms_px,
             "coverage": r.coverage,
         }

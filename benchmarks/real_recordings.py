@@ -33,7 +33,7 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.calibration.people import calibrate_people, match_recordings
 from stereopose.calibration.people_check import camera_fit_px, fit_px
 from stereopose.calibration.people_match import triangulate_groups
-from stereopose.calibration.poses import intrinsics_row
+from stereopose.calibration.poses import intrinsics_row, pose_change, rig_poses
 from stereopose.calibration.refine import refine_rig
 from stereopose.cli import main as cli
 from stereopose.cli.calibrate_site import _frames
@@ -53,11 +53,7 @@ def _single_pose() -> Path:
     return out
 
 
-def _poses(rig: Rig) -> np.ndarray:
-    return np.stack([np.concatenate([cv2.Rodrigues(c.R)[0].ravel(), c.translation]) for c in rig])
-
-
-def _turns(rig: Rig, ref: Rig) -> dict[str, float]:
+def turns(rig: Rig, ref: Rig) -> dict[str, float]:
     out = {}
     for n in ref.names:
         a, b = rig[n].R @ rig["cam01"].R.T, ref[n].R @ ref["cam01"].R.T
@@ -115,9 +111,9 @@ def real_recordings(demo: Path) -> dict:
     }
     for i, m in enumerate(parts):
         res["qualisys"][NAMES[i]] = {
-            "fit_px": fit_px(m.views, m.groups, _poses(ref), intr),
-            "camera_fit_px": camera_fit_px(m.views, m.groups, _poses(ref), intr),
-            "held_out_camera_px": _held_out_camera(m, _poses(ref), intr),
+            "fit_px": fit_px(m.views, m.groups, rig_poses(ref), intr),
+            "camera_fit_px": camera_fit_px(m.views, m.groups, rig_poses(ref), intr),
+            "held_out_camera_px": _held_out_camera(m, rig_poses(ref), intr),
         }
     for i in range(2):
         t0 = time.perf_counter()
@@ -125,22 +121,24 @@ def real_recordings(demo: Path) -> dict:
         other = parts[1 - i]
         res["from"][NAMES[i]] = {
             "seconds": time.perf_counter() - t0,
-            "turn_deg": _turns(r.rig, ref),
+            "turn_deg": turns(r.rig, ref),
             "judged_on": NAMES[1 - i],
-            "held_out_px": fit_px(other.views, other.groups, _poses(r.rig), intr),
-            "held_out_camera_fit_px": camera_fit_px(other.views, other.groups, _poses(r.rig), intr),
+            "held_out_px": fit_px(other.views, other.groups, rig_poses(r.rig), intr),
+            "held_out_camera_fit_px": camera_fit_px(
+                other.views, other.groups, rig_poses(r.rig), intr
+            ),
         }
     t0 = time.perf_counter()
     r = calibrate_people(frames, ref, **scale)
     res["pooled"] = {
         "seconds": time.perf_counter() - t0,
-        "turn_deg": _turns(r.rig, ref),
+        "turn_deg": turns(r.rig, ref),
         "held_out_all_px": {NAMES[k]: v for k, v in r.held_out_all_px.items()},
         "fit_px": {
-            NAMES[i]: fit_px(m.views, m.groups, _poses(r.rig), intr) for i, m in enumerate(parts)
+            NAMES[i]: fit_px(m.views, m.groups, rig_poses(r.rig), intr) for i, m in enumerate(parts)
         },
         "held_out_camera_px": {
-            NAMES[i]: _held_out_camera(m, _poses(r.rig), intr) for i, m in enumerate(parts)
+            NAMES[i]: _held_out_camera(m, rig_poses(r.rig), intr) for i, m in enumerate(parts)
         },
         "point_like": r.point_like,
         "warnings": [w for w in r.warnings if "point" in w],
@@ -150,9 +148,7 @@ def real_recordings(demo: Path) -> dict:
     for name in ref.names:
         knocked = Rig(tuple(_turned(c, 2.0) if c.name == name else c for c in ref))
         new, _ = refine_rig(knocked, [name], pooled)
-        res["turned_2deg"][name] = float(
-            np.degrees(np.linalg.norm(cv2.Rodrigues(new[name].R @ ref[name].R.T)[0]))
-        )
+        res["turned_2deg"][name] = pose_change(ref[name], new[name])[0]
     return res
 
 

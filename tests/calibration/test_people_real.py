@@ -17,6 +17,7 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.calibration.people import calibrate_people
 from stereopose.calibration.people_match import collect_views, triangulate_groups
 from stereopose.calibration.people_tracks import camera_tracks, match_tracks
+from stereopose.calibration.poses import rig_poses
 from stereopose.cli.calibrate_site import _frames
 from stereopose.geometry.camera import project_to_rig
 
@@ -32,7 +33,7 @@ def _turn(rig, ref, name: str) -> float:
 
 def _fit_px(rig, views, groups) -> float:
     """Median pixel error of the groups' joints triangulated with rig, over every camera."""
-    poses = np.stack([np.concatenate([cv2.Rodrigues(c.R)[0].ravel(), c.translation]) for c in rig])
+    poses = rig_poses(rig)
     X = triangulate_groups(views, groups, poses, np.ones(len(rig), dtype=bool))
     errs = []
     for g, members in enumerate(groups):

@@ -20,7 +20,7 @@ import pytest
 from stereopose.calibration.formats import load_calibration
 from stereopose.calibration.people import match_recordings
 from stereopose.calibration.people_check import fit_px, thin_warnings
-from stereopose.calibration.poses import intrinsics_row
+from stereopose.calibration.poses import intrinsics_row, pose_change, rig_poses
 from stereopose.calibration.refine import refine_rig
 from stereopose.cli import main
 from stereopose.cli.calibrate_site import _frames
@@ -39,14 +39,6 @@ def single_person_pose(pose2sim_dir, tmp_path_factory) -> Path:
     args += ["--out", str(out), "--no-regions", "--backend", "onnx", "--precision", "fp32"]
     assert main(args) == 0
     return out
-
-
-def _poses(rig: Rig) -> np.ndarray:
-    return np.stack([np.concatenate([cv2.Rodrigues(c.R)[0].ravel(), c.translation]) for c in rig])
-
-
-def _angle(a: Camera, b: Camera) -> float:
-    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(a.R @ b.R.T)[0])))
 
 
 def test_the_rig_from_two_recordings_predicts_each_as_qualisys_does(
@@ -70,12 +62,12 @@ def test_the_rig_from_two_recordings_predicts_each_as_qualisys_does(
     parts, _ = match_recordings(frames, {c.name: c for c in ref})
     intr = np.stack([intrinsics_row(c) for c in ref])
     for m, p in zip(parts, pose, strict=True):
-        qualisys = fit_px(m.views, m.groups, _poses(ref), intr)
+        qualisys = fit_px(m.views, m.groups, rig_poses(ref), intr)
         held = doc["held_out_all_px"][p]
         # measured: 9.9 px against Qualisys's 11.0 (single), 15.1 against 14.8 (multi)
         assert held <= qualisys + 1.0, (p, held, qualisys)
         # the pooled rig fits both recordings
-        assert fit_px(m.views, m.groups, _poses(rig), intr) <= qualisys + 0.3, p
+        assert fit_px(m.views, m.groups, rig_poses(rig), intr) <= qualisys + 0.3, p
     # each camera's fit on its own data is reported beside the held-out one
     assert set(doc["fit_px"]) == set(ref.names)
     assert all(v > 300 for v in doc["point_like_joints"].values()), doc["point_like_joints"]
@@ -91,10 +83,10 @@ def test_a_camera_turned_two_degrees_comes_back_from_both_recordings(
     R = cv2.Rodrigues(np.radians(2.0) * np.array([0.3, 1.0, 0.2]) / np.sqrt(1.13))[0] @ c.R
     turned = Camera(c.name, c.size, c.matrix, c.distortions, cv2.Rodrigues(R)[0], -R @ c.center)
     knocked = Rig(tuple(turned if k.name == c.name else k for k in ref))
-    assert _angle(knocked["cam04"], c) == pytest.approx(2.0, abs=1e-6)
+    assert pose_change(c, knocked["cam04"])[0] == pytest.approx(2.0, abs=1e-6)
     new, done = refine_rig(knocked, ["cam04"], frames)
     # measured 0.75 degrees from Qualisys's (the module: the data's own spread)
-    assert _angle(new["cam04"], c) < 1.0, done["cam04"]
+    assert pose_change(c, new["cam04"])[0] < 1.0, done["cam04"]
     assert all(new[n] is knocked[n] for n in ref.names if n != "cam04")
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from stereopose.types import Camera
 
-__all__ = ["camera_with_pose", "intrinsics_row", "pose_change", "robust_pnp"]
+__all__ = ["camera_with_pose", "intrinsics_row", "pose_change", "rig_poses", "robust_pnp"]
 
 
 def intrinsics_row(cam: Camera) -> np.ndarray:
@@ -17,6 +17,11 @@ def intrinsics_row(cam: Camera) -> np.ndarray:
     K, d = cam.matrix, np.zeros(4)
     d[: min(4, cam.distortions.size)] = cam.distortions[:4]
     return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d])
+
+
+def rig_poses(cameras) -> np.ndarray:
+    """(C, 6) each camera's pose (Rodrigues vector, translation; world -> camera), in order."""
+    return np.stack([np.concatenate([c.rotation, c.translation]) for c in cameras])
 
 
 def pose_change(old: Camera, new: Camera) -> tuple[float, float]:
