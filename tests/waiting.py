@@ -7,19 +7,24 @@ import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
+T = TypeVar("T")
+
 
 def wait_until(
-    condition: Callable[[], bool], what: str, timeout_s: float = 20.0, poll_s: float = 0.01
-) -> None:
-    """Poll ``condition()`` until it is true; fail the test if ``timeout_s`` passes first."""
+    condition: Callable[[], T], what: str, timeout_s: float = 20.0, poll_s: float = 0.01
+) -> T:
+    """Poll ``condition()`` until it is true; fail the test if ``timeout_s`` passes first.
+    Returns the true value it gave (what was found, read at the moment it was found)."""
     deadline = time.monotonic() + timeout_s
-    while not condition():
+    while not (found := condition()):
         if time.monotonic() > deadline:
             pytest.fail(f"still waiting for {what} after {timeout_s} s")
         time.sleep(poll_s)
+    return found
 
 
 def listening(port: int, taken: bool = False) -> bool:
