@@ -956,7 +956,9 @@ def _wait_for_its_clips(w: Watched, served: Served, event_id: int) -> None:
         listed = answer.json()["events"][0]["clips"]
         return bool(shown) and sorted(shown) == sorted(listed)
 
-    wait_until(drawn_as_listed, "the row's clips as the server lists them", timeout_s=30, poll_s=0.5)
+    wait_until(
+        drawn_as_listed, "the row's clips as the server lists them", timeout_s=30, poll_s=0.5
+    )
 
 
 _OPENED_FOR = """([name, incident]) => {
