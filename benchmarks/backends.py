@@ -43,6 +43,7 @@ VARIANTS = {  # name: (backend, precision)
     "onnxruntime_fp32": ("onnx", "fp32"),
     "openvino_fp32": ("openvino", "fp32"),
     "openvino_bf16": ("openvino", "bf16"),
+    "openvino_int8": ("openvino", "int8"),  # OpenVINO's INT8 model (NNCF), its head in fp32
 }
 IMGSZ = (640, 320)
 PCK_PX = (1.0, 2.0, 5.0)
@@ -276,6 +277,31 @@ def markdown(cpus: dict) -> list[str]:
             f"{_f(m['median_mm'], 2)} / {_f(m['p95_mm'], 1)} | "
             f"{ms['onnxruntime_fp32_640_2thread']:.1f} -> {ms['openvino_bf16_640_2thread']:.1f} |"
         )
+    int8 = {cpu: r for cpu, r in cpus.items() if "openvino_int8" in r["run"]}
+    if int8:
+        md += [
+            "",
+            "OpenVINO's INT8 model (NNCF, its pose head in fp32) against ONNX Runtime fp32, by "
+            "CPU: the same figures, and its speed against bf16's:",
+            "",
+            "| CPU | people matched / only one | 2D median / p95 / max px | 3D median / p95 mm "
+            "| ms per frame, 2 threads: bf16 -> int8 | `run` wall s: bf16 -> int8 |",
+            "|---|---|---|---|---|---|",
+        ]
+    for cpu, r in int8.items():
+        a, m, ms = (
+            r["agreement"]["openvino_int8"],
+            r["joints_moved"]["openvino_int8"],
+            r["ms_per_frame"],
+        )
+        md.append(
+            f"| {cpu} | {a['people_matched']} / "
+            f"{a['people_only_reference'] + a['people_only_this']} | {_f(a['median_px'], 2)} / "
+            f"{_f(a['p95_px'], 2)} / {_f(a['max_px'], 1)} | {_f(m['median_mm'], 2)} / "
+            f"{_f(m['p95_mm'], 1)} | {ms['openvino_bf16_640_2thread']:.1f} -> "
+            f"{ms['openvino_int8_640_2thread']:.1f} | {r['run']['openvino_bf16']['wall_s']:.1f}"
+            f" -> {r['run']['openvino_int8']['wall_s']:.1f} |"
+        )
     for cpu, r in cpus.items():
         md += ["", f"## {cpu}", "", *section(r)]
     return md
@@ -283,7 +309,7 @@ def markdown(cpus: dict) -> list[str]:
 
 def section(r: dict) -> list[str]:
     ms, ag, run, moved = r["ms_per_frame"], r["agreement"], r["run"], r["joints_moved"]
-    names = list(VARIANTS)
+    names = [v for v in VARIANTS if v in run]  # an earlier run may lack a later variant
     md = [
         f"`python benchmarks/backends.py --steps {r['steps']}`, {r['date']}, {r['machine']} "
         f"(capabilities {', '.join(r['cpu_capabilities'])}), OpenVINO {r['openvino']}; load "

@@ -13,7 +13,7 @@ from stereopose.detection import ModelError, make_detector
     ("backend", "precision", "message"),
     [
         ("onnx", "fp8", "precision must be auto or one of fp32, bf16, int8, fp16"),
-        ("ultralytics", "int8", "int8 needs the onnx backend"),
+        ("ultralytics", "int8", "int8 needs the onnx or openvino backend"),
     ],
 )
 def test_an_unknown_precision_or_backend_is_refused(backend, precision, message):

@@ -237,13 +237,22 @@ def _add_models(mo: argparse.ArgumentParser) -> None:
     """`models`."""
     mo.add_argument("action", choices=("list", "fetch", "export"), nargs="?", default="list")
     mo.add_argument("weights", type=Path, nargs="?", help="export: a YOLO pose .pt file")
-    mo.add_argument("--out", type=Path, help="export: the .onnx file to write")
+    mo.add_argument(
+        "--out", type=Path, help="export: the .onnx file to write (.xml with --openvino-int8)"
+    )
     mo.add_argument("--force", action="store_true", help="export again even if cached")
     mo.add_argument(
         "--int8",
         action="store_true",
         help="export: the INT8-quantised ONNX model ([detector] precision = "
         '"int8"), from the .onnx or .pt given or the default model',
+    )
+    mo.add_argument(
+        "--openvino-int8",
+        action="store_true",
+        help="export: OpenVINO's INT8 model (.xml and .bin, quantised by NNCF and checked "
+        "against fp32) of the .onnx or .pt given or the default model; a plain export of the "
+        "default model makes it too where OpenVINO and NNCF are installed",
     )
 
 

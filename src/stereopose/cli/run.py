@@ -130,6 +130,8 @@ def _models(args: argparse.Namespace) -> int:
         out.print(str(models.fetch_default_weights()), highlight=False, soft_wrap=True)
     elif args.action == "export" and args.int8:
         out.print(str(_export_int8(models, args)), highlight=False, soft_wrap=True)
+    elif args.action == "export" and args.openvino_int8:
+        _said_int8(_export_openvino_int8(models, args))
     elif args.action == "export":
         if args.weights is None and args.out is None and not args.force:
             target = models.models_dir() / f"{models.DEFAULT_MODEL}.onnx"
@@ -137,6 +139,8 @@ def _models(args: argparse.Namespace) -> int:
         else:
             path = models.export_onnx(args.weights, args.out)
         out.print(str(path), highlight=False, soft_wrap=True)
+        if args.weights is None and args.out is None:
+            _default_openvino_int8(models, args.force)
     else:
         found = models.list_models()
         if not found:
@@ -144,6 +148,59 @@ def _models(args: argparse.Namespace) -> int:
         for path in found:
             out.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB", highlight=False)
     return 0
+
+
+def _default_openvino_int8(models, force: bool) -> None:
+    """OpenVINO's INT8 model of the default model, made once where OpenVINO and NNCF are
+    installed (a runtime install says how to do without)."""
+    import importlib.util
+
+    target = models.openvino_int8_path()
+    if target.is_file() and not force:
+        _said_int8(target)
+        return
+    missing = [m for m in ("openvino", "nncf") if importlib.util.find_spec(m) is None]
+    if missing:
+        out.print(
+            f"OpenVINO's INT8 model not made: {' and '.join(missing)} not installed "
+            "(pip install 'stereopose[openvino,int8]'); detection runs the float model",
+            highlight=False,
+        )
+        return
+    _said_int8(models.quantize_int8_openvino(out=target))
+
+
+def _export_openvino_int8(models, args: argparse.Namespace) -> Path:
+    """OpenVINO's INT8 model of the .onnx (or .pt) given, or of the default model."""
+    if args.weights is None:
+        src = models.default_onnx()
+        target = args.out or models.openvino_int8_path()
+    else:
+        src = models.check_weights(Path(args.weights))
+        if src.suffix == ".pt":
+            src = models.export_onnx(src, models.models_dir() / f"{src.stem}.onnx")
+        target = args.out or models.models_dir() / f"{src.stem}{models.INT8_SUFFIX}.xml"
+    if Path(target).is_file() and not args.force:
+        return Path(target)
+    return models.quantize_int8_openvino(src, target)
+
+
+def _said_int8(path: Path) -> None:
+    """The OpenVINO INT8 model's path and its check against fp32, on one line."""
+    from stereopose.detection.int8_openvino import read_check
+
+    found = read_check(path) or {}
+    if found.get("accepted"):
+        verdict = "within the bound: auto takes it where it is faster"
+    elif "p95_px" in found:
+        verdict = f"over the {found.get('p95_bound_px')} px bound: auto does not take it"
+    else:
+        verdict = "no check beside it: auto does not take it"
+    out.print(
+        f"{path} (joints {found.get('p95_px', '?')} px p95 from fp32's, {verdict})",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 def _export_int8(models, args: argparse.Namespace) -> Path:

@@ -89,7 +89,12 @@ _ASK = object()  # choose(): find out here whether the CPU has bfloat16
 
 
 def choose(
-    backend: str = AUTO, precision: str = AUTO, device: str = "cpu", *, bf16: object = _ASK
+    backend: str = AUTO,
+    precision: str = AUTO,
+    device: str = "cpu",
+    *,
+    bf16: object = _ASK,
+    int8: object = _ASK,
 ) -> Choice:
     """The backend and precision to run: an explicit one as given (precision auto: fp32);
     backend auto picks by device, and on the CPU by what it can do (bf16: whether OpenVINO is
@@ -99,7 +104,12 @@ def choose(
     Runtime fp32 on an Intel Xeon with AMX and 2.2x on an AMD EPYC with AVX512_BF16, its 3D
     joints within 5 cm (p95) of fp32's with the same people and ids; OpenVINO fp32 is not
     faster than ONNX Runtime everywhere (1.5x slower at imgsz 320 on the Xeon), so without
-    bfloat16 the choice stays ONNX Runtime fp32, exact."""
+    bfloat16 the choice stays ONNX Runtime fp32, exact.
+
+    Then, with OpenVINO installed and precision auto, OpenVINO's INT8 model of the default
+    model instead, where it was made, its check against fp32 passed and it runs at least
+    int8_choice.MIN_SPEEDUP times faster on this CPU (int8: an int8_choice.Int8Found; default:
+    found out here, its speed measured once per machine; None: not considered)."""
     if backend != AUTO:
         if precision == AUTO:
             return Choice(backend, "fp32", "as configured")
@@ -116,11 +126,15 @@ def choose(
     if bf16 is _ASK:
         bf16 = cpu_bf16()
     if bf16:
-        return Choice(
-            "openvino",
-            "bf16",
-            "auto: this CPU has bfloat16 instructions; OpenVINO bf16 is "
-            "about 2x faster than fp32, 3D joints within 5 cm",
+        return _or_int8(
+            Choice(
+                "openvino",
+                "bf16",
+                "auto: this CPU has bfloat16 instructions; OpenVINO bf16 is "
+                "about 2x faster than fp32, 3D joints within 5 cm",
+            ),
+            precision,
+            int8,
         )
     if precision == "bf16":
         raise ModelError(
@@ -132,7 +146,35 @@ def choose(
             )
         )
     why = "no bfloat16 instructions on this CPU" if bf16 is False else "OpenVINO not installed"
-    return Choice("onnx", "fp32", f"auto: {why}; ONNX Runtime fp32, exact")
+    fp32 = Choice("onnx", "fp32", f"auto: {why}; ONNX Runtime fp32, exact")
+    return fp32 if bf16 is None else _or_int8(fp32, precision, int8)
+
+
+def _or_int8(chosen: Choice, precision: str, int8: object) -> Choice:
+    """OpenVINO's INT8 model instead of the float `chosen` where auto may choose it (precision
+    auto), its check against fp32 passed and it is faster on this CPU (detection.int8_choice;
+    int8: an Int8Found, _ASK: found out here, None: not considered, as for a model of the
+    user's own); else `chosen`, saying why not."""
+    if precision != AUTO or int8 is None:
+        return chosen
+    from stereopose.detection.int8_choice import Int8Found, find_int8
+
+    # weighed against OpenVINO's own run of the float model: bf16, or fp32 (about ONNX
+    # Runtime's speed: results/backends.md)
+    against = "OpenVINO bf16" if chosen.precision == "bf16" else "fp32"
+    found = find_int8("bf16" if chosen.precision == "bf16" else "fp32") if int8 is _ASK else int8
+    if not isinstance(found, Int8Found):
+        raise TypeError(f"int8: an Int8Found, None or left out, not {found!r}")
+    refused = found.refusal(against)
+    if refused is not None:
+        return Choice(chosen.backend, chosen.precision, f"{chosen.why}; INT8 not taken: {refused}")
+    p95 = (found.check or {}).get("p95_px")
+    return Choice(
+        "openvino",
+        "int8",
+        f"auto: OpenVINO's INT8 model runs at {found.speedup:.2f}x {against}'s speed on this "
+        f"CPU, its joints {p95} px (p95) from fp32's",
+    )
 
 
 def make_detector(
@@ -162,7 +204,8 @@ def make_detector(
         raise ModelError(
             f"precision must be auto or one of {', '.join(PRECISIONS)}, got {precision!r}"
         )
-    choice = choose(backend, precision, device)
+    # OpenVINO's INT8 model is of the default model: a model of the user's own runs as chosen
+    choice = choose(backend, precision, device, int8=_ASK if model is None else None)
     detector = _build(choice.backend, model, imgsz, conf, iou, device, threads, choice.precision)
     detector.choice = choice  # type: ignore[attr-defined]
     logger.info("detector: %s", choice)
@@ -182,10 +225,8 @@ def _build(
     """make_detector's backend, once chosen."""
     if precision not in PRECISIONS:
         raise ModelError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    if precision == "int8" and backend != "onnx":
-        # OpenVINO runs ONNX Runtime's INT8 model, but loses people with it (person scores
-        # about 0.3 where ONNX Runtime gives 0.9: benchmarks/results/backends.md)
-        raise ModelError(f"precision int8 needs the onnx backend, not {backend!r}")
+    if precision == "int8" and backend not in ("onnx", "openvino"):
+        raise ModelError(f"precision int8 needs the onnx or openvino backend, not {backend!r}")
     if precision == "bf16" and backend != "openvino":
         raise ModelError(f"precision bf16 needs the openvino backend, not {backend!r}")
     if precision == "fp16" and backend != "onnx":
@@ -206,7 +247,11 @@ def _build(
             if path.suffix == ".pt":
                 onnx = models_dir() / f"{path.stem}.onnx"
                 path = onnx if onnx.is_file() else export_onnx(path, onnx)
-        if precision == "int8":
+        if precision == "int8" and backend == "openvino":
+            # OpenVINO's own INT8 model (NNCF): ONNX Runtime's loses people on OpenVINO
+            # (person scores about 0.3 where ONNX Runtime gives 0.9: results/backends.md)
+            path = _openvino_int8(path, model is None)
+        elif precision == "int8":
             path = _int8(path, model is None)
         if backend == "openvino":
             from stereopose.detection.yolo_openvino import OpenVinoPoseDetector
@@ -233,3 +278,18 @@ def _int8(path: Path, default: bool) -> Path:
         return path
     target = models_dir() / f"{path.stem}{INT8_SUFFIX}.onnx"
     return target if target.is_file() else quantize_int8(path, target)
+
+
+def _openvino_int8(path: Path, default: bool) -> Path:
+    """OpenVINO's INT8 model of the ONNX model at `path` (an .xml given: taken as it is),
+    quantised once into the cache."""
+    from stereopose.detection.models import (
+        INT8_SUFFIX,
+        openvino_int8_path,
+        quantize_int8_openvino,
+    )
+
+    if path.suffix == ".xml":
+        return path
+    target = openvino_int8_path() if default else models_dir() / f"{path.stem}{INT8_SUFFIX}.xml"
+    return target if target.is_file() else quantize_int8_openvino(path, target)

@@ -106,8 +106,10 @@ def check_weights(path: Path) -> Path:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found")
-    if path.suffix not in (".pt", ".onnx"):
-        raise ModelError(f"{path}: expected a YOLO pose model (.pt or .onnx)")
+    if path.suffix not in (".pt", ".onnx", ".xml"):
+        raise ModelError(
+            f"{path}: expected a YOLO pose model (.pt, .onnx, or OpenVINO's .xml and .bin)"
+        )
     return path
 
 
@@ -165,7 +167,9 @@ def list_models(cache: Path | None = None) -> list[Path]:
     folder = models_dir(cache)
     if not folder.is_dir():
         return []
-    return sorted(p for p in folder.iterdir() if p.suffix in (".pt", ".onnx") and p.is_file())
+    return sorted(
+        p for p in folder.iterdir() if p.suffix in (".pt", ".onnx", ".xml") and p.is_file()
+    )
 
 
 INT8_SUFFIX = "-int8"
@@ -177,8 +181,10 @@ def demo_videos(cache: Path | None = None) -> list[Path]:
     return sorted(cache_root(cache).glob("pose2sim-*/Demo_MultiPerson/videos/*.mp4"))
 
 
-def calibration_frames(videos: list[Path], n: int = CALIBRATION_FRAMES) -> list:
-    """n frames spread over the videos (BGR uint8), for quantisation."""
+def calibration_frames(videos: list[Path], n: int = CALIBRATION_FRAMES, phase: float = 0.0) -> list:
+    """n frames spread over the videos (BGR uint8), for quantisation; phase in [0, 1): how far
+    between two calibration frames to take them instead (frames for a check, none of the
+    calibration's)."""
     import cv2
 
     frames = []
@@ -187,7 +193,7 @@ def calibration_frames(videos: list[Path], n: int = CALIBRATION_FRAMES) -> list:
         cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
         count = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 1)
         for k in range(per):
-            cap.set(cv2.CAP_PROP_POS_FRAMES, k * count // per)
+            cap.set(cv2.CAP_PROP_POS_FRAMES, int((k + phase) * count / per))
             ok, image = cap.read()
             if ok and image is not None:
                 frames.append(image)
@@ -239,3 +245,76 @@ def default_int8(cache: Path | None = None, make: bool = True) -> Path:
     if not make:
         raise ModelError(f"{target}: INT8 pose model not found; run `stereopose models export`")
     return quantize_int8(default_onnx(cache), target, cache=cache)
+
+
+OV_INT8_FRAMES = 64  # real frames the OpenVINO INT8 model's activations are measured on
+OV_CHECK_FRAMES = 24  # other real frames it is checked on against the float model
+
+
+def int8_videos(cache: Path | None = None) -> list[Path]:
+    """The real recordings' videos in the cache (the demo's people, and one person walking
+    about): what the OpenVINO INT8 model is calibrated and checked on."""
+    root = cache_root(cache)
+    return sorted(root.glob("pose2sim-*/Demo_MultiPerson/videos/*.mp4")) + sorted(
+        root.glob("pose2sim-*/Demo_SinglePerson/videos/*.mp4")
+    )
+
+
+def openvino_int8_path(cache: Path | None = None) -> Path:
+    """Where the default OpenVINO INT8 model is kept: ``<cache>/models/yolo11n-pose-int8.xml``
+    (and its .bin, and its check in .json)."""
+    return models_dir(cache) / f"{DEFAULT_MODEL}{INT8_SUFFIX}.xml"
+
+
+def quantize_int8_openvino(
+    model: Path | None = None, out: Path | None = None, cache: Path | None = None
+) -> Path:
+    """OpenVINO's INT8 model of an ONNX pose model (default: the cache's yolo11n-pose),
+    quantised by NNCF on frames of the real recordings and checked against the float model on
+    others (detection.int8_openvino); its .xml path (default `openvino_int8_path`)."""
+    import json
+
+    src = check_weights(Path(model) if model is not None else default_onnx(cache))
+    if src.suffix != ".onnx":
+        raise ModelError(f"{src}: INT8 quantisation needs an ONNX model (.onnx)")
+    out = Path(out) if out is not None else openvino_int8_path(cache)
+    if out.suffix != ".xml":
+        raise ModelError(f"{out}: OpenVINO's INT8 model is written as an .xml file (and .bin)")
+    for module, extra in (("openvino", "openvino"), ("nncf", "int8")):
+        require(
+            module,
+            extra,
+            f"INT8 quantisation of {src.name} for OpenVINO",
+            f"or copy {out.name}, {out.with_suffix('.bin').name} and "
+            f"{out.with_suffix('.json').name} from an install that has made them to {out.parent}",
+        )
+    videos = int8_videos(cache)
+    if not videos:
+        raise ModelError(
+            f"INT8 quantisation needs calibration frames: the real recordings are not in "
+            f"{cache_root(cache)} (`python -m stereopose.io.pose2sim_data` unpacks them once)"
+        )
+    from stereopose.detection.int8_openvino import check, quantize
+    from stereopose.detection.yolo_openvino import OpenVinoPoseDetector
+
+    offline_environment(cache)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=".int8.") as tmp:
+        staged = quantize(src, Path(tmp) / out.name, calibration_frames(videos, OV_INT8_FRAMES))
+        frames = calibration_frames(videos, OV_CHECK_FRAMES, phase=0.5)
+        found = check(
+            OpenVinoPoseDetector(src, precision="fp32"),
+            OpenVinoPoseDetector(staged, precision="int8"),
+            frames,
+        )
+        found["model"] = src.name
+        staged.with_suffix(".json").write_text(json.dumps(found, indent=1) + "\n", "utf-8")
+        for suffix in (".bin", ".json", ".xml"):  # the .xml last: its presence says complete
+            os.replace(staged.with_suffix(suffix), out.with_suffix(suffix))
+    logger.info(
+        "OpenVINO INT8 model written to %s: joints p95 %s px from the float model's (%s)",
+        out,
+        found["p95_px"],
+        "accepted" if found["accepted"] else f"over the {found['p95_bound_px']} px bound",
+    )
+    return out

@@ -25,7 +25,9 @@ from stereopose.skeleton import NUM_JOINTS
 
 logger = logging.getLogger(__name__)
 
-_HINTS = {"fp32": "f32", "bf16": "bf16"}  # INFERENCE_PRECISION_HINT
+# INFERENCE_PRECISION_HINT: an INT8 model (detection.int8_openvino) runs its quantised
+# convolutions in integers and the rest, its pose head among them, in 32-bit floats
+_HINTS = {"fp32": "f32", "bf16": "bf16", "int8": "f32"}
 STREAMS = 2  # a CPU's batches split over this many inference streams
 
 
@@ -58,10 +60,15 @@ class OpenVinoPoseDetector:
         precision: str = "fp32",
     ) -> None:
         self.model = check_weights(Path(model))
-        if self.model.suffix != ".onnx":
-            raise ModelError(f"{self.model}: the openvino backend needs an .onnx model")
+        if self.model.suffix not in (".onnx", ".xml"):
+            raise ModelError(
+                f"{self.model}: the openvino backend needs an .onnx model or OpenVINO's .xml"
+            )
         if precision not in _HINTS:
-            raise ModelError(f"precision {precision!r}: the openvino backend runs fp32 or bf16")
+            raise ModelError(
+                f"precision {precision!r}: the openvino backend runs fp32, bf16 or int8 "
+                "(OpenVINO's INT8 model)"
+            )
         try:
             import openvino as ov
 

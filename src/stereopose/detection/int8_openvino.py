@@ -1,0 +1,152 @@
+"""INT8 YOLO pose model for OpenVINO: post-training quantisation by NNCF, and its check.
+
+`quantize` reads the ONNX model with OpenVINO, measures its activations' ranges on real frames
+letterboxed as detection does, and writes OpenVINO's own model files (``.xml`` and ``.bin``) in
+which the backbone's and neck's convolutions run in 8-bit integers (weights per channel,
+symmetric; activations asymmetric: NNCF's "mixed" preset). Left in floats, as in the ONNX
+Runtime model (detection.int8): the pose head (``/model.23/`` in an Ultralytics export), whose
+outputs are keypoint offsets times the stride, where 8 bits put joints tens of pixels off.
+
+`check` says how far the quantised model's people are from the float model's on frames it was
+not calibrated on: people matched by box overlap, the distance of the joints both see. The
+check is written beside the model (``<stem>.json``); `make_detector`'s auto choice takes the
+INT8 model only where its check passed (`accepted`) and it is faster on the CPU at hand.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from stereopose.detection.base import Poses, letterbox_for, letterbox_image, to_blob
+
+logger = logging.getLogger(__name__)
+
+HEAD = r".*/model\.23/.*"  # the pose head of an Ultralytics export: left in floats
+# 2D joints of the INT8 model against the float model's, p95 over the check's frames, at most:
+# OpenVINO bf16's on the real demo (5.6-5.9 px, benchmarks/results/backends.md), whose 3D
+# joints are within 5 cm (p95) of fp32's
+CHECK_P95_PX = 6.0
+CHECK_MISSED = 0.02  # share of the float model's people the INT8 model may miss, at most
+MATCH_IOU = 0.5
+SEEN = 0.5  # a joint's confidence to be compared
+
+
+def _blobs(frames: Sequence[np.ndarray], imgsz: int, stride: int) -> list[np.ndarray]:
+    out = []
+    for image in frames:
+        lb = letterbox_for(image.shape[:2], imgsz, stride, auto=True)
+        out.append(to_blob([letterbox_image(image, lb)]))
+    return out
+
+
+def quantize(src: Path, out: Path, frames: Sequence[np.ndarray], imgsz: int = 640) -> Path:
+    """`src` (an ONNX YOLO pose model) quantised to OpenVINO's INT8 model `out` (.xml, its
+    .bin beside it), its activations' ranges measured on `frames` (BGR uint8)."""
+    import nncf
+    import openvino as ov
+
+    from stereopose.detection.openvino_core import ov_core
+
+    if not frames:
+        raise ValueError("quantisation needs at least one calibration frame")
+    model = ov_core().read_model(str(src))
+    stride = _stride(model)
+    blobs = _blobs(frames, imgsz, stride)
+    quantized = nncf.quantize(
+        model,
+        nncf.Dataset(blobs),
+        preset=nncf.QuantizationPreset.MIXED,
+        subset_size=len(blobs),
+        ignored_scope=nncf.IgnoredScope(patterns=[HEAD], validate=False),
+    )
+    ov.save_model(quantized, str(out), compress_to_fp16=False)
+    return out
+
+
+def _stride(model) -> int:
+    try:
+        return int(str(model.get_rt_info(["framework", "stride"]).astype(str)))
+    except Exception:  # no metadata: YOLO's largest stride
+        return 32
+
+
+def check(reference, quantized, frames: Sequence[np.ndarray]) -> dict:
+    """How the people of detector `quantized` compare with those of `reference` (the float
+    model) on `frames`: {"frames", "people", "missed", "extra", "joints", "median_px",
+    "p95_px", "max_px", "accepted"}; accepted: p95 within CHECK_P95_PX and at most
+    CHECK_MISSED of the reference's people missed."""
+    dists: list[float] = []
+    people = missed = extra = 0
+    for image in frames:
+        a = reference.detect([image])[0]
+        b = quantized.detect([image])[0]
+        pairs = _matched(a, b)
+        people += len(a)
+        missed += len(a) - len(pairs)
+        extra += len(b) - len(pairs)
+        for i, j in pairs:
+            ka, kb = a.keypoints[i], b.keypoints[j]
+            both = (ka[:, 2] >= SEEN) & (kb[:, 2] >= SEEN)
+            dists += [float(x) for x in np.linalg.norm(ka[both, :2] - kb[both, :2], axis=1)]
+    d = np.asarray(dists)
+    p95 = float(np.quantile(d, 0.95)) if d.size else float("inf")
+    return {
+        "frames": len(frames),
+        "people": people,
+        "missed": missed,
+        "extra": extra,
+        "joints": int(d.size),
+        "median_px": round(float(np.median(d)), 3) if d.size else None,
+        "p95_px": round(p95, 3) if d.size else None,
+        "max_px": round(float(d.max()), 3) if d.size else None,
+        "p95_bound_px": CHECK_P95_PX,
+        "accepted": bool(people and d.size)
+        and p95 <= CHECK_P95_PX
+        and missed <= CHECK_MISSED * people,
+    }
+
+
+def _matched(a: Poses, b: Poses) -> list[tuple[int, int]]:
+    """People of a and b paired greedily by box overlap (IoU at least MATCH_IOU)."""
+    pairs = sorted(
+        ((_iou(a.boxes[i], b.boxes[j]), i, j) for i in range(len(a)) for j in range(len(b))),
+        reverse=True,
+    )
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    out = []
+    for iou, i, j in pairs:
+        if iou < MATCH_IOU or i in used_a or j in used_b:
+            continue
+        used_a.add(i)
+        used_b.add(j)
+        out.append((i, j))
+    return out
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    iw = min(a[2], b[2]) - max(a[0], b[0])
+    ih = min(a[3], b[3]) - max(a[1], b[1])
+    inter = max(iw, 0.0) * max(ih, 0.0)
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def check_path(model: Path) -> Path:
+    """Where the check of the INT8 model at `model` (.xml) is kept."""
+    return model.with_suffix(".json")
+
+
+def read_check(model: Path) -> dict | None:
+    """The check written beside the INT8 model at `model`; None if there is none or it is
+    unreadable (the model is then not taken by the auto choice)."""
+    try:
+        found = json.loads(check_path(model).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return found if isinstance(found, dict) else None
