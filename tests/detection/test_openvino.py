@@ -103,7 +103,7 @@ def test_bf16_finds_the_same_people_within_a_few_pixels():
     [
         ({"device": "cuda"}, "openvino backend runs on cpu, gpu"),
         ({"device": "gpu.7"}, "finds no such device"),
-        ({"precision": "int8"}, "int8 needs the onnx backend"),
+        ({"precision": "fp16"}, "fp16 needs the onnx backend"),
     ],
 )
 def test_what_it_cannot_run_is_a_clear_error(kwargs, message):

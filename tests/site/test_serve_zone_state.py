@@ -65,15 +65,17 @@ def test_the_busbars_state_follows_the_rtu_in_the_served_demo(tmp_path: Path) ->
         )
     try:
         # dead: the walker's reaches are dead-zone entries, no incident
-        wait_until(
+        _waited(
             lambda: any(r[2] == "zone_dead" for r in _busbar(db)) or proc.poll() is not None,
             "the busbar dead",
-            timeout_s=120,
+            log,
+            timeout_s=180,
         )
         assert proc.poll() is None, log.read_text()
-        wait_until(
+        _waited(
             lambda: any(r[1] == "dead" and r[2] == "enter" for r in _busbar(db)),
             "a dead-zone entry",
+            log,
             timeout_s=60,
         )
         entry = next(r for r in _busbar(db) if r[1] == "dead" and r[2] == "enter")
@@ -115,3 +117,12 @@ def test_the_busbars_state_follows_the_rtu_in_the_served_demo(tmp_path: Path) ->
         server.stop()
     assert rc == 0, log.read_text()
     assert "Traceback" not in log.read_text()
+
+
+def _waited(condition, what: str, log: Path, timeout_s: float) -> None:
+    """wait_until, failing with the end of serve's log (what it was doing meanwhile)."""
+    try:
+        wait_until(condition, what, timeout_s=timeout_s)
+    except pytest.fail.Exception:
+        tail = log.read_text(errors="replace")[-4000:] if log.exists() else "(no log)"
+        pytest.fail(f"still waiting for {what} after {timeout_s} s; serve's log ends:\n{tail}")

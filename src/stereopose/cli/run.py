@@ -167,6 +167,14 @@ def _default_openvino_int8(models, force: bool) -> None:
             highlight=False,
         )
         return
+    if not models.int8_videos():
+        out.print(
+            "OpenVINO's INT8 model not made: the real recordings it is quantised on are not "
+            "in the cache (`python -m stereopose.io.pose2sim_data` unpacks them); detection "
+            "runs the float model",
+            highlight=False,
+        )
+        return
     _said_int8(models.quantize_int8_openvino(out=target))
 
 

@@ -54,6 +54,7 @@ def quantize(src: Path, out: Path, frames: Sequence[np.ndarray], imgsz: int = 64
 
     if not frames:
         raise ValueError("quantisation needs at least one calibration frame")
+    nncf.set_log_level(logging.ERROR)  # not a line per operation left in floats
     model = ov_core().read_model(str(src))
     stride = _stride(model)
     blobs = _blobs(frames, imgsz, stride)
