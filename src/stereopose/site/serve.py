@@ -241,6 +241,8 @@ def _serve(
                 raise StereoposeError(
                     f"{plan.out_dir}: cannot create the output folder: {e.strerror}"
                 ) from None
+            if service.site_desk is not None:  # the first file of the data folder's own
+                service.site_desk.start()
             service.start_maintainer()
             service.start_power()  # the zones' breakers and earthing switches read
             with _open_cameras(plan, service.packets) as cams:

@@ -103,7 +103,9 @@ class SiteService:
         site, history = plan.site, plan.out_dir / "site-history"
         self.site_desk = None
         if site is not None and site.path is not None:
-            self.site_desk = SiteDesk(site.path, site, history, self._check_site, plan.rig)
+            self.site_desk = SiteDesk(
+                site.path, site, history, self._check_site, plan.rig, started=False
+            )
         self.keeper = None  # site.health.calib_keeper, once the frame loop starts
         self.warnings = WarningsDesk()  # the API's way to the warnings on site, once built
         self.calibration_desk = KeeperDesk()  # the API's way to it

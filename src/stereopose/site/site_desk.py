@@ -69,6 +69,7 @@ class SiteDesk:
         history_dir: Path,
         check: Callable[[Site], None] | None = None,
         rig: Rig | None = None,
+        started: bool = True,
     ) -> None:
         self.path, self.history_dir, self.check = Path(path), Path(history_dir), check
         self.rig = rig  # the cameras (the Site tab's views of the zones; None: none)
@@ -82,7 +83,17 @@ class SiteDesk:
         self.switches_dropped = 0  # switches not taken in time: the oldest went
         self._broken = False  # the file did not load at the last reload
         self.changes = 0  # sites taken since the start
-        self._remember(self.version, self.path.read_text(encoding="utf-8"), "the site file")
+        # the site as the service starts with it, kept in the history by start()
+        self._first: tuple[str, str] | None = (self.version, self.path.read_text(encoding="utf-8"))
+        if started:
+            self.start()
+
+    def start(self) -> None:
+        """The site the service started with, kept in the history: once the service's start
+        succeeded (started=False at construction), so that a refused start leaves no file."""
+        first, self._first = self._first, None
+        if first is not None:
+            self._remember(*first, "the site file")
 
     def set_rig(self, rig: Rig) -> None:
         """The cameras placed again (the calibration keeper, the surveyed points): the zones
@@ -216,6 +227,7 @@ class SiteDesk:
     def _remember(self, version: str, text: str, by: str) -> None:
         """The version's text and who made it, kept (the oldest beyond MAX_HISTORY pruned);
         a history that cannot be written is logged, never stops the change."""
+        self.start()  # a change before the start: the first version kept before it
         try:
             self.history_dir.mkdir(parents=True, exist_ok=True)
             rows = [r for r in self._index() if r["version"] != version]
