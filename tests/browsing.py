@@ -60,7 +60,9 @@ def console_page(browser, url: str, user: str, shot: str) -> Iterator:
     page.wait_for_selector("#console", state="visible", timeout=60_000)
     try:
         yield page
-        assert problems == [] and page.evaluate("window.__violations") == []
+        assert problems == [], problems
+        violations = page.evaluate("window.__violations")
+        assert violations == [], violations
     finally:
         with contextlib.suppress(Exception):
             SHOTS.mkdir(parents=True, exist_ok=True)

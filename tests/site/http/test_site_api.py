@@ -233,6 +233,9 @@ def test_the_plans_background_drawing(desk, tmp_path) -> None:
         admin, viewer = s.client("ada"), s.client("vera")
         try:
             assert viewer.get("/api/site/background").status_code == 404
+            # no drawing is the usual state: answered as one (a page asking logs no error)
+            none = viewer.get("/api/site/background/placement")
+            assert none.status_code == 200 and none.json() == {"drawing": False}
             url = f"/api/site/background?points={points}"
             png_type = {"Content-Type": "image/png"}
             assert viewer.put(url, content=png, headers=png_type).status_code == 403
@@ -242,6 +245,7 @@ def test_the_plans_background_drawing(desk, tmp_path) -> None:
             assert got.content == png and got.headers["content-type"] == "image/png"
             placement = viewer.get("/api/site/background/placement").json()
             assert placement["points"] == [[10, 290, 0, 0], [390, 290, 19, 0]]
+            assert placement["drawing"] is True and placement["size"] == [400, 300]
             for body, pts, why in (
                 (b"GIF89a...", points, "PNG or a JPEG"),
                 (png[:60], points, "decodes"),
@@ -259,7 +263,7 @@ def test_the_plans_background_drawing(desk, tmp_path) -> None:
             assert viewer.get("/api/site/background").headers["content-type"] == "image/jpeg"
             assert admin.delete("/api/site/background").json() == {"deleted": True}
             assert admin.delete("/api/site/background").status_code == 404
-            assert viewer.get("/api/site/background/placement").status_code == 404
+            assert viewer.get("/api/site/background/placement").json() == {"drawing": False}
         finally:
             admin.close()
             viewer.close()

@@ -14,9 +14,9 @@ admin, taken by the running service at its next step (site.site_desk).
   never does in front of the camera, 404 for an unknown camera.
 
 - `GET /api/site/background` (any role): the plan's background drawing (PNG or JPEG; 404:
-  none), `GET /api/site/background/placement`: `{"points": [[u, v, x, y], [u, v, x, y]],
-  "size": [w, h]}`, two points of the drawing (pixels) and where they are on the site
-  (metres); `PUT /api/site/background?points=u1,v1,x1,y1,u2,v2,x2,y2` (admin) with the image as
+  none), `GET /api/site/background/placement`: `{"drawing": true, "points": [[u, v, x, y],
+  [u, v, x, y]], "size": [w, h]}`, two points of the drawing (pixels) and where they are on
+  the site (metres), or `{"drawing": false}` when the plan has none (a normal state); `PUT /api/site/background?points=u1,v1,x1,y1,u2,v2,x2,y2` (admin) with the image as
   the body (`image/png` or `image/jpeg`, at most 1 MiB): 400 naming the problem, nothing kept;
   `DELETE /api/site/background` (admin).
 
@@ -143,13 +143,14 @@ def background(session: Viewer, request: Request) -> Response:
     return Response(data, media_type=media, headers={"Cache-Control": "no-store"})
 
 
-@router.get("/api/site/background/placement", responses={404: {}, 503: {}})
+@router.get("/api/site/background/placement", responses={503: {}})
 def background_placement(session: Viewer, request: Request) -> dict:
-    """{"points": [[u, v, x, y], [u, v, x, y]], "size": [w, h]}."""
+    """{"drawing": true, "points": [[u, v, x, y], [u, v, x, y]], "size": [w, h]}; a plan
+    with no drawing (the usual state, not an error): {"drawing": false}."""
     found = _desk(request).background.placement()
     if found is None:
-        raise HTTPException(404, "the plan has no background drawing")
-    return found
+        return {"drawing": False}
+    return {"drawing": True, **found}
 
 
 @router.put("/api/site/background", responses={400: {}, 403: {}, 503: {}})

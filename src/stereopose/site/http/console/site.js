@@ -102,7 +102,8 @@ export class SiteEditor {
       info.textContent = error.status === 503 ? "this service has no site file" : `${error.detail || error.message}`;
     }
     try {
-      this.background = await api.call("/api/site/background/placement");
+      const placed = await api.call("/api/site/background/placement");
+      this.background = placed && placed.drawing ? placed : null; // none: the usual state
       this.backgroundVersion += 1;
     } catch {
       this.background = null;
