@@ -16,8 +16,9 @@ admin, taken by the running service at its next step (site.site_desk).
 - `GET /api/site/background` (any role): the plan's background drawing (PNG or JPEG; 404:
   none), `GET /api/site/background/placement`: `{"drawing": true, "points": [[u, v, x, y],
   [u, v, x, y]], "size": [w, h]}`, two points of the drawing (pixels) and where they are on
-  the site (metres), or `{"drawing": false}` when the plan has none (a normal state); `PUT /api/site/background?points=u1,v1,x1,y1,u2,v2,x2,y2` (admin) with the image as
-  the body (`image/png` or `image/jpeg`, at most 1 MiB): 400 naming the problem, nothing kept;
+  the site (metres), or `{"drawing": false}` when the plan has none (a normal state);
+  `PUT /api/site/background?points=u1,v1,x1,y1,u2,v2,x2,y2` (admin) with the image as the body
+  (`image/png` or `image/jpeg`, at most 1 MiB): 400 naming the problem, nothing kept;
   `DELETE /api/site/background` (admin).
 
 503 while the service has no site file to edit (serve without a site).
