@@ -58,13 +58,13 @@ import numpy as np
 from stereopose.io.sinks.mqtt_settings import MqttSettings, loop_alive, make_client, restart_loop
 from stereopose.io.source import Clock
 from stereopose.io.summary import CAMERA_STAGES, RunSummary
+from stereopose.nodes.hold import HoldTeller
 from stereopose.nodes.node_state import (
     CameraFigures,
     NodeState,
+    camera_rates,
     from_future,
     judge_clock,
-    positive_rate,
-    rounded,
 )
 from stereopose.nodes.wire import (
     Keypoints,
@@ -78,6 +78,7 @@ from stereopose.nodes.wire import (
 )
 from stereopose.pipeline.loop import SourceStep
 from stereopose.types import People2D, People3D, Rig
+from stereopose.zones.hazard import Hazards
 
 if TYPE_CHECKING:
     import paho.mqtt.client as paho
@@ -155,6 +156,7 @@ class NodeInput:
         self._problem: str | None = None
         self.client = None
         self.restarts = 0  # paho's thread started again by ensure_running
+        self.hold = HoldTeller(self._publish, self.topics.hold, rig, self.fps)
 
     # -- the broker ---------------------------------------------------------------------------
 
@@ -174,6 +176,10 @@ class NodeInput:
             s.port,
         )
         return self
+
+    def _publish(self, topic: str, payload: bytes) -> None:
+        if self.client is not None:
+            self.client.publish(topic, payload, qos=0)
 
     def __exit__(self, *exc: object) -> None:
         self.end()
@@ -423,7 +429,13 @@ class NodeInput:
         raise TypeError("the nodes' steps carry their people")
 
     def tracked(self, people: People3D) -> None:
-        """Nothing: the nodes choose their regions from the tracks they are sent."""
+        """The frame loop's people of its last step: the cameras that see someone near an
+        energized zone told to the nodes, which never carry their steps (nodes.hold)."""
+        self.hold.tell(people, self.clock.start_epoch)
+
+    def set_hazards(self, hazards: Hazards | None) -> None:
+        """The hazards from the next step on (a new site while serving)."""
+        self.hold.set_hazards(hazards)
 
     # -- health ----------------------------------------------------------------------------------
 
@@ -438,30 +450,17 @@ class NodeInput:
     def rates(self) -> dict[str, tuple[float | None, float | None]]:
         """Per camera (the rate it should be processed at, its own rate), from its node's
         health; None while not known."""
-        out: dict[str, tuple[float | None, float | None]] = {}
         with self._cond:
-            for name, fig in self.figures.items():
-                node = self.nodes.get(fig.node or "")
-                cam = ((node.health.get("cameras") or {}).get(name) if node else None) or {}
-                own, det = positive_rate(cam.get("fps")), positive_rate(cam.get("detect_fps"))
-                out[name] = (min(own, det) if own and det else own or det, own)
-        return out
+            return {
+                name: camera_rates(self.nodes.get(fig.node or ""), name)
+                for name, fig in self.figures.items()
+            }
 
     def report(self) -> dict:
         """status.json's `nodes`: the link, each node, each camera's figures."""
         now = time.monotonic()
         with self._cond:
-            nodes = {
-                n.name: {
-                    "state": n.state,
-                    "clock_offset_s": rounded(n.offset),
-                    "clock_refused": n.refused,
-                    "future_refused": n.future,
-                    "seen_s_ago": None if n.last_mono is None else round(now - n.last_mono, 1),
-                    **n.health,
-                }
-                for n in self.nodes.values()
-            }
+            nodes = {n.name: n.report(now) for n in self.nodes.values()}
             cams = {n: f.report(len(self._pending[n])) for n, f in self.figures.items()}
         return {
             "connected": self.connected,

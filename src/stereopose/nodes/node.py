@@ -23,14 +23,11 @@ fusion service would take it as late). The broker away is retried for ever.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import socket
 import threading
 import time
-import uuid
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,12 +42,15 @@ from stereopose.config_refs import (
     source_path,
 )
 from stereopose.detection import make_detector
+from stereopose.detection.carry import carrier
 from stereopose.detection.light import LightWatch
 from stereopose.detection.regional import region_detector
 from stereopose.errors import ConfigError
 from stereopose.io.cameraset import CameraSet
-from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
+from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.video import FrameSet, is_stream
+from stereopose.nodes.hold import HoldWatch
+from stereopose.nodes.link import QUEUE_SIZE, Publisher
 from stereopose.nodes.paced import PacedFiles
 from stereopose.nodes.wire import (
     Topics,
@@ -67,8 +67,6 @@ from stereopose.types import Rig
 logger = logging.getLogger(__name__)
 
 HEALTH_S = 1.0
-STALE_S = 2.0
-QUEUE_SIZE = 256
 JPEG_QUALITY = 70
 
 
@@ -154,123 +152,6 @@ def plan_node(
 
 
 @dataclass
-class _Counts:
-    published: int = 0
-    dropped: int = 0  # the queue full, or stale when their turn came
-    pictures: int = 0
-    bytes: int = 0
-
-
-class Publisher:
-    """The node's link to the broker: a bounded queue of QoS 0 messages sent on a thread of
-    its own while connected, the retained health with its last will."""
-
-    def __init__(
-        self, settings: MqttSettings, topics: Topics, node: str, queue_size: int = QUEUE_SIZE
-    ) -> None:
-        self.settings, self.topics, self.node = settings, topics, node
-        self.counts = _Counts()
-        self.connected = False
-        self._queue: deque[tuple[str, bytes, float]] = deque()
-        self._size = queue_size
-        self._lock = threading.Condition()
-        self._stop = False
-        self._problem: str | None = None
-        cid = f"stereopose-node-{uuid.uuid4().hex[:8]}"
-        c = make_client(settings, cid)
-        c.will_set(topics.node(node), health_message(node, "offline"), qos=1, retain=True)
-        c.max_queued_messages_set(queue_size)
-        c.on_connect = self._on_connect
-        c.on_disconnect = self._on_disconnect
-        c.on_connect_fail = self._on_connect_fail
-        self.client = c
-        self.on_connect: Any = None
-        c.connect_async(settings.host, settings.port, keepalive=settings.keepalive_s)
-        c.loop_start()
-        self._thread = threading.Thread(target=self._send, name="node-publish", daemon=True)
-        self._thread.start()
-
-    def _on_connect(self, client, userdata, flags, reason, props) -> None:
-        if reason.is_failure:
-            self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
-            return
-        with self._lock:
-            self.connected = True
-            self._lock.notify_all()
-        if self._problem is not None:
-            logger.info("MQTT %s:%d: connected", self.settings.host, self.settings.port)
-        self._problem = None
-        if self.on_connect is not None:
-            self.on_connect()
-
-    def _on_disconnect(self, client, userdata, flags, reason, props) -> None:
-        with self._lock:
-            was, self.connected = self.connected, False
-        if was and not self._stop:
-            self._say(logging.WARNING, "connection lost; retrying")
-
-    def _on_connect_fail(self, client, userdata) -> None:
-        self._say(logging.WARNING, "broker unreachable; retrying")
-
-    def _say(self, level: int, text: str) -> None:
-        if text != self._problem:
-            self._problem = text
-            logger.log(level, "MQTT %s:%d: %s", self.settings.host, self.settings.port, text)
-
-    def put(self, topic: str, payload: bytes) -> None:
-        with self._lock:
-            if len(self._queue) >= self._size:
-                self._queue.popleft()
-                self.counts.dropped += 1
-            self._queue.append((topic, payload, time.monotonic()))
-            self._lock.notify_all()
-
-    def queued(self) -> int:
-        return len(self._queue)
-
-    def _send(self) -> None:
-        while True:
-            with self._lock:
-                while not self._stop and not (self.connected and self._queue):
-                    self._lock.wait(0.5)
-                if self._stop and (not self.connected or not self._queue):
-                    return
-                topic, payload, at = self._queue.popleft()
-            if time.monotonic() - at > STALE_S:
-                self.counts.dropped += 1
-                continue
-            info = self.client.publish(topic, payload, qos=0)
-            if info.rc == 0:
-                self.counts.published += 1
-                self.counts.bytes += len(payload)
-            else:
-                self.counts.dropped += 1
-
-    def health(self, payload: bytes) -> None:
-        """The node's health, retained (QoS 1); nothing while the broker is away."""
-        if self.connected:
-            self.client.publish(self.topics.node(self.node), payload, qos=1, retain=True)
-
-    def close(self, timeout_s: float = 3.0) -> None:
-        """Say offline (retained), drain what is queued within the bound, disconnect."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
-        self._thread.join(timeout_s)
-        if self.connected:
-            info = self.client.publish(
-                self.topics.node(self.node),
-                health_message(self.node, "offline"),
-                qos=1,
-                retain=True,
-            )
-            with contextlib.suppress(RuntimeError, ValueError):  # the link went meanwhile
-                info.wait_for_publish(timeout_s)
-        self.client.disconnect()
-        self.client.loop_stop()
-
-
-@dataclass
 class NodeFigures:
     steps: int = 0
     detect_s: float = 0.0
@@ -291,6 +172,10 @@ class DetectNode:
         # regions from each camera's own people, motion and full scans (a node has no 3D)
         self.regions = region_detector(self.detector, d)
         self.light = LightWatch(enhance=d.night)  # a night camera's pictures prepared, as serve's
+        # carried steps as serve's, never for a camera the fusion service holds (nodes.hold)
+        self.carry = carrier(d)
+        self.holds = HoldWatch()
+        self._step_index = 0
         self.topics = Topics.of(plan.mqtt.topic_prefix, plan.mqtt.site)
         self.figures = NodeFigures()
         self.picture_hz = cfg.input.node_picture_hz
@@ -366,7 +251,11 @@ class DetectNode:
     def run(self, stop: threading.Event) -> NodeFigures:
         p = self.plan
         self.publisher = pub = Publisher(
-            p.mqtt, self.topics, p.name, max(QUEUE_SIZE, 8 * len(p.rig.names))
+            p.mqtt,
+            self.topics,
+            p.name,
+            max(QUEUE_SIZE, 8 * len(p.rig.names)),
+            on_hold=self.holds.take if self.carry is not None else None,
         )
         pub.on_connect = lambda: pub.health(self._health())
         try:
@@ -402,10 +291,29 @@ class DetectNode:
             if image is not None and name not in self._checked and name not in self._subs:
                 self._checked.add(name)
                 check_size(self.plan.rig[name], image)
-        # its people named and numbered, at the capture time t
+        # its people named and numbered, at the capture time t; cameras carried left out (the
+        # carried steps counted on the node's own steps: one after another, whatever the
+        # frames' numbers skip)
+        step = self._step_index
+        self._step_index += 1
+        order = [n for n, im in images.items() if im is not None]
+        carried: set[str] = set()
+        if self.carry is not None:
+            carried = self.carry.plan(order, step, t, self.holds.held(order))
+        detected = {n: im for n, im in images.items() if n not in carried}
         people = detect_step(
-            self.detector, dataclasses.replace(frames, t=t), self.regions, light=self.light
+            self.detector,
+            dataclasses.replace(frames, t=t, images=detected),
+            self.regions,
+            light=self.light,
         )
+        if self.carry is not None:
+            for name, found in people.items():
+                self.carry.seen(name, found, step, t)
+            for name in carried:  # numbered as the frames they stand for
+                people[name] = dataclasses.replace(
+                    self.carry.carried(name, step), frame=frames.index
+                )
         spent = time.perf_counter() - t0
         self.figures.steps += 1
         self.figures.detect_s += spent
@@ -452,6 +360,10 @@ class DetectNode:
             },
             backend=self.detector.name,
             regions=self._region_figures(),
+            # per camera the steps detected, carried and held near a hazard; the holds taken
+            carry=None
+            if self.carry is None
+            else {"cameras": self.carry.report(), "holds": self.holds.figures()},
         )
 
     def _region_figures(self) -> dict[str, dict[str, float]] | None:

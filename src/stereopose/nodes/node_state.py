@@ -70,6 +70,17 @@ class NodeState:
         (a message's way here only ever makes a node's clock look behind)."""
         return max(self.offsets) if self.offsets else None
 
+    def report(self, now: float) -> dict:
+        """status.json's entry of this node (now: time.monotonic())."""
+        return {
+            "state": self.state,
+            "clock_offset_s": rounded(self.offset),
+            "clock_refused": self.refused,
+            "future_refused": self.future,
+            "seen_s_ago": None if self.last_mono is None else round(now - self.last_mono, 1),
+            **self.health,
+        }
+
 
 def judge_clock(node: NodeState, tolerance_s: float) -> None:
     """A node refused while its clock is off the service's by more than `tolerance_s`
@@ -156,3 +167,11 @@ def nodes_light(report: Mapping) -> dict[str, dict[str, str]]:
         if isinstance(mode, str):
             out[name] = {"mode": mode}
     return out
+
+
+def camera_rates(node: NodeState | None, camera: str) -> tuple[float | None, float | None]:
+    """A camera's (rate it should be processed at, its own rate) from its node's health; None
+    while not known."""
+    cam = ((node.health.get("cameras") or {}).get(camera) if node else None) or {}
+    own, det = positive_rate(cam.get("fps")), positive_rate(cam.get("detect_fps"))
+    return (min(own, det) if own and det else own or det, own)

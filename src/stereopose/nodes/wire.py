@@ -13,8 +13,14 @@ Topics (prefix and site as in [mqtt]; names as one topic level, io.sinks.mqtt_se
 - ``<prefix>/<site>/nodes/<node>``: the node's health, QoS 1, retained, its last will
   ``{"v": 1, "node", "state": "offline"}``: ``{"v": 1, "node", "state": "online", "clock",
   "cameras": {name: {"fps", "detect_fps", "frames", "dropped", "up"}}, "detect_ms",
-  "queue": {"queued", "dropped"}, "backend"}``; ``clock`` is the node's time when sent, from
-  which the fusion service measures the node's offset.
+  "queue": {"queued", "dropped"}, "backend", "regions", "carry": {"cameras": {name:
+  {"detected", "carried", "near_hazard"}}, "holds": {"taken", "malformed"}}}``; ``clock`` is
+  the node's time when sent, from which the fusion service measures the node's offset.
+
+- ``<prefix>/<site>/hold``: from the fusion service to the nodes, at each step, QoS 0, not
+  retained: ``{"v": 1, "t", "valid_s", "all": bool, "held": [camera, ...]}``, the cameras
+  that see someone near an energized zone and so are detected at every step, never carried
+  (every camera: ``all``; nodes.hold), for ``valid_s`` after it comes.
 
 `decode_people` is strict: anything not of this shape (a hostile or broken publisher) is a
 WireError naming the problem, and the fusion service counts and skips it.
@@ -65,6 +71,10 @@ class Topics:
 
     def node(self, name: str) -> str:
         return f"{self.base}/nodes/{topic_part(name)}"
+
+    @property
+    def hold(self) -> str:
+        return f"{self.base}/hold"
 
     def parse(self, topic: str) -> tuple[str, str] | None:
         """(kind, name) of one of this site's node topics: kind keypoints, pictures or
@@ -277,7 +287,7 @@ def decode_health(payload: bytes) -> Mapping[str, object]:
         for key in ("detect_ms",):
             if doc.get(key) is not None:
                 _number(doc[key], key)
-        for key in ("queue", "regions"):
+        for key in ("queue", "regions", "carry"):
             if doc.get(key) is not None and not isinstance(doc[key], dict):
                 raise WireError(f"{key}: expected an object")
     return doc

@@ -21,7 +21,7 @@ from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
 from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
-from stereopose.pipeline.track_regions import cameras_seeing, track_boxes, watched_heights
+from stereopose.pipeline.track_regions import held_cameras, track_boxes, watched_heights
 from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
 from stereopose.zones.hazard import Hazards
@@ -208,16 +208,7 @@ class Cameras:
         pace: those that see a tracked person near a hazard (zones.hazard) by the time t, a
         hand moving at the hazards' speed from the pose known; every camera while no pose is
         known yet."""
-        hazards, people = self.hazards, self._tracked
-        if hazards is None or not hazards:
-            return set()
-        if people is None:
-            return set(names)
-        ahead = max(t - people.time(self.fps), 1.0 / self.fps)
-        near = hazards.near(people.joints, ahead)
-        if not near.any():
-            return set()
-        return cameras_seeing(people, self.rig, near) & set(names)
+        return held_cameras(self.hazards, self._tracked, self.rig, names, t, self.fps)
 
     def _hints(self, frames: FrameSet, t: float) -> dict[str, np.ndarray]:
         """Each camera's tracked people's boxes at t, in the pixels of the image detected."""

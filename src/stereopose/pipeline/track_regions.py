@@ -5,13 +5,14 @@ matters, for its scans."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 
 import numpy as np
 
 from stereopose.geometry.camera import project, world_to_camera
 from stereopose.types import Camera, People3D, Rig
 from stereopose.zones import Zone
+from stereopose.zones.hazard import Hazards
 
 AHEAD_MAX_S = 1.0  # a track is moved on by its velocity for at most this long
 NEAR_M = 0.5  # a person with a joint nearer the camera's plane than this has no sane box
@@ -48,6 +49,31 @@ def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
     return np.column_stack(
         [lo[:, 0], lo[:, 1] - HEAD_ROOM * h, hi[:, 0], hi[:, 1] + FOOT_ROOM * h]
     ).astype(np.float64)
+
+
+def held_cameras(
+    hazards: Hazards | None,
+    people: People3D | None,
+    rig: Rig,
+    names: Collection[str],
+    t: float,
+    fps: float,
+    ahead_s: float = 0.0,
+) -> set[str]:
+    """The cameras of `names` that must detect at time t whatever their people's pace (the
+    carried steps' rule near hazards, detection.carry): those that see a tracked person near
+    an energized zone by t (zones.hazard), a hand moving at the hazards' speed from the pose
+    known for as long as from its time to t (at least one step, and at least ahead_s); every
+    camera while no pose is known yet; none without hazards."""
+    if hazards is None or not hazards:
+        return set()
+    if people is None:
+        return set(names)
+    ahead = max(t - people.time(fps), 1.0 / fps, ahead_s)
+    near = hazards.near(people.joints, ahead)
+    if not near.any():
+        return set()
+    return cameras_seeing(people, rig, near) & set(names)
 
 
 def cameras_seeing(people: People3D, rig: Rig, which: np.ndarray) -> set[str]:

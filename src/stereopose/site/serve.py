@@ -305,6 +305,7 @@ def _run_loop(
         pipelined, rates = cams, cams.rates
         service.watch_nodes(cams)
         service.state.register_light(lambda: nodes_light(cams.report()))  # as the nodes see
+        on_site.append(hazards_watch(cams, service, plan.site))  # the nodes' carried steps
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
         regions, light = cameras.regions, cameras.light

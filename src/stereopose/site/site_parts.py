@@ -17,6 +17,7 @@ from stereopose.detection.regional import RegionDetector
 from stereopose.fence import Site
 from stereopose.fence.site import site_version
 from stereopose.io.sinks.base import unwrapped
+from stereopose.nodes.fusion import NodeInput
 from stereopose.onsite.service import OnSite
 from stereopose.pipeline.sources import Cameras
 from stereopose.pipeline.track_regions import watched_heights
@@ -73,11 +74,12 @@ def mqtt_site(sinks: list, site: Site | None) -> list[Callable[[Site], None]]:
 
 
 def hazards_watch(
-    cameras: Cameras, service: SiteService, site: Site | None
+    cameras: Cameras | NodeInput, service: SiteService, site: Site | None
 ) -> Callable[[Site], None]:
     """The carried steps kept away from `site`'s energized zones now and from each new
     site's (zones.hazard): dead where the breakers' points read dead (the service's zone
-    states, whichever it has when asked), live otherwise."""
+    states, whichever it has when asked), live otherwise. cameras: this service's own, or
+    the nodes' (told which cameras to hold at each step: nodes.hold)."""
 
     def dead() -> Collection[str]:
         states = service.power
