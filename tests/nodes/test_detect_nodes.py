@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from brokers import Broker, Subscriber, free_port
+from stereopose.nodes.hold import decode_hold
 from waiting import http_get, wait_until
 
 ENV = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1", STEREOPOSE_THREADS="1")
@@ -98,7 +99,7 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         n: _start(tmp_path, n, "detect-node", str(config), "--node", n)
         for n in ("node-a", "node-b")
     }
-    watcher = Subscriber(broker.port, "stereopose/north/nodes/+")
+    watcher = Subscriber(broker.port, "stereopose/north/nodes/+", "stereopose/north/hold")
     try:
         all_up = {f"cam0{i}": "up" for i in range(1, 5)}
         wait_until(lambda: states() == all_up, "the four cameras up in /api/health", 180, 0.5)
@@ -122,6 +123,13 @@ def test_two_nodes_feed_one_service_and_a_killed_node_takes_its_cameras_down(tmp
         assert report["cameras"]["cam01"]["node"] == "node-a"
         assert report["cameras"]["cam04"]["node"] == "node-b"
         assert report["nodes"]["node-a"]["clock_refused"] is False
+        # the service tells the nodes which cameras see the walker at the busbar (never
+        # carried there), and the nodes say what they carried
+        holds = [decode_hold(p.encode()) for p in watcher.on("stereopose/north/hold")]
+        assert holds and any(held for _, held, _ in holds), holds[-5:]
+        assert all(held <= set(all_up) for _, held, _ in holds)
+        said = json.loads(watcher.on("stereopose/north/nodes/node-b")[-1])
+        assert said["carry"]["holds"]["taken"] > 0 and said["carry"]["holds"]["malformed"] == 0
         # each camera's light as its node sees it, in the service's /metrics (the console's too)
         metrics = f"http://127.0.0.1:{http_port}/metrics"
         day = 'stereopose_camera_light{camera="%s",mode="day"} 1.0'
