@@ -195,7 +195,9 @@ def test_bad_enrolment_commands_are_exit_2_with_the_reason(tmp_path):
         (("sites", "add", "a:b", "--config", str(config)), "site name"),
         (("sites", "add", "--config", str(config)), "give the site's NAME"),
         (("sites", "list", "north", "--config", str(config)), "takes no NAME"),
-        (("sites", "move", "--config", str(config)), "add, list or remove"),
+        (("sites", "move", "--config", str(config)), "(choose from 'add', 'list', 'remove')"),
+        (("sites",), "VERB"),
+        (("run",), "CONFIG.toml"),
         (("sites", "remove", "nobody", "--config", str(config)), "not enrolled: nobody"),
         (("broker-config", "--config", str(config)), "--out"),
         (("broker-config", "--config", str(config), "--out", str(tmp_path / "b")), "username"),
@@ -206,3 +208,22 @@ def test_bad_enrolment_commands_are_exit_2_with_the_reason(tmp_path):
         assert r.returncode == 2, (args, r.stdout, r.stderr)
         assert reason in r.stdout + r.stderr, (args, r.stdout, r.stderr)
         assert "Traceback" not in r.stdout + r.stderr
+
+
+def test_each_action_and_verb_has_its_own_help_and_the_old_form_still_runs(tmp_path):
+    for args, says in (
+        (("--help",), ("run", "sites", "broker-config")),
+        (("sites", "--help"), ("add", "list", "remove")),
+        (("sites", "add", "--help"), ("--bridge", "--config", "NAME")),
+        (("sites", "list", "--help"), ("--config",)),
+        (("sites", "remove", "--help"), ("--config", "NAME")),
+        (("broker-config", "--help"), ("--config", "--out")),
+        (("run", "--help"), ("CONFIG.toml",)),
+    ):
+        r = _cli(*args)
+        assert r.returncode == 0 and all(s in r.stdout for s in says), (args, r.stdout)
+    # `control-room CONFIG.toml` is `control-room run CONFIG.toml`: the same refusal of a
+    # configuration that is not there, naming it
+    for args in (("nowhere.toml",), ("run", "nowhere.toml")):
+        r = _cli(*args)
+        assert r.returncode == 2 and "nowhere.toml" in r.stdout + r.stderr, (args, r.stdout)

@@ -1,4 +1,4 @@
-"""`stereopose control-room CONFIG.toml`: many sites' events in one store, over the central
+"""`stereopose control-room [run] CONFIG.toml`: many sites' events in one store, over the central
 broker; `control-room sites add|list|remove [NAME...] --config CONFIG.toml`: the sites it takes
 (each with its own broker login); `control-room broker-config --config CONFIG.toml --out DIR`:
 the central broker's password file and ACL for them."""
@@ -13,22 +13,19 @@ from stereopose.cli.common import out
 from stereopose.errors import ConfigError
 
 USAGE = (
-    "control-room CONFIG.toml | control-room sites add|list|remove [NAME...] --config CONFIG.toml"
-    " | control-room broker-config --config CONFIG.toml --out DIR"
+    "control-room [run] CONFIG.toml | control-room sites add|list|remove [NAME...] --config "
+    "CONFIG.toml | control-room broker-config --config CONFIG.toml --out DIR"
 )
 
 
 def _control_room(args: argparse.Namespace) -> int:
-    what = list(args.what)
-    if what[0] == "sites":
-        return _sites(args, what[1:])
-    if what[0] == "broker-config":
-        if len(what) != 1:
-            raise ConfigError(f"control-room broker-config takes no NAME: {USAGE}")
+    if args.cr_action == "sites":
+        return _sites(args, [args.sites_action, *args.names])
+    if args.cr_action == "broker-config":
         return _broker_config(args)
-    if len(what) != 1:
+    if len(args.config) != 1:
         raise ConfigError(f"control-room: one configuration file, or: {USAGE}")
-    return _serve(Path(what[0]))
+    return _serve(Path(args.config[0]))
 
 
 def _serve(config: Path) -> int:
