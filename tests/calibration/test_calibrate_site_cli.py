@@ -105,8 +105,10 @@ def _people(root, tmp_path, pose, *scale) -> int:
     )
 
 
-def test_too_few_points_is_exit_2_naming_the_camera(site, tmp_path, capsys) -> None:
-    root, _ = site
+def test_too_few_points_places_the_others_and_is_exit_3_naming_the_camera(
+    site, tmp_path, capsys
+) -> None:
+    root, yard = site
     text = (root / "points.toml").read_text()
     head, cams = text.split("[cameras.cam01]")
     cam01, rest = cams.split("[cameras.cam02]")
@@ -115,12 +117,19 @@ def test_too_few_points_is_exit_2_naming_the_camera(site, tmp_path, capsys) -> N
     )
     (tmp_path / "p.toml").write_text(short)
     args = ["calibrate", "points", "--points", str(tmp_path / "p.toml")]
-    code = main(
-        [*args, "--intrinsics", str(root / "intrinsics.toml"), "--out", str(tmp_path / "o")]
-    )
-    err = capsys.readouterr().err
-    assert code == 2 and "camera cam01: 3 surveyed point(s) clicked" in err
-    assert not (tmp_path / "o").exists()
+    out = tmp_path / "o.toml"
+    code = main([*args, "--intrinsics", str(root / "intrinsics.toml"), "--out", str(out)])
+    said = capsys.readouterr()
+    text = " ".join((said.out + said.err).split())
+    assert code == 3, text
+    assert "camera cam01: 3 surveyed point(s) clicked" in text
+    assert "calibrate people --points" in text
+    placed = load_calibration(out)  # the others, written
+    assert "cam01" not in placed.names and len(placed) == len(yard.rig) - 1
+    for cam in placed:  # in the points' own frame, as well as with every camera
+        true = yard.rig[cam.name]
+        turn = np.degrees(np.arccos(np.clip((np.trace(cam.R.T @ true.R) - 1) / 2, -1, 1)))
+        assert turn < 0.3 and np.linalg.norm(cam.center - true.center) < 0.15, cam.name
 
 
 def test_no_people_is_exit_2(site, tmp_path, capsys) -> None:

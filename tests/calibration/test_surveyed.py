@@ -1,5 +1,6 @@
 """The rig from surveyed points on a simulated yard: the true poses back, a wrong click named
-and left out, a camera with too few points an error naming it; the points file checked."""
+and left out, a camera with too few points named and the others placed; the points file
+checked."""
 
 from __future__ import annotations
 
@@ -51,11 +52,25 @@ def test_the_rig_agrees_with_the_truth_when_aligned_as_people_would_be(yard) -> 
     assert abs(e["scale"] - 1) < 0.005 and abs(e["floor_m"]) < 0.05
 
 
-def test_a_camera_with_too_few_points_is_an_error_naming_it_and_its_points(yard) -> None:
+def test_a_camera_with_too_few_points_is_named_and_the_others_are_placed(yard) -> None:
     rig, world, clicks = yard
     clicks["cam04"] = dict(sorted(clicks["cam04"].items())[:4])
-    with pytest.raises(CalibrationError, match=r"camera cam04: 4 surveyed point\(s\) clicked \(P"):
-        calibrate_points(_bare(rig), Survey(Path("p.toml"), world, clicks))
+    r = calibrate_points(_bare(rig), Survey(Path("p.toml"), world, clicks))
+    assert "cam04" not in r.rig.names and len(r.rig) == len(rig) - 1
+    why = r.unplaced["cam04"]
+    assert "4 surveyed point(s) clicked (P" in why and "calibrate people --points" in why
+    assert any(w.startswith("camera cam04 not placed") for w in r.warnings)
+    for cam in r.rig:  # the others as well placed as with every camera
+        turn = np.degrees(np.arccos(np.clip((np.trace(cam.R.T @ rig[cam.name].R) - 1) / 2, -1, 1)))
+        assert turn < 0.3 and np.linalg.norm(cam.center - rig[cam.name].center) < 0.15
+
+
+def test_no_camera_placed_is_an_error_naming_each(yard) -> None:
+    rig, world, clicks = yard
+    few = {c: dict(sorted(v.items())[:3]) for c, v in clicks.items()}
+    with pytest.raises(CalibrationError, match="no camera can be placed") as e:
+        calibrate_points(_bare(rig), Survey(Path("p.toml"), world, few))
+    assert all(f"camera {c}: 3 surveyed point(s)" in str(e.value) for c in clicks)
 
 
 def test_a_camera_with_no_intrinsics_is_named(yard) -> None:

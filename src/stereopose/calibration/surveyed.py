@@ -10,8 +10,9 @@ sees them in pixels of its own (distorted) image:
     P1 = [1238.9, 348.4]
 
 The world frame is the points' own: zones drawn from the same drawings land on the equipment.
-A click whose residual stands out is left out and named; a camera left with fewer than
-`min_points` good points is an error naming it and the points it has.
+A click whose residual stands out is left out and named. A camera with fewer than MIN_POINTS
+good points is not placed, named with the points it has and what would place it, and the
+others are placed without it; no camera placed at all is an error.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import tomllib
@@ -28,6 +30,9 @@ from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robus
 from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
+
+if TYPE_CHECKING:  # scipy's, an extra: imported where the adjustment runs
+    from stereopose.calibration.bundle import Solution
 
 __all__ = [
     "PointsResult",
@@ -148,6 +153,7 @@ class PointsResult:
     left_out: list[tuple[str, str, float]]
     points: dict[str, np.ndarray]
     warnings: list[str] = field(default_factory=list)
+    unplaced: dict[str, str] = field(default_factory=dict)  # camera -> why, and what would
 
 
 def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray, names: list[str]) -> np.ndarray:
@@ -186,33 +192,97 @@ def calibrate_points(
     outlier_px: float = 5.0,
     survey_sigma_m: float = 0.02,
 ) -> PointsResult:
-    """The rig of the surveyed cameras (see the module).
+    """The rig of the surveyed cameras (see the module): every camera that can be placed; each
+    that cannot (no clicks, too few, too few left once the clicks that disagree are left out)
+    is in `unplaced` with why and what would place it, and the others are placed without it.
 
     intrinsics: cameras with their intrinsics (their poses ignored); every camera of the survey
     must be there. outlier_px: a click is never left out under this residual. survey_sigma_m:
-    how far a surveyed position may be off (the adjustment moves the points that much)."""
-    from stereopose.calibration.bundle import Bundle, adjust, project_px  # scipy: an extra
-
+    how far a surveyed position may be off (the adjustment moves the points that much).
+    CalibrationError when no camera can be placed."""
     missing = sorted(set(survey.clicks) - set(intrinsics.names))
     if missing:
         raise CalibrationError(
             f"{survey.path}: camera(s) {', '.join(missing)} have no intrinsics "
             f"(cameras there: {', '.join(intrinsics.names)})"
         )
-    names = [n for n in intrinsics.names if n in survey.clicks]
-    unplaced = [n for n in intrinsics.names if n not in survey.clicks]
     cams = {c.name: c for c in intrinsics}
     point_names = sorted(survey.world)
+    world = np.array([survey.world[p] for p in point_names])
+    unplaced = {
+        n: f"no clicks in {survey.path}; {_WHAT_PLACES}"
+        for n in intrinsics.names
+        if n not in survey.clicks
+    }
+    poses = {}
+    for c in (n for n in intrinsics.names if n in survey.clicks):
+        clicked = sorted(survey.clicks[c])
+        try:
+            poses[c] = _pnp(
+                cams[c],
+                np.array([survey.world[p] for p in clicked]),
+                np.array([survey.clicks[c][p] for p in clicked]).reshape(-1, 2),
+                clicked,
+            )
+        except CalibrationError as e:
+            unplaced[c] = f"{e}; {_WHAT_PLACES}"
+    while True:
+        if not poses:
+            raise CalibrationError(
+                f"{survey.path}: no camera can be placed: "
+                + "; ".join(unplaced[n] for n in intrinsics.names if n in unplaced)
+            )
+        placed = _adjusted(cams, survey, point_names, world, poses, outlier_px, survey_sigma_m)
+        if isinstance(placed, tuple):  # a camera left with too few good clicks: without it
+            camera, why = placed
+            unplaced[camera] = f"{why}; {_WHAT_PLACES}"
+            del poses[camera]
+            continue
+        break
+    return _result(placed, cams, survey, point_names, world, unplaced, survey_sigma_m)
+
+
+# what would place a camera that could not be placed from the points
+_WHAT_PLACES = (
+    f"click at least {MIN_POINTS} of the surveyed points it sees (10 or more advised), spread "
+    "over its picture, or place it with `calibrate people --points` (walkers, with these points "
+    "for the site's frame)"
+)
+
+
+@dataclass
+class _Adjusted:
+    """The adjustment of the cameras placed: their names, observations and solution."""
+
+    names: list[str]
+    cam_of: np.ndarray
+    pt_of: np.ndarray
+    uv: np.ndarray
+    err: np.ndarray
+    keep: np.ndarray
+    sol: Solution
+
+
+def _adjusted(
+    cams: dict[str, Camera],
+    survey: Survey,
+    point_names: list[str],
+    world: np.ndarray,
+    first: dict[str, np.ndarray],
+    outlier_px: float,
+    survey_sigma_m: float,
+) -> _Adjusted | tuple[str, str]:
+    """Every camera of `first` (its PnP pose) adjusted together, the clicks that disagree left
+    out; (camera, why) for a camera left with fewer than MIN_POINTS good clicks."""
+    from stereopose.calibration.bundle import Bundle, adjust, project_px  # scipy: an extra
+
+    names = list(first)
     pi = {p: i for i, p in enumerate(point_names)}
     obs = [(ci, pi[p], uv) for ci, c in enumerate(names) for p, uv in survey.clicks[c].items()]
     cam_of = np.array([o[0] for o in obs])
     pt_of = np.array([o[1] for o in obs])
     uv = np.array([o[2] for o in obs]).reshape(-1, 2)
-    world = np.array([survey.world[p] for p in point_names])
-    poses = np.zeros((len(names), 6))
-    for ci, c in enumerate(names):
-        sel = cam_of == ci
-        poses[ci] = _pnp(cams[c], world[pt_of[sel]], uv[sel], [point_names[i] for i in pt_of[sel]])
+    poses = np.stack([first[c] for c in names])
     intr = np.stack([intrinsics_row(cams[c]) for c in names])
     keep = np.ones(len(obs), dtype=bool)
     for _ in range(3):  # adjust, leave the worst click out, again
@@ -244,14 +314,28 @@ def calibrate_points(
             sel = keep & (cam_of == ci)
             if sel.sum() < MIN_POINTS:
                 good = [point_names[i] for i in pt_of[sel]]
-                raise CalibrationError(
+                return c, (
                     f"camera {c}: {int(sel.sum())} good point(s) left ({', '.join(good) or 'none'})"
                     f" after leaving out the clicks that disagree; at least {MIN_POINTS} are "
                     "needed"
                 )
+    return _Adjusted(names, cam_of, pt_of, uv, err, keep, sol)
+
+
+def _result(
+    a: _Adjusted,
+    cams: dict[str, Camera],
+    survey: Survey,
+    point_names: list[str],
+    world: np.ndarray,
+    unplaced: dict[str, str],
+    survey_sigma_m: float,
+) -> PointsResult:
+    """The PointsResult of an adjustment: residuals, clicks left out, warnings."""
+    names, cam_of, pt_of, err, keep, sol = a.names, a.cam_of, a.pt_of, a.err, a.keep, a.sol
     residuals: dict[str, dict[str, float]] = {c: {} for c in names}
     left_out = []
-    for k in range(len(obs)):
+    for k in range(len(cam_of)):
         c, p = names[cam_of[k]], point_names[pt_of[k]]
         residuals[c][p] = float(err[k])
         if not keep[k]:
@@ -259,7 +343,7 @@ def calibrate_points(
     rms = {
         c: float(math.sqrt(np.mean(err[keep & (cam_of == ci)] ** 2))) for ci, c in enumerate(names)
     }
-    warnings = [f"camera {c}: no clicks in {survey.path}: not placed" for c in unplaced]
+    warnings = [f"camera {c} not placed: {why}" for c, why in unplaced.items()]
     warnings += [
         f"camera {c}: reprojection error {e:.2f} px is high" for c, e in rms.items() if e > 3
     ]
@@ -269,7 +353,7 @@ def calibrate_points(
             f"point {point_names[i]}: the cameras put it {moved[i]:.3f} m from its surveyed "
             "position; check its coordinates"
         )
-    rig = Rig(tuple(camera_with_pose(cams[c], poses[ci]) for ci, c in enumerate(names)))
+    rig = Rig(tuple(camera_with_pose(cams[c], sol.poses[ci]) for ci, c in enumerate(names)))
     return PointsResult(
         rig,
         rms,
@@ -277,4 +361,5 @@ def calibrate_points(
         sorted(left_out, key=lambda x: -x[2]),
         {p: sol.points[i] for i, p in enumerate(point_names)},
         warnings,
+        unplaced,
     )

@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from stereopose.cli.common import console, out
-from stereopose.errors import CalibrationError, StereoposeError
+from stereopose.errors import CalibrationError, IncompleteOutputError, StereoposeError
 from stereopose.extras import require
 
 MAX_FRAMES = 600  # frames sampled evenly from the recording at most
@@ -118,8 +118,15 @@ def _calibrate_points(args: argparse.Namespace) -> int:
             "left_out": [{"camera": c, "point": p, "px": e} for c, p, e in r.left_out],
             "points": {p: v.tolist() for p, v in r.points.items()},
             "warnings": r.warnings,
+            "unplaced": r.unplaced,
         },
     )
+    if r.unplaced:  # finished, the others written: exit 3, each camera named with the way on
+        raise IncompleteOutputError(
+            {f"camera {c}": why for c, why in r.unplaced.items()},
+            note=f"{len(r.rig)} camera(s) placed and written to {args.out}; "
+            f"{len(r.unplaced)} not placed",
+        )
     return 0
 
 

@@ -118,5 +118,6 @@ class SurveyDesk:
             },
             "left_out": [{"camera": c, "point": p, "px": round(e, 1)} for c, p, e in r.left_out],
             "unplaced": sorted(set(running.names) - set(r.rig.names)),
+            "not_placed": dict(r.unplaced),  # camera -> why, and what would place it
             "warnings": list(r.warnings),
         }
