@@ -6,6 +6,8 @@ are 400 naming the key, a camera that cannot be placed 422 naming it."""
 
 from __future__ import annotations
 
+import time
+
 import httpx
 import pytest
 
@@ -16,6 +18,17 @@ from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.http.app import Desks
 
 pytestmark = pytest.mark.slow
+
+
+def _solved(c: httpx.Client, headers: dict) -> httpx.Response:
+    """POST /api/survey/solve, then GET it while it is being solved (202): the last answer."""
+    r = c.post("/api/survey/solve", headers=headers)
+    deadline = time.monotonic() + 120
+    while r.status_code == 202 and time.monotonic() < deadline:
+        assert r.json()["state"] == "solving"
+        time.sleep(0.1)
+        r = c.get("/api/survey/solve", headers=headers)
+    return r
 
 
 def _login(c: httpx.Client, name: str) -> dict:
@@ -46,7 +59,8 @@ def test_the_surveyed_points_place_the_rig_while_serving(tmp_path) -> None:
         back = c.get("/api/survey", headers=viewer).json()
         assert back["points"] == doc["points"] and back["cameras"] == doc["cameras"]
         assert c.post("/api/survey/accept", headers=admin).status_code == 404
-        solved = c.post("/api/survey/solve", headers=admin).json()
+        solved = _solved(c, admin).json()
+        assert solved.pop("state") == "solved" and solved.pop("job") >= 1
         assert set(solved["cameras"]) == set(truth.names) and solved["unplaced"] == []
         assert max(cam["rms_px"] for cam in solved["cameras"].values()) < 3.0
         assert 1.7 < solved["cameras"]["cam02"]["turned_deg"] < 2.3  # bumped back
@@ -80,9 +94,37 @@ def test_a_camera_with_too_few_clicks_is_named_and_the_others_placed(tmp_path) -
     ):
         admin = _login(c, "ada")
         assert c.put("/api/survey", json=doc, headers=admin).status_code == 200
-        r = c.post("/api/survey/solve", headers=admin)
+        r = _solved(c, admin)
         assert r.status_code == 200, r.text
         solved = r.json()
         assert "cam04" in solved["unplaced"] and "cam04" not in solved["cameras"]
         assert "camera cam04: 4 surveyed point(s)" in solved["not_placed"]["cam04"]
         assert any("cam04 not placed" in w for w in solved["warnings"])
+
+
+def test_a_long_solve_holds_no_request(tmp_path, monkeypatch) -> None:
+    """The solve on the desk's own thread: the POST answers at once (202), the server answers
+    others meanwhile, and the answer is fetched when done; a second POST while it runs is the
+    same solve."""
+    monkeypatch.setattr("stereopose.site.http.api.calibration.SOLVE_WAIT_S", 0.0)
+    _, doc, _, keeper, _ = surveyed_yard(tmp_path, bumped_deg=0.0)
+    desk = KeeperDesk()
+    desk.keeper = keeper
+    with (
+        console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
+        httpx.Client(base_url=s.url, timeout=60) as c,
+    ):
+        admin, viewer = _login(c, "ada"), _login(c, "vera")
+        assert c.get("/api/survey/solve", headers=viewer).status_code == 404  # none begun
+        assert c.put("/api/survey", json=doc, headers=admin).status_code == 200
+        first = c.post("/api/survey/solve", headers=admin)
+        assert first.status_code == 202 and first.json()["state"] == "solving"
+        again = c.post("/api/survey/solve", headers=admin).json()
+        assert again["job"] == first.json()["job"] or again["state"] == "solved"
+        assert c.get("/api/survey", headers=viewer).status_code == 200  # not held meanwhile
+        deadline = time.monotonic() + 120
+        while (r := c.get("/api/survey/solve", headers=viewer)).status_code == 202:
+            assert time.monotonic() < deadline, "the solve never ended"
+            time.sleep(0.1)
+        assert r.status_code == 200 and r.json()["state"] == "solved"
+        assert r.json()["job"] == first.json()["job"] and r.json()["unplaced"] == []

@@ -14,6 +14,7 @@ frames would not see the same people.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import threading
 from pathlib import Path
@@ -26,14 +27,26 @@ from stereopose.calibration.surveyed import (
     read_survey,
     survey_from_doc,
 )
-from stereopose.errors import CalibrationError
+from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.extras import require
 from stereopose.io.writing import make_folder, write_private
 
-__all__ = ["SurveyDesk"]
+__all__ = ["SolveJob", "SurveyDesk"]
+
+logger = logging.getLogger(__name__)
 
 POINTS = Path("survey") / "points.toml"
 NAMED = Path(POINTS.name)  # how messages name it: a client learns no folder of the server
+
+
+@dataclasses.dataclass
+class SolveJob:
+    """One solve: its number, set `done` once it ended, with its summary or its error."""
+
+    number: int
+    done: threading.Event = dataclasses.field(default_factory=threading.Event)
+    summary: dict | None = None
+    error: str | None = None
 
 
 class SurveyDesk:
@@ -43,6 +56,7 @@ class SurveyDesk:
         self.keeper, self.path = keeper, Path(folder) / POINTS
         self._lock = threading.Lock()
         self._solved: PointsResult | None = None
+        self._job: SolveJob | None = None
 
     def current(self) -> dict:
         """{"file", "points", "cameras", "solved"}: the points file as JSON (empty tables
@@ -71,18 +85,55 @@ class SurveyDesk:
             write_private(self.path, format_survey(survey).encode("utf-8"))
             self._solved = None
 
-    def solve(self) -> dict:
-        """Every camera placed from the points file (calibration.surveyed.calibrate_points on
-        the running rig's intrinsics): the summary (see `_summary`); CalibrationError naming
-        the camera or the point when it cannot be."""
+    def start(self) -> SolveJob:
+        """A solve of the points file (calibration.surveyed.calibrate_points on the running
+        rig's intrinsics) begun on a thread of its own, so that no request waits for it; one at
+        a time (asked again while one runs: that one). CalibrationError at once when there is
+        no file or it cannot be read; the solve's own failure is the job's `error`."""
         require("scipy", "calibration", "solving the surveyed points")
         with self._lock:
+            if self._job is not None and not self._job.done.is_set():
+                return self._job
             if not self.path.exists():
                 raise CalibrationError("no surveyed points yet: save them first")
             survey = dataclasses.replace(read_survey(self.path), path=NAMED)
-            result = calibrate_points(self.keeper.rig, survey)
-            self._solved = result
-            return self._summary(result)
+            job = self._job = SolveJob((self._job.number + 1) if self._job else 1)
+        threading.Thread(
+            target=self._solve,
+            args=(job, survey, self.keeper.rig),
+            name="survey-solve",
+            daemon=True,
+        ).start()
+        return job
+
+    def job(self) -> SolveJob | None:
+        """The last solve begun (None: none since the start)."""
+        with self._lock:
+            return self._job
+
+    def solve(self) -> dict:
+        """A solve begun and waited for: its summary (see `_summary`); CalibrationError naming
+        the camera or the point when none can be placed."""
+        job = self.start()
+        job.done.wait()
+        if job.error is not None:
+            raise CalibrationError(job.error)
+        assert job.summary is not None
+        return job.summary
+
+    def _solve(self, job: SolveJob, survey, rig) -> None:
+        try:
+            result = calibrate_points(rig, survey)
+            with self._lock:
+                self._solved = result
+                job.summary = self._summary(result)
+        except StereoposeError as e:  # no camera can be placed, a point far off, ...
+            job.error = str(e)
+        except Exception as e:  # a solver's own failure: said, never the thread's silent end
+            logger.exception("survey: the solve failed")
+            job.error = f"the solve failed: {type(e).__name__}"
+        finally:
+            job.done.set()
 
     def accept(self, by: str) -> list[str]:
         """The solved rig handed to the keeper (applied at the next step): its cameras.

@@ -10,14 +10,17 @@ the proposed pose is applied at the next step; 404 when none is proposed for tha
 The surveyed points (site.health.survey_desk): `GET /api/survey` (any role) the
 points file as JSON and the last solution not accepted; `PUT` (admin) `{"points": {name:
 [x, y, z]}, "cameras": {camera: {name: [u, v]}}}` writes it (400 naming the key and the
-problem); `POST .../solve` (admin) places every camera from it: each camera's error and move,
-each click's residual (422 naming the camera or point that cannot be placed); `POST
+problem); `POST .../solve` (admin) places every camera from it, on a thread of its own: each
+camera's error and move, each click's residual, the cameras it cannot place and why (422 when
+none can be); a solve longer than SOLVE_WAIT_S answers 202 and `GET .../solve` (any role)
+gives it when done (202 meanwhile); `POST
 .../accept` (admin) applies the solved rig at the next step (404: nothing solved; 409: a
 running camera it does not place). 503 before the keeper runs.
 """
 
 from __future__ import annotations
 
+import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Path, Request
@@ -96,13 +99,45 @@ def put_points(body: PointsPut, session: Admin, request: Request) -> dict:
     return {"saved": True}
 
 
-@router.post("/api/survey/solve", responses={403: {}, 422: {}, 503: {}})
-def solve_points(session: Admin, request: Request) -> dict:
-    """Every camera placed from the points: {"cameras", "residuals_px", "left_out", ...}."""
+SOLVE_WAIT_S = 3.0  # a solve finished within this answers the POST itself; else 202
+_POLL_S = 0.05
+
+
+@router.post("/api/survey/solve", responses={202: {}, 403: {}, 422: {}, 503: {}})
+async def solve_points(session: Admin, request: Request) -> JSONResponse:
+    """Every camera placed from the points, on a thread of the desk's own: {"state":
+    "solved", "job", "cameras", "residuals_px", "left_out", ...} when done within
+    SOLVE_WAIT_S; else 202 {"state": "solving", "job"}, its answer then at GET (no worker
+    of the server held meanwhile)."""
+    survey = _survey(request)
     try:
-        return _survey(request).solve()
-    except StereoposeError as e:  # a camera or point that cannot be placed; scipy missing
+        job = survey.start()
+    except StereoposeError as e:  # no points file; scipy missing
         raise HTTPException(422, str(e)) from None
+    for _ in range(int(SOLVE_WAIT_S / _POLL_S)):
+        if job.done.is_set():
+            break
+        await asyncio.sleep(_POLL_S)
+    return _job_answer(job)
+
+
+@router.get("/api/survey/solve", responses={202: {}, 404: {}, 422: {}, 503: {}})
+def solved_points(session: Viewer, request: Request) -> JSONResponse:
+    """The last solve: 200 with its answer, 202 while it runs, 422 when it could place no
+    camera, 404 when none was begun."""
+    job = _survey(request).job()
+    if job is None:
+        raise HTTPException(404, "no solve begun: POST /api/survey/solve")
+    return _job_answer(job)
+
+
+def _job_answer(job) -> JSONResponse:
+    headers = {"Cache-Control": "no-store"}
+    if not job.done.is_set():
+        return JSONResponse({"state": "solving", "job": job.number}, 202, headers=headers)
+    if job.error is not None:
+        raise HTTPException(422, job.error)
+    return JSONResponse({"state": "solved", "job": job.number, **job.summary}, headers=headers)
 
 
 @router.post("/api/survey/accept", responses={403: {}, 404: {}, 409: {}, 503: {}})

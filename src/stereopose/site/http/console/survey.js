@@ -136,7 +136,14 @@ export class SurveyPanel {
   async solve() {
     byId("survey-error").textContent = "";
     try {
-      this.solved = await api.call("/api/survey/solve", { method: "POST" });
+      // a long solve runs on the server's own thread: asked after until it is done
+      let got = await api.call("/api/survey/solve", { method: "POST" });
+      while (got && got.state === "solving") {
+        byId("survey-info").textContent = "solving";
+        await new Promise((done) => setTimeout(done, 500));
+        got = await api.call("/api/survey/solve");
+      }
+      this.solved = got;
       byId("survey-info").textContent = "solved: accept to apply it";
     } catch (e) {
       this.solved = null;
