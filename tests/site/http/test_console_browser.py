@@ -1100,3 +1100,46 @@ def test_every_tab_loads_with_no_error_in_the_browser_console(watched, served, u
         timeout_s=30,
         poll_s=0.2,
     )
+
+
+_OVERLAPPING = """(selector) => {
+    const boxes = [...document.querySelectorAll(selector)]
+        .map((n) => [n.textContent, n.getBoundingClientRect()])
+        .filter(([, r]) => r.width > 0 && r.height > 0);
+    const out = [];
+    for (let i = 0; i < boxes.length; i += 1)
+        for (let j = i + 1; j < boxes.length; j += 1) {
+            const [a, ra] = boxes[i], [b, rb] = boxes[j];
+            if (ra.left < rb.right - 0.5 && rb.left < ra.right - 0.5
+                && ra.top < rb.bottom - 0.5 && rb.top < ra.bottom - 0.5) out.push([a, b]);
+        }
+    return [boxes.length, out];
+}"""
+
+
+def test_no_two_labels_overlap_on_the_live_plan_or_the_site_tabs_plan(watched, served):
+    """The demo's zones qs1_front, qs1_handle and overhead_busbar lie close together: their
+    labels are kept apart (a moved one tied to its zone by a leader line), as are the cameras'
+    names on the Site tab's plan."""
+    w = watched("ada")
+    page = w.page
+    wait_until(
+        lambda: page.evaluate(_OVERLAPPING, "#floor-zones .zone-label")[0] >= 4,
+        "the demo's four zone labels on the live plan",
+        timeout_s=30,
+        poll_s=0.2,
+    )
+    _, overlapping = page.evaluate(_OVERLAPPING, "#floor-zones .zone-label")
+    assert overlapping == [], overlapping
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page.locator("#floor").screenshot(path=str(SHOTS / "plan-labels.png"))
+    page.click('.tab[data-tab="site"]')
+    page.wait_for_selector("#site-zones li", timeout=20_000)
+    wait_until(
+        lambda: page.evaluate(_OVERLAPPING, "#site-plan text.label")[0] >= len(CAMERAS),
+        "the cameras' names on the Site tab's plan",
+        timeout_s=30,
+        poll_s=0.2,
+    )
+    _, overlapping = page.evaluate(_OVERLAPPING, "#site-plan text.label")
+    assert overlapping == [], overlapping

@@ -6,7 +6,7 @@
 // an energized zone is drawn red (data-danger="true").
 
 import { idColour } from "./colours.js";
-import { el, SVG } from "./svg.js";
+import { el, separateLabels, SVG } from "./svg.js";
 
 const MARGIN_M = 0.8;
 const LINGER_MS = 2000;
@@ -101,8 +101,20 @@ export class FloorPlan {
         title.textContent = `${power}${since}: ${zone.power.source || ""}${zone.power.reason ? ` (${zone.power.reason})` : ""}`;
         shape.appendChild(title);
       }
-      // the label inside the zone's top edge (a zone within another keeps its label apart),
-      // or below its bottom edge when the zone is narrower than its label
+    }
+    for (const g of [...layer.children]) if (!seen.has(g.dataset.zone)) g.remove();
+    if (!this.fit()) this.placeLabels();
+  }
+
+  /** Each zone's label inside the zone's top edge (a zone within another keeps its label
+   * apart), or below its bottom edge when the zone is narrower than its label; then labels
+   * that would overlap moved apart, each moved one tied to its zone by a leader line. */
+  placeLabels() {
+    const labels = [];
+    for (const zone of this.zones) {
+      const g = this.layers.zones.querySelector(`g[data-zone="${CSS.escape(zone.name)}"]`);
+      if (!g || !Array.isArray(zone.polygon) || !zone.polygon.length) continue;
+      const label = g.querySelector("text");
       const [cx] = centroid(zone.polygon);
       const ys = zone.polygon.map((p) => p[1]);
       const xs = zone.polygon.map((p) => p[0]);
@@ -117,9 +129,9 @@ export class FloorPlan {
       const y = outside ? -Math.min(...ys) + 0.06 * this.scale : -Math.max(...ys) + 0.08 * this.scale;
       label.setAttribute("x", cx.toFixed(3));
       label.setAttribute("y", y.toFixed(3));
+      labels.push(label);
     }
-    for (const g of [...layer.children]) if (!seen.has(g.dataset.zone)) g.remove();
-    this.fit();
+    separateLabels(labels, 0.02 * this.scale);
   }
 
   setPeople(body) {
@@ -186,7 +198,8 @@ export class FloorPlan {
   }
 
   /** The view: zones, camera positions and people, with a margin; changed only when it moves
-   * by more than a little, so the plan does not jitter. */
+   * by more than a little, so the plan does not jitter. Whether it changed (the labels then
+   * placed again). */
   fit() {
     const xs = [];
     const ys = [];
@@ -199,13 +212,13 @@ export class FloorPlan {
     for (const zone of this.zones) for (const [x, y] of zone.polygon || []) add(x, y);
     for (const cam of this.cameras) if (Array.isArray(cam.position)) add(cam.position[0], cam.position[1]);
     for (const person of this.people) if (Array.isArray(person.position)) add(person.position[0], person.position[1]);
-    if (!xs.length) return;
+    if (!xs.length) return false;
     let [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
     x0 -= MARGIN_M; x1 += MARGIN_M; y0 -= MARGIN_M; y1 += MARGIN_M;
     const view = [x0, -y1, x1 - x0, y1 - y0];
     const old = this.view;
     const moved = !old || view.some((v, i) => Math.abs(v - old[i]) > 0.25);
-    if (!moved) return;
+    if (!moved) return false;
     this.view = view;
     this.svg.setAttribute("viewBox", view.map((v) => v.toFixed(3)).join(" "));
     // marker bodies and labels are drawn for a 10 m view and scaled with it, so that they
@@ -214,6 +227,8 @@ export class FloorPlan {
     this.svg.style.setProperty("--unit", this.scale.toFixed(4));
     for (const body of this.svg.querySelectorAll(".body")) this.scaleBody(body);
     this.drawGrid(view);
+    this.placeLabels(); // their size follows the scale: placed and kept apart again
+    return true;
   }
 
   scaleBody(body) {

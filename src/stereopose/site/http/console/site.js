@@ -11,7 +11,7 @@ import * as api from "./api.js";
 import { text } from "./dom.js";
 import { SiteOutputs } from "./site_outputs.js";
 import { SurveyPanel } from "./survey.js";
-import { el } from "./svg.js";
+import { el, separateLabels } from "./svg.js";
 
 const GRID_M = 0.05;
 const SNAP_M = 0.15;
@@ -148,6 +148,8 @@ export class SiteEditor {
     }
     this.drawCameras();
     this.outputs.draw(this.svg, this.scale);
+    // cameras and speakers side by side: their names kept apart
+    separateLabels([...this.svg.querySelectorAll("text.label")], this.scale * 0.3);
     this.peopleLayer = el("g", { class: "site-people" }, this.svg);
     this.drawPeople();
     this.renderList();
