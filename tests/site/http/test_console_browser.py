@@ -1143,3 +1143,29 @@ def test_no_two_labels_overlap_on_the_live_plan_or_the_site_tabs_plan(watched, s
     )
     _, overlapping = page.evaluate(_OVERLAPPING, "#site-plan text.label")
     assert overlapping == [], overlapping
+
+
+def test_the_site_tabs_camera_picture_fills_its_column_and_zooms_to_its_pixels(watched, served):
+    """The camera's picture on the Site tab as wide as its column, zoomed to one and two
+    screen pixels a camera pixel, the camera pixel under the pointer shown: an admin clicks
+    surveyed points and zone corners to a pixel."""
+    w = watched("ada")
+    page = w.page
+    page.click('.tab[data-tab="site"]')
+    page.wait_for_selector("#site-camera-img[src]", timeout=20_000)
+    column = page.evaluate("document.getElementById('site-view-scroll').clientWidth")
+    fit = page.locator("#site-view").bounding_box()
+    assert fit and fit["width"] >= min(column, 1088) - 2 and fit["width"] > 600, (fit, column)
+    page.click('.site-zoom button[data-zoom="1"]')
+    assert page.get_attribute('.site-zoom button[data-zoom="1"]', "aria-pressed") == "true"
+    one = page.locator("#site-view").bounding_box()
+    assert one and abs(one["width"] - 1088) <= 1 and abs(one["height"] - 1920) <= 2, one
+    page.mouse.move(one["x"] + 100.5, one["y"] + 50.5)
+    said = page.inner_text("#site-pixel")
+    assert said.startswith("cam") and "pixel 100." in said and ", 50." in said, said
+    page.click('.site-zoom button[data-zoom="2"]')
+    two = page.locator("#site-view").bounding_box()
+    assert two and abs(two["width"] - 2 * 1088) <= 2, two
+    page.click('.site-zoom button[data-zoom="fit"]')
+    back = page.locator("#site-view").bounding_box()
+    assert back and abs(back["width"] - fit["width"]) <= 1

@@ -64,6 +64,14 @@ export class SiteEditor {
     this.viewTimer = null;
     byId("site-camera").addEventListener("change", (e) => { this.camera = e.target.value; this.drawViews(); });
     byId("site-camera-svg").addEventListener("click", (e) => this.onCameraClick(e));
+    // the picture as wide as the column, or zoomed to the camera's own pixels (1:1, 2:1);
+    // the camera pixel under the pointer shown while placing
+    this.zoom = "fit";
+    for (const button of document.querySelectorAll(".site-zoom button")) {
+      button.addEventListener("click", () => this.setZoom(button.dataset.zoom));
+    }
+    byId("site-camera-svg").addEventListener("mousemove", (e) => this.showPixel(e));
+    byId("site-camera-svg").addEventListener("mouseleave", () => { byId("site-pixel").textContent = ""; });
     byId("site-camera-img").addEventListener("error", () => { byId("site-camera-img").hidden = true; });
     this.survey = new SurveyPanel(this); // the surveyed points, clicked in the same pictures
     this.outputs = new SiteOutputs(this); // the speakers and signals of the warnings on site
@@ -281,6 +289,7 @@ export class SiteEditor {
     if (!cam) return;
     const view = byId("site-view");
     view.style.aspectRatio = `${cam.size[0]} / ${cam.size[1]}`;
+    this.sizeView(cam);
     const img = byId("site-camera-img");
     const src = `/api/cameras/${encodeURIComponent(cam.name)}/snapshot.jpg`;
     if (img.dataset.camera !== cam.name) {
@@ -297,6 +306,34 @@ export class SiteEditor {
       }
     }
     this.survey.draw(svg, cam);
+  }
+
+  /** The picture's zoom: "fit" (the column's width), or "1", "2" screen pixels a camera
+   * pixel (scrolled within its frame). */
+  setZoom(zoom) {
+    this.zoom = zoom;
+    for (const button of document.querySelectorAll(".site-zoom button")) {
+      button.setAttribute("aria-pressed", String(button.dataset.zoom === zoom));
+    }
+    const cam = this.views && this.views.cameras.find((c) => c.name === this.camera);
+    if (cam) this.sizeView(cam);
+  }
+
+  sizeView(cam) {
+    const view = byId("site-view");
+    // CSS pixels of the device's pixels: 1:1 is one camera pixel a screen pixel
+    const px = this.zoom === "fit" ? null : (Number(this.zoom) * cam.size[0]) / (window.devicePixelRatio || 1);
+    view.style.width = px ? `${px.toFixed(1)}px` : "100%";
+  }
+
+  /** The camera pixel under the pointer, as a click there would place it. */
+  showPixel(event) {
+    const cam = this.views && this.views.cameras.find((c) => c.name === this.camera);
+    if (!cam) return;
+    const box = byId("site-camera-svg").getBoundingClientRect();
+    const u = ((event.clientX - box.left) / box.width) * cam.size[0];
+    const v = ((event.clientY - box.top) / box.height) * cam.size[1];
+    byId("site-pixel").textContent = `${cam.name} pixel ${u.toFixed(1)}, ${v.toFixed(1)}`;
   }
 
   async onCameraClick(event) {
