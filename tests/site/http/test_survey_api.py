@@ -116,6 +116,11 @@ def test_a_long_solve_holds_no_request(tmp_path, monkeypatch) -> None:
     ):
         admin, viewer = _login(c, "ada"), _login(c, "vera")
         assert c.get("/api/survey/solve", headers=viewer).status_code == 404  # none begun
+        # a points file over the server's bound on a body: 413 with the limit, nothing kept
+        huge = {"points": {f"P{i}": [float(i), 0.0, 0.0] for i in range(60_000)}, "cameras": {}}
+        r = c.put("/api/survey", json=huge, headers=admin)
+        assert r.status_code == 413 and "over 1048576 bytes" in r.text, r.text[:200]
+        assert c.get("/api/survey", headers=viewer).json()["points"] == {}
         assert c.put("/api/survey", json=doc, headers=admin).status_code == 200
         first = c.post("/api/survey/solve", headers=admin)
         assert first.status_code == 202 and first.json()["state"] == "solving"
