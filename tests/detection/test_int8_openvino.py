@@ -10,13 +10,18 @@ import pytest
 
 from stereopose.detection import choose
 from stereopose.detection.int8_choice import MIN_SPEEDUP, SPEED_FILE, Int8Found, speedup
-from stereopose.detection.int8_openvino import CHECK_MISSED, CHECK_P95_PX, check, read_check
+from stereopose.detection.int8_openvino import (
+    CHECK_MISSED,
+    CHECK_P95_PX,
+    check,
+    quantize_int8_openvino,
+    read_check,
+)
 from stereopose.detection.models import (
     OV_CHECK_FRAMES,
     calibration_frames,
     default_onnx,
     int8_videos,
-    quantize_int8_openvino,
 )
 
 pytest.importorskip("openvino")

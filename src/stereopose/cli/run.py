@@ -175,7 +175,9 @@ def _default_openvino_int8(models, force: bool) -> None:
             highlight=False,
         )
         return
-    _said_int8(models.quantize_int8_openvino(out=target))
+    from stereopose.detection.int8_openvino import quantize_int8_openvino
+
+    _said_int8(quantize_int8_openvino(out=target))
 
 
 def _export_openvino_int8(models, args: argparse.Namespace) -> Path:
@@ -190,7 +192,9 @@ def _export_openvino_int8(models, args: argparse.Namespace) -> Path:
         target = args.out or models.models_dir() / f"{src.stem}{models.INT8_SUFFIX}.xml"
     if Path(target).is_file() and not args.force:
         return Path(target)
-    return models.quantize_int8_openvino(src, target)
+    from stereopose.detection.int8_openvino import quantize_int8_openvino
+
+    return quantize_int8_openvino(src, target)
 
 
 def _said_int8(path: Path) -> None:

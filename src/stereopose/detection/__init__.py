@@ -283,11 +283,8 @@ def _int8(path: Path, default: bool) -> Path:
 def _openvino_int8(path: Path, default: bool) -> Path:
     """OpenVINO's INT8 model of the ONNX model at `path` (an .xml given: taken as it is),
     quantised once into the cache."""
-    from stereopose.detection.models import (
-        INT8_SUFFIX,
-        openvino_int8_path,
-        quantize_int8_openvino,
-    )
+    from stereopose.detection.int8_openvino import quantize_int8_openvino
+    from stereopose.detection.models import INT8_SUFFIX, openvino_int8_path
 
     if path.suffix == ".xml":
         return path

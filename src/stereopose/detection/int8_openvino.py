@@ -11,18 +11,35 @@ outputs are keypoint offsets times the stride, where 8 bits put joints tens of p
 not calibrated on: people matched by box overlap, the distance of the joints both see. The
 check is written beside the model (``<stem>.json``); `make_detector`'s auto choice takes the
 INT8 model only where its check passed (`accepted`) and it is faster on the CPU at hand.
+`quantize_int8_openvino` does both for a model of the cache (what `stereopose models export`
+runs), on the real recordings' frames.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from stereopose.cache import cache_root
 from stereopose.detection.base import Poses, letterbox_for, letterbox_image, to_blob
+from stereopose.detection.models import (
+    OV_CHECK_FRAMES,
+    OV_INT8_FRAMES,
+    ModelError,
+    calibration_frames,
+    check_weights,
+    default_onnx,
+    int8_videos,
+    offline_environment,
+    openvino_int8_path,
+)
+from stereopose.extras import require
 
 logger = logging.getLogger(__name__)
 
@@ -151,3 +168,54 @@ def read_check(model: Path) -> dict | None:
     except (OSError, ValueError):
         return None
     return found if isinstance(found, dict) else None
+
+
+def quantize_int8_openvino(
+    model: Path | None = None, out: Path | None = None, cache: Path | None = None
+) -> Path:
+    """OpenVINO's INT8 model of an ONNX pose model (default: the cache's yolo11n-pose),
+    quantised by NNCF on frames of the real recordings and checked against the float model on
+    others (detection.int8_openvino); its .xml path (default `openvino_int8_path`)."""
+    src = check_weights(Path(model) if model is not None else default_onnx(cache))
+    if src.suffix != ".onnx":
+        raise ModelError(f"{src}: INT8 quantisation needs an ONNX model (.onnx)")
+    out = Path(out) if out is not None else openvino_int8_path(cache)
+    if out.suffix != ".xml":
+        raise ModelError(f"{out}: OpenVINO's INT8 model is written as an .xml file (and .bin)")
+    for module, extra in (("openvino", "openvino"), ("nncf", "int8")):
+        require(
+            module,
+            extra,
+            f"INT8 quantisation of {src.name} for OpenVINO",
+            f"or copy {out.name}, {out.with_suffix('.bin').name} and "
+            f"{out.with_suffix('.json').name} from an install that has made them to {out.parent}",
+        )
+    videos = int8_videos(cache)
+    if not videos:
+        raise ModelError(
+            f"INT8 quantisation needs calibration frames: the real recordings are not in "
+            f"{cache_root(cache)} (`python -m stereopose.io.pose2sim_data` unpacks them once)"
+        )
+    from stereopose.detection.yolo_openvino import OpenVinoPoseDetector
+
+    offline_environment(cache)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=".int8.") as tmp:
+        staged = quantize(src, Path(tmp) / out.name, calibration_frames(videos, OV_INT8_FRAMES))
+        frames = calibration_frames(videos, OV_CHECK_FRAMES, phase=0.5)
+        found = check(
+            OpenVinoPoseDetector(src, precision="fp32"),
+            OpenVinoPoseDetector(staged, precision="int8"),
+            frames,
+        )
+        found["model"] = src.name
+        staged.with_suffix(".json").write_text(json.dumps(found, indent=1) + "\n", "utf-8")
+        for suffix in (".bin", ".json", ".xml"):  # the .xml last: its presence says complete
+            os.replace(staged.with_suffix(suffix), out.with_suffix(suffix))
+    logger.info(
+        "OpenVINO INT8 model written to %s: joints p95 %s px from the float model's (%s)",
+        out,
+        found["p95_px"],
+        "accepted" if found["accepted"] else f"over the {found['p95_bound_px']} px bound",
+    )
+    return out
