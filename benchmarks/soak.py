@@ -459,8 +459,32 @@ def soak(args) -> dict:
         tracebacks_in_log=text.count("Traceback"),
         camera_server_restarts={c.name: c.restarts for c in cameras},
         load_avg_end=round(os.getloadavg()[0], 2),  # other work on the machine slows serve
+        calibration=calibration_events(data / "events.sqlite"),
     )
     return {"summary": summary, "samples": [compact(s) for s in samples]}
+
+
+CALIBRATION_EVENTS = ("calibration_drift", "calibration_proposed", "calibration_corrected")
+
+
+def calibration_events(db: Path) -> dict:
+    """What the calibration keeper did to the good rig ([serve] calibration_auto, on by
+    default): its events by type and camera, from the event log."""
+    import sqlite3
+
+    out: dict = {t: {} for t in CALIBRATION_EVENTS}
+    if not db.exists():
+        return out
+    marks = ",".join("?" * len(CALIBRATION_EVENTS))
+    with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
+        rows = con.execute(
+            f"SELECT type, camera, COUNT(*) FROM events WHERE type IN ({marks}) "
+            "GROUP BY type, camera",
+            CALIBRATION_EVENTS,
+        ).fetchall()
+    for kind, camera, n in rows:
+        out[kind][camera or "-"] = n
+    return out
 
 
 def compact(s: dict) -> dict:
@@ -540,6 +564,11 @@ def report(args, result: dict) -> list[str]:
         f"| tracebacks in the log | {s['tracebacks_in_log']} |",
         f"| camera servers restarted | {_pairs(s['camera_server_restarts'])} |",
         f"| machine load (1 min) at the end | {s.get('load_avg_end', '-')} |",
+        "| the calibration keeper (calibration_auto on): drift / proposed / corrected | "
+        + " / ".join(
+            _pairs(s.get("calibration", {}).get(k, {})) or "none" for k in CALIBRATION_EVENTS
+        )
+        + " |",
         "",
         *(
             [
