@@ -71,7 +71,9 @@ def quantize(src: Path, out: Path, frames: Sequence[np.ndarray], imgsz: int = 64
 
     if not frames:
         raise ValueError("quantisation needs at least one calibration frame")
-    nncf.set_log_level(logging.ERROR)  # not a line per operation left in floats
+    # not a line per operation left in floats: the "nncf" logger alone (nncf.set_log_level
+    # also sets the level of every handler on that logger, which need not be its own)
+    logging.getLogger("nncf").setLevel(logging.ERROR)
     model = ov_core().read_model(str(src))
     stride = _stride(model)
     blobs = _blobs(frames, imgsz, stride)
