@@ -270,9 +270,7 @@ def markdown(cpus: dict) -> list[str]:
             r["ms_per_frame"],
         )
         md.append(
-            f"| {cpu} | {a['people_matched']} / "
-            f"{a['people_only_reference'] + a['people_only_this']} | {_f(a['median_px'], 2)} / "
-            f"{_f(a['p95_px'], 2)} / {_f(a['max_px'], 1)} | {_f(a.get('step_median_px_max'), 2)}"
+            f"| {cpu} | {_people_2d(a)} | {_f(a.get('step_median_px_max'), 2)}"
             f" / {_f(a.get('step_p95_px_max'), 2)} | {_f(a['pck_5px'], 3)} | "
             f"{_f(m['median_mm'], 2)} / {_f(m['p95_mm'], 1)} | "
             f"{ms['onnxruntime_fp32_640_2thread']:.1f} -> {ms['openvino_bf16_640_2thread']:.1f} |"
@@ -295,9 +293,7 @@ def markdown(cpus: dict) -> list[str]:
             r["ms_per_frame"],
         )
         md.append(
-            f"| {cpu} | {a['people_matched']} / "
-            f"{a['people_only_reference'] + a['people_only_this']} | {_f(a['median_px'], 2)} / "
-            f"{_f(a['p95_px'], 2)} / {_f(a['max_px'], 1)} | {_f(m['median_mm'], 2)} / "
+            f"| {cpu} | {_people_2d(a)} | {_f(m['median_mm'], 2)} / "
             f"{_f(m['p95_mm'], 1)} | {ms['openvino_bf16_640_2thread']:.1f} -> "
             f"{ms['openvino_int8_640_2thread']:.1f} | {r['run']['openvino_bf16']['wall_s']:.1f}"
             f" -> {r['run']['openvino_int8']['wall_s']:.1f} |"
@@ -371,6 +367,15 @@ def section(r: dict) -> list[str]:
             f"{x['wall_s']:.1f} | {mv} |"
         )
     return md
+
+
+def _people_2d(a: dict) -> str:
+    """The summary's cells of a variant's 2D agreement: people matched / only one; joints'
+    median / p95 / max px."""
+    return (
+        f"{a['people_matched']} / {a['people_only_reference'] + a['people_only_this']} | "
+        f"{_f(a['median_px'], 2)} / {_f(a['p95_px'], 2)} / {_f(a['max_px'], 1)}"
+    )
 
 
 def _f(x, nd: int) -> str:
