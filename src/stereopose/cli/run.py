@@ -63,10 +63,11 @@ def _detect(args: argparse.Namespace) -> int:
     out.print(f"detector: {choice_of(detector) or args.backend}", highlight=False)
     regions = None
     if args.regions:
+        from stereopose.detection.call_costs import CallCosts
         from stereopose.detection.regional import RegionDetector, RegionSettings
 
         settings = RegionSettings(imgsz=args.region_imgsz, full_scan_s=args.full_scan_s)
-        regions = RegionDetector(detector, settings)
+        regions = RegionDetector(detector, settings, CallCosts.of(detector))
     progress = rate_progress("detecting")
     with progress:
         task = progress.add_task("detecting", total=None, fps=0.0)

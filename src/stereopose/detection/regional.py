@@ -33,12 +33,14 @@ must be. A camera with nobody, no motion and no scan due costs no inference at a
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from stereopose.detection.base import Letterbox, PoseDetector, Poses, letterbox_for
+from stereopose.detection.call_costs import CallCosts, cheapest
 from stereopose.detection.motion import MotionDetector
 from stereopose.detection.regions import (
     Region,
@@ -46,7 +48,10 @@ from stereopose.detection.regions import (
     cut_sides,
     dedupe,
     grow_cut,
+    in_view,
+    inside,
     merge,
+    overlaps_any,
     squares,
     tiles,
 )
@@ -142,8 +147,17 @@ class RegionDetector:
     images' pixels. `cameras` figures by camera; `regions(camera)` the last step's regions.
     """
 
-    def __init__(self, detector: PoseDetector, settings: RegionSettings | None = None) -> None:
+    def __init__(
+        self,
+        detector: PoseDetector,
+        settings: RegionSettings | None = None,
+        costs: CallCosts | None = None,
+    ) -> None:
         self.detector = detector
+        # the detector's measured call prices: a camera whose whole frame sees its people well
+        # enough goes whole where the step's calls cost less so (None: where its regions take
+        # as many model input pixels as the whole frame)
+        self.costs = costs
         self.name = detector.name
         self.settings = settings or RegionSettings()
         self.whole_imgsz = int(detector.imgsz)
@@ -215,9 +229,11 @@ class RegionDetector:
 
     def _plan(
         self, name: str, image: np.ndarray, t: float, hints: np.ndarray | None, whole: Letterbox
-    ) -> tuple[list[Region], bool, bool]:
-        """A camera's regions at this step, whether it is a scan, and whether it is detected
-        whole instead (whole: its frame letterboxed at the detector's imgsz)."""
+    ) -> tuple[list[Region], bool, bool, bool]:
+        """A camera's regions at this step, whether it is a scan, whether it is detected
+        whole instead (whole: its frame letterboxed at the detector's imgsz), and whether it
+        may go either way, as the step's call prices say (its whole frame sees its people well
+        enough: every worker that matters is found whole, or no region sees finer)."""
         s = self.settings
         state = self._state[name]
         h, w = image.shape[:2]
@@ -239,7 +255,7 @@ class RegionDetector:
             # camera sees well: his own detections (seen) or the whole frame's scan say more
             people += [
                 r
-                for r in squares(_in_view(hints, size), size, Why.TRACK, small)
+                for r in squares(in_view(hints, size), size, Why.TRACK, small)
                 if max(r.side_w, r.side_h) <= largest
             ]
         if state.held:
@@ -249,7 +265,7 @@ class RegionDetector:
         motion = [
             m
             for m in squares(moving, size, Why.MOTION, s.imgsz)
-            if not any(_inside(m, r) for r in people)
+            if not any(inside(m, r) for r in people)
         ]
         regions = merge(people + motion, size, largest)
         if len(regions) > MAX_REGIONS:  # many at once (a crowd, rain): merged however far apart
@@ -263,29 +279,32 @@ class RegionDetector:
             if self._watched.get(name, 0.0) * whole_scale >= FOUND_WHOLE_PX:
                 # every worker that matters is found whole: no tile, and a region only for
                 # whom the whole frame sees at less than half its detail
-                return _finer(regions, s.imgsz, whole_scale), True, True
+                return _finer(regions, s.imgsz, whole_scale), True, True, False
             if whole_scale >= s.imgsz / tile:
-                return regions, True, True
+                return regions, True, True, False
             grid = tiles(size, tile)
             if state.tile_turn < 0:  # its first scan: it knows nothing yet, every tile
                 state.tile_turn = len(grid) - 1
-                return [*regions, *grid], True, True
+                return [*regions, *grid], True, True, False
             state.tile_turn = (state.tile_turn + 1) % len(grid)
-            return [*regions, grid[state.tile_turn]], True, True
+            return [*regions, grid[state.tile_turn]], True, True, False
         if not regions:
-            return [], False, False
+            return [], False, False, False
         if len(regions) > MAX_REGIONS:  # still too many: the whole frame costs less
-            return [], False, True
+            return [], False, True, False
         if any(max(r.side_w, r.side_h) > largest for r in regions):
             # someone too large for a region's detail: the whole frame, and the regions of
             # people it would see at less than half their region's detail (a distant worker
             # beside a near one)
-            return _finer(regions, s.imgsz, whole_scale), False, True
+            return _finer(regions, s.imgsz, whole_scale), False, True, False
         whole_px = whole.input_shape[0] * whole.input_shape[1]
         finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
+        if self.costs is not None:
+            found_whole = self._watched.get(name, 0.0) * whole_scale >= FOUND_WHOLE_PX
+            return regions, False, False, found_whole or whole_scale >= finest
         if len(regions) * s.imgsz**2 >= whole_px and whole_scale >= finest:
-            return [], False, True  # cheaper whole, and no region seen finer
-        return regions, False, False
+            return [], False, True, False  # cheaper whole, and no region seen finer
+        return regions, False, False, False
 
     def detect(
         self,
@@ -298,10 +317,16 @@ class RegionDetector:
         owners: list[tuple[str, Region]] = []
         wholes: list[str] = []
         self._register(list(images), t)
+        plans = {}
+        for name, image in images.items():
+            lb = letterbox_for(image.shape[:2], self.whole_imgsz, 32, auto=True)
+            plans[name] = (lb, *self._plan(name, image, t, (hints or {}).get(name), lb))
+        turned = self._cheapest(plans)
         for name, image in images.items():
             h, w = image.shape[:2]
-            lb = letterbox_for((h, w), self.whole_imgsz, 32, auto=True)
-            regions, scan, whole = self._plan(name, image, t, (hints or {}).get(name), lb)
+            lb, regions, scan, whole, _ = plans[name]
+            if name in turned:
+                regions, whole = [], True
             stats = self.cameras[name]
             stats.steps += 1
             stats.frame_px += w * h
@@ -326,20 +351,47 @@ class RegionDetector:
                 owners.append((name, r))
         found: dict[str, list[tuple[Poses, Region | None]]] = {n: [] for n in images}
         if crops:
-            for (name, r), poses in zip(
-                owners, self.detector.detect(crops, imgsz=s.imgsz), strict=True
-            ):
+            got = self._call(crops, (s.imgsz, s.imgsz), s.imgsz)
+            for (name, r), poses in zip(owners, got, strict=True):
                 found[name].append((poses, r))
         if wholes:
-            for name, poses in zip(
-                wholes, self.detector.detect([images[n] for n in wholes]), strict=True
-            ):
+            shapes = {plans[n][0].input_shape for n in wholes}
+            got = self._call(
+                [images[n] for n in wholes], shapes.pop() if len(shapes) == 1 else None
+            )
+            for name, poses in zip(wholes, got, strict=True):
                 found[name].append((poses, None))
         out: dict[str, Poses] = {}
         for name, image in images.items():
             h, w = image.shape[:2]
             out[name] = self._gather(name, found[name], (w, h), t)
         return out
+
+    def _cheapest(self, plans: Mapping[str, tuple]) -> set[str]:
+        """The cameras that may go either way and are detected whole at this step, for the
+        least time by the detector's call prices (none without prices)."""
+        if self.costs is None:
+            return set()
+        either = [(n, p[0].input_shape, len(p[1])) for n, p in plans.items() if p[4]]
+        if not either:
+            return set()
+        imgsz = self.settings.imgsz
+        needs: dict[tuple[int, int], int] = {(imgsz, imgsz): 2 * len(plans)}
+        for lb, *_ in plans.values():
+            needs[lb.input_shape] = needs.get(lb.input_shape, 0) + 1
+        self.costs.ensure(needs)
+        whole = [p[0].input_shape for p in plans.values() if p[3]]
+        return cheapest(self.costs, whole, (imgsz, imgsz), either)
+
+    def _call(
+        self, images: list[np.ndarray], shape: tuple[int, int] | None, imgsz: int | None = None
+    ) -> list[Poses]:
+        """One detector call, its time told to the call prices (images of one input shape)."""
+        t0 = time.perf_counter()
+        got = self.detector.detect(images, imgsz=imgsz) if imgsz else self.detector.detect(images)
+        if self.costs is not None and shape is not None:
+            self.costs.observe(shape, len(images), 1000 * (time.perf_counter() - t0))
+        return got
 
     def _gather(
         self, name: str, found: list[tuple[Poses, Region | None]], size: tuple[int, int], t: float
@@ -384,7 +436,7 @@ class RegionDetector:
             elif Why.SCAN in why[i]:
                 stats.found_by_scan += 1
         new = [grown[i] for i in keep]
-        state.held = [(b, seen) for b, seen in state.held if not _overlaps_any(b, new)]
+        state.held = [(b, seen) for b, seen in state.held if not overlaps_any(b, new)]
         state.held = ([(b, t) for b in new] + state.held)[:HELD_MAX]
         stats.people += len(keep)
         return Poses(
@@ -402,38 +454,10 @@ def _finer(regions: list[Region], imgsz: int, whole_scale: float) -> list[Region
     ]
 
 
-def _in_view(boxes: np.ndarray, size: tuple[int, int], share: float = 0.5) -> np.ndarray:
-    """The boxes (N, 4) with at least `share` of their area inside a frame of `size`."""
-    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    w, h = size
-    iw = np.clip(np.minimum(b[:, 2], w) - np.maximum(b[:, 0], 0), 0, None)
-    ih = np.clip(np.minimum(b[:, 3], h) - np.maximum(b[:, 1], 0), 0, None)
-    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        keep = np.isfinite(b).all(axis=1) & (area > 0) & (iw * ih >= share * area)
-    return b[keep]
-
-
-def _inside(a: Region, b: Region) -> bool:
-    """Whether region a's centre lies in region b."""
-    cx, cy = a.x + a.side_w / 2, a.y + a.side_h / 2
-    return b.x <= cx <= b.x + b.side_w and b.y <= cy <= b.y + b.side_h
-
-
-def _overlaps_any(box: np.ndarray, others: list[np.ndarray], iou: float = 0.3) -> bool:
-    for o in others:
-        iw = min(box[2], o[2]) - max(box[0], o[0])
-        ih = min(box[3], o[3]) - max(box[1], o[1])
-        inter = max(iw, 0.0) * max(ih, 0.0)
-        union = (box[2] - box[0]) * (box[3] - box[1]) + (o[2] - o[0]) * (o[3] - o[1]) - inter
-        if union > 0 and inter / union > iou:
-            return True
-    return False
-
-
 def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
     """The RegionDetector of a detector and its `[detector]` settings (config.DetectorConfig:
-    regions, region_imgsz, full_scan_s, motion_threshold); None with regions = false."""
+    regions, region_imgsz, full_scan_s, motion_threshold), the detector's calls priced on
+    this machine (detection.call_costs); None with regions = false."""
     if not settings.regions:
         return None
     return RegionDetector(
@@ -444,6 +468,7 @@ def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
             motion_threshold=settings.motion_threshold,
             detail=settings.region_detail,
         ),
+        CallCosts.of(detector),
     )
 
 

@@ -204,3 +204,32 @@ def dedupe(
         if ok:
             keep.append(int(i))
     return np.asarray(keep, dtype=np.int64)
+
+
+def in_view(boxes: np.ndarray, size: tuple[int, int], share: float = 0.5) -> np.ndarray:
+    """The boxes (N, 4) with at least `share` of their area inside a frame of `size`."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    w, h = size
+    iw = np.clip(np.minimum(b[:, 2], w) - np.maximum(b[:, 0], 0), 0, None)
+    ih = np.clip(np.minimum(b[:, 3], h) - np.maximum(b[:, 1], 0), 0, None)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        keep = np.isfinite(b).all(axis=1) & (area > 0) & (iw * ih >= share * area)
+    return b[keep]
+
+
+def inside(a: Region, b: Region) -> bool:
+    """Whether region a's centre lies in region b."""
+    cx, cy = a.x + a.side_w / 2, a.y + a.side_h / 2
+    return b.x <= cx <= b.x + b.side_w and b.y <= cy <= b.y + b.side_h
+
+
+def overlaps_any(box: np.ndarray, others: list[np.ndarray], iou: float = 0.3) -> bool:
+    for o in others:
+        iw = min(box[2], o[2]) - max(box[0], o[0])
+        ih = min(box[3], o[3]) - max(box[1], o[1])
+        inter = max(iw, 0.0) * max(ih, 0.0)
+        union = (box[2] - box[0]) * (box[3] - box[1]) + (o[2] - o[0]) * (o[3] - o[1]) - inter
+        if union > 0 and inter / union > iou:
+            return True
+    return False

@@ -199,6 +199,7 @@ class OnnxPoseDetector:
         providers = _providers(device, available, precision, engines)  # errors before loading
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or int(os.environ.get("STEREOPOSE_THREADS", 0))
+        self.threads = options.intra_op_num_threads  # 0: the runtime's own choice
         options.log_severity_level = 3
         if providers[0][0] != CPU:
             _preload_gpu_libraries(ort, tensorrt=kind == "tensorrt")

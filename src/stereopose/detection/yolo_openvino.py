@@ -111,6 +111,7 @@ class OpenVinoPoseDetector:
         net = _taking_bgr_bytes(net)
         config: dict[str, str] = {"PERFORMANCE_HINT": "LATENCY"}
         n = threads or int(os.environ.get("STEREOPOSE_THREADS", 0))
+        self.threads = n  # 0: the runtime's own choice
         if n and self.device == "CPU":
             config["INFERENCE_NUM_THREADS"] = str(n)
         if precision == "bf16" and self.device.startswith("GPU"):
