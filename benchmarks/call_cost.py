@@ -8,7 +8,10 @@ For each backend (the one `auto` chooses here, and ONNX Runtime fp32, the refere
 - whole demo frames letterboxed to 640, batches of 1-4 in one call, and 4 frames split 3 + 1;
 - 320 x 320 crops of the people (regions), batches of 1, 2, 4 and 8 in one call;
 each the median of --repeat calls after a warm-up; a line t(k) = fixed + k x per image fitted
-per input size by least squares. Results: benchmarks/results/call_cost.{md,json}.
+per input size by least squares. Then the prices the service itself measures at its start
+(detection.call_costs: batches of 1-4 whole frames and 1-8 crops) and what they make it do
+with a few kinds of step (detection.call_costs.cheapest): which cameras go whole.
+Results: benchmarks/results/call_cost.{md,json}.
 
 usage: python benchmarks/call_cost.py [--repeat 15] [--threads 2]
 """
@@ -25,6 +28,7 @@ import numpy as np
 
 from common import machine, save
 from stereopose.detection import make_detector
+from stereopose.detection.call_costs import CallCosts, cheapest
 from stereopose.detection.models import demo_videos
 
 
@@ -68,6 +72,15 @@ def measure(backend: str, precision: str, threads: int, repeat: int) -> dict:
     crops = {k: _timed(det, [crop] * k, 320, repeat) for k in (1, 2, 4, 8)}
     fw, pw = _fit(list(whole), list(whole.values()))
     fc, pc = _fit(list(crops), list(crops.values()))
+    wide, square = (640, 384), (320, 320)  # a portrait full-HD frame at 640, a region
+    prices = CallCosts(det)
+    prices.ensure({wide: 4, square: 8})
+    steps = {
+        "3 whole, 1 camera with 1 region": ([wide] * 3, [("cam04", wide, 1)]),
+        "2 whole, 2 cameras with 1 region": ([wide] * 2, [("cam03", wide, 1), ("cam04", wide, 1)]),
+        "1 whole, 3 cameras with 1 region": ([wide], [(f"cam0{k}", wide, 1) for k in (2, 3, 4)]),
+        "4 cameras with 2 regions": ([], [(f"cam0{k}", wide, 2) for k in (1, 2, 3, 4)]),
+    }
     return {
         "detector": str(getattr(det, "choice", backend)),
         "whole_ms": whole,
@@ -77,6 +90,10 @@ def measure(backend: str, precision: str, threads: int, repeat: int) -> dict:
         "whole_per_image_ms": pw,
         "crop_fixed_ms": fc,
         "crop_per_image_ms": pc,
+        "prices_ms": prices.table(),
+        "taken_whole": {
+            k: [len(cheapest(prices, w, square, c)), len(c)] for k, (w, c) in steps.items()
+        },
     }
 
 
@@ -107,6 +124,22 @@ def main() -> None:
             f"| {name} ({b['detector'].split(' (')[0]}) | {' / '.join(f'{v:.1f}' for v in wm.values())} | {b['whole_split_3_1_ms']:.1f} | "
             f"{b['whole_fixed_ms']:.1f} + {b['whole_per_image_ms']:.1f} | {' / '.join(f'{v:.1f}' for v in cm.values())} | "
             f"{b['crop_fixed_ms']:.1f} + {b['crop_per_image_ms']:.1f} | {cm[4] / wm[1]:.2f}x |"
+        )
+    md += [
+        "",
+        "The prices `serve` and `run` measure at their first step (ms for batches of 1, 2, ... in one call; `detection.call_costs`), and the cameras that may go either way that they detect whole for a few kinds of step of the demo's 4 cameras:",
+        "",
+        "| backend | whole frames (640x384) | 320 crops | "
+        + " | ".join(res["backends"]["auto"]["taken_whole"])
+        + " |",
+        "|---|---|---|" + "---|" * len(res["backends"]["auto"]["taken_whole"]),
+    ]
+    for name, b in res["backends"].items():
+        t = b["prices_ms"]
+        md.append(
+            f"| {name} | {' / '.join(f'{v:.1f}' for v in t['640x384'])} | {' / '.join(f'{v:.1f}' for v in t['320x320'])} | "
+            + " | ".join(f"{a} of {n}" for a, n in b["taken_whole"].values())
+            + " |"
         )
     md += [
         "",

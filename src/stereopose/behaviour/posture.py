@@ -65,6 +65,7 @@ from stereopose.skeleton import (
     RIGHT_ANKLE,
 )
 from stereopose.types import People3D
+from stereopose.zones.debounce import TIME_EPS
 
 __all__ = [
     "DEFAULT_SETTINGS",
@@ -402,7 +403,7 @@ class PostureTracker:
 
     def _speed(self, floor: deque, t: float, x: float, y: float) -> float:
         w = self.settings.walk_window_s
-        while len(floor) > 1 and t - floor[0][0] > w + 1e-9:
+        while len(floor) > 1 and t - floor[0][0] > w + TIME_EPS:
             floor.popleft()
         t0, x0, y0 = floor[0]
         if t - t0 < 0.5 * w:  # too short a history to tell
@@ -419,20 +420,20 @@ class PostureTracker:
             # the sample about drop_dt_s back (the latest at least that old)
             back = None
             for tb, zb in hist:
-                if t - tb >= s.drop_dt_s - 1e-9:
+                if t - tb >= s.drop_dt_s - TIME_EPS:
                     back = (tb, zb)
                 else:
                     break
             if back is not None:
                 drops.append((t, (back[1] - z) / (t - back[0])))
-        while drops and t - drops[0][0] > s.drop_window_s + 1e-9:
+        while drops and t - drops[0][0] > s.drop_window_s + TIME_EPS:
             drops.popleft()
         if not drops:
             return math.nan
         return max(0.0, max(v for _, v in drops))
 
     def _forget(self, t: float) -> None:
-        gone = [pid for pid, p in self.people.items() if t - p.last_t > self.lost_s + 1e-9]
+        gone = [pid for pid, p in self.people.items() if t - p.last_t > self.lost_s + TIME_EPS]
         for pid in gone:
             del self.people[pid]
 

@@ -1,5 +1,5 @@
-"""What the behaviour monitor (behaviour.rules) keeps per tracked person, and the debounced
-condition every rule is built on."""
+"""What the behaviour monitor (behaviour.rules) keeps per tracked person; every rule's
+condition is debounced by zones.debounce.Latch (re-exported here)."""
 
 from __future__ import annotations
 
@@ -11,34 +11,11 @@ import numpy as np
 from stereopose.behaviour.posture import Posture
 from stereopose.types import People3D
 from stereopose.zones import ZoneGeometry
+from stereopose.zones.debounce import TIME_EPS, Latch
 
-EPS = 1e-9  # times compared with this slack (frame times are sums of float steps)
+__all__ = ["EPS", "DownState", "Latch", "Seen", "StillState", "Tracked"]
 
-
-@dataclass
-class Latch:
-    """A debounced condition: on after `on_s` of raw true, off after `off_s` of raw false.
-    since: when the raw value began to differ from the state; began: when the current on
-    period's condition began."""
-
-    state: bool = False
-    since: float | None = None
-    began: float | None = None
-    onset: float = 0.0  # when the condition of the last change began
-
-    def step(self, raw: bool, t: float, on_s: float, off_s: float) -> str | None:
-        """Advance to time t with the raw condition: "rose", "fell" or None."""
-        if raw == self.state:
-            self.since = None
-            return None
-        if self.since is None:
-            self.since = t
-        if t - self.since < (off_s if self.state else on_s) - EPS:
-            return None
-        self.state, self.onset, self.since = raw, self.since, None
-        if raw:
-            self.began = self.onset
-        return "rose" if raw else "fell"
+EPS = TIME_EPS  # times compared with this slack (zones.debounce)
 
 
 @dataclass

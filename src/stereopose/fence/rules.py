@@ -21,52 +21,7 @@ from stereopose.fence.site import Site
 from stereopose.skeleton import JOINTS, NUM_JOINTS, floor_position
 from stereopose.types import Event, People3D
 from stereopose.zones import ZoneGeometry
-
-_EPS = 1e-9
-
-
-class _Debounced:
-    """Debounced booleans (people x zones): on after `on_s` of raw true, off after `off_s` of
-    raw false. since: when the raw value started to differ from the state (NaN: it does not)."""
-
-    def __init__(self, on_s: np.ndarray, off_s: np.ndarray) -> None:
-        self.on_s, self.off_s = on_s, off_s
-        Z = on_s.shape[0]
-        self.state = np.zeros((0, Z), dtype=bool)
-        self.since = np.zeros((0, Z))
-        self.began = np.zeros((0, Z))  # when the current on-period's raw condition began
-
-    def add_rows(self, n: int) -> None:
-        Z = self.on_s.shape[0]
-        self.state = np.concatenate([self.state, np.zeros((n, Z), dtype=bool)])
-        self.since = np.concatenate([self.since, np.full((n, Z), np.nan)])
-        self.began = np.concatenate([self.began, np.full((n, Z), np.nan)])
-
-    def keep(self, mask: np.ndarray) -> None:
-        self.state, self.since, self.began = self.state[mask], self.since[mask], self.began[mask]
-
-    def step(self, rows: np.ndarray, raw: np.ndarray, t: float):
-        """Advance `rows` with raw (n, Z) at time t; returns (rose, fell) (n, Z) flags and the
-        onset times (n, Z) of the changes (None when nothing changed)."""
-        state, since = self.state[rows], self.since[rows]
-        differs = raw != state
-        if not differs.any():  # steady: whatever was pending is off, nothing changes
-            if (since == since).any():  # since == since: not NaN
-                self.since[rows] = np.nan
-            none = np.zeros_like(differs)
-            return none, none, None
-        since = np.where(differs, np.where(np.isnan(since), t, since), np.nan)
-        elapsed = t - since
-        wait = np.where(state, self.off_s, self.on_s)
-        with np.errstate(invalid="ignore"):
-            flip = differs & (elapsed >= wait - _EPS)
-        rose, fell = flip & raw, flip & ~raw
-        onset = np.where(flip, since, np.nan)
-        state = state ^ flip
-        began = np.where(rose, since, self.began[rows])
-        since = np.where(flip, np.nan, since)
-        self.state[rows], self.since[rows], self.began[rows] = state, since, began
-        return rose, fell, onset
+from stereopose.zones.debounce import TIME_EPS, Debounced
 
 
 @dataclass
@@ -120,8 +75,8 @@ class FenceMonitor:
         self.dwell = np.array([z.dwell_s if z.dwell_s else np.inf for z in self.zones])
         self.any_dwell = bool(np.isfinite(self.dwell).any())
         self.needs_distance = bool((self.margin > 0).any())
-        self.inside = _Debounced(on, off)
-        self.near = _Debounced(on, off)
+        self.inside = Debounced(on, off)
+        self.near = Debounced(on, off)
         self.dwelt = np.zeros((0, Z), dtype=bool)
         self.off = np.zeros(Z, dtype=bool)  # zones switched off (switch): no events of theirs
         self.row_of: dict[int, int] = {}
@@ -225,7 +180,9 @@ class FenceMonitor:
             if self.any_dwell:
                 self.dwelt[rows] &= self.inside.state[rows]  # re-armed by leaving
                 dwell = (
-                    self.inside.state[rows] & ~self.dwelt[rows] & (t - began >= self.dwell - _EPS)
+                    self.inside.state[rows]
+                    & ~self.dwelt[rows]
+                    & (t - began >= self.dwell - TIME_EPS)
                 )
                 self.dwelt[rows] |= dwell
             near_rose = near_onset = None
@@ -333,7 +290,7 @@ class FenceMonitor:
 
     def _lost(self, t: float, frame: int) -> list[Event]:
         """Exit events for people unseen for lost_s while inside; their state is dropped."""
-        gone = t - self.last_seen > self.lost_s + _EPS
+        gone = t - self.last_seen > self.lost_s + TIME_EPS
         if not gone.any():
             return []
         out = []

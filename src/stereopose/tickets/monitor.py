@@ -16,7 +16,7 @@ A step's action is the operator's hand (both hands: `both_hands`) inside its tar
   position) and how long (duration_s: the action's).
 step_timeout (alarm): a step not done `max_s` after the previous step was done (the first:
 after the ticket's start). supervisor_absent (alarm): the supervisor farther than supervise_m
-from the operator, or out of view, for longer than absent_s while the operator is seen (ends
+from the operator, or out of view, for absent_s while the operator is seen (ends
 with supervisor_back). lone_in_room (alarm): one person only seen for lone_s (ends with
 lone_in_room_end). ticket_completed (info), once, when the ticket ends: its `result`.
 
@@ -36,6 +36,7 @@ from stereopose.skeleton import LEFT_WRIST, RIGHT_WRIST, floor_position, heading
 from stereopose.tickets.ticket import Ticket, TicketStep
 from stereopose.types import Event, People3D
 from stereopose.zones import Zone, ZoneGeometry
+from stereopose.zones.debounce import TIME_EPS, Latch
 
 __all__ = ["TICKET_KIND", "TicketMonitor"]
 
@@ -43,7 +44,8 @@ TICKET_KIND = "ticket"
 GAP_S = 0.4  # a hand out of the target this long at most does not break its hold
 REBIND_S = 5.0  # an "auto" role's person unseen this long is let go
 MAX_DEVIATIONS = 100  # the latest deviations listed (all counted)
-EPS = 1e-6
+EPS = TIME_EPS  # seconds (zones.debounce)
+NEAR_EPS = 1e-6  # metres of slack on supervise_m
 
 
 @dataclass
@@ -83,10 +85,8 @@ class TicketMonitor:
         self.last_seen: dict[int, float] = {}
         self.started_t: float | None = None
         self.ended_t: float | None = None
-        self.absent_since: float | None = None
-        self.absent = False
-        self.lone_since: float | None = None
-        self.lone = False
+        self.absent = Latch()  # the supervisor away from the operator (zones.debounce)
+        self.lone = Latch()  # one person alone in the ticket's zones
         self.deviations: deque[dict] = deque(maxlen=MAX_DEVIATIONS)  # the latest
         self.deviation_counts: dict[str, int] = {}  # every one, by type
 
@@ -337,26 +337,14 @@ class TicketMonitor:
         ok = sup is not None and sup in seen.xy
         if ok:
             (ox, oy), (sx, sy) = seen.xy[op], seen.xy[sup]
-            ok = math.hypot(sx - ox, sy - oy) <= tk.supervise_m + EPS
-        if ok:
-            self.absent_since = None
-            if self.absent:
-                self.absent = False
-                return [self._event("supervisor_back", t, frame, t)]
-            return []
-        if self.absent_since is None:
-            self.absent_since = t
-        if not self.absent and t - self.absent_since > tk.absent_s + EPS:
-            self.absent = True
+            ok = math.hypot(sx - ox, sy - oy) <= tk.supervise_m + NEAR_EPS
+        change = self.absent.step(not ok, t, tk.absent_s, 0.0)
+        if change == "fell":
+            return [self._event("supervisor_back", t, frame, t)]
+        if change == "rose":
+            since = self.absent.onset
             return [
-                self._deviation(
-                    "supervisor_absent",
-                    t,
-                    frame,
-                    self.absent_since,
-                    None,
-                    duration_s=t - self.absent_since,
-                )
+                self._deviation("supervisor_absent", t, frame, since, None, duration_s=t - since)
             ]
         return []
 
@@ -364,27 +352,14 @@ class TicketMonitor:
         tk = self.ticket
         if tk.lone_s is None:
             return []
-        alone = len(seen.xy) == 1
-        if not alone:
-            self.lone_since = None
-            if self.lone:
-                self.lone = False
-                return [self._event("lone_in_room_end", t, frame, t)]
-            return []
-        if self.lone_since is None:
-            self.lone_since = t
-        if not self.lone and t - self.lone_since > tk.lone_s + EPS:
-            self.lone = True
-            pid = next(iter(seen.xy))
+        change = self.lone.step(len(seen.xy) == 1, t, tk.lone_s, 0.0)
+        if change == "fell":
+            return [self._event("lone_in_room_end", t, frame, t)]
+        if change == "rose":
+            since, pid = self.lone.onset, next(iter(seen.xy))
             return [
                 self._deviation(
-                    "lone_in_room",
-                    t,
-                    frame,
-                    self.lone_since,
-                    None,
-                    person=pid,
-                    duration_s=t - self.lone_since,
+                    "lone_in_room", t, frame, since, None, person=pid, duration_s=t - since
                 )
             ]
         return []
