@@ -53,17 +53,13 @@ def _cpu() -> str:
 def detector_key(detector) -> str:
     """What a price depends on besides the input: this CPU and cores, the runtime and model,
     its precision and threads."""
-    parts = [
-        _cpu(),
-        str(os.cpu_count()),
-        str(getattr(detector, "name", type(detector).__name__)),
-        Path(str(getattr(detector, "model", ""))).name,
-        str(getattr(detector, "precision", "")),
-        str(getattr(detector, "runs_in", "")),
-        str(getattr(detector, "device", "")),
-        str(getattr(detector, "threads", "")),
-        ",".join(map(str, getattr(detector, "providers", []) or [])),
-        str(os.environ.get("STEREOPOSE_THREADS", "")),
+    own = dict(vars(detector)) if hasattr(detector, "__dict__") else {}
+    parts = [_cpu(), str(os.cpu_count()), type(detector).__name__]
+    parts.append(Path(str(own.get("model", ""))).name)
+    parts += [str(own.get(k, "")) for k in ("precision", "runs_in", "device", "threads")]
+    parts += [
+        ",".join(map(str, own.get("providers") or [])),
+        os.environ.get("STEREOPOSE_THREADS", ""),
     ]
     return "|".join(parts)
 
