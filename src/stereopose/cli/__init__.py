@@ -449,6 +449,9 @@ def main(argv: list[str] | None = None) -> int:
         format="%(message)s",
         handlers=[RichHandler(console=console, show_time=False, show_path=False)],
     )
+    from stereopose.site.watchdog import log_native_faults
+
+    log_native_faults()  # a native crash (FFmpeg, a model runtime) leaves its stack in the log
     try:
         return _handler(args.handler)(args)
     except IncompleteOutputError as e:

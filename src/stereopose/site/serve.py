@@ -91,6 +91,7 @@ from stereopose.site.service import SiteService
 from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
 from stereopose.site.site_switch import Outliving, SiteSwitch
 from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
+from stereopose.site.watchdog import Notifier, Watchdog
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -369,7 +370,10 @@ def _run_loop(
         incidents = _incidents(plan, service, events, rules, ids, wall_start, now_t, onsite)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
             incidents.switch = _site_switch(service, events, cfg, on_site, onsite)
-        loop = FrameLoop(source, stage, [closing, *sinks], summary, rules=incidents, stop=stop)
+        # systemd told the service is ready at the first step, and fed while steps advance
+        watchdog = Watchdog(Notifier(), status=lambda: service.state.snapshot().status)
+        parts = [closing, watchdog, *sinks]
+        loop = FrameLoop(source, stage, parts, summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
         ids.close()
