@@ -3,7 +3,9 @@
 Once the configuration is checked (site.plan: exit 2 before any work), the service
 starts its HTTP server (site.http.app: /api/health, /metrics, the operator console over the
 users of `<output>/users.json`), opens the cameras and runs the
-frame loop over them until SIGTERM or SIGINT. Its sinks, in their closing order:
+frame loop over them until SIGTERM or SIGINT. Under systemd it says it is ready at the
+first step and feeds the watchdog while steps advance (site.watchdog). Its sinks, in their
+closing order:
 
 - pose segments `poses/<UTC start>.jsonl.gz` (io.sinks.segments);
 - the event log `events.sqlite` (appended to across restarts), the webhook when
@@ -230,6 +232,8 @@ def _serve(
     if choice is not None:  # status.json: what detects, and why
         service.probes["detector"] = choice.as_dict
     closing = _Closing()
+    # systemd told the service is ready at the first step, and fed while steps advance
+    watchdog = Watchdog(Notifier(), status=lambda: service.state.snapshot().status)
     reload = service.site_desk.reload if service.site_desk is not None else None
     with stop_signals(), reload_signal(reload):
         try:
@@ -247,7 +251,7 @@ def _serve(
             service.start_maintainer()
             service.start_power()  # the zones' breakers and earthing switches read
             with _open_cameras(plan, service.packets) as cams:
-                summary = _run_loop(plan, service, cams, detector, stop, closing)
+                summary = _run_loop(plan, service, cams, detector, stop, [closing, watchdog])
         finally:
             with quiet_signals():
                 service.close()
@@ -281,7 +285,7 @@ def _run_loop(
     cams: CameraSet | NodeInput,
     detector,
     stop,
-    closing: _Closing,
+    first: list[ClosesOnce],
 ) -> RunSummary:
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
@@ -370,10 +374,7 @@ def _run_loop(
         incidents = _incidents(plan, service, events, rules, ids, wall_start, now_t, onsite)
         if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
             incidents.switch = _site_switch(service, events, cfg, on_site, onsite)
-        # systemd told the service is ready at the first step, and fed while steps advance
-        watchdog = Watchdog(Notifier(), status=lambda: service.state.snapshot().status)
-        parts = [closing, watchdog, *sinks]
-        loop = FrameLoop(source, stage, parts, summary, rules=incidents, stop=stop)
+        loop = FrameLoop(source, stage, [*first, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
         ids.close()
