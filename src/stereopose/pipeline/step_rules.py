@@ -9,13 +9,18 @@ events information in one place (zones.safe), before the incident book sees them
 A chain is a step's rules of the frame loop on its own (pipeline.loop.StepRules: no incident
 book), or the first half of an IncidentStep. Its rules are a list: a new site is swapped in at a
 step boundary by building the chain again.
+
+What one rule gives the rules after it is declared, not left to the order: a rule names what
+it fills in the step's context (`gives`: the behaviour rule, the postures) and what it reads
+there (`reads`: the tickets, the postures), and a chain refuses an order in which a rule reads
+what a later rule gives.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 from stereopose.fence.rules import FenceMonitor
 from stereopose.tickets import TicketDesk
@@ -23,6 +28,9 @@ from stereopose.types import Event, People3D
 from stereopose.zones.power_state import ZoneStates
 from stereopose.zones.safe import Safe, made_safe
 from stereopose.zones.state_log import ZoneStateLog
+
+if TYPE_CHECKING:
+    from stereopose.behaviour.posture import Posture
 
 __all__ = [
     "BehaviourRule",
@@ -45,13 +53,14 @@ class StepContext:
     t: float
     frame: int
     people: People3D
-    postures: dict | None = None
+    postures: dict[int, Posture] | None = None  # given by BehaviourRule, read by TicketRule
     events: list[Event] = field(default_factory=list)
 
 
 class StepRule(Protocol):
-    """One rule of the step: `step(ctx)` returns its events (it may fill ctx for the rules after
-    it)."""
+    """One rule of the step: `step(ctx)` returns its events; a rule that fills a field of ctx
+    for the rules after it names it in `gives`, one that reads such a field in `reads` (the
+    class attributes, empty where not set)."""
 
     def step(self, ctx: StepContext) -> list[Event]: ...
 
@@ -73,7 +82,9 @@ class ZoneEvents(Protocol):
 class Behaviour(Protocol):
     """behaviour.rules.BehaviourMonitor, or the service's held one (site.steps.HeldRules)."""
 
-    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict]: ...
+    def step(
+        self, t: float, frame: int, people: People3D
+    ) -> tuple[list[Event], dict[int, Posture]]: ...
 
 
 class FenceRule:
@@ -88,6 +99,8 @@ class FenceRule:
 
 class BehaviourRule:
     """The behaviour rules' events; the postures for the rules after it and the sinks."""
+
+    gives: ClassVar[frozenset[str]] = frozenset({"postures"})
 
     def __init__(self, behaviour: Behaviour) -> None:
         self.behaviour = behaviour
@@ -112,7 +125,10 @@ class ZoneStateRule:
 
 
 class TicketRule:
-    """The active work tickets' events (their steps, supervisor, lone worker)."""
+    """The active work tickets' events (their steps, supervisor, lone worker); a step done in
+    a posture reads the behaviour rule's postures (None without it)."""
+
+    reads: ClassVar[frozenset[str]] = frozenset({"postures"})
 
     def __init__(self, desk: TicketDesk) -> None:
         self.desk = desk
@@ -155,9 +171,18 @@ class StepChain:
 
     def __init__(self, rules: Sequence[StepRule]) -> None:
         self.rules = list(rules)
+        for k, rule in enumerate(self.rules):
+            later = {f for r in self.rules[k + 1 :] for f in _declared(r, "gives")}
+            if _declared(rule, "reads") & later:
+                raise ValueError(
+                    f"{type(rule).__name__} reads {sorted(_declared(rule, 'reads') & later)} "
+                    "that a rule after it gives: it must come after that rule"
+                )
         self._safety = [r for r in self.rules if isinstance(r, SafetyRule)]  # looked up once
 
-    def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
+    def step(
+        self, t: float, frame: int, people: People3D
+    ) -> tuple[list[Event], dict[int, Posture] | None]:
         """The step's events, every rule's in order, each safe zone's made information; the
         postures."""
         ctx = StepContext(float(t), int(frame), people)
@@ -174,6 +199,12 @@ class StepChain:
     def ends_with_source(self) -> bool:
         """Whether the end of the input ends something (a ticket active to the last frame)."""
         return any(isinstance(r, TicketRule) and r.ends_with_source for r in self.rules)
+
+
+def _declared(rule: object, which: str) -> frozenset[str]:
+    """A rule's `gives` or `reads` (empty where it declares none)."""
+    own = (vars(c)[which] for c in type(rule).__mro__ if which in vars(c))
+    return frozenset(next(own, ()))
 
 
 def step_chain(
