@@ -4,7 +4,6 @@ where a call's fixed part is most of its price, two where crops are cheap."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from demo_frames import demo_step

@@ -34,7 +34,7 @@ import numpy as np
 from stereopose.io.packets import PacketRing
 from stereopose.io.readahead import ReadAhead
 from stereopose.io.source import JOIN_S, Clock, SourceStats, VideoError, check_fps, source_name
-from stereopose.io.stream import LiveStream
+from stereopose.io.stream import LiveStream, StreamWaits
 from stereopose.io.video import FrameSet, Source, _check_timeouts, is_stream, open_source
 
 logger = logging.getLogger(__name__)
@@ -63,7 +63,8 @@ class CameraSet:
     opening live cameras waits for the first frame of any of them (None: for ever; Ctrl-C
     ends the wait). clock: the live frames' time origin, read when the set is created.
     loop (one for all, or per camera), detect (per camera: a substream, or None / ""),
-    detect_fps: see the module's docstring. wait_first_frame=False: opening does not wait for
+    detect_fps: see the module's docstring. decoders: "process" decodes each live stream in a
+    process of its own (io.stream_process). wait_first_frame=False: opening does not wait for
     a first frame (a service starts at once and reports its blind cameras). wall_clock: see the
     module's docstring.
     """
@@ -85,6 +86,7 @@ class CameraSet:
         packets: Mapping[str, PacketRing] | None = None,
         wall_clock: bool = False,
         read_ahead: int = 0,
+        decoders: str = "thread",
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -105,6 +107,7 @@ class CameraSet:
         self.sync, self.max_frames = sync, max_frames
         self.wall_clock = bool(wall_clock)
         self.read_ahead = int(read_ahead)
+        self.decoders = decoders
         self._ahead: ReadAhead[FrameSet] | None = None
         self.first_frame_timeout_s = first_frame_timeout_s
         self.clock = Clock.now()
@@ -140,6 +143,16 @@ class CameraSet:
         timeout: float,
         packets: PacketRing | None = None,
     ) -> Source:
+        if self.decoders == "process" and is_stream(str(spec)) and packets is None:
+            from stereopose.io.stream_process import ProcessStream
+
+            if loop:
+                raise VideoError(
+                    f"camera {name}: loop is for recorded files, {spec} is a live stream"
+                )
+
+            waits = StreamWaits(timeout_s=timeout)
+            return ProcessStream(str(spec), name, waits, clock=self.clock, notify=self._fresh)
         source = open_source(
             spec,
             name,
@@ -382,15 +395,18 @@ class CameraSet:
         return {s.name: s.stats for s in self.sources}
 
     def delivering(self, name: str, within_s: float) -> bool:
-        """Whether camera `name`'s reader has a frame to give: a live stream's newest frame came
-        within `within_s` seconds; a recorded file has not ended. (A service whose steps are
-        late while its readers deliver is itself late, not its cameras.)"""
+        """Whether camera `name`'s reader has a frame to give: a live stream not known lost
+        (its decoder process dead, say) whose newest frame came within `within_s` seconds; a
+        recorded file has not ended. (A service whose steps are late while its readers
+        deliver is itself late, not its cameras.)"""
         for s in self.sources:
             if s.name != name:
                 continue
             if not s.live:
                 return id(s) not in self._ended_ids
-            last = s.last_frame_at if isinstance(s, LiveStream) else None
+            if not isinstance(s, LiveStream) or not s.connected:
+                return False
+            last = s.last_frame_at
             return last is not None and time.monotonic() - last < within_s
         return False
 

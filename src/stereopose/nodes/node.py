@@ -208,6 +208,7 @@ class DetectNode:
             detect_fps=cfg.input.detect_fps,
             wait_first_frame=False,
             wall_clock=True,
+            decoders=cfg.input.decoders,
         )
 
     def _steps(self, source):

@@ -243,6 +243,7 @@ def run(
         detect=[d or None for d in substreams],
         detect_fps=cfg.input.detect_fps,
         read_ahead=READ_AHEAD,
+        decoders=cfg.input.decoders,
     ) as cams:
         cfg = dataclasses.replace(cfg, fps=cams.fps)
         remove_outputs(previous)  # every check passed and every camera opened: now replace

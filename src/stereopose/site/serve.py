@@ -174,6 +174,7 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet 
         wait_first_frame=False,
         packets=packets,
         wall_clock=True,
+        decoders=cfg.input.decoders,
     )
 
 
