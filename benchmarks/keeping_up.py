@@ -24,8 +24,10 @@ Results in results/keeping_up.{json,md}.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import datetime
+import itertools
 import os
 import subprocess
 import sys
@@ -133,9 +135,11 @@ def measure(
     packets: bool = False,
     copies: int = 1,
     settings: DetectorConfig | None = None,
+    decoders: str = "thread",
 ) -> dict:
     """One set-up's figures; settings: the [detector] settings of serve (regions, night,
-    carried steps) around `det` (None: serve's defaults)."""
+    carried steps) around `det` (None: serve's defaults); decoders: [input] decoders (each
+    live stream decoded on a thread, or in a process of its own)."""
     settings = settings or DetectorConfig()
     names = _names(videos, copies)
     servers, urls, sub_urls = [], [], []
@@ -156,7 +160,12 @@ def measure(
     rings = {n: PacketRing(20.0, 64 * 2**20) for n in names} if packets else None
     try:
         with CameraSet(
-            urls, names, detect=sub_urls or None, first_frame_timeout_s=30, packets=rings
+            urls,
+            names,
+            detect=sub_urls or None,
+            first_frame_timeout_s=30,
+            packets=rings,
+            decoders=decoders,
         ) as cams:
             cfg = dataclasses.replace(Config(), fps=cams.fps)
             cameras = detecting_cameras(cams, rig, det, settings, site)  # as serve does
@@ -167,11 +176,14 @@ def measure(
             stop = threading.Event()
             rss_start = proc.memory_info().rss
             load_start = os.getloadavg()
+            skip = {s.pid for s in servers}  # the simulated cameras are not the service
+            cpu_start = _cpu(proc, skip)
             threading.Timer(seconds, stop.set).start()
             t0 = time.perf_counter()
             sinks = [SummarySink(summary)]  # the people figures (in memory)
             FrameLoop(source, stage, sinks, summary, rules=step_chain(fences), stop=stop).run()
             wall = time.perf_counter() - t0
+            cpu = _cpu(proc, skip) - cpu_start
             rss_end = proc.memory_info().rss
             per_camera = {n: dataclasses.asdict(s) for n, s in cams.stats().items()}
             per_sub = {n: dataclasses.asdict(s) for n, s in cams.detect_stats().items()}
@@ -189,6 +201,8 @@ def measure(
         / max(sum(c["carried"] + c["detected"] for c in carried.values()), 1),
         "substreams": bool(subs),
         "full_streams": "packets" if packets else "decoded",
+        "decoders": decoders,
+        "cpu_s_per_step": cpu / max(st.delivered, 1),
         "packet_ring_mb": {n: r.bytes / 2**20 for n, r in (rings or {}).items()},
         "seconds": wall,
         "steps": st.delivered,
@@ -208,6 +222,18 @@ def measure(
     }
 
 
+def _cpu(proc: psutil.Process, skip: set[int]) -> float:
+    """CPU seconds (user and system) of this process and its children (the decoder processes)
+    but those in `skip`."""
+    total = sum(proc.cpu_times()[:2])
+    for child in proc.children(recursive=True):
+        if child.pid in skip:
+            continue
+        with contextlib.suppress(psutil.Error):  # ended meanwhile
+            total += sum(child.cpu_times()[:2])
+    return total
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0)
@@ -216,6 +242,11 @@ def main() -> None:
     ap.add_argument("--precision", default="auto", choices=("auto", "fp32", "int8", "bf16"))
     ap.add_argument("--cameras", default="4", help="camera counts, e.g. 4,8,16 (see the module)")
     ap.add_argument("--name", default="keeping_up", help="the results' file name")
+    ap.add_argument(
+        "--decoders",
+        default="thread",
+        help="[input] decoders to measure with 4 cameras: thread, process, or thread,process",
+    )
     args = ap.parse_args()
     videos = demo_videos()
     if len(videos) != 4:
@@ -236,14 +267,23 @@ def main() -> None:
         for n in counts:
             setups = ((False, False, True), (True, False, True), (True, True, True))
             setups = (*setups, (True, True, False)) if n == 4 else ((True, True, True),)
-            for use_subs, packets, carry in setups:
+            kinds = args.decoders.split(",") if n == 4 else ["thread"]
+            for (use_subs, packets, carry), decoders in itertools.product(setups, kinds):
                 settings = DetectorConfig(carry=carry)
                 run = measure(
-                    videos, subs if use_subs else None, args.seconds, det, packets, n // 4, settings
+                    videos,
+                    subs if use_subs else None,
+                    args.seconds,
+                    det,
+                    packets,
+                    n // 4,
+                    settings,
+                    decoders,
                 )
                 r["runs"].append(run)
                 print(
-                    f"{n} cameras, substreams={use_subs} packets={packets} carry={carry}: "
+                    f"{n} cameras, substreams={use_subs} packets={packets} carry={carry} "
+                    f"decoders={decoders}: "
                     f"{run['steps_per_s']:.2f} steps/s, latency p50 "
                     f"{run['latency_p50_s']:.2f} p95 {run['latency_p95_s']:.2f} s",
                     flush=True,
@@ -266,10 +306,10 @@ def markdown(r: dict) -> list[str]:
         "workers watched), each camera's light, carried steps (`[detector] carry`); off: "
         "every camera detected at every step.",
         "",
-        "| cameras | set-up | carried steps | steps/s | detect ms/step | 3D+zones ms/step | "
-        "latency p50 / p95 s | steps dropped | frames grabbed / decoded per camera | "
-        "RSS MB start -> end | load avg start -> end |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| cameras | set-up | decoders | carried steps | steps/s | CPU s/step | detect ms/step | "
+        "3D+zones ms/step | latency p50 / p95 s | steps dropped | frames grabbed / decoded per "
+        "camera | RSS MB start -> end | load avg start -> end |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for run in r["runs"]:
         cams = run["cameras"].values()
@@ -288,7 +328,8 @@ def markdown(r: dict) -> list[str]:
             else "off"
         )
         md.append(
-            f"| {run.get('cameras_n', 4)} | {what} | {carry} | {run['steps_per_s']:.2f} | "
+            f"| {run.get('cameras_n', 4)} | {what} | {run.get('decoders', 'thread')} | {carry} | "
+            f"{run['steps_per_s']:.2f} | {run.get('cpu_s_per_step', float('nan')):.3f} | "
             f"{run['detect_ms_per_step']:.0f} | "
             f"{run['loop_ms_per_step']:.0f} | {run['latency_p50_s']:.2f} / "
             f"{run['latency_p95_s']:.2f} | {run['steps_dropped']} | {grabbed:.0f} / "

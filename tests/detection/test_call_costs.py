@@ -52,16 +52,22 @@ def test_the_cameras_with_most_regions_go_whole_first():
     assert got == {"cam02"}
 
 
-def test_prices_beyond_the_measured_batches_follow_the_last_step_and_calls_move_them():
-    costs = _priced({WHOLE: [10.0, 18.0]})
+def test_prices_beyond_the_measured_batches_follow_the_last_step_and_calls_move_them_all():
+    costs = _priced({WHOLE: [10.0, 18.0], CROP: [5.0, 8.0]})
     assert costs.price(WHOLE, 0) == 0.0
     assert costs.price(WHOLE, 4) == pytest.approx(34.0)
-    assert costs.price(CROP, 1) == float("inf")
-    costs.observe(WHOLE, 2, 28.0)
-    assert costs.price(WHOLE, 2) == pytest.approx(20.0)
-    costs.observe(WHOLE, 9, 1000.0)  # a batch never measured: nothing to move
+    assert costs.price((64, 64), 1) == float("inf")
+    choice = cheapest(costs, [WHOLE], CROP, [("cam01", WHOLE, 2)])
+    for _ in range(20):  # the crops' calls take twice their price: the machine is busy
+        costs.observe(CROP, 2, 16.0)
+    assert costs.load == pytest.approx(2.0, rel=0.05)
+    # every price follows, the whole frames' too, so the choice stays what it was
+    assert costs.price(WHOLE, 2) == pytest.approx(2 * 18.0, rel=0.05)
+    assert cheapest(costs, [WHOLE], CROP, [("cam01", WHOLE, 2)]) == choice
+    costs.observe(WHOLE, 9, 1000.0)  # a batch never measured: nothing to follow
     costs.observe(WHOLE, 1, float("nan"))
-    assert costs.table() == {"640x384": [10.0, 20.0]}
+    assert costs.load == pytest.approx(2.0, rel=0.05)
+    assert costs.table() == {"640x384": [10.0, 18.0], "320x320": [5.0, 8.0]}
     with pytest.raises(ValueError, match="positive"):
         costs.set(WHOLE, [0.0])
 
@@ -128,8 +134,6 @@ def test_a_step_of_regions_and_whole_frames_makes_one_model_call_where_calls_cos
         regions.detect(dict(zip(CAMS, steps[0], strict=True)), 0.0)  # every camera's scan
         regions.detect(dict(zip(CAMS, steps[1], strict=True)), 0.1)
         counted.calls.clear()
-        for shape, ms in ((wide, prices[WHOLE]), (CROP, prices[CROP])):
-            costs.set(shape, ms)  # as given, not as this machine's calls moved them
         # cam01's second scan is due at 0.25 s (staggered): it is whole, the others have
         # their people's regions
         found = regions.detect(dict(zip(CAMS, steps[2], strict=True)), 0.3)

@@ -40,3 +40,13 @@ def test_the_keeping_up_benchmark_runs_with_substreams(keeping_up, tmp_path, pac
     assert run["people_frames"] > 0, run  # people found, in the full frames' pixels
     assert run["full_streams"] == ("packets" if packets else "decoded")
     assert all(c["frames"] > 0 for c in run["substream_readers"].values()), run
+
+
+def test_the_keeping_up_benchmark_runs_with_decoders_in_processes(keeping_up, tmp_path) -> None:
+    videos = demo_videos()
+    subs = [keeping_up.substream(v, tmp_path / f"{v.stem}_sub.mp4") for v in videos]
+    det = make_detector(backend="auto", threads=2)
+    run = keeping_up.measure(videos, subs, 6.0, det, True, 1, DetectorConfig(), "process")
+    assert run["steps"] >= 3 and run["people_frames"] > 0, run
+    assert run["decoders"] == "process" and run["cpu_s_per_step"] > 0, run
+    assert all(c["decoded"] > 0 for c in run["substream_readers"].values()), run

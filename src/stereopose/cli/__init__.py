@@ -449,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
         format="%(message)s",
         handlers=[RichHandler(console=console, show_time=False, show_path=False)],
     )
-    from stereopose.site.watchdog import log_native_faults
+    from stereopose.faults import log_native_faults
 
     log_native_faults()  # a native crash (FFmpeg, a model runtime) leaves its stack in the log
     try:

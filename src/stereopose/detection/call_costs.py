@@ -4,14 +4,16 @@ A detector's call costs a fixed part whatever it holds (Intel's AMX pays a large
 with AVX-512 hides it) and a part that grows with its batch, not always in a straight line
 (OpenVINO splits a batch over two inference streams on two cores: three images cost what four
 do). So the price of a call is measured, not counted in pixels: for each model input shape, the
-median time of batches of 1, 2, ... images, up to MEASURED_MAX, beyond that the last two
-measures' line. Each camera's regions and whole frames then go into as few and as cheap calls
-as their detail allows (`cheapest`).
+fastest of a few timed calls of batches of 1, 2, ... images (a busy moment only slows a call
+down), up to MEASURED_MAX, beyond that the last two measures' line. Each camera's regions and
+whole frames then go into as few and as cheap calls as their detail allows (`cheapest`).
 
 Prices are measured the first time a shape is needed (a few hundred milliseconds) and kept per
 machine in ``<cache>/models/call_costs.json`` (the CPU, the runtime, the model, its precision
-and threads); every real call afterwards moves its price toward what it took (`observe`), so a
-machine that is busier than when it was measured is priced as it is.
+and threads). Every real call afterwards moves one factor common to all prices toward what it
+took against its price (`observe`): the prices follow a machine busier than when they were
+measured, and their ratios, which alone choose the calls, stay as measured (a call taken
+more often than another under load is never priced up alone).
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ import json
 import logging
 import os
 import platform
-import statistics
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -34,7 +35,8 @@ MEASURED_MAX = 8  # batches measured up to this many images; larger ones extrapo
 REPEAT = 3  # timed calls per batch size (after one to warm the shape up)
 COST_FILE = "call_costs.json"
 KEPT = 64  # entries kept in the file, the newest
-FOLLOW = 0.2  # how far a real call moves its price toward what it took
+FOLLOW = 0.2  # how far a real call moves the prices' common factor toward what it took
+LOAD_RANGE = (0.25, 20.0)  # the common factor's bounds
 SAVING = 0.05  # whole frames taken over regions only where they save this share of the step
 
 Shape = tuple[int, int]  # a model input (h, w)
@@ -77,6 +79,7 @@ class CallCosts:
         self.key = detector_key(detector)
         self._lock = threading.Lock()
         self._ms: dict[Shape, list[float]] = {}  # shape -> price of batches 1..len
+        self.load = 1.0  # what real calls take against their measured price, followed
         self._load()
 
     @classmethod
@@ -176,7 +179,7 @@ class CallCosts:
                 t0 = time.perf_counter()
                 self.detector.detect(batch, imgsz=imgsz if square else None)
                 runs.append(1000 * (time.perf_counter() - t0))
-            out.append(statistics.median(runs))
+            out.append(min(runs))
         # a batch never costs less than a smaller one (noise, or the streams' split)
         return [round(float(x), 3) for x in np.maximum.accumulate(out)]
 
@@ -188,21 +191,23 @@ class CallCosts:
         if not ms:
             return float("inf")
         if n <= len(ms):
-            return ms[n - 1]
+            return self.load * ms[n - 1]
         slope = ms[-1] - ms[-2] if len(ms) >= 2 else ms[-1]
-        return ms[-1] + max(slope, 0.0) * (n - len(ms))
+        return self.load * (ms[-1] + max(slope, 0.0) * (n - len(ms)))
 
     def observe(self, shape: Shape, n: int, ms: float) -> None:
-        """A real call of n images of `shape` took `ms`: its price moves toward it."""
+        """A real call of n images of `shape` took `ms`: the prices' common factor moves toward
+        what it took against its measured price."""
         key = (int(shape[0]), int(shape[1]))
         with self._lock:
             known = self._ms.get(key)
             if not known or not 1 <= n <= len(known) or not np.isfinite(ms) or ms <= 0:
                 return
-            known[n - 1] += FOLLOW * (ms - known[n - 1])
+            load = self.load + FOLLOW * (ms / known[n - 1] - self.load)
+            self.load = min(max(load, LOAD_RANGE[0]), LOAD_RANGE[1])
 
     def table(self) -> dict[str, list[float]]:
-        """The prices by input shape "HxW": ms for batches 1, 2, ..."""
+        """The prices by input shape "HxW": ms for batches 1, 2, ..., as measured."""
         with self._lock:
             return {f"{h}x{w}": [round(x, 2) for x in ms] for (h, w), ms in self._ms.items()}
 

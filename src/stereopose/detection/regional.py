@@ -369,8 +369,10 @@ class RegionDetector:
 
     def _cheapest(self, plans: Mapping[str, tuple]) -> set[str]:
         """The cameras that may go either way and are detected whole at this step, for the
-        least time by the detector's call prices (none without prices)."""
-        if self.costs is None:
+        least time by the detector's call prices: only at a step that detects some camera
+        whole anyway (a scan, people too large), where joining that batch may spare the call
+        of crops; a step of regions alone is one call already (none without prices)."""
+        if self.costs is None or not any(p[3] for p in plans.values()):
             return set()
         either = [(n, p[0].input_shape, len(p[1])) for n, p in plans.items() if p[4]]
         if not either:

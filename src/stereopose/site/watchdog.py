@@ -7,18 +7,14 @@ systemd, with `WatchdogSec=` in the unit (packaging/stereopose.service), kills t
 starts it again instead of leaving the site blind and silent. Without $NOTIFY_SOCKET (not run by
 systemd with Type=notify) everything here does nothing.
 
-Also here: native faults logged. `faulthandler` writes the Python stack of every thread to
-standard error (the journal under systemd) on a segmentation fault, an abort or a bus error in
-native code (FFmpeg, ONNX Runtime, OpenVINO), before the process dies.
+Native faults are logged with their stack by stereopose.faults (every command turns it on).
 """
 
 from __future__ import annotations
 
-import faulthandler
 import logging
 import os
 import socket
-import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -29,15 +25,6 @@ logger = logging.getLogger(__name__)
 
 FEED_SHARE = 0.5  # the watchdog fed at least this often, as a share of WatchdogSec
 STATUS_EVERY_S = 10.0  # STATUS= (shown by systemctl status) at most this often
-
-
-def log_native_faults() -> None:
-    """The Python stack of every thread written to standard error on a native fault."""
-    if not faulthandler.is_enabled():
-        try:
-            faulthandler.enable(file=sys.stderr, all_threads=True)
-        except (AttributeError, ValueError, OSError) as e:  # stderr closed or not a file
-            logger.warning("native faults will not be logged with their stack: %s", e)
 
 
 class Notifier:
