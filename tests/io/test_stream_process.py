@@ -47,7 +47,8 @@ def test_frames_come_newest_first_as_in_process(video) -> None:
             assert image.shape == (120, 160, 3) and source.shape == (120, 160)
             assert source.decoder_pid is not None and source.decoder_pid != os.getpid()
             assert source.connected and source.fps is not None and source.fps > 0
-            time.sleep(0.3)  # frames arrive unasked: taken, not converted, counted dropped
+            # frames arrive unasked: taken, not converted, counted dropped
+            wait_until(lambda: source.stats.dropped >= 1, "a frame taken unasked", timeout_s=5)
             seq2, t2, _ = _frame(source)
             assert seq2 > seq + 1 and t2 > t
             assert source.stats.dropped >= 1 and source.stats.decoded == 2
