@@ -2,11 +2,13 @@
 
 A detector's call costs a fixed part whatever it holds (Intel's AMX pays a large one; an AMD
 with AVX-512 hides it) and a part that grows with its batch, not always in a straight line
-(OpenVINO splits a batch over two inference streams on two cores: three images cost what four
-do). So the price of a call is measured, not counted in pixels: for each model input shape, the
-fastest of a few timed calls of batches of 1, 2, ... images (a busy moment only slows a call
-down), up to MEASURED_MAX, beyond that the last two measures' line. Each camera's regions and
-whole frames then go into as few and as cheap calls as their detail allows (`cheapest`).
+(OpenVINO splits a batch over two inference streams on two cores: three images may cost more
+than two calls of two and one). So the price of a call is measured, not counted in pixels: for
+each model input shape, the fastest of a few timed calls of batches of 1, 2, ... images (a busy
+moment only slows a call down), up to MEASURED_MAX, beyond that the last two measures' line.
+A batch is then made in the calls that cost least (`split`: one call where a call's fixed part
+is large, as on Intel's AMX; 2 + 1 where three in one cost more), and each camera's regions and
+whole frames go into as few and as cheap calls as their detail allows (`cheapest`).
 
 Prices are measured the first time a shape is needed (a few hundred milliseconds) and kept per
 machine in ``<cache>/models/call_costs.json`` (the CPU, the runtime, the model, its precision
@@ -38,6 +40,7 @@ KEPT = 64  # entries kept in the file, the newest
 FOLLOW = 0.2  # how far a real call moves the prices' common factor toward what it took
 LOAD_RANGE = (0.25, 20.0)  # the common factor's bounds
 SAVING = 0.05  # whole frames taken over regions only where they save this share of the step
+FORMAT = "raw"  # the prices kept: each batch as measured (tables of other formats measured anew)
 
 Shape = tuple[int, int]  # a model input (h, w)
 
@@ -62,6 +65,7 @@ def detector_key(detector) -> str:
     parts += [
         ",".join(map(str, own.get("providers") or [])),
         os.environ.get("STEREOPOSE_THREADS", ""),
+        FORMAT,
     ]
     return "|".join(parts)
 
@@ -69,7 +73,8 @@ def detector_key(detector) -> str:
 class CallCosts:
     """The measured price (ms) of a detector's call by input shape and batch size.
 
-    `price(shape, n)`; `ensure(needs)` measures the shapes not priced yet (needs: shape ->
+    `price(shape, n)`, of the cheapest calls for n images; `split(shape, n)`, those calls'
+    sizes; `ensure(needs)` measures the shapes not priced yet (needs: shape ->
     the largest batch wanted); `observe(shape, n, ms)` after a real call; `table()` the
     prices for a report. Thread-safe; `store` None keeps nothing on disk."""
 
@@ -79,6 +84,8 @@ class CallCosts:
         self.key = detector_key(detector)
         self._lock = threading.Lock()
         self._ms: dict[Shape, list[float]] = {}  # shape -> price of batches 1..len
+        # shape -> for 0, 1, 2, ... images: (ms of their cheapest calls, the first call's size)
+        self._best: dict[Shape, list[tuple[float, int]]] = {}
         self.load = 1.0  # what real calls take against their measured price, followed
         self._load()
 
@@ -141,6 +148,7 @@ class CallCosts:
             raise ValueError(f"prices must be positive milliseconds, got {ms!r}")
         with self._lock:
             self._ms[(int(shape[0]), int(shape[1]))] = ms
+            self._best.pop((int(shape[0]), int(shape[1])), None)
 
     def ensure(self, needs: Mapping[Shape, int]) -> None:
         """Measure the batches of each shape not priced yet (up to its largest wanted batch,
@@ -154,6 +162,7 @@ class CallCosts:
             ms = self._measure(shape, upto)
             with self._lock:
                 self._ms[shape] = ms
+                self._best.pop(shape, None)
             self._save(shape)
             logger.info(
                 "call costs: %dx%d input, batches 1-%d: %s ms (measured in %.1f s)",
@@ -180,20 +189,55 @@ class CallCosts:
                 self.detector.detect(batch, imgsz=imgsz if square else None)
                 runs.append(1000 * (time.perf_counter() - t0))
             out.append(min(runs))
-        # a batch never costs less than a smaller one (noise, or the streams' split)
-        return [round(float(x), 3) for x in np.maximum.accumulate(out)]
+        return [round(float(x), 3) for x in out]
+
+    def _call_ms(self, ms: list[float], n: int) -> float:
+        """ms for one call of n >= 1 images at the measured prices: beyond them, the last two
+        measures' line, or the measured batches' mean step where that is steeper (a last
+        measure below the one before it says nothing of larger batches)."""
+        if n <= len(ms):
+            return ms[n - 1]
+        if len(ms) < 2:
+            return ms[-1] * n
+        slope = max(ms[-1] - ms[-2], (ms[-1] - ms[0]) / (len(ms) - 1), 0.0)
+        return ms[-1] + slope * (n - len(ms))
+
+    def _cheapest_calls(self, shape: Shape, n: int) -> list[tuple[float, int]] | None:
+        """For 0..n images of `shape`: the ms of their cheapest calls and the first call's size
+        (None: unpriced). Made once per shape and grown as larger batches are asked for."""
+        with self._lock:
+            ms = self._ms.get(shape)
+            if not ms:
+                return None
+            best = self._best.setdefault(shape, [(0.0, 0)])
+            for m in range(len(best), n + 1):
+                one = self._call_ms(ms, m)
+                split = min(
+                    ((self._call_ms(ms, k) + best[m - k][0], k) for k in range(1, m)),
+                    default=(one, m),
+                )
+                # more calls only where they save SAVING (a tie: the fewer calls)
+                best.append(split if split[0] < one * (1 - SAVING) else (one, m))
+            return best
 
     def price(self, shape: Shape, n: int) -> float:
-        """ms for one call of n images of `shape` (0 for none); an unpriced shape: inf."""
+        """ms for n images of `shape` in their cheapest calls (0 for none); unpriced: inf."""
         if n <= 0:
             return 0.0
-        ms = self._ms.get((int(shape[0]), int(shape[1])))
-        if not ms:
-            return float("inf")
-        if n <= len(ms):
-            return self.load * ms[n - 1]
-        slope = ms[-1] - ms[-2] if len(ms) >= 2 else ms[-1]
-        return self.load * (ms[-1] + max(slope, 0.0) * (n - len(ms)))
+        best = self._cheapest_calls((int(shape[0]), int(shape[1])), n)
+        return float("inf") if best is None else self.load * best[n][0]
+
+    def split(self, shape: Shape, n: int) -> list[int]:
+        """The sizes of the cheapest calls for n images of `shape`, largest first ([n]: one
+        call, as for an unpriced shape)."""
+        best = self._cheapest_calls((int(shape[0]), int(shape[1])), n) if n > 0 else None
+        if best is None:
+            return [n] if n > 0 else []
+        sizes = []
+        while n > 0:
+            sizes.append(best[n][1])
+            n -= best[n][1]
+        return sorted(sizes, reverse=True)
 
     def observe(self, shape: Shape, n: int, ms: float) -> None:
         """A real call of n images of `shape` took `ms`: the prices' common factor moves toward

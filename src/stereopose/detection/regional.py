@@ -24,7 +24,8 @@ resolution and letterboxed each into a `imgsz` x `imgsz` model input: smaller on
 enlarged (a distant worker at the camera's full detail), larger ones shrunk. Where the whole
 frame at the detector's own size would cost less and see every region at least as finely, the
 camera is detected whole instead. All regions of all cameras of a step go through the detector
-in one batch, the whole frames in another. Keypoints come back in the frame's pixels; a person
+in one batch, the whole frames in another, each split only where the measured prices say two
+calls cost less than one (detection.call_costs). Keypoints come back in the frame's pixels; a person
 touching a region's side that is not the frame's was cut by it, and is dropped when another
 region holds him whole, and otherwise kept, his next region grown toward where the rest of him
 must be. A camera with nobody, no motion and no scan due costs no inference at all.
@@ -35,13 +36,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from stereopose.detection.base import Letterbox, PoseDetector, Poses, letterbox_for
 from stereopose.detection.call_costs import CallCosts, cheapest
 from stereopose.detection.motion import MotionDetector
+from stereopose.detection.region_settings import CameraRegions, RegionSettings, describe
 from stereopose.detection.regions import (
     Region,
     Why,
@@ -58,6 +60,8 @@ from stereopose.detection.regions import (
 
 logger = logging.getLogger(__name__)
 
+__all__ = ["CameraRegions", "RegionDetector", "RegionSettings", "describe", "region_detector"]
+
 HELD_MAX = 64  # a camera's own people held for their regions, at most
 MAX_REGIONS = 8  # regions of one camera and step; more are merged, or the whole frame taken
 # people boxes in regions: they move on between steps, so a little more than motion's
@@ -68,61 +72,6 @@ FOUND_WHOLE_PX = 96
 
 # the reasons that say a person is there (a track, a detection at the last step)
 _PEOPLE = frozenset({Why.TRACK, Why.SEEN})
-
-
-@dataclass(frozen=True)
-class RegionSettings:
-    """imgsz: each region's model input side (a multiple of 32); full_scan_s: each camera's
-    whole frame scanned this often, seconds; motion_threshold: grey levels of change that count
-    as motion (lower: more sensitive); hold_s: a camera's own person keeps his region this long
-    after he was last found; detail: a region's people are seen at least this many times as
-    finely as in the whole frame at the detector's imgsz (a region too large for that gives way
-    to the whole frame); below 1, large people cost less and their joints are less exact."""
-
-    imgsz: int = 320
-    full_scan_s: float = 3.0
-    motion_threshold: int = 25
-    hold_s: float = 1.0
-    detail: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.imgsz, int) or self.imgsz < 64 or self.imgsz % 32:
-            raise ValueError(
-                f"region imgsz must be a multiple of 32 of at least 64, got {self.imgsz!r}"
-            )
-        if not self.full_scan_s > 0:
-            raise ValueError(f"full_scan_s must be positive, got {self.full_scan_s!r}")
-        if not self.hold_s >= 0:
-            raise ValueError(f"hold_s must be at least 0, got {self.hold_s!r}")
-        if not 0 < self.detail <= 4:
-            raise ValueError(f"region detail must be in (0, 4], got {self.detail!r}")
-
-
-@dataclass
-class CameraRegions:
-    """One camera's figures: steps detected; regions cut; steps detected whole (regions would
-    cost more and see no finer); steps with no inference at all; full scans; model input
-    pixels used, and what whole frames at the detector's size would have used; frame pixels cut
-    into regions, and the frames' own pixels; people found; newcomers found by motion and by a
-    scan (people in no region of a track or of the camera's own people)."""
-
-    steps: int = 0
-    regions: int = 0
-    whole_frames: int = 0
-    idle_steps: int = 0
-    full_scans: int = 0
-    input_px: int = 0
-    whole_input_px: int = 0
-    crop_px: int = 0
-    frame_px: int = 0
-    people: int = 0
-    found_by_motion: int = 0
-    found_by_scan: int = 0
-
-    def as_dict(self) -> dict[str, float | int]:
-        out: dict[str, float | int] = asdict(self)
-        out["input_share"] = self.input_px / self.whole_input_px if self.whole_input_px else 0.0
-        return out
 
 
 @dataclass
@@ -388,11 +337,18 @@ class RegionDetector:
     def _call(
         self, images: list[np.ndarray], shape: tuple[int, int] | None, imgsz: int | None = None
     ) -> list[Poses]:
-        """One detector call, its time told to the call prices (images of one input shape)."""
-        t0 = time.perf_counter()
-        got = self.detector.detect(images, imgsz=imgsz) if imgsz else self.detector.detect(images)
+        """The detector's calls for images of one input shape (`shape`; None: several), as
+        many as their prices say cost least, each one's time told to the prices."""
+        sizes = [len(images)]
         if self.costs is not None and shape is not None:
-            self.costs.observe(shape, len(images), 1000 * (time.perf_counter() - t0))
+            sizes = self.costs.split(shape, len(images))
+        got: list[Poses] = []
+        for n in sizes:
+            part, images = images[:n], images[n:]
+            t0 = time.perf_counter()
+            got += self.detector.detect(part, imgsz=imgsz) if imgsz else self.detector.detect(part)
+            if self.costs is not None and shape is not None:
+                self.costs.observe(shape, n, 1000 * (time.perf_counter() - t0))
         return got
 
     def _gather(
@@ -471,24 +427,4 @@ def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
             detail=settings.region_detail,
         ),
         CallCosts.of(detector),
-    )
-
-
-def describe(report: Mapping[str, Mapping[str, float | int]]) -> str:
-    """One line of a run's figures by camera (RegionDetector.report()): the share of whole
-    frames' model input used, regions per step, scans and newcomers."""
-    used = sum(c["input_px"] for c in report.values())
-    whole = sum(c["whole_input_px"] for c in report.values())
-    per = ", ".join(
-        f"{name} {100 * c['input_share']:.0f} % ({c['regions'] / max(c['steps'], 1):.1f} "
-        f"regions/step)"
-        for name, c in report.items()
-    )
-    scans = sum(c["full_scans"] for c in report.values())
-    motion = sum(c["found_by_motion"] for c in report.values())
-    scanned = sum(c["found_by_scan"] for c in report.values())
-    share = 100 * used / whole if whole else 0.0
-    return (
-        f"regions: {share:.0f} % of whole frames' model input ({per}); {scans} full "
-        f"scans; newcomers found by motion {motion}, by a scan {scanned}"
     )
