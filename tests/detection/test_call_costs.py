@@ -103,7 +103,7 @@ def test_a_step_splits_its_crops_where_their_prices_say_so(detector):
     # three crops cost more than two and one; every frame is far, so the scan finds them all
     costs = _priced({wide: [30.0, 60.0, 90.0, 120.0], CROP: [10.0, 12.0, 40.0, 44.0, 60.0, 64.0]})
     regions = RegionDetector(counted, RegionSettings(full_scan_s=60.0), costs)
-    regions.watch(dict.fromkeys(CAMS, 400.0))
+    regions.watch(dict.fromkeys(CAMS, 400.0 / 1080))
     regions.detect(images, 0.0)
     counted.calls.clear()
     found = regions.detect(images, 0.1)
@@ -165,7 +165,7 @@ def test_a_step_of_regions_and_whole_frames_makes_one_model_call_where_calls_cos
     far = Distant(0.4)
     steps = [[far.frame(im) for im in demo_step(i)] for i in (0, 6, 12)]
     wide = (384, 640)  # the wide frame letterboxed at 640
-    heights = dict.fromkeys(CAMS, 400.0)
+    heights = dict.fromkeys(CAMS, 400.0 / 1080)
     calls = {}
     for name, prices in (("flat", FLAT), ("cheap crops", CHEAP_CROPS)):
         counted = Counted(detector)

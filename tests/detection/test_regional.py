@@ -16,7 +16,7 @@ from stereopose.detection import make_detector
 from stereopose.detection.models import demo_videos
 from stereopose.detection.regional import FOUND_WHOLE_PX, RegionDetector, RegionSettings
 from stereopose.fence import load_site
-from stereopose.pipeline.track_regions import watched_heights
+from stereopose.pipeline.track_regions import watched_shares
 from stereopose.sim.distant import Distant
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
@@ -174,7 +174,7 @@ def test_settings_are_checked():
 
 def _demo_site_heights(rig) -> dict[str, float]:
     site = load_site(str(resources.files("stereopose") / "data" / "demo_site.toml"))
-    return watched_heights(rig, site.zones)
+    return watched_shares(rig, site.zones)
 
 
 def test_near_workers_cost_what_whole_frames_cost_and_are_found_the_same(detector, steps):
@@ -184,7 +184,7 @@ def test_near_workers_cost_what_whole_frames_cost_and_are_found_the_same(detecto
     same frames with nothing known of the site tile the whole frame at the first scan."""
     rig = load_calibration(demo_videos()[0].parents[1] / "calibration" / "Calib.qca.txt")
     heights = _demo_site_heights(rig)
-    assert min(heights.values()) * detector.imgsz / 1920 >= FOUND_WHOLE_PX
+    assert min(heights.values()) * detector.imgsz >= FOUND_WHOLE_PX
     watched = RegionDetector(detector, RegionSettings(full_scan_s=0.2))  # a scan every 2 steps
     watched.watch(heights)
     blind = RegionDetector(detector, RegionSettings(full_scan_s=0.2))

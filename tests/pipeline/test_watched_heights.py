@@ -11,7 +11,7 @@ import pytest
 from stereopose.calibration.formats import load_calibration
 from stereopose.detection.models import demo_videos
 from stereopose.fence import Zone, load_site
-from stereopose.pipeline.track_regions import WORKER_M, watched_heights
+from stereopose.pipeline.track_regions import WORKER_M, watched_heights, watched_shares
 from stereopose.sim.distant import Distant
 
 pytestmark = pytest.mark.realdata
@@ -54,3 +54,14 @@ def test_a_farther_zone_makes_the_smallest_worker_smaller_and_no_zones_say_nothi
     assert all(both[n] <= alone[n] for n in rig.names)
     assert both["cam01"] < 0.5 * alone["cam01"]  # 12 m (and a metre more) against 3 m
     assert watched_heights(rig, ()) == {}
+
+
+def test_shares_judge_a_substreams_frames_at_their_own_size(rig):
+    """The regions' scans compare a worker's height with the frame they are given: a share of
+    the frame's height is the same on a quarter-size substream as on the main stream."""
+    site = load_site(str(resources.files("stereopose") / "data" / "demo_site.toml"))
+    heights, shares = watched_heights(rig, site.zones), watched_shares(rig, site.zones)
+    for cam in rig:
+        assert shares[cam.name] == pytest.approx(heights[cam.name] / cam.size[1])
+        assert 0.0 < shares[cam.name] < 1.0
+    assert watched_shares(rig, ()) == {}

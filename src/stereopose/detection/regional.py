@@ -115,13 +115,14 @@ class RegionDetector:
         self._state: dict[str, _Camera] = {}
         self._watched: dict[str, float] = {}
 
-    def watch(self, heights: Mapping[str, float]) -> None:
-        """Per camera, how tall (its pixels) the smallest worker looks anywhere he matters
-        (pipeline.track_regions.watched_heights, from the site). A camera that sees him at
-        least FOUND_WHOLE_PX tall in its whole frame's model input scans the whole frame
-        alone: no tile would find anyone it misses. A camera not named: tiles as needed. Any
-        thread (a site change)."""
-        self._watched = {str(k): float(v) for k, v in heights.items()}
+    def watch(self, shares: Mapping[str, float]) -> None:
+        """Per camera, how tall the smallest worker looks anywhere he matters, as a share of
+        its frame's height (pipeline.track_regions.watched_shares, from the site): so that a
+        substream's frames, smaller than the calibration's, are judged at their own size. A
+        camera whose frame shows him at least FOUND_WHOLE_PX tall in its whole frame's model
+        input scans the whole frame alone: no tile would find anyone it misses. A camera not
+        named: tiles as needed. Any thread (a site change)."""
+        self._watched = {str(k): float(v) for k, v in shares.items()}
 
     def regions(self, camera: str) -> list[Region]:
         """The regions of `camera`'s last step (empty: detected whole, or nothing to see);
@@ -225,7 +226,7 @@ class RegionDetector:
             # one whole frame and a region: every tile is looked at once in as many scans);
             # the camera's first scan, every tile
             tile = 2 * s.imgsz
-            if self._watched.get(name, 0.0) * whole_scale >= FOUND_WHOLE_PX:
+            if self._watched.get(name, 0.0) * h * whole_scale >= FOUND_WHOLE_PX:
                 # every worker that matters is found whole: no tile, and a region only for
                 # whom the whole frame sees at less than half its detail
                 return _finer(regions, s.imgsz, whole_scale), True, True, False
@@ -249,7 +250,7 @@ class RegionDetector:
         whole_px = whole.input_shape[0] * whole.input_shape[1]
         finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
         if self.costs is not None:
-            found_whole = self._watched.get(name, 0.0) * whole_scale >= FOUND_WHOLE_PX
+            found_whole = self._watched.get(name, 0.0) * h * whole_scale >= FOUND_WHOLE_PX
             return regions, False, False, found_whole or whole_scale >= finest
         if len(regions) * s.imgsz**2 >= whole_px and whole_scale >= finest:
             return [], False, True, False  # cheaper whole, and no region seen finer

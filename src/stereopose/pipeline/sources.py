@@ -21,7 +21,7 @@ from stereopose.io.summary import CAMERA_STAGES, FILE_STAGES, RunSummary
 from stereopose.io.video import FrameSet, usable_images
 from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.loop import SourceStep
-from stereopose.pipeline.track_regions import held_cameras, track_boxes, watched_heights
+from stereopose.pipeline.track_regions import held_cameras, track_boxes, watched_shares
 from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
 from stereopose.zones.hazard import Hazards
@@ -249,7 +249,7 @@ def detecting_cameras(
     tells which are dead)."""
     regions = region_detector(detector, settings)
     if regions is not None and site is not None:
-        regions.watch(watched_heights(rig, site.zones))
+        regions.watch(watched_shares(rig, site.zones))
     light = LightWatch(enhance=settings.night)
     hazards = Hazards(site.zones) if site is not None else None
     return Cameras(cams, rig, detector, regions, light, carrier(settings), hazards)

@@ -130,3 +130,9 @@ def watched_heights(rig: Rig, zones: Sequence[Zone]) -> dict[str, float]:
         tall = np.linalg.norm(b - a, axis=1)
         out[camera.name] = float(tall[seen].min()) if seen.any() else float("inf")
     return out
+
+
+def watched_shares(rig: Rig, zones: Sequence[Zone]) -> dict[str, float]:
+    """watched_heights as a share of each camera's frame height (the calibration's), for
+    frames of any size of that camera (a substream's): {} with no zones."""
+    return {n: v / float(rig[n].size[1]) for n, v in watched_heights(rig, zones).items()}

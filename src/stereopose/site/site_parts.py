@@ -20,7 +20,7 @@ from stereopose.io.sinks.base import unwrapped
 from stereopose.nodes.fusion import NodeInput
 from stereopose.onsite.service import OnSite
 from stereopose.pipeline.sources import Cameras
-from stereopose.pipeline.track_regions import watched_heights
+from stereopose.pipeline.track_regions import watched_shares
 from stereopose.site.plan import ServePlan
 from stereopose.site.service import SiteService
 from stereopose.types import Rig
@@ -97,7 +97,7 @@ def scans_watch(regions: RegionDetector, rig: Rig, site: Site | None) -> Callabl
     (detection.regional.RegionDetector.watch); the callable takes a new site."""
 
     def watch(new: Site | None) -> None:
-        regions.watch({} if new is None else watched_heights(rig, new.zones))
+        regions.watch({} if new is None else watched_shares(rig, new.zones))
 
     watch(site)
     return watch
