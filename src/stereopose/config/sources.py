@@ -97,9 +97,9 @@ class InputConfig:
     # serve: a live camera with a detection substream keeps its full stream encoded, for the
     # clips' full-stream copies ("copy"; nothing decoded), or decodes it for the drawn clips
     full_streams: Literal["copy", "decode"] = "copy"
-    # live cameras: each stream decoded on a thread of the service ("thread"), or in a process
-    # of its own ("process": a decoder that crashes, hangs or grows is restarted alone)
-    decoders: Literal["thread", "process"] = "thread"
+    # live cameras: each stream decoded in a process of its own ("process": a decoder that
+    # crashes, hangs or grows is restarted alone), or on a thread of the service ("thread")
+    decoders: Literal["thread", "process"] = "process"
     # serve: where the cameras' 2D people come from: "local" (serve opens the cameras and
     # detects), or "nodes" (`stereopose detect-node` processes publish them on the site's
     # broker, [mqtt]; serve groups them into time steps by capture time)
