@@ -21,11 +21,17 @@ Only NumPy and OpenCV are imported here: the process starts in a fraction of a s
 
 from __future__ import annotations
 
+import os
 import time
 from multiprocessing import shared_memory
 
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # as in the service (io.video)
 import cv2
 import numpy as np
+
+# OpenCV's own warnings (a refused connection, at each try) stay out of the journal, as in
+# the service: the service logs what the decoder tells it
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 ALIVE_S = 0.25  # the service is told frames still come at least this often
 
