@@ -51,7 +51,7 @@ from stereopose.controlroom.store import MAX_LIMIT, StoreError
 from stereopose.site.health.metrics import CONTENT_TYPE, exposition
 from stereopose.site.http import error_answers
 from stereopose.site.http.api import auth
-from stereopose.site.http.app import _internal_error
+from stereopose.site.http.app import internal_error
 from stereopose.site.http.auth import Operator, Viewer
 from stereopose.site.http.hosts import HostCheck
 from stereopose.site.http.limits import MAX_BODY_BYTES, RequestLimits
@@ -341,7 +341,7 @@ def create_control_app(
     registry.register(_Collector(room))
     app.state.metrics_registry = registry
     app.state.started = time.time()
-    app.add_exception_handler(Exception, _internal_error)
+    app.add_exception_handler(Exception, internal_error)
     error_answers.add_handlers(app)
     if allowed_hosts is not None:
         app.add_middleware(HostCheck, allowed=tuple(allowed_hosts))

@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse, Response
 
-from stereopose.site.http.api.page import CONSOLE_DIR, CONSOLE_URL, PAGE_HEADERS, _ConsoleFiles
+from stereopose.site.http.api.page import CONSOLE_DIR, CONSOLE_URL, PAGE_HEADERS, ConsoleFiles
 
 __all__ = ["ROOM_DIR", "mount_page"]
 
@@ -40,5 +40,5 @@ def mount_page(app: FastAPI) -> None:
     app.include_router(router)
     for url, folder, name in ((ROOM_URL, ROOM_DIR, "room"), (CONSOLE_URL, CONSOLE_DIR, "console")):
         app.mount(
-            url, _ConsoleFiles(directory=folder, check_dir=False, follow_symlink=False), name=name
+            url, ConsoleFiles(directory=folder, check_dir=False, follow_symlink=False), name=name
         )

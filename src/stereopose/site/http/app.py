@@ -49,7 +49,7 @@ from stereopose.tickets import TicketDesk
 logger = logging.getLogger(__name__)
 
 
-async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
+async def internal_error(request: Request, exc: Exception) -> JSONResponse:
     # answered outside the middleware (Starlette's outermost layer): its headers added here
     headers = {k.decode(): v.decode() for k, v in EXTRA_HEADERS}
     return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)
@@ -111,7 +111,7 @@ def create_app(
     app.state.site = site
     app.state.warnings = desks.warnings
     app.state.metrics_registry = registry if registry is not None else make_registry(state)
-    app.add_exception_handler(Exception, _internal_error)
+    app.add_exception_handler(Exception, internal_error)
     error_answers.add_handlers(app)
     if allowed_hosts is not None:  # inside RequestLimits: its refusals get the extra headers
         app.add_middleware(HostCheck, allowed=tuple(allowed_hosts))

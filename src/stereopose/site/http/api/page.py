@@ -77,7 +77,7 @@ def plotly_min_js() -> Response:
     )
 
 
-class _ConsoleFiles(StaticFiles):
+class ConsoleFiles(StaticFiles):
     """StaticFiles with the page's headers; no directory listings, no links followed out."""
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -94,6 +94,6 @@ def mount_page(app: FastAPI) -> None:
     app.include_router(router)
     app.mount(
         CONSOLE_URL,
-        _ConsoleFiles(directory=CONSOLE_DIR, check_dir=False, follow_symlink=False),
+        ConsoleFiles(directory=CONSOLE_DIR, check_dir=False, follow_symlink=False),
         name="console",
     )
