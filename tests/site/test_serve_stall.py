@@ -33,7 +33,7 @@ class Run:
             fresh=None if fresh is None else (lambda name: fresh), clock=lambda: self.now
         )
         self.events = ServeEvents(fences, watch, None, hooks)
-        self.stage = HeldStage(Stage3D(scene.rig, cfg), self.events)
+        self.stage = HeldStage(Stage3D(scene.rig, cfg), self.events.time)
         self.scene, self.frame = scene, 0
         self.ids: list[set[int]] = []
         self.log: list = []

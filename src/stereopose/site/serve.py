@@ -345,7 +345,7 @@ def _run_loop(
     )
     # a step the service was too late for is no observation; a stall's length not their age
     keeper.apply_to.append(stage.set_rig)  # a camera placed again: from the next step
-    stage, rules = HeldStage(stage, events), behaviour_monitor(plan.site, cfg)
+    stage, rules = HeldStage(stage, events.time), behaviour_monitor(plan.site, cfg)
     summary = RunSummary(
         rig.names,
         source.stages,
@@ -403,7 +403,7 @@ def _incidents(
     # the event log is an incident output (its records stored in the step's transaction)
     chain = step_chain(
         events,
-        behaviour=HeldRules(rules, events) if rules is not None else None,
+        behaviour=HeldRules(rules, events.time) if rules is not None else None,
         zone_state=service.power,
         monitor=events.fences,
         tickets=service.tickets,

@@ -130,7 +130,7 @@ class SiteSwitch:
         behaviour = behaviour_monitor(change.new, cfg)
         step.chain = step_chain(
             self.events,
-            behaviour=HeldRules(behaviour, self.events) if behaviour is not None else None,
+            behaviour=HeldRules(behaviour, self.events.time) if behaviour is not None else None,
             zone_state=kept.zone_state,
             monitor=new_mon,
             tickets=kept.tickets,

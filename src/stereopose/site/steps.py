@@ -14,16 +14,16 @@ late: a stall is in progress, or a camera's reader still has frames to give (`fr
 recorded file always has). A held step is no observation: the people's stages skip it
 (`HeldStage` gives the last people again, flagged predicted; `HeldRules` nothing new), so a
 slow step does not make everybody vanish. After a stall, the people's stages see the time
-without the stall's length (StallWatch.held_s): tracks, zone occupancy and behaviour states go
-on; `to_wall` puts their events' times back on the service's clock.
+without the stall's length: the people's time is its own object (site.step_clock.StepClock,
+`ServeEvents.time`), moved here at each step and read by `HeldStage` and `HeldRules`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,9 +34,12 @@ from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper
 from stereopose.site.health.stall import StallWatch
 from stereopose.site.health.watch import CameraWatch
+from stereopose.site.step_clock import StepClock
 from stereopose.types import Event, People2D, People3D
 
-MAX_BREAKS = 64  # stalls remembered to put older onsets back on the clock (bounded)
+if TYPE_CHECKING:
+    from stereopose.behaviour.rules import BehaviourMonitor
+    from stereopose.pipeline.stage3d import Stage3D
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,37 +77,22 @@ class ServeEvents:
         self.opening = hooks.opening
         self.stall = stall or StallWatch(watch.timeout_s)
         self.fresh, self.clock, self.on_stall = hooks.fresh, hooks.clock, hooks.on_stall
-        self.held = False  # this step is no observation (see the module)
+        self.time = StepClock(self.stall)  # the people's time, read by HeldStage and HeldRules
         self._people2d: Mapping[str, People2D] = {}
         self._opened = False
         self._t = 0.0
         self._delivered_t: float | None = None  # the last step with frames
         self._people_t = -math.inf  # the people's time of the last step they saw
-        self._breaks: deque[tuple[float, float]] = deque(maxlen=MAX_BREAKS)
 
-    # -- the people's time ---------------------------------------------------------------------
+    @property
+    def held(self) -> bool:
+        """This step is no observation (see the module)."""
+        return self.time.held
 
     @property
     def held_s(self) -> float:
         """Seconds the people's stages leave out so far (their time is t - held_s)."""
-        return self.stall.held_s
-
-    def to_wall(self, t_people: float) -> float:
-        """A time of the people's stages on the service's clock (before the stalls since)."""
-        held = 0.0
-        for start, total in self._breaks:  # (people's time where it began to hold, held since)
-            if t_people >= start:
-                held = total
-        return t_people + held
-
-    def restamp(self, events: list[Event]) -> list[Event]:
-        """Events of the people's stages with their times on the service's clock."""
-        if not self._breaks:
-            return events
-        return [
-            dataclasses.replace(e, t=self.to_wall(e.t), onset_t=self.to_wall(e.onset_t))
-            for e in events
-        ]
+        return self.time.held_s
 
     # -- the step, before the people's stages ------------------------------------------------
 
@@ -129,7 +117,7 @@ class ServeEvents:
         fresh_frames = bool(delivered) and t > (stall.fresh_after or 0.0)
         if stall.stalled and (fresh_frames or self._blind_after_stall(now)):
             length = stall.resume(t, now, most=t - stall.held_s - self._people_t - 1e-3) or 0.0
-            self._breaks.append((t - stall.held_s, stall.held_s))
+            self.time.resumed(t)
             if delivered:  # the stall is not the cameras' silence
                 self.watch.shift(length)
             if self.on_stall is not None:
@@ -138,9 +126,9 @@ class ServeEvents:
             self.watch.frame(name, t)
         if delivered:
             self._delivered_t = t
-        self.held = not delivered and (stall.stalled or self._any_fresh())
-        if not self.held:
-            self._people_t = t - stall.held_s
+        self.time.held = not delivered and (stall.stalled or self._any_fresh())
+        if not self.time.held:
+            self._people_t = self.time.people_t(t)
 
     def _began(self) -> None:
         if self.on_stall is not None:
@@ -180,7 +168,7 @@ class ServeEvents:
             if self.opening is not None:
                 events += self.opening(float(people3d.t or 0.0), frame)
         if self.fences is not None and not self.held:
-            events += self.restamp(self.fences.update(people3d.at(t - self.held_s)))
+            events += self.time.restamp(self.fences.update(people3d.at(self.time.people_t(t))))
         events += self.stall.events()
         if not self.stall.stalled:
             events += self.watch.poll(t, frame)
@@ -195,12 +183,12 @@ class ServeEvents:
 
 
 class HeldStage:
-    """The 3D stage (pipeline.stage3d.Stage3D) on the people's time of `events`: a held step
-    gives the last people again (flagged predicted, stamped with the step); others are
-    computed at t - held_s and stamped with t."""
+    """The 3D stage (pipeline.stage3d.Stage3D) on the people's time `time`: a held step gives
+    the last people again (flagged predicted, stamped with the step); others are computed at
+    t - held_s and stamped with t."""
 
-    def __init__(self, inner, events: ServeEvents) -> None:
-        self.inner, self.events = inner, events
+    def __init__(self, inner: Stage3D, time: StepClock) -> None:
+        self.inner, self.time = inner, time
         self.tracking = inner.tracking
         self._last: People3D | None = None
 
@@ -210,28 +198,30 @@ class HeldStage:
     def trajectories(self) -> list:
         return self.inner.trajectories()
 
-    def step(self, frame: int, people2d, t: float | None = None) -> People3D:
+    def step(
+        self, frame: int, people2d: Mapping[str, People2D], t: float | None = None
+    ) -> People3D:
         t = float(frame / self.inner.fps if t is None else t)
         last = self._last
-        if self.events.held and last is not None:
+        if self.time.held and last is not None:
             held = np.ones(len(last), dtype=bool)
             return dataclasses.replace(last, frame=frame, predicted=held, t=t)
-        people = self.inner.step(frame, people2d, t - self.events.held_s).at(t)
+        people = self.inner.step(frame, people2d, self.time.people_t(t)).at(t)
         self._last = people
         return people
 
 
 class HeldRules:
-    """The behaviour rules (behaviour.rules.BehaviourMonitor) on the people's time of `events`:
-    a held step raises nothing and keeps the last postures."""
+    """The behaviour rules (behaviour.rules.BehaviourMonitor) on the people's time `time`: a
+    held step raises nothing and keeps the last postures."""
 
-    def __init__(self, inner, events: ServeEvents) -> None:
-        self.inner, self.events = inner, events
+    def __init__(self, inner: BehaviourMonitor, time: StepClock) -> None:
+        self.inner, self.time = inner, time
         self._postures: dict = {}
 
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict]:
-        if self.events.held:
+        if self.time.held:
             return [], self._postures
-        t_people = float(t) - self.events.held_s
+        t_people = self.time.people_t(float(t))
         found, self._postures = self.inner.step(t_people, frame, people.at(t_people))
-        return self.events.restamp(found), self._postures
+        return self.time.restamp(found), self._postures
