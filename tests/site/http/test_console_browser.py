@@ -79,13 +79,27 @@ class Served:
         stop([self.streams.pop(name), self.streams.pop(name + "_sub")])
 
     def restore_camera(self, name: str) -> None:
-        """The camera's two streams served again on their ports (it reconnects by itself)."""
-        for n in (name, name + "_sub"):
+        """The camera's two streams served again on their ports (it reconnects by itself).
+        Each ffmpeg serves one client, where a camera serves every connection: one that ends
+        before the camera is back (a try of the service that gave up while the machine was
+        busy) is served again, as the camera would answer the next try."""
+        names = (name, name + "_sub")
+        for n in names:
             self.streams[n] = serve(self.sources[n], self.ports[n], n, codec="copy")
-        wait_serving(
-            [self.streams[name], self.streams[name + "_sub"]],
-            [self.ports[name], self.ports[name + "_sub"]],
-        )
+        wait_serving([self.streams[n] for n in names], [self.ports[n] for n in names])
+
+        def back() -> bool:
+            status, body = http_get(self.base + "/api/health")
+            if status not in (200, 503):
+                return False
+            if json.loads(body).get("cameras", {}).get(name, {}).get("state") == "up":
+                return True
+            for n in names:
+                if self.streams[n].poll() is not None:
+                    self.streams[n] = serve(self.sources[n], self.ports[n], n, codec="copy")
+            return False
+
+        wait_until(back, f"{name} back up", timeout_s=90, poll_s=0.2)
 
     @property
     def db(self) -> Path:

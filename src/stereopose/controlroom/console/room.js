@@ -3,11 +3,11 @@
 // control room's API every POLL_MS; a site's page asks for its people every PLAN_MS.
 
 import * as api from "/console/api.js";
+import { byId } from "/console/dom.js";
 
 const POLL_MS = 2000;
 const PLAN_MS = 1000;
 const PRIORITY = { 1: "critical", 2: "high", 3: "medium", 4: "low" };
-const byId = (id) => document.getElementById(id);
 const SVG = "http://www.w3.org/2000/svg";
 
 function el(tag, attrs = {}, text = null) {

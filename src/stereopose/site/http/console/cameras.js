@@ -7,17 +7,12 @@
 // Under a camera knocked out of place, the calibration keeper's word: being placed again, a new
 // pose proposed (with Accept for an admin), accepted, or not corrected and why.
 
+import { text } from "./dom.js";
+
 const PERIOD_MS = 500; // 2 pictures a second per camera
 
 /** A camera's picture URL, its name one escaped path segment (a name may hold ? # / % <). */
 export const snapshotUrl = (name) => `/api/cameras/${encodeURIComponent(name)}/snapshot.jpg`;
-
-function text(tag, className, content = "") {
-  const node = document.createElement(tag);
-  node.className = className;
-  node.textContent = content;
-  return node;
-}
 
 export class CameraStrip {
   constructor(root, large = null) {
@@ -94,18 +89,18 @@ export class CameraStrip {
       const img = document.createElement("img");
       img.alt = `${cam.name} live picture`;
       img.dataset.camera = cam.name;
-      const down = text("div", "down-overlay", "NO PICTURE");
+      const down = text("div", "NO PICTURE", "down-overlay");
       const regions = document.createElement("div");
       regions.className = "regions";
       regions.setAttribute("aria-hidden", "true");
       frame.append(img, regions, down);
       const caption = document.createElement("figcaption");
-      const name = text("span", "camera-name", cam.name);
-      const badge = text("span", "badge", "");
-      const stats = text("span", "camera-stats muted", "");
-      const light = text("span", "camera-light", "");
+      const name = text("span", cam.name, "camera-name");
+      const badge = text("span", "", "badge");
+      const stats = text("span", "", "camera-stats muted");
+      const light = text("span", "", "camera-light");
       light.hidden = true;
-      const calib = text("span", "camera-calibration", "");
+      const calib = text("span", "", "camera-calibration");
       calib.hidden = true;
       caption.append(name, badge, light, stats, calib);
       card.append(frame, caption);
@@ -174,12 +169,12 @@ export class CameraStrip {
       let kind = "";
       if (proposal) {
         kind = proposal.accepted_by ? "accepted" : "proposed";
-        parts.push(text("span", "", proposal.accepted_by
+        parts.push(text("span", proposal.accepted_by
           ? `new pose accepted by ${proposal.accepted_by}: applied at the next step`
           : `new pose proposed: turned ${Number(proposal.turned_deg).toFixed(2)}°, moved `
             + `${Number(proposal.moved_m).toFixed(2)} m, ${Number(proposal.reprojection_px).toFixed(1)} px`));
         if (!proposal.accepted_by && role === "admin") {
-          const button = text("button", "accept-pose", "Accept");
+          const button = text("button", "Accept", "accept-pose");
           button.type = "button";
           button.dataset.camera = name;
           button.title = `apply the proposed pose to ${name}`;
@@ -191,12 +186,12 @@ export class CameraStrip {
         }
       } else if (state) {
         kind = state.reason ? "failing" : "placing";
-        parts.push(text("span", "", state.reason
+        parts.push(text("span", state.reason
           ? `not corrected: ${state.reason} (tried ${state.tries})`
           : `calibration drift: placing again (${state.samples} samples${state.working ? ", working" : ""})`));
       } else if (corrected[name]) {
         kind = "corrected";
-        parts.push(text("span", "", `corrected ${corrected[name]}× while serving`));
+        parts.push(text("span", `corrected ${corrected[name]}× while serving`));
       }
       c.calib.replaceChildren(...parts);
       c.calib.hidden = parts.length === 0;
@@ -208,7 +203,7 @@ export class CameraStrip {
   setCalibrationError(name, message) {
     const c = this.cards.get(name);
     if (!c) return;
-    c.calib.replaceChildren(text("span", "error", `not accepted: ${message}`));
+    c.calib.replaceChildren(text("span", `not accepted: ${message}`, "error"));
     c.calib.hidden = false;
   }
 

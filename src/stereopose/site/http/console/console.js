@@ -3,6 +3,7 @@
 
 import * as api from "./api.js";
 import { CameraStrip } from "./cameras.js";
+import { byId } from "./dom.js";
 import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
@@ -12,7 +13,6 @@ import { SiteEditor } from "./site.js";
 import { Tickets } from "./tickets.js";
 import { View3D } from "./view3d.js";
 
-const byId = (id) => document.getElementById(id);
 const RATES_MS = 10_000;
 const ONSITE_MS = 2_000; // what sounds on site: asked this often
 

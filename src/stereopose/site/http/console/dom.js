@@ -1,4 +1,8 @@
-// HTML elements for the console's panels: text always goes in as text, never as markup.
+// HTML elements for the consoles' panels (the site's and the control room's): text always goes
+// in as text, never as markup.
+
+/** The page's element of id `id` (null when none). */
+export const byId = (id) => document.getElementById(id);
 
 /** A `tag` element holding `content` as text, of class `className` when given. */
 export function text(tag, content = "", className = "") {

@@ -5,6 +5,7 @@
 // its play button comes into the row as soon as the server lists it, without a new search.
 
 import { ApiError, events, eventsCsvUrl } from "./api.js";
+import { byId } from "./dom.js";
 import { ackText, dateTime, describe, typeText } from "./feed.js";
 
 const PAGE = 200;
@@ -17,7 +18,6 @@ const TYPES = ["enter", "exit", "approach", "dwell", "left_work_area", "person_d
   "lone_worker", "work_position", "immobile", "overreach", "camera_down", "camera_up",
   "camera_moved", "calibration_drift"];
 
-const byId = (id) => document.getElementById(id);
 
 function epoch(input) {
   if (!input.value) return "";

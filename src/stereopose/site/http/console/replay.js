@@ -4,10 +4,10 @@
 
 import { poses } from "./api.js";
 import { idColour } from "./colours.js";
+import { byId } from "./dom.js";
 import { dateTime } from "./feed.js";
 import { headsTrace, loadPlotly, prism, sceneLayout, skeletonTrace } from "./view3d.js";
 
-const byId = (id) => document.getElementById(id);
 const MAX_FRAMES = 900;
 const PLAY_MS = 100; // a drawn frame at most every 0.1 s
 

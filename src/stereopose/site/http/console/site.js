@@ -8,7 +8,7 @@
 // Everyone sees the tab; only an admin edits (the API refuses the others anyway).
 
 import * as api from "./api.js";
-import { text } from "./dom.js";
+import { byId, text } from "./dom.js";
 import { SiteOutputs } from "./site_outputs.js";
 import { SurveyPanel } from "./survey.js";
 import { el, separateLabels } from "./svg.js";
@@ -16,7 +16,6 @@ import { el, separateLabels } from "./svg.js";
 const GRID_M = 0.05;
 const SNAP_M = 0.15;
 const KINDS = ["energized", "restricted", "work_area"];
-const byId = (id) => document.getElementById(id);
 
 // the form's field of each key the API's errors name
 const FIELDS = {

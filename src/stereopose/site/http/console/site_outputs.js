@@ -5,10 +5,9 @@
 // site's: saved with it (PUT /api/site), checked by the service (a bad zone named in the
 // answer). Every name goes in as text, never as markup.
 
-import { text } from "./dom.js";
+import { byId, text } from "./dom.js";
 import { el } from "./svg.js";
 
-const byId = (id) => document.getElementById(id);
 
 function centre(polygon) {
   const n = polygon.length || 1;

@@ -6,9 +6,9 @@
 // residual beside its mark), Accept applies the new rig at the next step. Everyone sees them.
 
 import * as api from "./api.js";
+import { byId } from "./dom.js";
 import { el } from "./svg.js";
 
-const byId = (id) => document.getElementById(id);
 
 function cell(row, content) {
   const td = document.createElement("td");

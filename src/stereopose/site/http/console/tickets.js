@@ -5,10 +5,9 @@
 // of any step. A new ticket is posted as its TOML file (docs/formats.md#tickets).
 
 import * as api from "./api.js";
-import { text } from "./dom.js";
+import { byId, text } from "./dom.js";
 import { dateTime, typeText } from "./feed.js";
 
-const byId = (id) => document.getElementById(id);
 const PERIOD_MS = 1000;
 const BEFORE_S = 3; // a step's replay starts this long before its action
 const AFTER_S = 2; // ... and ends this long after it
