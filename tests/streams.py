@@ -7,6 +7,7 @@ import contextlib
 import socket
 import subprocess
 import threading
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -160,3 +161,23 @@ class StallingServer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def served_until(
+    make: Callable[[], subprocess.Popen], done: Callable[[], bool], what: str, timeout_s: float
+) -> subprocess.Popen:
+    """A stream served by ``make()`` until ``done()``: each ffmpeg serves one client, where a
+    camera answers every try, so one that ends before (a try of the service that gave up while
+    the machine was busy) is served again. Returns the server serving at the end."""
+    server = make()
+
+    def check() -> bool:
+        nonlocal server
+        if done():
+            return True
+        if server.poll() is not None:
+            server = make()
+        return False
+
+    wait_until(check, what, timeout_s=timeout_s, poll_s=0.2)
+    return server

@@ -27,8 +27,8 @@ from stereopose.io.sinks.events import query_events
 from stereopose.sim import simulate
 from stereopose.types import Rig
 from streams import serve as serve_stream
+from streams import served_until, wait_serving, write_video
 from streams import stop as stop_streams
-from streams import wait_serving, write_video
 from waiting import wait_until
 
 pytestmark = [pytest.mark.slow]
@@ -125,12 +125,11 @@ def test_camera_killed_and_restored_broker_late_events_everywhere_sigint_exits_0
         stop_streams(servers[1:])
         down = [("camera_down", names[1])]
         wait_until(lambda: _camera_events(db) == down, "camera_down", timeout_s=30)
-        servers[1] = serve_stream(video, ports[1], names[1])
-        wait_until(
+        servers[1] = served_until(
+            lambda: serve_stream(video, ports[1], names[1]),
             lambda: _camera_events(db) == [*down, ("camera_up", names[1])],
             "camera_up",
             timeout_s=60,
-            poll_s=0.2,
         )
         broker.start()
         logged = _camera_events(db)

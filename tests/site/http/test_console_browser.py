@@ -37,7 +37,7 @@ import pytest
 
 from stereopose.io.pose2sim_data import pose2sim_demo_dir
 from stereopose.pipeline.demo import CAMERAS, write_serve_demo_config
-from streams import ffmpeg, free_port, serve, stop, wait_serving
+from streams import ffmpeg, free_port, serve, served_until, stop, wait_serving
 from waiting import http_get, wait_until
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
@@ -63,6 +63,12 @@ USERS = {
 }
 KILLED = CAMERAS[-1]
 PLAYER = "document.getElementById('player')"
+# an element clicked if it is there now (true), else false
+_CLICK_WHERE_IT_IS = """(sel) => {
+    const node = document.querySelector(sel);
+    if (node) node.click();
+    return !!node;
+}"""
 
 
 @dataclass
@@ -79,27 +85,29 @@ class Served:
         stop([self.streams.pop(name), self.streams.pop(name + "_sub")])
 
     def restore_camera(self, name: str) -> None:
-        """The camera's two streams served again on their ports (it reconnects by itself).
-        Each ffmpeg serves one client, where a camera serves every connection: one that ends
-        before the camera is back (a try of the service that gave up while the machine was
-        busy) is served again, as the camera would answer the next try."""
-        names = (name, name + "_sub")
-        for n in names:
-            self.streams[n] = serve(self.sources[n], self.ports[n], n, codec="copy")
-        wait_serving([self.streams[n] for n in names], [self.ports[n] for n in names])
+        """The camera's two streams served again on their ports until it is back up (it
+        reconnects by itself; streams.served_until)."""
 
-        def back() -> bool:
+        def up() -> bool:
             status, body = http_get(self.base + "/api/health")
             if status not in (200, 503):
                 return False
-            if json.loads(body).get("cameras", {}).get(name, {}).get("state") == "up":
-                return True
-            for n in names:
-                if self.streams[n].poll() is not None:
-                    self.streams[n] = serve(self.sources[n], self.ports[n], n, codec="copy")
-            return False
+            return json.loads(body).get("cameras", {}).get(name, {}).get("state") == "up"
 
-        wait_until(back, f"{name} back up", timeout_s=90, poll_s=0.2)
+        sub = name + "_sub"
+        self.streams[sub] = self._serve(sub)
+
+        def back() -> bool:
+            if self.streams[sub].poll() is not None:  # the substream's too
+                self.streams[sub] = self._serve(sub)
+            return up()
+
+        self.streams[name] = served_until(
+            lambda: self._serve(name), back, f"{name} back up", timeout_s=90
+        )
+
+    def _serve(self, stream: str) -> subprocess.Popen:
+        return serve(self.sources[stream], self.ports[stream], stream, codec="copy")
 
     @property
     def db(self) -> Path:
@@ -906,8 +914,11 @@ def test_an_alarms_clips_play_in_the_page(watched, served):
     for url in alarm["clips"]:
         button = f'{row} button.play[data-clip="{url}"]'
         page.wait_for_selector(button, timeout=20_000)
-        # clicked where it is now: a search answered late may have redrawn the table
-        page.evaluate("(sel) => document.querySelector(sel).click()", button)
+        # clicked where it is now: a search answered late may redraw the table (the button
+        # gone for a moment, and back)
+        wait_until(
+            lambda b=button: page.evaluate(_CLICK_WHERE_IT_IS, b), f"{url} clicked", poll_s=0.05
+        )
         assert page.get_attribute("#player-download", "href") == url
         if url.endswith(".full.mp4"):
             assert page.get_attribute("#player", "src") == url
