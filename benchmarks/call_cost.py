@@ -10,7 +10,8 @@ For each backend (the one `auto` chooses here, and ONNX Runtime fp32, the refere
 each the median of --repeat calls after a warm-up; a line t(k) = fixed + k x per image fitted
 per input size by least squares. Then the prices the service itself measures at its start
 (detection.call_costs: batches of 1-4 whole frames and 1-8 crops) and what they make it do
-with a few kinds of step (detection.call_costs.cheapest): which cameras go whole.
+with a few kinds of step (detection.call_costs.cheapest): which cameras go whole; and the
+calls each batch is made in at those prices (detection.call_costs.split).
 Results: benchmarks/results/call_cost.{md,json}.
 
 usage: python benchmarks/call_cost.py [--repeat 15] [--threads 2]
@@ -91,6 +92,11 @@ def measure(backend: str, precision: str, threads: int, repeat: int) -> dict:
         "crop_fixed_ms": fc,
         "crop_per_image_ms": pc,
         "prices_ms": prices.table(),
+        # the calls each batch is made in (CallCosts.split: two where they cost 5 % less)
+        "splits": {
+            f"{h}x{w}": {n: prices.split((h, w), n) for n in range(1, k + 1)}
+            for (h, w), k in ((wide, 4), (square, 8))
+        },
         "taken_whole": {
             k: [len(cheapest(prices, w, square, c)), len(c)] for k, (w, c) in steps.items()
         },
@@ -139,6 +145,23 @@ def main() -> None:
         md.append(
             f"| {name} | {' / '.join(f'{v:.1f}' for v in t['640x384'])} | {' / '.join(f'{v:.1f}' for v in t['320x320'])} | "
             + " | ".join(f"{a} of {n}" for a, n in b["taken_whole"].values())
+            + " |"
+        )
+    md += [
+        "",
+        "The calls a batch is made in at those prices (`CallCosts.split`: two or more only where "
+        "they cost at least 5 % less than one; + between calls):",
+        "",
+        "| backend | whole frames 1 / 2 / 3 / 4 | 320 crops 1 / 2 / ... / 8 |",
+        "|---|---|---|",
+    ]
+    for name, b in res["backends"].items():
+        sp = b["splits"]
+        md.append(
+            f"| {name} | "
+            + " / ".join("+".join(map(str, c)) for c in sp["640x384"].values())
+            + " | "
+            + " / ".join("+".join(map(str, c)) for c in sp["320x320"].values())
             + " |"
         )
     md += [
