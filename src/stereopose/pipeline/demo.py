@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from importlib import resources
 from pathlib import Path
 
@@ -57,10 +58,13 @@ def write_serve_demo_config(
     write_demo_config(out_dir)  # the site beside it, and the demo files fetched
     demo = pose2sim_demo_dir() / "Demo_MultiPerson"
     data = Path(data_dir).resolve() if data_dir is not None else out_dir.resolve() / "data"
+    # the calibration copied beside the configuration: the service's corrections of it
+    # (calibration_auto) are written beside it, in this folder, never in the shared cache
+    shutil.copyfile(demo / "calibration" / "Calib.qca.txt", out_dir / "Calib.qca.txt")
     lines = [
         "# The real demo served: Pose2Sim's multi-person recording (4 cameras, 1088x1920,",
         "# 60 fps), each video played forward then backward for ever, through `stereopose serve`.",
-        f"calibration = {_toml_str(str(demo / 'calibration' / 'Calib.qca.txt'))}",
+        'calibration = "Calib.qca.txt"',
         'site = "demo_site.toml"',
         f"output = {_toml_str(str(data))}",
         "",

@@ -15,6 +15,7 @@ from stereopose.calibration.formats import load_calibration, save_calibration
 from stereopose.config import Config
 from stereopose.io.sinks.base import FrameResult
 from stereopose.pipeline.stage3d import Stage3D
+from stereopose.site.health import calib_keeper
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
 
@@ -83,6 +84,25 @@ def test_without_auto_the_pose_is_proposed_and_applied_when_accepted(knocked, tm
     assert later[0].result["accepted_by"] == "ada" and not keeper.proposals()
     assert (tmp_path / "calib.corrected.toml").is_file()
     assert not keeper.accept("cam02")  # nothing proposed any more
+
+
+def test_with_auto_a_change_larger_than_a_knock_is_proposed_never_applied(
+    knocked, tmp_path, monkeypatch
+) -> None:
+    """The most a pose may change unasked, lowered under the knock (1.5 deg): the real solve
+    finds the knock, and with auto on it is proposed to an admin, not applied (a mirror solve
+    of the people's left and right once turned a camera 169 deg and moved it 9 m)."""
+    monkeypatch.setattr(calib_keeper, "AUTO_MAX_DEG", 1.0)
+    rig, _moved, steps = knocked
+    keeper, events, applied = run_keeper(rig, steps[:520], tmp_path, auto=True)
+    kinds = [e.type for e in events if e.camera == "cam02" and e.type.startswith("calibration_")]
+    assert "calibration_proposed" in kinds and "calibration_corrected" not in kinds
+    assert not applied and not (tmp_path / "calib.corrected.toml").exists()
+    proposed = keeper.proposals()["cam02"]
+    assert 1.3 < proposed["turned_deg"] < 1.7
+    assert keeper.accept("cam02", "ada")  # an admin may still take it
+    later = keeper.update(520, 41.6, steps[520], [])
+    assert [e.type for e in later] == ["calibration_corrected"] and applied
 
 
 def test_a_camera_that_cannot_be_corrected_stays_flagged_with_the_reason(knocked, tmp_path) -> None:

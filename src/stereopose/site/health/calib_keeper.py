@@ -14,12 +14,14 @@ that cover at least `min_coverage` of its view. The reference is the calibrated 
 the same way (the others' people against its detections, the RMS over the joints that agree)
 on half as many samples as `samples`, taken before any drift (every CALM_EVERY steps; fewer
 when the camera drifts first); until it is known, the health's baseline stands in. A pose the
-old one fits as well is a false alarm. Then, with `auto`, the new pose is applied at once
+old one fits as well is a false alarm. Then, with `auto` and a change of at most AUTO_MAX_DEG
+and AUTO_MAX_M, the new pose is applied at once
 (every part given the new rig), a `calibration_corrected` event says the turn and shift,
 and the corrected calibration is written beside the original (`<name>.corrected.toml`, never
-over it) with a line in its history (`<name>.corrections.jsonl`). Without `auto` it is proposed
-(`proposals()`) for an admin to accept (`accept(camera)`). A camera that cannot be corrected
-stays flagged with the reason (`figures()`), and is tried again with fresh samples.
+over it) with a line in its history (`<name>.corrections.jsonl`). Without `auto`, or for a
+larger change, it is proposed (`proposals()`) for an admin to accept (`accept(camera)`). A
+camera that cannot be corrected stays flagged with the reason (`figures()`), and is tried again
+with fresh samples.
 """
 
 from __future__ import annotations
@@ -37,7 +39,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import tomllib
 
 from stereopose.calibration.formats import save_calibration
 from stereopose.calibration.poses import pose_change
@@ -45,6 +46,7 @@ from stereopose.calibration.refine import pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.site.health.calib_health import CalibrationHealth
+from stereopose.site.health.corrected_calibration import corrected_file
 from stereopose.site.health.survey_desk import SurveyDesk
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
@@ -57,6 +59,10 @@ SAMPLES = 150  # steps with people sampled before a camera is placed again
 MIN_COVERAGE = 0.25  # share of its view the agreeing joints must cover
 ACCEPT_FACTOR = 1.5  # the new error at most this many times the baseline (or baseline + 2 px)
 STILL_DEG, STILL_M = 0.1, 0.05  # a pose found this close to the old one is left alone
+# the most a pose may change to be applied unasked: a camera knocked on its pole turns a few
+# degrees; a larger change (a mirror solve of the people's left and right, or a camera moved
+# on purpose) is proposed to an admin, never applied by itself
+AUTO_MAX_DEG, AUTO_MAX_M = 15.0, 1.0
 MAX_TRIES = 20  # attempts per drift (each on fresh samples), then the camera stays flagged
 # a new pose is taken only where the old one, on the same samples, has its error this many
 # times larger, or fewer than KEPT times its agreeing joints
@@ -274,15 +280,19 @@ class CalibrationKeeper:
                 f"the people covered {100 * r.coverage:.0f}% of its view (at least "
                 f"{100 * self.min_coverage:.0f}% needed)",
             )
-        if not self.auto:
+        large = r.turned_deg > AUTO_MAX_DEG or r.moved_m > AUTO_MAX_M
+        if not self.auto or large:
             case.proposal, case.reason = r, None
             logger.warning(
-                "camera %s: a new pose is proposed (turned %.2f deg, moved %.2f m, %.1f px): "
+                "camera %s: a new pose is proposed (turned %.2f deg, moved %.2f m, %.1f px%s): "
                 "an admin accepts it in the console",
                 name,
                 r.turned_deg,
                 r.moved_m,
                 r.rms_px,
+                f"; over the {AUTO_MAX_DEG:g} deg or {AUTO_MAX_M:g} m applied unasked"
+                if self.auto
+                else "",
             )
             return [self._event("calibration_proposed", name, r, base, t, frame)]
         event = self._event("calibration_corrected", name, r, base, t, frame)
@@ -436,41 +446,6 @@ def _attempt(cam, samples) -> tuple:
     """The camera placed again from the samples (calibration.refine), and its pose as it is
     measured on the same samples (RMS px, agreeing joints)."""
     return refine_camera(cam, samples), pose_error(cam, samples)
-
-
-def corrected_file(calib_path: str | Path, places: Sequence[str | Path] = ()) -> Path | None:
-    """The newest `<name>.corrected.toml` the keeper wrote for the calibration at `calib_path`
-    (beside it, or in one of `places`), when it is newer than the original: a restart keeps the
-    correction; an original changed since (calibrated again) wins. A corrected file that cannot
-    be read, or was corrected from another file, is skipped with a log line."""
-    calib_path = Path(calib_path)
-    stem = calib_path.name.split(".")[0] or "calibration"
-    try:
-        since = calib_path.stat().st_mtime
-    except OSError:
-        return None
-    found: list[tuple[float, Path]] = []
-    for folder in [calib_path.parent, *map(Path, places)]:
-        path = folder / f"{stem}.corrected.toml"
-        try:
-            mtime = path.stat().st_mtime
-            with open(path, "rb") as f:
-                meta = tomllib.load(f).get("metadata", {})
-        except FileNotFoundError:
-            continue
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            logger.error("%s: the corrected calibration is not used: %s", path, e)
-            continue
-        source = meta.get("corrected_from") if isinstance(meta, dict) else None
-        if source is None or Path(str(source)).resolve() != calib_path.resolve():
-            logger.warning("%s: not corrected from %s: not used", path, calib_path)
-        elif mtime < since:
-            logger.warning(
-                "%s is older than %s (calibrated again since): not used", path, calib_path
-            )
-        else:
-            found.append((mtime, path))
-    return max(found)[1] if found else None
 
 
 class KeeperDesk:
