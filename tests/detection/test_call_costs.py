@@ -95,6 +95,8 @@ def test_a_batch_is_split_only_where_two_calls_cost_less_than_one():
     assert amd.split(WHOLE, 3) == [3]
 
 
+@pytest.mark.realdata
+@pytest.mark.slow
 def test_a_step_splits_its_crops_where_their_prices_say_so(detector):
     far = Distant(0.4)
     images = dict(zip(CAMS, [far.frame(im) for im in demo_step(0)], strict=True))

@@ -39,7 +39,9 @@ COST_FILE = "call_costs.json"
 KEPT = 64  # entries kept in the file, the newest
 FOLLOW = 0.2  # how far a real call moves the prices' common factor toward what it took
 LOAD_RANGE = (0.25, 20.0)  # the common factor's bounds
-SAVING = 0.05  # whole frames taken over regions only where they save this share of the step
+# whole frames taken over regions, or a batch split into more calls, only where that saves
+# this share of the step's (or the batch's) time
+SAVING = 0.05
 FORMAT = "raw"  # the prices kept: each batch as measured (tables of other formats measured anew)
 
 Shape = tuple[int, int]  # a model input (h, w)
