@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from stereopose.config import Config
-from stereopose.fence import FenceMonitor, Site
+from stereopose.fence import Site
 from stereopose.pipeline.loop import SourceStep
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.site.health.watch import CameraWatch
+from stereopose.site.site_switch import Outliving, site_rules
 from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.zones import Zone
 
@@ -21,18 +22,20 @@ FLOOR = np.array([[-50.0, -50.0], [50.0, -50.0], [50.0, 50.0], [-50.0, 50.0]])
 
 
 class Run:
-    """The serve loop's order for each step: events.step, the 3D stage, events.update."""
+    """The serve loop's order for each step: events.step, the 3D stage, the service's chain of
+    step rules (site.site_switch.site_rules: the fences on the people's time, then the
+    service's own events)."""
 
     def __init__(self, scene, fresh: bool | None) -> None:
         cfg = Config(fps=scene.fps)
         site = Site((Zone("floor", "work_area", FLOOR, (0.0, 2.5)),))
-        fences = FenceMonitor(site, scene.fps, cfg.tracking.max_lost_s)
         watch = CameraWatch(scene.rig.names, TIMEOUT_S, start=0.0)
         self.now = 0.0
         hooks = StepHooks(
             fresh=None if fresh is None else (lambda name: fresh), clock=lambda: self.now
         )
-        self.events = ServeEvents(fences, watch, None, hooks)
+        self.events = ServeEvents(watch, None, hooks)
+        self.rules = site_rules(site, self.events, cfg, Outliving())
         self.stage = HeldStage(Stage3D(scene.rig, cfg), self.events.time)
         self.scene, self.frame = scene, 0
         self.ids: list[set[int]] = []
@@ -48,7 +51,7 @@ class Run:
         self.events.step(step)
         people = self.stage.step(step.frame, people2d, t)
         assert people.t == pytest.approx(t)
-        self.log += self.events.update(people)
+        self.log += self.rules.chain.step(t, step.frame, people)[0]
         if f is not None:
             self.ids.append(set(people.ids.tolist()))
 

@@ -12,6 +12,8 @@ import pytest
 from stereopose.config import Config
 from stereopose.errors import ConfigError
 from stereopose.fence import FenceMonitor, load_site
+from stereopose.pipeline.incidents import SiteRules
+from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.health.watch import CameraWatch
 from stereopose.site.site_desk import MAX_SWITCHES, SiteDesk
 from stereopose.site.site_switch import SiteSwitch
@@ -59,15 +61,18 @@ def served(tmp_path: Path):
     path.write_text(SITE)
     site = load_site(path)
     desk = SiteDesk(path, site, tmp_path / "history")
-    events = ServeEvents(FenceMonitor(site, FPS), CameraWatch(["cam"], 5.0, start=0.0), None)
+    fences = FenceMonitor(site, FPS)
+    rules = SiteRules(step_chain(fences), fences)
+    events = ServeEvents(CameraWatch(["cam"], 5.0, start=0.0), None)
     switch = SiteSwitch(desk, events, Config(fps=FPS))
     frame = [0]
 
     def step(x: float | None) -> list:
         """One step: the switches taken, then the person at x through the fences."""
         f = frame[0] = frame[0] + 1
-        out = switch(None, f / FPS, f)
-        return out + events.fences.update(_people(f, x))
+        out, taken = switch(rules, f / FPS, f)
+        assert taken is None  # a zone switched is no new site
+        return out + fences.update(_people(f, x))
 
     return desk, step
 

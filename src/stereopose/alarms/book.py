@@ -153,6 +153,11 @@ class IncidentBook:
         self._burst: tuple[float, int] | None = None  # (time, id) of a burst's first
         self._shelved: dict[HazardKey, IncidentRecord] = {}  # each shelved hazard's shelving
 
+    def retune(self, settings: AlarmSettings) -> None:
+        """A new site's priorities and rearm times, for the events from now on; the open
+        incidents keep theirs."""
+        self.settings = settings
+
     # -- reading
     def __len__(self) -> int:
         return len(self._by_id)

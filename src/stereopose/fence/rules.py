@@ -99,7 +99,7 @@ class FenceMonitor:
         before = {z.name: j for j, z in enumerate(old.zones)}
         for k, z in enumerate(self.zones):
             j = before.get(z.name)
-            if j is None or not _same_zone(z, old.zones[j]):
+            if j is None or not z.tests_alike(old.zones[j]):
                 continue
             for mine, theirs in ((self.inside, old.inside), (self.near, old.near)):
                 mine.state[:, k] = theirs.state[:, j]
@@ -327,16 +327,3 @@ class FenceMonitor:
         self.row_of = {int(i): r for r, i in enumerate(self.ids)}
         self._last_ids = None
         return out
-
-
-def _same_zone(a, b) -> bool:
-    """Whether two zones test people alike (their events may differ: priority, allowed)."""
-    return (
-        a.kind == b.kind
-        and a.polygon.shape == b.polygon.shape
-        and bool(np.array_equal(a.polygon, b.polygon))
-        and tuple(a.z) == tuple(b.z)
-        and a.joints == b.joints
-        and a.margin_m == b.margin_m
-        and (a.enter_s, a.exit_s, a.dwell_s) == (b.enter_s, b.exit_s, b.dwell_s)
-    )

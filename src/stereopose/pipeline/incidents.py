@@ -14,6 +14,11 @@ step's transaction, MQTT, the webhook, SCADA; the live channel) before the step'
 the sinks. An operator's act (the HTTP API's thread) takes the lock around the book and answers
 at once with the record; its changes wait (bounded, counted when dropped) and go out with the
 next step, which comes within the loop's heartbeat.
+
+What a step holds of its site is one object (`SiteRules`: the chain of rules, the fence monitor
+that says which pairs hold, the alarm settings). A new site is a new `SiteRules`, built by
+`switch` at a step's start (site.site_switch) and taken whole (`take`) before the step's rules
+run; the book carries its open incidents across, on the new settings.
 """
 
 from __future__ import annotations
@@ -28,16 +33,33 @@ import numpy as np
 
 from stereopose.alarms import AlarmRates, Change, IncidentBook, IncidentRecord
 from stereopose.alarms.incident import IncidentError
+from stereopose.alarms.priority import AlarmSettings
 from stereopose.fence.rules import FenceMonitor
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.pipeline.step_rules import StepChain
 from stereopose.types import Event, People3D
 
-__all__ = ["IncidentStep"]
+__all__ = ["IncidentStep", "SiteRules", "SiteSwitching"]
 
 logger = logging.getLogger(__name__)
 
 MAX_WAITING = 10_000  # operators' changes waiting for the next step
+
+
+@dataclasses.dataclass(frozen=True)
+class SiteRules:
+    """A site's part of the step: its chain of rules; the fence monitor that says which
+    (zone, person) pairs still hold (None: no site); its alarm settings (None: the book's
+    own, as built)."""
+
+    chain: StepChain
+    holding: FenceMonitor | None = None
+    settings: AlarmSettings | None = None
+
+
+# at a step's start, before its rules: (the events of a change of site, the new site's rules
+# to take, or None: no new site); given the site's rules in force, the step's t and frame
+SiteSwitching = Callable[[SiteRules, float, int], tuple[list[Event], SiteRules | None]]
 
 
 class IncidentStep:
@@ -56,10 +78,11 @@ class IncidentStep:
         outputs: Sequence[Callable[[Sequence[Change]], None]] = (),
         clock: Callable[[], float],
         wall_start: float | None = None,
+        switch: SiteSwitching | None = None,
     ) -> None:
-        self.book, self.chain, self.monitor = book, chain, holding
-        # at a step's start, before the chain: a new site taken (site.site_switch), its events
-        self.switch: Callable[[IncidentStep, float, int], list[Event]] | None = None
+        self.book = book
+        self.rules = SiteRules(chain, holding)
+        self.switch = switch
         self.wall_start = wall_start  # Unix time of t = 0: the changes carry wall times
         self.outputs, self.clock = list(outputs), clock
         self.rates = AlarmRates()
@@ -68,9 +91,28 @@ class IncidentStep:
         self.dropped = 0  # operators' changes dropped (the queue full): counted, logged
 
     # -- the frame loop's: a step's rules (pipeline.loop.StepRules)
+    @property
+    def chain(self) -> StepChain:
+        return self.rules.chain
+
+    @property
+    def monitor(self) -> FenceMonitor | None:
+        return self.rules.holding
+
+    def take(self, rules: SiteRules) -> None:
+        """A new site's rules, taken whole between two steps; the book keeps its incidents."""
+        with self.lock:
+            if rules.settings is not None:
+                self.book.retune(rules.settings)
+            self.rules = rules
+
     def step(self, t: float, frame: int, people: People3D) -> tuple[list[Event], dict | None]:
         """The chain's events, each alarm-level one stamped with its incident; the postures."""
-        first = self.switch(self, t, frame) if self.switch is not None else []
+        first: list[Event] = []
+        if self.switch is not None:
+            first, taken = self.switch(self.rules, t, frame)
+            if taken is not None:
+                self.take(taken)
         events, postures = self.chain.step(t, frame, people)
         return self._book(t, [*first, *events]), postures
 

@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BehaviourRule",
+    "EventsRule",
     "FenceRule",
     "OnSiteRule",
     "StepChain",
@@ -73,10 +74,17 @@ class SafetyRule(Protocol):
 
 
 class ZoneEvents(Protocol):
-    """The fences' events of a step: FenceMonitor, or the service's (site.steps.ServeEvents:
-    the zone events with the cameras' and the service's)."""
+    """Events of a step from its people: FenceMonitor, the service's held one
+    (site.steps.HeldFences), or the service's own (site.steps.ServeEvents, OpeningEvents)."""
 
     def update(self, people: People3D) -> Sequence[Event]: ...
+
+
+class ServiceEvents(ZoneEvents, Protocol):
+    """The service's own events (site.steps.ServeEvents): those of its first step
+    (`opening`, before the fences'), and each step's (`update`, after the fences')."""
+
+    opening: ZoneEvents
 
 
 class Behaviour(Protocol):
@@ -87,14 +95,18 @@ class Behaviour(Protocol):
     ) -> tuple[list[Event], dict[int, Posture]]: ...
 
 
-class FenceRule:
-    """The zones' events (enter, approach, dwell, exit), with whatever else `events` adds."""
+class EventsRule:
+    """The events `events.update(people)` gives at each step (the service's own: site.steps)."""
 
     def __init__(self, events: ZoneEvents) -> None:
         self.events = events
 
     def step(self, ctx: StepContext) -> list[Event]:
         return list(self.events.update(ctx.people))
+
+
+class FenceRule(EventsRule):
+    """The zones' events (enter, approach, dwell, exit) of the fence monitor `events`."""
 
 
 class BehaviourRule:
@@ -159,11 +171,11 @@ class OnSiteRule:
     their devices' health events and the admin's acts. Last: the zones' states and the tickets
     are known by then."""
 
-    def __init__(self, onsite: OnSite, fences: Callable[[], FenceMonitor | None]) -> None:
+    def __init__(self, onsite: OnSite, fences: FenceMonitor | None) -> None:
         self.onsite, self.fences = onsite, fences
 
     def step(self, ctx: StepContext) -> list[Event]:
-        return list(self.onsite.step(ctx.t, ctx.frame, ctx.people, self.fences(), ctx.events))
+        return list(self.onsite.step(ctx.t, ctx.frame, ctx.people, self.fences, ctx.events))
 
 
 class StepChain:
@@ -210,25 +222,28 @@ def _declared(rule: object, which: str) -> frozenset[str]:
 def step_chain(
     events: ZoneEvents | None,
     *,
+    service: ServiceEvents | None = None,
     behaviour: Behaviour | None = None,
     zone_state: ZoneStates | None = None,
     monitor: FenceMonitor | None = None,
     tickets: TicketDesk | None = None,
     zone_log: ZoneStateLog | None = None,
     onsite: OnSite | None = None,
-    fences: Callable[[], FenceMonitor | None] | None = None,
 ) -> StepChain:
-    """The chain `run` and `serve` build: the fences' events, the behaviour rules, the zones'
-    states (read live, with the fence `monitor` that says who is inside; or a recorded job's
-    switching log, zones.state_log), the tickets, the warnings on site (`onsite`, with the
-    running fences: `fences()`, by default `monitor`); each left out when None."""
-    running = fences or (lambda: monitor)
+    """The chain `run` and `serve` build: the service's opening events (its first step's:
+    `service.opening`), the fences' `events`, the service's own (`service`: its stalls,
+    cameras, calibration), the
+    behaviour rules, the zones' states (read live, with the fence `monitor` that says who is
+    inside; or a recorded job's switching log, zones.state_log), the tickets, the warnings on
+    site (`onsite`, with the fence `monitor`); each left out when None."""
     parts: list[tuple[object | None, Callable[[], StepRule]]] = [
+        (service, lambda: EventsRule(service.opening)),
         (events, lambda: FenceRule(events)),
+        (service, lambda: EventsRule(service)),
         (behaviour, lambda: BehaviourRule(behaviour)),
         (zone_state, lambda: ZoneStateRule(zone_state, monitor)),
         (zone_log, lambda: zone_log),
         (tickets, lambda: TicketRule(tickets)),
-        (onsite, lambda: OnSiteRule(onsite, running)),
+        (onsite, lambda: OnSiteRule(onsite, monitor)),
     ]
     return StepChain([make() for given, make in parts if given is not None])

@@ -50,12 +50,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stereopose.alarms import AlarmSettings, IncidentBook
+from stereopose.alarms import IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
-from stereopose.fence import FenceMonitor, Site
+from stereopose.fence import Site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
@@ -64,14 +64,12 @@ from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
 from stereopose.nodes.node_state import nodes_light
-from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
-from stereopose.pipeline.loop import FrameLoop, behaviour_monitor
+from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
 from stereopose.pipeline.sources import detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
-from stereopose.pipeline.step_rules import step_chain
 from stereopose.scada.opcua_settings import opcua_settings
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
@@ -90,9 +88,10 @@ from stereopose.site.plan import (
 )
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
+from stereopose.site.site_desk import SiteDesk
 from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
-from stereopose.site.site_switch import Outliving, SiteSwitch
-from stereopose.site.steps import HeldRules, HeldStage, ServeEvents, StepHooks
+from stereopose.site.site_switch import Outliving, SiteSwitch, site_rules
+from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.site.watchdog import Notifier, Watchdog
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
@@ -290,7 +289,6 @@ def _run_loop(
 ) -> RunSummary:
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
-    fences = FenceMonitor(plan.site, cfg.fps, cfg.tracking.max_lost_s) if plan.site else None
     timeout_s = cfg.serve.camera_timeout_s
     watch = CameraWatch(rig.names, timeout_s, start=0.0)
     calib, keeper = _calibration(plan, cfg)
@@ -305,7 +303,7 @@ def _run_loop(
         clock=now_t,
         on_stall=service.state.service_stall,
     )
-    events = ServeEvents(fences, watch, calib, hooks, keeper=keeper)
+    events = ServeEvents(watch, calib, hooks, keeper=keeper)
     on_site: list[Callable[[Site], None]] = []  # each told every new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
@@ -345,7 +343,7 @@ def _run_loop(
     )
     # a step the service was too late for is no observation; a stall's length not their age
     keeper.apply_to.append(stage.set_rig)  # a camera placed again: from the next step
-    stage, rules = HeldStage(stage, events.time), behaviour_monitor(plan.site, cfg)
+    stage = HeldStage(stage, events.time)
     summary = RunSummary(
         rig.names,
         source.stages,
@@ -372,9 +370,8 @@ def _run_loop(
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
-        incidents = _incidents(plan, service, events, rules, ids, wall_start, now_t, onsite)
-        if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
-            incidents.switch = _site_switch(service, events, cfg, on_site, onsite)
+        told = (on_site, Outliving(service.tickets, service.power, onsite))
+        incidents = _incidents(plan, service, events, cfg, ids, (wall_start, now_t), told)
         loop = FrameLoop(source, stage, [*first, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -385,58 +382,57 @@ def _incidents(
     plan: ServePlan,
     service: SiteService,
     events: ServeEvents,
-    rules,
+    cfg: Config,
     ids: IncidentIds,
-    wall_start: float,
-    clock: Callable[[], float],
-    onsite: OnSite | None = None,
+    clocks: tuple[float, Callable[[], float]],
+    told: tuple[list[Callable[[Site], None]], Outliving],
 ) -> IncidentStep:
-    """The incident book over the step's events (pipeline.incidents): ids from the
-    log's mark, the incidents the last run left open restored (on this run's clock), its
-    changes stored with the step's events and given to every incident output; the HTTP API's
-    acts reach it through the app."""
-    settings = AlarmSettings.from_site(plan.site) if plan.site is not None else AlarmSettings()
-    book = IncidentBook(settings, next_id=ids)
+    """The incident book over the step's events (pipeline.incidents), on the rules of the
+    plan's site (site.site_switch.site_rules; a new one taken at a step's start where the site
+    can change): ids from the log's mark, the incidents the last run left open restored (on
+    this run's clock: `clocks`, its Unix start and its time now), its changes stored with the
+    step's events and given to every incident output; the HTTP API's acts reach it through the
+    app. told: what is told each new site, and the parts that outlive a site."""
+    wall_start, clock = clocks
+    rules = site_rules(plan.site, events, cfg, told[1])
+    switch = None
+    if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
+        switch = _site_switch(service.site_desk, service, events, cfg, told)
+    book = IncidentBook(rules.settings, next_id=ids)
     restored = book.restore(service.resume.open_incidents(wall_start))
     if restored:
         logger.warning("restart: %d incident(s) left open by the last run are open again", restored)
     # the event log is an incident output (its records stored in the step's transaction)
-    chain = step_chain(
-        events,
-        behaviour=HeldRules(rules, events.time) if rules is not None else None,
-        zone_state=service.power,
-        monitor=events.fences,
-        tickets=service.tickets,
-        onsite=onsite,
-        fences=lambda: events.fences,
-    )
     step = IncidentStep(
         book,
-        chain,
-        holding=events.fences,
+        rules.chain,
+        holding=rules.holding,
         outputs=service.incident_outputs,
         clock=clock,
         wall_start=wall_start,
+        switch=switch,
     )
     service.attach_incidents(step, book.incidents())  # the API, SCADA, control room: its acts
     return step
 
 
 def _site_switch(
+    desk: SiteDesk,
     service: SiteService,
     events: ServeEvents,
     cfg: Config,
-    on_site: list[Callable[[Site], None]],
-    onsite: OnSite | None = None,
+    told: tuple[list[Callable[[Site], None]], Outliving],
 ) -> SiteSwitch:
-    """What takes a new site at a step's start (site.site_switch), on the run's settings;
-    on_site: told each new site (the regions' scans, the MQTT output's `site`)."""
+    """What takes a new site from `desk` at a step's start (site.site_switch), on the run's
+    settings; told: what is told each new site (the regions' scans, the MQTT output's
+    `site`), and the parts that outlive a site."""
+    on_site, kept = told
     hub = service.console.hub if service.console is not None else None
     return SiteSwitch(
-        service.site_desk,
+        desk,
         events,
         cfg,
-        kept=Outliving(service.tickets, service.power, onsite),
+        kept=kept,
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
         on_site=on_site,

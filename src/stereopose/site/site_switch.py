@@ -1,7 +1,13 @@
-"""A new site taken by the running service at a step's start (site.site_desk's change): the
-fences, the behaviour rules, the zones' states, the tickets' zones, the incidents' priorities
-and the console's scene all on the new site from this step, the chain of step rules built again
-(pipeline.step_rules), the people's tracks untouched (the 3D stage never sees a site).
+"""A new site taken by the running service at a step's start (site.site_desk's change).
+
+The step's site is one object (pipeline.incidents.SiteRules: the chain of step rules, the fence
+monitor, the alarm settings), built by `site_rules` from a site, at the start and at each
+change. A change builds the new site's whole, between two steps, and the incident step takes it
+in place of the old: the fences, the behaviour rules, the zones' states, the tickets' zones,
+the incidents' priorities and the console's scene all on the new site from this step, the
+people's tracks untouched (the 3D stage never sees a site). What outlives a site is declared:
+the fences' debounce state and the zones switched off (carried by the new fence monitor from
+the old: fence.rules), the open incidents (the book), and the parts in `Outliving`.
 
 Who is inside or near a zone kept as it was stays so (no event of the change's own); a person
 inside a removed zone gets an `exit` (source "site changed"), which ends its incident; a
@@ -20,20 +26,18 @@ from dataclasses import dataclass
 from stereopose.alarms.priority import AlarmSettings
 from stereopose.config import Config
 from stereopose.fence import FenceMonitor, Site
-from stereopose.fence.site import format_site
 from stereopose.onsite.service import OnSite
-from stereopose.pipeline.incidents import IncidentStep
+from stereopose.pipeline.incidents import SiteRules
 from stereopose.pipeline.loop import behaviour_monitor
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.scene import SceneState
 from stereopose.site.site_desk import SiteChange, SiteDesk
-from stereopose.site.steps import HeldRules, ServeEvents
+from stereopose.site.steps import HeldFences, HeldRules, ServeEvents
 from stereopose.tickets import TicketDesk
 from stereopose.types import Event
-from stereopose.zones import Zone
 from stereopose.zones.power_state import ZoneStates
 
-__all__ = ["Outliving", "SiteSwitch", "site_changes"]
+__all__ = ["Outliving", "SiteSwitch", "site_changes", "site_rules"]
 
 logger = logging.getLogger(__name__)
 
@@ -44,12 +48,8 @@ def site_changes(old: Site, new: Site) -> tuple[list[str], list[str], list[str]]
     after = {z.name: z for z in new.zones}
     added = [n for n in after if n not in before]
     removed = [n for n in before if n not in after]
-    changed = [n for n in after if n in before and _zone_text(after[n]) != _zone_text(before[n])]
+    changed = [n for n in after if n in before and not after[n].same_as(before[n])]
     return added, removed, changed
-
-
-def _zone_text(zone: Zone) -> str:
-    return format_site(Site((zone,), None, None))
 
 
 @dataclass
@@ -63,9 +63,38 @@ class Outliving:
     onsite: OnSite | None = None
 
 
+def site_rules(
+    site: Site | None,
+    events: ServeEvents,
+    config: Config,
+    kept: Outliving,
+    monitor: FenceMonitor | None = None,
+) -> SiteRules:
+    """The service's step rules on `site` (None: no site): the service's opening events, the
+    site's fences on the people's time (`monitor`, or a new one), the service's own events,
+    the behaviour rules, the zones' states, the tickets and the warnings on site (the kept
+    parts), and the site's alarm settings."""
+    if monitor is None and site is not None:
+        monitor = FenceMonitor(site, config.fps, config.tracking.max_lost_s)
+    behaviour = behaviour_monitor(site, config)
+    chain = step_chain(
+        HeldFences(monitor, events.time) if monitor is not None else None,
+        service=events,
+        behaviour=HeldRules(behaviour, events.time) if behaviour is not None else None,
+        zone_state=kept.zone_state,
+        monitor=monitor,
+        tickets=kept.tickets,
+        onsite=kept.onsite,
+    )
+    settings = AlarmSettings.from_site(site) if site is not None else AlarmSettings()
+    return SiteRules(chain, monitor, settings)
+
+
 class SiteSwitch:
-    """See the module. restart_power(site): the service's zone-state sources made the new
-    site's; returns its ZoneStates (None: no zone with a state source)."""
+    """See the module: `switch(rules, t, frame)` (pipeline.incidents.SiteSwitching) gives the
+    events of the step's changes and the new site's rules (None: no new site).
+    restart_power(site): the service's zone-state sources made the new site's; returns its
+    ZoneStates (None: no zone with a state source)."""
 
     def __init__(
         self,
@@ -81,26 +110,29 @@ class SiteSwitch:
         self.desk, self.events, self.config = desk, events, config
         self.kept = kept or Outliving()
         self.restart_power, self.scene = restart_power, scene
-        self.on_site = list(on_site)  # told each new site (the regions' scans)
+        self.on_site = tuple(on_site)  # told each new site (the regions' scans)
 
-    def __call__(self, step: IncidentStep, t: float, frame: int) -> list[Event]:
-        """The events of a change taken at this step (none without one)."""
+    def __call__(
+        self, rules: SiteRules, t: float, frame: int
+    ) -> tuple[list[Event], SiteRules | None]:
         notes = [_service_event(t, frame, kind, text) for kind, text in self.desk.take_notes()]
         change = self.desk.take()
+        taken = None
         if change is not None:
             try:
-                notes += self._switch(step, change, t, frame)
+                found, taken = self._switch(rules.holding, change, t, frame)
             except Exception:  # a change half-taken would leave the site unwatched: said loudly
                 logger.exception("site: version %s could not be taken", change.version)
                 raise
-        return notes + self._zones_switched(t, frame)
+            notes += found
+        fences = taken.holding if taken is not None else rules.holding
+        return notes + self._zones_switched(fences, t, frame), taken
 
-    def _zones_switched(self, t: float, frame: int) -> list[Event]:
+    def _zones_switched(self, fences: FenceMonitor | None, t: float, frame: int) -> list[Event]:
         """The zones switched off or on since the last step (SiteDesk.switch_zone): for one
         switched off, an exit for each person in it (its incident ends) and `zone_disabled`;
         for one switched on, `zone_enabled` (people in it enter after its debounce)."""
         out: list[Event] = []
-        fences = self.events.fences
         for zone, on, by in self.desk.take_switches():
             if fences is None:
                 break
@@ -113,32 +145,22 @@ class SiteSwitch:
                 out.append(dataclasses.replace(_service_event(t, frame, kind, text), zone=zone))
         return out
 
-    def _switch(self, step: IncidentStep, change: SiteChange, t: float, frame: int) -> list[Event]:
-        cfg, old_mon = self.config, self.events.fences
+    def _switch(
+        self, old_mon: FenceMonitor | None, change: SiteChange, t: float, frame: int
+    ) -> tuple[list[Event], SiteRules]:
+        cfg = self.config
         new_mon = FenceMonitor(change.new, cfg.fps, cfg.tracking.max_lost_s)
         out: list[Event] = []
         added, removed, changed = site_changes(change.old, change.new)
         if old_mon is not None:
             new_mon.carry(old_mon)
             out += _exits(old_mon, removed, t, frame)
-        self.events.fences = new_mon
         kept = self.kept
         if kept.tickets is not None:
             kept.tickets.set_zones(change.new.zones)
         if self.restart_power is not None and _power_changed(change.old, change.new):
             kept.zone_state = self.restart_power(change.new)
-        behaviour = behaviour_monitor(change.new, cfg)
-        step.chain = step_chain(
-            self.events,
-            behaviour=HeldRules(behaviour, self.events.time) if behaviour is not None else None,
-            zone_state=kept.zone_state,
-            monitor=new_mon,
-            tickets=kept.tickets,
-            onsite=kept.onsite,
-            fences=lambda: self.events.fences,
-        )
-        step.monitor = new_mon
-        step.book.settings = AlarmSettings.from_site(change.new)
+        rules = site_rules(change.new, self.events, cfg, kept, new_mon)
         if self.scene is not None:
             self.scene.set_site(change.new)
         for tell in self.on_site:  # what only follows the site: a failure does not undo it
@@ -154,7 +176,7 @@ class SiteSwitch:
         text = f"{change.by}: version {change.version}" + (f"; zones {said}" if said else "")
         logger.info("site: taken at frame %d (%s)", frame, text)
         out.append(_service_event(t, frame, "site_changed", text))
-        return out
+        return out, rules
 
 
 def _service_event(t: float, frame: int, type_: str, text: str) -> Event:

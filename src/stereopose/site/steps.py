@@ -1,21 +1,23 @@
 """The events of one service step beyond the cameras' images, and the people's time across a
 stall of the service.
 
-`ServeEvents.update(people3d)` (the incident step's first events: IncidentStep.step) returns, in
-order: on the first step the exits that close the zones a killed run left occupied
-(site.restart), the zone events (fence), the service's own events (site.health.stall:
-service_stalled / service_resumed), the camera events (site.health.watch: camera_down /
-camera_up) and the calibration events (site.health.calib_health). The service's source tells it
-each step before the people's stages run (`step`: which cameras delivered, the loop's beat) and
-the step's 2D people (`detected`).
+The service's chain of step rules (`serve_chain`, pipeline.step_rules) begins, in order, with:
+the exits that close the zones a killed run left occupied, at the first step (site.restart:
+`OpeningEvents`), the zone events (the site's fence monitor on the people's time:
+`HeldFences`), then the service's own events (`ServeEvents.update`: site.health.stall's
+service_stalled / service_resumed, site.health.watch's camera_down / camera_up, and the
+calibration's, site.health.calib_health and calib_keeper). The service's source tells
+`ServeEvents` each step before the people's stages run (`step`: which cameras delivered, the
+loop's beat) and the step's 2D people (`detected`).
 
 A step with no frames (the source's heartbeat) is *held* when the service, not its cameras, is
 late: a stall is in progress, or a camera's reader still has frames to give (`fresh`; a
 recorded file always has). A held step is no observation: the people's stages skip it
-(`HeldStage` gives the last people again, flagged predicted; `HeldRules` nothing new), so a
-slow step does not make everybody vanish. After a stall, the people's stages see the time
-without the stall's length: the people's time is its own object (site.step_clock.StepClock,
-`ServeEvents.time`), moved here at each step and read by `HeldStage` and `HeldRules`.
+(`HeldStage` gives the last people again, flagged predicted; `HeldRules` and `HeldFences`
+nothing new), so a slow step does not make everybody vanish. After a stall, the people's stages
+see the time without the stall's length: the people's time is its own object
+(site.step_clock.StepClock, `ServeEvents.time`), moved here at each step and read by the held
+stages.
 """
 
 from __future__ import annotations
@@ -57,14 +59,13 @@ class StepHooks:
 
 
 class ServeEvents:
-    """See the module. fences: None without a site; calib: None to leave the calibration
-    unwatched; hooks: see StepHooks; stall: the service's stall watch (default: on the
-    watch's timeout); keeper: the calibration keeper (site.health.calib_keeper; None: drift
-    only flagged)."""
+    """See the module. calib: None to leave the calibration unwatched; hooks: see StepHooks;
+    stall: the service's stall watch (default: on the watch's timeout); keeper: the
+    calibration keeper (site.health.calib_keeper; None: drift only flagged); opening: the
+    chain's first rule's events (OpeningEvents)."""
 
     def __init__(
         self,
-        fences: FenceMonitor | None,
         watch: CameraWatch,
         calib: CalibrationHealth | None,
         hooks: StepHooks = StepHooks(),
@@ -72,14 +73,13 @@ class ServeEvents:
         stall: StallWatch | None = None,
         keeper: CalibrationKeeper | None = None,
     ) -> None:
-        self.fences, self.watch, self.calib = fences, watch, calib
+        self.watch, self.calib = watch, calib
         self.keeper = keeper  # a drifted camera placed again
-        self.opening = hooks.opening
+        self.opening = OpeningEvents(hooks.opening)  # the first rule of the chain
         self.stall = stall or StallWatch(watch.timeout_s)
         self.fresh, self.clock, self.on_stall = hooks.fresh, hooks.clock, hooks.on_stall
         self.time = StepClock(self.stall)  # the people's time, read by HeldStage and HeldRules
         self._people2d: Mapping[str, People2D] = {}
-        self._opened = False
         self._t = 0.0
         self._delivered_t: float | None = None  # the last step with frames
         self._people_t = -math.inf  # the people's time of the last step they saw
@@ -161,15 +161,9 @@ class ServeEvents:
     # -- the events, after the 3D stage --------------------------------------------------------
 
     def update(self, people3d: People3D) -> list[Event]:
+        """The service's, the cameras' and the calibration's events of the step."""
         t, frame = self._t, int(people3d.frame)
-        events: list[Event] = []
-        if not self._opened:
-            self._opened = True
-            if self.opening is not None:
-                events += self.opening(float(people3d.t or 0.0), frame)
-        if self.fences is not None and not self.held:
-            events += self.time.restamp(self.fences.update(people3d.at(self.time.people_t(t))))
-        events += self.stall.events()
+        events = self.stall.events()
         if not self.stall.stalled:
             events += self.watch.poll(t, frame)
         if self.calib is not None and not self.held and len(people3d):
@@ -180,6 +174,37 @@ class ServeEvents:
         if self.keeper is not None and not self.held:
             events += self.keeper.update(frame, t, self._people2d, drift)
         return events
+
+
+class OpeningEvents:
+    """The events of the service's first step (`opening(t, frame)`: the exits that close the
+    zones a killed run left occupied, site.restart), none after; None: none at all."""
+
+    def __init__(self, opening: Callable[[float, int], list[Event]] | None) -> None:
+        self.opening = opening
+        self._opened = False
+
+    def update(self, people3d: People3D) -> list[Event]:
+        if self._opened:
+            return []
+        self._opened = True
+        if self.opening is None:
+            return []
+        return self.opening(float(people3d.t or 0.0), int(people3d.frame))
+
+
+class HeldFences:
+    """The site's fence monitor (fence.FenceMonitor) on the people's time `time`: a held step
+    gives no zone event; the others' events are stamped on the service's clock."""
+
+    def __init__(self, monitor: FenceMonitor, time: StepClock) -> None:
+        self.monitor, self.time = monitor, time
+
+    def update(self, people3d: People3D) -> list[Event]:
+        if self.time.held:
+            return []
+        t_people = self.time.people_t(float(people3d.t or 0.0))
+        return self.time.restamp(self.monitor.update(people3d.at(t_people)))
 
 
 class HeldStage:

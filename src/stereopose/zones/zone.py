@@ -4,7 +4,7 @@ zone is a ConfigError naming it and the value."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -95,6 +95,32 @@ class Zone:
         poly.setflags(write=False)
         object.__setattr__(self, "polygon", poly)
         object.__setattr__(self, "z", (z0, z1))
+
+    def tests_alike(self, other: Zone) -> bool:
+        """Whether `other` tests people as this zone does: the same prism, triggering joints,
+        margin and debounce (its events may differ: priority, allowed, state source)."""
+        return (
+            self.kind == other.kind
+            and self.polygon.shape == other.polygon.shape
+            and bool(np.array_equal(self.polygon, other.polygon))
+            and self.z == other.z
+            and self.joints == other.joints
+            and self.margin_m == other.margin_m
+            and (self.enter_s, self.exit_s, self.dwell_s)
+            == (other.enter_s, other.exit_s, other.dwell_s)
+        )
+
+    def same_as(self, other: Zone) -> bool:
+        """Whether every field of `other` is this zone's (a site's change of it, if not)."""
+        ours, others = vars(self), vars(other)
+        for f in fields(self):
+            mine, theirs = ours[f.name], others[f.name]
+            if isinstance(mine, np.ndarray):
+                if mine.shape != theirs.shape or not np.array_equal(mine, theirs):
+                    return False
+            elif mine != theirs:
+                return False
+        return True
 
 
 def checked_polygon(value: object, where: str) -> np.ndarray:
