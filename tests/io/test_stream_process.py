@@ -1,7 +1,8 @@
 """A live camera decoded in a process of its own, against a real stream (ffmpeg over HTTP): its
 frames come as in-process, and a decoder killed (SIGKILL, SIGSEGV) or hung (SIGSTOP) loses
 that camera alone, within a second, and it is back once its stream is, with every replaced
-decoder counted and its shared memory removed."""
+decoder counted and its shared memory removed. Hostile streams too: one that stops mid-way
+with its connection held open, one whose frames pass the decoder's memory bound."""
 
 from __future__ import annotations
 
@@ -10,12 +11,21 @@ import signal
 import time
 from pathlib import Path
 
+import psutil
 import pytest
 
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.stream import StreamWaits
 from stereopose.io.stream_process import ProcessStream
-from streams import free_port, serve, stop, wait_serving, write_video
+from streams import (
+    StallingServer,
+    free_port,
+    serve,
+    stop,
+    transport_stream,
+    wait_serving,
+    write_video,
+)
 from waiting import wait_until
 
 pytestmark = pytest.mark.slow
@@ -102,3 +112,63 @@ def test_a_decoder_that_dies_or_hangs_loses_its_camera_alone(video, sig) -> None
 def test_a_stream_kept_encoded_stays_in_process() -> None:
     with pytest.raises(ValueError, match="in-process"):
         ProcessStream("http://127.0.0.1:9/x.ts", "cam", StreamWaits(), packets=object())
+
+
+def test_a_stream_that_stops_mid_way_loses_its_camera_alone(video, tmp_path) -> None:
+    """A hostile camera: a few good frames, then the connection held open with nothing more.
+    Its camera is lost (FFmpeg's read timeout in the decoder, or the service's hung watch),
+    the other camera goes on, and it is back once a good stream is served there."""
+    head = transport_stream(video, tmp_path / "head.ts")
+    good_port = free_port()
+    servers = [serve(video, good_port, "cam1")]
+    stalling = StallingServer(head)
+    port = stalling.port
+    try:
+        wait_serving(servers, [good_port])
+        urls = [stalling.url("cam0"), f"http://127.0.0.1:{good_port}/cam1.ts"]
+        with CameraSet(urls, ["cam0", "cam1"], open_timeout_s=1.0, decoders="process") as cams:
+            bad, good = cams.sources
+            wait_until(lambda: bad.connected, "the hostile camera's first frames", timeout_s=15)
+            wait_until(lambda: not bad.connected, "the camera lost", timeout_s=2 * 1.0 + 3.0)
+            for _ in range(5):  # the other camera goes on meanwhile
+                _frame(good, timeout_s=2.0)
+            assert good.connected and good.decoder_restarts == {}
+            stalling.close()
+            servers.append(serve(video, port, "cam0"))
+            wait_serving([servers[-1]], [port])
+            wait_until(lambda: bad.connected, "the camera back", timeout_s=15)
+            _frame(bad)
+    finally:
+        stalling.close()
+        stop(servers)
+
+
+def test_a_stream_too_large_for_its_decoder_s_memory_loses_its_camera_alone(tmp_path) -> None:
+    """A camera whose frames make its decoder pass its memory bound (here 4K frames, against
+    a bound set just above a small stream's decoder): killed and started again, counted and
+    said why; the service's own memory is not the one that grows."""
+    small = write_video(tmp_path / "small.mp4", 50, 25.0, size=(160, 120))
+    large = write_video(tmp_path / "large.mp4", 10, 25.0, size=(3840, 2160))
+    ports = [free_port(), free_port()]
+    servers = [serve(large, ports[0], "big"), serve(small, ports[1], "small")]
+    try:
+        wait_serving(servers, ports)
+        fine = ProcessStream(f"http://127.0.0.1:{ports[1]}/small.ts", "small")
+        try:
+            _frame(fine)
+            base = psutil.Process(fine.decoder_pid).memory_info().rss / 1e6
+            big = ProcessStream(f"http://127.0.0.1:{ports[0]}/big.ts", "big", max_mb=base + 40.0)
+            try:
+                wait_until(
+                    lambda: big.decoder_restarts.get("decoder over its memory", 0) >= 1,
+                    "the 4K decoder replaced for its memory",
+                    timeout_s=30,
+                )
+                assert fine.connected and fine.decoder_restarts == {}
+                _frame(fine, timeout_s=2.0)  # the small camera goes on
+            finally:
+                big.close()
+        finally:
+            fine.close()
+    finally:
+        stop(servers)
