@@ -1,8 +1,11 @@
 """Fuzzed live streams: `serve` on the real demo's 4 cameras, 2 of them fed corrupt H.264 and
 H.265, for `--seconds` (600 by default).
 
-The 4 demo videos, shrunk once to 272x480 (the calibration scaled to match), are served live
-over HTTP as MPEG-TS by real ffmpeg (imageio-ffmpeg), in real time with stream copy:
+The 4 demo videos, shrunk once to 272x480 (the calibration scaled to match), are served live by
+real ffmpeg (imageio-ffmpeg), in real time with stream copy, either over HTTP as MPEG-TS
+(`--transport http`, ffmpeg serving each camera itself) or over RTSP (`--transport rtsp`:
+each camera's ffmpeg pushes RTP to an RTSP server, Debian's `rtsp-server-perl`, which `serve`
+reads from as from an IP camera, its RTP over UDP):
 - cam01 and cam02: H.264, looped, good;
 - cam03 (H.264) and cam04 (H.265): each served as a run of spoilt copies of its stream, one
   after another, each played once: bits flipped at random (1 in 2,000 to 1 in 200,000 bytes,
@@ -17,9 +20,9 @@ and the resident memory of the service and of its decoders. At the end: each cam
 (`service_stalled`), the decoders restarted and why (its log), tracebacks, memory from the
 second minute to the last, and serve's exit on SIGTERM.
 
-    python benchmarks/fuzzed_streams.py [--seconds 600]
+    python benchmarks/fuzzed_streams.py [--seconds 600] [--transport rtsp]
 
-Results in results/fuzzed_streams.{json,md}.
+Results in results/fuzzed_streams.{json,md} (--name: another file).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import datetime
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -82,45 +86,104 @@ def spoil(good: bytes, k: int, rng: random.Random) -> tuple[bytes, str]:
     return data.tobytes(), f"{n} bits flipped"
 
 
-def _server(source: Path, port: int, name: str, loop: bool) -> subprocess.Popen:
+def _server(source: Path, url: str, loop: bool) -> subprocess.Popen:
+    """ffmpeg playing `source` in real time to `url`: served there itself (http://, one
+    client), or pushed to an RTSP server's mount (rtsp://)."""
     cmd = [ffmpeg(), "-loglevel", "quiet", "-re"]
     cmd += ["-stream_loop", "-1"] if loop else []
-    cmd += ["-i", str(source), "-an", "-c", "copy", "-f", "mpegts", "-listen", "1"]
-    return subprocess.Popen(
-        [*cmd, f"http://127.0.0.1:{port}/{name}.ts"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    cmd += ["-i", str(source), "-an", "-c", "copy"]
+    if url.startswith("rtsp://"):
+        cmd += ["-f", "rtsp", "-rtsp_transport", "udp"]
+    else:
+        cmd += ["-f", "mpegts", "-listen", "1"]
+    return subprocess.Popen([*cmd, url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+class RtspServer:
+    """Debian's rtsp-server-perl on local ports: sources push to `push_url(name)` (ANNOUNCE,
+    RECORD), clients read `url(name)` (PLAY, RTP over UDP)."""
+
+    def __init__(self) -> None:
+        exe = shutil.which("rtsp-server-perl")
+        if exe is None:
+            sys.exit(
+                "--transport rtsp needs Debian's rtsp-server-perl: apt-get install rtsp-server-perl"
+            )
+        self.client_port, self.source_port = free_port(), free_port()
+        cmd = [exe, "--clientport", str(self.client_port), "--serverport", str(self.source_port)]
+        cmd += ["--client_listen_address", "127.0.0.1", "--source_listen_address", "127.0.0.1"]
+        cmd += ["--rtp_start_port", str(random.Random().randrange(20_000, 40_000, 2))]
+        self.proc = subprocess.Popen(
+            [*cmd, "--loglevel", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        deadline = time.monotonic() + 10
+        while not _listening(self.source_port):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                sys.exit("rtsp-server-perl did not start")
+            time.sleep(0.1)
+
+    def url(self, name: str) -> str:
+        return f"rtsp://127.0.0.1:{self.client_port}/{name}"
+
+    def push_url(self, name: str) -> str:
+        return f"rtsp://127.0.0.1:{self.source_port}/{name}"
+
+    def close(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def _listening(port: int) -> bool:
+    import socket
+
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 class Streams:
     """The 4 cameras' ffmpeg servers, each started again when it ends: a good camera's on its
     looped stream, a fuzzed camera's on its next spoilt copy (counted, with what was done)."""
 
-    def __init__(self, good: dict[str, Path], fuzzed: dict[str, Path], work: Path) -> None:
+    def __init__(
+        self,
+        good: dict[str, Path],
+        fuzzed: dict[str, Path],
+        work: Path,
+        rtsp: RtspServer | None = None,
+    ) -> None:
         self.ports = {n: free_port() for n in [*good, *fuzzed]}
-        self.good, self.fuzzed, self.work = good, fuzzed, work
+        self.good, self.fuzzed, self.work, self.rtsp = good, fuzzed, work, rtsp
         self.served: dict[str, list[str]] = {n: [] for n in fuzzed}
         self.restarted: dict[str, int] = dict.fromkeys(good, 0)
         self.rng = random.Random(0)
         self._procs: dict[str, subprocess.Popen] = {}
         self._ended: dict[str, float] = {}  # a fuzzed camera's: when its copy's server ended
+        self.held: dict[str, float] = {}  # a good camera's server not started again before
+        self.started_at: dict[str, float] = {}  # each camera's server: when last started
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._keep, daemon=True)
 
     def url(self, name: str) -> str:
+        """Where serve reads the camera."""
+        if self.rtsp is not None:
+            return self.rtsp.url(name)
         return f"http://127.0.0.1:{self.ports[name]}/{name}.ts"
 
+    def _to(self, name: str) -> str:
+        """Where the camera's ffmpeg plays to."""
+        return self.rtsp.push_url(name) if self.rtsp is not None else self.url(name)
+
     def _start(self, name: str) -> None:
+        self.started_at[name] = time.monotonic()
         if name in self.good:
-            self._procs[name] = _server(self.good[name], self.ports[name], name, loop=True)
+            self._procs[name] = _server(self.good[name], self._to(name), loop=True)
             return
         k = len(self.served[name])
         data, what = spoil(self.fuzzed[name].read_bytes(), k, self.rng)
         path = self.work / f"{name}_spoilt.ts"
         path.write_bytes(data)  # the previous copy's server has ended: it no longer reads it
         self.served[name].append(what)
-        self._procs[name] = _server(path, self.ports[name], name, loop=False)
+        self._procs[name] = _server(path, self._to(name), loop=False)
 
     def start(self) -> None:
         for name in self.ports:
@@ -134,6 +197,8 @@ class Streams:
                 if proc.poll() is None:
                     continue
                 if name in self.restarted:
+                    if now < self.held.get(name, 0.0):
+                        continue  # kept away a while (benchmarks/decoder_faults.py)
                     self.restarted[name] += 1
                 elif now < self._ended.setdefault(name, now) + GAP_S:
                     continue  # a fuzzed camera's stream stays away a while
@@ -177,7 +242,7 @@ def _events(db: Path) -> list[tuple[str, str | None]]:
         return []
 
 
-def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
+def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str = "http") -> dict:
     videos = demo_videos()
     subs = {v.stem: substream(v, work / f"{v.stem}_sub.mp4") for v in videos}
     good = {n: p for n, p in subs.items() if n not in FUZZED}
@@ -187,7 +252,8 @@ def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
         calib, _scaled_rig(videos[0].parents[1] / "calibration" / "Calib.qca.txt", SUB_SIZE)
     )
     site = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
-    streams = Streams(good, fuzzed, work)
+    rtsp = RtspServer() if transport == "rtsp" else None
+    streams = Streams(good, fuzzed, work, rtsp)
     out = work / "data"
     cameras = "".join(
         f'[[cameras]]\nname = "{n}"\nsource = "{streams.url(n)}"\n\n' for n in sorted(subs)
@@ -208,7 +274,7 @@ def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
             [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
             stdout=f,
             stderr=subprocess.STDOUT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **_capture_options(transport)),
         )
     ps = psutil.Process(proc.pid)
     t0 = time.monotonic()
@@ -231,6 +297,8 @@ def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
         if proc.poll() is None:
             proc.kill()
         streams.stop()
+        if rtsp is not None:
+            rtsp.close()
     text = log.read_text(errors="replace")
     if keep_log is not None:
         keep_log.write_text(text)
@@ -247,6 +315,7 @@ def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
     end = samples[-1][0] if samples else 0.0
     steps = samples[-1][1] if samples else 0
     return {
+        "transport": transport,
         "seconds": end,
         "up_to_the_end": up,
         "exit_code": code,
@@ -271,6 +340,12 @@ def run(seconds: float, work: Path, keep_log: Path | None = None) -> dict:
     }
 
 
+def _capture_options(transport: str) -> dict[str, str]:
+    """The environment that has OpenCV's FFmpeg take RTSP's RTP over UDP (its default is
+    TCP, which this RTSP server does not offer)."""
+    return {"OPENCV_FFMPEG_CAPTURE_OPTIONS": "rtsp_transport;udp"} if transport == "rtsp" else {}
+
+
 def markdown(r: dict) -> list[str]:
     x = r["run"]
     rss = x["rss_mb"]
@@ -279,7 +354,7 @@ def markdown(r: dict) -> list[str]:
         "",
         f"{r['date']}, {r['machine'].replace('one thread', 'all cores')}. `{r['command']}`: "
         f"`serve` (its defaults: each camera decoded in a process of its own) on the real "
-        f"demo's 4 cameras at {SUB_SIZE[0]}x{SUB_SIZE[1]}, served live over HTTP (MPEG-TS) by "
+        f"demo's 4 cameras at {SUB_SIZE[0]}x{SUB_SIZE[1]}, served live {_how(x)} by "
         f"ffmpeg; cam01 and cam02 good (H.264, looped), cam03 (H.264) and cam04 (H.265) "
         f"each a run of spoilt {COPY_S:.0f}-second copies of its stream (bits flipped at 1 in "
         "2,000, 20,000 or 200,000 bytes, or every 4th copy cut short at a random byte), "
@@ -310,16 +385,26 @@ def markdown(r: dict) -> list[str]:
     return md
 
 
+def _how(x: dict) -> str:
+    if x.get("transport", "http") == "rtsp":
+        return (
+            "over RTSP (each camera's ffmpeg pushing RTP to Debian's rtsp-server-perl; serve "
+            "reading RTP over UDP)"
+        )
+    return "over HTTP (MPEG-TS)"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--name", default="fuzzed_streams", help="the results' file name")
     ap.add_argument("--log", type=Path, help="keep serve's log here")
+    ap.add_argument("--transport", choices=("http", "rtsp"), default="http")
     args = ap.parse_args()
     if len(demo_videos()) != 4:
         sys.exit("the demo videos are not in the cache: run `stereopose demo` once")
     with tempfile.TemporaryDirectory() as tmp:
-        result = run(args.seconds, Path(tmp), args.log)
+        result = run(args.seconds, Path(tmp), args.log, args.transport)
     r = {
         "date": datetime.date.today().isoformat(),
         "machine": machine(),
