@@ -6,9 +6,9 @@ A general interrogation when the link opens and every `interrogation_s` after, s
 changes as they come, reconnection by itself when the link drops (c104's, every few seconds); a
 link whose start-up c104 missed (left muted, or awaiting its opening, over a period) is unmuted
 or reconnected (figures `iec104_unmuted`, `iec104_reconnected`). A lost link makes its points
-unknown at once; a point with invalid quality (or a double point indeterminate) is unknown.
-Points are M_SP_TB_1 / M_DP_TB_1 (`time_tag = false`: M_SP_NA_1 / M_DP_NA_1), as the RTU sends
-them.
+unknown at once; a point with invalid quality (or a double point indeterminate) is unknown
+(scada.iec104_board, shared with the TLS master). Points are M_SP_TB_1 / M_DP_TB_1
+(`time_tag = false`: M_SP_NA_1 / M_DP_NA_1), as the RTU sends them.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from collections.abc import MutableMapping
 from typing import Any
 
 from stereopose.errors import ConfigError
+from stereopose.scada.iec104_board import RtuPoints
 from stereopose.scada.iec104_settings import typed_callback
 from stereopose.zones.power import Iec104Point
 from stereopose.zones.power_state import PowerBoard
@@ -41,11 +42,10 @@ class Iec104Master:
     ) -> None:
         import c104
 
-        self.c104, self.board, self.figures = c104, board, figures
+        self.c104, self.figures = c104, figures
         self.host, self.port = host, int(port)
-        self.points = points
-        self.keys = [p.label for p in points]
-        self.interrogation_s = min(p.interrogation_s for p in points)
+        self.rtu = RtuPoints(host, self.port, points, board, figures)
+        self.interrogation_s = self.rtu.interrogation_s
         self.client = c104.Client(tick_rate_ms=50, command_timeout_ms=5000)
         self.connection = self.client.add_connection(
             ip=host, port=self.port, init=c104.Init.INTERROGATION
@@ -68,7 +68,6 @@ class Iec104Master:
             ret=c104.ResponseState,
         )
         self.stations: dict[int, Any] = {}
-        self._by_point: dict[tuple[int, int], Iec104Point] = {}
         for p in points:
             ca = p.common_address
             station = self.stations.get(ca) or self.connection.add_station(common_address=ca)
@@ -81,7 +80,6 @@ class Iec104Master:
             }[(p.double, p.time_tag)]
             point = station.add_point(io_address=p.ioa, type=kind)
             point.on_receive(callable=on_receive)
-            self._by_point[(ca, p.ioa)] = p
         self._open = False
         self._stop = threading.Event()
         self._thread = threading.Thread(
@@ -151,32 +149,20 @@ class Iec104Master:
         if not self._open:  # not yet open (connecting): its points have no value yet anyway
             return
         self._open = False
-        self.figures["iec104_link_lost"] += 1
-        self.board.lost(self.keys, f"IEC 104 link to {self.host}:{self.port} lost")
+        self.rtu.lost()
 
     def _on_receive(self, point, previous_info, message):  # c104's thread
         c104 = self.c104
         try:
-            p = self._by_point.get((point.station.common_address, point.io_address))
-            if p is None:
-                self.figures["iec104_refused"] += 1
-                return c104.ResponseState.NONE
+            ca, ioa = point.station.common_address, point.io_address
             value = point.value
             good = bool(point.quality.is_good())
             if isinstance(value, c104.Double):
-                text = {
-                    c104.Double.OFF: "open",
-                    c104.Double.ON: "closed",
-                    c104.Double.INTERMEDIATE: "intermediate",
-                }.get(value)
-                if text is None:
-                    self.board.set(p.label, None, False, "double point indeterminate")
-                else:
-                    self.board.set(p.label, text, good)
+                dpi = {c104.Double.OFF: 1, c104.Double.ON: 2, c104.Double.INTERMEDIATE: 0}
+                self.rtu.double(ca, ioa, dpi.get(value, 3), good)
             else:
-                self.board.set(p.label, "on" if bool(value) else "off", good)
-            self.figures["iec104_received"] += 1
+                self.rtu.single(ca, ioa, bool(value), good)
         except Exception as e:  # a message this master cannot read: counted, never raised
-            self.figures["iec104_refused"] += 1
+            self.rtu.refused()
             logger.debug("IEC 104 %s:%d: a message not read: %s", self.host, self.port, e)
         return c104.ResponseState.NONE

@@ -8,7 +8,8 @@ master, over Python's ssl: STARTDT, a general interrogation when the link opens 
 `interrogation_s` after, spontaneous changes as they come, acknowledgements (S frames) every
 ACK_EVERY I frames, TESTFR when the link is quiet, and a reconnection (1 s, up to 10 s apart)
 when it drops or a handshake fails. A lost link makes its points unknown at once; a point with
-a quality flag set (or a double point indeterminate) is unknown. It reads M_SP_NA_1,
+a quality flag set (or a double point indeterminate) is unknown (scada.iec104_board, shared with
+c104's master). It reads M_SP_NA_1,
 M_DP_NA_1, M_SP_TB_1 and M_DP_TB_1; anything else the RTU sends is skipped.
 """
 
@@ -25,6 +26,7 @@ from collections.abc import MutableMapping
 from pathlib import Path
 
 from stereopose.errors import ConfigError
+from stereopose.scada.iec104_board import RtuPoints
 from stereopose.zones.power import Iec104Point
 from stereopose.zones.power_state import PowerBoard
 
@@ -38,7 +40,6 @@ ACK_EVERY = 8  # I frames received before an S frame (IEC 104's w)
 QUIET_S = 20.0  # a link silent this long is sent TESTFR (t3)
 TIMEOUT_S = 15.0  # no answer within this (t1): the link is dropped
 ELEMENT = {1: 1, 3: 1, 30: 8, 31: 8}  # type id -> bytes of one element (after its IOA)
-DOUBLE = {0: "intermediate", 1: "open", 2: "closed"}  # DPI (3: indeterminate)
 
 
 def tls_context(ca: Path, certificate: Path, key: Path, where: str) -> ssl.SSLContext:
@@ -69,12 +70,10 @@ class Iec104TlsMaster:
         figures: MutableMapping[str, int],
         context: ssl.SSLContext,
     ) -> None:
-        self.host, self.port, self.board, self.figures = host, int(port), board, figures
+        self.host, self.port, self.figures = host, int(port), figures
         self.context = context
-        self.keys = [p.label for p in points]
-        self.interrogation_s = min(p.interrogation_s for p in points)
-        self._by_point = {(p.common_address, p.ioa): p for p in points}
-        self.stations = sorted({p.common_address for p in points})
+        self.rtu = RtuPoints(host, self.port, points, board, figures)
+        self.interrogation_s, self.stations = self.rtu.interrogation_s, self.rtu.stations
         self._stop = threading.Event()
         self._sock: ssl.SSLSocket | None = None
         self._thread = threading.Thread(target=self._run, name=f"iec104-tls-{host}", daemon=True)
@@ -113,8 +112,7 @@ class Iec104TlsMaster:
             finally:
                 if self.connected:
                     self.connected = False
-                    self.figures["iec104_link_lost"] += 1
-                    self.board.lost(self.keys, f"IEC 104 link to {self.host}:{self.port} lost")
+                    self.rtu.lost()
             self._stop.wait(wait)
             wait = min(2 * wait, 10.0)
 
@@ -204,7 +202,7 @@ class Iec104TlsMaster:
     def _asdu(self, asdu: bytes) -> None:
         """The points of one ASDU onto the board (unknown points and bad ones counted)."""
         if len(asdu) < 6:
-            self.figures["iec104_refused"] += 1
+            self.rtu.refused()
             return
         type_id, vsq = asdu[0], asdu[1]
         size = ELEMENT.get(type_id)
@@ -221,23 +219,14 @@ class Iec104TlsMaster:
             elif sequence:
                 ioa += 1
             if at + size > len(asdu):
-                self.figures["iec104_refused"] += 1
+                self.rtu.refused()
                 return
             self._point(type_id, ca, ioa, asdu[at])
             at += size
 
     def _point(self, type_id: int, ca: int, ioa: int, q: int) -> None:
-        p = self._by_point.get((ca, ioa))
-        if p is None:
-            self.figures["iec104_refused"] += 1
-            return
         good = q & 0xF0 == 0  # no IV, NT, SB or BL flag
         if type_id in (3, 31):
-            text = DOUBLE.get(q & 0x03)
-            if text is None:
-                self.board.set(p.label, None, False, "double point indeterminate")
-            else:
-                self.board.set(p.label, text, good)
+            self.rtu.double(ca, ioa, q & 0x03, good)
         else:
-            self.board.set(p.label, "on" if q & 0x01 else "off", good)
-        self.figures["iec104_received"] += 1
+            self.rtu.single(ca, ioa, bool(q & 0x01), good)
