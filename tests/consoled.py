@@ -16,12 +16,12 @@ from stereopose.pipeline.demo import write_serve_demo_config
 from stereopose.site.eventlog import EventLog
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.server import Server, ServeSettings
 from stereopose.site.http.web import Console
 from stereopose.site.live import LiveHub
 from stereopose.site.plan import plan_serve
-from stereopose.site.users import UserStore
 from stereopose.types import Event
+from stereopose.web.server import Server, ServeSettings
+from stereopose.web.users import UserStore
 
 PASSWORDS = {"vera": "viewer-pass-1", "otto": "operator-pass-1", "ada": "admin-pass-1"}
 ROLES = {"vera": "viewer", "otto": "operator", "ada": "admin"}

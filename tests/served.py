@@ -16,8 +16,8 @@ import numpy as np
 from stereopose.io.sinks import FrameResult
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.server import Server, ServeSettings
 from stereopose.types import Event, People3D
+from stereopose.web.server import Server, ServeSettings
 
 
 class Clock:

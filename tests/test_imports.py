@@ -258,7 +258,7 @@ def test_upward_imports_are_found(tmp_path: Path) -> None:
 
 # Among the top packages, each imports only those before it here: the frame loop is shared by
 # the commands and the site service, the nodes feed the site service, the control room reuses
-# its HTTP layer, and the commands are above everything they run.
+# the site's wire format and console files, and the commands are above everything they run.
 TOP_ORDER = ("pipeline", "nodes", "site", "controlroom", "cli")
 
 
@@ -276,6 +276,24 @@ def test_the_top_packages_import_down_their_order() -> None:
             if a is not None and b is not None and b > a:
                 upward.append(f"{m} -> {t}")
     assert not upward, "\n".join(upward)
+
+
+def test_the_http_kit_knows_no_site_and_no_control_room() -> None:
+    """stereopose.web (the server, hosts, limits, error answers, users, sessions, logins) is
+    shared by the site and the control room: it imports neither, nor anything above them."""
+    graph = import_graph()
+    above = [f"{PACKAGE}.{t}" for t in TOP]
+    found = [
+        f"{m} -> {t}"
+        for m in sorted(graph)
+        if _within(m, f"{PACKAGE}.web")
+        for t in sorted(graph[m])
+        if any(_within(t, a) for a in above)
+    ]
+    assert not found, "\n".join(found)
+    uses = {m for m in graph if any(_within(t, f"{PACKAGE}.web") for t in graph[m])}
+    assert any(_within(m, f"{PACKAGE}.site") for m in uses)
+    assert any(_within(m, f"{PACKAGE}.controlroom") for m in uses)
 
 
 # -- the layers' rules -------------------------------------------------------------------------

@@ -49,18 +49,19 @@ SERVE_MODULES = (
 )
 
 
-def _site_modules() -> tuple[str, ...]:
-    """Every module of stereopose.site (the site service, its HTTP layer and health), read
-    from the tree, whatever is added to it later."""
+def _modules_of(package: str, at_least: int) -> tuple[str, ...]:
+    """Every module of stereopose.<package>, read from the tree, whatever is added to it
+    later."""
     names = []
-    for path in sorted((SRC / "stereopose" / "site").rglob("*.py")):
+    for path in sorted((SRC / "stereopose" / package).rglob("*.py")):
         parts = path.relative_to(SRC).with_suffix("").parts
         names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
-    assert len(names) > 20, "stereopose.site: too few modules found (the package moved?)"
+    assert len(names) >= at_least, f"stereopose.{package}: too few modules found (moved?)"
     return tuple(names)
 
 
-MODULES = SERVE_MODULES + _site_modules()
+# the site service (its HTTP layer and health), and the HTTP kit it is served with
+MODULES = SERVE_MODULES + _modules_of("site", 20) + _modules_of("web", 8)
 
 # Prepended to the child's code: the packages named in argv[1] are unimportable there, as in a
 # runtime install.

@@ -81,6 +81,7 @@ def test_a_decoder_that_dies_or_hangs_loses_its_camera_alone(video, sig) -> None
             bad, good = cams.sources
             _frame(bad)
             _frame(good)
+            assert not cams.lost("cam0")  # opened and delivering: not lost
             pid = bad.decoder_pid
             os.kill(pid, sig)
             killed = time.monotonic()
@@ -89,6 +90,7 @@ def test_a_decoder_that_dies_or_hangs_loses_its_camera_alone(video, sig) -> None
             wait_until(lambda: not bad.connected, "the camera lost", timeout_s=limit + 1)
             assert time.monotonic() - killed <= limit + 0.5
             assert good.connected
+            assert bad.lost and cams.lost("cam0") and not cams.lost("cam1")  # known lost
             for _ in range(5):  # the other camera goes on meanwhile
                 _frame(good, timeout_s=2.0)
             # the server serves one client: started again, the stream is good again
@@ -97,7 +99,7 @@ def test_a_decoder_that_dies_or_hangs_loses_its_camera_alone(video, sig) -> None
             wait_serving([servers[0]], [ports[0]])
             good_again = time.monotonic()
             wait_until(lambda: bad.connected, "the camera back", timeout_s=15)
-            assert bad.decoder_pid != pid
+            assert bad.decoder_pid != pid and not cams.lost("cam0")
             _frame(bad)
             back_s = time.monotonic() - good_again
             why = "decoder hung" if sig == signal.SIGSTOP else "decoder died"

@@ -46,8 +46,8 @@ from stereopose.scada.opcua_settings import (  # noqa: E402
     application_certificate,
     opcua_settings,
 )
-from stereopose.site.users import UserStore  # noqa: E402
 from stereopose.types import Event, People3D  # noqa: E402
+from stereopose.web.users import UserStore  # noqa: E402
 
 PASSWORDS = {"vera": "viewer-pass-1", "otto": "operator-pass-1", "ada": "admin-pass-1"}
 ROLES = {"vera": "viewer", "otto": "operator", "ada": "admin"}

@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from consoled import fast_hasher
-from stereopose.site.users import UserError, UserStore
+from stereopose.web.users import UserError, UserStore
 
 
 @pytest.fixture
@@ -143,7 +143,7 @@ def test_the_users_command_refuses_weak_passwords_clearly(tmp_path):
 
 
 def test_the_policy_length_common_list_and_variety():
-    from stereopose.site.users import MIN_PASSWORD, check_password, common_passwords
+    from stereopose.web.users import MIN_PASSWORD, check_password, common_passwords
 
     assert MIN_PASSWORD == 12 and len(common_passwords()) > 5000
     assert {"password", "123456", "qwertyuiopas", "1qaz2wsx3edc"} <= common_passwords()

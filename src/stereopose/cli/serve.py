@@ -47,7 +47,7 @@ def _plan(path: Path, port: int | None):
 
 def _console_line(url: str, config: Path, out_dir: Path) -> str:
     """Where the operator console is, and how to add its first user when it has none."""
-    from stereopose.site.users import UserStore
+    from stereopose.web.users import UserStore
 
     line = f"operator console: {url}/"
     try:

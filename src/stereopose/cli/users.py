@@ -1,6 +1,6 @@
 """`stereopose users add|list|remove|passwd`: the operator console's users of a service.
 
-The users live in the service's output folder (`<output>/users.json`, see site.users),
+The users live in the service's output folder (`<output>/users.json`, see web.users),
 named by its configuration (`--config CONFIG.toml`). A password is read from standard input:
 asked twice without echo on a terminal, one line from a pipe. A running service sees the
 change at its next request; a removed user's or a changed password's sessions end.
@@ -45,7 +45,7 @@ def read_password(prompt: str = "password") -> str:
 
 
 def _users(args: argparse.Namespace) -> int:
-    from stereopose.site.users import UserStore, check_name, check_password
+    from stereopose.web.users import UserStore, check_name, check_password
 
     store = UserStore(users_file(args.config))
     action = args.action

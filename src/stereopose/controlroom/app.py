@@ -4,7 +4,7 @@
   degraded while the broker or the store is out, or the ingest is down or stores nothing of
   the events that come (`ingest.running`, `ingest.trouble`);
 - `GET /metrics` (open): `stereopose_controlroom_*` in Prometheus' text format;
-- `POST /api/login`, `POST /api/logout`, `GET /api/me`: the site console's (site.http.api.auth),
+- `POST /api/login`, `POST /api/logout`, `GET /api/me`: the site console's (stereopose.web.login),
   over the control room's own `users.json` (`stereopose users add ... --config CONTROL.toml`);
 - `GET /api/sites` (viewer): `{"sites": [{"site", "state", "last_seen", "cameras",
   "cameras_up", "people", "open_incidents", "events", "mark"}]}`;
@@ -30,7 +30,7 @@ A user limited to some sites (`stereopose users add NAME --sites A,B`) sees and 
 only: every list is filtered, and another site's page or incident is 404.
 
 Every answer is JSON; bodies, headers and connections are bounded, and Host names checked, as
-the site service's are (site.http.limits, site.http.hosts, site.http.connections).
+the site service's are (web.limits, web.hosts, web.connections).
 """
 
 from __future__ import annotations
@@ -49,12 +49,12 @@ from stereopose import __version__
 from stereopose.controlroom import page
 from stereopose.controlroom.store import MAX_LIMIT, StoreError
 from stereopose.site.health.metrics import CONTENT_TYPE, exposition
-from stereopose.site.http import error_answers
-from stereopose.site.http.api import auth
-from stereopose.site.http.app import internal_error
-from stereopose.site.http.auth import Operator, Viewer
-from stereopose.site.http.hosts import HostCheck
-from stereopose.site.http.limits import MAX_BODY_BYTES, RequestLimits
+from stereopose.web import error_answers
+from stereopose.web import login as auth
+from stereopose.web.auth import Operator, Viewer
+from stereopose.web.error_answers import internal_error
+from stereopose.web.hosts import HostCheck
+from stereopose.web.limits import MAX_BODY_BYTES, RequestLimits
 
 __all__ = ["create_control_app"]
 
@@ -324,8 +324,8 @@ class _Collector:
 def create_control_app(
     room, *, allowed_hosts: Iterable[str] | None = None, max_body_bytes: int = MAX_BODY_BYTES
 ) -> FastAPI:
-    """The app over `room` (its `store`, `ingest` and `console`: site.http.web.Console for the
-    login)."""
+    """The app over `room` (its `store`, `ingest` and `console`: web.auth.Logins, who may log
+    in)."""
     app = FastAPI(
         title="stereopose control room",
         version=__version__,

@@ -10,7 +10,8 @@ from pathlib import Path
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse, Response
 
-from stereopose.site.http.api.page import CONSOLE_DIR, CONSOLE_URL, PAGE_HEADERS, ConsoleFiles
+from stereopose.site.http.api.page import CONSOLE_DIR, CONSOLE_URL
+from stereopose.web.pages import PAGE_HEADERS, ConsoleFiles
 
 __all__ = ["ROOM_DIR", "mount_page"]
 

@@ -47,7 +47,7 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
         section_settings,
         tls_files,
     )
-    from stereopose.site.http.server import ServeSettings
+    from stereopose.web.server import ServeSettings
 
     path = Path(config_path)
     if not path.is_file():
@@ -118,17 +118,16 @@ class ControlRoom:
     def __init__(self, plan: ControlPlan) -> None:
         from stereopose.controlroom.app import create_control_app
         from stereopose.io.writing import make_folder
-        from stereopose.site.http.auth import Sessions
-        from stereopose.site.http.hosts import allowed_hosts
-        from stereopose.site.http.server import Server
-        from stereopose.site.http.web import Console
-        from stereopose.site.users import UserStore
+        from stereopose.web.auth import Logins, Sessions
+        from stereopose.web.hosts import allowed_hosts
+        from stereopose.web.server import Server
+        from stereopose.web.users import UserStore
 
         self.plan = plan
         make_folder(plan.out_dir)
         self.store = ControlStore(plan.database)
         users = UserStore.in_folder(plan.out_dir)
-        self.console = Console(users=users, sessions=Sessions(users))
+        self.console = Logins(users, Sessions(users))
         hosts = allowed_hosts(plan.http.host, plan.config.serve.allowed_hosts)
         app = create_control_app(self, allowed_hosts=hosts)
         hint = f"stereopose users add NAME --role admin --config {plan.config_path}"

@@ -410,6 +410,13 @@ class CameraSet:
             return last is not None and time.monotonic() - last < within_s
         return False
 
+    def lost(self, name: str) -> bool:
+        """Whether camera `name` is known lost now: one of its live streams (the full one, or
+        the substream it is detected on) delivered, then was lost, and is not back."""
+        return any(
+            s.name == name and isinstance(s, LiveStream) and s.lost for s in self.all_sources
+        )
+
     def detect_stats(self) -> dict[str, SourceStats]:
         return {name: s.stats for name, s in self.detect_sources.items()}
 

@@ -9,4 +9,4 @@ EVENTS_DB = "events.sqlite"  # the event log (site.eventlog; docs/formats.md)
 CLIPS_DIR = "clips"  # event clips (io.sinks.clips)
 POSES_DIR = "poses"  # serve's 3D pose segments (io.sinks.segments)
 STATUS = "status.json"  # serve's health snapshot
-USERS_FILE = "users.json"  # the console's accounts (site.users)
+USERS_FILE = "users.json"  # the console's accounts (web.users)

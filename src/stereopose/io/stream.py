@@ -270,6 +270,12 @@ class LiveStream:
             delay,
         )
 
+    @property
+    def lost(self) -> bool:
+        """Whether the stream is known lost: it delivered, then ended or fell silent (or its
+        decoder died), and it is not back yet. (Not yet opened is not lost.)"""
+        return self._down_since is not None
+
     def _went_up(self, now: float) -> None:
         if self._down_since is not None:
             self.stats.down_s += now - self._down_since

@@ -81,7 +81,7 @@ _ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
 
 class OpcuaServer(ClosesOnce):
     """See the module. zones, cameras: what the address space shows; users: the console's
-    users (site.users.UserStore: verify(name, password) and get(name) give a user with
+    users (web.users.UserStore: verify(name, password) and get(name) give a user with
     name, role and stamp); status(): the service's health status (ok / degraded / down),
     polled; limiter: the console's login limiter (stereopose.login_limit), so that guesses here
     and there count together (None: one of its own)."""

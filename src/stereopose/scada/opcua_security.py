@@ -1,6 +1,6 @@
 """Who may do what on serve's OPC UA server: logins, permissions, the caller of a method.
 
-Clients log in as the console's users (site.users: the same names, passwords and argon2
+Clients log in as the console's users (web.users: the same names, passwords and argon2
 hashes); anonymous clients only when [opcua] allow_anonymous. Every login may browse, read,
 subscribe and call methods (ConditionRefresh); nobody may write or change the address space
 (asyncua's Admin role is never given). Password guesses are limited as the console's are, by
@@ -31,7 +31,7 @@ __all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller"
 
 logger = logging.getLogger(__name__)
 
-# the console's roles (site.users) that may acknowledge, as its API lets them
+# the console's roles (web.users) that may acknowledge, as its API lets them
 ACK_ROLES = ("operator", "admin")
 _CALLER: contextvars.ContextVar[User | None] = contextvars.ContextVar("opcua_caller", default=None)
 # the client address of the session being activated (asyncua gives get_user no peer)
@@ -41,7 +41,7 @@ _PEER: contextvars.ContextVar[str] = contextvars.ContextVar("opcua_peer", defaul
 @dataclasses.dataclass
 class Login(User):
     """A session's user: the console user's name and the stamp of its role and password at
-    login (site.users.User.stamp), or anonymous (name None)."""
+    login (web.users.User.stamp), or anonymous (name None)."""
 
     stamp: str | None = None
 

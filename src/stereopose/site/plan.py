@@ -37,10 +37,10 @@ from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.secrets import redact
 from stereopose.site.health.calib_keeper import corrected_file
-from stereopose.site.http.server import ServeSettings
 from stereopose.site.storage import RetentionSettings
 from stereopose.tickets.ticket import Ticket, check_ticket_site, load_ticket
 from stereopose.types import Rig
+from stereopose.web.server import ServeSettings
 
 logger = logging.getLogger(__name__)
 

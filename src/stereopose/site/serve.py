@@ -19,7 +19,7 @@ closing order:
 
 The data folder is private: the service runs with a umask of 077 and takes group and other
 permissions off what an earlier run left (pipeline.private). Its HTTP server answers only
-the Host names of site.http.hosts.allowed_hosts ([serve] allowed_hosts adds some).
+the Host names of web.hosts.allowed_hosts ([serve] allowed_hosts adds some).
 
 With [opcua] enabled, the OPC UA server (scada.opcua: the site's zones, cameras and counts,
 each incident an alarm condition, logins as the console's users) listens from the start,
@@ -46,7 +46,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -93,6 +93,7 @@ from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings
 from stereopose.site.site_switch import Outliving, SiteSwitch, site_rules
 from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.site.watchdog import Notifier, Watchdog
+from stereopose.types import Rig
 
 __all__ = ["ServeResult", "plan_serve", "serve"]
 
@@ -259,24 +260,34 @@ def _serve(
     return ServeResult(summary, url, summary.outputs, dict(service.failed))
 
 
-def _calibration(plan: ServePlan, cfg: Config) -> tuple[CalibrationHealth, CalibrationKeeper]:
-    """The calibration's health (drift) and its keeper (a drifted camera placed again)."""
+def _calib_health(plan: ServePlan, cfg: Config) -> CalibrationHealth:
+    """The calibration's health: each camera's drift from the people's reprojection."""
     s = cfg.serve
-    calib = CalibrationHealth(
+    return CalibrationHealth(
         plan.rig,
         s.calib_warn_factor,
         baseline_samples=s.calib_baseline_samples,
         window=s.calib_window_samples,
     )
-    keeper = CalibrationKeeper(
+
+
+def _keeper(
+    plan: ServePlan,
+    cfg: Config,
+    calib: CalibrationHealth,
+    follow: Sequence[Callable[[Rig], None]],
+) -> CalibrationKeeper:
+    """The calibration keeper (a drifted camera placed again), telling `follow` each new rig."""
+    s = cfg.serve
+    return CalibrationKeeper(
         plan.rig,
         plan.calib_path,
         calib,
+        apply=follow,
         settings=KeeperSettings(s.calibration_auto, s.calibration_samples),
         out_dir=plan.out_dir,
         loaded=plan.calib_loaded,
     )
-    return calib, keeper
 
 
 def _run_loop(
@@ -291,19 +302,12 @@ def _run_loop(
     rig = plan.rig
     timeout_s = cfg.serve.camera_timeout_s
     watch = CameraWatch(rig.names, timeout_s, start=0.0)
-    calib, keeper = _calibration(plan, cfg)
-    service.keep_calibration(keeper)
+    calib = _calib_health(plan, cfg)
+    follow = service.rig_followers()  # a camera placed again: each told the new rig
 
     def now_t() -> float:  # the service's clock: the steps' and the events' t
         return cams.clock.since(time.monotonic())
 
-    hooks = StepHooks(
-        service.resume.closing_events,
-        fresh=lambda name: cams.delivering(name, timeout_s),
-        clock=now_t,
-        on_stall=service.state.service_stall,
-    )
-    events = ServeEvents(watch, calib, hooks, keeper=keeper)
     on_site: list[Callable[[Site], None]] = []  # each told every new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
@@ -315,7 +319,7 @@ def _run_loop(
         regions, light = cameras.regions, cameras.light
         service.probes["light"] = light.figures  # status.json: each camera's day or night
         service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
-        keeper.apply_to.append(cameras.set_rig)  # the tracks' regions in the new views
+        follow.append(cameras.set_rig)  # the tracks' regions in the new views
         pipelined, rates = PipelinedCameras(cameras), None
         service.watch_pipeline(pipelined)
         if regions is not None:
@@ -323,6 +327,24 @@ def _run_loop(
             on_site.append(scans_watch(regions, rig, plan.site))
         if cameras.carry is not None:
             on_site.append(hazards_watch(cameras, service, plan.site))
+    # each person id reserved in the log before it is given (site.person_ids)
+    stage = Stage3D(
+        rig,
+        cfg,
+        calib_path=str(plan.calib_loaded or plan.calib_path),
+        first_id=service.resume.person_ids(plan.events_db),
+    )
+    follow.append(stage.set_rig)  # from the next step
+    keeper = _keeper(plan, cfg, calib, follow)
+    service.keep_calibration(keeper)
+    hooks = StepHooks(
+        service.resume.closing_events,
+        fresh=lambda name: cams.delivering(name, timeout_s),
+        clock=now_t,
+        on_stall=service.state.service_stall,
+        lost=cams.lost if isinstance(cams, CameraSet) else None,
+    )
+    events = ServeEvents(watch, calib, hooks, keeper=keeper)
     # an empty step's time: now, or for the nodes now less their frames' longest way here (a
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
@@ -334,15 +356,7 @@ def _run_loop(
         on_detect=events.detected,
         clock=lambda: now_t() - lag_s,
     )
-    # each person id reserved in the log before it is given (site.person_ids)
-    stage = Stage3D(
-        rig,
-        cfg,
-        calib_path=str(plan.calib_loaded or plan.calib_path),
-        first_id=service.resume.person_ids(plan.events_db),
-    )
     # a step the service was too late for is no observation; a stall's length not their age
-    keeper.apply_to.append(stage.set_rig)  # a camera placed again: from the next step
     stage = HeldStage(stage, events.time)
     summary = RunSummary(
         rig.names,

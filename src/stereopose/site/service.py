@@ -23,14 +23,13 @@ from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import source_label
 from stereopose.site.desk import IncidentDesk
 from stereopose.site.eventlog import EventLog
+from stereopose.site.feed import make_outbox
 from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watchdog import Watchdog
 from stereopose.site.http.api.health import health_of
 from stereopose.site.http.api.warnings import WarningsDesk
 from stereopose.site.http.app import Desks, create_app
-from stereopose.site.http.hosts import allowed_hosts
-from stereopose.site.http.server import Server
 from stereopose.site.http.web import Console
 from stereopose.site.live import ConsoleSink, LiveHub
 from stereopose.site.parts import (
@@ -43,6 +42,8 @@ from stereopose.site.restart import Resume
 from stereopose.site.site_desk import SiteDesk
 from stereopose.site.storage import StorageMaintainer
 from stereopose.tickets import TicketDesk
+from stereopose.web.hosts import allowed_hosts
+from stereopose.web.server import Server
 from stereopose.zones.power_state import PowerBoard, ZoneStates
 
 if TYPE_CHECKING:
@@ -51,6 +52,7 @@ if TYPE_CHECKING:
     from stereopose.pipeline.incidents import IncidentStep
     from stereopose.scada.opcua_settings import OpcuaSettings
     from stereopose.site.health.calib_keeper import CalibrationKeeper
+    from stereopose.types import Rig
 
 __all__ = ["SiteService"]
 
@@ -261,50 +263,13 @@ class SiteService:
         return sink
 
     def _start_outbox(self, cfg: Config) -> None:
-        """The event log sent over MQTT to a control room (site.outbox), watched by the
-        watchdog."""
-        from stereopose.site.outbox import LogOutbox, OutboxPace
-
-        p = self.plan
-        log = EventLog(p.events_db, p.out_dir / "clips")
-        self.outbox = LogOutbox(
-            p.mqtt,
-            log,
-            OutboxPace(resend_s=cfg.mqtt.outbox_resend_s),
-            summary=self._summary,
-            plan=self._plan(cfg),
-        )
+        """The event log sent over MQTT to a control room (site.feed, site.outbox), watched by
+        the watchdog."""
+        self.outbox = make_outbox(self.plan, cfg, self.state)
         self.probes["outbox"] = self.outbox.figures
         self.state.register_output("outbox", self.outbox.health)
         self._started("the outbox", self._close_outbox)
         self._watch("outbox", self.outbox.ensure_running)
-
-    def _plan(self, cfg: Config) -> dict:
-        """The site's zones and console address, for a control room's page of the site."""
-        site = self.plan.site
-        zones = (
-            []
-            if site is None
-            else [
-                {
-                    "name": z.name,
-                    "kind": z.kind,
-                    "polygon": [[round(float(x), 3), round(float(y), 3)] for x, y in z.polygon],
-                }
-                for z in site.zones
-            ]
-        )
-        return {"zones": zones, "console_url": cfg.serve.public_url or None}
-
-    def _summary(self) -> dict:
-        """The site at a glance, in the outbox's heartbeat (a control room's site list)."""
-        snap = self.state.snapshot()
-        return {
-            "status": snap.status,
-            "cameras": len(snap.cameras),
-            "cameras_up": sum(1 for c in snap.cameras if c.up),
-            "people": snap.people,
-        }
 
     def _iec104(self, cfg: Config, wall_start: float):
         """The IEC 60870-5-104 outstation (scada.iec104): the zone, camera and service events
@@ -340,12 +305,16 @@ class SiteService:
         self.probes["clips"] = clips.figures
         return clips
 
+    def rig_followers(self) -> list[Callable[[Rig], None]]:
+        """What of the service is told a new rig when a camera is placed again: the site's
+        views of the zones, the console's."""
+        hub = self.console.hub if self.console is not None else None
+        return [x.set_rig for x in (self.site_desk, hub) if x is not None]
+
     def keep_calibration(self, keeper: CalibrationKeeper) -> None:
         """The calibration keeper's figures in status.json; closed with the service."""
         self.keeper = keeper
         self.calibration_desk.keeper = keeper
-        hub = self.console.hub if self.console is not None else None
-        keeper.apply_to += [x.set_rig for x in (self.site_desk, hub) if x is not None]
         self.probes["calibration"] = keeper.figures
         self._started("the calibration keeper", keeper.close)
 

@@ -50,12 +50,15 @@ class StepHooks:
     its time and frame); fresh(camera): whether its reader still has frames to give (None:
     not known, only a stall holds steps); clock(): the service's time now, on the steps' clock
     (None: each step's t; a stopped process is seen only with it); on_stall(reason or None):
-    told when a stall begins and ends."""
+    told when a stall begins and ends; lost(camera): whether its stream is known lost (it
+    ended, or its decoder died): the camera is down at the next step, not after the watch's
+    timeout (None: not known)."""
 
     opening: Callable[[float, int], list[Event]] | None = None
     fresh: Callable[[str], bool] | None = None
     clock: Callable[[], float] | None = None
     on_stall: Callable[[str | None], None] | None = None
+    lost: Callable[[str], bool] | None = None
 
 
 class ServeEvents:
@@ -78,6 +81,7 @@ class ServeEvents:
         self.opening = OpeningEvents(hooks.opening)  # the first rule of the chain
         self.stall = stall or StallWatch(watch.timeout_s)
         self.fresh, self.clock, self.on_stall = hooks.fresh, hooks.clock, hooks.on_stall
+        self.lost = hooks.lost
         self.time = StepClock(self.stall)  # the people's time, read by HeldStage and HeldRules
         self._people2d: Mapping[str, People2D] = {}
         self._t = 0.0
@@ -124,6 +128,10 @@ class ServeEvents:
                 self.on_stall(None)
         for name in delivered:
             self.watch.frame(name, t)
+        if self.lost is not None:
+            for name in self.watch.cameras:
+                if name not in delivered and self.lost(name):
+                    self.watch.lost(name)
         if delivered:
             self._delivered_t = t
         self.time.held = not delivered and (stall.stalled or self._any_fresh())

@@ -34,6 +34,25 @@ def test_a_silent_camera_goes_down_once_and_comes_back_up() -> None:
     assert watch.state("a") == watch.state("b") == "up"
 
 
+def test_a_camera_whose_stream_is_known_lost_is_down_at_the_next_poll() -> None:
+    """A stream that ended or whose decoder died is down at once, not after timeout_s of
+    silence; its next frame undoes the mark, and it is up again as after any loss."""
+    watch = CameraWatch(["a", "b"], timeout_s=5.0, start=0.0)
+    watch.frame("a", 1.0)
+    watch.frame("b", 1.0)
+    watch.lost("b")
+    watch.lost("no such camera")  # not watched: nothing
+    (down,) = watch.poll(1.1, 11)
+    assert (down.type, down.camera, down.onset_t) == ("camera_down", "b", 1.0)
+    assert watch.poll(1.2, 12) == []  # once
+    watch.frame("b", 1.5)
+    (up,) = watch.poll(1.6, 16)
+    assert (up.type, up.camera) == ("camera_up", "b")
+    watch.lost("b")
+    watch.frame("b", 1.7)  # a frame after the mark: it was not lost after all
+    assert watch.poll(1.8, 18) == [] and watch.state("b") == "up"
+
+
 def test_a_camera_that_never_gives_a_frame_goes_down_from_the_start() -> None:
     watch = CameraWatch(["a"], timeout_s=2.0, start=100.0)
     assert watch.poll(101.9) == [] and watch.state("a") == "waiting"

@@ -17,8 +17,8 @@ from prometheus_client.parser import text_string_to_metric_families
 from served import Clock, event, frame_result, get, get_json, serving
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.limits import MAX_BODY_BYTES
-from stereopose.site.http.server import MAX_HEADER_BYTES, Server, ServeSettings
+from stereopose.web.limits import MAX_BODY_BYTES
+from stereopose.web.server import MAX_HEADER_BYTES, Server, ServeSettings
 
 
 @pytest.fixture

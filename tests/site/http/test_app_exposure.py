@@ -20,8 +20,8 @@ from stereopose import __version__
 from stereopose.errors import StereoposeError
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.hosts import allowed_hosts, default_hosts, host_of
-from stereopose.site.http.server import Server, ServeSettings
+from stereopose.web.hosts import allowed_hosts, default_hosts, host_of
+from stereopose.web.server import Server, ServeSettings
 
 
 def _info(text: str) -> dict:
@@ -167,6 +167,6 @@ def test_a_library_error_no_route_caught_is_a_503_without_its_message(caplog) ->
     ],
 )
 def test_what_counts_as_a_path(text: str, path: bool) -> None:
-    from stereopose.site.http.error_answers import names_a_path
+    from stereopose.web.error_answers import names_a_path
 
     assert names_a_path(text) is path

@@ -14,14 +14,14 @@ import pytest
 
 from consoled import PASSWORDS, console_server, demo_plan, fast_hasher
 from stereopose.errors import ConfigError
-from stereopose.site.http.auth import (
+from stereopose.web.auth import (
     LoginLimiter,
     Sessions,
     SessionsFullError,
     TooManyAttemptsError,
 )
-from stereopose.site.http.server import ServeError, ServeSettings
-from stereopose.site.users import UserStore
+from stereopose.web.server import ServeError, ServeSettings
+from stereopose.web.users import UserStore
 
 OPEN = {"/api/health", "/metrics", "/api/login", "/openapi.json", "/docs", "/"}
 
@@ -254,7 +254,7 @@ def test_own_password_change_needs_the_old_one(served):
 
 def test_sessions_are_bounded_and_expire():
     store = UserStore.__new__(UserStore)  # a store answering one user, without a file
-    from stereopose.site.users import User
+    from stereopose.web.users import User
 
     ann = User("ann", "viewer", 0.0, 0.0, "stamp")
     store.get = lambda name: ann if name == "ann" else None
@@ -274,7 +274,7 @@ def test_sessions_are_bounded_and_expire():
 
 
 def test_a_full_session_table_is_shared_fairly():
-    from stereopose.site.users import User
+    from stereopose.web.users import User
 
     roles = {"ann": "viewer", "bea": "viewer", "oli": "operator", "ada": "admin"}
     people = {n: User(n, r, 0.0, 0.0, "stamp") for n, r in roles.items()}

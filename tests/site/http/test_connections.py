@@ -23,8 +23,8 @@ from served import Clock, frame_result, get, get_json, serving
 from stereopose.errors import ConfigError
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.connections import MAX_HEADER_BYTES, ConnectionLimits, client_key
-from stereopose.site.http.server import Server, ServeSettings
+from stereopose.web.connections import MAX_HEADER_BYTES, ConnectionLimits, client_key
+from stereopose.web.server import Server, ServeSettings
 from waiting import wait_until
 
 

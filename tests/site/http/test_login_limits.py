@@ -15,7 +15,7 @@ from argon2 import PasswordHasher
 
 from consoled import PASSWORDS, console_server, fast_hasher
 from stereopose.login_limit import ACCOUNT_BURST, MAX_FAILURES
-from stereopose.site.http.connections import ConnectionLimits
+from stereopose.web.connections import ConnectionLimits
 
 
 class CountingHasher(PasswordHasher):

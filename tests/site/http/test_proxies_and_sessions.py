@@ -14,8 +14,8 @@ import pytest
 from consoled import PASSWORDS, console_server
 from stereopose.errors import ConfigError
 from stereopose.login_limit import MAX_FAILURES
-from stereopose.site.http.connections import ConnectionLimits
-from stereopose.site.http.server import ServeSettings
+from stereopose.web.connections import ConnectionLimits
+from stereopose.web.server import ServeSettings
 from waiting import wait_until
 
 

@@ -19,7 +19,7 @@ from served import get, get_json
 from stereopose.errors import ConfigError, StereoposeError
 from stereopose.site.health.state import ServiceState
 from stereopose.site.http.app import create_app
-from stereopose.site.http.server import (
+from stereopose.web.server import (
     MAX_CONNECTIONS,
     MAX_REQUESTS,
     ServeError,
@@ -192,7 +192,7 @@ def test_settings_are_valid_or_a_config_error(port: object, host: str):
 
 
 def test_idle_connections_up_to_the_caps_leave_the_server_answering():
-    # the caps (site.http.connections): idle connections do not count as answers in progress
+    # the caps (web.connections): idle connections do not count as answers in progress
     assert MAX_CONNECTIONS > MAX_REQUESTS == 64
     with Server(create_app(ServiceState()), ServeSettings(port=0)) as server:
         idle = []

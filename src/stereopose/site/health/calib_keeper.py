@@ -115,7 +115,7 @@ class CalibrationKeeper:
         loaded: str | Path | None = None,
     ) -> None:
         self.rig, self.calib_path, self.health = rig, Path(calib_path), health
-        self.apply_to = list(apply)
+        self.apply_to = tuple(apply)  # given at construction, never added to
         self.auto, self.samples = bool(settings.auto), int(settings.samples)
         self.min_coverage = float(settings.min_coverage)
         self.accept_factor = float(settings.accept_factor)

@@ -71,12 +71,14 @@ class CameraWatch:
         self.timeout_s = float(timeout_s)
         self.cameras = {n: CameraState(quiet_since=float(start)) for n in names}
         self._came_back: dict[str, float] = {}  # camera -> arrival of its first frame back
+        self._lost: set[str] = set()  # cameras whose stream is known lost (down at the next poll)
 
     def frame(self, name: str, t_arrival: float) -> None:
         """Camera `name` delivered a frame at t_arrival."""
         st = self.cameras.get(name)
         if st is None:
             raise KeyError(f"camera {name!r} is not watched (cameras: {', '.join(self.cameras)})")
+        self._lost.discard(name)
         if st.down and name not in self._came_back:
             self._came_back[name] = float(t_arrival)
         if st.last_t is None or t_arrival > st.last_t:
@@ -95,12 +97,21 @@ class CameraWatch:
                 logger.warning("camera %s is back after %.1f s", name, down_s)
             elif not st.down:
                 since = st.quiet_since if st.last_t is None else st.last_t
-                if t - since >= self.timeout_s:
+                known = name in self._lost
+                if t - since >= self.timeout_s or known:
                     st.down, st.quiet_since = True, since
                     self._came_back.pop(name, None)
+                    self._lost.discard(name)
                     out.append(camera_event("camera_down", name, t, frame, since))
-                    logger.error("camera %s: no frame for %.1f s", name, t - since)
+                    why = "its stream lost, " if known else ""
+                    logger.error("camera %s: %sno frame for %.1f s", name, why, t - since)
         return out
+
+    def lost(self, name: str) -> None:
+        """Camera `name`'s stream is known lost (it ended, or its decoder died): down at the
+        next poll, without waiting for timeout_s of silence; its next frame undoes it."""
+        if name in self.cameras:
+            self._lost.add(name)
 
     def overdue(self, t: float) -> list[str]:
         """The cameras not down whose silence has reached timeout_s at t (poll would take

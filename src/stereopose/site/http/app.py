@@ -7,9 +7,9 @@ over `console` (site.http.web.Console; without one, those routes answer 503).
 Every answer is JSON or the resource's own format, never a traceback page: debug is off, unknown
 paths are 404 and wrong methods 405 as {"detail": ...}, and an error inside a route is a 500
 {"detail": "internal error"} (its traceback goes to the log). No answer names a file of the
-server (site.http.error_answers): an error whose message holds a path is answered with a
+server (web.error_answers): an error whose message holds a path is answered with a
 generic one, the message going to the log. With allowed_hosts, a request for another Host is
-refused (site.http.hosts).
+refused (web.hosts).
 """
 
 from __future__ import annotations
@@ -19,17 +19,14 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi import FastAPI
 from prometheus_client import CollectorRegistry
 
 from stereopose import __version__
 from stereopose.site.desk import IncidentDesk
 from stereopose.site.health.metrics import make_registry
 from stereopose.site.health.state import ServiceState
-from stereopose.site.http import error_answers
 from stereopose.site.http.api import (
-    auth,
     cameras,
     clips,
     docs,
@@ -42,17 +39,14 @@ from stereopose.site.http.api import (
     users,
     zones,
 )
-from stereopose.site.http.hosts import HostCheck
-from stereopose.site.http.limits import EXTRA_HEADERS, MAX_BODY_BYTES, RequestLimits
 from stereopose.tickets import TicketDesk
+from stereopose.web import error_answers
+from stereopose.web import login as auth
+from stereopose.web.error_answers import internal_error
+from stereopose.web.hosts import HostCheck
+from stereopose.web.limits import MAX_BODY_BYTES, RequestLimits
 
 logger = logging.getLogger(__name__)
-
-
-async def internal_error(request: Request, exc: Exception) -> JSONResponse:
-    # answered outside the middleware (Starlette's outermost layer): its headers added here
-    headers = {k.decode(): v.decode() for k, v in EXTRA_HEADERS}
-    return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)
 
 
 @dataclass(frozen=True)
@@ -86,7 +80,7 @@ def create_app(
     `state`); max_body_bytes: larger request bodies are refused (413); lifespan: what starts
     and stops with the server (the frame loop, the sinks); console: the console's parts
     (site.http.web.Console); allowed_hosts: the Host names served
-    (site.http.hosts.allowed_hosts; None: any); desks: what the API acts through (Desks)."""
+    (web.hosts.allowed_hosts; None: any); desks: what the API acts through (Desks)."""
     incidents, tickets, calibration, site = (
         desks.incidents,
         desks.tickets,

@@ -1,4 +1,4 @@
-"""The console's running parts, as the routers get them (site.http.auth.console_parts).
+"""The console's running parts, as the routers get them (web.auth.console_parts).
 
 `Console.in_folder(out_dir, ...)` builds them over a service's output folder: the users
 (`users.json`), the sessions and the login limit (in memory), the event log and its
@@ -14,9 +14,9 @@ from pathlib import Path
 from stereopose.io.datafolder import CLIPS_DIR, EVENTS_DB, POSES_DIR
 from stereopose.site.acks import AckStore
 from stereopose.site.eventlog import EventLog
-from stereopose.site.http.auth import LoginLimiter, Sessions
 from stereopose.site.live import LiveHub
-from stereopose.site.users import UserStore
+from stereopose.web.auth import LoginLimiter, Sessions
+from stereopose.web.users import UserStore
 
 
 @dataclass

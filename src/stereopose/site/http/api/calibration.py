@@ -28,7 +28,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
 from stereopose.errors import CalibrationError, StereoposeError
-from stereopose.site.http.auth import Admin, Viewer
+from stereopose.web.auth import Admin, Viewer
 
 router = APIRouter(tags=["calibration"])
 

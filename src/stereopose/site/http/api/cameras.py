@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import JSONResponse, Response
 
 from stereopose.site.http.api.people import hub_of
-from stereopose.site.http.auth import Viewer, console_parts
+from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["live"])
 

@@ -31,8 +31,8 @@ from fastapi.responses import FileResponse, StreamingResponse
 from starlette.types import Receive, Scope, Send
 
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX
-from stereopose.site.http.auth import Viewer, console_parts
 from stereopose.site.http.places import FairPlaces, Place
+from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["events"])
 

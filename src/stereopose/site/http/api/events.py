@@ -21,7 +21,7 @@ from stereopose.alarms.incident import IncidentError
 from stereopose.io.sinks.incidents import incident_of_event
 from stereopose.site.acks import AckError
 from stereopose.site.eventlog import MAX_LIMIT, Filters, LogError, parse_time
-from stereopose.site.http.auth import Operator, Viewer, console_parts
+from stereopose.web.auth import Operator, Viewer, console_parts
 
 router = APIRouter(tags=["events"])
 

@@ -27,7 +27,7 @@ from stereopose.alarms import UnknownIncidentError
 from stereopose.alarms.incident import MAX_SHELVE_S, IncidentError
 from stereopose.io.sinks.incidents import MAX_LIMIT, IncidentFilters, query_incidents
 from stereopose.site.http.api.events import query_times
-from stereopose.site.http.auth import Operator, Viewer, console_parts
+from stereopose.web.auth import Operator, Viewer, console_parts
 
 router = APIRouter(tags=["incidents"])
 

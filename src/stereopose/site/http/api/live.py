@@ -20,8 +20,8 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import StreamingResponse
 
 from stereopose.site.http.api.people import hub_of
-from stereopose.site.http.auth import Viewer, console_parts, request_token
-from stereopose.site.users import role_at_least
+from stereopose.web.auth import Viewer, console_parts, request_token
+from stereopose.web.users import role_at_least
 
 router = APIRouter(tags=["live"])
 

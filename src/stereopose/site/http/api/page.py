@@ -13,23 +13,11 @@ from pathlib import Path
 
 from fastapi import APIRouter, FastAPI, HTTPException
 from fastapi.responses import FileResponse, HTMLResponse, Response
-from fastapi.staticfiles import StaticFiles
-from starlette.types import Receive, Scope, Send
+
+from stereopose.web.pages import PAGE_HEADERS, ConsoleFiles
 
 CONSOLE_DIR = Path(__file__).resolve().parent.parent / "console"
 CONSOLE_URL = "/console"
-CSP = (
-    "default-src 'self'; img-src 'self' data: blob:; media-src 'self' blob:; "
-    "style-src 'self'; script-src 'self'; connect-src 'self'; object-src 'none'; "
-    "frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
-)
-# Referrer-Policy and nosniff: on every answer (site.http.limits)
-PAGE_HEADERS = {
-    "Content-Security-Policy": CSP,
-    "X-Frame-Options": "DENY",
-    "Cache-Control": "no-cache",
-}
-
 PLACEHOLDER = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>stereopose console</title></head>
 <body><h1>stereopose</h1><p>The console's page is not installed. The API is at
@@ -75,19 +63,6 @@ def plotly_min_js() -> Response:
         media_type="text/javascript; charset=utf-8",
         headers={**PAGE_HEADERS, "Cache-Control": "max-age=86400"},
     )
-
-
-class ConsoleFiles(StaticFiles):
-    """StaticFiles with the page's headers; no directory listings, no links followed out."""
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        async def with_headers(message):
-            if message["type"] == "http.response.start":
-                extra = [(k.lower().encode(), v.encode()) for k, v in PAGE_HEADERS.items()]
-                message = {**message, "headers": [*message.get("headers", []), *extra]}
-            await send(message)
-
-        await super().__call__(scope, receive, with_headers)
 
 
 def mount_page(app: FastAPI) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import JSONResponse
 
-from stereopose.site.http.auth import Viewer, console_parts
+from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["live"])
 

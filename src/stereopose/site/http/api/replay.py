@@ -12,8 +12,8 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import JSONResponse
 
 from stereopose.errors import StereoposeError
-from stereopose.site.http.auth import Viewer, console_parts
 from stereopose.site.replay import MAX_FRAMES, read_window
+from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["events"])
 

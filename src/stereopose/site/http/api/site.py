@@ -34,9 +34,9 @@ from pydantic import BaseModel, Field
 
 from stereopose.errors import ConfigError
 from stereopose.fence.site import parse_site
-from stereopose.site.http.auth import Admin, Viewer
 from stereopose.site.site_desk import SiteConflictError, SiteDesk
 from stereopose.site.site_views import floor_point, views
+from stereopose.web.auth import Admin, Viewer
 
 router = APIRouter(tags=["site"])
 

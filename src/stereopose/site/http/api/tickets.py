@@ -25,9 +25,9 @@ from pydantic import BaseModel, Field
 
 from stereopose.config import parse_toml
 from stereopose.errors import ConfigError, StereoposeError
-from stereopose.site.http.auth import Operator, Viewer, console_parts
 from stereopose.site.replay import MAX_WINDOW_S, read_window
 from stereopose.tickets import TicketDesk, TicketError, parse_ticket
+from stereopose.web.auth import Operator, Viewer, console_parts
 
 router = APIRouter(tags=["tickets"])
 logger = logging.getLogger(__name__)

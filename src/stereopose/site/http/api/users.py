@@ -2,7 +2,7 @@
 /api/users/{name}, POST /api/users/{name}/password (an admin, or the user with their old
 password, which is checked within the same limit on guesses as a login: a wrong one counts as a
 failed login for that account and address, 429 beyond). Removing a user or changing a password
-ends that user's sessions. New passwords follow site.users' policy (422 otherwise). Every
+ends that user's sessions. New passwords follow web.users' policy (422 otherwise). Every
 answer carries `Cache-Control: no-store`.
 """
 
@@ -13,9 +13,9 @@ from typing import Literal
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from pydantic import BaseModel, Field
 
-from stereopose.site.http.api.auth import NoStoreRoute, checked_password
-from stereopose.site.http.auth import Admin, Session, Viewer, console_parts
-from stereopose.site.users import UserError, check_password, role_at_least
+from stereopose.web.auth import Admin, Session, Viewer, console_parts
+from stereopose.web.login import NoStoreRoute, checked_password
+from stereopose.web.users import UserError, check_password, role_at_least
 
 router = APIRouter(tags=["users"], route_class=NoStoreRoute)
 

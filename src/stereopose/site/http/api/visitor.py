@@ -11,7 +11,7 @@ import logging
 from fastapi import Request
 
 from stereopose.errors import StereoposeError
-from stereopose.site.http.auth import request_token
+from stereopose.web.auth import request_token
 
 logger = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
 from stereopose.onsite.control import MAX_REASON, ControlError
-from stereopose.site.http.auth import Admin, Viewer
+from stereopose.web.auth import Admin, Viewer
 
 router = APIRouter(tags=["warnings"])
 

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 
 from stereopose.site.http.api.people import hub_of
-from stereopose.site.http.auth import Viewer, console_parts
+from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["live"])
 

@@ -2,7 +2,7 @@
 headers every answer carries.
 
 uvicorn bounds the request line and headers (h11's incomplete-event limit, see
-site.http.server); nothing bounds a body, so this does: a Content-Length above the limit is
+web.server); nothing bounds a body, so this does: a Content-Length above the limit is
 answered 413 before the app runs, and a body without one (chunked) is counted as it is read.
 """
 

@@ -105,7 +105,7 @@ _AROUND = string.digits + string.punctuation + string.whitespace
 @functools.cache
 def common_passwords() -> frozenset[str]:
     """The common passwords shipped in the package (lower case); see the module."""
-    text = resources.files("stereopose.site").joinpath(COMMON_PASSWORDS).read_text("utf-8")
+    text = resources.files("stereopose.web").joinpath(COMMON_PASSWORDS).read_text("utf-8")
     return frozenset(
         line.strip().lower()
         for line in text.splitlines()

@@ -8,7 +8,7 @@ arrives whole in one read (60 kB) is parsed whatever its size. `guarded_protocol
 gives the protocol class (`uvicorn.Config(http=...)`) that closes these, per server:
 
 - a connection that sends nothing for `idle_s` after it opens is closed (between requests,
-  uvicorn's keep-alive timeout does the same, set to `idle_s` by site.http.server);
+  uvicorn's keep-alive timeout does the same, set to `idle_s` by web.server);
 - a request (its line, headers and body) must arrive within `request_s` of its first byte,
   or of the connection's opening for the first request: else 408 and closed;
 - a request head (line + headers) over `max_header_bytes` is answered 431 and closed, before
@@ -236,7 +236,7 @@ async def _busy(send: Send) -> None:
 
 class _Admission:
     """Answers in progress bounded (503 beyond), with places kept for health and metrics; a
-    request the app found logged in (its scope's state holds a session, site.http.auth) gives
+    request the app found logged in (its scope's state holds a session, web.auth) gives
     its connection a place of its own (ConnectionTable.logged_in)."""
 
     def __init__(

@@ -1,4 +1,4 @@
-"""POST /api/login, POST /api/logout, GET /api/me: the console's sessions (site.http.auth).
+"""POST /api/login, POST /api/logout, GET /api/me: the console's sessions (web.auth).
 
 A login answers the token (for `Authorization: Bearer`) and sets two cookies: the session
 (HttpOnly, SameSite=Strict; Secure under TLS) and the CSRF value (readable by the page, which
@@ -19,7 +19,7 @@ from fastapi.routing import APIRoute
 from pydantic import BaseModel, Field
 
 from stereopose.errors import HashingBusyError
-from stereopose.site.http.auth import (
+from stereopose.web.auth import (
     CSRF_COOKIE,
     SESSION_COOKIE,
     Session,
@@ -30,7 +30,7 @@ from stereopose.site.http.auth import (
     console_parts,
     request_token,
 )
-from stereopose.site.users import User, UserError
+from stereopose.web.users import User, UserError
 
 logger = logging.getLogger(__name__)
 

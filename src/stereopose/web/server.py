@@ -5,7 +5,7 @@ ServeError (a StereoposeError naming host:port) raised by `start()`, and port 0 
 port that `start()` returns. uvicorn is set for a closed network: no Server header, no
 X-Forwarded-* trusted but from [serve] trusted_proxies, its logging left to the application
 (no dictConfig of its own),
-signals left to the caller; its h11 protocol is site.http.connections' (timeouts for idle and
+signals left to the caller; its h11 protocol is web.connections' (timeouts for idle and
 slow connections, request heads bounded, caps per client address and in all, health always
 served; `Server(limits=ConnectionLimits(...))` changes them).
 With a certificate and its key (ServeSettings), it speaks HTTPS only. Told how to count the
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import uvicorn
 
 from stereopose.errors import ConfigError, StereoposeError
-from stereopose.site.http.connections import MAX_HEADER_BYTES as MAX_HEADER_BYTES  # re-exported
-from stereopose.site.http.connections import ConnectionLimits, guarded_protocol
+from stereopose.web.connections import MAX_HEADER_BYTES as MAX_HEADER_BYTES  # re-exported
+from stereopose.web.connections import ConnectionLimits, guarded_protocol
 
 logger = logging.getLogger(__name__)
 
@@ -204,7 +204,7 @@ class Server:
     port once the server accepts connections; `stop()` ends it (see ServerTimes). users: the
     number of console users now (None: not checked), and users_hint: how to add one, for the
     refusal to listen beyond this machine without any; limits: what one connection and one
-    client address may hold (site.http.connections; None: its defaults). Usable as a context
+    client address may hold (web.connections; None: its defaults). Usable as a context
     manager."""
 
     def __init__(

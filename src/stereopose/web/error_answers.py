@@ -19,6 +19,7 @@ from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException
 
 from stereopose.errors import StereoposeError
+from stereopose.web.limits import EXTRA_HEADERS
 
 logger = logging.getLogger(__name__)
 
@@ -61,3 +62,11 @@ def add_handlers(app: FastAPI) -> None:
     """Both handlers on `app` (see the module)."""
     app.add_exception_handler(HTTPException, _http_error)
     app.add_exception_handler(StereoposeError, _library_error)
+
+
+async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+    """An exception no handler took: 500 with a generic detail (the traceback is uvicorn's to
+    log), with the headers every answer carries (web.limits)."""
+    # answered outside the middleware (Starlette's outermost layer): its headers added here
+    headers = {k.decode(): v.decode() for k, v in EXTRA_HEADERS}
+    return JSONResponse({"detail": "internal error"}, status_code=500, headers=headers)

@@ -26,16 +26,17 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
-from stereopose.site.users import ROLES, User, UserError, UserStore, role_at_least
+from stereopose.web.users import ROLES, User, UserError, UserStore, role_at_least
 
 __all__ = [
     "LoginLimiter",
+    "Logins",
     "Session",
     "Sessions",
     "SessionsFullError",
@@ -79,6 +80,17 @@ class Session:
 class SessionsFullError(Exception):
     """No session can be made for this user now (the table is full of sessions of users of a
     higher role); the login is answered 503."""
+
+
+@dataclass
+class Logins:
+    """Who may log in to an app: its users, their sessions, the failed logins' limit. An app
+    puts them (or a console's parts that hold them: site.http.web.Console) in
+    `app.state.console`, where the login routes (web.login) and `authenticated` find them."""
+
+    users: UserStore
+    sessions: Sessions
+    limiter: LoginLimiter = field(default_factory=LoginLimiter)
 
 
 def _privileged(role: str) -> bool:
@@ -224,7 +236,8 @@ class Sessions:
 
 
 def console_parts(request: Request):
-    """The console's running parts (site.http.web.Console); 503 when the app has none."""
+    """The app's logins and the console's running parts (Logins, or site.http.web.Console);
+    503 when the app has none."""
     parts = request.app.state.console
     if parts is None:
         raise HTTPException(503, "the console is not available on this server")
