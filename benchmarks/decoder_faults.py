@@ -32,16 +32,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import psutil
 
 from common import machine, save
-from fuzzed_streams import Streams, _scaled_rig
-from keeping_up import SUB_SIZE, free_port, substream
-from stereopose.calibration.formats import save_calibration
+from fuzzed_streams import Streams, serve_config
+from keeping_up import SUB_SIZE, substream
 from stereopose.detection.models import demo_videos
 
 VICTIM = "cam03"
@@ -93,23 +91,8 @@ class Watch:
 def run(rounds: int, every: float, away: float, work: Path, keep: Path | None = None) -> dict:
     videos = demo_videos()
     subs = {v.stem: substream(v, work / f"{v.stem}_sub.mp4") for v in videos}
-    calib = work / "calib.toml"
-    save_calibration(
-        calib, _scaled_rig(videos[0].parents[1] / "calibration" / "Calib.qca.txt", SUB_SIZE)
-    )
-    site = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
     streams = Streams(subs, {}, work)
-    out = work / "data"
-    cameras = "".join(
-        f'[[cameras]]\nname = "{n}"\nsource = "{streams.url(n)}"\n\n' for n in sorted(subs)
-    )
-    config = work / "serve.toml"
-    config.write_text(
-        f'calibration = "{calib}"\nsite = "{site}"\noutput = "{out}"\n\n'
-        "[storage]\nclips = false\n\n"
-        f"[serve]\nport = {free_port()}\ncamera_timeout_s = 1\nstatus_interval_s = 1\n\n"
-        f"{cameras}"
-    )
+    config, out = serve_config(work, streams, videos)
     streams.start()
     log = work / "serve.log"
     with open(log, "wb") as f:

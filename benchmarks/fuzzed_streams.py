@@ -242,21 +242,18 @@ def _events(db: Path) -> list[tuple[str, str | None]]:
         return []
 
 
-def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str = "http") -> dict:
-    videos = demo_videos()
-    subs = {v.stem: substream(v, work / f"{v.stem}_sub.mp4") for v in videos}
-    good = {n: p for n, p in subs.items() if n not in FUZZED}
-    fuzzed = {n: _ts(subs[n], work / f"{n}_{codec}.ts", codec) for n, codec in FUZZED.items()}
+def serve_config(work: Path, streams: Streams, videos: list[Path]) -> tuple[Path, Path]:
+    """serve's configuration (and its output folder) for the demo's cameras read from
+    `streams` at SUB_SIZE: the calibration scaled to match, the demo's site, no clips, cameras
+    down after 1 s of silence."""
     calib = work / "calib.toml"
     save_calibration(
         calib, _scaled_rig(videos[0].parents[1] / "calibration" / "Calib.qca.txt", SUB_SIZE)
     )
     site = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
-    rtsp = RtspServer() if transport == "rtsp" else None
-    streams = Streams(good, fuzzed, work, rtsp)
     out = work / "data"
     cameras = "".join(
-        f'[[cameras]]\nname = "{n}"\nsource = "{streams.url(n)}"\n\n' for n in sorted(subs)
+        f'[[cameras]]\nname = "{n}"\nsource = "{streams.url(n)}"\n\n' for n in sorted(streams.ports)
     )
     config = work / "serve.toml"
     config.write_text(
@@ -265,6 +262,17 @@ def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str
         f"[serve]\nport = {free_port()}\ncamera_timeout_s = 1\nstatus_interval_s = 1\n\n"
         f"{cameras}"
     )
+    return config, out
+
+
+def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str = "http") -> dict:
+    videos = demo_videos()
+    subs = {v.stem: substream(v, work / f"{v.stem}_sub.mp4") for v in videos}
+    good = {n: p for n, p in subs.items() if n not in FUZZED}
+    fuzzed = {n: _ts(subs[n], work / f"{n}_{codec}.ts", codec) for n, codec in FUZZED.items()}
+    rtsp = RtspServer() if transport == "rtsp" else None
+    streams = Streams(good, fuzzed, work, rtsp)
+    config, out = serve_config(work, streams, videos)
     log = work / "serve.log"
 
     streams.start()
