@@ -174,3 +174,30 @@ def test_a_stream_too_large_for_its_decoder_s_memory_loses_its_camera_alone(tmp_
             fine.close()
     finally:
         stop(servers)
+
+
+def test_a_camera_is_known_lost_by_the_stream_it_is_detected_on(video) -> None:
+    """With a detection substream, the camera is lost when its substream is, not when only its
+    full stream (kept for the clips) is: its steps still come."""
+    ports = [free_port(), free_port()]
+    servers = [serve(video, ports[0], "main"), serve(video, ports[1], "sub")]
+    try:
+        wait_serving(servers, ports)
+        main = f"http://127.0.0.1:{ports[0]}/main.ts"
+        sub = f"http://127.0.0.1:{ports[1]}/sub.ts"
+        with CameraSet(
+            [main], ["cam0"], detect=[sub], open_timeout_s=1.0, decoders="process"
+        ) as cams:
+            full, detected = cams.sources[0], cams.detect_sources["cam0"]
+            assert isinstance(full, ProcessStream) and isinstance(detected, ProcessStream)
+            _frame(full)
+            _frame(detected)
+            assert not cams.lost("cam0")
+            os.kill(full.decoder_pid, signal.SIGKILL)  # its server serves one client: gone
+            wait_until(lambda: full.lost, "the full stream lost", timeout_s=5)
+            assert not cams.lost("cam0")  # still seen on its substream
+            _frame(detected, timeout_s=2.0)
+            os.kill(detected.decoder_pid, signal.SIGKILL)
+            wait_until(lambda: cams.lost("cam0"), "the camera lost", timeout_s=5)
+    finally:
+        stop(servers)

@@ -411,11 +411,14 @@ class CameraSet:
         return False
 
     def lost(self, name: str) -> bool:
-        """Whether camera `name` is known lost now: one of its live streams (the full one, or
-        the substream it is detected on) delivered, then was lost, and is not back."""
-        return any(
-            s.name == name and isinstance(s, LiveStream) and s.lost for s in self.all_sources
-        )
+        """Whether camera `name` is known lost now: the live stream its steps are detected on
+        (its substream where it has one, else its own) delivered, then was lost, and is not
+        back. (A full stream kept for the clips, lost while its substream delivers, leaves
+        the camera seen.)"""
+        source = self.detect_sources.get(name)
+        if source is None:
+            source = next((s for s in self.sources if s.name == name), None)
+        return isinstance(source, LiveStream) and source.lost
 
     def detect_stats(self) -> dict[str, SourceStats]:
         return {name: s.stats for name, s in self.detect_sources.items()}
