@@ -28,7 +28,6 @@ import os
 import shutil
 import signal
 import sqlite3
-import subprocess
 import sys
 import tempfile
 import time
@@ -38,7 +37,7 @@ import numpy as np
 import psutil
 
 from common import machine, save
-from fuzzed_streams import Streams, serve_config
+from fuzzed_streams import Streams, serve_config, start_serve
 from keeping_up import SUB_SIZE, substream
 from stereopose.detection.models import demo_videos
 
@@ -95,13 +94,7 @@ def run(rounds: int, every: float, away: float, work: Path, keep: Path | None = 
     config, out = serve_config(work, streams, videos)
     streams.start()
     log = work / "serve.log"
-    with open(log, "wb") as f:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-            stdout=f,
-            stderr=subprocess.STDOUT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
-        )
+    proc = start_serve(config, log)
     serve = psutil.Process(proc.pid)
     watch = Watch(out / "events.sqlite")
     kills = []

@@ -265,6 +265,17 @@ def serve_config(work: Path, streams: Streams, videos: list[Path]) -> tuple[Path
     return config, out
 
 
+def start_serve(config: Path, log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """`stereopose serve config` as a child process, its output to `log`."""
+    with open(log, "wb") as f:
+        return subprocess.Popen(
+            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})),
+        )
+
+
 def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str = "http") -> dict:
     videos = demo_videos()
     subs = {v.stem: substream(v, work / f"{v.stem}_sub.mp4") for v in videos}
@@ -277,13 +288,7 @@ def run(seconds: float, work: Path, keep_log: Path | None = None, transport: str
 
     streams.start()
     samples = []
-    with open(log, "wb") as f:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "stereopose.cli", "serve", str(config)],
-            stdout=f,
-            stderr=subprocess.STDOUT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1", **_capture_options(transport)),
-        )
+    proc = start_serve(config, log, _capture_options(transport))
     ps = psutil.Process(proc.pid)
     t0 = time.monotonic()
     try:

@@ -232,10 +232,10 @@ def step_chain(
 ) -> StepChain:
     """The chain `run` and `serve` build: the service's opening events (its first step's:
     `service.opening`), the fences' `events`, the service's own (`service`: its stalls,
-    cameras, calibration), the
-    behaviour rules, the zones' states (read live, with the fence `monitor` that says who is
-    inside; or a recorded job's switching log, zones.state_log), the tickets, the warnings on
-    site (`onsite`, with the fence `monitor`); each left out when None."""
+    cameras, calibration), the behaviour rules, the zones' states (read live, with the fence
+    `monitor` that says who is inside; or a recorded job's switching log, zones.state_log),
+    the tickets, the warnings on site (`onsite`, with the fence `monitor`); each left out
+    when None."""
     parts: list[tuple[object | None, Callable[[], StepRule]]] = [
         (service, lambda: EventsRule(service.opening)),
         (events, lambda: FenceRule(events)),

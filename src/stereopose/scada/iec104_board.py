@@ -33,7 +33,6 @@ class RtuPoints:
         figures: MutableMapping[str, int],
     ) -> None:
         self.host, self.port, self.board, self.figures = host, int(port), board, figures
-        self.points = list(points)
         self.keys = [p.label for p in points]
         self.interrogation_s = min(p.interrogation_s for p in points)
         self.stations = sorted({p.common_address for p in points})

@@ -64,6 +64,7 @@ from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
 from stereopose.nodes.node_state import nodes_light
+from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop
 from stereopose.pipeline.pipelined import PipelinedCameras
@@ -88,9 +89,8 @@ from stereopose.site.plan import (
 )
 from stereopose.site.restart import Resume
 from stereopose.site.service import SiteService
-from stereopose.site.site_desk import SiteDesk
 from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
-from stereopose.site.site_switch import Outliving, SiteSwitch, site_rules
+from stereopose.site.site_switch import Outliving, SiteSwitch
 from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.site.watchdog import Notifier, Watchdog
 from stereopose.types import Rig
@@ -384,8 +384,8 @@ def _run_loop(
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
-        told = (on_site, Outliving(service.tickets, service.power, onsite))
-        incidents = _incidents(plan, service, events, cfg, ids, (wall_start, now_t), told)
+        switch = _site_switch(service, events, cfg, on_site, onsite)
+        incidents = _incidents(plan, service, switch, ids, wall_start, now_t)
         loop = FrameLoop(source, stage, [*first, *sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
@@ -395,23 +395,17 @@ def _run_loop(
 def _incidents(
     plan: ServePlan,
     service: SiteService,
-    events: ServeEvents,
-    cfg: Config,
+    switch: SiteSwitch,
     ids: IncidentIds,
-    clocks: tuple[float, Callable[[], float]],
-    told: tuple[list[Callable[[Site], None]], Outliving],
+    wall_start: float,
+    clock: Callable[[], float],
 ) -> IncidentStep:
     """The incident book over the step's events (pipeline.incidents), on the rules of the
-    plan's site (site.site_switch.site_rules; a new one taken at a step's start where the site
-    can change): ids from the log's mark, the incidents the last run left open restored (on
-    this run's clock: `clocks`, its Unix start and its time now), its changes stored with the
-    step's events and given to every incident output; the HTTP API's acts reach it through the
-    app. told: what is told each new site, and the parts that outlive a site."""
-    wall_start, clock = clocks
-    rules = site_rules(plan.site, events, cfg, told[1])
-    switch = None
-    if service.site_desk is not None:  # a new site (the API, SIGHUP) taken at a step's start
-        switch = _site_switch(service.site_desk, service, events, cfg, told)
+    plan's site (`switch.rules`; a new site taken at a step's start by `switch` where the
+    site can change): ids from the log's mark, the incidents the last run left open restored
+    (on this run's clock: its Unix start and its time now), its changes stored with the step's
+    events and given to every incident output; the HTTP API's acts reach it through the app."""
+    rules = switch.rules(plan.site)
     book = IncidentBook(rules.settings, next_id=ids)
     restored = book.restore(service.resume.open_incidents(wall_start))
     if restored:
@@ -424,29 +418,30 @@ def _incidents(
         outputs=service.incident_outputs,
         clock=clock,
         wall_start=wall_start,
-        switch=switch,
+        switch=switch if switch.desk is not None else None,
     )
     service.attach_incidents(step, book.incidents())  # the API, SCADA, control room: its acts
     return step
 
 
 def _site_switch(
-    desk: SiteDesk,
     service: SiteService,
     events: ServeEvents,
     cfg: Config,
-    told: tuple[list[Callable[[Site], None]], Outliving],
+    on_site: list[Callable[[Site], None]],
+    onsite: OnSite | None,
 ) -> SiteSwitch:
-    """What takes a new site from `desk` at a step's start (site.site_switch), on the run's
-    settings; told: what is told each new site (the regions' scans, the MQTT output's
-    `site`), and the parts that outlive a site."""
-    on_site, kept = told
+    """What builds the step's rules on a site and takes a new one from the service's site desk
+    (the API, SIGHUP; none: the site never changes) at a step's start (site.site_switch), on
+    the run's settings; on_site: told each new site (the regions' scans, the MQTT output's
+    `site`). The tickets, the zones' states and the warnings on site (`onsite`) outlive a
+    site."""
     hub = service.console.hub if service.console is not None else None
     return SiteSwitch(
-        desk,
+        service.site_desk,
         events,
         cfg,
-        kept=kept,
+        kept=Outliving(service.tickets, service.power, onsite),
         restart_power=service.restart_power,
         scene=hub.scene if hub is not None else None,
         on_site=on_site,

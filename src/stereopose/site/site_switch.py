@@ -92,13 +92,15 @@ def site_rules(
 
 class SiteSwitch:
     """See the module: `switch(rules, t, frame)` (pipeline.incidents.SiteSwitching) gives the
-    events of the step's changes and the new site's rules (None: no new site).
-    restart_power(site): the service's zone-state sources made the new site's; returns its
-    ZoneStates (None: no zone with a state source)."""
+    events of the step's changes and the new site's rules (None: no new site); `rules(site)`
+    the step's rules on a site, as each change builds them. desk: where changes come from
+    (None: the site never changes, and a step takes none). restart_power(site): the
+    service's zone-state sources made the new site's; returns its ZoneStates (None: no zone
+    with a state source)."""
 
     def __init__(
         self,
-        desk: SiteDesk,
+        desk: SiteDesk | None,
         events: ServeEvents,
         config: Config,
         *,
@@ -112,11 +114,18 @@ class SiteSwitch:
         self.restart_power, self.scene = restart_power, scene
         self.on_site = tuple(on_site)  # told each new site (the regions' scans)
 
+    def rules(self, site: Site | None, monitor: FenceMonitor | None = None) -> SiteRules:
+        """The step's rules on `site` (site_rules, with the parts kept across sites)."""
+        return site_rules(site, self.events, self.config, self.kept, monitor)
+
     def __call__(
         self, rules: SiteRules, t: float, frame: int
     ) -> tuple[list[Event], SiteRules | None]:
-        notes = [_service_event(t, frame, kind, text) for kind, text in self.desk.take_notes()]
-        change = self.desk.take()
+        desk = self.desk
+        if desk is None:
+            return [], None
+        notes = [_service_event(t, frame, kind, text) for kind, text in desk.take_notes()]
+        change = desk.take()
         taken = None
         if change is not None:
             try:
@@ -126,14 +135,16 @@ class SiteSwitch:
                 raise
             notes += found
         fences = taken.holding if taken is not None else rules.holding
-        return notes + self._zones_switched(fences, t, frame), taken
+        return notes + self._zones_switched(desk, fences, t, frame), taken
 
-    def _zones_switched(self, fences: FenceMonitor | None, t: float, frame: int) -> list[Event]:
+    def _zones_switched(
+        self, desk: SiteDesk, fences: FenceMonitor | None, t: float, frame: int
+    ) -> list[Event]:
         """The zones switched off or on since the last step (SiteDesk.switch_zone): for one
         switched off, an exit for each person in it (its incident ends) and `zone_disabled`;
         for one switched on, `zone_enabled` (people in it enter after its debounce)."""
         out: list[Event] = []
-        for zone, on, by in self.desk.take_switches():
+        for zone, on, by in desk.take_switches():
             if fences is None:
                 break
             exits = [] if on else _exits(fences, [zone], t, frame, f"zone switched off by {by}")
@@ -160,7 +171,7 @@ class SiteSwitch:
             kept.tickets.set_zones(change.new.zones)
         if self.restart_power is not None and _power_changed(change.old, change.new):
             kept.zone_state = self.restart_power(change.new)
-        rules = site_rules(change.new, self.events, cfg, kept, new_mon)
+        rules = self.rules(change.new, new_mon)
         if self.scene is not None:
             self.scene.set_site(change.new)
         for tell in self.on_site:  # what only follows the site: a failure does not undo it
