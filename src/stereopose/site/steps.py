@@ -1,7 +1,7 @@
 """The events of one service step beyond the cameras' images, and the people's time across a
 stall of the service.
 
-The service's chain of step rules (`serve_chain`, pipeline.step_rules) begins, in order, with:
+The service's chain of step rules (site.site_switch.site_rules, pipeline.step_rules) begins:
 the exits that close the zones a killed run left occupied, at the first step (site.restart:
 `OpeningEvents`), the zone events (the site's fence monitor on the people's time:
 `HeldFences`), then the service's own events (`ServeEvents.update`: site.health.stall's
