@@ -58,6 +58,8 @@ demo: install
 lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	# pyright's standard checks over src/ ([tool.basedpyright] in pyproject.toml)
+	$(BIN)/basedpyright
 
 test: lint
 	$(BIN)/pytest

@@ -118,7 +118,7 @@ def floor_position(joints: np.ndarray) -> np.ndarray:
         raise ValueError(f"joints must have shape (P, {NUM_JOINTS}, 3), got {J.shape}")
     xy = J[..., :2]
     mid = 0.5 * (xy[:, LEFT_HIP] + xy[:, RIGHT_HIP])
-    hips = np.isfinite(mid).all(-1)
+    hips = np.asarray(np.isfinite(mid).all(-1))
     if hips.all():
         return mid
     known = np.isfinite(xy).all(-1, keepdims=True)

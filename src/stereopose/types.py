@@ -317,8 +317,8 @@ class People3D:
             self.reprojection_px[m],
             self.views[m],
             self.detections[m],
-            self.predicted[m],
-            self.velocity[m],
+            None if self.predicted is None else self.predicted[m],
+            None if self.velocity is None else self.velocity[m],
             self.t,
         )
 

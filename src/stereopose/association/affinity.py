@@ -46,12 +46,13 @@ class Detections:
         cls, rig: Rig, people: Sequence[People2D | None], min_conf: float
     ) -> Detections:
         """Gather one frame; people[c] belongs to rig camera c (None or empty: no detection)."""
-        cams = [c for c, p in enumerate(people) if p is not None and p.keypoints.shape[0]]
+        present = [(c, p) for c, p in enumerate(people) if p is not None and p.keypoints.shape[0]]
+        cams = [c for c, _ in present]
         if not cams:
             z = np.zeros((0, NUM_JOINTS))
             e = np.zeros((0, NUM_JOINTS, 2))
             return cls(np.zeros(0, int), np.zeros(0, int), e, e, z, np.zeros(0), np.zeros(0))
-        blocks = [people[c].keypoints for c in cams]
+        blocks = [p.keypoints for _, p in present]
         counts = [b.shape[0] for b in blocks]
         kp = np.concatenate(blocks)
         # a frame's few detections: their camera and index within it, in plain Python

@@ -64,8 +64,8 @@ def pairwise_matches(cost: np.ndarray, camera: np.ndarray, max_cost: float) -> n
     rows_n, rows_m = [n_idx[ok]], [m_idx[ok]]
     finite = np.where(np.isfinite(cost), cost, _BIG)
     for k in np.flatnonzero(conflict):
-        a = np.arange(start[qa[k]], start[qa[k]] + counts[qa[k]])
-        b = np.arange(start[qb[k]], start[qb[k]] + counts[qb[k]])
+        a = np.arange(int(start[qa[k]]), int(start[qa[k]] + counts[qa[k]]))
+        b = np.arange(int(start[qb[k]]), int(start[qb[k]] + counts[qb[k]]))
         r, c = linear_sum_assignment(finite[np.ix_(a, b)])
         rows_n.append(a[r])
         rows_m.append(b[c])

@@ -14,6 +14,7 @@ The state is kept in (people x zones) arrays, so the cost per frame hardly grows
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -243,7 +244,8 @@ class FenceMonitor:
         )
         zone = self.zones[k]
         pid = int(people.ids[p])
-        base = dict(
+        event = partial(
+            Event,
             t=t,
             frame=people.frame,
             person=pid,
@@ -256,34 +258,26 @@ class FenceMonitor:
         pair = geo.pair[p, k]
         if rose[p, k]:
             j = int(np.argmax(geo.joint_inside[pair]))
-            out.append(Event(type="enter", onset_t=float(onset[p, k]), joint=JOINTS[j], **base))
+            out.append(event(type="enter", onset_t=float(onset[p, k]), joint=JOINTS[j]))
         if fell[p, k]:
             stay = float(onset[p, k] - began[p, k]) if np.isfinite(began[p, k]) else None
-            out.append(Event(type="exit", onset_t=float(onset[p, k]), duration_s=stay, **base))
+            out.append(event(type="exit", onset_t=float(onset[p, k]), duration_s=stay))
             if pid in zone.expected:
                 out.append(
-                    Event(
-                        type="left_work_area", onset_t=float(onset[p, k]), duration_s=stay, **base
-                    )
+                    event(type="left_work_area", onset_t=float(onset[p, k]), duration_s=stay)
                 )
         if dwell is not None and dwell[p, k]:
             out.append(
-                Event(
-                    type="dwell",
-                    onset_t=float(began[p, k]),
-                    duration_s=float(t - began[p, k]),
-                    **base,
-                )
+                event(type="dwell", onset_t=float(began[p, k]), duration_s=float(t - began[p, k]))
             )
         if near_rose is not None and near_rose[p, k]:
             j = int(np.argmin(geo.joint_distance[pair]))
             out.append(
-                Event(
+                event(
                     type="approach",
                     onset_t=float(near_onset[p, k]),
                     joint=JOINTS[j],
                     distance_m=float(geo.joint_distance[pair, j]),
-                    **base,
                 )
             )
         return out

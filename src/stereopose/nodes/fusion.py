@@ -289,7 +289,9 @@ class NodeInput:
             if node.state == "online":
                 node.health = {k: doc.get(k) for k in ("cameras", "detect_ms", "queue", "backend")}
                 if not retained:  # a retained one is old: its clock says nothing of now
-                    node.offsets.append(float(doc["clock"]) - time.time())
+                    clock = doc["clock"]
+                    assert isinstance(clock, (int, float))  # decode_health checked it
+                    node.offsets.append(float(clock) - time.time())
                     judge_clock(node, self.tolerance_s)
         if was != node.state:
             log = logger.warning if node.state == "offline" else logger.info

@@ -324,7 +324,10 @@ class DetectNode:
         for name, found in people.items():
             cam = self.plan.rig[name]
             image = images[name]
-            if (image.shape[1], image.shape[0]) != (round(cam.size[0]), round(cam.size[1])):
+            if image is not None and (image.shape[1], image.shape[0]) != (
+                round(cam.size[0]),
+                round(cam.size[1]),
+            ):
                 found = scale_people(found, cam.size, image.shape)
             pub.put(self.topics.keypoints(name), encode_people(self.plan.name, found, t, cam.size))
             self.figures.frames[name] = self.figures.frames.get(name, 0) + 1

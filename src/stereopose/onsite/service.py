@@ -20,19 +20,32 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Collection, Sequence
+from typing import Protocol
 
 from stereopose.onsite.control import ControlError, Controls
 from stereopose.onsite.modbus import Signal
 from stereopose.onsite.phrases import Phrasebook
 from stereopose.onsite.rtp import Speaker
+from stereopose.onsite.settings import WarningSettings
 from stereopose.onsite.speaker_health import SpeakerChecks
 from stereopose.onsite.speech import Speech
 from stereopose.onsite.warner import Occupancy, Warner
 from stereopose.types import Event, People3D
+from stereopose.zones import Zone
 
 __all__ = ["OnSite"]
 
 logger = logging.getLogger(__name__)
+
+
+class WarnedSite(Protocol):
+    """What warnings on site read of a site (a fence.Site)."""
+
+    @property
+    def zones(self) -> Sequence[Zone]: ...
+
+    @property
+    def warnings(self) -> WarningSettings | None: ...
 
 
 class OnSite:
@@ -41,7 +54,7 @@ class OnSite:
 
     def __init__(
         self,
-        site,
+        site: WarnedSite | None,
         safe: Callable[[], Collection[str]] = lambda: (),
         publish: Callable[[dict], None] | None = None,
         speech: Speech | None = None,
@@ -67,11 +80,11 @@ class OnSite:
         if warner is not None:
             warner.on_health(name, up, why)
 
-    def _build(self, site) -> Warner | None:
+    def _build(self, site: WarnedSite | None) -> Warner | None:
         """The warner of `site`: its phrasebook rendered, its speakers and signals (the
         unchanged ones kept)."""
-        settings = getattr(site, "warnings", None) if site is not None else None
-        if settings is None:
+        settings = site.warnings if site is not None else None
+        if site is None or settings is None:
             self._swap_outputs({}, {})
             self.checks.watch(())
             return None
@@ -111,7 +124,7 @@ class OnSite:
                 g.close()
         self._speakers, self._signals = speakers, signals
 
-    def set_site(self, site) -> None:
+    def set_site(self, site: WarnedSite | None) -> None:
         """A new site (the frame loop's thread, never waiting): built on a thread of its own,
         one build at a time, and taken unless a newer site came meanwhile."""
         with self._lock:

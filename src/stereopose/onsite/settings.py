@@ -178,7 +178,7 @@ def _position(value: object, what: str) -> tuple[float, float]:
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
         and all(abs(float(v)) <= 1e4 for v in value)
     )
-    if not ok:
+    if not ok or not isinstance(value, list):
         raise ConfigError(f"{what}: expected [x, y] in metres, got {value!r}")
     return (float(value[0]), float(value[1]))
 
@@ -354,7 +354,9 @@ def parse_warnings(
         check_template(text, f"[warnings] templates.{kind}")
     for key, _ in settings.recordings:  # each readable now, not at the first hazard
         zone, _, kind = key.rpartition(".")
-        read_wav(settings.recording(zone or None, kind), f"[warnings] recordings: {key}")
+        path = settings.recording(zone or None, kind)
+        assert path is not None  # a key of the recordings
+        read_wav(path, f"[warnings] recordings: {key}")
     return settings
 
 

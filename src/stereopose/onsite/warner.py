@@ -174,7 +174,18 @@ class Warner:
         out.sort(key=lambda h: (h.priority, h.distance_m))
         return out
 
-    def _hazard(self, zone, k, kind, priority, people, r, floors, headings) -> Hazard:
+    def _hazard(
+        self,
+        zone: Zone,
+        k: int,
+        kind: str,
+        priority: int,
+        people: People3D,
+        r: int,
+        floors: np.ndarray,
+        headings: np.ndarray,
+    ) -> Hazard:
+        assert self.geometry is not None  # hazards() asks only where there are zones
         J = people.joints[r][list(zone.joints)]
         _, dist = self.geometry.test(J[None], np.array([k]))
         d = float(np.min(dist)) if np.isfinite(dist).any() else float(zone.margin_m)

@@ -282,7 +282,7 @@ class Reconstructor:
         # a person that cameras with a frame should see but (almost) none detected is a
         # coincidence of false detections that happen to agree, not a person; joints placed
         # from one view do not count: they lean on the others
-        keep = plausible(
+        keep: np.ndarray = plausible(
             X,
             used,
             np.ascontiguousarray(members),
@@ -298,7 +298,7 @@ class Reconstructor:
             pc.min_view_fraction,
             5,
         )
-        valid = np.isfinite(X).all(-1)
+        valid = np.asarray(np.isfinite(X).all(-1))
         views = members >= 0
         idx = np.flatnonzero(keep)
         if idx.size == 0:

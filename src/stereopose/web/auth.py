@@ -32,7 +32,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request
 
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
-from stereopose.web.users import ROLES, User, UserError, UserStore, role_at_least
+from stereopose.web.users import ROLES, Role, User, UserError, UserStore, role_at_least
 
 __all__ = [
     "LoginLimiter",
@@ -68,7 +68,7 @@ class Session:
     """One login. token: given once at login, never kept (only its digest, the key)."""
 
     username: str
-    role: str
+    role: Role
     stamp: str
     csrf: str
     created: float

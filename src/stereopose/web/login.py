@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Coroutine
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from fastapi.routing import APIRoute
@@ -30,7 +30,7 @@ from stereopose.web.auth import (
     console_parts,
     request_token,
 )
-from stereopose.web.users import User, UserError
+from stereopose.web.users import Role, User, UserError
 
 logger = logging.getLogger(__name__)
 
@@ -66,14 +66,14 @@ class LoginAnswer(BaseModel):
 
     token: str
     username: str
-    role: Literal["viewer", "operator", "admin"]
+    role: Role
     expires_at: float
     csrf: str
 
 
 class Me(BaseModel):
     username: str
-    role: Literal["viewer", "operator", "admin"]
+    role: Role
     expires_at: float
 
 
@@ -104,7 +104,7 @@ def _set_cookies(response: Response, request: Request, token: str, session: Sess
     )
 
 
-_LOGIN_ERRORS = {
+_LOGIN_ERRORS: dict[int | str, dict[str, object]] = {
     401: {"description": "wrong name or password"},
     429: {"description": "too many failed logins; see Retry-After"},
     503: {

@@ -154,7 +154,7 @@ def bind(settings: ServeSettings, *, local_only: bool = False) -> socket.socket:
 
 
 def uvicorn_config(
-    app: object,
+    app: Callable[..., object],
     host: str,
     port: int,
     graceful_s: float = GRACEFUL_S,
@@ -209,7 +209,7 @@ class Server:
 
     def __init__(
         self,
-        app: object,
+        app: Callable[..., object],
         settings: ServeSettings | None = None,
         *,
         local_only: bool = False,
@@ -247,14 +247,15 @@ class Server:
         self._check_users()
         sock = bind(self.settings, local_only=self.local_only)
         self._sock = sock
-        self.port = sock.getsockname()[1]
-        where = _where(self.settings.host, self.port)
+        port: int = sock.getsockname()[1]
+        self.port = port
+        where = _where(self.settings.host, port)
         s = self.settings
         try:
             config = uvicorn_config(
                 self.app,
                 s.host,
-                self.port,
+                port,
                 self.graceful_s,
                 s.certificate,
                 s.key,
@@ -284,7 +285,7 @@ class Server:
                 )
             time.sleep(0.01)
         logger.info("HTTP server listening on %s", self.url)
-        return self.port
+        return port
 
     def _check_users(self) -> None:
         host = self.settings.host

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from hashlib import sha256
 from importlib import resources
 from pathlib import Path
+from typing import Literal
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
@@ -44,6 +45,7 @@ from stereopose.io.datafolder import USERS_FILE
 __all__ = [
     "MIN_PASSWORD",
     "ROLES",
+    "Role",
     "User",
     "UserError",
     "UserStore",
@@ -56,7 +58,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-ROLES = ("viewer", "operator", "admin")
+Role = Literal["viewer", "operator", "admin"]
+ROLES: tuple[Role, ...] = ("viewer", "operator", "admin")
 MIN_PASSWORD = 12
 MIN_DISTINCT = 5  # different characters in a password
 COMMON_PASSWORDS = "common_passwords.txt"  # beside this module
@@ -83,7 +86,7 @@ class User:
     session made before no longer counts)."""
 
     name: str
-    role: str
+    role: Role
     created: float
     changed: float
     stamp: str
@@ -134,10 +137,11 @@ def check_password(password: object) -> str:
     return password
 
 
-def check_role(role: object) -> str:
-    if role not in ROLES:
-        raise UserError(f"role {role!r}: expected one of {', '.join(ROLES)}")
-    return str(role)
+def check_role(role: object) -> Role:
+    for known in ROLES:
+        if role == known:
+            return known
+    raise UserError(f"role {role!r}: expected one of {', '.join(ROLES)}")
 
 
 def role_at_least(role: str, needed: str) -> bool:

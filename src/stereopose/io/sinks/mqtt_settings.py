@@ -167,7 +167,7 @@ def _check_prefix(prefix: str) -> None:
         )
 
 
-def loop_alive(client: paho.Client) -> bool:
+def loop_alive(client: paho.Client | None) -> bool:
     """Whether a started paho client's network thread (loop_start) runs; True for no client,
     and for one whose loop was stopped (loop_stop). paho forgets its thread when the thread
     ends, whatever ended it; loop_stop alone marks it terminated."""
@@ -179,7 +179,7 @@ def loop_alive(client: paho.Client) -> bool:
     return bool(getattr(client, "_thread_terminate", True))
 
 
-def restart_loop(client: paho.Client) -> bool:
+def restart_loop(client: paho.Client | None) -> bool:
     """paho's network thread started again when it died (an error no callback caught ends it):
     True when it had to be. The connection is made anew (a thread that died mid-packet leaves
     the link's state half read), and the client's on_connect subscribes again; what the
