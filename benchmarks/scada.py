@@ -71,7 +71,7 @@ class Master:
             def receive(point, previous_info, message):
                 at = time.time()
                 tag = point.recorded_at
-                tag_s = tag.replace(tzinfo=dt.timezone.utc).timestamp() if tag else None
+                tag_s = tag.replace(tzinfo=dt.UTC).timestamp() if tag else None
                 value = point.value
                 value = int(value) if isinstance(value, c104.Int16) else value
                 with self.lock:

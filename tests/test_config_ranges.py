@@ -7,6 +7,7 @@ import argparse
 import dataclasses
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_type_hints
 
@@ -21,6 +22,7 @@ from stereopose.config import (
     Config,
     DetectorConfig,
     InputConfig,
+    Section,
     _schema,
     check_options,
     load_config,
@@ -104,11 +106,19 @@ def test_a_number_without_a_range_is_refused_when_the_class_is_defined() -> None
     with pytest.raises(TypeError, match="needs a range"):
 
         @_schema("x")
-        class Bad:
+        @dataclass(frozen=True)
+        class Bad(Section):
             n: int = 3
 
+    with pytest.raises(TypeError, match="goes over @dataclass"):
+
+        @_schema("x")
+        class NotOne(Section):
+            n: int = number(3, integer=True, ge=1)
+
     @_schema("x")
-    class Good:
+    @dataclass(frozen=True)
+    class Good(Section):
         n: int = number(3, integer=True, ge=1)
 
     assert Good().n == 3

@@ -339,7 +339,7 @@ def _service(t: float, type_: str) -> Event:
 
 def _tag(t: float) -> dt.datetime:
     """The CP56Time2a time tag of the event at t (UTC fields, as the master reads them)."""
-    return dt.datetime.fromtimestamp(WALL_START + t, dt.timezone.utc).replace(tzinfo=None)
+    return dt.datetime.fromtimestamp(WALL_START + t, dt.UTC).replace(tzinfo=None)
 
 
 def _spontaneous(master: Master, ioa: int, value) -> Got:
@@ -789,7 +789,7 @@ def test_the_served_demos_zone_entry_reaches_the_master_time_tagged(tmp_path: Pa
         # the time tag is the event's own wall time (CP56Time2a: milliseconds); the entry the
         # master saw first may be a later one than the log's first (one made while the master
         # was still being interrogated is not sent spontaneously)
-        tag = g.recorded_at.replace(tzinfo=dt.timezone.utc).timestamp()
+        tag = g.recorded_at.replace(tzinfo=dt.UTC).timestamp()
         wait_until(
             lambda: any(abs(tag - w) < 1.0 for w in entries()), "the master's entry in the log"
         )

@@ -33,8 +33,11 @@ class Zone(Protocol):
     """What the rules need of a zone (zones.Zone, which reads the site file and
     imports this module)."""
 
-    name: str
-    kind: str
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def kind(self) -> str: ...
 
 
 __all__ = [

@@ -13,6 +13,7 @@ import math
 import os
 import re
 import tempfile
+import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -21,11 +22,6 @@ import numpy as np
 from stereopose.checks import read_limited
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
 
 REQUIRED_KEYS: tuple[str, ...] = ("size", "matrix", "distortions", "rotation", "translation")
 _SHAPES: dict[str, tuple[tuple[int, ...], ...]] = {

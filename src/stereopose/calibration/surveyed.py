@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import tomllib
 
 from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robust_pnp
 from stereopose.checks import read_limited

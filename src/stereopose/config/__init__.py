@@ -13,18 +13,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
-from dataclasses import field
+import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
 from stereopose.checks import FPS_MAX, FPS_MIN, read_limited
-from stereopose.config.fields import MODES, Mode, _schema, from_dict, number
+from stereopose.config.fields import MODES, Mode, Section, _schema, from_dict, number
 from stereopose.config.processing import (
     AssociationConfig,
     PlausibilityConfig,
@@ -61,6 +56,7 @@ __all__ = [
     "OutputConfig",
     "PlausibilityConfig",
     "ReconstructionConfig",
+    "Section",
     "ServeConfig",
     "StorageConfig",
     "TrackingConfig",
@@ -74,11 +70,12 @@ __all__ = [
     "with_overrides",
 ]
 
-_T = TypeVar("_T")
+_T = TypeVar("_T", bound=Section)
 
 
 @_schema("")
-class Config:
+@dataclass(frozen=True)
+class Config(Section):
     # time base when the input has none
     fps: float = number(25.0, ge=FPS_MIN, le=FPS_MAX)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -152,7 +149,7 @@ def with_overrides(config: Config, **sections: dict[str, object]) -> Config:
     rec = config.reconstruction
     for name, values in sections.items():
         current = getattr(rec, name, None)
-        if not dataclasses.is_dataclass(current):
+        if not isinstance(current, Section):
             raise ConfigError(f"reconstruction: no section {name!r}")
         rec = dataclasses.replace(
             rec, **{name: _replace(current, values, f"reconstruction.{name}")}

@@ -1,20 +1,29 @@
-"""The configuration schema's machinery: a section is a frozen dataclass made by `_schema`,
-each numeric field with its range (`number(default, ge=..., le=...)`) checked whenever a
-section is built, a value from a file checked against its field's type (`from_dict`)."""
+"""The configuration schema's machinery: a section is a frozen dataclass over `Section`, marked
+with its key path by `_schema`; each numeric field has its range (`number(default, ge=...,
+le=...)`) checked whenever a section is built, and a value from a file is checked against its
+field's type (`from_dict`)."""
 
 from __future__ import annotations
 
 import dataclasses
-import sys
 import types
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
+from dataclasses import field
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    ClassVar,
+    Literal,
+    TypeVar,
+    Union,
+    cast,
+    get_args,
+    get_origin,
+    get_type_hints,
+)
 
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 from stereopose.checks import Range
 from stereopose.errors import ConfigError
@@ -40,16 +49,33 @@ def _base(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
-def _schema(section: str) -> Callable[[type[_T]], type[_T]]:
-    """A frozen dataclass of the schema at key path `section`, checked on every construction;
-    a numeric field without a range is refused when the class is defined."""
+class Section:
+    """A section of the schema: a frozen dataclass, made by `@_schema(key path)` over
+    `@dataclass(frozen=True)`, whose fields are checked on every construction."""
 
-    def wrap(cls: type[_T]) -> type[_T]:
-        cls.__post_init__ = _check_fields  # type: ignore[attr-defined]
-        cls = dataclass(frozen=True)(cls)
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[object]]]  # set by @dataclass
+    _section: ClassVar[str] = ""
+    _ranges: ClassVar[dict[str, tuple[Range, bool, bool]]] = {}
+    _choices: ClassVar[dict[str, tuple[object, ...]]] = {}
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
+
+
+_S = TypeVar("_S", bound=Section)
+
+
+def _schema(section: str) -> Callable[[type[_S]], type[_S]]:
+    """The section of the schema at key path `section`: its numeric fields' ranges and its
+    choices read from the dataclass; a numeric field without a range is refused when the class
+    is defined."""
+
+    def wrap(cls: type[_S]) -> type[_S]:
+        if "__dataclass_fields__" not in cls.__dict__:
+            raise TypeError(f"{cls.__name__}: @_schema goes over @dataclass(frozen=True)")
         hints = get_type_hints(cls)
         ranges, choices = {}, {}
-        for f in dataclasses.fields(cls):
+        for f in dataclasses.fields(cast("type[DataclassInstance]", cls)):
             tp, optional = _base(hints[f.name])
             if tp in (int, float):
                 if "range" not in f.metadata:
@@ -57,13 +83,13 @@ def _schema(section: str) -> Callable[[type[_T]], type[_T]]:
                 ranges[f.name] = (f.metadata["range"], optional, tp is float)
             elif get_origin(tp) is Literal:
                 choices[f.name] = get_args(tp)
-        cls._section, cls._ranges, cls._choices = section, ranges, choices  # type: ignore[attr-defined]
+        cls._section, cls._ranges, cls._choices = section, ranges, choices
         return cls
 
     return wrap
 
 
-def _check_fields(self: Any) -> None:
+def _check_fields(self: Section) -> None:
     cls = type(self)
     for name, allowed in cls._choices.items():
         value = getattr(self, name)
@@ -74,14 +100,14 @@ def _check_fields(self: Any) -> None:
         if value is None and optional:
             continue
         rng.check(value, _key(cls, name))
-        if is_float:
+        if is_float and value is not None:
             object.__setattr__(self, name, float(value))
     check = getattr(cls, "_check", None)
     if check is not None:  # what a range cannot say (an address, a list that may not be empty)
         check(self)
 
 
-def _key(cls: Any, name: str) -> str:
+def _key(cls: type[Section], name: str) -> str:
     return f"{cls._section}.{name}" if cls._section else name
 
 
@@ -94,7 +120,7 @@ def _check_value(value: object, tp: Any, where: str) -> Any:
         item = get_args(tp)[0]
         if not isinstance(value, list):
             raise ConfigError(f"{where}: expected a list, got {shown(where, value)}")
-        if dataclasses.is_dataclass(item):
+        if isinstance(item, type) and dataclasses.is_dataclass(item):
             return tuple(from_dict(item, v, f"{where}[{i}]") for i, v in enumerate(value))
         return tuple(_check_value(v, item, f"{where}[{i}]") for i, v in enumerate(value))
     if origin is Literal:
@@ -125,7 +151,7 @@ def _check_value(value: object, tp: Any, where: str) -> Any:
     return value
 
 
-def from_dict(cls: type, data: dict[str, object], where: str) -> Any:
+def from_dict(cls: type, data: object, where: str) -> Any:
     """Build dataclass `cls` from a (possibly partial) dict, rejecting unknown keys and values
     out of range."""
     if not isinstance(data, dict):
@@ -141,7 +167,7 @@ def from_dict(cls: type, data: dict[str, object], where: str) -> Any:
     for key, value in data.items():
         tp = hints[key]
         sub = f"{where}.{key}" if where else key
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             kwargs[key] = from_dict(tp, value, sub)
         else:
             kwargs[key] = _check_value(value, tp, sub)

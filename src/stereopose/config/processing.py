@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-import sys
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import Literal
 
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
-
 from stereopose.checks import DAY_S
-from stereopose.config.fields import _LENGTH_M, Mode, _schema, number
+from stereopose.config.fields import _LENGTH_M, Mode, Section, _schema, number
 from stereopose.skeleton import NUM_JOINTS
 
 
 @_schema("reconstruction.association")
-class AssociationConfig:
+@dataclass(frozen=True)
+class AssociationConfig(Section):
     """Cross-camera grouping of 2D people.
 
     Costs are epipolar distances divided by the person's size in the image (dimensionless), so
@@ -42,7 +37,8 @@ class AssociationConfig:
 
 
 @_schema("reconstruction.triangulation")
-class TriangulationConfig:
+@dataclass(frozen=True)
+class TriangulationConfig(Section):
     """Triangulation of one person's joints from the views of its group."""
 
     mode: Mode = "robust"
@@ -63,7 +59,8 @@ class TriangulationConfig:
 
 
 @_schema("reconstruction.plausibility")
-class PlausibilityConfig:
+@dataclass(frozen=True)
+class PlausibilityConfig(Section):
     """Rejection of reconstructed people that cannot be real."""
 
     # fewer joints reconstructed from two views or more: not a person
@@ -79,14 +76,16 @@ class PlausibilityConfig:
 
 
 @_schema("reconstruction")
-class ReconstructionConfig:
+@dataclass(frozen=True)
+class ReconstructionConfig(Section):
     association: AssociationConfig = field(default_factory=AssociationConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
 
 
 @_schema("tracking")
-class TrackingConfig:
+@dataclass(frozen=True)
+class TrackingConfig(Section):
     """Identities over time, online smoothing and positioning of reconstructed people."""
 
     enabled: bool = True  # false: per-frame people, ids 0..P-1 in each frame (memory "recent")

@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-import sys
+from dataclasses import dataclass
 from typing import Literal, get_args
 
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
-
-from stereopose.config.fields import _schema, number
+from stereopose.config.fields import Section, _schema, number
 from stereopose.errors import ConfigError
 
 
 @_schema("iec104")
-class Iec104Config:
+@dataclass(frozen=True)
+class Iec104Config(Section):
     """serve's IEC 60870-5-104 outstation (stereopose.scada.iec104, docs/scada.md); needs the
     `scada` extra. Off unless enabled; `stereopose points CONFIG.toml` prints its points."""
 
@@ -80,7 +76,8 @@ OpcuaPolicy = Literal[
 
 
 @_schema("opcua")
-class OpcuaConfig:
+@dataclass(frozen=True)
+class OpcuaConfig(Section):
     """serve's OPC UA server (stereopose.scada.opcua, docs/scada.md): the site, its zones,
     cameras and counts, and each incident as an Alarms and Conditions alarm; needs the `scada`
     extra. Off unless enabled. Clients log in as the console's users (operator or admin to

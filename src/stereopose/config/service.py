@@ -3,21 +3,16 @@ control_room, storage."""
 
 from __future__ import annotations
 
-import sys
-from dataclasses import field
-
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
+from dataclasses import dataclass, field
 
 from stereopose.checks import DAY_S
-from stereopose.config.fields import _schema, number
+from stereopose.config.fields import Section, _schema, number
 from stereopose.errors import ConfigError
 
 
 @_schema("serve")
-class ServeConfig:
+@dataclass(frozen=True)
+class ServeConfig(Section):
     """`stereopose serve`: its HTTP server and its health watch."""
 
     # address of the health/metrics server; anything but loopback is reachable from the network
@@ -62,7 +57,8 @@ class ServeConfig:
 
 
 @_schema("mqtt")
-class MqttConfig:
+@dataclass(frozen=True)
+class MqttConfig(Section):
     """Events, zone occupancy and people out over MQTT (serve); host empty: MQTT off."""
 
     host: str = ""
@@ -92,7 +88,8 @@ class MqttConfig:
 
 
 @_schema("control_room")
-class ControlRoomConfig:
+@dataclass(frozen=True)
+class ControlRoomConfig(Section):
     """`stereopose control-room` (stereopose.controlroom, docs/control-room.md)."""
 
     # the store: an SQLite file (relative to `output`; empty: <output>/control.sqlite), or
@@ -141,7 +138,8 @@ class ControlRoomConfig:
 
 
 @_schema("storage")
-class StorageConfig:
+@dataclass(frozen=True)
+class StorageConfig(Section):
     """What serve keeps in its output folder, and for how long."""
 
     # seconds of poses per segment file

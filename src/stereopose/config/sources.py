@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-import sys
+from dataclasses import dataclass
 from typing import Literal
 
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
-
 from stereopose.checks import DAY_S, FPS_MAX, FPS_MIN
-from stereopose.config.fields import _schema, number
+from stereopose.config.fields import Section, _schema, number
 
 
 @_schema("cameras[]")
-class CameraSource:
+@dataclass(frozen=True)
+class CameraSource(Section):
     """One camera of a run: its calibration name and where its frames come from."""
 
     name: str = ""
@@ -28,7 +24,8 @@ class CameraSource:
 
 
 @_schema("nodes[]")
-class NodeConfig:
+@dataclass(frozen=True)
+class NodeConfig(Section):
     """One detection node (`stereopose detect-node CONFIG --node NAME`): its cameras."""
 
     name: str = ""
@@ -36,7 +33,8 @@ class NodeConfig:
 
 
 @_schema("detector")
-class DetectorConfig:
+@dataclass(frozen=True)
+class DetectorConfig(Section):
     # "auto": the fastest on this machine within the docs' accuracy (OpenVINO bf16 on a CPU
     # with bfloat16 instructions, else ONNX Runtime fp32; detection.choose), said at start
     backend: Literal["auto", "onnx", "openvino", "ultralytics"] = "auto"
@@ -82,7 +80,8 @@ class DetectorConfig:
 
 
 @_schema("input")
-class InputConfig:
+@dataclass(frozen=True)
+class InputConfig(Section):
     sync: Literal["index", "time"] = "index"  # recorded cameras aligned by frame index or time
     # time steps per second (default: the first camera's frame rate)
     fps: float | None = number(None, ge=FPS_MIN, le=FPS_MAX)
@@ -118,7 +117,8 @@ class InputConfig:
 
 
 @_schema("outputs")
-class OutputConfig:
+@dataclass(frozen=True)
+class OutputConfig(Section):
     """What a run writes into its output folder."""
 
     poses: bool = True  # poses3d.jsonl

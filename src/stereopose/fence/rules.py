@@ -146,7 +146,9 @@ class FenceMonitor:
         self._last_ids = (ids.copy(), rows)
         return rows
 
-    def occupants(self, zone: str) -> tuple[list, list]:
+    def occupants(
+        self, zone: str
+    ) -> tuple[list[tuple[int, np.ndarray]], list[tuple[int, np.ndarray]]]:
         """([(person id, floor point)] inside `zone` now, [...] within its approach margin and
         not inside), as the debounced states hold them."""
         k = next((i for i, z in enumerate(self.zones) if z.name == zone), None)
@@ -166,7 +168,7 @@ class FenceMonitor:
         position alone, and whoever was inside stays so until seen again or lost."""
         t = people.time(self.fps)
         events: list[Event] = []
-        if people.predicted.any():
+        if people.predicted is not None and people.predicted.any():
             people = people.where(~people.predicted)
         if len(people):
             rows = self._rows(people.ids)
@@ -195,6 +197,8 @@ class FenceMonitor:
                 if extra is not None:
                     fired |= extra
             if fired.any():
+                if onset is None:  # none went in or out: only a dwell or an approach
+                    onset = np.full(rose.shape, np.nan)
                 step = _Step(
                     people, t, geo, pos, rose, fell, onset, began, dwell, near_rose, near_onset
                 )
@@ -257,6 +261,7 @@ class FenceMonitor:
         out = []
         pair = geo.pair[p, k]
         if rose[p, k]:
+            assert geo.joint_inside is not None  # inside: its joints were tested
             j = int(np.argmax(geo.joint_inside[pair]))
             out.append(event(type="enter", onset_t=float(onset[p, k]), joint=JOINTS[j]))
         if fell[p, k]:
@@ -271,6 +276,7 @@ class FenceMonitor:
                 event(type="dwell", onset_t=float(began[p, k]), duration_s=float(t - began[p, k]))
             )
         if near_rose is not None and near_rose[p, k]:
+            assert near_onset is not None and geo.joint_distance is not None  # near: tested
             j = int(np.argmin(geo.joint_distance[pair]))
             out.append(
                 event(

@@ -37,6 +37,9 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypedDict
+
+import numpy as np
 
 from stereopose.alarms.priority import DEFAULT_REARM_S, parse_priority
 from stereopose.behaviour.definitions import (
@@ -53,7 +56,7 @@ from stereopose.errors import ConfigError
 from stereopose.onsite.settings import WarningSettings, format_warnings, parse_warnings
 from stereopose.skeleton import JOINTS, joint_index
 from stereopose.zones.distances import DEFAULT_TABLE, approach_distance
-from stereopose.zones.power import parse_power
+from stereopose.zones.power import PowerSpec, parse_power
 from stereopose.zones.zone import DEFAULT_ENTER_S, DEFAULT_EXIT_S, KINDS, PERSON_ID, Zone
 
 _ZONE_KEYS = {
@@ -225,7 +228,25 @@ def _ids(value: object, what: str) -> frozenset[int]:
     return frozenset(value)
 
 
-def _points(value: object, where: str) -> list[list[float]]:
+class _ZoneKeys(TypedDict, total=False):
+    """A zone's optional keys, as read from a site file."""
+
+    joints: tuple[int, ...]
+    margin_m: float
+    dwell_s: float | None
+    enter_s: float
+    exit_s: float
+    rearm_s: float
+    priority: int | None
+    allowed: frozenset[int]
+    expected: frozenset[int]
+    on_site: bool
+    voltage_kv: float | None
+    distance_table: str | None
+    power: PowerSpec | None
+
+
+def _points(value: object, where: str) -> np.ndarray:
     """A TOML polygon: a list of [x, y] pairs of numbers (not strings, not booleans)."""
     ok = isinstance(value, list) and all(
         isinstance(p, list)
@@ -233,9 +254,12 @@ def _points(value: object, where: str) -> list[list[float]]:
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
         for p in value
     )
-    if not ok:
-        raise ConfigError(f"{where}: polygon must be a list of [x, y] points (numbers, metres)")
-    return value
+    if ok:
+        try:
+            return np.asarray(value, dtype=np.float64)
+        except OverflowError:  # an integer of hundreds of digits
+            pass
+    raise ConfigError(f"{where}: polygon must be a list of [x, y] points (numbers, metres)")
 
 
 def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
@@ -260,7 +284,7 @@ def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
         band = z["z"]
         if not isinstance(band, list) or len(band) != 2:
             raise ConfigError(f"{where}: z must be [bottom, top], got {band!r}")
-        kwargs: dict[str, object] = {}
+        kwargs: _ZoneKeys = {}
         if "joints" in z:
             js = z["joints"]
             if not isinstance(js, list) or not js:
@@ -269,19 +293,21 @@ def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
                 kwargs["joints"] = tuple(sorted({joint_index(str(j)) for j in js}))
             except ValueError as e:
                 raise ConfigError(f"{where}: {e}") from None
-        for key in ("margin_m", "dwell_s", "enter_s", "exit_s", "rearm_s"):
+        seconds = ("margin_m", "dwell_s", "enter_s", "exit_s", "rearm_s")
+        for key in seconds:
             if key in z:
                 kwargs[key] = _number(z[key], f"{where}: {key}")
         if "priority" in z:
             kwargs["priority"] = parse_priority(z["priority"], where)
-        kwargs |= _power(z, where)
+        kwargs.update(_power(z, where))
         if "on_site" in z:
             if not isinstance(z["on_site"], bool):
                 raise ConfigError(f"{where}: on_site: expected true or false, got {z['on_site']!r}")
             kwargs["on_site"] = z["on_site"]
-        for key in ("allowed", "expected"):
-            if key in z:
-                kwargs[key] = _ids(z[key], f"{where}: {key}")
+        if "allowed" in z:
+            kwargs["allowed"] = _ids(z["allowed"], f"{where}: allowed")
+        if "expected" in z:
+            kwargs["expected"] = _ids(z["expected"], f"{where}: expected")
         zones.append(
             Zone(
                 name=name,
@@ -294,10 +320,10 @@ def _zones(data: dict[str, object]) -> tuple[Zone, ...]:
     return tuple(zones)
 
 
-def _power(z: dict[str, object], where: str) -> dict[str, object]:
+def _power(z: dict[str, object], where: str) -> _ZoneKeys:
     """An energized zone's voltage (its margin from the distance table, unless margin_m is
     given) and state source."""
-    out: dict[str, object] = {}
+    out: _ZoneKeys = {}
     keys = [k for k in ("voltage_kv", "distance_table", "state") if k in z]
     if keys and z["kind"] != "energized":
         raise ConfigError(f"{where}: {', '.join(keys)} only for an energized zone")
@@ -306,8 +332,8 @@ def _power(z: dict[str, object], where: str) -> dict[str, object]:
     if "voltage_kv" in z:
         table = z.get("distance_table", DEFAULT_TABLE)
         margin = approach_distance(z["voltage_kv"], table, where)
-        out["voltage_kv"] = float(z["voltage_kv"])
-        out["distance_table"] = table if "distance_table" in z else None
+        out["voltage_kv"] = _number(z["voltage_kv"], f"{where}: voltage_kv")
+        out["distance_table"] = str(table) if "distance_table" in z else None
         if "margin_m" not in z:
             out["margin_m"] = margin
     if "state" in z:

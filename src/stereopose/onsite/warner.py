@@ -88,7 +88,9 @@ class _Said:
 class Occupancy(Protocol):
     """What the warner needs of the fences (fence.rules.FenceMonitor.occupants)."""
 
-    def occupants(self, zone: str) -> tuple[list, list]: ...
+    def occupants(
+        self, zone: str
+    ) -> tuple[list[tuple[int, np.ndarray]], list[tuple[int, np.ndarray]]]: ...
 
 
 def side_of(toward: np.ndarray, heading: float) -> str:

@@ -82,7 +82,7 @@ class Iec104Settings:
         """A time tag (CP56Time2a: c104 writes the datetime's fields) of a Unix time."""
         if self.time_tags == "local":
             return dt.datetime.fromtimestamp(wall_t)
-        return dt.datetime.fromtimestamp(wall_t, dt.timezone.utc)
+        return dt.datetime.fromtimestamp(wall_t, dt.UTC)
 
     def unix(self, fields: dt.datetime) -> float:
         """A master's time (CP56Time2a fields, no zone) as a Unix time, read as time_tags."""
@@ -90,4 +90,4 @@ class Iec104Settings:
             return fields.timestamp()
         if self.time_tags == "local":
             return fields.timestamp()
-        return fields.replace(tzinfo=dt.timezone.utc).timestamp()
+        return fields.replace(tzinfo=dt.UTC).timestamp()

@@ -220,7 +220,7 @@ def _generated(settings: OpcuaSettings) -> AppCertificate:
                 e,
             )
         else:
-            if c.not_valid_after_utc > datetime.datetime.now(datetime.timezone.utc):
+            if c.not_valid_after_utc > datetime.datetime.now(datetime.UTC):
                 app = AppCertificate(c, k, cert_path, thumbprint(c), _uri(c) or "", True)
                 logger.info(
                     "OPC UA: self-signed certificate %s (SHA-1 thumbprint %s)",

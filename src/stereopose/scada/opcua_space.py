@@ -127,9 +127,7 @@ def incident_message(rec: IncidentRecord) -> str:
 
 
 def _utc(wall: float | None) -> datetime.datetime:
-    return datetime.datetime.fromtimestamp(
-        time.time() if wall is None else wall, datetime.timezone.utc
-    )
+    return datetime.datetime.fromtimestamp(time.time() if wall is None else wall, datetime.UTC)
 
 
 def _text(s: str) -> ua.LocalizedText:

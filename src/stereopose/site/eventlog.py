@@ -18,7 +18,7 @@ import sqlite3
 import threading
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from urllib.request import pathname2url
 
@@ -80,7 +80,7 @@ def parse_time(value: str, name: str) -> float:
                 f"{name}: expected Unix seconds or an ISO 8601 time, got {value!r}"
             ) from None
         if d.tzinfo is None:
-            d = d.replace(tzinfo=timezone.utc)
+            d = d.replace(tzinfo=UTC)
         t = d.timestamp()
     if not math.isfinite(t):
         raise ValueError(f"{name}: expected a finite time, got {value!r}")
@@ -233,7 +233,7 @@ class EventLog:
             "id": event_id,
             "t": rec["t"],
             "wall_t": round(wall_t, 3),
-            "time": datetime.fromtimestamp(wall_t, timezone.utc)
+            "time": datetime.fromtimestamp(wall_t, UTC)
             .isoformat(timespec="milliseconds")
             .replace("+00:00", "Z"),
             "frame": rec["frame"],
@@ -264,7 +264,7 @@ class EventLog:
             return []
         who = f"_{part_name(str(person))}_{part_name(zone)}_"
         for dt in (0, -1, 1):
-            stamp = datetime.fromtimestamp(math.floor(wall_t) + dt, timezone.utc)
+            stamp = datetime.fromtimestamp(math.floor(wall_t) + dt, UTC)
             prefix = stamp.strftime("%Y%m%d-%H%M%S") + who
             found = [n for n in index.get(prefix[:15], ()) if n.startswith(prefix)]
             if found:

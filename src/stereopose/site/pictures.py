@@ -18,7 +18,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import cv2
 
@@ -119,7 +119,7 @@ class PictureEncoder:
             self._encode(*item)
 
     def _encode(self, wall_t: float, images: Mapping, people2d: Mapping, people3d) -> None:
-        stamp = datetime.fromtimestamp(wall_t, timezone.utc).strftime("%H:%M:%S")
+        stamp = datetime.fromtimestamp(wall_t, UTC).strftime("%H:%M:%S")
         for camera, image in images.items():
             if image is None or camera not in self.cameras:
                 continue

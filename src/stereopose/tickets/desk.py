@@ -54,7 +54,8 @@ class _Entry:
         self.state: TicketState = PLANNED
         self.start_asked: str | None = None  # by whom (the loop starts it)
         self.end_asked: tuple[str, bool] | None = None  # by whom, aborted
-        self.started_by = self.ended_by = None
+        self.started_by: str | None = None
+        self.ended_by: str | None = None
         self.started_t: float | None = None
         self.ended_t: float | None = None
         self.slot: int | None = None  # its IEC 104 slot while active (scada.points)

@@ -268,9 +268,10 @@ class TicketMonitor:
         return out
 
     def _done(
-        self, k: int, s: TicketStep, x: StepState, t: float, frame: int, seen: Seen, postures
+        self, k: int, s: TicketStep, x: StepState, t: float, frame: int, seen: Seen, postures: dict
     ) -> list[Event]:
         op = self.operator
+        assert x.hold is not None and op is not None  # _actions holds the step for an operator
         onset, _, placed = x.hold
         x.hold = None
         x.done_t, x.onset_t, x.by, x.position = t, onset, op, seen.xy[op]
@@ -317,7 +318,7 @@ class TicketMonitor:
         since = self.started_t
         for s, x in zip(self.ticket.steps, self.steps, strict=True):
             due = since is not None and s.max_s is not None and t - since > s.max_s + EPS
-            if x.done_t is None and not x.timed_out and due:
+            if since is not None and x.done_t is None and not x.timed_out and due:
                 x.timed_out = True
                 out.append(
                     self._deviation("step_timeout", t, frame, since, s, duration_s=t - since)
@@ -334,8 +335,8 @@ class TicketMonitor:
         if tk.supervisor is None or op is None or op not in seen.xy:
             return []
         sup = self.supervisor
-        ok = sup is not None and sup in seen.xy
-        if ok:
+        ok = False
+        if sup is not None and sup in seen.xy:
             (ox, oy), (sx, sy) = seen.xy[op], seen.xy[sup]
             ok = math.hypot(sx - ox, sy - oy) <= tk.supervise_m + NEAR_EPS
         change = self.absent.step(not ok, t, tk.absent_s, 0.0)

@@ -6,12 +6,11 @@ step's action). Every problem is a ConfigError naming the file, the key and the 
 from __future__ import annotations
 
 import math
+import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
-
-import tomllib
 
 from stereopose.errors import ConfigError
 from stereopose.zones import Zone

@@ -49,7 +49,7 @@ class JointFilters:
     def append(self, joints: np.ndarray, noise_m: float) -> None:
         """Add people starting at `joints` (n, 17, 3) (NaN: not seen yet), at rest."""
         n = joints.shape[0]
-        seen = np.isfinite(joints).all(-1)
+        seen = np.asarray(np.isfinite(joints).all(-1))
         self.x = np.concatenate([self.x, np.where(seen[..., None], joints, np.nan)])
         self.v = np.concatenate([self.v, np.zeros((n, NUM_JOINTS, 3))])
         self.p00 = np.concatenate([self.p00, np.full((n, NUM_JOINTS), noise_m**2)])
@@ -62,7 +62,9 @@ class JointFilters:
         for name in ("x", "v", "p00", "p01", "p11", "rejected"):
             setattr(self, name, getattr(self, name)[mask])
 
-    def predict(self, dt: np.ndarray | float, q: float, moving: np.ndarray | None = None) -> None:
+    def predict(
+        self, dt: np.ndarray | float, q: np.ndarray | float, moving: np.ndarray | None = None
+    ) -> None:
         """Advance every state by dt seconds (scalar or (T,)).
 
         q: acceleration spectral density (m^2/s^3) of the white-noise acceleration model,
@@ -114,7 +116,7 @@ class JointFilters:
 
     def reset(self, rows: np.ndarray, z: np.ndarray, noise_m: float) -> None:
         """Restart people `rows` at the measured joints z (n, 17, 3), at rest."""
-        seen = np.isfinite(z).all(-1)
+        seen = np.asarray(np.isfinite(z).all(-1))
         self.x[rows] = np.where(seen[..., None], z, np.nan)
         self.v[rows] = 0.0
         self.p00[rows] = noise_m**2

@@ -37,15 +37,19 @@ class Memory(Protocol):
     def prior(self, frame: int, t: float | None = None) -> np.ndarray | None:
         """(T, 17, 3) poses expected at `frame`, at time t seconds (None: frame / fps), NaN
         where unknown, or None."""
+        ...
 
     def update(self, frame: int, rec: Reconstruction) -> People3D:
         """The output people of `frame` from its reconstruction (seeded by `prior`)."""
+        ...
 
     def finish(self) -> list[Trajectory]:
         """Every person's trajectory, by id (empty without tracking)."""
+        ...
 
     def two_way(self, frames: Sequence[People3D]) -> list[People3D]:
         """The online output smoothed both ways over each track (tracker with record only)."""
+        ...
 
 
 class NoMemory:

@@ -148,6 +148,7 @@ class Tracker:
         if frame != self._frame or self._unseen is None:
             raise ValueError(f"frame {frame}: call prior({frame}) before update")
         t, unseen, seed_rows = self._t, self._unseen, self._seed_rows
+        assert t is not None  # prior(frame) set it
         self._unseen = None
         found = rec.people
         row_of = np.full(len(found), -1, dtype=np.int64)
@@ -166,14 +167,14 @@ class Tracker:
         self._retire(t, rows)
         return out
 
-    def two_way(self, people_frames: Sequence[People3D]) -> list[People3D]:
-        """The online output `people_frames` (this tracker's, every frame) with each person's
+    def two_way(self, frames: Sequence[People3D]) -> list[People3D]:
+        """The online output `frames` (this tracker's, every frame) with each person's
         joints smoothed both ways over their whole track (see tracking.offline). Needs
         `record`."""
         if not self.record:
             raise ValueError("two-way smoothing needs a Tracker made with record=True")
         logs = {i: self.logs[s] for i, s in self._serial_of_id.items() if s in self.logs}
-        return smooth_people(people_frames, logs, self.config.fps, self._q)
+        return smooth_people(frames, logs, self.config.fps, self._q)
 
     def finish(self) -> list[Trajectory]:
         """Every person's trajectory (ended and still open), by id; of the ended ones, the

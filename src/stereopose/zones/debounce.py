@@ -63,7 +63,9 @@ class Debounced:
     def keep(self, mask: np.ndarray) -> None:
         self.state, self.since, self.began = self.state[mask], self.since[mask], self.began[mask]
 
-    def step(self, rows: np.ndarray, raw: np.ndarray, t: float):
+    def step(
+        self, rows: np.ndarray, raw: np.ndarray, t: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Advance `rows` with raw (n, Z) at time t; returns (rose, fell) (n, Z) flags and the
         onset times (n, Z) of the changes (None when nothing changed)."""
         state, since = self.state[rows], self.since[rows]

@@ -91,8 +91,8 @@ def approach_distance(voltage_kv: object, table: object, where: str) -> float:
             f"{where}: distance_table: expected one of {', '.join(TABLES)}, got {table!r}"
         )
     what, lowest, rows = TABLES[table]
-    ok = isinstance(voltage_kv, (int, float)) and not isinstance(voltage_kv, bool)
-    if not ok or not math.isfinite(float(voltage_kv)):
+    number = isinstance(voltage_kv, (int, float)) and not isinstance(voltage_kv, bool)
+    if not number or not isinstance(voltage_kv, (int, float)) or not math.isfinite(voltage_kv):
         raise ConfigError(
             f"{where}: voltage_kv: expected a number of kilovolts, got {voltage_kv!r}"
         )

@@ -29,7 +29,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, SupportsFloat, SupportsIndex
 
 from stereopose.errors import ConfigError
 from stereopose.secrets import redact
@@ -408,19 +408,26 @@ def _compare(op: ast.cmpop, a: object, b: object) -> bool:
         same = _same(a, b)
         return same if isinstance(op, ast.Eq) else not same
     try:
-        a, b = float(a), float(b)
+        x, y = _as_float(a), _as_float(b)
     except (TypeError, ValueError):
         raise ValueError(f"cannot order {a!r} and {b!r}") from None  # the zone: unknown
-    if not (math.isfinite(a) and math.isfinite(b)):
+    if not (math.isfinite(x) and math.isfinite(y)):
         raise ValueError(f"cannot order {a!r} and {b!r}")
-    return {ast.Lt: a < b, ast.LtE: a <= b, ast.Gt: a > b, ast.GtE: a >= b}[type(op)]
+    return {ast.Lt: x < y, ast.LtE: x <= y, ast.Gt: x > y, ast.GtE: x >= y}[type(op)]
+
+
+def _as_float(x: object) -> float:
+    """float(x): a TypeError where x is neither a number nor a number's text."""
+    if isinstance(x, (str, bytes, SupportsFloat, SupportsIndex)):
+        return float(x)
+    raise TypeError(f"not a number: {x!r}")
 
 
 def _same(a: object, b: object) -> bool:
     if isinstance(a, str) and isinstance(b, str):
         return a.strip().lower() == b.strip().lower()
     try:
-        return float(a) == float(b)
+        return _as_float(a) == _as_float(b)
     except (TypeError, ValueError):
         return str(a).strip().lower() == str(b).strip().lower()
 

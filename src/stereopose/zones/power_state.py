@@ -120,6 +120,7 @@ class ZoneStates:
     def judge(self, zone: Zone) -> tuple[str, str, str]:
         """(state, source, reason) of a zone now."""
         spec = zone.power
+        assert spec is not None  # the zones of a PowerStates have a power rule
         values: dict[str, object] = {}
         now = self.board.clock()
         for p in spec.points:
@@ -203,7 +204,9 @@ def state_event(t: float, frame: int, zone: Zone, type_: str, source: str) -> Ev
 class Occupancy(Protocol):
     """Who is in and near each zone now (fence.FenceMonitor)."""
 
-    def occupants(self, zone: str) -> tuple[list[tuple[int, object]], list[tuple[int, object]]]:
+    def occupants(
+        self, zone: str
+    ) -> tuple[list[tuple[int, np.ndarray]], list[tuple[int, np.ndarray]]]:
         """(inside, near): (person id, floor position) pairs."""
         ...
 

@@ -20,7 +20,7 @@ ENERGIZED = "energized"
 ZONE_EVENTS = ("enter", "approach", "dwell", "exit")
 
 
-class Safety(str, Enum):
+class Safety(str, Enum):  # noqa: UP042 (StrEnum would change str() of a member)
     """Why an energized zone is safe now: its event kind once made safe."""
 
     DEAD = "dead"  # switched out and earthed (its breakers' points)

@@ -161,7 +161,7 @@ class ZoneStateLog:
             r = self.rows[self._next]
             self._next += 1
             if r.point is None:
-                state = r.value
+                state = str(r.value)  # a state, as read
             else:
                 self.points.setdefault(r.zone, {})[r.point] = r.value
                 state = self._judge(self.zones[r.zone])

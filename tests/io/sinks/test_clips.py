@@ -4,7 +4,7 @@ alarms close together share one clip, hostile zone names, a folder gone, a stall
 from __future__ import annotations
 
 import threading
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -19,7 +19,7 @@ from waiting import wait_until
 
 FPS = 10.0
 CAMERAS = ["cam1", "cam2"]
-WALL = datetime(2024, 5, 1, 13, 0, 0, tzinfo=timezone.utc).timestamp()
+WALL = datetime(2024, 5, 1, 13, 0, 0, tzinfo=UTC).timestamp()
 
 
 def people(f: int, seen_by: list[int]) -> People3D:

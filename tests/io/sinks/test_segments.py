@@ -9,7 +9,7 @@ import os
 import signal
 import subprocess
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,7 @@ from stereopose.io.sinks.segments import SegmentSettings, SegmentSink, segment_s
 from stereopose.types import People3D
 
 # 2024-05-01 12:59:55 UTC: the first hour's segment starts 5 s before the hour
-WALL = datetime(2024, 5, 1, 12, 59, 55, tzinfo=timezone.utc).timestamp()
+WALL = datetime(2024, 5, 1, 12, 59, 55, tzinfo=UTC).timestamp()
 
 
 def frame(f: int, fps: float = 5.0, ids: tuple[int, ...] = (1, 2)) -> FrameResult:

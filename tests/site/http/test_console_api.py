@@ -11,7 +11,7 @@ import http.client
 import json
 import sqlite3
 import threading
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from urllib.parse import urlsplit
 
 import cv2
@@ -118,7 +118,7 @@ def test_events_newest_first_with_wall_time_level_and_filters(served):
         assert ids(type="camera_down") == [4]
         assert ids(since=WALL_START + 2.5) == [5, 4, 3]
         assert ids(until=WALL_START + 2.5) == [2, 1]
-        iso = datetime.fromtimestamp(WALL_START + 2.5, timezone.utc).isoformat()
+        iso = datetime.fromtimestamp(WALL_START + 2.5, UTC).isoformat()
         assert ids(since=iso) == [5, 4, 3]
         assert ids(since=iso.replace("+00:00", "Z"), type="enter") == []
         assert ids(limit=2) == [5, 4]

@@ -9,7 +9,7 @@ import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -104,7 +104,7 @@ def part_name(text: str, limit: int = 48) -> str:
 
 def clip_name(wall_t: float, person: int, zone: str, camera: str) -> str:
     """`<UTC time>_<person>_<zone>_<camera>` (no suffix), every part safe in a file name."""
-    stamp = datetime.fromtimestamp(wall_t, timezone.utc).strftime("%Y%m%d-%H%M%S")
+    stamp = datetime.fromtimestamp(wall_t, UTC).strftime("%Y%m%d-%H%M%S")
     return f"{stamp}_{part_name(str(person))}_{part_name(zone)}_{part_name(camera)}"
 
 

@@ -34,7 +34,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -190,7 +190,7 @@ class ClipSink(ClosesOnce):
         people3d: People3D,
         alarms: Sequence[Event],
     ) -> None:
-        stamp = datetime.fromtimestamp(self.wall_start + t, timezone.utc).strftime("%H:%M:%S")
+        stamp = datetime.fromtimestamp(self.wall_start + t, UTC).strftime("%H:%M:%S")
         for camera, image in images.items():
             ring = self._rings.get(camera)
             if ring is None:

@@ -24,7 +24,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from stereopose.checks import DAY_S
@@ -59,7 +59,7 @@ class SegmentSettings:
 
 def segment_stem(wall_t: float) -> str:
     """A segment's name without suffix, from the Unix time of its first frame (UTC)."""
-    return datetime.fromtimestamp(wall_t, timezone.utc).strftime(_STAMP)
+    return datetime.fromtimestamp(wall_t, UTC).strftime(_STAMP)
 
 
 class SegmentSink(ClosesOnce):

@@ -4,10 +4,9 @@ calibration keeper (site.health.calib_keeper) wrote for a calibration file."""
 from __future__ import annotations
 
 import logging
+import tomllib
 from collections.abc import Sequence
 from pathlib import Path
-
-import tomllib
 
 logger = logging.getLogger(__name__)
 

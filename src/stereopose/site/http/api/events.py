@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import sqlite3
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request
@@ -151,7 +151,7 @@ def events_csv(
             "clips": " ".join(e.get("clips", [])),
         }
         writer.writerow([_cell(row.get(c)) for c in CSV_COLUMNS])
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     return Response(
         out.getvalue(),
         media_type="text/csv; charset=utf-8",
