@@ -15,13 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+from onnxruntime.quantization import CalibrationDataReader
 
 from stereopose.detection.base import letterbox_for, letterbox_image, to_blob
 
 logger = logging.getLogger(__name__)
 
 
-class _Frames:
+class _Frames(CalibrationDataReader):
     """ONNX Runtime's CalibrationDataReader over letterboxed frames."""
 
     def __init__(self, name: str, frames: list[np.ndarray], imgsz: int, stride: int) -> None:
@@ -31,7 +32,8 @@ class _Frames:
             blobs.append(to_blob([letterbox_image(image, lb)]))
         self._items = iter([{name: b} for b in blobs])
 
-    def get_next(self) -> dict | None:
+    # ONNX Runtime's annotation leaves out the None that ends the frames, as its docs give it
+    def get_next(self) -> dict | None:  # pyright: ignore[reportIncompatibleMethodOverride]
         return next(self._items, None)
 
 

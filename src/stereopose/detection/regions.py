@@ -60,7 +60,7 @@ def _check_boxes(boxes: np.ndarray) -> np.ndarray:
     return b[np.isfinite(b).all(axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])]
 
 
-def place(cx: float, cy: float, side: float, size: tuple[int, int], why: frozenset[str]) -> Region:
+def place(cx: float, cy: float, side: float, size: tuple[int, int], why: frozenset[Why]) -> Region:
     """The square of `side` centred on (cx, cy), moved inside a frame of `size` (w, h); a side
     larger than the frame's keeps to the frame on that side."""
     w, h = size

@@ -262,10 +262,10 @@ class OnnxPoseDetector:
         a model of fixed batch)."""
         step = self.max_batch if self.batch_dynamic else 1
         if len(blob) <= step:
-            return self.session.run(None, {self.input_name: blob})[0]
+            return np.asarray(self.session.run(None, {self.input_name: blob})[0])
         return np.concatenate(
             [
-                self.session.run(None, {self.input_name: blob[k : k + step]})[0]
+                np.asarray(self.session.run(None, {self.input_name: blob[k : k + step]})[0])
                 for k in range(0, len(blob), step)
             ]
         )

@@ -55,6 +55,8 @@ class UltralyticsPoseDetector:
             self.device = "cuda"
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
+        from ultralytics.engine.results import Results
+
         images = [check_image(im, i) for i, im in enumerate(images)]
         results: list[Poses] = [Poses.empty()] * len(images)
         for idx in group_by_shape(images).values():
@@ -68,11 +70,16 @@ class UltralyticsPoseDetector:
                 verbose=False,
             )
             for i, r in zip(idx, batch, strict=False):
-                if r.keypoints is None or not len(r.boxes):
+                assert isinstance(r, Results)  # predict's results, not a stream's tensors
+                keypoints, boxes = r.keypoints, r.boxes
+                if keypoints is None or boxes is None or not len(boxes):
                     continue
-                results[i] = Poses(
-                    r.keypoints.data.cpu().numpy().astype(np.float64),
-                    r.boxes.xyxy.cpu().numpy().astype(np.float64),
-                    r.boxes.conf.cpu().numpy().astype(np.float64),
-                )
+                results[i] = Poses(_array(keypoints.data), _array(boxes.xyxy), _array(boxes.conf))
         return results
+
+
+def _array(x: object) -> np.ndarray:
+    """A result's tensor (or array) as float64 NumPy."""
+    import torch
+
+    return np.asarray(x.cpu().numpy() if isinstance(x, torch.Tensor) else x, dtype=np.float64)

@@ -203,7 +203,11 @@ def _ghosts(
     rng: np.random.Generator, rig: Rig, noise: DetectorNoise, T: int, room: tuple[float, float]
 ) -> dict[tuple[int, int], np.ndarray]:
     """False detections: standing people at random places, seen by one camera only."""
-    counts = rng.poisson(noise.ghosts, (T, len(rig))) if noise.ghosts > 0 else np.zeros((T, 0))
+    counts = (
+        rng.poisson(noise.ghosts, (T, len(rig)))
+        if noise.ghosts > 0
+        else np.zeros((T, 0), dtype=np.int64)
+    )
     out: dict[tuple[int, int], np.ndarray] = {}
     if counts.sum() == 0:
         return out

@@ -50,8 +50,8 @@ HANDLE_Y = 0.95  # the handle zone's middle, metres from the wall
 STAND_Y = 1.55  # where the operator stands to operate
 
 
-def _box(x0: float, x1: float, y0: float, y1: float) -> list[list[float]]:
-    return [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+def _box(x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
 
 
 def job_site(fps: float = 25.0) -> Site:

@@ -330,7 +330,9 @@ class Worker:
         reach_right, bend, present."""
         times = np.arange(num_frames) / fps
         xy = np.zeros((num_frames, 2))
-        sig = {k: np.zeros(num_frames) for k in ("heading", "gait", "reach_left", "reach_right")}
+        sig: dict[str, np.ndarray] = {
+            k: np.zeros(num_frames) for k in ("heading", "gait", "reach_left", "reach_right")
+        }
         bend = np.zeros(num_frames)
         for s in self.segments:
             m = (times >= s.t0) & (times < s.t1)

@@ -236,7 +236,7 @@ def simulate(
         detection_truth=labels,
         difficulty=difficulty,
         seed=int(seed),
-        room=tuple(float(v) for v in room),
+        room=(float(room[0]), float(room[1]), float(room[2])),
         workers=tuple(workers),
     )
 

@@ -37,6 +37,7 @@ def yard_rig(rng: np.random.Generator, num_cameras: int = 6, yard=YARD) -> Rig:
         target = np.array([rng.uniform(0.3, 0.7) * W, rng.uniform(0.3, 0.7) * D, 0.0])
         R = look_at(centre, target)
         fx = rng.uniform(1500.0, 2400.0)
+        k1 = k2 = 0.0
         for _ in range(100):
             k1, k2 = rng.uniform(-0.12, -0.02), rng.uniform(0.0, 0.05)
             if _distortion_ok(fx, k1, k2):
@@ -114,7 +115,7 @@ def yard_scene(
         truth,
         dets,
         float(fps),
-        tuple(float(v) for v in yard),
+        (float(yard[0]), float(yard[1])),
         tuple(float(w.height) for w in workers),
     )
 
