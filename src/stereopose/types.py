@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import copy
 import functools
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -17,6 +18,10 @@ import numpy as np
 from stereopose.checks import check_camera_numbers
 from stereopose.errors import CalibrationError, KeypointsError
 from stereopose.skeleton import NUM_JOINTS
+
+# A JSON object as read (json.loads, a JSON Lines row, an API body): the code that reads it
+# checks its values, not the type checker.
+JsonDoc = Mapping[str, Any]
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -237,10 +237,11 @@ class IncidentBook:
             self._by_id[inc.id] = inc
             self._by_key[key] = inc.id
             shelf = self._shelved.get(key)
-            quiet = shelf is not None and (shelf.shelved_until or 0.0) > e.t
-            if quiet:
+            until = (shelf.shelved_until or 0.0) if shelf is not None else 0.0
+            quiet = shelf is not None and until > e.t
+            if shelf is not None and quiet:
                 inc.shelve_as(shelf)
-                heapq.heappush(self._shelf, (shelf.shelved_until, inc.id))
+                heapq.heappush(self._shelf, (until, inc.id))
             changes.append(Change(RAISED, None, inc.record(), e.t, notify=not quiet))
             self._first_out(inc, e.t, changes)
         if key[0] == "zone":

@@ -30,6 +30,7 @@ from typing import Any
 
 from stereopose.alarms.levels import HazardKey
 from stereopose.errors import StereoposeError
+from stereopose.types import JsonDoc
 
 __all__ = [
     "ACKNOWLEDGED",
@@ -129,7 +130,7 @@ class IncidentRecord:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, object]) -> IncidentRecord:
+    def from_dict(cls, d: JsonDoc) -> IncidentRecord:
         """Back from to_dict (extra keys ignored); a bad record is an IncidentError."""
         names = {f.name for f in fields(cls)}
         try:
@@ -155,7 +156,8 @@ WALL_TIMES = (
 def with_wall_times(d: dict[str, object], wall_start: float | None) -> dict[str, object]:
     """d (a record's dict) with its WALL_TIMES: wall_start + t (None without either)."""
     for name, key in WALL_TIMES:
-        d[name] = None if wall_start is None or d.get(key) is None else wall_start + d[key]
+        t = d.get(key)
+        d[name] = wall_start + t if wall_start is not None and isinstance(t, (int, float)) else None
     return d
 
 

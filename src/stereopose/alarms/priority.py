@@ -18,6 +18,7 @@ after its incident cleared is an occurrence of the same incident, not a new one.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -84,7 +85,7 @@ def parse_priority(value: object, where: str) -> int:
         p = _BY_NAME.get(value.strip().lower())
         if p is not None:
             return p
-    elif _PRIORITY.contains(value):
+    elif _PRIORITY.contains(value) and isinstance(value, numbers.Integral):
         return int(value)
     names = ", ".join(PRIORITY_NAMES.values())
     raise ConfigError(

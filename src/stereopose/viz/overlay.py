@@ -70,7 +70,7 @@ def draw_overlay(
         for p in range(len(people3d)):
             pid = int(people3d.ids[p])
             c = colour(pid)
-            if people3d.predicted[p]:
+            if people3d.predicted is not None and people3d.predicted[p]:
                 c = tuple(int(v * 0.5) for v in c)
             ok = np.isfinite(px[p]).all(axis=1)
             inside = ok & (px[p, :, 0] > -w) & (px[p, :, 0] < 2 * w)

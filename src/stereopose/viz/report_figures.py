@@ -286,21 +286,21 @@ def figure_floor(tracks, rig: Rig, site: Site | None, events: list[Event]) -> go
                 hoverinfo="text",
             )
         )
-    located = [e for e in events if e.position is not None]
+    located = [(e, e.position) for e in events if e.position is not None]
     if located:
         fig.add_trace(
             go.Scatter(
-                x=[e.position[0] for e in located],
-                y=[e.position[1] for e in located],
+                x=[xy[0] for _, xy in located],
+                y=[xy[1] for _, xy in located],
                 mode="markers",
                 name="events",
                 marker={
-                    "symbol": [EVENT_SYMBOLS.get(e.type, "circle") for e in located],
+                    "symbol": [EVENT_SYMBOLS.get(e.type, "circle") for e, _ in located],
                     "size": 11,
-                    "color": [colour(e.person) for e in located],
+                    "color": [colour(e.person) for e, _ in located],
                     "line": {"color": "black", "width": 1},
                 },
-                hovertext=[f"{e.type} {e.zone}, id {e.person}, t={e.t:.2f}s" for e in located],
+                hovertext=[f"{e.type} {e.zone}, id {e.person}, t={e.t:.2f}s" for e, _ in located],
                 hoverinfo="text",
             )
         )

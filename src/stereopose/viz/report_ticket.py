@@ -13,12 +13,13 @@ seconds.
 from __future__ import annotations
 
 import html
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 
+from stereopose.types import JsonDoc
 from stereopose.viz.report_figures import _animate, _person_traces, _zone_prism, go
 from stereopose.viz.report_tables import CSS
 
@@ -41,7 +42,7 @@ def _when(wall: float | None, t: float | None) -> str:
     return f"t = {t:.2f} s" if isinstance(t, (int, float)) else "-"
 
 
-def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str, object]]) -> dict:
+def view_from_events(ticket: JsonDoc, events: Iterable[JsonDoc]) -> dict:
     """A ticket's view (as TicketDesk.ticket gives it) from its events (event records, as in
     events.jsonl): the steps done, the deviations and the result."""
     tid = ticket["id"]
@@ -63,6 +64,7 @@ def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str,
         }
         for s in ticket["steps"]
     }
+    deviations: list[dict[str, object]] = []
     view: dict[str, object] = {
         **{k: ticket.get(k) for k in ("id", "title", "kind")},
         "isolated": list(ticket.get("isolated", [])),
@@ -74,7 +76,7 @@ def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str,
         "started_by": None,
         "ended_by": None,
         "ticket": dict(ticket),
-        "deviation_list": [],
+        "deviation_list": deviations,
         "result": None,
     }
     for e in mine:
@@ -97,7 +99,7 @@ def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str,
             view["state"] = "aborted" if r.get("aborted") else "completed"
             view["operator"], view["supervisor"] = r.get("operator"), r.get("supervisor")
         if kind in _DEVIATIONS:
-            view["deviation_list"].append({"type": kind, "t": e.get("t"), "step": e.get("step")})
+            deviations.append({"type": kind, "t": e.get("t"), "step": e.get("step")})
     view["steps"] = list(steps.values())
     view["zone_states"] = [  # the energized zones' states the job was judged with
         {"t": e.get("t"), "zone": e.get("zone"), "state": e["type"][5:], "source": e.get("source")}
@@ -107,7 +109,7 @@ def view_from_events(ticket: Mapping[str, object], events: Iterable[Mapping[str,
     return view
 
 
-def _timeline(view: Mapping[str, object]) -> str:
+def _timeline(view: JsonDoc) -> str:
     """An SVG bar per step from its action's onset to its completion over the job's span."""
     t0, t1 = view.get("started_t"), view.get("ended_t")
     done = [s for s in view["steps"] if s.get("done_t") is not None]
@@ -147,7 +149,7 @@ def _timeline(view: Mapping[str, object]) -> str:
     return f"<svg width='920' height='{height}' role='img'>{''.join(rows)}{axis}</svg>"
 
 
-def _steps_table(view: Mapping[str, object], wall0: float | None) -> str:
+def _steps_table(view: JsonDoc, wall0: float | None) -> str:
     head = (
         "<tr><th>#</th><th>step</th><th>position</th><th>target</th><th>state</th>"
         "<th>done</th><th>held</th><th>by</th><th>in order</th><th>wrong</th><th>stood at</th></tr>"
@@ -178,7 +180,7 @@ def _steps_table(view: Mapping[str, object], wall0: float | None) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
-def _figure(frames: Sequence[Mapping[str, object]], zones, marked: set[str]) -> go.Figure | None:
+def _figure(frames: Sequence[JsonDoc], zones, marked: set[str]) -> go.Figure | None:
     poses = []
     stride = max(1, int(np.ceil(len(frames) / MAX_REPORT_FRAMES)))
     for k, f in enumerate(frames[::stride]):
@@ -206,7 +208,7 @@ def _figure(frames: Sequence[Mapping[str, object]], zones, marked: set[str]) -> 
     return fig
 
 
-def _states_used(changes: Sequence[Mapping[str, object]]) -> str:
+def _states_used(changes: Sequence[JsonDoc]) -> str:
     """Which energized zones' states the job was judged with, in one line."""
     if not changes:
         return "none known: every energized zone taken as live"
@@ -218,9 +220,9 @@ def _states_used(changes: Sequence[Mapping[str, object]]) -> str:
 
 
 def ticket_report(
-    view: Mapping[str, object],
+    view: JsonDoc,
     zones: Sequence[Any],
-    frames: Sequence[Mapping[str, object]] = (),
+    frames: Sequence[JsonDoc] = (),
     wall_start: float | None = None,
 ) -> str:
     """The report (see the module) as one HTML string. wall_start: the Unix time of the
