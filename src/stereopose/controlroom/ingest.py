@@ -134,7 +134,7 @@ class Ingest:
         self._state: dict[str, str] = {}  # site -> the state last written to the store
         self.clock_offsets: dict[str, float] = {}  # site -> its clock minus ours (s)
         self._clock_warned: set[str] = set()
-        self.counts = dict.fromkeys(COUNTS, 0)
+        self.counts: dict[str, int] = dict.fromkeys(COUNTS, 0)
         self._progress = time.monotonic()  # events stored, or none waiting to be
         self._stepped = time.monotonic()  # the ingest's thread last went round
         self._rate: deque[tuple[float, int]] = deque(maxlen=64)  # (time, messages) samples
@@ -232,7 +232,7 @@ class Ingest:
             )
 
     def _message(self, msg: paho.MQTTMessage) -> None:
-        self.intake.put(msg.topic, msg.payload)
+        self.intake.put(msg.topic, bytes(msg.payload))
 
     def _warn(self, kind: str, text: str) -> None:
         self.intake.warn(kind, text)
@@ -465,8 +465,10 @@ class Ingest:
             return False, f"events came and none was stored for {now - self._progress:.0f} s"
         return True, ""
 
-    def figures(self) -> dict:
-        f = dict(self.counts, queued=self.intake.queued(), enrolled=len(self.intake.admitted()))
+    def figures(self) -> dict[str, object]:
+        f: dict[str, object] = dict(
+            self.counts, queued=self.intake.queued(), enrolled=len(self.intake.admitted())
+        )
         f.update(connected=self.connected, subscribed=self.subscribed)
         f["running"], f["trouble"] = self.health()
         if len(self._rate) >= 2:

@@ -16,11 +16,16 @@ import logging
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose.config import Config, load_config
 from stereopose.controlroom.ingest import Ingest
 from stereopose.controlroom.store import ControlStore
 from stereopose.errors import ConfigError
+
+if TYPE_CHECKING:
+    from stereopose.io.sinks.mqtt_settings import MqttSettings
+    from stereopose.web.server import ServeSettings
 
 __all__ = ["ControlRoom", "plan_control_room", "run_control_room"]
 
@@ -35,8 +40,8 @@ class ControlPlan:
     config: Config
     out_dir: Path
     database: Path | str  # an SQLite file, or a postgresql:// URL
-    mqtt: object  # MqttSettings
-    http: object  # ServeSettings
+    mqtt: MqttSettings
+    http: ServeSettings
 
 
 def plan_control_room(config_path: str | Path) -> ControlPlan:
@@ -57,6 +62,7 @@ def plan_control_room(config_path: str | Path) -> ControlPlan:
     if not cfg.mqtt.host:
         raise ConfigError(f"{path}: mqtt.host: the control room needs the central broker")
     mqtt = mqtt_settings(path, base, cfg)
+    assert mqtt is not None  # its host is given
     db = cfg.control_room.database
     out_dir = resolve(base, cfg.output)
     database: Path | str

@@ -41,6 +41,7 @@ from stereopose.controlroom.schema import (
     room_record,
 )
 from stereopose.errors import StereoposeError
+from stereopose.io.dbapi import Connection, as_connection
 
 __all__ = ["ControlStore", "SiteRow", "StoreError", "shown_database"]
 
@@ -68,7 +69,7 @@ class ControlStore:
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
         self._errors: tuple[type[BaseException], ...] = (sqlite3.Error,)
-        self._reader_db = None
+        self._reader_db: Connection | None = None
         if self.postgres:
             try:
                 import psycopg
@@ -79,17 +80,17 @@ class ControlStore:
                 ) from None
             self._psycopg = psycopg
             self._errors = (psycopg.Error, OSError)
-        self.db = None
+        self.db: Connection | None = None
         try:
-            self._writer()
+            db = self._writer()
             if self.postgres:  # several workers starting at once make the tables one at a time
-                self.db.execute("SELECT pg_advisory_xact_lock(%s)", (SCHEMA_LOCK,))
+                db.execute("SELECT pg_advisory_xact_lock(%s)", (SCHEMA_LOCK,))
             for st in self.dialect.schema():
-                self.db.execute(st)
+                db.execute(st)
             for table, column, decl in ADDED:
-                if column not in self._columns(table):
-                    self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
-            self.db.commit()
+                if column not in self._columns(db, table):
+                    db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
+            db.commit()
         except (*self._errors, OSError) as e:
             self._close_writer()
             raise StoreError(
@@ -100,27 +101,35 @@ class ControlStore:
 
     # --- connections -----------------------------------------------------------------------
 
-    def _connect(self, read_only: bool = False):
-        if self.postgres:
-            db = self._psycopg.connect(self.url, connect_timeout=5, autocommit=read_only)
+    def _connect(self, read_only: bool = False) -> Connection:
+        if self.url is not None:
+            pg = self._psycopg.connect(self.url, connect_timeout=5, autocommit=read_only)
             if read_only:
-                db.read_only = True
-            return db
+                pg.read_only = True
+            return as_connection(pg)
+        assert self.path is not None  # SQLite's file, where not PostgreSQL
         if read_only:
             db = sqlite3.connect(
                 f"file:{pathname2url(str(self.path.resolve()))}?mode=ro", uri=True, timeout=2.0
             )
             db.execute("PRAGMA busy_timeout = 2000")
-            return db
+            return as_connection(db)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         db = sqlite3.connect(self.path, timeout=5.0, check_same_thread=False)
         db.execute("PRAGMA journal_mode = WAL")
         db.execute("PRAGMA synchronous = NORMAL")
-        return db
+        return as_connection(db)
 
-    def _writer(self):
+    def _lost(self, db: Connection | None) -> bool:
+        """A PostgreSQL connection closed or broken (its server gone); never a SQLite one."""
+        if not self.postgres or db is None:
+            return False
+        pg = self._psycopg.Connection
+        return isinstance(db, pg) and bool(db.closed or db.broken)
+
+    def _writer(self) -> Connection:
         """The writing connection (made again when a PostgreSQL server dropped it)."""
-        if self.db is not None and self.postgres and (self.db.closed or self.db.broken):
+        if self._lost(self.db):
             self._close_writer()
         if self.db is None:
             self.db = self._connect()
@@ -132,13 +141,13 @@ class ControlStore:
                 self.db.close()
         self.db = None
 
-    def _columns(self, table: str) -> set[str]:
+    def _columns(self, db: Connection, table: str) -> set[str]:
         if self.postgres:
-            rows = self.db.execute(
+            rows = db.execute(
                 "SELECT column_name FROM information_schema.columns WHERE table_name = %s", (table,)
             ).fetchall()
             return {r[0] for r in rows}
-        return {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
+        return {r[1] for r in db.execute(f"PRAGMA table_info({table})")}
 
     @contextlib.contextmanager
     def writing(self, what: str) -> Iterator:
@@ -153,7 +162,7 @@ class ControlStore:
                 if self.db is not None:
                     with contextlib.suppress(Exception):
                         self.db.rollback()
-                    if self.postgres and (self.db.closed or self.db.broken):
+                    if self._lost(self.db):
                         self._close_writer()
                 raise StoreError(f"{self.name}: cannot {what}: {_why(e)}") from None
 
@@ -169,7 +178,7 @@ class ControlStore:
                     db.close()
                 return
             with self._read_lock:
-                if self._reader_db is None or self._reader_db.closed or self._reader_db.broken:
+                if self._reader_db is None or self._lost(self._reader_db):
                     self._reader_db = self._connect(read_only=True)
                 yield Run(self._reader_db, self.dialect)
         except self._errors as e:

@@ -139,7 +139,7 @@ def replay_body(mark: int, incidents: bool = False) -> str:
     return json.dumps({"incidents_after": int(mark)} if incidents else {"after_id": int(mark)})
 
 
-def ack_body(command: str, incident: int, by: str, where: str) -> str:
+def ack_body(command: str | int, incident: int, by: str, where: str) -> str:
     """An acknowledgement of `incident` by `by` at the control room `where`, on COMMAND_ACK
     (answered on COMMAND_DONE by `command`)."""
     return json.dumps({"command": str(command), "incident": incident, "by": by, "from": where})
