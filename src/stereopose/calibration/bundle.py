@@ -156,9 +156,9 @@ def adjust(
         poses, pts, lengths = unpack(x)
         uv, _ = project_px(poses[b.cam], b.intr[b.cam], pts[b.point])
         out = [((uv - b.uv) * w).ravel()]
-        if len(has_prior):
+        if len(has_prior) and b.prior is not None:
             out.append(((pts[has_prior] - b.prior[has_prior]) / b.prior_sigma_m).ravel())
-        if b.bones is not None and len(b.bones):
+        if b.bones is not None and len(b.bones) and lengths is not None:
             d = np.linalg.norm(pts[b.bones[:, 0]] - pts[b.bones[:, 1]], axis=1)
             out.append((d - lengths[b.bones[:, 2]]) / b.bone_sigma_m)
         if b.baseline is not None:

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative, group_columns
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix, sparray, spmatrix
 
 from stereopose.calibration.board import Board
 from stereopose.errors import CalibrationError
@@ -108,8 +108,8 @@ def _place_cameras(cams, views, poses, flipped):
 
         def gap(Ta: np.ndarray, Tb: np.ndarray) -> float:
             """Rotation (degrees) plus translation (per cent of the distance) apart."""
-            scale = max(np.linalg.norm(Ta[:3, 3]), 0.1)
-            move = 100.0 * np.linalg.norm(Ta[:3, 3] - Tb[:3, 3]) / scale
+            scale = max(float(np.linalg.norm(Ta[:3, 3])), 0.1)
+            move = 100.0 * float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3])) / scale
             return _angle_deg(Ta[:3, :3], Tb[:3, :3]) + move
 
         # the candidate most shared views agree with (as detected preferred on ties)
@@ -252,8 +252,10 @@ def bundle_adjust(
     if refine_intrinsics:
         x0.append(intr.ravel())
     x0 = np.concatenate(x0)
-    S = _jacobian_sparsity(observed.shape[0], C, V, cam_idx, view_idx, fixed, refine_intrinsics)
-    S = S.tocsr()
+    S = csr_matrix(
+        _jacobian_sparsity(observed.shape[0], C, V, cam_idx, view_idx, fixed, refine_intrinsics)
+    )
+    rows, cols = S.get_shape()
 
     seen = _Seen(C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
 
@@ -262,28 +264,42 @@ def bundle_adjust(
         return (proj - observed).ravel()
 
     groups = group_columns(S)
-    dense = S.shape[0] * S.shape[1] <= 4e7  # small enough for exact trust-region steps
+    dense = rows * cols <= 4e7  # small enough for exact trust-region steps
 
-    def jac(p):
+    def jac(p: np.ndarray) -> np.ndarray:
         J = approx_derivative(residuals, p, sparsity=(S, groups))
-        return J.toarray() if dense else J
+        assert isinstance(J, (sparray, spmatrix))  # with a sparsity, a sparse Jacobian
+        return J.toarray()
 
-    solver = {"jac": jac, "tr_solver": "exact"} if dense else {"jac_sparsity": S}
-    # plain least squares converges in a few steps from the pose graph; a robust (Huber)
-    # pass follows only where some corners stand out (a misdetected corner, a moved board)
-    sol = least_squares(residuals, x0, x_scale="jac", method="trf", **solver)
-    err = np.linalg.norm(sol.fun.reshape(-1, 2), axis=-1)
-    if err.max() > 3.0 * max(np.median(err), 0.3):
-        sol = least_squares(
+    def solve(start: np.ndarray, loss: str = "linear", max_nfev: int | None = None):
+        if dense:
+            # scipy leaves jac unannotated: its default, a str, is taken for its type
+            return least_squares(
+                residuals,
+                start,
+                jac=jac,  # pyright: ignore[reportArgumentType]
+                tr_solver="exact",
+                x_scale="jac",
+                method="trf",
+                loss=loss,
+                max_nfev=max_nfev,
+            )
+        return least_squares(
             residuals,
-            sol.x,
+            start,
+            jac_sparsity=S,
             x_scale="jac",
             method="trf",
-            loss="huber",
-            f_scale=1.0,
-            max_nfev=100,
-            **solver,
+            loss=loss,
+            max_nfev=max_nfev,
         )
+
+    # plain least squares converges in a few steps from the pose graph; a robust (Huber)
+    # pass follows only where some corners stand out (a misdetected corner, a moved board)
+    sol = solve(x0)
+    err = np.linalg.norm(sol.fun.reshape(-1, 2), axis=-1)
+    if err.max() > 3.0 * max(np.median(err), 0.3):
+        sol = solve(sol.x, loss="huber", max_nfev=100)
     p = sol.x
     out_cam, out_board, intr = _unpack(p, names, view_names, ref, intr, refine_intrinsics)
     res = residuals(p).reshape(-1, 2)

@@ -161,7 +161,7 @@ def calibrate_intrinsics(
     obj = board.object_points().astype(np.float32)
     rejected = {d.name: d.problem or "" for d in detections if d.corners is None}
     while True:
-        pts = [d.corners.points.astype(np.float32) for d in good]
+        pts = [c.points.astype(np.float32) for d in good if (c := d.corners) is not None]
         rms, K, dist, per_view, _, _ = _calibrate(obj, pts, size, k3)
         worst = int(np.argmax(per_view))
         others = np.median([v for i, v in enumerate(per_view) if i != worst])
@@ -183,7 +183,7 @@ def calibrate_intrinsics(
         np.zeros(3),
         np.zeros(3),
     )
-    cov = coverage([d.corners.points for d in good], size)
+    cov = coverage([c.points for d in good if (c := d.corners) is not None], size)
     result = IntrinsicsResult(
         cam,
         rms,

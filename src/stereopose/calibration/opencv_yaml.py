@@ -39,7 +39,7 @@ def _names(doc: dict[str, Node], path: Path) -> list[str]:
         raise CalibrationError(f"{path}: no `names` list of cameras")
     if not node or any(not n for n in node):
         raise CalibrationError(f"{path}: `names` must list non-empty camera names, got {node!r}")
-    return node
+    return [str(n) for n in node]
 
 
 def _mat(doc: dict[str, Node], key: str, shape: tuple[int, ...] | None, path: Path) -> np.ndarray:

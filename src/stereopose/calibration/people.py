@@ -404,8 +404,11 @@ def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: fl
     placed[[first.a, first.b]] = True
     X = triangulate_groups(views, groups, poses, placed)
     while not placed.all():
-        tries = {c: _place(views, groups, X, c, 2 * thr) for c in np.flatnonzero(~placed)}
-        tries = {c: r for c, r in tries.items() if r is not None}
+        tries = {
+            int(c): r
+            for c in np.flatnonzero(~placed)
+            if (r := _place(views, groups, X, int(c), 2 * thr)) is not None
+        }
         if not tries:
             left = [names[c] for c in np.flatnonzero(~placed)]
             raise CalibrationError(
@@ -426,7 +429,8 @@ def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
     placed = np.ones(C, dtype=bool)
     base = (first.a, first.b, float(np.linalg.norm(first.t)))
     drop: set = set()
-    for round_ in range(2):
+    round_ = 0
+    while True:  # two rounds: the second without the joints the first drops
         pid, cam, pt, uv, w, src = _observations(views, groups, X, placed, drop)
         free_cams = np.ones(C, dtype=bool)
         free_cams[first.a] = False
@@ -435,10 +439,12 @@ def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
         problem = Bundle(poses, intr, pts, cam, pt, uv, w, free_cams, every, baseline=base)
         sol = adjust(problem, f_scale_px=3.0, max_nfev=40 if round_ == 0 else 60)
         poses = sol.poses
-        if round_ == 0:
-            turned = _unswap(views, groups, poses, intr)
-            limit = max(DROP_MIN_PX, 4.0 * float(np.median(sol.residual_px)))
-            drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
-            logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
-            X = triangulate_groups(views, groups, poses, placed)
+        if round_ == 1:
+            break
+        turned = _unswap(views, groups, poses, intr)
+        limit = max(DROP_MIN_PX, 4.0 * float(np.median(sol.residual_px)))
+        drop = {src[i] for i in np.flatnonzero(sol.residual_px > limit)}
+        logger.info("people: %d detections turned back, %d joints dropped", turned, len(drop))
+        X = triangulate_groups(views, groups, poses, placed)
+        round_ = 1
     return poses, sol, pid, cam, uv

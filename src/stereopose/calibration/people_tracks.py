@@ -190,8 +190,11 @@ def _reconstruct(views, T, start, thr: float):
     persons = [{a: i, b: j} for i, j in pairs]
     X = _triangulate_persons(views, T, persons, poses, placed)
     while len(placed) < C:
-        tries = {c: _place_camera(views, T, c, X, 2 * thr) for c in range(C) if c not in placed}
-        tries = {c: r for c, r in tries.items() if r is not None}
+        tries = {
+            c: r
+            for c in range(C)
+            if c not in placed and (r := _place_camera(views, T, c, X, 2 * thr)) is not None
+        }
         if not tries:
             break
         c = max(tries, key=lambda c: tries[c][0])

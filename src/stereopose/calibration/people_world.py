@@ -45,6 +45,7 @@ def _moved(rig: Rig, s: float, Q: np.ndarray, u: np.ndarray) -> Rig:
 def _normal(points: np.ndarray) -> np.ndarray:
     """Unit normal of the points' plane, the worst fifth trimmed twice."""
     keep = np.ones(len(points), dtype=bool)
+    n = np.zeros(3)  # each pass's
     for _ in range(3):
         c = points[keep].mean(axis=0)
         n = np.linalg.svd(points[keep] - c)[2][2]
@@ -124,6 +125,7 @@ def to_world(
         s = metres / float(np.linalg.norm(rig[a].center - rig[b].center))
         scale_from = f"the distance {a}-{b} ({metres:g} m)"
     else:
+        assert height_m is not None  # the scale from one or the other
         eyes = 0.5 * (X[:, EYES[0]] + X[:, EYES[1]]) @ n  # NaN unless both eyes
         rise = eyes - _heights(X, n).min(axis=1)
         rise = rise[np.isfinite(rise)]

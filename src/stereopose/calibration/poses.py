@@ -61,6 +61,6 @@ def robust_pnp(
     )
     if not ok or inl is None or len(inl) < 4:
         return None
-    keep = inl.ravel()
+    keep = np.asarray(inl, dtype=np.intp).ravel()
     r, t = cv2.solvePnPRefineLM(obj[keep], img[keep], K, dist, r, t)
     return r, t, keep

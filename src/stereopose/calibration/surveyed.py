@@ -285,7 +285,9 @@ def _adjusted(
     poses = np.stack([first[c] for c in names])
     intr = np.stack([intrinsics_row(cams[c]) for c in names])
     keep = np.ones(len(obs), dtype=bool)
-    for _ in range(3):  # adjust, leave the worst click out, again
+    passes = 0
+    while True:  # adjust, leave the worst click out, again: three passes at most
+        passes += 1
         sol = adjust(
             Bundle(
                 poses,
@@ -319,6 +321,8 @@ def _adjusted(
                     f" after leaving out the clicks that disagree; at least {MIN_POINTS} are "
                     "needed"
                 )
+        if passes == 3:
+            break
     return _Adjusted(names, cam_of, pt_of, uv, err, keep, sol)
 
 
