@@ -50,13 +50,13 @@ def points(J: np.ndarray) -> list[Point | None]:
     J = np.asarray(J, dtype=np.float64)
     if J.shape != (NUM_JOINTS, 3):
         raise ValueError(f"joints must have shape ({NUM_JOINTS}, 3), got {J.shape}")
-    ok = np.isfinite(J).all(-1).tolist()
-    return [tuple(p) if k else None for p, k in zip(J.tolist(), ok, strict=True)]
+    ok: list[bool] = np.asarray(np.isfinite(J).all(-1)).tolist()
+    return [(x, y, z) if k else None for (x, y, z), k in zip(J.tolist(), ok, strict=True)]
 
 
 def known(pts: list[Point | None], idx: tuple[int, ...]) -> list[Point]:
     """The joints idx that are known."""
-    return [pts[i] for i in idx if pts[i] is not None]
+    return [p for i in idx if (p := pts[i]) is not None]
 
 
 def mean_z(pts: list[Point | None], idx: tuple[int, ...]) -> float:
@@ -92,8 +92,9 @@ def lateral(pts: list[Point | None]) -> Point | None:
     """The body's right -> left unit vector from a pair of side joints (knees, ankles, elbows,
     ears), None when no pair is known."""
     for left, right in LATERAL_PAIRS:
-        if pts[left] is not None and pts[right] is not None:
-            v = sub(pts[left], pts[right])
+        a, b = pts[left], pts[right]
+        if a is not None and b is not None:
+            v = sub(a, b)
             n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
             if n > 0.1:
                 return (v[0] / n, v[1] / n, v[2] / n)
@@ -105,15 +106,15 @@ def torso_vector(pts: list[Point | None]) -> Point | None:
     are known, else one side's hip and shoulder; else a hip and a shoulder of opposite sides,
     less their sideways part (the body's left-right axis from another pair of joints); else
     the hips' centre -> the head's."""
-    if all(pts[i] is not None for i in HIPS + SHOULDERS):
-        return sub(centre(pts, SHOULDERS), centre(pts, HIPS))
+    hips, shoulders = centre(pts, HIPS), centre(pts, SHOULDERS)
+    if all(pts[i] is not None for i in HIPS + SHOULDERS) and hips and shoulders:
+        return sub(shoulders, hips)
     for hip, shoulder in ((LEFT_HIP, LEFT_SHOULDER), (RIGHT_HIP, RIGHT_SHOULDER)):
-        if pts[hip] is not None and pts[shoulder] is not None:
-            return sub(pts[shoulder], pts[hip])
-    hips = centre(pts, HIPS)
+        h, s = pts[hip], pts[shoulder]
+        if h is not None and s is not None:
+            return sub(s, h)
     if hips is None:
         return None
-    shoulders = centre(pts, SHOULDERS)
     if shoulders is not None:
         v = sub(shoulders, hips)
         axis = lateral(pts)
@@ -144,9 +145,9 @@ def torso_angle(pts: list[Point | None]) -> float:
 def thigh_angle(pts: list[Point | None]) -> float:
     """The thighs' (hip -> knee) mean angle to vertical (NaN: no thigh known)."""
     degs = [
-        angle_to_vertical(sub(pts[knee], pts[hip]))
+        angle_to_vertical(sub(k, h))
         for hip, knee, _ in LEGS
-        if pts[hip] is not None and pts[knee] is not None
+        if (h := pts[hip]) is not None and (k := pts[knee]) is not None
     ]
     degs = [d for d in degs if math.isfinite(d)]
     return sum(degs) / len(degs) if degs else math.nan
@@ -157,9 +158,10 @@ def knee_angle(pts: list[Point | None]) -> float:
     knee and ankle known)."""
     best = math.nan
     for hip, knee, ankle in LEGS:
-        if pts[hip] is None or pts[knee] is None or pts[ankle] is None:
+        h, k, f = pts[hip], pts[knee], pts[ankle]
+        if h is None or k is None or f is None:
             continue
-        a, b = sub(pts[hip], pts[knee]), sub(pts[ankle], pts[knee])
+        a, b = sub(h, k), sub(f, k)
         na, nb = math.hypot(*a), math.hypot(*b)
         if na < 1e-6 or nb < 1e-6:
             continue

@@ -72,7 +72,7 @@ class Falls:
         person, t = c.person, c.base["t"]
         st = person.down.setdefault(rule.name, DownState())
         pos = person.posture
-        if pos is None or c.people.predicted[c.p]:
+        if pos is None or (c.people.predicted is not None and c.people.predicted[c.p]):
             return self.down_timer(rule, c.pid, person, t, c.base["frame"])
         out: list[Event] = []
         if st.fall_t is None:
@@ -144,9 +144,12 @@ class Falls:
         before the start) is down as well."""
         t = c.base["t"]
         lying = c.person.posture is not None and c.person.posture.posture == "lying"
+        assert rule.lying_s is not None  # asked only of a rule with lying_s
         if st.lying.step(lying, t, rule.lying_s, 0.0) != "rose":
             return []
-        st.fall_t, st.down, st.raised = st.lying.began, True, True
+        fall_t = st.lying.began
+        assert fall_t is not None  # it rose: since then
+        st.fall_t, st.down, st.raised = fall_t, True, True
         return [
             rule_event(
                 rule,
@@ -155,8 +158,8 @@ class Falls:
                 "person_down",
                 t,
                 c.base["frame"],
-                onset_t=st.fall_t,
-                duration_s=float(t - st.fall_t),
+                onset_t=fall_t,
+                duration_s=float(t - fall_t),
                 posture="lying",
             )
         ]

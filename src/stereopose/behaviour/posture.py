@@ -41,7 +41,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -217,8 +217,9 @@ def _flags(pts: list[Point | None], s: PostureSettings) -> tuple[tuple[str, ...]
     mid = centre(pts, SHOULDERS) or centre(pts, HIPS)
     for w, sh in zip(WRISTS, SHOULDERS, strict=True):
         base = pts[sh] or mid
-        if pts[w] is not None and base is not None:
-            d = math.hypot(pts[w][0] - base[0], pts[w][1] - base[1])
+        wrist = pts[w]
+        if wrist is not None and base is not None:
+            d = math.hypot(wrist[0] - base[0], wrist[1] - base[1])
             reach = d if math.isnan(reach) else max(reach, d)
     flags = []
     if raised:
@@ -258,34 +259,38 @@ def _classify(
     trunk = hip_z if math.isfinite(hip_z) else shoulders
     feet = _feet_z(pts, trunk, s)
     hip = hip_z - feet
-    common = dict(
-        hip_height_m=hip, standing_hip_m=ref, trunk_m=trunk, speed_m_s=speed_m_s, drop_m_s=drop_m_s
-    )
+    seen = Posture(
+        UNKNOWN,
+        hip_height_m=hip,
+        standing_hip_m=ref,
+        trunk_m=trunk,
+        speed_m_s=speed_m_s,
+        drop_m_s=drop_m_s,
+    )  # what is measured, the posture told below
     if n_known < s.min_joints:
-        return Posture(UNKNOWN, **common)
+        return seen
     torso = torso_angle(pts)
     knee = knee_angle(pts)
     upper = known(pts, HEAD + SHOULDERS) or known(pts, HIPS)
     top = max(p[2] for p in upper) if upper else math.nan
-    common.update(torso_deg=torso, top_m=top, knee_deg=knee)
+    seen = replace(seen, torso_deg=torso, top_m=top, knee_deg=knee)
     if math.isnan(top):  # only limbs: a long low body lying, or nothing to tell
         highest = max(p[2] for p in pts if p is not None)
         if math.isfinite(torso) and torso >= s.lying_deg and highest < s.lying_height_m:
-            return Posture("lying", **common)
-        return Posture(UNKNOWN, **common)
+            return replace(seen, posture="lying")
+        return seen
     thigh = thigh_angle(pts)
-    common["thigh_deg"] = thigh
     ankles = [p[2] for p in known(pts, (LEFT_ANKLE, RIGHT_ANKLE))]
     ground = min(ankles) - s.ankle_m if ankles else 0.0  # a platform's floor, or z = 0
-    common["ground_m"] = ground
+    seen = replace(seen, thigh_deg=thigh, ground_m=ground)
     if (
         top - ground < s.lying_height_m
         and (math.isnan(torso) or torso >= s.lying_deg)
         and (math.isnan(thigh) or thigh >= s.lying_thigh_deg)
     ):
-        return Posture("lying", **common)
+        return replace(seen, posture="lying")
     flags, wrist_m, reach = _flags(pts, s)
-    common.update(flags=flags, wrist_m=wrist_m, reach_m=reach)
+    seen = replace(seen, flags=flags, wrist_m=wrist_m, reach_m=reach)
     if math.isfinite(hip):
         low = hip < s.low_hip_ratio * ref
     elif math.isfinite(shoulders):  # the shoulders as low as the hips would be
@@ -294,15 +299,15 @@ def _classify(
             math.isfinite(torso) and torso >= s.bend_deg
         )
     else:
-        return Posture(UNKNOWN, **common)
+        return seen
     if low and (math.isfinite(knee) or math.isfinite(thigh)):
         low = _legs_bent(knee, thigh, s)
     if low:
-        return Posture("crouching", **common)
+        return replace(seen, posture="crouching")
     if math.isfinite(torso) and torso >= s.bend_deg:
-        return Posture("bending", **common)
+        return replace(seen, posture="bending")
     walking = math.isfinite(speed_m_s) and speed_m_s >= s.walk_speed_m_s
-    return Posture("walking" if walking else "standing", **common)
+    return replace(seen, posture="walking" if walking else "standing")
 
 
 class _Person:
@@ -360,7 +365,7 @@ class PostureTracker:
             person = self.people.get(pid)
             if person is None:
                 person = self.people[pid] = _Person(self._maxlen)
-            if predicted[p] and person.last is not None:
+            if predicted is not None and predicted[p] and person.last is not None:
                 out[pid] = person.last
                 continue
             out[pid] = person.last = self._step(person, t, people.joints[p])

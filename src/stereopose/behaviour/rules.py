@@ -97,6 +97,7 @@ class BehaviourMonitor:
         postures = self.tracker.update(t, people)
         events: list[Event] = []
         P = len(people)
+        predicted = np.zeros(P, bool) if people.predicted is None else people.predicted
         pos = floor_position(people.joints) if P else np.zeros((0, 2))
         heading = heading_deg(people.joints) if P else np.zeros(0)
         inside = nearest = None
@@ -110,20 +111,20 @@ class BehaviourMonitor:
             person = self.people.get(pid)
             if person is None:
                 person = self.people[pid] = Tracked(last_seen=t, first_seen=t)
-            if not people.predicted[p]:
+            if not predicted[p]:
                 person.last_seen = t
             xy = pos[p]
             person.position = (float(xy[0]), float(xy[1])) if np.isfinite(xy).all() else None
             person.posture = postures.get(pid)
             seen.append((p, pid, person))
-        self.falls.seen_now = {pid for p, pid, _ in seen if not people.predicted[p]}
+        self.falls.seen_now = {pid for p, pid, _ in seen if not predicted[p]}
         self.falls.note_drops(t, seen)
         base = dict(frame=frame, t=t)
         for rule in self.rules:
             for p, pid, person in seen:
-                if people.predicted[p] and not isinstance(rule, PersonDownRule):
+                if predicted[p] and not isinstance(rule, PersonDownRule):
                     continue  # unseen: the state is kept as it was
-                ctx = Seen(p, pid, person, people, inside, nearest, heading[p], base)
+                ctx = Seen(p, pid, person, people, inside, nearest, float(heading[p]), base)
                 events.extend(self._apply(rule, ctx))
             if isinstance(rule, PersonDownRule):  # time goes on for the unseen down
                 shown = {pid for _, pid, _ in seen}
@@ -165,7 +166,7 @@ class BehaviourMonitor:
                     "lone_worker",
                     t,
                     c.base["frame"],
-                    onset_t=latch.began,
+                    onset_t=latch.onset,
                     zone=zone,
                     nearest_m=nearest_m,
                     duration_s=float(t - latch.began),
@@ -246,9 +247,9 @@ class BehaviourMonitor:
                     "work_position",
                     t,
                     c.base["frame"],
-                    onset_t=latch.began,
+                    onset_t=latch.onset,
                     zone=hand_zone,
-                    joint=JOINTS[hand],
+                    joint=None if hand is None else JOINTS[hand],
                     failed=",".join(failed),
                     facing_deg=facing,
                 )
@@ -278,7 +279,7 @@ class BehaviourMonitor:
         J = c.people.joints[c.p]
         ok = np.isfinite(J).all(-1)
         st = person.still.get(rule.name)
-        if st is None or st.mean is None:
+        if st is None:
             st = person.still[rule.name] = StillState(
                 np.where(ok[:, None], J, np.nan), ok.astype(np.int64), t
             )
@@ -290,9 +291,9 @@ class BehaviourMonitor:
         )
         out: list[Event] = []
         if moved:
-            if st.moved_since is None:
-                st.moved_since = t
-            if t - st.moved_since >= rule.move_s - EPS:
+            moved_since = t if st.moved_since is None else st.moved_since
+            st.moved_since = moved_since
+            if t - moved_since >= rule.move_s - EPS:
                 if st.raised:
                     out.append(
                         rule_event(
@@ -302,8 +303,8 @@ class BehaviourMonitor:
                             "immobile_end",
                             t,
                             c.base["frame"],
-                            onset_t=st.moved_since,
-                            duration_s=float(st.moved_since - st.since),
+                            onset_t=moved_since,
+                            duration_s=float(moved_since - st.since),
                         )
                     )
                 person.still[rule.name] = StillState(
@@ -357,7 +358,7 @@ class BehaviourMonitor:
                     "overreach",
                     t,
                     c.base["frame"],
-                    onset_t=latch.began,
+                    onset_t=latch.onset,
                     joint=JOINTS[rule.joints[top]],
                     height_m=height,
                     zone=zone,

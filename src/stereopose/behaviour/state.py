@@ -34,8 +34,8 @@ class DownState:
 class StillState:
     """immobile per person: the mean joints since the stillness began, and since when."""
 
-    mean: np.ndarray | None = None
-    count: np.ndarray | None = None
+    mean: np.ndarray  # (17, 3)
+    count: np.ndarray  # (17,) frames each joint's mean is of
     since: float = 0.0
     moved_since: float | None = None
     raised: bool = False
