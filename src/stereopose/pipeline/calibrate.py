@@ -36,14 +36,14 @@ class Kept:
     failures: dict[str, str] = field(default_factory=dict)
     kept: Path | None = None
     kept_text: str | None = None
+    outputs: list[Path] = field(default_factory=list)
+    calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
 @dataclass
 class IntrinsicsRun(Kept):
     results: dict = field(default_factory=dict)  # camera -> IntrinsicsResult
     detections: dict = field(default_factory=dict)  # camera -> [Detection]
-    outputs: list[Path] = field(default_factory=list)
-    calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
 def _camera_folders(images: Path) -> list[tuple[str, Path]]:
@@ -161,8 +161,6 @@ def _picture(run: Kept, path: Path, draw: Callable[[], Path]) -> None:
 class ExtrinsicsRun(Kept):
     result: object = None  # ExtrinsicsResult
     found: dict = field(default_factory=dict)  # camera -> {position: found?}
-    outputs: list[Path] = field(default_factory=list)
-    calibration: Path | None = None  # the calibration file written (None: see failures)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -96,8 +97,11 @@ class Stage(Protocol):
 
     def load(self) -> float: ...
 
-    def step(self, frame: int, people2d: Mapping[str, People2D], t: float | None = None):
+    def step(
+        self, frame: int, people2d: Mapping[str, People2D], t: float | None = None
+    ) -> People3D:
         """The output people of `frame`, at time t (None: frame / fps), stamped with t."""
+        ...
 
     def trajectories(self) -> list: ...
 
@@ -267,13 +271,14 @@ def run_frames(
     on_step: Callable[[int, int | None, float], None] | None = None,
     ticket: Ticket | None = None,
     zone_states: StateLogFile | None = None,
-    **summary_fields: object,
+    out_dir: Path | None = None,
+    config_path: Path | None = None,
 ) -> RunSummary:
     """A whole run: the 3D stage (its compiled loops loaded first), the fences of `site` and
     the sinks of `outputs` around `source`, through the frame loop; the run's summary.
 
-    label: what the run reads (the event log's `runs.source`); summary_fields: more of the
-    RunSummary's fields (out_dir, config_path). The outputs' needs (pipeline.outputs.
+    label: what the run reads (the event log's `runs.source`); out_dir, config_path: the
+    RunSummary's. The outputs' needs (pipeline.outputs.
     check_outputs) are checked by the caller, before anything is written. An output that failed
     during the run (pipeline.outputs.open_outputs) raises IncompleteOutputError at the end,
     every frame processed and the other outputs complete; it holds the summary.
@@ -286,7 +291,8 @@ def run_frames(
         stage.tracking,
         live=source.live,
         fps_input=source.fps,
-        **summary_fields,
+        out_dir=out_dir,
+        config_path=config_path,
     )
     fences = FenceMonitor(site, config.fps, config.tracking.max_lost_s) if site else None
     sinks = open_outputs(
@@ -300,7 +306,8 @@ def run_frames(
         on_events=on_events,
     )
     behaviour = behaviour_monitor(site, config)
-    if fences is not None:  # the service's incidents: the same book, ids and priorities
+    if site is not None and fences is not None:
+        # the service's incidents: the same book, ids and priorities
         incidents = run_incidents(site, fences, behaviour, sinks, ticket, zone_states)
         loop = FrameLoop(source, stage, sinks, summary, rules=incidents, on_step=on_step, stop=stop)
     else:
@@ -331,7 +338,7 @@ def run_incidents(
     from stereopose.pipeline.step_rules import step_chain
     from stereopose.tickets import TicketDesk
 
-    db = next((s for s in sinks if isinstance(unwrapped(s), SqliteSink)), None)
+    db = next((u for s in sinks if isinstance(u := unwrapped(s), SqliteSink)), None)
     desk = None
     if ticket is not None:
         desk = TicketDesk(site.zones)

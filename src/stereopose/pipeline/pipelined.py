@@ -157,6 +157,7 @@ class PipelinedCameras:
                     return
                 if isinstance(item, BaseException):
                     raise item
+                assert isinstance(item, tuple)  # (step, its arrival)
                 step, arrived = item
                 self.stats.delivered += 1
                 yield step

@@ -30,7 +30,7 @@ from stereopose.errors import ConfigError, StereoposeError
 from stereopose.fence import Site, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.summary import CAMERA_STAGES, CameraStats, RunSummary
-from stereopose.io.video import is_stream, open_source
+from stereopose.io.video import ImageFolder, VideoFile, is_stream, open_source
 from stereopose.pipeline.detect import READ_AHEAD
 from stereopose.pipeline.loop import run_frames
 from stereopose.pipeline.outputs import Outputs, check_outputs
@@ -150,6 +150,7 @@ def check_recorded_sizes(rig: Rig, names: list[str], sources: list[str]) -> None
         if is_stream(spec):
             continue
         source = open_source(spec, name)
+        assert isinstance(source, (VideoFile, ImageFolder))  # a recording
         try:
             first = source.read()
         finally:
@@ -195,7 +196,7 @@ def run(
     cfg = load_config(config_path)
     check_run_config(cfg, config_path)
     base = config_path.resolve().parent
-    calib_path = resolve(base, cfg.calibration)
+    calib_path = resolve(base, cfg.calibration or "")  # given: check_run_config
     rig = run_rig(config_path, calib_path, cfg)
     names = [c.name for c in cfg.cameras]
     site_path = resolve(base, cfg.site) if cfg.site else None

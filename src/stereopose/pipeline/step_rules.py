@@ -18,7 +18,7 @@ what a later rule gives.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
@@ -162,7 +162,14 @@ class TicketRule:
 class OnSite(Protocol):
     """onsite.service.OnSite: the step's hazards said and shown on site."""
 
-    def step(self, t: float, frame: int, people: People3D, fences) -> list[Event]: ...
+    def step(
+        self,
+        t: float,
+        frame: int,
+        people: People3D,
+        fences: FenceMonitor | None,
+        events: Sequence[Event] = (),
+    ) -> list[Event]: ...
 
 
 class OnSiteRule:
@@ -236,14 +243,21 @@ def step_chain(
     `monitor` that says who is inside; or a recorded job's switching log, zones.state_log),
     the tickets, the warnings on site (`onsite`, with the fence `monitor`); each left out
     when None."""
-    parts: list[tuple[object | None, Callable[[], StepRule]]] = [
-        (service, lambda: EventsRule(service.opening)),
-        (events, lambda: FenceRule(events)),
-        (service, lambda: EventsRule(service)),
-        (behaviour, lambda: BehaviourRule(behaviour)),
-        (zone_state, lambda: ZoneStateRule(zone_state, monitor)),
-        (zone_log, lambda: zone_log),
-        (tickets, lambda: TicketRule(tickets)),
-        (onsite, lambda: OnSiteRule(onsite, monitor)),
-    ]
-    return StepChain([make() for given, make in parts if given is not None])
+    rules: list[StepRule] = []
+    if service is not None:
+        rules.append(EventsRule(service.opening))
+    if events is not None:
+        rules.append(FenceRule(events))
+    if service is not None:
+        rules.append(EventsRule(service))
+    if behaviour is not None:
+        rules.append(BehaviourRule(behaviour))
+    if zone_state is not None:
+        rules.append(ZoneStateRule(zone_state, monitor))
+    if zone_log is not None:
+        rules.append(zone_log)
+    if tickets is not None:
+        rules.append(TicketRule(tickets))
+    if onsite is not None:
+        rules.append(OnSiteRule(onsite, monitor))
+    return StepChain(rules)

@@ -37,7 +37,7 @@ def track_boxes(people: People3D, camera: Camera, t: float) -> np.ndarray:
     J[..., :2] += v[:, None, :] * dt
     px = project(J, camera)  # (P, 17, 2), NaN behind the camera or where a joint is missing
     depth = world_to_camera(J, camera)[..., 2]  # (P, 17), NaN where a joint is missing
-    ok = np.isfinite(px).all(axis=2)  # (P, 17)
+    ok = np.asarray(np.isfinite(px).all(axis=2))  # (P, 17)
     nearest = np.where(np.isfinite(depth), depth, np.inf).min(axis=1)
     keep = ok.any(axis=1) & (nearest >= NEAR_M)
     if not keep.any():
