@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,7 +104,7 @@ class RunSummary:
         for k in self.stages:
             self.seconds.setdefault(k, 0.0)
 
-    def add(self, people: People3D, events: list[Event] | tuple[Event, ...] = ()) -> None:
+    def add(self, people: People3D, events: Sequence[Event] = ()) -> None:
         """One frame's output people and zone events."""
         self.frames += 1
         self.predicted += int(people.predicted.sum())

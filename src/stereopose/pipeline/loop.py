@@ -69,10 +69,17 @@ class Source(Protocol):
     getting the next step. total: number of steps, None when unknown (live).
     """
 
-    cameras: tuple[str, ...]
-    stages: tuple[str, ...]
-    fps: float
-    live: bool
+    @property
+    def cameras(self) -> tuple[str, ...]: ...
+
+    @property
+    def stages(self) -> tuple[str, ...]: ...
+
+    @property
+    def fps(self) -> float: ...
+
+    @property
+    def live(self) -> bool: ...
 
     @property
     def total(self) -> int | None: ...

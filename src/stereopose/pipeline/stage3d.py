@@ -21,6 +21,7 @@ from stereopose.config import Config, ReconstructionConfig, TrackingConfig
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.tracking import Trajectory
+from stereopose.tracking.ids import IdSource
 from stereopose.tracking.memory import make_memory
 from stereopose.types import People2D, People3D, Rig
 
@@ -39,7 +40,7 @@ class Stage3D:
         *,
         record: bool = False,
         calib_path: str = "",
-        first_id: int = 1,
+        first_id: int | IdSource = 1,
     ) -> None:
         config = config or Config()
         try:

@@ -77,14 +77,15 @@ class ZoneEvents(Protocol):
     """Events of a step from its people: FenceMonitor, the service's held one
     (site.steps.HeldFences), or the service's own (site.steps.ServeEvents, OpeningEvents)."""
 
-    def update(self, people: People3D) -> Sequence[Event]: ...
+    def update(self, people: People3D, /) -> Sequence[Event]: ...
 
 
 class ServiceEvents(ZoneEvents, Protocol):
     """The service's own events (site.steps.ServeEvents): those of its first step
     (`opening`, before the fences'), and each step's (`update`, after the fences')."""
 
-    opening: ZoneEvents
+    @property
+    def opening(self) -> ZoneEvents: ...
 
 
 class Behaviour(Protocol):

@@ -184,8 +184,10 @@ class LiveHub:
         if draw is None:
             from stereopose.viz.overlay import draw_overlay
 
-            def draw(camera, image, p2, p3, scale, label):
+            def overlay(camera, image, p2, p3, scale, label):
                 return draw_overlay(image, self.rig[camera], p2, p3, scale, label)
+
+            draw = overlay
 
         self._views = {c.name: camera_view(c) for c in rig}
         self.scene = SceneState(site)

@@ -243,12 +243,13 @@ class LogOutbox:
                 )
 
     def _message(self, msg: paho.MQTTMessage) -> None:
+        payload = bytes(msg.payload)
         if msg.topic == self.topics["ack"]:
-            self._command(msg.payload)
+            self._command(payload)
             return
         replay = msg.topic == self.topics["replay"]
         keys = {
-            st.name: id_of(msg.payload, st.replay_key if replay else st.name) for st in self.streams
+            st.name: id_of(payload, st.replay_key if replay else st.name) for st in self.streams
         }
         if all(v is None for v in keys.values()):
             with self._lock:
@@ -399,7 +400,7 @@ class LogOutbox:
 
     def _heartbeat(self) -> None:
         try:
-            body = {"last_id": int(self.log.last_id())}
+            body: dict[str, object] = {"last_id": int(self.log.last_id())}
             if len(self.streams) > 1:
                 body["last_incident_seq"] = int(self.streams[1].last())
         except StereoposeError as e:

@@ -30,6 +30,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
+from types import FrameType
 
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
 from stereopose.io.source import SourceStats
@@ -110,6 +111,7 @@ class ServeSource:
                     return
                 if isinstance(item, BaseException):
                     raise item
+                assert isinstance(item, SourceStep)  # the inner source's
                 t = max(float(item.t), last_t + 1e-4) if math.isfinite(last_t) else float(item.t)
                 step = SourceStep(frame, t, item.people2d, item.images)
             frame, last_t, last_mono = frame + 1, step.t, now
@@ -201,7 +203,9 @@ class StateSink(ClosesOnce):
                 self.state.camera_rate(name, nominal, own)
 
     def _readers(self) -> None:
-        for name, st in self.stats().items():
+        stats = self.stats
+        assert stats is not None  # read only where there are figures
+        for name, st in stats().items():
             dropped, reconnects = st.dropped, st.reconnects
             was_dropped, was_reconnects = self._seen.get(name, (0, 0))
             if dropped > was_dropped:
@@ -284,7 +288,7 @@ def stop_signals() -> Iterator[None]:
         yield
         return
 
-    def as_sigint(signum: int, frame: object) -> None:
+    def as_sigint(signum: int, frame: FrameType | None) -> None:
         handler = signal.getsignal(signal.SIGINT)
         if callable(handler):
             handler(signal.SIGINT, frame)

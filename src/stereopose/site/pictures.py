@@ -86,7 +86,7 @@ class PictureEncoder:
         self._snap_at = now
         item = (
             wall_start + float(frame.t),
-            dict(frame.images),
+            dict(frame.images or {}),  # (the console offers frames with images only)
             dict(frame.people2d),
             frame.people3d,
         )
@@ -133,7 +133,7 @@ class PictureEncoder:
             except Exception:  # a bad frame must not stop the pictures
                 ok, buf = False, None
                 logger.debug("console: camera %s: snapshot not drawn", camera, exc_info=True)
-            if not ok:
+            if not ok or buf is None:
                 self.snapshot_errors += 1
                 continue
             with self._lock:

@@ -32,7 +32,7 @@ from stereopose.io.sinks.clips import ClipSettings
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.io.sinks.segments import SegmentSettings
 from stereopose.io.video import is_stream
-from stereopose.pipeline.outputs import check_outputs
+from stereopose.pipeline.outputs import Outputs, check_outputs
 from stereopose.pipeline.paths import Place, check_places, places, sqlite_places
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.secrets import redact
@@ -163,7 +163,7 @@ def plan_serve(config_path: str | Path, config: Config | None = None) -> ServePl
     rig, calib_loaded = _rig(path, calib_path, resolve(base, cfg.output), cfg)
     site_path = resolve(base, cfg.site) if cfg.site else None
     site = load_site(site_path) if site_path is not None else None
-    check_outputs(cfg, site, _NoTwoWay)
+    check_outputs(cfg, site, Outputs())  # the service's: nothing smoothed both ways
     certificate, key = tls_files(path, base, cfg)
     http = section_settings(
         path,
@@ -243,12 +243,6 @@ def _tickets(path: Path, base: Path, cfg: Config, site: Site | None) -> tuple[Ti
             )
         out.append(ticket)
     return tuple(out)
-
-
-class _NoTwoWay:
-    """check_outputs' view of the service's outputs: nothing smoothed both ways."""
-
-    two_way = False
 
 
 def interfaces(cfg: Config, site: Site | None = None) -> list[str]:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereopose.behaviour.posture import Posture
 from stereopose.fence import Site, ZoneGeometry
 from stereopose.io.sinks.base import FrameResult
 from stereopose.skeleton import floor_position, heading_deg
@@ -42,7 +43,7 @@ class Latest:
     joints: np.ndarray
     positions: np.ndarray
     headings: np.ndarray
-    postures: Mapping[int, object] | None = None  # id -> behaviour.posture.Posture
+    postures: Mapping[int, Posture] | None = None  # by person id
 
 
 def rounded(x: float, nd: int = 3) -> float | None:

@@ -43,6 +43,7 @@ Nothing is kept per frame: the summary holds running aggregates, every queue is 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import threading
 import time
@@ -58,7 +59,7 @@ from stereopose.extras import require
 from stereopose.fence import Site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
-from stereopose.io.sinks.base import ClosesOnce, FrameResult
+from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
@@ -296,7 +297,7 @@ def _run_loop(
     cams: CameraSet | NodeInput,
     detector,
     stop,
-    first: list[ClosesOnce],
+    first: list[Sink],
 ) -> RunSummary:
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
@@ -317,10 +318,11 @@ def _run_loop(
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
         regions, light = cameras.regions, cameras.light
+        assert light is not None  # detecting cameras watch their light
         service.probes["light"] = light.figures  # status.json: each camera's day or night
         service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
         follow.append(cameras.set_rig)  # the tracks' regions in the new views
-        pipelined, rates = PipelinedCameras(cameras), None
+        pipelined, rates = PipelinedCameras(cameras), functools.partial(nominal_rates, cams)
         service.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
@@ -374,9 +376,7 @@ def _run_loop(
     def arrival(t: float) -> float | None:
         return start_mono + t if source.live or cams.wall_clock else None
 
-    sinks = service.open_sinks(
-        cfg, wall_start, summary, cams.stats, arrival, rates or (lambda: nominal_rates(cams))
-    )
+    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival, rates)
     on_site += mqtt_site(sinks, plan.site)
     onsite = onsite_warnings(plan, service, sinks)
     if onsite is not None:

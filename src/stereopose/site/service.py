@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import TYPE_CHECKING
 
 from stereopose.config import Config
@@ -72,7 +72,7 @@ class SiteService:
         """opcua: [opcua] checked (scada.opcua_settings; None: off)."""
         self.plan, self.stop, self.resume = plan, stop, resume
         # the parts started, in order (name, its close): closed in reverse (`close`)
-        self.parts: list[tuple[str, Callable[[], None]]] = []
+        self.parts: list[tuple[str, Callable[[], object]]] = []
         self.state = ServiceState(
             plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
         )
@@ -85,7 +85,7 @@ class SiteService:
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
         self.failed: dict[str, str] = {}
-        self.probes: dict[str, Callable[[], dict]] = {}
+        self.probes: dict[str, Callable[[], Mapping[str, object]]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
         self.packets = packet_rings(plan)
         self.opcua_settings = opcua
@@ -94,8 +94,9 @@ class SiteService:
         self.desk = IncidentDesk()  # the app's way to the incident book, attached once it runs
         # the site's tickets (none without a site: no zones to name)
         self.tickets = TicketDesk(plan.site.zones) if plan.site is not None else None
-        for ticket in plan.tickets:
-            self.tickets.add(ticket)  # planned: started from the console or the API
+        for ticket in plan.tickets:  # planned: started from the console or the API
+            assert self.tickets is not None  # a ticket comes with its site
+            self.tickets.add(ticket)
         # the energized zones' live or dead state from the utility (zones.power_state)
         zones = plan.site.zones if plan.site is not None else ()
         self.power_board = PowerBoard() if any(z.power for z in zones) else None
@@ -187,7 +188,7 @@ class SiteService:
         if self.tickets is not None:
             self.tickets.wall_start = wall_start  # the tickets' times shown as wall times too
 
-        def guard(sink: Sink, label: object) -> Sink:
+        def guard(sink: Sink, label: object) -> Guarded:
             return Guarded(sink, str(label), self.failed)
 
         try:
@@ -371,18 +372,17 @@ class SiteService:
     def start_power(self) -> None:
         """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
         each on its own thread; the console's zones and the status show their states."""
-        if self.power is not None:
+        if self.power is not None and self.plan.site is not None:
             self._start_sources(self.plan.site)
 
     def _start_sources(self, site: Site) -> None:
         from stereopose.site.zone_sources import start_sources
 
-        p = self.plan
-        self.power_sources = start_sources(
-            site.zones, self.power_board, mqtt=p.mqtt, base=p.config_path.resolve().parent
-        )
-        self._started("the zone state's sources", self.power_sources.stop)
-        sources, states = self.power_sources, self.power
+        p, board, states = self.plan, self.power_board, self.power
+        assert board is not None and states is not None  # the site's zones have sources
+        sources = start_sources(site.zones, board, mqtt=p.mqtt, base=p.config_path.resolve().parent)
+        self.power_sources = sources
+        self._started("the zone state's sources", sources.stop)
         self.probes["zone_state"] = lambda: {
             "zones": states.snapshot(),
             "sources": dict(sources.figures),
@@ -439,7 +439,7 @@ class SiteService:
             except Exception as e:  # one part never keeps the others open
                 logger.warning("closing %s: %s", name, e)
 
-    def _started(self, name: str, close: Callable[[], None]) -> None:
+    def _started(self, name: str, close: Callable[[], object]) -> None:
         self.parts.append((name, close))
 
     def _watch(self, name: str, ensure_running: Callable[[], None]) -> None:
@@ -455,7 +455,8 @@ class SiteService:
             logger.warning("storage: the maintainer did not stop within 5 s")
 
     def _close_outbox(self) -> None:
-        self.outbox.close()  # sends what the log holds: status.json counts it
+        if self.outbox is not None:
+            self.outbox.close()  # sends what the log holds: status.json counts it
         if self.status is not None:
             self.status.write_now()
 

@@ -256,8 +256,9 @@ def _merged(path: Path, new: Site) -> str:
         if key not in doc:
             del old[key]
     for key, value in doc.items():
-        if key in ("zones", "rules") and isinstance(old.get(key), list):
-            _merge_tables(old[key], value)
+        tables = old.get(key)
+        if key in ("zones", "rules") and isinstance(tables, list) and isinstance(value, list):
+            _merge_tables(tables, value)
         else:
             old[key] = value
     text = tomlkit.dumps(old)
@@ -269,7 +270,7 @@ def _merged(path: Path, new: Site) -> str:
     return format_site(new)
 
 
-def _merge_tables(tables: object, items: list[dict[str, object]]) -> None:
+def _merge_tables(tables: list, items: list[dict[str, object]]) -> None:
     """The file's zone (or rule) tables made `items`: one of the same name kept (its keys
     changed in place, their comments with them), a new one appended, a removed one taken out,
     in `items`' order."""

@@ -38,7 +38,7 @@ def _polylines(uv: np.ndarray, size: tuple[float, float]) -> list[list[list[floa
     """Sampled pixels -> runs of picture fractions, broken where a point is missing."""
     w, h = size
     f = uv / np.array([w, h])
-    ok = np.isfinite(f).all(axis=1) & (np.abs(f - 0.5) <= 0.5 + OUTSIDE).all(axis=1)
+    ok = np.asarray(np.isfinite(f).all(axis=1) & (np.abs(f - 0.5) <= 0.5 + OUTSIDE).all(axis=1))
     runs, run = [], []
     for good, p in zip(ok, f, strict=True):
         if good:

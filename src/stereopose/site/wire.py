@@ -164,7 +164,7 @@ def parse_ack(payload: bytes) -> tuple[str, int, str] | None:
     names = (command, by, where)
     if not all(isinstance(n, str) and 0 < len(n) <= MAX_NAME and n.isprintable() for n in names):
         return None
-    return command, incident, f"{by} via {where}"
+    return str(command), incident, f"{by} via {where}"
 
 
 def id_of(payload: bytes, key: str) -> int | None:

@@ -11,6 +11,7 @@ import logging
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TypeVar
 
 from stereopose.errors import ConfigError
 from stereopose.io.mqtt_watcher import MqttWatcher
@@ -88,17 +89,30 @@ def _source(
     first = points[0]
     if isinstance(first, Iec104Point):
         tls = first.tls
-        if any(isinstance(p, Iec104Point) and p.tls != tls for p in points):
+        iec = _of(points, Iec104Point)
+        if any(p.tls != tls for p in iec):
             raise ConfigError(
                 f"zone state: the points of IEC 104 {first.host}:{first.port} differ in their "
                 "tls_ca, tls_certificate and tls_key: one link, one TLS setting"
             )
         if tls is None:
-            return Iec104Master(first.host, first.port, points, board, figures)
+            return Iec104Master(first.host, first.port, iec, board, figures)
         here = base or Path(".")
         ca, cert, key = (here / Path(f).expanduser() for f in tls)
         context = tls_context(ca, cert, key, f"zone state: IEC 104 {first.host}:{first.port}")
-        return Iec104TlsMaster(first.host, first.port, points, board, figures, context)
+        return Iec104TlsMaster(first.host, first.port, iec, board, figures, context)
     if isinstance(first, OpcuaPoint):
-        return OpcuaWatcher(first.endpoint, points, board, figures, base)
-    return MqttWatcher(mqtt, points, board, figures)
+        return OpcuaWatcher(first.endpoint, _of(points, OpcuaPoint), board, figures, base)
+    if mqtt is None:
+        raise ConfigError("zone state: a point read over MQTT needs the [mqtt] broker")
+    return MqttWatcher(mqtt, _of(points, MqttPoint), board, figures)
+
+
+_P = TypeVar("_P", bound=PointSource)
+
+
+def _of(points: list[PointSource], kind: type[_P]) -> list[_P]:
+    """A link's points, all of one protocol (they are grouped by their link)."""
+    out = [p for p in points if isinstance(p, kind)]
+    assert len(out) == len(points)
+    return out

@@ -50,7 +50,8 @@ class Sink(Protocol):
     stored) says so in an `incomplete` attribute (a message; None or absent: complete).
     """
 
-    stage: str
+    @property
+    def stage(self) -> str: ...
 
     def write(self, frame: FrameResult) -> None: ...
 

@@ -58,6 +58,9 @@ class AlarmOutput(Protocol):
     output_name: str
 
     @property
+    def stage(self) -> str: ...
+
+    @property
     def label(self) -> str: ...
 
     def write(self, frame: FrameResult) -> None: ...

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 logger = logging.getLogger(__name__)
 
@@ -33,7 +34,7 @@ class OutputSnapshot:
     backlog_s: float
 
     @property
-    def state(self) -> str:
+    def state(self) -> Literal["up", "down"]:
         return "up" if self.up else "down"
 
     @property

@@ -42,7 +42,7 @@ import numpy as np
 
 from stereopose.calibration.formats import save_calibration
 from stereopose.calibration.poses import pose_change
-from stereopose.calibration.refine import pose_error, refine_camera
+from stereopose.calibration.refine import Refined, pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
 from stereopose.site.health.calib_health import CalibrationHealth
@@ -76,11 +76,11 @@ class _Case:
     """One drifted camera: its samples, the attempt under way, the outcome."""
 
     samples: deque
-    others: object  # a Reconstructor of the other cameras
+    others: Reconstructor  # of the other cameras
     job: concurrent.futures.Future | None = None
     tries: int = 0
     reason: str | None = None
-    proposal: object = None  # a calibration.refine.Refined awaiting an admin
+    proposal: Refined | None = None  # awaiting an admin
     accepted_by: str | None = None  # an admin accepted it: applied at the next step
 
 
@@ -158,12 +158,15 @@ class CalibrationKeeper:
         for name in list(self.cases):
             case = self.cases[name]
             with self._lock:
-                by = case.accepted_by if case.proposal is not None else None
-            if by is not None:  # an admin's acceptance, applied here: at a step boundary
+                proposal = case.proposal
+                by = case.accepted_by if proposal is not None else None
+            if by is not None and proposal is not None:  # an admin's acceptance, applied
+                # here: at a step boundary
                 base = self.health.cameras[name].baseline or self.health.floor_px
-                event = self._event("calibration_corrected", name, case.proposal, base, t, frame)
+                event = self._event("calibration_corrected", name, proposal, base, t, frame)
+                assert event.result is not None  # a calibration event's figures
                 event.result["accepted_by"] = by
-                self._apply(name, case.proposal)
+                self._apply(name, proposal)
                 out.append(event)
                 continue
             if case.job is not None:
@@ -241,6 +244,7 @@ class CalibrationKeeper:
 
     def _judge(self, name: str, case: _Case, t: float, frame: int) -> list[Event]:
         job, case.job = case.job, None
+        assert job is not None  # done: asked only of a case with a job
         try:
             r, (old_px, old_joints) = job.result()
         except CalibrationError as e:
@@ -304,7 +308,7 @@ class CalibrationKeeper:
         logger.warning("camera %s: not corrected: %s", name, reason)
         return []
 
-    def _event(self, type_: str, name: str, r, base: float, t: float, frame: int) -> Event:
+    def _event(self, type_: str, name: str, r: Refined, base: float, t: float, frame: int) -> Event:
         old = self.rig[name]
         turn = cv2.Rodrigues(r.camera.R @ old.R.T)[0].ravel()
         result = {
@@ -376,13 +380,13 @@ class CalibrationKeeper:
             cases = list(self.cases.items())
         return {
             n: {
-                "turned_deg": c.proposal.turned_deg,
-                "moved_m": c.proposal.moved_m,
-                "reprojection_px": c.proposal.rms_px,
+                "turned_deg": p.turned_deg,
+                "moved_m": p.moved_m,
+                "reprojection_px": p.rms_px,
                 "accepted_by": c.accepted_by,
             }
             for n, c in cases
-            if c.proposal is not None
+            if (p := c.proposal) is not None
         }
 
     def _write(self, name: str, old, r, by: str | None = None) -> None:

@@ -119,7 +119,7 @@ def families(s: Snapshot, *, show_version: bool = True) -> Iterator[Metric]:
         "output",
         {o.name: float(o.up) for o in s.outputs},
     )
-    waiting = {o.name: o.waiting for o in s.outputs if o.waiting is not None}
+    waiting: dict[str, float] = {o.name: o.waiting for o in s.outputs if o.waiting is not None}
     yield _gauge(
         "output_waiting", "Messages the alarm output holds, not delivered yet.", "output", waiting
     )

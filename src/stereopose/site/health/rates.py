@@ -52,7 +52,8 @@ class RateWindow:
         number = self._slot(t)
         i = number % len(self._counts)
         if self._slots[i] != number:
-            if self._slots[i] is not None and self._slots[i] > number:  # older than the window
+            slot = self._slots[i]
+            if slot is not None and slot > number:  # older than the window
                 return
             self._slots[i], self._counts[i] = number, 0
         self._counts[i] += n

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Literal
 
 from stereopose.site.health.alarm_outputs import OutputSnapshot
 
@@ -43,7 +44,7 @@ class CameraSnapshot:
     slow: str | None = None
 
     @property
-    def state(self) -> str:
+    def state(self) -> Literal["up", "down"]:
         return "up" if self.up else "down"
 
 
@@ -84,7 +85,7 @@ class Snapshot:
     light: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
 
     @property
-    def status(self) -> str:
+    def status(self) -> Literal["ok", "degraded", "down"]:
         """down: no camera delivering; degraded: a camera down or processed badly (far
         under its nominal rate, most of its frames dropped), the service stalled, a queue
         dropping, an alarm output failing or falling behind, or a probe failing; ok

@@ -17,6 +17,7 @@ their silence).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Iterable
@@ -36,7 +37,7 @@ def camera_event(
     kind_of_event: str, camera: str, t: float, frame: int, onset_t: float, **fields: object
 ) -> Event:
     """An event about a camera (kind "camera", zone "", person -1)."""
-    return Event(
+    event = Event(
         t=t,
         frame=frame,
         person=NO_PERSON,
@@ -45,8 +46,8 @@ def camera_event(
         type=kind_of_event,
         onset_t=onset_t,
         camera=camera,
-        **fields,
     )
+    return dataclasses.replace(event, **fields) if fields else event
 
 
 @dataclass

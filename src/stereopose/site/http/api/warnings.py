@@ -21,6 +21,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
 from stereopose.onsite.control import MAX_REASON, ControlError
+from stereopose.onsite.service import OnSite
 from stereopose.web.auth import Admin, Viewer
 
 router = APIRouter(tags=["warnings"])
@@ -38,7 +39,7 @@ class WarningsDesk:
     frame loop has built them (None until then, or without a site)."""
 
     def __init__(self) -> None:
-        self.onsite = None
+        self.onsite: OnSite | None = None
 
 
 def _onsite(request: Request):
