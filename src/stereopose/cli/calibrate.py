@@ -122,6 +122,7 @@ def _calibrate_extrinsics(args: argparse.Namespace) -> int:
             on_camera=lambda name: status.update(f"camera {name}: detecting the board"),
         )
     r = run.result
+    assert r is not None  # the rig calibrated (or a CalibrationError)
     table = Table(title=f"Rig {_where(run, args.out)}: RMS {r.rms_px:.3f} px")
     for col in ("camera", "board positions seen", "RMS px", "x m", "y m", "z m"):
         table.add_column(col, justify="right")

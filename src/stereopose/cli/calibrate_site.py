@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.markup import escape
@@ -13,6 +15,9 @@ from rich.table import Table
 from stereopose.cli.common import console, out
 from stereopose.errors import CalibrationError, IncompleteOutputError, StereoposeError
 from stereopose.extras import require
+
+if TYPE_CHECKING:
+    from stereopose.calibration.surveyed import Survey
 
 MAX_FRAMES = 600  # frames sampled evenly from the recording at most
 MIN_SHARED = 0.5  # a camera's frames that other cameras have too, at least
@@ -130,7 +135,16 @@ def _calibrate_points(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scale(args: argparse.Namespace):
+@dataclass(frozen=True)
+class _Scale:
+    """The rig's scale: one of a distance between cameras, the walkers' height or a survey."""
+
+    distance: tuple[str, str, float] | None = None
+    height_m: float | None = None
+    survey: Survey | None = None
+
+
+def _scale(args: argparse.Namespace) -> _Scale:
     if args.distance is not None:
         a, b, metres = args.distance
         try:
@@ -139,14 +153,14 @@ def _scale(args: argparse.Namespace):
             raise StereoposeError(f"--distance: {metres!r} is not a number of metres") from None
         if not 0 < d < 1e4:
             raise StereoposeError(f"--distance: {metres} m is not a distance between cameras")
-        return {"distance": (a, b, d)}
+        return _Scale(distance=(a, b, d))
     if args.height is not None:
         if not 1.0 <= args.height <= 2.3:
             raise StereoposeError(f"--height: {args.height} m is not a person's height")
-        return {"height_m": args.height}
+        return _Scale(height_m=args.height)
     from stereopose.calibration.surveyed import read_survey
 
-    return {"survey": read_survey(args.points)}
+    return _Scale(survey=read_survey(args.points))
 
 
 def _recordings(dirs: list[Path], rig, max_frames: int) -> list[list]:
@@ -173,7 +187,13 @@ def _calibrate_people(args: argparse.Namespace) -> int:
     where = f"{n_frames} frames" + (f" of {len(recordings)} recordings" * (len(recordings) > 1))
     with console.status(f"calibrating {len(intrinsics)} cameras from {where}"):
         r = calibrate_people(
-            recordings, intrinsics, ankle_m=args.ankle_height, held_out=args.held_out, **scale
+            recordings,
+            intrinsics,
+            distance=scale.distance,
+            height_m=scale.height_m,
+            survey=scale.survey,
+            ankle_m=args.ankle_height,
+            held_out=args.held_out,
         )
     pose = ", ".join(str(d) for d in args.pose)
     _save(args.out, r.rig, {"method": "people", "pose": pose, "scale": r.scale_from})

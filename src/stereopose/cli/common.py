@@ -10,7 +10,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from stereopose.config import Config, load_config, with_overrides
-from stereopose.errors import StereoposeError
+from stereopose.errors import IncompleteOutputError, StereoposeError
+from stereopose.io.summary import RunSummary
 
 console = Console(stderr=True)
 out = Console()
@@ -39,6 +40,14 @@ def _config(args: argparse.Namespace) -> Config:
             raise StereoposeError(f"--fps must be positive, got {args.fps}")
         cfg = dataclasses.replace(cfg, fps=args.fps)
     return cfg
+
+
+def run_summary(e: IncompleteOutputError) -> RunSummary:
+    """The summary of a run that finished without writing every output (its table is shown
+    before exit 3); the error itself where it holds none."""
+    if not isinstance(e.summary, RunSummary):
+        raise e
+    return e.summary
 
 
 def _px(value: float) -> str:

@@ -9,7 +9,14 @@ from pathlib import Path
 
 from rich.table import Table
 
-from stereopose.cli.common import _config, _progress, _px, _trajectory_table, out
+from stereopose.cli.common import (
+    _config,
+    _progress,
+    _px,
+    _trajectory_table,
+    out,
+    run_summary,
+)
 from stereopose.errors import (
     CalibrationError,
     ConfigError,
@@ -47,7 +54,11 @@ def _reconstruct(args: argparse.Namespace) -> int:
         raise StereoposeError(
             "--events, --events-db, --webhook, --ticket and --zone-states need a site file (--site)"
         )
-    states = StateLogFile.read(args.zone_states, site.zones) if args.zone_states else None
+    states = (
+        StateLogFile.read(args.zone_states, site.zones)
+        if args.zone_states and site is not None
+        else None
+    )
     if site is not None and site.fps and args.fps is None:
         cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
@@ -84,7 +95,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
                 zone_states=states,
             )
         except IncompleteOutputError as e:  # the work is done: its table first, then exit 3
-            incomplete, summary = e, e.summary
+            incomplete, summary = e, run_summary(e)
     table = Table(title=f"3D poses written to {args.out}", show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))
     table.add_row("mode", summary.mode)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from rich.table import Table
 
-from stereopose.cli.common import _px, out, rate_progress
+from stereopose.cli.common import _px, out, rate_progress, run_summary
 from stereopose.cli.sim import _demo_synthetic
 from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeError
 
@@ -270,7 +270,7 @@ def _run_config(
                 zone_states=zone_states,
             )
         except IncompleteOutputError as e:  # the run is done: its table first, then exit 3
-            incomplete, summary = e, e.summary
+            incomplete, summary = e, run_summary(e)
     d = summary.as_dict()
     table = Table(title=title, show_header=False)
     table.add_row("cameras", ", ".join(summary.cameras))

@@ -19,14 +19,28 @@ if TYPE_CHECKING:
 MAX_FRAMES = 100_000  # an hour at 25 frames/s
 
 
-def _simulated(**kwargs: object) -> Scene:
+def _simulated(
+    num_frames: int,
+    seed: int,
+    difficulty: str,
+    num_cameras: int | None = None,
+    num_people: int | None = None,
+    fps: float = 25.0,
+) -> Scene:
     from stereopose.sim import simulate
 
-    if not 1 <= kwargs["num_frames"] <= MAX_FRAMES:  # a scene is held in memory
-        raise StereoposeError(f"--frames must be in 1..{MAX_FRAMES}, got {kwargs['num_frames']}")
-    Config._ranges["fps"][0].check(kwargs.get("fps", 25.0), "--fps")  # the schema's range
+    if not 1 <= num_frames <= MAX_FRAMES:  # a scene is held in memory
+        raise StereoposeError(f"--frames must be in 1..{MAX_FRAMES}, got {num_frames}")
+    Config._ranges["fps"][0].check(fps, "--fps")  # the schema's range
     try:
-        return simulate(**kwargs)
+        return simulate(
+            num_cameras=num_cameras,
+            num_people=num_people,
+            num_frames=num_frames,
+            seed=seed,
+            difficulty=difficulty,
+            fps=fps,
+        )
     except ValueError as e:
         raise StereoposeError(f"cannot simulate this scene: {e}") from None
 
@@ -129,6 +143,7 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
     site = make_zones(scene, np.random.default_rng([args.seed, 7]))
     save_site(scene_dir / "site.toml", site)
     events_path = out_dir / "events.jsonl"
+    last = None  # the last run's poses, summary and people (the tracked one's)
     for label, mode, tracked in runs:
         cfg = with_overrides(cfg0, triangulation={"mode": mode}, tracking={"enabled": tracked})
         poses = out_dir / _poses_name(mode, tracked)
@@ -145,6 +160,9 @@ def _demo_synthetic(args: argparse.Namespace) -> int:
         m = evaluate(predictions, scene)
         ids = evaluate_tracking(predictions, scene) if tracked else None
         table.add_row(*_accuracy_row(label, m, ids, summary.fps_3d))
+        last = poses, summary, predictions
+    assert last is not None  # the tracked run at least
+    poses, summary, predictions = last
     out.print(table)
     _print_events(scene, site, events_path, predictions, scene_dir)
     out.print(

@@ -35,7 +35,15 @@ from stereopose.io.packets import PacketRing
 from stereopose.io.readahead import ReadAhead
 from stereopose.io.source import JOIN_S, Clock, SourceStats, VideoError, check_fps, source_name
 from stereopose.io.stream import LiveStream, StreamWaits
-from stereopose.io.video import FrameSet, Source, _check_timeouts, is_stream, open_source
+from stereopose.io.video import (
+    FrameSet,
+    ImageFolder,
+    Source,
+    VideoFile,
+    _check_timeouts,
+    is_stream,
+    open_source,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +58,19 @@ def _per_camera(value: object, n: int, what: str) -> list:
     if len(values) != n:
         raise VideoError(f"{len(values)} {what} values for {n} cameras")
     return values
+
+
+Recording = VideoFile | ImageFolder  # a recorded camera's reader
+
+
+def _recordings(sources: Sequence[Source]) -> list[Recording]:
+    """The recorded cameras' readers of `sources` (all of a recorded set's)."""
+    return [s for s in sources if not isinstance(s, LiveStream)]
+
+
+def _streams(sources: Sequence[Source]) -> list[LiveStream]:
+    """The live streams of `sources` (all of a live set's)."""
+    return [s for s in sources if isinstance(s, LiveStream)]
 
 
 def _packets_only(s: Source) -> bool:
@@ -177,15 +198,15 @@ class CameraSet:
     def _loop_in_step(self) -> None:
         """Looped cameras play the same length: the shortest one's (in frames, or in time
         when aligned by time)."""
-        looped = [s for s in self.all_sources if not isinstance(s, LiveStream) and s.loop]
+        looped = [s for s in _recordings(self.all_sources) if s.loop]
         if not looped:
             return
         if self.sync == "index":
-            n = min(s.count for s in looped)
+            n = min(s.count or 0 for s in looped)  # a looped file knows its length
             for s in looped:
                 s.set_period(n)
             return
-        period_s = min(s.count / s.fps for s in looped)
+        period_s = min((s.count or 0) / s.fps for s in looped)
         for s in looped:
             s.set_period(max(1, round(period_s * s.fps)))
 
@@ -209,15 +230,13 @@ class CameraSet:
         live."""
         if self.live or self.loop:
             return None
-        counts = [s.count for s in self.sources]
-        if any(c is None for c in counts):
+        known = [(s.count, s.fps) for s in _recordings(self.sources) if s.count is not None]
+        if len(known) < len(self.sources):
             return None
         if self.sync == "index":
-            n = math.ceil(max(counts) * self.rate / self.fps)
+            n = math.ceil(max(c for c, _ in known) * self.rate / self.fps)
         else:
-            n = max(
-                math.ceil(c / s.fps * self.rate) for c, s in zip(counts, self.sources, strict=False)
-            )
+            n = max(math.ceil(c / fps * self.rate) for c, fps in known)
         return min(n, self.max_frames) if self.max_frames else n
 
     def __iter__(self) -> Iterator[FrameSet]:
@@ -247,14 +266,14 @@ class CameraSet:
             detect: dict[str, np.ndarray | None] = {}
             frames: dict[str, int] = {}
             times: dict[str, float] = {}
-            for s in self.sources:
+            for s in _recordings(self.sources):
                 item = self._take(s, index, t, half)
                 images[s.name] = None if item is None else item[2]
                 if item is not None and item[2] is not None:
                     frames[s.name] = item[0]
                     times[s.name] = item[1]
                 sub = self.detect_sources.get(s.name)
-                if sub is not None:
+                if sub is not None and not isinstance(sub, LiveStream):
                     got = self._take(sub, index, t, half)
                     detect[s.name] = None if got is None else got[2]
             if not frames and len(self._ended) == len(self.sources):
@@ -265,7 +284,7 @@ class CameraSet:
             yield FrameSet(number, t, images, frames, times, detect)
             step += 1
 
-    def _take(self, s: Source, index: int, t: float, half: float) -> tuple | None:
+    def _take(self, s: Recording, index: int, t: float, half: float) -> tuple | None:
         """A recorded camera's frame for this step, the frames before it passed over without
         decoding: by index, frame `index`; by time, the last one with time in
         [t - half, t + half). None where it has none (or has ended)."""
@@ -291,7 +310,7 @@ class CameraSet:
             self._end(s)
         return item
 
-    def _end(self, s: Source) -> None:
+    def _end(self, s: Recording) -> None:
         self._ended_ids.add(id(s))
         if s in self.sources:
             self._ended.add(s.name)
@@ -307,7 +326,7 @@ class CameraSet:
             if self.detect_fps and self._closing.wait(max(0.0, next_at - time.monotonic())):
                 return
             started = time.monotonic()
-            for s in self.all_sources:
+            for s in _streams(self.all_sources):
                 s.request()
             got = self._gather()
             if got is None:
@@ -345,7 +364,7 @@ class CameraSet:
             self._fresh.clear()  # before reading, so that an image arriving after is waited for
             now = time.monotonic()
             waited = []
-            for s in self.all_sources:
+            for s in _streams(self.all_sources):
                 if _packets_only(s):  # never gives an image
                     continue
                 if id(s) not in got and (item := s.latest()) is not None:
@@ -366,7 +385,7 @@ class CameraSet:
 
     def _wait_first_frame(self) -> None:
         """Wait until a live camera delivers, or first_frame_timeout_s passes (VideoError)."""
-        while not any(s.delivered for s in self.sources):
+        while not any(s.delivered for s in _streams(self.sources)):
             self._check_first_frame()
             self._fresh.wait(0.25)
         logger.info("cameras opened; first frame after %.1f s", time.monotonic() - self.clock.start)
@@ -375,11 +394,12 @@ class CameraSet:
         """A VideoError naming every camera once first_frame_timeout_s has passed since the
         set was opened without any camera delivering a frame."""
         limit = self.first_frame_timeout_s
-        if limit is None or any(s.delivered for s in self.all_sources):
+        streams = _streams(self.all_sources)
+        if limit is None or any(s.delivered for s in streams):
             return
         if time.monotonic() - self.clock.start < limit:
             return
-        why = "; ".join(f"{s.label}: {s.problem}" for s in self.all_sources)
+        why = "; ".join(f"{s.label}: {s.problem}" for s in streams)
         raise VideoError(
             f"no camera delivered a frame within {limit:g} s ({why}); "
             "a run's [input] first_frame_timeout_s sets how long to wait"
@@ -430,12 +450,12 @@ class CameraSet:
         if self._ahead is not None:  # no reader reads once the sources close
             self._ahead.close()
         every = self.all_sources
-        live = [s for s in every if s.live]
+        live = _streams(every)
         for s in live:
             s.stop()
         deadline = time.monotonic() + (JOIN_S if live else 0.0)
         for s in every:
-            if s.live:
+            if isinstance(s, LiveStream):
                 s.close(max(0.0, deadline - time.monotonic()))
             else:
                 s.close()

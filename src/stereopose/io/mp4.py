@@ -33,7 +33,7 @@ class FrameWriter:
         if self._writer is None:
             self.size = (image.shape[1], image.shape[0])
             self._writer = cv2.VideoWriter(
-                str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self.size
+                str(self.path), cv2.VideoWriter.fourcc(*"mp4v"), self.fps, self.size
             )
             if not self._writer.isOpened():
                 self._writer = None

@@ -145,7 +145,7 @@ class StreamCopy:
         self._writer: cv2.VideoWriter | None = cv2.VideoWriter(
             str(self.path),
             cv2.CAP_FFMPEG,
-            cv2.VideoWriter_fourcc(*tag[:4].ljust(4)),
+            cv2.VideoWriter.fourcc(*tag[:4].ljust(4)),
             fmt.fps,
             fmt.size,
             [cv2.VIDEOWRITER_PROP_RAW_VIDEO, 1],

@@ -25,12 +25,12 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, SupportsFloat
 
 import numpy as np
 
 from stereopose.skeleton import NUM_JOINTS, floor_position, heading_deg
-from stereopose.types import Event, People3D
+from stereopose.types import Event, JsonDoc, People3D
 
 __all__ = [
     "EVENT_COLUMNS",
@@ -140,8 +140,8 @@ def frame_record(people: People3D, fps: float, postures: Mapping[int, Any] | Non
             people.conf.tolist(),
             floor_position(people.joints).tolist(),
             heading_deg(people.joints).tolist(),
-            people.velocity.tolist(),
-            people.predicted.tolist(),
+            np.asarray(people.velocity).tolist(),
+            np.asarray(people.predicted).tolist(),
             people.views.tolist(),
             mean_err.tolist(),
         )
@@ -161,7 +161,7 @@ def _joints_array(joints: Sequence[Sequence[float] | None]) -> np.ndarray:
     )
 
 
-def parse_frame_record(rec: Mapping[str, object]) -> tuple[int, float | None, list[dict]]:
+def parse_frame_record(rec: JsonDoc) -> tuple[int, float | None, list[dict]]:
     """(frame, t, people) of one frame record; each person keeps its JSON fields and gains
     `joints_array` (17, 3) with NaN for null. Raises KeyError, TypeError or ValueError on a
     malformed record (the reader names the file and line)."""
@@ -174,9 +174,7 @@ def parse_frame_record(rec: Mapping[str, object]) -> tuple[int, float | None, li
     return frame, None if t is None else float(t), people
 
 
-def people3d_from_record(
-    frame: int, people: Sequence[Mapping[str, object]], num_cameras: int = 0
-) -> People3D:
+def people3d_from_record(frame: int, people: Sequence[JsonDoc], num_cameras: int = 0) -> People3D:
     """People3D from the people of a parsed frame record (see `parse_frame_record`).
 
     Restored: joints, conf (default: 1 where a joint is given), ids, views (default 0),
@@ -238,7 +236,7 @@ def event_record(e: Event) -> dict:
     behaviour = (e.rule, e.posture, e.nearest_m, e.facing_deg, e.failed, e.height_m, e.speed_m_s)
     for (key, nd), value in zip(_BEHAVIOUR_FIELDS, behaviour, strict=True):
         if value is not None:
-            d[key] = value if nd is None else _round(value, nd)
+            d[key] = value if nd is None or isinstance(value, str) else _round(value, nd)
     d["incident"] = e.incident  # always there: null for info events (or no incident book)
     d["priority"] = e.priority
     if e.ticket is not None:
@@ -252,7 +250,7 @@ def event_record(e: Event) -> dict:
     return d
 
 
-def event_from_record(d: Mapping[str, object]) -> Event:
+def event_from_record(d: JsonDoc) -> Event:
     """An Event from its JSON object (or an SQLite row as a dict: `x`, `y` for the position).
     Raises KeyError, TypeError, ValueError or IndexError when a required field is missing or
     malformed."""
@@ -277,12 +275,13 @@ def event_from_record(d: Mapping[str, object]) -> Event:
         camera=None if d.get("camera") is None else str(d["camera"]),
         reprojection_px=_optional_float(d.get("reprojection_px")),
         baseline_px=_optional_float(d.get("baseline_px")),
-        **{
-            key: (None if d.get(key) is None else str(d[key]))
-            if nd is None
-            else _optional_float(d.get(key))
-            for key, nd in _BEHAVIOUR_FIELDS
-        },
+        rule=_optional_str(d.get("rule")),
+        posture=_optional_str(d.get("posture")),
+        nearest_m=_optional_float(d.get("nearest_m")),
+        facing_deg=_optional_float(d.get("facing_deg")),
+        failed=_optional_str(d.get("failed")),
+        height_m=_optional_float(d.get("height_m")),
+        speed_m_s=_optional_float(d.get("speed_m_s")),
         incident=None if d.get("incident") is None else int(d["incident"]),
         priority=None if d.get("priority") is None else int(d["priority"]),
         ticket=None if d.get("ticket") is None else str(d["ticket"]),
@@ -302,8 +301,12 @@ def _result(value: object) -> dict | None:
     return doc
 
 
-def _optional_float(value: object) -> float | None:
+def _optional_float(value: SupportsFloat | str | None) -> float | None:
     return None if value is None else float(value)
+
+
+def _optional_str(value: object) -> str | None:
+    return None if value is None else str(value)
 
 
 def event_row(e: Event, run: int) -> tuple:

@@ -218,6 +218,7 @@ class LiveStream:
         """Grab packets into `packets` until the stream fails or the run stops (no decoding,
         no image ever given out); whether any came."""
         ring = self.packets
+        assert ring is not None  # kept encoded: into its ring
         ring.clear()  # a reopened stream starts again from its next keyframe
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         code = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little")

@@ -107,7 +107,7 @@ class RunSummary:
     def add(self, people: People3D, events: Sequence[Event] = ()) -> None:
         """One frame's output people and zone events."""
         self.frames += 1
-        self.predicted += int(people.predicted.sum())
+        self.predicted += 0 if people.predicted is None else int(people.predicted.sum())
         n = len(people)
         self.people_histogram[n] = self.people_histogram.get(n, 0) + 1
         ok = np.isfinite(people.reprojection_px)

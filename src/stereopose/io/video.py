@@ -151,7 +151,7 @@ class VideoFile:
         """Pass over the next frame without decoding it to an image; False at the end."""
         if self._ended:
             return False
-        if self._play is not None:
+        if self._play is not None and self._seeker is not None:
             if not self._seeker.grab(self._play.pos):
                 return self.skip()  # the file is shorter than it said: the loop turned back
             self._play.advance()
@@ -167,12 +167,14 @@ class VideoFile:
         return True
 
     def _looped(self) -> np.ndarray:
+        play, seeker = self._play, self._seeker
+        assert play is not None and seeker is not None  # a looped file
         for _ in range(3):  # a short file shrinks the loop once; its frame 0 decoded before
-            pos = self._play.pos
-            image = self._seeker.frame(pos)
+            pos = play.pos
+            image = seeker.frame(pos)
             if image is not None:
                 self.stats.decoded += 1
-                self._play.advance()
+                play.advance()
                 return image
         raise VideoError(f"{self.path}: stopped decoding while looped")
 

@@ -13,6 +13,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.io.writing import make_folder, probe_folder, probe_output, reason
 from stereopose.types import Rig
+
+if TYPE_CHECKING:
+    from stereopose.calibration.extrinsics import ExtrinsicsResult
 
 logger = logging.getLogger(__name__)
 
@@ -159,7 +163,7 @@ def _picture(run: Kept, path: Path, draw: Callable[[], Path]) -> None:
 
 @dataclass
 class ExtrinsicsRun(Kept):
-    result: object = None  # ExtrinsicsResult
+    result: ExtrinsicsResult | None = None
     found: dict = field(default_factory=dict)  # camera -> {position: found?}
 
 

@@ -218,10 +218,12 @@ class ClipSink(ClosesOnce):
                 ".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, self.settings.clip_jpeg_quality]
             )
         except (cv2.error, ValueError, TypeError) as e:
-            ok, buf = False, e
+            self.errors += 1
+            logger.debug("event clips: camera %s: frame not kept: %s", camera, e)
+            return None
         if not ok:
             self.errors += 1
-            logger.debug("event clips: camera %s: frame not kept: %s", camera, buf)
+            logger.debug("event clips: camera %s: frame not kept: not encoded", camera)
             return None
         return buf.tobytes()
 
@@ -305,18 +307,22 @@ class ClipSink(ClosesOnce):
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
 
     def _write_frames(self, clip: OpenClip, frames: list[bytes]) -> None:
+        part = clip.part
+        assert part is not None  # named when the clip was opened
         for jpeg in frames:
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
             if image is None:
                 continue
             if clip.writer is None:
-                clip.writer = FrameWriter(clip.part, self.fps, "the clip")
+                clip.writer = FrameWriter(part, self.fps, "the clip")
             clip.writer.write(image)
             clip.frames += 1
 
     def _end(self, clip: OpenClip) -> None:
+        part = clip.part
+        assert part is not None  # named when the clip was opened
         if clip.writer is None:  # no frame came: nothing to keep
-            clip.part.unlink(missing_ok=True)
+            part.unlink(missing_ok=True)
             return
         clip.writer.close()
         clip.writer = None
@@ -340,13 +346,15 @@ class ClipSink(ClosesOnce):
 
     def _publish(self, clip: OpenClip) -> Path:
         """The finished part renamed to its clip name, never over another file."""
+        part = clip.part
+        assert part is not None  # named when the clip was opened
         for n in range(MAX_TWINS + 1):
             final = self.folder / ((f"{clip.name}_{n:03d}" if n else clip.name) + CLIP_SUFFIX)
             try:
-                os.link(clip.part, final)
+                os.link(part, final)
             except FileExistsError:
                 continue
-            clip.part.unlink()
+            part.unlink()
             return final
         raise FileExistsError(f"{self.folder}: every name for {clip.name} is taken")
 
@@ -378,7 +386,8 @@ class ClipSink(ClosesOnce):
         part = self._copy_part(clip)
         final = self.folder / (drawn.name[: -len(CLIP_SUFFIX)] + FULL_SUFFIX)
         try:
-            clip.copy.close()
+            if clip.copy is not None:
+                clip.copy.close()
             os.link(part, final)
             part.unlink()
         except (OSError, cv2.error, StereoposeError) as e:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereopose.alarms import Change
+from stereopose.alarms import Change, IncidentRecord
 from stereopose.errors import OutputError
 from stereopose.io.records import event_record, event_row
 from stereopose.io.sinks.base import FrameResult
@@ -126,6 +126,7 @@ class SqliteSink(_EventSink):
                 "INSERT INTO runs(started, site, source, wall_start) VALUES (?, ?, ?, ?)",
                 (time.time(), site, None if source is None else redact_all(source), wall_start),
             )
+            assert cur.lastrowid is not None  # an INSERT's row
             self.run = int(cur.lastrowid)
             if first_id is not None:
                 # the first block, committed before the tracker gives an id
@@ -141,7 +142,7 @@ class SqliteSink(_EventSink):
         self.pending: deque[Event] = deque()
         # incidents changed since the last store: id -> (record, wall_start of its times),
         # stored with the next events (one per incident: bounded by the book)
-        self.incidents: dict[int, tuple[object, float | None]] = {}
+        self.incidents: dict[int, tuple[IncidentRecord, float | None]] = {}
         self._incidents_spilled: dict[int, tuple] = {}  # of those, the ones in the spill file
         self.wall_start = wall_start
         self._spilled = 0  # the first pending events, kept in the spill file too
@@ -163,7 +164,7 @@ class SqliteSink(_EventSink):
             return False
         return True
 
-    def put_incidents(self, records: Sequence[object]) -> None:
+    def put_incidents(self, records: Sequence[IncidentRecord]) -> None:
         """Incident records (alarms.IncidentRecord) to store with the next events; a later
         record of an incident replaces an earlier one not stored yet."""
         for rec in records:
@@ -174,13 +175,13 @@ class SqliteSink(_EventSink):
 
     def write(self, frame: FrameResult) -> None:
         if self.reserved is not None:
-            self._reserve(frame.people3d.ids)
+            self._reserve(frame.people3d.ids, self.reserved)
         self.write_events(frame.events)
 
-    def _reserve(self, ids: np.ndarray) -> None:
-        """Asks for more ids when `ids` come within half a block of the reservation's end (the
-        next store commits it, with the frame's events or on its own)."""
-        if len(ids) and int(ids.max()) >= self.reserved - self.id_block // 2:
+    def _reserve(self, ids: np.ndarray, reserved: int) -> None:
+        """Asks for more ids when `ids` come within half a block of the reservation's end
+        (`reserved`; the next store commits it, with the frame's events or on its own)."""
+        if len(ids) and int(ids.max()) >= reserved - self.id_block // 2:
             self._want = max(self._want or 0, int(ids.max()) + self.id_block)
 
     def write_events(self, events: Sequence[Event]) -> None:

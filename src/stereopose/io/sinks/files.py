@@ -127,8 +127,10 @@ class TwoWaySink(ClosesOnce):
         except BaseException as e:
             error = e
         paths, failed = close_all(self.sinks)
-        if error or failed:
-            raise error or failed
+        if error is not None:
+            raise error
+        if failed is not None:
+            raise failed
         return paths
 
 

@@ -84,7 +84,7 @@ class ZoneCommands:
     def _on_message(self, client: paho.Client, userdata: object, msg: paho.MQTTMessage) -> None:
         try:
             zone = topic_name(msg.topic[len(self._base) :].rsplit("/", 1)[0])
-            on, by = parse_switch(msg.payload)
+            on, by = parse_switch(bytes(msg.payload))
             self.switch(zone, on, "MQTT" if by is None else f"MQTT: {by}")
         except (ValueError, UnicodeError, StereoposeError) as e:
             self._refuse(msg.topic, str(e))

@@ -94,8 +94,9 @@ def make_client(s: MqttSettings, client_id: str):
     import ssl
 
     import paho.mqtt.client as paho
+    from paho.mqtt.enums import CallbackAPIVersion
 
-    c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv311)
+    c = paho.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv311)
     if s.username is not None:
         c.username_pw_set(s.username, s.password)
     if s.tls:
@@ -103,7 +104,8 @@ def make_client(s: MqttSettings, client_id: str):
             c.tls_set(ca_certs=None if s.ca_file is None else str(s.ca_file))
         except (ssl.SSLError, OSError) as e:
             raise ConfigError(f"mqtt.ca_file: cannot load CAs from {s.ca_file}: {e}") from None
-    c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)
+    # paho waits fractions of a second too, whatever its annotation says (int)
+    c.reconnect_delay_set(s.reconnect_min_s, s.reconnect_max_s)  # pyright: ignore[reportArgumentType]
     return c
 
 

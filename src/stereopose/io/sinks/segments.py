@@ -170,14 +170,16 @@ class SegmentSink(ClosesOnce):
 
     def _append(self, data: bytes) -> None:
         """Append one member; on failure cut the file back to its last whole member."""
+        f = self._f
+        assert f is not None  # a member goes into the open file
         view = memoryview(data)
         try:
             while view:
-                view = view[self._f.write(view) :]
+                view = view[f.write(view) :]
         except OSError:
             try:
-                self._f.truncate(self._good)
-                self._f.seek(self._good)
+                f.truncate(self._good)
+                f.seek(self._good)
             except OSError:  # cannot even cut it back: start another file next time
                 self._drop_file()
             raise

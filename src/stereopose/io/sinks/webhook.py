@@ -210,11 +210,11 @@ class WebhookSink(ClosesOnce):
 
     def _log_failure(self, item: _Item, tries: int, why: str) -> None:
         log = logger.debug if self._failing else logger.warning
-        what = (
-            f"event of frame {item.event.frame}"
-            if item.event is not None
-            else f"change of incident {item.change['incident']['id']}"
-        )
+        if item.event is not None:
+            what = f"event of frame {item.event.frame}"
+        else:
+            assert item.change is not None  # an item is an event or a change
+            what = f"change of incident {item.change['incident']['id']}"
         log(
             "webhook %s: %s not delivered after %d tr%s: %s",
             self.shown,
