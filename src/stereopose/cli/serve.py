@@ -40,7 +40,7 @@ def _plan(path: Path, port: int | None):
 
     cfg = load_config(path)
     if port is not None:
-        ServeConfig._ranges["port"][0].check(port, "--port")  # type: ignore[attr-defined]
+        ServeConfig._ranges["port"][0].check(port, "--port")
         cfg = dataclasses.replace(cfg, serve=dataclasses.replace(cfg.serve, port=port))
     return plan_serve(path, cfg)
 

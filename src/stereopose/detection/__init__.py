@@ -207,7 +207,8 @@ def make_detector(
     # OpenVINO's INT8 model is of the default model: a model of the user's own runs as chosen
     choice = choose(backend, precision, device, int8=_ASK if model is None else None)
     detector = _build(choice.backend, model, imgsz, conf, iou, device, threads, choice.precision)
-    detector.choice = choice  # type: ignore[attr-defined]
+    # the choice goes with the detector it made (the run's summary shows it)
+    detector.choice = choice  # pyright: ignore[reportAttributeAccessIssue]
     logger.info("detector: %s", choice)
     return detector
 

@@ -22,6 +22,7 @@ import stat
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TypeGuard
 
 import numpy as np
 import orjson
@@ -95,7 +96,7 @@ def find_camera_dirs(pose_dir: str | Path, camera_names: Sequence[str]) -> dict[
 _VALUE_TYPES = frozenset({int, float, type(None)})
 
 
-def _is_number(v: object) -> bool:
+def _is_number(v: object) -> TypeGuard[int | float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
@@ -117,7 +118,7 @@ def _finite(v: object) -> float | None:
     if not _is_number(v):
         return None
     try:
-        x = float(v)  # type: ignore[arg-type]
+        x = float(v)
     except OverflowError:
         return None
     return x if math.isfinite(x) else None
@@ -127,7 +128,7 @@ def _boxes(boxes: list[list | None]) -> np.ndarray | None:
     """(P, 4) boxes when every person has a finite one, else None (boxes are optional)."""
     if not boxes or any(b is None for b in boxes):
         return None
-    a = _array(boxes, (-1, 4))  # type: ignore[arg-type]
+    a = _array([b for b in boxes if b is not None], (-1, 4))
     return a if a is not None and np.isfinite(a).all() else None
 
 

@@ -26,7 +26,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +54,9 @@ RECENT_S = 1.0  # a live camera whose newest frame is older than this is not wai
 def _per_camera(value: object, n: int, what: str) -> list:
     if value is None or isinstance(value, (bool, str)):
         return [value] * n
-    values = list(value)  # type: ignore[call-overload]
+    if not isinstance(value, Iterable):
+        raise VideoError(f"{what}: one value, or one value per camera, not {value!r}")
+    values = list(value)
     if len(values) != n:
         raise VideoError(f"{len(values)} {what} values for {n} cameras")
     return values

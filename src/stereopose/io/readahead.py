@@ -18,7 +18,7 @@ from __future__ import annotations
 import queue
 import threading
 from collections.abc import Iterable, Iterator
-from typing import Generic, TypeVar
+from typing import Generic, TypeVar, cast
 
 T = TypeVar("T")
 
@@ -71,10 +71,10 @@ class ReadAhead(Generic[T]):
                     self._done = True  # closed while the consumer waited
                 continue
             if kind == _ITEM:
-                return value  # type: ignore[return-value]
+                return cast(T, value)  # an item of the iterator read
             self._done = True
-            if kind == _ERROR:
-                raise value  # type: ignore[misc]
+            if kind == _ERROR and isinstance(value, BaseException):
+                raise value
         raise StopIteration
 
     def close(self, timeout_s: float = 10.0) -> None:

@@ -36,9 +36,10 @@ from __future__ import annotations
 
 import ipaddress
 import string
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 from urllib.parse import urlsplit
 
 from stereopose.alarms.priority import CRITICAL, HIGH, PRIORITIES, parse_priority
@@ -300,6 +301,24 @@ def check_template(text: str, where: str) -> list[tuple[str, str | None]]:
     return out
 
 
+_Out = TypeVar("_Out", SpeakerSpec, SignalSpec)
+
+
+def _outputs(
+    data: Mapping[str, object],
+    key: str,
+    make: Callable[[str, Mapping, Sequence[str]], _Out],
+    zones: Sequence[str],
+) -> list[_Out]:
+    """The site file's [[speakers]] or [[signals]] tables, each checked."""
+    raw = data.get(key, [])
+    if not isinstance(raw, list):
+        raise ConfigError(f"[[{key}]] must be an array of tables, got {raw!r}")
+    if len(raw) > MAX_OUTPUTS:
+        raise ConfigError(f"{len(raw)} {key}; a site holds at most {MAX_OUTPUTS}")
+    return [make(name, s, zones) for name, s in named_tables(raw, key, key[:-1])]
+
+
 def parse_warnings(
     data: Mapping[str, object], zones: Sequence[str], folder: Path | None = None
 ) -> WarningSettings | None:
@@ -319,36 +338,36 @@ def parse_warnings(
     repeat = w.get("repeat_s", DEFAULT_REPEAT_S)
     if isinstance(repeat, bool) or not isinstance(repeat, (int, float)) or not 1 <= repeat <= 600:
         raise ConfigError(f"[warnings] repeat_s: expected seconds in [1, 600], got {repeat!r}")
-    out: dict[str, object] = {
-        "language": language,
-        "repeat_s": float(repeat),
-        "priorities": _priorities(w["priorities"], "[warnings] priorities")
+    priorities = (
+        _priorities(w["priorities"], "[warnings] priorities")
         if "priorities" in w
-        else (CRITICAL, HIGH),
-        "calls": _calls(w["calls"]) if "calls" in w else CALLS,
-        "templates": _strings(w["templates"], "[warnings] templates", KINDS)
-        if "templates" in w
-        else (),
-        "recordings": _strings(w["recordings"], "[warnings] recordings", None)
-        if "recordings" in w
-        else (),
-    }
-    for key, make in (("speakers", _speaker), ("signals", _signal)):
-        raw = data.get(key, [])
-        if not isinstance(raw, list):
-            raise ConfigError(f"[[{key}]] must be an array of tables, got {raw!r}")
-        if len(raw) > MAX_OUTPUTS:
-            raise ConfigError(f"{len(raw)} {key}; a site holds at most {MAX_OUTPUTS}")
-        what = key[:-1]
-        out[key] = tuple(make(name, s, zones) for name, s in named_tables(raw, key, what))
-    for kind, _path in out["recordings"]:  # type: ignore[union-attr]
+        else (CRITICAL, HIGH)
+    )
+    calls = _calls(w["calls"]) if "calls" in w else CALLS
+    templates = _strings(w["templates"], "[warnings] templates", KINDS) if "templates" in w else ()
+    recordings = (
+        _strings(w["recordings"], "[warnings] recordings", None) if "recordings" in w else ()
+    )
+    speakers = tuple(_outputs(data, "speakers", _speaker, zones))
+    signals = tuple(_outputs(data, "signals", _signal, zones))
+    for kind, _path in recordings:
         name = kind.rsplit(".", 1)[-1]
         if name not in KINDS or ("." in kind and kind.rsplit(".", 1)[0] not in zones):
             raise ConfigError(
                 f"[warnings] recordings: {kind!r} is not a message (KIND or ZONE.KIND; kinds: "
                 f"{', '.join(KINDS)})"
             )
-    settings = WarningSettings(folder=folder, **out)  # type: ignore[arg-type]
+    settings = WarningSettings(
+        folder=folder,
+        language=str(language),
+        repeat_s=float(repeat),
+        priorities=priorities,
+        calls=calls,
+        templates=templates,
+        recordings=recordings,
+        speakers=speakers,
+        signals=signals,
+    )
     assert all(p in PRIORITIES for p in settings.priorities)
     for kind, text in settings.templates:
         check_template(text, f"[warnings] templates.{kind}")

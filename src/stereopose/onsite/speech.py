@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,13 +34,26 @@ _CALLBACK = ctypes.CFUNCTYPE(
 )
 
 _lock = threading.Lock()
-_state: dict[str, object] = {}  # the library, its sample rate and callback, once per process
 
 
-def _library() -> tuple[ctypes.CDLL, int]:
+@dataclass(frozen=True)
+class _Engine:
+    """eSpeak NG loaded: the library, its sample rate, the callback it holds and the
+    chunks of sound the callback gathers."""
+
+    lib: ctypes.CDLL
+    rate: int
+    callback: object  # kept: the library holds its pointer
+    chunks: list[np.ndarray]
+
+
+_engine: list[_Engine] = []  # once per process
+
+
+def _library() -> _Engine:
     """eSpeak NG loaded and initialised once (under _lock)."""
-    if "lib" in _state:
-        return _state["lib"], _state["rate"]  # type: ignore[return-value]
+    if _engine:
+        return _engine[0]
     try:
         import espeakng_loader
     except ImportError:
@@ -65,8 +79,8 @@ def _library() -> tuple[ctypes.CDLL, int]:
 
     callback = _CALLBACK(collect)  # kept: the library holds the pointer
     lib.espeak_SetSynthCallback(callback)
-    _state.update(lib=lib, rate=rate, callback=callback, chunks=chunks)
-    return lib, rate
+    _engine.append(_Engine(lib, rate, callback, chunks))
+    return _engine[0]
 
 
 class Speech:
@@ -81,8 +95,8 @@ class Speech:
         if voice is None:
             raise ValueError(f"unknown language {language!r}; expected one of {list(LANGUAGES)}")
         with _lock:
-            lib, rate = _library()
-            chunks: list[np.ndarray] = _state["chunks"]  # type: ignore[assignment]
+            engine = _library()
+            lib, rate, chunks = engine.lib, engine.rate, engine.chunks
             chunks.clear()
             if lib.espeak_SetVoiceByName(voice.encode()) != 0:
                 raise StereoposeError(f"eSpeak NG has no voice {voice!r} (language {language})")

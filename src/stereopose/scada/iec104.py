@@ -118,9 +118,11 @@ class Outstation(ClosesOnce):
         self.settings, self.table, self.wall_start = settings, table, float(wall_start)
         self.status, self.acknowledger = status, acknowledger
         self.status_interval_s = float(status_interval_s)
-        cams = {p.name: True for p in table if p.kind == "camera_up"}
-        zones = {p.name: set() for p in table if p.kind == "zone_occupied"}
-        self._state = PointState(zones, cams)  # type: ignore[arg-type]
+        cams = {p.name: True for p in table if p.kind == "camera_up" and p.name is not None}
+        zones: dict[str, set[int]] = {
+            p.name: set() for p in table if p.kind == "zone_occupied" and p.name is not None
+        }
+        self._state = PointState(zones, cams)
         self._queue: deque[tuple[str, Any]] = deque()
         self._cond = threading.Condition()
         self._stopping = False
@@ -235,6 +237,7 @@ class Outstation(ClosesOnce):
                 return
 
     def _apply(self, kind: str, item: object) -> None:
+        assert isinstance(item, (list, tuple))  # what put() queued for `kind`
         s = self._state
         if kind == "events":
             for e in item:
@@ -429,7 +432,7 @@ class Outstation(ClosesOnce):
         syncs, the queue."""
         with self._cond:
             queued = len(self._queue)
-        f = dict(self._figures)
+        f: dict[str, object] = {**self._figures}
         f.update(
             queued=queued,
             clock_offset_s=self._clock_offset_s,

@@ -47,11 +47,12 @@ class Iec104Master:
         self.rtu = RtuPoints(host, self.port, points, board, figures)
         self.interrogation_s = self.rtu.interrogation_s
         self.client = c104.Client(tick_rate_ms=50, command_timeout_ms=5000)
-        self.connection = self.client.add_connection(
+        connection = self.client.add_connection(
             ip=host, port=self.port, init=c104.Init.INTERROGATION
         )
-        if self.connection is None:
+        if connection is None:
             raise ConfigError(f"zone state: cannot reach an IEC 104 RTU at {host}:{port}")
+        self.connection = connection
         self.connection.on_state_change(
             callable=typed_callback(
                 lambda connection, state: self._on_state(connection, state),
@@ -70,7 +71,9 @@ class Iec104Master:
         self.stations: dict[int, Any] = {}
         for p in points:
             ca = p.common_address
-            station = self.stations.get(ca) or self.connection.add_station(common_address=ca)
+            station = self.stations.get(ca) or connection.add_station(common_address=ca)
+            if station is None:
+                raise ConfigError(f"zone state: IEC 104 {host}:{port}: no station {ca}")
             self.stations[ca] = station
             kind = {
                 (False, True): c104.Type.M_SP_TB_1,
@@ -79,6 +82,8 @@ class Iec104Master:
                 (True, False): c104.Type.M_DP_NA_1,
             }[(p.double, p.time_tag)]
             point = station.add_point(io_address=p.ioa, type=kind)
+            if point is None:
+                raise ConfigError(f"zone state: IEC 104 {host}:{port}: no point {p.ioa}")
             point.on_receive(callable=on_receive)
         self._open = False
         self._stop = threading.Event()

@@ -83,23 +83,24 @@ class PointState:
         }
         out = {}
         for p in table.monitored:
+            name = p.name or ""  # the camera, zone or slot a point is of
             if p.kind in now:
                 value = now[p.kind]
             elif p.kind == "camera_up":
-                value = self.camera_up.get(p.name, True)
+                value = self.camera_up.get(name, True)
             elif p.kind == "zone_occupied":
-                value = bool(self.inside.get(p.name))
+                value = bool(self.inside.get(name))
             elif p.kind == "zone_live":
-                value = self.power.get(p.name, "unknown") != "dead"
+                value = self.power.get(name, "unknown") != "dead"
             elif p.kind.startswith("ticket_"):
-                row = slots[int(p.name) - 1]
+                row = slots[int(name) - 1]
                 value = {
                     "ticket_steps": row.steps_done,
                     "ticket_active": row.active,
                     "ticket_deviation": row.deviation,
                 }[p.kind]
             else:  # zone_alarm, rule_alarm
-                value = p.name in (zone_alarm if p.kind == "zone_alarm" else rule_alarm)
+                value = name in (zone_alarm if p.kind == "zone_alarm" else rule_alarm)
             out[p.ioa] = (value, self.invalid(p))
         return out
 
@@ -113,5 +114,5 @@ class PointState:
         if p.kind.startswith("ticket_"):
             return self.stalled
         if p.kind == "zone_live":
-            return self.stalled or self.power.get(p.name, "unknown") == "unknown"
+            return self.stalled or self.power.get(p.name or "", "unknown") == "unknown"
         return self.stalled or any(not self.camera_up.get(c, True) for c in p.cameras)

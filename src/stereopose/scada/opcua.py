@@ -44,8 +44,11 @@ from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 
-from asyncua import Server, ua
+from asyncua import ua
 from asyncua.common.connection import TransportLimits
+from asyncua.server.server import Server
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
 
 from stereopose.alarms import UnknownIncidentError
 from stereopose.alarms.book import DROPPED
@@ -76,7 +79,8 @@ STATUS_EVERY_S = 2.0  # the health status polled this often
 MAX_MESSAGE = 4 * 1024 * 1024  # bytes of one request at most
 SPARE_SOCKETS = 4  # sockets beyond max_connections, for handshakes
 ACTIVATE_S = 5.0  # a socket with no activated session is closed after this long
-_ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+# asyncua annotates a node id's number as its own Int32; it takes an int
+_ACK = ua.NodeId(ObjectIds.AcknowledgeableConditionType_Acknowledge)  # pyright: ignore[reportArgumentType]
 
 
 class OpcuaServer(ClosesOnce):
@@ -194,12 +198,14 @@ class OpcuaServer(ClosesOnce):
                 await server.stop()
 
     async def _wait(self) -> None:
-        stop = asyncio.create_task(self._stop.wait())
-        wake = asyncio.create_task(self._wake.wait())
+        stop_event, wake_event = self._stop, self._wake
+        assert stop_event is not None and wake_event is not None  # made by the running loop
+        stop = asyncio.create_task(stop_event.wait())
+        wake = asyncio.create_task(wake_event.wait())
         await asyncio.wait((stop, wake), return_when=asyncio.FIRST_COMPLETED)
         for t in (stop, wake):
             t.cancel()
-        self._wake.clear()
+        wake_event.clear()
         with self._lock:
             self._pending = False
 
@@ -228,7 +234,9 @@ class OpcuaServer(ClosesOnce):
         server.application_type = ua.ApplicationType.Server
         server.set_endpoint(s.endpoint)
         policies = [getattr(ua.SecurityPolicyType, name) for name in s.security]
-        server.set_security_policy(policies, permission_ruleset=Permissions())
+        # asyncua annotates its simple ruleset here; it takes any PermissionRuleset
+        rules = Permissions()
+        server.set_security_policy(policies, permission_ruleset=rules)  # pyright: ignore[reportArgumentType]
         tokens: list[type] = [ua.UserNameIdentityToken]
         if s.allow_anonymous:
             tokens.append(ua.AnonymousIdentityToken)
@@ -311,6 +319,7 @@ class OpcuaServer(ClosesOnce):
 
     async def _drain(self) -> None:
         space = self.space
+        assert space is not None  # drained once the server runs
         with self._lock:
             changes = list(self._changes)
             self._changes.clear()
@@ -354,13 +363,15 @@ class OpcuaServer(ClosesOnce):
             with desk.lock:
                 return desk.book.incidents()
 
+        space = self.space
+        assert space is not None  # once the server runs
         records = await asyncio.get_running_loop().run_in_executor(None, read)
         wall_start = desk.wall_start
         kept = {r.id for r in records}
-        for gone in [i for i in self.space.conditions if i not in kept]:
-            rec = self.space.conditions[gone].record
-            await self.space.drop(dataclasses.replace(rec, state=CLOSED), None, wall_start)
-        await self.space.apply([(r, None, wall_start) for r in records])
+        for gone in [i for i in space.conditions if i not in kept]:
+            rec = space.conditions[gone].record
+            await space.drop(dataclasses.replace(rec, state=CLOSED), None, wall_start)
+        await space.apply([(r, None, wall_start) for r in records])
 
     def _evicted_one(self) -> None:
         self.evicted += 1
@@ -375,7 +386,7 @@ class OpcuaServer(ClosesOnce):
             except Exception as e:  # the status missing never stops the server
                 logger.debug("OPC UA: no status: %s", e)
             else:
-                if status != last:
+                if status != last and self.space is not None:
                     last = status
                     await self.space.write("site/Status", str(status), ua.VariantType.String)
             await asyncio.sleep(STATUS_EVERY_S)
@@ -385,35 +396,37 @@ class OpcuaServer(ClosesOnce):
         code = await self._ack(parent, caller(), args)
         if code is not None:
             self.acks_refused += 1
-            return ua.StatusCode(code)
+            # asyncua annotates a status code as its own UInt32; it takes an int
+            return ua.StatusCode(code)  # pyright: ignore[reportArgumentType]
         self.acks += 1
         return []
 
     async def _ack(self, parent: ua.NodeId, caller, args) -> int | None:
         space, desk = self.space, self.desk
+        assert space is not None  # a method is called once the server runs
         name = getattr(caller, "name", None)
         if name is None or not self._may_acknowledge(caller):
             logger.warning(
                 "OPC UA: acknowledge refused for %s", repr(name) if name else "an anonymous client"
             )
-            return ua.StatusCodes.BadUserAccessDenied
+            return StatusCodes.BadUserAccessDenied
         incident = space.by_node.get(parent)
         if incident is None:
-            return ua.StatusCodes.BadNodeIdUnknown
+            return StatusCodes.BadNodeIdUnknown
         cond = space.conditions[incident]
         if len(args) != 2:
             return (
-                ua.StatusCodes.BadArgumentsMissing
+                StatusCodes.BadArgumentsMissing
                 if len(args) < 2
-                else ua.StatusCodes.BadTooManyArguments
+                else StatusCodes.BadTooManyArguments
             )
         event_id = args[0].Value if isinstance(args[0], ua.Variant) else None
         if not isinstance(event_id, bytes) or event_id not in cond.event_ids:
-            return ua.StatusCodes.BadEventIdUnknown
+            return StatusCodes.BadEventIdUnknown
         if cond.acked:
-            return ua.StatusCodes.BadConditionBranchAlreadyAcked
+            return StatusCodes.BadConditionBranchAlreadyAcked
         if desk is None:
-            return ua.StatusCodes.BadResourceUnavailable
+            return StatusCodes.BadResourceUnavailable
         comment = args[1].Value if isinstance(args[1], ua.Variant) else None
         text = (comment.Text or "") if isinstance(comment, ua.LocalizedText) else ""
         try:
@@ -421,7 +434,7 @@ class OpcuaServer(ClosesOnce):
                 None, desk.acknowledge, incident, name
             )
         except UnknownIncidentError:
-            return ua.StatusCodes.BadNodeIdUnknown
+            return StatusCodes.BadNodeIdUnknown
         logger.info(
             "OPC UA: incident %d acknowledged by %s%s",
             incident,

@@ -23,6 +23,8 @@ from asyncua import ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.object_ids import ObjectIds
 
 from stereopose.errors import HashingBusyError, StereoposeError
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
@@ -84,16 +86,18 @@ class Permissions(PermissionRuleset):
     """Logins read, browse, subscribe and call methods; nobody writes or edits nodes."""
 
     def __init__(self) -> None:
-        allowed = set(map(ua.NodeId, USER_TYPES))
-        allowed.discard(ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary))
+        # asyncua annotates a node id's number as its own Int32; it takes an int
+        allowed = {ua.NodeId(n) for n in USER_TYPES}  # pyright: ignore[reportArgumentType]
+        write = ObjectIds.WriteRequest_Encoding_DefaultBinary
+        allowed.discard(ua.NodeId(write))  # pyright: ignore[reportArgumentType]
         self._allowed = frozenset(allowed)
 
-    def check_validity(self, user, action_type_id, body) -> bool:
+    def check_validity(self, user, action_type, body) -> bool:
         # a session not yet activated holds asyncua's default user, not a Login
-        return isinstance(user, Login) and action_type_id in self._allowed
+        return isinstance(user, Login) and action_type in self._allowed
 
 
-class Users:
+class Users(UserManager):
     """asyncua's user manager over the console's users (see the module); limiter: the
     console's (a login here counts against the same address and account), or its own."""
 

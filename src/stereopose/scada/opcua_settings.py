@@ -22,11 +22,18 @@ import socket
 import stat
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import quote
 
 from stereopose.config import Config
 from stereopose.errors import ConfigError
 from stereopose.io.writing import write_private
+
+if TYPE_CHECKING:
+    from cryptography.hazmat.primitives.asymmetric.types import (
+        CertificatePublicKeyTypes,
+        PublicKeyTypes,
+    )
 
 __all__ = ["AppCertificate", "OpcuaSettings", "application_certificate", "opcua_settings"]
 
@@ -157,7 +164,7 @@ def _load_pair(path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Pat
         raise ConfigError(
             f"{where}opcua.key: {key} is not an unencrypted PEM private key: {e}"
         ) from None
-    if c.public_key().public_numbers() != k.public_key().public_numbers():
+    if _spki(c.public_key()) != _spki(k.public_key()):
         raise ConfigError(
             f"{where}opcua.certificate {cert} and opcua.key {key}: the key is not the certificate's"
         )
@@ -271,3 +278,10 @@ def _make(settings: OpcuaSettings, cert_path: Path, key_path: Path) -> AppCertif
         app.thumbprint,
     )
     return app
+
+
+def _spki(key: CertificatePublicKeyTypes | PublicKeyTypes) -> bytes:
+    """A public key as its DER SubjectPublicKeyInfo: the same key, the same bytes."""
+    from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
+
+    return key.public_bytes(Encoding.DER, PublicFormat.SubjectPublicKeyInfo)

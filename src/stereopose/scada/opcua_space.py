@@ -32,6 +32,12 @@ condition is carried by its events: its node has no child variables (asyncua wou
 alarm instance), so that thousands of open incidents stay cheap.
 """
 
+# asyncua makes its event types' fields at run time (OffNormalAlarm's EventId, Message, ...)
+# and annotates numbers, strings and times as its own Int32, UInt32, String and DateTime,
+# taking plain values for them: these two checks are off in this module, asyncua's address
+# space, alone.
+# pyright: reportAttributeAccessIssue=false, reportArgumentType=false
+
 from __future__ import annotations
 
 import datetime
@@ -41,8 +47,11 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-from asyncua import Server, ua
+from asyncua import ua
 from asyncua.common import event_objects
+from asyncua.server.server import Server
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
 
 from stereopose.alarms.incident import ACKNOWLEDGED, ACTIVE, CLEARED, CLOSED, IncidentRecord
 from stereopose.alarms.priority import PRIORITY_NAMES
@@ -64,7 +73,7 @@ __all__ = [
 SEVERITY = {1: 900, 2: 700, 3: 500, 4: 200}
 EVENT_IDS_KEPT = 16  # a condition's latest events an Acknowledge may name
 _VERBS = {"enter": "entered", "approach": "approaching", "dwell": "dwelling in"}
-_SAFETY, _SYSTEM = ua.ObjectIds.SafetyConditionClassType, ua.ObjectIds.SystemConditionClassType
+_SAFETY, _SYSTEM = ObjectIds.SafetyConditionClassType, ObjectIds.SystemConditionClassType
 _SLOT_VARIABLES = (
     ("Ticket", "", ua.VariantType.String),
     ("Active", False, ua.VariantType.Boolean),
@@ -248,9 +257,7 @@ class SiteSpace:
     async def write(
         self, path: str, value, vt: ua.VariantType, wall: float | None = None, good: bool = True
     ) -> None:
-        status = ua.StatusCode(
-            ua.StatusCodes.Good if good else ua.StatusCodes.UncertainLastUsableValue
-        )
+        status = ua.StatusCode(StatusCodes.Good if good else StatusCodes.UncertainLastUsableValue)
         dv = ua.DataValue(
             ua.Variant(value, vt),
             StatusCode=status,
@@ -382,13 +389,13 @@ class SiteSpace:
         item.BrowseName = ua.QualifiedName(name, self.idx)
         item.NodeClass = ua.NodeClass.Object
         item.ParentNodeId = self.nid("site/Incidents")
-        item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
-        item.TypeDefinition = ua.NodeId(ua.ObjectIds.OffNormalAlarmType)
+        item.ReferenceTypeId = ua.NodeId(ObjectIds.HasComponent)
+        item.TypeDefinition = ua.NodeId(ObjectIds.OffNormalAlarmType)
         attrs = ua.ObjectAttributes()
         attrs.DisplayName = _text(name)
         item.NodeAttributes = attrs
         result = (await self.server.iserver.isession.add_nodes([item]))[0]
-        if result.StatusCode.is_bad() and result.StatusCode.value != ua.StatusCodes.BadNodeIdExists:
+        if result.StatusCode.is_bad() and result.StatusCode.value != StatusCodes.BadNodeIdExists:
             result.StatusCode.check()
         return item.RequestedNewNodeId
 
@@ -417,7 +424,7 @@ class SiteSpace:
             sourcenode=source, message=incident_message(rec), severity=cond.severity
         )
         ev.add_property("NodeId", cond.node, ua.VariantType.NodeId)  # the ConditionId
-        ev.emitting_node = ua.NodeId(ua.ObjectIds.Server)
+        ev.emitting_node = ua.NodeId(ObjectIds.Server)
         ev.Message = _text(incident_message(rec))
         now = _utc(None)
         ev.EventId = uuid.uuid4().bytes
@@ -430,7 +437,7 @@ class SiteSpace:
         ev.ConditionName = f"Incident {rec.id}"
         ev.BranchId = ua.NodeId()
         ev.Retain = retain
-        ev.Quality = ua.StatusCode(ua.StatusCodes.Good)
+        ev.Quality = ua.StatusCode(StatusCodes.Good)
         ev.LastSeverity = last_severity
         ev.Comment = _text("")
         ev.ClientUserId = rec.acked_by or ""

@@ -91,8 +91,10 @@ class OpcuaWatcher:
                 await asyncio.wait_for(self._stopping.wait(), wait)
 
     async def _session(self) -> None:
-        from asyncua import Client
+        from asyncua.client.client import Client
 
+        stopping = self._stopping
+        assert stopping is not None  # made by the running loop
         client = Client(self.endpoint, timeout=5)
         if self.user:
             client.set_user(self.user)
@@ -104,12 +106,12 @@ class OpcuaWatcher:
             sub = await client.create_subscription(200, handler)
             handler.labels = {n.nodeid: label for label, n in nodes.items()}
             await sub.subscribe_data_change(list(nodes.values()))
-            while not self._stopping.is_set():
+            while not stopping.is_set():
                 for label, node in nodes.items():
                     dv = await node.read_data_value()
                     self._take(label, dv.Value.Value if dv.Value else None, dv.StatusCode)
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._stopping.wait(), self.interrogation_s)
+                    await asyncio.wait_for(stopping.wait(), self.interrogation_s)
 
     def _take(self, label: str, value: object, status: Any) -> None:
         good = status is None or bool(getattr(status, "is_good", lambda: True)())

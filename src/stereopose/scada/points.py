@@ -118,7 +118,7 @@ class PointsTable(Sequence[Point]):
     def __len__(self) -> int:
         return len(self.points)
 
-    def __getitem__(self, k):  # type: ignore[override]
+    def __getitem__(self, k):
         return self.points[k]
 
     def __iter__(self) -> Iterator[Point]:

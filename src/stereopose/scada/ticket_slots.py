@@ -39,6 +39,8 @@ class TicketSlots:
         """A ticket's event folded in (started: the lowest free slot; a step done; ended: its
         slot freed); whether it changed a slot."""
         tid = e.ticket
+        if tid is None:  # not a ticket's event
+            return False
         if e.type == "ticket_started" and tid not in self.slots and None in self.slots:
             self.slots[self.slots.index(None)] = tid
             self.steps_done[tid] = 0
@@ -66,4 +68,6 @@ class TicketSlots:
 
 def deviating(records: Iterable[IncidentRecord]) -> set[str]:
     """The tickets with an incident not closed, among open incident records."""
-    return {r.key[1] for r in records if r.key and r.key[0] == "ticket" and r.state != "closed"}
+    return {
+        str(r.key[1]) for r in records if r.key and r.key[0] == "ticket" and r.state != "closed"
+    }

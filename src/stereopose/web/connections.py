@@ -38,8 +38,9 @@ import logging
 import re
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from http import HTTPStatus
+from ipaddress import IPv4Network, IPv6Network
 from typing import Any, ClassVar
 
 import h11
@@ -72,6 +73,10 @@ class ConnectionLimits:
     # reverse proxies (addresses or networks): not capped per address, every client behind
     # one comes from its address
     trusted_proxies: tuple[str, ...] = ()
+    # trusted_proxies read as networks (__post_init__)
+    _proxies: tuple[IPv4Network | IPv6Network, ...] = field(
+        default=(), init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         for name, value in (
@@ -120,7 +125,7 @@ def is_trusted_proxy(limits: ConnectionLimits, host: str) -> bool:
         return False
     if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
         ip = ip.ipv4_mapped
-    return any(ip in net for net in limits._proxies)  # type: ignore[attr-defined]
+    return any(ip in net for net in limits._proxies)
 
 
 def client_key(host: str) -> str:
@@ -302,7 +307,7 @@ class GuardedH11Protocol(H11Protocol):
             and (self.cycle is None or self.cycle.response_complete)
         )
 
-    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport: asyncio.Transport) -> None:
         super().connection_made(transport)
         limits, table = self.limits, self.table
         host = self.client[0] if self.client else ""

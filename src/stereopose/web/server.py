@@ -181,8 +181,9 @@ def uvicorn_config(
         proxy_headers=bool(trusted_proxies),
         forwarded_allow_ips=list(trusted_proxies) or None,
         limit_concurrency=None,  # counted by the protocol: answers in progress, not connections
-        timeout_keep_alive=limits.idle_s,  # type: ignore[arg-type]  # a float works
-        timeout_graceful_shutdown=graceful_s,  # type: ignore[arg-type]
+        # uvicorn annotates whole seconds; it waits fractions as well
+        timeout_keep_alive=limits.idle_s,  # pyright: ignore[reportArgumentType]
+        timeout_graceful_shutdown=graceful_s,  # pyright: ignore[reportArgumentType]
         h11_max_incomplete_event_size=limits.max_header_bytes,
         ssl_certfile=certificate,
         ssl_keyfile=key,
