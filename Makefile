@@ -58,8 +58,9 @@ demo: install
 lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	# pyright's standard checks over src/ ([tool.basedpyright] in pyproject.toml)
-	$(BIN)/basedpyright
+	# pyright's standard checks over src/ ([tool.basedpyright] in pyproject.toml; named, so that
+	# no pyrightconfig.json of an enclosing folder is taken instead)
+	$(BIN)/basedpyright -p pyproject.toml
 
 test: lint
 	$(BIN)/pytest
