@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.table import Table
 
@@ -25,6 +26,11 @@ from stereopose.errors import (
     StereoposeError,
 )
 
+if TYPE_CHECKING:
+    from stereopose.fence import Site
+    from stereopose.tickets import Ticket
+    from stereopose.zones.state_log import StateLogFile
+
 
 def _check_inputs(args: argparse.Namespace) -> None:
     """The input files, checked before the 3D stage is imported: a missing one is an error at
@@ -37,12 +43,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         raise ConfigError(f"{args.site}: site file not found")
 
 
-def _reconstruct(args: argparse.Namespace) -> int:
-    cfg = _config(args)
-    _check_inputs(args)
+def _site_files(args: argparse.Namespace) -> tuple[Site | None, Ticket | None, StateLogFile | None]:
+    """The site, the ticket and the zones' switching log the command names: the outputs of
+    zone events, the ticket and the log need the site."""
     from stereopose.fence import load_site
-    from stereopose.io.sinks import describe
-    from stereopose.pipeline import Outputs, reconstruct_files
     from stereopose.tickets import load_ticket
     from stereopose.zones.state_log import StateLogFile
 
@@ -54,11 +58,18 @@ def _reconstruct(args: argparse.Namespace) -> int:
         raise StereoposeError(
             "--events, --events-db, --webhook, --ticket and --zone-states need a site file (--site)"
         )
-    states = (
-        StateLogFile.read(args.zone_states, site.zones)
-        if args.zone_states and site is not None
-        else None
-    )
+    if site is None or not args.zone_states:
+        return site, ticket, None
+    return site, ticket, StateLogFile.read(args.zone_states, site.zones)
+
+
+def _reconstruct(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    _check_inputs(args)
+    from stereopose.io.sinks import describe
+    from stereopose.pipeline import Outputs, reconstruct_files
+
+    site, ticket, states = _site_files(args)
     if site is not None and site.fps and args.fps is None:
         cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
