@@ -151,7 +151,6 @@ class CalibrationHealth:
         if base is None or running is None or len(cam.recent) < self.window:
             return []
         threshold = self.warn_factor * max(base, self.floor_px)
-        fields = {"reprojection_px": running, "baseline_px": base}
         if not cam.drifting and running > threshold:
             cam.drifting = True
             logger.error(
@@ -161,11 +160,11 @@ class CalibrationHealth:
                 running,
                 base,
             )
-            return [camera_event("calibration_drift", name, t, frame, t, **fields)]
+            return [_drift_event("calibration_drift", name, t, frame, running, base)]
         if cam.drifting and running < 0.5 * (base + threshold):
             cam.drifting = False
             logger.warning("camera %s: reprojection error back to %.1f px", name, running)
-            return [camera_event("calibration_recovered", name, t, frame, t, **fields)]
+            return [_drift_event("calibration_recovered", name, t, frame, running, base)]
         return []
 
     def set_camera(self, rig: Rig, name: str) -> None:
@@ -180,3 +179,8 @@ class CalibrationHealth:
             n: {"baseline_px": c.baseline, "running_px": c.running, "drifting": c.drifting}
             for n, c in self.cameras.items()
         }
+
+
+def _drift_event(type_: str, name: str, t: float, frame: int, running: float, base: float) -> Event:
+    """A camera's drift or recovery: its running error against its baseline, pixels."""
+    return camera_event(type_, name, t, frame, t, reprojection_px=running, baseline_px=base)

@@ -17,11 +17,11 @@ their silence).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TypedDict, Unpack
 
 from stereopose.types import Event
 
@@ -33,11 +33,25 @@ CAMERA_KIND = "camera"
 NO_PERSON = -1  # camera events concern no person
 
 
+class CameraFields(TypedDict, total=False):
+    """What a camera event may carry beyond its camera and times."""
+
+    duration_s: float | None  # how long it was down (camera_up)
+    reprojection_px: float | None  # its reprojection error now (calibration events)
+    baseline_px: float | None  # against its baseline
+    result: dict | None  # a placement's figures (calibration_corrected)
+
+
 def camera_event(
-    kind_of_event: str, camera: str, t: float, frame: int, onset_t: float, **fields: object
+    kind_of_event: str,
+    camera: str,
+    t: float,
+    frame: int,
+    onset_t: float,
+    **fields: Unpack[CameraFields],
 ) -> Event:
     """An event about a camera (kind "camera", zone "", person -1)."""
-    event = Event(
+    return Event(
         t=t,
         frame=frame,
         person=NO_PERSON,
@@ -46,8 +60,8 @@ def camera_event(
         type=kind_of_event,
         onset_t=onset_t,
         camera=camera,
+        **fields,
     )
-    return dataclasses.replace(event, **fields) if fields else event
 
 
 @dataclass
