@@ -99,3 +99,22 @@ def test_skeleton_tables() -> None:
         assert JOINTS[left].startswith("left_") and JOINTS[right] == "right_" + JOINTS[left][5:]
     with pytest.raises(ValueError, match="unknown joint 'elbow'"):
         joint_index("elbow")
+
+
+def test_event_fields_are_the_events_optional_fields() -> None:
+    """EventFields (the keyword arguments of the helpers that make an Event) names exactly
+    the Event's fields that have a default, with the same types."""
+    import dataclasses
+    from typing import ForwardRef
+
+    from stereopose.types import Event, EventFields
+
+    optional = {
+        f.name: f.type
+        for f in dataclasses.fields(Event)
+        if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+    }
+    assert EventFields.__annotations__.keys() == optional.keys()
+    for name, kind in optional.items():
+        hint = EventFields.__annotations__[name]
+        assert (hint.__forward_arg__ if isinstance(hint, ForwardRef) else hint) == kind, name

@@ -6,7 +6,9 @@ the HTTPS settings."""
 from __future__ import annotations
 
 import stat
+from collections.abc import Callable
 from pathlib import Path
+from typing import ParamSpec, TypeVar
 
 from stereopose.config import Config
 from stereopose.errors import ConfigError
@@ -29,12 +31,16 @@ def resolve(base: Path, value: str) -> Path:
     return p if p.is_absolute() else base / p
 
 
+P = ParamSpec("P")
+T = TypeVar("T")
+
+
 def source_path(base: Path, value: str) -> str:
     """A camera's source: a stream URL as given, a file resolved as `resolve` does."""
     return value if not value or is_stream(value) else str(resolve(base, value))
 
 
-def section_settings(path: Path, make, *args, **kwargs):
+def section_settings(path: Path, make: Callable[P, T], *args: P.args, **kwargs: P.kwargs) -> T:
     """A building block's settings; its ConfigError (naming `section.key`) names the file."""
     try:
         return make(*args, **kwargs)

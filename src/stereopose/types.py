@@ -10,7 +10,7 @@ import copy
 import functools
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import cv2
 import numpy as np
@@ -345,6 +345,34 @@ class People3D:
             z.astype(np.int64),
             np.zeros((0, num_cameras), dtype=np.int64),
         )
+
+
+class EventFields(TypedDict, total=False):
+    """An Event's optional fields, as the keyword arguments of the helpers that make one."""
+
+    joint: str | None
+    distance_m: float | None
+    duration_s: float | None
+    position: tuple[float, float] | None
+    allowed: bool
+    lost: bool
+    restart: bool
+    camera: str | None
+    reprojection_px: float | None
+    baseline_px: float | None
+    rule: str | None
+    posture: str | None
+    nearest_m: float | None
+    facing_deg: float | None
+    failed: str | None
+    height_m: float | None
+    speed_m_s: float | None
+    incident: int | None
+    priority: int | None
+    ticket: str | None
+    step: str | None
+    result: dict | None
+    source: str | None
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,15 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
-def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
+def epipolar_pair_distances(
+    xy: np.ndarray,
+    size: np.ndarray,
+    camera: np.ndarray,
+    E: np.ndarray,
+    first: np.ndarray,
+    second: np.ndarray,
+    swap: np.ndarray,
+):
     """Per-joint normalised symmetric epipolar distances of detection pairs.
 
     xy: (N, 17, 2) ideal coordinates, finite (missing joints as 0: they never vote);
@@ -52,7 +60,16 @@ def epipolar_pair_distances(xy, size, camera, E, first, second, swap):
 
 
 @njit(**_JIT)
-def pair_costs(N, first, second, same, cross, ok, swap, min_common):
+def pair_costs(
+    N: int,
+    first: np.ndarray,
+    second: np.ndarray,
+    same: np.ndarray,
+    cross: np.ndarray,
+    ok: np.ndarray,
+    swap: np.ndarray,
+    min_common: int,
+):
     """(N, N) symmetric cost of detection pairs: the mean over joints confident (ok (N, 17)) in
     both of the distances same (M, 17), or of cross with the second's labels exchanged, the
     lower of the two; inf with fewer than min_common shared joints, and for pairs not listed
@@ -79,7 +96,7 @@ def pair_costs(N, first, second, same, cross, ok, swap, min_common):
 
 
 @njit(**_JIT)
-def box_diagonals(xy, mask):
+def box_diagonals(xy: np.ndarray, mask: np.ndarray):
     """(N,) diagonal of the box around the masked joints of each detection (N, 17, 2); NaN
     with fewer than two."""
     N, J = mask.shape
@@ -100,7 +117,16 @@ def box_diagonals(xy, mask):
 
 
 @njit(**_JIT)
-def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
+def claim_costs(
+    xy: np.ndarray,
+    ok: np.ndarray,
+    size: np.ndarray,
+    camera: np.ndarray,
+    proj: np.ndarray,
+    swap: np.ndarray,
+    parts: np.ndarray,
+    min_common: int,
+):
     """Cost of every detection against every predicted pose, labels as detected or exchanged.
 
     xy: (N, 17, 2) detections' ideal coordinates; ok: (N, 17) confident joints; size: (N,);
@@ -153,7 +179,18 @@ def claim_costs(xy, ok, size, camera, proj, swap, parts, min_common):
 
 
 @njit(**_JIT)
-def _augmenting_path(cost, u, v, path, row4col, spc, i, SR, SC, remaining):
+def _augmenting_path(
+    cost: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    path: np.ndarray,
+    row4col: np.ndarray,
+    spc: np.ndarray,
+    i: int,
+    SR: np.ndarray,
+    SC: np.ndarray,
+    remaining: np.ndarray,
+):
     """One shortest augmenting path from row i (Crouse's algorithm, as SciPy's
     linear_sum_assignment); returns (sink column or -1 when infeasible, its path cost)."""
     nc = cost.shape[1]
@@ -186,7 +223,7 @@ def _augmenting_path(cost, u, v, path, row4col, spc, i, SR, SC, remaining):
         if row4col[j] == -1:
             sink = j
         else:
-            i = row4col[j]
+            i = int(row4col[j])
         SC[j] = True
         num_remaining -= 1
         remaining[index] = remaining[num_remaining]
@@ -194,7 +231,7 @@ def _augmenting_path(cost, u, v, path, row4col, spc, i, SR, SC, remaining):
 
 
 @njit(**_JIT)
-def assignment(cost):
+def assignment(cost: np.ndarray):
     """Minimum-cost assignment of the rows of cost (nr, nc) to its columns, nr <= nc, each
     row to a distinct column; costs finite or inf (forbidden). Returns col4row (nr,), or an
     empty array when no complete assignment avoids the forbidden pairs."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TypedDict, Unpack
 
 from stereopose.behaviour.definitions import BEHAVIOUR_KIND, PersonDownRule, Rule
 from stereopose.behaviour.state import EPS, DownState, Seen, Tracked
@@ -19,6 +20,21 @@ HANDOVER_S = 1.5
 HANDOVER_M = 1.5
 
 
+class BehaviourFields(TypedDict, total=False):
+    """What a behaviour event may carry beyond its rule, person and times (types.Event)."""
+
+    zone: str | None  # the zone it happened in (None: none)
+    posture: str | None  # default: the person's posture now
+    joint: str | None
+    duration_s: float | None
+    lost: bool
+    nearest_m: float | None
+    facing_deg: float | None
+    failed: str | None
+    height_m: float | None
+    speed_m_s: float | None
+
+
 def rule_event(
     rule: Rule,
     pid: int,
@@ -27,22 +43,30 @@ def rule_event(
     t: float,
     frame: int,
     onset_t: float,
-    **more,
+    **more: Unpack[BehaviourFields],
 ) -> Event:
-    """A behaviour event of `rule` about `person` (their posture and floor position)."""
+    """A behaviour event of `rule` about `person` (their posture unless given, and their floor
+    position)."""
     posture = person.posture.posture if person.posture is not None else None
-    more.setdefault("posture", posture)
     return Event(
         t=t,
         frame=frame,
         person=pid,
-        zone=more.pop("zone", None) or "",
+        zone=more.get("zone") or "",
         kind=BEHAVIOUR_KIND,
         type=type_,
         onset_t=float(onset_t),
         position=person.position,
         rule=rule.name,
-        **more,
+        posture=more.get("posture", posture),
+        joint=more.get("joint"),
+        duration_s=more.get("duration_s"),
+        lost=more.get("lost", False),
+        nearest_m=more.get("nearest_m"),
+        facing_deg=more.get("facing_deg"),
+        failed=more.get("failed"),
+        height_m=more.get("height_m"),
+        speed_m_s=more.get("speed_m_s"),
     )
 
 

@@ -85,7 +85,9 @@ def _layout(b: Bundle) -> tuple[np.ndarray, np.ndarray, int]:
     return cam_col, pt_col, off + 3 * int(b.free_points.sum())
 
 
-def _sparsity(b: Bundle, cam_col, pt_col, n_before_len: int, n_rows: list[int]):
+def _sparsity(
+    b: Bundle, cam_col: np.ndarray, pt_col: np.ndarray, n_before_len: int, n_rows: list[int]
+):
     """Which parameters each residual depends on."""
     rows, cols = [], []
     N = len(b.cam)
@@ -145,14 +147,14 @@ def adjust(
     )
     w = np.sqrt(np.asarray(b.weight, dtype=np.float64))[:, None]
 
-    def unpack(x):
+    def unpack(x: np.ndarray):
         poses, pts = b.poses.copy(), b.points.copy()
         poses[fc] = x[: 6 * len(fc)].reshape(-1, 6)
         pts[fp] = x[6 * len(fc) : n_before_len].reshape(-1, 3)
         lengths = x[n_before_len:] if b.lengths is not None else None
         return poses, pts, lengths
 
-    def residuals(x):
+    def residuals(x: np.ndarray):
         poses, pts, lengths = unpack(x)
         uv, _ = project_px(poses[b.cam], b.intr[b.cam], pts[b.point])
         out = [((uv - b.uv) * w).ravel()]

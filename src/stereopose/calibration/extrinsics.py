@@ -81,7 +81,12 @@ def _pnp(obj: np.ndarray, pts: np.ndarray, cam: Camera) -> np.ndarray:
     return _transform(cv2.Rodrigues(r)[0], t)
 
 
-def _place_cameras(cams, views, poses, flipped):
+def _place_cameras(
+    cams: list[str],
+    views: dict[str, list[str]],
+    poses: dict[tuple[str, str], np.ndarray],
+    flipped: dict[tuple[str, str], np.ndarray],
+):
     """Pose graph: camera -> world (4, 4) with the reference camera's frame as world; per
     (camera, view) whether its corner order is turned; board -> world per view."""
     order = sorted(cams, key=lambda c: -len(views[c]))
@@ -171,7 +176,15 @@ def _project(params: np.ndarray, seen: _Seen) -> np.ndarray:
     return np.stack([fx * xd + cx, fy * yd + cy], axis=1)
 
 
-def _jacobian_sparsity(M, C, V, cam_idx, view_idx, fixed, refine_intrinsics):
+def _jacobian_sparsity(
+    M: int,
+    C: int,
+    V: int,
+    cam_idx: np.ndarray,
+    view_idx: np.ndarray,
+    fixed: int,
+    refine_intrinsics: bool,
+):
     """Which parameters each of the 2 M residuals depends on: its camera's pose (none for the
     fixed reference camera), its board pose and, when refined, its camera's intrinsics."""
     free_col = np.cumsum([c != fixed for c in range(C)]) - 1  # column block of each camera
@@ -191,7 +204,14 @@ def _jacobian_sparsity(M, C, V, cam_idx, view_idx, fixed, refine_intrinsics):
     return coo_matrix((np.ones(rr.size, dtype=np.int8), (rr, cc)), shape=(2 * M, n))
 
 
-def _unpack(p, names, view_names, ref, intr, refine_intrinsics):
+def _unpack(
+    p: np.ndarray,
+    names: list[str],
+    view_names: list[str],
+    ref: str,
+    intr: np.ndarray,
+    refine_intrinsics: bool,
+):
     """The solution vector back as camera poses, board poses and intrinsics (C, 8)."""
     C, V = len(names), len(view_names)
     out_cam, out_board = {}, {}
@@ -259,7 +279,7 @@ def bundle_adjust(
 
     seen = _Seen(C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
 
-    def residuals(p):
+    def residuals(p: np.ndarray):
         proj = _project(p, seen)
         return (proj - observed).ravel()
 
@@ -307,7 +327,10 @@ def bundle_adjust(
 
 
 def world_from_floor(
-    board_T: np.ndarray, cam_T: dict[str, np.ndarray], origin_m=(0.0, 0.0), yaw_deg: float = 0.0
+    board_T: np.ndarray,
+    cam_T: dict[str, np.ndarray],
+    origin_m: tuple[float, float] = (0.0, 0.0),
+    yaw_deg: float = 0.0,
 ) -> np.ndarray:
     """(4, 4) old world -> new world: the floor board's plane is z = 0, z points to the side
     the cameras are on, the origin is its first corner shifted by origin_m (along its rows and

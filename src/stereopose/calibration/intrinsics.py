@@ -119,7 +119,14 @@ def coverage(points: Iterable[np.ndarray], size: tuple[int, int], cells: int = 1
     return float(hit.mean())
 
 
-def _calibrate(obj, pts, size, k3: bool, K0=None, dist0=None):
+def _calibrate(
+    obj: np.ndarray,
+    pts: list[np.ndarray],
+    size: tuple[int, int],
+    k3: bool,
+    K0: np.ndarray | None = None,
+    dist0: np.ndarray | None = None,
+):
     flags = 0 if k3 else cv2.CALIB_FIX_K3
     if K0 is not None:
         flags |= cv2.CALIB_USE_INTRINSIC_GUESS

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -54,6 +55,9 @@ from stereopose.calibration.poses import camera_with_pose, intrinsics_row, robus
 from stereopose.errors import CalibrationError
 from stereopose.skeleton import SWAP
 from stereopose.types import Camera, People2D, Rig
+
+if TYPE_CHECKING:
+    from stereopose.calibration.surveyed import Survey
 
 __all__ = [
     "Matched",
@@ -99,7 +103,9 @@ class PeopleResult:
     recordings: int = 1
 
 
-def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int] | None:
+def _place(
+    views: Views, groups: list[dict[int, int]], X: np.ndarray, c: int, thr: float
+) -> tuple[np.ndarray, int] | None:
     """Camera c's pose (6,) by PnP RANSAC on the joints triangulated, and its inliers."""
     obj, img = [], []
     for g, members in enumerate(groups):
@@ -118,7 +124,9 @@ def _place(views: Views, groups, X, c: int, thr: float) -> tuple[np.ndarray, int
     return np.concatenate([r.ravel(), t.ravel()]), len(keep)
 
 
-def _observations(views: Views, groups, X, placed, drop: set) -> tuple:
+def _observations(
+    views: Views, groups: list[dict[int, int]], X: np.ndarray, placed: np.ndarray, drop: set
+) -> tuple:
     """The bundle's points ((group, joint) with two placed views or more) and observations."""
     pid = -np.ones((len(groups), 17), dtype=int)
     cam, pt, uv, w, src = [], [], [], [], []
@@ -151,7 +159,7 @@ def _median_error(uv: np.ndarray, kp: np.ndarray, ok: np.ndarray) -> float:
     return float(np.nanmedian(np.where(ok & (kp[:, 2] >= MIN_CONF), d, np.nan)))
 
 
-def _unswap(views: Views, groups, poses, intr) -> int:
+def _unswap(views: Views, groups: list[dict[int, int]], poses: np.ndarray, intr: np.ndarray) -> int:
     """Detections whose joints fit the others' person better left/right swapped are swapped
     (in views); how many."""
     X = triangulate_groups(views, groups, poses, np.ones(len(poses), dtype=bool))
@@ -203,14 +211,14 @@ class Solved:
     uv: np.ndarray
 
 
-def _recordings(frames) -> list[Frames]:
+def _recordings(frames: Frames | list[Frames]) -> list[Frames]:
     """One recording (a list of frames) or several (a list of such lists)."""
     if frames and isinstance(frames[0], list):
-        return [list(r) for r in frames]
-    return [list(frames)]
+        return [list(r) for r in frames if isinstance(r, list)]
+    return [[f for f in frames if not isinstance(f, list)]]
 
 
-def _match(views: Views, focal: float, rng) -> Matched:
+def _match(views: Views, focal: float, rng: np.random.Generator) -> Matched:
     """The groups and first pair of one recording: same-frame pairings, or whole tracks where
     single frames leave a camera unlinked."""
     names, C = views.cameras, len(views.cameras)
@@ -324,12 +332,12 @@ def held_out_fit(
 
 
 def calibrate_people(
-    frames,
+    frames: Frames | list[Frames],
     intrinsics: Rig,
     *,
     distance: tuple[str, str, float] | None = None,
     height_m: float | None = None,
-    survey=None,
+    survey: Survey | None = None,
     ankle_m: float = 0.08,
     seed: int = 0,
     held_out: bool = True,
@@ -395,7 +403,9 @@ def calibrate_people(
     )
 
 
-def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: float):
+def _place_all(
+    views: Views, groups: list[dict[int, int]], first: PairMatch, names: list[str], thr: float
+):
     """Every camera's pose (C, 6) in the first pair's frame and the groups' joints."""
     C = len(names)
     poses = np.zeros((C, 6))
@@ -421,7 +431,14 @@ def _place_all(views: Views, groups, first: PairMatch, names: list[str], thr: fl
     return poses, X
 
 
-def _adjust_all(views: Views, groups, poses, X, intr, first: PairMatch):
+def _adjust_all(
+    views: Views,
+    groups: list[dict[int, int]],
+    poses: np.ndarray,
+    X: np.ndarray,
+    intr: np.ndarray,
+    first: PairMatch,
+):
     """Two bundle adjustments, swapped detections turned back and outlying joints dropped
     between them: (poses, the solution, point of each (group, joint), observations' cameras
     and pixels)."""

@@ -29,7 +29,9 @@ MIN_POINT_LIKE = 300  # a camera's observations of such joints, at least, to tru
 FIT_CONF = 0.5  # the joints a fit is measured on: this confident or more
 
 
-def _errors(views: Views, groups, poses: np.ndarray, intr: np.ndarray) -> list[np.ndarray]:
+def _errors(
+    views: Views, groups: list[dict[int, int]], poses: np.ndarray, intr: np.ndarray
+) -> list[np.ndarray]:
     """Per camera, the pixel errors of its confident joints, each group triangulated from all
     its cameras."""
     C = len(poses)
@@ -52,13 +54,17 @@ def _errors(views: Views, groups, poses: np.ndarray, intr: np.ndarray) -> list[n
     return [np.concatenate(e) if e else np.zeros(0) for e in errs]
 
 
-def fit_px(views: Views, groups, poses: np.ndarray, intr: np.ndarray) -> float:
+def fit_px(
+    views: Views, groups: list[dict[int, int]], poses: np.ndarray, intr: np.ndarray
+) -> float:
     """Median pixel error of every group's confident joints, triangulated with poses."""
     e = np.concatenate(_errors(views, groups, poses, intr))
     return float(np.median(e)) if e.size else float("inf")
 
 
-def camera_fit_px(views: Views, groups, poses: np.ndarray, intr: np.ndarray) -> dict[str, float]:
+def camera_fit_px(
+    views: Views, groups: list[dict[int, int]], poses: np.ndarray, intr: np.ndarray
+) -> dict[str, float]:
     """Each camera's median pixel error of its confident joints (NaN: none)."""
     return {
         n: float(np.median(e)) if e.size else float("nan")
@@ -66,7 +72,9 @@ def camera_fit_px(views: Views, groups, poses: np.ndarray, intr: np.ndarray) -> 
     }
 
 
-def point_like_joints(views: Views, groups, pid: np.ndarray, names: list[str]) -> dict[str, int]:
+def point_like_joints(
+    views: Views, groups: list[dict[int, int]], pid: np.ndarray, names: list[str]
+) -> dict[str, int]:
     """Each camera's observations of point-like joints among the adjustment's points."""
     count = dict.fromkeys(names, 0)
     for g, j in zip(*np.nonzero(pid >= 0), strict=True):

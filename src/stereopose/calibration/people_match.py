@@ -200,7 +200,9 @@ def group_detections(views: Views, matches: list[PairMatch]) -> list[dict[int, i
     return groups
 
 
-def triangulate_groups(views: Views, groups, poses: np.ndarray, placed: np.ndarray) -> np.ndarray:
+def triangulate_groups(
+    views: Views, groups: list[dict[int, int]], poses: np.ndarray, placed: np.ndarray
+) -> np.ndarray:
     """(G, 17, 3) joints of every group (camera index -> detection) from its placed cameras,
     poses (C, 6) as rotation vector and translation (NaN: fewer than two views)."""
     X = np.full((len(groups), 17, 3), np.nan)

@@ -107,7 +107,7 @@ def _assignments(n: int, m: int):
             yield list(zip(p, range(m), strict=True))
 
 
-def _pair(views: Views, T, a: int, b: int, thr: float):
+def _pair(views: Views, T: dict[int, list[dict[int, int]]], a: int, b: int, thr: float):
     """(agreeing joints, R, t, pairs, xa, xb) of the best assignment of a's and b's tracks, and
     the second best's agreeing joints; None when none shares enough."""
     found = []
@@ -133,7 +133,9 @@ def _pair(views: Views, T, a: int, b: int, thr: float):
     return n, second, R, t.ravel(), pairs, xa, xb
 
 
-def _groups(views: Views, T, persons) -> tuple[list[dict[int, int]], list[tuple[int, int]]]:
+def _groups(
+    views: Views, T: dict[int, list[dict[int, int]]], persons: list[dict[int, int]]
+) -> tuple[list[dict[int, int]], list[tuple[int, int]]]:
     """Each person's detections at each frame seen by two cameras or more (camera ->
     detection), and the (person, frame) of each."""
     groups, where = [], []
@@ -146,7 +148,13 @@ def _groups(views: Views, T, persons) -> tuple[list[dict[int, int]], list[tuple[
     return groups, where
 
 
-def _triangulate_persons(views, T, persons, poses, placed) -> np.ndarray:
+def _triangulate_persons(
+    views: Views,
+    T: dict[int, list[dict[int, int]]],
+    persons: list[dict[int, int]],
+    poses: np.ndarray,
+    placed: set[int],
+) -> np.ndarray:
     """(P, F, 17, 3) joints of every person at every frame from its placed cameras' tracks."""
     X = np.full((len(persons), len(views.frames), 17, 3), np.nan)
     groups, where = _groups(views, T, persons)
@@ -157,7 +165,9 @@ def _triangulate_persons(views, T, persons, poses, placed) -> np.ndarray:
     return X
 
 
-def _place_camera(views, T, c: int, X, thr: float):
+def _place_camera(
+    views: Views, T: dict[int, list[dict[int, int]]], c: int, X: np.ndarray, thr: float
+):
     """Camera c's best (inliers, pose (6,), {person: its track}) by PnP on the persons X."""
     best = None
     for pairs in _assignments(len(T[c]), len(X)):
@@ -180,7 +190,12 @@ def _place_camera(views, T, c: int, X, thr: float):
     return best
 
 
-def _reconstruct(views, T, start, thr: float):
+def _reconstruct(
+    views: Views,
+    T: dict[int, list[dict[int, int]]],
+    start: tuple[int, int, np.ndarray, np.ndarray, list[tuple[int, int]]],
+    thr: float,
+):
     """From one start: (median error in normalised units, poses, placed, persons)."""
     a, b, R, t, pairs = start
     C = len(views.cameras)

@@ -16,6 +16,8 @@ direction on the floor and the origin is the floor under that camera.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
 
@@ -24,6 +26,9 @@ from stereopose.errors import CalibrationError
 from stereopose.geometry.camera import undistort_normalized
 from stereopose.geometry.triangulation import triangulate_dlt
 from stereopose.types import Rig
+
+if TYPE_CHECKING:
+    from stereopose.calibration.surveyed import Survey
 
 __all__ = ["EYE_FRACTION", "coverage_advice", "to_world"]
 
@@ -70,7 +75,7 @@ def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.nd
     return s, Q, md - s * Q @ ms
 
 
-def _survey_frame(rig: Rig, survey) -> tuple[Rig, str]:
+def _survey_frame(rig: Rig, survey: Survey) -> tuple[Rig, str]:
     names = rig.names
     src, dst, used = [], [], []
     for p, xyz in survey.world.items():
@@ -99,7 +104,7 @@ def to_world(
     *,
     distance: tuple[str, str, float] | None = None,
     height_m: float | None = None,
-    survey=None,
+    survey: Survey | None = None,
     ankle_m: float = 0.08,
 ) -> tuple[Rig, str]:
     """The rig (any frame and scale) and its people's joints X (G, 17, 3) in that frame ->

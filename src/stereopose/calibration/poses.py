@@ -4,6 +4,8 @@ from surveyed points, from people and a camera's refinement share. OpenCV only (
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import cv2
 import numpy as np
 
@@ -19,7 +21,7 @@ def intrinsics_row(cam: Camera) -> np.ndarray:
     return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d])
 
 
-def rig_poses(cameras) -> np.ndarray:
+def rig_poses(cameras: Iterable[Camera]) -> np.ndarray:
     """(C, 6) each camera's pose (Rodrigues vector, translation; world -> camera), in order."""
     return np.stack([np.concatenate([c.rotation, c.translation]) for c in cameras])
 

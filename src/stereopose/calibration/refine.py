@@ -127,7 +127,9 @@ def pose_error(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple
     return float(np.sqrt(np.mean(err[keep] ** 2))), len(keep)
 
 
-def _pairings(pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pairings(
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every (person, detection) of every frame sharing 6 joints or more: their 3D joints
     (N, 3), the detections' pixels (N, 2) and each joint's frame (N,)."""
     obj, img, tag = [], [], []
@@ -150,7 +152,7 @@ def _from_scratch(cam: Camera, obj: np.ndarray, img: np.ndarray):
     return None if found is None or len(found[2]) < 6 else found[:2]
 
 
-def _from_old_pose(cam: Camera, pairs):
+def _from_old_pose(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]):
     """(rvec, tvec) refined from the camera's old pose, each detection paired with the
     person it lies nearest to as seen from there (a nudged camera), or None."""
     r = cam.rotation.reshape(3, 1).copy()
@@ -186,7 +188,7 @@ def _from_old_pose(cam: Camera, pairs):
     return r, t
 
 
-def _settle(cam: Camera, obj, img, r, t):
+def _settle(cam: Camera, obj: np.ndarray, img: np.ndarray, r: np.ndarray, t: np.ndarray):
     """The pose refined on the joints that agree with it: (rvec, tvec, kept, errors)."""
     uv = cv2.projectPoints(obj, r, t, cam.matrix, cam.distortions)[0].reshape(-1, 2)
     err = np.linalg.norm(uv - img, axis=1)

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose import __version__
 from stereopose.cli.commands import CALIBRATE_STEPS, COMMANDS
@@ -20,6 +21,9 @@ from stereopose.errors import (
     IncompleteOutputError,
     StereoposeError,
 )
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -470,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
 
-def _incomplete(e: IncompleteOutputError, console) -> None:
+def _incomplete(e: IncompleteOutputError, console: Console) -> None:
     """What a command that finished kept, and which outputs it could not write (exit 3)."""
     from rich.markup import escape
 

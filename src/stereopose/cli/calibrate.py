@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.markup import escape
 from rich.table import Table
@@ -10,6 +12,9 @@ from rich.table import Table
 from stereopose.cli.common import console, out
 from stereopose.errors import IncompleteOutputError
 from stereopose.extras import require
+
+if TYPE_CHECKING:
+    from stereopose.pipeline.calibrate import Kept
 
 
 def _board(args: argparse.Namespace):
@@ -70,11 +75,11 @@ def _calibrate_intrinsics(args: argparse.Namespace) -> int:
     return _finish(run)
 
 
-def _where(run, target) -> str:
+def _where(run: Kept, target: str | Path) -> str:
     return f"written to {target}" if run.calibration is not None else "(not written: see below)"
 
 
-def _finish(run) -> int:
+def _finish(run: Kept) -> int:
     """The pictures written, and exit code 3 (the calibration kept) if an output failed."""
     for p in run.outputs:
         if p != run.calibration:

@@ -17,7 +17,9 @@ from stereopose.errors import CalibrationError, IncompleteOutputError, Stereopos
 from stereopose.extras import require
 
 if TYPE_CHECKING:
+    from stereopose.calibration.people import Frames
     from stereopose.calibration.surveyed import Survey
+    from stereopose.types import Rig
 
 MAX_FRAMES = 600  # frames sampled evenly from the recording at most
 MIN_SHARED = 0.5  # a camera's frames that other cameras have too, at least
@@ -29,7 +31,7 @@ def _intrinsics(path: Path):
     return load_calibration(path, min_cameras=1)
 
 
-def _frames(pose_dir: Path, rig, max_frames: int) -> list:
+def _frames(pose_dir: Path, rig: Rig, max_frames: int) -> list:
     """Evenly sampled synchronised frames of the cameras' keypoint folders; CalibrationError
     for folders that share too few frame numbers (not synchronised) or hold nobody."""
     from stereopose.detection.openpose import read_pose_dir
@@ -58,7 +60,7 @@ def _frames(pose_dir: Path, rig, max_frames: int) -> list:
     return frames
 
 
-def _save(path: Path, rig, metadata: dict) -> None:
+def _save(path: Path, rig: Rig, metadata: dict) -> None:
     from stereopose.calibration.formats import save_calibration
 
     try:
@@ -79,7 +81,7 @@ def _report(folder: Path | None, name: str, doc: dict) -> None:
     out.print(f"wrote {path}", markup=False, highlight=False)
 
 
-def _rig_table(title: str, rig, rms: dict, extra: dict[str, dict] | None = None) -> None:
+def _rig_table(title: str, rig: Rig, rms: dict, extra: dict[str, dict] | None = None) -> None:
     extra = extra or {}
     table = Table(title=title)
     cols = ["camera", "RMS px", *extra, "x m", "y m", "z m"]
@@ -163,7 +165,7 @@ def _scale(args: argparse.Namespace) -> _Scale:
     return _Scale(survey=read_survey(args.points))
 
 
-def _recordings(dirs: list[Path], rig, max_frames: int) -> list[list]:
+def _recordings(dirs: list[Path], rig: Rig, max_frames: int) -> list[list]:
     """Each folder's frames (its own frame numbers); the same folder twice is an error."""
     seen: set[Path] = set()
     for d in dirs:
@@ -294,7 +296,9 @@ def _calibrate_refine(args: argparse.Namespace) -> int:
     return 0
 
 
-def _disagreeing(rig, frames, turned_deg: float = 0.1, moved_m: float = 0.05) -> list[str]:
+def _disagreeing(
+    rig: Rig, frames: Frames, turned_deg: float = 0.1, moved_m: float = 0.05
+) -> list[str]:
     """The cameras that, placed from the others' people, turn or move beyond the bounds."""
     from stereopose.calibration.refine import joints_of_others, refine_camera
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -12,6 +14,9 @@ from rich.table import Table
 from stereopose.config import Config, load_config, with_overrides
 from stereopose.errors import IncompleteOutputError, StereoposeError
 from stereopose.io.summary import RunSummary
+
+if TYPE_CHECKING:
+    from stereopose.tracking.positioning import Trajectory
 
 console = Console(stderr=True)
 out = Console()
@@ -54,7 +59,7 @@ def _px(value: float) -> str:
     return f"{value:.2f} px" if value == value else "n/a (no joint reconstructed)"
 
 
-def _trajectory_table(trajectories) -> Table:
+def _trajectory_table(trajectories: Sequence[Trajectory]) -> Table:
     table = Table(title="People tracked")
     for col in ("id", "first frame", "last frame", "time in view s", "frames seen", "path m"):
         table.add_column(col, justify="right")

@@ -8,9 +8,14 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose.cli.common import out
 from stereopose.errors import ConfigError
+
+if TYPE_CHECKING:
+    from stereopose.controlroom.enrolment import Enrolment
+    from stereopose.controlroom.service import ControlPlan
 
 USAGE = (
     "control-room [run] CONFIG.toml | control-room sites add|list|remove [NAME...] --config "
@@ -31,7 +36,7 @@ def _control_room(args: argparse.Namespace) -> int:
 def _serve(config: Path) -> int:
     from stereopose.controlroom.service import run_control_room
 
-    def ready(url: str, plan) -> None:
+    def ready(url: str, plan: ControlPlan) -> None:
         from stereopose.controlroom.store import shown_database
 
         out.print(
@@ -100,7 +105,7 @@ def _sites(args: argparse.Namespace, rest: list[str]) -> int:
         store.close()
 
 
-def _list(enrolment) -> int:
+def _list(enrolment: Enrolment) -> int:
     rows = enrolment.list()
     if not rows:
         out.print("no site enrolled", highlight=False)
@@ -111,7 +116,7 @@ def _list(enrolment) -> int:
     return 0
 
 
-def _add(plan, enrolment, name: str, bridge: Path | None) -> int:
+def _add(plan: ControlPlan, enrolment: Enrolment, name: str, bridge: Path | None) -> int:
     from stereopose.controlroom.enrolment import broker_hash, login_of, new_password
 
     cap = plan.config.control_room.max_sites
@@ -144,7 +149,7 @@ def _add(plan, enrolment, name: str, bridge: Path | None) -> int:
     return 0
 
 
-def _write_bridge(path: Path, plan, name: str, password: str) -> None:
+def _write_bridge(path: Path, plan: ControlPlan, name: str, password: str) -> None:
     """The shipped site-bridge.conf for `name`, with its login and the central broker's
     address, readable by its owner only."""
     from importlib import resources

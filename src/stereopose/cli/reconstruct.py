@@ -29,6 +29,7 @@ from stereopose.errors import (
 if TYPE_CHECKING:
     from stereopose.fence import Site
     from stereopose.tickets import Ticket
+    from stereopose.types import Event
     from stereopose.zones.state_log import StateLogFile
 
 
@@ -74,7 +75,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, fps=site.fps)
     with _progress() as progress:
 
-        def show(events) -> None:
+        def show(events: list[Event]) -> None:
             for e in events:
                 progress.console.print(describe(e), markup=False, highlight=False)
 

@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 from rich.table import Table
 
 from stereopose.cli.common import _px, out, rate_progress, run_summary
 from stereopose.cli.sim import _demo_synthetic
 from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeError
+
+if TYPE_CHECKING:
+    from stereopose.types import Event
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -151,7 +156,7 @@ def _models(args: argparse.Namespace) -> int:
     return 0
 
 
-def _default_openvino_int8(models, force: bool) -> None:
+def _default_openvino_int8(models: ModuleType, force: bool) -> None:
     """OpenVINO's INT8 model of the default model, made once where OpenVINO and NNCF are
     installed (a runtime install says how to do without)."""
     import importlib.util
@@ -181,7 +186,7 @@ def _default_openvino_int8(models, force: bool) -> None:
     _said_int8(quantize_int8_openvino(out=target))
 
 
-def _export_openvino_int8(models, args: argparse.Namespace) -> Path:
+def _export_openvino_int8(models: ModuleType, args: argparse.Namespace) -> Path:
     """OpenVINO's INT8 model of the .onnx (or .pt) given, or of the default model."""
     if args.weights is None:
         src = models.default_onnx()
@@ -216,7 +221,7 @@ def _said_int8(path: Path) -> None:
     )
 
 
-def _export_int8(models, args: argparse.Namespace) -> Path:
+def _export_int8(models: ModuleType, args: argparse.Namespace) -> Path:
     """The INT8 model: of the .onnx given (or the cache's default), written to --out or beside
     it; an existing one is kept unless --force."""
     if args.weights is None:
@@ -253,7 +258,7 @@ def _run_config(
     with progress:
         task = progress.add_task("running", total=None, fps=0.0)
 
-        def show(events) -> None:
+        def show(events: list[Event]) -> None:
             for e in events:
                 progress.console.print(describe(e), markup=False, highlight=False)
 

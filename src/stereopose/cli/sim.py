@@ -14,7 +14,10 @@ from stereopose.config import MODES, Config, with_overrides
 from stereopose.errors import StereoposeError
 
 if TYPE_CHECKING:
+    from stereopose.fence import Site
     from stereopose.sim import Scene
+    from stereopose.sim.metrics import Metrics, TrackingMetrics
+    from stereopose.types import People3D
 
 MAX_FRAMES = 100_000  # an hour at 25 frames/s
 
@@ -65,7 +68,7 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _accuracy_row(label: str, m, ids, fps_3d: float) -> list[str]:
+def _accuracy_row(label: str, m: Metrics, ids: TrackingMetrics | None, fps_3d: float) -> list[str]:
     """One row of the accuracy table: metrics (sim.Metrics), ids (sim.TrackingMetrics or
     None without tracking) and the 3D stage's frames/s."""
     return [
@@ -81,7 +84,9 @@ def _accuracy_row(label: str, m, ids, fps_3d: float) -> list[str]:
     ]
 
 
-def _print_events(scene, site, events_path: Path, predictions, scene_dir: Path) -> None:
+def _print_events(
+    scene: Scene, site: Site, events_path: Path, predictions: list[People3D], scene_dir: Path
+) -> None:
     """The tracked run's zone events against those the ground truth raises."""
     from stereopose.io.sinks import read_events
     from stereopose.sim.events import evaluate_events, track_workers, truth_events

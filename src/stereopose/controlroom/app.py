@@ -38,7 +38,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Iterable
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, Protocol
 
 from fastapi import APIRouter, FastAPI, HTTPException, Path, Query, Request, Response
 from fastapi.responses import JSONResponse
@@ -51,12 +51,30 @@ from stereopose.controlroom.store import MAX_LIMIT, StoreError
 from stereopose.site.health.metrics import CONTENT_TYPE, exposition
 from stereopose.web import error_answers
 from stereopose.web import login as auth
-from stereopose.web.auth import Operator, Viewer
+from stereopose.web.auth import Operator, Session, Viewer
 from stereopose.web.error_answers import internal_error
 from stereopose.web.hosts import HostCheck
 from stereopose.web.limits import MAX_BODY_BYTES, RequestLimits
 
+if TYPE_CHECKING:
+    from stereopose.controlroom.ingest import Ingest
+    from stereopose.controlroom.store import ControlStore
+    from stereopose.web.auth import Logins
+
 __all__ = ["create_control_app"]
+
+
+class Room(Protocol):
+    """What the app serves (controlroom.service.ControlRoom): the store, the ingest of the
+    sites' messages (None until it runs) and who may log in."""
+
+    @property
+    def store(self) -> ControlStore: ...
+    @property
+    def ingest(self) -> Ingest | None: ...
+    @property
+    def console(self) -> Logins: ...
+
 
 STATES = ("live", "offline", "degraded", "unknown")
 MAX_PAGE_BYTES = 4 << 20  # an events or incidents page stops at about this many bytes
@@ -69,7 +87,7 @@ def _room(request: Request):
     return request.app.state.room
 
 
-def _allowed(request: Request, session) -> set[str] | None:
+def _allowed(request: Request, session: Session) -> set[str] | None:
     """The sites this session's user may see (None: every site)."""
     user = request.app.state.console.users.get(session.username)
     if user is None or user.sites is None:
@@ -77,7 +95,7 @@ def _allowed(request: Request, session) -> set[str] | None:
     return set(user.sites)
 
 
-def _check_site(request: Request, session, site: str) -> None:
+def _check_site(request: Request, session: Session, site: str) -> None:
     allowed = _allowed(request, session)
     if allowed is not None and site not in allowed:
         raise HTTPException(404, f"no site {site!r}")
@@ -263,11 +281,14 @@ def metrics(request: Request) -> Response:
 
 
 class _Collector:
-    def __init__(self, room) -> None:
+    def __init__(self, room: Room) -> None:
         self.room = room
 
     def collect(self):
-        f = self.room.ingest.figures()
+        ingest = self.room.ingest
+        if ingest is None:  # scraped before the ingest runs: nothing of it yet
+            return
+        f = ingest.figures()
         g = GaugeMetricFamily("stereopose_controlroom_sites", "sites by state", labels=["state"])
         counts = {s: 0 for s in STATES}
         try:
@@ -313,7 +334,7 @@ class _Collector:
             "seconds since each site's last message",
             labels=["site"],
         )
-        for site, s in self.room.ingest.lag_s().items():
+        for site, s in ingest.lag_s().items():
             lag.add_metric([site], s)
         yield lag
 
@@ -322,7 +343,10 @@ class _Collector:
 
 
 def create_control_app(
-    room, *, allowed_hosts: Iterable[str] | None = None, max_body_bytes: int = MAX_BODY_BYTES
+    room: Room,
+    *,
+    allowed_hosts: Iterable[str] | None = None,
+    max_body_bytes: int = MAX_BODY_BYTES,
 ) -> FastAPI:
     """The app over `room` (its `store`, `ingest` and `console`: web.auth.Logins, who may log
     in)."""

@@ -20,9 +20,14 @@ import hashlib
 import re
 import secrets
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from stereopose.controlroom.schema import SCHEMA_LOCK
 from stereopose.errors import ConfigError
+
+if TYPE_CHECKING:
+    from stereopose.controlroom.schema import Run
+    from stereopose.controlroom.store import ControlStore
 
 __all__ = ["Enrolled", "Enrolment", "broker_hash", "check_name", "login_of", "new_password"]
 
@@ -77,7 +82,7 @@ class Enrolment:
     """The enrolled sites of `store` (a ControlStore): its table made on first use; a store
     that held sites before enrolment keeps them all enrolled."""
 
-    def __init__(self, store) -> None:
+    def __init__(self, store: ControlStore) -> None:
         self.store = store
         with store.writing("make the enrolment table") as run:
             if store.postgres:  # several workers starting at once make it one at a time
@@ -91,9 +96,10 @@ class Enrolment:
                     (0.0,),
                 )
 
-    def _exists(self, run) -> bool:
+    def _exists(self, run: Run) -> bool:
         if self.store.postgres:
-            return run("SELECT to_regclass('enrolled')").fetchone()[0] is not None
+            row = run("SELECT to_regclass('enrolled')").fetchone()  # one row, NULL: none
+            return row is not None and row[0] is not None
         sql = "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'enrolled'"
         return run(sql).fetchone() is not None
 

@@ -69,6 +69,7 @@ from stereopose.site.wire import (
     INCIDENTS,
     receiver_subscriptions,
 )
+from stereopose.types import JsonDoc
 
 __all__ = ["Ingest"]
 
@@ -465,7 +466,7 @@ class Ingest:
             return False, f"events came and none was stored for {now - self._progress:.0f} s"
         return True, ""
 
-    def figures(self) -> dict[str, object]:
+    def figures(self) -> JsonDoc:
         f: dict[str, object] = dict(
             self.counts, queued=self.intake.queued(), enrolled=len(self.intake.admitted())
         )

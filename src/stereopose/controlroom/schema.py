@@ -7,6 +7,10 @@ import json
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from stereopose.io.dbapi import Connection
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sites (
@@ -112,7 +116,7 @@ class Run:
     """Statements on one connection in the store's dialect: run(sql, args) -> cursor,
     run.many(sql, rows) -> the rows changed."""
 
-    def __init__(self, db, dialect: Dialect) -> None:
+    def __init__(self, db: Connection, dialect: Dialect) -> None:
         self.db, self.dialect = db, dialect
 
     def __call__(self, sql: str, args: Sequence = ()):

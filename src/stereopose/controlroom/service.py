@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -151,7 +152,9 @@ class ControlRoom:
 
 
 def run_control_room(
-    config_path: str | Path, stop: threading.Event | None = None, on_ready=None
+    config_path: str | Path,
+    stop: threading.Event | None = None,
+    on_ready: Callable[[str, ControlPlan], None] | None = None,
 ) -> None:
     from stereopose.pipeline.private import private_files, tighten
     from stereopose.site.parts import quiet_signals, stop_signals

@@ -187,8 +187,30 @@ def group_by_shape(images: Sequence[np.ndarray]) -> dict[tuple[int, int], list[i
     return groups
 
 
+class ExportedModel(Protocol):
+    """An exported YOLO pose model as `detect_letterboxed` runs it (detection.yolo_onnx,
+    detection.yolo_openvino): its input's size and stride, its thresholds, one call."""
+
+    @property
+    def dynamic(self) -> bool: ...  # any image size (else `fixed`)
+    @property
+    def fixed(self) -> tuple[int, int] | None: ...
+    @property
+    def imgsz(self) -> int: ...
+    @property
+    def stride(self) -> int: ...
+    @property
+    def conf(self) -> float: ...
+    @property
+    def iou(self) -> float: ...
+    @property
+    def max_det(self) -> int: ...
+
+    def _infer(self, blob: np.ndarray) -> np.ndarray: ...
+
+
 def detect_letterboxed(
-    model,
+    model: ExportedModel,
     images: Sequence[np.ndarray],
     imgsz: int | None = None,
     blob: Callable[[Sequence[np.ndarray]], np.ndarray] = to_blob,

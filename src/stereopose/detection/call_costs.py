@@ -28,8 +28,12 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from stereopose.detection.base import PoseDetector
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +61,7 @@ def _cpu() -> str:
     return platform.processor() or platform.machine()
 
 
-def detector_key(detector) -> str:
+def detector_key(detector: PoseDetector) -> str:
     """What a price depends on besides the input: this CPU and cores, the runtime and model,
     its precision and threads."""
     own = dict(vars(detector)) if hasattr(detector, "__dict__") else {}
@@ -80,7 +84,7 @@ class CallCosts:
     the largest batch wanted); `observe(shape, n, ms)` after a real call; `table()` the
     prices for a report. Thread-safe; `store` None keeps nothing on disk."""
 
-    def __init__(self, detector, store: Path | None = None) -> None:
+    def __init__(self, detector: PoseDetector, store: Path | None = None) -> None:
         self.detector = detector
         self.store = store
         self.key = detector_key(detector)
@@ -92,7 +96,7 @@ class CallCosts:
         self._load()
 
     @classmethod
-    def of(cls, detector) -> CallCosts:
+    def of(cls, detector: PoseDetector) -> CallCosts:
         """The prices of `detector`, kept in the cache's models folder."""
         from stereopose.detection.models import models_dir
 

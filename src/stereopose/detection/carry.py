@@ -32,10 +32,14 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stereopose.types import People2D
+
+if TYPE_CHECKING:
+    from stereopose.config import DetectorConfig
 
 # a joint this sure in both detections counts in a person's motion (a joint the detector
 # doubts jumps about without anyone moving)
@@ -172,7 +176,7 @@ class Carrier:
         }
 
 
-def carrier(settings) -> Carrier | None:
+def carrier(settings: DetectorConfig) -> Carrier | None:
     """The Carrier of a run's `[detector]` settings (config.DetectorConfig: carry,
     carry_motion); None with carry = false."""
     if not settings.carry:

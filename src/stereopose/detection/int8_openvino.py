@@ -23,6 +23,7 @@ import os
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +41,11 @@ from stereopose.detection.models import (
     openvino_int8_path,
 )
 from stereopose.extras import require
+
+if TYPE_CHECKING:
+    import openvino as ov
+
+    from stereopose.detection.base import PoseDetector
 
 logger = logging.getLogger(__name__)
 
@@ -88,14 +94,14 @@ def quantize(src: Path, out: Path, frames: Sequence[np.ndarray], imgsz: int = 64
     return out
 
 
-def _stride(model) -> int:
+def _stride(model: ov.Model) -> int:
     try:
         return int(str(model.get_rt_info(["framework", "stride"]).astype(str)))
     except Exception:  # no metadata: YOLO's largest stride
         return 32
 
 
-def check(reference, quantized, frames: Sequence[np.ndarray]) -> dict:
+def check(reference: PoseDetector, quantized: PoseDetector, frames: Sequence[np.ndarray]) -> dict:
     """How the people of detector `quantized` compare with those of `reference` (the float
     model) on `frames`: {"frames", "people", "missed", "extra", "joints", "median_px",
     "p95_px", "max_px", "accepted"}; accepted: p95 within CHECK_P95_PX and at most

@@ -113,7 +113,9 @@ def check_weights(path: Path) -> Path:
     return path
 
 
-def export_onnx(weights: Path | None = None, out: Path | None = None, cache=None) -> Path:
+def export_onnx(
+    weights: Path | None = None, out: Path | None = None, cache: Path | None = None
+) -> Path:
     """Export a YOLO pose .pt to ONNX (dynamic batch and image size); returns the .onnx path.
 
     weights: default the yolo11n-pose weights. out: default ``<cache>/models/<stem>.onnx``.
@@ -202,7 +204,10 @@ def calibration_frames(videos: list[Path], n: int = CALIBRATION_FRAMES, phase: f
 
 
 def quantize_int8(
-    model: Path | None = None, out: Path | None = None, frames: list | None = None, cache=None
+    model: Path | None = None,
+    out: Path | None = None,
+    frames: list | None = None,
+    cache: Path | None = None,
 ) -> Path:
     """An INT8 copy of an ONNX pose model (default: the cache's yolo11n-pose), calibrated on
     `frames` (default: the demo videos' in the cache); its path (default

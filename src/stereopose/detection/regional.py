@@ -37,6 +37,7 @@ import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -57,6 +58,9 @@ from stereopose.detection.regions import (
     squares,
     tiles,
 )
+
+if TYPE_CHECKING:
+    from stereopose.config import DetectorConfig
 
 logger = logging.getLogger(__name__)
 
@@ -413,7 +417,7 @@ def _finer(regions: list[Region], imgsz: int, whole_scale: float) -> list[Region
     ]
 
 
-def region_detector(detector: PoseDetector, settings) -> RegionDetector | None:
+def region_detector(detector: PoseDetector, settings: DetectorConfig) -> RegionDetector | None:
     """The RegionDetector of a detector and its `[detector]` settings (config.DetectorConfig:
     regions, region_imgsz, full_scan_s, motion_threshold), the detector's calls priced on
     this machine (detection.call_costs); None with regions = false."""

@@ -18,12 +18,17 @@ import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed
 from stereopose.detection.models import ModelError, check_weights, models_dir, offline_environment
 from stereopose.skeleton import NUM_JOINTS
+
+if TYPE_CHECKING:
+    import onnxruntime as ort
 
 logger = logging.getLogger(__name__)
 
@@ -134,7 +139,7 @@ def trt_profile(name: str, shape: Sequence, imgsz: int, max_batch: int) -> dict[
     }
 
 
-def _preload_gpu_libraries(ort, tensorrt: bool) -> None:
+def _preload_gpu_libraries(ort: ModuleType, tensorrt: bool) -> None:
     """CUDA and cuDNN from their pip packages (onnxruntime-gpu[cuda,cudnn]) and TensorRT's from
     tensorrt-cu12-libs, where the loader would not find them; what is missing is left to the
     session's own loading (and its error)."""
@@ -242,7 +247,7 @@ class OnnxPoseDetector:
             logger.warning("onnx: device auto runs on %s", ", ".join(self.providers))
         logger.info("onnx: %s on %s (%s)", self.model.name, ", ".join(self.providers), precision)
 
-    def _session(self, ort, options, providers: list[Provider]):
+    def _session(self, ort: ModuleType, options: ort.SessionOptions, providers: list[Provider]):
         try:
             return ort.InferenceSession(
                 str(self.model),

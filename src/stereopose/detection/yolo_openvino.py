@@ -15,6 +15,7 @@ import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed, to_u8_
 from stereopose.detection.models import ModelError, check_weights
 from stereopose.detection.openvino_core import ov_core
 from stereopose.skeleton import NUM_JOINTS
+
+if TYPE_CHECKING:
+    import openvino as ov
 
 logger = logging.getLogger(__name__)
 
@@ -166,7 +170,7 @@ class OpenVinoPoseDetector:
         return detect_letterboxed(self, images, imgsz, to_u8_blob)
 
 
-def _taking_bgr_bytes(net):
+def _taking_bgr_bytes(net: ov.Model):
     """The model with its input's preparation compiled in: it takes the letterboxed BGR
     uint8 images as they are, (N, H, W, 3), and makes them RGB float in [0, 1] (N, 3, H, W)
     itself, fused into its first layers (about 6 ms less per step of 4 full-HD cameras on 2
@@ -184,7 +188,7 @@ def _taking_bgr_bytes(net):
     return ppp.build()
 
 
-def _metadata(net) -> dict[str, str]:
+def _metadata(net: ov.Model) -> dict[str, str]:
     """The ONNX model's metadata (Ultralytics writes kpt_shape, stride) as OpenVINO keeps it."""
     out: dict[str, str] = {}
     try:

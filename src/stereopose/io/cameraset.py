@@ -159,7 +159,7 @@ class CameraSet:
 
     def _open(
         self,
-        spec,
+        spec: str | Path,
         name: str,
         fps: float | None,
         loop: bool,

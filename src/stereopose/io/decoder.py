@@ -26,8 +26,14 @@ import time
 from multiprocessing import shared_memory
 
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # as in the service (io.video)
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+    from multiprocessing.synchronize import Event as EventType
 
 # OpenCV's own warnings (a refused connection, at each try) stay out of the journal, as in
 # the service: the service logs what the decoder tells it
@@ -36,7 +42,7 @@ cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 ALIVE_S = 0.25  # the service is told frames still come at least this often
 
 
-def decode(url: str, params: list[int], conn, want, stop) -> None:
+def decode(url: str, params: list[int], conn: Connection, want: EventType, stop: EventType) -> None:
     """The process's body: url, params (cv2.VideoCapture's open parameters), conn (the pipe's
     sending end), want and stop (multiprocessing Events set by the service)."""
     cap = cv2.VideoCapture(url, cv2.CAP_FFMPEG, params)

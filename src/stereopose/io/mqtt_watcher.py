@@ -10,18 +10,23 @@ from __future__ import annotations
 import json
 import uuid
 from collections.abc import MutableMapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.zones.power import MqttPoint, reading
 from stereopose.zones.power_state import PowerBoard
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as mqtt
+    from paho.mqtt.properties import Properties
+    from paho.mqtt.reasoncodes import ReasonCode
 
 __all__ = ["MqttWatcher"]
 
 MAX_PAYLOAD = 4096
 
 
-def _payload(raw: bytes) -> Any:
+def _payload(raw: bytes | bytearray) -> Any:
     """An MQTT payload as a reading: its JSON value, or its text; None when unreadable."""
     if len(raw) > MAX_PAYLOAD:
         return None
@@ -70,18 +75,32 @@ class MqttWatcher:
         self.client.disconnect()
         self.client.loop_stop()
 
-    def _on_connect(self, client, userdata, flags, reason, props) -> None:
+    def _on_connect(
+        self,
+        client: mqtt.Client,
+        userdata: object,
+        flags: mqtt.ConnectFlags,
+        reason: ReasonCode,
+        props: Properties | None,
+    ) -> None:
         if getattr(reason, "is_failure", False):
             self.board.lost(list(self.topics.values()), f"MQTT broker refused: {reason}")
             return
         for topic in self.topics:
             client.subscribe(topic, qos=1)
 
-    def _on_disconnect(self, client, userdata, flags, reason, props) -> None:
+    def _on_disconnect(
+        self,
+        client: mqtt.Client,
+        userdata: object,
+        flags: mqtt.DisconnectFlags,
+        reason: ReasonCode,
+        props: Properties | None,
+    ) -> None:
         self.figures["mqtt_link_lost"] += 1
         self.board.lost(list(self.topics.values()), "MQTT broker link lost")
 
-    def _on_message(self, client, userdata, message) -> None:
+    def _on_message(self, client: mqtt.Client, userdata: object, message: mqtt.MQTTMessage) -> None:
         label = self.topics.get(message.topic)
         value = _payload(message.payload) if label is not None else None
         if label is None or value is None:

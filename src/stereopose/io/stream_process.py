@@ -24,13 +24,22 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from multiprocessing import shared_memory
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stereopose.io.stream import LiveStream, StreamWaits, _capture_params, why_not_open
 from stereopose.secrets import redact
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+    from multiprocessing.process import BaseProcess
+
+    from stereopose.io.packets import PacketRing
+    from stereopose.io.source import Clock
 
 logger = logging.getLogger(__name__)
 
@@ -44,15 +53,23 @@ class ProcessStream(LiveStream):
     """See the module. max_mb: the decoder's resident memory at most, MB."""
 
     def __init__(
-        self, url: str, name: str | None = None, waits: StreamWaits | None = None, **kw
+        self,
+        url: str,
+        name: str | None = None,
+        waits: StreamWaits | None = None,
+        *,
+        clock: Clock | None = None,
+        notify: threading.Event | None = None,
+        packets: PacketRing | None = None,
+        max_mb: float = MAX_DECODER_MB,
     ) -> None:
-        self.max_mb = float(kw.pop("max_mb", MAX_DECODER_MB))
+        self.max_mb = float(max_mb)
         self.decoder_restarts: dict[str, int] = {}  # why -> times a decoder was replaced
         self.decoder_pid: int | None = None
         self._child_want = None
-        if kw.get("packets") is not None:
+        if packets is not None:
             raise ValueError("a stream kept encoded (packets) is read in-process")
-        super().__init__(url, name, waits or StreamWaits(), **kw)
+        super().__init__(url, name, waits or StreamWaits(), clock=clock, notify=notify)
 
     def request(self) -> None:
         super().request()
@@ -111,7 +128,7 @@ class ProcessStream(LiveStream):
             recv.close()
             state.release()
 
-    def _messages(self, recv, child: _Child) -> tuple[bool, str]:
+    def _messages(self, recv: Connection, child: _Child) -> tuple[bool, str]:
         got_frame = False
         heard = time.monotonic()
         while not self._stop.is_set():
@@ -182,7 +199,7 @@ class ProcessStream(LiveStream):
 class _Child:
     """What the service holds of one decoder process: its shared memory, its frames taken."""
 
-    def __init__(self, proc) -> None:
+    def __init__(self, proc: BaseProcess) -> None:
         self.proc = proc
         self.grabbed = 0
         self._memory: shared_memory.SharedMemory | None = None
@@ -229,7 +246,8 @@ class _Child:
             return f"decoder hung: nothing from it for {now - heard:.0f} s, killed"
         if now - self._checked >= MEMORY_EVERY_S:
             self._checked = now
-            mb = _resident_mb(self.proc.pid)
+            pid = self.proc.pid  # a started process's
+            mb = _resident_mb(pid) if pid is not None else None
             if mb is not None and mb > max_mb:
                 return f"decoder over its memory: {mb:.0f} MB of {max_mb:.0f}, killed"
         return None

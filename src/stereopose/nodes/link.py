@@ -15,10 +15,15 @@ import uuid
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereopose.io.sinks.mqtt_settings import MqttSettings, make_client
 from stereopose.nodes.wire import Topics, health_message
+
+if TYPE_CHECKING:
+    import paho.mqtt.client as mqtt
+    from paho.mqtt.properties import Properties
+    from paho.mqtt.reasoncodes import ReasonCode
 
 logger = logging.getLogger(__name__)
 
@@ -71,7 +76,14 @@ class Publisher:
         self._thread = threading.Thread(target=self._send, name="node-publish", daemon=True)
         self._thread.start()
 
-    def _on_connect(self, client, userdata, flags, reason, props) -> None:
+    def _on_connect(
+        self,
+        client: mqtt.Client,
+        userdata: object,
+        flags: mqtt.ConnectFlags,
+        reason: ReasonCode,
+        props: Properties | None,
+    ) -> None:
         if reason.is_failure:
             self._say(logging.ERROR, f"the broker refused the connection: {reason}; retrying")
             return
@@ -86,7 +98,7 @@ class Publisher:
         if self.on_connect is not None:
             self.on_connect()
 
-    def _on_hold(self, client, userdata, msg) -> None:
+    def _on_hold(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
         take = self.on_hold
         if take is None:
             return
@@ -95,13 +107,20 @@ class Publisher:
         except Exception:  # whatever a peer sent: counted by the watch, never the thread's end
             logger.exception("node: a hold message could not be taken")
 
-    def _on_disconnect(self, client, userdata, flags, reason, props) -> None:
+    def _on_disconnect(
+        self,
+        client: mqtt.Client,
+        userdata: object,
+        flags: mqtt.DisconnectFlags,
+        reason: ReasonCode,
+        props: Properties | None,
+    ) -> None:
         with self._lock:
             was, self.connected = self.connected, False
         if was and not self._stop:
             self._say(logging.WARNING, "connection lost; retrying")
 
-    def _on_connect_fail(self, client, userdata) -> None:
+    def _on_connect_fail(self, client: mqtt.Client, userdata: object) -> None:
         self._say(logging.WARNING, "broker unreachable; retrying")
 
     def _say(self, level: int, text: str) -> None:

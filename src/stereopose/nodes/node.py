@@ -31,7 +31,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 
@@ -63,6 +63,10 @@ from stereopose.pipeline.detect import detect_step
 from stereopose.pipeline.run import check_run_config, run_rig
 from stereopose.pipeline.sources import check_size, scale_people
 from stereopose.types import Rig
+
+if TYPE_CHECKING:
+    import numpy as np
+
 
 logger = logging.getLogger(__name__)
 
@@ -211,7 +215,7 @@ class DetectNode:
             decoders=cfg.input.decoders,
         )
 
-    def _steps(self, source):
+    def _steps(self, source: PacedFiles | CameraSet):
         """(capture time, seconds since 1970; the FrameSet) per step with a frame."""
         if isinstance(source, PacedFiles):
             for fs in source:
@@ -333,7 +337,7 @@ class DetectNode:
             self.figures.frames[name] = self.figures.frames.get(name, 0) + 1
             self._picture(name, t, image)
 
-    def _picture(self, name: str, t: float, image) -> None:
+    def _picture(self, name: str, t: float, image: np.ndarray | None) -> None:
         if image is None or self.picture_hz <= 0:
             return
         now = time.monotonic()
@@ -384,7 +388,7 @@ class DetectNode:
             for cam, c in self.regions.report().items()
         }
 
-    def _beats(self, stop: threading.Event, source) -> None:
+    def _beats(self, stop: threading.Event, source: PacedFiles | CameraSet) -> None:
         """The health every HEALTH_S whatever the cameras do; the source ended at the stop."""
         while not stop.wait(HEALTH_S):
             if self.publisher is not None:

@@ -72,7 +72,7 @@ def _library() -> _Engine:
         raise StereoposeError(f"eSpeak NG did not start (its data in {data})")
     chunks: list[np.ndarray] = []
 
-    def collect(wav, n, _events) -> int:
+    def collect(wav: bytes, n: int, _events: object) -> int:
         if n > 0 and wav:
             chunks.append(np.ctypeslib.as_array(wav, shape=(n,)).copy())
         return 0

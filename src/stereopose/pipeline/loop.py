@@ -267,7 +267,7 @@ def behaviour_monitor(site: Site | None, config: Config) -> BehaviourMonitor | N
 def run_frames(
     rig: Rig,
     config: Config,
-    source,
+    source: Source,
     outputs: Outputs,
     site: Site | None,
     *,

@@ -13,6 +13,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose.config import Config, OutputConfig
 from stereopose.errors import StereoposeError
@@ -39,6 +40,9 @@ from stereopose.io.source import shown_url
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import probe_output
 from stereopose.types import Event, Rig
+
+if TYPE_CHECKING:
+    from stereopose.pipeline.stage3d import Stage3D
 
 # reconstruct_files' keyword names for the fields of Outputs
 KEYWORDS = {
@@ -168,7 +172,7 @@ def open_outputs(
     rig: Rig,
     config: Config,
     summary: RunSummary,
-    stage,
+    stage: Stage3D,
     site: Site | None = None,
     source: str = "",
     on_events: Callable[[list[Event]], None] | None = None,

@@ -20,6 +20,7 @@ import os
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from stereopose.calibration.formats import load_calibration
@@ -51,6 +52,9 @@ from stereopose.secrets import masked_toml
 from stereopose.tickets.ticket import Ticket, check_ticket_site
 from stereopose.types import Event, Rig
 from stereopose.zones.state_log import StateLogFile
+
+if TYPE_CHECKING:
+    from stereopose.detection.base import PoseDetector
 
 __all__ = ["STAGES", "CameraStats", "RunSummary", "check_run_config", "run"]
 
@@ -108,7 +112,7 @@ def _outputs(outputs: Outputs, out_dir: Path, cameras: list[str], site: bool) ->
 
 
 def _camera_source(
-    cams: CameraSet, rig: Rig, detector, settings: DetectorConfig, site: Site | None
+    cams: CameraSet, rig: Rig, detector: PoseDetector, settings: DetectorConfig, site: Site | None
 ) -> Cameras | PipelinedCameras:
     """Live cameras: detection on its own thread, always on the newest frames. Recorded ones
     keep the plain source: every frame is detected in turn, and the outputs stay the same.

@@ -7,6 +7,7 @@ import logging
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,10 @@ from stereopose.pipeline.track_regions import held_cameras, track_boxes, watched
 from stereopose.secrets import redact_all
 from stereopose.types import Camera, People2D, People3D, Rig
 from stereopose.zones.hazard import Hazards
+
+if TYPE_CHECKING:
+    from stereopose.config import DetectorConfig
+    from stereopose.fence import Site
 
 logger = logging.getLogger(__name__)
 
@@ -240,7 +245,11 @@ class Cameras:
 
 
 def detecting_cameras(
-    cams: CameraSet, rig: Rig, detector: PoseDetector, settings, site=None
+    cams: CameraSet,
+    rig: Rig,
+    detector: PoseDetector,
+    settings: DetectorConfig,
+    site: Site | None = None,
 ) -> Cameras:
     """The cameras detected as `run` and `serve` set them up, from the [detector] settings
     (config.DetectorConfig): in regions (regions and their keys; `site`'s workers watched for

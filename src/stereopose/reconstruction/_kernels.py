@@ -33,7 +33,7 @@ MAX_SEEDS = 12
 
 
 @njit(**_JIT)
-def _seeds(w, has, k, seed):
+def _seeds(w: np.ndarray, has: np.ndarray, k: int, seed: np.ndarray):
     """Into seed (C,): the views of `has`, or the k of them with the largest weights."""
     C = w.shape[0]
     n = 0
@@ -51,7 +51,19 @@ def _seeds(w, has, k, seed):
 
 
 @njit(**_JIT)
-def _best_pair(xy, w, has, P, focal, thr, inl, best_inl, Xk, e, seed):
+def _best_pair(
+    xy: np.ndarray,
+    w: np.ndarray,
+    has: np.ndarray,
+    P: np.ndarray,
+    focal: np.ndarray,
+    thr: np.ndarray,
+    inl: np.ndarray,
+    best_inl: np.ndarray,
+    Xk: np.ndarray,
+    e: np.ndarray,
+    seed: np.ndarray,
+):
     """Of every two-view solution of one joint (xy (C, 2), w (C,) among the views `has`, the
     pairs of its MAX_SEEDS most confident), the views agreeing (error < thr (C,)) with the one
     scored best by their confidence (ties to the tighter fit), into best_inl (C,); false when
@@ -86,7 +98,14 @@ def _best_pair(xy, w, has, P, focal, thr, inl, best_inl, Xk, e, seed):
 
 
 @njit(**_JIT)
-def select_views(xy, w, P, focal, thr, X_all):
+def select_views(
+    xy: np.ndarray,
+    w: np.ndarray,
+    P: np.ndarray,
+    focal: np.ndarray,
+    thr: np.ndarray,
+    X_all: np.ndarray,
+):
     """Per joint, the views that agree and the point they give.
 
     xy: (G, J, C, 2); w: (G, J, C) weights (0: unused); P: (C, 3, 4); focal: (C,);
@@ -153,13 +172,19 @@ def select_views(xy, w, P, focal, thr, X_all):
 
 
 @njit(**_JIT)
-def _lead(lx, ly, rx, ry):
+def _lead(lx: float, ly: float, rx: float, ry: float):
     """How far the horizontal offset (lx, ly) reaches ahead, ahead being up x (rx, ry)."""
     return (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
 
 
 @njit(**_JIT)
-def body_orientation(X, face_margin_m, thigh_margin_m, head_radius_m, head_width_m):
+def body_orientation(
+    X: np.ndarray,
+    face_margin_m: float,
+    thigh_margin_m: float,
+    head_radius_m: float,
+    head_width_m: float,
+):
     """Per person (G, 17, 3): whether the labels are mirrored as a whole (the face behind the
     shoulders and the nose behind the ears, with z up) and whether the legs are (each knee
     nearer the other side's hip); see triangulate.body_orientation."""
@@ -221,7 +246,7 @@ def body_orientation(X, face_margin_m, thigh_margin_m, head_radius_m, head_width
 
 
 @njit(**_JIT)
-def chain_flips(X, chains, margin_m):
+def chain_flips(X: np.ndarray, chains: np.ndarray, margin_m: float):
     """(G, K) whether the child pair of each chain row (parent left, parent right, child left,
     child right) of `chains` (K, 4) hangs from the other side: the cross distances to the
     parents shorter than the direct ones by more than margin_m (NaN: no)."""
@@ -238,7 +263,13 @@ def chain_flips(X, chains, margin_m):
 
 
 @njit(**_JIT)
-def implausibility(X, bones_left, bones_right, bones, max_m):
+def implausibility(
+    X: np.ndarray,
+    bones_left: np.ndarray,
+    bones_right: np.ndarray,
+    bones: np.ndarray,
+    max_m: np.ndarray,
+):
     """(G,) how far each skeleton X (G, 17, 3) is from a possible body: the sum of
     |left - right| bone lengths over the sum of their means, over the bones (B, 2) whose both
     sides are known (0 where none is), plus, for each bone of `bones` (K, 2), its length's
@@ -263,7 +294,15 @@ def implausibility(X, bones_left, bones_right, bones, max_m):
 
 
 @njit(**_JIT)
-def place_single_views(X, used, xy, w, centers, R, anchors):
+def place_single_views(
+    X: np.ndarray,
+    used: np.ndarray,
+    xy: np.ndarray,
+    w: np.ndarray,
+    centers: np.ndarray,
+    R: np.ndarray,
+    anchors: np.ndarray,
+):
     """Joints (NaN in X (G, J, 3)) that views report (w (G, J, C) > 0) placed on the ray of
     their strongest view, at the point nearest the first reconstructed joint of their row of
     anchors (J, A) (-1: none); two passes, so a joint can hang from one placed in the first.
@@ -316,21 +355,21 @@ def place_single_views(X, used, xy, w, centers, R, anchors):
 
 @njit(**_JIT)
 def plausible(
-    X,
-    used,
-    members,
-    delivered,
-    P,
-    lo,
-    hi,
-    limb_a,
-    limb_b,
-    max_limb_m,
-    min_joints,
-    floor_tolerance_m,
-    max_height_m,
-    min_view_fraction,
-    in_view_joints,
+    X: np.ndarray,
+    used: np.ndarray,
+    members: np.ndarray,
+    delivered: np.ndarray,
+    P: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    limb_a: np.ndarray,
+    limb_b: np.ndarray,
+    max_limb_m: float,
+    min_joints: int,
+    floor_tolerance_m: float,
+    max_height_m: float,
+    min_view_fraction: float,
+    in_view_joints: int,
 ):
     """(G,) which reconstructed people X (G, J, 3) are plausible; in place, the outer joint of
     each limb (limb_a -> limb_b, (L,)) longer than max_limb_m is dropped (NaN) and used

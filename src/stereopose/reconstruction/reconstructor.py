@@ -273,7 +273,17 @@ class Reconstructor:
                     grown.append(int(gi))
         return sorted(set(grown))
 
-    def _assemble(self, frame, det, members, delivered, X, used, conf, err):
+    def _assemble(
+        self,
+        frame: int,
+        det: Detections,
+        members: np.ndarray,
+        delivered: np.ndarray,
+        X: np.ndarray,
+        used: np.ndarray,
+        conf: np.ndarray,
+        err: np.ndarray,
+    ):
         """Plausible people only, as People3D, and the indices of their groups; members:
         (G, C) detection per camera or -1."""
         pc = self.config.plausibility

@@ -218,7 +218,14 @@ def _implausibility(X: np.ndarray) -> np.ndarray:
     return implausibility(np.ascontiguousarray(X), _BONES_L, _BONES_R, _BONES_MAX, _MAX_M)
 
 
-def _relabel_implausible(solved, P, focal, size_px, robust: Robust, max_implausibility=0.15):
+def _relabel_implausible(
+    solved: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    P: np.ndarray,
+    focal: np.ndarray,
+    size_px: np.ndarray,
+    robust: Robust,
+    max_implausibility: float = 0.15,
+):
     """Solve again the people whose skeleton is implausible by more than max_implausibility;
     solved: triangulate_robust's (X, used, xy, w, err), returned with them solved again.
 
@@ -293,7 +300,14 @@ for _name, _row in _ANCHORS.items():
     _ANCHOR_TABLE[JOINT_INDEX[_name], : len(_row)] = [JOINT_INDEX[a] for a in _row]
 
 
-def complete_single_views(X, used, xy, w, centers, rays_R):
+def complete_single_views(
+    X: np.ndarray,
+    used: np.ndarray,
+    xy: np.ndarray,
+    w: np.ndarray,
+    centers: np.ndarray,
+    rays_R: np.ndarray,
+):
     """Place joints seen in one view only (NaN in X) on that view's ray.
 
     X: (G, 17, 3); used: (G, 17, C) updated in place with the view used; xy: (G, 17, C, 2)
@@ -309,7 +323,14 @@ def complete_single_views(X, used, xy, w, centers, rays_R):
     return X, placed
 
 
-def choose_views(xy, w, P, focal, thr, X_all):
+def choose_views(
+    xy: np.ndarray,
+    w: np.ndarray,
+    P: np.ndarray,
+    focal: np.ndarray,
+    thr: np.ndarray,
+    X_all: np.ndarray,
+):
     """Per joint, the views that agree and the point they give.
 
     xy: (G, J, C, 2) ideal normalised coordinates; w: (G, J, C) weights (0: unused); P:

@@ -51,7 +51,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereopose.alarms import Change, IncidentRecord
 from stereopose.errors import StereoposeError
@@ -66,6 +66,11 @@ from stereopose.scada.iec104_settings import (
 )
 from stereopose.scada.iec104_state import UNACKED, PointState
 from stereopose.scada.points import COMMAND, Point, PointsTable
+
+if TYPE_CHECKING:
+    from c104 import IncomingMessage, Information, ResponseState
+    from c104 import Point as C104Point
+    from c104 import Server as C104Server
 
 __all__ = ["CLOCK_WARN_S", "Iec104Settings", "Outstation"]
 
@@ -318,10 +323,10 @@ class Outstation(ClosesOnce):
         params.message_timeout = s.answer_within_s
         params.confirm_interval = min(params.confirm_interval, s.answer_within_s - 1)
 
-        def on_connect(server, ip):
+        def on_connect(server: C104Server, ip: str) -> bool:
             return ip.rsplit(":", 1)[0] == "127.0.0.1"  # the guard's links only
 
-        def on_clock_sync(server, ip, date_time):
+        def on_clock_sync(server: C104Server, ip: str, date_time: dt.datetime) -> ResponseState:
             self._clock_sync(ip, date_time)
             return c104.ResponseState.SUCCESS
 
@@ -355,7 +360,9 @@ class Outstation(ClosesOnce):
         return points
 
     def _command_handler(self, c104: Any, p: Point) -> Callable:
-        def on_command(point, previous_info, message):
+        def on_command(
+            point: C104Point, previous_info: Information, message: IncomingMessage
+        ) -> ResponseState:
             try:
                 ok = bool(point.value) and self._acknowledge(p, message.originator_address)
             except Exception:  # a failing acknowledgement is a negative confirmation

@@ -16,13 +16,16 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import MutableMapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereopose.errors import ConfigError
 from stereopose.scada.iec104_board import RtuPoints
 from stereopose.scada.iec104_settings import typed_callback
 from stereopose.zones.power import Iec104Point
 from stereopose.zones.power_state import PowerBoard
+
+if TYPE_CHECKING:
+    import c104
 
 __all__ = ["Iec104Master"]
 
@@ -127,7 +130,7 @@ class Iec104Master:
                 except Exception as e:  # a refused command: the next period tries again
                     logger.debug("IEC 104 %s:%d: interrogation: %s", self.host, self.port, e)
 
-    def _restart(self, state) -> None:
+    def _restart(self, state: c104.ConnectionState) -> None:
         muted = state == self.c104.ConnectionState.OPEN_MUTED
         self.figures["iec104_unmuted" if muted else "iec104_reconnected"] += 1
         logger.info(
@@ -146,7 +149,9 @@ class Iec104Master:
         except Exception as e:  # the next period tries again
             logger.debug("IEC 104 %s:%d: restarting the link: %s", self.host, self.port, e)
 
-    def _on_state(self, connection, state) -> None:  # c104's thread
+    def _on_state(
+        self, connection: c104.Connection, state: c104.ConnectionState
+    ) -> None:  # c104's thread
         c104 = self.c104
         if state in (c104.ConnectionState.OPEN, c104.ConnectionState.OPEN_MUTED):
             self._open = True
@@ -156,12 +161,17 @@ class Iec104Master:
         self._open = False
         self.rtu.lost()
 
-    def _on_receive(self, point, previous_info, message):  # c104's thread
+    def _on_receive(
+        self, point: c104.Point, previous_info: c104.Information, message: c104.IncomingMessage
+    ) -> c104.ResponseState:  # c104's thread
         c104 = self.c104
         try:
-            ca, ioa = point.station.common_address, point.io_address
+            station, quality = point.station, point.quality
+            if station is None or quality is None:  # a point of no station, or no quality
+                raise ValueError(f"point {point.io_address} has no station or quality")
+            ca, ioa = station.common_address, point.io_address
             value = point.value
-            good = bool(point.quality.is_good())
+            good = bool(quality.is_good())
             if isinstance(value, c104.Double):
                 dpi = {c104.Double.OFF: 1, c104.Double.ON: 2, c104.Double.INTERMEDIATE: 0}
                 self.rtu.double(ca, ioa, dpi.get(value, 3), good)

@@ -41,11 +41,13 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 from asyncua.common.connection import TransportLimits
+from asyncua.crypto.permission_rules import User
 from asyncua.server.server import Server
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
@@ -56,8 +58,8 @@ from stereopose.alarms.incident import CLOSED, IncidentRecord
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
+from stereopose.scada.opcua_ack import IncidentSide, acknowledged, comment_of, may_acknowledge
 from stereopose.scada.opcua_security import (
-    ACK_ROLES,
     LoginServer,
     Permissions,
     Users,
@@ -68,6 +70,10 @@ from stereopose.scada.opcua_security import (
 from stereopose.scada.opcua_settings import OpcuaSettings, application_certificate
 from stereopose.scada.opcua_space import CameraNode, SiteSpace, ZoneNode
 from stereopose.scada.ticket_slots import TicketSlots
+
+if TYPE_CHECKING:
+    from stereopose.login_limit import LoginLimiter
+    from stereopose.web.users import UserStore
 
 __all__ = ["CameraNode", "OpcuaServer", "ZoneNode"]
 
@@ -97,10 +103,10 @@ class OpcuaServer(ClosesOnce):
         settings: OpcuaSettings,
         zones: Sequence[ZoneNode],
         cameras: Sequence[CameraNode],
-        users,
+        users: UserStore,
         *,
-        status=None,
-        limiter=None,
+        status: Callable[[], str] | None = None,
+        limiter: LoginLimiter | None = None,
     ) -> None:
         self.settings, self.users, self.status = settings, users, status
         self.login_users = Users(users, settings.allow_anonymous, limiter)
@@ -295,7 +301,7 @@ class OpcuaServer(ClosesOnce):
                 self._changes.append((c.incident, c.what, wall, c.wall_start))
         self._poke()
 
-    def attach(self, desk) -> None:
+    def attach(self, desk: IncidentSide) -> None:
         """The incident step (pipeline.incidents.IncidentStep): its `acknowledge` for
         the Acknowledge method, and its book's open incidents shown at once."""
         with self._lock:
@@ -356,7 +362,7 @@ class OpcuaServer(ClosesOnce):
         if tickets_dirty or changes or resync:  # a slot, or a ticket's incident, changed
             await space.set_tickets(tickets)
 
-    async def _resync_from(self, desk) -> None:
+    async def _resync_from(self, desk: IncidentSide) -> None:
         """The book's incidents as the conditions (after drops, or when attached)."""
 
         def read():
@@ -391,7 +397,7 @@ class OpcuaServer(ClosesOnce):
                     await self.space.write("site/Status", str(status), ua.VariantType.String)
             await asyncio.sleep(STATUS_EVERY_S)
 
-    async def _acknowledge(self, parent: ua.NodeId, *args) -> ua.StatusCode | list:
+    async def _acknowledge(self, parent: ua.NodeId, *args: ua.Variant) -> ua.StatusCode | list:
         """OPC UA's Acknowledge(EventId, Comment) on a condition: the incident's ack."""
         code = await self._ack(parent, caller(), args)
         if code is not None:
@@ -401,34 +407,23 @@ class OpcuaServer(ClosesOnce):
         self.acks += 1
         return []
 
-    async def _ack(self, parent: ua.NodeId, caller, args) -> int | None:
+    async def _ack(
+        self, parent: ua.NodeId, caller: User | None, args: tuple[ua.Variant, ...]
+    ) -> int | None:
         space, desk = self.space, self.desk
         assert space is not None  # a method is called once the server runs
         name = getattr(caller, "name", None)
-        if name is None or not self._may_acknowledge(caller):
+        if name is None or not may_acknowledge(self.users, caller):
             logger.warning(
                 "OPC UA: acknowledge refused for %s", repr(name) if name else "an anonymous client"
             )
             return StatusCodes.BadUserAccessDenied
-        incident = space.by_node.get(parent)
-        if incident is None:
-            return StatusCodes.BadNodeIdUnknown
-        cond = space.conditions[incident]
-        if len(args) != 2:
-            return (
-                StatusCodes.BadArgumentsMissing
-                if len(args) < 2
-                else StatusCodes.BadTooManyArguments
-            )
-        event_id = args[0].Value if isinstance(args[0], ua.Variant) else None
-        if not isinstance(event_id, bytes) or event_id not in cond.event_ids:
-            return StatusCodes.BadEventIdUnknown
-        if cond.acked:
-            return StatusCodes.BadConditionBranchAlreadyAcked
+        incident, refused = acknowledged(space, parent, args)
+        if refused is not None:
+            return refused
         if desk is None:
             return StatusCodes.BadResourceUnavailable
-        comment = args[1].Value if isinstance(args[1], ua.Variant) else None
-        text = (comment.Text or "") if isinstance(comment, ua.LocalizedText) else ""
+        text = comment_of(args)
         try:
             rec = await asyncio.get_running_loop().run_in_executor(
                 None, desk.acknowledge, incident, name
@@ -443,15 +438,6 @@ class OpcuaServer(ClosesOnce):
         )
         await space.apply([(rec, time.time(), desk.wall_start)])
         return None
-
-    def _may_acknowledge(self, caller) -> bool:
-        try:
-            user = self.users.get(caller.name)
-        except StereoposeError as e:
-            logger.error("OPC UA: cannot read the users: %s", e)
-            return False
-        # removed, or its role or password changed since the login: refused
-        return user is not None and user.stamp == caller.stamp and user.role in ACK_ROLES
 
     # -- figures ----------------------------------------------------------------------------
 

@@ -17,7 +17,9 @@ import contextvars
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
@@ -28,6 +30,12 @@ from asyncua.ua.object_ids import ObjectIds
 
 from stereopose.errors import HashingBusyError, StereoposeError
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
+
+if TYPE_CHECKING:
+    from asyncua.server.binary_server_asyncio import OPCUAProtocol
+    from asyncua.server.server import Server
+
+    from stereopose.web.users import UserStore
 
 __all__ = ["ACK_ROLES", "Login", "LoginServer", "Permissions", "Users", "caller", "trusted_clients"]
 
@@ -51,14 +59,16 @@ class Login(User):
 class _CallerSession(InternalSession):
     """A session whose method calls know their caller (the Acknowledge needs the user)."""
 
-    async def call(self, params):
+    async def call(self, params: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
         token = _CALLER.set(self.user)
         try:
             return await super().call(params)
         finally:
             _CALLER.reset(token)
 
-    def activate_session(self, params, peer_certificate):
+    def activate_session(
+        self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
+    ):
         peer = self.name  # asyncua's: the transport's peer name, (host, port)
         host = peer[0] if isinstance(peer, (tuple, list)) and peer else str(peer)
         token = _PEER.set(str(host))
@@ -92,7 +102,7 @@ class Permissions(PermissionRuleset):
         allowed.discard(ua.NodeId(write))  # pyright: ignore[reportArgumentType]
         self._allowed = frozenset(allowed)
 
-    def check_validity(self, user, action_type, body) -> bool:
+    def check_validity(self, user: object, action_type: ua.NodeId, body: object) -> bool:
         # a session not yet activated holds asyncua's default user, not a Login
         return isinstance(user, Login) and action_type in self._allowed
 
@@ -101,13 +111,21 @@ class Users(UserManager):
     """asyncua's user manager over the console's users (see the module); limiter: the
     console's (a login here counts against the same address and account), or its own."""
 
-    def __init__(self, users, allow_anonymous: bool, limiter: LoginLimiter | None = None) -> None:
+    def __init__(
+        self, users: UserStore, allow_anonymous: bool, limiter: LoginLimiter | None = None
+    ) -> None:
         self.users, self.allow_anonymous = users, allow_anonymous
         self.limiter = limiter if limiter is not None else LoginLimiter()
         self.limited = 0  # logins refused unchecked by the limiter
         self._warned_at = -1e9
 
-    def get_user(self, iserver, username=None, password=None, certificate=None) -> User | None:
+    def get_user(
+        self,
+        iserver: object,
+        username: str | None = None,
+        password: str | None = None,
+        certificate: bytes | None = None,
+    ) -> User | None:
         if username is None:
             return Login(role=UserRole.Anonymous) if self.allow_anonymous else None
         name, address = str(username)[:200], _PEER.get()
@@ -133,7 +151,7 @@ class Users(UserManager):
             self.limiter.end(attempt, user is not None)
         return user
 
-    def _check(self, name: str, password) -> User | None:
+    def _check(self, name: str, password: str | None) -> User | None:
         check = getattr(self.users, "verify_admitted", self.users.verify)
         try:
             user = check(name, password if isinstance(password, str) else "")
@@ -176,7 +194,7 @@ MIN_IDLE_S = 1.0  # a socket without a session is closed, when places run out, o
 SWEEP_S = 0.25  # how often the sockets are looked at
 
 
-async def sweep_idle(server, on_evict) -> None:
+async def sweep_idle(server: Server, on_evict: Callable[[], None]) -> None:
     """While fewer than two places are free, the oldest socket without an activated session
     (older than MIN_IDLE_S; a silent one before one with a secure channel open) is closed
     (on_evict() counts it): a client that logs in finds a place and keeps it. Runs until
@@ -205,13 +223,13 @@ async def sweep_idle(server, on_evict) -> None:
             logger.exception("OPC UA: looking at the connections failed")
 
 
-def _spoke(protocol) -> bool:
+def _spoke(protocol: OPCUAProtocol) -> bool:
     """Whether an asyncua connection has opened a secure channel (said Hello and more)."""
     processor = getattr(protocol, "processor", None)
     return bool(getattr(getattr(processor, "_connection", None), "_open", False))
 
 
-def _activated(protocol) -> bool:
+def _activated(protocol: OPCUAProtocol) -> bool:
     """Whether an asyncua connection has an activated session."""
     processor = getattr(protocol, "processor", None)
     session = getattr(processor, "session", None)

@@ -30,6 +30,7 @@ from stereopose.errors import ConfigError
 from stereopose.io.writing import write_private
 
 if TYPE_CHECKING:
+    from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric.types import (
         CertificatePublicKeyTypes,
         PublicKeyTypes,
@@ -171,7 +172,7 @@ def _load_pair(path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Pat
     return c, k
 
 
-def thumbprint(cert) -> str:
+def thumbprint(cert: x509.Certificate) -> str:
     """The certificate's SHA-1 thumbprint as OPC UA clients show it (AB:CD:...)."""
     from cryptography.hazmat.primitives.serialization import Encoding
 
@@ -179,7 +180,7 @@ def thumbprint(cert) -> str:
     return ":".join(digest[i : i + 2] for i in range(0, len(digest), 2))
 
 
-def _uri(cert) -> str | None:
+def _uri(cert: x509.Certificate) -> str | None:
     from cryptography import x509
 
     try:

@@ -46,9 +46,11 @@ import uuid
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 from asyncua.common import event_objects
+from asyncua.common.node import Node
 from asyncua.server.server import Server
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
@@ -57,6 +59,10 @@ from stereopose.alarms.incident import ACKNOWLEDGED, ACTIVE, CLEARED, CLOSED, In
 from stereopose.alarms.priority import PRIORITY_NAMES
 from stereopose.scada.ticket_slots import SlotRow, TicketSlots, deviating
 from stereopose.tickets.ticket import TICKET_SLOTS
+
+if TYPE_CHECKING:
+    from stereopose.fence import Site
+    from stereopose.types import Rig
 
 __all__ = [
     "SEVERITY",
@@ -227,7 +233,7 @@ class SiteSpace:
             await self._write_zone(z.name)
             await self.set_power(z.name, "unknown", None)  # uncertain until its state is known
 
-    async def _build_tickets(self, site) -> None:
+    async def _build_tickets(self, site: Node) -> None:
         """Tickets/Slot<n> (n = 1 .. TICKET_SLOTS, as IEC 104's ticket points): Ticket (its
         id, "" when free), Active, Deviation (an incident of it not closed), StepsDone."""
         folder = await site.add_folder(self.nid("site/Tickets"), self.qn("Tickets"))
@@ -255,7 +261,12 @@ class SiteSpace:
     # -- values ---------------------------------------------------------------------------
 
     async def write(
-        self, path: str, value, vt: ua.VariantType, wall: float | None = None, good: bool = True
+        self,
+        path: str,
+        value: object,
+        vt: ua.VariantType,
+        wall: float | None = None,
+        good: bool = True,
     ) -> None:
         status = ua.StatusCode(StatusCodes.Good if good else StatusCodes.UncertainLastUsableValue)
         dv = ua.DataValue(
@@ -459,7 +470,7 @@ class SiteSpace:
         return ev
 
 
-def site_zones(site, rig) -> list[ZoneNode]:
+def site_zones(site: Site | None, rig: Rig) -> list[ZoneNode]:
     """The site's zones (fence.Site, or None: none) with the cameras of `rig` that see each."""
     from stereopose.scada.points import cameras_seeing
 

@@ -13,12 +13,17 @@ import logging
 import threading
 from collections.abc import MutableMapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereopose.errors import ConfigError
 from stereopose.secrets import redact
 from stereopose.zones.power import OpcuaPoint, reading
 from stereopose.zones.power_state import PowerBoard
+
+if TYPE_CHECKING:
+    from asyncua import ua
+    from asyncua.common.node import Node
+    from asyncua.common.subscription import DataChangeNotif
 
 __all__ = ["OpcuaWatcher"]
 
@@ -127,7 +132,7 @@ class _Changes:
         self.watcher = watcher
         self.labels: dict[Any, str] = {}
 
-    def datachange_notification(self, node, val, data) -> None:
+    def datachange_notification(self, node: Node, val: object, data: DataChangeNotif) -> None:
         label = self.labels.get(node.nodeid)
         if label is None:
             self.watcher.figures["opcua_refused"] += 1
@@ -135,6 +140,6 @@ class _Changes:
         status = getattr(getattr(data, "monitored_item", None), "Value", None)
         self.watcher._take(label, val, getattr(status, "StatusCode", None))
 
-    def status_change_notification(self, status) -> None:
+    def status_change_notification(self, status: ua.StatusChangeNotification) -> None:
         where = redact(self.watcher.endpoint)
         self.watcher.board.lost(self.watcher.keys, f"OPC UA {where}: {status}")

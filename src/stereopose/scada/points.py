@@ -47,6 +47,7 @@ import csv
 import io
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
@@ -54,6 +55,10 @@ from stereopose.behaviour.definitions import watched_zones
 from stereopose.geometry.camera import distort, normalized_to_pixels, world_to_camera
 from stereopose.tickets.ticket import TICKET_SLOTS
 from stereopose.types import Camera, Rig
+
+if TYPE_CHECKING:
+    from stereopose.fence import Site
+    from stereopose.zones.zone import Zone
 
 __all__ = [
     "COMMAND",
@@ -118,7 +123,11 @@ class PointsTable(Sequence[Point]):
     def __len__(self) -> int:
         return len(self.points)
 
-    def __getitem__(self, k):
+    @overload
+    def __getitem__(self, k: int) -> Point: ...
+    @overload
+    def __getitem__(self, k: slice) -> Sequence[Point]: ...
+    def __getitem__(self, k: int | slice) -> Point | Sequence[Point]:
         return self.points[k]
 
     def __iter__(self) -> Iterator[Point]:
@@ -171,7 +180,7 @@ def _in_view(points_world: np.ndarray, camera: Camera) -> bool:
     return bool(np.any((px[:, 0] >= 0) & (px[:, 0] <= w) & (px[:, 1] >= 0) & (px[:, 1] <= h)))
 
 
-def cameras_seeing(zone, rig: Rig) -> tuple[str, ...]:
+def cameras_seeing(zone: Zone, rig: Rig) -> tuple[str, ...]:
     """The names of the rig's cameras that see the zone (fence.Zone: polygon (V, 2) metres,
     z (bottom, top) metres), in the rig's order."""
     pts = _sample(zone.polygon, zone.z)
@@ -185,7 +194,7 @@ def _quality(cameras: Sequence[str], unseen: bool) -> str:
     return f"invalid while {which} down or the service stalled"
 
 
-def points_table(site, rig: Rig, *, commands: bool = False) -> PointsTable:
+def points_table(site: Site | None, rig: Rig, *, commands: bool = False) -> PointsTable:
     """The points of a service with `site` (fence.Site, or None: no zone or rule) and `rig`;
     commands: the acknowledge commands per zone and priority too."""
     if len(rig) > MAX_CAMERAS:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypedDict, Unpack
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from stereopose.sim.motion import keep_apart
 from stereopose.sim.postures import Act, Actor, Fall
 from stereopose.sim.scene import MIN_APART_M, Scene, ScenePreset, make_rig
 from stereopose.skeleton import NUM_JOINTS
+
+if TYPE_CHECKING:
+    from stereopose.types import Rig
 
 SCENE_KINDS = ("falls", "routine", "work")
 ACTIVITIES = ("stand", "reach", "bend", "stoop", "squat", "kneel", "kneel2", "sit", "sit_floor")
@@ -95,7 +99,7 @@ def make_panels(rng: np.random.Generator, room: tuple[float, float], count: int 
     return tuple(out)
 
 
-def site_rules(panels, down_s: float = 3.0, lone_s: float = 10.0) -> list[dict]:
+def site_rules(panels: Sequence[Panel], down_s: float = 3.0, lone_s: float = 10.0) -> list[dict]:
     """The `[[rules]]` tables the benchmark applies to a scene with these panels (as a site
     file holds them; behaviour.definitions.parse_rules reads them)."""
     rules = [
@@ -142,6 +146,15 @@ class BehaviourScene:
         return self.scene.num_frames / self.scene.fps
 
 
+class ActShape(TypedDict, total=False):
+    """An act's shape beyond its kind, times, place and heading (sim.postures.Act)."""
+
+    ease_s: float
+    reach: tuple[float, float]
+    work: float
+    fall_dir: float
+
+
 class _Script:
     """Builds one worker's acts in time order."""
 
@@ -151,14 +164,17 @@ class _Script:
         self.speed = float(rng.uniform(1.1, 1.4))
         self.last = "stand"
 
-    def add(self, kind: str, dur: float, **kw) -> None:
+    def add(
+        self, kind: str, dur: float, heading: float | None = None, **kw: Unpack[ActShape]
+    ) -> None:
+        """An act of `dur` seconds where the worker stands, facing `heading` (None: as now)."""
         p = tuple(self.pos)
-        heading = kw.pop("heading", self.heading)
+        heading = self.heading if heading is None else heading
         self.acts.append(Act(kind, self.t, self.t + dur, p, p, heading, **kw))
         self.t += dur
         self.heading, self.last = heading, kind
 
-    def walk(self, target, **kw) -> None:
+    def walk(self, target: np.ndarray) -> None:
         if self.last not in ("stand", "walk"):
             self.add("stand", 1.0, ease_s=float(self.rng.uniform(0.8, 1.8)))
         d = np.asarray(target, float) - self.pos
@@ -204,7 +220,7 @@ class _Script:
             ease_s=dur,
             fall_dir=fall_dir,
             heading=float(heading),
-            reach=(float(rng.random() < 0.4),) * 2,
+            reach=(arms := float(rng.random() < 0.4), arms),
         )
         if lie_s is None:
             return Fall(worker, t0, t0 + dur, None)
@@ -214,11 +230,20 @@ class _Script:
         return Fall(worker, t0, t0 + dur, t0 + dur + lie_s)
 
 
-def _interior(rng: np.random.Generator, room, margin: float = 1.6) -> np.ndarray:
+def _interior(
+    rng: np.random.Generator, room: tuple[float, float], margin: float = 1.6
+) -> np.ndarray:
     return rng.uniform([margin, margin], [room[0] - margin, room[1] - margin])
 
 
-def _routine(rng, room, duration_s, worker, fall_at=None, down_s=3.0):
+def _routine(
+    rng: np.random.Generator,
+    room: tuple[float, float],
+    duration_s: float,
+    worker: int,
+    fall_at: float | None = None,
+    down_s: float = 3.0,
+):
     """Acts of a worker moving between activities; with fall_at (s) one fall there or after."""
     s = _Script(rng, _interior(rng, room), float(rng.uniform(-np.pi, np.pi)))
     s.t = -float(rng.uniform(0.0, 3.0))
@@ -253,7 +278,7 @@ def _routine(rng, room, duration_s, worker, fall_at=None, down_s=3.0):
     return s, falls
 
 
-def _wait(rng) -> np.ndarray:
+def _wait(rng: np.random.Generator) -> np.ndarray:
     return rng.uniform(*WAIT)
 
 
@@ -270,7 +295,7 @@ def _idle(s: _Script, until: float) -> None:
         s.add("stand", min(left, float(s.rng.uniform(2.0, 6.0))), heading=turn, ease_s=0.6)
 
 
-def _work(rng, panels, duration_s, num_people):
+def _work(rng: np.random.Generator, panels: Sequence[Panel], duration_s: float, num_people: int):
     """Scripts of workers doing jobs at the panels one at a time; the others wait."""
     scripts = [
         _Script(rng, _wait(rng), float(rng.uniform(-np.pi, np.pi))) for _ in range(num_people)
@@ -333,7 +358,7 @@ class Take:
 
 def acted_scene(
     actors: Sequence[Actor],
-    rig,
+    rig: Rig,
     noise: DetectorNoise,
     take: Take,
     detect_rng: np.random.Generator,

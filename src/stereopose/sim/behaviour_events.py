@@ -28,7 +28,7 @@ from stereopose.skeleton import NUM_JOINTS
 from stereopose.types import Event, People3D
 
 
-def scene_rules(bs: BehaviourScene, **kw) -> tuple[Rule, ...]:
+def scene_rules(bs: BehaviourScene, **kw: float) -> tuple[Rule, ...]:
     """The benchmark's rules for this scene (sim.behaviour.site_rules), parsed as a site
     file's."""
     return parse_rules(

@@ -292,7 +292,13 @@ def _visibility(truth: np.ndarray, rig: Rig, noise: DetectorNoise):
     return uv, ok, back, occ, scale
 
 
-def _frames(kp, detected, ghosts, rig: Rig, rng: np.random.Generator):
+def _frames(
+    kp: np.ndarray,
+    detected: np.ndarray,
+    ghosts: dict[tuple[int, int], np.ndarray],
+    rig: Rig,
+    rng: np.random.Generator,
+):
     """Per frame and camera the detected people (kp (T, C, N, 17, 3) where detected
     (T, C, N)) with the ghosts added, in a random order, clipped to the image; and the true
     worker behind each (-1: a ghost)."""

@@ -121,7 +121,16 @@ def pose(
     return out
 
 
-def _legs_and_trunk(out, xy, h, f, left, g, ph, beta):
+def _legs_and_trunk(
+    out: np.ndarray,
+    xy: np.ndarray,
+    h: np.ndarray,
+    f: np.ndarray,
+    left: np.ndarray,
+    g: np.ndarray,
+    ph: np.ndarray,
+    beta: np.ndarray,
+):
     """Hips, knees, ankles and shoulders into out (T, 17, 3); returns the shoulder centre and
     the spine direction (T, 3) each."""
     h1 = h[:, 0]
@@ -160,7 +169,15 @@ def _legs_and_trunk(out, xy, h, f, left, g, ph, beta):
     return shoulder_c, spine
 
 
-def _head(out, shoulder_c, spine, h, f, left, beta) -> None:
+def _head(
+    out: np.ndarray,
+    shoulder_c: np.ndarray,
+    spine: np.ndarray,
+    h: np.ndarray,
+    f: np.ndarray,
+    left: np.ndarray,
+    beta: np.ndarray,
+) -> None:
     """Nose, eyes and ears into out (T, 17, 3). The head tilts less than the torso, to keep
     looking ahead."""
     bh = 0.6 * beta

@@ -259,7 +259,7 @@ def truth_people3d(scene: Scene, t: int) -> People3D:
     )
 
 
-def ghost_frame(scene: Scene, t: int, where) -> list[People2D]:
+def ghost_frame(scene: Scene, t: int, where: tuple[float, float]) -> list[People2D]:
     """Frame t's detections in rig order plus a false person standing at floor point `where`,
     consistent in every camera (the pose of the first worker present, moved there)."""
     from stereopose.geometry.camera import project

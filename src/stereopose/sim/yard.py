@@ -24,7 +24,9 @@ YARD = (40.0, 25.0)
 POLES = ((-1.0, -1.0), (20.0, -1.0), (41.0, -1.0), (41.0, 26.0), (20.0, 26.0), (-1.0, 26.0))
 
 
-def yard_rig(rng: np.random.Generator, num_cameras: int = 6, yard=YARD) -> Rig:
+def yard_rig(
+    rng: np.random.Generator, num_cameras: int = 6, yard: tuple[float, float] = YARD
+) -> Rig:
     """`num_cameras` (2-6) pole cameras `cam01`.. with 1080p lenses of f 1500-2400 px and mild
     barrel distortion, each looking at a point of the yard's middle part."""
     if not 2 <= num_cameras <= len(POLES):
@@ -90,7 +92,7 @@ def yard_scene(
     num_cameras: int = 6,
     noise: DetectorNoise | None = None,
     rig: Rig | None = None,
-    yard=YARD,
+    yard: tuple[float, float] = YARD,
 ) -> Yard:
     """Workers walking through the yard for `duration_s`, seen by the rig (default: a new one
     from the seed) through the detector model `noise` (default: yard_noise())."""
@@ -125,7 +127,7 @@ def survey(
     rng: np.random.Generator,
     count: int = 12,
     click_px: float = 1.0,
-    yard=YARD,
+    yard: tuple[float, float] = YARD,
     min_seen: int = 8,
 ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
     """`count` surveyed points (on the ground and on equipment up to 4 m) chosen so that every

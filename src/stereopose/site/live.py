@@ -31,6 +31,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from urllib.parse import quote
 
 import cv2
@@ -44,6 +45,9 @@ from stereopose.site.http.places import FairPlaces, Place
 from stereopose.site.pictures import PictureEncoder
 from stereopose.site.scene import SceneState
 from stereopose.types import Camera, Rig
+
+if TYPE_CHECKING:
+    from stereopose.types import People2D, People3D
 
 logger = logging.getLogger(__name__)
 
@@ -184,7 +188,14 @@ class LiveHub:
         if draw is None:
             from stereopose.viz.overlay import draw_overlay
 
-            def overlay(camera, image, p2, p3, scale, label):
+            def overlay(
+                camera: str,
+                image: np.ndarray,
+                p2: People2D | None,
+                p3: People3D,
+                scale: float,
+                label: str,
+            ) -> np.ndarray:
                 return draw_overlay(image, self.rig[camera], p2, p3, scale, label)
 
             draw = overlay

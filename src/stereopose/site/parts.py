@@ -31,12 +31,16 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
 from stereopose.io.source import SourceStats
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import Source, SourceStep
 from stereopose.types import People2D, People3D
+
+if TYPE_CHECKING:
+    from stereopose.site.health.state import ServiceState
 
 logger = logging.getLogger(__name__)
 
@@ -160,7 +164,7 @@ class StateSink(ClosesOnce):
 
     def __init__(
         self,
-        state,
+        state: ServiceState,
         summary: RunSummary,
         *,
         arrival: Callable[[float], float | None] = lambda t: None,

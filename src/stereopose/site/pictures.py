@@ -19,10 +19,14 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from datetime import UTC, datetime
+from typing import TYPE_CHECKING
 
 import cv2
 
 from stereopose.io.sinks.base import FrameResult
+
+if TYPE_CHECKING:
+    from stereopose.types import People3D
 
 __all__ = [
     "IDLE_SNAPSHOT_HZ",
@@ -118,7 +122,9 @@ class PictureEncoder:
                 return
             self._encode(*item)
 
-    def _encode(self, wall_t: float, images: Mapping, people2d: Mapping, people3d) -> None:
+    def _encode(
+        self, wall_t: float, images: Mapping, people2d: Mapping, people3d: People3D
+    ) -> None:
         stamp = datetime.fromtimestamp(wall_t, UTC).strftime("%H:%M:%S")
         for camera, image in images.items():
             if image is None or camera not in self.cameras:

@@ -14,8 +14,9 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from stereopose.behaviour.posture import Posture
 from stereopose.fence import Site, ZoneGeometry
 from stereopose.io.sinks.base import FrameResult
 from stereopose.skeleton import floor_position, heading_deg
+
+if TYPE_CHECKING:
+    from stereopose.types import Event
 
 __all__ = ["ALARM_HOLD_S", "MAX_TRAILS", "TRAIL_POINTS", "TRAIL_S", "SceneState", "rounded"]
 
@@ -150,7 +154,7 @@ class SceneState:
             self._trails.pop(pid, None)
             self._trail_seen.pop(pid, None)
 
-    def _occupancy(self, events, t: float) -> None:
+    def _occupancy(self, events: Sequence[Event], t: float) -> None:
         for e in events:
             inside = self._inside.get(e.zone)
             if inside is None:

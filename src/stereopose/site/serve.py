@@ -54,6 +54,7 @@ from pathlib import Path
 from stereopose.alarms import IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
+from stereopose.detection.base import PoseDetector
 from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import Site
@@ -295,8 +296,8 @@ def _run_loop(
     plan: ServePlan,
     service: SiteService,
     cams: CameraSet | NodeInput,
-    detector,
-    stop,
+    detector: PoseDetector | None,
+    stop: threading.Event,
     first: list[Sink],
 ) -> RunSummary:
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
@@ -316,6 +317,7 @@ def _run_loop(
         service.state.register_light(lambda: nodes_light(cams.report()))  # as the nodes see
         on_site.append(hazards_watch(cams, service, plan.site))  # the nodes' carried steps
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
+        assert detector is not None  # made in this process unless the nodes detect
         cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
         regions, light = cameras.regions, cameras.light
         assert light is not None  # detecting cameras watch their light

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from stereopose.config import Config
@@ -47,7 +47,8 @@ from stereopose.web.server import Server
 from stereopose.zones.power_state import PowerBoard, ZoneStates
 
 if TYPE_CHECKING:
-    from stereopose.alarms import IncidentRecord
+    from stereopose.alarms import Change, IncidentRecord
+    from stereopose.nodes.fusion import NodeInput
     from stereopose.onsite.service import OnSite
     from stereopose.pipeline.incidents import IncidentStep
     from stereopose.scada.opcua_settings import OpcuaSettings
@@ -346,7 +347,7 @@ class SiteService:
 
         self._started("the warnings on site", close)
 
-    def watch_nodes(self, nodes) -> None:
+    def watch_nodes(self, nodes: NodeInput) -> None:
         """The nodes' camera-frames waiting for their step as a queue of the health state
         (late, over-full and refused ones as its drops); the nodes' figures in status."""
         self.state.register_queue("nodes", nodes.waiting, nodes.lost)
@@ -461,7 +462,7 @@ class SiteService:
             self.status.write_now()
 
 
-def _live_changes(hub: LiveHub, changes) -> None:
+def _live_changes(hub: LiveHub, changes: Sequence[Change]) -> None:
     """Each incident change to the console's live channel, as an `incident` message."""
     for c in changes:
         hub.publish("incident", c.to_dict())

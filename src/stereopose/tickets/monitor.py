@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -49,6 +50,16 @@ NEAR_EPS = 1e-6  # metres of slack on supervise_m
 
 
 @dataclass
+class TicketFields(TypedDict, total=False):
+    """What a ticket event may carry beyond its person, zone and times."""
+
+    step: str | None
+    duration_s: float | None
+    position: tuple[float, float] | None
+    failed: str | None
+    result: dict | None
+
+
 class StepState:
     done_t: float | None = None  # when its action completed
     onset_t: float | None = None  # its action's start
@@ -368,24 +379,43 @@ class TicketMonitor:
     # -- events ----------------------------------------------------------------------------
 
     def _deviation(
-        self, type_: str, t: float, frame: int, onset: float, s: TicketStep | None, **more
+        self,
+        type_: str,
+        t: float,
+        frame: int,
+        onset: float,
+        s: TicketStep | None,
+        *,
+        person: int | None = None,
+        **more: Unpack[TicketFields],
     ) -> Event:
+        """A deviation of step `s` (None: of the ticket as a whole), in its zone."""
         self.deviations.append({"type": type_, "t": t, "step": s.name if s else None})
         self.deviation_counts[type_] = self.deviation_counts.get(type_, 0) + 1
-        if s is not None:
-            more.setdefault("step", s.name)
-            more.setdefault("zone", s.position)
-        return self._event(type_, t, frame, onset, **more)
+        if s is None:
+            return self._event(type_, t, frame, onset, person=person, **more)
+        more.setdefault("step", s.name)
+        return self._event(type_, t, frame, onset, person=person, zone=s.position, **more)
 
-    def _event(self, type_: str, t: float, frame: int, onset: float, **more) -> Event:
-        person = more.pop("person", None)
+    def _event(
+        self,
+        type_: str,
+        t: float,
+        frame: int,
+        onset: float,
+        *,
+        person: int | None = None,
+        zone: str | None = None,
+        **more: Unpack[TicketFields],
+    ) -> Event:
+        """A ticket event about `person` (None: the operator, or none) in `zone` (None: none)."""
         if person is None:
             person = self.operator if self.operator is not None else -1
         return Event(
             t=t,
             frame=frame,
             person=int(person),
-            zone=more.pop("zone", "") or "",
+            zone=zone or "",
             kind=TICKET_KIND,
             type=type_,
             onset_t=float(onset),

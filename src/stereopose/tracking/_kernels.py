@@ -14,7 +14,7 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
-def predict_cov(p00, p01, p11, dt, q):
+def predict_cov(p00: float, p01: float, p11: float, dt: float, q: float):
     """One constant-velocity prediction of a joint's covariance (position, velocity) over dt
     seconds, white-noise acceleration of spectral density q (m^2/s^3)."""
     return (
@@ -25,7 +25,17 @@ def predict_cov(p00, p01, p11, dt, q):
 
 
 @njit(**_JIT)
-def correct(x, v, yx, yy, yz, a00, a01, a11, r2):
+def correct(
+    x: np.ndarray,
+    v: np.ndarray,
+    yx: float,
+    yy: float,
+    yz: float,
+    a00: float,
+    a01: float,
+    a11: float,
+    r2: float,
+):
     """One Kalman correction of a joint by the innovation (yx, yy, yz) with measurement
     variance r2: x (3,) and v (3,) in place; returns the new covariance terms."""
     s = a00 + r2
@@ -40,7 +50,16 @@ def correct(x, v, yx, yy, yz, a00, a01, a11, r2):
 
 
 @njit(**_JIT)
-def kalman_predict(x, v, p00, p01, p11, dt, q, moving):
+def kalman_predict(
+    x: np.ndarray,
+    v: np.ndarray,
+    p00: np.ndarray,
+    p01: np.ndarray,
+    p11: np.ndarray,
+    dt: np.ndarray,
+    q: np.ndarray,
+    moving: np.ndarray,
+):
     """Every joint advanced by dt (T,) seconds, in place: x, v (T, 17, 3), p00, p01, p11
     (T, 17); q (17,) per joint; moving (T,) false: velocity zeroed first (held in place)."""
     T, J = p00.shape
@@ -57,7 +76,19 @@ def kalman_predict(x, v, p00, p01, p11, dt, q, moving):
 
 @njit(**_JIT)
 def kalman_update(
-    x, v, p00, p01, p11, rejected, rows, z, r2, gate_m, gate_sigmas, reset_frames, initial_var
+    x: np.ndarray,
+    v: np.ndarray,
+    p00: np.ndarray,
+    p01: np.ndarray,
+    p11: np.ndarray,
+    rejected: np.ndarray,
+    rows: np.ndarray,
+    z: np.ndarray,
+    r2: np.ndarray,
+    gate_m: float,
+    gate_sigmas: float,
+    reset_frames: int,
+    initial_var: float,
 ):
     """Gated constant-velocity Kalman correction of joints, in place (see
     tracking.filter.JointFilters.update, whose arithmetic this is, joint by joint).
@@ -101,7 +132,14 @@ def kalman_update(
 
 
 @njit(**_JIT)
-def kalman_replay(z, code, r2, t, q, initial_var):
+def kalman_replay(
+    z: np.ndarray,
+    code: np.ndarray,
+    r2: np.ndarray,
+    t: np.ndarray,
+    q: np.ndarray,
+    initial_var: float,
+):
     """The online filter run again over one track's measurements as it took them: z (K, 17, 3)
     at times t (K,), code (K, 17) 0 not used, 1 accepted, 2 restarted; r2 (K, 17) their
     variances; q (17,). Returns per step the filtered x, v (K, 17, 3) and covariance
@@ -141,7 +179,17 @@ def kalman_replay(z, code, r2, t, q, initial_var):
 
 
 @njit(**_JIT)
-def bones_observe(length, count, rows, joints, parent, child, window, min_samples, outlier):
+def bones_observe(
+    length: np.ndarray,
+    count: np.ndarray,
+    rows: np.ndarray,
+    joints: np.ndarray,
+    parent: np.ndarray,
+    child: np.ndarray,
+    window: int,
+    min_samples: int,
+    outlier: float,
+):
     """Add the limb lengths of measured joints (n, 17, 3) of tracks `rows` to their running
     means length, count (T, L), in place (see tracking.bones.BoneLengths.observe)."""
     n, L = rows.shape[0], parent.shape[0]
@@ -166,7 +214,15 @@ def bones_observe(length, count, rows, joints, parent, child, window, min_sample
 
 
 @njit(**_JIT)
-def bones_apply(X, length, count, rows, parent, child, min_samples):
+def bones_apply(
+    X: np.ndarray,
+    length: np.ndarray,
+    count: np.ndarray,
+    rows: np.ndarray,
+    parent: np.ndarray,
+    child: np.ndarray,
+    min_samples: int,
+):
     """X (n, 17, 3) with each limb of tracks `rows` set to its running length where that is
     known from min_samples samples, the trunk outwards (parents before children), in place
     (see tracking.bones.BoneLengths.apply)."""

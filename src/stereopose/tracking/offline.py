@@ -11,12 +11,17 @@ and a joint it restarted starts a new segment that is not smoothed across).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stereopose.skeleton import NUM_JOINTS
 from stereopose.tracking._kernels import kalman_replay
+
+if TYPE_CHECKING:
+    from stereopose.types import People3D
 
 # what the online filter did with a joint's measurement
 NOT_USED, ACCEPTED, RESTARTED = 0, 1, 2
@@ -100,7 +105,9 @@ def smooth_track(
     return frames, xs
 
 
-def smooth_people(people_frames, logs: dict[int, TrackLog], fps: float, q: np.ndarray):
+def smooth_people(
+    people_frames: Sequence[People3D], logs: dict[int, TrackLog], fps: float, q: np.ndarray
+):
     """The tracked people of every frame with their joints two-way smoothed.
 
     people_frames: the online output (People3D per frame, ids persistent); logs: per id, the

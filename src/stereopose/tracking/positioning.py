@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 from stereopose.skeleton import floor_position, heading_deg
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["Trajectory", "floor_position", "heading_deg"]
 
@@ -32,7 +36,7 @@ class Trajectory:
     def duration_s(self) -> float:
         return self.last_t - self.first_t
 
-    def add(self, frame: int, t: float, position) -> None:
+    def add(self, frame: int, t: float, position: np.ndarray | tuple[float, float]) -> None:
         """A measured frame; position: floor x, y (NaN: unknown)."""
         self.last_frame, self.last_t = frame, t
         self.frames_seen += 1

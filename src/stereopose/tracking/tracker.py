@@ -234,7 +234,14 @@ class Tracker:
         self._next_serial += n
         return np.arange(first, first + n)
 
-    def _measure(self, rows, found, measured, unseen, t) -> None:
+    def _measure(
+        self,
+        rows: np.ndarray,
+        found: People3D,
+        measured: np.ndarray,
+        unseen: np.ndarray,
+        t: float,
+    ) -> None:
         """Feed the people measured this frame to their tracks' filters."""
         tc = self.tc
         z = found.joints[measured]
@@ -280,7 +287,9 @@ class Tracker:
         # a joint seen in one view has its depth from a neighbour: off by up to a bone length
         return np.where(views == 1, self.tc.single_view_noise_m, noise)
 
-    def _output(self, frame, t, rows, found, measured) -> People3D:
+    def _output(
+        self, frame: int, t: float, rows: np.ndarray, found: People3D, measured: np.ndarray
+    ) -> People3D:
         """Confirmed tracks seen now or within bridge_s, ordered by id."""
         tc = self.tc
         was = self.ids == 0

@@ -47,7 +47,9 @@ def intrinsics_png(path: Path, results: dict, detections: dict) -> Path:
     return path
 
 
-def extrinsics_png(path: Path, rig: Rig, board: Board, board_poses: dict, residuals) -> Path:
+def extrinsics_png(
+    path: Path, rig: Rig, board: Board, board_poses: dict, residuals: np.ndarray
+) -> Path:
     """Reprojection error histogram, and cameras and board positions from above (x-y) and
     from the side (x-z), world frame."""
     plt = _plt()

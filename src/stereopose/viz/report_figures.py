@@ -3,6 +3,8 @@ floor map with the cameras, zones and trajectories, the event timeline."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from stereopose.extras import require
@@ -14,9 +16,16 @@ from stereopose.viz.report_behaviour import explain
 
 # a runtime install has no plotly: say which extra to install, not an ImportError
 require("plotly", "report", "the HTML report (report.html)")
+
 import plotly.graph_objects as go  # noqa: E402
 
+if TYPE_CHECKING:
+    from stereopose.zones.zone import Zone
+
 __all__ = ["colour", "figure_3d", "figure_floor", "figure_timeline", "trajectories"]
+
+# the run's 3D poses as poses3d.jsonl holds them: (frame, t, its people's records)
+PoseFrames = list[tuple[int, float, list[dict]]]
 
 MAX_3D_FRAMES = 150
 ZONE_COLOURS = {"energized": "#b30000", "restricted": "#e6ab02", "work_area": "#1b9e77"}
@@ -33,7 +42,7 @@ def colour(person_id: int) -> str:
     return id_colour(person_id)  # the console's and the overlays' colour of this id
 
 
-def _zone_prism(zone, name: str) -> go.Mesh3d:
+def _zone_prism(zone: Zone, name: str) -> go.Mesh3d:
     poly = np.asarray(zone.polygon, float)
     n = len(poly)
     z0, z1 = zone.z
@@ -78,7 +87,7 @@ def _skeleton_xyz(joints: np.ndarray) -> tuple[list, list, list]:
     return xs, ys, zs
 
 
-def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
+def figure_3d(poses: PoseFrames, rig: Rig, site: Site | None) -> go.Figure:
     """Skeletons over time (a slider and a play button), zones as prisms, cameras, floor."""
     ids = sorted({int(p["id"]) for _, _, people in poses for p in people})
     stride = max(1, int(np.ceil(len(poses) / MAX_3D_FRAMES)))
@@ -97,7 +106,7 @@ def figure_3d(poses, rig: Rig, site: Site | None) -> go.Figure:
     return fig
 
 
-def _static_3d(poses, rig: Rig, site: Site | None) -> list:
+def _static_3d(poses: PoseFrames, rig: Rig, site: Site | None) -> list:
     """The zones' prisms, the cameras and the floor under everything shown."""
     static: list = []
     if site is not None:
@@ -134,7 +143,7 @@ def _static_3d(poses, rig: Rig, site: Site | None) -> list:
     return static
 
 
-def _person_traces(people, ids: list[int]) -> list:
+def _person_traces(people: list[dict], ids: list[int]) -> list:
     """One skeleton trace per id (empty for an id not in `people`)."""
     by_id = {int(p["id"]): p for p in people}
     traces = []
@@ -155,7 +164,7 @@ def _person_traces(people, ids: list[int]) -> list:
     return traces
 
 
-def _animate(fig: go.Figure, shown, start: int) -> None:
+def _animate(fig: go.Figure, shown: PoseFrames, start: int) -> None:
     """The frame slider (at `start`) and the play and pause buttons."""
     steps = [
         {
@@ -219,7 +228,7 @@ def _animate(fig: go.Figure, shown, start: int) -> None:
     )
 
 
-def trajectories(poses) -> dict[int, np.ndarray]:
+def trajectories(poses: PoseFrames) -> dict[int, np.ndarray]:
     tracks: dict[int, list] = {}
     for frame, t, people in poses:
         for p in people:
@@ -229,7 +238,9 @@ def trajectories(poses) -> dict[int, np.ndarray]:
     return {k: np.array(v, float) for k, v in tracks.items()}
 
 
-def figure_floor(tracks, rig: Rig, site: Site | None, events: list[Event]) -> go.Figure:
+def figure_floor(
+    tracks: dict[int, np.ndarray], rig: Rig, site: Site | None, events: list[Event]
+) -> go.Figure:
     """Top view: zones, cameras with their viewing direction, trajectories, where events were."""
     fig = go.Figure()
     if site is not None:
@@ -315,7 +326,9 @@ def figure_floor(tracks, rig: Rig, site: Site | None, events: list[Event]) -> go
     return fig
 
 
-def figure_timeline(poses, tracks, events: list[Event]) -> go.Figure:
+def figure_timeline(
+    poses: PoseFrames, tracks: dict[int, np.ndarray], events: list[Event]
+) -> go.Figure:
     """Each person's time in view (thin bar), time inside each zone, and every event."""
     fig = go.Figure()
     for pid, tr in sorted(tracks.items()):

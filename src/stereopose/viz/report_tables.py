@@ -7,8 +7,13 @@ naming the key, not a crash halfway through the page.
 from __future__ import annotations
 
 import html
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from stereopose.types import Event
 
 # summary.json keys the tables read as numbers (null allowed)
 _NUMBERS = ("fps_input", "fps", "load_s_3d", "people_per_frame", "reprojection_median_px")
@@ -88,7 +93,7 @@ def _table(rows: list[list[str]], head: list[str]) -> str:
     return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _fmt(v, unit: str = "", nd: int = 1) -> str:
+def _fmt(v: float | None, unit: str = "", nd: int = 1) -> str:
     if v is None or (isinstance(v, float) and not np.isfinite(v)) or not _is_number(v):
         return "-"
     return f"{v:.{nd}f}{unit}"
@@ -196,7 +201,7 @@ pre { background: #f6f6f6; padding: 0.8em; overflow-x: auto; font-size: 0.85em; 
 """
 
 
-def incidents_html(events) -> str:
+def incidents_html(events: Sequence[Event]) -> str:
     """The run's alarms grouped by incident (the book `serve` keeps, as `run` keeps it too):
     per incident its priority, hazard, the worst and the latest of its event types, its first
     and last time and its occurrences; "" when the run raised none."""

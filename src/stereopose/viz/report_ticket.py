@@ -15,13 +15,16 @@ from __future__ import annotations
 import html
 from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from stereopose.types import JsonDoc
 from stereopose.viz.report_figures import _animate, _person_traces, _zone_prism, go
 from stereopose.viz.report_tables import CSS
+
+if TYPE_CHECKING:
+    from stereopose.zones.zone import Zone
 
 __all__ = ["MAX_REPORT_FRAMES", "ticket_report", "view_from_events"]
 
@@ -180,7 +183,7 @@ def _steps_table(view: JsonDoc, wall0: float | None) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
-def _figure(frames: Sequence[JsonDoc], zones, marked: set[str]) -> go.Figure | None:
+def _figure(frames: Sequence[JsonDoc], zones: Sequence[Zone], marked: set[str]) -> go.Figure | None:
     poses = []
     stride = max(1, int(np.ceil(len(frames) / MAX_REPORT_FRAMES)))
     for k, f in enumerate(frames[::stride]):

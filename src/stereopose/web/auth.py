@@ -27,7 +27,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated
+from typing import Annotated, Protocol
 
 from fastapi import Depends, HTTPException, Request
 
@@ -91,6 +91,18 @@ class Logins:
     users: UserStore
     sessions: Sessions
     limiter: LoginLimiter = field(default_factory=LoginLimiter)
+
+
+class LoginParts(Protocol):
+    """What the login routes and `authenticated` use of `app.state.console`: Logins, or a
+    console's parts that hold the same (site.http.web.Console)."""
+
+    @property
+    def users(self) -> UserStore: ...
+    @property
+    def sessions(self) -> Sessions: ...
+    @property
+    def limiter(self) -> LoginLimiter: ...
 
 
 def _privileged(role: str) -> bool:
@@ -258,7 +270,7 @@ def request_token(request: Request) -> tuple[str | None, bool]:
 _UNAUTHORIZED = {"WWW-Authenticate": "Bearer"}
 
 
-def authenticated(request: Request, parts=Depends(console_parts)) -> Session:  # noqa: B008
+def authenticated(request: Request, parts: LoginParts = Depends(console_parts)) -> Session:  # noqa: B008
     """The request's session; 401 without a live one; 403 when a cookie-authenticated
     state-changing request lacks the CSRF header."""
     token, by_cookie = request_token(request)

@@ -22,6 +22,7 @@ from stereopose.errors import HashingBusyError
 from stereopose.web.auth import (
     CSRF_COOKIE,
     SESSION_COOKIE,
+    LoginParts,
     Session,
     SessionsFullError,
     TooManyAttemptsError,
@@ -114,7 +115,7 @@ _LOGIN_ERRORS: dict[int | str, dict[str, object]] = {
 }
 
 
-def checked_password(parts, request: Request, name: str, password: str) -> User | None:
+def checked_password(parts: LoginParts, request: Request, name: str, password: str) -> User | None:
     """The user when `password` is `name`'s, else None, within the limit on guesses (429
     when over it: nothing checked); 503 when the users cannot be read."""
     try:
@@ -146,7 +147,7 @@ def login(
     body: Login,
     request: Request,
     response: Response,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: LoginParts = Depends(console_parts),  # noqa: B008
 ) -> LoginAnswer:
     """Log in (sync: the password hash runs in the thread pool)."""
     user = checked_password(parts, request, body.username, body.password)
@@ -173,7 +174,7 @@ def login(
 def logout(
     request: Request,
     session: Annotated[Session, Depends(authenticated)],
-    parts=Depends(console_parts),  # noqa: B008
+    parts: LoginParts = Depends(console_parts),  # noqa: B008
 ) -> Response:
     """End this session; its cookies are cleared."""
     token, _ = request_token(request)

@@ -5,8 +5,13 @@ Used by the site's console (site.http.api.page) and the control room's (controlr
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from fastapi.staticfiles import StaticFiles
 from starlette.types import Receive, Scope, Send
+
+if TYPE_CHECKING:
+    from starlette.types import Message
 
 __all__ = ["CSP", "PAGE_HEADERS", "ConsoleFiles"]
 
@@ -27,7 +32,7 @@ class ConsoleFiles(StaticFiles):
     """StaticFiles with the page's headers; no directory listings, no links followed out."""
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        async def with_headers(message):
+        async def with_headers(message: Message):
             if message["type"] == "http.response.start":
                 extra = [(k.lower().encode(), v.encode()) for k, v in PAGE_HEADERS.items()]
                 message = {**message, "headers": [*message.get("headers", []), *extra]}

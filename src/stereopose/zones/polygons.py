@@ -32,7 +32,7 @@ def _on(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarra
     )
 
 
-def _segments_meet(p1, p2, q1, q2) -> np.ndarray:
+def _segments_meet(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Whether segments p1p2 and q1q2 share a point (touching and overlapping included),
     broadcast over their leading axes."""
     d1, d2 = _cross(q1, q2, p1), _cross(q1, q2, p2)

@@ -36,6 +36,7 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -50,6 +51,9 @@ from stereopose.site.health.corrected_calibration import corrected_file
 from stereopose.site.health.survey_desk import SurveyDesk
 from stereopose.site.health.watch import camera_event
 from stereopose.types import Event, People2D, Rig
+
+if TYPE_CHECKING:
+    from stereopose.types import Camera
 
 __all__ = ["CalibrationKeeper", "KeeperDesk", "corrected_file"]
 
@@ -232,7 +236,7 @@ class CalibrationKeeper:
         with self._lock:
             self.cases.pop(name, None)
 
-    def _sample(self, name: str, case: _Case, frame: int, people2d) -> None:
+    def _sample(self, name: str, case: _Case, frame: int, people2d: Mapping[str, People2D]) -> None:
         own = people2d.get(name)
         if own is None or not len(own.keypoints):
             return
@@ -325,7 +329,7 @@ class CalibrationKeeper:
 
     # -- applying ------------------------------------------------------------------------------
 
-    def _apply(self, name: str, r) -> None:
+    def _apply(self, name: str, r: Refined) -> None:
         old = self.rig
         self.rig = Rig(tuple(r.camera if c.name == name else c for c in old))
         for fn in self.apply_to:
@@ -389,7 +393,7 @@ class CalibrationKeeper:
             if (p := c.proposal) is not None
         }
 
-    def _write(self, name: str, old, r, by: str | None = None) -> None:
+    def _write(self, name: str, old: Camera, r: Refined | None, by: str | None = None) -> None:
         """The corrected calibration beside the original (or in out_dir) and its history; r:
         the camera's new pose (calibration.refine), None for a whole rig accepted by `by`."""
         stem = self.calib_path.name.split(".")[0] or "calibration"
@@ -446,7 +450,7 @@ class CalibrationKeeper:
         self._pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _attempt(cam, samples) -> tuple:
+def _attempt(cam: Camera, samples: list[tuple[np.ndarray, np.ndarray]]) -> tuple:
     """The camera placed again from the samples (calibration.refine), and its pose as it is
     measured on the same samples (RMS px, agreeing joints)."""
     return refine_camera(cam, samples), pose_error(cam, samples)

@@ -10,7 +10,7 @@ an anonymous one reads version="" (the /metrics route sets VERSION_SHOWN for its
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextvars import ContextVar
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
@@ -25,6 +25,7 @@ from prometheus_client.registry import Collector
 from stereopose.detection.light import MODES
 from stereopose.site.health.snapshots import HistogramSnapshot, Snapshot
 from stereopose.site.health.state import ServiceState
+from stereopose.types import JsonDoc
 
 PREFIX = "stereopose_"
 CONTENT_TYPE = CONTENT_TYPE_LATEST
@@ -171,7 +172,7 @@ _REGIONS = (
 )
 
 
-def _region_families(regions) -> Iterator[Metric]:
+def _region_families(regions: Mapping[str, JsonDoc]) -> Iterator[Metric]:
     """Detection in regions by camera: what it detected, against whole frames."""
     for name, key, doc in _REGIONS:
         yield _counter(
@@ -179,7 +180,7 @@ def _region_families(regions) -> Iterator[Metric]:
         )
 
 
-def _light_families(light) -> Iterator[Metric]:
+def _light_families(light: Mapping[str, JsonDoc]) -> Iterator[Metric]:
     """Each camera's light (detection.light): its mode, one of four, and the figures the
     mode rests on."""
     if not light:
@@ -207,7 +208,7 @@ def _light_families(light) -> Iterator[Metric]:
         yield _gauge(name, doc, "camera", values)
 
 
-def _alarm_families(a) -> Iterator[Metric]:
+def _alarm_families(a: JsonDoc) -> Iterator[Metric]:
     """The alarm rates (alarms.rates, ISA-18.2's figures) and the open incidents by priority
     and state (at most 4 x 3 label pairs)."""
     yield _gauge(

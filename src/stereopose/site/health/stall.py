@@ -26,8 +26,9 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Unpack
 
-from stereopose.types import Event
+from stereopose.types import Event, EventFields
 
 __all__ = ["KEPT_S", "SERVICE_KIND", "StallWatch", "service_event"]
 
@@ -37,7 +38,9 @@ SERVICE_KIND = "service"
 KEPT_S = 1.0  # of a stall, the seconds the people's ageing still counts (prediction, re-id reach)
 
 
-def service_event(kind_of_event: str, t: float, frame: int, onset_t: float, **fields) -> Event:
+def service_event(
+    kind_of_event: str, t: float, frame: int, onset_t: float, **fields: Unpack[EventFields]
+) -> Event:
     """An event about the service itself (kind "service", zone "", person -1)."""
     return Event(
         t=t,

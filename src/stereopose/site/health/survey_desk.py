@@ -18,6 +18,7 @@ import logging
 import math
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 from stereopose.calibration.poses import pose_change
 from stereopose.calibration.surveyed import (
@@ -31,12 +32,26 @@ from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.extras import require
 from stereopose.io.writing import make_folder, write_private
 
+if TYPE_CHECKING:
+    from stereopose.calibration.surveyed import Survey
+    from stereopose.types import Rig
+
 __all__ = ["SolveJob", "SurveyDesk"]
 
 logger = logging.getLogger(__name__)
 
 POINTS = Path("survey") / "points.toml"
 NAMED = Path(POINTS.name)  # how messages name it: a client learns no folder of the server
+
+
+class RigKeeper(Protocol):
+    """The running calibration keeper (site.health.calib_keeper.CalibrationKeeper) as the
+    desk uses it: its rig now, and a whole new rig handed to it."""
+
+    @property
+    def rig(self) -> Rig: ...
+
+    def take_rig(self, rig: Rig, by: str) -> None: ...
 
 
 @dataclasses.dataclass
@@ -52,7 +67,7 @@ class SolveJob:
 class SurveyDesk:
     """See the module. keeper: the running calibration keeper (its rig, `take_rig`)."""
 
-    def __init__(self, keeper, folder: Path) -> None:
+    def __init__(self, keeper: RigKeeper, folder: Path) -> None:
         self.keeper, self.path = keeper, Path(folder) / POINTS
         self._lock = threading.Lock()
         self._solved: PointsResult | None = None
@@ -121,7 +136,7 @@ class SurveyDesk:
         assert job.summary is not None
         return job.summary
 
-    def _solve(self, job: SolveJob, survey, rig) -> None:
+    def _solve(self, job: SolveJob, survey: Survey, rig: Rig) -> None:
         try:
             result = calibrate_points(rig, survey)
             with self._lock:

@@ -21,7 +21,7 @@ running camera it does not place). 503 before the keeper runs.
 from __future__ import annotations
 
 import asyncio
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import JSONResponse
@@ -29,6 +29,9 @@ from pydantic import BaseModel, Field
 
 from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.web.auth import Admin, Viewer
+
+if TYPE_CHECKING:
+    from stereopose.site.health.survey_desk import SolveJob
 
 router = APIRouter(tags=["calibration"])
 
@@ -131,13 +134,14 @@ def solved_points(session: Viewer, request: Request) -> JSONResponse:
     return _job_answer(job)
 
 
-def _job_answer(job) -> JSONResponse:
+def _job_answer(job: SolveJob) -> JSONResponse:
     headers = {"Cache-Control": "no-store"}
     if not job.done.is_set():
         return JSONResponse({"state": "solving", "job": job.number}, 202, headers=headers)
     if job.error is not None:
         raise HTTPException(422, job.error)
-    return JSONResponse({"state": "solved", "job": job.number, **job.summary}, headers=headers)
+    summary = job.summary or {}  # a solve that ended without an error has its summary
+    return JSONResponse({"state": "solved", "job": job.number, **summary}, headers=headers)
 
 
 @router.post("/api/survey/accept", responses={403: {}, 404: {}, 409: {}, 503: {}})

@@ -23,6 +23,7 @@ import stat
 import threading
 import time
 import weakref
+from collections.abc import Mapping
 from pathlib import Path
 
 import cv2
@@ -32,6 +33,7 @@ from starlette.types import Receive, Scope, Send
 
 from stereopose.io.sinks.clips import CLIP_SUFFIX, PART_SUFFIX
 from stereopose.site.http.places import FairPlaces, Place
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["events"])
@@ -45,7 +47,7 @@ players = FairPlaces(PLAYERS, per_user=PLAYERS_PER_USER)  # no places reserved: 
 _BOUNDARY = "clipframe"
 
 
-def _clip_path(file: str, parts) -> tuple[Path, os.stat_result]:
+def _clip_path(file: str, parts: Console) -> tuple[Path, os.stat_result]:
     """The clip's path and its stat, or the HTTPException that refuses it."""
     if not _NAME.fullmatch(file) or ".." in file or not file.endswith(CLIP_SUFFIX):
         raise HTTPException(400, "not a clip name")
@@ -68,7 +70,7 @@ def _clip_path(file: str, parts) -> tuple[Path, os.stat_result]:
     response_class=FileResponse,
     responses={200: {"content": {"video/mp4": {}}}, 400: {}, 404: {}},
 )
-def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileResponse:  # noqa: B008
+def clip(file: str, session: Viewer, parts: Console = Depends(console_parts)) -> FileResponse:  # noqa: B008
     """The clip (video/mp4)."""
     path, st = _clip_path(file, parts)
     return FileResponse(
@@ -89,7 +91,7 @@ def clip(file: str, session: Viewer, parts=Depends(console_parts)) -> FileRespon
         503: {},
     },
 )
-def play(file: str, session: Viewer, parts=Depends(console_parts)) -> StreamingResponse:  # noqa: B008
+def play(file: str, session: Viewer, parts: Console = Depends(console_parts)) -> StreamingResponse:  # noqa: B008
     """The clip played as Motion JPEG at its frame rate, for an <img> (any browser)."""
     path, _ = _clip_path(file, parts)
     place = players.take(session.username, privileged=False)
@@ -112,8 +114,8 @@ class _PlayerResponse(StreamingResponse):
     is over, however it ends (the clip's end, the client gone, the server stopping), not
     when the garbage collector gets to it."""
 
-    def __init__(self, player: _Player, **kw) -> None:
-        super().__init__(player, **kw)
+    def __init__(self, player: _Player, media_type: str, headers: Mapping[str, str]) -> None:
+        super().__init__(player, media_type=media_type, headers=headers)
         self.player = player
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:

@@ -21,6 +21,7 @@ from stereopose.alarms.incident import IncidentError
 from stereopose.io.sinks.incidents import incident_of_event
 from stereopose.site.acks import AckError
 from stereopose.site.eventlog import MAX_LIMIT, Filters, LogError, parse_time
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Operator, Viewer, console_parts
 
 router = APIRouter(tags=["events"])
@@ -100,7 +101,7 @@ def filters(
     )
 
 
-def _query(parts, f: Filters) -> list[dict]:
+def _query(parts: Console, f: Filters) -> list[dict]:
     if parts.log is None:
         return []
     try:
@@ -113,7 +114,7 @@ def _query(parts, f: Filters) -> list[dict]:
 def events(
     session: Viewer,
     f: Annotated[Filters, Depends(filters)],
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> JSONResponse:
     """{"events": [...]}, newest first: each with id, t, wall_t, frame, person, zone, kind,
     type, level (alarm, warning, info), camera, ack ({"by", "at"} or null) and clips."""
@@ -136,7 +137,7 @@ def _cell(value: object) -> object:
 def events_csv(
     session: Viewer,
     f: Annotated[Filters, Depends(filters)],
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> Response:
     """The same events as CSV (an attachment)."""
     out = io.StringIO()
@@ -167,7 +168,7 @@ def ack(
     event_id: Annotated[int, Path(ge=0, le=_I64)],
     session: Operator,
     request: Request,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> dict:
     """Acknowledge the event as this user (operator or admin); an event acknowledged before
     answers with its first acknowledgement. Its incident is acknowledged too (`incident`: its
@@ -191,7 +192,7 @@ def ack(
     return body
 
 
-def _ack_incident(request: Request, parts, event_id: int, by: str) -> dict | None:
+def _ack_incident(request: Request, parts: Console, event_id: int, by: str) -> dict | None:
     """The event's incident acknowledged in the running service's book (its record)."""
     desk = request.app.state.incidents.step
     log = parts.log

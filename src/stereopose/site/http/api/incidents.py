@@ -17,7 +17,8 @@ duration).
 from __future__ import annotations
 
 import sqlite3
-from typing import Annotated, Literal
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request
 from fastapi.responses import JSONResponse
@@ -27,7 +28,12 @@ from stereopose.alarms import UnknownIncidentError
 from stereopose.alarms.incident import MAX_SHELVE_S, IncidentError
 from stereopose.io.sinks.incidents import MAX_LIMIT, IncidentFilters, query_incidents
 from stereopose.site.http.api.events import query_times
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Operator, Viewer, console_parts
+
+if TYPE_CHECKING:
+    from stereopose.alarms import IncidentRecord
+    from stereopose.pipeline.incidents import IncidentStep
 
 router = APIRouter(tags=["incidents"])
 
@@ -65,7 +71,7 @@ def filters(
 def incidents(
     session: Viewer,
     f: Annotated[IncidentFilters, Depends(filters)],
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> JSONResponse:
     """{"incidents": [...]}, newest first (see the module)."""
     log = parts.log
@@ -78,14 +84,14 @@ def incidents(
     return JSONResponse({"incidents": found}, headers={"Cache-Control": "no-store"})
 
 
-def _desk(request: Request):
+def _desk(request: Request) -> IncidentStep:
     desk = request.app.state.incidents.step
     if desk is None:
         raise HTTPException(503, "the incident book is not running yet")
     return desk
 
 
-def _answer(desk, act) -> dict:
+def _answer(desk: IncidentStep, act: Callable[[], IncidentRecord]) -> dict:
     try:
         rec = act()
     except UnknownIncidentError as e:

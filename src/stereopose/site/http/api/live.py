@@ -20,6 +20,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import StreamingResponse
 
 from stereopose.site.http.api.people import hub_of
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Viewer, console_parts, request_token
 from stereopose.web.users import role_at_least
 
@@ -38,7 +39,7 @@ ENDED_RETRY_MS = 30_000
 async def live(
     request: Request,
     session: Viewer,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> StreamingResponse:
     """event: people | event | zones | cameras | ack, each with its JSON as data."""
     hub = hub_of(parts)

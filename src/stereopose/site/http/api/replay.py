@@ -12,6 +12,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import JSONResponse
 
 from stereopose.errors import StereoposeError
+from stereopose.site.http.web import Console
 from stereopose.site.replay import MAX_FRAMES, read_window
 from stereopose.web.auth import Viewer, console_parts
 
@@ -26,7 +27,7 @@ def poses(
     since: Annotated[float, _TIME],
     until: Annotated[float, _TIME],
     max_frames: Annotated[int, Query(ge=1, le=MAX_FRAMES)] = 600,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> JSONResponse:
     """{"since", "until", "frames": [{"wall_t", "t", "people": [{"id", "joints",
     "position", "posture"}]}], "skipped", "thinned"}."""

@@ -17,6 +17,7 @@ import json
 import logging
 import re
 import time
+from collections.abc import Callable
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Request
@@ -25,6 +26,7 @@ from pydantic import BaseModel, Field
 
 from stereopose.config import parse_toml
 from stereopose.errors import ConfigError, StereoposeError
+from stereopose.site.http.web import Console
 from stereopose.site.replay import MAX_WINDOW_S, read_window
 from stereopose.tickets import TicketDesk, TicketError, parse_ticket
 from stereopose.web.auth import Operator, Viewer, console_parts
@@ -52,7 +54,7 @@ def _desk(request: Request) -> TicketDesk:
     return desk
 
 
-def _act(act) -> dict:
+def _act(act: Callable[[], object]) -> dict:
     try:
         return {"ticket": act()}
     except TicketError as e:
@@ -127,7 +129,7 @@ def report(
     ticket_id: Annotated[str, _ID],
     session: Viewer,
     request: Request,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> HTMLResponse:
     """The ticket's report, one self-contained HTML file (viz.report_ticket): its steps on a
     timeline, who did them, when, how long and where, its deviations and a 3D replay of the

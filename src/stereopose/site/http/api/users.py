@@ -13,9 +13,10 @@ from typing import Literal
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from pydantic import BaseModel, Field
 
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Admin, Session, Viewer, console_parts
 from stereopose.web.login import NoStoreRoute, checked_password
-from stereopose.web.users import UserError, check_password, role_at_least
+from stereopose.web.users import User, UserError, check_password, role_at_least
 
 router = APIRouter(tags=["users"], route_class=NoStoreRoute)
 
@@ -38,17 +39,17 @@ class NewPassword(BaseModel):
     old_password: str | None = Field(default=None, max_length=1024)
 
 
-def _out(u) -> UserOut:
+def _out(u: User) -> UserOut:
     return UserOut(username=u.name, role=u.role, created=u.created, changed=u.changed)
 
 
 @router.get("/api/users", response_model=list[UserOut])
-def list_users(session: Admin, parts=Depends(console_parts)) -> list[UserOut]:  # noqa: B008
+def list_users(session: Admin, parts: Console = Depends(console_parts)) -> list[UserOut]:  # noqa: B008
     return [_out(u) for u in parts.users.users()]
 
 
 @router.post("/api/users", response_model=UserOut, status_code=201, responses={409: {}, 422: {}})
-def add_user(body: NewUser, session: Admin, parts=Depends(console_parts)) -> UserOut:  # noqa: B008
+def add_user(body: NewUser, session: Admin, parts: Console = Depends(console_parts)) -> UserOut:  # noqa: B008
     if parts.users.get(body.username) is not None:
         raise HTTPException(409, f"user {body.username!r} already exists")
     try:
@@ -60,7 +61,7 @@ def add_user(body: NewUser, session: Admin, parts=Depends(console_parts)) -> Use
 @router.delete(
     "/api/users/{name}", status_code=204, response_class=Response, responses={404: {}, 409: {}}
 )
-def remove_user(name: str, session: Admin, parts=Depends(console_parts)) -> Response:  # noqa: B008
+def remove_user(name: str, session: Admin, parts: Console = Depends(console_parts)) -> Response:  # noqa: B008
     if parts.users.get(name) is None:
         raise HTTPException(404, "no such user")
     admins = [u for u in parts.users.users() if u.role == "admin"]
@@ -85,7 +86,7 @@ def change_password(
     body: NewPassword,
     session: Viewer,
     request: Request,
-    parts=Depends(console_parts),  # noqa: B008
+    parts: Console = Depends(console_parts),  # noqa: B008
 ) -> Response:
     """An admin sets anyone's password; a user sets their own, giving the old one."""
     me: Session = session

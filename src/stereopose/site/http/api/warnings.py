@@ -14,6 +14,7 @@ acts).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Path, Request
@@ -50,7 +51,7 @@ def _onsite(request: Request):
     return onsite
 
 
-def _act(act) -> dict:
+def _act(act: Callable[[], dict]) -> dict:
     try:
         return act()
     except ControlError as e:

@@ -6,12 +6,13 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 
 from stereopose.site.http.api.people import hub_of
+from stereopose.site.http.web import Console
 from stereopose.web.auth import Viewer, console_parts
 
 router = APIRouter(tags=["live"])
 
 
 @router.get("/api/zones")
-def zones(session: Viewer, parts=Depends(console_parts)) -> JSONResponse:  # noqa: B008
+def zones(session: Viewer, parts: Console = Depends(console_parts)) -> JSONResponse:  # noqa: B008
     """{"zones": [{"name", "kind", "polygon", "z", "margin_m", "state", "occupants"}]}."""
     return JSONResponse(hub_of(parts).zones(), headers={"Cache-Control": "no-store"})
