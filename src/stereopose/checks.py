@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -162,7 +163,9 @@ def read_limited(path: Path, what: str, error: type[StereoposeError]) -> bytes:
     return raw
 
 
-def named_tables(items: list, section: str, what: str, lead: str = ""):
+def named_tables(
+    items: list, section: str, what: str, lead: str = ""
+) -> Iterator[tuple[str, dict]]:
     """Each (name, table) of a site file's `[[section]]` tables, in order: every item a table
     with a unique non-empty string `name`, else a ConfigError (prefixed by `lead`) naming the
     item, or the `what` by its name ("zone 'panel A': the name is used twice")."""

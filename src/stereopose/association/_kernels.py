@@ -23,7 +23,7 @@ def epipolar_pair_distances(
     first: np.ndarray,
     second: np.ndarray,
     swap: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint normalised symmetric epipolar distances of detection pairs.
 
     xy: (N, 17, 2) ideal coordinates, finite (missing joints as 0: they never vote);
@@ -69,7 +69,7 @@ def pair_costs(
     ok: np.ndarray,
     swap: np.ndarray,
     min_common: int,
-):
+) -> np.ndarray:
     """(N, N) symmetric cost of detection pairs: the mean over joints confident (ok (N, 17)) in
     both of the distances same (M, 17), or of cross with the second's labels exchanged, the
     lower of the two; inf with fewer than min_common shared joints, and for pairs not listed
@@ -96,7 +96,7 @@ def pair_costs(
 
 
 @njit(**_JIT)
-def box_diagonals(xy: np.ndarray, mask: np.ndarray):
+def box_diagonals(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """(N,) diagonal of the box around the masked joints of each detection (N, 17, 2); NaN
     with fewer than two."""
     N, J = mask.shape
@@ -126,7 +126,7 @@ def claim_costs(
     swap: np.ndarray,
     parts: np.ndarray,
     min_common: int,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Cost of every detection against every predicted pose, labels as detected or exchanged.
 
     xy: (N, 17, 2) detections' ideal coordinates; ok: (N, 17) confident joints; size: (N,);
@@ -190,7 +190,7 @@ def _augmenting_path(
     SR: np.ndarray,
     SC: np.ndarray,
     remaining: np.ndarray,
-):
+) -> tuple[int, float]:
     """One shortest augmenting path from row i (Crouse's algorithm, as SciPy's
     linear_sum_assignment); returns (sink column or -1 when infeasible, its path cost)."""
     nc = cost.shape[1]
@@ -214,7 +214,7 @@ def _augmenting_path(
                 path[j] = i
                 spc[j] = r
             if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
-                lowest = spc[j]
+                lowest = float(spc[j])
                 index = it
         min_val = lowest
         if min_val == np.inf:
@@ -231,7 +231,7 @@ def _augmenting_path(
 
 
 @njit(**_JIT)
-def assignment(cost: np.ndarray):
+def assignment(cost: np.ndarray) -> np.ndarray:
     """Minimum-cost assignment of the rows of cost (nr, nc) to its columns, nr <= nc, each
     row to a distinct column; costs finite or inf (forbidden). Returns col4row (nr,), or an
     empty array when no complete assignment avoids the forbidden pairs."""

@@ -122,7 +122,9 @@ def pairs_within(groups: list[np.ndarray], free: np.ndarray) -> tuple[np.ndarray
     return np.array(n, dtype=np.int64), np.array(m, dtype=np.int64)
 
 
-def check_groups(groups: list[np.ndarray], seeds: list[int], cost: np.ndarray, max_cost: float):
+def check_groups(
+    groups: list[np.ndarray], seeds: list[int], cost: np.ndarray, max_cost: float
+) -> tuple[list[np.ndarray], list[int], np.ndarray]:
     """Remove from each seeded group the detections that disagree with the rest.
 
     A detection whose mean cost to the other members exceeds max_cost is dropped, worst

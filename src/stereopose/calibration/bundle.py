@@ -12,12 +12,16 @@ distance between two camera centres held (`baseline`: the scale of a rig from pe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 
 from stereopose.calibration.extrinsics import rodrigues
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_array
 
 __all__ = ["Bundle", "Solution", "adjust", "project_px"]
 
@@ -87,7 +91,7 @@ def _layout(b: Bundle) -> tuple[np.ndarray, np.ndarray, int]:
 
 def _sparsity(
     b: Bundle, cam_col: np.ndarray, pt_col: np.ndarray, n_before_len: int, n_rows: list[int]
-):
+) -> csr_array:
     """Which parameters each residual depends on."""
     rows, cols = [], []
     N = len(b.cam)
@@ -147,14 +151,14 @@ def adjust(
     )
     w = np.sqrt(np.asarray(b.weight, dtype=np.float64))[:, None]
 
-    def unpack(x: np.ndarray):
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         poses, pts = b.poses.copy(), b.points.copy()
         poses[fc] = x[: 6 * len(fc)].reshape(-1, 6)
         pts[fp] = x[6 * len(fc) : n_before_len].reshape(-1, 3)
         lengths = x[n_before_len:] if b.lengths is not None else None
         return poses, pts, lengths
 
-    def residuals(x: np.ndarray):
+    def residuals(x: np.ndarray) -> np.ndarray:
         poses, pts, lengths = unpack(x)
         uv, _ = project_px(poses[b.cam], b.intr[b.cam], pts[b.point])
         out = [((uv - b.uv) * w).ravel()]

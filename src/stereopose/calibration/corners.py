@@ -15,6 +15,7 @@ turn of the board when both sides have an odd number of squares, as 15 x 11).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -48,7 +49,7 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def _candidates(gray: np.ndarray, board: Board):
+def _candidates(gray: np.ndarray, board: Board) -> Iterator[tuple[str, np.ndarray]]:
     """(method, corners (N, 2) in full-resolution pixels) from each detector in turn.
 
     The classic detector runs only on images of at most CLASSIC_MAX_PX pixels on their long

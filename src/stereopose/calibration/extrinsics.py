@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -28,6 +29,9 @@ from scipy.sparse import coo_matrix, csr_matrix, sparray, spmatrix
 from stereopose.calibration.board import Board
 from stereopose.errors import CalibrationError
 from stereopose.types import Camera, Rig
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 logger = logging.getLogger(__name__)
 
@@ -86,7 +90,7 @@ def _place_cameras(
     views: dict[str, list[str]],
     poses: dict[tuple[str, str], np.ndarray],
     flipped: dict[tuple[str, str], np.ndarray],
-):
+) -> tuple[str, dict[str, np.ndarray], dict[tuple[str, str], bool], dict[str, np.ndarray]]:
     """Pose graph: camera -> world (4, 4) with the reference camera's frame as world; per
     (camera, view) whether its corner order is turned; board -> world per view."""
     order = sorted(cams, key=lambda c: -len(views[c]))
@@ -131,6 +135,22 @@ def _place_cameras(
                 board_T[v] = np.linalg.inv(T_best) @ poses[(best, v)]
         todo.remove(best)
     return ref, cam_T, flip, board_T
+
+
+@dataclass(frozen=True)
+class Adjusted:
+    """A bundle adjustment's result: camera poses (world -> camera) and board poses (board ->
+    world) by name, the intrinsics (C, 8) in `names`' order, the residuals per corner seen
+    (N, 2) with each one's camera and view index (N,) into `names` and `view_names`."""
+
+    camera_poses: dict[str, np.ndarray]
+    board_poses: dict[str, np.ndarray]
+    intr: np.ndarray
+    res: np.ndarray
+    cam_idx: np.ndarray
+    view_idx: np.ndarray
+    names: list[str]
+    view_names: list[str]
 
 
 @dataclass(frozen=True)
@@ -184,7 +204,7 @@ def _jacobian_sparsity(
     view_idx: np.ndarray,
     fixed: int,
     refine_intrinsics: bool,
-):
+) -> coo_matrix:
     """Which parameters each of the 2 M residuals depends on: its camera's pose (none for the
     fixed reference camera), its board pose and, when refined, its camera's intrinsics."""
     free_col = np.cumsum([c != fixed for c in range(C)]) - 1  # column block of each camera
@@ -211,7 +231,7 @@ def _unpack(
     ref: str,
     intr: np.ndarray,
     refine_intrinsics: bool,
-):
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], np.ndarray]:
     """The solution vector back as camera poses, board poses and intrinsics (C, 8)."""
     C, V = len(names), len(view_names)
     out_cam, out_board = {}, {}
@@ -239,10 +259,9 @@ def bundle_adjust(
     board_T: dict[str, np.ndarray],
     ref: str,
     refine_intrinsics: bool = False,
-):
+) -> Adjusted:
     """Refine camera poses (world -> camera), board poses (board -> world) and optionally the
-    intrinsics over every corner seen. Returns (cam_T, board_T, intrinsics (C, 8), residuals
-    per observation (N, 2), observation camera and view names)."""
+    intrinsics over every corner seen."""
     names = sorted(cameras)
     view_names = sorted(board_T)
     ci = {c: i for i, c in enumerate(names)}
@@ -279,7 +298,7 @@ def bundle_adjust(
 
     seen = _Seen(C, V, cam_idx, view_idx, obj_idx, obj, fixed, intr, refine_intrinsics)
 
-    def residuals(p: np.ndarray):
+    def residuals(p: np.ndarray) -> np.ndarray:
         proj = _project(p, seen)
         return (proj - observed).ravel()
 
@@ -291,7 +310,9 @@ def bundle_adjust(
         assert isinstance(J, (sparray, spmatrix))  # with a sparsity, a sparse Jacobian
         return J.toarray()
 
-    def solve(start: np.ndarray, loss: str = "linear", max_nfev: int | None = None):
+    def solve(
+        start: np.ndarray, loss: str = "linear", max_nfev: int | None = None
+    ) -> OptimizeResult:
         if dense:
             # scipy leaves jac unannotated: its default, a str, is taken for its type
             return least_squares(
@@ -323,7 +344,7 @@ def bundle_adjust(
     p = sol.x
     out_cam, out_board, intr = _unpack(p, names, view_names, ref, intr, refine_intrinsics)
     res = residuals(p).reshape(-1, 2)
-    return out_cam, out_board, intr, res, cam_idx, view_idx, names, view_names
+    return Adjusted(out_cam, out_board, intr, res, cam_idx, view_idx, names, view_names)
 
 
 def world_from_floor(
@@ -385,9 +406,11 @@ def calibrate_extrinsics(
         pts = np.asarray(corners[c][v], dtype=np.float64)
         obs[(c, v)] = pts[::-1].copy() if f else pts
     sub = {c: cameras[c] for c in cams}
-    cam_T, board_T, intr, res, cam_idx, view_idx, names, view_names = bundle_adjust(
-        sub, obs, board, cam_T, board_T, ref, refine_intrinsics
-    )
+    adjusted = bundle_adjust(sub, obs, board, cam_T, board_T, ref, refine_intrinsics)
+    cam_T, board_T = adjusted.camera_poses, adjusted.board_poses
+    intr, res = adjusted.intr, adjusted.res
+    cam_idx, view_idx = adjusted.cam_idx, adjusted.view_idx
+    names, view_names = adjusted.names, adjusted.view_names
     warnings = []
     if floor is None:
         floor = sorted(board_T)[0]

@@ -9,7 +9,7 @@ at a time, worst first, and the camera is estimated again.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -126,7 +126,7 @@ def _calibrate(
     k3: bool,
     K0: np.ndarray | None = None,
     dist0: np.ndarray | None = None,
-):
+) -> tuple[float, np.ndarray, np.ndarray, list[float], Sequence[np.ndarray], Sequence[np.ndarray]]:
     flags = 0 if k3 else cv2.CALIB_FIX_K3
     if K0 is not None:
         flags |= cv2.CALIB_USE_INTRINSIC_GUESS

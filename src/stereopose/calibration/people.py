@@ -405,7 +405,7 @@ def calibrate_people(
 
 def _place_all(
     views: Views, groups: list[dict[int, int]], first: PairMatch, names: list[str], thr: float
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Every camera's pose (C, 6) in the first pair's frame and the groups' joints."""
     C = len(names)
     poses = np.zeros((C, 6))
@@ -438,7 +438,7 @@ def _adjust_all(
     X: np.ndarray,
     intr: np.ndarray,
     first: PairMatch,
-):
+) -> tuple[np.ndarray, Solution, np.ndarray, np.ndarray, np.ndarray]:
     """Two bundle adjustments, swapped detections turned back and outlying joints dropped
     between them: (poses, the solution, point of each (group, joint), observations' cameras
     and pixels)."""

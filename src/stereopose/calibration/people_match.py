@@ -86,7 +86,9 @@ class PairMatch:
     angle_deg: float
 
 
-def _candidates(views: Views, a: int, b: int):
+def _candidates(
+    views: Views, a: int, b: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]]] | None:
     """Joint correspondences of every same-frame pairing: (xa (N, 2), xb (N, 2), pairing id
     (N,)), and the pairings (detection of a, detection of b)."""
     xa, xb, pid, pairs = [], [], [], []

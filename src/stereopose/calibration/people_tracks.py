@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+from collections.abc import Iterator
 
 import cv2
 import numpy as np
@@ -84,7 +85,7 @@ def camera_tracks(views: Views, c: int) -> list[dict[int, int]]:
     return sorted(keep, key=len, reverse=True)[:MAX_TRACKS]
 
 
-def _shared(views: Views, ta: dict[int, int], tb: dict[int, int]):
+def _shared(views: Views, ta: dict[int, int], tb: dict[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Normalised joints (xa, xb) both tracks' detections are sure of, at their shared frames."""
     xa, xb = [], []
     for f in ta.keys() & tb.keys():
@@ -97,7 +98,7 @@ def _shared(views: Views, ta: dict[int, int], tb: dict[int, int]):
     return np.concatenate(xa), np.concatenate(xb)
 
 
-def _assignments(n: int, m: int):
+def _assignments(n: int, m: int) -> Iterator[list[tuple[int, int]]]:
     """Every one-to-one assignment of n tracks to m (as many pairs as the fewer has)."""
     if n <= m:
         for p in itertools.permutations(range(m), n):
@@ -107,7 +108,9 @@ def _assignments(n: int, m: int):
             yield list(zip(p, range(m), strict=True))
 
 
-def _pair(views: Views, T: dict[int, list[dict[int, int]]], a: int, b: int, thr: float):
+def _pair(
+    views: Views, T: dict[int, list[dict[int, int]]], a: int, b: int, thr: float
+) -> tuple[int, int, np.ndarray, np.ndarray, list[tuple[int, int]], np.ndarray, np.ndarray] | None:
     """(agreeing joints, R, t, pairs, xa, xb) of the best assignment of a's and b's tracks, and
     the second best's agreeing joints; None when none shares enough."""
     found = []
@@ -167,7 +170,7 @@ def _triangulate_persons(
 
 def _place_camera(
     views: Views, T: dict[int, list[dict[int, int]]], c: int, X: np.ndarray, thr: float
-):
+) -> tuple[int, np.ndarray, dict[int, int]] | None:
     """Camera c's best (inliers, pose (6,), {person: its track}) by PnP on the persons X."""
     best = None
     for pairs in _assignments(len(T[c]), len(X)):
@@ -195,7 +198,7 @@ def _reconstruct(
     T: dict[int, list[dict[int, int]]],
     start: tuple[int, int, np.ndarray, np.ndarray, list[tuple[int, int]]],
     thr: float,
-):
+) -> tuple[float, np.ndarray, set[int], list[dict[int, int]]]:
     """From one start: (median error in normalised units, poses, placed, persons)."""
     a, b, R, t, pairs = start
     C = len(views.cameras)

@@ -146,13 +146,17 @@ def _pairings(
     return np.concatenate(obj), np.concatenate(img), np.concatenate(tag)
 
 
-def _from_scratch(cam: Camera, obj: np.ndarray, img: np.ndarray):
+def _from_scratch(
+    cam: Camera, obj: np.ndarray, img: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(rvec, tvec) from every pairing's joints by RANSAC, or None."""
     found = robust_pnp(obj, img, cam.matrix, cam.distortions, RANSAC_PX, 10_000)
     return None if found is None or len(found[2]) < 6 else found[:2]
 
 
-def _from_old_pose(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]):
+def _from_old_pose(
+    cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(rvec, tvec) refined from the camera's old pose, each detection paired with the
     person it lies nearest to as seen from there (a nudged camera), or None."""
     r = cam.rotation.reshape(3, 1).copy()
@@ -188,7 +192,9 @@ def _from_old_pose(cam: Camera, pairs: list[tuple[np.ndarray, np.ndarray]]):
     return r, t
 
 
-def _settle(cam: Camera, obj: np.ndarray, img: np.ndarray, r: np.ndarray, t: np.ndarray):
+def _settle(
+    cam: Camera, obj: np.ndarray, img: np.ndarray, r: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pose refined on the joints that agree with it: (rvec, tvec, kept, errors)."""
     uv = cv2.projectPoints(obj, r, t, cam.matrix, cam.distortions)[0].reshape(-1, 2)
     err = np.linalg.norm(uv - img, axis=1)

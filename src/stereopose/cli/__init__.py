@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -431,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _handler(spec: str):
+def _handler(spec: str) -> Callable[[argparse.Namespace], int]:
     """The function named by "module:function", imported now."""
     module, _, name = spec.partition(":")
     return getattr(importlib.import_module(module), name)

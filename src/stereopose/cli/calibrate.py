@@ -14,10 +14,11 @@ from stereopose.errors import IncompleteOutputError
 from stereopose.extras import require
 
 if TYPE_CHECKING:
+    from stereopose.calibration.board import Board
     from stereopose.pipeline.calibrate import Kept
 
 
-def _board(args: argparse.Namespace):
+def _board(args: argparse.Namespace) -> Board:
     from stereopose.calibration.board import Board
 
     return Board.parse(args.board, args.square)

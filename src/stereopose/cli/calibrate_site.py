@@ -25,7 +25,7 @@ MAX_FRAMES = 600  # frames sampled evenly from the recording at most
 MIN_SHARED = 0.5  # a camera's frames that other cameras have too, at least
 
 
-def _intrinsics(path: Path):
+def _intrinsics(path: Path) -> Rig:
     from stereopose.calibration.formats import load_calibration
 
     return load_calibration(path, min_cameras=1)

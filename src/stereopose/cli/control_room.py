@@ -16,6 +16,7 @@ from stereopose.errors import ConfigError
 if TYPE_CHECKING:
     from stereopose.controlroom.enrolment import Enrolment
     from stereopose.controlroom.service import ControlPlan
+    from stereopose.controlroom.store import ControlStore
 
 USAGE = (
     "control-room [run] CONFIG.toml | control-room sites add|list|remove [NAME...] --config "
@@ -52,7 +53,7 @@ def _serve(config: Path) -> int:
     return 0
 
 
-def _enrolment(args: argparse.Namespace):
+def _enrolment(args: argparse.Namespace) -> tuple[ControlPlan, ControlStore, Enrolment]:
     """(the control room's plan, its store, the store's enrolment) of --config."""
     from stereopose.controlroom.enrolment import Enrolment
     from stereopose.controlroom.service import plan_control_room

@@ -10,9 +10,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose.cli.common import console, out
 from stereopose.errors import ConfigError
+
+if TYPE_CHECKING:
+    from stereopose.config import Config
+    from stereopose.scada.points import PointsTable
 
 
 def _resolve(base: Path, value: str) -> Path:
@@ -20,7 +25,7 @@ def _resolve(base: Path, value: str) -> Path:
     return p if p.is_absolute() else base / p
 
 
-def points_of(config_path: Path):
+def points_of(config_path: Path) -> tuple[Config, PointsTable]:
     """The points table of the service configured at `config_path`; a ConfigError naming the
     file (the configuration, its calibration or its site) otherwise."""
     from stereopose.config import load_config

@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereopose.cli.common import console, out
 from stereopose.errors import ConfigError, IncompleteOutputError, StereoposeError
+
+if TYPE_CHECKING:
+    from stereopose.site.plan import ServePlan
 
 
 def _config_path(args: argparse.Namespace) -> Path:
@@ -34,7 +38,7 @@ def _config_path(args: argparse.Namespace) -> Path:
     return Path(args.config)
 
 
-def _plan(path: Path, port: int | None):
+def _plan(path: Path, port: int | None) -> ServePlan:
     from stereopose.config import ServeConfig, load_config
     from stereopose.site.plan import plan_serve
 

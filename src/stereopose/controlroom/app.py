@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import TYPE_CHECKING, Annotated, Literal, Protocol
 
 from fastapi import APIRouter, FastAPI, HTTPException, Path, Query, Request, Response
@@ -83,8 +83,15 @@ _I64 = 2**63 - 1
 router = APIRouter()
 
 
-def _room(request: Request):
+def _room(request: Request) -> Room:
     return request.app.state.room
+
+
+def _ingest(room: Room) -> Ingest:
+    """The room's ingest; 503 in the moment between the server's start and the ingest's."""
+    if room.ingest is None:
+        raise HTTPException(503, "the control room is starting: try again in a moment")
+    return room.ingest
 
 
 def _allowed(request: Request, session: Session) -> set[str] | None:
@@ -104,7 +111,7 @@ def _check_site(request: Request, session: Session, site: str) -> None:
 @router.get("/api/health")
 def health(request: Request, response: Response) -> dict:
     room = _room(request)
-    f = room.ingest.figures()
+    f = _ingest(room).figures()
     try:
         by_state = {s: 0 for s in STATES}
         for row in room.store.sites():
@@ -131,7 +138,7 @@ def sites(request: Request, session: Viewer) -> dict:
         open_counts = room.store.open_counts()
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
-    out, offsets = [], room.ingest.clock_offsets
+    out, offsets = [], _ingest(room).clock_offsets
     for r in rows:
         h = r.health or {}
         state = r.state
@@ -226,7 +233,7 @@ def ack(
         if rec.get("acked_by"):
             response.status_code = 200
             return {"command": None, "incident": rec}
-        command = room.ingest.ask_ack(site, incident_id, session.username)
+        command = _ingest(room).ask_ack(site, incident_id, session.username)
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be written") from e
     return {"command": command, "incident": rec}
@@ -260,14 +267,14 @@ def plan(
     _check_site(request, session, site)
     room = _room(request)
     try:
-        known = site in room.ingest.known_sites() or any(
+        known = site in _ingest(room).known_sites() or any(
             r.site == site for r in room.store.sites([site])
         )
     except StoreError as e:
         raise HTTPException(503, "the control room's store cannot be read") from e
     if not known:
         raise HTTPException(404, f"no site {site!r}")
-    found = room.ingest.watch(site)
+    found = _ingest(room).watch(site)
     return JSONResponse({"site": site, **found}, headers={"Cache-Control": "no-store"})
 
 
@@ -284,7 +291,7 @@ class _Collector:
     def __init__(self, room: Room) -> None:
         self.room = room
 
-    def collect(self):
+    def collect(self) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
         ingest = self.room.ingest
         if ingest is None:  # scraped before the ingest runs: nothing of it yet
             return
@@ -338,7 +345,7 @@ class _Collector:
             lag.add_metric([site], s)
         yield lag
 
-    def describe(self):
+    def describe(self) -> list:
         return []
 
 

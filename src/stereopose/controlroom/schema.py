@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from stereopose.io.dbapi import Connection
+    from stereopose.io.dbapi import Connection, Cursor
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sites (
@@ -119,7 +119,7 @@ class Run:
     def __init__(self, db: Connection, dialect: Dialect) -> None:
         self.db, self.dialect = db, dialect
 
-    def __call__(self, sql: str, args: Sequence = ()):
+    def __call__(self, sql: str, args: Sequence = ()) -> Cursor:
         return self.db.execute(self.dialect.q(sql), args)
 
     def many(self, sql: str, rows: Sequence[Sequence]) -> int:

@@ -18,6 +18,10 @@ process runs, whatever thread makes or drops the detectors.
 from __future__ import annotations
 
 import threading
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import openvino as ov
 
 __all__ = ["ov_core"]
 
@@ -25,7 +29,7 @@ _lock = threading.Lock()
 _core = None
 
 
-def ov_core():
+def ov_core() -> ov.Core:
     """The process's openvino.Core (ImportError without OpenVINO)."""
     global _core
     with _lock:

@@ -247,7 +247,9 @@ class OnnxPoseDetector:
             logger.warning("onnx: device auto runs on %s", ", ".join(self.providers))
         logger.info("onnx: %s on %s (%s)", self.model.name, ", ".join(self.providers), precision)
 
-    def _session(self, ort: ModuleType, options: ort.SessionOptions, providers: list[Provider]):
+    def _session(
+        self, ort: ModuleType, options: ort.SessionOptions, providers: list[Provider]
+    ) -> ort.InferenceSession:
         try:
             return ort.InferenceSession(
                 str(self.model),

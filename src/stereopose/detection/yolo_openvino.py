@@ -170,7 +170,7 @@ class OpenVinoPoseDetector:
         return detect_letterboxed(self, images, imgsz, to_u8_blob)
 
 
-def _taking_bgr_bytes(net: ov.Model):
+def _taking_bgr_bytes(net: ov.Model) -> ov.Model:
     """The model with its input's preparation compiled in: it takes the letterboxed BGR
     uint8 images as they are, (N, H, W, 3), and makes them RGB float in [0, 1] (N, 3, H, W)
     itself, fused into its first layers (about 6 ms less per step of 4 full-HD cameras on 2

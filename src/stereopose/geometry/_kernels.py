@@ -18,7 +18,7 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
-def pinhole(P: np.ndarray, c: int, x0: float, x1: float, x2: float):
+def pinhole(P: np.ndarray, c: int, x0: float, x1: float, x2: float) -> tuple[float, float, bool]:
     """World point (x0, x1, x2) in camera c of P (C, 3, 4) [R | t]: ideal normalised (u, v),
     and whether it lies in front of the camera (u, v NaN when not)."""
     zc = P[c, 2, 0] * x0 + P[c, 2, 1] * x1 + P[c, 2, 2] * x2 + P[c, 2, 3]
@@ -30,7 +30,7 @@ def pinhole(P: np.ndarray, c: int, x0: float, x1: float, x2: float):
 
 
 @njit(**_JIT)
-def dist3(X: np.ndarray, g: int, a: int, b: int):
+def dist3(X: np.ndarray, g: int, a: int, b: int) -> float:
     """Distance between joints a and b of person g of X (G, J, 3)."""
     dx = X[g, a, 0] - X[g, b, 0]
     dy = X[g, a, 1] - X[g, b, 1]
@@ -39,7 +39,9 @@ def dist3(X: np.ndarray, g: int, a: int, b: int):
 
 
 @njit(**_JIT)
-def dlt_point(xy: np.ndarray, w: np.ndarray, use: np.ndarray, P: np.ndarray, out: np.ndarray):
+def dlt_point(
+    xy: np.ndarray, w: np.ndarray, use: np.ndarray, P: np.ndarray, out: np.ndarray
+) -> None:
     """Weighted DLT of one point from the views c where use[c] (C,), w[c] > 0 and xy[c] (C, 2)
     is finite; writes out (3,), NaN when singular (fewer than two views). Least squares with
     the homogeneous coordinate fixed to 1: the 3 x 3 normal equations solved by the adjugate."""
@@ -83,7 +85,7 @@ def dlt_point(xy: np.ndarray, w: np.ndarray, use: np.ndarray, P: np.ndarray, out
 
 
 @njit(**_JIT)
-def dlt_all(xy: np.ndarray, w: np.ndarray, P: np.ndarray):
+def dlt_all(xy: np.ndarray, w: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Weighted DLT (G, J, 3) of every point from all its views: xy (G, J, C, 2), w (G, J, C);
     NaN with fewer than two views."""
     G, J, C = w.shape
@@ -96,7 +98,9 @@ def dlt_all(xy: np.ndarray, w: np.ndarray, P: np.ndarray):
 
 
 @njit(**_JIT)
-def view_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray, out: np.ndarray):
+def view_errors(
+    X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray, out: np.ndarray
+) -> None:
     """Pixel distance (C,) between X (3,) reprojected and each view xy (C, 2) (NaN where either
     is missing or X is behind the camera); focal (C,) converts normalised units to pixels."""
     C = xy.shape[0]
@@ -110,7 +114,7 @@ def view_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray,
 
 
 @njit(**_JIT)
-def project_all(X: np.ndarray, P: np.ndarray):
+def project_all(X: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Points (T, J, 3) projected into every camera (C, 3, 4): (T, J, C, 2) ideal normalised
     coordinates, NaN behind a camera or for NaN input."""
     T, J, C = X.shape[0], X.shape[1], P.shape[0]
@@ -126,7 +130,9 @@ def project_all(X: np.ndarray, P: np.ndarray):
 
 
 @njit(**_JIT)
-def in_view(X: np.ndarray, P: np.ndarray, lo: np.ndarray, hi: np.ndarray, min_joints: int):
+def in_view(
+    X: np.ndarray, P: np.ndarray, lo: np.ndarray, hi: np.ndarray, min_joints: int
+) -> np.ndarray:
     """(G, C) whether >= min_joints joints of each person (G, J, 3) project inside each
     camera's image bounds lo, hi (C, 2) (ideal normalised coordinates), in front of it."""
     G, J = X.shape[0], X.shape[1]
@@ -151,7 +157,7 @@ def undistort(
     dist: np.ndarray,
     eps_px: float,
     max_iter: int,
-):
+) -> np.ndarray:
     """Distorted pixels (M, 2) of the cameras `camera` (M,) -> ideal normalised coordinates
     (M, 2), NaN staying NaN: OpenCV's iterative undistortPoints (the same fixed-point
     iteration, stopped once the point reprojects within eps_px or after max_iter steps).

@@ -50,7 +50,9 @@ class Seeker:
     the asked position is decoded forward once and kept (at most BACKWARD_BUFFER_BYTES), so a
     backward pass costs about one seek per chunk instead of one per frame."""
 
-    def __init__(self, cap: cv2.VideoCapture, frame_bytes: int, on_short: Callable[[int], None]):
+    def __init__(
+        self, cap: cv2.VideoCapture, frame_bytes: int, on_short: Callable[[int], None]
+    ) -> None:
         self.cap = cap
         self.size = max(2, BACKWARD_BUFFER_BYTES // max(frame_bytes, 1))
         self.chunk: dict[int, np.ndarray] = {}

@@ -88,7 +88,7 @@ class VideoFile:
         fps: float | None = None,
         *,
         loop: bool = False,
-    ):
+    ) -> None:
         self.path = Path(path)
         self.name = name or self.path.stem
         fps = check_fps(fps, f"{self.path}: fps")
@@ -220,7 +220,7 @@ class ImageFolder:
         fps: float | None = None,
         *,
         loop: bool = False,
-    ):
+    ) -> None:
         self.path = Path(path)
         self.name = name or self.path.name
         fps = check_fps(fps, f"{self.path}: fps")

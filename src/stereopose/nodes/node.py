@@ -28,7 +28,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -192,7 +192,7 @@ class DetectNode:
 
     # -- the cameras --------------------------------------------------------------------------
 
-    def _open(self):
+    def _open(self) -> PacedFiles | CameraSet:
         p, cfg = self.plan, self.plan.config
         # a camera with a detection substream is read from it alone: its people are found on
         # it and its picture made of it; the full stream is never opened here
@@ -215,7 +215,7 @@ class DetectNode:
             decoders=cfg.input.decoders,
         )
 
-    def _steps(self, source: PacedFiles | CameraSet):
+    def _steps(self, source: PacedFiles | CameraSet) -> Iterator[tuple[float, FrameSet]]:
         """(capture time, seconds since 1970; the FrameSet) per step with a frame."""
         if isinstance(source, PacedFiles):
             for fs in source:

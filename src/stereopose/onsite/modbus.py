@@ -18,8 +18,12 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Collection
+from typing import TYPE_CHECKING
 
 from stereopose.onsite.settings import SignalSpec
+
+if TYPE_CHECKING:
+    from pymodbus.client import ModbusTcpClient
 
 __all__ = ["Signal"]
 
@@ -76,7 +80,7 @@ class Signal:
 
     # -- the device's thread ----------------------------------------------------------------
 
-    def _connect(self):
+    def _connect(self) -> ModbusTcpClient:
         from pymodbus.client import ModbusTcpClient
 
         if self._client is None:

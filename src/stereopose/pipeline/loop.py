@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from stereopose.pipeline.stage3d import Stage3D
 from stereopose.tickets.ticket import Ticket
 from stereopose.types import Event, People2D, People3D, Rig
 from stereopose.zones.state_log import StateLogFile
+
+if TYPE_CHECKING:
+    from stereopose.pipeline.incidents import IncidentStep
 
 logger = logging.getLogger(__name__)
 
@@ -332,7 +335,7 @@ def run_incidents(
     sinks: Sequence[Sink],
     ticket: Ticket | None = None,
     zone_states: StateLogFile | None = None,
-):
+) -> IncidentStep:
     """The incident book of `serve` over a run's events (pipeline.incidents): each
     alarm-level event stamped with its incident's id and priority as the service would (ids
     from 1, the run's own), the incidents' records stored in the run's event log. ticket:

@@ -124,7 +124,7 @@ class PipelinedCameras:
     `finish`) stops detection's thread, waiting at most JOIN_S, and ends the cameras' waits.
     """
 
-    def __init__(self, cameras: Cameras, *, queue_size: int = 1, drop: bool | None = None):
+    def __init__(self, cameras: Cameras, *, queue_size: int = 1, drop: bool | None = None) -> None:
         self.inner = cameras
         self.cameras, self.stages = cameras.cameras, cameras.stages
         self.fps, self.live = cameras.fps, cameras.live

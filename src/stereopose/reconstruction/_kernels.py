@@ -33,7 +33,7 @@ MAX_SEEDS = 12
 
 
 @njit(**_JIT)
-def _seeds(w: np.ndarray, has: np.ndarray, k: int, seed: np.ndarray):
+def _seeds(w: np.ndarray, has: np.ndarray, k: int, seed: np.ndarray) -> None:
     """Into seed (C,): the views of `has`, or the k of them with the largest weights."""
     C = w.shape[0]
     n = 0
@@ -63,7 +63,7 @@ def _best_pair(
     Xk: np.ndarray,
     e: np.ndarray,
     seed: np.ndarray,
-):
+) -> bool:
     """Of every two-view solution of one joint (xy (C, 2), w (C,) among the views `has`, the
     pairs of its MAX_SEEDS most confident), the views agreeing (error < thr (C,)) with the one
     scored best by their confidence (ties to the tighter fit), into best_inl (C,); false when
@@ -105,7 +105,7 @@ def select_views(
     focal: np.ndarray,
     thr: np.ndarray,
     X_all: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per joint, the views that agree and the point they give.
 
     xy: (G, J, C, 2); w: (G, J, C) weights (0: unused); P: (C, 3, 4); focal: (C,);
@@ -172,7 +172,7 @@ def select_views(
 
 
 @njit(**_JIT)
-def _lead(lx: float, ly: float, rx: float, ry: float):
+def _lead(lx: float, ly: float, rx: float, ry: float) -> float:
     """How far the horizontal offset (lx, ly) reaches ahead, ahead being up x (rx, ry)."""
     return (ly * rx - lx * ry) / np.sqrt(rx * rx + ry * ry)
 
@@ -184,7 +184,7 @@ def body_orientation(
     thigh_margin_m: float,
     head_radius_m: float,
     head_width_m: float,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Per person (G, 17, 3): whether the labels are mirrored as a whole (the face behind the
     shoulders and the nose behind the ears, with z up) and whether the legs are (each knee
     nearer the other side's hip); see triangulate.body_orientation."""
@@ -246,7 +246,7 @@ def body_orientation(
 
 
 @njit(**_JIT)
-def chain_flips(X: np.ndarray, chains: np.ndarray, margin_m: float):
+def chain_flips(X: np.ndarray, chains: np.ndarray, margin_m: float) -> np.ndarray:
     """(G, K) whether the child pair of each chain row (parent left, parent right, child left,
     child right) of `chains` (K, 4) hangs from the other side: the cross distances to the
     parents shorter than the direct ones by more than margin_m (NaN: no)."""
@@ -269,7 +269,7 @@ def implausibility(
     bones_right: np.ndarray,
     bones: np.ndarray,
     max_m: np.ndarray,
-):
+) -> np.ndarray:
     """(G,) how far each skeleton X (G, 17, 3) is from a possible body: the sum of
     |left - right| bone lengths over the sum of their means, over the bones (B, 2) whose both
     sides are known (0 where none is), plus, for each bone of `bones` (K, 2), its length's
@@ -302,7 +302,7 @@ def place_single_views(
     centers: np.ndarray,
     R: np.ndarray,
     anchors: np.ndarray,
-):
+) -> np.ndarray:
     """Joints (NaN in X (G, J, 3)) that views report (w (G, J, C) > 0) placed on the ray of
     their strongest view, at the point nearest the first reconstructed joint of their row of
     anchors (J, A) (-1: none); two passes, so a joint can hang from one placed in the first.
@@ -370,7 +370,7 @@ def plausible(
     max_height_m: float,
     min_view_fraction: float,
     in_view_joints: int,
-):
+) -> np.ndarray:
     """(G,) which reconstructed people X (G, J, 3) are plausible; in place, the outer joint of
     each limb (limb_a -> limb_b, (L,)) longer than max_limb_m is dropped (NaN) and used
     (G, J, C) cleared for the joints not reconstructed. A person needs min_joints joints seen

@@ -69,7 +69,9 @@ def _labelings(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return Z, np.ascontiguousarray((1.0 - rel).T), np.ascontiguousarray(rel.T)
 
 
-def consistent_labels(xy: np.ndarray, w: np.ndarray, d_same: np.ndarray, d_cross: np.ndarray):
+def consistent_labels(
+    xy: np.ndarray, w: np.ndarray, d_same: np.ndarray, d_cross: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Exchange left/right labels of views so that all views of a person agree.
 
     d_same, d_cross: (G, 17, K) epipolar distances of joint j in camera a to joint j (same) or
@@ -97,7 +99,7 @@ def consistent_labels(xy: np.ndarray, w: np.ndarray, d_same: np.ndarray, d_cross
     return exchange(xy, w, swap[:, PART_OF_PAIR])
 
 
-def exchange(xy: np.ndarray, w: np.ndarray, swap: np.ndarray):
+def exchange(xy: np.ndarray, w: np.ndarray, swap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Copies of xy (G, J, C, 2), w (G, J, C) with each left/right pair of LR_PAIRS exchanged
     in the views where swap (G, 8, C) is true."""
     if not swap.any():
@@ -118,7 +120,9 @@ _HEAD_RADIUS_M = 0.25
 _HEAD_WIDTH_M = 0.3
 
 
-def body_orientation(X: np.ndarray, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05):
+def body_orientation(
+    X: np.ndarray, face_margin_m: float = 0.03, thigh_margin_m: float = 0.05
+) -> tuple[np.ndarray, np.ndarray]:
     """Which people's labels are mirrored as a whole (G,) each: flip_upper, flip_legs.
 
     Views alone cannot tell a labeling from its mirror when as many views are swapped as not.

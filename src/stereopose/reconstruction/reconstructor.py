@@ -42,7 +42,9 @@ _LIMB_A = np.array([a for a, _ in PCP_LIMBS])
 _LIMB_B = np.array([b for _, b in PCP_LIMBS])
 
 
-def _group_pair_distances(members: np.ndarray, dist: PairDistances):
+def _group_pair_distances(
+    members: np.ndarray, dist: PairDistances
+) -> tuple[np.ndarray, np.ndarray]:
     """Per group and camera pair (a < b), the per-joint epipolar distances of its detections.
 
     members: (G, C) detection index per camera (-1: none). Returns same, cross (G, 17, K) with
@@ -174,7 +176,9 @@ class Reconstructor:
 
     # -- steps ---------------------------------------------------------------------------------
 
-    def _gather(self, det: Detections, groups: list[np.ndarray]):
+    def _gather(
+        self, det: Detections, groups: list[np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The groups' detections as the triangulation takes them (C-contiguous):
         xy (G, 17, C, 2), conf (G, 17, C), size_px (G, C) and members (G, C)."""
         G, C = len(groups), len(self.rig)
@@ -198,7 +202,7 @@ class Reconstructor:
         groups: list[np.ndarray],
         dist: PairDistances,
         labels_known: bool = False,
-    ):
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Triangulate groups; labels_known: their left/right labels are consistent already
         (robust mode then skips making them so)."""
         tc = self.config.triangulation
@@ -283,7 +287,7 @@ class Reconstructor:
         used: np.ndarray,
         conf: np.ndarray,
         err: np.ndarray,
-    ):
+    ) -> tuple[People3D, np.ndarray]:
         """Plausible people only, as People3D, and the indices of their groups; members:
         (G, C) detection per camera or -1."""
         pc = self.config.plausibility

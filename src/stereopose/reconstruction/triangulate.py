@@ -36,7 +36,9 @@ from stereopose.skeleton import JOINT_INDEX, JOINT_PARTS, LR_PAIRS, PART_OF_PAIR
 _MAX_LABEL_CAMERAS = 12  # 2^C labelings are enumerated
 
 
-def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray):
+def reprojection_errors(
+    X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.ndarray
+) -> np.ndarray:
     """Pixel distance between X reprojected and the observations.
 
     X: (..., 3) broadcastable to xy's leading axes without the camera axis; xy: (..., C, 2);
@@ -47,7 +49,9 @@ def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray, focal: np.
     return np.hypot(d[..., 0], d[..., 1]) * focal
 
 
-def triangulate_weighted(xy: np.ndarray, w: np.ndarray, P: np.ndarray):
+def triangulate_weighted(
+    xy: np.ndarray, w: np.ndarray, P: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Confidence-weighted DLT over every view of each person."""
     X = triangulate_dlt(xy, P, w)
     used = (w > 0) & np.isfinite(X).all(axis=-1, keepdims=True)
@@ -85,7 +89,7 @@ def triangulate_pair(
     E: np.ndarray,
     focal: np.ndarray,
     score_by: PairScore,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """The reference method: per person, the camera pair (j, k) minimising
     a * mean_i d_i^{jk} - b * (mean_i conf_i^j + mean_i conf_i^k), then two-view DLT.
 
@@ -127,7 +131,7 @@ def triangulate_robust(
     robust: Robust,
     pair_distances: tuple[np.ndarray, np.ndarray] | None = None,
     rays: tuple[np.ndarray, np.ndarray] | None = None,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Weighted DLT over the views that agree, with left/right swaps of the detector corrected.
 
     A view agrees when it reprojects within max(inlier_px, inlier_rel * size_px). Joints where
@@ -225,7 +229,7 @@ def _relabel_implausible(
     size_px: np.ndarray,
     robust: Robust,
     max_implausibility: float = 0.15,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Solve again the people whose skeleton is implausible by more than max_implausibility;
     solved: triangulate_robust's (X, used, xy, w, err), returned with them solved again.
 
@@ -307,7 +311,7 @@ def complete_single_views(
     w: np.ndarray,
     centers: np.ndarray,
     rays_R: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Place joints seen in one view only (NaN in X) on that view's ray.
 
     X: (G, 17, 3); used: (G, 17, C) updated in place with the view used; xy: (G, 17, C, 2)
@@ -330,7 +334,7 @@ def choose_views(
     focal: np.ndarray,
     thr: np.ndarray,
     X_all: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per joint, the views that agree and the point they give.
 
     xy: (G, J, C, 2) ideal normalised coordinates; w: (G, J, C) weights (0: unused); P:

@@ -365,7 +365,7 @@ class OpcuaServer(ClosesOnce):
     async def _resync_from(self, desk: IncidentSide) -> None:
         """The book's incidents as the conditions (after drops, or when attached)."""
 
-        def read():
+        def read() -> list[IncidentRecord]:
             with desk.lock:
                 return desk.book.incidents()
 

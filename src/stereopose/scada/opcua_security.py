@@ -32,6 +32,7 @@ from stereopose.errors import HashingBusyError, StereoposeError
 from stereopose.login_limit import LoginLimiter, TooManyAttemptsError
 
 if TYPE_CHECKING:
+    from asyncua.crypto.validator import CertificateValidator
     from asyncua.server.binary_server_asyncio import OPCUAProtocol
     from asyncua.server.server import Server
 
@@ -68,7 +69,7 @@ class _CallerSession(InternalSession):
 
     def activate_session(
         self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
-    ):
+    ) -> ua.ActivateSessionResult:
         peer = self.name  # asyncua's: the transport's peer name, (host, port)
         host = peer[0] if isinstance(peer, (tuple, list)) and peer else str(peer)
         token = _PEER.set(str(host))
@@ -175,7 +176,7 @@ def caller() -> User | None:
     return _CALLER.get()
 
 
-async def trusted_clients(folder: Path):
+async def trusted_clients(folder: Path) -> CertificateValidator:
     """Only the client certificates in `folder` (and those their CAs there signed)."""
     from asyncua.crypto.truststore import TrustStore
     from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric.types import (
         CertificatePublicKeyTypes,
+        PrivateKeyTypes,
         PublicKeyTypes,
     )
 
@@ -143,7 +144,9 @@ def opcua_settings(config_path: str | Path, config: Config, out_dir: Path) -> Op
     )
 
 
-def _load_pair(path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Path, key: Path):
+def _load_pair(
+    path: Path | None, cert_bytes: bytes, key_bytes: bytes, cert: Path, key: Path
+) -> tuple[x509.Certificate, PrivateKeyTypes]:
     """(certificate, key) parsed and checked to be a pair; a ConfigError otherwise."""
     from cryptography import x509
     from cryptography.hazmat.primitives.serialization import load_pem_private_key

@@ -61,6 +61,8 @@ from stereopose.scada.ticket_slots import SlotRow, TicketSlots, deviating
 from stereopose.tickets.ticket import TICKET_SLOTS
 
 if TYPE_CHECKING:
+    from asyncua.common.event_objects import OffNormalAlarm
+
     from stereopose.fence import Site
     from stereopose.types import Rig
 
@@ -426,7 +428,7 @@ class SiteSpace:
         wall_start: float | None,
         last_severity: int,
         retain: bool,
-    ):
+    ) -> OffNormalAlarm:
         def at(t: float | None) -> datetime.datetime | None:
             return None if t is None or wall_start is None else _utc(wall_start + t)
 

@@ -66,7 +66,9 @@ def _rect(p: np.ndarray, n: np.ndarray, c0: float, c1: float, half: float) -> np
     )
 
 
-def make_panels(rng: np.random.Generator, room: tuple[float, float], count: int = 3):
+def make_panels(
+    rng: np.random.Generator, room: tuple[float, float], count: int = 3
+) -> tuple[Panel, ...]:
     """`count` panels on different walls, 1.5 m or more from the corners."""
     W, D = room
     lo = 1.5 + PANEL_W / 2
@@ -243,7 +245,7 @@ def _routine(
     worker: int,
     fall_at: float | None = None,
     down_s: float = 3.0,
-):
+) -> tuple[_Script, list[Fall]]:
     """Acts of a worker moving between activities; with fall_at (s) one fall there or after."""
     s = _Script(rng, _interior(rng, room), float(rng.uniform(-np.pi, np.pi)))
     s.t = -float(rng.uniform(0.0, 3.0))
@@ -295,7 +297,9 @@ def _idle(s: _Script, until: float) -> None:
         s.add("stand", min(left, float(s.rng.uniform(2.0, 6.0))), heading=turn, ease_s=0.6)
 
 
-def _work(rng: np.random.Generator, panels: Sequence[Panel], duration_s: float, num_people: int):
+def _work(
+    rng: np.random.Generator, panels: Sequence[Panel], duration_s: float, num_people: int
+) -> list[_Script]:
     """Scripts of workers doing jobs at the panels one at a time; the others wait."""
     scripts = [
         _Script(rng, _wait(rng), float(rng.uniform(-np.pi, np.pi))) for _ in range(num_people)

@@ -244,7 +244,9 @@ def _ghosts(
     return out
 
 
-def _visibility(truth: np.ndarray, rig: Rig, noise: DetectorNoise):
+def _visibility(
+    truth: np.ndarray, rig: Rig, noise: DetectorNoise
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What each camera sees of the true joints (T, N, 17, 3): pixels uv (T, C, N, 17, 2),
     joints in the image ok (T, C, N, 17), whether the camera sees the person's back
     (T, C, N), joints occluded by a nearer person occ (T, C, N, 17), and each person's scale in
@@ -298,7 +300,7 @@ def _frames(
     ghosts: dict[tuple[int, int], np.ndarray],
     rig: Rig,
     rng: np.random.Generator,
-):
+) -> tuple[list[dict[str, People2D]], list[dict[str, np.ndarray]]]:
     """Per frame and camera the detected people (kp (T, C, N, 17, 3) where detected
     (T, C, N)) with the ghosts added, in a random order, clipped to the image; and the true
     worker behind each (-1: a ghost)."""

@@ -175,7 +175,9 @@ def _follow(sup: _Script, op: _Script, rng: np.random.Generator, leave: tuple | 
     sup.add("stand", max(op.t - sup.t, 0.0) + 3.0, ease_s=0.6)
 
 
-def _scripts(variant: str, rng: np.random.Generator):
+def _scripts(
+    variant: str, rng: np.random.Generator
+) -> tuple[_Script, _Script | None, list[tuple[str, str | None]], tuple[str, ...], list[str], int]:
     """The operator's and the supervisor's scripts and the truth of `variant`."""
     op = _Script(rng, np.array([6.0, 5.0]), np.radians(FACING))
     op.add("stand", 1.5, ease_s=0.6)

@@ -130,7 +130,7 @@ def _legs_and_trunk(
     g: np.ndarray,
     ph: np.ndarray,
     beta: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Hips, knees, ankles and shoulders into out (T, 17, 3); returns the shoulder centre and
     the spine direction (T, 3) each."""
     h1 = h[:, 0]

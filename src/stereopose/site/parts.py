@@ -34,6 +34,7 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Guarded
+from stereopose.io.sinks.health import ReportsHealth
 from stereopose.io.source import SourceStats
 from stereopose.io.summary import RunSummary
 from stereopose.pipeline.loop import Source, SourceStep
@@ -271,12 +272,13 @@ class StatusSink(ClosesOnce):
         return [self.path] if self.write_now() else []
 
 
-def output_health(sink: Guarded) -> Callable[[], tuple[bool, int, str | None]]:
+def output_health(out: ReportsHealth, sink: Guarded) -> Callable[[], tuple[bool, int, str | None]]:
     """The probe of an alarm output (io.sinks.health) for ServiceState.register_output:
-    its own health(), and down once its Guarded wrapper has stopped it after a failure."""
+    its own health(), and down once its Guarded wrapper `sink` has stopped it after a
+    failure."""
 
     def probe() -> tuple[bool, int, str | None]:
-        ok, waiting, reason = sink.health()
+        ok, waiting, reason = out.health()
         if sink.failed:  # the failure itself (it may name a file) is logged
             return False, waiting, "stopped after a failure (see the log)"
         return ok, waiting, reason

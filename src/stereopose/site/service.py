@@ -48,9 +48,11 @@ from stereopose.zones.power_state import PowerBoard, ZoneStates
 
 if TYPE_CHECKING:
     from stereopose.alarms import Change, IncidentRecord
+    from stereopose.io.sinks.clips import ClipSink
     from stereopose.nodes.fusion import NodeInput
     from stereopose.onsite.service import OnSite
     from stereopose.pipeline.incidents import IncidentStep
+    from stereopose.scada.iec104 import Outstation
     from stereopose.scada.opcua_settings import OpcuaSettings
     from stereopose.site.health.calib_keeper import CalibrationKeeper
     from stereopose.types import Rig
@@ -260,7 +262,7 @@ class SiteService:
         sink, name = guard(out, out.label), out.output_name
         self.incident_outputs.append(out.write_changes)
         self.state.register_queue(name, out.queued, lambda: out.dropped)
-        self.state.register_output(name, output_health(sink))
+        self.state.register_output(name, output_health(out, sink))
         self.probes[name] = out.figures
         return sink
 
@@ -273,7 +275,7 @@ class SiteService:
         self._started("the outbox", self._close_outbox)
         self._watch("outbox", self.outbox.ensure_running)
 
-    def _iec104(self, cfg: Config, wall_start: float):
+    def _iec104(self, cfg: Config, wall_start: float) -> Outstation:
         """The IEC 60870-5-104 outstation (scada.iec104): the zone, camera and service events
         and the incident changes as points, `service degraded` from the health answer."""
         from stereopose.scada.iec104 import Iec104Settings, Outstation
@@ -289,7 +291,7 @@ class SiteService:
         self.iec104 = station
         return station
 
-    def _clips(self, cfg: Config, wall_start: float):
+    def _clips(self, cfg: Config, wall_start: float) -> ClipSink:
         from stereopose.io.sinks.clips import ClipSink
         from stereopose.viz.clips import clip_drawer
 

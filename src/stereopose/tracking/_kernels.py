@@ -14,7 +14,9 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
 @njit(**_JIT)
-def predict_cov(p00: float, p01: float, p11: float, dt: float, q: float):
+def predict_cov(
+    p00: float, p01: float, p11: float, dt: float, q: float
+) -> tuple[float, float, float]:
     """One constant-velocity prediction of a joint's covariance (position, velocity) over dt
     seconds, white-noise acceleration of spectral density q (m^2/s^3)."""
     return (
@@ -35,7 +37,7 @@ def correct(
     a01: float,
     a11: float,
     r2: float,
-):
+) -> tuple[float, float, float]:
     """One Kalman correction of a joint by the innovation (yx, yy, yz) with measurement
     variance r2: x (3,) and v (3,) in place; returns the new covariance terms."""
     s = a00 + r2
@@ -59,7 +61,7 @@ def kalman_predict(
     dt: np.ndarray,
     q: np.ndarray,
     moving: np.ndarray,
-):
+) -> None:
     """Every joint advanced by dt (T,) seconds, in place: x, v (T, 17, 3), p00, p01, p11
     (T, 17); q (17,) per joint; moving (T,) false: velocity zeroed first (held in place)."""
     T, J = p00.shape
@@ -89,7 +91,7 @@ def kalman_update(
     gate_sigmas: float,
     reset_frames: int,
     initial_var: float,
-):
+) -> np.ndarray:
     """Gated constant-velocity Kalman correction of joints, in place (see
     tracking.filter.JointFilters.update, whose arithmetic this is, joint by joint).
 
@@ -139,7 +141,7 @@ def kalman_replay(
     t: np.ndarray,
     q: np.ndarray,
     initial_var: float,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The online filter run again over one track's measurements as it took them: z (K, 17, 3)
     at times t (K,), code (K, 17) 0 not used, 1 accepted, 2 restarted; r2 (K, 17) their
     variances; q (17,). Returns per step the filtered x, v (K, 17, 3) and covariance
@@ -189,7 +191,7 @@ def bones_observe(
     window: int,
     min_samples: int,
     outlier: float,
-):
+) -> None:
     """Add the limb lengths of measured joints (n, 17, 3) of tracks `rows` to their running
     means length, count (T, L), in place (see tracking.bones.BoneLengths.observe)."""
     n, L = rows.shape[0], parent.shape[0]
@@ -222,7 +224,7 @@ def bones_apply(
     parent: np.ndarray,
     child: np.ndarray,
     min_samples: int,
-):
+) -> None:
     """X (n, 17, 3) with each limb of tracks `rows` set to its running length where that is
     known from min_samples samples, the trunk outwards (parents before children), in place
     (see tracking.bones.BoneLengths.apply)."""

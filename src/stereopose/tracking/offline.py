@@ -107,7 +107,7 @@ def smooth_track(
 
 def smooth_people(
     people_frames: Sequence[People3D], logs: dict[int, TrackLog], fps: float, q: np.ndarray
-):
+) -> list[People3D]:
     """The tracked people of every frame with their joints two-way smoothed.
 
     people_frames: the online output (People3D per frame, ids persistent); logs: per id, the

@@ -4,6 +4,7 @@ the rig with its board positions seen from above and from the side."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -11,7 +12,7 @@ from stereopose.calibration.board import Board
 from stereopose.types import Rig
 
 
-def _plt():
+def _plt() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg")

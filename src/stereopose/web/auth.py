@@ -247,7 +247,7 @@ class Sessions:
 # -- the routers' dependencies -------------------------------------------------------------
 
 
-def console_parts(request: Request):
+def console_parts(request: Request) -> LoginParts:
     """The app's logins and the console's running parts (Logins, or site.http.web.Console);
     503 when the app has none."""
     parts = request.app.state.console

@@ -32,7 +32,7 @@ class ConsoleFiles(StaticFiles):
     """StaticFiles with the page's headers; no directory listings, no links followed out."""
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        async def with_headers(message: Message):
+        async def with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
                 extra = [(k.lower().encode(), v.encode()) for k, v in PAGE_HEADERS.items()]
                 message = {**message, "headers": [*message.get("headers", []), *extra]}

@@ -37,7 +37,7 @@ def _state() -> ServiceState:
 
 def _watch(state: ServiceState, name: str, sink, failures: dict) -> Guarded:
     guarded = Guarded(sink, name, failures)
-    state.register_output(name, output_health(guarded))
+    state.register_output(name, output_health(sink, guarded))
     return guarded
 
 

@@ -88,3 +88,19 @@ def test_the_plotly_bundle_adds_no_inline_style_the_page_does_not_turn_off():
     )
     assert guards and set(guards) <= ids, f"plotly's style ids {guards} not in the page"
     assert Path(CONSOLE_DIR / "plotly.css").read_text().count(".js-plotly-plot") > 20
+
+
+def test_both_consoles_log_in_through_one_module():
+    """The login flow (the form, the session found again, a logout) is login.js's alone: the
+    site's console and the control room's use it, neither asks the login endpoints itself."""
+    room = CONSOLE_DIR.parents[2] / "controlroom" / "console" / "room.js"
+    consoles = [*CONSOLE_DIR.glob("*.js"), room]
+    asking = [
+        js.name
+        for js in consoles
+        if js.name not in ("login.js", "api.js")
+        and re.search(r"api\.(login|logout|me|hasSessionCookie)\(", js.read_text("utf-8"))
+    ]
+    assert asking == []
+    assert 'from "./login.js"' in (CONSOLE_DIR / "console.js").read_text("utf-8")
+    assert 'from "/console/login.js"' in room.read_text("utf-8")

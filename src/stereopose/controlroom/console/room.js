@@ -4,6 +4,7 @@
 
 import * as api from "/console/api.js";
 import { byId } from "/console/dom.js";
+import { Login } from "/console/login.js";
 
 const POLL_MS = 2000;
 const PLAN_MS = 1000;
@@ -47,72 +48,33 @@ class Room {
     this.site = null;
     this.timer = null;
     this.planTimer = null;
-    api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
-    byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
-    byId("logout").addEventListener("click", () => this.onLogout());
+    this.login = new Login({
+      enter: (user) => this.enter(user),
+      leave: () => this.leave(),
+      settle: async () => this.stop(),
+    });
     for (const tab of document.querySelectorAll(".tab")) {
       tab.addEventListener("click", () => this.showTab(tab.dataset.tab));
     }
   }
 
-  async start() {
-    if (!api.hasSessionCookie()) {
-      this.showLogin();
-      return;
-    }
-    try {
-      this.enter(await api.me());
-    } catch {
-      this.showLogin();
-    }
+  start() {
+    return this.login.start();
   }
 
-  showLogin(message = "") {
+  /** Nothing more asked of the API (a logout, or the login shown). */
+  stop() {
     clearInterval(this.timer);
     clearInterval(this.planTimer);
+  }
+
+  leave() {
+    this.stop();
     this.user = null;
-    byId("console").hidden = true;
-    byId("login").hidden = false;
-    byId("login-error").textContent = message;
-    byId("login-password").value = "";
-    byId(byId("login-user").value ? "login-password" : "login-user").focus();
-  }
-
-  async onLogin(event) {
-    event.preventDefault();
-    const button = byId("login-submit");
-    button.disabled = true;
-    byId("login-error").textContent = "";
-    try {
-      this.enter(await api.login(byId("login-user").value.trim(), byId("login-password").value));
-    } catch (error) {
-      const status = error instanceof api.ApiError ? error.status : 0;
-      byId("login-error").textContent = status === 401 ? "Wrong user name or password."
-        : status === 429 ? "Too many attempts: wait a moment and try again."
-        : `Login failed: ${error.detail || error.message}`;
-    } finally {
-      button.disabled = false;
-      byId("login-password").value = "";
-    }
-  }
-
-  async onLogout() {
-    clearInterval(this.timer);
-    clearInterval(this.planTimer);
-    try {
-      await api.logout();
-    } catch {
-      // the session is gone either way
-    }
-    this.showLogin("Logged out.");
   }
 
   enter(user) {
     this.user = user;
-    byId("user").textContent = `${user.username} (${user.role})`;
-    document.body.dataset.role = user.role;
-    byId("login").hidden = true;
-    byId("console").hidden = false;
     this.showTab("sites");
     clearInterval(this.timer);
     this.timer = setInterval(() => this.refresh(), POLL_MS);

@@ -108,7 +108,7 @@ class Guarded:
         self.stage = sink.stage
         self.failed = False
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> object:
         return getattr(self.__dict__["sink"], name)
 
     def write(self, frame: FrameResult) -> None:

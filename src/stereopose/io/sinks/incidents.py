@@ -23,11 +23,15 @@ import sqlite3
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.request import pathname2url
 
 from stereopose.alarms import IncidentRecord
 from stereopose.alarms.incident import IncidentError, with_wall_times
 from stereopose.io.sinks.eventdb import connect_writer, read_mark, reading, take
+
+if TYPE_CHECKING:
+    from stereopose.io.dbapi import Row
 
 __all__ = [
     "IncidentFilters",
@@ -250,7 +254,7 @@ def incident_of_event(path: str | Path, event_id: int) -> int | None:
     if not path.is_file():
         return None
 
-    def read():
+    def read() -> Row | None:
         db = _ro(path)
         try:
             cols = {r[1] for r in db.execute("PRAGMA table_info(events)")}

@@ -34,7 +34,9 @@ class Retained:
     """The retained states (see the module). topics: the sink's (`site`, `warnings`);
     zone_base: the zones' topic prefix; zone_names: the zones known at the start."""
 
-    def __init__(self, topics: Mapping[str, str], zone_base: str, zone_names: Iterable[str]):
+    def __init__(
+        self, topics: Mapping[str, str], zone_base: str, zone_names: Iterable[str]
+    ) -> None:
         self.topics, self.zone_base = topics, zone_base
         self.zones: dict[str, tuple[set[int], float | None, int | None]] = {
             z: (set(), None, None) for z in zone_names

@@ -18,6 +18,7 @@ from stereopose.errors import ConfigError
 logger = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
+    import paho.mqtt.client as mqtt
     import paho.mqtt.client as paho
 
 __all__ = ["MqttSettings", "make_client", "topic_name", "topic_part"]
@@ -87,7 +88,7 @@ class MqttSettings:
             )
 
 
-def make_client(s: MqttSettings, client_id: str):
+def make_client(s: MqttSettings, client_id: str) -> mqtt.Client:
     """A paho client (MQTT 3.1.1) with the settings' login, TLS (a ConfigError naming
     mqtt.ca_file when its CAs cannot be loaded) and reconnect backoff; callbacks are the
     caller's."""

@@ -44,7 +44,9 @@ def _medians(d: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return 0.5 * (s[rows, np.maximum(n - 1, 0) // 2] + s[rows, n // 2])
 
 
-def reprojection_errors(px: np.ndarray, conf: np.ndarray, detections: np.ndarray):
+def reprojection_errors(
+    px: np.ndarray, conf: np.ndarray, detections: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixel distances between people's 3D joints projected into the cameras and the
     detections they were reconstructed from, over the joints with conf > 0.5 in both.
 

@@ -31,14 +31,15 @@ from stereopose.errors import CalibrationError, StereoposeError
 from stereopose.web.auth import Admin, Viewer
 
 if TYPE_CHECKING:
-    from stereopose.site.health.survey_desk import SolveJob
+    from stereopose.site.health.calib_keeper import CalibrationKeeper
+    from stereopose.site.health.survey_desk import SolveJob, SurveyDesk
 
 router = APIRouter(tags=["calibration"])
 
 _NAME = Path(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.\-]+$")
 
 
-def _keeper(request: Request):
+def _keeper(request: Request) -> CalibrationKeeper | None:
     desk = request.app.state.calibration
     return None if desk is None else desk.keeper
 
@@ -73,7 +74,7 @@ class PointsPut(BaseModel):
     cameras: dict[str, dict[str, list[float]]] = Field(max_length=1_000)
 
 
-def _survey(request: Request):
+def _survey(request: Request) -> SurveyDesk:
     desk = request.app.state.calibration
     survey = None if desk is None else desk.survey
     if survey is None:

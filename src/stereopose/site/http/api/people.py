@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import JSONResponse
 
 from stereopose.site.http.web import Console
 from stereopose.web.auth import Viewer, console_parts
 
+if TYPE_CHECKING:
+    from stereopose.site.live import LiveHub
+
 router = APIRouter(tags=["live"])
 
 
-def hub_of(parts: Console):
+def hub_of(parts: Console) -> LiveHub:
     if parts.hub is None:
         raise HTTPException(503, "no live data on this server")
     return parts.hub

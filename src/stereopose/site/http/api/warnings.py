@@ -43,7 +43,7 @@ class WarningsDesk:
         self.onsite: OnSite | None = None
 
 
-def _onsite(request: Request):
+def _onsite(request: Request) -> OnSite:
     desk = request.app.state.warnings
     onsite = desk.onsite if desk is not None else None
     if onsite is None:

@@ -7,6 +7,7 @@ import { byId } from "./dom.js";
 import { describeIncident, Feed } from "./feed.js";
 import { FloorPlan } from "./floorplan.js";
 import { History } from "./history.js";
+import { ENDED, Login } from "./login.js";
 import { OnSitePanel } from "./onsite.js";
 import { Replay } from "./replay.js";
 import { SiteEditor } from "./site.js";
@@ -64,15 +65,18 @@ class Console {
       zones: (body) => this.onZones(body.zones || []),
       cameras: (body) => this.onCameras(body.cameras || []),
       ack: (body) => this.feed.acked(body.id, body.ack),
-      logout: () => this.showLogin("Your session has ended: log in again."),
+      logout: () => this.login.show(ENDED),
     }, (up) => this.onLink(up));
     this.tab = "live";
     this.linkWasDown = false;
     this.pendingPeople = null;
     this.staleTimer = null;
-    api.whenUnauthorized(() => this.showLogin("Your session has ended: log in again."));
-    byId("login-form").addEventListener("submit", (e) => this.onLogin(e));
-    byId("logout").addEventListener("click", () => this.onLogout());
+    this.login = new Login({
+      enter: (user) => this.enter(user),
+      leave: () => this.leave(),
+      settle: () => this.settle(),
+      beforeSubmit: () => this.feed.unlockSound(), // the login's click lets the sound start
+    });
     byId("link").addEventListener("click", () => {
       if (this.user && byId("link").classList.contains("ended")) this.live.start();
     });
@@ -85,19 +89,12 @@ class Console {
     }
   }
 
-  async start() {
-    if (!api.hasSessionCookie()) {
-      this.showLogin();
-      return;
-    }
-    try {
-      this.enter(await api.me());
-    } catch {
-      this.showLogin();
-    }
+  start() {
+    return this.login.start();
   }
 
-  showLogin(message = "") {
+  /** Everything the console asks stopped, its panels hidden (the login is shown). */
+  leave() {
     this.live.stop();
     clearInterval(this.staleTimer);
     clearInterval(this.ratesTimer);
@@ -110,35 +107,10 @@ class Console {
     this.replay.close();
     this.feed.sound.sounding(false);
     this.user = null;
-    byId("console").hidden = true;
-    byId("login").hidden = false;
-    byId("login-error").textContent = message;
-    byId("login-password").value = "";
-    byId(byId("login-user").value ? "login-password" : "login-user").focus();
   }
 
-  async onLogin(event) {
-    event.preventDefault();
-    this.feed.unlockSound();
-    const button = byId("login-submit");
-    button.disabled = true;
-    byId("login-error").textContent = "";
-    try {
-      const answer = await api.login(byId("login-user").value.trim(), byId("login-password").value);
-      this.enter(answer);
-    } catch (error) {
-      const status = error instanceof api.ApiError ? error.status : 0;
-      byId("login-error").textContent = status === 401 ? "Wrong user name or password."
-        : status === 429 ? "Too many attempts: wait a moment and try again."
-        : `Login failed: ${error.detail || error.message}`;
-    } finally {
-      button.disabled = false;
-      byId("login-password").value = "";
-    }
-  }
-
-  async onLogout() {
-    // nothing more asked with this session: the pictures in flight are let land first
+  /** Before a logout: nothing more asked with this session, the pictures in flight let land. */
+  async settle() {
     this.live.stop();
     clearInterval(this.ratesTimer);
     clearInterval(this.onsiteTimer);
@@ -146,24 +118,14 @@ class Console {
     await this.strip.idle();
     await this.ratesPending;
     await this.onsite.pending;
-    try {
-      await api.logout();
-    } catch {
-      // the session is gone either way
-    }
-    this.showLogin("Logged out.");
   }
 
   async enter(user) {
     this.user = user;
-    byId("user").textContent = `${user.username} (${user.role})`;
-    document.body.dataset.role = user.role;
     this.feed.setRole(user.role);
     this.tickets.setRole(user.role);
     this.site.setRole(user.role);
     this.onsite.setRole(user.role);
-    byId("login").hidden = true;
-    byId("console").hidden = false;
     this.live.start();
     this.showTab(this.tab);
     clearInterval(this.staleTimer);
