@@ -25,6 +25,7 @@ from stereopose.io.sinks.eventwriter import SqliteSink
 from stereopose.io.sinks.mqtt import MqttSettings
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.step_rules import step_chain
+from stereopose.site.desk import IncidentDesk
 from stereopose.site.eventlog import EventLog
 from stereopose.site.outbox import LogOutbox, OutboxPace
 from stereopose.types import Event, People3D
@@ -61,6 +62,7 @@ class Site:
         name: str = "north",
         pace: OutboxPace | None = None,
         plan: dict | None = None,
+        desk: IncidentDesk | None = None,
     ) -> None:
         self.t, self.frame = 0.0, 0
         self.sink = SqliteSink(
@@ -78,7 +80,8 @@ class Site:
             _settings(port, name),
             EventLog(folder / f"{name}.sqlite"),
             pace or OutboxPace(),
-            acknowledger=self.step.acknowledge,
+            # serve's: the desk's acknowledge, the step attached to it once it runs
+            acknowledger=self.step.acknowledge if desk is None else desk.acknowledge,
             plan=plan,
         )
 
@@ -216,6 +219,29 @@ def test_an_ack_asked_centrally_reaches_the_site_and_comes_back(broker, room, tm
             lambda: (_central(store, "north", other) or {}).get("acked_by") == "sam",
             "the site's ack in the control room",
         )
+    finally:
+        site.close()
+
+
+def test_an_ack_asked_before_the_sites_book_runs_is_unavailable_then_done(broker, room, tmp_path):
+    """serve makes the outbox before the frame loop runs the incident book: a command that
+    comes meanwhile is answered "unavailable" (not "unknown"), and one asked once the book
+    runs acknowledges."""
+    store, ingest = room
+    desk = IncidentDesk()
+    site = Site(tmp_path, broker.port, desk=desk)
+    try:
+        inc = site.enter()
+        wait_until(lambda: _central(store, "north", inc) is not None, "the incident there")
+        early = ingest.ask_ack("north", inc, "olga")
+        wait_until(lambda: not store.pending_commands(), "the early command answered")
+        desk.attach(site.step)
+        late = ingest.ask_ack("north", inc, "olga")
+        wait_until(lambda: site.record(inc).acked_by == "olga via central", "the site's ack")
+        wait_until(lambda: not store.pending_commands(), "the later command answered")
+        with store.reading("read the commands") as run:
+            results = dict(run("SELECT id, result FROM commands").fetchall())
+        assert results == {early: "unavailable", late: "acknowledged"}
     finally:
         site.close()
 

@@ -46,6 +46,7 @@ from stereopose.scada.opcua_settings import (  # noqa: E402
     application_certificate,
     opcua_settings,
 )
+from stereopose.site.desk import IncidentDesk  # noqa: E402
 from stereopose.types import Event, People3D  # noqa: E402
 from stereopose.web.users import UserStore  # noqa: E402
 
@@ -171,8 +172,10 @@ def running(
     """A started server; db: the event log the step stores its incidents in, as serve's;
     limiter: the console's login limiter, shared."""
     store = store or user_store(folder)
-    server = OpcuaServer(settings(folder, **kw), ZONES, CAMERAS, store, limiter=limiter)
-    server.wall_start = WALL_START
+    desk = IncidentDesk()  # as serve: the server made with the desk, the step attached later
+    server = OpcuaServer(
+        settings(folder, **kw), ZONES, CAMERAS, store, incidents=desk, limiter=limiter
+    )
     script = Script()
     site = Site(server, None, script, store, db)  # type: ignore[arg-type]
     site.step = IncidentStep(
@@ -183,7 +186,8 @@ def running(
         wall_start=WALL_START,
     )
     server.start()
-    server.attach(site.step)
+    desk.attach(site.step)
+    server.show_book()
     try:
         yield site
     finally:
@@ -845,7 +849,13 @@ def test_a_port_taken_is_a_clear_error(tmp_path):
         s.bind(("127.0.0.1", 0))
         s.listen()
         taken = s.getsockname()[1]
-        server = OpcuaServer(settings(tmp_path, port=taken), ZONES, CAMERAS, user_store(tmp_path))
+        server = OpcuaServer(
+            settings(tmp_path, port=taken),
+            ZONES,
+            CAMERAS,
+            user_store(tmp_path),
+            incidents=IncidentDesk(),
+        )
         with pytest.raises(Exception, match=r"cannot (start|listen)"):
             server.start()
 

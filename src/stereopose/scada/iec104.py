@@ -1,11 +1,11 @@
 """serve's IEC 60870-5-104 outstation (controlled station) over c104's Server (lib60870).
 
     station = Outstation(Iec104Settings.from_config(cfg.iec104), points_table(site, rig),
-                         wall_start=wall_start, status=lambda: state.snapshot().status)
+                         wall_start=wall_start, status=lambda: state.snapshot().status,
+                         acknowledger=desk.acknowledge)  # the commands' way to the book
     station.write(frame)              # a sink of the frame loop: zone, camera, service events
     station.write_changes(changes)    # an incident output (alarms.book.Change)
     station.incidents(records)        # the open incidents at start (a restart restored them)
-    station.acknowledger = step.acknowledge   # the commands' way to the incident book
     station.close()
 
 The points are those of stereopose.scada.points (what `stereopose points` prints), in one
@@ -97,7 +97,8 @@ class Outstation(ClosesOnce):
     """See the module. settings: Iec104Settings; table: the points (scada.points);
     wall_start: the Unix time of the events' t = 0; status(): the health answer's status
     ("ok", "degraded", "down"), read on the outstation's thread, or None (never degraded);
-    acknowledger(incident_id, by): the incident book's acknowledge (commands), settable later.
+    acknowledger(incident_id, by): the incident book's acknowledge (commands; None: each
+    command refused).
     Starts serving at once; an Iec104Error when the port cannot be taken."""
 
     stage = "write"

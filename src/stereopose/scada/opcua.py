@@ -1,11 +1,11 @@
 """serve's OPC UA server: the site in an address space, each incident an alarm condition.
 
-    server = OpcuaServer(settings, zones, cameras, users)   # scada.opcua_settings, UserStore
+    server = OpcuaServer(settings, zones, cameras, users,   # scada.opcua_settings, UserStore
+                         incidents=desk)  # site.desk.IncidentDesk: the book, once it runs
     server.start()                 # listening once it returns (a StereoposeError otherwise)
-    server.wall_start = ...        # the Unix time of the service's t = 0
     server.write(frame)            # the frame loop: zone occupancy, cameras, people (a sink)
     server.write_changes(changes)  # an incident output (alarms.Change)
-    server.attach(desk)            # the incident step: acknowledgements, the open incidents
+    server.show_book()             # the book runs: its open incidents shown (restored ones)
     server.close()
 
 asyncua is asyncio: the server runs on its own thread with its own event loop. The frame loop
@@ -92,7 +92,9 @@ _ACK = ua.NodeId(ObjectIds.AcknowledgeableConditionType_Acknowledge)  # pyright:
 class OpcuaServer(ClosesOnce):
     """See the module. zones, cameras: what the address space shows; users: the console's
     users (web.users.UserStore: verify(name, password) and get(name) give a user with
-    name, role and stamp); status(): the service's health status (ok / degraded / down),
+    name, role and stamp); incidents: the incident book's desk (scada.opcua_ack.IncidentSide,
+    site.desk.IncidentDesk: the book once the frame loop runs it, its wall_start the wall
+    times' origin); status(): the service's health status (ok / degraded / down),
     polled; limiter: the console's login limiter (stereopose.login_limit), so that guesses here
     and there count together (None: one of its own)."""
 
@@ -105,14 +107,14 @@ class OpcuaServer(ClosesOnce):
         cameras: Sequence[CameraNode],
         users: UserStore,
         *,
+        incidents: IncidentSide,
         status: Callable[[], str] | None = None,
         limiter: LoginLimiter | None = None,
     ) -> None:
         self.settings, self.users, self.status = settings, users, status
         self.login_users = Users(users, settings.allow_anonymous, limiter)
         self.zones, self.cameras = list(zones), list(cameras)
-        self.wall_start: float | None = None
-        self.desk = None
+        self.desk = incidents
         self.certificate = None  # the AppCertificate, once started
         self._lock = threading.Lock()
         self._changes: deque[tuple[IncidentRecord, str, float | None, float | None]] = deque()
@@ -262,7 +264,8 @@ class OpcuaServer(ClosesOnce):
         people = len(frame.people3d)
         if not frame.events and people == self._people:
             return
-        wall0 = self.wall_start
+        desk = self.desk
+        wall0 = desk.wall_start if desk.running else None  # the Unix time of t = 0
         with self._lock:
             self._people = people
             for e in frame.events:
@@ -301,11 +304,10 @@ class OpcuaServer(ClosesOnce):
                 self._changes.append((c.incident, c.what, wall, c.wall_start))
         self._poke()
 
-    def attach(self, desk: IncidentSide) -> None:
-        """The incident step (pipeline.incidents.IncidentStep): its `acknowledge` for
-        the Acknowledge method, and its book's open incidents shown at once."""
+    def show_book(self) -> None:
+        """The book runs (its desk's step attached): its open incidents shown at once, the
+        restored ones too."""
         with self._lock:
-            self.desk = desk
             self._resync = True
         self._poke()
 
@@ -357,13 +359,13 @@ class OpcuaServer(ClosesOnce):
             else:
                 records.append((rec, wall, wall_start))
         await space.apply(records)
-        if resync and desk is not None:
+        if resync and desk.running:
             await self._resync_from(desk)
         if tickets_dirty or changes or resync:  # a slot, or a ticket's incident, changed
             await space.set_tickets(tickets)
 
     async def _resync_from(self, desk: IncidentSide) -> None:
-        """The book's incidents as the conditions (after drops, or when attached)."""
+        """The book's incidents as the conditions (after drops, or once the book runs)."""
 
         def read() -> list[IncidentRecord]:
             with desk.lock:
@@ -421,7 +423,7 @@ class OpcuaServer(ClosesOnce):
         incident, refused = acknowledged(space, parent, args)
         if refused is not None:
             return refused
-        if desk is None:
+        if not desk.running:
             return StatusCodes.BadResourceUnavailable
         text = comment_of(args)
         try:

@@ -33,10 +33,12 @@ logger = logging.getLogger(__name__)
 
 
 class IncidentSide(Protocol):
-    """The frame loop's incident step (pipeline.incidents.IncidentStep) as the server uses
-    it: its book read under its lock, an incident acknowledged, the Unix time of t = 0
-    (None: the changes carry no wall times)."""
+    """The incident book as the server uses it (site.desk.IncidentDesk, given when the server
+    is made): whether the frame loop runs it yet, then its book read under its lock, an
+    incident acknowledged, the Unix time of t = 0 (None: the changes carry no wall times)."""
 
+    @property
+    def running(self) -> bool: ...
     @property
     def lock(self) -> AbstractContextManager: ...
     @property

@@ -14,13 +14,22 @@ from stereopose.site.health.state import ServiceState
 from stereopose.site.plan import ServePlan
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from stereopose.alarms import IncidentRecord
     from stereopose.site.outbox import LogOutbox
 
 __all__ = ["make_outbox", "site_plan", "site_summary"]
 
 
-def make_outbox(plan: ServePlan, cfg: Config, state: ServiceState) -> LogOutbox:
-    """The event log's outbox to the plan's broker (plan.mqtt, which must be set)."""
+def make_outbox(
+    plan: ServePlan,
+    cfg: Config,
+    state: ServiceState,
+    acknowledge: Callable[[int, str], IncidentRecord],
+) -> LogOutbox:
+    """The event log's outbox to the plan's broker (plan.mqtt, which must be set), taking a
+    control room's acknowledgements to `acknowledge` (the incident desk's)."""
     from stereopose.site.outbox import LogOutbox, OutboxPace
 
     if plan.mqtt is None:
@@ -29,6 +38,7 @@ def make_outbox(plan: ServePlan, cfg: Config, state: ServiceState) -> LogOutbox:
         plan.mqtt,
         EventLog(plan.events_db, plan.out_dir / "clips"),
         OutboxPace(resend_s=cfg.mqtt.outbox_resend_s),
+        acknowledger=acknowledge,
         summary=lambda: site_summary(state),
         plan=site_plan(plan.site, cfg.serve.public_url or None),
     )

@@ -39,6 +39,7 @@ from stereopose.io.sinks.mqtt_settings import (
     restart_loop,
     topic_part,
 )
+from stereopose.site.desk import remote_ack
 from stereopose.site.wire import COMMAND_KEYS, id_of, parse_ack, site_topics
 
 __all__ = ["LogOutbox"]
@@ -100,9 +101,10 @@ class LogOutbox:
     (its `after(id, limit)` and `last_id()`; with `incident_changes_after(seq, limit)` and
     `last_incident_change()` the incidents' stream too); pace: see OutboxPace; start_after:
     the events' cursor without a confirmation (default: the log's last id now).
-    `wake()` (after events were stored) makes the thread read the log at once. Settable
-    later: `acknowledger(incident_id, by)` (the incident book's acknowledge: the commands'
-    way in; -> the incident's record) and `summary()` (-> a dict added to each heartbeat)."""
+    `wake()` (after events were stored) makes the thread read the log at once.
+    acknowledger(incident_id, by): the incident book's acknowledge, the commands' way in (->
+    the incident's record; a BookNotRunningError, or None: answered "unavailable");
+    summary(): a dict added to each heartbeat."""
 
     def __init__(
         self,
@@ -295,15 +297,8 @@ class LogOutbox:
             return
         with self._lock:
             self.counts["commands"] += 1
-        (command, incident, by), ack, result = cmd, self.acknowledger, "unavailable"
-        if ack is not None:
-            try:
-                result = "acknowledged" if ack(incident, by).acked_by == by else "already"
-            except StereoposeError:  # no such open incident (never raised, or forgotten)
-                result = "unknown"
-            except Exception:  # the book failing must not end paho's thread
-                logger.exception("event outbox: acknowledging incident %d failed", incident)
-                result = "unavailable"
+        command, incident, by = cmd
+        result = remote_ack(self.acknowledger, incident, by)
         if result == "acknowledged":
             logger.info("incident %d acknowledged by %s", incident, by)
         body = json.dumps({"command": command, "incident": incident, "result": result})

@@ -65,7 +65,6 @@ from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
 from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
-from stereopose.nodes.node_state import nodes_light
 from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop
@@ -231,12 +230,10 @@ def _serve(
     service = SiteService(
         plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
     )
-    choice = choice_of(detector)
-    if choice is not None:  # status.json: what detects, and why
-        service.probes["detector"] = choice.as_dict
+    service.report.watch_detector(choice_of(detector))  # status.json: what detects, and why
     closing = _Closing()
     # systemd told the service is ready at the first step, and fed while steps advance
-    watchdog = Watchdog(Notifier(), status=lambda: service.state.snapshot().status)
+    watchdog = Watchdog(Notifier(), status=lambda: service.report.state.snapshot().status)
     reload = service.site_desk.reload if service.site_desk is not None else None
     with stop_signals(), reload_signal(reload):
         try:
@@ -259,7 +256,7 @@ def _serve(
             with quiet_signals():
                 service.close()
             closing.release()
-    return ServeResult(summary, url, summary.outputs, dict(service.failed))
+    return ServeResult(summary, url, summary.outputs, dict(service.report.failed))
 
 
 def _calib_health(plan: ServePlan, cfg: Config) -> CalibrationHealth:
@@ -313,19 +310,17 @@ def _run_loop(
     on_site: list[Callable[[Site], None]] = []  # each told every new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
-        service.watch_nodes(cams)
-        service.state.register_light(lambda: nodes_light(cams.report()))  # as the nodes see
+        service.report.watch_nodes(cams)  # their queue, figures and cameras' light
         on_site.append(hazards_watch(cams, service, plan.site))  # the nodes' carried steps
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         assert detector is not None  # made in this process unless the nodes detect
         cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
         regions, light = cameras.regions, cameras.light
         assert light is not None  # detecting cameras watch their light
-        service.probes["light"] = light.figures  # status.json: each camera's day or night
-        service.state.register_light(light.figures)  # /metrics, /api/cameras, the console
+        service.report.watch_light(light)  # each camera's day or night
         follow.append(cameras.set_rig)  # the tracks' regions in the new views
         pipelined, rates = PipelinedCameras(cameras), functools.partial(nominal_rates, cams)
-        service.watch_pipeline(pipelined)
+        service.report.watch_pipeline(pipelined)
         if regions is not None:
             service.watch_regions(regions)
             on_site.append(scans_watch(regions, rig, plan.site))
@@ -345,7 +340,7 @@ def _run_loop(
         service.resume.closing_events,
         fresh=lambda name: cams.delivering(name, timeout_s),
         clock=now_t,
-        on_stall=service.state.service_stall,
+        on_stall=service.report.state.service_stall,
         lost=cams.lost if isinstance(cams, CameraSet) else None,
     )
     events = ServeEvents(watch, calib, hooks, keeper=keeper)

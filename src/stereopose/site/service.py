@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from stereopose.config import Config
@@ -19,7 +18,6 @@ from stereopose.io.sinks import SqliteSink, WebhookSink, close_all
 from stereopose.io.sinks.base import Guarded, Sink
 from stereopose.io.sinks.health import AlarmOutput
 from stereopose.io.summary import RunSummary
-from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.sources import source_label
 from stereopose.site.desk import IncidentDesk
 from stereopose.site.eventlog import EventLog
@@ -27,7 +25,6 @@ from stereopose.site.feed import make_outbox
 from stereopose.site.health.calib_keeper import KeeperDesk
 from stereopose.site.health.state import ServiceState
 from stereopose.site.health.watchdog import Watchdog
-from stereopose.site.http.api.health import health_of
 from stereopose.site.http.api.warnings import WarningsDesk
 from stereopose.site.http.app import Desks, create_app
 from stereopose.site.http.web import Console
@@ -35,9 +32,9 @@ from stereopose.site.live import ConsoleSink, LiveHub
 from stereopose.site.parts import (
     StateSink,
     StatusSink,
-    output_health,
 )
 from stereopose.site.plan import ServePlan, packet_rings
+from stereopose.site.report import StatusReport
 from stereopose.site.restart import Resume
 from stereopose.site.site_desk import SiteDesk
 from stereopose.site.storage import StorageMaintainer
@@ -49,7 +46,6 @@ from stereopose.zones.power_state import PowerBoard, ZoneStates
 if TYPE_CHECKING:
     from stereopose.alarms import Change, IncidentRecord
     from stereopose.io.sinks.clips import ClipSink
-    from stereopose.nodes.fusion import NodeInput
     from stereopose.onsite.service import OnSite
     from stereopose.pipeline.incidents import IncidentStep
     from stereopose.scada.iec104 import Outstation
@@ -76,20 +72,16 @@ class SiteService:
         self.plan, self.stop, self.resume = plan, stop, resume
         # the parts started, in order (name, its close): closed in reverse (`close`)
         self.parts: list[tuple[str, Callable[[], object]]] = []
-        self.state = ServiceState(
-            plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s
+        # the health state, the outputs that failed, each part's figures: status.json
+        self.report = StatusReport(
+            ServiceState(plan.rig.names, camera_timeout_s=plan.config.serve.camera_timeout_s)
         )
-        self.server: Server | None = None
-        self.app = None
         self.incident_outputs: list[Callable] = []  # each given every step's incident changes
         self.iec104 = None  # the IEC 60870-5-104 outstation, when [iec104] is enabled
         self.outbox = None  # the event log as an outbox over MQTT (site.outbox)
         self.console: Console | None = None
         self.maintainer: StorageMaintainer | None = None
         self.status: StatusSink | None = None
-        self.failed: dict[str, str] = {}
-        self.probes: dict[str, Callable[[], Mapping[str, object]]] = {}
-        self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
         self.packets = packet_rings(plan)
         self.opcua_settings = opcua
         self.opcua = None  # the OPC UA server, once started
@@ -112,11 +104,10 @@ class SiteService:
             self.site_desk = SiteDesk(
                 site.path, site, history, self._check_site, plan.rig, started=False
             )
-        self.keeper = None  # site.health.calib_keeper, once the frame loop starts
         self.warnings = WarningsDesk()  # the API's way to the warnings on site, once built
         self.calibration_desk = KeeperDesk()  # the API's way to it
         if self.packets:
-            self.probes["full_streams"] = lambda: {
+            self.report.probes["full_streams"] = lambda: {
                 name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
                 for name, r in self.packets.items()
             }
@@ -125,34 +116,33 @@ class SiteService:
 
     def start_server(self) -> str:
         p = self.plan
-        hub = LiveHub(p.rig, p.site, self.state, EventLog(p.events_db, p.out_dir / "clips"))
+        hub = LiveHub(p.rig, p.site, self.report.state, EventLog(p.events_db, p.out_dir / "clips"))
         self.console = Console.in_folder(p.out_dir, hub)
-        self.probes["console"] = hub.figures
+        self.report.probes["console"] = hub.figures
         self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
         hosts = allowed_hosts(p.http.host, p.config.serve.allowed_hosts)
         app = create_app(
-            self.state,
+            self.report.state,
             console=self.console,
             allowed_hosts=hosts,
             desks=Desks(
                 self.desk, self.tickets, self.calibration_desk, self.site_desk, self.warnings
             ),
         )
-        self.app = app
         hint = f"stereopose users add NAME --role admin --config {p.config_path}"
-        self.server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
-        self.server.start()
-        self._started("the HTTP server", self.server.stop)
+        server = Server(app, p.http, users=self.console.users.count, users_hint=hint)
+        server.start()
+        self._started("the HTTP server", server.stop)
         hub.start()
         self._started("the console", self.console.close)  # its live streams end first
         self.start_opcua()
-        return self.server.url
+        return server.url
 
     def start_maintainer(self) -> None:
         p = self.plan
         self.maintainer = StorageMaintainer(p.out_dir, event_log=p.events_db, settings=p.retention)
-        self.state.register_storage(self.maintainer.usage)
-        self.probes["storage"] = self.maintainer.health
+        self.report.state.register_storage(self.maintainer.usage)
+        self.report.probes["storage"] = self.maintainer.health
         self.maintainer.start()
         self._started("the storage maintainer", self._stop_maintainer)
 
@@ -170,7 +160,8 @@ class SiteService:
             site_zones(p.site, p.rig),
             [CameraNode(n) for n in p.rig.names],
             self.console.users,
-            status=lambda: self.state.snapshot().status,
+            incidents=self.desk,  # the book, once the frame loop runs it
+            status=lambda: self.report.state.snapshot().status,
             limiter=self.console.limiter,
         )
         server.start()
@@ -192,7 +183,7 @@ class SiteService:
             self.tickets.wall_start = wall_start  # the tickets' times shown as wall times too
 
         def guard(sink: Sink, label: object) -> Guarded:
-            return Guarded(sink, str(label), self.failed)
+            return Guarded(sink, str(label), self.report.failed)
 
         try:
             from stereopose.io.sinks.segments import SegmentSink
@@ -212,15 +203,16 @@ class SiteService:
             if self.console is not None and self.console.hub is not None:
                 sinks.append(ConsoleSink(self.console.hub, wall_start))
             state = StateSink(
-                self.state,
+                self.report.state,
                 summary,
                 arrival=arrival,
                 stats=stats,
-                elsewhere=self.elsewhere,
+                elsewhere=self.report.elsewhere,
                 rates=rates,
             )
             sinks.append(guard(state, "the health state"))
-            self.status = StatusSink(p.status_path, self.snapshot, cfg.serve.status_interval_s)
+            status_s = cfg.serve.status_interval_s
+            self.status = StatusSink(p.status_path, self.report.snapshot, status_s)
             sinks.append(guard(self.status, p.status_path))
         except BaseException:
             close_all(sinks)
@@ -251,7 +243,6 @@ class SiteService:
         if cfg.iec104.enabled:
             yield self._iec104(cfg, wall_start)
         if self.opcua is not None:
-            self.opcua.wall_start = wall_start
             yield self.opcua
 
     def _register(self, out: AlarmOutput, guard: Callable[[Sink, object], Guarded]) -> Guarded:
@@ -259,19 +250,17 @@ class SiteService:
         incident changes, the health state's queues and outputs (so /api/health and /metrics),
         `status.json`'s figures. The sink the frame loop writes is its Guarded wrapper (an
         output that fails stops alone)."""
-        sink, name = guard(out, out.label), out.output_name
+        sink = guard(out, out.label)
         self.incident_outputs.append(out.write_changes)
-        self.state.register_queue(name, out.queued, lambda: out.dropped)
-        self.state.register_output(name, output_health(out, sink))
-        self.probes[name] = out.figures
+        self.report.watch_output(out, sink)
         return sink
 
     def _start_outbox(self, cfg: Config) -> None:
         """The event log sent over MQTT to a control room (site.feed, site.outbox), watched by
         the watchdog."""
-        self.outbox = make_outbox(self.plan, cfg, self.state)
-        self.probes["outbox"] = self.outbox.figures
-        self.state.register_output("outbox", self.outbox.health)
+        self.outbox = make_outbox(self.plan, cfg, self.report.state, self.desk.acknowledge)
+        self.report.probes["outbox"] = self.outbox.figures
+        self.report.state.register_output("outbox", self.outbox.health)
         self._started("the outbox", self._close_outbox)
         self._watch("outbox", self.outbox.ensure_running)
 
@@ -286,7 +275,8 @@ class SiteService:
             s,
             points_table(p.site, p.rig, commands=s.commands),
             wall_start=wall_start,
-            status=lambda: self.state.snapshot().status,
+            status=lambda: self.report.state.snapshot().status,
+            acknowledger=self.desk.acknowledge,  # the commands' way to the book, once it runs
         )
         self.iec104 = station
         return station
@@ -305,8 +295,8 @@ class SiteService:
             settings=p.clips,
             packets=self.packets,
         )
-        self.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
-        self.probes["clips"] = clips.figures
+        self.report.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
+        self.report.probes["clips"] = clips.figures
         return clips
 
     def rig_followers(self) -> list[Callable[[Rig], None]]:
@@ -317,31 +307,28 @@ class SiteService:
 
     def keep_calibration(self, keeper: CalibrationKeeper) -> None:
         """The calibration keeper's figures in status.json; closed with the service."""
-        self.keeper = keeper
         self.calibration_desk.keeper = keeper
-        self.probes["calibration"] = keeper.figures
+        self.report.probes["calibration"] = keeper.figures
         self._started("the calibration keeper", keeper.close)
 
     def attach_incidents(self, step: IncidentStep, restored: list[IncidentRecord]) -> None:
         """The frame loop's incident step, once it runs: its figures in status.json and
-        /metrics, the acts of the HTTP API, the IEC 104 outstation's commands (with the
-        incidents restored) and a control room's acknowledgements reach its book."""
-        self.probes["alarms"] = step.figures
-        self.state.register_alarms(step.figures)  # in /metrics
-        if self.iec104 is not None:
-            self.iec104.incidents(restored)
-            self.iec104.acknowledger = step.acknowledge
-        if self.outbox is not None:
-            self.outbox.acknowledger = step.acknowledge
-        if self.opcua is not None:  # its Acknowledge, and the restored incidents shown
-            self.opcua.attach(step)
+        /metrics; the acts of the HTTP API, the IEC 104 outstation's commands and a control
+        room's acknowledgements reach its book through the desk (given to each when made);
+        the outstation and the OPC UA server show the incidents restored."""
+        self.report.probes["alarms"] = step.figures
+        self.report.state.register_alarms(step.figures)  # in /metrics
         self.desk.attach(step)
+        if self.iec104 is not None:  # its commands reach the book through the desk
+            self.iec104.incidents(restored)
+        if self.opcua is not None:  # its Acknowledge through the desk; the restored shown
+            self.opcua.show_book()
 
     def warn_on_site(self, onsite: OnSite) -> None:
         """The warnings on site to the API (what sounds, an admin's silences and tests),
         closed with the service: every speaker quiet, every coil off."""
         self.warnings.onsite = onsite
-        self.probes["warnings_on_site"] = onsite.figures
+        self.report.probes["warnings_on_site"] = onsite.figures
 
         def close() -> None:
             self.warnings.onsite = None
@@ -349,32 +336,18 @@ class SiteService:
 
         self._started("the warnings on site", close)
 
-    def watch_nodes(self, nodes: NodeInput) -> None:
-        """The nodes' camera-frames waiting for their step as a queue of the health state
-        (late, over-full and refused ones as its drops); the nodes' figures in status."""
-        self.state.register_queue("nodes", nodes.waiting, nodes.lost)
-        self.probes["nodes"] = nodes.report
-        self._watch("nodes", nodes.ensure_running)
-
-    def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
-        """The detection hand-over as a queue of the health state; its figures in status."""
-        stats = pipelined.stats
-        self.elsewhere = lambda: {"detect": stats.detect_s}
-        self.state.register_queue(
-            "detection", lambda: len(pipelined.handover), lambda: pipelined.handover.dropped
-        )
-        self.probes["pipeline"] = stats.figures
-
     def watch_regions(self, regions: RegionDetector) -> None:
         """Detection in regions' figures by camera in status, /metrics and the console."""
-        self.state.register_regions(regions.report)
-        self.probes["regions"] = regions.report
+        self.report.watch_regions(regions)
         if self.console is not None and self.console.hub is not None:
             self.console.hub.show_regions(regions.view)
 
     def start_power(self) -> None:
         """The zones' state sources (IEC 104 masters, OPC UA clients, the MQTT subscriber),
-        each on its own thread; the console's zones and the status show their states."""
+        each on its own thread; the console's zones and the status show their states. One
+        part, closed with the service, stops whichever sources run then (a site change
+        replaces them: restart_power)."""
+        self._started("the zone state's sources", self._stop_sources)
         if self.power is not None and self.plan.site is not None:
             self._start_sources(self.plan.site)
 
@@ -385,8 +358,7 @@ class SiteService:
         assert board is not None and states is not None  # the site's zones have sources
         sources = start_sources(site.zones, board, mqtt=p.mqtt, base=p.config_path.resolve().parent)
         self.power_sources = sources
-        self._started("the zone state's sources", sources.stop)
-        self.probes["zone_state"] = lambda: {
+        self.report.probes["zone_state"] = lambda: {
             "zones": states.snapshot(),
             "sources": dict(sources.figures),
         }
@@ -402,32 +374,15 @@ class SiteService:
     def restart_power(self, site: Site) -> ZoneStates | None:
         """The zones' state sources made `site`'s (the frame loop's thread, at a site change):
         the old ones stopped, new ones started; the new ZoneStates (None: none has a source)."""
-        if self.power_sources is not None:
-            self.power_sources.stop()
-            self.parts = [(n, c) for n, c in self.parts if c != self.power_sources.stop]
-            self.power_sources = None
+        self._stop_sources()
         self.power_board = PowerBoard() if any(z.power for z in site.zones) else None
         self.power = ZoneStates(site.zones, self.power_board) if self.power_board else None
-        self.probes.pop("zone_state", None)
+        self.report.probes.pop("zone_state", None)
         if self.console is not None and self.console.hub is not None:
             self.console.hub.scene.power = None
         if self.power is not None:
             self._start_sources(site)
         return self.power
-
-    # -- health -----------------------------------------------------------------------------
-
-    def snapshot(self) -> dict:
-        """status.json: the health answer, the outputs that failed, each part's figures."""
-        doc = health_of(self.state.snapshot()).model_dump()
-        doc["written_at"] = time.time()
-        doc["failed_outputs"] = dict(self.failed)
-        for name, probe in list(self.probes.items()):
-            try:
-                doc[name] = probe()
-            except Exception as e:  # a part's figures missing never stops the status
-                doc[name] = {"error": str(e)}
-        return doc
 
     # -- stopping ---------------------------------------------------------------------------
 
@@ -452,6 +407,12 @@ class SiteService:
         if not any(n == "the watchdog" for n, _ in self.parts):
             self.watchdog.start()
             self._started("the watchdog", self.watchdog.stop)
+
+    def _stop_sources(self) -> None:
+        """The zones' state sources that run now stopped (none: nothing to do)."""
+        sources, self.power_sources = self.power_sources, None
+        if sources is not None:
+            sources.stop()
 
     def _stop_maintainer(self) -> None:
         if self.maintainer is not None and not self.maintainer.stop(5.0):
