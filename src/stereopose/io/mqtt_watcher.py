@@ -83,7 +83,7 @@ class MqttWatcher:
         reason: ReasonCode,
         props: Properties | None,
     ) -> None:
-        if getattr(reason, "is_failure", False):
+        if reason.is_failure:
             self.board.lost(list(self.topics.values()), f"MQTT broker refused: {reason}")
             return
         for topic in self.topics:
