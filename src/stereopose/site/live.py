@@ -167,7 +167,8 @@ class LiveHub:
     """See the module. rig: the cameras; site: the zones (None: none); state: the health
     state (cameras' health; the hub's queues registered on it); log: the event log to tail
     (None: no events pushed); settings: its pace and limits; draw: (camera, image, people2d,
-    people3d, scale, label) -> the picture (default viz.overlay over the rig)."""
+    people3d, scale, label) -> the picture (default viz.overlay over the rig); power(): the
+    energized zones' states now (site.scene)."""
 
     def __init__(
         self,
@@ -179,6 +180,7 @@ class LiveHub:
         *,
         draw: Callable | None = None,
         clock: Callable[[], float] = time.monotonic,
+        power: Callable[[], dict] | None = None,
     ) -> None:
         self.rig, self.site, self.state, self.log = rig, site, state, log
         self.people_hz = settings.people_hz
@@ -201,7 +203,7 @@ class LiveHub:
             draw = overlay
 
         self._views = {c.name: camera_view(c) for c in rig}
-        self.scene = SceneState(site)
+        self.scene = SceneState(site, power)
         self.pictures = PictureEncoder(
             self._views,
             draw,

@@ -56,13 +56,13 @@ def rounded(x: float, nd: int = 3) -> float | None:
 
 
 class SceneState:
-    """See the module. site: the zones (None: none)."""
+    """See the module. site: the zones (None: none); power(): the energized zones' states
+    from their breakers now (zones.power_state's snapshot; None: none read)."""
 
-    def __init__(self, site: Site | None) -> None:
+    def __init__(self, site: Site | None, power: Callable[[], dict] | None = None) -> None:
         zones = site.zones if site is not None else ()
         self.zones_by_name = {z.name: z for z in zones}
-        # the energized zones' states from their breakers (zones.power_state's snapshot)
-        self.power: Callable[[], dict] | None = None
+        self.power = power
         self._lock = threading.Lock()
         self.latest: Latest | None = None
         self._trails: dict[int, deque[tuple[float, float, float]]] = {}

@@ -116,7 +116,8 @@ class SiteService:
 
     def start_server(self) -> str:
         p = self.plan
-        hub = LiveHub(p.rig, p.site, self.report.state, EventLog(p.events_db, p.out_dir / "clips"))
+        log = EventLog(p.events_db, p.out_dir / "clips")
+        hub = LiveHub(p.rig, p.site, self.report.state, log, power=self._zone_states)
         self.console = Console.in_folder(p.out_dir, hub)
         self.report.probes["console"] = hub.figures
         self.incident_outputs.append(lambda changes: _live_changes(hub, changes))
@@ -362,8 +363,10 @@ class SiteService:
             "zones": states.snapshot(),
             "sources": dict(sources.figures),
         }
-        if self.console is not None and self.console.hub is not None:
-            self.console.hub.scene.power = states.snapshot
+
+    def _zone_states(self) -> dict:
+        """The energized zones' states now, from the sources that run (empty: none)."""
+        return self.power.snapshot() if self.power is not None else {}
 
     def _check_site(self, site: Site) -> None:
         """ConfigError when the running service cannot take `site`: a ticket not yet ended
@@ -378,8 +381,6 @@ class SiteService:
         self.power_board = PowerBoard() if any(z.power for z in site.zones) else None
         self.power = ZoneStates(site.zones, self.power_board) if self.power_board else None
         self.report.probes.pop("zone_state", None)
-        if self.console is not None and self.console.hub is not None:
-            self.console.hub.scene.power = None
         if self.power is not None:
             self._start_sources(site)
         return self.power
