@@ -213,9 +213,11 @@ class Solved:
 
 def _recordings(frames: Frames | list[Frames]) -> list[Frames]:
     """One recording (a list of frames) or several (a list of such lists)."""
-    if frames and isinstance(frames[0], list):
-        return [list(r) for r in frames if isinstance(r, list)]
-    return [[f for f in frames if not isinstance(f, list)]]
+    recordings = [list(r) for r in frames if isinstance(r, list)]
+    single = [f for f in frames if not isinstance(f, list)]
+    if recordings and single:
+        raise CalibrationError("the frames mix whole recordings with single frames")
+    return recordings or [single]
 
 
 def _match(views: Views, focal: float, rng: np.random.Generator) -> Matched:

@@ -58,7 +58,7 @@ from stereopose.alarms.incident import CLOSED, IncidentRecord
 from stereopose.errors import StereoposeError
 from stereopose.io.sinks.base import ClosesOnce, FrameResult
 from stereopose.io.sinks.health import OutputHealth
-from stereopose.scada.opcua_ack import IncidentSide, acknowledged, comment_of, may_acknowledge
+from stereopose.scada.opcua_ack import IncidentSide, comment_of, may_acknowledge, refusal
 from stereopose.scada.opcua_security import (
     LoginServer,
     Permissions,
@@ -420,9 +420,10 @@ class OpcuaServer(ClosesOnce):
                 "OPC UA: acknowledge refused for %s", repr(name) if name else "an anonymous client"
             )
             return StatusCodes.BadUserAccessDenied
-        incident, refused = acknowledged(space, parent, args)
+        refused = refusal(space, parent, args)
         if refused is not None:
             return refused
+        incident = space.by_node[parent]
         if not desk.running:
             return StatusCodes.BadResourceUnavailable
         text = comment_of(args)

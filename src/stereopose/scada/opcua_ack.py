@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from stereopose.scada.opcua_space import SiteSpace
     from stereopose.web.users import UserStore
 
-__all__ = ["IncidentSide", "acknowledged", "comment_of", "may_acknowledge"]
+__all__ = ["IncidentSide", "comment_of", "may_acknowledge", "refusal"]
 
 logger = logging.getLogger(__name__)
 
@@ -62,24 +62,22 @@ def may_acknowledge(users: UserStore, caller: User | None) -> bool:
     return user is not None and user.stamp == caller.stamp and user.role in ACK_ROLES
 
 
-def acknowledged(
-    space: SiteSpace, parent: ua.NodeId, args: tuple[ua.Variant, ...]
-) -> tuple[int, int | None]:
-    """(the incident of condition `parent`, None) when the call may go to the book, else (-1,
-    the status code that refuses it)."""
+def refusal(space: SiteSpace, parent: ua.NodeId, args: tuple[ua.Variant, ...]) -> int | None:
+    """The status code that refuses an Acknowledge of condition `parent` with `args`, None
+    when the call may go to the book (the incident: space.by_node[parent])."""
     incident = space.by_node.get(parent)
     if incident is None:
-        return -1, StatusCodes.BadNodeIdUnknown
+        return StatusCodes.BadNodeIdUnknown
     cond = space.conditions[incident]
     if len(args) != 2:
         missing = len(args) < 2
-        return -1, StatusCodes.BadArgumentsMissing if missing else StatusCodes.BadTooManyArguments
+        return StatusCodes.BadArgumentsMissing if missing else StatusCodes.BadTooManyArguments
     event_id = args[0].Value if isinstance(args[0], ua.Variant) else None
     if not isinstance(event_id, bytes) or event_id not in cond.event_ids:
-        return -1, StatusCodes.BadEventIdUnknown
+        return StatusCodes.BadEventIdUnknown
     if cond.acked:
-        return -1, StatusCodes.BadConditionBranchAlreadyAcked
-    return incident, None
+        return StatusCodes.BadConditionBranchAlreadyAcked
+    return None
 
 
 def comment_of(args: tuple[ua.Variant, ...]) -> str:

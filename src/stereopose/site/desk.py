@@ -45,7 +45,7 @@ class IncidentDesk:
         """Whether the frame loop runs the book (its step attached)."""
         return self.step is not None
 
-    def _running(self) -> IncidentStep:
+    def _running_step(self) -> IncidentStep:
         step = self.step
         if step is None:
             raise BookNotRunningError("the incident book is not running yet")
@@ -54,23 +54,23 @@ class IncidentDesk:
     @property
     def lock(self) -> AbstractContextManager:
         """The running step's lock, held while its book is read (BookNotRunningError before)."""
-        return self._running().lock
+        return self._running_step().lock
 
     @property
     def book(self) -> IncidentBook:
         """The running step's book (BookNotRunningError before)."""
-        return self._running().book
+        return self._running_step().book
 
     @property
     def wall_start(self) -> float | None:
         """The Unix time of the running step's t = 0 (BookNotRunningError before)."""
-        return self._running().wall_start
+        return self._running_step().wall_start
 
     def acknowledge(self, incident_id: int, by: str) -> IncidentRecord:
         """The running book's acknowledge (any thread), for the parts built before it runs
         (the IEC 104 outstation's and the control room's commands); BookNotRunningError
         before it runs, an IncidentError as the book's own."""
-        return self._running().acknowledge(incident_id, by)
+        return self._running_step().acknowledge(incident_id, by)
 
 
 def remote_ack(

@@ -310,7 +310,7 @@ def _run_loop(
     on_site: list[Callable[[Site], None]] = []  # each told every new site
     if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
         pipelined, rates = cams, cams.rates
-        service.report.watch_nodes(cams)  # their queue, figures and cameras' light
+        service.watch_nodes(cams)  # reported, its receiver watched
         on_site.append(hazards_watch(cams, service, plan.site))  # the nodes' carried steps
     else:  # detection on its own thread, always on the newest frames (recorded: every step)
         assert detector is not None  # made in this process unless the nodes detect

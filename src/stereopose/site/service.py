@@ -2,7 +2,8 @@
 (site.serve) and stopped by it: the HTTP server with the console and its live channel, the
 OPC UA server, the storage maintainer, the alarm outputs (each registered in one place with the
 incident changes, the health state, /metrics and `status.json`), the event log's outbox, the
-watchdog, the incident desk; and `snapshot()`, the `status.json` document."""
+watchdog, the incident desk. What the service reports about itself (the health state, each
+part's figures, `status.json`) is its `report` (site.report)."""
 
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ from stereopose.zones.power_state import PowerBoard, ZoneStates
 if TYPE_CHECKING:
     from stereopose.alarms import Change, IncidentRecord
     from stereopose.io.sinks.clips import ClipSink
+    from stereopose.nodes.fusion import NodeInput
     from stereopose.onsite.service import OnSite
     from stereopose.pipeline.incidents import IncidentStep
     from stereopose.scada.iec104 import Outstation
@@ -336,6 +338,12 @@ class SiteService:
             onsite.close()
 
         self._started("the warnings on site", close)
+
+    def watch_nodes(self, nodes: NodeInput) -> None:
+        """The detection nodes' input: its queue, figures and the cameras' light reported
+        (site.report), its MQTT receiver's thread watched (started again should it die)."""
+        self.report.watch_nodes(nodes)
+        self._watch("nodes", nodes.ensure_running)
 
     def watch_regions(self, regions: RegionDetector) -> None:
         """Detection in regions' figures by camera in status, /metrics and the console."""

@@ -12,7 +12,6 @@ export const ENDED = "Your session has ended: log in again.";
 export class Login {
   constructor({ enter, leave, settle = async () => {}, beforeSubmit = () => {} }) {
     this.hooks = { enter, leave, settle, beforeSubmit };
-    this.user = null;
     api.whenUnauthorized(() => this.show(ENDED));
     byId("login-form").addEventListener("submit", (e) => this.submit(e));
     byId("logout").addEventListener("click", () => this.logout());
@@ -34,7 +33,6 @@ export class Login {
   /** The form, with `message` above it; the console left. */
   show(message = "") {
     this.hooks.leave();
-    this.user = null;
     byId("console").hidden = true;
     byId("login").hidden = false;
     byId("login-error").textContent = message;
@@ -72,7 +70,6 @@ export class Login {
   }
 
   entered(user) {
-    this.user = user;
     byId("user").textContent = `${user.username} (${user.role})`;
     document.body.dataset.role = user.role;
     byId("login").hidden = true;
