@@ -84,7 +84,8 @@ class CameraSet:
 
     open_timeout_s: a live stream's open and read timeout; first_frame_timeout_s: how long
     opening live cameras waits for the first frame of any of them (None: for ever; Ctrl-C
-    ends the wait). clock: the live frames' time origin, read when the set is created.
+    ends the wait). clock: the live frames' time origin (None: read when the set is created;
+    a service gives its own, read when it was built).
     loop (one for all, or per camera), detect (per camera: a substream, or None / ""),
     detect_fps: see the module's docstring. decoders: "process" decodes each live stream in a
     process of its own (io.stream_process). wait_first_frame=False: opening does not wait for
@@ -110,6 +111,7 @@ class CameraSet:
         wall_clock: bool = False,
         read_ahead: int = 0,
         decoders: str = "thread",
+        clock: Clock | None = None,
     ) -> None:
         if not specs:
             raise VideoError("no camera sources given")
@@ -133,7 +135,7 @@ class CameraSet:
         self.decoders = decoders
         self._ahead: ReadAhead[FrameSet] | None = None
         self.first_frame_timeout_s = first_frame_timeout_s
-        self.clock = Clock.now()
+        self.clock = clock or Clock.now()
         self._fresh = threading.Event()  # set by a live camera at each new image
         self._closing = threading.Event()
         self.sources: list[Source] = []

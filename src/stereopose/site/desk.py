@@ -20,6 +20,7 @@ from contextlib import AbstractContextManager
 from stereopose.alarms import IncidentBook, IncidentRecord
 from stereopose.errors import StereoposeError
 from stereopose.pipeline.incidents import IncidentStep
+from stereopose.site.handover import Handover
 
 __all__ = ["BookNotRunningError", "IncidentDesk", "remote_ack"]
 
@@ -30,15 +31,14 @@ class BookNotRunningError(StereoposeError):
     """An act on the incident book before the frame loop runs it."""
 
 
-class IncidentDesk:
-    """See the module."""
+class IncidentDesk(Handover[IncidentStep]):
+    """See the module: the running incident step attached (site.handover), its acknowledge,
+    shelve, unshelve and figures."""
 
-    def __init__(self) -> None:
-        self.step: IncidentStep | None = None  # once the book runs
-
-    def attach(self, step: IncidentStep) -> None:
-        """The running incident step: its acknowledge, shelve, unshelve and figures."""
-        self.step = step
+    @property
+    def step(self) -> IncidentStep | None:
+        """The running incident step (None: not yet)."""
+        return self.current
 
     @property
     def running(self) -> bool:

@@ -29,7 +29,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 from urllib.parse import quote
@@ -47,6 +47,7 @@ from stereopose.site.scene import SceneState
 from stereopose.types import Camera, Rig
 
 if TYPE_CHECKING:
+    from stereopose.alarms import Change
     from stereopose.types import People2D, People3D
 
 logger = logging.getLogger(__name__)
@@ -352,6 +353,11 @@ class LiveHub:
     def publish(self, kind: str, body: object) -> None:
         """A message to every subscriber (e.g. an acknowledgement)."""
         self._broadcast(_sse(kind, body))
+
+    def incident_changes(self, changes: Sequence[Change]) -> None:
+        """An incident output (pipeline.incidents): each change as an `incident` message."""
+        for c in changes:
+            self.publish("incident", c.to_dict())
 
     def _broadcast(self, message: bytes) -> None:
         with self._lock:

@@ -32,7 +32,8 @@ class StatusReport:
     def __init__(self, state: ServiceState) -> None:
         self.state = state
         self.failed: dict[str, str] = {}  # output -> why it stopped (io.sinks.base.Guarded)
-        self.probes: dict[str, Callable[[], Mapping[str, object]]] = {}  # status.json's parts
+        # status.json's parts: each one's figures (None: left out now)
+        self.probes: dict[str, Callable[[], Mapping[str, object] | None]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
 
     def watch_output(self, out: AlarmOutput, sink: Guarded) -> None:
@@ -87,7 +88,9 @@ class StatusReport:
         doc["failed_outputs"] = dict(self.failed)
         for name, probe in list(self.probes.items()):
             try:
-                doc[name] = probe()
+                figures = probe()
             except Exception as e:  # a part's figures missing never stops the status
-                doc[name] = {"error": str(e)}
+                figures = {"error": str(e)}
+            if figures is not None:  # None: nothing of its own to report now
+                doc[name] = figures
         return doc

@@ -55,15 +55,14 @@ from stereopose.alarms import IncidentBook
 from stereopose.config import Config
 from stereopose.detection import choice_of, make_detector
 from stereopose.detection.base import PoseDetector
-from stereopose.errors import StereoposeError
 from stereopose.extras import require
 from stereopose.fence import Site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink
 from stereopose.io.sinks.incidents import IncidentIds
+from stereopose.io.source import Clock
 from stereopose.io.summary import RunSummary
-from stereopose.io.writing import make_folder
 from stereopose.nodes.fusion import NodeInput
 from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
@@ -89,8 +88,10 @@ from stereopose.site.plan import (
     plan_serve,
 )
 from stereopose.site.restart import Resume
+from stereopose.site.run_parts import RunParts
+from stereopose.site.run_sinks import RunSinks, open_sinks
 from stereopose.site.service import SiteService
-from stereopose.site.site_parts import hazards_watch, mqtt_site, onsite_warnings, scans_watch
+from stereopose.site.site_parts import hazards_watch, mqtt_site, scans_watch
 from stereopose.site.site_switch import Outliving, SiteSwitch
 from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.site.watchdog import Notifier, Watchdog
@@ -145,7 +146,10 @@ def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None
     return out
 
 
-def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet | NodeInput:
+def _open_cameras(
+    plan: ServePlan, packets: dict[str, PacketRing], clock: Clock
+) -> CameraSet | NodeInput:
+    """The cameras, or the detection nodes' people, on the service's clock (its t = 0)."""
     cfg = plan.config
     if cfg.input.detection == "nodes":  # the cameras' people from the detection nodes
         assert plan.mqtt is not None  # plan_serve: [mqtt] host is set
@@ -158,6 +162,7 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet 
             wait_s=i.node_wait_s,
             clock_tolerance_s=i.node_clock_tolerance_s,
             picture_scale=i.node_picture_scale,
+            clock=clock,
         )
     # a service starts at once however long its cameras take: the loop goes on in heartbeats
     # and the camera watch raises camera_down for each camera that has not delivered
@@ -176,6 +181,7 @@ def _open_cameras(plan: ServePlan, packets: dict[str, PacketRing]) -> CameraSet 
         packets=packets,
         wall_clock=True,
         decoders=cfg.input.decoders,
+        clock=clock,
     )
 
 
@@ -237,21 +243,14 @@ def _serve(
     reload = service.site_desk.reload if service.site_desk is not None else None
     with stop_signals(), reload_signal(reload):
         try:
-            url = service.start_server()
+            url = service.start()  # every standing part, in its order
             if on_ready is not None:
                 on_ready(url)
-            try:
-                make_folder(plan.out_dir)
-            except OSError as e:
-                raise StereoposeError(
-                    f"{plan.out_dir}: cannot create the output folder: {e.strerror}"
-                ) from None
-            if service.site_desk is not None:  # the first file of the data folder's own
-                service.site_desk.start()
-            service.start_maintainer()
-            service.start_power()  # the zones' breakers and earthing switches read
-            with _open_cameras(plan, service.packets) as cams:
-                summary = _run_loop(plan, service, cams, detector, stop, [closing, watchdog])
+            opened_t = service.clock.since(time.monotonic())  # a camera silent since: down
+            with _open_cameras(plan, service.packets, service.clock) as cams:
+                summary = _run_loop(
+                    plan, service, cams, detector, stop, [closing, watchdog], opened_t
+                )
         finally:
             with quiet_signals():
                 service.close()
@@ -296,11 +295,15 @@ def _run_loop(
     detector: PoseDetector | None,
     stop: threading.Event,
     first: list[Sink],
+    opened_t: float,
 ) -> RunSummary:
+    """The frame loop over the open cameras: its stages and sinks, and the run's own parts
+    (site.run_parts), closed when it ends. opened_t: when the cameras were opened, on the
+    service's clock (a camera that never delivers is down timeout_s after)."""
     cfg = dataclasses.replace(plan.config, fps=cams.fps)
     rig = plan.rig
     timeout_s = cfg.serve.camera_timeout_s
-    watch = CameraWatch(rig.names, timeout_s, start=0.0)
+    watch = CameraWatch(rig.names, timeout_s, start=opened_t)
     calib = _calib_health(plan, cfg)
     follow = service.rig_followers()  # a camera placed again: each told the new rig
 
@@ -308,24 +311,7 @@ def _run_loop(
         return cams.clock.since(time.monotonic())
 
     on_site: list[Callable[[Site], None]] = []  # each told every new site
-    if isinstance(cams, NodeInput):  # steps of the nodes' people, grouped by capture time
-        pipelined, rates = cams, cams.rates
-        service.watch_nodes(cams)  # reported, its receiver watched
-        on_site.append(hazards_watch(cams, service, plan.site))  # the nodes' carried steps
-    else:  # detection on its own thread, always on the newest frames (recorded: every step)
-        assert detector is not None  # made in this process unless the nodes detect
-        cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
-        regions, light = cameras.regions, cameras.light
-        assert light is not None  # detecting cameras watch their light
-        service.report.watch_light(light)  # each camera's day or night
-        follow.append(cameras.set_rig)  # the tracks' regions in the new views
-        pipelined, rates = PipelinedCameras(cameras), functools.partial(nominal_rates, cams)
-        service.report.watch_pipeline(pipelined)
-        if regions is not None:
-            service.watch_regions(regions)
-            on_site.append(scans_watch(regions, rig, plan.site))
-        if cameras.carry is not None:
-            on_site.append(hazards_watch(cameras, service, plan.site))
+    pipelined, rates = _people(plan, service, cams, detector, cfg, follow, on_site)
     # each person id reserved in the log before it is given (site.person_ids)
     stage = Stage3D(
         rig,
@@ -335,7 +321,6 @@ def _run_loop(
     )
     follow.append(stage.set_rig)  # from the next step
     keeper = _keeper(plan, cfg, calib, follow)
-    service.keep_calibration(keeper)
     hooks = StepHooks(
         service.resume.closing_events,
         fresh=lambda name: cams.delivering(name, timeout_s),
@@ -367,26 +352,62 @@ def _run_loop(
         out_dir=plan.out_dir,
         config_path=plan.config_path,
     )
-    wall_start = cams.clock.start_epoch
     start_mono = cams.clock.start
 
     def arrival(t: float) -> float | None:
         return start_mono + t if source.live or cams.wall_clock else None
 
-    sinks = service.open_sinks(cfg, wall_start, summary, cams.stats, arrival, rates)
-    on_site += mqtt_site(sinks, plan.site)
-    onsite = onsite_warnings(plan, service, sinks)
-    if onsite is not None:
-        on_site.append(onsite.set_site)
+    sinks = open_sinks(service, cfg, cams.clock.start_epoch, summary, cams.stats, arrival, rates)
+    run = RunParts(service, cfg, sinks, keeper, cams if isinstance(cams, NodeInput) else None)
+    on_site += mqtt_site(sinks.mqtt, plan.site)
+    if run.onsite is not None:
+        on_site.append(run.onsite.set_site)
     logger.info("serving %s: outputs in %s", ", ".join(cams.names), plan.out_dir)
     ids = IncidentIds(plan.events_db)
     try:
-        switch = _site_switch(service, events, cfg, on_site, onsite)
-        incidents = _incidents(plan, service, switch, ids, wall_start, now_t)
-        loop = FrameLoop(source, stage, [*first, *sinks], summary, rules=incidents, stop=stop)
+        run.parts.start()
+        switch = _site_switch(service, events, cfg, on_site, run.onsite)
+        incidents = _incidents(plan, service, switch, ids, sinks, now_t)
+        loop = FrameLoop(source, stage, [*first, *sinks.sinks], summary, rules=incidents, stop=stop)
         return loop.run()
     finally:
         ids.close()
+        run.parts.close()
+
+
+def _people(
+    plan: ServePlan,
+    service: SiteService,
+    cams: CameraSet | NodeInput,
+    detector: PoseDetector | None,
+    cfg: Config,
+    follow: list[Callable[[Rig], None]],
+    on_site: list[Callable[[Site], None]],
+) -> tuple[PipelinedCameras | NodeInput, Callable[[], dict]]:
+    """Where the steps' people come from, and each camera's nominal rates: the detection nodes'
+    people grouped by capture time, or detection on its own thread here, always on the newest
+    frames (recorded: every step). Each is reported (site.report); what follows a new rig is
+    added to `follow`, what follows a new site to `on_site`."""
+    rig = plan.rig
+    if isinstance(cams, NodeInput):
+        service.report.watch_nodes(cams)  # reported; its receiver watched (run_parts)
+        on_site.append(hazards_watch(cams, service.power, plan.site))  # the nodes' carried steps
+        return cams, cams.rates
+    assert detector is not None  # made in this process unless the nodes detect
+    cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
+    regions, light = cameras.regions, cameras.light
+    assert light is not None  # detecting cameras watch their light
+    service.report.watch_light(light)  # each camera's day or night
+    follow.append(cameras.set_rig)  # the tracks' regions in the new views
+    pipelined = PipelinedCameras(cameras)
+    service.report.watch_pipeline(pipelined)
+    if regions is not None:  # figures by camera in status, /metrics and the console
+        service.report.watch_regions(regions)
+        service.hub.show_regions(regions.view)
+        on_site.append(scans_watch(regions, rig, plan.site))
+    if cameras.carry is not None:
+        on_site.append(hazards_watch(cameras, service.power, plan.site))
+    return pipelined, functools.partial(nominal_rates, cams)
 
 
 def _incidents(
@@ -394,14 +415,18 @@ def _incidents(
     service: SiteService,
     switch: SiteSwitch,
     ids: IncidentIds,
-    wall_start: float,
+    sinks: RunSinks,
     clock: Callable[[], float],
 ) -> IncidentStep:
     """The incident book over the step's events (pipeline.incidents), on the rules of the
     plan's site (`switch.rules`; a new site taken at a step's start by `switch` where the
     site can change): ids from the log's mark, the incidents the last run left open restored
     (on this run's clock: its Unix start and its time now), its changes stored with the step's
-    events and given to every incident output; the HTTP API's acts reach it through the app."""
+    events and given to every incident output. Attached to the service's incident desk: the
+    acts of the HTTP API, the IEC 104 outstation's commands and a control room's
+    acknowledgements reach its book through it; the outstation and the OPC UA server show the
+    incidents restored."""
+    wall_start = service.clock.start_epoch
     rules = switch.rules(plan.site)
     book = IncidentBook(rules.settings, next_id=ids)
     restored = book.restore(service.resume.open_incidents(wall_start))
@@ -412,12 +437,18 @@ def _incidents(
         book,
         rules.chain,
         holding=rules.holding,
-        outputs=service.incident_outputs,
+        outputs=list(sinks.incident_outputs),
         clock=clock,
         wall_start=wall_start,
         switch=switch if switch.desk is not None else None,
     )
-    service.attach_incidents(step, book.incidents())  # the API, SCADA, control room: its acts
+    service.report.probes["alarms"] = step.figures
+    service.report.state.register_alarms(step.figures)  # in /metrics
+    service.desk.attach(step)
+    if sinks.iec104 is not None:
+        sinks.iec104.incidents(book.incidents())
+    if service.opcua is not None:
+        service.opcua.show_book()
     return step
 
 
@@ -433,13 +464,12 @@ def _site_switch(
     the run's settings; on_site: told each new site (the regions' scans, the MQTT output's
     `site`). The tickets, the zones' states and the warnings on site (`onsite`) outlive a
     site."""
-    hub = service.console.hub if service.console is not None else None
     return SiteSwitch(
         service.site_desk,
         events,
         cfg,
-        kept=Outliving(service.tickets, service.power, onsite),
-        restart_power=service.restart_power,
-        scene=hub.scene if hub is not None else None,
+        kept=Outliving(service.tickets, service.power.states, onsite),
+        restart_power=service.power.restart,
+        scene=service.hub.scene,
         on_site=on_site,
     )

@@ -2,7 +2,9 @@
 OPC UA endpoint (scada.opcua_watcher) and the site's broker (io.mqtt_watcher), each on its own
 thread, onto one PowerBoard (zones.power_state) that the zone-state step reads.
 
-`start_sources(zones, board, mqtt=..., base=...)` starts them; `.stop()` ends them.
+`start_sources(zones, board, mqtt=..., base=...)` starts them; `.stop()` ends them. The service
+holds them as one `ZonePower`: the site's sources started with the service, replaced whole at a
+site change (`restart`), stopped with it.
 """
 
 from __future__ import annotations
@@ -14,16 +16,18 @@ from pathlib import Path
 from typing import TypeVar
 
 from stereopose.errors import ConfigError
+from stereopose.fence import Site
 from stereopose.io.mqtt_watcher import MqttWatcher
 from stereopose.io.sinks.mqtt_settings import MqttSettings
 from stereopose.scada.iec104_master import Iec104Master
 from stereopose.scada.iec104_tls import Iec104TlsMaster, tls_context
 from stereopose.scada.opcua_watcher import OpcuaWatcher
 from stereopose.zones.power import Iec104Point, MqttPoint, OpcuaPoint, PointSource
-from stereopose.zones.power_state import PowerBoard
+from stereopose.zones.power_state import PowerBoard, ZoneStates
+from stereopose.zones.safe import Safe
 from stereopose.zones.zone import Zone
 
-__all__ = ["PowerSources", "start_sources"]
+__all__ = ["PowerSources", "ZonePower", "start_sources"]
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +54,61 @@ class PowerSources:
                 part.stop()
             except Exception as e:  # stopping one never keeps the others running
                 logger.warning("zone state: stopping %s: %s", part, e)
+
+
+class ZonePower:
+    """The zones' live or dead states of the running site and the sources that read them (none
+    where no zone has a source): `start()` with the service, `restart(site)` at a site change
+    (the frame loop's thread: the old sources stopped, the new site's started), `stop()` with
+    the service. `states` is the running site's ZoneStates (None: no zone has a source)."""
+
+    def __init__(self, site: Site | None, *, mqtt: MqttSettings | None, base: Path) -> None:
+        self._mqtt, self._base = mqtt, base
+        self._site = site
+        self.states = _states(site)
+        self._sources: PowerSources | None = None
+
+    def start(self) -> None:
+        if self.states is not None and self._site is not None:
+            self._start(self._site, self.states)
+
+    def _start(self, site: Site, states: ZoneStates) -> None:
+        self._sources = start_sources(site.zones, states.board, mqtt=self._mqtt, base=self._base)
+
+    def restart(self, site: Site) -> ZoneStates | None:
+        """`site`'s sources in place of the running ones; its ZoneStates (None: none)."""
+        self.stop()
+        self._site, self.states = site, _states(site)
+        if self.states is not None:
+            self._start(site, self.states)
+        return self.states
+
+    def stop(self) -> None:
+        """The sources that run now stopped (none: nothing to do)."""
+        sources, self._sources = self._sources, None
+        if sources is not None:
+            sources.stop()
+
+    def snapshot(self) -> dict:
+        """The energized zones' states now (empty: no zone has a source)."""
+        return self.states.snapshot() if self.states is not None else {}
+
+    def safe_now(self) -> dict[str, Safe]:
+        """The zones dead by their breakers now, each with its state's source (empty: none)."""
+        return self.states.safe_now() if self.states is not None else {}
+
+    def figures(self) -> dict | None:
+        """status.json's `zone_state`: the zones' states and each source's messages (None:
+        no zone has a source)."""
+        states, sources = self.states, self._sources
+        if states is None:
+            return None
+        return {"zones": states.snapshot(), "sources": dict(sources.figures) if sources else {}}
+
+
+def _states(site: Site | None) -> ZoneStates | None:
+    zones = site.zones if site is not None else ()
+    return ZoneStates(zones, PowerBoard()) if any(z.power for z in zones) else None
 
 
 def start_sources(

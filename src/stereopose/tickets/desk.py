@@ -64,14 +64,16 @@ class _Entry:
 class TicketDesk:
     """See the module. zones: the site's zones (a ticket naming another is refused)."""
 
-    def __init__(self, zones: Sequence[Zone]) -> None:
+    def __init__(self, zones: Sequence[Zone], wall_start: float | None = None) -> None:
+        """wall_start: the Unix time of t = 0 (serve's clock), if any: times shown as wall
+        times too."""
         self.zones = tuple(zones)
         self._kinds = {z.name: z.kind for z in self.zones}
         self._lock = threading.Lock()
         self._entries: dict[str, _Entry] = {}
         self._isolating: dict[str, str] = {}  # zone -> the active ticket isolating it
         self.forgotten = 0
-        self.wall_start: float | None = None  # the Unix time of t = 0 (serve's), if any
+        self.wall_start = wall_start
 
     # -- the API's --------------------------------------------------------------------------
 

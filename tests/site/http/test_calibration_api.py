@@ -30,7 +30,7 @@ def _login(c: httpx.Client, name: str) -> str:
 def test_the_proposal_is_shown_and_only_an_admin_accepts_it(proposed, tmp_path) -> None:
     keeper, applied, steps = proposed
     desk = KeeperDesk()
-    desk.keeper = keeper
+    desk.attach(keeper)
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=30) as c,

@@ -29,7 +29,7 @@ def _line(page, camera: str) -> tuple[str, str]:
 def test_an_admin_accepts_the_pose_proposed_for_a_knocked_camera(proposed, tmp_path) -> None:
     keeper, applied, steps = proposed
     desk = KeeperDesk()
-    desk.keeper = keeper
+    desk.attach(keeper)
     plan = demo_plan(tmp_path)  # its cam01..cam04 on the console's strip
     with (
         console_server(tmp_path / "out", plan, app_kw={"desks": Desks(calibration=desk)}) as s,

@@ -21,7 +21,6 @@ from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.step_rules import step_chain
 from stereopose.site.restart import Resume
-from stereopose.site.service import _live_changes
 from stereopose.types import Event
 from waiting import wait_until
 
@@ -56,7 +55,7 @@ class Run:
         self.changes: list = []
         outputs = [served.db.write_changes, self.changes.extend]
         if live:  # as serve wires the console's live channel
-            outputs.append(lambda changes: _live_changes(served.console.hub, changes))
+            outputs.append(served.console.hub.incident_changes)
         self.desk = IncidentStep(
             book,
             step_chain(self.script),

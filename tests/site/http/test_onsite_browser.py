@@ -27,7 +27,7 @@ def test_the_panel_shows_what_sounds_and_an_admin_silences_the_beacon(tmp_path: 
     ear, module = Listener(), IoModule().start()
     site = warned_site(ear.port, module.port)
     onsite, fences, desk = OnSite(site), FenceMonitor(site, fps=20.0), WarningsDesk()
-    desk.onsite = onsite
+    desk.attach(onsite)
     for frame in range(5):  # a hand near the busbar
         p = _people(frame, True)
         fences.update(p)

@@ -39,7 +39,7 @@ def _login(c: httpx.Client, name: str) -> dict:
 def test_the_surveyed_points_place_the_rig_while_serving(tmp_path) -> None:
     truth, doc, clicks, keeper, applied = surveyed_yard(tmp_path)
     desk = KeeperDesk()
-    desk.keeper = keeper
+    desk.attach(keeper)
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=60) as c,
@@ -87,7 +87,7 @@ def test_a_camera_with_too_few_clicks_is_named_and_the_others_placed(tmp_path) -
     _, doc, _, keeper, _ = surveyed_yard(tmp_path, bumped_deg=0.0)
     doc["cameras"]["cam04"] = dict(sorted(doc["cameras"]["cam04"].items())[:4])
     desk = KeeperDesk()
-    desk.keeper = keeper
+    desk.attach(keeper)
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=60) as c,
@@ -109,7 +109,7 @@ def test_a_long_solve_holds_no_request(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr("stereopose.site.http.api.calibration.SOLVE_WAIT_S", 0.0)
     _, doc, _, keeper, _ = surveyed_yard(tmp_path, bumped_deg=0.0)
     desk = KeeperDesk()
-    desk.keeper = keeper
+    desk.attach(keeper)
     with (
         console_server(tmp_path / "out", app_kw={"desks": Desks(calibration=desk)}) as s,
         httpx.Client(base_url=s.url, timeout=60) as c,

@@ -28,7 +28,7 @@ DEMO_SITE = Path(str(resources.files("stereopose") / "data" / "demo_site.toml"))
 def test_an_admin_places_the_cameras_from_surveyed_points(tmp_path) -> None:
     truth, doc, clicks, keeper, applied = surveyed_yard(tmp_path)
     calibration = KeeperDesk()
-    calibration.keeper = keeper
+    calibration.attach(keeper)
     path = tmp_path / "site.toml"
     shutil.copy(DEMO_SITE, path)
     site = SiteDesk(path, load_site(path), tmp_path / "history", rig=keeper.rig)

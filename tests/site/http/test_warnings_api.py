@@ -90,7 +90,7 @@ def test_only_an_admin_silences_lifts_and_tests_and_each_act_is_logged(tmp_path:
             none = vera.get("/api/warnings")  # not built yet (or a site without them)
             assert none.status_code == 200 and none.json()["outputs"] == []
             assert ada.post("/api/warnings/tower/test").status_code == 503
-            desk.onsite = onsite
+            desk.attach(onsite)
             step()
             wait_until(lambda: module.coils(0) == [False] and onsite._signals["tower"].up, "up")
             doc = vera.get("/api/warnings").json()

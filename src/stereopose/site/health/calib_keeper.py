@@ -46,6 +46,7 @@ from stereopose.calibration.poses import pose_change
 from stereopose.calibration.refine import Refined, pose_error, refine_camera
 from stereopose.errors import CalibrationError
 from stereopose.reconstruction import Reconstructor
+from stereopose.site.handover import Handover
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.corrected_calibration import corrected_file
 from stereopose.site.health.survey_desk import SurveyDesk
@@ -456,21 +457,26 @@ def _attempt(cam: Camera, samples: list[tuple[np.ndarray, np.ndarray]]) -> tuple
     return refine_camera(cam, samples), pose_error(cam, samples)
 
 
-class KeeperDesk:
+class KeeperDesk(Handover[CalibrationKeeper]):
     """How the HTTP API reaches the keeper: made with the app, the keeper attached once the
-    frame loop runs (None until then: the API answers 503)."""
+    frame loop runs (None until then: the API answers 503; site.handover)."""
 
     def __init__(self) -> None:
-        self.keeper: CalibrationKeeper | None = None
+        super().__init__()
         self._survey: SurveyDesk | None = None
-        self._lock = threading.Lock()
+        self._survey_lock = threading.Lock()
+
+    @property
+    def keeper(self) -> CalibrationKeeper | None:
+        """The running keeper (None: not yet, or closed)."""
+        return self.current
 
     @property
     def survey(self) -> SurveyDesk | None:
         """The surveyed points' desk over the running keeper (None until it runs): its file in
         the service's output folder (or beside the calibration)."""
         k = self.keeper
-        with self._lock:
+        with self._survey_lock:
             if k is not None and (self._survey is None or self._survey.keeper is not k):
                 self._survey = SurveyDesk(k, k.out_dir or k.calib_path.parent)
             return None if k is None else self._survey

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 __all__ = ["Watchdog"]
 
@@ -31,9 +31,14 @@ WARN_EVERY_S = 60.0
 class Watchdog:
     """See the module."""
 
-    def __init__(self, interval_s: float = INTERVAL_S) -> None:
+    def __init__(
+        self,
+        interval_s: float = INTERVAL_S,
+        parts: Mapping[str, Callable[[], object]] | None = None,
+    ) -> None:
+        """parts: each receiver's name and its ensure_running (more by `add`)."""
         self.interval_s = float(interval_s)
-        self._parts: dict[str, Callable[[], object]] = {}
+        self._parts: dict[str, Callable[[], object]] = dict(parts or {})
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._warned: dict[str, float] = {}

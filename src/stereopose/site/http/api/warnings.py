@@ -23,6 +23,7 @@ from pydantic import BaseModel, Field
 
 from stereopose.onsite.control import MAX_REASON, ControlError
 from stereopose.onsite.service import OnSite
+from stereopose.site.handover import Handover
 from stereopose.web.auth import Admin, Viewer
 
 router = APIRouter(tags=["warnings"])
@@ -35,12 +36,14 @@ class Silencing(BaseModel):
     reason: str = Field(min_length=1, max_length=MAX_REASON)
 
 
-class WarningsDesk:
-    """The API's way to the running service's warnings on site: `onsite` is set once the
-    frame loop has built them (None until then, or without a site)."""
+class WarningsDesk(Handover[OnSite]):
+    """The API's way to the running service's warnings on site: attached once the frame loop
+    has built them (None until then, or without a site; site.handover)."""
 
-    def __init__(self) -> None:
-        self.onsite: OnSite | None = None
+    @property
+    def onsite(self) -> OnSite | None:
+        """The warnings on site running (None: not yet, none, or closed)."""
+        return self.current
 
 
 def _onsite(request: Request) -> OnSite:
