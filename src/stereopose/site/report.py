@@ -36,6 +36,13 @@ class StatusReport:
         self.probes: dict[str, Callable[[], Mapping[str, object] | None]] = {}
         self.elsewhere: Callable[[], dict[str, float]] | None = None  # stages off the loop
 
+    def watch(self, name: str, figures: Callable[[], Mapping[str, object] | None]) -> None:
+        """A part's figures in status.json under `name` (None from it: left out then); one
+        part per name."""
+        if name in self.probes:
+            raise ValueError(f"status.json: {name!r} is watched already")
+        self.probes[name] = figures
+
     def watch_output(self, out: AlarmOutput, sink: Guarded) -> None:
         """An alarm output under its output_name, as the frame loop writes it (`sink`, its
         Guarded wrapper: an output that fails stops alone): the health state's queues and
@@ -43,17 +50,17 @@ class StatusReport:
         name = out.output_name
         self.state.register_queue(name, out.queued, lambda: out.dropped)
         self.state.register_output(name, output_health(out, sink))
-        self.probes[name] = out.figures
+        self.watch(name, out.figures)
 
     def watch_detector(self, choice: Choice | None) -> None:
         """What detects, and why (make_detector's choice; None: none, or made otherwise)."""
         if choice is not None:
-            self.probes["detector"] = choice.as_dict
+            self.watch("detector", choice.as_dict)
 
     def watch_light(self, light: LightWatch) -> None:
         """Each camera's light (day, night, black, blinded) in status.json, /metrics,
         /api/cameras and the console."""
-        self.probes["light"] = light.figures
+        self.watch("light", light.figures)
         self.state.register_light(light.figures)
 
     def watch_nodes(self, nodes: NodeInput) -> None:
@@ -64,7 +71,7 @@ class StatusReport:
 
         self.state.register_queue("nodes", nodes.waiting, nodes.lost)
         self.state.register_light(lambda: nodes_light(nodes.report()))
-        self.probes["nodes"] = nodes.report
+        self.watch("nodes", nodes.report)
 
     def watch_pipeline(self, pipelined: PipelinedCameras) -> None:
         """The detection hand-over as a queue of the health state; its figures in status;
@@ -74,12 +81,12 @@ class StatusReport:
         self.state.register_queue(
             "detection", lambda: len(pipelined.handover), lambda: pipelined.handover.dropped
         )
-        self.probes["pipeline"] = stats.figures
+        self.watch("pipeline", stats.figures)
 
     def watch_regions(self, regions: RegionDetector) -> None:
         """Detection in regions' figures by camera in status and /metrics."""
         self.state.register_regions(regions.report)
-        self.probes["regions"] = regions.report
+        self.watch("regions", regions.report)
 
     def snapshot(self) -> dict:
         """status.json: the health answer, the outputs that failed, each part's figures."""

@@ -107,12 +107,12 @@ def _watch(
 ) -> None:
     """The run's parts in status.json and the health state."""
     report = service.report
-    report.probes["calibration"] = keeper.figures
+    report.watch("calibration", keeper.figures)
     if outbox is not None:
-        report.probes["outbox"] = outbox.figures
+        report.watch("outbox", outbox.figures)
         report.state.register_output("outbox", outbox.health)
     if onsite is not None:
-        report.probes["warnings_on_site"] = onsite.figures
+        report.watch("warnings_on_site", onsite.figures)
 
 
 def onsite_warnings(service: SiteService, mqtt: MqttSink | None) -> OnSite | None:

@@ -164,5 +164,5 @@ def _clips(service: SiteService, cfg: Config, wall_start: float) -> ClipSink:
         packets=service.packets,
     )
     service.report.state.register_queue("clips", clips.queued, lambda: clips.frames_dropped)
-    service.report.probes["clips"] = clips.figures
+    service.report.watch("clips", clips.figures)
     return clips

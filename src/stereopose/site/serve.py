@@ -442,7 +442,7 @@ def _incidents(
         wall_start=wall_start,
         switch=switch if switch.desk is not None else None,
     )
-    service.report.probes["alarms"] = step.figures
+    service.report.watch("alarms", step.figures)
     service.report.state.register_alarms(step.figures)  # in /metrics
     service.desk.attach(step)
     if sinks.iec104 is not None:

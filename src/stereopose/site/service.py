@@ -149,14 +149,22 @@ class SiteService:
         """The standing parts' figures in status.json and the health state."""
         report, packets = self.report, self.packets
         if packets:
-            report.probes["full_streams"] = lambda: {
-                name: {"bytes": r.bytes, "packets": r.packets, "dropped_groups": r.dropped_groups}
-                for name, r in packets.items()
-            }
-        report.probes["console"] = self.hub.figures
+
+            def full_streams() -> dict:
+                return {
+                    name: {
+                        "bytes": r.bytes,
+                        "packets": r.packets,
+                        "dropped_groups": r.dropped_groups,
+                    }
+                    for name, r in packets.items()
+                }
+
+            report.watch("full_streams", full_streams)
+        report.watch("console", self.hub.figures)
         report.state.register_storage(self.maintainer.usage)
-        report.probes["storage"] = self.maintainer.health
-        report.probes["zone_state"] = self.power.figures  # None: no zone has a source
+        report.watch("storage", self.maintainer.health)
+        report.watch("zone_state", self.power.figures)  # None: no zone has a source
 
     def start(self) -> str:
         """Every standing part started in its order; the HTTP server's address."""
