@@ -43,7 +43,6 @@ Nothing is kept per frame: the summary holds running aggregates, every queue is 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import logging
 import threading
 import time
@@ -58,20 +57,17 @@ from stereopose.detection.base import PoseDetector
 from stereopose.extras import require
 from stereopose.fence import Site
 from stereopose.io.cameraset import CameraSet
-from stereopose.io.packets import PacketRing
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink
 from stereopose.io.sinks.incidents import IncidentIds
-from stereopose.io.source import Clock
 from stereopose.io.summary import RunSummary
 from stereopose.nodes.fusion import NodeInput
 from stereopose.onsite.service import OnSite
 from stereopose.pipeline.incidents import IncidentStep
 from stereopose.pipeline.loop import FrameLoop
-from stereopose.pipeline.pipelined import PipelinedCameras
 from stereopose.pipeline.private import private_files, tighten
-from stereopose.pipeline.sources import detecting_cameras
 from stereopose.pipeline.stage3d import Stage3D
 from stereopose.scada.opcua_settings import opcua_settings
+from stereopose.site.cameras import open_cameras, people_source
 from stereopose.site.health.calib_health import CalibrationHealth
 from stereopose.site.health.calib_keeper import CalibrationKeeper, KeeperSettings
 from stereopose.site.health.watch import CameraWatch
@@ -91,7 +87,7 @@ from stereopose.site.restart import Resume
 from stereopose.site.run_parts import RunParts
 from stereopose.site.run_sinks import RunSinks, open_sinks
 from stereopose.site.service import SiteService
-from stereopose.site.site_parts import hazards_watch, mqtt_site, scans_watch
+from stereopose.site.site_parts import mqtt_site
 from stereopose.site.site_switch import Outliving, SiteSwitch
 from stereopose.site.steps import HeldStage, ServeEvents, StepHooks
 from stereopose.site.watchdog import Notifier, Watchdog
@@ -133,56 +129,6 @@ class _Closing(ClosesOnce):
     def release(self) -> None:
         if self._closed:
             self._quiet.__exit__(None, None, None)
-
-
-def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
-    """Per camera (the rate the service should process it at, its own rate): its frame rate,
-    or detect_fps when lower; None while not known (a live stream not yet connected)."""
-    out = {}
-    for s in cams.sources:
-        own = float(s.fps) if s.fps else None
-        nominal = min(own, cams.detect_fps) if own and cams.detect_fps else own
-        out[s.name] = (nominal, own)
-    return out
-
-
-def _open_cameras(
-    plan: ServePlan, packets: dict[str, PacketRing], clock: Clock
-) -> CameraSet | NodeInput:
-    """The cameras, or the detection nodes' people, on the service's clock (its t = 0)."""
-    cfg = plan.config
-    if cfg.input.detection == "nodes":  # the cameras' people from the detection nodes
-        assert plan.mqtt is not None  # plan_serve: [mqtt] host is set
-        i = cfg.input
-        return NodeInput(
-            plan.mqtt,
-            plan.rig,
-            fps=i.detect_fps or i.fps or cfg.fps,
-            window_s=i.node_window_s,
-            wait_s=i.node_wait_s,
-            clock_tolerance_s=i.node_clock_tolerance_s,
-            picture_scale=i.node_picture_scale,
-            clock=clock,
-        )
-    # a service starts at once however long its cameras take: the loop goes on in heartbeats
-    # and the camera watch raises camera_down for each camera that has not delivered
-    return CameraSet(
-        list(plan.sources),
-        list(plan.rig.names),
-        cfg.input.sync,
-        cfg.input.fps,
-        None,
-        open_timeout_s=cfg.input.open_timeout_s,
-        first_frame_timeout_s=None,
-        loop=[c.loop for c in cfg.cameras],
-        detect=[d or None for d in plan.detect_sources],
-        detect_fps=cfg.input.detect_fps,
-        wait_first_frame=False,
-        packets=packets,
-        wall_clock=True,
-        decoders=cfg.input.decoders,
-        clock=clock,
-    )
 
 
 def serve(
@@ -247,7 +193,7 @@ def _serve(
             if on_ready is not None:
                 on_ready(url)
             opened_t = service.clock.since(time.monotonic())  # a camera silent since: down
-            with _open_cameras(plan, service.packets, service.clock) as cams:
+            with open_cameras(plan, service.packets, service.clock) as cams:
                 summary = _run_loop(
                     plan, service, cams, detector, stop, [closing, watchdog], opened_t
                 )
@@ -311,7 +257,7 @@ def _run_loop(
         return cams.clock.since(time.monotonic())
 
     on_site: list[Callable[[Site], None]] = []  # each told every new site
-    pipelined, rates = _people(plan, service, cams, detector, cfg, follow, on_site)
+    pipelined, rates = people_source(plan, service, cams, detector, cfg, follow, on_site)
     # each person id reserved in the log before it is given (site.person_ids)
     stage = Stage3D(
         rig,
@@ -373,41 +319,6 @@ def _run_loop(
     finally:
         ids.close()
         run.parts.close()
-
-
-def _people(
-    plan: ServePlan,
-    service: SiteService,
-    cams: CameraSet | NodeInput,
-    detector: PoseDetector | None,
-    cfg: Config,
-    follow: list[Callable[[Rig], None]],
-    on_site: list[Callable[[Site], None]],
-) -> tuple[PipelinedCameras | NodeInput, Callable[[], dict]]:
-    """Where the steps' people come from, and each camera's nominal rates: the detection nodes'
-    people grouped by capture time, or detection on its own thread here, always on the newest
-    frames (recorded: every step). Each is reported (site.report); what follows a new rig is
-    added to `follow`, what follows a new site to `on_site`."""
-    rig = plan.rig
-    if isinstance(cams, NodeInput):
-        service.report.watch_nodes(cams)  # reported; its receiver watched (run_parts)
-        on_site.append(hazards_watch(cams, service.power, plan.site))  # the nodes' carried steps
-        return cams, cams.rates
-    assert detector is not None  # made in this process unless the nodes detect
-    cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
-    regions, light = cameras.regions, cameras.light
-    assert light is not None  # detecting cameras watch their light
-    service.report.watch_light(light)  # each camera's day or night
-    follow.append(cameras.set_rig)  # the tracks' regions in the new views
-    pipelined = PipelinedCameras(cameras)
-    service.report.watch_pipeline(pipelined)
-    if regions is not None:  # figures by camera in status, /metrics and the console
-        service.report.watch_regions(regions)
-        service.hub.show_regions(regions.view)
-        on_site.append(scans_watch(regions, rig, plan.site))
-    if cameras.carry is not None:
-        on_site.append(hazards_watch(cameras, service.power, plan.site))
-    return pipelined, functools.partial(nominal_rates, cams)
 
 
 def _incidents(
