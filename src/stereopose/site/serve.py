@@ -57,6 +57,7 @@ from stereopose.detection.base import PoseDetector
 from stereopose.extras import require
 from stereopose.fence import Site
 from stereopose.io.cameraset import CameraSet
+from stereopose.io.sinks import close_all
 from stereopose.io.sinks.base import ClosesOnce, FrameResult, Sink
 from stereopose.io.sinks.incidents import IncidentIds
 from stereopose.io.summary import RunSummary
@@ -304,7 +305,12 @@ def _run_loop(
         return start_mono + t if source.live or cams.wall_clock else None
 
     sinks = open_sinks(service, cfg, cams.clock.start_epoch, summary, cams.stats, arrival, rates)
-    run = RunParts(service, cfg, sinks, keeper, cams if isinstance(cams, NodeInput) else None)
+    try:
+        run = RunParts(service, cfg, sinks, keeper, cams if isinstance(cams, NodeInput) else None)
+    except BaseException:  # e.g. the outbox's broker cannot be resolved: the sinks closed
+        close_all(sinks.sinks)
+        keeper.close()
+        raise
     on_site += mqtt_site(sinks.mqtt, plan.site)
     if run.onsite is not None:
         on_site.append(run.onsite.set_site)
