@@ -114,7 +114,9 @@ class ServeEvents:
         if stall.beat(now, step.frame):
             self._began()
         if not delivered and not stall.stalled and self._all_late(t):
-            stall.late(now, self._delivered_t if self._delivered_t is not None else 0.0)
+            # no step with frames since the last one that had some, or since the watch began
+            since = self._delivered_t if self._delivered_t is not None else self.watch.start
+            stall.late(now, since)
             self._began()
         # the stall ends with frames read after it began (a step read before a pause is stale),
         # or, timeout_s on, with no reader delivering: then it is the cameras'

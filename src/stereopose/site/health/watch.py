@@ -83,8 +83,8 @@ class CameraWatch:
         time the watch starts, on the clock of `frame` and `poll`."""
         if not (timeout_s > 0 and math.isfinite(timeout_s)):
             raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s}")
-        self.timeout_s = float(timeout_s)
-        self.cameras = {n: CameraState(quiet_since=float(start)) for n in names}
+        self.timeout_s, self.start = float(timeout_s), float(start)
+        self.cameras = {n: CameraState(quiet_since=self.start) for n in names}
         self._came_back: dict[str, float] = {}  # camera -> arrival of its first frame back
         self._lost: set[str] = set()  # cameras whose stream is known lost (down at the next poll)
 
