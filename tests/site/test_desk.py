@@ -5,7 +5,6 @@ attached, then acknowledges in the book."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from stereopose.alarms import IncidentBook
@@ -27,18 +26,6 @@ class _Script:
         return out
 
 
-def _nobody(frame: int) -> People3D:
-    return People3D(
-        frame=frame,
-        joints=np.zeros((0, 17, 3)),
-        conf=np.ones((0, 17)),
-        ids=np.arange(0),
-        reprojection_px=np.zeros((0, 17)),
-        views=np.full((0, 17), 2),
-        detections=np.zeros((0, 2), dtype=int),
-    )
-
-
 def test_the_desk_refuses_until_the_book_runs_then_acknowledges_in_it() -> None:
     desk = IncidentDesk()
     with pytest.raises(BookNotRunningError, match="not running yet"):
@@ -48,7 +35,7 @@ def test_the_desk_refuses_until_the_book_runs_then_acknowledges_in_it() -> None:
     script.next = [
         Event(t=1.0, frame=1, person=7, zone="busbar", kind="energized", type="enter", onset_t=1.0)
     ]
-    out, _ = step.step(1.0, 1, _nobody(1))
+    out, _ = step.step(1.0, 1, People3D.empty(1, 2))
     incident = out[0].incident
     assert incident is not None
     desk.attach(step)

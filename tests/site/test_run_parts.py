@@ -7,7 +7,6 @@ thread die, with a real broker."""
 from __future__ import annotations
 
 import json
-import threading
 
 import paho.mqtt.client as paho
 import pytest
@@ -36,7 +35,7 @@ def served(tmp_path):
     mqtt = f'[mqtt]\nhost = "127.0.0.1"\nport = {broker.port}\nsite = "demo"\n\n[serve]\n'
     config.write_text(config.read_text().replace("[serve]\n", mqtt, 1))
     plan = plan_serve(config)
-    service = SiteService(plan, threading.Event(), Resume.from_log(plan.events_db))
+    service = SiteService(plan, Resume.from_log(plan.events_db))
     service.start()
     yield service
     service.close()

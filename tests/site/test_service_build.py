@@ -6,7 +6,6 @@ service once it is built; the frame loop's parts reach the standing ones through
 from __future__ import annotations
 
 import json
-import threading
 
 import pytest
 
@@ -30,7 +29,7 @@ def _health(url: str) -> str:
 def service(tmp_path):
     config = write_serve_demo_config(tmp_path / "demo", tmp_path / "data", free_port(), imgsz=320)
     plan = plan_serve(config)
-    built = SiteService(plan, threading.Event(), Resume.from_log(plan.events_db))
+    built = SiteService(plan, Resume.from_log(plan.events_db))
     yield built
     built.close()
 
@@ -69,8 +68,12 @@ def test_nothing_is_set_on_the_service_once_built(service) -> None:
 
 
 def test_the_api_reaches_the_loops_parts_only_while_attached(service) -> None:
-    """Before the frame loop runs, the desks say there is none (the API answers 503); the
-    service's desks are its own from the start, the loop's parts attached to them."""
+    """The app is made with the service's desks (never given another later); before the frame
+    loop runs, each says there is none, and a part attached is there until detached."""
+    state = service.server.app.state
+    assert state.incidents is service.desk
+    assert state.calibration is service.calibration_desk
+    assert state.warnings is service.warnings
     desks = (service.desk, service.calibration_desk, service.warnings)
     assert [d.current for d in desks] == [None, None, None]
     assert not service.desk.running

@@ -3,9 +3,11 @@
 The HTTP API, the OPC UA server and the IEC 104 outstation are made and listening before the
 cameras open; the incident step, the calibration keeper and the warnings on site are made once
 they are (they need the cameras' clock, rate and steps). Each standing part is given a
-`Handover` when it is made, never the later part: the frame loop's part is attached to it as it
-starts and detached as it closes (site.lifecycle), and until then the handover says there is
-none (`current` is None), so the API answers 503 rather than failing.
+`Handover` when it is made, never the later part. The keeper and the warnings on site are
+attached as they start and detached as they close (site.run_parts); the incident step is
+attached once the loop's incident book runs and stays until the service closes. Until a part
+is attached the handover says there is none (`current` is None), so the API answers 503
+rather than failing.
 """
 
 from __future__ import annotations

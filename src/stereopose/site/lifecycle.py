@@ -12,13 +12,14 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-__all__ = ["Part", "Parts", "running"]
+__all__ = ["Part", "Parts", "nothing", "running"]
 
 logger = logging.getLogger(__name__)
 
 
-def _nothing() -> None:
-    """A part that runs from when it is made (its thread started by its constructor)."""
+def nothing() -> None:
+    """A part's start or close with nothing to do (a part running from when it is made, one
+    that leaves nothing open)."""
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,7 @@ class Part:
 
 def running(name: str, close: Callable[[], object]) -> Part:
     """A part already running when made: nothing to start, only its close."""
-    return Part(name, _nothing, close)
+    return Part(name, nothing, close)
 
 
 class Parts:

@@ -180,9 +180,7 @@ def _serve(
             "restart: %d behaviour alarm(s) left open by the last run are ended", len(resume.alarms)
         )
     # [opcua] checked before any work: a ConfigError naming the file and the key
-    service = SiteService(
-        plan, stop, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir)
-    )
+    service = SiteService(plan, resume, opcua=opcua_settings(plan.config_path, cfg, plan.out_dir))
     service.report.watch_detector(choice_of(detector))  # status.json: what detects, and why
     closing = _Closing()
     # systemd told the service is ready at the first step, and fed while steps advance

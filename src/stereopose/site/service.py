@@ -12,7 +12,6 @@ part's figures, `status.json`) is its `report` (site.report)."""
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ from stereopose.site.health.state import ServiceState
 from stereopose.site.http.api.warnings import WarningsDesk
 from stereopose.site.http.app import Desks, create_app
 from stereopose.site.http.web import Console
-from stereopose.site.lifecycle import Part, Parts
+from stereopose.site.lifecycle import Part, Parts, nothing
 from stereopose.site.live import LiveHub
 from stereopose.site.plan import ServePlan, packet_rings
 from stereopose.site.report import StatusReport
@@ -55,13 +54,12 @@ class SiteService:
     def __init__(
         self,
         plan: ServePlan,
-        stop: threading.Event,
         resume: Resume,
         opcua: OpcuaSettings | None = None,
     ) -> None:
         """opcua: [opcua] checked (scada.opcua_settings; None: off)."""
         p = plan
-        self.plan, self.stop, self.resume = plan, stop, resume
+        self.plan, self.resume = plan, resume
         self.clock = Clock.now()  # the service's t = 0: its steps' and events' times
         # the health state, the outputs that failed, each part's figures: status.json
         self.report = StatusReport(
@@ -106,9 +104,9 @@ class SiteService:
         ]
         if self.opcua is not None:  # closed once: a sink of the loop closes it first
             parts.append(Part("the OPC UA server", self.opcua.start, self.opcua.close))
-        parts.append(Part("the output folder", self._make_folder, _nothing))
+        parts.append(Part("the output folder", self._make_folder, nothing))
         if self.site_desk is not None:  # the first file of the data folder's own
-            parts.append(Part("the site desk", self.site_desk.start, _nothing))
+            parts.append(Part("the site desk", self.site_desk.start, nothing))
         parts += [
             Part("the storage maintainer", self.maintainer.start, self._stop_maintainer),
             # the zones' breakers and earthing switches read (a site change: others)
@@ -197,10 +195,6 @@ class SiteService:
     def _stop_maintainer(self) -> None:
         if not self.maintainer.stop(5.0):
             logger.warning("storage: the maintainer did not stop within 5 s")
-
-
-def _nothing() -> None:
-    """A part with nothing to close (or to start)."""
 
 
 def _tickets(plan: ServePlan, wall_start: float) -> TicketDesk | None:
