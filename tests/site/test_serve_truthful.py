@@ -41,7 +41,9 @@ def _calibration(folder: Path) -> tuple[Path, list[str]]:
     return path, [c.name for c in cams]
 
 
-def _config(folder: Path, cameras: list[tuple[str, Path, bool]], timeout_s: float) -> Path:
+def _config(
+    folder: Path, cameras: list[tuple[str, Path, bool]], timeout_s: float, imgsz: int = 320
+) -> Path:
     calib, _ = _calibration(folder)
     cams = "".join(
         f'[[cameras]]\nname = "{n}"\nsource = "{s}"\nloop = {str(lp).lower()}\n\n'
@@ -53,7 +55,7 @@ def _config(folder: Path, cameras: list[tuple[str, Path, bool]], timeout_s: floa
         # whole frames: each step costs an inference, so a 960 fps file is
         # processed far under its rate (regions would find these empty
         # cameras idle and keep up)
-        "[detector]\nimgsz = 320\nregions = false\n\n[storage]\nclips = false\n\n"
+        f"[detector]\nimgsz = {imgsz}\nregions = false\n\n[storage]\nclips = false\n\n"
         f"[serve]\nport = {free_port()}\ncamera_timeout_s = {timeout_s}\n"
         f"status_interval_s = 0.5\n\n{cams}"
     )
@@ -111,10 +113,12 @@ def _status(data: Path) -> dict:
 def test_file_cameras_events_on_the_wall_clock_and_a_slow_camera_degrades(tmp_path):
     # 960 fps files (a high-speed camera; 1000 and more are taken for a broken header): their
     # own time (frame / fps) runs far slower than the wall clock, and no box processes them
-    # at half their rate (about 200-300 steps/s here with 96 x 64 frames)
+    # at half their rate: each step is one whole-frame inference at imgsz 1280 (about 50 steps/s
+    # on a 2-core AMD EPYC; at imgsz 320 it was 410-430, too near the 480 of half the rate for
+    # a faster box)
     looped = write_video(tmp_path / "looped.mp4", 30, 960.0, SIZE)
     short = write_video(tmp_path / "short.mp4", 40, 960.0, SIZE)
-    config = _config(tmp_path, [("cam01", looped, True), ("cam02", short, False)], 1.0)
+    config = _config(tmp_path, [("cam01", looped, True), ("cam02", short, False)], 1.0, 1280)
     data, log = tmp_path / "data", tmp_path / "serve.log"
     proc = _start(config, log)
     seen: dict[str, float] = {}  # event type -> when it was first seen in the log
