@@ -223,3 +223,32 @@ def test_a_camera_that_sees_someone_near_a_hazard_is_never_carried():
     assert report["cam01"]["near_hazard"] == 5  # its turns at steps 3, 5, ..., 11
     assert report["cam02"]["near_hazard"] == 0
     assert report["cam01"]["detected"] + report["cam01"]["carried"] == 20
+
+
+def test_who_is_near_a_hazard_is_asked_only_for_the_cameras_that_would_be_carried():
+    """`hold` as a function: asked at a step only when some camera would be carried, and only
+    about those (finding who is near a hazard costs a millisecond a step); what it names is
+    held as a set would be."""
+    names = ["cam01", "cam02"]
+    carry = Carrier()
+    asked: list[list[str]] = []
+
+    def hold(ready: list[str]) -> set[str]:
+        asked.append(list(ready))
+        return {"cam01"}
+
+    carried = []
+    for step in range(12):
+        t = step * DT
+        skip = carry.plan(names, step, t, hold)
+        carried.append(skip)
+        for name in names:
+            if name in skip:
+                carry.carried(name, step)
+            else:
+                carry.seen(name, people(name, step, person(500)), step, t)
+    assert asked and len(asked) < 12  # not at the first steps (nothing slow yet), nor every
+    assert all(len(a) == 1 for a in asked)  # the cameras take turns: one ready at a step
+    assert not any("cam01" in s for s in carried)
+    assert any("cam02" in s for s in carried)
+    assert carry.report()["cam01"]["near_hazard"] == sum(a == ["cam01"] for a in asked)

@@ -121,6 +121,29 @@ def test_motion_finds_what_moves_and_ignores_noise_and_a_global_change():
         MotionDetector(0)
 
 
+def test_motion_after_frames_it_skipped_starts_again():
+    """A camera detected whole for a while (its motion unused, its frames not read): the
+    average, stale, starts again from the next frame, which gives no box (a scene changed in
+    the gap is no one's motion); motion after it is found as before."""
+    rng = np.random.default_rng(2)
+    grey = np.full((1080, 1920, 3), 100, np.uint8)
+
+    def noisy(im):
+        return np.clip(im + rng.normal(0, 2, im.shape), 0, 255).astype(np.uint8)
+
+    m = MotionDetector(threshold=25)
+    m.update(noisy(grey))
+    m.skip()
+    changed = grey.copy()
+    changed[100:300, 100:400] = 200  # a door opened while the camera was detected whole
+    assert len(m.update(noisy(changed))) == 0  # compared with nothing stale
+    assert len(m.update(noisy(changed))) == 0
+    moved = changed.copy()
+    moved[400:700, 900:1000] = 220
+    assert len(m.update(noisy(moved))) == 1
+    assert m.resets == 0
+
+
 def test_many_regions_at_once_are_merged_or_give_way_to_the_whole_frame():
     from stereopose.detection.regional import MAX_REGIONS, RegionDetector
 

@@ -30,7 +30,7 @@ with the detected cameras' people as usual.
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -116,23 +116,36 @@ class Carrier:
         self.settings = settings or CarrySettings()
         self._cameras: dict[str, _Seen] = {}
 
-    def plan(self, names: list[str], step: int, t: float, hold: Collection[str] = ()) -> set[str]:
+    def plan(
+        self,
+        names: list[str],
+        step: int,
+        t: float,
+        hold: Collection[str] | Callable[[list[str]], Collection[str]] = (),
+    ) -> set[str]:
         """The cameras of `names` (those with a picture at this step) carried at `step`;
-        hold: cameras that see someone near a hazard, never carried (counted as held)."""
+        hold: cameras that see someone near a hazard, never carried (counted as held), or
+        what names them among the cameras that would be carried (asked only when there is
+        one: finding who is near a hazard costs a millisecond a step)."""
+        ready = [name for name in names if self._ready(name, step, t)]
+        if not ready:
+            return set()
+        held = hold(ready) if callable(hold) else hold
         out = set()
-        for name in names:
-            seen = self._cameras.get(name)
-            if seen is None or not seen.slow or seen.last is None:
-                continue
-            if seen.last[1] != step - 1 or (step + seen.turn) % 2:
-                continue  # its last step was carried (or missed), or not its turn
-            if t <= seen.last[2]:
-                continue
-            if name in hold:
-                seen.held += 1
-                continue
-            out.add(name)
+        for name in ready:
+            if name in held:
+                self._cameras[name].held += 1
+            else:
+                out.add(name)
         return out
+
+    def _ready(self, name: str, step: int, t: float) -> bool:
+        """Whether camera `name` may be carried at `step` but for a hazard."""
+        seen = self._cameras.get(name)
+        if seen is None or not seen.slow or seen.last is None:
+            return False
+        # its last step was carried (or missed), or not its turn
+        return seen.last[1] == step - 1 and not (step + seen.turn) % 2 and t > seen.last[2]
 
     def seen(self, name: str, people: People2D, step: int, t: float) -> None:
         """Camera `name`'s people detected at `step`, time t."""

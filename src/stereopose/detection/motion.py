@@ -22,7 +22,8 @@ FLOOD = 0.4  # more than this share of the frame moving: a global change, not a 
 
 class MotionDetector:
     """One camera's motion: `update(image)` once per frame, the boxes (N, 4) x1 y1 x2 y2 in the
-    image's pixels. The first frame (or the first of another size) gives none."""
+    image's pixels. The first frame (or the first of another size, or the first after a
+    skip) gives none."""
 
     def __init__(self, threshold: int = 25) -> None:
         if not 1 <= int(threshold) <= 255:
@@ -31,6 +32,11 @@ class MotionDetector:
         self._average: np.ndarray | None = None
         self._shape: tuple[int, ...] | None = None
         self.resets = 0  # global changes seen
+
+    def skip(self) -> None:
+        """A frame not looked at (its camera detected whole, motion unused): the average,
+        stale after a gap, starts again from the next frame updated (which gives no boxes)."""
+        self._average = None
 
     def update(self, image: np.ndarray) -> np.ndarray:
         step = max(image.shape[0] // HEIGHT, 1)  # every step-th pixel: no pass over the frame

@@ -41,7 +41,8 @@ class CameraRegions:
     cost more and see no finer); steps with no inference at all; full scans; model input
     pixels used, and what whole frames at the detector's size would have used; frame pixels cut
     into regions, and the frames' own pixels; people found; newcomers found by motion and by a
-    scan (people in no region of a track or of the camera's own people)."""
+    scan (people in no region of a track or of the camera's own people); frames motion looked
+    at (none where the camera is detected whole whatever moves)."""
 
     steps: int = 0
     regions: int = 0
@@ -55,6 +56,7 @@ class CameraRegions:
     people: int = 0
     found_by_motion: int = 0
     found_by_scan: int = 0
+    motion_frames: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         out: dict[str, float | int] = asdict(self)

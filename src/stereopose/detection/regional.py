@@ -192,7 +192,6 @@ class RegionDetector:
         state = self._state[name]
         h, w = image.shape[:2]
         size = (w, h)
-        moving = state.motion.update(image)
         state.held = [(b, seen) for b, seen in state.held if t - seen <= s.hold_s]
         scan = t >= state.next_scan
         if scan:
@@ -214,6 +213,18 @@ class RegionDetector:
             ]
         if state.held:
             people += squares(np.array([b for b, _ in state.held]), size, Why.SEEN, small)
+        found_whole = self._watched.get(name, 0.0) * h * whole_scale >= FOUND_WHOLE_PX
+        if (scan and found_whole) or (
+            not scan and any(max(r.side_w, r.side_h) > largest for r in people)
+        ):
+            # detected whole whatever moves (a scan that finds everyone whole, or someone too
+            # large for a region): motion's boxes would go unused, and its frame is not read;
+            # its average starts again at the next frame it looks at
+            state.motion.skip()
+            moving = np.zeros((0, 4))
+        else:
+            moving = state.motion.update(image)
+            self.cameras[name].motion_frames += 1
         # motion where nobody is known yet: a newcomer (a known person's moving limbs are in
         # his own region already)
         motion = [
@@ -230,7 +241,7 @@ class RegionDetector:
             # one whole frame and a region: every tile is looked at once in as many scans);
             # the camera's first scan, every tile
             tile = 2 * s.imgsz
-            if self._watched.get(name, 0.0) * h * whole_scale >= FOUND_WHOLE_PX:
+            if found_whole:
                 # every worker that matters is found whole: no tile, and a region only for
                 # whom the whole frame sees at less than half its detail
                 return _finer(regions, s.imgsz, whole_scale), True, True, False
@@ -254,7 +265,6 @@ class RegionDetector:
         whole_px = whole.input_shape[0] * whole.input_shape[1]
         finest = min(s.imgsz / max(r.side_w, r.side_h) for r in regions)
         if self.costs is not None:
-            found_whole = self._watched.get(name, 0.0) * h * whole_scale >= FOUND_WHOLE_PX
             return regions, False, False, found_whole or whole_scale >= finest
         if len(regions) * s.imgsz**2 >= whole_px and whole_scale >= finest:
             return [], False, True, False  # cheaper whole, and no region seen finer

@@ -304,7 +304,7 @@ class DetectNode:
         order = [n for n, im in images.items() if im is not None]
         carried: set[str] = set()
         if self.carry is not None:
-            carried = self.carry.plan(order, step, t, self.holds.held(order))
+            carried = self.carry.plan(order, step, t, self.holds.held)
         detected = {n: im for n, im in images.items() if n not in carried}
         people = detect_step(
             self.detector,

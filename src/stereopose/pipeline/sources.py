@@ -187,7 +187,9 @@ class Cameras:
         order = [n for n, im in frames.images.items() if im is not None]
         carried = set()
         if self.carry is not None:
-            carried = self.carry.plan(order, step.frame, step.t, self._held(order, step.t))
+            carried = self.carry.plan(
+                order, step.frame, step.t, lambda ready: self._held(ready, step.t)
+            )
         if carried:
             frames = FrameSet(
                 step.frame, step.t, {n: im for n, im in frames.images.items() if n not in carried}
