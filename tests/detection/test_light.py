@@ -5,6 +5,7 @@ back the people the noise hid; a black or blinded camera is said so."""
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 from pathlib import Path
 
@@ -116,3 +117,23 @@ def test_the_measure_reads_grey_and_colour_frames() -> None:
     m0, m1 = measure(flat), measure(cv2.cvtColor(noisy, cv2.COLOR_GRAY2BGR))
     assert m0["noise"] < 0.5 and 8 < m1["noise"] < 12  # sigma 10 estimated
     assert m1["colour"] == 0 and abs(m1["brightness"] - 100) < 2
+
+
+def test_the_cameras_measures_fall_on_different_steps():
+    """Every camera is measured at its first step, then every MEASURE_EVERY steps, the
+    cameras staggered: after the first step, a step of four cameras measures at most one (not
+    all four at once every fifth step, a step four measures slower)."""
+    from stereopose.detection.light import MEASURE_EVERY
+
+    rng = np.random.default_rng(3)
+    names = ["cam01", "cam02", "cam03", "cam04"]
+    frame = rng.integers(60, 200, (240, 320, 3), dtype=np.uint8)
+    light = LightWatch()
+    counts = []
+    for i in range(4 * MEASURE_EVERY + 1):
+        light.prepare(dict.fromkeys(names, frame), i / 10)
+        counts.append([light.figures()[n]["measures"] for n in names])
+    assert counts[0] == [1, 1, 1, 1]
+    per_step = [sum(b) - sum(a) for a, b in itertools.pairwise(counts)]
+    assert max(per_step) == 1, per_step
+    assert counts[-1] == [5, 5, 5, 5]  # one every MEASURE_EVERY steps each

@@ -4,7 +4,8 @@
     images = light.prepare(images, t)          # before detection: {camera: BGR frame}
     light.figures()                            # per camera: mode, brightness, contrast, ...
 
-Per camera, every MEASURE_EVERY steps, a cheap measure of the frame already decoded:
+Per camera, at its first step and then every MEASURE_EVERY steps (the cameras' measures on
+different steps), a cheap measure of the frame already decoded:
 - brightness: the mean grey level (0-255) of a small copy;
 - contrast: the grey levels' standard deviation there;
 - noise: the sensor noise's standard deviation in grey levels, from the full-resolution
@@ -109,6 +110,10 @@ class _Camera:
     figures: dict[str, float] = field(default_factory=dict)
     mode: str = "day"
     steps: int = 0
+    # its measures fall on other steps than the other cameras' (staggered: a step measures
+    # about one camera in MEASURE_EVERY, not all of them at once every MEASURE_EVERY steps)
+    phase: int = 0
+    measured: int = 0  # measures taken
     changes: int = 0  # mode changes
     since_t: float = 0.0  # the step time its mode began
     prepared: int = 0  # steps its picture was prepared for the detector
@@ -134,8 +139,9 @@ class LightWatch:
                 continue
             cam = self._cameras.get(name)
             if cam is None:
-                cam = self._cameras[name] = _Camera(since_t=t)
-            if cam.steps % MEASURE_EVERY == 0:
+                phase = len(self._cameras) % MEASURE_EVERY
+                cam = self._cameras[name] = _Camera(since_t=t, phase=phase)
+            if cam.steps == 0 or (cam.steps + cam.phase) % MEASURE_EVERY == 0:
                 self._measure(cam, image, t)
             cam.steps += 1
             if self.enhance and cam.mode == "night":
@@ -149,6 +155,7 @@ class LightWatch:
 
     def _measure(self, cam: _Camera, image: np.ndarray, t: float) -> None:
         cam.measures.append(measure(image))
+        cam.measured += 1
         smooth = {k: float(np.median([m[k] for m in cam.measures])) for k in cam.measures[0]}
         mode = _mode(smooth, cam.mode)
         with self._lock:
@@ -183,7 +190,8 @@ class LightWatch:
 
     def figures(self) -> dict[str, dict]:
         """Per camera: its mode and since when (step time), the smoothed figures, mode
-        changes, steps prepared and the milliseconds a preparation took on average."""
+        changes, measures taken, steps prepared and the milliseconds a preparation took on
+        average."""
         with self._lock:
             return {
                 name: {
@@ -191,6 +199,7 @@ class LightWatch:
                     "since_t": round(c.since_t, 3),
                     **{k: round(v, 2) for k, v in c.figures.items()},
                     "changes": c.changes,
+                    "measures": c.measured,
                     "prepared_steps": c.prepared,
                     "prepare_ms": round(1000 * c.prepare_s / c.prepared, 2) if c.prepared else 0.0,
                 }
