@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from stereopose.config import Config
 from stereopose.detection.base import PoseDetector
@@ -23,7 +24,7 @@ from stereopose.site.service import SiteService
 from stereopose.site.site_parts import hazards_watch, scans_watch
 from stereopose.types import Rig
 
-__all__ = ["nominal_rates", "open_cameras", "people_source"]
+__all__ = ["PeopleSource", "nominal_rates", "open_cameras", "people_source"]
 
 
 def nominal_rates(cams: CameraSet) -> dict[str, tuple[float | None, float | None]]:
@@ -76,36 +77,52 @@ def open_cameras(
     )
 
 
+@dataclass(frozen=True)
+class PeopleSource:
+    """Where the steps' people come from (`steps`), each camera's nominal rates (`rates`),
+    and what of it follows a new rig (`rig_followers`: the tracks' regions in the new views)
+    and a new site (`site_followers`: the regions' scans, the carried steps' hazards)."""
+
+    steps: PipelinedCameras | NodeInput
+    rates: Callable[[], dict]
+    rig_followers: tuple[Callable[[Rig], None], ...] = ()
+    site_followers: tuple[Callable[[Site], None], ...] = ()
+
+
 def people_source(
     plan: ServePlan,
     service: SiteService,
     cams: CameraSet | NodeInput,
     detector: PoseDetector | None,
     cfg: Config,
-    follow: list[Callable[[Rig], None]],
-    on_site: list[Callable[[Site], None]],
-) -> tuple[PipelinedCameras | NodeInput, Callable[[], dict]]:
-    """Where the steps' people come from, and each camera's nominal rates: the detection nodes'
-    people grouped by capture time, or detection on its own thread here, always on the newest
-    frames (recorded: every step). Each is reported (site.report); what follows a new rig is
-    added to `follow`, what follows a new site to `on_site`."""
+) -> PeopleSource:
+    """Where the steps' people come from: the detection nodes' people grouped by capture
+    time, or detection on its own thread here, always on the newest frames (recorded: every
+    step). Each is reported (site.report)."""
     rig = plan.rig
     if isinstance(cams, NodeInput):
         service.report.watch_nodes(cams)  # reported; its receiver watched (run_parts)
-        on_site.append(hazards_watch(cams, service.power, plan.site))  # the nodes' carried steps
-        return cams, cams.rates
+        # the nodes' carried steps
+        return PeopleSource(
+            cams, cams.rates, site_followers=(hazards_watch(cams, service.power, plan.site),)
+        )
     assert detector is not None  # made in this process unless the nodes detect
-    cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: on_site
+    cameras = detecting_cameras(cams, rig, detector, cfg.detector)  # scans: site_followers
     regions, light = cameras.regions, cameras.light
     assert light is not None  # detecting cameras watch their light
     service.report.watch_light(light)  # each camera's day or night
-    follow.append(cameras.set_rig)  # the tracks' regions in the new views
     pipelined = PipelinedCameras(cameras)
     service.report.watch_pipeline(pipelined)
+    on_site: list[Callable[[Site], None]] = []
     if regions is not None:  # figures by camera in status, /metrics and the console
         service.report.watch_regions(regions)
         service.hub.show_regions(regions.view)
         on_site.append(scans_watch(regions, rig, plan.site))
     if cameras.carry is not None:
         on_site.append(hazards_watch(cameras, service.power, plan.site))
-    return pipelined, functools.partial(nominal_rates, cams)
+    return PeopleSource(
+        pipelined,
+        functools.partial(nominal_rates, cams),
+        rig_followers=(cameras.set_rig,),  # the tracks' regions in the new views
+        site_followers=tuple(on_site),
+    )

@@ -255,8 +255,9 @@ def _run_loop(
     def now_t() -> float:  # the service's clock: the steps' and the events' t
         return cams.clock.since(time.monotonic())
 
-    on_site: list[Callable[[Site], None]] = []  # each told every new site
-    pipelined, rates = people_source(plan, service, cams, detector, cfg, follow, on_site)
+    people = people_source(plan, service, cams, detector, cfg)
+    follow += people.rig_followers
+    on_site = list(people.site_followers)  # each told every new site
     # each person id reserved in the log before it is given (site.person_ids)
     stage = Stage3D(
         rig,
@@ -278,7 +279,7 @@ def _run_loop(
     # step's time is its capture time, and the steps' times only rise)
     lag_s = cams.lag_s if isinstance(cams, NodeInput) else 0.0
     source = ServeSource(
-        pipelined,
+        people.steps,
         stop=stop,
         heartbeat_s=HEARTBEAT_S,
         on_step=events.step,
@@ -302,7 +303,9 @@ def _run_loop(
     def arrival(t: float) -> float | None:
         return start_mono + t if source.live or cams.wall_clock else None
 
-    sinks = open_sinks(service, cfg, cams.clock.start_epoch, summary, cams.stats, arrival, rates)
+    sinks = open_sinks(
+        service, cfg, cams.clock.start_epoch, summary, cams.stats, arrival, people.rates
+    )
     try:
         run = RunParts(service, cfg, sinks, keeper, cams if isinstance(cams, NodeInput) else None)
     except BaseException:  # e.g. the outbox's broker cannot be resolved: the sinks closed
