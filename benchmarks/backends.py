@@ -43,7 +43,7 @@ VARIANTS = {  # name: (backend, precision)
     "onnxruntime_fp32": ("onnx", "fp32"),
     "openvino_fp32": ("openvino", "fp32"),
     "openvino_bf16": ("openvino", "bf16"),
-    "openvino_int8": ("openvino", "int8"),  # OpenVINO's INT8 model (NNCF), its head in fp32
+    "openvino_int8": ("openvino", "int8"),  # OpenVINO's INT8 model (NNCF), its head in floats
 }
 IMGSZ = (640, 320)
 PCK_PX = (1.0, 2.0, 5.0)
@@ -279,8 +279,8 @@ def markdown(cpus: dict) -> list[str]:
     if int8:
         md += [
             "",
-            "OpenVINO's INT8 model (NNCF, its pose head in fp32) against ONNX Runtime fp32, by "
-            "CPU: the same figures, and its speed against bf16's:",
+            "OpenVINO's INT8 model (NNCF, its pose head and the inside of each SiLU in floats) "
+            "against ONNX Runtime fp32, by CPU: the same figures, and its speed against bf16's:",
             "",
             "| CPU | people matched / only one | 2D median / p95 / max px | 3D median / p95 mm "
             "| ms per frame, 2 threads: bf16 -> int8 | `run` wall s: bf16 -> int8 |",

@@ -13,7 +13,9 @@ from stereopose.detection.int8_choice import MIN_SPEEDUP, SPEED_FILE, Int8Found,
 from stereopose.detection.int8_openvino import (
     CHECK_MISSED,
     CHECK_P95_PX,
+    RECIPE,
     check,
+    current,
     quantize_int8_openvino,
     read_check,
 )
@@ -23,6 +25,7 @@ from stereopose.detection.models import (
     default_onnx,
     int8_videos,
 )
+from stereopose.detection.openvino_core import ov_core
 
 pytest.importorskip("openvino")
 pytest.importorskip("nncf")
@@ -49,13 +52,57 @@ def test_the_model_and_its_check_are_written_together(made):
     assert not list(made.parent.glob(".int8.*"))
 
 
+def test_each_silu_is_left_whole_so_that_it_fuses_into_its_convolution(made):
+    """Quantisers at the convolutions' inputs, none inside x * sigmoid(x): a quantised
+    sigmoid or product keeps OpenVINO from fusing the activation into the convolution."""
+    model = ov_core().read_model(str(made))
+    fq = [op for op in model.get_ops() if op.get_type_name() == "FakeQuantize"]
+    assert len(fq) > 40  # the backbone and neck are quantised
+    silu = [op for op in model.get_ops() if op.get_friendly_name().endswith("/act/Mul")]
+    assert len(silu) > 40
+    for op in silu:
+        for value in op.input_values():
+            assert value.get_node().get_type_name() != "FakeQuantize", op.get_friendly_name()
+    # its check says how it was made; a model made otherwise is made again
+    assert read_check(made)["recipe"] == RECIPE and current(made)
+
+
+def test_a_model_made_by_an_older_recipe_is_stale(made, tmp_path, monkeypatch, capsys):
+    old = tmp_path / made.name
+    old.write_bytes(made.read_bytes())
+    old.with_suffix(".bin").write_bytes(made.with_suffix(".bin").read_bytes())
+    found = read_check(made)
+    found.pop("recipe")
+    old.with_suffix(".json").write_text(json.dumps(found))
+    assert not current(old)
+    monkeypatch.setattr("stereopose.detection.models.openvino_int8_path", lambda *a: old)
+    from stereopose.detection.int8_choice import find_int8
+
+    stale = find_int8("fp32", measure=False)
+    assert stale.stale and "older recipe" in (stale.refusal("fp32") or "")
+    c = choose(bf16=True, int8=stale)
+    assert c.precision == "bf16" and "older recipe" in c.why
+    # `models export` makes it again, and says why; then it is current and kept as it is
+    from stereopose.cli import main
+
+    args = ["models", "export", "--openvino-int8", "--out", str(old)]
+    assert main(args) == 0
+    assert "made by an older recipe, made again" in capsys.readouterr().out
+    assert current(old) and read_check(old)["recipe"] == RECIPE
+    made_at = old.stat().st_mtime_ns
+    assert main(args) == 0 and old.stat().st_mtime_ns == made_at
+    assert "older recipe" not in capsys.readouterr().out
+
+
 def test_it_finds_the_people_fp32_finds_on_real_frames_it_was_not_made_from(made):
     from stereopose.detection.yolo_openvino import OpenVinoPoseDetector
 
     frames = calibration_frames(int8_videos(), 8, phase=0.25)
     ref = OpenVinoPoseDetector(default_onnx(), precision="fp32", threads=2)
     int8 = OpenVinoPoseDetector(made, precision="int8", threads=2)
-    assert int8.runs_in == "f32"  # its float layers (the pose head) in fp32
+    # its float layers (the pose head) in bfloat16 where the CPU has it, else in fp32
+    caps = ov_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    assert int8.runs_in == ("bf16" if "BF16" in caps else "f32")
     found = check(ref, int8, frames)
     # the same people, each joint where fp32 puts it to a few pixels in most of them (the
     # tail, p95, is what the check bounds: benchmarks/results/backends.md)

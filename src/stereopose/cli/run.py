@@ -162,7 +162,7 @@ def _default_openvino_int8(models: ModuleType, force: bool) -> None:
     import importlib.util
 
     target = models.openvino_int8_path()
-    if target.is_file() and not force:
+    if target.is_file() and not force and _current_int8(target):
         _said_int8(target)
         return
     missing = [m for m in ("openvino", "nncf") if importlib.util.find_spec(m) is None]
@@ -196,11 +196,22 @@ def _export_openvino_int8(models: ModuleType, args: argparse.Namespace) -> Path:
         if src.suffix == ".pt":
             src = models.export_onnx(src, models.models_dir() / f"{src.stem}.onnx")
         target = args.out or models.models_dir() / f"{src.stem}{models.INT8_SUFFIX}.xml"
-    if Path(target).is_file() and not args.force:
+    if Path(target).is_file() and not args.force and _current_int8(Path(target)):
         return Path(target)
     from stereopose.detection.int8_openvino import quantize_int8_openvino
 
     return quantize_int8_openvino(src, target)
+
+
+def _current_int8(path: Path) -> bool:
+    """Whether the INT8 model at `path` was made by today's recipe (else it is made again,
+    and the user told why)."""
+    from stereopose.detection.int8_openvino import current
+
+    if current(path):
+        return True
+    out.print(f"{path}: made by an older recipe, made again", highlight=False, soft_wrap=True)
+    return False
 
 
 def _said_int8(path: Path) -> None:

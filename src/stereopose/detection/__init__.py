@@ -284,10 +284,10 @@ def _int8(path: Path, default: bool) -> Path:
 def _openvino_int8(path: Path, default: bool) -> Path:
     """OpenVINO's INT8 model of the ONNX model at `path` (an .xml given: taken as it is),
     quantised once into the cache."""
-    from stereopose.detection.int8_openvino import quantize_int8_openvino
+    from stereopose.detection.int8_openvino import current, quantize_int8_openvino
     from stereopose.detection.models import INT8_SUFFIX, openvino_int8_path
 
     if path.suffix == ".xml":
         return path
     target = openvino_int8_path() if default else models_dir() / f"{path.stem}{INT8_SUFFIX}.xml"
-    return target if target.is_file() else quantize_int8_openvino(path, target)
+    return target if current(target) else quantize_int8_openvino(path, target)

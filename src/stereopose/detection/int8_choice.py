@@ -37,12 +37,18 @@ class Int8Found:
     path: Path | None
     check: dict | None
     speedup: float | None
+    stale: bool = False  # made by an older recipe (detection.int8_openvino.RECIPE)
 
     def refusal(self, against: str) -> str | None:
         """Why the auto choice does not take it (None: it does); against: the float model it
         is weighed against, as said to the user ("OpenVINO bf16")."""
         if self.path is None:
             return "no INT8 model made (`stereopose models export --int8`)"
+        if self.stale:
+            return (
+                "the INT8 model was made by an older recipe "
+                "(`stereopose models export --openvino-int8 --force` makes it again)"
+            )
         if not self.check or not self.check.get("accepted"):
             p95 = (self.check or {}).get("p95_px")
             bound = (self.check or {}).get("p95_bound_px")
@@ -64,13 +70,15 @@ class Int8Found:
 def find_int8(precision: str, measure: bool = True) -> Int8Found:
     """The default INT8 model's state here, weighed against the float model run by OpenVINO
     in `precision` (fp32 or bf16). measure: time it now if this machine has no figure yet."""
-    from stereopose.detection.int8_openvino import read_check
+    from stereopose.detection.int8_openvino import current, read_check
     from stereopose.detection.models import openvino_int8_path
 
     path = openvino_int8_path()
     if not path.is_file() or not path.with_suffix(".bin").is_file():
         return Int8Found(None, None, None)
     check = read_check(path)
+    if check and not current(path):
+        return Int8Found(path, check, None, stale=True)
     if not check or not check.get("accepted"):
         return Int8Found(path, check, None)
     return Int8Found(path, check, speedup(path, precision, measure))

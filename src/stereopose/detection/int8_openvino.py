@@ -5,7 +5,13 @@ letterboxed as detection does, and writes OpenVINO's own model files (``.xml`` a
 which the backbone's and neck's convolutions run in 8-bit integers (weights per channel,
 symmetric; activations asymmetric: NNCF's "mixed" preset). Left in floats, as in the ONNX
 Runtime model (detection.int8): the pose head (``/model.23/`` in an Ultralytics export), whose
-outputs are keypoint offsets times the stride, where 8 bits put joints tens of pixels off.
+outputs are keypoint offsets times the stride, where 8 bits put joints tens of pixels off; and
+the inside of each SiLU (``x * sigmoid(x)``, the activation of every convolution block). Left to
+itself, NNCF takes that product for a multiplication of two activations and quantises both its
+inputs and the sigmoid's output: OpenVINO can then no longer fuse the SiLU into the
+convolution before it, and runs it apart (on an AMD EPYC, 9 ms of a 34 ms batch of four demo
+frames, and the model was no faster than bf16's). Quantised at the convolutions' inputs alone,
+the same batch takes 26 ms, its joints a little nearer fp32's.
 
 `check` says how far the quantised model's people are from the float model's on frames it was
 not calibrated on: people matched by box overlap, the distance of the joints both see. The
@@ -50,6 +56,10 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 HEAD = r".*/model\.23/.*"  # the pose head of an Ultralytics export: left in floats
+SILU = r".*/act/Mul"  # x * sigmoid(x) of each convolution block: left whole (see above)
+# how the INT8 model is made: written in its check; a model made another way is stale, and
+# `stereopose models export` (`make install`) makes it again
+RECIPE = 2
 # 2D joints of the INT8 model against the float model's, p95 over the check's frames, at most:
 # OpenVINO bf16's on the real demo (5.6-5.9 px, benchmarks/results/backends.md), whose 3D
 # joints are within 5 cm (p95) of fp32's
@@ -88,7 +98,7 @@ def quantize(src: Path, out: Path, frames: Sequence[np.ndarray], imgsz: int = 64
         nncf.Dataset(blobs),
         preset=nncf.QuantizationPreset.MIXED,
         subset_size=len(blobs),
-        ignored_scope=nncf.IgnoredScope(patterns=[HEAD], validate=False),
+        ignored_scope=nncf.IgnoredScope(patterns=[HEAD, SILU], types=["Sigmoid"], validate=False),
     )
     ov.save_model(quantized, str(out), compress_to_fp16=False)
     return out
@@ -163,6 +173,13 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(inter / union) if union > 0 else 0.0
 
 
+def current(model: Path) -> bool:
+    """Whether the INT8 model at `model` (.xml) is there with its check, made by this
+    RECIPE (a model made by an older one is made again)."""
+    found = read_check(model) if model.is_file() else None
+    return found is not None and found.get("recipe") == RECIPE
+
+
 def check_path(model: Path) -> Path:
     """Where the check of the INT8 model at `model` (.xml) is kept."""
     return model.with_suffix(".json")
@@ -217,6 +234,7 @@ def quantize_int8_openvino(
             frames,
         )
         found["model"] = src.name
+        found["recipe"] = RECIPE
         staged.with_suffix(".json").write_text(json.dumps(found, indent=1) + "\n", "utf-8")
         for suffix in (".bin", ".json", ".xml"):  # the .xml last: its presence says complete
             os.replace(staged.with_suffix(suffix), out.with_suffix(suffix))
