@@ -22,6 +22,7 @@ import numpy as np
 from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed, to_u8_blob
 from stereopose.detection.models import ModelError, check_weights
 from stereopose.detection.openvino_core import ov_core
+from stereopose.detection.openvino_static import Key, StaticShapes
 from stereopose.skeleton import NUM_JOINTS
 
 if TYPE_CHECKING:
@@ -122,6 +123,7 @@ class OpenVinoPoseDetector:
         self.dynamic = shape[2].is_dynamic or shape[3].is_dynamic
         self.fixed = None if self.dynamic else (shape[2].get_length(), shape[3].get_length())
         self.batch_dynamic = shape[0].is_dynamic
+        source = net.clone()  # before its input's preparation: for models of one shape
         net = _taking_bgr_bytes(net)
         config: dict[str, str] = {"PERFORMANCE_HINT": "LATENCY"}
         n = threads or int(os.environ.get("STEREOPOSE_THREADS", 0))
@@ -147,10 +149,15 @@ class OpenVinoPoseDetector:
         # a batch split over two inference streams on a CPU (the same outputs, about 13 %
         # faster than one stream of the whole batch on 2 cores); one image: the one stream
         self._split: list = []
+        split = {**config, "PERFORMANCE_HINT": "THROUGHPUT", "NUM_STREAMS": str(STREAMS)}
         if self.device == "CPU" and self.batch_dynamic and (n or os.cpu_count() or 1) >= 2:
-            split = {**config, "PERFORMANCE_HINT": "THROUGHPUT", "NUM_STREAMS": str(STREAMS)}
             parallel = core.compile_model(net, self.device, split)
             self._split = [parallel.create_infer_request() for _ in range(STREAMS)]
+        # the shapes met most compiled for themselves too (detection.openvino_static)
+        self.static: StaticShapes | None = None
+        if self.device == "CPU" and self.dynamic:
+            configs = {"one": config, "split": split}
+            self.static = StaticShapes(lambda key: _compile_static(source, key, configs))
         try:
             ran = self.compiled.get_property("INFERENCE_PRECISION_HINT").get_type_name()
         except Exception:  # a device without the property (AUTO before it chose)
@@ -166,20 +173,44 @@ class OpenVinoPoseDetector:
 
     def _infer(self, blob: np.ndarray) -> np.ndarray:
         if len(blob) >= 2 and self._split:
-            parts = np.array_split(blob, len(self._split))
-            running = [r for r, part in zip(self._split, parts, strict=True) if len(part)]
-            for request, part in zip(running, parts, strict=False):
+            parts = [p for p in np.array_split(blob, len(self._split)) if len(p)]
+            shapes = {p.shape[:3]: p for p in parts}  # each shape counted once a call
+            own = {shape: self._own("split", p) for shape, p in shapes.items()}
+            running = [(own[part.shape[:3]] or self._split)[i] for i, part in enumerate(parts)]
+            for request, part in zip(running, parts, strict=True):
                 request.start_async([part])
             for request in running:
                 request.wait()
             return np.concatenate([r.get_output_tensor(0).data for r in running])
         # infer() gives its outputs as arrays of their own (share_outputs is off): no copy
         if self.batch_dynamic or len(blob) == 1:
-            return np.asarray(self.request.infer([blob])[0])
-        return np.concatenate([np.asarray(self.request.infer([b[None]])[0]) for b in blob])
+            return np.asarray(self._one(blob).infer([blob])[0])
+        return np.concatenate([np.asarray(self._one(b[None]).infer([b[None]])[0]) for b in blob])
+
+    def _own(self, way: str, blob: np.ndarray) -> list | None:
+        """The requests of the model compiled for blob's shape, if it has one (None: the
+        dynamic model's)."""
+        if self.static is None:
+            return None
+        n, h, w = blob.shape[:3]
+        return self.static.requests((way, n, h, w))
+
+    def _one(self, blob: np.ndarray) -> ov.InferRequest:
+        own = self._own("one", blob)
+        return own[0] if own else self.request
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         return detect_letterboxed(self, images, imgsz, to_u8_blob)
+
+
+def _compile_static(source: ov.Model, key: Key, configs: dict[str, dict[str, str]]) -> list:
+    """The requests of `source` compiled for the one input shape of `key` (way, n, h, w),
+    with the configuration of its way (one request; or one per stream, the batch split)."""
+    way, n, h, w = key
+    net = source.clone()
+    net.reshape([n, 3, h, w])
+    compiled = ov_core().compile_model(_taking_bgr_bytes(net), "CPU", configs[way])
+    return [compiled.create_infer_request() for _ in range(STREAMS if way == "split" else 1)]
 
 
 def _taking_bgr_bytes(net: ov.Model) -> ov.Model:
