@@ -92,33 +92,9 @@ class OpenVinoPoseDetector:
             raise ModelError(
                 "the openvino backend needs OpenVINO: pip install 'stereopose[openvino]'"
             ) from None
-        self.device = ov_device(device)
-        have = core.available_devices
-        if self.device != "AUTO" and self.device.split(".")[0] not in {
-            d.split(".")[0] for d in have
-        }:
-            raise ModelError(
-                f"device {device!r}: OpenVINO finds no such device here "
-                f"(available: {', '.join(have) or 'none'})"
-            )
-        if precision == "bf16" and self.device == "CPU":
-            caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
-            if "BF16" not in caps:
-                raise ModelError(
-                    "precision bf16: this CPU has no bfloat16 instructions "
-                    "(AVX512_BF16 or AMX); use fp32"
-                )
-        try:
-            net = core.read_model(str(self.model))
-        except Exception as e:  # OpenVINO raises its own RuntimeError kinds on a bad file
-            raise ModelError(f"{self.model}: not a readable ONNX model: {e}") from None
-        if len(net.inputs) != 1 or net.inputs[0].get_partial_shape().rank.get_length() != 4:
-            raise ModelError(f"{self.model}: expected one image input (B, 3, H, W)")
-        meta = _metadata(net)
-        kpt = ast.literal_eval(meta["kpt_shape"]) if "kpt_shape" in meta else [NUM_JOINTS, 3]
-        if list(kpt) != [NUM_JOINTS, 3]:
-            raise ModelError(f"{self.model}: keypoint shape {kpt}, expected COCO-17 [17, 3]")
-        self.stride = int(meta.get("stride", 32))
+        self.device = _present_device(core, device, precision)
+        net = _read_pose_model(core, self.model)
+        self.stride = int(_metadata(net).get("stride", 32))
         shape = net.inputs[0].get_partial_shape()
         self.dynamic = shape[2].is_dynamic or shape[3].is_dynamic
         self.fixed = None if self.dynamic else (shape[2].get_length(), shape[3].get_length())
@@ -201,6 +177,41 @@ class OpenVinoPoseDetector:
 
     def detect(self, images: Sequence[np.ndarray], imgsz: int | None = None) -> list[Poses]:
         return detect_letterboxed(self, images, imgsz, to_u8_blob)
+
+
+def _present_device(core: ov.Core, device: str, precision: str) -> str:
+    """OpenVINO's name of the [detector] device, which must be here and able to run
+    `precision`."""
+    name = ov_device(device)
+    have = core.available_devices
+    if name != "AUTO" and name.split(".")[0] not in {d.split(".")[0] for d in have}:
+        raise ModelError(
+            f"device {device!r}: OpenVINO finds no such device here "
+            f"(available: {', '.join(have) or 'none'})"
+        )
+    if precision == "bf16" and name == "CPU":
+        caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+        if "BF16" not in caps:
+            raise ModelError(
+                "precision bf16: this CPU has no bfloat16 instructions (AVX512_BF16 or AMX); "
+                "use fp32"
+            )
+    return name
+
+
+def _read_pose_model(core: ov.Core, path: Path) -> ov.Model:
+    """The model at `path`, checked to be a COCO-17 pose model taking one image batch."""
+    try:
+        net = core.read_model(str(path))
+    except Exception as e:  # OpenVINO raises its own RuntimeError kinds on a bad file
+        raise ModelError(f"{path}: not a readable ONNX model: {e}") from None
+    if len(net.inputs) != 1 or net.inputs[0].get_partial_shape().rank.get_length() != 4:
+        raise ModelError(f"{path}: expected one image input (B, 3, H, W)")
+    meta = _metadata(net)
+    kpt = ast.literal_eval(meta["kpt_shape"]) if "kpt_shape" in meta else [NUM_JOINTS, 3]
+    if list(kpt) != [NUM_JOINTS, 3]:
+        raise ModelError(f"{path}: keypoint shape {kpt}, expected COCO-17 [17, 3]")
+    return net
 
 
 def _compile_static(source: ov.Model, key: Key, configs: dict[str, dict[str, str]]) -> list:
