@@ -3,16 +3,16 @@
 A model compiled with dynamic input shapes (any batch, any size: what regions and whole frames
 of any camera need) works out its shapes and memory at every call. A model compiled for one
 shape does that once, and its kernels are chosen for that shape: on the 2-core AMD EPYC, bf16,
-a batch of four 384x640 demo frames over two streams took 29.7 ms against 32.3, one frame 8.3
-against 9.9, one 320-pixel region 3.7 against 5.0 (1.09x to 1.33x; the fixed part of a call
-shrinks most, which is what regions pay for). Compiling one takes about 150 ms and holds about
-60 MB more.
+four whole demo frames took 30.7 ms against 33.1, one frame 9.3 against 10.4, one 320-pixel
+region 4.3 against 5.2 (1.08x to 1.19x; benchmarks/results/static_shapes.md): the fixed part
+of a call shrinks most, which is what regions pay for. Compiling one takes about 200 ms and
+holds about 60 MB more.
 
-`StaticShapes` counts the calls of each (way, batch, height, width) and compiles a model for one
-once it has been called AFTER times; at most MOST are made per detector, the first to come
-(a site's common calls come first and stay common: never swapped out and in again, so no call
-pays a compile twice). The rest run on the dynamic model. The same outputs either way, to the
-precision's own rounding.
+`StaticShapes` counts the calls of each (way, batch, height, width) and compiles a model for
+one once it has been called AFTER times (a shape common enough to repay its compile); at most
+MOST are made per detector, the first to come (a site's common calls come first and stay
+common: never swapped out and in again, so no call pays a compile twice). The rest run on the
+dynamic model. The same outputs either way, to the precision's own rounding.
 """
 
 from __future__ import annotations
@@ -28,9 +28,11 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-# calls of one shape before a model is compiled for it: more than the call prices' measure
-# makes of one (detection.call_costs: at most 12), so that prices are all the dynamic model's
-AFTER = 16
+# calls of one shape before a model is compiled for it: a shape this common repays its compile
+# (about 150 ms) within about as many calls again, at the 1-1.6 ms a call saves; a short run
+# (`run` on 100 frames) compiles nothing; and the call prices' measure (detection.call_costs,
+# at most 12 calls of one shape) prices the dynamic model alone
+AFTER = 128
 MOST = 4  # models compiled for one shape, at most, per detector
 COUNTED = 64  # shapes counted at once, at most (the counts start again beyond)
 
