@@ -247,6 +247,12 @@ def main() -> None:
         default="thread",
         help="[input] decoders to measure with 4 cameras: thread, process, or thread,process",
     )
+    ap.add_argument(
+        "--no-static",
+        action="store_true",
+        help="every call on OpenVINO's dynamic model (no model of one shape: "
+        "detection.openvino_static), for comparison",
+    )
     args = ap.parse_args()
     videos = demo_videos()
     if len(videos) != 4:
@@ -255,11 +261,14 @@ def main() -> None:
     if any(n % 4 or n <= 0 for n in counts):
         sys.exit("--cameras: multiples of 4 (the demo's cameras and their copies)")
     det = make_detector(backend=args.backend, threads=args.threads, precision=args.precision)
+    if args.no_static and hasattr(det, "static"):
+        det.static = None
     r = {
         "date": datetime.date.today().isoformat(),
         "machine": machine().replace("one thread", f"{args.threads} inference threads"),
         "precision": args.precision,
         "detector": str(getattr(det, "choice", args.backend)),
+        "models_of_one_shape": bool(getattr(det, "static", None)),
         "runs": [],
     }
     with tempfile.TemporaryDirectory() as tmp:
@@ -291,11 +300,21 @@ def main() -> None:
     save(args.name, r, markdown(r))
 
 
+def _static_said(r: dict) -> str:
+    """Whether OpenVINO compiled models of the shapes it met most (detection.openvino_static)."""
+    if "models_of_one_shape" not in r:
+        return ""
+    if r["models_of_one_shape"]:
+        return ", with models of the shapes it meets most (after 128 calls of one)"
+    return ", every call on OpenVINO's dynamic model (`--no-static`)"
+
+
 def markdown(r: dict) -> list[str]:
     md = [
         "# Keeping up: live demo cameras, pipelined",
         "",
-        f"{r['date']}, {r['machine']}, detector: {r.get('detector', r['precision'])}. The 4 "
+        f"{r['date']}, {r['machine']}, detector: {r.get('detector', r['precision'])}"
+        f"{_static_said(r)}. The 4 "
         "real demo videos "
         "(1088x1920, 60 fps, H.264) served live over HTTP by ffmpeg with stream copy; "
         f"substreams: the same at {SUB_SIZE[0]}x{SUB_SIZE[1]}. Before this work `run` made "
