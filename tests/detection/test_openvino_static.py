@@ -11,7 +11,7 @@ import pytest
 
 from demo_frames import demo_step
 from stereopose.detection import make_detector
-from stereopose.detection.openvino_static import AFTER, COUNTED, MOST, StaticShapes
+from stereopose.detection.openvino_static import AFTER, COUNTED, IDLE, MOST, StaticShapes
 
 pytest.importorskip("openvino")
 
@@ -58,6 +58,19 @@ def test_at_most_most_shapes_are_compiled_and_the_counts_stay_bounded():
     assert made == keys[:MOST] and s.shapes == keys[:MOST]
     assert s.requests(keys[0]) == [f"request {keys[0]}"]  # kept, never compiled again
     assert made == keys[:MOST]
+    # a new common shape takes the place of a model only once that one has gone unused for
+    # IDLE calls: the models in use stay, whatever else comes
+    late = ("split", 2, 64, 64)
+    for _ in range(IDLE // 2):
+        for key in keys[:MOST]:
+            s.requests(key)
+        assert s.requests(late) is None
+    assert made == keys[:MOST] and s.released == 0
+    for _ in range(IDLE):  # the first shape no longer called; the others still are
+        for key in keys[1:MOST]:
+            s.requests(key)
+    assert s.requests(late) == [f"request {late}"]
+    assert s.released == 1 and s.shapes == [*keys[1:MOST], late]
     # shapes seen a few times each never pile up counts beyond COUNTED
     t = StaticShapes(compile_)
     for i in range(5 * COUNTED):

@@ -9,10 +9,12 @@ of a call shrinks most, which is what regions pay for. Compiling one takes about
 holds about 60 MB more.
 
 `StaticShapes` counts the calls of each (way, batch, height, width) and compiles a model for
-one once it has been called AFTER times (a shape common enough to repay its compile); at most
-MOST are made per detector, the first to come (a site's common calls come first and stay
-common: never swapped out and in again, so no call pays a compile twice). The rest run on the
-dynamic model. The same outputs either way, to the precision's own rounding.
+one once it has been called AFTER times (a shape common enough to repay its compile). At most
+MOST are kept per detector. A new common shape takes the place of a model only when that model
+has gone unused for IDLE calls (cameras added, removed or changed on a service that runs for
+weeks): a model in use is never swapped out and in again, so no busy shape pays its compile
+twice. The rest run on the dynamic model. The same outputs either way, to the precision's own
+rounding.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ logger = logging.getLogger(__name__)
 # at most 12 calls of one shape) prices the dynamic model alone
 AFTER = 128
 MOST = 4  # models compiled for one shape, at most, per detector
+IDLE = 4096  # calls without one of them before another shape may take its place
 COUNTED = 64  # shapes counted at once, at most (the counts start again beyond)
 
 Key = tuple[str, int, int, int]  # way ("one": one request; "split": over the streams), n, h, w
@@ -50,23 +53,31 @@ class StaticShapes:
         self._lock = threading.Lock()
         self._counts: dict[Key, int] = {}
         self._made: dict[Key, list[ov.InferRequest]] = {}
+        self._used: dict[Key, int] = {}  # the call each model was last used at
+        self._clock = 0  # calls counted
         self.failed = False  # a compile failed: no more are tried
         self.calls = 0  # calls run on a model of their own shape
         self.compile_ms = 0.0  # spent compiling, in all
+        self.released = 0  # models let go for a new shape, having gone unused
 
     def requests(self, key: Key) -> list[ov.InferRequest] | None:
         with self._lock:
+            self._clock += 1
             made = self._made.get(key)
             if made is not None:
                 self.calls += 1
+                self._used[key] = self._clock
                 return made
-            if self.failed or len(self._made) >= MOST:
+            if self.failed:
                 return None
             n = self._counts.get(key, 0) + 1
             if n < AFTER:
                 if key not in self._counts and len(self._counts) >= COUNTED:
                     self._counts.clear()
                 self._counts[key] = n
+                return None
+            if len(self._made) >= MOST and not self._release():
+                self._counts[key] = n  # counted on: it may take an idle model's place later
                 return None
             self._counts.pop(key, None)
             t0 = time.perf_counter()
@@ -79,9 +90,21 @@ class StaticShapes:
             ms = 1000 * (time.perf_counter() - t0)
             self.compile_ms += ms
             self._made[key] = made
+            self._used[key] = self._clock
             self.calls += 1
         logger.debug("openvino: a model compiled for %s in %.0f ms", _said(key), ms)
         return made
+
+    def _release(self) -> bool:
+        """Let go of the model unused longest if it has gone unused for IDLE calls (under
+        the lock); whether one was."""
+        idle = min(self._made, key=lambda k: self._used[k])
+        if self._clock - self._used[idle] < IDLE:
+            return False
+        del self._made[idle], self._used[idle]
+        self.released += 1
+        logger.debug("openvino: the model for %s let go (unused)", _said(idle))
+        return True
 
     @property
     def shapes(self) -> list[Key]:
