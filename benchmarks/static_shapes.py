@@ -21,27 +21,12 @@ import datetime
 import statistics
 import time
 
-import cv2
 import numpy as np
 
+from call_cost import _frames  # frame 50 of the demo's 4 cameras
 from common import machine, save
 from stereopose.detection import make_detector
-from stereopose.detection.models import demo_videos
 from stereopose.detection.openvino_static import AFTER, MOST
-
-
-def _frames() -> list[np.ndarray]:
-    out = []
-    for v in demo_videos():
-        cap = cv2.VideoCapture(str(v))
-        cap.set(cv2.CAP_PROP_POS_FRAMES, 50)
-        ok, im = cap.read()
-        cap.release()
-        if ok:
-            out.append(im)
-    if len(out) != 4:
-        raise SystemExit("the demo videos are not in the cache: run `make install`")
-    return out
 
 
 def _crops(frames: list[np.ndarray], det) -> list[np.ndarray]:

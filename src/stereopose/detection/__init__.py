@@ -77,9 +77,9 @@ def cpu_bf16() -> bool | None:
     if importlib.util.find_spec("openvino") is None:
         return None
     try:
-        from stereopose.detection.openvino_core import ov_core
+        from stereopose.detection.openvino_core import cpu_has_bf16
 
-        return "BF16" in ov_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+        return cpu_has_bf16()
     except Exception as e:  # a broken install: as if it were not there
         logger.warning("openvino: cannot read the CPU's capabilities: %s", e)
         return None

@@ -70,14 +70,14 @@ class Int8Found:
 def find_int8(precision: str, measure: bool = True) -> Int8Found:
     """The default INT8 model's state here, weighed against the float model run by OpenVINO
     in `precision` (fp32 or bf16). measure: time it now if this machine has no figure yet."""
-    from stereopose.detection.int8_openvino import current, read_check
+    from stereopose.detection.int8_openvino import made_now, read_check
     from stereopose.detection.models import openvino_int8_path
 
     path = openvino_int8_path()
     if not path.is_file() or not path.with_suffix(".bin").is_file():
         return Int8Found(None, None, None)
     check = read_check(path)
-    if check and not current(path):
+    if check and not made_now(check):
         return Int8Found(path, check, None, stale=True)
     if not check or not check.get("accepted"):
         return Int8Found(path, check, None)

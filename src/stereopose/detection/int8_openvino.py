@@ -176,8 +176,12 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 def current(model: Path) -> bool:
     """Whether the INT8 model at `model` (.xml) is there with its check, made by this
     RECIPE (a model made by an older one is made again)."""
-    found = read_check(model) if model.is_file() else None
-    return found is not None and found.get("recipe") == RECIPE
+    return model.is_file() and made_now(read_check(model))
+
+
+def made_now(check: dict | None) -> bool:
+    """Whether an INT8 model's check says it was made by this RECIPE."""
+    return check is not None and check.get("recipe") == RECIPE
 
 
 def check_path(model: Path) -> Path:

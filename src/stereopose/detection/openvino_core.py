@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import openvino as ov
 
-__all__ = ["ov_core"]
+__all__ = ["cpu_has_bf16", "ov_core"]
 
 _lock = threading.Lock()
 _core = None
@@ -38,3 +38,8 @@ def ov_core() -> ov.Core:
 
             _core = ov.Core()
         return _core
+
+
+def cpu_has_bf16() -> bool:
+    """Whether OpenVINO finds bfloat16 instructions on this CPU (AVX512_BF16 or AMX)."""
+    return "BF16" in ov_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")

@@ -21,7 +21,7 @@ import numpy as np
 
 from stereopose.detection.base import MAX_DET, Poses, detect_letterboxed, to_u8_blob
 from stereopose.detection.models import ModelError, check_weights
-from stereopose.detection.openvino_core import ov_core
+from stereopose.detection.openvino_core import cpu_has_bf16, ov_core
 from stereopose.detection.openvino_static import Key, StaticShapes
 from stereopose.skeleton import NUM_JOINTS
 
@@ -32,18 +32,9 @@ logger = logging.getLogger(__name__)
 
 # INFERENCE_PRECISION_HINT: an INT8 model (detection.int8_openvino) runs its quantised
 # convolutions in integers and the rest, its pose head among them, in 32-bit floats, or in
-# bfloat16 where the CPU has it (`_int8_hint`)
+# bfloat16 where the CPU has it
 _HINTS = {"fp32": "f32", "bf16": "bf16", "int8": "f32"}
 STREAMS = 2  # a CPU's batches split over this many inference streams
-
-
-def _int8_hint(core: ov.Core) -> str:
-    """What an INT8 model's float layers run in on this CPU: bfloat16 where it has bfloat16
-    instructions (the model's check against fp32 is made the same way, on this machine: on an
-    AMD EPYC, 28 against 38 ms a batch of four demo frames, the same joints within the check's
-    noise), else 32-bit floats."""
-    caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
-    return "bf16" if "BF16" in caps else "f32"
 
 
 def ov_device(device: str) -> str:
@@ -93,8 +84,8 @@ class OpenVinoPoseDetector:
                 "the openvino backend needs OpenVINO: pip install 'stereopose[openvino]'"
             ) from None
         self.device = _present_device(core, device, precision)
-        net = _read_pose_model(core, self.model)
-        self.stride = int(_metadata(net).get("stride", 32))
+        net, meta = _read_pose_model(core, self.model)
+        self.stride = int(meta.get("stride", 32))
         shape = net.inputs[0].get_partial_shape()
         self.dynamic = shape[2].is_dynamic or shape[3].is_dynamic
         self.fixed = None if self.dynamic else (shape[2].get_length(), shape[3].get_length())
@@ -113,8 +104,11 @@ class OpenVinoPoseDetector:
             )
         if self.device != "AUTO":  # a GPU runs f16 unless told
             config["INFERENCE_PRECISION_HINT"] = _HINTS[precision]
-        if precision == "int8" and self.device == "CPU":
-            config["INFERENCE_PRECISION_HINT"] = _int8_hint(core)
+        if precision == "int8" and self.device == "CPU" and cpu_has_bf16():
+            # its float layers in bfloat16 where the CPU has it (its check against fp32 is
+            # made the same way, on this machine: on an AMD EPYC, 28 against 38 ms a batch of
+            # four demo frames, the same joints within the check's noise)
+            config["INFERENCE_PRECISION_HINT"] = "bf16"
         try:
             self.compiled = core.compile_model(net, self.device, config)
         except Exception as e:
@@ -189,18 +183,16 @@ def _present_device(core: ov.Core, device: str, precision: str) -> str:
             f"device {device!r}: OpenVINO finds no such device here "
             f"(available: {', '.join(have) or 'none'})"
         )
-    if precision == "bf16" and name == "CPU":
-        caps = core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
-        if "BF16" not in caps:
-            raise ModelError(
-                "precision bf16: this CPU has no bfloat16 instructions (AVX512_BF16 or AMX); "
-                "use fp32"
-            )
+    if precision == "bf16" and name == "CPU" and not cpu_has_bf16():
+        raise ModelError(
+            "precision bf16: this CPU has no bfloat16 instructions (AVX512_BF16 or AMX); use fp32"
+        )
     return name
 
 
-def _read_pose_model(core: ov.Core, path: Path) -> ov.Model:
-    """The model at `path`, checked to be a COCO-17 pose model taking one image batch."""
+def _read_pose_model(core: ov.Core, path: Path) -> tuple[ov.Model, dict[str, str]]:
+    """The model at `path`, checked to be a COCO-17 pose model taking one image batch, and
+    its metadata."""
     try:
         net = core.read_model(str(path))
     except Exception as e:  # OpenVINO raises its own RuntimeError kinds on a bad file
@@ -211,7 +203,7 @@ def _read_pose_model(core: ov.Core, path: Path) -> ov.Model:
     kpt = ast.literal_eval(meta["kpt_shape"]) if "kpt_shape" in meta else [NUM_JOINTS, 3]
     if list(kpt) != [NUM_JOINTS, 3]:
         raise ModelError(f"{path}: keypoint shape {kpt}, expected COCO-17 [17, 3]")
-    return net
+    return net, meta
 
 
 def _compile_static(source: ov.Model, key: Key, configs: dict[str, dict[str, str]]) -> list:
