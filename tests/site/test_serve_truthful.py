@@ -31,6 +31,7 @@ pytestmark = [pytest.mark.slow]
 
 SIZE = (96, 64)
 STOP_S = 5.0  # how long the process is stopped: past the 2 s camera timeout
+AFTER_STEPS = 6  # steps waited for after a stall (well within the tracker's max_lost_s)
 
 
 def _calibration(folder: Path) -> tuple[Path, list[str]]:
@@ -203,6 +204,11 @@ def test_a_stopped_process_is_one_service_stall_not_a_camera_down_each(tmp_path)
     assert "Traceback" not in log.read_text()
 
 
+def _measured(frame: dict) -> set[int]:
+    """The ids of the people measured in a frame of the poses (not bridged by prediction)."""
+    return {p["id"] for p in frame["people"] if not p["predicted"]}
+
+
 def _frames(data: Path) -> list[dict]:
     out = []
     for segment in sorted((data / "poses").glob("*.jsonl.gz")):
@@ -233,7 +239,11 @@ def test_the_demo_stopped_keeps_its_tracks_and_raises_no_camera_down(tmp_path):
         wait_until(inside, "a person inside a zone", timeout_s=150, poll_s=0.2)
         stopped, _ = _stall(proc, db)
         after = len(_frames(data))  # flushed so far
-        wait_until(lambda: len(_status(data)) and _status(data)["frames"] > 0, "status")
+        wait_until(lambda: _status(data).get("frames", 0) > 0, "status")
+        # a few steps after the stall: the people seen before it are seen again (short of
+        # max_lost_s, so a person unseen since before the stall is not lost meanwhile)
+        steps = _status(data)["frames"] + AFTER_STEPS
+        wait_until(lambda: _status(data).get("frames", 0) >= steps, "steps after the stall")
     finally:
         rc = _stop(proc, log)
     assert rc == 0, log.read_text()
@@ -246,7 +256,10 @@ def test_the_demo_stopped_keeps_its_tracks_and_raises_no_camera_down(tmp_path):
     assert len(frames) >= after
     gap = max(range(1, len(frames)), key=lambda i: frames[i]["t"] - frames[i - 1]["t"])
     assert frames[gap]["t"] - frames[gap - 1]["t"] >= STOP_S - 1.0  # the stall, in the poses
-    before_ids = {p["id"] for p in frames[gap - 1]["people"]}
-    after_ids = {p["id"] for p in frames[gap]["people"]}
-    assert before_ids and before_ids <= after_ids, (before_ids, after_ids)
+    # whoever was measured last before the stall is measured again after it, with their id
+    # (someone already bridged by prediction before it, such as the demo's far worker, shows
+    # again only once seen: the stall's first KEPT_S seconds age them past bridge_s)
+    before = [_measured(f) for f in frames[:gap] if _measured(f)]
+    after_ids = set().union(*(_measured(f) for f in frames[gap:]))
+    assert before and before[-1] <= after_ids, (before[-1] if before else None, after_ids)
     assert "Traceback" not in log.read_text()
