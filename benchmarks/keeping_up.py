@@ -44,6 +44,7 @@ from stereopose.calibration.formats import load_calibration
 from stereopose.config import Config, DetectorConfig
 from stereopose.detection import make_detector
 from stereopose.detection.models import demo_videos
+from stereopose.detection.openvino_static import AFTER
 from stereopose.fence import FenceMonitor, load_site
 from stereopose.io.cameraset import CameraSet
 from stereopose.io.packets import PacketRing
@@ -269,6 +270,7 @@ def main() -> None:
         "precision": args.precision,
         "detector": str(getattr(det, "choice", args.backend)),
         "models_of_one_shape": bool(getattr(det, "static", None)),
+        "models_of_one_shape_after": AFTER,  # calls of a shape before its model is made
         "runs": [],
     }
     with tempfile.TemporaryDirectory() as tmp:
@@ -305,7 +307,8 @@ def _static_said(r: dict) -> str:
     if "models_of_one_shape" not in r:
         return ""
     if r["models_of_one_shape"]:
-        return ", with models of the shapes it meets most (after 128 calls of one)"
+        after = r.get("models_of_one_shape_after", 128)  # the results of 2026-12-07: 128
+        return f", with models of the shapes it meets most (after {after} calls of one)"
     return ", every call on OpenVINO's dynamic model (`--no-static`)"
 
 
